@@ -1,0 +1,3 @@
+from uacell.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,24 @@
+"""Where the official OPC Foundation information models (NodeSet2 files) come from."""
+
+from uacell.models.source import (
+    MODELS,
+    ModelError,
+    ModelFile,
+    fetch_models,
+    locate_models,
+    models_dir,
+)
+from uacell.models.tables import FsmTable, StateInfo, TransitionInfo, fsm_table
+
+__all__ = [
+    "MODELS",
+    "FsmTable",
+    "ModelError",
+    "ModelFile",
+    "StateInfo",
+    "TransitionInfo",
+    "fetch_models",
+    "fsm_table",
+    "locate_models",
+    "models_dir",
+]

