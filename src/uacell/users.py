@@ -1,0 +1,223 @@
+"""The user store (``<data_dir>/users.toml``) and the login throttle.
+
+Passwords are kept only as argon2id hashes (argon2-cffi). The file is TOML, readable by an operator,
+written atomically with mode 0600 by ``uacell user add/remove``; a running server picks up changes
+on the next login. Pure apart from file I/O: no OPC UA stack here.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+import tempfile
+import time
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from argon2 import PasswordHasher
+from argon2.exceptions import InvalidHashError, VerificationError
+
+from uacell.roles import Role
+
+_log = logging.getLogger(__name__)
+
+USERS_FILE = "users.toml"
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._@-]{0,63}")
+
+
+class UserError(ValueError):
+    """A user cannot be added or removed (bad name, unknown user, empty password...)."""
+
+
+def validate_name(name: str) -> str:
+    """Return ``name`` if it is a valid user name (1-64 of letters, digits, ``._@-``, not leading)."""
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise UserError(
+            f"invalid user name {name!r}: use 1-64 letters, digits, '.', '_', '@' or '-', "
+            "starting with a letter or digit"
+        )
+    return name
+
+
+@dataclass(frozen=True)
+class User:
+    """A stored user (the hash never leaves this module through ``list``)."""
+
+    name: str
+    role: Role
+
+
+class UserStore:
+    """Users with roles and password hashes in one TOML file."""
+
+    def __init__(self, path: Path, *, hasher: PasswordHasher | None = None) -> None:
+        self.path = Path(path)
+        self._hasher = hasher or PasswordHasher()
+        self._entries: dict[str, tuple[Role, str]] = {}
+        self._stamp: tuple[int, int] | None = None
+        self._dummy_hash: str | None = None
+
+    @classmethod
+    def in_data_dir(cls, data_dir: Path, *, hasher: PasswordHasher | None = None) -> UserStore:
+        return cls(Path(data_dir) / USERS_FILE, hasher=hasher)
+
+    # reading ------------------------------------------------------------------------------------
+
+    def _load(self) -> dict[str, tuple[Role, str]]:
+        """The entries, re-read when the file changed (the CLI may edit it while the server runs)."""
+        try:
+            st = self.path.stat()
+        except FileNotFoundError:
+            self._entries, self._stamp = {}, None
+            return self._entries
+        stamp = (st.st_mtime_ns, st.st_size)
+        if stamp != self._stamp:
+            with self.path.open("rb") as f:
+                data = tomllib.load(f)
+            entries = {}
+            for name, item in data.get("users", {}).items():
+                try:
+                    entries[validate_name(name)] = (Role.parse(item["role"]), str(item["hash"]))
+                except (UserError, ValueError, KeyError, TypeError) as exc:
+                    _log.error("%s: ignoring user %r: %s", self.path, name, exc)
+            self._entries, self._stamp = entries, stamp
+        return self._entries
+
+    def list(self) -> list[User]:
+        """All users, sorted by name."""
+        return [User(n, r) for n, (r, _) in sorted(self._load().items())]
+
+    def role_of(self, name: str) -> Role | None:
+        entry = self._load().get(name)
+        return entry[0] if entry else None
+
+    def verify(self, name: str, password: str) -> Role | None:
+        """The user's role when ``password`` is right, else None."""
+        entry = self._load().get(name)
+        if entry is None and self._dummy_hash is None:
+            # Verifying unknown names against a hash keeps their timing like that of known names.
+            self._dummy_hash = self._hasher.hash("uacell-no-such-user")
+        stored = entry[1] if entry else (self._dummy_hash or "")
+        try:
+            self._hasher.verify(stored, password)
+        except (VerificationError, InvalidHashError):
+            return None
+        if entry is None:
+            return None
+        if self._hasher.check_needs_rehash(stored):
+            # Parameters were raised since this hash was made: store a fresh one.
+            entries = dict(self._load())
+            entries[name] = (entry[0], self._hasher.hash(password))
+            self._save(entries)
+        return entry[0]
+
+    # writing ------------------------------------------------------------------------------------
+
+    def add(self, name: str, role: Role | str, password: str) -> None:
+        """Add ``name`` or replace its role and password."""
+        validate_name(name)
+        role = Role.parse(role)
+        if not password:
+            raise UserError("the password must not be empty")
+        entries = dict(self._load())
+        entries[name] = (role, self._hasher.hash(password))
+        self._save(entries)
+
+    def remove(self, name: str) -> None:
+        entries = dict(self._load())
+        if name not in entries:
+            raise UserError(f"no user {name!r}")
+        del entries[name]
+        self._save(entries)
+
+    def _save(self, entries: dict[str, tuple[Role, str]]) -> None:
+        lines = [
+            "# uacell users. Managed with `uacell user add|remove|list`.",
+            "# Passwords are stored only as argon2id hashes.",
+        ]
+        for name, (role, hashed) in sorted(entries.items()):
+            # JSON string escaping is valid TOML basic-string escaping for these ASCII values.
+            lines += ["", f"[users.{json.dumps(name)}]", f"role = {json.dumps(role.label)}",
+                      f"hash = {json.dumps(hashed)}"]
+        atomic_write(self.path, ("\n".join(lines) + "\n").encode())
+        self._stamp = None
+
+
+def atomic_write(path: Path, data: bytes, mode: int = 0o600) -> None:
+    """Write ``data`` to ``path`` so readers see the old or the new file, never half of one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        os.fchmod(fd, mode)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    try:
+        dir_fd = os.open(path.parent, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(dir_fd)  # make the rename itself durable
+    finally:
+        os.close(dir_fd)
+
+
+class LoginThrottle:
+    """Slow down repeated login failures per client address.
+
+    After ``free`` failures in a row, each further failure makes the address wait ``base * 2**k``
+    seconds (capped at ``cap``) before its next attempt counts; a success resets it. Addresses idle
+    for ``forget_after`` seconds are forgotten.
+    """
+
+    def __init__(
+        self,
+        *,
+        base: float = 1.0,
+        cap: float = 30.0,
+        free: int = 2,
+        forget_after: float = 900.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.base, self.cap, self.free, self.forget_after = base, cap, free, forget_after
+        self._clock = clock
+        self._failures: dict[str, tuple[int, float]] = {}  # address -> (count, not before)
+        self._last_seen: dict[str, float] = {}
+
+    def wait_time(self, address: str) -> float:
+        """Seconds before ``address`` may try again (0.0 when it may try now)."""
+        self._forget_idle()
+        entry = self._failures.get(address)
+        if entry is None:
+            return 0.0
+        return max(0.0, entry[1] - self._clock())
+
+    def failed(self, address: str) -> float:
+        """Record a failure; returns the delay now imposed on ``address``."""
+        now = self._clock()
+        count = self._failures.get(address, (0, now))[0] + 1
+        excess = count - self.free
+        delay = min(self.base * 2 ** min(excess - 1, 32), self.cap) if excess > 0 else 0.0
+        self._failures[address] = (count, now + delay)
+        self._last_seen[address] = now
+        if delay:
+            _log.warning("%d failed logins in a row from %s: next attempt in %.1f s", count, address, delay)
+        return delay
+
+    def succeeded(self, address: str) -> None:
+        self._failures.pop(address, None)
+        self._last_seen.pop(address, None)
+
+    def _forget_idle(self) -> None:
+        now = self._clock()
+        for address in [a for a, t in self._last_seen.items() if now - t > self.forget_after]:
+            self.succeeded(address)
