@@ -1,0 +1,309 @@
+"""The uacell robot program format: small, line-based, written by hand (see docs/programs.md).
+
+A file is a *program* (what a task control runs) or a *module* (routines that programs call)::
+
+    program PickAndPlace version 1.0
+    use Gripper
+    speed 50
+    move 0 -20 30 0 45 0
+    call Gripper.pick
+    repeat 3
+      move 45 -10 20 0 40 0
+      wait 0.5
+    end
+
+``parse`` turns text into a ``Program`` or raises ``ProgramError`` naming the line and the reason.
+``expand`` resolves calls and loops against the loaded modules into the flat list of ``Step`` that
+the robot executes; a program pointer is an index into that list.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from importlib import resources
+
+AXIS_COUNT = 6
+MAX_SPEED_PERCENT = 100.0
+MAX_WAIT_SECONDS = 3600.0
+MAX_REPEAT = 10_000
+MAX_STEPS = 100_000  # after expansion; keeps a runaway nesting of loops from exhausting memory
+MAX_CALL_DEPTH = 16
+
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+_VERSION = re.compile(r"[A-Za-z0-9_.+\-]+\Z")
+_CALL = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\.([A-Za-z_][A-Za-z0-9_]*)\Z")
+
+
+class ProgramError(ValueError):
+    """The text is not a valid program or module; ``line`` is 1-based (0 when not tied to a line)."""
+
+    def __init__(self, line: int, reason: str) -> None:
+        super().__init__(f"line {line}: {reason}" if line else reason)
+        self.line = line
+        self.reason = reason
+
+
+class Kind(StrEnum):
+    PROGRAM = "program"
+    MODULE = "module"
+
+
+@dataclass(frozen=True)
+class Move:
+    """Joint move of all six axes to absolute positions in degrees."""
+
+    line: int
+    joints: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Speed:
+    """Speed override in percent of each axis's maximum speed, for the moves that follow."""
+
+    line: int
+    percent: float
+
+
+@dataclass(frozen=True)
+class Wait:
+    line: int
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Call:
+    line: int
+    module: str
+    routine: str
+
+
+@dataclass(frozen=True)
+class Repeat:
+    line: int
+    count: int
+    body: tuple[Instruction, ...]
+
+
+Instruction = Move | Speed | Wait | Call | Repeat
+
+
+@dataclass(frozen=True)
+class Program:
+    """A parsed program or module."""
+
+    name: str
+    kind: Kind
+    version: str
+    instructions: tuple[Instruction, ...]  # a module's main body is always empty
+    uses: tuple[str, ...]  # referenced modules, in order of their `use` lines
+    routines: Mapping[str, tuple[Instruction, ...]] = field(default_factory=dict)
+    source: str = field(default="", repr=False, compare=False)
+
+    @property
+    def referenced_modules(self) -> tuple[str, ...]:
+        return self.uses
+
+
+@dataclass(frozen=True)
+class Step:
+    """One executable instruction after expansion: a move or a wait.
+
+    ``speed`` is the override in force for a move. ``group`` numbers the top-level call a step belongs
+    to (``None`` outside calls): a ProcessStop finishes the group so a tool sequence is never cut.
+    """
+
+    kind: str  # "move" | "wait"
+    line: int
+    origin: str  # name of the program or module the line is in
+    joints: tuple[float, ...] = ()
+    speed: float = MAX_SPEED_PERCENT
+    seconds: float = 0.0
+    group: int | None = None
+
+
+def _number(token: str, line: int, what: str) -> float:
+    try:
+        value = float(token)
+    except ValueError:
+        raise ProgramError(line, f"{what}: {token!r} is not a number") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise ProgramError(line, f"{what}: {token!r} is not a finite number")
+    return value
+
+
+def parse(text: str, limits: Sequence[tuple[float, float]] | None = None) -> Program:
+    """Parse a program or module. ``limits`` are the (min, max) degrees of each axis, if known."""
+    if limits is not None and len(limits) != AXIS_COUNT:
+        raise ValueError(f"limits must give {AXIS_COUNT} axes")
+    header: tuple[Kind, str, str] | None = None
+    uses: list[str] = []
+    routines: dict[str, tuple[Instruction, ...]] = {}
+    # Block stack: (keyword, line, name or count, body being collected).
+    main: list[Instruction] = []
+    stack: list[tuple[str, int, str | int, list[Instruction]]] = []
+    calls: list[Call] = []
+
+    def body() -> list[Instruction]:
+        return stack[-1][3] if stack else main
+
+    for number, raw in enumerate(text.splitlines(), start=1):
+        words = raw.split("#", 1)[0].split()
+        if not words:
+            continue
+        keyword, args = words[0].lower(), words[1:]
+        if header is None:
+            if keyword not in (Kind.PROGRAM, Kind.MODULE):
+                raise ProgramError(number, "expected header 'program NAME' or 'module NAME'")
+            if len(args) not in (1, 3) or (len(args) == 3 and args[1].lower() != "version"):
+                raise ProgramError(number, f"header must be '{keyword} NAME [version V]'")
+            if not _NAME.match(args[0]):
+                raise ProgramError(number, f"invalid name {args[0]!r}")
+            version = args[2] if len(args) == 3 else ""
+            if version and not _VERSION.match(version):
+                raise ProgramError(number, f"invalid version {version!r}")
+            header = (Kind(keyword), args[0], version)
+            continue
+        kind = header[0]
+
+        def expect(n: int, usage: str, kw: str = keyword, got: list[str] = args, ln: int = number) -> None:
+            if len(got) != n:
+                raise ProgramError(ln, f"'{kw}' takes {usage}")
+
+        if kind is Kind.MODULE and not stack and keyword in ("move", "speed", "wait", "call", "repeat"):
+            raise ProgramError(number, f"'{keyword}' outside a routine (a module holds 'use' and 'routine')")
+        if keyword in (Kind.PROGRAM, Kind.MODULE):
+            raise ProgramError(number, "a file holds one program or module; second header found")
+        elif keyword == "use":
+            expect(1, "one module name")
+            if stack:
+                raise ProgramError(number, "'use' must be at top level")
+            if not _NAME.match(args[0]):
+                raise ProgramError(number, f"invalid module name {args[0]!r}")
+            if args[0] == header[1]:
+                raise ProgramError(number, f"{header[1]} cannot use itself")
+            if args[0] not in uses:
+                uses.append(args[0])
+        elif keyword == "move":
+            if len(args) != AXIS_COUNT:
+                raise ProgramError(number, f"'move' takes {AXIS_COUNT} joint positions in degrees")
+            joints = tuple(_number(a, number, f"axis {i + 1}") for i, a in enumerate(args))
+            for i, (value, lim) in enumerate(zip(joints, limits or (), strict=False)):
+                if not lim[0] <= value <= lim[1]:
+                    raise ProgramError(
+                        number,
+                        f"axis {i + 1} position {value:g} is outside its limits {lim[0]:g}..{lim[1]:g}",
+                    )
+            body().append(Move(number, joints))
+        elif keyword == "speed":
+            expect(1, "one percentage")
+            percent = _number(args[0], number, "speed")
+            if not 0 < percent <= MAX_SPEED_PERCENT:
+                raise ProgramError(number, f"speed {percent:g} must be above 0 and at most 100 percent")
+            body().append(Speed(number, percent))
+        elif keyword == "wait":
+            expect(1, "one duration in seconds")
+            seconds = _number(args[0], number, "wait")
+            if not 0 <= seconds <= MAX_WAIT_SECONDS:
+                raise ProgramError(number, f"wait {seconds:g} must be between 0 and {MAX_WAIT_SECONDS:g} s")
+            body().append(Wait(number, seconds))
+        elif keyword == "call":
+            expect(1, "MODULE.ROUTINE")
+            m = _CALL.match(args[0])
+            if not m:
+                raise ProgramError(number, f"call target {args[0]!r} must be MODULE.ROUTINE")
+            call = Call(number, m.group(1), m.group(2))
+            if call.module != header[1] and call.module not in uses:
+                raise ProgramError(number, f"call into {call.module} needs 'use {call.module}' first")
+            calls.append(call)
+            body().append(call)
+        elif keyword == "repeat":
+            expect(1, "a count")
+            count = _number(args[0], number, "repeat")
+            if count != int(count) or not 1 <= count <= MAX_REPEAT:
+                raise ProgramError(number, f"repeat count must be a whole number from 1 to {MAX_REPEAT}")
+            stack.append(("repeat", number, int(count), []))
+        elif keyword == "routine":
+            expect(1, "a name")
+            if kind is not Kind.MODULE:
+                raise ProgramError(number, "routines are defined in modules only")
+            if stack:
+                raise ProgramError(number, "'routine' must be at top level")
+            if not _NAME.match(args[0]):
+                raise ProgramError(number, f"invalid routine name {args[0]!r}")
+            if args[0] in routines:
+                raise ProgramError(number, f"routine {args[0]} is defined twice")
+            stack.append(("routine", number, args[0], []))
+        elif keyword == "end":
+            expect(0, "no arguments")
+            if not stack:
+                raise ProgramError(number, "'end' without 'repeat' or 'routine'")
+            block, start, what, collected = stack.pop()
+            if block == "routine":
+                routines[str(what)] = tuple(collected)
+            else:
+                body().append(Repeat(start, int(what), tuple(collected)))
+        else:
+            raise ProgramError(number, f"unknown statement {words[0]!r}")
+    if header is None:
+        raise ProgramError(0, "empty file: expected header 'program NAME' or 'module NAME'")
+    if stack:
+        block, start, _, _ = stack[-1]
+        raise ProgramError(start, f"'{block}' is not closed with 'end'")
+    for call in calls:
+        if call.module == header[1] and call.routine not in routines:
+            raise ProgramError(call.line, f"routine {call.routine} is not defined in {header[1]}")
+    kind, name, version = header
+    if kind is Kind.PROGRAM and not main:
+        raise ProgramError(0, f"program {name} has no instructions")
+    return Program(name, kind, version, tuple(main), tuple(uses), routines, text)
+
+
+def expand(program: Program, modules: Mapping[str, Program]) -> tuple[Step, ...]:
+    """The flat steps of ``program`` with calls resolved in ``modules`` (by name) and loops unrolled.
+
+    Raises ``ProgramError`` (at the calling line) when a module is not loaded, a routine is missing,
+    calls recurse too deeply, or the expansion is too long.
+    """
+    steps: list[Step] = []
+    groups = 0
+
+    def walk(items: Sequence[Instruction], origin: str, speed: float, group: int | None, depth: int) -> float:
+        nonlocal groups
+        for item in items:
+            match item:
+                case Move(line, joints):
+                    steps.append(Step("move", line, origin, joints=joints, speed=speed, group=group))
+                case Wait(line, seconds):
+                    steps.append(Step("wait", line, origin, seconds=seconds, speed=speed, group=group))
+                case Speed(_, percent):
+                    speed = percent
+                case Repeat(_, count, body):
+                    for _ in range(count):
+                        speed = walk(body, origin, speed, group, depth)
+                case Call(line, module, routine):
+                    target = program if module == program.name else modules.get(module)
+                    if target is None or target.kind is not Kind.MODULE:
+                        raise ProgramError(line, f"module {module} is not loaded ({origin})")
+                    if routine not in target.routines:
+                        raise ProgramError(line, f"module {module} has no routine {routine} ({origin})")
+                    if depth >= MAX_CALL_DEPTH:
+                        raise ProgramError(line, f"calls nest deeper than {MAX_CALL_DEPTH} ({origin})")
+                    if group is None:
+                        groups += 1
+                    # A routine's speed changes stay inside it, like a local setting.
+                    walk(target.routines[routine], module, speed, group or groups, depth + 1)
+            if len(steps) > MAX_STEPS:
+                raise ProgramError(0, f"{program.name} expands to more than {MAX_STEPS} steps")
+        return speed
+
+    walk(program.instructions, program.name, MAX_SPEED_PERCENT, None, 0)
+    return tuple(steps)
+
+
+def samples() -> dict[str, str]:
+    """The sample programs and modules shipped with uacell: file name -> text."""
+    folder = resources.files("uacell") / "samples"
+    return {f.name: f.read_text(encoding="utf-8") for f in folder.iterdir() if f.name.endswith(".robot")}
