@@ -1,0 +1,150 @@
+"""The interface between uacell's Robotics behaviour and a robot controller (simulated or real).
+
+``RobotEquipment`` has one hook per operation, like the OPC Foundation .NET Robotics server's
+``OnLoadByName``/``OnStart`` builders: the state bookkeeping (TaskControl, SystemOperation, Status
+values, events) is done once in ``uacell.robotics.model``; an implementation only moves the robot.
+``uacell.robotics.sim.SimulatedRobot`` is the built-in one; docs/equipment.md shows a skeleton for a
+real controller.
+
+Failures are reported by raising ``EquipmentError`` (or a subclass); the model turns them into the
+Status output of the method the client called.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Protocol, runtime_checkable
+
+from uacell.robotics.program import Program
+
+
+class ExecutionMode(IntEnum):
+    """Robotics ExecutionModeEnumeration."""
+
+    CYCLE = 0  # run the program once
+    CONTINUOUS = 1  # restart at the end until stopped
+    STEP = 2  # execute one instruction per Start
+
+
+class StopMode(IntEnum):
+    """The NodeSet's default PossibleStopModes."""
+
+    ON_PATH = 1  # brake along the programmed path within a short distance
+    END_OF_CYCLE = 2  # finish the current program cycle
+    PROCESS_STOP = 3  # finish the current process step (a routine call), then stop
+    QUICK_STOP = 4  # stop at once
+    END_OF_INSTRUCTION = 5  # finish the current instruction (move or wait)
+
+
+@dataclass(frozen=True)
+class AxisInfo:
+    """One axis of a motion device: name, position limits in degrees, maximum speed in degrees/s."""
+
+    name: str
+    min_position: float
+    max_position: float
+    max_speed: float
+
+    @property
+    def limits(self) -> tuple[float, float]:
+        return (self.min_position, self.max_position)
+
+
+@dataclass(frozen=True)
+class AxisState:
+    """An axis's actual position (degrees) and speed (degrees/s, signed, 0 when still)."""
+
+    position: float
+    speed: float
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    """How a run ended: where the program pointer is, and whether the program reached its end.
+
+    ``completed`` is true when the program ran to its end (CYCLE, the last STEP, or a CONTINUOUS run
+    stopped at the end of its cycle); the pointer is then 0.
+    """
+
+    pointer: int
+    completed: bool
+
+
+Progress = Callable[[int, int], None]
+"""Called by ``run`` when the program pointer moves: (pointer, source line of that instruction)."""
+
+AlarmListener = Callable[[str, bool, str], None]
+"""Called by equipment when an alarm changes: (alarm name, active, message)."""
+
+
+class EquipmentError(Exception):
+    """The controller could not do what was asked (the model answers Status 2 E_UnexpectedError)."""
+
+
+class ProgramRejected(EquipmentError):
+    """The controller refused the program or module content (Status -2, invalid content)."""
+
+
+class NotPowered(EquipmentError):
+    """The operation needs drive power and the robot is powered down."""
+
+
+class AlarmStop(EquipmentError):
+    """An alarm stopped the robot while it was running a program."""
+
+
+@runtime_checkable
+class RobotEquipment(Protocol):
+    """What the Robotics model asks of a robot controller. ``task`` names the task control.
+
+    All coroutines may take time; ``run`` lasts as long as the program runs. Implementations raise
+    ``EquipmentError`` (or a subclass) for failures and must leave their state unchanged then.
+    """
+
+    @property
+    def axes(self) -> Sequence[AxisInfo]:
+        """The axes of the motion device, in order (a program's ``move`` gives one value per axis)."""
+        ...
+
+    @property
+    def alarm_names(self) -> Sequence[str]:
+        """Names of the alarm conditions the controller can raise (fixed for its lifetime)."""
+        ...
+
+    def add_alarm_listener(self, listener: AlarmListener) -> None:
+        """Call ``listener`` whenever an alarm becomes active or inactive."""
+        ...
+
+    def axis_states(self) -> Sequence[AxisState]:
+        """The actual position and speed of every axis, now."""
+        ...
+
+    async def power_up(self) -> None:
+        """Switch drive power on and prepare to move (GetReady). May take seconds."""
+        ...
+
+    async def power_down(self) -> None:
+        """Switch drive power off (StandDown); also when a GetReady is cancelled."""
+        ...
+
+    async def load(self, task: str, program: Program) -> None:
+        """Load a parsed program (replacing the task's program; modules stay) or a module."""
+        ...
+
+    async def unload(self, task: str, name: str) -> None:
+        """Unload the program or module ``name`` from the task."""
+        ...
+
+    async def run(self, task: str, pointer: int, mode: ExecutionMode, progress: Progress) -> RunOutcome:
+        """Run the task's program from ``pointer`` until it ends, a step is done, or a stop takes effect.
+
+        Returns when the robot is still. Raises ``EquipmentError`` (``AlarmStop``) if it had to stop
+        for a fault; the program stays loaded.
+        """
+        ...
+
+    async def stop(self, task: str, mode: StopMode) -> None:
+        """Ask the running ``run`` of ``task`` to stop in ``mode``; returns at once (``run`` ends later)."""
+        ...
