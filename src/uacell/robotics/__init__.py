@@ -1,0 +1,55 @@
+"""OPC 40010-1 Robotics behaviour: programs, the equipment interface, the simulator and the model.
+
+Nothing here imports the OPC UA stack; ``uacell.robotics.binding`` ties it to nodes.
+"""
+
+from uacell.robotics.equipment import (
+    AlarmStop,
+    AxisInfo,
+    AxisState,
+    EquipmentError,
+    ExecutionMode,
+    NotPowered,
+    ProgramRejected,
+    RobotEquipment,
+    RunOutcome,
+    StopMode,
+)
+from uacell.robotics.model import (
+    Condition,
+    DirectoryLibrary,
+    ProgramLibrary,
+    RobotCell,
+    Status,
+    SystemOperation,
+    TaskControl,
+    TaskModule,
+)
+from uacell.robotics.program import Kind, Program, ProgramError, parse
+from uacell.robotics.sim import SimulatedRobot
+
+__all__ = [
+    "AlarmStop",
+    "AxisInfo",
+    "AxisState",
+    "Condition",
+    "DirectoryLibrary",
+    "EquipmentError",
+    "ExecutionMode",
+    "Kind",
+    "NotPowered",
+    "Program",
+    "ProgramError",
+    "ProgramLibrary",
+    "ProgramRejected",
+    "RobotCell",
+    "RobotEquipment",
+    "RunOutcome",
+    "SimulatedRobot",
+    "Status",
+    "StopMode",
+    "SystemOperation",
+    "TaskControl",
+    "TaskModule",
+    "parse",
+]

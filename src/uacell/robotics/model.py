@@ -1,0 +1,851 @@
+"""OPC 40010-1 remote operation, free of OPC UA: TaskControl, SystemOperation and the cell wiring them.
+
+The rules are uacell's decisions 8-21 (docs/robotics.md is the client's view of them). State lives
+only in ``uacell.fsm.StateMachine`` objects built from the NodeSet tables; the OPC UA binding
+listens to them and to ``listeners`` (called after any other observable change) and publishes.
+Operations return the Int32 ``Status`` of the Robotics methods, or raise ``CallError`` for Bad codes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Awaitable, Callable, Iterable, Sequence
+from dataclasses import dataclass
+from enum import IntEnum
+from pathlib import Path, PurePosixPath
+from typing import Protocol
+
+from uacell.errors import CallError
+from uacell.fsm import Reason, StateMachine
+from uacell.models import fsm_table
+from uacell.robotics.equipment import (
+    EquipmentError,
+    ExecutionMode,
+    ProgramRejected,
+    RobotEquipment,
+    RunOutcome,
+    StopMode,
+)
+from uacell.robotics.program import Kind, Program, ProgramError, expand, parse
+
+log = logging.getLogger(__name__)
+
+PROGRAM_SUFFIX = ".robot"
+
+
+class Status(IntEnum):
+    """Values of the Robotics methods' Int32 ``Status`` output (negative: uacell vendor codes)."""
+
+    OK = 0
+    E_SYSTEM_STATE = 1
+    E_UNEXPECTED_ERROR = 2
+    E_ACTIVE_ALARM = 3
+    E_ACKNOWLEDGE_REQUIRED = 4
+    NOT_FOUND = -1  # no such program/module file (load), or not loaded (unload)
+    INVALID_CONTENT = -2  # the file is not a valid program or module
+    UNRESOLVED_REFERENCE = -3  # Start: a used module is not loaded, or a called routine is missing
+    MODULE_REFERENCED = -4  # unload of a module the program or another module uses
+
+
+TC_METHODS = (
+    "LoadByNodeId",
+    "LoadByName",
+    "UnloadProgram",
+    "UnloadByNodeId",
+    "UnloadByName",
+    "Start",
+    "Stop",
+)
+SO_METHODS = ("GetReady", "StandDown", "Start", "Stop")
+
+
+# --- where programs come from ---------------------------------------------------------------------
+class ProgramLibrary(Protocol):
+    """The programs and modules available to load (the Controller's ``Programs`` folder)."""
+
+    def names(self) -> list[str]:
+        """Names LoadByName accepts."""
+        ...
+
+    def resolve(self, name: str) -> str | None:
+        """The relative path of the file called ``name``, or None."""
+        ...
+
+    def read(self, relpath: str) -> str:
+        """The file's text; ``FileNotFoundError`` if there is none, ``OSError`` if it cannot be read."""
+        ...
+
+
+class DirectoryLibrary:
+    """Programs stored as ``*.robot`` files in a directory tree; a file's name is its stem."""
+
+    def __init__(self, root: Path | str) -> None:
+        self.root = Path(root)
+
+    def _files(self) -> list[Path]:
+        if not self.root.is_dir():
+            return []
+        return sorted(p for p in self.root.rglob(f"*{PROGRAM_SUFFIX}") if p.is_file())
+
+    def names(self) -> list[str]:
+        return sorted({p.stem for p in self._files()})
+
+    def resolve(self, name: str) -> str | None:
+        # Sorted paths make the choice stable when two subdirectories hold the same name.
+        for p in self._files():
+            if p.stem == name:
+                return p.relative_to(self.root).as_posix()
+        return None
+
+    def read(self, relpath: str) -> str:
+        rel = PurePosixPath(relpath)
+        if rel.is_absolute() or ".." in rel.parts:
+            raise FileNotFoundError(relpath)
+        return (self.root / rel).read_text(encoding="utf-8")
+
+
+# --- observable data -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TaskModule:
+    """A module loaded on a task control (TaskModuleType: Name, Version, IsReferenced)."""
+
+    name: str
+    version: str
+    is_referenced: bool
+    relpath: str | None
+
+
+@dataclass
+class Condition:
+    """An acknowledgeable alarm condition in SystemOperation/Conditions."""
+
+    name: str
+    message: str = ""
+    active: bool = False
+    acked: bool = True
+
+
+Listener = Callable[[], None]
+
+
+class _Failure(Exception):
+    def __init__(self, status: Status, reason: str) -> None:
+        super().__init__(reason)
+        self.status = status
+
+
+def _resolve_stop_mode(value: int, possible: Sequence[StopMode], default: StopMode) -> StopMode:
+    if value == 0:
+        return default
+    if value not in [int(m) for m in possible]:
+        raise CallError("BadInvalidArgument", f"StopMode {value} is not in PossibleStopModes", argument=0)
+    return StopMode(value)
+
+
+def _notify(listeners: Iterable[Listener]) -> None:
+    for listener in list(listeners):
+        listener()
+
+
+class _Background:
+    """Background coroutines owned by one object (cancelled by ``close``)."""
+
+    def __init__(self) -> None:
+        self.tasks: set[asyncio.Task[None]] = set()
+
+    def spawn(self, coro: Awaitable[None]) -> asyncio.Task[None]:
+        task: asyncio.Task[None] = asyncio.ensure_future(coro)
+        self.tasks.add(task)
+        task.add_done_callback(self.tasks.discard)
+        return task
+
+    async def close(self) -> None:
+        for task in list(self.tasks):
+            task.cancel()
+        await asyncio.gather(*self.tasks, return_exceptions=True)
+
+
+# --- TaskControl -----------------------------------------------------------------------------------
+class TaskControl:
+    """One task control: loads programs and modules, runs them on the equipment (TaskControlStateMachine)."""
+
+    def __init__(
+        self,
+        name: str,
+        equipment: RobotEquipment,
+        library: ProgramLibrary,
+        *,
+        system: SystemOperation | None = None,
+        motion_devices: Sequence[str] = ("Arm1",),
+        possible_stop_modes: Sequence[StopMode] = tuple(StopMode),
+        default_stop_mode: StopMode = StopMode.ON_PATH,
+        execution_mode: ExecutionMode = ExecutionMode.CYCLE,
+    ) -> None:
+        self.name = name
+        self.equipment = equipment
+        self.library = library
+        self.system = system
+        self.motion_devices = tuple(motion_devices)
+        self.possible_stop_modes = tuple(possible_stop_modes)
+        self.default_stop_mode = default_stop_mode
+        self.execution_mode = execution_mode
+        self.machine = StateMachine(
+            "TaskControlStateMachine", fsm_table("Robotics", "TaskControlStateMachineType"), "Idle"
+        )
+        self.ready = StateMachine(
+            "ReadySubstateMachine",
+            fsm_table("Robotics", "ReadySubstateMachineType"),
+            "AtProgramStart",
+            parent=self.machine,
+            parent_state="Ready",
+        )
+        self.program: Program | None = None
+        self.program_file: str | None = None
+        self._modules: dict[str, tuple[Program, str | None]] = {}
+        self.pointer = 0  # index of the next step to execute
+        self.current_line = 0  # source line of the instruction being executed (0: none)
+        self.last_error = ""  # why the last operation failed, for logs and diagnostics
+        self.stopping = False
+        self.listeners: list[Listener] = []
+        self._lock = asyncio.Lock()
+        self._bg = _Background()
+        self._run: asyncio.Task[None] | None = None
+        if system is not None:
+            system.add_task(self)
+
+    def __repr__(self) -> str:
+        return f"<TaskControl {self.name} {self.machine.current} {self.program_name!r}>"
+
+    # observable data
+    @property
+    def program_name(self) -> str:
+        return self.program.name if self.program else ""
+
+    @property
+    def program_loaded(self) -> bool:
+        return self.program is not None
+
+    @property
+    def modules(self) -> list[TaskModule]:
+        used: set[str] = set(self.program.uses) if self.program else set()
+        for module, _ in self._modules.values():
+            used.update(module.uses)
+        return [TaskModule(m.name, m.version, m.name in used, rel) for m, rel in self._modules.values()]
+
+    @property
+    def state(self) -> str:
+        return self.machine.current
+
+    @property
+    def executing(self) -> bool:
+        return self.machine.current == "Executing"
+
+    def machines(self) -> list[StateMachine]:
+        return self.machine.walk()
+
+    def _changed(self) -> None:
+        _notify(self.listeners)
+        if self.system is not None:
+            self.system._changed()
+
+    # executable (decision 4)
+    def executable(self, machine_name: str, method: str) -> bool:
+        state = self.machine.current
+        if machine_name == "ReadySubstateMachine":
+            return method == "ResetToProgramStart" and state == "Ready"
+        if machine_name != "TaskControlStateMachine":
+            return False
+        match method:
+            case "LoadByNodeId" | "LoadByName":
+                return state in ("Idle", "Ready")
+            case "UnloadProgram":
+                return state == "Ready"
+            case "UnloadByNodeId" | "UnloadByName":
+                return state == "Ready" or (state == "Idle" and bool(self._modules))
+            case "Start":
+                return self._start_check() is None
+            case "Stop":
+                return state == "Executing" and not self.stopping
+        return False
+
+    # loading
+    async def load_by_name(self, name: str) -> int:
+        """LoadByName: a program or module from the library by file name (without extension)."""
+        async with self._lock:
+            if self.machine.current == "Executing":
+                return Status.E_SYSTEM_STATE
+            relpath = self.library.resolve(name)
+            if relpath is None:
+                return self._load_failed(Status.NOT_FOUND, f"no program or module named {name!r}")
+            return await self._load(relpath)
+
+    async def load_file(self, relpath: str) -> int:
+        """LoadByNodeId, after the binding resolved the NodeId to a file in Programs."""
+        async with self._lock:
+            if self.machine.current == "Executing":
+                return Status.E_SYSTEM_STATE
+            return await self._load(relpath)
+
+    async def _load(self, relpath: str) -> int:
+        try:
+            try:
+                text = self.library.read(relpath)
+            except FileNotFoundError:
+                raise _Failure(Status.NOT_FOUND, f"no file {relpath!r}") from None
+            except (OSError, UnicodeDecodeError) as e:
+                raise _Failure(Status.E_UNEXPECTED_ERROR, f"cannot read {relpath!r}: {e}") from e
+            try:
+                program = parse(text, [a.limits for a in self.equipment.axes])
+            except ProgramError as e:
+                raise _Failure(Status.INVALID_CONTENT, f"{relpath}: {e}") from e
+            if program.kind is Kind.MODULE and self.program is not None and program.name == self.program.name:
+                raise _Failure(Status.INVALID_CONTENT, f"module {program.name} has the program's name")
+            if program.kind is Kind.PROGRAM and program.name in self._modules:
+                raise _Failure(Status.INVALID_CONTENT, f"program {program.name} has a loaded module's name")
+            try:
+                await self.equipment.load(self.name, program)
+            except ProgramRejected as e:
+                raise _Failure(Status.INVALID_CONTENT, f"controller rejected {relpath}: {e}") from e
+            except EquipmentError as e:
+                raise _Failure(Status.E_UNEXPECTED_ERROR, f"controller could not load {relpath}: {e}") from e
+        except _Failure as f:
+            return self._load_failed(f.status, str(f))
+        except Exception as e:  # a bug in a library or equipment must not leave the machine half-done
+            log.exception("%s: loading %s failed", self.name, relpath)
+            return self._load_failed(Status.E_UNEXPECTED_ERROR, f"internal error: {e}")
+        if self.machine.current == "Executing":  # a run started while the controller was loading
+            return self._load_failed(Status.E_SYSTEM_STATE, "task control started during load")
+        self.last_error = ""
+        if program.kind is Kind.MODULE:
+            self._modules[program.name] = (program, relpath)
+            log.info("%s: loaded module %s %s", self.name, program.name, program.version)
+            self._changed()
+            return Status.OK
+        self.program, self.program_file, self.pointer, self.current_line = program, relpath, 0, 0
+        log.info("%s: loaded program %s %s", self.name, program.name, program.version)
+        if self.machine.current == "Idle":
+            self.machine.take("IdleToReady", Reason.EXTERNAL)
+            self.ready.enter("AtProgramStart", Reason.EXTERNAL)
+        elif self.ready.current == "Suspended":
+            self.ready.take("SuspendedToProgramStart", Reason.EXTERNAL)
+        self._changed()
+        return Status.OK
+
+    def _load_failed(self, status: Status, reason: str) -> int:
+        self.last_error = reason
+        log.warning("%s: load failed (Status %d): %s", self.name, status, reason)
+        if self.machine.current == "Idle" and status != Status.E_SYSTEM_STATE:
+            self.machine.take("IdleToIdle", Reason.ERROR)
+        self._changed()
+        return status
+
+    # unloading
+    async def unload_program(self) -> int:
+        """UnloadProgram: the program and all modules; Ready -> Idle."""
+        async with self._lock:
+            if self.machine.current != "Ready":
+                return Status.E_SYSTEM_STATE
+            return await self._unload_all()
+
+    async def unload_by_name(self, name: str) -> int:
+        """UnloadByName: the program (as UnloadProgram) or one module."""
+        async with self._lock:
+            if self.machine.current == "Executing":
+                return Status.E_SYSTEM_STATE
+            if self.program is not None and name == self.program.name:
+                return await self._unload_all()
+            return await self._unload_module(name)
+
+    async def unload_by_file(self, relpath: str) -> int:
+        """UnloadByNodeId with the FileType node of a loaded program or module."""
+        async with self._lock:
+            if self.machine.current == "Executing":
+                return Status.E_SYSTEM_STATE
+            if self.program is not None and self.program_file == relpath:
+                return await self._unload_all()
+            for program, rel in self._modules.values():
+                if rel == relpath:
+                    return await self._unload_module(program.name)
+            return self._fail(Status.NOT_FOUND, f"{relpath} is not loaded")
+
+    async def unload_module(self, name: str) -> int:
+        """UnloadByNodeId with a TaskModule node."""
+        async with self._lock:
+            if self.machine.current == "Executing":
+                return Status.E_SYSTEM_STATE
+            return await self._unload_module(name)
+
+    async def _unload_all(self) -> int:
+        assert self.program is not None
+        try:
+            for module in list(self._modules):
+                await self.equipment.unload(self.name, module)
+                del self._modules[module]
+            await self.equipment.unload(self.name, self.program.name)
+        except EquipmentError as e:
+            self._changed()
+            return self._fail(Status.E_UNEXPECTED_ERROR, f"controller could not unload: {e}")
+        log.info("%s: unloaded program %s", self.name, self.program.name)
+        self.program, self.program_file, self.pointer, self.current_line = None, None, 0, 0
+        self.machine.take("ReadyToIdle", Reason.EXTERNAL)
+        self._changed()
+        return Status.OK
+
+    async def _unload_module(self, name: str) -> int:
+        found = next((m for m in self.modules if m.name == name), None)
+        if found is None:
+            return self._fail(Status.NOT_FOUND, f"{name} is not loaded")
+        if found.is_referenced:
+            return self._fail(Status.MODULE_REFERENCED, f"module {name} is in use")
+        try:
+            await self.equipment.unload(self.name, name)
+        except EquipmentError as e:
+            return self._fail(Status.E_UNEXPECTED_ERROR, f"controller could not unload {name}: {e}")
+        del self._modules[name]
+        log.info("%s: unloaded module %s", self.name, name)
+        self._changed()
+        return Status.OK
+
+    def _fail(self, status: Status, reason: str) -> int:
+        self.last_error = reason
+        log.warning("%s: Status %d: %s", self.name, status, reason)
+        return status
+
+    # running
+    def _start_check(self) -> Status | None:
+        """Why Start would fail now (None: it can succeed)."""
+        if self.machine.current != "Ready" or self.program is None or self._lock.locked():
+            return Status.E_SYSTEM_STATE
+        if self.system is not None:
+            if not self.system.allows_task_start():
+                return Status.E_SYSTEM_STATE
+            alarm = self.system.alarm_status()
+            if alarm is not None:
+                return alarm
+        try:
+            expand(self.program, {n: m for n, (m, _) in self._modules.items()})
+        except ProgramError:
+            return Status.UNRESOLVED_REFERENCE
+        return None
+
+    async def start(self) -> int:
+        """Start: Ready -> Executing, from the program start or where it was suspended."""
+        return self._start(Reason.EXTERNAL)
+
+    def _start(self, reason: Reason) -> int:
+        problem = self._start_check()
+        if problem is not None:
+            if problem == Status.UNRESOLVED_REFERENCE:
+                assert self.program is not None
+                try:
+                    expand(self.program, {n: m for n, (m, _) in self._modules.items()})
+                except ProgramError as e:
+                    return self._fail(problem, str(e))
+            return self._fail(problem, f"cannot start in {self.machine.current}")
+        self.stopping = False
+        self.machine.take("ReadyToExecuting", reason)
+        mode = self.execution_mode
+        log.info("%s: started %s at step %d (%s)", self.name, self.program_name, self.pointer, mode.name)
+        self._run = self._bg.spawn(self._execute(self.pointer, self.execution_mode))
+        if self.system is not None:
+            self.system._task_started(self)
+        self._changed()
+        return Status.OK
+
+    async def _execute(self, pointer: int, mode: ExecutionMode) -> None:
+        reason: Reason
+        try:
+            outcome = await self.equipment.run(self.name, pointer, mode, self._progress)
+        except asyncio.CancelledError:
+            raise
+        except Exception as e:  # EquipmentError or a bug: the program stays loaded, the robot is still
+            if not isinstance(e, EquipmentError):
+                log.exception("%s: run failed", self.name)
+            self.last_error = f"run ended by a fault: {e}"
+            log.warning("%s: %s", self.name, self.last_error)
+            outcome, reason = RunOutcome(self.pointer, False), Reason.ERROR
+        else:
+            if self.stopping:
+                reason = Reason.EXTERNAL
+            elif outcome.completed:
+                reason = Reason.APPLICATION
+            else:
+                reason = Reason.SYSTEM  # a STEP done, or the controller stopped by itself
+        self._finish(outcome, reason)
+
+    def _progress(self, pointer: int, line: int) -> None:
+        self.pointer, self.current_line = pointer, line
+        _notify(self.listeners)
+
+    def _finish(self, outcome: RunOutcome, reason: Reason) -> None:
+        stopped = self.stopping
+        self.stopping = False
+        self.pointer, self.current_line = outcome.pointer, 0
+        self.machine.take("ExecutingToReady", reason)
+        # Decision 16: after Stop, Suspended; after the program ended by itself, AtProgramStart.
+        at_start = outcome.completed and not stopped and reason != Reason.ERROR
+        self.ready.enter("AtProgramStart" if at_start else "Suspended", reason)
+        log.info("%s: %s is Ready (%s, step %d)", self.name, self.program_name, reason.name, self.pointer)
+        if self.system is not None:
+            self.system._task_finished(self, reason)
+        self._changed()
+
+    async def stop(self, stop_mode: int) -> int:
+        """Stop: accepted at once (Status 0); ExecutingToReady follows when the robot has stopped."""
+        mode = _resolve_stop_mode(stop_mode, self.possible_stop_modes, self.default_stop_mode)
+        return await self._stop(mode)
+
+    async def _stop(self, mode: StopMode) -> int:
+        if self.machine.current != "Executing" or self.stopping:
+            return Status.E_SYSTEM_STATE
+        self.stopping = True
+        try:
+            await self.equipment.stop(self.name, mode)
+        except EquipmentError as e:
+            self.stopping = False
+            return self._fail(Status.E_UNEXPECTED_ERROR, f"controller could not stop: {e}")
+        log.info("%s: stopping (%s)", self.name, mode.name)
+        if self.system is not None:
+            self.system._task_stopping()
+        self._changed()
+        return Status.OK
+
+    async def reset_to_program_start(self) -> int:
+        """ResetToProgramStart: in Ready, move the program pointer to the start."""
+        if self.machine.current != "Ready":
+            return Status.E_SYSTEM_STATE
+        self.pointer, self.current_line = 0, 0
+        if self.ready.current == "Suspended":
+            self.ready.take("SuspendedToProgramStart", Reason.EXTERNAL)
+            self._changed()
+        return Status.OK
+
+    async def set_execution_mode(self, mode: int) -> int:
+        """Change ExecutionMode (CYCLE 0, CONTINUOUS 1, STEP 2); not while Executing."""
+        if mode not in [int(m) for m in ExecutionMode]:
+            raise CallError("BadInvalidArgument", f"ExecutionMode {mode} is unknown", argument=0)
+        if self.machine.current == "Executing":
+            return Status.E_SYSTEM_STATE
+        self.execution_mode = ExecutionMode(mode)
+        self._changed()
+        return Status.OK
+
+    async def wait_until_not_executing(self) -> None:
+        """Wait for a running program (if any) to end and the machine to leave Executing."""
+        if self._run is not None:
+            await asyncio.wait({self._run})
+
+    async def close(self) -> None:
+        await self._bg.close()
+
+
+# --- SystemOperation -------------------------------------------------------------------------------
+class SystemOperation:
+    """The robot system's power state and alarms (SystemOperationStateMachine), coupled to task controls."""
+
+    def __init__(
+        self,
+        equipment: RobotEquipment,
+        *,
+        possible_stop_modes: Sequence[StopMode] = tuple(StopMode),
+        default_stop_mode: StopMode = StopMode.ON_PATH,
+    ) -> None:
+        self.equipment = equipment
+        self.possible_stop_modes = tuple(possible_stop_modes)
+        self.default_stop_mode = default_stop_mode
+        self.machine = StateMachine(
+            "SystemOperationStateMachine", fsm_table("Robotics", "SystemOperationStateMachineType"), "Idle"
+        )
+        self.idle = StateMachine(
+            "IdleSubstateMachine",
+            fsm_table("Robotics", "IdleSubstateMachineType"),
+            "StandBy",
+            parent=self.machine,
+            parent_state="Idle",
+        )
+        self.executing = StateMachine(
+            "ExecutingSubstateMachine",
+            fsm_table("Robotics", "ExecutingSubstateMachineType"),
+            "Running",
+            parent=self.machine,
+            parent_state="Executing",
+        )
+        self.tasks: list[TaskControl] = []
+        self.conditions: dict[str, Condition] = {n: Condition(n) for n in equipment.alarm_names}
+        self.listeners: list[Listener] = []
+        self.condition_listeners: list[Callable[[Condition], None]] = []
+        self.powering_down = False
+        self.last_error = ""
+        self._stop_requested = False
+        self._getting_ready: asyncio.Task[None] | None = None
+        self._bg = _Background()
+        equipment.add_alarm_listener(self._on_alarm)
+
+    def __repr__(self) -> str:
+        return f"<SystemOperation {self.machine.current}>"
+
+    def add_task(self, task: TaskControl) -> None:
+        if task not in self.tasks:
+            self.tasks.append(task)
+            task.system = self
+
+    @property
+    def state(self) -> str:
+        return self.machine.current
+
+    def machines(self) -> list[StateMachine]:
+        return self.machine.walk()
+
+    def _changed(self) -> None:
+        _notify(self.listeners)
+
+    # conditions (decision 18)
+    def alarm_status(self) -> Status | None:
+        """E_ActiveAlarm if a condition is active, E_AcknowledgeRequired if one awaits acknowledging."""
+        if any(c.active for c in self.conditions.values()):
+            return Status.E_ACTIVE_ALARM
+        if any(not c.acked for c in self.conditions.values()):
+            return Status.E_ACKNOWLEDGE_REQUIRED
+        return None
+
+    def _on_alarm(self, name: str, active: bool, message: str) -> None:
+        cond = self.conditions.setdefault(name, Condition(name))
+        cond.message = message
+        cond.active = active
+        if active:
+            cond.acked = False
+        log.info("condition %s %s: %s", name, "active" if active else "inactive", message)
+        for listener in list(self.condition_listeners):
+            listener(cond)
+        self._changed()
+
+    def acknowledge(self, name: str, comment: str = "") -> None:
+        """The condition's Acknowledge method."""
+        cond = self.conditions.get(name)
+        if cond is None:
+            raise CallError("BadNodeIdUnknown", f"no condition {name!r}")
+        if cond.acked:
+            raise CallError("BadConditionBranchAlreadyAcked", f"{name} is already acknowledged")
+        cond.acked = True
+        log.info("condition %s acknowledged%s", name, f": {comment}" if comment else "")
+        for listener in list(self.condition_listeners):
+            listener(cond)
+        self._changed()
+
+    # coupling with task controls (decision 19)
+    def allows_task_start(self) -> bool:
+        m = self.machine
+        return not self.powering_down and (
+            m.current == "Ready" or (m.current == "Executing" and self.executing.current == "Running")
+        )
+
+    def _task_started(self, task: TaskControl) -> None:
+        if self.machine.current == "Ready":
+            self._stop_requested = False
+            self.machine.take("ReadyToExecuting", Reason.SYSTEM)
+            self.executing.enter("Running", Reason.SYSTEM)
+            self._changed()
+
+    def _task_stopping(self) -> None:
+        # The system is Stopping once every executing task is on its way to a stop.
+        if (
+            self.machine.current == "Executing"
+            and self.executing.current == "Running"
+            and all(t.stopping for t in self.tasks if t.executing)
+        ):
+            self.executing.take("RunningToStopping", Reason.SYSTEM)
+            self._changed()
+
+    def _task_finished(self, task: TaskControl, reason: Reason) -> None:
+        if self.machine.current != "Executing" or any(t.executing for t in self.tasks):
+            return
+        if self._stop_requested:
+            reason = Reason.EXTERNAL
+        elif reason == Reason.EXTERNAL:  # a task-control Stop: for the system it is a consequence
+            reason = Reason.SYSTEM
+        self._stop_requested = False
+        self.machine.take("ExecutingToReady", reason)
+        self._changed()
+
+    # executable (decision 4)
+    def executable(self, machine_name: str, method: str) -> bool:
+        if machine_name != "SystemOperationStateMachine":
+            return False
+        m = self.machine
+        match method:
+            case "GetReady":
+                return m.current == "Idle" and self.idle.current == "StandBy" and self.alarm_status() is None
+            case "StandDown":
+                return (m.current == "Idle" and self.idle.current == "GettingReady") or (
+                    m.current == "Ready" and not self.powering_down
+                )
+            case "Start":
+                return self._start_check() is None
+            case "Stop":
+                return m.current == "Executing" and self.executing.current == "Running"
+        return False
+
+    # methods
+    async def get_ready(self) -> int:
+        """GetReady: Idle -> (GettingReady) -> Ready once drive power is up. Returns when accepted."""
+        if self.machine.current != "Idle" or self.idle.current != "StandBy":
+            return Status.E_SYSTEM_STATE
+        alarm = self.alarm_status()
+        if alarm is not None:
+            return alarm
+        self.idle.take("StandByToGettingReady", Reason.EXTERNAL)
+        self._getting_ready = self._bg.spawn(self._power_up())
+        self._changed()
+        return Status.OK
+
+    async def _power_up(self) -> None:
+        try:
+            await self.equipment.power_up()
+        except asyncio.CancelledError:
+            raise
+        except Exception as e:
+            if not isinstance(e, EquipmentError):
+                log.exception("power up failed")
+            self.last_error = f"getting ready failed: {e}"
+            log.warning("%s", self.last_error)
+            self._getting_ready = None
+            self.idle.take("GettingReadyToStandBy", Reason.ERROR)
+            self.machine.take("IdleToIdle", Reason.ERROR)
+            self._changed()
+            return
+        self._getting_ready = None
+        self.machine.take("IdleToReady", Reason.EXTERNAL)
+        self._changed()
+
+    async def stand_down(self) -> int:
+        """StandDown: Ready -> Idle (drive power off), or cancel GettingReady (IdleToIdle)."""
+        m = self.machine
+        if m.current == "Idle" and self.idle.current == "GettingReady":
+            if self._getting_ready is not None:
+                self._getting_ready.cancel()
+                self._getting_ready = None
+            self.idle.take("GettingReadyToStandBy", Reason.EXTERNAL)
+            m.take("IdleToIdle", Reason.EXTERNAL)
+            self._bg.spawn(self._power_down(transition=False))
+            self._changed()
+            return Status.OK
+        if m.current != "Ready" or self.powering_down:
+            return Status.E_SYSTEM_STATE
+        self.powering_down = True
+        self._bg.spawn(self._power_down(transition=True))
+        self._changed()
+        return Status.OK
+
+    async def _power_down(self, transition: bool) -> None:
+        try:
+            await self.equipment.power_down()
+        except asyncio.CancelledError:
+            raise
+        except Exception as e:
+            if not isinstance(e, EquipmentError):
+                log.exception("power down failed")
+            self.last_error = f"standing down failed: {e}"
+            log.warning("%s", self.last_error)
+            self.powering_down = False
+            self._changed()
+            return
+        self.powering_down = False
+        if transition and self.machine.current == "Ready":
+            self.machine.take("ReadyToIdle", Reason.EXTERNAL)
+            self.idle.enter("StandBy", Reason.EXTERNAL)
+        self._changed()
+
+    def _start_check(self) -> Status | None:
+        if self.machine.current != "Ready" or self.powering_down:
+            return Status.E_SYSTEM_STATE
+        alarm = self.alarm_status()
+        if alarm is not None:
+            return alarm
+        problems = [t._start_check() for t in self.tasks if t.machine.current == "Ready" and t.program]
+        if not problems:
+            return Status.E_SYSTEM_STATE  # nothing to start: the system cannot be Executing without a task
+        if all(p is not None for p in problems):
+            return problems[0]
+        return None
+
+    async def start(self) -> int:
+        """Start: starts every task control that is Ready with a program; Ready -> Executing."""
+        problem = self._start_check()
+        if problem is not None:
+            return problem
+        self._stop_requested = False
+        self.machine.take("ReadyToExecuting", Reason.EXTERNAL)
+        self.executing.enter("Running", Reason.EXTERNAL)
+        for task in self.tasks:
+            if task.machine.current == "Ready" and task._start_check() is None:
+                task._start(Reason.SYSTEM)
+        self._changed()
+        return Status.OK
+
+    async def stop(self, stop_mode: int) -> int:
+        """Stop: stops every executing task control; ExecutingToReady when all have stopped."""
+        mode = _resolve_stop_mode(stop_mode, self.possible_stop_modes, self.default_stop_mode)
+        if self.machine.current != "Executing" or self.executing.current != "Running":
+            return Status.E_SYSTEM_STATE
+        self._stop_requested = True
+        self.executing.take("RunningToStopping", Reason.EXTERNAL)
+        self._changed()
+        for task in self.tasks:
+            if task.executing and not task.stopping:
+                status = await task._stop(mode)
+                if status != Status.OK:
+                    log.warning("system stop: %s answered %d", task.name, status)
+        return Status.OK
+
+    async def close(self) -> None:
+        await self._bg.close()
+
+
+# --- the cell ---------------------------------------------------------------------------------------
+class RobotCell:
+    """A controller: SystemOperation, its task controls, the equipment and the program library."""
+
+    def __init__(
+        self,
+        equipment: RobotEquipment,
+        library: ProgramLibrary,
+        *,
+        task_names: Sequence[str] = ("TaskControl1",),
+        motion_devices: Sequence[str] = ("Arm1",),
+        possible_stop_modes: Sequence[StopMode] = tuple(StopMode),
+        default_stop_mode: StopMode = StopMode.ON_PATH,
+    ) -> None:
+        if default_stop_mode not in possible_stop_modes:
+            raise ValueError("the default stop mode must be one of the possible stop modes")
+        self.equipment = equipment
+        self.library = library
+        self.system = SystemOperation(
+            equipment, possible_stop_modes=possible_stop_modes, default_stop_mode=default_stop_mode
+        )
+        self.tasks: dict[str, TaskControl] = {
+            name: TaskControl(
+                name,
+                equipment,
+                library,
+                system=self.system,
+                motion_devices=motion_devices,
+                possible_stop_modes=possible_stop_modes,
+                default_stop_mode=default_stop_mode,
+            )
+            for name in task_names
+        }
+
+    def machines(self) -> list[StateMachine]:
+        return self.system.machines() + [m for t in self.tasks.values() for m in t.machines()]
+
+    def add_listener(self, listener: Listener) -> None:
+        """Call ``listener`` after any change (state, data, executability) anywhere in the cell."""
+        self.system.listeners.append(listener)
+        for machine in self.machines():
+            machine.listeners.append(lambda _change: listener())
+
+    async def close(self) -> None:
+        for task in self.tasks.values():
+            await task.close()
+        await self.system.close()
