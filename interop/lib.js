@@ -1,0 +1,62 @@
+// Shared helpers for uacell's interoperability scripts (node-opcua-client).
+// Each script takes the endpoint as its first argument and prints one JSON object as its last line.
+"use strict";
+const {
+  OPCUAClient, MessageSecurityMode, SecurityPolicy, AttributeIds, makeBrowsePath, StatusCodes,
+} = require("node-opcua-client");
+
+const NS = {
+  DI: "http://opcfoundation.org/UA/DI/",
+  Robotics: "http://opcfoundation.org/UA/Robotics/",
+  PackML: "http://opcfoundation.org/UA/PackML/",
+  Cell: "urn:uacell:cell",
+};
+
+async function connect(endpoint, { securityMode, securityPolicy, userIdentity, certificateFile, privateKeyFile } = {}) {
+  const client = OPCUAClient.create({
+    endpointMustExist: false,
+    connectionStrategy: { maxRetry: 2, initialDelay: 200, maxDelay: 1000 },
+    securityMode: securityMode || MessageSecurityMode.None,
+    securityPolicy: securityPolicy || SecurityPolicy.None,
+    certificateFile, privateKeyFile,
+    requestedSessionTimeout: 60000,
+  });
+  await client.connect(endpoint);
+  const session = await client.createSession(userIdentity);
+  const nsArray = (await session.read({ nodeId: "i=2255", attributeId: AttributeIds.Value })).value.value;
+  const ns = {};
+  for (const [key, uri] of Object.entries(NS)) ns[key] = nsArray.indexOf(uri);
+  return { client, session, ns };
+}
+
+// path: "/<ns>:Name/<ns>:Name" with keys of NS instead of indexes, e.g. "/Cell:Robot1/Robotics:Controllers"
+async function resolve(session, ns, startNodeId, path) {
+  const concrete = path.replace(/(\w+):/g, (m, key) => (key in ns ? `${ns[key]}:` : m));
+  const result = await session.translateBrowsePath(makeBrowsePath(startNodeId, concrete));
+  if (!result.statusCode.equals(StatusCodes.Good) || !result.targets.length) {
+    throw new Error(`cannot resolve ${path}: ${result.statusCode.toString()}`);
+  }
+  return result.targets[0].targetId.toString();
+}
+
+function done(obj) {
+  process.stdout.write(JSON.stringify(obj) + "\n");
+}
+
+async function main(fn) {
+  try {
+    await fn();
+    process.exit(0);
+  } catch (err) {
+    console.error(err && err.stack ? err.stack : String(err));
+    process.exit(1);
+  }
+}
+
+const TASK_CONTROL = "/DI:DeviceSet/Cell:Robot1/Robotics:Controllers/Cell:Controller1/Robotics:TaskControls" +
+  "/Cell:TaskControl1/Robotics:TaskControlOperation/Robotics:TaskControlStateMachine";
+const SYSTEM_OPERATION = "/DI:DeviceSet/Cell:Robot1/Robotics:Controllers/Cell:Controller1" +
+  "/Robotics:SystemOperation/Robotics:SystemOperationStateMachine";
+const FILLER = "/PackML:PackMLObjects/Cell:Filler1";
+
+module.exports = { connect, resolve, done, main, NS, TASK_CONTROL, SYSTEM_OPERATION, FILLER };

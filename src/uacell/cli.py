@@ -1,0 +1,132 @@
+"""The ``uacell`` command: serve, models, user."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import errno
+import logging
+import signal
+import sys
+from pathlib import Path
+
+from uacell import __version__
+from uacell.config import load_config
+from uacell.errors import ConfigError
+from uacell.models import ModelError, fetch_models, locate_models, models_dir
+
+log = logging.getLogger("uacell")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="uacell", description="OPC UA server for robot cells and packaging units")
+    p.add_argument("--version", action="version", version=f"uacell {__version__}")
+    p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    serve = sub.add_parser("serve", help="serve the configured cell (the demo cell by default)")
+    serve.add_argument("--config", type=Path, help="TOML configuration file")
+    serve.add_argument("--host", help="address to listen on (default 127.0.0.1)")
+    serve.add_argument("--port", type=int, help="TCP port (default 4840)")
+    serve.add_argument("--data-dir", type=Path, help="data directory (default: per-user data directory)")
+    serve.add_argument("--models-dir", help="directory holding the official NodeSet files")
+
+    models = sub.add_parser("models", help="the official NodeSet files")
+    msub = models.add_subparsers(dest="action", required=True)
+    fetch = msub.add_parser("fetch", help="download and verify them into the per-user cache")
+    fetch.add_argument("--force", action="store_true", help="fetch again even if the cache is complete")
+    path = msub.add_parser("path", help="print the directory uacell reads them from")
+    path.add_argument("--models-dir", help="check this directory instead")
+
+    user = sub.add_parser("user", help="manage the users who may log in")
+    user.add_argument("--config", type=Path, help="TOML configuration file (for its data directory)")
+    user.add_argument("--data-dir", type=Path, help="data directory")
+    usub = user.add_subparsers(dest="action", required=True)
+    add = usub.add_parser("add", help="add a user or change an existing user's role and password")
+    add.add_argument("name")
+    add.add_argument("--role", required=True, choices=["observer", "operator", "engineer", "admin"])
+    add.add_argument("--password-stdin", action="store_true", help="read the password from standard input")
+    rm = usub.add_parser("remove", help="remove a user")
+    rm.add_argument("name")
+    usub.add_parser("list", help="list users and their roles")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        if args.command == "serve":
+            return _serve(args)
+        if args.command == "models":
+            return _models(args)
+        if args.command == "user":
+            return _user(args)
+    except (ConfigError, ModelError) as exc:
+        print(f"uacell: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    return 2
+
+
+def _models(args: argparse.Namespace) -> int:
+    if args.action == "fetch":
+        print(fetch_models(force=args.force))
+        return 0
+    locate_models(args.models_dir)
+    print(models_dir(args.models_dir))
+    return 0
+
+
+def _user(args: argparse.Namespace) -> int:
+    from uacell.users import run_user_command
+
+    config = load_config(args.config)
+    data_dir = args.data_dir or config.server.data_dir
+    return run_user_command(args, data_dir)
+
+
+def _serve(args: argparse.Namespace) -> int:
+    config = load_config(args.config)
+    if args.host:
+        config.server.host = args.host
+    if args.port is not None:
+        config.server.port = args.port
+    if args.data_dir:
+        config.server.data_dir = args.data_dir
+    if args.models_dir:
+        config.server.models_dir = args.models_dir
+    locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
+    return asyncio.run(_run(config))
+
+
+async def _run(config) -> int:
+    from uacell.server import UacellServer
+
+    app = UacellServer(config)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    await app.setup()
+    # asyncua logs a traceback of its own when it cannot bind; uacell says it in one line instead.
+    server_log = logging.getLogger("asyncua.server.server")
+    level = server_log.level
+    server_log.setLevel(logging.CRITICAL)
+    try:
+        await app.start()
+    except OSError as exc:
+        reason = "address already in use" if exc.errno == errno.EADDRINUSE else (exc.strerror or str(exc))
+        print(f"uacell: cannot listen on {config.server.host}:{config.server.port}: {reason}", file=sys.stderr)
+        with contextlib.suppress(Exception):
+            await app.stop()
+        return 2
+    finally:
+        server_log.setLevel(level)
+    print(f"uacell listening on {app.endpoint}", flush=True)
+    await stop.wait()
+    log.info("shutting down")
+    await app.stop()
+    return 0

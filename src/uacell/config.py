@@ -1,0 +1,123 @@
+"""uacell's configuration: a TOML file, overridden by command-line options.
+
+Every key is optional; without a file uacell serves the demo cell on 127.0.0.1:4840.
+
+```toml
+[server]
+host = "127.0.0.1"
+port = 4840
+data_dir = "/var/lib/uacell"      # default: the per-user data directory
+models_dir = "/opt/UA-Nodeset"    # default: the cache filled by 'uacell models fetch'
+anonymous_role = "operator"       # default: operator on loopback, observer otherwise
+allow_none_security = true        # default: only on loopback
+trust_on_first_use = false
+
+[robot]
+time_scale = 1.0                  # simulated robot: >1 runs faster than real time
+
+[packml]
+acting_time = 1.0                 # seconds each acting state of the simulated unit takes
+mach_speed = 60.0                 # initial MachSpeed, packages/min
+```
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import platformdirs
+
+from uacell.errors import ConfigError
+
+ROLES = ("observer", "operator", "engineer", "admin")
+
+
+@dataclass
+class ServerConfig:
+    host: str = "127.0.0.1"
+    port: int = 4840
+    data_dir: Path = field(default_factory=lambda: Path(platformdirs.user_data_dir("uacell")))
+    models_dir: str | None = None
+    anonymous_role: str | None = None
+    allow_none_security: bool | None = None
+    trust_on_first_use: bool = False
+
+
+@dataclass
+class RobotConfig:
+    time_scale: float = 1.0
+
+
+@dataclass
+class PackMLConfig:
+    acting_time: float = 1.0
+    mach_speed: float = 60.0
+
+
+@dataclass
+class Config:
+    server: ServerConfig = field(default_factory=ServerConfig)
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    packml: PackMLConfig = field(default_factory=PackMLConfig)
+    source: Path | None = None
+
+
+_SECTIONS = {"server": ServerConfig, "robot": RobotConfig, "packml": PackMLConfig}
+
+
+def _coerce(section: str, key: str, value: object, default: object) -> object:
+    name = f"[{section}] {key}"
+    if key == "data_dir":
+        if not isinstance(value, str):
+            raise ConfigError(f"{name} must be a path string")
+        return Path(value).expanduser()
+    if isinstance(default, bool) or key in ("allow_none_security",):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{name} must be true or false")
+        return value
+    if isinstance(default, int):
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise ConfigError(f"{name} must be an integer")
+        return value
+    if isinstance(default, float):
+        if not isinstance(value, int | float) or isinstance(value, bool) or value <= 0:
+            raise ConfigError(f"{name} must be a positive number")
+        return float(value)
+    if not isinstance(value, str):
+        raise ConfigError(f"{name} must be a string")
+    if key == "anonymous_role" and value not in ROLES:
+        raise ConfigError(f"{name} must be one of {', '.join(ROLES)}")
+    return value
+
+
+def load_config(path: str | Path | None = None) -> Config:
+    """Read ``path`` (or return the defaults); raises ConfigError saying what is wrong and where."""
+    config = Config()
+    if path is None:
+        return config
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"cannot read configuration {path}: {exc.strerror or exc}") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"configuration {path} is not valid TOML: {exc}") from exc
+    config.source = path
+    for section, values in data.items():
+        cls = _SECTIONS.get(section)
+        if cls is None or not isinstance(values, dict):
+            raise ConfigError(f"configuration {path}: unknown section [{section}]")
+        target = getattr(config, section)
+        known = {f.name for f in fields(cls)}
+        for key, value in values.items():
+            if key not in known:
+                raise ConfigError(f"configuration {path}: unknown key {key!r} in [{section}]")
+            try:
+                setattr(target, key, _coerce(section, key, value, getattr(target, key)))
+            except ConfigError as exc:
+                raise ConfigError(f"configuration {path}: {exc}") from exc
+    if not 0 <= config.server.port <= 65535:
+        raise ConfigError(f"configuration {path}: [server] port must be 0..65535")
+    return config

@@ -1,0 +1,81 @@
+"""Assemble one asyncua Server from a configuration: models, cell, bindings, endpoints."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+
+from asyncua import Server, ua
+
+from uacell import __version__
+from uacell.cell import CellBuilder, build_cell
+from uacell.config import Config
+from uacell.ua.nodesets import load_models
+
+log = logging.getLogger(__name__)
+
+APPLICATION_URI = "urn:uacell:server"
+PRODUCT_URI = "urn:uacell"
+
+# Called once the cell exists, before the server listens: each binds one domain to its nodes and
+# returns a coroutine function to run at shutdown (or None).
+Binder = Callable[["UacellServer"], Awaitable[Callable[[], Awaitable[None]] | None]]
+
+
+def _quiet_asyncua() -> None:
+    # asyncua logs every NodeSet quirk and every session at INFO/WARNING; keep uacell's log readable.
+    for name in ("asyncua", "asyncua.common.xmlimporter", "asyncua.server.address_space"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
+class UacellServer:
+    """One uacell server: call ``setup()``, then ``start()``; ``stop()`` at the end."""
+
+    def __init__(self, config: Config, binders: list[Binder] | None = None) -> None:
+        self.config = config
+        self.server = Server()
+        self.cell: CellBuilder | None = None
+        self.model_indexes: dict[str, int] = {}
+        self.binders = binders if binders is not None else default_binders()
+        self._closers: list[Callable[[], Awaitable[None]]] = []
+
+    @property
+    def data_dir(self) -> Path:
+        return self.config.server.data_dir
+
+    @property
+    def endpoint(self) -> str:
+        return f"opc.tcp://{self.config.server.host}:{self.config.server.port}/"
+
+    async def setup(self) -> None:
+        _quiet_asyncua()
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        await self.server.init()
+        self.server.set_endpoint(self.endpoint)
+        self.server.set_server_name("uacell")
+        await self.server.set_application_uri(APPLICATION_URI)
+        self.server.product_uri = PRODUCT_URI
+        await self.server.set_build_info(PRODUCT_URI, "uacell", "uacell", __version__, "0", ua.DateTime.now())
+        self.model_indexes = await load_models(self.server, self.config.server.models_dir)
+        self.cell = await build_cell(self.server, self.model_indexes)
+        for binder in self.binders:
+            closer = await binder(self)
+            if closer is not None:
+                self._closers.append(closer)
+
+    async def start(self) -> None:
+        await self.server.start()
+
+    async def stop(self) -> None:
+        for closer in reversed(self._closers):
+            try:
+                await closer()
+            except Exception:
+                log.exception("error while shutting down")
+        await self.server.stop()
+
+
+def default_binders() -> list[Binder]:
+    """The domain bindings of a full server (filled in as the domains are bound)."""
+    return []

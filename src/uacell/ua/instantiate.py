@@ -1,0 +1,350 @@
+"""Deep, type-driven instantiation.
+
+asyncua's ``instantiate`` copies the instance declarations below a type but misses the members that
+a nested child's *own* type declares (an ExecuteState without Start, a TaskControlStateMachine
+without LoadByName), and it turns placeholders such as ``<TaskModule>`` into real nodes. This module
+builds an instance from the type system instead:
+
+- the members of a node are those of its type and every supertype (a subtype's declaration wins by
+  BrowseName), overlaid by the children the instance declaration itself declares;
+- every Mandatory member is created, an Optional one when the ``Selection`` asks for it;
+- placeholders (``MandatoryPlaceholder``/``OptionalPlaceholder``) are never created; the caller adds
+  named instances in their place;
+- AddIns (``HasAddIn``) are named by the AddIn type's ``DefaultInstanceBrowseName``;
+- State and Transition objects carry no ModellingRule and are never copied.
+
+It works directly on asyncua's address space, which keeps start-up fast.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import logging
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+from asyncua import Server, ua
+from asyncua.server.address_space import AddressSpace
+
+log = logging.getLogger(__name__)
+
+MANDATORY = 78
+OPTIONAL = 80
+OPTIONAL_PLACEHOLDER = 11508
+MANDATORY_PLACEHOLDER = 11510
+HAS_ADDIN = 17604
+_HAS_MODELLING_RULE = 37
+_HAS_TYPE_DEFINITION = 40
+_HAS_SUBTYPE = 45
+_AGGREGATES = 44
+_ORGANIZES = 35
+_DEFAULT_INSTANCE_BROWSE_NAME = "DefaultInstanceBrowseName"
+_A = ua.AttributeIds
+
+
+@dataclass(frozen=True)
+class Member:
+    """One instance declaration that an instance may carry."""
+
+    decl: ua.NodeId
+    browse_name: ua.QualifiedName
+    node_class: ua.NodeClass
+    reference_type: ua.NodeId
+    rule: int | None
+    type_definition: ua.NodeId | None
+
+    @property
+    def is_placeholder(self) -> bool:
+        return self.rule in (OPTIONAL_PLACEHOLDER, MANDATORY_PLACEHOLDER)
+
+
+@dataclass
+class Selection:
+    """Which Optional members to create, as glob patterns over BrowseName paths.
+
+    A path is the chain of BrowseNames (without namespace prefixes) from the instance root, joined
+    with ``/``: ``TaskControlOperation/TaskControlStateMachine/LoadByName``. ``*`` matches within a
+    name, ``**`` matches any number of levels.
+    """
+
+    include: tuple[str, ...] = ()
+    exclude: tuple[str, ...] = ()
+    _cache: dict[str, bool] = field(default_factory=dict, repr=False)
+
+    def wants(self, path: str) -> bool:
+        hit = self._cache.get(path)
+        if hit is None:
+            hit = any(_match(path, p) for p in self.include) and not any(_match(path, p) for p in self.exclude)
+            self._cache[path] = hit
+        return hit
+
+
+def _match(path: str, pattern: str) -> bool:
+    # fnmatch's "*" already crosses "/"; make a single "*" stay within one name.
+    if "**" in pattern:
+        return fnmatch.fnmatchcase(path, pattern.replace("**", "*"))
+    return path.count("/") == pattern.count("/") and fnmatch.fnmatchcase(path, pattern)
+
+
+class TypeIndex:
+    """Questions about the type system, answered from asyncua's address space and cached."""
+
+    def __init__(self, aspace: AddressSpace) -> None:
+        self.aspace = aspace
+        self._members: dict[ua.NodeId, list[Member]] = {}
+        self._member_refs = self._subtypes(ua.NodeId(_AGGREGATES)) | {ua.NodeId(_ORGANIZES)}
+
+    def _subtypes(self, root: ua.NodeId) -> set[ua.NodeId]:
+        out, todo = {root}, [root]
+        while todo:
+            for ref in self.aspace[todo.pop()].references:
+                if ref.IsForward and ref.ReferenceTypeId == ua.NodeId(_HAS_SUBTYPE) and ref.NodeId not in out:
+                    out.add(ref.NodeId)
+                    todo.append(ref.NodeId)
+        return out
+
+    def attr(self, node: ua.NodeId, attribute: ua.AttributeIds):
+        value = self.aspace[node].attributes.get(attribute)
+        return None if value is None or value.value is None or value.value.Value is None else value.value.Value.Value
+
+    def supertype(self, type_id: ua.NodeId) -> ua.NodeId | None:
+        for ref in self.aspace[type_id].references:
+            if not ref.IsForward and ref.ReferenceTypeId == ua.NodeId(_HAS_SUBTYPE):
+                return ref.NodeId
+        return None
+
+    def type_chain(self, type_id: ua.NodeId) -> list[ua.NodeId]:
+        chain: list[ua.NodeId] = []
+        current: ua.NodeId | None = type_id
+        while current is not None and current in self.aspace:
+            chain.append(current)
+            current = self.supertype(current)
+        return chain
+
+    def is_subtype(self, type_id: ua.NodeId, base: ua.NodeId) -> bool:
+        return base in self.type_chain(type_id)
+
+    def _target(self, node: ua.NodeId, ref_type: int) -> ua.NodeId | None:
+        for ref in self.aspace[node].references:
+            if ref.IsForward and ref.ReferenceTypeId == ua.NodeId(ref_type):
+                return ref.NodeId
+        return None
+
+    def type_definition(self, node: ua.NodeId) -> ua.NodeId | None:
+        return self._target(node, _HAS_TYPE_DEFINITION)
+
+    def rule(self, node: ua.NodeId) -> int | None:
+        target = self._target(node, _HAS_MODELLING_RULE)
+        return None if target is None else target.Identifier
+
+    def declared_children(self, node: ua.NodeId) -> list[Member]:
+        """The children that ``node`` itself declares (with a ModellingRule)."""
+        out: list[Member] = []
+        for ref in self.aspace[node].references:
+            if not ref.IsForward or ref.ReferenceTypeId not in self._member_refs:
+                continue
+            if ref.NodeId not in self.aspace:
+                continue
+            rule = self.rule(ref.NodeId)
+            if rule is None:
+                continue  # States, Transitions and other type-only nodes
+            out.append(
+                Member(
+                    decl=ref.NodeId,
+                    browse_name=self.attr(ref.NodeId, _A.BrowseName),
+                    node_class=ua.NodeClass(self.attr(ref.NodeId, _A.NodeClass)),
+                    reference_type=ref.ReferenceTypeId,
+                    rule=rule,
+                    type_definition=self.type_definition(ref.NodeId),
+                )
+            )
+        return out
+
+    def type_members(self, type_id: ua.NodeId) -> list[Member]:
+        """Members of a type including its supertypes; the most derived declaration wins by name."""
+        cached = self._members.get(type_id)
+        if cached is None:
+            merged: dict[str, Member] = {}
+            for t in reversed(self.type_chain(type_id)):
+                for m in self.declared_children(t):
+                    merged[m.browse_name.Name] = m
+            cached = self._members[type_id] = list(merged.values())
+        return cached
+
+    def members(self, decl: ua.NodeId | None, type_id: ua.NodeId | None) -> list[Member]:
+        """Members of an instance declared by ``decl`` of type ``type_id``: type's, overlaid by decl's."""
+        merged: dict[str, Member] = {}
+        if type_id is not None:
+            for m in self.type_members(type_id):
+                merged[m.browse_name.Name] = m
+        if decl is not None:
+            for m in self.declared_children(decl):
+                merged[m.browse_name.Name] = m
+        return list(merged.values())
+
+    def addin_name(self, member: Member) -> ua.QualifiedName:
+        """An AddIn's BrowseName: its type's DefaultInstanceBrowseName, in the AddIn type's namespace.
+
+        (Robotics 1.02's SystemOperationType gives the name with the wrong namespace index; the
+        AddIn type's own namespace is what the specification means.)
+        """
+        if member.type_definition is None:
+            return member.browse_name
+        for t in self.type_chain(member.type_definition):
+            for ref in self.aspace[t].references:
+                if ref.IsForward and ref.BrowseName.Name == _DEFAULT_INSTANCE_BROWSE_NAME:
+                    value = self.attr(ref.NodeId, _A.Value)
+                    if isinstance(value, ua.QualifiedName) and value.Name:
+                        return ua.QualifiedName(value.Name, member.type_definition.NamespaceIndex)
+        return member.browse_name
+
+
+class Instantiator:
+    """Creates instances in one namespace, with NodeIds derived from their BrowseName paths."""
+
+    def __init__(self, server: Server, namespace_index: int) -> None:
+        self.server = server
+        self.ns = namespace_index
+        self.types = TypeIndex(server.iserver.aspace)
+        self._svc = server.iserver.node_mgt_service
+        # instance node -> the instance declaration it was made from (methods use it to find
+        # their standard definition)
+        self.declarations: dict[ua.NodeId, ua.NodeId] = {}
+
+    def _nodeid(self, path: str) -> ua.NodeId:
+        return ua.NodeId(path, self.ns)
+
+    def create(
+        self,
+        parent: ua.NodeId,
+        type_id: ua.NodeId,
+        name: str | ua.QualifiedName,
+        selection: Selection | None = None,
+        *,
+        reference_type: ua.NodeId | int = ua.ObjectIds.HasComponent,
+        path: str | None = None,
+    ) -> ua.NodeId:
+        """Create an Object of ``type_id`` called ``name`` below ``parent`` with all its members."""
+        selection = selection or Selection()
+        qname = name if isinstance(name, ua.QualifiedName) else ua.QualifiedName(name, self.ns)
+        base = path or qname.Name
+        nodeid = self._nodeid(base)
+        self._add_object(parent, nodeid, qname, type_id, None, _as_nodeid(reference_type))
+        self._fill(nodeid, base, "", None, type_id, selection)
+        return nodeid
+
+    def _fill(
+        self,
+        nodeid: ua.NodeId,
+        id_path: str,
+        rel_path: str,
+        decl: ua.NodeId | None,
+        type_id: ua.NodeId | None,
+        selection: Selection,
+    ) -> None:
+        for member in self.types.members(decl, type_id):
+            if member.is_placeholder:
+                continue
+            qname = member.browse_name
+            if member.reference_type == ua.NodeId(HAS_ADDIN):
+                qname = self.types.addin_name(member)
+            rel = f"{rel_path}/{qname.Name}" if rel_path else qname.Name
+            if member.rule != MANDATORY and not selection.wants(rel):
+                continue
+            child = self._nodeid(f"{id_path}.{qname.Name}")
+            if child in self.types.aspace:
+                continue
+            self._add_member(nodeid, child, qname, member)
+            self.declarations[child] = member.decl
+            self._fill(child, f"{id_path}.{qname.Name}", rel, member.decl, member.type_definition, selection)
+
+    def _add_member(self, parent: ua.NodeId, nodeid: ua.NodeId, qname: ua.QualifiedName, m: Member) -> None:
+        t = self.types
+        if m.node_class == ua.NodeClass.Object:
+            self._add_object(parent, nodeid, qname, m.type_definition, m.decl, m.reference_type)
+        elif m.node_class == ua.NodeClass.Variable:
+            attrs = ua.VariableAttributes()
+            self._common(attrs, m.decl)
+            value = t.aspace[m.decl].attributes.get(_A.Value)
+            attrs.Value = value.value.Value if value is not None and value.value is not None else ua.Variant()
+            attrs.DataType = t.attr(m.decl, _A.DataType) or ua.NodeId(ua.ObjectIds.BaseDataType)
+            attrs.ValueRank = t.attr(m.decl, _A.ValueRank) if t.attr(m.decl, _A.ValueRank) is not None else -2
+            attrs.ArrayDimensions = t.attr(m.decl, _A.ArrayDimensions) or []
+            attrs.AccessLevel = t.attr(m.decl, _A.AccessLevel) or ua.AccessLevel.CurrentRead.mask
+            attrs.UserAccessLevel = attrs.AccessLevel
+            attrs.MinimumSamplingInterval = t.attr(m.decl, _A.MinimumSamplingInterval) or 0.0
+            attrs.Historizing = False
+            attrs.SpecifiedAttributes = _mask(
+                "DisplayName", "Description", "Value", "DataType", "ValueRank", "ArrayDimensions",
+                "AccessLevel", "UserAccessLevel", "MinimumSamplingInterval", "Historizing",
+                "WriteMask", "UserWriteMask",
+            )
+            self._add(parent, nodeid, qname, ua.NodeClass.Variable, attrs, m.type_definition, m.reference_type)
+        elif m.node_class == ua.NodeClass.Method:
+            attrs = ua.MethodAttributes()
+            self._common(attrs, m.decl)
+            attrs.Executable = True
+            attrs.UserExecutable = True
+            attrs.SpecifiedAttributes = _mask(
+                "DisplayName", "Description", "Executable", "UserExecutable", "WriteMask", "UserWriteMask"
+            )
+            self._add(parent, nodeid, qname, ua.NodeClass.Method, attrs, None, m.reference_type)
+        else:
+            log.debug("not instantiating %s member %s", m.node_class, qname)
+
+    def _add_object(
+        self,
+        parent: ua.NodeId,
+        nodeid: ua.NodeId,
+        qname: ua.QualifiedName,
+        type_id: ua.NodeId | None,
+        decl: ua.NodeId | None,
+        reference_type: ua.NodeId,
+    ) -> None:
+        attrs = ua.ObjectAttributes()
+        if decl is not None:
+            self._common(attrs, decl)
+            attrs.EventNotifier = self.types.attr(decl, _A.EventNotifier) or 0
+        else:
+            attrs.DisplayName = ua.LocalizedText(qname.Name)
+            attrs.Description = ua.LocalizedText()
+            attrs.EventNotifier = 0
+        attrs.SpecifiedAttributes = _mask("DisplayName", "Description", "EventNotifier", "WriteMask", "UserWriteMask")
+        self._add(parent, nodeid, qname, ua.NodeClass.Object, attrs, type_id, reference_type)
+
+    def _common(self, attrs, decl: ua.NodeId) -> None:
+        attrs.DisplayName = self.types.attr(decl, _A.DisplayName) or ua.LocalizedText()
+        attrs.Description = self.types.attr(decl, _A.Description) or ua.LocalizedText()
+        attrs.WriteMask = 0
+        attrs.UserWriteMask = 0
+
+    def _add(self, parent, nodeid, qname, node_class, attrs, type_id, reference_type) -> None:
+        item = ua.AddNodesItem()
+        item.RequestedNewNodeId = nodeid
+        item.BrowseName = qname
+        item.NodeClass = node_class
+        item.ParentNodeId = parent
+        item.ReferenceTypeId = reference_type
+        item.TypeDefinition = type_id or ua.NodeId()
+        item.NodeAttributes = attrs
+        (result,) = self._svc.add_nodes([item])
+        if not result.StatusCode.is_good():
+            raise RuntimeError(f"cannot create {nodeid} ({qname.Name}): {result.StatusCode}")
+
+
+def _as_nodeid(ref: ua.NodeId | int) -> ua.NodeId:
+    return ref if isinstance(ref, ua.NodeId) else ua.NodeId(ref)
+
+
+def _mask(*names: str) -> int:
+    out = 0
+    for n in names:
+        out |= getattr(ua.NodeAttributesMask, n)
+    return out
+
+
+def browse_children(aspace: AddressSpace, node: ua.NodeId) -> Iterable[ua.ReferenceDescription]:
+    """Forward hierarchical children of an instance node."""
+    for ref in aspace[node].references:
+        if ref.IsForward and ref.ReferenceTypeId != ua.NodeId(_HAS_TYPE_DEFINITION):
+            yield ref

@@ -1,0 +1,125 @@
+"""Shared fixtures: free loopback ports, an in-process server, a `uacell serve` subprocess, node-opcua."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import AsyncIterator, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+INTEROP = ROOT / "interop"
+START_TIMEOUT = 120.0
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class ServeProcess:
+    proc: subprocess.Popen[str]
+    endpoint: str
+    data_dir: Path
+    output: list[str]
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 30.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            rc = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            rc = self.proc.wait()
+        self.output.append(self.proc.stdout.read() if self.proc.stdout else "")
+        return rc
+
+
+def start_serve(data_dir: Path, *extra: str, port: int | None = None, env: dict | None = None) -> ServeProcess:
+    """Run `uacell serve` on a free loopback port and wait for its listening line."""
+    port = port or free_port()
+    cmd = [sys.executable, "-m", "uacell", "--log-level", "WARNING", "serve", "--host", "127.0.0.1",
+           "--port", str(port), "--data-dir", str(data_dir), *extra]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, **(env or {})}
+    )
+    lines: list[str] = []
+    deadline = time.monotonic() + START_TIMEOUT
+    assert proc.stdout is not None
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        lines.append(line)
+        if line.startswith("uacell listening on "):
+            return ServeProcess(proc, line.split(" on ", 1)[1].strip(), data_dir, lines)
+    proc.kill()
+    raise AssertionError("uacell serve did not start:\n" + "".join(lines) + (proc.stdout.read() or ""))
+
+
+@pytest.fixture
+def serve_process(tmp_path: Path) -> Iterator[ServeProcess]:
+    """A real `uacell serve` subprocess on a free loopback port; stopped (SIGTERM) afterwards."""
+    sp = start_serve(tmp_path / "data")
+    yield sp
+    sp.stop()
+
+
+@pytest.fixture
+async def app(tmp_path: Path) -> AsyncIterator:
+    """An in-process uacell server with the demo cell on a free loopback port."""
+    from uacell.config import Config
+    from uacell.server import UacellServer
+
+    config = Config()
+    config.server.port = free_port()
+    config.server.data_dir = tmp_path / "data"
+    config.robot.time_scale = 20.0
+    config.packml.acting_time = 0.05
+    server = UacellServer(config)
+    await server.setup()
+    await server.start()
+    try:
+        yield server
+    finally:
+        await server.stop()
+
+
+@pytest.fixture
+async def client(app) -> AsyncIterator:
+    """An asyncua client connected anonymously (operator on loopback) to ``app``."""
+    from asyncua import Client
+
+    c = Client(app.endpoint, timeout=30)
+    await c.connect()
+    await c.load_data_type_definitions()
+    try:
+        yield c
+    finally:
+        await c.disconnect()
+
+
+def run_node(script: str, endpoint: str, *args: str, timeout: float = 120.0) -> dict:
+    """Run interop/<script> with node-opcua-client; it prints one JSON object as its last line."""
+    proc = subprocess.run(
+        ["node", str(INTEROP / script), endpoint, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=INTEROP,
+        check=False,
+    )
+    lines = [ln for ln in proc.stdout.splitlines() if ln.strip()]
+    if proc.returncode != 0 or not lines:
+        raise AssertionError(f"{script} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
+    return json.loads(lines[-1])

@@ -1,0 +1,66 @@
+"""`uacell serve` as a user runs it: listening line, clean exit, clear errors; node-opcua browses it."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+
+import pytest
+from conftest import free_port, run_node, start_serve
+
+
+def test_serve_prints_listening_line_and_exits_cleanly_on_sigint(tmp_path):
+    sp = start_serve(tmp_path / "data")
+    assert sp.endpoint.startswith("opc.tcp://127.0.0.1:")
+    rc = sp.stop(signal.SIGINT)
+    assert rc == 0
+    assert "Traceback" not in "".join(sp.output)
+
+
+def test_serve_exits_zero_on_sigterm(serve_process):
+    assert serve_process.stop(signal.SIGTERM) == 0
+    assert "Traceback" not in "".join(serve_process.output)
+
+
+def test_port_in_use_is_one_clear_line(serve_process, tmp_path):
+    port = serve_process.endpoint.rsplit(":", 1)[1].strip("/")
+    proc = subprocess.run(
+        [sys.executable, "-m", "uacell", "serve", "--port", port, "--data-dir", str(tmp_path / "other")],
+        capture_output=True, text=True, timeout=180, check=False,
+    )
+    assert proc.returncode == 2
+    assert f"uacell: cannot listen on 127.0.0.1:{port}: address already in use" in proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [
+        (None, "cannot read configuration"),
+        ("[server\nport = 1", "is not valid TOML"),
+        ("[server]\nport = 'x'", "[server] port must be an integer"),
+        ("[nonsense]\na = 1", "unknown section [nonsense]"),
+    ],
+)
+def test_unreadable_configuration_is_one_clear_line(tmp_path, content, expected):
+    cfg = tmp_path / "uacell.toml"
+    if content is not None:
+        cfg.write_text(content)
+    proc = subprocess.run(
+        [sys.executable, "-m", "uacell", "serve", "--config", str(cfg), "--port", str(free_port())],
+        capture_output=True, text=True, timeout=60, check=False,
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and expected in lines[0] and lines[0].startswith("uacell: ")
+
+
+@pytest.mark.interop
+def test_node_opcua_browses_to_the_state_machines_and_reads_arguments(serve_process):
+    out = run_node("browse.js", serve_process.endpoint)
+    ns = out["namespaces"]
+    assert out["walked"][-1] == "TaskControlStateMachine"
+    assert out["loadByNodeId"] == [{"name": "Id", "dataType": "ns=0;i=18", "valueRank": -1}]
+    assert out["start"] == [{"name": "Parameter", "dataType": f"ns={ns['PackML']};i=16", "valueRank": 1}]
+    assert out["executeStateType"] == [f"ns={ns['PackML']};i=1"]
