@@ -87,9 +87,7 @@ class _Handle:
         return bool(self.mode & MODE_WRITE)
 
 
-def _refuse(
-    status: str, message: str, argument: int | None = None, argument_status: str | None = None
-) -> NoReturn:
+def _refuse(status: str, message: str, argument: int | None = None, argument_status: str | None = None) -> NoReturn:
     logger.debug("file store refuses: %s (%s)", status, message)
     raise CallError(status, message, argument=argument, argument_status=argument_status)
 
@@ -450,9 +448,7 @@ class FileStore:
         if not path.exists():
             _refuse("BadNotFound", f"{relpath} not found", argument=argument)
         if want_dir is not None and path.is_dir() != want_dir:
-            _refuse(
-                "BadNotFound", f"{relpath} is not a {'directory' if want_dir else 'file'}", argument=argument
-            )
+            _refuse("BadNotFound", f"{relpath} is not a {'directory' if want_dir else 'file'}", argument=argument)
         return path
 
     def _rel(self, path: Path) -> str:
@@ -470,9 +466,7 @@ class FileStore:
             return
         for dirpath, dirnames, filenames in os.walk(base):
             here = Path(dirpath)
-            dirnames[:] = sorted(
-                d for d in dirnames if not d.startswith(TEMP_PREFIX) and not (here / d).is_symlink()
-            )
+            dirnames[:] = sorted(d for d in dirnames if not d.startswith(TEMP_PREFIX) and not (here / d).is_symlink())
             files = [f for f in filenames if not f.startswith(TEMP_PREFIX) and not (here / f).is_symlink()]
             for name in sorted([*dirnames, *files]):
                 yield here / name
