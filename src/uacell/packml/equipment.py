@@ -1,0 +1,198 @@
+"""The interface between the PackML model and the equipment behind it.
+
+The model (``PackMLUnit``) owns every rule; the equipment only does the physical work. It gets one
+hook per acting state and per unit command, and reports back through the ``UnitPort`` it was given
+in ``attach``: an acting state is done (``state_complete``), packages were produced
+(``report_production``), something broke (``fault``). Everything runs on the server's event loop:
+equipment that works in its own thread must hand its calls over with
+``loop.call_soon_threadsafe``.
+
+A hook that refuses (``validate_start``, ``on_unit_mode``, ``on_mach_speed``, ``on_product``,
+``on_parameter``, ``on_remote_command``, ``on_interlock``) raises ``uacell.errors.CallError``; the
+model then changes nothing and the client gets that status code. An acting-state hook that raises
+anything else is logged and turned into a fault (the unit aborts).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Protocol, runtime_checkable
+
+from uacell.packml.types import (
+    PackMLDescriptorDataType,
+    PackMLProductDataType,
+    PackMLRemoteInterfaceDataType,
+)
+
+
+class UnitPort(Protocol):
+    """What the equipment may call on the model."""
+
+    def now(self) -> float:
+        """The model's monotonic clock, in seconds."""
+        ...
+
+    @property
+    def state(self) -> str:
+        """The unit's innermost current state (e.g. ``"Execute"``, ``"Stopped"``, ``"Aborted"``)."""
+        ...
+
+    @property
+    def cur_mach_speed(self) -> float:
+        """The speed to produce at now (packages/min): MachSpeed in Execute, else 0."""
+        ...
+
+    def state_complete(self, state: str | None = None) -> bool:
+        """The acting state ``state`` (default: whichever runs) is done; False if it no longer runs."""
+        ...
+
+    def report_production(
+        self, processed: int = 0, defective: int = 0, consumed: int | Mapping[int, int] = 0
+    ) -> None:
+        """Add to ProdProcessedCount[0] / ProdDefectiveCount[0] / ProdConsumedCount (by ID or [0])."""
+        ...
+
+    def fault(self, alarm_id: int, message: str, *, value: int = 0, category: int = 0) -> None:
+        """Raise an alarm, record it as StopReason (first out) and abort the unit."""
+        ...
+
+    def warning(self, warning_id: int, message: str, *, active: bool = True) -> None:
+        """Raise (or, with ``active=False``, clear) a warning; warnings never stop the unit."""
+        ...
+
+    def set_blocked(self, blocked: bool) -> None: ...
+
+    def set_starved(self, starved: bool) -> None: ...
+
+    def equipment_command(self, method: str) -> None:
+        """Take a transition the machine itself decides (Hold, Suspend, Unhold, Unsuspend, ToComplete,
+        Stop, Abort); the same state rules as for clients apply."""
+        ...
+
+
+@runtime_checkable
+class PackMLEquipment(Protocol):
+    """One hook per acting state and per unit command. ``EquipmentBase`` implements all as no-ops."""
+
+    def attach(self, unit: UnitPort) -> None: ...
+
+    def poll(self, now: float) -> None:
+        """Called periodically by ``PackMLUnit.tick``; equipment without its own timing uses it."""
+        ...
+
+    # Acting states: do the work, then call ``unit.state_complete(<state>)``.
+    def on_clearing(self) -> None: ...
+    def on_stopping(self) -> None: ...
+    def on_aborting(self) -> None: ...
+    def on_resetting(self) -> None: ...
+    def on_starting(self, parameters: Sequence[PackMLDescriptorDataType]) -> None: ...
+    def on_completing(self) -> None: ...
+    def on_holding(self) -> None: ...
+    def on_unholding(self) -> None: ...
+    def on_suspending(self) -> None: ...
+    def on_unsuspending(self) -> None: ...
+
+    def on_execute(self) -> None:
+        """Execute was entered: produce at ``unit.cur_mach_speed``."""
+        ...
+
+    def on_state(self, state: str) -> None:
+        """The unit's innermost state changed (called for every state, before the acting hook)."""
+        ...
+
+    # Commands that may be refused by raising CallError (nothing has changed yet).
+    def validate_start(self, parameters: Sequence[PackMLDescriptorDataType]) -> None: ...
+    def on_unit_mode(self, mode: int) -> None: ...
+    def on_mach_speed(self, speed: float) -> None: ...
+    def on_product(self, products: Sequence[PackMLProductDataType]) -> None: ...
+    def on_parameter(self, parameters: Sequence[PackMLDescriptorDataType]) -> None: ...
+    def on_remote_command(self, commands: Sequence[PackMLRemoteInterfaceDataType]) -> None: ...
+    def on_interlock(self, interlock_id: int, interlocked: bool) -> None: ...
+
+    def close(self) -> None:
+        """The server shuts down."""
+        ...
+
+
+class EquipmentBase:
+    """No-op implementation of every hook: subclass it and override what your equipment does.
+
+    With this base alone acting states never complete; call ``self.unit.state_complete()`` when the
+    physical action is done.
+    """
+
+    unit: UnitPort
+
+    def attach(self, unit: UnitPort) -> None:
+        self.unit = unit
+
+    def poll(self, now: float) -> None:
+        pass
+
+    def on_clearing(self) -> None:
+        pass
+
+    def on_stopping(self) -> None:
+        pass
+
+    def on_aborting(self) -> None:
+        pass
+
+    def on_resetting(self) -> None:
+        pass
+
+    def on_starting(self, parameters: Sequence[PackMLDescriptorDataType]) -> None:
+        pass
+
+    def on_completing(self) -> None:
+        pass
+
+    def on_holding(self) -> None:
+        pass
+
+    def on_unholding(self) -> None:
+        pass
+
+    def on_suspending(self) -> None:
+        pass
+
+    def on_unsuspending(self) -> None:
+        pass
+
+    def on_execute(self) -> None:
+        pass
+
+    def on_state(self, state: str) -> None:
+        pass
+
+    def validate_start(self, parameters: Sequence[PackMLDescriptorDataType]) -> None:
+        pass
+
+    def on_unit_mode(self, mode: int) -> None:
+        pass
+
+    def on_mach_speed(self, speed: float) -> None:
+        pass
+
+    def on_product(self, products: Sequence[PackMLProductDataType]) -> None:
+        pass
+
+    def on_parameter(self, parameters: Sequence[PackMLDescriptorDataType]) -> None:
+        pass
+
+    def on_remote_command(self, commands: Sequence[PackMLRemoteInterfaceDataType]) -> None:
+        pass
+
+    def on_interlock(self, interlock_id: int, interlocked: bool) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+class InstantEquipment(EquipmentBase):
+    """Completes every acting state at once (useful for tests and dry runs)."""
+
+    def on_state(self, state: str) -> None:
+        # The model defers completions requested from inside a hook until the hook returns.
+        self.unit.state_complete(state)

@@ -1,0 +1,794 @@
+"""The pure ISA-TR88 / OPC 30050 PackML unit: three nested state machines, unit modes, Status, Admin.
+
+The transitions are the NodeSet's (``fsm_table``); this module adds only what the tables cannot say:
+which sub-state a machine is entered at (decision 23), when the unit mode disables a command
+(decision 26), the rules of the unit methods, and the Status/Admin bookkeeping (decisions 28, 29).
+Every public operation either succeeds or raises ``CallError`` having changed nothing (decision 22).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import Any
+
+from uacell.errors import CallError
+from uacell.fsm import Reason, StateMachine
+from uacell.models.tables import TransitionInfo, fsm_table
+from uacell.packml.admin_store import AdminStore
+from uacell.packml.equipment import EquipmentBase, PackMLEquipment
+from uacell.packml.types import (
+    EUInformation,
+    PackMLAlarmDataType,
+    PackMLCountDataType,
+    PackMLDescriptorDataType,
+    PackMLProductDataType,
+    PackMLRemoteInterfaceDataType,
+    ProductionMaintenanceModeEnum,
+    alarm_from_json,
+    alarm_to_json,
+    check_float,
+    count_from_json,
+    count_to_json,
+    validate_descriptors,
+    validate_products,
+    validate_remote_interfaces,
+)
+
+log = logging.getLogger(__name__)
+
+BASE = "BaseStateMachine"
+MACHINE = "MachineState"
+EXECUTE = "ExecuteState"
+UNIT = None  # machine_name of the unit's own methods (SetUnitMode, ...) in executable()/command()
+UNIT_METHODS = ("SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "RemoteCommand", "SetInterlock")
+
+Mode = ProductionMaintenanceModeEnum
+# Decision 23: the sub-state a machine is entered at when its parent enters the hosting state.
+ENTRY_STATE = {MACHINE: "Clearing", EXECUTE: "Resetting"}
+# Decision 26.
+MODE_DISABLED: dict[int, frozenset[str]] = {
+    Mode.MAINTENANCE: frozenset({"Suspend"}),
+    Mode.MANUAL: frozenset({"Start", "Suspend", "Hold", "ToComplete"}),
+}
+SET_UNIT_MODE_STATES = frozenset({"Stopped", "Idle", "Aborted"})
+# uacell's rule: products and parameters change only while no job runs (between Start and Complete).
+JOB_STATES = frozenset(
+    {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding",
+     "Suspending", "Suspended", "Unsuspending"}
+)
+# StopReason.ID for a commanded stop: the TR88 command number (packml-v101.md §11).
+STOP_COMMAND_IDS = {"Stop": 3, "Hold": 4, "Suspend": 6, "Abort": 8}
+STATE_COLUMNS = 18  # StateCurrentTime/StateCumulativeTime second index: TR88 state numbers 0..17
+INT32_WRAP = 2**31
+PACKAGES = EUInformation("http://www.opcfoundation.org/UA/units/un/cefact", 5262926, "pkg", "package")
+
+Listener = Callable[[dict[str, Any]], None]
+
+
+def _i32(x: float) -> int:
+    # Admin times and counts roll over at 2^31-1 (OPC 30050 §6.3.4).
+    return int(x) % INT32_WRAP
+
+
+@dataclass
+class Status:
+    """PackMLStatusObjectType values, plus uacell's StartParameters."""
+
+    unit_mode_current: int = Mode.PRODUCE
+    unit_mode_requested: bool = False
+    unit_mode_change_in_process: bool = False
+    state_requested: int = 0
+    state_change_in_process: bool = False
+    mach_speed: float = 0.0
+    mach_speed_range: tuple[float, float] = (0.0, 600.0)
+    cur_mach_speed: float = 0.0
+    equipment_blocked: bool = False
+    equipment_starved: bool = False
+    material_interlocked: bool = False
+    material_interlock: list[bool] = field(default_factory=list)
+    parameter: tuple[PackMLDescriptorDataType, ...] = ()
+    remote_parameter: tuple[PackMLRemoteInterfaceDataType, ...] = ()
+    product: tuple[PackMLProductDataType, ...] = ()
+    start_parameters: tuple[PackMLDescriptorDataType, ...] = ()
+
+
+@dataclass
+class Admin:
+    """PackMLAdminObjectType values (times in whole seconds, Int32 with roll-over)."""
+
+    parameter: tuple[PackMLDescriptorDataType, ...] = ()
+    alarm: list[PackMLAlarmDataType] = field(default_factory=list)
+    alarm_extent: int = 10
+    alarm_history: list[PackMLAlarmDataType] = field(default_factory=list)
+    alarm_history_extent: int = 50
+    warning: list[PackMLAlarmDataType] = field(default_factory=list)
+    warning_extent: int = 10
+    stop_reason: PackMLAlarmDataType = field(default_factory=lambda: PackMLAlarmDataType(0))
+    stop_reason_extent: int = 1
+    mode_current_time: list[int] = field(default_factory=list)
+    mode_cumulative_time: list[int] = field(default_factory=list)
+    state_current_time: list[list[int]] = field(default_factory=list)
+    state_cumulative_time: list[list[int]] = field(default_factory=list)
+    prod_consumed_count: list[PackMLCountDataType] = field(default_factory=list)
+    prod_processed_count: list[PackMLCountDataType] = field(default_factory=list)
+    prod_defective_count: list[PackMLCountDataType] = field(default_factory=list)
+    acc_time_since_reset: int = 0
+    mach_design_speed: float = 0.0
+
+
+class PackMLUnit:
+    """One PackML unit (an instance of PackMLBaseObjectType), free of OPC UA."""
+
+    def __init__(
+        self,
+        equipment: PackMLEquipment | None = None,
+        *,
+        name: str = "Filler1",
+        store: AdminStore | None = None,
+        mach_speed: float = 100.0,
+        mach_speed_range: tuple[float, float] = (0.0, 600.0),
+        mach_design_speed: float = 120.0,
+        supported_modes: Iterable[int] = (Mode.PRODUCE, Mode.MAINTENANCE, Mode.MANUAL),
+        initial_mode: int = Mode.PRODUCE,
+        interlocks: int = 4,
+        processed_counts: Sequence[PackMLCountDataType] | None = None,
+        consumed_counts: Sequence[PackMLCountDataType] | None = None,
+        alarm_extent: int = 10,
+        alarm_history_extent: int = 50,
+        warning_extent: int = 10,
+        save_interval: float = 10.0,
+        clock: Callable[[], float] = time.monotonic,
+        wall_clock: Callable[[], datetime] = lambda: datetime.now(UTC),
+        models_dir: str | None = None,
+    ) -> None:
+        self.name = name
+        self.store = store
+        self.save_interval = save_interval
+        self._clock = clock
+        self._wall = wall_clock
+        self.supported_modes = frozenset(int(m) for m in supported_modes) - {Mode.INVALID}
+        if initial_mode not in self.supported_modes:
+            raise ValueError(f"initial mode {initial_mode} is not a supported mode")
+
+        base_t = fsm_table("PackML", "PackMLBaseStateMachineType", models_dir)
+        machine_t = fsm_table("PackML", "PackMLMachineStateMachineType", models_dir)
+        execute_t = fsm_table("PackML", "PackMLExecuteStateMachineType", models_dir)
+        self.base = StateMachine(BASE, base_t, "Cleared")
+        self.machine = StateMachine(MACHINE, machine_t, "Stopped", parent=self.base,
+                                    parent_state=_hosting(base_t.states.values(), MACHINE))
+        self.execute = StateMachine(EXECUTE, execute_t, "Idle", parent=self.machine,
+                                    parent_state=_hosting(machine_t.states.values(), EXECUTE))
+        self.machines: dict[str, StateMachine] = {m.name: m for m in self.base.walk()}
+        self._methods = {name: m.table.methods for name, m in self.machines.items()}
+        # The "state complete" transitions: those no method causes. Their from-states are the acting states.
+        self._sc: dict[tuple[str, str], TransitionInfo] = {
+            (m.name, t.from_state): t for m in self.machines.values() for t in m.table.transitions.values()
+            if not t.causes
+        }
+
+        rows = max(self.supported_modes) + 1
+        self._mode_cum = [0.0] * rows
+        self._state_cum = [[0.0] * STATE_COLUMNS for _ in range(rows)]
+        self._mode_cur = 0.0
+        self._state_cur = 0.0
+        self._acc = 0.0
+        self.status = Status(
+            unit_mode_current=int(initial_mode),
+            mach_speed_range=(float(mach_speed_range[0]), float(mach_speed_range[1])),
+            material_interlock=[True] * interlocks,
+        )
+        self.status.mach_speed = float(mach_speed)
+        product = PackMLCountDataType(1, "Product", PACKAGES)
+        self.admin = Admin(
+            alarm_extent=alarm_extent,
+            alarm_history_extent=alarm_history_extent,
+            warning_extent=warning_extent,
+            prod_processed_count=list(processed_counts or [product]),
+            prod_defective_count=list(processed_counts or [product]),
+            prod_consumed_count=list(consumed_counts or [PackMLCountDataType(100, "Material", PACKAGES)]),
+            mach_design_speed=float(mach_design_speed),
+        )
+
+        self.listeners: list[Listener] = []
+        self._depth = 0
+        self._pending: list[str | None] = []
+        self._stop_armed = True  # the next stop event becomes StopReason (first out)
+        self._last_account = clock()
+        self._last_save = self._last_account
+        self._last_values: dict[str, Any] = {}
+        if store is not None:
+            self._load(store)
+        self._refresh()
+        self._last_values = self.values()
+        self.equipment: PackMLEquipment = equipment if equipment is not None else EquipmentBase()
+        self.equipment.attach(self)
+
+    # --- reading -----------------------------------------------------------------------------
+
+    def now(self) -> float:
+        return self._clock()
+
+    def innermost(self) -> StateMachine:
+        """The deepest active machine; its current state is the unit's TR88 state."""
+        sm = self.base
+        while True:
+            active = [c for c in sm.children if c.active]
+            if not active:
+                return sm
+            sm = active[0]
+
+    @property
+    def state(self) -> str:
+        return self.innermost().current
+
+    @property
+    def state_number(self) -> int:
+        sm = self.innermost()
+        return sm.table.states[sm.current].number
+
+    @property
+    def states(self) -> tuple[str, str | None, str | None]:
+        """(Base, Machine, Execute) current states, None for an inactive machine."""
+        return (
+            self.base.current,
+            self.machine.current if self.machine.active else None,
+            self.execute.current if self.execute.active else None,
+        )
+
+    @property
+    def acting_state(self) -> str | None:
+        """The acting state that is running (it ends when the equipment completes it), if any."""
+        sm = self.innermost()
+        return sm.current if (sm.name, sm.current) in self._sc else None
+
+    @property
+    def cur_mach_speed(self) -> float:
+        return self.status.cur_mach_speed
+
+    @property
+    def unit_mode(self) -> int:
+        return self.status.unit_mode_current
+
+    def executable(self, machine_name: str | None, method: str) -> bool:
+        """True exactly when calling ``method`` now could succeed (decision 4)."""
+        return self._refusal(machine_name, method) is None
+
+    def methods(self) -> list[tuple[str | None, str]]:
+        """Every (machine_name, method) the unit offers; machine_name None for the unit's methods."""
+        out: list[tuple[str | None, str]] = [(UNIT, m) for m in UNIT_METHODS]
+        for sm in self.machines.values():
+            out.extend((sm.name, m) for m in sorted(sm.table.methods))
+        return out
+
+    def values(self) -> dict[str, Any]:
+        """Every Status/Admin value by browse path relative to the unit, plus ``Executable``."""
+        s, a = self.status, self.admin
+        # Fresh containers of immutable items: listeners may keep them without copying.
+        return {
+            "Status/UnitModeCurrent": s.unit_mode_current,
+            "Status/UnitModeRequested": s.unit_mode_requested,
+            "Status/UnitModeChangeInProcess": s.unit_mode_change_in_process,
+            "Status/StateRequested": s.state_requested,
+            "Status/StateChangeInProcess": s.state_change_in_process,
+            "Status/MachSpeed": s.mach_speed,
+            "Status/MachSpeed/EURange": s.mach_speed_range,
+            "Status/CurMachSpeed": s.cur_mach_speed,
+            "Status/CurMachSpeed/EURange": s.mach_speed_range,
+            "Status/EquipmentBlocked": s.equipment_blocked,
+            "Status/EquipmentStarved": s.equipment_starved,
+            "Status/MaterialInterlocked": s.material_interlocked,
+            "Status/MaterialInterlock": list(s.material_interlock),
+            "Status/Parameter": list(s.parameter),
+            "Status/RemoteParameter": list(s.remote_parameter),
+            "Status/Product": list(s.product),
+            "Status/StartParameters": list(s.start_parameters),
+            "Admin/Parameter": list(a.parameter),
+            "Admin/Alarm": list(a.alarm),
+            "Admin/AlarmExtent": a.alarm_extent,
+            "Admin/AlarmHistory": list(a.alarm_history),
+            "Admin/AlarmHistoryExtent": a.alarm_history_extent,
+            "Admin/Warning": list(a.warning),
+            "Admin/WarningExtent": a.warning_extent,
+            "Admin/StopReason": a.stop_reason,
+            "Admin/StopReasonExtent": a.stop_reason_extent,
+            "Admin/ModeCurrentTime": list(a.mode_current_time),
+            "Admin/ModeCumulativeTime": list(a.mode_cumulative_time),
+            "Admin/StateCurrentTime": [list(r) for r in a.state_current_time],
+            "Admin/StateCumulativeTime": [list(r) for r in a.state_cumulative_time],
+            "Admin/ProdConsumedCount": list(a.prod_consumed_count),
+            "Admin/ProdProcessedCount": list(a.prod_processed_count),
+            "Admin/ProdDefectiveCount": list(a.prod_defective_count),
+            "Admin/AccTimeSinceReset": a.acc_time_since_reset,
+            "Admin/MachDesignSpeed": a.mach_design_speed,
+            "Executable": {key: self.executable(*key) for key in self.methods()},
+        }
+
+    # --- state-machine commands (decisions 22-25) ---------------------------------------------
+
+    def command(self, machine_name: str | None, method: str, *args: Any) -> None:
+        """Call ``method`` of ``machine_name`` (None: a unit method) with the method's input arguments."""
+        if machine_name is UNIT:
+            handler = {
+                "SetUnitMode": self.set_unit_mode, "SetMachSpeed": self.set_mach_speed,
+                "SetProduct": self.set_product, "SetParameter": self.set_parameter,
+                "RemoteCommand": self.remote_command, "SetInterlock": self.set_interlock,
+            }.get(method)
+            if handler is None:
+                raise CallError("BadMethodInvalid", f"the unit has no method {method}")
+            handler(*args)
+        elif method == "Start" and machine_name == EXECUTE:
+            self.start(*args)
+        else:
+            if args:
+                raise CallError("BadTooManyArguments", f"{method} takes no arguments")
+            self._machine_command(machine_name, method)
+
+    def abort(self) -> None:
+        self._machine_command(BASE, "Abort")
+
+    def clear(self) -> None:
+        self._machine_command(BASE, "Clear")
+
+    def stop(self) -> None:
+        self._machine_command(MACHINE, "Stop")
+
+    def reset_machine(self) -> None:
+        """MachineState.Reset: Stopped -> Running (Execute entered at Resetting)."""
+        self._machine_command(MACHINE, "Reset")
+
+    def reset_execute(self) -> None:
+        """ExecuteState.Reset: Complete -> Resetting."""
+        self._machine_command(EXECUTE, "Reset")
+
+    def start(self, parameters: Sequence[PackMLDescriptorDataType] = ()) -> None:
+        """ExecuteState.Start(Parameter): Idle -> Starting; the parameters go to the equipment."""
+        if parameters is None:
+            raise CallError("BadArgumentsMissing", "Start needs the Parameter argument (may be empty)")
+        params = validate_descriptors(list(parameters), argument=0, where="Parameter")
+        self._machine_command(EXECUTE, "Start", parameters=params)
+
+    def hold(self) -> None:
+        self._machine_command(EXECUTE, "Hold")
+
+    def unhold(self) -> None:
+        self._machine_command(EXECUTE, "Unhold")
+
+    def suspend(self) -> None:
+        self._machine_command(EXECUTE, "Suspend")
+
+    def unsuspend(self) -> None:
+        self._machine_command(EXECUTE, "Unsuspend")
+
+    def to_complete(self) -> None:
+        self._machine_command(EXECUTE, "ToComplete")
+
+    def _refusal(self, machine_name: str | None, method: str) -> str | None:
+        """Why ``method`` cannot succeed now, or None if it can."""
+        state = self.state
+        if machine_name is UNIT:
+            if method == "SetUnitMode":
+                return None if state in SET_UNIT_MODE_STATES else f"SetUnitMode is not allowed in {state}"
+            if method in ("SetProduct", "SetParameter"):
+                return f"{method} is not allowed while a job runs ({state})" if state in JOB_STATES else None
+            if method == "SetInterlock":
+                return None if self.status.material_interlock else "the unit has no material interlocks"
+            return None if method in UNIT_METHODS else f"the unit has no method {method}"
+        sm = self.machines.get(machine_name)
+        if sm is None or method not in self._methods[sm.name]:
+            return f"{machine_name} has no method {method}"
+        if not sm.active:
+            return f"{method}: {machine_name} is not active (unit is {state})"
+        if sm.table.caused_by(method, sm.current) is None:
+            return f"{method} is not allowed in {state}"
+        if method in MODE_DISABLED.get(self.status.unit_mode_current, ()):
+            return f"{method} is disabled in unit mode {self._mode_name()}"
+        if method == "Start" and self.status.material_interlocked:
+            return "Start is refused while MaterialInterlocked is true"
+        return None
+
+    def _machine_command(
+        self,
+        machine_name: str | None,
+        method: str,
+        *,
+        parameters: tuple[PackMLDescriptorDataType, ...] = (),
+        reason: Reason = Reason.EXTERNAL,
+        stop_reason: PackMLAlarmDataType | None = None,
+    ) -> None:
+        why = self._refusal(machine_name, method)
+        if why is not None:
+            if machine_name not in self.machines or method not in self.machines[machine_name].table.methods:
+                raise CallError("BadMethodInvalid", why)
+            raise CallError("BadInvalidState", why)
+        sm = self.machines[machine_name]  # type: ignore[index]
+        t = sm.table.caused_by(method, sm.current)
+        assert t is not None
+        if method == "Start":
+            # The equipment may refuse the parameters (e.g. an unknown ID) before anything changes.
+            self.equipment.validate_start(parameters)
+        with self._operation():
+            if method == "Start":
+                self.status.start_parameters = parameters
+            if method in STOP_COMMAND_IDS:
+                self._record_stop(stop_reason or PackMLAlarmDataType(
+                    STOP_COMMAND_IDS[method], 0, f"{method} commanded", 0, self._wall(), None, False))
+            if method == "Clear":
+                self._acknowledge_alarms()
+            self._take(sm, t, reason)
+
+    # --- equipment side (UnitPort) -------------------------------------------------------------
+
+    def state_complete(self, state: str | None = None) -> bool:
+        """The running acting state (``state``, if given) is done: take its SC transition."""
+        acting = self.acting_state
+        if acting is None or (state is not None and state != acting):
+            log.debug("%s: ignoring completion of %s (unit is %s)", self.name, state, self.state)
+            return False
+        if self._depth:
+            self._pending.append(acting)  # called from inside a hook: take it once the hook returns
+            return True
+        with self._operation():
+            return self._complete_now(acting)
+
+    def equipment_command(self, method: str) -> None:
+        """A transition the machine itself takes (same rules as for clients); innermost machine first."""
+        for sm in reversed(self.base.walk()):
+            if method in sm.table.methods and self._refusal(sm.name, method) is None:
+                self._machine_command(sm.name, method, reason=Reason.SYSTEM)
+                return
+        raise CallError("BadInvalidState", f"{method} is not possible in {self.state}")
+
+    def report_production(
+        self, processed: int = 0, defective: int = 0, consumed: int | Mapping[int, int] = 0
+    ) -> None:
+        with self._operation():
+            a = self.admin
+            if processed:
+                a.prod_processed_count[0] = _counted(a.prod_processed_count[0], processed)
+            if defective:
+                a.prod_defective_count[0] = _counted(a.prod_defective_count[0], defective)
+            amounts = consumed if isinstance(consumed, Mapping) else {a.prod_consumed_count[0].id: consumed}
+            for material, amount in amounts.items():
+                if not amount:
+                    continue
+                for i, c in enumerate(a.prod_consumed_count):
+                    if c.id == material:
+                        a.prod_consumed_count[i] = _counted(c, amount)
+                        break
+                else:
+                    raise ValueError(f"no ProdConsumedCount with ID {material}")
+
+    def fault(self, alarm_id: int, message: str, *, value: int = 0, category: int = 0) -> None:
+        with self._operation():
+            alarm = PackMLAlarmDataType(alarm_id, value, message, category, self._wall(), None, True)
+            _push(self.admin.alarm, alarm, self.admin.alarm_extent)
+            _push(self.admin.alarm_history, alarm, self.admin.alarm_history_extent)
+            log.warning("%s: fault %s: %s", self.name, alarm_id, message)
+            if self._refusal(BASE, "Abort") is None:
+                self._machine_command(BASE, "Abort", reason=Reason.ERROR, stop_reason=alarm)
+            else:
+                self._record_stop(alarm)
+
+    def warning(self, warning_id: int, message: str, *, active: bool = True) -> None:
+        with self._operation():
+            w = self.admin.warning
+            w[:] = [x for x in w if x.id != warning_id]
+            if active:
+                _push(w, PackMLAlarmDataType(warning_id, 0, message, 0, self._wall(), None, True),
+                      self.admin.warning_extent)
+
+    def set_blocked(self, blocked: bool) -> None:
+        with self._operation():
+            self.status.equipment_blocked = bool(blocked)
+
+    def set_starved(self, starved: bool) -> None:
+        with self._operation():
+            self.status.equipment_starved = bool(starved)
+
+    # --- unit methods (decisions 26, 27) -------------------------------------------------------
+
+    def set_unit_mode(self, mode: int) -> None:
+        if isinstance(mode, bool) or not isinstance(mode, int) or mode not in self.supported_modes:
+            raise CallError("BadInvalidArgument", f"RequestedMode {mode!r} is not a supported mode "
+                            f"({sorted(self.supported_modes)})", argument=0)
+        self._check(UNIT, "SetUnitMode")
+        with self._operation():
+            s = self.status
+            s.unit_mode_requested = s.unit_mode_change_in_process = True
+            self._publish()  # clients may see the request in process before the new mode
+            try:
+                self.equipment.on_unit_mode(mode)
+            finally:
+                s.unit_mode_requested = s.unit_mode_change_in_process = False
+            self._account()
+            s.unit_mode_current = int(mode)
+            self._mode_cur = self._state_cur = 0.0
+            self.save()
+
+    def set_mach_speed(self, speed: float) -> None:
+        value = check_float(speed, "RequestedMachineSpeed", 0)
+        low, high = self.status.mach_speed_range
+        if not low <= value <= high:
+            raise CallError(
+                "BadInvalidArgument", f"RequestedMachineSpeed {value} is outside the EURange [{low}, {high}]",
+                argument=0,
+            )
+        self.equipment.on_mach_speed(value)
+        with self._operation():
+            self.status.mach_speed = value
+
+    def set_product(self, products: Sequence[PackMLProductDataType]) -> None:
+        items = validate_products(list(products), argument=0, where="Product")
+        self._check(UNIT, "SetProduct")
+        self.equipment.on_product(items)
+        with self._operation():
+            self.status.product = items
+
+    def set_parameter(self, parameters: Sequence[PackMLDescriptorDataType]) -> None:
+        items = validate_descriptors(list(parameters), argument=0, where="Parameter")
+        self._check(UNIT, "SetParameter")
+        self.equipment.on_parameter(items)
+        with self._operation():
+            self.status.parameter = items
+
+    def remote_command(self, commands: Sequence[PackMLRemoteInterfaceDataType]) -> None:
+        items = validate_remote_interfaces(list(commands), argument=0, where="RemoteInterface")
+        self.equipment.on_remote_command(items)
+        with self._operation():
+            self.status.remote_parameter = items
+
+    def set_interlock(self, interlock_id: int, state: bool) -> None:
+        """State true = interlocked: MaterialInterlock[id] becomes false (its bit means "ready")."""
+        n = len(self.status.material_interlock)
+        if isinstance(interlock_id, bool) or not isinstance(interlock_id, int) or not 0 <= interlock_id < n:
+            raise CallError("BadInvalidArgument",
+                            f"InterlockId {interlock_id!r} is not an index of MaterialInterlock (0..{n - 1})",
+                            argument=0)
+        if not isinstance(state, bool):
+            raise CallError("BadInvalidArgument", f"State must be a Boolean, got {state!r}", argument=1)
+        self.equipment.on_interlock(interlock_id, state)
+        with self._operation():
+            self.status.material_interlock[interlock_id] = not state
+            self.status.material_interlocked = not all(self.status.material_interlock)
+
+    # --- admin data ----------------------------------------------------------------------------
+
+    def reset_counters(self) -> None:
+        """Reset times and Count fields (AccCount is kept); there is no OPC UA method for this."""
+        with self._operation():
+            self._account()
+            self._mode_cum = [0.0] * len(self._mode_cum)
+            self._state_cum = [[0.0] * STATE_COLUMNS for _ in self._state_cum]
+            self._mode_cur = self._state_cur = self._acc = 0.0
+            for counts in (self.admin.prod_processed_count, self.admin.prod_defective_count,
+                           self.admin.prod_consumed_count):
+                counts[:] = [dataclasses.replace(c, count=0) for c in counts]
+            self.save()
+
+    def save(self) -> None:
+        """Store the durable Admin data now (if the unit has a store); failures are logged."""
+        self._last_save = self._clock()
+        if self.store is None:
+            return
+        try:
+            self.store.save(self._admin_json())
+        except OSError:
+            log.exception("%s: cannot save PackML admin data to %s", self.name, self.store.path)
+
+    def tick(self) -> None:
+        """Advance time: Admin times, the equipment's ``poll``, a throttled save; publish changes."""
+        with self._operation():
+            self._account()
+            self.equipment.poll(self._clock())
+            if self._clock() - self._last_save >= self.save_interval:
+                self.save()
+
+    async def run(self, period: float = 0.1) -> None:
+        """Call ``tick`` every ``period`` seconds until cancelled."""
+        while True:
+            try:
+                self.tick()
+            except Exception:
+                log.exception("%s: tick failed", self.name)
+            await asyncio.sleep(period)
+
+    def close(self) -> None:
+        """Shut down: account time, save, tell the equipment."""
+        self._account()
+        self.save()
+        self.equipment.close()
+
+    # --- internals -----------------------------------------------------------------------------
+
+    def _check(self, machine_name: str | None, method: str) -> None:
+        why = self._refusal(machine_name, method)
+        if why is not None:
+            raise CallError("BadInvalidState", why)
+
+    @contextlib.contextmanager
+    def _operation(self) -> Iterator[None]:
+        """Group changes: completions requested meanwhile run afterwards, then one publish."""
+        self._depth += 1
+        try:
+            yield
+        finally:
+            self._depth -= 1
+            if self._depth == 0:
+                while self._pending:
+                    state = self._pending.pop(0)
+                    self._depth += 1
+                    try:
+                        self._complete_now(state)
+                    finally:
+                        self._depth -= 1
+                self._account()
+                self._publish()
+
+    def _complete_now(self, state: str | None) -> bool:
+        sm = self.innermost()
+        t = self._sc.get((sm.name, sm.current))
+        if t is None or (state is not None and state != sm.current):
+            return False
+        self._take(sm, t, Reason.SYSTEM)
+        return True
+
+    def _take(self, sm: StateMachine, t: TransitionInfo, reason: Reason) -> None:
+        self._account()  # time up to now belongs to the state being left
+        sm.take(t.name, reason)
+        for child in sm.children:
+            if child.parent_state == t.to_state:
+                child.enter(ENTRY_STATE[child.name], Reason.SYSTEM)
+        self._state_cur = 0.0
+        state = self.state
+        if state == "Execute":
+            self._stop_armed = True
+        self._refresh()
+        self.save()
+        self._call_hooks(state)
+
+    def _call_hooks(self, state: str) -> None:
+        eq = self.equipment
+        hooks: dict[str, Callable[[], None]] = {
+            "Clearing": eq.on_clearing, "Stopping": eq.on_stopping, "Aborting": eq.on_aborting,
+            "Resetting": eq.on_resetting, "Starting": lambda: eq.on_starting(self.status.start_parameters),
+            "Completing": eq.on_completing, "Holding": eq.on_holding, "Unholding": eq.on_unholding,
+            "Suspending": eq.on_suspending, "Unsuspending": eq.on_unsuspending, "Execute": eq.on_execute,
+        }
+        try:
+            eq.on_state(state)
+            hook = hooks.get(state)
+            if hook is not None:
+                hook()
+        except Exception as exc:
+            log.exception("%s: equipment failed in %s", self.name, state)
+            self.fault(0, f"equipment error in {state}: {exc}", category=0)
+
+    def _refresh(self) -> None:
+        """Derived Status values (decision 29)."""
+        s = self.status
+        sm = self.innermost()
+        sc = self._sc.get((sm.name, sm.current))
+        s.state_change_in_process = sc is not None
+        s.state_requested = sm.table.states[sc.to_state if sc else sm.current].number
+        s.cur_mach_speed = s.mach_speed if self.execute.is_in("Execute") else 0.0
+
+    def _record_stop(self, reason: PackMLAlarmDataType) -> None:
+        if self._stop_armed:
+            self.admin.stop_reason = reason
+            self._stop_armed = False
+
+    def _acknowledge_alarms(self) -> None:
+        now = self._wall()
+        active = {(a.id, a.date_time) for a in self.admin.alarm}
+        self.admin.alarm_history[:] = [
+            dataclasses.replace(h, ack_date_time=now, trigger=False) if (h.id, h.date_time) in active else h
+            for h in self.admin.alarm_history
+        ]
+        self.admin.alarm.clear()
+
+    def _mode_name(self) -> str:
+        try:
+            return Mode(self.status.unit_mode_current).name.title()
+        except ValueError:
+            return str(self.status.unit_mode_current)
+
+    def _account(self) -> None:
+        """Add the time since the last call to the current mode/state, and refresh Admin times."""
+        now = self._clock()
+        dt = max(0.0, now - self._last_account)
+        self._last_account = now
+        mode, state = self.status.unit_mode_current, self.state_number
+        self._mode_cum[mode] += dt
+        self._state_cum[mode][state] += dt
+        self._mode_cur += dt
+        self._state_cur += dt
+        self._acc += dt
+        a = self.admin
+        a.mode_current_time = [0] * len(self._mode_cum)
+        a.mode_current_time[mode] = _i32(self._mode_cur)
+        a.mode_cumulative_time = [_i32(x) for x in self._mode_cum]
+        a.state_current_time = [[0] * STATE_COLUMNS for _ in self._state_cum]
+        a.state_current_time[mode][state] = _i32(self._state_cur)
+        a.state_cumulative_time = [[_i32(x) for x in row] for row in self._state_cum]
+        a.acc_time_since_reset = _i32(self._acc)
+
+    def _publish(self) -> None:
+        self._refresh()
+        values = self.values()
+        changed = {k: v for k, v in values.items() if self._last_values.get(k, _MISSING) != v}
+        self._last_values = values
+        if not changed:
+            return
+        for listener in list(self.listeners):
+            try:
+                listener(changed)
+            except Exception:
+                log.exception("%s: change listener failed", self.name)
+
+    def _admin_json(self) -> dict[str, Any]:
+        a = self.admin
+        return {
+            "unit": self.name,
+            "saved_at": self._wall().isoformat(),
+            "prod_processed_count": [count_to_json(c) for c in a.prod_processed_count],
+            "prod_defective_count": [count_to_json(c) for c in a.prod_defective_count],
+            "prod_consumed_count": [count_to_json(c) for c in a.prod_consumed_count],
+            "mode_cumulative_time": list(self._mode_cum),
+            "state_cumulative_time": [list(r) for r in self._state_cum],
+            "acc_time_since_reset": self._acc,
+            "stop_reason": alarm_to_json(a.stop_reason),
+            "alarm_history": [alarm_to_json(x) for x in a.alarm_history],
+        }
+
+    def _load(self, store: AdminStore) -> None:
+        data = store.load()
+        if data is None:
+            return
+        try:
+            a = self.admin
+            for key, counts in (("prod_processed_count", a.prod_processed_count),
+                                ("prod_defective_count", a.prod_defective_count),
+                                ("prod_consumed_count", a.prod_consumed_count)):
+                stored = {c.id: c for c in map(count_from_json, data.get(key, []))}
+                counts[:] = [
+                    dataclasses.replace(c, count=stored[c.id].count, acc_count=stored[c.id].acc_count)
+                    if c.id in stored else c
+                    for c in counts
+                ]
+            for i, x in enumerate(data.get("mode_cumulative_time", [])[: len(self._mode_cum)]):
+                self._mode_cum[i] = float(x)
+            for i, row in enumerate(data.get("state_cumulative_time", [])[: len(self._state_cum)]):
+                for j, x in enumerate(row[:STATE_COLUMNS]):
+                    self._state_cum[i][j] = float(x)
+            self._acc = float(data.get("acc_time_since_reset", 0.0))
+            if data.get("stop_reason"):
+                a.stop_reason = alarm_from_json(data["stop_reason"])
+            history = [alarm_from_json(x) for x in data.get("alarm_history", [])]
+            a.alarm_history = history[-a.alarm_history_extent :]
+        except (KeyError, TypeError, ValueError) as exc:
+            log.warning("%s: stored PackML admin data is inconsistent (%s); using defaults", self.name, exc)
+            return
+        self._account()
+
+
+_MISSING = object()
+
+
+def _hosting(states: Iterable[Any], submachine: str) -> str:
+    return next(s.name for s in states if s.submachine == submachine)
+
+
+def _counted(c: PackMLCountDataType, n: int) -> PackMLCountDataType:
+    return dataclasses.replace(c, count=_i32(c.count + n), acc_count=_i32(c.acc_count + n))
+
+
+def _push(items: list[PackMLAlarmDataType], item: PackMLAlarmDataType, extent: int) -> None:
+    items.append(item)
+    del items[: max(0, len(items) - extent)]

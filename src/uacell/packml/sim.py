@@ -1,0 +1,89 @@
+"""A simulated packaging unit behind the PackML equipment protocol.
+
+Acting states last a configurable time; in Execute it produces at CurMachSpeed (packages/min), a
+configurable share of them defective, consuming material per package. ``inject_fault`` raises an
+alarm and aborts the unit. Time comes from the unit's clock through ``poll`` (driven by
+``PackMLUnit.tick``), so tests can run it on a fake clock.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+
+from uacell.packml.equipment import EquipmentBase
+from uacell.packml.types import PackMLDescriptorDataType
+
+log = logging.getLogger(__name__)
+
+
+class SimulatedUnit(EquipmentBase):
+    def __init__(
+        self,
+        acting_time: float = 0.5,
+        *,
+        acting_times: Mapping[str, float] | None = None,
+        defect_share: float = 0.02,
+        consumed_per_package: float = 1.0,
+        job_size: int | None = None,
+    ) -> None:
+        if not 0.0 <= defect_share <= 1.0:
+            raise ValueError("defect_share must be between 0 and 1")
+        self.acting_time = acting_time
+        self.acting_times = dict(acting_times or {})
+        self.defect_share = defect_share
+        self.consumed_per_package = consumed_per_package
+        self.job_size = job_size  # packages after which the sim completes the job itself (TR88 SC)
+        self.start_parameters: tuple[PackMLDescriptorDataType, ...] = ()
+        self.produced_in_job = 0
+        self.fault_active: tuple[int, str] | None = None
+        self._due: tuple[str, float] | None = None
+        self._last_poll: float | None = None
+        self._made = self._defective = self._consumed = 0.0
+
+    def on_state(self, state: str) -> None:
+        # Every acting state simply takes its time; wait states cancel a completion still due.
+        if self.unit.acting_state == state:
+            self._due = (state, self.unit.now() + self.acting_times.get(state, self.acting_time))
+        else:
+            self._due = None
+
+    def on_starting(self, parameters: Sequence[PackMLDescriptorDataType]) -> None:
+        self.start_parameters = tuple(parameters)
+        self.produced_in_job = 0
+
+    def on_execute(self) -> None:
+        self._last_poll = self.unit.now()
+
+    def on_clearing(self) -> None:
+        self.fault_active = None
+
+    def inject_fault(self, alarm_id: int, message: str, *, value: int = 0) -> None:
+        """Simulate an equipment fault: an Alarm, the StopReason, and the unit aborts."""
+        self.fault_active = (alarm_id, message)
+        self.unit.fault(alarm_id, message, value=value, category=1)
+
+    def poll(self, now: float) -> None:
+        if self._due is not None and now >= self._due[1]:
+            state, self._due = self._due[0], None
+            self.unit.state_complete(state)
+        last, self._last_poll = self._last_poll, now
+        speed = self.unit.cur_mach_speed
+        if last is None or speed <= 0 or now <= last:
+            return
+        # Accumulate fractions so that counts are exact over time, whatever the poll period.
+        self._made += speed / 60.0 * (now - last)
+        n = int(self._made)
+        if n <= 0:
+            return
+        self._made -= n
+        self._defective += n * self.defect_share
+        self._consumed += n * self.consumed_per_package
+        d, c = int(self._defective), int(self._consumed)
+        self._defective -= d
+        self._consumed -= c
+        self.unit.report_production(processed=n, defective=d, consumed=c)
+        self.produced_in_job += n
+        if self.job_size is not None and self.produced_in_job >= self.job_size:
+            log.info("simulated job of %d packages done", self.produced_in_job)
+            self.unit.equipment_command("ToComplete")

@@ -1,0 +1,502 @@
+"""The pure PackML model: every (state, command, unit mode), random sequences, the full walk, Start."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from uacell.errors import CallError
+from uacell.fsm import Change
+from uacell.packml import (
+    BASE,
+    EXECUTE,
+    MACHINE,
+    UNIT,
+    EquipmentBase,
+    EUInformation,
+    PackMLDescriptorDataType,
+    PackMLIngredientsDataType,
+    PackMLProductDataType,
+    PackMLRemoteInterfaceDataType,
+    PackMLUnit,
+)
+
+D = PackMLDescriptorDataType
+ABORT, CLEAR = (BASE, "Abort"), (BASE, "Clear")
+STOP, MRESET = (MACHINE, "Stop"), (MACHINE, "Reset")
+XRESET, START, HOLD, UNHOLD = (EXECUTE, "Reset"), (EXECUTE, "Start"), (EXECUTE, "Hold"), (EXECUTE, "Unhold")
+SUSPEND, UNSUSPEND, TOCOMPLETE = (EXECUTE, "Suspend"), (EXECUTE, "Unsuspend"), (EXECUTE, "ToComplete")
+MACHINE_METHODS = [ABORT, CLEAR, STOP, MRESET, XRESET, START, HOLD, UNHOLD, SUSPEND, UNSUSPEND, TOCOMPLETE]
+UNIT_METHODS = [(UNIT, m) for m in
+                ("SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "RemoteCommand", "SetInterlock")]
+DONE = "done"  # the running acting state completes
+
+# packml-v101.md §5.1, typed here on purpose (the model derives it from the NodeSet tables).
+ALLOWED_PRODUCE: dict[str, set[tuple[Any, str]]] = {
+    "Stopped": {MRESET, ABORT},
+    "Resetting": {STOP, ABORT},
+    "Idle": {START, STOP, ABORT},
+    "Starting": {STOP, HOLD, ABORT},
+    "Execute": {STOP, HOLD, SUSPEND, ABORT, TOCOMPLETE},
+    "Completing": {STOP, ABORT},
+    "Complete": {XRESET, STOP, ABORT},
+    "Holding": {STOP, ABORT},
+    "Held": {STOP, UNHOLD, ABORT},
+    "Unholding": {STOP, HOLD, ABORT},
+    "Suspending": {STOP, HOLD, ABORT},
+    "Suspended": {STOP, HOLD, UNSUSPEND, ABORT},
+    "Unsuspending": {STOP, HOLD, ABORT},
+    "Stopping": {ABORT},
+    "Clearing": {ABORT},
+    "Aborting": set(),
+    "Aborted": {CLEAR},
+}
+# Decision 26.
+MODE_DISABLED = {1: set(), 2: {"Suspend"}, 3: {"Start", "Suspend", "Hold", "ToComplete"}}
+SET_UNIT_MODE_STATES = {"Stopped", "Idle", "Aborted"}
+JOB_STATES = {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding",
+              "Suspending", "Suspended", "Unsuspending"}
+
+_IDLE = [MRESET, DONE]
+_EXECUTE = [*_IDLE, START, DONE]
+_HELD = [*_EXECUTE, HOLD, DONE]
+_SUSPENDED = [*_EXECUTE, SUSPEND, DONE]
+PATHS: dict[str, list[Any]] = {
+    "Stopped": [],
+    "Aborting": [ABORT],
+    "Aborted": [ABORT, DONE],
+    "Clearing": [ABORT, DONE, CLEAR],
+    "Resetting": [MRESET],
+    "Idle": _IDLE,
+    "Stopping": [*_IDLE, STOP],
+    "Starting": [*_IDLE, START],
+    "Execute": _EXECUTE,
+    "Completing": [*_EXECUTE, TOCOMPLETE],
+    "Complete": [*_EXECUTE, TOCOMPLETE, DONE],
+    "Holding": [*_EXECUTE, HOLD],
+    "Held": _HELD,
+    "Unholding": [*_HELD, UNHOLD],
+    "Suspending": [*_EXECUTE, SUSPEND],
+    "Suspended": _SUSPENDED,
+    "Unsuspending": [*_SUSPENDED, UNSUSPEND],
+}
+
+
+def args_for(method: str) -> tuple[Any, ...]:
+    return {
+        "Start": ([D(1, "Length", value=12.5)],),
+        "SetUnitMode": (1,),
+        "SetMachSpeed": (50.0,),
+        "SetProduct": ([PackMLProductDataType(7, (D(1, value=1.0),))],),
+        "SetParameter": ([D(3, value=3.0)],),
+        "RemoteCommand": ([PackMLRemoteInterfaceDataType(2, 5, 400)],),
+        "SetInterlock": (0, True),
+    }.get(method, ())
+
+
+def walk(unit: PackMLUnit, steps: list[Any]) -> None:
+    for step in steps:
+        if step == DONE:
+            assert unit.state_complete(), f"nothing to complete in {unit.state}"
+        else:
+            unit.command(step[0], step[1], *args_for(step[1]))
+
+
+def snapshot(unit: PackMLUnit) -> tuple[Any, ...]:
+    machines = [(m.current, m.active, m.last_transition) for m in unit.machines.values()]
+    return (machines, unit.values())
+
+
+def new_unit(**kw: Any) -> PackMLUnit:
+    return PackMLUnit(EquipmentBase(), **kw)
+
+
+def test_tables_have_all_26_transitions_and_entry_states() -> None:
+    unit = new_unit()
+    counts = {name: len(m.table.transitions) for name, m in unit.machines.items()}
+    assert counts == {BASE: 3, MACHINE: 4, EXECUTE: 19}
+    assert unit.machine.parent_state == "Cleared" and unit.execute.parent_state == "Running"
+    # Decision 23: initial Base Cleared / Machine Stopped, Execute inactive.
+    assert unit.states == ("Cleared", "Stopped", None)
+    assert unit.acting_state is None
+
+
+@pytest.mark.parametrize("mode", [1, 2, 3])
+@pytest.mark.parametrize("call", MACHINE_METHODS + UNIT_METHODS, ids=lambda c: f"{c[0] or 'Unit'}.{c[1]}")
+@pytest.mark.parametrize("state", list(PATHS))
+def test_every_state_command_and_mode(state: str, call: tuple[Any, str], mode: int) -> None:
+    unit = new_unit()
+    walk(unit, PATHS[state])
+    assert unit.state == state
+    unit.status.unit_mode_current = mode  # modes only change in a few states; set it directly here
+    machine_name, method = call
+    if machine_name is UNIT:
+        expected = {
+            "SetUnitMode": state in SET_UNIT_MODE_STATES,
+            "SetProduct": state not in JOB_STATES,
+            "SetParameter": state not in JOB_STATES,
+        }.get(method, True)
+    else:
+        expected = call in ALLOWED_PRODUCE[state] and method not in MODE_DISABLED[mode]
+    assert unit.executable(machine_name, method) is expected
+    before = snapshot(unit)
+    if not expected:
+        with pytest.raises(CallError) as err:
+            unit.command(machine_name, method, *args_for(method))
+        assert err.value.status == "BadInvalidState"
+        assert snapshot(unit) == before  # decision 22: nothing changes
+        return
+    unit.command(machine_name, method, *args_for(method))
+    if machine_name is not UNIT:
+        sm = unit.machines[machine_name]
+        table_transition = sm.table.caused_by(method, before[0][list(unit.machines).index(machine_name)][0])
+        assert sm.last_transition == table_transition
+        assert sm.current == table_transition.to_state
+
+
+def test_entering_cleared_starts_at_clearing_and_running_at_resetting() -> None:
+    unit = new_unit()
+    unit.reset_machine()
+    assert unit.states == ("Cleared", "Running", "Resetting")
+    unit.abort()
+    assert unit.states == ("Aborting", None, None)
+    unit.state_complete()
+    unit.clear()
+    assert unit.states == ("Cleared", "Clearing", None)
+    assert unit.status.state_change_in_process and unit.status.state_requested == 2
+    unit.state_complete()
+    assert unit.states == ("Cleared", "Stopped", None)
+    assert not unit.status.state_change_in_process and unit.status.state_requested == 2
+
+
+def test_full_walk_with_all_three_machines() -> None:
+    unit = new_unit()
+    changes: list[Change] = []
+    for m in unit.machines.values():
+        m.listeners.append(changes.append)
+    expected: list[tuple[Any, tuple[str, str | None, str | None]]] = [
+        (MRESET, ("Cleared", "Running", "Resetting")),
+        (DONE, ("Cleared", "Running", "Idle")),
+        (START, ("Cleared", "Running", "Starting")),
+        (DONE, ("Cleared", "Running", "Execute")),
+        (HOLD, ("Cleared", "Running", "Holding")),
+        (DONE, ("Cleared", "Running", "Held")),
+        (UNHOLD, ("Cleared", "Running", "Unholding")),
+        (DONE, ("Cleared", "Running", "Execute")),
+        (SUSPEND, ("Cleared", "Running", "Suspending")),
+        (DONE, ("Cleared", "Running", "Suspended")),
+        (UNSUSPEND, ("Cleared", "Running", "Unsuspending")),
+        (DONE, ("Cleared", "Running", "Execute")),
+        (TOCOMPLETE, ("Cleared", "Running", "Completing")),
+        (DONE, ("Cleared", "Running", "Complete")),
+        (XRESET, ("Cleared", "Running", "Resetting")),
+        (DONE, ("Cleared", "Running", "Idle")),
+        (STOP, ("Cleared", "Stopping", None)),
+        (DONE, ("Cleared", "Stopped", None)),
+        (ABORT, ("Aborting", None, None)),
+        (DONE, ("Aborted", None, None)),
+        (CLEAR, ("Cleared", "Clearing", None)),
+        (DONE, ("Cleared", "Stopped", None)),
+    ]
+    for step, states in expected:
+        walk(unit, [step])
+        assert unit.states == states, step
+    taken = [(c.machine.name, c.transition.name if c.transition else f"enter {c.to_state}") for c in changes]
+    assert taken == [
+        (MACHINE, "StoppedToRunning"), (EXECUTE, "enter Resetting"), (EXECUTE, "ResettingToIdle"),
+        (EXECUTE, "IdleToStarting"), (EXECUTE, "StartingToExecute"), (EXECUTE, "ExecuteToHolding"),
+        (EXECUTE, "HoldingToHeld"), (EXECUTE, "HeldToUnholding"), (EXECUTE, "UnholdingToExecute"),
+        (EXECUTE, "ExecuteToSuspending"), (EXECUTE, "SuspendingToSuspended"),
+        (EXECUTE, "SuspendedToUnsuspending"), (EXECUTE, "UnsuspendingToExecute"),
+        (EXECUTE, "ExecuteToCompleting"), (EXECUTE, "CompletingToComplete"), (EXECUTE, "CompleteToResetting"),
+        (EXECUTE, "ResettingToIdle"), (MACHINE, "RunningToStopping"), (MACHINE, "StoppingToStopped"),
+        (BASE, "ClearedToAborting"), (BASE, "AbortingToAborted"), (BASE, "AbortedToCleared"),
+        (MACHINE, "enter Clearing"), (MACHINE, "ClearingToStopped"),
+    ]
+    assert unit.status.start_parameters == (D(1, "Length", value=12.5),)
+
+
+def test_acting_state_commands_answered_at_once_not_queued() -> None:
+    unit = new_unit()
+    walk(unit, [MRESET])  # Resetting runs
+    with pytest.raises(CallError):
+        unit.start([])  # not queued for Idle
+    unit.state_complete()
+    assert unit.state == "Idle"  # and Start was not performed afterwards
+    unit.start([])
+    unit.hold()  # OPC extension StartingToHolding, allowed while Starting runs
+    assert unit.state == "Holding"
+    assert not unit.state_complete("Starting")  # a stale completion is ignored
+    assert unit.state == "Holding"
+
+
+def test_status_during_acting_states_and_speed() -> None:
+    unit = new_unit(mach_speed=80.0)
+    walk(unit, [*_IDLE, START])
+    assert unit.status.state_change_in_process and unit.status.state_requested == 6
+    assert unit.status.cur_mach_speed == 0.0
+    unit.state_complete()
+    assert not unit.status.state_change_in_process and unit.status.state_requested == 6
+    assert unit.status.cur_mach_speed == 80.0
+    unit.set_mach_speed(120.0)
+    assert unit.status.cur_mach_speed == 120.0
+    unit.hold()
+    assert unit.status.cur_mach_speed == 0.0 and unit.status.state_requested == 11
+
+
+def test_change_listener_reports_changed_values_only() -> None:
+    unit = new_unit()
+    seen: list[dict[str, Any]] = []
+    unit.listeners.append(seen.append)
+    unit.set_mach_speed(42.0)
+    assert seen[-1]["Status/MachSpeed"] == 42.0 and "Status/CurMachSpeed" not in seen[-1]
+    unit.reset_machine()
+    assert seen[-1]["Status/StateChangeInProcess"] is True
+    assert seen[-1]["Executable"][(MACHINE, "Stop")] is True
+
+
+# --- Start (decision 25) ----------------------------------------------------------------------------
+
+
+def idle_unit(**kw: Any) -> PackMLUnit:
+    unit = new_unit(**kw)
+    walk(unit, _IDLE)
+    return unit
+
+
+@pytest.mark.parametrize(
+    ("parameters", "status", "fragment"),
+    [
+        (None, "BadArgumentsMissing", "needs the Parameter"),
+        ([D(1, value=1.0), "x"], "BadInvalidArgument", "Parameter[1] is not a PackMLDescriptorDataType"),
+        ([D(5, value=1.0), D(5, value=2.0)], "BadInvalidArgument", "Parameter[1].ID 5 is not unique"),
+        ([D(1, value=math.nan)], "BadInvalidArgument", "Parameter[0] (ID 1) Value must be a finite Float"),
+        ([D(1, value=math.inf)], "BadInvalidArgument", "finite Float"),
+        ([D(1, value=1e39)], "BadInvalidArgument", "finite Float"),
+        ([D(2**31, value=1.0)], "BadInvalidArgument", "Parameter[0].ID must be an Int32"),
+    ],
+)
+def test_start_argument_errors(parameters: Any, status: str, fragment: str) -> None:
+    unit = idle_unit()
+    before = snapshot(unit)
+    with pytest.raises(CallError) as err:
+        unit.start(parameters)
+    assert err.value.status == status and fragment in err.value.message
+    if status == "BadInvalidArgument":
+        assert err.value.argument == 0
+    assert snapshot(unit) == before
+
+
+def test_start_state_errors() -> None:
+    unit = new_unit()
+    with pytest.raises(CallError, match="not active") as err:
+        unit.start([])  # Stopped: Execute is not active
+    assert err.value.status == "BadInvalidState"
+    unit = idle_unit()
+    unit.set_unit_mode(3)
+    with pytest.raises(CallError, match="disabled in unit mode Manual"):
+        unit.start([])
+    unit = idle_unit()
+    unit.set_interlock(1, True)
+    assert unit.status.material_interlocked and unit.status.material_interlock == [True, False, True, True]
+    assert not unit.executable(EXECUTE, "Start")
+    with pytest.raises(CallError, match="MaterialInterlocked"):
+        unit.start([])
+    unit.set_interlock(1, False)
+    unit.start([])
+    assert unit.state == "Starting"
+
+
+def test_equipment_may_refuse_start_parameters() -> None:
+    class Picky(EquipmentBase):
+        def validate_start(self, parameters: Any) -> None:
+            for i, p in enumerate(parameters):
+                if p.id != 1:
+                    raise CallError("BadInvalidArgument", f"Parameter[{i}].ID {p.id} is unknown", argument=0)
+
+    unit = PackMLUnit(Picky())
+    walk(unit, _IDLE)
+    before = snapshot(unit)
+    with pytest.raises(CallError, match="unknown"):
+        unit.start([D(9, value=1.0)])
+    assert snapshot(unit) == before
+
+
+def test_start_parameters_kept_until_next_start() -> None:
+    received: list[Any] = []
+
+    class Eq(EquipmentBase):
+        def on_starting(self, parameters: Any) -> None:
+            received.append(tuple(parameters))
+
+    unit = PackMLUnit(Eq())
+    walk(unit, _IDLE)
+    first = [D(1, "Speed", EUInformation(display_name="m/s"), 2.5)]
+    unit.start(first)
+    assert received == [tuple(first)]
+    assert unit.values()["Status/StartParameters"] == first
+    unit.stop()
+    unit.state_complete()
+    unit.abort()
+    assert unit.values()["Status/StartParameters"] == first  # kept through Stop and Abort
+    unit.state_complete()
+    walk(unit, [CLEAR, DONE, MRESET, DONE])
+    unit.start([])  # an empty array is fine
+    assert unit.values()["Status/StartParameters"] == [] and received[-1] == ()
+    assert unit.status.parameter == ()  # Status/Parameter belongs to SetParameter
+
+
+# --- unit methods (decisions 26, 27) ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("mode", [0, 4, -1, True, 1.0])
+def test_set_unit_mode_unknown(mode: Any) -> None:
+    unit = new_unit()
+    with pytest.raises(CallError) as err:
+        unit.set_unit_mode(mode)
+    assert err.value.status == "BadInvalidArgument" and err.value.argument == 0
+    assert unit.unit_mode == 1
+
+
+def test_set_unit_mode_flags_and_restrictions() -> None:
+    unit = new_unit()
+    seen: list[dict[str, Any]] = []
+    unit.listeners.append(seen.append)
+    unit.set_unit_mode(2)
+    assert seen[0]["Status/UnitModeChangeInProcess"] is True and seen[0]["Status/UnitModeRequested"] is True
+    assert seen[-1]["Status/UnitModeCurrent"] == 2 and seen[-1]["Status/UnitModeChangeInProcess"] is False
+    walk(unit, [*_IDLE, START, DONE])
+    assert not unit.executable(EXECUTE, "Suspend") and unit.executable(EXECUTE, "Hold")
+    with pytest.raises(CallError) as err:
+        unit.set_unit_mode(1)  # not in Execute
+    assert err.value.status == "BadInvalidState"
+
+
+def test_set_mach_speed_range() -> None:
+    unit = new_unit(mach_speed_range=(10.0, 200.0))
+    for bad in (9.99, 200.5, math.nan, -math.inf):
+        with pytest.raises(CallError) as err:
+            unit.set_mach_speed(bad)
+        assert err.value.status == "BadInvalidArgument" and err.value.argument == 0
+    unit.set_mach_speed(200.0)
+    assert unit.status.mach_speed == 200.0
+
+
+def test_set_product_and_parameter_validation_and_state() -> None:
+    unit = new_unit()
+    product = PackMLProductDataType(1, (D(1, value=1.0),), (PackMLIngredientsDataType(10, (D(1, value=2.0),)),))
+    unit.set_product([product])
+    assert unit.status.product == (product,)
+    dup_ingredient = PackMLProductDataType(2, (), (PackMLIngredientsDataType(3), PackMLIngredientsDataType(3)))
+    with pytest.raises(CallError, match=r"Product\[0\].Ingredients\[1\].IngredientID 3 is not unique"):
+        unit.set_product([dup_ingredient])
+    with pytest.raises(CallError, match=r"ProcessVariables\[0\] \(ID 1\) Value"):
+        unit.set_product([PackMLProductDataType(3, (D(1, value=math.nan),))])
+    with pytest.raises(CallError, match="ProductID 1 is not unique"):
+        unit.set_product([product, product])
+    assert unit.status.product == (product,)
+    unit.set_parameter([D(4, value=4.0)])
+    walk(unit, [*_IDLE, START])
+    with pytest.raises(CallError) as err:
+        unit.set_parameter([D(5, value=5.0)])
+    assert err.value.status == "BadInvalidState"
+    assert unit.status.parameter == (D(4, value=4.0),)
+
+
+def test_remote_command_and_interlock() -> None:
+    unit = new_unit(interlocks=2)
+    cmd = PackMLRemoteInterfaceDataType(2, 5, 400, (D(1, value=1.0),))
+    unit.remote_command([cmd])
+    assert unit.values()["Status/RemoteParameter"] == [cmd]
+    with pytest.raises(CallError, match="Int32"):
+        unit.remote_command([PackMLRemoteInterfaceDataType(2**40, 5, 400)])
+    for bad_id in (-1, 2, True):
+        with pytest.raises(CallError) as err:
+            unit.set_interlock(bad_id, True)
+        assert err.value.status == "BadInvalidArgument" and err.value.argument == 0
+
+
+def test_fault_aborts_with_alarm_and_stop_reason() -> None:
+    unit = new_unit()
+    walk(unit, _EXECUTE)
+    unit.fault(17, "jam at infeed", category=1)
+    assert unit.states == ("Aborting", None, None)
+    assert [a.id for a in unit.admin.alarm] == [17] and unit.admin.alarm[0].trigger
+    assert unit.admin.stop_reason.id == 17 and unit.admin.stop_reason.message == "jam at infeed"
+    unit.fault(18, "second fault")  # first out: StopReason stays
+    assert unit.admin.stop_reason.id == 17 and len(unit.admin.alarm) == 2
+    unit.state_complete()
+    unit.clear()
+    assert unit.admin.alarm == [] and all(h.ack_date_time is not None for h in unit.admin.alarm_history)
+
+
+def test_commanded_stop_reason() -> None:
+    unit = new_unit()
+    walk(unit, _EXECUTE)
+    unit.hold()
+    assert unit.admin.stop_reason.id == 4 and unit.admin.stop_reason.message == "Hold commanded"
+    unit.stop()  # first out: the Hold remains the reason
+    assert unit.admin.stop_reason.id == 4
+
+
+# --- random sequences -------------------------------------------------------------------------------
+
+ACTIONS = st.one_of(
+    st.sampled_from(MACHINE_METHODS),
+    st.just(DONE),
+    st.tuples(st.just(UNIT), st.just("SetUnitMode"), st.integers(0, 4)),
+    st.tuples(st.just("fault"), st.integers(1, 5)),
+)
+WAIT_STATES = {"Stopped", "Idle", "Execute", "Complete", "Held", "Suspended", "Aborted"}
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(ACTIONS, max_size=40))
+def test_random_command_sequences(actions: list[Any]) -> None:
+    unit = new_unit()
+    for action in actions:
+        before = snapshot(unit)
+        if action == DONE:
+            acting = unit.acting_state
+            assert unit.state_complete() is (acting is not None)
+            if acting is None:
+                assert snapshot(unit) == before
+        elif action[0] == "fault":
+            could_abort = unit.executable(BASE, "Abort")
+            unit.fault(action[1], "fault")
+            assert unit.base.current == ("Aborting" if could_abort else before[0][0][0])
+        else:
+            machine_name, method = action[0], action[1]
+            args = (action[2],) if len(action) == 3 else args_for(method)
+            executable = unit.executable(machine_name, method)
+            try:
+                unit.command(machine_name, method, *args)
+            except CallError as err:
+                assert err.status in {"BadInvalidState", "BadInvalidArgument"}
+                assert not executable or err.status == "BadInvalidArgument"
+                assert snapshot(unit) == before  # a refused command changes nothing
+            else:
+                assert executable
+        check_invariants(unit)
+    # Acting states always complete: completing repeatedly reaches a wait state.
+    for _ in range(5):
+        if unit.acting_state is None:
+            break
+        assert unit.state_complete()
+    assert unit.acting_state is None and unit.state in WAIT_STATES
+
+
+def check_invariants(unit: PackMLUnit) -> None:
+    base, machine, execute = unit.states
+    assert (machine is not None) == (base == "Cleared")
+    assert (execute is not None) == (machine == "Running")
+    assert unit.state not in ("Cleared", "Running")  # composite states are never the unit's state
+    assert unit.status.state_change_in_process == (unit.acting_state is not None)
+    expected_speed = unit.status.mach_speed if unit.state == "Execute" else 0.0
+    assert unit.status.cur_mach_speed == expected_speed
+    if unit.unit_mode == 3:
+        assert unit.state in {"Stopped", "Idle", "Aborted", "Aborting", "Clearing", "Stopping", "Resetting"}
