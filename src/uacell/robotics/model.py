@@ -127,6 +127,7 @@ class Condition:
 
 
 Listener = Callable[[], None]
+_UNKNOWN = object()
 
 
 class _Failure(Exception):
@@ -211,6 +212,7 @@ class TaskControl:
         self._lock = asyncio.Lock()
         self._bg = _Background()
         self._run: asyncio.Task[None] | None = None
+        self._resolution: object = _UNKNOWN
         if system is not None:
             system.add_task(self)
 
@@ -245,6 +247,7 @@ class TaskControl:
         return self.machine.walk()
 
     def _changed(self) -> None:
+        self._resolution = _UNKNOWN
         _notify(self.listeners)
         if self.system is not None:
             self.system._changed()
@@ -423,11 +426,20 @@ class TaskControl:
             alarm = self.system.alarm_status()
             if alarm is not None:
                 return alarm
-        try:
-            expand(self.program, {n: m for n, (m, _) in self._modules.items()})
-        except ProgramError:
+        if self._unresolved() is not None:
             return Status.UNRESOLVED_REFERENCE
         return None
+
+    def _unresolved(self) -> ProgramError | None:
+        """Why the program's calls do not resolve against the loaded modules (cached per load/unload)."""
+        if self._resolution is _UNKNOWN:
+            self._resolution = None
+            if self.program is not None:
+                try:
+                    expand(self.program, {n: m for n, (m, _) in self._modules.items()})
+                except ProgramError as e:
+                    self._resolution = e
+        return self._resolution  # type: ignore[return-value]
 
     async def start(self) -> int:
         """Start: Ready -> Executing, from the program start or where it was suspended."""
@@ -437,11 +449,7 @@ class TaskControl:
         problem = self._start_check()
         if problem is not None:
             if problem == Status.UNRESOLVED_REFERENCE:
-                assert self.program is not None
-                try:
-                    expand(self.program, {n: m for n, (m, _) in self._modules.items()})
-                except ProgramError as e:
-                    return self._fail(problem, str(e))
+                return self._fail(problem, str(self._unresolved()))
             return self._fail(problem, f"cannot start in {self.machine.current}")
         self.stopping = False
         self.machine.take("ReadyToExecuting", reason)

@@ -29,7 +29,7 @@ AXIS_COUNT = 6
 MAX_SPEED_PERCENT = 100.0
 MAX_WAIT_SECONDS = 3600.0
 MAX_REPEAT = 10_000
-MAX_STEPS = 100_000  # after expansion; keeps a runaway nesting of loops from exhausting memory
+MAX_STEPS = 20_000  # after expansion; keeps a runaway nesting of loops from exhausting memory
 MAX_CALL_DEPTH = 16
 
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
