@@ -29,7 +29,7 @@ class AdminStore:
     def load(self) -> dict[str, Any] | None:
         """The stored data, or None (with a logged warning) if the file is absent or unreadable."""
         try:
-            text = self.path.read_text(encoding="utf-8")
+            raw = self.path.read_bytes()
         except FileNotFoundError:
             log.warning("no PackML admin data at %s yet; starting from defaults", self.path)
             return None
@@ -37,8 +37,8 @@ class AdminStore:
             log.warning("cannot read PackML admin data %s (%s); starting from defaults", self.path, exc)
             return None
         try:
-            data = json.loads(text)
-        except ValueError as exc:
+            data = json.loads(raw)
+        except ValueError as exc:  # includes undecodable bytes
             log.warning("PackML admin data %s is corrupt (%s); starting from defaults", self.path, exc)
             return None
         if not isinstance(data, dict) or data.get("version") != FORMAT_VERSION:

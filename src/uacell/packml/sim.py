@@ -73,13 +73,13 @@ class SimulatedUnit(EquipmentBase):
             return
         # Accumulate fractions so that counts are exact over time, whatever the poll period.
         self._made += speed / 60.0 * (now - last)
-        n = int(self._made)
+        n = _whole(self._made)
         if n <= 0:
             return
         self._made -= n
         self._defective += n * self.defect_share
         self._consumed += n * self.consumed_per_package
-        d, c = int(self._defective), int(self._consumed)
+        d, c = _whole(self._defective), _whole(self._consumed)
         self._defective -= d
         self._consumed -= c
         self.unit.report_production(processed=n, defective=d, consumed=c)
@@ -87,3 +87,8 @@ class SimulatedUnit(EquipmentBase):
         if self.job_size is not None and self.produced_in_job >= self.job_size:
             log.info("simulated job of %d packages done", self.produced_in_job)
             self.unit.equipment_command("ToComplete")
+
+
+def _whole(x: float) -> int:
+    # Tolerate float rounding: 0.1 * 10 steps must count as 1, not 0.
+    return int(x + 1e-9)

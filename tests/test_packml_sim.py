@@ -1,0 +1,147 @@
+"""The simulated PackML unit on a fake clock (and once on the real event loop)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from uacell.packml import PackMLDescriptorDataType, PackMLUnit, SimulatedUnit
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 1000.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def sim_unit(**sim_kw: object) -> tuple[PackMLUnit, SimulatedUnit, Clock]:
+    clock = Clock()
+    sim = SimulatedUnit(**{"acting_time": 0.5, **sim_kw})  # type: ignore[arg-type]
+    unit = PackMLUnit(sim, clock=clock, mach_speed=120.0)
+    return unit, sim, clock
+
+
+def advance(unit: PackMLUnit, clock: Clock, seconds: float, step: float = 0.1) -> None:
+    end = clock.t + seconds
+    while clock.t < end - 1e-9:
+        clock.t = min(end, clock.t + step)
+        unit.tick()
+
+
+def test_acting_states_take_the_configured_time() -> None:
+    unit, _sim, clock = sim_unit(acting_times={"Starting": 2.0})
+    unit.reset_machine()
+    advance(unit, clock, 0.4)
+    assert unit.state == "Resetting"
+    advance(unit, clock, 0.1)
+    assert unit.state == "Idle"
+    unit.start([PackMLDescriptorDataType(1, "Batch", value=7.0)])
+    advance(unit, clock, 1.9)
+    assert unit.state == "Starting"
+    advance(unit, clock, 0.1)
+    assert unit.state == "Execute"
+
+
+def test_production_counts_at_mach_speed() -> None:
+    unit, sim, clock = sim_unit(defect_share=0.1, consumed_per_package=2.0)
+    unit.reset_machine()
+    advance(unit, clock, 0.5)
+    unit.start([PackMLDescriptorDataType(1, "Batch", value=7.0)])
+    assert sim.start_parameters == (PackMLDescriptorDataType(1, "Batch", value=7.0),)
+    advance(unit, clock, 0.5)
+    assert unit.state == "Execute"
+    advance(unit, clock, 10.0)  # 120 packages/min for 10 s
+    a = unit.admin
+    assert a.prod_processed_count[0].count == 20
+    assert a.prod_defective_count[0].count == 2
+    assert a.prod_consumed_count[0].count == 40
+    unit.hold()
+    advance(unit, clock, 5.0)
+    assert unit.state == "Held" and a.prod_processed_count[0].count == 20  # no production outside Execute
+    unit.unhold()
+    advance(unit, clock, 0.5)
+    unit.set_mach_speed(60.0)
+    advance(unit, clock, 10.0)
+    assert a.prod_processed_count[0].count == 30 and a.prod_processed_count[0].acc_count == 30
+
+
+def test_job_size_completes_the_job() -> None:
+    unit, _sim, clock = sim_unit(job_size=5)
+    unit.reset_machine()
+    advance(unit, clock, 0.5)
+    unit.start([])
+    advance(unit, clock, 0.5 + 2.5)  # 5 packages at 120/min
+    assert unit.state in ("Completing", "Complete")
+    advance(unit, clock, 0.5)
+    assert unit.state == "Complete" and unit.admin.prod_processed_count[0].count == 5
+
+
+def test_stop_while_starting_cancels_the_pending_completion() -> None:
+    unit, _sim, clock = sim_unit()
+    unit.reset_machine()
+    advance(unit, clock, 0.5)
+    unit.start([])
+    advance(unit, clock, 0.3)
+    unit.stop()
+    advance(unit, clock, 0.3)
+    assert unit.states == ("Cleared", "Stopping", None)
+    advance(unit, clock, 0.3)
+    assert unit.states == ("Cleared", "Stopped", None)
+
+
+def test_injected_fault_aborts_with_alarm() -> None:
+    unit, sim, clock = sim_unit()
+    unit.reset_machine()
+    advance(unit, clock, 0.5)
+    unit.start([])
+    advance(unit, clock, 0.5)
+    sim.inject_fault(42, "bottle jam")
+    assert unit.states == ("Aborting", None, None)
+    advance(unit, clock, 0.5)
+    assert unit.states == ("Aborted", None, None)
+    a = unit.admin
+    assert (a.stop_reason.id, a.stop_reason.message, a.stop_reason.category) == (42, "bottle jam", 1)
+    assert [(x.id, x.trigger) for x in a.alarm] == [(42, True)]
+    assert a.alarm_history[-1].id == 42
+    unit.clear()
+    assert sim.fault_active is None and a.alarm == []
+    advance(unit, clock, 0.5)
+    assert unit.states == ("Cleared", "Stopped", None)
+
+
+def test_admin_times_follow_states() -> None:
+    unit, _sim, clock = sim_unit()
+    advance(unit, clock, 5.0)  # Stopped (2) in Produce (1)
+    unit.reset_machine()
+    advance(unit, clock, 0.5)  # Resetting
+    advance(unit, clock, 3.0)  # Idle (4)
+    a = unit.admin
+    assert a.state_cumulative_time[1][2] == 5
+    assert a.state_cumulative_time[1][4] == 3
+    assert a.state_current_time[1][4] == 3 and sum(map(sum, a.state_current_time)) == 3
+    assert a.mode_cumulative_time[1] == 8 and a.mode_current_time[1] == 8
+    assert a.acc_time_since_reset == 8
+    unit.set_unit_mode(2)
+    advance(unit, clock, 2.0)
+    assert a.mode_current_time == [0, 0, 2, 0] and a.mode_cumulative_time[2] == 2
+    assert a.state_cumulative_time[2][4] == 2
+    unit.reset_counters()
+    assert a.acc_time_since_reset == 0 and a.mode_cumulative_time == [0, 0, 0, 0]
+
+
+@pytest.mark.asyncio
+async def test_real_time_run_loop() -> None:
+    unit = PackMLUnit(SimulatedUnit(acting_time=0.01))
+    task = asyncio.create_task(unit.run(period=0.002))
+    try:
+        unit.reset_machine()
+        for _ in range(200):
+            await asyncio.sleep(0.002)
+            if unit.state == "Idle":
+                break
+        assert unit.state == "Idle"
+    finally:
+        task.cancel()
