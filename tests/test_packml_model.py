@@ -500,3 +500,17 @@ def check_invariants(unit: PackMLUnit) -> None:
     assert unit.status.cur_mach_speed == expected_speed
     if unit.unit_mode == 3:
         assert unit.state in {"Stopped", "Idle", "Aborted", "Aborting", "Clearing", "Stopping", "Resetting"}
+
+
+def test_docs_transition_numbers_match_the_tables() -> None:
+    from pathlib import Path
+
+    doc = (Path(__file__).parent.parent / "docs" / "packml.md").read_text(encoding="utf-8")
+    machines = {"Base": BASE, "Machine": MACHINE, "Execute": EXECUTE}
+    unit = new_unit()
+    rows = [line.split("|")[1:6] for line in doc.splitlines() if line.split("|")[1:2] in (
+        [" Base "], [" Machine "], [" Execute "])]
+    documented = {(machines[m.strip()], name.strip()): int(n) for m, n, name, *_ in rows if n.strip().isdigit()}
+    actual = {(name, t): sm.table.transition_number(t) for name, sm in unit.machines.items()
+              for t in sm.table.transitions}
+    assert documented == actual
