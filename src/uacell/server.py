@@ -11,7 +11,12 @@ from asyncua import Server, ua
 from uacell import __version__
 from uacell.cell import CellBuilder, build_cell
 from uacell.config import Config
+from uacell.roles import Role, listening_policy
+from uacell.ua.access import UacellUserManager
+from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.nodesets import load_models
+from uacell.ua.state_machine import NodeRefs, Publisher
+from uacell.users import UserStore
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +44,10 @@ class UacellServer:
         self.model_indexes: dict[str, int] = {}
         self.binders = binders if binders is not None else default_binders()
         self._closers: list[Callable[[], Awaitable[None]]] = []
+        self.dispatcher = MethodDispatcher.install(self.server)
+        self.publisher = Publisher()
+        self.dispatcher.after_call.append(self.publisher.flush)
+        self.refs: NodeRefs | None = None
 
     @property
     def data_dir(self) -> Path:
@@ -51,6 +60,13 @@ class UacellServer:
     async def setup(self) -> None:
         _quiet_asyncua()
         self.data_dir.mkdir(parents=True, exist_ok=True)
+        cfg = self.config.server
+        anonymous = Role.parse(cfg.anonymous_role) if cfg.anonymous_role else None
+        self.policy = listening_policy([cfg.host], anonymous, cfg.allow_none_security)
+        for warning in self.policy.warnings:
+            log.warning("%s", warning)
+        self.users = UserStore.in_data_dir(self.data_dir)
+        self.server.iserver.set_user_manager(UacellUserManager(self.policy, self.users))
         await self.server.init()
         self.server.set_endpoint(self.endpoint)
         self.server.set_server_name("uacell")
@@ -59,6 +75,7 @@ class UacellServer:
         await self.server.set_build_info(PRODUCT_URI, "uacell", "uacell", __version__, "0", ua.DateTime.now())
         self.model_indexes = await load_models(self.server, self.config.server.models_dir)
         self.cell = await build_cell(self.server, self.model_indexes)
+        self.refs = NodeRefs(await self.server.get_namespace_array())
         for binder in self.binders:
             closer = await binder(self)
             if closer is not None:
@@ -66,6 +83,12 @@ class UacellServer:
 
     async def start(self) -> None:
         await self.server.start()
+        await self.dispatcher.refresh_executable()
+
+    async def settle(self) -> None:
+        """Wait until every model change so far is visible in the address space."""
+        await self.publisher.flush()
+        await self.dispatcher.refresh_executable()
 
     async def stop(self) -> None:
         for closer in reversed(self._closers):
@@ -73,6 +96,7 @@ class UacellServer:
                 await closer()
             except Exception:
                 log.exception("error while shutting down")
+        await self.publisher.close()
         await self.server.stop()
 
 

@@ -11,7 +11,8 @@ builds an instance from the type system instead:
 - placeholders (``MandatoryPlaceholder``/``OptionalPlaceholder``) are never created; the caller adds
   named instances in their place;
 - AddIns (``HasAddIn``) are named by the AddIn type's ``DefaultInstanceBrowseName``;
-- State and Transition objects carry no ModellingRule and are never copied.
+- State and Transition objects are never copied (most carry no ModellingRule, but PackML's
+  ``Cleared`` state is Optional: they are recognised by StateType/TransitionType).
 
 It works directly on asyncua's address space, which keeps start-up fast.
 """
@@ -243,7 +244,8 @@ class Instantiator:
         selection: Selection,
     ) -> None:
         for member in self.types.members(decl, type_id):
-            if member.is_placeholder:
+            state_like = any(self.types.is_subtype(member.type_definition, ua.NodeId(t)) for t in (2307, 2310))
+            if member.is_placeholder or state_like:  # 2307 StateType, 2310 TransitionType
                 continue
             qname = member.browse_name
             if member.reference_type == ua.NodeId(HAS_ADDIN):
@@ -275,9 +277,18 @@ class Instantiator:
             attrs.MinimumSamplingInterval = t.attr(m.decl, _A.MinimumSamplingInterval) or 0.0
             attrs.Historizing = False
             attrs.SpecifiedAttributes = _mask(
-                "DisplayName", "Description", "Value", "DataType", "ValueRank", "ArrayDimensions",
-                "AccessLevel", "UserAccessLevel", "MinimumSamplingInterval", "Historizing",
-                "WriteMask", "UserWriteMask",
+                "DisplayName",
+                "Description",
+                "Value",
+                "DataType",
+                "ValueRank",
+                "ArrayDimensions",
+                "AccessLevel",
+                "UserAccessLevel",
+                "MinimumSamplingInterval",
+                "Historizing",
+                "WriteMask",
+                "UserWriteMask",
             )
             self._add(parent, nodeid, qname, ua.NodeClass.Variable, attrs, m.type_definition, m.reference_type)
         elif m.node_class == ua.NodeClass.Method:

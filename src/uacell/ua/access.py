@@ -1,0 +1,37 @@
+"""Who may log in and as what: uacell's user manager for asyncua, and per-session User* attributes."""
+
+from __future__ import annotations
+
+import logging
+
+from asyncua import ua
+
+from uacell.roles import ListeningPolicy, Role, may
+from uacell.ua.context import UacellUser
+from uacell.users import UserStore
+
+log = logging.getLogger(__name__)
+
+
+class UacellUserManager:
+    """asyncua calls ``get_user`` at ActivateSession; None refuses the session (Bad_UserAccessDenied)."""
+
+    def __init__(self, policy: ListeningPolicy, users: UserStore) -> None:
+        self.policy = policy
+        self.users = users
+
+    def get_user(self, iserver, username: str | None = None, password: str | None = None, certificate=None):
+        if username is None:
+            return UacellUser(None, self.policy.anonymous_role.label, anonymous=True)
+        role = self.users.verify(username, password or "")
+        if role is None:
+            log.warning("refused login of user %r: wrong user name or password", username)
+            return None
+        return UacellUser(username, Role.parse(role).label)
+
+
+def user_access_level(role: str, access_level: int) -> int:
+    """The UserAccessLevel a role gets for a variable with ``access_level``: writing needs ``write``."""
+    if may(Role.parse(role), "write"):
+        return access_level
+    return access_level & ~ua.AccessLevel.CurrentWrite.mask

@@ -1,0 +1,105 @@
+"""Who is calling: the session and user behind the current service request.
+
+asyncua passes neither the session nor the user to method callbacks. uacell wraps the session's
+``call`` (and ``read``, for per-user attributes) once, so that a context variable holds the calling
+session while the request runs; ``current_caller()`` turns it into a ``Caller``.
+"""
+
+from __future__ import annotations
+
+import contextvars
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from asyncua.crypto.permission_rules import User, UserRole
+from asyncua.server.internal_session import InternalSession
+
+_session: contextvars.ContextVar[InternalSession | None] = contextvars.ContextVar("uacell_session", default=None)
+
+
+class UacellUser(User):
+    """An asyncua user that also carries uacell's role ("observer", "operator", "engineer", "admin")."""
+
+    def __init__(self, name: str | None, uacell_role: str, anonymous: bool = False) -> None:
+        # asyncua's own role only gates address-space management; uacell's roles gate everything else.
+        super().__init__(role=UserRole.User, name=name)
+        self.uacell_role = uacell_role
+        self.anonymous = anonymous
+
+    def __repr__(self) -> str:
+        return f"UacellUser({self.name!r}, {self.uacell_role})"
+
+
+@dataclass(frozen=True)
+class Caller:
+    session_id: str
+    session_name: str
+    user: str | None
+    role: str
+    client: str = ""
+
+    @property
+    def display_user(self) -> str:
+        return self.user or "anonymous"
+
+
+INTERNAL = Caller("internal", "internal", None, "admin")
+
+# Post-processors of Read results: (session, read parameters, results) -> None (edits results in place).
+ReadHook = Callable[[InternalSession, Any, list], None]
+_read_hooks: list[ReadHook] = []
+
+
+def caller_of(session: InternalSession | None, default_role: str = "observer") -> Caller:
+    if session is None:
+        return INTERNAL
+    user = session.user
+    role = getattr(user, "uacell_role", default_role)
+    client = ""
+    with_desc = getattr(session, "_client_description", None)
+    if with_desc is not None:
+        client = getattr(with_desc, "ApplicationUri", "") or ""
+    return Caller(str(session.session_id), session.name, getattr(user, "name", None), role, client)
+
+
+def current_session() -> InternalSession | None:
+    return _session.get()
+
+
+def current_caller() -> Caller:
+    return caller_of(_session.get())
+
+
+def add_read_hook(hook: ReadHook) -> None:
+    if hook not in _read_hooks:
+        _read_hooks.append(hook)
+
+
+def install() -> None:
+    """Wrap InternalSession.call/read once so the session is known while a request runs."""
+    if getattr(InternalSession, "_uacell_installed", False):
+        return
+    original_call = InternalSession.call
+    original_read = InternalSession.read
+
+    @functools.wraps(original_call)
+    async def call(self: InternalSession, params):
+        token = _session.set(self)
+        try:
+            return await original_call(self, params)
+        finally:
+            _session.reset(token)
+
+    @functools.wraps(original_read)
+    async def read(self: InternalSession, params):
+        results = await original_read(self, params)
+        if self.external:
+            for hook in _read_hooks:
+                hook(self, params, results)
+        return results
+
+    InternalSession.call = call  # type: ignore[method-assign]
+    InternalSession.read = read  # type: ignore[method-assign]
+    InternalSession._uacell_installed = True  # type: ignore[attr-defined]

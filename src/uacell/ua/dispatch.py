@@ -1,0 +1,336 @@
+"""The one method dispatcher every uacell method call passes through.
+
+For each call it answers, in this order:
+
+1. ``Bad_NodeIdUnknown`` for an unknown object, ``Bad_MethodInvalid`` for a method that is not
+   one of the object's (or not a method at all);
+2. the input arguments against the method's ``InputArguments``: ``Bad_ArgumentsMissing``,
+   ``Bad_TooManyArguments``, ``Bad_TypeMismatch`` with ``InputArgumentResults`` naming the argument;
+3. the caller's role (``Bad_UserAccessDenied``) from the one table in ``uacell.roles``;
+4. guards such as DI locks (``Bad_ResourceUnavailable``);
+5. the behaviour, serialized per state machine; its ``CallError`` becomes the status code and
+   argument results, its outputs are typed from ``OutputArguments``. Any other exception is logged
+   and answered with ``Bad_InternalError``: nothing ever reaches the stack.
+
+Methods uacell does not bind fall through to asyncua's own handling.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from asyncua import Server, ua
+from asyncua.server.address_space import MethodService
+
+from uacell.errors import CallError
+from uacell.roles import Family, Role, may_call
+from uacell.ua import context
+from uacell.ua.context import Caller
+
+log = logging.getLogger(__name__)
+
+Handler = Callable[..., Awaitable[Sequence[Any] | None]]
+Guard = Callable[[Caller, "BoundMethod"], None]
+_A = ua.AttributeIds
+
+
+@dataclass
+class BoundMethod:
+    object_id: ua.NodeId
+    method_id: ua.NodeId
+    name: str
+    family: Family
+    handler: Handler  # handler(caller, *inputs) -> outputs (python values) or None
+    inputs: list[ua.Argument]
+    outputs: list[ua.Argument]
+    executable: Callable[[], bool] | None = None
+    serialize_on: object | None = None  # calls sharing this key run one at a time
+    element: object | None = None  # what guards (locks) look at
+    file_mode_argument: int | None = None  # FileType.Open: which argument is the mode
+    last_executable: bool | None = field(default=None, repr=False)
+
+
+class MethodDispatcher(MethodService):
+    """Replaces asyncua's MethodService; install with ``MethodDispatcher.install(server)``."""
+
+    def __init__(self, server: Server) -> None:
+        super().__init__(server.iserver.aspace)
+        self.server = server
+        self.methods: dict[ua.NodeId, BoundMethod] = {}
+        self.guards: list[Guard] = []
+        self.after_call: list[Callable[[], Awaitable[None]]] = []
+        self._locks: dict[int, asyncio.Lock] = {}
+        self.types = TypeChecker(server)
+
+    @classmethod
+    def install(cls, server: Server) -> MethodDispatcher:
+        context.install()
+        dispatcher = cls(server)
+        server.iserver.method_service = dispatcher
+        return dispatcher
+
+    # --- registration -----------------------------------------------------------------------
+    def arguments(self, method_id: ua.NodeId, name: str) -> list[ua.Argument]:
+        for ref in self._aspace[method_id].references:
+            if ref.IsForward and ref.BrowseName.Name == name:
+                value = self._aspace[ref.NodeId].attributes[_A.Value].value.Value.Value
+                return list(value or [])
+        return []
+
+    def bind(
+        self,
+        object_id: ua.NodeId,
+        method_id: ua.NodeId,
+        family: Family,
+        handler: Handler,
+        *,
+        executable: Callable[[], bool] | None = None,
+        serialize_on: object | None = None,
+        element: object | None = None,
+        file_mode_argument: int | None = None,
+    ) -> BoundMethod:
+        name = self._aspace[method_id].attributes[_A.BrowseName].value.Value.Value.Name
+        bound = BoundMethod(
+            object_id,
+            method_id,
+            name,
+            family,
+            handler,
+            self.arguments(method_id, "InputArguments"),
+            self.arguments(method_id, "OutputArguments"),
+            executable,
+            serialize_on,
+            element,
+            file_mode_argument,
+        )
+        self.methods[method_id] = bound
+        return bound
+
+    def method_of(self, object_id: ua.NodeId, name: str) -> ua.NodeId:
+        for ref in self._aspace[object_id].references:
+            if ref.IsForward and ref.BrowseName.Name == name and ref.NodeClass == ua.NodeClass.Method:
+                return ref.NodeId
+        raise KeyError(f"{object_id} has no method {name}")
+
+    # --- Executable ---------------------------------------------------------------------------
+    async def refresh_executable(self) -> None:
+        """Write Executable wherever it changed (decision 4)."""
+        for bound in self.methods.values():
+            if bound.executable is None:
+                continue
+            try:
+                now = bool(bound.executable())
+            except Exception:
+                log.exception("executable() of %s failed", bound.name)
+                now = False
+            if now != bound.last_executable:
+                bound.last_executable = now
+                dv = ua.DataValue(ua.Variant(now, ua.VariantType.Boolean))
+                await self._aspace.write_attribute_value(bound.method_id, _A.Executable, dv)
+
+    def user_executable(self, method_id: ua.NodeId, role: str) -> bool | None:
+        bound = self.methods.get(method_id)
+        if bound is None:
+            return None
+        allowed = may_call(Role.parse(role), bound.name, bound.family)
+        return allowed and (bound.last_executable is not False)
+
+    # --- the call ------------------------------------------------------------------------------
+    async def call(self, methods: list[ua.CallMethodRequest]) -> list[ua.CallMethodResult]:
+        return [await self.dispatch(m) for m in methods]
+
+    async def dispatch(self, request: ua.CallMethodRequest, caller: Caller | None = None) -> ua.CallMethodResult:
+        bound = self.methods.get(request.MethodId)
+        if bound is None:
+            if request.ObjectId not in self._aspace:
+                return _result(ua.StatusCodes.BadNodeIdUnknown)
+            if request.MethodId not in self._aspace:
+                return _result(ua.StatusCodes.BadMethodInvalid)
+            return await super()._call(request)
+        caller = caller or context.current_caller()
+        try:
+            return await self._dispatch(bound, request, caller)
+        except Exception:
+            log.exception("%s on %s failed unexpectedly", bound.name, request.ObjectId.to_string())
+            return _result(ua.StatusCodes.BadInternalError)
+
+    async def _dispatch(self, bound: BoundMethod, request: ua.CallMethodRequest, caller: Caller) -> ua.CallMethodResult:
+        if request.ObjectId != bound.object_id:
+            code = (
+                ua.StatusCodes.BadMethodInvalid if request.ObjectId in self._aspace else ua.StatusCodes.BadNodeIdUnknown
+            )
+            return _result(code)
+        args = list(request.InputArguments or [])
+        n = len(bound.inputs)
+        if len(args) < n:
+            return _result(ua.StatusCodes.BadArgumentsMissing)
+        if len(args) > n:
+            return _result(ua.StatusCodes.BadTooManyArguments)
+        checks = [self.types.check(v, a) for v, a in zip(args, bound.inputs, strict=True)]
+        if any(not c.is_good() for c in checks):
+            return _result(ua.StatusCodes.BadTypeMismatch, checks)
+        values = [v.Value for v in args]
+        mode = values[bound.file_mode_argument] if bound.file_mode_argument is not None else None
+        if not may_call(Role.parse(caller.role), bound.name, bound.family, file_mode=mode):
+            return _result(ua.StatusCodes.BadUserAccessDenied, n=n)
+        try:
+            for guard in self.guards:
+                guard(caller, bound)
+            lock = self._locks.setdefault(id(bound.serialize_on or bound), asyncio.Lock())
+            async with lock:
+                outputs = await bound.handler(caller, *values)
+        except CallError as err:
+            log.info("%s refused for %s: %s", bound.name, caller.display_user, err.message)
+            results = None
+            if err.argument is not None and 0 <= err.argument < n:
+                results = [ua.StatusCode(ua.StatusCodes.Good)] * n
+                results[err.argument] = ua.StatusCode(getattr(ua.StatusCodes, err.argument_status))
+            result = _result(getattr(ua.StatusCodes, err.status), results, n=n)
+            await self._after()
+            return result
+        await self._after()
+        result = _result(ua.StatusCodes.Good, n=n)
+        result.OutputArguments = [self.types.variant(v, a) for v, a in zip(outputs or [], bound.outputs, strict=False)]
+        return result
+
+    async def _after(self) -> None:
+        for hook in self.after_call:
+            await hook()
+        await self.refresh_executable()
+
+
+def _result(code: int, arg_results: list[ua.StatusCode] | None = None, n: int = 0) -> ua.CallMethodResult:
+    r = ua.CallMethodResult()
+    r.StatusCode = ua.StatusCode(code)
+    r.InputArgumentResults = arg_results or []
+    return r
+
+
+# Built-in DataType ids (ns=0;i=1..25) have the same number as their VariantType.
+_ABSTRACT_NUMBERS = {26: "Number", 27: "Integer", 28: "UInteger", 29: "Enumeration"}
+_INTEGERS = {
+    ua.VariantType.SByte,
+    ua.VariantType.Byte,
+    ua.VariantType.Int16,
+    ua.VariantType.UInt16,
+    ua.VariantType.Int32,
+    ua.VariantType.UInt32,
+    ua.VariantType.Int64,
+    ua.VariantType.UInt64,
+}
+_UNSIGNED = {ua.VariantType.Byte, ua.VariantType.UInt16, ua.VariantType.UInt32, ua.VariantType.UInt64}
+
+
+class TypeChecker:
+    """Does a Variant match an Argument's DataType and ValueRank?"""
+
+    def __init__(self, server: Server) -> None:
+        self.aspace = server.iserver.aspace
+        self._builtin: dict[ua.NodeId, ua.VariantType | None] = {}
+
+    def _supertype(self, node: ua.NodeId) -> ua.NodeId | None:
+        data = self.aspace.get(node)
+        if data is None:
+            return None
+        for ref in data.references:
+            if not ref.IsForward and ref.ReferenceTypeId == ua.NodeId(ua.ObjectIds.HasSubtype):
+                return ref.NodeId
+        return None
+
+    def builtin_of(self, datatype: ua.NodeId) -> ua.VariantType | None:
+        """The VariantType a DataType is encoded as (enumerations -> Int32, structures -> ExtensionObject)."""
+        if datatype in self._builtin:
+            return self._builtin[datatype]
+        node: ua.NodeId | None = datatype
+        found: ua.VariantType | None = None
+        while node is not None:
+            if node.NamespaceIndex == 0 and isinstance(node.Identifier, int):
+                i = node.Identifier
+                if 1 <= i <= 25:
+                    found = ua.VariantType(i)
+                    break
+                if i == 29:
+                    found = ua.VariantType.Int32
+                    break
+                if i == 22:
+                    found = ua.VariantType.ExtensionObject
+                    break
+                if i in _ABSTRACT_NUMBERS:
+                    found = None
+                    break
+            node = self._supertype(node)
+        self._builtin[datatype] = found
+        return found
+
+    def _is_subtype(self, node: ua.NodeId | None, base: ua.NodeId) -> bool:
+        while node is not None:
+            if node == base:
+                return True
+            node = self._supertype(node)
+        return False
+
+    def _scalar_ok(self, value: Any, vtype: ua.VariantType, arg: ua.Argument, expected: ua.VariantType | None) -> bool:
+        dt = arg.DataType
+        if expected is None:  # abstract Number / Integer / UInteger
+            name = _ABSTRACT_NUMBERS.get(dt.Identifier) if dt.NamespaceIndex == 0 else None
+            if name == "Integer":
+                return vtype in _INTEGERS
+            if name == "UInteger":
+                return vtype in _UNSIGNED
+            return vtype in _INTEGERS or vtype in (ua.VariantType.Float, ua.VariantType.Double)
+        if dt == ua.NodeId(ua.ObjectIds.BaseDataType):
+            return True
+        if vtype != expected:
+            return False
+        if expected == ua.VariantType.ExtensionObject:
+            type_id = _datatype_of(value)
+            return type_id is not None and self._is_subtype(type_id, dt)
+        return True
+
+    def check(self, variant: ua.Variant, arg: ua.Argument) -> ua.StatusCode:
+        good, bad = ua.StatusCode(ua.StatusCodes.Good), ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
+        expected = self.builtin_of(arg.DataType)
+        vtype = variant.VariantType
+        is_array = variant.is_array or isinstance(variant.Value, list)
+        if arg.DataType == ua.NodeId(ua.ObjectIds.BaseDataType) and arg.ValueRank == -2:
+            return good
+        if arg.ValueRank == -1 or (arg.ValueRank == -3 and not is_array):
+            if (
+                is_array
+                or vtype == ua.VariantType.Null
+                or (variant.Value is None and vtype not in (ua.VariantType.String, ua.VariantType.ByteString))
+            ):
+                return bad
+            return good if self._scalar_ok(variant.Value, vtype, arg, expected) else bad
+        # arrays (ValueRank >= 1, or -3 with an array, or 0 = one or more dimensions)
+        if not is_array:
+            return bad
+        items = variant.Value or []
+        if not items:
+            return good if vtype in (expected, ua.VariantType.Null) or expected is None else bad
+        return good if all(self._scalar_ok(v, vtype, arg, expected) for v in items) else bad
+
+    def variant(self, value: Any, arg: ua.Argument) -> ua.Variant:
+        if isinstance(value, ua.Variant):
+            return value
+        vtype = self.builtin_of(arg.DataType) or ua.VariantType.Variant
+        return ua.Variant(value, vtype, is_array=arg.ValueRank >= 0 or isinstance(value, list))
+
+
+def _datatype_of(value: Any) -> ua.NodeId | None:
+    """The DataType NodeId of a decoded structure value (or of an undecoded ExtensionObject)."""
+    if isinstance(value, ua.ExtensionObject):
+        return None  # the server could not decode it: not a structure it knows
+    cls = type(value)
+    data_type = getattr(cls, "data_type", None)
+    if isinstance(data_type, ua.NodeId):
+        return data_type
+    # asyncua's generated classes are registered by their encoding ids
+    for nodeid, known in ua.extension_objects_by_datatype.items():
+        if known is cls:
+            return nodeid
+    return None

@@ -1,0 +1,228 @@
+"""The one state-machine binding: publishes a pure ``StateMachine`` on its OPC UA instance.
+
+For every machine (TaskControl, SystemOperation and their sub-machines; the three PackML machines)
+it keeps ``CurrentState`` (+``Id``, ``Number``) and ``LastTransition`` (+``Id``, ``Number``,
+``TransitionTime``) current, with ``Id`` the State/Transition node *of the type*; fills
+``AvailableStates``/``AvailableTransitions``; publishes ``LastTransitionReason`` where the type has
+it; answers ``Bad_StateNotActive`` for an inactive sub-machine; and fires a ``TransitionEventType``
+event for every transition to subscribers of the machine and of the Server object.
+
+Changes reach the address space through one ordered ``Publisher`` so that events and values keep
+the order in which the model produced them; the method dispatcher flushes it before answering.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import uuid
+from collections.abc import Awaitable, Callable
+from datetime import UTC, datetime
+
+from asyncua import Server, ua
+from asyncua.server.event_generator import EventGenerator
+
+from uacell.fsm import Change, StateMachine
+from uacell.models.tables import NodeRef
+
+log = logging.getLogger(__name__)
+_A = ua.AttributeIds
+_NOT_ACTIVE = ua.StatusCode(ua.StatusCodes.BadStateNotActive)
+
+
+class Publisher:
+    """Runs address-space updates one after another, in submission order."""
+
+    def __init__(self) -> None:
+        self._queue: asyncio.Queue[Callable[[], Awaitable[None]]] = asyncio.Queue()
+        self._task: asyncio.Task[None] | None = None
+
+    def submit(self, job: Callable[[], Awaitable[None]]) -> None:
+        self._queue.put_nowait(job)
+        if self._task is None or self._task.done():
+            self._task = asyncio.get_running_loop().create_task(self._run())
+
+    async def _run(self) -> None:
+        while not self._queue.empty():
+            job = self._queue.get_nowait()
+            try:
+                await job()
+            except Exception:
+                log.exception("publishing a change failed")
+            finally:
+                self._queue.task_done()
+
+    async def flush(self) -> None:
+        """Wait until everything submitted so far is in the address space."""
+        if not self._queue.empty() or self._queue._unfinished_tasks:  # type: ignore[attr-defined]
+            await self._queue.join()
+
+    async def close(self) -> None:
+        await self.flush()
+
+
+class NodeRefs:
+    """Translates NodeSet references (namespace URI, id) into this server's NodeIds."""
+
+    def __init__(self, namespace_array: list[str]) -> None:
+        self._index = {uri: i for i, uri in enumerate(namespace_array)}
+
+    def __call__(self, ref: NodeRef) -> ua.NodeId:
+        return ua.NodeId(ref[1], self._index[ref[0]])
+
+
+def _child(server: Server, node: ua.NodeId, name: str) -> ua.NodeId | None:
+    for ref in server.iserver.aspace[node].references:
+        if ref.IsForward and ref.BrowseName.Name == name and ref.ReferenceTypeId != ua.NodeId(40):
+            return ref.NodeId
+    return None
+
+
+class StateMachineBinding:
+    """Publishes one machine (and, through ``bind_tree``, its sub-machines) on its instance node."""
+
+    def __init__(self, server: Server, node: ua.NodeId, machine: StateMachine, refs: NodeRefs, publisher: Publisher):
+        self.server = server
+        self.node = node
+        self.machine = machine
+        self.refs = refs
+        self.publisher = publisher
+        self.children: list[StateMachineBinding] = []
+        c = lambda *path: self._path(*path)  # noqa: E731
+        self.current = c("CurrentState")
+        self.current_id = c("CurrentState", "Id")
+        self.current_number = c("CurrentState", "Number")
+        self.last = c("LastTransition")
+        self.last_id = c("LastTransition", "Id")
+        self.last_number = c("LastTransition", "Number")
+        self.last_time = c("LastTransition", "TransitionTime")
+        self.reason = c("LastTransitionReason")
+        self.available_states = c("AvailableStates")
+        self.available_transitions = c("AvailableTransitions")
+        self._event: EventGenerator | None = None
+        self._display = {name: self._display_name(info.node) for name, info in machine.table.states.items()} | {
+            name: self._display_name(info.node) for name, info in machine.table.transitions.items()
+        }
+
+    def _path(self, *names: str) -> ua.NodeId | None:
+        node: ua.NodeId | None = self.node
+        for name in names:
+            node = _child(self.server, node, name) if node is not None else None
+        return node
+
+    def _display_name(self, ref: NodeRef) -> ua.LocalizedText:
+        data = self.server.iserver.aspace.get(self.refs(ref))
+        if data is None:
+            return ua.LocalizedText(str(ref[1]))
+        return data.attributes[_A.DisplayName].value.Value.Value
+
+    async def start(self) -> None:
+        gen = EventGenerator(self.server.iserver.isession)
+        await gen.init(ua.ObjectIds.TransitionEventType, self.node, add_generates_event=False)
+        self._event = gen
+        table = self.machine.table
+        if self.available_states is not None:
+            ids = [self.refs(s.node) for s in sorted(table.states.values(), key=lambda s: s.number)]
+            await self._write(self.available_states, ua.Variant(ids, ua.VariantType.NodeId, is_array=True))
+        if self.available_transitions is not None:
+            ids = [
+                self.refs(t.node)
+                for t in sorted(table.transitions.values(), key=lambda t: table.transition_number(t.name))
+            ]
+            await self._write(self.available_transitions, ua.Variant(ids, ua.VariantType.NodeId, is_array=True))
+        self.machine.listeners.append(self._on_change)
+        await self.publish()
+
+    def _on_change(self, change: Change) -> None:
+        # The parent's state decides whether sub-machines are active: republish the whole subtree.
+        self.publisher.submit(self.publish_tree)
+        if change.transition is not None:
+            self.publisher.submit(lambda: self.fire(change))
+
+    async def publish_tree(self) -> None:
+        await self.publish()
+        for child in self.children:
+            await child.publish_tree()
+
+    async def _write(
+        self, node: ua.NodeId | None, value: ua.Variant | None, status: ua.StatusCode | None = None
+    ) -> None:
+        if node is None:
+            return
+        if status is not None:
+            dv = ua.DataValue(StatusCode=status, SourceTimestamp=datetime.now(UTC), ServerTimestamp=datetime.now(UTC))
+        else:
+            dv = ua.DataValue(value, SourceTimestamp=datetime.now(UTC), ServerTimestamp=datetime.now(UTC))
+        await self.server.iserver.aspace.write_attribute_value(node, _A.Value, dv)
+
+    async def publish(self) -> None:
+        m = self.machine
+        active = m.active
+        bad = None if active else _NOT_ACTIVE
+        state = m.table.states[m.current]
+        await self._write(self.current, ua.Variant(self._display[m.current], ua.VariantType.LocalizedText), bad)
+        await self._write(self.current_id, ua.Variant(self.refs(state.node), ua.VariantType.NodeId), bad)
+        await self._write(self.current_number, ua.Variant(state.number, ua.VariantType.UInt32), bad)
+        t = m.last_transition
+        if t is None:
+            # No transition yet: null values (Good for an active machine, as Part 16 allows).
+            for node in (self.last, self.last_id, self.last_number, self.last_time):
+                await self._write(node, ua.Variant(), bad)
+        else:
+            await self._write(self.last, ua.Variant(self._display[t.name], ua.VariantType.LocalizedText), bad)
+            await self._write(self.last_id, ua.Variant(self.refs(t.node), ua.VariantType.NodeId), bad)
+            number = m.table.transition_number(t.name)
+            await self._write(self.last_number, ua.Variant(number, ua.VariantType.UInt32), bad)
+            await self._write(self.last_time, ua.Variant(m.last_transition_time, ua.VariantType.DateTime), bad)
+        if self.reason is not None:
+            await self._write(self.reason, ua.Variant(int(m.last_reason), ua.VariantType.Int16))
+            text = _child(self.server, self.reason, "ValueAsText")
+            if text is not None:
+                await self._write(
+                    text, ua.Variant(ua.LocalizedText(m.last_reason.name.title()), ua.VariantType.LocalizedText)
+                )
+
+    async def fire(self, change: Change) -> None:
+        """Fire the TransitionEvent, to the machine's subscribers and to the Server object's."""
+        assert self._event is not None and change.transition is not None
+        table = self.machine.table
+        ev = self._event.event
+        t = change.transition
+        ev.EventId = ua.Variant(uuid.uuid4().hex.encode(), ua.VariantType.ByteString)
+        ev.Time = change.time
+        ev.ReceiveTime = datetime.now(UTC)
+        ev.Severity = 100
+        ev.SourceNode = self.node
+        ev.SourceName = self.machine.name
+        ev.Message = ua.LocalizedText(f"{self.machine.name}: {t.name} ({t.from_state} to {t.to_state})")
+        fields = {
+            "Transition": (self._display[t.name], ua.VariantType.LocalizedText),
+            "Transition/Id": (self.refs(t.node), ua.VariantType.NodeId),
+            "FromState": (self._display[t.from_state], ua.VariantType.LocalizedText),
+            "FromState/Id": (self.refs(table.states[t.from_state].node), ua.VariantType.NodeId),
+            "ToState": (self._display[t.to_state], ua.VariantType.LocalizedText),
+            "ToState/Id": (self.refs(table.states[t.to_state].node), ua.VariantType.NodeId),
+        }
+        for name, (value, vtype) in fields.items():
+            setattr(ev, name, value)
+            ev.data_types[name] = vtype
+        service = self.server.iserver.isession.subscription_service
+        for source in (self.node, ua.NodeId(ua.ObjectIds.Server)):
+            ev.emitting_node = source
+            await service.trigger_event(ev)
+        ev.emitting_node = self.node
+
+
+async def bind_tree(
+    server: Server, node: ua.NodeId, machine: StateMachine, publisher: Publisher, refs: NodeRefs | None = None
+) -> StateMachineBinding:
+    """Bind ``machine`` on ``node`` and each sub-machine on the child of the same BrowseName."""
+    refs = refs or NodeRefs(await server.get_namespace_array())
+    binding = StateMachineBinding(server, node, machine, refs, publisher)
+    for sub in machine.children:
+        sub_node = _child(server, node, sub.name)
+        if sub_node is None:
+            raise KeyError(f"{machine.name} instance has no {sub.name}")
+        binding.children.append(await bind_tree(server, sub_node, sub, publisher, refs))
+    await binding.start()
+    return binding

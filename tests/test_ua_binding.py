@@ -1,0 +1,257 @@
+"""The state-machine binding and the method dispatcher, through a real asyncua client over TCP.
+
+A test binder drives TaskControl1's machines directly (the Robotics issue adds real behaviour), so
+these tests exercise only the shared machinery: published state, events, Bad_StateNotActive,
+argument checks, roles and the no-exception-escapes rule.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+
+import pytest
+from asyncua import Client, ua
+from conftest import free_port
+
+from uacell.config import Config
+from uacell.errors import CallError
+from uacell.fsm import Reason, StateMachine
+from uacell.models import fsm_table
+from uacell.roles import Family, Role
+from uacell.server import UacellServer
+from uacell.ua.state_machine import bind_tree
+
+ROB = "http://opcfoundation.org/UA/Robotics/"
+TC_PATH = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
+
+
+class Rig:
+    """What the test binder made, so tests can drive it."""
+
+    machine: StateMachine
+    ready: StateMachine
+    calls: list
+
+
+async def _test_binder(app: UacellServer, rig: Rig):
+    ns = app.cell.instantiator.ns
+    node = ua.NodeId(TC_PATH, ns)
+    rig.machine = StateMachine("TaskControlStateMachine", fsm_table("Robotics", "TaskControlStateMachineType"), "Idle")
+    rig.ready = StateMachine(
+        "ReadySubstateMachine",
+        fsm_table("Robotics", "ReadySubstateMachineType"),
+        "AtProgramStart",
+        parent=rig.machine,
+        parent_state="Ready",
+    )
+    rig.calls = []
+    await bind_tree(app.server, node, rig.machine, app.publisher)
+    d = app.dispatcher
+
+    async def load_by_name(caller, name):
+        rig.calls.append((caller.role, name))
+        if name == "boom":
+            raise RuntimeError("behaviour bug")
+        if name == "bad":
+            raise CallError("BadInvalidArgument", "bad name", argument=0)
+        if rig.machine.current == "Idle":
+            rig.machine.take("IdleToReady", Reason.EXTERNAL)
+            rig.ready.enter("AtProgramStart")
+            return [0]
+        return [1]
+
+    async def load_by_node_id(caller, node_id):
+        return [0]
+
+    async def stop(caller, mode):
+        rig.calls.append(("stop", mode))
+        return [0]
+
+    d.bind(
+        node,
+        d.method_of(node, "LoadByName"),
+        Family.TASK_CONTROL,
+        load_by_name,
+        executable=lambda: rig.machine.current in ("Idle", "Ready"),
+        serialize_on=rig.machine,
+    )
+    d.bind(node, d.method_of(node, "LoadByNodeId"), Family.TASK_CONTROL, load_by_node_id)
+    d.bind(
+        node,
+        d.method_of(node, "Stop"),
+        Family.TASK_CONTROL,
+        stop,
+        executable=lambda: rig.machine.current == "Executing",
+    )
+    return None
+
+
+@pytest.fixture
+async def rig(tmp_path):
+    r = Rig()
+    config = Config()
+    config.server.port = free_port()
+    config.server.data_dir = tmp_path / "data"
+    app = UacellServer(config, binders=[lambda a: _test_binder(a, r)])
+    await app.setup()
+    await app.start()
+    client = Client(app.endpoint, timeout=30)
+    await client.connect()
+    r.app, r.client = app, client
+    r.ns = await client.get_namespace_index("urn:uacell:cell")
+    r.rob = await client.get_namespace_index(ROB)
+    r.tc = client.get_node(ua.NodeId(TC_PATH, r.ns))
+    try:
+        yield r
+    finally:
+        await client.disconnect()
+        await app.stop()
+
+
+def node(r: Rig, *path: str):
+    return r.client.get_node(ua.NodeId(".".join((TC_PATH, *path)), r.ns))
+
+
+async def call(r: Rig, method: str, *args: ua.Variant, on=None) -> ua.CallMethodResult:
+    req = ua.CallMethodRequest()
+    req.ObjectId = on or r.tc.nodeid
+    req.MethodId = ua.NodeId(f"{TC_PATH}.{method}", r.ns)
+    req.InputArguments = list(args)
+    (res,) = await r.client.uaclient.call([req])
+    return res
+
+
+async def test_current_state_and_last_transition_after_a_transition(rig):
+    r = rig
+    assert (await node(r, "CurrentState").read_value()).Text == "Idle"
+    assert await node(r, "CurrentState", "Id").read_value() == ua.NodeId(5040, r.rob)
+    assert await node(r, "CurrentState", "Number").read_value() == 1
+    res = await call(r, "LoadByName", ua.Variant("prog", ua.VariantType.String))
+    assert res.StatusCode.is_good() and res.OutputArguments[0].Value == 0
+    assert res.OutputArguments[0].VariantType == ua.VariantType.Int32
+    assert (await node(r, "CurrentState").read_value()).Text == "Ready"
+    assert await node(r, "CurrentState", "Id").read_value() == ua.NodeId(5041, r.rob)
+    assert await node(r, "CurrentState", "Number").read_value() == 2
+    assert (await node(r, "LastTransition").read_value()).Text == "IdleToReady"
+    assert await node(r, "LastTransition", "Id").read_value() == ua.NodeId(5044, r.rob)
+    assert await node(r, "LastTransition", "Number").read_value() == 2
+    assert await node(r, "LastTransition", "TransitionTime").read_value() is not None
+    assert await node(r, "LastTransitionReason").read_value() == 1
+    states = await node(r, "AvailableStates").read_value()
+    assert states == [ua.NodeId(5040, r.rob), ua.NodeId(5041, r.rob), ua.NodeId(5042, r.rob)]
+
+
+class _Collector:
+    def __init__(self):
+        self.events = []
+        self.arrived = asyncio.Event()
+
+    def event_notification(self, event):
+        self.events.append(event)
+        self.arrived.set()
+
+
+@pytest.mark.parametrize("source", ["machine", "server"])
+async def test_subscription_receives_the_transition_event(rig, source):
+    r = rig
+    handler = _Collector()
+    sub = await r.client.create_subscription(50, handler)
+    target = r.tc if source == "machine" else r.client.get_node(ua.ObjectIds.Server)
+    evtype = r.client.get_node(ua.ObjectIds.TransitionEventType)
+    await sub.subscribe_events(target, evtype)
+    await asyncio.sleep(0.2)
+    res = await call(r, "LoadByName", ua.Variant("prog", ua.VariantType.String))
+    assert res.StatusCode.is_good()
+    await asyncio.wait_for(handler.arrived.wait(), 10)
+    ev = handler.events[0]
+    assert ev.SourceNode == r.tc.nodeid
+    assert ev.Transition.Text == "IdleToReady"
+    assert getattr(ev, "Transition/Id") == ua.NodeId(5044, r.rob)
+    assert ev.FromState.Text == "Idle" and getattr(ev, "FromState/Id") == ua.NodeId(5040, r.rob)
+    assert ev.ToState.Text == "Ready" and getattr(ev, "ToState/Id") == ua.NodeId(5041, r.rob)
+    assert "IdleToReady" in ev.Message.Text
+    await sub.delete()
+
+
+async def test_sub_machine_reads_bad_state_not_active_until_parent_state_entered(rig):
+    r = rig
+    for path in (
+        ("ReadySubstateMachine", "CurrentState"),
+        ("ReadySubstateMachine", "CurrentState", "Id"),
+        ("ReadySubstateMachine", "LastTransition"),
+        ("ReadySubstateMachine", "LastTransition", "Id"),
+    ):
+        dv = await node(r, *path).read_data_value(raise_on_bad_status=False)
+        assert dv.StatusCode.value == ua.StatusCodes.BadStateNotActive, path
+    await call(r, "LoadByName", ua.Variant("prog", ua.VariantType.String))
+    dv = await node(r, "ReadySubstateMachine", "CurrentState").read_data_value()
+    assert dv.StatusCode.is_good() and dv.Value.Value.Text == "AtProgramStart"
+    assert await node(r, "ReadySubstateMachine", "CurrentState", "Id").read_value() == ua.NodeId(5023, r.rob)
+
+
+async def test_argument_errors_have_precise_codes_and_argument_results(rig):
+    r = rig
+    res = await call(r, "LoadByName")
+    assert res.StatusCode.value == ua.StatusCodes.BadArgumentsMissing
+    res = await call(r, "LoadByName", ua.Variant("a", ua.VariantType.String), ua.Variant("b", ua.VariantType.String))
+    assert res.StatusCode.value == ua.StatusCodes.BadTooManyArguments
+    res = await call(r, "LoadByName", ua.Variant(5, ua.VariantType.Int32))
+    assert res.StatusCode.value == ua.StatusCodes.BadTypeMismatch
+    assert [c.value for c in res.InputArgumentResults] == [ua.StatusCodes.BadTypeMismatch]
+    res = await call(r, "LoadByNodeId", ua.Variant("x", ua.VariantType.String))
+    assert res.StatusCode.value == ua.StatusCodes.BadTypeMismatch
+    res = await call(r, "Stop", ua.Variant(2, ua.VariantType.Int32))  # StopMode is Int64
+    assert res.StatusCode.value == ua.StatusCodes.BadTypeMismatch
+    res = await call(r, "Stop", ua.Variant(2, ua.VariantType.Int64))
+    assert res.StatusCode.is_good()
+    res = await call(r, "LoadByName", ua.Variant("bad", ua.VariantType.String))
+    assert res.StatusCode.value == ua.StatusCodes.BadInvalidArgument
+    assert [c.value for c in res.InputArgumentResults] == [ua.StatusCodes.BadInvalidArgument]
+    # nothing changed
+    assert (await node(r, "CurrentState").read_value()).Text == "Idle"
+
+
+async def test_method_on_wrong_object_is_method_invalid(rig):
+    r = rig
+    other = r.client.get_node(ua.ObjectIds.Server).nodeid
+    res = await call(r, "LoadByName", ua.Variant("p", ua.VariantType.String), on=other)
+    assert res.StatusCode.value == ua.StatusCodes.BadMethodInvalid
+    res = await call(r, "LoadByName", ua.Variant("p", ua.VariantType.String), on=ua.NodeId("nope", r.ns))
+    assert res.StatusCode.value == ua.StatusCodes.BadNodeIdUnknown
+
+
+async def test_exception_in_behaviour_is_internal_error_and_server_keeps_serving(rig):
+    r = rig
+    res = await call(r, "LoadByName", ua.Variant("boom", ua.VariantType.String))
+    assert res.StatusCode.value == ua.StatusCodes.BadInternalError
+    res = await call(r, "LoadByName", ua.Variant("prog", ua.VariantType.String))
+    assert res.StatusCode.is_good() and res.OutputArguments[0].Value == 0
+
+
+async def test_executable_follows_state(rig):
+    r = rig
+    load = node(r, "LoadByName")
+    stop = node(r, "Stop")
+    assert (await load.read_attribute(ua.AttributeIds.Executable)).Value.Value is True
+    assert (await stop.read_attribute(ua.AttributeIds.Executable)).Value.Value is False
+
+
+async def test_observer_gets_user_access_denied_and_nothing_changes(rig):
+    r = rig
+    # anonymous as on a plant network
+    manager = r.app.server.iserver.user_manager
+    manager.policy = dataclasses.replace(manager.policy, anonymous_role=Role.OBSERVER)
+    observer = Client(r.app.endpoint, timeout=30)
+    await observer.connect()
+    try:
+        req = ua.CallMethodRequest()
+        req.ObjectId = r.tc.nodeid
+        req.MethodId = ua.NodeId(f"{TC_PATH}.LoadByName", r.ns)
+        req.InputArguments = [ua.Variant("prog", ua.VariantType.String)]
+        (res,) = await observer.uaclient.call([req])
+        assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
+    finally:
+        await observer.disconnect()
+    assert (await node(r, "CurrentState").read_value()).Text == "Idle"
+    assert r.calls == []
