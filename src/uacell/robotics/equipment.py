@@ -146,5 +146,9 @@ class RobotEquipment(Protocol):
         ...
 
     async def stop(self, task: str, mode: StopMode) -> None:
-        """Ask the running ``run`` of ``task`` to stop in ``mode``; returns at once (``run`` ends later)."""
+        """Ask ``task``'s run to stop in ``mode``; returns at once (``run`` ends later).
+
+        The model calls it only while a run is under way, possibly before the ``run`` coroutine has
+        executed its first instruction: the request then applies to that run.
+        """
         ...

@@ -161,8 +161,7 @@ class SimulatedRobot:
     def axis_states(self) -> Sequence[AxisState]:
         now = self._now_or_zero()
         return tuple(
-            AxisState(p, v)
-            for p, v in zip(self._segment.positions(now), self._segment.speeds(now), strict=True)
+            AxisState(p, v) for p, v in zip(self._segment.positions(now), self._segment.speeds(now), strict=True)
         )
 
     @property
@@ -221,8 +220,8 @@ class SimulatedRobot:
 
     async def stop(self, task: str, mode: StopMode) -> None:
         t = self._task(task)
-        if not t.running:
-            return
+        # Kept even before the run's first instruction: the model may ask to stop a run it has just
+        # started whose coroutine has not begun yet. run() clears it when it ends.
         t.stop = StopMode(mode)
         if t.wake:
             t.wake.set()
@@ -232,18 +231,21 @@ class SimulatedRobot:
         if t.running:
             raise EquipmentError(f"{task} is already running")
         if not self.powered:
+            t.stop = None
             raise NotPowered("drive power is off")
         if t.program is None:
+            t.stop = None
             raise EquipmentError(f"no program loaded on {task}")
         try:
             steps = expand(t.program, t.modules or {})
         except ProgramError as e:
+            t.stop = None
             raise EquipmentError(f"{t.program.name}: {e}") from e
-        t.running, t.stop, t.alarm, t.wake = True, None, None, asyncio.Event()
+        t.running, t.alarm, t.wake = True, None, asyncio.Event()
         try:
             return await self._run(t, steps, pointer if 0 <= pointer < len(steps) else 0, mode, progress)
         finally:
-            t.running, t.wake = False, None
+            t.running, t.wake, t.stop = False, None, None
 
     async def _run(
         self, t: _Task, steps: Sequence[Step], i: int, mode: ExecutionMode, progress: Progress
@@ -276,8 +278,10 @@ class SimulatedRobot:
         if t.stop is not None and t.stop in (StopMode.QUICK_STOP, StopMode.ON_PATH):
             return True
         t.wake.clear()
+        # asyncio.timeout, not wait_for: 3.11's wait_for loses a cancel that races a set event.
         try:
-            await asyncio.wait_for(t.wake.wait(), max(0.0, sim_seconds) * self.time_scale)
+            async with asyncio.timeout(max(0.0, sim_seconds) * self.time_scale):
+                await t.wake.wait()
         except TimeoutError:
             return False
         return True
