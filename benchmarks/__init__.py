@@ -1,0 +1,1 @@
+"""uacell's benchmarks: `make bench` (python -m benchmarks)."""
