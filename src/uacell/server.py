@@ -11,6 +11,7 @@ from asyncua import Server, ua
 from uacell import __version__
 from uacell.cell import CellBuilder, build_cell
 from uacell.config import Config
+from uacell.packml.binding import bind_packml
 from uacell.roles import Role, listening_policy
 from uacell.ua.access import UacellUserManager
 from uacell.ua.dispatch import MethodDispatcher
@@ -102,4 +103,4 @@ class UacellServer:
 
 def default_binders() -> list[Binder]:
     """The domain bindings of a full server (filled in as the domains are bound)."""
-    return []
+    return [bind_packml]

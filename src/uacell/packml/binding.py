@@ -1,0 +1,378 @@
+"""Binds each PackML unit of the cell (role ``packml_unit``) to its PackMLBaseObjectType instance.
+
+The pure ``PackMLUnit`` owns every rule; this module only translates: the three machines go through
+the shared state-machine binding, every method through the dispatcher, Status/Admin values from the
+model's listener to the address space (typed by each variable's DataType), and asyncua structure
+values to and from the model's dataclasses. Server-defined additions, in the cell namespace:
+``<unit>/Status/StartParameters`` (the last accepted Start's parameters) and
+``<unit>/InjectFault(Id, Message)`` (admin only: simulate an equipment fault).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Awaitable, Callable, Sequence
+from datetime import datetime
+from typing import Any
+
+from asyncua import ua
+
+from uacell.packml.admin_store import AdminStore
+from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLUnit
+from uacell.packml.sim import SimulatedUnit
+from uacell.packml.types import (
+    EUInformation,
+    PackMLAlarmDataType,
+    PackMLCountDataType,
+    PackMLDescriptorDataType,
+    PackMLIngredientsDataType,
+    PackMLProductDataType,
+    PackMLRemoteInterfaceDataType,
+)
+from uacell.roles import Family
+from uacell.ua.state_machine import bind_tree
+
+log = logging.getLogger(__name__)
+
+PACKML_URI = "http://opcfoundation.org/UA/PackML/"
+# DataType ids of the PackML structures (OPC 30050 NodeSet, namespace PACKML_URI).
+COUNT_TYPE, ALARM_TYPE, DESCRIPTOR_TYPE, INGREDIENTS_TYPE, PRODUCT_TYPE, REMOTE_TYPE = 14, 15, 16, 17, 18, 19
+MODE_ENUM = "ProductionMaintenanceModeEnum"
+TICK_PERIOD = 0.1
+INJECT_FAULT = "InjectFault"
+_A = ua.AttributeIds
+
+
+# --- asyncua structures -> model ----------------------------------------------------------------
+
+
+def _text(t: Any) -> str:
+    if isinstance(t, ua.LocalizedText):
+        return t.Text or ""
+    return "" if t is None else str(t)
+
+
+def eu_from_ua(eu: Any) -> EUInformation:
+    if eu is None:
+        return EUInformation()
+    return EUInformation(eu.NamespaceUri or "", int(eu.UnitId), _text(eu.DisplayName), _text(eu.Description))
+
+
+def descriptor_from_ua(d: Any) -> PackMLDescriptorDataType:
+    return PackMLDescriptorDataType(d.ID, d.Name or "", eu_from_ua(d.Unit), d.Value)
+
+
+def descriptors_from_ua(items: Sequence[Any] | None) -> list[PackMLDescriptorDataType]:
+    return [descriptor_from_ua(d) for d in items or []]
+
+
+def product_from_ua(p: Any) -> PackMLProductDataType:
+    ingredients = tuple(
+        PackMLIngredientsDataType(i.IngredientID, tuple(descriptors_from_ua(i.Parameter))) for i in p.Ingredients or []
+    )
+    return PackMLProductDataType(p.ProductID, tuple(descriptors_from_ua(p.ProcessVariables)), ingredients)
+
+
+def remote_from_ua(r: Any) -> PackMLRemoteInterfaceDataType:
+    return PackMLRemoteInterfaceDataType(
+        r.Number, r.ControlCmdNumber, r.CmdValue, tuple(descriptors_from_ua(r.Parameter))
+    )
+
+
+# --- model -> asyncua structures ----------------------------------------------------------------
+
+
+class Structures:
+    """Builds the server's registered PackML structure classes from the model's dataclasses."""
+
+    def __init__(self, packml_ns: int) -> None:
+        self.ns = packml_ns
+
+    def cls(self, identifier: int) -> type:
+        # Looked up on use: the classes are (re)registered when a server loads the PackML NodeSet.
+        return ua.extension_objects_by_datatype[ua.NodeId(identifier, self.ns)]
+
+    def convert(self, value: Any) -> Any:
+        """A model value (dataclass, list, tuple range, scalar) as the value to put in a Variant."""
+        if isinstance(value, list):
+            return [self.convert(v) for v in value]
+        if isinstance(value, EUInformation):
+            return ua.EUInformation(
+                NamespaceUri=value.namespace_uri,
+                UnitId=value.unit_id,
+                DisplayName=ua.LocalizedText(value.display_name),
+                Description=ua.LocalizedText(value.description),
+            )
+        if isinstance(value, PackMLDescriptorDataType):
+            return self.cls(DESCRIPTOR_TYPE)(value.id, value.name, self.convert(value.unit), value.value)
+        if isinstance(value, PackMLCountDataType):
+            return self.cls(COUNT_TYPE)(value.id, value.name, self.convert(value.unit), value.count, value.acc_count)
+        if isinstance(value, PackMLAlarmDataType):
+            return self.cls(ALARM_TYPE)(
+                value.id, value.value, value.message, value.category,
+                _utc(value.date_time), _utc(value.ack_date_time), value.trigger,
+            )
+        if isinstance(value, PackMLIngredientsDataType):
+            return self.cls(INGREDIENTS_TYPE)(value.ingredient_id, self.convert(list(value.parameter)))
+        if isinstance(value, PackMLProductDataType):
+            return self.cls(PRODUCT_TYPE)(
+                value.product_id, self.convert(list(value.process_variables)), self.convert(list(value.ingredients))
+            )
+        if isinstance(value, PackMLRemoteInterfaceDataType):
+            return self.cls(REMOTE_TYPE)(
+                value.number, value.control_cmd_number, value.cmd_value, self.convert(list(value.parameter))
+            )
+        if isinstance(value, tuple) and len(value) == 2:  # an EURange (low, high)
+            return ua.Range(float(value[0]), float(value[1]))
+        return value
+
+
+def _utc(t: datetime | None) -> datetime:
+    # A missing UtcTime is OPC UA's null DateTime (encodes as 0).
+    return t if t is not None else ua.get_win_epoch()
+
+
+# --- the binding ----------------------------------------------------------------------------------
+
+
+class UnitBinding:
+    """One PackML unit on its instance node."""
+
+    def __init__(self, app: Any, built: Any, unit: PackMLUnit) -> None:
+        self.app = app
+        self.built = built
+        self.unit = unit
+        self.node: ua.NodeId = built.node
+        self.ns: int = app.cell.instantiator.ns
+        self.aspace = app.server.iserver.aspace
+        self.structures = Structures(app.model_indexes["PackML"])
+        self.variables: dict[str, tuple[ua.NodeId, ua.VariantType, int]] = {}  # key -> node, type, rank
+        self.task: asyncio.Task[None] | None = None
+
+    # nodes ------------------------------------------------------------------------------------
+    def child(self, path: str) -> ua.NodeId:
+        return self.app.cell.child(self.node, path)
+
+    def _variable(self, key: str) -> tuple[ua.NodeId, ua.VariantType, int] | None:
+        if key not in self.variables:
+            try:
+                nodeid = self.child(key)
+            except KeyError:
+                log.warning("%s has no %s; not published", self.unit.name, key)
+                return None
+            attrs = self.aspace[nodeid].attributes
+            datatype = attrs[_A.DataType].value.Value.Value
+            rank = attrs[_A.ValueRank].value.Value.Value
+            vtype = self.app.dispatcher.types.builtin_of(datatype) or ua.VariantType.Variant
+            self.variables[key] = (nodeid, vtype, rank)
+        return self.variables[key]
+
+    async def add_start_parameters(self) -> None:
+        """The server-defined read-only ``Status/StartParameters`` (PackMLDescriptorDataType[])."""
+        status = self.app.server.get_node(self.child("Status"))
+        nodeid = ua.NodeId(f"{self.built.path}.Status.StartParameters", self.ns)
+        datatype = ua.NodeId(DESCRIPTOR_TYPE, self.structures.ns)
+        var = await status.add_variable(
+            nodeid,
+            ua.QualifiedName("StartParameters", self.ns),
+            ua.Variant([], ua.VariantType.ExtensionObject, is_array=True),
+            datatype=datatype,
+        )
+        await var.write_attribute(_A.ValueRank, ua.DataValue(ua.Variant(1, ua.VariantType.Int32)))
+        await var.write_attribute(
+            _A.ArrayDimensions, ua.DataValue(ua.Variant([0], ua.VariantType.UInt32, is_array=True))
+        )
+        await var.write_attribute(
+            _A.Description,
+            ua.DataValue(ua.Variant(
+                ua.LocalizedText("uacell: the parameters of the last accepted Start"), ua.VariantType.LocalizedText
+            )),
+        )
+
+    async def add_inject_fault(self) -> ua.NodeId:
+        """``InjectFault(Int32 Id, String Message)`` under the unit (unknown to roles: admin only)."""
+        obj = self.app.server.get_node(self.node)
+        nodeid = ua.NodeId(f"{self.built.path}.{INJECT_FAULT}", self.ns)
+        inputs = []
+        for name, vtype, text in (
+            ("Id", ua.VariantType.Int32, "alarm ID"),
+            ("Message", ua.VariantType.String, "alarm message"),
+        ):
+            arg = ua.Argument()
+            arg.Name = name
+            arg.DataType = ua.NodeId(vtype.value)
+            arg.ValueRank = -1
+            arg.ArrayDimensions = []
+            arg.Description = ua.LocalizedText(text)
+            inputs.append(arg)
+
+        async def unused(parent, *args):  # the dispatcher answers every call of this method
+            return [ua.StatusCode(ua.StatusCodes.BadInternalError)]
+
+        method = await obj.add_method(nodeid, ua.QualifiedName(INJECT_FAULT, self.ns), unused, inputs, [])
+        return method.nodeid
+
+    # publishing ---------------------------------------------------------------------------------
+    def on_change(self, changed: dict[str, Any]) -> None:
+        values = {k: v for k, v in changed.items() if k != "Executable"}
+        if values:
+            self.app.publisher.submit(lambda: self.write(values))
+        if "Executable" in changed:
+            # Acting states complete outside any call: Executable must follow then too.
+            self.app.publisher.submit(self.app.dispatcher.refresh_executable)
+
+    def variant(self, key: str, value: Any) -> ua.Variant | None:
+        found = self._variable(key)
+        if found is None:
+            return None
+        _, vtype, rank = found
+        converted = self.structures.convert(value)
+        if isinstance(converted, list):
+            if rank >= 2:
+                # Int32[][]: asyncua derives Dimensions from the nested lists; keep them for empty rows.
+                dims = [len(converted), len(converted[0]) if converted else 0]
+                flat = [x for row in converted for x in row]
+                return ua.Variant(flat, vtype, Dimensions=dims, is_array=True)
+            return ua.Variant(converted, vtype, is_array=True)
+        return ua.Variant(converted, vtype)
+
+    async def write(self, values: dict[str, Any]) -> None:
+        for key, value in values.items():
+            v = self.variant(key, value)
+            if v is not None:
+                node = self.variables[key][0]
+                await self.app.server.write_attribute_value(node, ua.DataValue(v))
+
+    async def publish_constants(self) -> None:
+        modes = self._mode_enum()
+        if modes is not None:
+            node = self.child("Status/UnitSupportedModes")
+            await self.app.server.write_attribute_value(node, ua.DataValue(ua.Variant(modes, ua.VariantType.NodeId)))
+        with contextlib.suppress(KeyError):
+            node = self.child("TagID")
+            await self.app.server.write_attribute_value(
+                node, ua.DataValue(ua.Variant(self.unit.name, ua.VariantType.String))
+            )
+
+    def _mode_enum(self) -> ua.NodeId | None:
+        ns = self.structures.ns
+        for ref in self.aspace[ua.NodeId(ua.ObjectIds.Enumeration)].references:
+            if ref.IsForward and ref.BrowseName == ua.QualifiedName(MODE_ENUM, ns):
+                return ref.NodeId
+        log.warning("the PackML NodeSet has no %s", MODE_ENUM)
+        return None
+
+    # methods ------------------------------------------------------------------------------------
+    def bind_methods(self, machine_nodes: dict[str | None, ua.NodeId], fault_method: ua.NodeId) -> None:
+        d = self.app.dispatcher
+        unit = self.unit
+        for machine_name, method in unit.methods():
+            obj = machine_nodes[machine_name]
+            d.bind(
+                obj,
+                d.method_of(obj, method),
+                Family.PACKML,
+                self._handler(machine_name, method),
+                executable=(lambda m=machine_name, n=method: unit.executable(m, n)),
+                serialize_on=unit,
+            )
+        d.bind(self.node, fault_method, Family.PACKML, self._inject_fault, serialize_on=unit)
+
+    def _handler(self, machine_name: str | None, method: str) -> Callable[..., Awaitable[list[Any]]]:
+        convert = _INPUTS.get(method, lambda *a: a)
+
+        async def handler(caller: Any, *values: Any) -> list[Any]:
+            log.info("%s: %s.%s by %s", self.unit.name, machine_name or "unit", method, caller.display_user)
+            self.unit.command(machine_name, method, *convert(*values))
+            return []
+
+        return handler
+
+    async def _inject_fault(self, caller: Any, alarm_id: int, message: str) -> list[Any]:
+        log.warning("%s: fault injected by %s", self.unit.name, caller.display_user)
+        eq = self.unit.equipment
+        if isinstance(eq, SimulatedUnit):
+            eq.inject_fault(alarm_id, message or "injected fault")
+        else:
+            self.unit.fault(alarm_id, message or "injected fault", category=1)
+        return []
+
+    # life ---------------------------------------------------------------------------------------
+    async def close(self) -> None:
+        if self.task is not None:
+            self.task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self.task
+        self.unit.close()
+
+
+def _start_inputs(parameter: Any) -> tuple[Any, ...]:
+    return (descriptors_from_ua(parameter),)
+
+
+def _products(products: Any) -> tuple[Any, ...]:
+    return ([product_from_ua(p) for p in products or []],)
+
+
+def _remotes(remotes: Any) -> tuple[Any, ...]:
+    return ([remote_from_ua(r) for r in remotes or []],)
+
+
+_INPUTS: dict[str, Callable[..., tuple[Any, ...]]] = {
+    "Start": _start_inputs,
+    "SetParameter": _start_inputs,
+    "SetProduct": _products,
+    "RemoteCommand": _remotes,
+    "SetUnitMode": lambda mode: (int(mode),),
+    "SetMachSpeed": lambda speed: (float(speed),),
+    "SetInterlock": lambda interlock_id, state: (interlock_id, bool(state)),
+}
+
+
+async def bind_unit(app: Any, built: Any) -> UnitBinding:
+    name = built.part.name
+    cfg = app.config.packml
+    unit = PackMLUnit(
+        SimulatedUnit(acting_time=cfg.acting_time),
+        name=name,
+        store=AdminStore(app.data_dir / "packml" / f"{name}.json"),
+        mach_speed=cfg.mach_speed,
+        models_dir=app.config.server.models_dir,
+    )
+    b = UnitBinding(app, built, unit)
+    base = b.child("BaseStateMachine")
+    machine = app.cell.child(base, MACHINE)
+    execute = app.cell.child(machine, EXECUTE)
+    await bind_tree(app.server, base, unit.base, app.publisher, app.refs)
+    await b.add_start_parameters()
+    fault_method = await b.add_inject_fault()
+    b.bind_methods({BASE: base, MACHINE: machine, EXECUTE: execute, UNIT: b.node}, fault_method)
+    await b.publish_constants()
+    values = unit.values()
+    values.pop("Executable")
+    await b.write(values)
+    unit.listeners.append(b.on_change)
+    b.task = asyncio.get_running_loop().create_task(unit.run(TICK_PERIOD), name=f"packml-{name}")
+    return b
+
+
+async def bind_packml(app: Any) -> Callable[[], Awaitable[None]] | None:
+    """The PackML binder for ``UacellServer``: every part with role ``packml_unit``."""
+    bindings = [await bind_unit(app, built) for built in app.cell.by_role("packml_unit")]
+    if not bindings:
+        return None
+
+    async def close() -> None:
+        for b in bindings:
+            try:
+                await b.close()
+            except Exception:
+                log.exception("closing PackML unit %s failed", b.unit.name)
+        await app.publisher.flush()
+
+    return close
+
+
+__all__ = ["UnitBinding", "bind_packml"]
