@@ -86,7 +86,8 @@ def main() -> int:
             startup.append(cell_t / bare_t)
             memory.append(cell_m / bare_m)
             print(
-                f"round {i + 1}: start-up {cell_t:.2f}s vs {bare_t:.2f}s, RSS {cell_m // 1024} MiB vs {bare_m // 1024} MiB"
+                f"round {i + 1}: start-up {cell_t:.2f}s vs {bare_t:.2f}s, "
+                f"RSS {cell_m // 1024} MiB vs {bare_m // 1024} MiB"
             )
     print(f"start-up ratio uacell/bare asyncua (median): {statistics.median(startup):.2f}")
     print(f"memory ratio uacell/bare asyncua (median):   {statistics.median(memory):.2f}")
