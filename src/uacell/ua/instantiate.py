@@ -19,8 +19,9 @@ It works directly on asyncua's address space, which keeps start-up fast.
 
 from __future__ import annotations
 
-import fnmatch
+import functools
 import logging
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -81,10 +82,24 @@ class Selection:
 
 
 def _match(path: str, pattern: str) -> bool:
-    # fnmatch's "*" already crosses "/"; make a single "*" stay within one name.
-    if "**" in pattern:
-        return fnmatch.fnmatchcase(path, pattern.replace("**", "*"))
-    return path.count("/") == pattern.count("/") and fnmatch.fnmatchcase(path, pattern)
+    return _compile(pattern).fullmatch(path) is not None
+
+
+@functools.cache
+def _compile(pattern: str) -> re.Pattern[str]:
+    """``*``/``?`` stay within one name; ``**`` spans any number of names (zero included, but a
+    trailing ``**`` needs at least one, so ``A/**`` means "below A")."""
+    segments = pattern.split("/")
+    out = []
+    for i, seg in enumerate(segments):
+        last = i == len(segments) - 1
+        if seg == "**":
+            out.append(".+" if last else "(?:[^/]+/)*")
+            continue
+        out.append("".join("[^/]*" if c == "*" else "[^/]" if c == "?" else re.escape(c) for c in seg))
+        if not last:
+            out.append("/")
+    return re.compile("".join(out))
 
 
 class TypeIndex:
