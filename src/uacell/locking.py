@@ -88,6 +88,9 @@ class LockManager:
         self._parent[element] = parent
         self._lockable[element] = lockable
 
+    def __contains__(self, element: object) -> bool:
+        return element in self._parent
+
     def _lineage(self, element: Hashable) -> Iterator[Hashable]:
         """The element itself, then its ancestors up to the root."""
         if element not in self._parent:

@@ -72,6 +72,9 @@ class UacellServer:
         self.server.set_endpoint(self.endpoint)
         self.server.set_server_name("uacell")
         await self.server.set_application_uri(APPLICATION_URI)
+        from uacell.security import install_security
+
+        self.security = await install_security(self)
         self.server.product_uri = PRODUCT_URI
         await self.server.set_build_info(PRODUCT_URI, "uacell", "uacell", __version__, "0", ua.DateTime.now())
         self.model_indexes = await load_models(self.server, self.config.server.models_dir)
@@ -103,4 +106,6 @@ class UacellServer:
 
 def default_binders() -> list[Binder]:
     """The domain bindings of a full server (filled in as the domains are bound)."""
-    return [bind_packml]
+    from uacell.ua.locks import bind_locks
+
+    return [bind_packml, bind_locks]

@@ -221,3 +221,44 @@ class LoginThrottle:
         now = self._clock()
         for address in [a for a, t in self._last_seen.items() if now - t > self.forget_after]:
             self.succeeded(address)
+
+
+def _read_password(from_stdin: bool) -> str:
+    """The new password: the first line of standard input, or typed twice at a prompt."""
+    import getpass
+    import sys
+
+    if from_stdin:
+        return sys.stdin.readline().rstrip("\r\n")
+    first = getpass.getpass("Password: ")
+    if getpass.getpass("Repeat password: ") != first:
+        raise UserError("the passwords do not match")
+    return first
+
+
+def run_user_command(args, data_dir: Path) -> int:
+    """``uacell user add|remove|list`` (args from uacell.cli); returns the exit status."""
+    import sys
+
+    store = UserStore.in_data_dir(Path(data_dir))
+    try:
+        if args.action == "add":
+            validate_name(args.name)
+            existed = store.role_of(args.name) is not None
+            store.add(args.name, args.role, _read_password(args.password_stdin))
+            print(f"{'updated' if existed else 'added'} user {args.name} ({args.role}) in {store.path}")
+        elif args.action == "remove":
+            store.remove(args.name)
+            print(f"removed user {args.name} from {store.path}")
+        elif args.action == "list":
+            for user in store.list():
+                print(f"{user.name}\t{user.role.label}")
+        else:
+            raise UserError(f"unknown action {args.action!r}")
+    except (UserError, ValueError, OSError) as exc:
+        print(f"uacell: {exc}", file=sys.stderr)
+        return 1
+    except (KeyboardInterrupt, EOFError):
+        print("uacell: cancelled", file=sys.stderr)
+        return 130
+    return 0
