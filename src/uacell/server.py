@@ -12,6 +12,7 @@ from uacell import __version__
 from uacell.cell import CellBuilder, build_cell
 from uacell.config import Config
 from uacell.packml.binding import bind_packml
+from uacell.robotics.binding import bind_robotics
 from uacell.roles import Role, listening_policy
 from uacell.ua.access import UacellUserManager
 from uacell.ua.dispatch import MethodDispatcher
@@ -108,4 +109,4 @@ def default_binders() -> list[Binder]:
     """The domain bindings of a full server (filled in as the domains are bound)."""
     from uacell.ua.locks import bind_locks
 
-    return [bind_packml, bind_locks]
+    return [bind_packml, bind_robotics, bind_locks]
