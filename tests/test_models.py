@@ -51,8 +51,14 @@ def _sha(path: Path) -> str:
 
 def _uacell(*args: str, env: dict[str, str] | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
     full_env = {k: v for k, v in os.environ.items() if k != source.ENV_VAR}
-    return subprocess.run([sys.executable, "-m", "uacell", *args], capture_output=True, text=True,
-                          timeout=timeout, env={**full_env, **(env or {})}, check=False)
+    return subprocess.run(
+        [sys.executable, "-m", "uacell", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**full_env, **(env or {})},
+        check=False,
+    )
 
 
 # Locating and verifying
@@ -163,13 +169,15 @@ def _fake_npm(tmp_path: Path, tarball: Path) -> Path:
     bindir = tmp_path / "bin"
     bindir.mkdir()
     npm = bindir / "npm"
-    npm.write_text(textwrap.dedent(f"""\
+    npm.write_text(
+        textwrap.dedent(f"""\
         #!{sys.executable}
         import shutil, sys
         args = sys.argv[1:]
         assert args[:2] == ["pack", "{source.NPM_PACKAGE}@{source.NPM_VERSION}"], args
         shutil.copy({str(tarball)!r}, args[args.index("--pack-destination") + 1])
-    """))
+    """)
+    )
     npm.chmod(npm.stat().st_mode | stat.S_IXUSR)
     return bindir
 
@@ -249,7 +257,8 @@ def test_design_tool_only_nodes_of_di_are_left_out(real_models):
 
 def test_design_tool_only_subtrees_and_references_to_them_go(tmp_path):
     nodeset = tmp_path / "Small.NodeSet2.xml"
-    nodeset.write_text(textwrap.dedent("""\
+    nodeset.write_text(
+        textwrap.dedent("""\
         <UANodeSet xmlns="http://opcfoundation.org/UA/2011/03/UANodeSet.xsd">
           <NamespaceUris><Uri>urn:small</Uri></NamespaceUris>
           <UAObject NodeId="ns=1;i=1" BrowseName="1:Kept">
@@ -276,7 +285,8 @@ def test_design_tool_only_subtrees_and_references_to_them_go(tmp_path):
             <References><Reference ReferenceType="HasComponent" IsForward="false">ns=1;i=1</Reference></References>
           </UAVariable>
         </UANodeSet>
-    """))
+    """)
+    )
     xml, dropped = without_design_tool_only(nodeset)
     root = ET.fromstring(xml)
     assert dropped == 3
@@ -328,8 +338,9 @@ async def test_the_server_has_no_design_tool_only_node(served):
     di = await client.get_namespace_index(DI_URI)
     design_only = [73, 74, 75, 90, 91, 92, 93, 94, 95]
     rp = ua.ReadParameters()
-    rp.NodesToRead = [ua.ReadValueId(NodeId=ua.NodeId(i, di), AttributeId=ua.AttributeIds.BrowseName)
-                      for i in [*design_only, 1005]]
+    rp.NodesToRead = [
+        ua.ReadValueId(NodeId=ua.NodeId(i, di), AttributeId=ua.AttributeIds.BrowseName) for i in [*design_only, 1005]
+    ]
     values = await client.uaclient.read(rp)
     codes = [v.StatusCode.value for v in values]
     assert codes[:-1] == [ua.StatusCodes.BadNodeIdUnknown] * len(design_only)
@@ -374,11 +385,18 @@ async def test_a_fresh_client_builds_a_packml_descriptor_from_the_definition(ser
     # A separate process: this one already holds the server's own copy of the generated classes.
     endpoint, _ = served
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-c", _CLIENT_SCRIPT, endpoint,
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        sys.executable,
+        "-c",
+        _CLIENT_SCRIPT,
+        endpoint,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
     )
     out, err = await asyncio.wait_for(proc.communicate(), timeout=120)
     assert proc.returncode == 0, err.decode()
     assert json.loads(out.decode().strip().splitlines()[-1]) == {
-        "id": 7, "name": "Speed", "unit": "m/s", "value": 1.5,
+        "id": 7,
+        "name": "Speed",
+        "unit": "m/s",
+        "value": 1.5,
     }
