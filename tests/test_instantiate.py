@@ -35,17 +35,18 @@ module_loop = pytest.mark.asyncio(loop_scope="module")
         ("**", "A/B/C", True),
         ("**/CurrentState/Number", "X/Y/CurrentState/Number", True),
         ("**/CurrentState/Number", "X/CurrentState/Id", False),
+        ("**/Last*/Number", "A/LastTransition/Number", True),
+        ("Lo?k", "Lock", True),
+        ("Lo?k", "Lo/k", False),
     ],
 )
 def test_selection_patterns(pattern, path, wanted):
     assert Selection((pattern,)).wants(path) is wanted
 
 
-
 @pytest.mark.parametrize(("pattern", "path"), [("**/CurrentState/Number", "CurrentState/Number"), ("A/**/Z", "A/Z")])
 def test_double_star_matches_zero_levels(pattern, path):
     assert Selection((pattern,)).wants(path)
-
 
 
 def test_single_star_stays_in_one_name_next_to_a_double_star():
@@ -260,7 +261,8 @@ class Small:
 
     async def children(self, nodeid: ua.NodeId) -> dict[str, ua.ReferenceDescription]:
         refs = await self.server.get_node(nodeid).get_references(
-            refs=ua.ObjectIds.HierarchicalReferences, direction=ua.BrowseDirection.Forward)
+            refs=ua.ObjectIds.HierarchicalReferences, direction=ua.BrowseDirection.Forward
+        )
         return {r.BrowseName.to_string(): r for r in refs}
 
     async def tree(self, nodeid: ua.NodeId, prefix: str = "") -> set[str]:
@@ -347,8 +349,9 @@ async def test_placeholders_and_states_are_never_created(small):
 @module_loop
 async def test_addin_is_named_by_default_instance_browse_name_in_the_type_namespace(small):
     node = small.instantiator.create(OBJECTS, small.type(1010), "WithAddIn", Selection(("Helper",)))
-    refs = await small.server.get_node(node).get_references(refs=17604, direction=ua.BrowseDirection.Forward,
-                                                             includesubtypes=False)
+    refs = await small.server.get_node(node).get_references(
+        refs=17604, direction=ua.BrowseDirection.Forward, includesubtypes=False
+    )
     assert [r.BrowseName for r in refs] == [small.q("Helper")]
     assert refs[0].TypeDefinition == small.type(1002)
     assert refs[0].NodeId == ua.NodeId("WithAddIn.Helper", small.cell_ns)
