@@ -1,0 +1,61 @@
+"""node-opcua starts Filler1 with a PackMLDescriptorDataType[] it built itself; the server must have
+received exactly those IDs, Names, Units and Values (read back from Status/StartParameters by both
+node-opcua and asyncua)."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+from asyncua import Client, ua
+from conftest import run_node
+
+pytestmark = pytest.mark.interop
+
+CEFACT = "http://www.opcfoundation.org/UA/units/un/cefact"
+# What interop/packml_start.js sends.
+EXPECTED = [
+    (101, "FillVolume", (CEFACT, 5002584, "ml", "millilitre"), 250.5),
+    (202, "SealTemperature", (CEFACT, 4408652, "°C", "degree Celsius"), -12.25),
+]
+
+
+def run_trusted(serve_process, script: str) -> dict:
+    """Run a node-opcua script; if the server refused its certificate, trust it as an operator would
+    (move it from pki/rejected to pki/trusted) and run again."""
+    try:
+        return run_node(script, serve_process.endpoint)
+    except AssertionError as first:
+        rejected = serve_process.data_dir / "pki" / "rejected"
+        moved = [shutil.move(f, serve_process.data_dir / "pki" / "trusted" / f.name) for f in rejected.glob("*")]
+        if not moved or "BadCertificateUntrusted" not in str(first):
+            raise
+        return run_node(script, serve_process.endpoint)
+
+
+async def test_node_opcua_start_parameters_arrive_exactly(serve_process):
+    out = run_trusted(serve_process, "packml_start.js")
+    assert (out["reset"], out["start"], out["state"], out["readStatus"]) == ("Good", "Good", "Execute", "Good")
+    received = [
+        (p["id"], p["name"], (p["unit"]["namespaceUri"], p["unit"]["unitId"], p["unit"]["displayName"],
+                              p["unit"]["description"]), p["value"])
+        for p in out["received"]
+    ]
+    assert received == EXPECTED
+
+    async with Client(serve_process.endpoint, timeout=30) as client:
+        await client.load_data_type_definitions()
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        pml = await client.get_namespace_index("http://opcfoundation.org/UA/PackML/")
+        assert out["startParametersDataType"] == f"ns={pml};i=16"
+        node = client.get_node(ua.NodeId("Filler1.Status.StartParameters", ns))
+        values = await node.read_value()
+        seen = [
+            (p.ID, p.Name, (p.Unit.NamespaceUri, p.Unit.UnitId, p.Unit.DisplayName.Text, p.Unit.Description.Text),
+             p.Value)
+            for p in values
+        ]
+        assert seen == EXPECTED
+        assert await node.read_data_type() == ua.NodeId(16, pml)
+        state = client.get_node(ua.NodeId("Filler1.BaseStateMachine.MachineState.ExecuteState.CurrentState", ns))
+        assert (await state.read_value()).Text == "Execute"  # the simulator runs until told otherwise
