@@ -96,15 +96,21 @@ def _sha256(path: Path) -> str:
 
 
 def _find(directory: Path, model: ModelFile) -> Path | None:
-    """The file in ``directory``: at its top, or anywhere below it (a UA-Nodeset checkout)."""
+    """The file in ``directory``: at its top, or anywhere below it (a UA-Nodeset checkout).
+
+    Below the top, a copy with the right digest wins; if none has it, the first copy is returned so
+    that the caller reports the digest mismatch rather than a missing file.
+    """
     direct = directory / model.filename
     if direct.is_file():
         return direct
-    if directory.is_dir():
-        for candidate in sorted(directory.rglob(model.filename)):
-            if candidate.is_file() and _sha256(candidate) == model.sha256:
-                return candidate
-    return None
+    if not directory.is_dir():
+        return None
+    candidates = [c for c in sorted(directory.rglob(model.filename)) if c.is_file()]
+    for candidate in candidates:
+        if _sha256(candidate) == model.sha256:
+            return candidate
+    return candidates[0] if candidates else None
 
 
 def locate_models(override: str | os.PathLike[str] | None = None) -> dict[str, Path]:
