@@ -1,0 +1,52 @@
+"""node-opcua drives the robot: GetReady, LoadByName, Start, and receives the task control's
+TransitionEvents until the program ends by itself (ExecutingToReady, reason 5 Application)."""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from conftest import ServeProcess, run_node, start_serve
+
+pytestmark = pytest.mark.interop
+
+
+@pytest.fixture
+def fast_robot(tmp_path: Path) -> Iterator[ServeProcess]:
+    """`uacell serve` with the simulated robot 20 times faster than real time."""
+    config = tmp_path / "uacell.toml"
+    config.write_text("[robot]\ntime_scale = 20.0\n", encoding="utf-8")
+    sp = start_serve(tmp_path / "data", "--config", str(config))
+    yield sp
+    sp.stop()
+
+
+def run_trusted(sp: ServeProcess, script: str, *args: str) -> dict:
+    """Run a node-opcua script; if the server refused its certificate, trust it as an operator would
+    (move it from pki/rejected to pki/trusted) and run again."""
+    try:
+        return run_node(script, sp.endpoint, *args)
+    except AssertionError as first:
+        rejected = sp.data_dir / "pki" / "rejected"
+        moved = [shutil.move(f, sp.data_dir / "pki" / "trusted" / f.name) for f in rejected.glob("*")]
+        if not moved or "BadCertificateUntrusted" not in str(first):
+            raise
+        return run_node(script, sp.endpoint, *args)
+
+
+def test_node_opcua_runs_a_program_and_sees_every_transition(fast_robot):
+    out = run_trusted(fast_robot, "robotics_run.js", "pick_and_place")
+    assert (out["getReady"], out["loadGripper"], out["load"], out["start"]) == (0, 0, 0, 0)
+    assert out["systemState"] == "Ready"
+    assert out["programName"] == "PickAndPlace"
+    transitions = [(e["transition"], e["from"], e["to"]) for e in out["events"]]
+    assert transitions == [
+        ("IdleToReady", "Idle", "Ready"),
+        ("ReadyToExecuting", "Ready", "Executing"),
+        ("ExecutingToReady", "Executing", "Ready"),
+    ]
+    # Transition/Id is the Transition node of the type (Robotics namespace), not a copy
+    assert all(e["transitionId"] and ";i=" in e["transitionId"] for e in out["events"])
+    assert (out["finalState"], out["reason"], out["readySubstate"]) == ("Ready", 5, "AtProgramStart")
