@@ -224,6 +224,10 @@ class UacellSession(InternalSession):
 
     async def create_session(self, params: ua.CreateSessionParameters, sockname=None) -> ua.CreateSessionResult:
         self._client_description = params.ClientDescription  # Caller.client: LockingClient shows it
+        if _channel_mode(_processor.get()) == ua.MessageSecurityMode.None_:
+            # OPC 10000-4 CreateSession: on a SecurityPolicy None channel the client certificate plays
+            # no part (nothing is signed with it), so it is not checked against the trust list.
+            params = dataclasses.replace(params, ClientCertificate=None)
         return await super().create_session(params, sockname=sockname)
 
     async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
