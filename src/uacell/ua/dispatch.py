@@ -110,6 +110,10 @@ class MethodDispatcher(MethodService):
         self.methods[method_id] = bound
         return bound
 
+    def unbind(self, method_id: ua.NodeId) -> None:
+        """Forget a method whose node is being deleted."""
+        self.methods.pop(method_id, None)
+
     def method_of(self, object_id: ua.NodeId, name: str) -> ua.NodeId:
         for ref in self._aspace[object_id].references:
             if ref.IsForward and ref.BrowseName.Name == name and ref.NodeClass == ua.NodeClass.Method:

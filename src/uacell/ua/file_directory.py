@@ -253,7 +253,7 @@ class FileDirectoryBinding:
             self._is_dir.pop(p, None)
             self._variables.pop(p, None)
         for n in doomed:
-            self.app.dispatcher.methods.pop(n, None)
+            self.app.dispatcher.unbind(n)
             self._instantiator.declarations.pop(n, None)
             self._written.pop(n, None)
         # Only the parent refers to the entry from outside its subtree; asyncua's own
