@@ -322,16 +322,9 @@ class RoboticsBinding:
     def file_of(self, id_: Any) -> str:
         """The relpath in Programs of the FileType node ``id_``; Bad_NodeIdUnknown if it is none."""
         nodeid = self.local_nodeid(id_)
-        relpath = self.files.relpath_of(nodeid)
-        if relpath is None or self.store is None:
+        relpath = self.files.relpath_of(nodeid)  # None for directories and anything outside Programs
+        if relpath is None:
             raise CallError("BadNodeIdUnknown", f"{nodeid.to_string()} is not a file in Programs", argument=0)
-        try:
-            if self.store.entry(relpath).is_dir:
-                raise CallError("BadNodeIdUnknown", f"{relpath} is a directory", argument=0)
-        except CallError as e:
-            if e.status == "BadNodeIdUnknown":
-                raise
-            raise CallError("BadNodeIdUnknown", f"{relpath} does not exist", argument=0) from None
         return relpath
 
     # --- task controls ------------------------------------------------------------------------
