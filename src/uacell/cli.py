@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from uacell import __version__
-from uacell.config import load_config
+from uacell.config import load_config, load_factory
 from uacell.errors import ConfigError
 from uacell.models import ModelError, fetch_models, locate_models, models_dir
 
@@ -99,6 +99,10 @@ def _serve(args: argparse.Namespace) -> int:
     if args.models_dir:
         config.server.models_dir = args.models_dir
     locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
+    for section in ("robot", "packml"):
+        spec = getattr(config, section).equipment
+        if spec:
+            load_factory(spec, section)
     return asyncio.run(_run(config))
 
 

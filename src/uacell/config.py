@@ -14,16 +14,20 @@ trust_on_first_use = false
 
 [robot]
 time_scale = 1.0                  # simulated robot: >1 runs faster than real time
+equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
 
 [packml]
 acting_time = 1.0                 # seconds each acting state of the simulated unit takes
 mach_speed = 60.0                 # initial MachSpeed, packages/min
+equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
 ```
 """
 
 from __future__ import annotations
 
+import importlib
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -48,12 +52,14 @@ class ServerConfig:
 @dataclass
 class RobotConfig:
     time_scale: float = 1.0
+    equipment: str = ""
 
 
 @dataclass
 class PackMLConfig:
     acting_time: float = 1.0
     mach_speed: float = 60.0
+    equipment: str = ""
 
 
 @dataclass
@@ -121,3 +127,17 @@ def load_config(path: str | Path | None = None) -> Config:
     if not 0 <= config.server.port <= 65535:
         raise ConfigError(f"configuration {path}: [server] port must be 0..65535")
     return config
+
+
+def load_factory(spec: str, section: str) -> Callable[..., object]:
+    """Import ``"package.module:name"`` named by ``[section] equipment``; ConfigError says what failed."""
+    module_name, _, attr = spec.partition(":")
+    if not module_name or not attr:
+        raise ConfigError(f"[{section}] equipment must look like 'package.module:factory', not {spec!r}")
+    try:
+        factory = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as exc:
+        raise ConfigError(f"[{section}] equipment {spec!r} cannot be loaded: {exc}") from exc
+    if not callable(factory):
+        raise ConfigError(f"[{section}] equipment {spec!r} is not callable")
+    return factory

@@ -40,6 +40,7 @@ class UacellServer:
     """One uacell server: call ``setup()``, then ``start()``; ``stop()`` at the end."""
 
     def __init__(self, config: Config, binders: list[Binder] | None = None) -> None:
+        _quiet_asyncua()
         self.config = config
         self.server = Server()
         self.cell: CellBuilder | None = None

@@ -19,6 +19,7 @@ from typing import Any
 
 from asyncua import ua
 
+from uacell.config import load_factory
 from uacell.packml.admin_store import AdminStore
 from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLUnit
 from uacell.packml.sim import SimulatedUnit
@@ -111,8 +112,13 @@ class Structures:
             return self.cls(COUNT_TYPE)(value.id, value.name, self.convert(value.unit), value.count, value.acc_count)
         if isinstance(value, PackMLAlarmDataType):
             return self.cls(ALARM_TYPE)(
-                value.id, value.value, value.message, value.category,
-                _utc(value.date_time), _utc(value.ack_date_time), value.trigger,
+                value.id,
+                value.value,
+                value.message,
+                value.category,
+                _utc(value.date_time),
+                _utc(value.ack_date_time),
+                value.trigger,
             )
         if isinstance(value, PackMLIngredientsDataType):
             return self.cls(INGREDIENTS_TYPE)(value.ingredient_id, self.convert(list(value.parameter)))
@@ -186,9 +192,11 @@ class UnitBinding:
         )
         await var.write_attribute(
             _A.Description,
-            ua.DataValue(ua.Variant(
-                ua.LocalizedText("uacell: the parameters of the last accepted Start"), ua.VariantType.LocalizedText
-            )),
+            ua.DataValue(
+                ua.Variant(
+                    ua.LocalizedText("uacell: the parameters of the last accepted Start"), ua.VariantType.LocalizedText
+                )
+            ),
         )
 
     async def add_inject_fault(self) -> ua.NodeId:
@@ -334,8 +342,12 @@ _INPUTS: dict[str, Callable[..., tuple[Any, ...]]] = {
 async def bind_unit(app: Any, built: Any) -> UnitBinding:
     name = built.part.name
     cfg = app.config.packml
+    # Real equipment comes from a factory named in the configuration; the simulator otherwise.
+    equipment = (
+        load_factory(cfg.equipment, "packml")(cfg) if cfg.equipment else SimulatedUnit(acting_time=cfg.acting_time)
+    )
     unit = PackMLUnit(
-        SimulatedUnit(acting_time=cfg.acting_time),
+        equipment,
         name=name,
         store=AdminStore(app.data_dir / "packml" / f"{name}.json"),
         mach_speed=cfg.mach_speed,
@@ -361,6 +373,7 @@ async def bind_unit(app: Any, built: Any) -> UnitBinding:
 async def bind_packml(app: Any) -> Callable[[], Awaitable[None]] | None:
     """The PackML binder for ``UacellServer``: every part with role ``packml_unit``."""
     bindings = [await bind_unit(app, built) for built in app.cell.by_role("packml_unit")]
+    app.packml_units = {b.unit.name: b.unit for b in bindings}
     if not bindings:
         return None
 
