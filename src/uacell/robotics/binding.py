@@ -32,8 +32,9 @@ from typing import Any
 from asyncua import ua
 from asyncua.server.event_generator import EventGenerator
 
+from uacell.config import load_factory
 from uacell.errors import CallError
-from uacell.robotics.equipment import ExecutionMode, StopMode
+from uacell.robotics.equipment import RobotEquipment, StopMode
 from uacell.robotics.model import PROGRAM_SUFFIX, Condition, DirectoryLibrary, RobotCell, Status, TaskControl
 from uacell.robotics.program import samples
 from uacell.robotics.sim import SimulatedRobot
@@ -744,6 +745,14 @@ def install_write_hooks(app: Any, hooks: dict[ua.NodeId, WriteHook]) -> None:
 
 
 # --- the binder ------------------------------------------------------------------------------------
+def make_equipment(cfg: Any) -> RobotEquipment:
+    """``[robot] equipment = "module:factory"`` called with the [robot] section, else the simulator."""
+    if cfg.equipment:
+        return load_factory(cfg.equipment, "robot")(cfg)  # type: ignore[return-value]
+    # [robot] time_scale > 1 runs faster than real time; the simulator's scale is real s per simulated s.
+    return SimulatedRobot(time_scale=1.0 / cfg.time_scale)
+
+
 async def bind_robotics(app: Any) -> Callable[[], Awaitable[None]] | None:
     """Bind every controller of the cell (role ``controller``) with its task controls and arm."""
     controllers = app.cell.by_role("controller")
@@ -761,8 +770,7 @@ async def bind_robotics(app: Any) -> Callable[[], Awaitable[None]] | None:
         install_samples(root)
         store = FileStore(root)
         library = StoreLibrary(store)
-        # Config: >1 runs faster than real time; the simulator's scale is real seconds per simulated one.
-        equipment = SimulatedRobot(time_scale=1.0 / app.config.robot.time_scale)
+        equipment = make_equipment(app.config.robot)
         cell = RobotCell(
             equipment,
             library,
@@ -792,4 +800,4 @@ async def bind_programs(app: Any, binding: RoboticsBinding, store: FileStore) ->
     binding.files.directory = await FileDirectoryBinding.create(app, programs, store)
 
 
-__all__ = ["ExecutionMode", "RoboticsBinding", "StoreLibrary", "bind_robotics", "install_samples"]
+__all__ = ["RoboticsBinding", "StoreLibrary", "bind_robotics", "install_samples", "make_equipment"]
