@@ -322,14 +322,14 @@ async def test_start_errors_modes_speed_and_fault(app, client):
     assert await u.value("Status.MachSpeed") == 120.0
     assert await u.value("Status.CurMachSpeed") == 120.0
 
-    # InjectFault: admin only; aborts the unit with an alarm and the StopReason
+    # InjectFault: engineers and admins only; aborts the unit with an alarm and the StopReason
     fault = ua.NodeId(f"{F}.InjectFault", u.ns)
     req = ua.CallMethodRequest(ObjectId=ua.NodeId(F, u.ns), MethodId=fault,
                                InputArguments=[i32(42), ua.Variant("jam at infeed", ua.VariantType.String)])
     (res,) = await client.uaclient.call([req])
     assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied  # anonymous = operator
     assert await u.states() == ("Cleared", "Running", "Execute")
-    app.users.add("boss", "admin", "a long admin password")
+    app.users.add("boss", "engineer", "a long admin password")
     admin = Client(app.endpoint, timeout=30)
     admin.set_user("boss")
     admin.set_password("a long admin password")

@@ -584,9 +584,17 @@ async def test_active_alarm_is_status_3_unacknowledged_is_4_and_acknowledge_clea
     finally:
         await admin.disconnect()
         manager.policy = policy
-    # engineers may not simulate alarms
-    res = await call(r, CTRL, "SimulateAlarm", s("EmergencyStop"), ua.Variant(False, ua.VariantType.Boolean))
-    assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
+    # operators may not simulate alarms (engineers and admins may)
+    manager.policy = dataclasses.replace(policy, anonymous_role=Role.OPERATOR)
+    operator = Client(r.app.endpoint, timeout=30)
+    await operator.connect()
+    try:
+        req.InputArguments = [s("EmergencyStop"), ua.Variant(False, ua.VariantType.Boolean)]
+        (res,) = await operator.uaclient.call([req])
+        assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
+    finally:
+        await operator.disconnect()
+        manager.policy = policy
     ev = await events.wait_for(lambda e: getattr(e, "ConditionName", None) == "EmergencyStop")
     assert getattr(ev, "ActiveState/Id") is True and getattr(ev, "AckedState/Id") is False
     assert ev.Retain is True
@@ -605,7 +613,9 @@ async def test_active_alarm_is_status_3_unacknowledged_is_4_and_acknowledge_clea
     res = await call_on(r, nid(r, cond), ack, ua.Variant(b"nope", ua.VariantType.ByteString), comment)
     assert res.StatusCode.value == ua.StatusCodes.BadEventIdUnknown
     event_id = await read(r, f"{cond}.EventId")
-    res = await call_on(r, nid(r, cond), ack, ua.Variant(event_id, ua.VariantType.ByteString), comment)
+    # clients usually name the type's Acknowledge (AcknowledgeableConditionType, i=9111)
+    type_ack = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
+    res = await call_on(r, nid(r, cond), type_ack, ua.Variant(event_id, ua.VariantType.ByteString), comment)
     assert res.StatusCode.is_good(), res.StatusCode
     await r.app.settle()
     assert await read(r, f"{cond}.AckedState.Id") is True

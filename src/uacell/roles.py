@@ -103,6 +103,9 @@ METHOD_ROLES: dict[tuple[Family, str], Role] = {
     **{(Family.DIRECTORY, m): EN for m in ("CreateFile", "CreateDirectory", "Delete", "MoveOrCopy")},
     **{(Family.CONDITION, m): OP for m in ("Acknowledge", "Confirm", "AddComment")},
     **{(Family.CONDITION, m): EN for m in ("Enable", "Disable")},
+    # uacell's own simulation methods: raising a fault on purpose is an engineer's test.
+    (Family.CONDITION, "SimulateAlarm"): EN,
+    (Family.PACKML, "InjectFault"): EN,
 }
 
 # Services other than Call. Attribute writes change configuration, hence engineer.

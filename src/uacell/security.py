@@ -193,7 +193,9 @@ class Security:
                 if allowed is not None:
                     results[i] = _with_value(dv, allowed, ua.VariantType.Boolean)
             elif attr == _A.UserAccessLevel and dv.Value is not None and isinstance(dv.Value.Value, int):
-                results[i] = _with_value(dv, user_access_level(role, dv.Value.Value), ua.VariantType.Byte)
+                needed = self.app.writes.required_role(rv.NodeId)
+                level = user_access_level(role, dv.Value.Value, needed)
+                results[i] = _with_value(dv, level, ua.VariantType.Byte)
             elif attr == _A.UserWriteMask and not may(Role.parse(role), "write"):
                 results[i] = _with_value(dv, 0, ua.VariantType.UInt32)
             elif attr == _A.Value and dv.Value is not None and isinstance(dv.Value.Value, bool):
@@ -231,11 +233,7 @@ class UacellSession(InternalSession):
         return await super().create_session(params, sockname=sockname)
 
     async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
-        caller = caller_of(self)
-        if may(Role.parse(caller.role), "write"):
-            return await super().write(params)
-        log.info("write refused for %s (role %s)", caller.display_user, caller.role)
-        return [ua.StatusCode(ua.StatusCodes.BadUserAccessDenied) for _ in params.NodesToWrite]
+        return await self._security.app.writes.write(caller_of(self), params, super().write)
 
     async def close_session(self, delete_subs: bool = True) -> None:
         already = self.state == SessionState.Closed

@@ -18,6 +18,7 @@ from uacell.ua.access import UacellUserManager
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.nodesets import load_models
 from uacell.ua.state_machine import NodeRefs, Publisher
+from uacell.ua.writes import WriteRouter
 from uacell.users import UserStore
 
 log = logging.getLogger(__name__)
@@ -51,6 +52,7 @@ class UacellServer:
         self.publisher = Publisher()
         self.dispatcher.after_call.append(self.publisher.flush)
         self.refs: NodeRefs | None = None
+        self.writes = WriteRouter()
 
     @property
     def data_dir(self) -> Path:
@@ -82,6 +84,7 @@ class UacellServer:
         self.model_indexes = await load_models(self.server, self.config.server.models_dir)
         self.cell = await build_cell(self.server, self.model_indexes)
         self.refs = NodeRefs(await self.server.get_namespace_array())
+        self.dispatcher.declarations = self.cell.instantiator.declarations
         for binder in self.binders:
             closer = await binder(self)
             if closer is not None:

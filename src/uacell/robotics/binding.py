@@ -39,6 +39,7 @@ from uacell.robotics.model import PROGRAM_SUFFIX, Condition, DirectoryLibrary, R
 from uacell.robotics.program import samples
 from uacell.robotics.sim import SimulatedRobot
 from uacell.roles import Family, Role
+from uacell.ua.context import Caller
 from uacell.ua.file_directory import FileDirectoryBinding
 from uacell.ua.file_store import FileStore
 from uacell.ua.instantiate import Selection
@@ -60,8 +61,6 @@ _STOP_MODE_NAMES = {
     StopMode.QUICK_STOP: "QuickStop",
     StopMode.END_OF_INSTRUCTION: "EndOfInstruction",
 }
-WriteHook = Callable[[ua.DataValue, Any], Awaitable[ua.StatusCode]]
-"""Answers a client's Value write of one node: (DataValue, asyncua user) -> StatusCode."""
 TC_METHODS = ("LoadByNodeId", "LoadByName", "UnloadProgram", "UnloadByNodeId", "UnloadByName", "Start", "Stop")
 SO_METHODS = ("GetReady", "StandDown", "Start", "Stop")
 
@@ -156,7 +155,6 @@ class RoboticsBinding:
         self._pending = False
         self._protected: set[str] = set()
         self._axis_task: asyncio.Task[None] | None = None
-        self.write_hooks: dict[ua.NodeId, WriteHook] = {}
 
     # --- nodes --------------------------------------------------------------------------------
     def child(self, node: ua.NodeId, path: str) -> ua.NodeId:
@@ -341,9 +339,7 @@ class RoboticsBinding:
             with contextlib.suppress(KeyError):
                 mode_node = self.child(part.node, "ParameterSet/ExecutionMode")
                 await self.set_access(mode_node, ua.AccessLevel.CurrentRead.mask | ua.AccessLevel.CurrentWrite.mask)
-                self.write_hooks[mode_node] = self._execution_mode_writer(task)
-        if self.write_hooks:
-            install_write_hooks(self.app, self.write_hooks)
+                self.app.writes.route(mode_node, self._execution_mode_writer(task), Role.OPERATOR)
 
     def controls_reference(self) -> ua.NodeId | None:
         """Robotics' ``Controls`` ReferenceType (found by BrowseName, not by a hard-coded id)."""
@@ -358,10 +354,7 @@ class RoboticsBinding:
         return None
 
     def _execution_mode_writer(self, task: TaskControl):
-        async def write(dv: ua.DataValue, user: Any) -> ua.StatusCode:
-            role = getattr(user, "uacell_role", None)
-            if role is not None and Role.parse(role) < Role.OPERATOR:
-                return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+        async def write(dv: ua.DataValue, caller: Caller) -> ua.StatusCode:
             variant = dv.Value
             if variant is None or variant.VariantType not in (ua.VariantType.Int32,) or variant.is_array:
                 return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
@@ -371,7 +364,7 @@ class RoboticsBinding:
                 return ua.StatusCode(ua.StatusCodes.BadOutOfRange)
             if status != Status.OK:
                 return ua.StatusCode(ua.StatusCodes.BadInvalidState)
-            log.info("%s: ExecutionMode set to %s by %s", task.name, task.execution_mode.name, role or "internal")
+            log.info("%s: ExecutionMode set to %s by %s", task.name, task.execution_mode.name, caller.display_user)
             await self.app.settle()
             return ua.StatusCode(ua.StatusCodes.Good)
 
@@ -703,47 +696,6 @@ def _executable(model: Any, machine: str, method: str) -> Callable[[], bool]:
 
 
 # --- client writes ---------------------------------------------------------------------------------
-def install_write_hooks(app: Any, hooks: dict[ua.NodeId, WriteHook]) -> None:
-    """Route client Value writes of ``hooks``' nodes to them (asyncua has no per-node write refusal).
-
-    asyncua 2.1.0's PreWrite callback cannot refuse a write and ``set_attribute_value_setter`` is also
-    called for the server's own writes, so the session's AttributeService.write is wrapped: hooked
-    items get the hook's status; the others go to the original service unchanged.
-    """
-    service = app.server.iserver.attribute_service
-    existing = getattr(service, "_uacell_write_hooks", None)
-    if existing is not None:
-        existing.update(hooks)
-        return
-    table = dict(hooks)
-    original = service.write
-
-    async def write(params: ua.WriteParameters, user: Any = None, **kwargs: Any) -> list[ua.StatusCode]:
-        items = list(params.NodesToWrite or [])
-        results: list[ua.StatusCode | None] = [None] * len(items)
-        rest: list[int] = []
-        for i, item in enumerate(items):
-            hook = table.get(item.NodeId) if item.AttributeId == _A.Value and not item.IndexRange else None
-            if hook is None or not hasattr(user, "uacell_role"):
-                rest.append(i)
-                continue
-            try:
-                results[i] = await hook(item.Value, user)
-            except Exception:
-                log.exception("write hook for %s failed", item.NodeId.to_string())
-                results[i] = ua.StatusCode(ua.StatusCodes.BadInternalError)
-        if rest:
-            sub = ua.WriteParameters()
-            sub.NodesToWrite = [items[i] for i in rest]
-            args = {"user": user} if user is not None else {}
-            for i, status in zip(rest, await original(sub, **args, **kwargs), strict=True):
-                results[i] = status
-        return [r if r is not None else ua.StatusCode(ua.StatusCodes.BadInternalError) for r in results]
-
-    service.write = write
-    service._uacell_write_hooks = table
-
-
 # --- the binder ------------------------------------------------------------------------------------
 def make_equipment(cfg: Any) -> RobotEquipment:
     """``[robot] equipment = "module:factory"`` called with the [robot] section, else the simulator."""

@@ -6,7 +6,7 @@ import logging
 
 from asyncua import ua
 
-from uacell.roles import ListeningPolicy, Role, may
+from uacell.roles import ACTION_ROLES, ListeningPolicy, Role
 from uacell.ua.context import UacellUser
 from uacell.users import UserStore
 
@@ -30,8 +30,9 @@ class UacellUserManager:
         return UacellUser(username, Role.parse(role).label)
 
 
-def user_access_level(role: str, access_level: int) -> int:
-    """The UserAccessLevel a role gets for a variable with ``access_level``: writing needs ``write``."""
-    if may(Role.parse(role), "write"):
+def user_access_level(role: str, access_level: int, needed: Role | None = None) -> int:
+    """The UserAccessLevel ``role`` gets for a variable with ``access_level`` whose writes need ``needed``
+    (default: the ``write`` action of the role table)."""
+    if Role.parse(role) >= (needed if needed is not None else ACTION_ROLES["write"]):
         return access_level
     return access_level & ~ua.AccessLevel.CurrentWrite.mask

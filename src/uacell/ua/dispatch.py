@@ -65,6 +65,9 @@ class MethodDispatcher(MethodService):
         self.after_call: list[Callable[[], Awaitable[None]]] = []
         self._locks: dict[int, asyncio.Lock] = {}
         self.types = TypeChecker(server)
+        # instance method -> its declaration in the type (set by the server once the cell exists),
+        # so that a call naming the type's method (e.g. Acknowledge, i=9111) on an object works too
+        self.declarations: dict[ua.NodeId, ua.NodeId] = {}
 
     @classmethod
     def install(cls, server: Server) -> MethodDispatcher:
@@ -147,8 +150,16 @@ class MethodDispatcher(MethodService):
     async def call(self, methods: list[ua.CallMethodRequest]) -> list[ua.CallMethodResult]:
         return [await self.dispatch(m) for m in methods]
 
+    def _by_declaration(self, object_id: ua.NodeId, method_id: ua.NodeId) -> BoundMethod | None:
+        """The method bound on ``object_id`` whose declaration is ``method_id`` (OPC 10000-4 Call lets a
+        client name the MethodDeclaration of the object's type)."""
+        for bound in self.methods.values():
+            if bound.object_id == object_id and self.declarations.get(bound.method_id) == method_id:
+                return bound
+        return None
+
     async def dispatch(self, request: ua.CallMethodRequest, caller: Caller | None = None) -> ua.CallMethodResult:
-        bound = self.methods.get(request.MethodId)
+        bound = self.methods.get(request.MethodId) or self._by_declaration(request.ObjectId, request.MethodId)
         if bound is None:
             if request.ObjectId not in self._aspace:
                 return _result(ua.StatusCodes.BadNodeIdUnknown)
