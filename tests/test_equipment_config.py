@@ -26,6 +26,15 @@ DRIVER = textwrap.dedent(
     def make(config):
         made.append(config)
         return PlantFiller()
+
+    from uacell.robotics.sim import SimulatedRobot
+
+    class PlantRobot(SimulatedRobot):
+        pass
+
+    def make_robot(config):
+        made.append(config)
+        return PlantRobot(time_scale=0.05)
     """
 )
 
@@ -44,13 +53,14 @@ def test_bad_factory_specs_are_clear_config_errors(spec, message):
         load_factory(spec, "packml")
 
 
-async def test_packml_unit_runs_on_the_configured_equipment(tmp_path, monkeypatch):
+async def test_units_run_on_the_configured_equipment(tmp_path, monkeypatch):
     (tmp_path / "plant_driver.py").write_text(DRIVER)
     monkeypatch.syspath_prepend(str(tmp_path))
     config = Config()
     config.server.port = free_port()
     config.server.data_dir = tmp_path / "data"
     config.packml.equipment = "plant_driver:make"
+    config.robot.equipment = "plant_driver:make_robot"
     app = UacellServer(config)
     await app.setup()
     await app.start()
@@ -59,7 +69,8 @@ async def test_packml_unit_runs_on_the_configured_equipment(tmp_path, monkeypatc
 
         unit = app.packml_units["Filler1"]
         assert type(unit.equipment).__name__ == "PlantFiller"
-        assert plant_driver.made == [config.packml]
+        assert plant_driver.made == [config.packml, config.robot] or plant_driver.made == [config.robot, config.packml]
+        assert type(app.robot_cell.equipment).__name__ == "PlantRobot"
         async with Client(app.endpoint, timeout=30) as client:
             ns = await client.get_namespace_index("urn:uacell:cell")
             machine = client.get_node(ua.NodeId("Filler1.BaseStateMachine.MachineState", ns))
