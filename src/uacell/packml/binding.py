@@ -199,28 +199,17 @@ class UnitBinding:
             ),
         )
 
-    async def add_inject_fault(self) -> ua.NodeId:
-        """``InjectFault(Int32 Id, String Message)`` under the unit (unknown to roles: admin only)."""
-        obj = self.app.server.get_node(self.node)
-        nodeid = ua.NodeId(f"{self.built.path}.{INJECT_FAULT}", self.ns)
-        inputs = []
-        for name, vtype, text in (
-            ("Id", ua.VariantType.Int32, "alarm ID"),
-            ("Message", ua.VariantType.String, "alarm message"),
-        ):
-            arg = ua.Argument()
-            arg.Name = name
-            arg.DataType = ua.NodeId(vtype.value)
-            arg.ValueRank = -1
-            arg.ArrayDimensions = []
-            arg.Description = ua.LocalizedText(text)
-            inputs.append(arg)
-
-        async def unused(parent, *args):  # the dispatcher answers every call of this method
-            return [ua.StatusCode(ua.StatusCodes.BadInternalError)]
-
-        method = await obj.add_method(nodeid, ua.QualifiedName(INJECT_FAULT, self.ns), unused, inputs, [])
-        return method.nodeid
+    async def add_inject_fault(self) -> None:
+        """``InjectFault(Int32 Id, String Message)`` under the unit (engineer and above)."""
+        await self.app.dispatcher.add_method(
+            self.node,
+            ua.NodeId(f"{self.built.path}.{INJECT_FAULT}", self.ns),
+            ua.QualifiedName(INJECT_FAULT, self.ns),
+            (("Id", ua.VariantType.Int32, "alarm ID"), ("Message", ua.VariantType.String, "alarm message")),
+            Family.PACKML,
+            self._inject_fault,
+            serialize_on=self.unit,
+        )
 
     # publishing ---------------------------------------------------------------------------------
     def on_change(self, changed: dict[str, Any]) -> None:
@@ -273,7 +262,7 @@ class UnitBinding:
         return None
 
     # methods ------------------------------------------------------------------------------------
-    def bind_methods(self, machine_nodes: dict[str | None, ua.NodeId], fault_method: ua.NodeId) -> None:
+    def bind_methods(self, machine_nodes: dict[str | None, ua.NodeId]) -> None:
         d = self.app.dispatcher
         unit = self.unit
         for machine_name, method in unit.methods():
@@ -286,7 +275,6 @@ class UnitBinding:
                 executable=(lambda m=machine_name, n=method: unit.executable(m, n)),
                 serialize_on=unit,
             )
-        d.bind(self.node, fault_method, Family.PACKML, self._inject_fault, serialize_on=unit)
 
     def _handler(self, machine_name: str | None, method: str) -> Callable[..., Awaitable[list[Any]]]:
         convert = _INPUTS.get(method, lambda *a: a)
@@ -359,8 +347,8 @@ async def bind_unit(app: Any, built: Any) -> UnitBinding:
     execute = app.cell.child(machine, EXECUTE)
     await bind_tree(app.server, base, unit.base, app.publisher, app.refs)
     await b.add_start_parameters()
-    fault_method = await b.add_inject_fault()
-    b.bind_methods({BASE: base, MACHINE: machine, EXECUTE: execute, UNIT: b.node}, fault_method)
+    b.bind_methods({BASE: base, MACHINE: machine, EXECUTE: execute, UNIT: b.node})
+    await b.add_inject_fault()
     await b.publish_constants()
     values = unit.values()
     values.pop("Executable")

@@ -547,25 +547,11 @@ class RoboticsBinding:
         equipment = self.cell.equipment
         if not hasattr(equipment, "raise_alarm"):
             return
-        inputs = []
-        for name, vtype, text in (
+        inputs = (
             ("Name", ua.VariantType.String, "alarm name (a condition in SystemOperation/Conditions)"),
             ("Active", ua.VariantType.Boolean, "true raises the alarm, false clears it"),
-        ):
-            arg = ua.Argument()
-            arg.Name = name
-            arg.DataType = ua.NodeId(vtype.value)
-            arg.ValueRank = -1
-            arg.ArrayDimensions = []
-            arg.Description = ua.LocalizedText(text)
-            inputs.append(arg)
-
-        async def unused(parent, *args):  # the dispatcher answers every call of this method
-            return [ua.StatusCode(ua.StatusCodes.BadInternalError)]
-
-        obj = self.app.server.get_node(self.controller.node)
+        )
         nodeid = ua.NodeId(f"{self.controller.path}.{SIMULATE_ALARM}", self.ns)
-        method = await obj.add_method(nodeid, ua.QualifiedName(SIMULATE_ALARM, self.ns), unused, inputs, [])
 
         async def simulate(caller, name: str, active: bool) -> list:
             if name not in equipment.alarm_names:
@@ -577,7 +563,9 @@ class RoboticsBinding:
                 equipment.clear_alarm(name)
             return []
 
-        self.app.dispatcher.bind(self.controller.node, method.nodeid, Family.CONDITION, simulate)
+        await self.app.dispatcher.add_method(
+            self.controller.node, nodeid, ua.QualifiedName(SIMULATE_ALARM, self.ns), inputs, Family.CONDITION, simulate
+        )
 
     # --- the arm ---------------------------------------------------------------------------------
     async def setup_arm(self) -> None:

@@ -113,6 +113,33 @@ class MethodDispatcher(MethodService):
         self.methods[method_id] = bound
         return bound
 
+    async def add_method(
+        self,
+        object_id: ua.NodeId,
+        nodeid: ua.NodeId,
+        name: ua.QualifiedName,
+        inputs: Sequence[tuple[str, ua.VariantType, str]],
+        family: Family,
+        handler: Handler,
+        **options: Any,
+    ) -> BoundMethod:
+        """Create a server-specific method (scalar inputs: name, type, description) and bind it."""
+        arguments = []
+        for arg_name, vtype, text in inputs:
+            arg = ua.Argument()
+            arg.Name = arg_name
+            arg.DataType = ua.NodeId(vtype.value)
+            arg.ValueRank = -1
+            arg.ArrayDimensions = []
+            arg.Description = ua.LocalizedText(text)
+            arguments.append(arg)
+
+        async def unused(parent, *args):  # never called: the dispatcher answers every call
+            return [ua.StatusCode(ua.StatusCodes.BadInternalError)]
+
+        method = await self.server.get_node(object_id).add_method(nodeid, name, unused, arguments, [])
+        return self.bind(object_id, method.nodeid, family, handler, **options)
+
     def unbind(self, method_id: ua.NodeId) -> None:
         """Forget a method whose node is being deleted."""
         self.methods.pop(method_id, None)
