@@ -64,3 +64,18 @@ def test_node_opcua_browses_to_the_state_machines_and_reads_arguments(serve_proc
     assert out["loadByNodeId"] == [{"name": "Id", "dataType": "ns=0;i=18", "valueRank": -1}]
     assert out["start"] == [{"name": "Parameter", "dataType": f"ns={ns['PackML']};i=16", "valueRank": 1}]
     assert out["executeStateType"] == [f"ns={ns['PackML']};i=1"]
+
+
+@pytest.mark.interop
+def test_node_opcua_sees_the_precise_argument_error_codes(serve_process):
+    out = run_node("argument_errors.js", serve_process.endpoint)
+    r = out["results"]
+    assert r["missing"] == {"status": "BadArgumentsMissing", "inputArgumentResults": []}
+    assert r["tooMany"]["status"] == "BadTooManyArguments"
+    assert r["wrongType"] == {"status": "BadTypeMismatch", "inputArgumentResults": ["BadTypeMismatch"]}
+    assert r["wrongIdType"] == {"status": "BadTypeMismatch", "inputArgumentResults": ["BadTypeMismatch"]}
+    assert r["stopModeInt32"] == {"status": "BadTypeMismatch", "inputArgumentResults": ["BadTypeMismatch"]}
+    assert r["startScalar"] == {"status": "BadTypeMismatch", "inputArgumentResults": ["BadTypeMismatch"]}
+    assert r["startInt32Array"] == {"status": "BadTypeMismatch", "inputArgumentResults": ["BadTypeMismatch"]}
+    assert r["wrongObject"]["status"] == "BadMethodInvalid"
+    assert out["before"] == out["after"] == "Idle"
