@@ -400,3 +400,33 @@ async def test_a_fresh_client_builds_a_packml_descriptor_from_the_definition(ser
         "unit": "m/s",
         "value": 1.5,
     }
+
+
+async def test_the_faster_importer_builds_exactly_the_address_space_asyncua_builds(monkeypatch):
+    """uacell caches reference-type closures while importing; the result must not change."""
+    import asyncua.common.xmlimporter as xi
+    from asyncua import Server
+
+    import uacell.ua.nodesets as nodesets
+
+    async def references(patched: bool) -> list[tuple[str, str, str, bool]]:
+        server = Server()
+        await server.init()
+        with monkeypatch.context() as m:
+            if not patched:
+                m.setattr(
+                    nodesets._Importer,
+                    "_add_missing_reverse_references",
+                    xi.XmlImporter._add_missing_reverse_references,
+                )
+            await nodesets.load_models(server)
+        return sorted(
+            (k.to_string(), r.ReferenceTypeId.to_string(), r.NodeId.to_string(), r.IsForward)
+            for k, v in server.iserver.aspace._nodes.items()
+            for r in v.references
+        )
+
+    fast = await references(True)
+    plain = await references(False)
+    assert len(fast) > 20000
+    assert fast == plain

@@ -11,7 +11,8 @@ import logging
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from asyncua import Server
+from asyncua import Server, ua
+from asyncua.common.xmlimporter import XmlImporter
 
 from uacell.models.source import MODELS, locate_models
 
@@ -53,6 +54,37 @@ def without_design_tool_only(path: Path) -> tuple[str, int]:
     return ET.tostring(root, encoding="unicode"), len(dropped)
 
 
+class _Importer(XmlImporter):
+    """asyncua's importer, with the reference-type subtype closure cached while it adds the missing
+    inverse references.
+
+    asyncua recomputes "is R a subtype of T" by walking the type tree for every reference it
+    browses there, which is most of a start-up. When that step runs, every node of the file
+    (its ReferenceTypes included) is already in the address space, so the closure cannot change.
+    """
+
+    async def _add_missing_reverse_references(self, new_nodes):
+        view = self.session.iserver.view_service
+        closure: dict[ua.NodeId, frozenset[ua.NodeId]] = {}
+        null = ua.NodeId(ua.ObjectIds.Null)
+
+        def suitable(ref1: ua.NodeId, ref2: ua.NodeId, subtypes: bool) -> bool:
+            if ref1 == null or ref1 == ref2:
+                return True
+            if not subtypes:
+                return False
+            below = closure.get(ref1)
+            if below is None:
+                below = closure[ref1] = frozenset(view._get_sub_ref(ref1))
+            return ref2 in below
+
+        view._suitable_reftype = suitable
+        try:
+            return await super()._add_missing_reverse_references(new_nodes)
+        finally:
+            del view._suitable_reftype  # back to the class's own method
+
+
 async def load_models(server: Server, models_dir: str | None = None) -> dict[str, int]:
     """Import every official model; returns each model's namespace index in this server."""
     paths = locate_models(models_dir)
@@ -61,6 +93,6 @@ async def load_models(server: Server, models_dir: str | None = None) -> dict[str
         xml, dropped = without_design_tool_only(paths[model.key])
         if dropped:
             log.debug("%s: left out %d DesignToolOnly nodes", model.filename, dropped)
-        await server.import_xml(xmlstring=xml)
+        await _Importer(server).import_xml(xmlstring=xml)
         indexes[model.key] = await server.get_namespace_index(model.namespace_uri)
     return indexes
