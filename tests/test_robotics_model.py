@@ -470,6 +470,27 @@ async def test_equipment_stop_failure(cell: RobotCell, monkeypatch: pytest.Monke
     assert tc.state == "Executing" and not tc.stopping
 
 
+async def test_system_stop_refused_by_the_equipment_leaves_the_system_running(
+    cell: RobotCell, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    so = await so_in(cell, "Running")
+    tc = tc_of(cell)
+    real_stop = cell.equipment.stop
+    monkeypatch.setattr(cell.equipment, "stop", Boom(EquipmentError("no answer")))
+    log = Log(*so.machines(), *tc.machines())
+    assert await so.stop(0) == Status.E_UNEXPECTED_ERROR
+    # Nothing is stopping, so the system must not claim Stopping (it could never leave it).
+    assert (so.state, so.executing.current, tc.state, tc.stopping) == ("Executing", "Running", "Executing", False)
+    assert log.transitions() == [] and "TaskControl1" in so.last_error
+    check_consistent(cell)
+    monkeypatch.setattr(cell.equipment, "stop", real_stop)
+    assert so.executable(SO, "Stop") and await so.stop(StopMode.QUICK_STOP) == Status.OK
+    await until(lambda: so.state == "Ready")
+    assert log.transitions() == [
+        (EXE, "RunningToStopping", EXT), (TC, "ExecutingToReady", EXT), (SO, "ExecutingToReady", EXT)
+    ]
+
+
 # --- SystemOperation ---------------------------------------------------------------------------------
 SO = "SystemOperationStateMachine"
 

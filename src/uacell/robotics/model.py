@@ -504,7 +504,7 @@ class TaskControl:
         mode = _resolve_stop_mode(stop_mode, self.possible_stop_modes, self.default_stop_mode)
         return await self._stop(mode)
 
-    async def _stop(self, mode: StopMode) -> int:
+    async def _stop(self, mode: StopMode, system_reason: Reason = Reason.SYSTEM) -> int:
         if self.machine.current != "Executing" or self.stopping:
             return Status.E_SYSTEM_STATE
         self.stopping = True
@@ -514,8 +514,8 @@ class TaskControl:
             self.stopping = False
             return self._fail(Status.E_UNEXPECTED_ERROR, f"controller could not stop: {e}")
         log.info("%s: stopping (%s)", self.name, mode.name)
-        if self.system is not None:
-            self.system._task_stopping()
+        if self.system is not None and self.executing:  # the run may have ended while the stop was asked
+            self.system._task_stopping(system_reason)
         self._changed()
         return Status.OK
 
@@ -655,14 +655,14 @@ class SystemOperation:
             self.executing.enter("Running", Reason.SYSTEM)
             self._changed()
 
-    def _task_stopping(self) -> None:
+    def _task_stopping(self, reason: Reason = Reason.SYSTEM) -> None:
         # The system is Stopping once every executing task is on its way to a stop.
         if (
             self.machine.current == "Executing"
             and self.executing.current == "Running"
             and all(t.stopping for t in self.tasks if t.executing)
         ):
-            self.executing.take("RunningToStopping", Reason.SYSTEM)
+            self.executing.take("RunningToStopping", reason)
             self._changed()
 
     def _task_finished(self, task: TaskControl, reason: Reason) -> None:
@@ -797,13 +797,19 @@ class SystemOperation:
         if self.machine.current != "Executing" or self.executing.current != "Running":
             return Status.E_SYSTEM_STATE
         self._stop_requested = True
-        self.executing.take("RunningToStopping", Reason.EXTERNAL)
-        self._changed()
-        for task in self.tasks:
+        failed = []
+        for task in list(self.tasks):
             if task.executing and not task.stopping:
-                status = await task._stop(mode)
+                # The last task to accept takes RunningToStopping (reason External, see _task_stopping).
+                status = await task._stop(mode, Reason.EXTERNAL)
                 if status != Status.OK:
                     log.warning("system stop: %s answered %d", task.name, status)
+                    failed.append(task.name)
+        if failed:
+            # A task that keeps running keeps the system Running (no transition leaves Stopping).
+            self._stop_requested = False
+            self.last_error = f"stop refused by {', '.join(failed)}"
+            return Status.E_UNEXPECTED_ERROR
         return Status.OK
 
     async def close(self) -> None:
