@@ -606,6 +606,22 @@ async def test_stand_down_takes_time_and_blocks_start(cell: RobotCell) -> None:
     assert await so.stand_down() == Status.E_SYSTEM_STATE
 
 
+async def test_get_ready_waits_for_the_power_down_of_a_cancelled_get_ready(cell: RobotCell) -> None:
+    so = await so_in(cell, "GettingReady")
+    cell.equipment.power_down_time = 400.0  # type: ignore[attr-defined]  # 0.2 s real
+    assert await so.stand_down() == Status.OK
+    assert (so.state, so.idle.current, so.powering_down) == ("Idle", "StandBy", True)
+    # A GetReady now would race the drives switching off (and could end Ready with power off).
+    assert not so.executable(SO, "GetReady")
+    assert await so.get_ready() == Status.E_SYSTEM_STATE
+    assert so.idle.current == "StandBy"
+    await until(lambda: not so.powering_down, timeout=10.0)
+    cell.equipment.power_up_time = 2.0  # type: ignore[attr-defined]
+    assert so.executable(SO, "GetReady")
+    await system_ready(cell)
+    assert cell.equipment.powered  # type: ignore[attr-defined]
+
+
 async def test_start_with_nothing_to_start_is_refused(cell: RobotCell) -> None:
     so = await so_in(cell, "StandBy")
     await system_ready(cell)

@@ -683,7 +683,12 @@ class SystemOperation:
         m = self.machine
         match method:
             case "GetReady":
-                return m.current == "Idle" and self.idle.current == "StandBy" and self.alarm_status() is None
+                return (
+                    m.current == "Idle"
+                    and self.idle.current == "StandBy"
+                    and not self.powering_down
+                    and self.alarm_status() is None
+                )
             case "StandDown":
                 return (m.current == "Idle" and self.idle.current == "GettingReady") or (
                     m.current == "Ready" and not self.powering_down
@@ -697,7 +702,7 @@ class SystemOperation:
     # methods
     async def get_ready(self) -> int:
         """GetReady: Idle -> (GettingReady) -> Ready once drive power is up. Returns when accepted."""
-        if self.machine.current != "Idle" or self.idle.current != "StandBy":
+        if self.machine.current != "Idle" or self.idle.current != "StandBy" or self.powering_down:
             return Status.E_SYSTEM_STATE
         alarm = self.alarm_status()
         if alarm is not None:
@@ -735,6 +740,8 @@ class SystemOperation:
                 self._getting_ready = None
             self.idle.take("GettingReadyToStandBy", Reason.EXTERNAL)
             m.take("IdleToIdle", Reason.EXTERNAL)
+            # Until the drives are off again a GetReady would race the power-down: it answers 1.
+            self.powering_down = True
             self._bg.spawn(self._power_down(transition=False))
             self._changed()
             return Status.OK
