@@ -491,6 +491,17 @@ async def test_system_stop_refused_by_the_equipment_leaves_the_system_running(
     ]
 
 
+async def test_replacing_a_used_module_while_suspended_goes_back_to_the_program_start(cell: RobotCell) -> None:
+    tc = await tc_in(cell, "Suspended")
+    assert tc.pointer == 1
+    log = Log(tc.machine, tc.ready)
+    assert await tc.load_by_name("extra") == Status.OK  # not used by the program: the pointer stays
+    assert (tc.ready.current, tc.pointer, log.items) == ("Suspended", 1, [])
+    assert await tc.load_by_name("gripper") == Status.OK  # Gripper is used: its steps may differ now
+    assert (tc.ready.current, tc.pointer) == ("AtProgramStart", 0)
+    assert log.items == [(RS, "SuspendedToProgramStart", EXT)]
+
+
 # --- SystemOperation ---------------------------------------------------------------------------------
 SO = "SystemOperationStateMachine"
 

@@ -321,8 +321,14 @@ class TaskControl:
             return self._load_failed(Status.E_SYSTEM_STATE, "task control started during load")
         self.last_error = ""
         if program.kind is Kind.MODULE:
+            # Replacing a module the program uses changes the executed steps: a suspended pointer
+            # would resume at an unrelated instruction, so the program goes back to its start.
+            replaces_used = any(m.name == program.name and m.is_referenced for m in self.modules)
             self._modules[program.name] = (program, relpath)
             log.info("%s: loaded module %s %s", self.name, program.name, program.version)
+            if replaces_used and self.machine.current == "Ready" and self.ready.current == "Suspended":
+                self.pointer, self.current_line = 0, 0
+                self.ready.take("SuspendedToProgramStart", Reason.EXTERNAL)
             self._changed()
             return Status.OK
         self.program, self.program_file, self.pointer, self.current_line = program, relpath, 0, 0
