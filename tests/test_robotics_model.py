@@ -491,6 +491,24 @@ async def test_system_stop_refused_by_the_equipment_leaves_the_system_running(
     ]
 
 
+async def test_load_in_ready_refused_by_the_equipment_keeps_program_and_substate(
+    cell: RobotCell, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    for state in ("Suspended", "AtProgramStart"):
+        tc = await tc_in(cell, state) if state == "Suspended" else tc_of(cell)
+        if state == "AtProgramStart":
+            assert await tc.reset_to_program_start() == Status.OK
+        before = (tc.program_name, tc.program_file, tc.pointer, tc.ready.current, tc.modules)
+        log = Log(tc.machine, tc.ready)
+        for exc, status in ((EquipmentError("busy"), Status.E_UNEXPECTED_ERROR), (ProgramRejected("no"), -2)):
+            monkeypatch.setattr(cell.equipment, "load", Boom(exc))
+            assert await tc.load_by_name("short") == status
+            assert await tc.load_file("lib/extra.robot") == status
+        monkeypatch.undo()
+        assert (tc.program_name, tc.program_file, tc.pointer, tc.ready.current, tc.modules) == before
+        assert tc.state == "Ready" and log.items == []
+
+
 async def test_replacing_a_used_module_while_suspended_goes_back_to_the_program_start(cell: RobotCell) -> None:
     tc = await tc_in(cell, "Suspended")
     assert tc.pointer == 1
