@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 import os
@@ -112,19 +113,58 @@ def test_counters_survive_a_restart(tmp_path: Path) -> None:
     assert (third.admin.prod_processed_count[0].count, third.admin.prod_processed_count[0].acc_count) == (0, 30)
 
 
-def test_saves_on_state_change_and_periodically(tmp_path: Path) -> None:
+def test_saves_on_state_change_and_before_publishing(tmp_path: Path) -> None:
     clock = Clock()
     store = AdminStore(tmp_path / "u.json")
     unit = PackMLUnit(EquipmentBase(), store=store, clock=clock, save_interval=10.0)
     unit.reset_machine()  # a state change saves at once
     assert store.load() is not None
     unit.report_production(processed=5)
-    clock.t += 1.0
-    unit.tick()
-    assert store.load()["prod_processed_count"][0]["count"] == 0  # throttled
+    assert store.load()["prod_processed_count"][0]["count"] == 5  # stored before clients could see it
     clock.t += 10.0
     unit.tick()
-    assert store.load()["prod_processed_count"][0]["count"] == 5
+    assert store.load()["acc_time_since_reset"] == 10.0
+
+
+def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Decision 28: a crash right after a client read a value never loses it, yet time alone does not make
+    the unit write ten times a second."""
+    clock = Clock()
+    store = AdminStore(tmp_path / "u.json")
+    unit = PackMLUnit(EquipmentBase(), store=store, clock=clock)
+    saves: list[int] = []
+    real_save = store.save
+    monkeypatch.setattr(store, "save", lambda data: (saves.append(1), real_save(data)))
+
+    def check(changed: dict) -> None:
+        stored = store.load()
+        assert stored is not None
+        for key, field in (("Admin/ProdProcessedCount", "prod_processed_count"),
+                           ("Admin/ProdDefectiveCount", "prod_defective_count"),
+                           ("Admin/ProdConsumedCount", "prod_consumed_count")):
+            for c in changed.get(key, []):
+                (s,) = [x for x in stored[field] if x["id"] == c.id]
+                assert (s["count"], s["acc_count"]) == (c.count, c.acc_count)
+        if "Admin/AccTimeSinceReset" in changed:
+            assert stored["acc_time_since_reset"] >= changed["Admin/AccTimeSinceReset"]
+        for mode, row in enumerate(changed.get("Admin/StateCumulativeTime", [])):
+            for state, t in enumerate(row):
+                assert stored["state_cumulative_time"][mode][state] >= t
+
+    unit.listeners.append(check)
+    unit.reset_machine()
+    unit.state_complete()
+    unit.start([])
+    unit.state_complete()
+    saves.clear()
+    for i in range(100):  # 10 s of ticks, producing now and then
+        clock.t += 0.1
+        if i % 7 == 0:
+            unit.report_production(processed=1, consumed=1)
+        unit.tick()
+    assert unit.admin.prod_processed_count[0].count == 15
+    # one save per visible change (a package, a whole second of the times), far fewer than the 100 ticks
+    assert 15 <= len(saves) <= 15 + 3 * 11
 
 
 def test_unwritable_store_is_logged_not_raised(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
@@ -135,3 +175,75 @@ def test_unwritable_store_is_logged_not_raised(tmp_path: Path, caplog: pytest.Lo
         unit.reset_machine()
     assert unit.state == "Resetting"
     assert any("cannot save" in r.getMessage() for r in caplog.records)
+
+
+async def test_kill_9_during_production_loses_nothing_a_client_read(tmp_path: Path) -> None:
+    """A real `uacell serve` is killed (SIGKILL) while Filler1 produces; after a restart every Admin
+    counter and time is at least what a client read just before the kill."""
+    from asyncua import Client, ua
+    from conftest import start_serve
+
+    config = tmp_path / "uacell.toml"
+    config.write_text("[packml]\nacting_time = 0.05\nmach_speed = 600.0\n")
+    data = tmp_path / "data"
+    cell, pml_uri = "urn:uacell:cell", "http://opcfoundation.org/UA/PackML/"
+    machine = "Filler1.BaseStateMachine.MachineState"
+    watched = ("ProdProcessedCount", "ProdDefectiveCount", "ProdConsumedCount")
+
+    async def read_admin(client: Client, ns: int) -> tuple[list[tuple[int, int]], int, int]:
+        counts = []
+        for name in watched:
+            (c,) = await client.get_node(ua.NodeId(f"Filler1.Admin.{name}", ns)).read_value()
+            counts.append((c.Count, c.AccCount))
+        acc = await client.get_node(ua.NodeId("Filler1.Admin.AccTimeSinceReset", ns)).read_value()
+        cum = await client.get_node(ua.NodeId("Filler1.Admin.StateCumulativeTime", ns)).read_value()
+        return counts, acc, cum[1][6]  # Produce row, Execute column
+
+    async def call(client: Client, ns: int, obj: str, method: str, *args: ua.Variant) -> None:
+        req = ua.CallMethodRequest(ObjectId=ua.NodeId(obj, ns), MethodId=ua.NodeId(f"{obj}.{method}", ns),
+                                   InputArguments=list(args))
+        (res,) = await client.uaclient.call([req])
+        assert res.StatusCode.is_good(), (method, res.StatusCode)
+
+    async def execute_state(client: Client, ns: int) -> str | None:
+        node = client.get_node(ua.NodeId(f"{machine}.ExecuteState.CurrentState", ns))
+        dv = await node.read_data_value(raise_on_bad_status=False)
+        return dv.Value.Value.Text if dv.StatusCode.is_good() else None
+
+    sp = start_serve(data, "--config", str(config))
+    try:
+        async with Client(sp.endpoint, timeout=30) as client:
+            await client.load_data_type_definitions()
+            ns = await client.get_namespace_index(cell)
+            assert await client.get_namespace_index(pml_uri) > 0
+            await call(client, ns, machine, "Reset")
+            deadline = time.monotonic() + 20
+            while await execute_state(client, ns) != "Idle":
+                assert time.monotonic() < deadline
+                await asyncio.sleep(0.05)
+            empty = ua.Variant([], ua.VariantType.ExtensionObject, is_array=True)
+            await call(client, ns, f"{machine}.ExecuteState", "Start", empty)
+            last = await read_admin(client, ns)
+            deadline = time.monotonic() + 20
+            # keep reading while it produces (10 packages/s); kill right after a read
+            while last[0][0][0] < 12 or last[2] < 1:
+                assert time.monotonic() < deadline, last
+                await asyncio.sleep(0.03)
+                last = await read_admin(client, ns)
+            sp.proc.send_signal(signal.SIGKILL)
+            sp.proc.wait(30)
+    finally:
+        sp.stop()
+    assert sp.proc.returncode == -signal.SIGKILL
+
+    sp = start_serve(data, "--config", str(config))
+    try:
+        async with Client(sp.endpoint, timeout=30) as client:
+            await client.load_data_type_definitions()
+            ns = await client.get_namespace_index(cell)
+            counts, acc, execute_time = await read_admin(client, ns)
+    finally:
+        sp.stop()
+    for name, now, before in zip(watched, counts, last[0], strict=True):
+        assert now[0] >= before[0] and now[1] >= before[1], (name, now, before)
+    assert counts[0][0] >= 12 and acc >= last[1] and execute_time >= last[2] >= 1

@@ -202,9 +202,11 @@ class PackMLUnit:
         self._stop_armed = True  # the next stop event becomes StopReason (first out)
         self._last_account = clock()
         self._last_save = self._last_account
+        self._saved: tuple[Any, ...] | None = None  # the durable values as last stored
         self._last_values: dict[str, Any] = {}
         if store is not None:
             self._load(store)
+            self._saved = self._durable()  # what clients will first see is what was stored
         self._refresh()
         self._last_values = self.values()
         self.equipment: PackMLEquipment = equipment if equipment is not None else EquipmentBase()
@@ -577,10 +579,13 @@ class PackMLUnit:
         self._last_save = self._clock()
         if self.store is None:
             return
+        durable = self._durable()
         try:
             self.store.save(self._admin_json())
         except OSError:
             log.exception("%s: cannot save PackML admin data to %s", self.name, self.store.path)
+            return
+        self._saved = durable
 
     def tick(self) -> None:
         """Advance time: Admin times, the equipment's ``poll``, a throttled save; publish changes."""
@@ -719,8 +724,20 @@ class PackMLUnit:
         a.state_cumulative_time = [[_i32(x) for x in row] for row in self._state_cum]
         a.acc_time_since_reset = _i32(self._acc)
 
+    def _durable(self) -> tuple[Any, ...]:
+        """The durable Admin values as clients read them (whole seconds, counts)."""
+        a = self.admin
+        return (
+            tuple(a.prod_processed_count), tuple(a.prod_defective_count), tuple(a.prod_consumed_count),
+            tuple(a.mode_cumulative_time), tuple(map(tuple, a.state_cumulative_time)), a.acc_time_since_reset,
+            a.stop_reason, tuple(a.alarm_history),
+        )
+
     def _publish(self) -> None:
         self._refresh()
+        # Decision 28: store before publishing, so that a crash never loses a value a client has read.
+        if self.store is not None and self._durable() != self._saved:
+            self.save()
         values = self.values()
         changed = {k: v for k, v in values.items() if self._last_values.get(k, _MISSING) != v}
         self._last_values = values
