@@ -285,6 +285,9 @@ async def test_unknown_name_is_minus_one_with_idle_to_idle_reason_error(fresh):
     assert await status(r, TC, "LoadByName", s("no_such_program")) == -1
     ev = await events.wait_for(is_transition("IdleToIdle"))
     assert ev.FromState.Text == "Idle" and ev.ToState.Text == "Idle"
+    assert ev.SourceNode == nid(r, TC)
+    await asyncio.sleep(0.1)
+    assert events.transitions() == ["IdleToIdle"]  # one event for the one transition
     assert await state(r, TC) == "Idle"
     assert (await read(r, f"{TC}.LastTransition")).Text == "IdleToIdle"
     assert await read(r, f"{TC}.LastTransitionReason") == 4
@@ -532,6 +535,10 @@ async def test_system_operation_walk(fresh):
     assert await state(r, TC) == "Executing"
     assert await read(r, f"{TC}.LastTransitionReason") == 3
     assert await status(r, SO, "StandDown") == 1  # something executes
+    res = await call(r, SO, "Stop", mode(42))  # decision 17: not in PossibleStopModes
+    assert res.StatusCode.value == ua.StatusCodes.BadInvalidArgument
+    assert [c.value for c in res.InputArgumentResults] == [ua.StatusCodes.BadInvalidArgument]
+    assert await state(r, EXEC_SUB) == "Running"
     assert await status(r, SO, "Stop", mode(0)) == 0
     await events.wait_for(is_transition("RunningToStopping"))
     await events.wait_for(is_transition("ExecutingToReady", nid(r, SO)))
@@ -544,6 +551,77 @@ async def test_system_operation_walk(fresh):
     assert events.transitions(nid(r, SO)) == ["IdleToReady", "ReadyToExecuting", "ExecutingToReady", "ReadyToIdle"]
     assert await read(r, f"{ARM}.ParameterSet.InControl") is False
     await sub.delete()
+
+
+# --- Executable (decision 4) -------------------------------------------------------------------------
+TC_ALL = ("LoadByNodeId", "LoadByName", "UnloadProgram", "UnloadByNodeId", "UnloadByName", "Start", "Stop")
+SO_ALL = ("GetReady", "StandDown", "Start", "Stop")
+
+
+async def executables(r: Rig) -> dict[str, bool]:
+    """Executable of every Robotics method, as a client reads it ('TC.Start', 'SO.Start', 'Reset')."""
+    await r.app.settle()
+    targets = [(f"TC.{m}", f"{TC}.{m}") for m in TC_ALL] + [(f"SO.{m}", f"{SO}.{m}") for m in SO_ALL]
+    targets.append(("Reset", f"{READY}.ResetToProgramStart"))
+    out = {}
+    for key, path in targets:
+        node = r.client.get_node(nid(r, path))
+        executable = (await node.read_attribute(ua.AttributeIds.Executable)).Value.Value
+        user = (await node.read_attribute(ua.AttributeIds.UserExecutable)).Value.Value
+        assert user == executable, key  # the engineer may call them all
+        out[key] = executable
+    return out
+
+
+def only(*true: str) -> dict[str, bool]:
+    keys = [f"TC.{m}" for m in TC_ALL] + [f"SO.{m}" for m in SO_ALL] + ["Reset"]
+    return {k: k in true for k in keys}
+
+
+async def test_executable_attribute_matches_what_a_call_does(fresh):
+    r = fresh
+    await upload(r, "long.robot", LONG)
+    # Idle, robot off: only loading and GetReady can succeed
+    assert await executables(r) == only("TC.LoadByNodeId", "TC.LoadByName", "SO.GetReady")
+    assert await status(r, TC, "UnloadProgram") == 1 and await status(r, SO, "Start") == 1
+    assert await status(r, TC, "LoadByName", s("gripper")) == 0  # a module in Idle: it can be unloaded
+    assert await executables(r) == only(
+        "TC.LoadByNodeId", "TC.LoadByName", "TC.UnloadByNodeId", "TC.UnloadByName", "SO.GetReady"
+    )
+    assert await status(r, TC, "UnloadByName", s("Gripper")) == 0
+    # Ready with a program, robot off: Start would answer 1 (decision 19)
+    assert await status(r, TC, "LoadByName", s("long")) == 0
+    ready_off = only(
+        "TC.LoadByNodeId", "TC.LoadByName", "TC.UnloadProgram", "TC.UnloadByNodeId", "TC.UnloadByName",
+        "Reset", "SO.GetReady",
+    )
+    assert await executables(r) == ready_off
+    assert await status(r, TC, "Start") == 1
+    # robot on: both Starts and StandDown; no GetReady
+    await power_up(r)
+    ready_on = {**ready_off, "SO.GetReady": False, "TC.Start": True, "SO.Start": True, "SO.StandDown": True}
+    assert await executables(r) == ready_on
+    assert await status(r, SO, "GetReady") == 1
+    # an active alarm: no Start (Status 3) until it is cleared and acknowledged
+    equipment, system = r.app.robot_cell.equipment, r.app.robot_cell.system
+    equipment.raise_alarm("EmergencyStop")
+    assert await executables(r) == {**ready_on, "TC.Start": False, "SO.Start": False}
+    assert await status(r, TC, "Start") == 3
+    equipment.clear_alarm("EmergencyStop")
+    system.acknowledge("EmergencyStop")
+    assert await executables(r) == ready_on
+    # Executing: only the Stops
+    assert await status(r, TC, "Start") == 0
+    assert await executables(r) == only("TC.Stop", "SO.Stop")
+    assert await status(r, TC, "LoadByName", s("long")) == 1
+    assert await status(r, READY, "ResetToProgramStart") == 1
+    # stopping (the 100 s wait finishes its instruction only after a stop at the end of it): nothing
+    assert await status(r, TC, "Stop", mode(int(StopMode.END_OF_INSTRUCTION))) == 0
+    assert await executables(r) == only()
+    assert await status(r, TC, "Stop", mode(0)) == 1 and await status(r, SO, "Stop", mode(0)) == 1
+    await r.app.robot_cell.equipment.stop("TaskControl1", StopMode.QUICK_STOP)
+    await wait_state(r, TC, "Ready")
+    assert await executables(r) == ready_on  # also refreshed when the state changes without a call
 
 
 async def test_stop_modes_and_motion_devices_are_published(fresh):
