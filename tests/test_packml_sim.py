@@ -145,3 +145,26 @@ async def test_real_time_run_loop() -> None:
         assert unit.state == "Idle"
     finally:
         task.cancel()
+
+
+def test_timers_across_mode_changes() -> None:
+    unit, _sim, clock = sim_unit()
+    unit.reset_machine()
+    advance(unit, clock, 0.5)
+    advance(unit, clock, 4.0)  # Idle (4) in Produce (1)
+    a = unit.admin
+    assert a.state_current_time[1][4] == 4 and a.mode_current_time[1] == 4
+    unit.set_unit_mode(1)  # the mode it already has: not a change, the current times keep running
+    advance(unit, clock, 1.0)
+    assert a.state_current_time[1][4] == 5 and a.mode_current_time[1] == 5
+    unit.set_unit_mode(3)  # a real change: time in the new mode (and in the state within it) starts at 0
+    advance(unit, clock, 2.0)
+    assert a.mode_current_time == [0, 0, 0, 2] and a.state_current_time[3][4] == 2
+    assert sum(map(sum, a.state_current_time)) == 2
+    assert a.state_cumulative_time[1][4] == 5 and a.state_cumulative_time[3][4] == 2
+    assert a.mode_cumulative_time[1] == 5 and a.mode_cumulative_time[3] == 2
+    unit.stop()  # Idle -> Stopping -> Stopped in Manual
+    advance(unit, clock, 0.5)
+    advance(unit, clock, 1.0)
+    assert a.state_current_time[3][2] == 1 and a.state_cumulative_time[3][7] == 0  # Stopping took 0.5 s
+    assert a.mode_current_time[3] == 3 and a.acc_time_since_reset == 9

@@ -510,8 +510,9 @@ class PackMLUnit:
             finally:
                 s.unit_mode_requested = s.unit_mode_change_in_process = False
             self._account()
-            s.unit_mode_current = int(mode)
-            self._mode_cur = self._state_cur = 0.0
+            if s.unit_mode_current != mode:  # the same mode again is no change: current times keep running
+                s.unit_mode_current = int(mode)
+                self._mode_cur = self._state_cur = 0.0
             self.save()
 
     def set_mach_speed(self, speed: float) -> None:
