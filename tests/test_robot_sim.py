@@ -230,6 +230,14 @@ async def test_alarm_stops_the_run_and_is_reported() -> None:
         robot.raise_alarm("NoSuchAlarm")
 
 
+async def test_alarm_raised_before_the_run_begins_stops_it() -> None:
+    robot = await powered_robot(LONG)
+    robot.raise_alarm("EmergencyStop")  # e.g. between a Start and the run's first instruction
+    with pytest.raises(AlarmStop, match="EmergencyStop"):
+        await robot.run(TASK, 0, ExecutionMode.CYCLE, Recorder())
+    assert not robot.moving and robot.positions == (0.0,) * 6
+
+
 async def test_load_unload_and_refusals() -> None:
     robot = await powered_robot(LONG)
     with pytest.raises(EquipmentError, match="not loaded"):

@@ -702,6 +702,21 @@ async def test_alarm_while_executing_stops_everything_with_error(cell: RobotCell
     assert tc.ready.current == "Suspended" and "CollisionDetected" in tc.last_error
 
 
+async def test_alarm_right_after_start_stops_the_program_with_error(cell: RobotCell) -> None:
+    tc = tc_of(cell)
+    await system_ready(cell)
+    assert await tc.load_by_name("short") == Status.OK
+    log = Log(tc.machine, cell.system.machine)
+    assert await tc.start() == Status.OK
+    cell.equipment.raise_alarm("EmergencyStop")  # type: ignore[attr-defined]  # before the run's first step
+    await tc.wait_until_not_executing()
+    assert log.transitions() == [
+        (TC, "ReadyToExecuting", EXT), (SO, "ReadyToExecuting", SYS), (TC, "ExecutingToReady", ERR),
+        (SO, "ExecutingToReady", ERR),
+    ]
+    assert tc.ready.current == "Suspended" and cell.equipment.positions == (0.0,) * 6  # type: ignore[attr-defined]
+
+
 # --- coupling with two task controls (decision 19) -----------------------------------------------------------
 async def test_system_start_and_stop_drive_every_task(tmp_path: Path) -> None:
     robot = SimulatedRobot(time_scale=SCALE, power_up_time=0.1)

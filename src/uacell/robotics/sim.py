@@ -236,6 +236,10 @@ class SimulatedRobot:
         if t.program is None:
             t.stop = None
             raise EquipmentError(f"no program loaded on {task}")
+        if self.active_alarms:
+            # Raised between the Start and this run's first step: raise_alarm saw no running task.
+            t.stop = None
+            raise AlarmStop(f"alarm {', '.join(self.active_alarms)} is active")
         try:
             steps = expand(t.program, t.modules or {})
         except ProgramError as e:
