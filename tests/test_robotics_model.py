@@ -487,7 +487,9 @@ async def test_system_stop_refused_by_the_equipment_leaves_the_system_running(
     assert so.executable(SO, "Stop") and await so.stop(StopMode.QUICK_STOP) == Status.OK
     await until(lambda: so.state == "Ready")
     assert log.transitions() == [
-        (EXE, "RunningToStopping", EXT), (TC, "ExecutingToReady", EXT), (SO, "ExecutingToReady", EXT)
+        (EXE, "RunningToStopping", EXT),
+        (TC, "ExecutingToReady", EXT),
+        (SO, "ExecutingToReady", EXT),
     ]
 
 
@@ -711,7 +713,9 @@ async def test_alarm_right_after_start_stops_the_program_with_error(cell: RobotC
     cell.equipment.raise_alarm("EmergencyStop")  # type: ignore[attr-defined]  # before the run's first step
     await tc.wait_until_not_executing()
     assert log.transitions() == [
-        (TC, "ReadyToExecuting", EXT), (SO, "ReadyToExecuting", SYS), (TC, "ExecutingToReady", ERR),
+        (TC, "ReadyToExecuting", EXT),
+        (SO, "ReadyToExecuting", SYS),
+        (TC, "ExecutingToReady", ERR),
         (SO, "ExecutingToReady", ERR),
     ]
     assert tc.ready.current == "Suspended" and cell.equipment.positions == (0.0,) * 6  # type: ignore[attr-defined]

@@ -323,8 +323,10 @@ async def test_bad_node_ids_answer_bad_codes_with_argument_result_and_no_transit
         "not-a-file": xid(nid(r, ARM)),
         "directory-node": xid(nid(r, PROGRAMS)),
     }
-    expected = ua.StatusCodes.BadNodeIdInvalid if case in ("null", "remote", "unknown-uri") else (
-        ua.StatusCodes.BadNodeIdUnknown
+    expected = (
+        ua.StatusCodes.BadNodeIdInvalid
+        if case in ("null", "remote", "unknown-uri")
+        else (ua.StatusCodes.BadNodeIdUnknown)
     )
     events, sub = await subscribe_transitions(r, TC)
     res = await call(r, TC, "LoadByNodeId", variants[case])
@@ -592,8 +594,13 @@ async def test_executable_attribute_matches_what_a_call_does(fresh):
     # Ready with a program, robot off: Start would answer 1 (decision 19)
     assert await status(r, TC, "LoadByName", s("long")) == 0
     ready_off = only(
-        "TC.LoadByNodeId", "TC.LoadByName", "TC.UnloadProgram", "TC.UnloadByNodeId", "TC.UnloadByName",
-        "Reset", "SO.GetReady",
+        "TC.LoadByNodeId",
+        "TC.LoadByName",
+        "TC.UnloadProgram",
+        "TC.UnloadByNodeId",
+        "TC.UnloadByName",
+        "Reset",
+        "SO.GetReady",
     )
     assert await executables(r) == ready_off
     assert await status(r, TC, "Start") == 1
