@@ -514,3 +514,44 @@ def test_docs_transition_numbers_match_the_tables() -> None:
     actual = {(name, t): sm.table.transition_number(t) for name, sm in unit.machines.items()
               for t in sm.table.transitions}
     assert documented == actual
+
+
+# packml-v101.md §5: the 26 transitions of OPC 30050 v1.01 (from -> to), typed here to check the NodeSet.
+SPEC_TRANSITIONS = {
+    BASE: {"ClearedToAborting": ("Cleared", "Aborting"), "AbortingToAborted": ("Aborting", "Aborted"),
+           "AbortedToCleared": ("Aborted", "Cleared")},
+    MACHINE: {"ClearingToStopped": ("Clearing", "Stopped"), "StoppedToRunning": ("Stopped", "Running"),
+              "RunningToStopping": ("Running", "Stopping"), "StoppingToStopped": ("Stopping", "Stopped")},
+    EXECUTE: {
+        "ResettingToIdle": ("Resetting", "Idle"), "IdleToStarting": ("Idle", "Starting"),
+        "StartingToExecute": ("Starting", "Execute"), "ExecuteToSuspending": ("Execute", "Suspending"),
+        "SuspendingToSuspended": ("Suspending", "Suspended"),
+        "SuspendedToUnsuspending": ("Suspended", "Unsuspending"),
+        "UnsuspendingToExecute": ("Unsuspending", "Execute"), "ExecuteToHolding": ("Execute", "Holding"),
+        "HoldingToHeld": ("Holding", "Held"), "HeldToUnholding": ("Held", "Unholding"),
+        "UnholdingToExecute": ("Unholding", "Execute"), "ExecuteToCompleting": ("Execute", "Completing"),
+        "CompletingToComplete": ("Completing", "Complete"), "CompleteToResetting": ("Complete", "Resetting"),
+        "StartingToHolding": ("Starting", "Holding"), "UnsuspendingToHolding": ("Unsuspending", "Holding"),
+        "SuspendedToHolding": ("Suspended", "Holding"), "SuspendingToHolding": ("Suspending", "Holding"),
+        "UnholdingToHolding": ("Unholding", "Holding"),
+    },
+}
+
+
+def test_all_26_transitions_come_from_the_nodeset_and_are_taken() -> None:
+    unit = new_unit()
+    tables = {name: {t.name: (t.from_state, t.to_state) for t in m.table.transitions.values()}
+              for name, m in unit.machines.items()}
+    assert tables == SPEC_TRANSITIONS
+    taken: dict[str, set[str]] = {name: set() for name in unit.machines}
+    for state, path in PATHS.items():
+        for step in [DONE, *sorted(ALLOWED_PRODUCE[state], key=str)]:
+            if step == DONE and state not in {"Aborting", "Clearing", "Resetting", "Starting", "Completing",
+                                              "Holding", "Unholding", "Suspending", "Unsuspending", "Stopping"}:
+                continue
+            unit = new_unit()
+            walk(unit, path)
+            for m in unit.machines.values():
+                m.listeners.append(lambda c: c.transition and taken[c.machine.name].add(c.transition.name))
+            walk(unit, [step])
+    assert taken == {name: set(ts) for name, ts in SPEC_TRANSITIONS.items()}

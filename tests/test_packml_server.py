@@ -119,6 +119,52 @@ class Events:
         self.got.clear()
 
 
+class Changes:
+    """Data changes of Status/StateRequested and Status/StateChangeInProcess, in order."""
+
+    def __init__(self) -> None:
+        self.got: dict[str, list[object]] = {}
+        self.names: dict[object, str] = {}
+
+    def datachange_notification(self, node, val, data) -> None:
+        self.got.setdefault(self.names[node], []).append(val)
+
+    def distinct(self, name: str) -> list[object]:
+        out: list[object] = []
+        for v in self.got.get(name, []):
+            if not out or out[-1] != v:
+                out.append(v)
+        return out
+
+
+JOB_STATES = {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding",
+              "Suspending", "Suspended", "Unsuspending"}
+SM_METHODS = [(BASE, "Abort", "Base"), (BASE, "Clear", "Base"), (MACH, "Stop", "Machine"),
+              (MACH, "Reset", "Machine"), (EXEC, "Reset", "Execute"), (EXEC, "Start", "Execute"),
+              (EXEC, "Hold", "Execute"), (EXEC, "Unhold", "Execute"), (EXEC, "Suspend", "Execute"),
+              (EXEC, "Unsuspend", "Execute"), (EXEC, "ToComplete", "Execute")]
+UNIT_METHODS = ["SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "RemoteCommand", "SetInterlock"]
+
+
+async def check_executable(u: Unit, state: str) -> None:
+    """Decision 4, read over the client: each method's Executable attribute in ``state`` (mode Produce)
+    against the spec's table (packml-v101.md §5.1, as typed in test_packml_model)."""
+    from test_packml_model import ALLOWED_PRODUCE
+
+    machine_names = {"Base": "BaseStateMachine", "Machine": "MachineState", "Execute": "ExecuteState"}
+    expected = {f"{obj}.{m}": (machine_names[k], m) in ALLOWED_PRODUCE[state] for obj, m, k in SM_METHODS}
+    expected |= {f"{F}.{m}": {"SetUnitMode": state in {"Stopped", "Idle", "Aborted"},
+                              "SetProduct": state not in JOB_STATES,
+                              "SetParameter": state not in JOB_STATES}.get(m, True) for m in UNIT_METHODS}
+    deadline = time.monotonic() + TIMEOUT
+    while True:  # completions refresh Executable through the publisher, just after CurrentState
+        got = {path: (await u.node(path).read_attribute(ua.AttributeIds.Executable)).Value.Value for path in expected}
+        if got == expected:
+            return
+        assert time.monotonic() < deadline, (state, {p: v for p, v in got.items() if v != expected[p]})
+        await asyncio.sleep(0.02)
+
+
 async def make_unit(client: Client) -> Unit:
     return Unit(client, await client.get_namespace_index(CELL), await client.get_namespace_index(PACKML))
 
@@ -148,9 +194,26 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
     ev = Events(u)
     sub = await client.create_subscription(20, ev)
     await sub.subscribe_events(client.get_node(ua.ObjectIds.Server), client.get_node(ua.ObjectIds.TransitionEventType))
+    changes = Changes()
+    status_sub = await client.create_subscription(20, changes)
+    for name in ("StateRequested", "StateChangeInProcess"):
+        node = u.node(f"{F}.Status.{name}")
+        changes.names[node] = name
+        await status_sub.subscribe_data_change(node, queuesize=100, sampling_interval=0)
     await asyncio.sleep(0.2)
 
     await u.wait(("Cleared", "Stopped", None))  # decision 23; Execute inactive while Stopped
+    await check_executable(u, "Stopped")
+    # Decision 29: each machine's AvailableStates/AvailableTransitions are the NodeIds of its own
+    # states/transitions in the type.
+    for machine, path in MACHINES.items():
+        table = u.tables[machine]
+        states = await u.node(f"{path}.AvailableStates").read_value()
+        assert sorted(states, key=str) == sorted((ua.NodeId(s.node[1], u.pml) for s in table.states.values()), key=str)
+        transitions = await u.node(f"{path}.AvailableTransitions").read_value()
+        assert sorted(transitions, key=str) == sorted(
+            (ua.NodeId(t.node[1], u.pml) for t in table.transitions.values()), key=str)
+        assert (len(states), len(transitions)) == {"Base": (3, 3), "Machine": (4, 4), "Execute": (12, 19)}[machine]
     assert await u.value("Status.CurMachSpeed") == 0.0
     await u.ok(MACH, "Reset")
     await u.wait(("Cleared", "Running", "Idle"))
@@ -160,10 +223,12 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
     await u.ok(F, "SetMachSpeed", f32(600.0))  # 10 packages/s, so counts grow quickly
     assert await u.value("Status.MachSpeed") == 600.0
     count0 = await u.count()
+    await check_executable(u, "Idle")
     await u.ok(EXEC, "Start", descriptors((1, "Temperature", 180.5), (2, "Fill", 0.25)))
     await u.wait(("Cleared", "Running", "Execute"))
     await ev.expect(("Execute", "IdleToStarting", "Idle", "Starting"),
                     ("Execute", "StartingToExecute", "Starting", "Execute"))
+    await check_executable(u, "Execute")
     params = await u.value("Status.StartParameters")
     assert [(p.ID, p.Name, p.Value, p.Unit.UnitId, p.Unit.DisplayName.Text) for p in params] == [
         (1, "Temperature", 180.5, 4408652, "°C"), (2, "Fill", 0.25, 4408652, "°C"),
@@ -181,6 +246,7 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
     await u.wait(("Cleared", "Running", "Held"))
     await ev.expect(("Execute", "ExecuteToHolding", "Execute", "Holding"),
                     ("Execute", "HoldingToHeld", "Holding", "Held"))
+    await check_executable(u, "Held")
     assert await u.value("Status.CurMachSpeed") == 0.0
     held = await u.count()
     await asyncio.sleep(0.3)
@@ -194,6 +260,7 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
     await u.wait(("Cleared", "Running", "Suspended"))
     await ev.expect(("Execute", "ExecuteToSuspending", "Execute", "Suspending"),
                     ("Execute", "SuspendingToSuspended", "Suspending", "Suspended"))
+    await check_executable(u, "Suspended")
     await u.ok(EXEC, "Unsuspend")
     await u.wait(("Cleared", "Running", "Execute"))
     await ev.expect(("Execute", "SuspendedToUnsuspending", "Suspended", "Unsuspending"),
@@ -219,6 +286,7 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
     await u.wait(("Aborted", None, None))
     await ev.expect(("Base", "ClearedToAborting", "Cleared", "Aborting"),
                     ("Base", "AbortingToAborted", "Aborting", "Aborted"))
+    await check_executable(u, "Aborted")
     stop_reason = await u.value("Admin.StopReason")
     assert (stop_reason.ID, stop_reason.Message) == (3, "Stop commanded")  # first out since last Execute
     for obj, method in ((MACH, "Reset"), (MACH, "Stop"), (EXEC, "Start")):
@@ -230,6 +298,18 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
     await ev.expect(("Base", "AbortedToCleared", "Aborted", "Cleared"),
                     ("Machine", "ClearingToStopped", "Clearing", "Stopped"))
     assert [p.ID for p in await u.value("Status.StartParameters")] == [1, 2]  # kept until the next Start
+    await check_executable(u, "Stopped")
+    # Decision 29: while an acting state runs, StateChangeInProcess is true and StateRequested names the
+    # state it leads to (Resetting -> Idle 4, Starting -> Execute 6, Holding -> Held 11, ...).
+    deadline = time.monotonic() + TIMEOUT
+    while changes.distinct("StateRequested")[-1:] != [2] or changes.distinct("StateChangeInProcess")[-1:] != [False]:
+        assert time.monotonic() < deadline, changes.got
+        await asyncio.sleep(0.02)
+    assert changes.distinct("StateRequested") == [2, 4, 6, 11, 6, 5, 6, 17, 4, 2, 9, 2]
+    # 11 acting states: Resetting, Starting, Holding, Unholding, Suspending, Unsuspending, Completing,
+    # Resetting, Stopping, Aborting, Clearing
+    assert changes.distinct("StateChangeInProcess") == [False, True] * 11 + [False]
+    await status_sub.delete()
     await sub.delete()
 
 
@@ -283,6 +363,28 @@ async def test_start_errors_modes_speed_and_fault(app, client):
     assert await u.states() == ("Cleared", "Running", "Idle")
     assert [(p.ID, p.Value) for p in await u.value("Status.StartParameters")] == [(7, 7.0)]
 
+    # SetParameter / SetProduct (decision 27; engineers): validated as Start, replace Status/Parameter, Product
+    app.users.add("boss", "engineer", "a long admin password")
+    admin = Client(app.endpoint, timeout=30)
+    admin.set_user("boss")
+    admin.set_password("a long admin password")
+    await admin.connect()
+    try:
+        eng = Unit(admin, u.ns, u.pml)
+        res = await eng.call(F, "SetParameter", descriptors((3, "a", 1.0), (3, "b", 2.0)))
+        assert res.StatusCode.value == ua.StatusCodes.BadInvalidArgument
+        assert [r.value for r in res.InputArgumentResults] == [ua.StatusCodes.BadInvalidArgument]
+        await eng.ok(F, "SetParameter", descriptors((3, "Speed", 2.5)))
+        assert [(p.ID, p.Name, p.Value) for p in await u.value("Status.Parameter")] == [(3, "Speed", 2.5)]
+        product = ua.PackMLProductDataType(ProductID=12, ProcessVariables=descriptors((1, "Fill", 0.5)).Value,
+                                           Ingredients=[])
+        await eng.ok(F, "SetProduct", ua.Variant([product], ua.VariantType.ExtensionObject, is_array=True))
+        (got,) = await u.value("Status.Product")
+        assert (got.ProductID, [(p.ID, p.Value) for p in got.ProcessVariables]) == (12, [(1, 0.5)])
+        assert [(p.ID, p.Value) for p in await u.value("Status.StartParameters")] == [(7, 7.0)]  # untouched
+    finally:
+        await admin.disconnect()
+
     # unit modes (decision 26)
     assert await u.value("Status.UnitModeCurrent") == 1
     supported = await u.value("Status.UnitSupportedModes")
@@ -308,6 +410,7 @@ async def test_start_errors_modes_speed_and_fault(app, client):
     assert res.StatusCode.value == ua.StatusCodes.BadInvalidState
     res = await u.call(F, "SetUnitMode", i32(1))
     assert res.StatusCode.value == ua.StatusCodes.BadInvalidState  # not in Execute
+    assert (await u.node(f"{F}.SetParameter").read_attribute(ua.AttributeIds.Executable)).Value.Value is False
     assert await u.value("Status.UnitModeCurrent") == 2
 
     # MachSpeed against its EURange (decision 27) and CurMachSpeed in Execute (decision 29)
@@ -329,12 +432,14 @@ async def test_start_errors_modes_speed_and_fault(app, client):
     (res,) = await client.uaclient.call([req])
     assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied  # anonymous = operator
     assert await u.states() == ("Cleared", "Running", "Execute")
-    app.users.add("boss", "engineer", "a long admin password")
     admin = Client(app.endpoint, timeout=30)
     admin.set_user("boss")
     admin.set_password("a long admin password")
     await admin.connect()
     try:
+        res = await Unit(admin, u.ns, u.pml).call(F, "SetParameter", descriptors((4, "late", 1.0)))
+        assert res.StatusCode.value == ua.StatusCodes.BadInvalidState  # not while a job runs
+        assert [p.ID for p in await u.value("Status.Parameter")] == [3]
         (res,) = await admin.uaclient.call([req])
     finally:
         await admin.disconnect()
