@@ -137,9 +137,9 @@ TABLE = [
     ("Idle", "load_by_name", 0, ("Ready", "AtProgramStart"), [(TC, "IdleToReady", EXT)]),
     ("Idle", "load_file", 0, ("Ready", "AtProgramStart"), [(TC, "IdleToReady", EXT)]),
     ("Idle", "unload_program", 1, ("Idle", None), []),
-    ("Idle", "unload_by_name", -1, ("Idle", None), []),
-    ("Idle", "unload_by_file", -1, ("Idle", None), []),
-    ("Idle", "unload_module", -1, ("Idle", None), []),
+    ("Idle", "unload_by_name", 1, ("Idle", None), []),  # nothing loaded: cannot act (decision 8)
+    ("Idle", "unload_by_file", 1, ("Idle", None), []),  # nothing loaded: cannot act (decision 8)
+    ("Idle", "unload_module", 1, ("Idle", None), []),  # nothing loaded: cannot act (decision 8)
     ("Idle", "start", 1, ("Idle", None), []),
     ("Idle", "stop", 1, ("Idle", None), []),
     ("Idle", "reset", 1, ("Idle", None), []),

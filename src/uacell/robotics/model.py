@@ -360,7 +360,7 @@ class TaskControl:
     async def unload_by_name(self, name: str) -> int:
         """UnloadByName: the program (as UnloadProgram) or one module."""
         async with self._lock:
-            if self.machine.current == "Executing":
+            if self._unload_impossible():
                 return Status.E_SYSTEM_STATE
             if self.program is not None and name == self.program.name:
                 return await self._unload_all()
@@ -369,7 +369,7 @@ class TaskControl:
     async def unload_by_file(self, relpath: str) -> int:
         """UnloadByNodeId with the FileType node of a loaded program or module."""
         async with self._lock:
-            if self.machine.current == "Executing":
+            if self._unload_impossible():
                 return Status.E_SYSTEM_STATE
             if self.program is not None and self.program_file == relpath:
                 return await self._unload_all()
@@ -381,9 +381,13 @@ class TaskControl:
     async def unload_module(self, name: str) -> int:
         """UnloadByNodeId with a TaskModule node."""
         async with self._lock:
-            if self.machine.current == "Executing":
+            if self._unload_impossible():
                 return Status.E_SYSTEM_STATE
             return await self._unload_module(name)
+
+    def _unload_impossible(self) -> bool:
+        """Decision 8: Executing, or nothing loaded at all (Idle without modules)."""
+        return self.machine.current == "Executing" or (self.program is None and not self._modules)
 
     async def _unload_all(self) -> int:
         assert self.program is not None
