@@ -434,6 +434,22 @@ def test_fault_aborts_with_alarm_and_stop_reason() -> None:
     assert unit.admin.alarm == [] and all(h.ack_date_time is not None for h in unit.admin.alarm_history)
 
 
+def test_equipment_fault_category_and_failing_hook() -> None:
+    class Broken(EquipmentBase):
+        def on_starting(self, parameters: Any) -> None:
+            raise RuntimeError("PLC unreachable")
+
+    unit = PackMLUnit(Broken())
+    walk(unit, _IDLE)
+    unit.start([])  # the hook fails: the unit aborts with an alarm of category 0 naming the error
+    assert unit.states == ("Aborting", None, None)
+    (alarm,) = unit.admin.alarm
+    assert alarm.category == 0 and "PLC unreachable" in alarm.message
+    unit = new_unit()
+    unit.fault(5, "guard door")  # what a driver reports through the UnitPort: an equipment fault
+    assert unit.admin.alarm[0].category == 1 and unit.admin.stop_reason.category == 1
+
+
 def test_commanded_stop_reason() -> None:
     unit = new_unit()
     walk(unit, _EXECUTE)

@@ -52,7 +52,7 @@ class UnitPort(Protocol):
         """Add to ProdProcessedCount[0] / ProdDefectiveCount[0] / ProdConsumedCount (by ID or [0])."""
         ...
 
-    def fault(self, alarm_id: int, message: str, *, value: int = 0, category: int = 0) -> None:
+    def fault(self, alarm_id: int, message: str, *, value: int = 0, category: int = 1) -> None:
         """Raise an alarm, record it as StopReason (first out) and abort the unit."""
         ...
 

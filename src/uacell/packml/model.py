@@ -467,7 +467,7 @@ class PackMLUnit:
                 else:
                     raise ValueError(f"no ProdConsumedCount with ID {material}")
 
-    def fault(self, alarm_id: int, message: str, *, value: int = 0, category: int = 0) -> None:
+    def fault(self, alarm_id: int, message: str, *, value: int = 0, category: int = 1) -> None:
         with self._operation():
             alarm = PackMLAlarmDataType(alarm_id, value, message, category, self._wall(), None, True)
             _push(self.admin.alarm, alarm, self.admin.alarm_extent)
