@@ -5,7 +5,7 @@ the shared state-machine binding, every method through the dispatcher, Status/Ad
 model's listener to the address space (typed by each variable's DataType), and asyncua structure
 values to and from the model's dataclasses. Server-defined additions, in the cell namespace:
 ``<unit>/Status/StartParameters`` (the last accepted Start's parameters) and
-``<unit>/InjectFault(Id, Message)`` (admin only: simulate an equipment fault).
+``<unit>/InjectFault(Id, Message)`` (engineer and admin: simulate an equipment fault).
 """
 
 from __future__ import annotations
