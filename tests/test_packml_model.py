@@ -450,6 +450,30 @@ def test_equipment_fault_category_and_failing_hook() -> None:
     assert unit.admin.alarm[0].category == 1 and unit.admin.stop_reason.category == 1
 
 
+def test_equipment_reports_warnings_blocked_starved_and_its_own_commands() -> None:
+    unit = new_unit(warning_extent=2)
+    walk(unit, _EXECUTE)
+    for i in (1, 2, 3):
+        unit.warning(i, f"low glue {i}")
+    assert [w.id for w in unit.admin.warning] == [2, 3] and all(w.trigger for w in unit.admin.warning)
+    unit.warning(2, "", active=False)
+    assert [w.id for w in unit.admin.warning] == [3]
+    assert unit.state == "Execute" and unit.admin.alarm == []  # warnings never stop the unit
+    unit.set_blocked(True)
+    unit.set_starved(True)
+    assert unit.values()["Status/EquipmentBlocked"] is True and unit.values()["Status/EquipmentStarved"] is True
+    unit.equipment_command("Suspend")  # e.g. starved: the same transition as the client's Suspend
+    assert unit.state == "Suspending" and unit.execute.last_transition.name == "ExecuteToSuspending"
+    with pytest.raises(CallError) as err:
+        unit.equipment_command("Unhold")  # the same state rules as for clients
+    assert err.value.status == "BadInvalidState" and unit.state == "Suspending"
+    unit.state_complete()
+    unit.equipment_command("Unsuspend")
+    unit.state_complete()
+    unit.equipment_command("ToComplete")
+    assert unit.state == "Completing"
+
+
 def test_commanded_stop_reason() -> None:
     unit = new_unit()
     walk(unit, _EXECUTE)
