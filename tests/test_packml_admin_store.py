@@ -173,8 +173,11 @@ def test_unwritable_store_is_logged_not_raised(tmp_path: Path, caplog: pytest.Lo
     unit = PackMLUnit(EquipmentBase(), store=AdminStore(blocker / "sub" / "u.json"))
     with caplog.at_level(logging.ERROR):
         unit.reset_machine()
-    assert unit.state == "Resetting"
-    assert any("cannot save" in r.getMessage() for r in caplog.records)
+        unit.state_complete()
+        unit.report_production(processed=3)
+    assert unit.state == "Idle"
+    assert [r.getMessage() for r in caplog.records].count(
+        f"Filler1: cannot save PackML admin data to {blocker / 'sub' / 'u.json'}") == 1  # once, not per change
 
 
 async def test_kill_9_during_production_loses_nothing_a_client_read(tmp_path: Path) -> None:

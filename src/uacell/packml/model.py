@@ -203,6 +203,7 @@ class PackMLUnit:
         self._last_account = clock()
         self._last_save = self._last_account
         self._saved: tuple[Any, ...] | None = None  # the durable values as last stored
+        self._save_failing = False
         self._last_values: dict[str, Any] = {}
         if store is not None:
             self._load(store)
@@ -584,8 +585,14 @@ class PackMLUnit:
         try:
             self.store.save(self._admin_json())
         except OSError:
-            log.exception("%s: cannot save PackML admin data to %s", self.name, self.store.path)
+            # Saves are retried at every change: log the failure once, not ten times a second.
+            if not self._save_failing:
+                log.exception("%s: cannot save PackML admin data to %s", self.name, self.store.path)
+            self._save_failing = True
             return
+        if self._save_failing:
+            log.warning("%s: PackML admin data saved to %s again", self.name, self.store.path)
+            self._save_failing = False
         self._saved = durable
 
     def tick(self) -> None:
