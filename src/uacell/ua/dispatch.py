@@ -12,7 +12,10 @@ For each call it answers, in this order:
    argument results, its outputs are typed from ``OutputArguments``. Any other exception is logged
    and answered with ``Bad_InternalError``: nothing ever reaches the stack.
 
-Methods uacell does not bind fall through to asyncua's own handling.
+A method uacell does not bind answers ``Bad_MethodInvalid`` unless it is a component of the object
+(or of its type); one that is answers ``Bad_NotImplemented`` when nobody implements it, and otherwise
+goes to asyncua's callback only for an ``admin`` caller (the role table denies by default), with the
+same ``Bad_InternalError`` guarantee. Once the server is closing, calls answer ``Bad_Shutdown``.
 """
 
 from __future__ import annotations
@@ -68,6 +71,10 @@ class MethodDispatcher(MethodService):
         # instance method -> its declaration in the type (set by the server once the cell exists),
         # so that a call naming the type's method (e.g. Acknowledge, i=9111) on an object works too
         self.declarations: dict[ua.NodeId, ua.NodeId] = {}
+        self._closing = False
+        self._running = 0  # calls whose behaviour is under way
+        self._idle = asyncio.Event()
+        self._idle.set()
 
     @classmethod
     def install(cls, server: Server) -> MethodDispatcher:
@@ -142,7 +149,9 @@ class MethodDispatcher(MethodService):
 
     def unbind(self, method_id: ua.NodeId) -> None:
         """Forget a method whose node is being deleted."""
-        self.methods.pop(method_id, None)
+        bound = self.methods.pop(method_id, None)
+        if bound is not None and bound.serialize_on is None:
+            self._locks.pop(id(bound), None)  # its own serialization lock goes with it
 
     def method_of(self, object_id: ua.NodeId, name: str) -> ua.NodeId:
         for ref in self._aspace[object_id].references:
@@ -186,19 +195,85 @@ class MethodDispatcher(MethodService):
         return None
 
     async def dispatch(self, request: ua.CallMethodRequest, caller: Caller | None = None) -> ua.CallMethodResult:
-        bound = self.methods.get(request.MethodId) or self._by_declaration(request.ObjectId, request.MethodId)
+        if self._closing:
+            return _result(ua.StatusCodes.BadShutdown)
+        self._running += 1
+        self._idle.clear()
+        try:
+            return await self._answer(request, caller)
+        finally:
+            self._running -= 1
+            if self._running == 0:
+                self._idle.set()
+
+    async def _answer(self, request: ua.CallMethodRequest, caller: Caller | None) -> ua.CallMethodResult:
+        try:
+            caller = caller or context.current_caller()
+            bound = self.methods.get(request.MethodId) or self._by_declaration(request.ObjectId, request.MethodId)
+        except Exception:
+            log.exception("resolving a call of %s failed unexpectedly", request.MethodId)
+            return _result(ua.StatusCodes.BadInternalError)
         if bound is None:
-            if request.ObjectId not in self._aspace:
-                return _result(ua.StatusCodes.BadNodeIdUnknown)
-            if request.MethodId not in self._aspace:
-                return _result(ua.StatusCodes.BadMethodInvalid)
-            return await super()._call(request)
-        caller = caller or context.current_caller()
+            return await self._unbound(request, caller)
         try:
             return await self._dispatch(bound, request, caller)
         except Exception:
             log.exception("%s on %s failed unexpectedly", bound.name, request.ObjectId.to_string())
+            await self._after()
             return _result(ua.StatusCodes.BadInternalError)
+
+    def _belongs(self, object_id: ua.NodeId, method_id: ua.NodeId) -> bool:
+        """Is ``method_id`` a method component of the object, or of its type (or a supertype)?"""
+        has_component = ua.NodeId(ua.ObjectIds.HasComponent)
+        obj = self._aspace.get(object_id)
+        if obj is None:
+            return False
+        holders = [object_id]
+        has_type = ua.NodeId(ua.ObjectIds.HasTypeDefinition)
+        type_id = next((r.NodeId for r in obj.references if r.IsForward and r.ReferenceTypeId == has_type), None)
+        while type_id is not None:
+            holders.append(type_id)
+            type_id = self.types._supertype(type_id)
+        for holder in holders:
+            data = self._aspace.get(holder)
+            if data is None:
+                continue
+            for ref in data.references:
+                if ref.IsForward and ref.NodeId == method_id and ref.ReferenceTypeId == has_component:
+                    return True
+        return False
+
+    async def _unbound(self, request: ua.CallMethodRequest, caller: Caller) -> ua.CallMethodResult:
+        """A method no binding declared: never the stack's default answers, never past the role table."""
+        try:
+            if request.ObjectId not in self._aspace:
+                return _result(ua.StatusCodes.BadNodeIdUnknown)
+            method = self._aspace.get(request.MethodId)
+            if (
+                method is None
+                or method.attributes[_A.NodeClass].value.Value.Value != ua.NodeClass.Method
+                or not self._belongs(request.ObjectId, request.MethodId)
+            ):
+                return _result(ua.StatusCodes.BadMethodInvalid)
+            if method.call is None:
+                return _result(ua.StatusCodes.BadNotImplemented)
+            if Role.parse(caller.role) < Role.ADMIN:  # not in the table: admin only (deny by default)
+                return _result(ua.StatusCodes.BadUserAccessDenied)
+            result = await super()._call(request)
+            if result.StatusCode.value == ua.StatusCodes.BadUnexpectedError:
+                result.StatusCode = ua.StatusCode(ua.StatusCodes.BadInternalError)
+            return result
+        except Exception:
+            log.exception("call of %s on %s failed unexpectedly", request.MethodId, request.ObjectId)
+            return _result(ua.StatusCodes.BadInternalError)
+
+    async def close(self, timeout: float = 5.0) -> None:
+        """Refuse new calls (Bad_Shutdown) and wait, up to ``timeout`` s, for those under way."""
+        self._closing = True
+        try:
+            await asyncio.wait_for(self._idle.wait(), timeout)
+        except TimeoutError:
+            log.warning("shutting down with %d method call(s) still running", self._running)
 
     async def _dispatch(self, bound: BoundMethod, request: ua.CallMethodRequest, caller: Caller) -> ua.CallMethodResult:
         if request.ObjectId != bound.object_id:
@@ -240,9 +315,14 @@ class MethodDispatcher(MethodService):
         return result
 
     async def _after(self) -> None:
-        for hook in self.after_call:
-            await hook()
-        await self.refresh_executable()
+        """Publish what the behaviour changed and refresh Executable; a failure here is logged, never
+        turned into the call's answer (the behaviour has already happened)."""
+        try:
+            for hook in self.after_call:
+                await hook()
+            await self.refresh_executable()
+        except Exception:
+            log.exception("publishing after a call failed")
 
 
 def _result(code: int, arg_results: list[ua.StatusCode] | None = None, n: int = 0) -> ua.CallMethodResult:
@@ -340,7 +420,7 @@ class TypeChecker:
         is_array = variant.is_array or isinstance(variant.Value, list)
         if arg.DataType == ua.NodeId(ua.ObjectIds.BaseDataType) and arg.ValueRank == -2:
             return good
-        if arg.ValueRank == -1 or (arg.ValueRank == -3 and not is_array):
+        if arg.ValueRank == -1 or (arg.ValueRank in (-3, -2) and not is_array):
             if (
                 is_array
                 or vtype == ua.VariantType.Null
