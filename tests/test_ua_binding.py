@@ -255,3 +255,107 @@ async def test_observer_gets_user_access_denied_and_nothing_changes(rig):
         await observer.disconnect()
     assert (await node(r, "CurrentState").read_value()).Text == "Idle"
     assert r.calls == []
+
+
+async def test_executable_follows_changes_made_outside_method_calls(rig):
+    """Decision 4 when no call is involved (an acting state completing, a program ending)."""
+    r = rig
+    stop = node(r, "Stop")
+    r.machine.take("IdleToReady", Reason.SYSTEM)
+    r.machine.take("ReadyToExecuting", Reason.SYSTEM)
+    for _ in range(100):
+        if (await stop.read_attribute(ua.AttributeIds.Executable)).Value.Value is True:
+            break
+        await asyncio.sleep(0.05)
+    assert (await stop.read_attribute(ua.AttributeIds.Executable)).Value.Value is True
+    assert (await node(r, "LoadByName").read_attribute(ua.AttributeIds.Executable)).Value.Value is False
+
+
+async def _raw_call(client, object_id, method_id, *args):
+    req = ua.CallMethodRequest()
+    req.ObjectId, req.MethodId, req.InputArguments = object_id, method_id, list(args)
+    (res,) = await client.uaclient.call([req])
+    return res
+
+
+async def test_methods_no_binding_declares_never_get_the_stacks_default_answers(rig):
+    r = rig
+    server_obj = ua.NodeId(ua.ObjectIds.Server)
+    get_monitored = ua.NodeId(ua.ObjectIds.Server_GetMonitoredItems)
+    one = ua.Variant(1, ua.VariantType.UInt32)
+    # another object's method, called on the task control: not its method
+    res = await _raw_call(r.client, r.tc.nodeid, get_monitored, one)
+    assert res.StatusCode.value == ua.StatusCodes.BadMethodInvalid
+    # a node that is not a method at all
+    res = await _raw_call(r.client, r.tc.nodeid, ua.NodeId(f"{TC_PATH}.CurrentState", r.ns))
+    assert res.StatusCode.value == ua.StatusCodes.BadMethodInvalid
+    # the object's own method that nobody implements (the rig binds no Start; asyncua none of Server's)
+    res = await _raw_call(r.client, r.tc.nodeid, ua.NodeId(f"{TC_PATH}.Start", r.ns))
+    assert res.StatusCode.value == ua.StatusCodes.BadNotImplemented
+    res = await _raw_call(r.client, server_obj, get_monitored, one)
+    assert res.StatusCode.value == ua.StatusCodes.BadNotImplemented
+    assert r.calls == []
+
+
+async def test_a_callback_method_outside_the_role_table_is_admin_only_and_never_raises(rig):
+    from uacell.ua.context import INTERNAL
+
+    r = rig
+    ran = []
+
+    async def boom(parent):
+        ran.append(parent)
+        raise RuntimeError("bug in a plain asyncua callback")
+
+    method = await r.app.server.get_node(r.tc.nodeid).add_method(
+        ua.NodeId("Test.Boom", r.ns), ua.QualifiedName("Boom", r.ns), boom, [], []
+    )
+    res = await _raw_call(r.client, r.tc.nodeid, method.nodeid)  # anonymous operator
+    assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
+    assert ran == []
+    req = ua.CallMethodRequest(ObjectId=r.tc.nodeid, MethodId=method.nodeid, InputArguments=[])
+    res = await r.app.dispatcher.dispatch(req, INTERNAL)  # admin
+    assert res.StatusCode.value == ua.StatusCodes.BadInternalError and ran == [r.tc.nodeid]
+    res = await call(r, "LoadByName", ua.Variant("prog", ua.VariantType.String))
+    assert res.StatusCode.is_good()
+
+
+async def test_calls_during_shutdown_finish_and_later_ones_answer_bad_shutdown(rig):
+    r = rig
+    d = r.app.dispatcher
+    gate = asyncio.Event()
+    node_id = ua.NodeId(TC_PATH, r.ns)
+    original = d.methods[d.method_of(node_id, "LoadByNodeId")].handler
+
+    async def slow(caller, node_id):
+        await gate.wait()
+        return [0]
+
+    d.methods[d.method_of(node_id, "LoadByNodeId")].handler = slow
+    running = asyncio.create_task(call(r, "LoadByNodeId", ua.Variant(ua.NodeId(1), ua.VariantType.ExpandedNodeId)))
+    while d._running == 0:
+        await asyncio.sleep(0.01)
+    closing = asyncio.create_task(d.close(timeout=10))
+    await asyncio.sleep(0.1)
+    assert not closing.done()  # waits for the call under way
+    req = ua.CallMethodRequest(
+        ObjectId=node_id, MethodId=d.method_of(node_id, "LoadByName"), InputArguments=[ua.Variant("prog")]
+    )
+    late = await d.dispatch(req)  # asyncua answers one connection's requests in turn: call directly
+    assert late.StatusCode.value == ua.StatusCodes.BadShutdown
+    gate.set()
+    assert (await running).StatusCode.is_good()
+    await closing
+    d.methods[d.method_of(node_id, "LoadByNodeId")].handler = original
+
+
+def test_unbinding_drops_the_methods_own_serialization_lock():
+    from uacell.ua.dispatch import BoundMethod, MethodDispatcher
+
+    d = MethodDispatcher.__new__(MethodDispatcher)
+    d.methods, d._locks = {}, {}
+    bound = BoundMethod(ua.NodeId(1), ua.NodeId(2), "M", Family.FILE, None, [], [])
+    d.methods[bound.method_id] = bound
+    d._locks[id(bound)] = asyncio.Lock()
+    d.unbind(bound.method_id)
+    assert d._locks == {} and d.methods == {}

@@ -51,6 +51,7 @@ class UacellServer:
         self.dispatcher = MethodDispatcher.install(self.server)
         self.publisher = Publisher()
         self.dispatcher.after_call.append(self.publisher.flush)
+        self.publisher.idle_hooks.append(self.dispatcher.refresh_executable)
         self.refs: NodeRefs | None = None
         self.writes = WriteRouter()
 
@@ -100,6 +101,8 @@ class UacellServer:
         await self.dispatcher.refresh_executable()
 
     async def stop(self) -> None:
+        # New calls answer Bad_Shutdown; those under way finish before the equipment goes away.
+        await self.dispatcher.close()
         for closer in reversed(self._closers):
             try:
                 await closer()

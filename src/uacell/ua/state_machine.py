@@ -36,6 +36,9 @@ class Publisher:
     def __init__(self) -> None:
         self._queue: asyncio.Queue[Callable[[], Awaitable[None]]] = asyncio.Queue()
         self._task: asyncio.Task[None] | None = None
+        # Run whenever the queue has drained: the server refreshes Executable here, so that changes made
+        # outside method calls (acting states completing, a program ending) reach it too (decision 4).
+        self.idle_hooks: list[Callable[[], Awaitable[None]]] = []
 
     def submit(self, job: Callable[[], Awaitable[None]]) -> None:
         self._queue.put_nowait(job)
@@ -43,14 +46,22 @@ class Publisher:
             self._task = asyncio.get_running_loop().create_task(self._run())
 
     async def _run(self) -> None:
-        while not self._queue.empty():
-            job = self._queue.get_nowait()
-            try:
-                await job()
-            except Exception:
-                log.exception("publishing a change failed")
-            finally:
-                self._queue.task_done()
+        while True:
+            while not self._queue.empty():
+                job = self._queue.get_nowait()
+                try:
+                    await job()
+                except Exception:
+                    log.exception("publishing a change failed")
+                finally:
+                    self._queue.task_done()
+            for hook in self.idle_hooks:
+                try:
+                    await hook()
+                except Exception:
+                    log.exception("publisher idle hook failed")
+            if self._queue.empty():  # jobs submitted while the hooks ran are taken in the next round
+                return
 
     async def flush(self) -> None:
         """Wait until everything submitted so far is in the address space."""
