@@ -79,3 +79,32 @@ def test_node_opcua_sees_the_precise_argument_error_codes(serve_process):
     assert r["startInt32Array"] == {"status": "BadTypeMismatch", "inputArgumentResults": ["BadTypeMismatch"]}
     assert r["wrongObject"]["status"] == "BadMethodInvalid"
     assert out["before"] == out["after"] == "Idle"
+
+
+@pytest.mark.parametrize("delay", [0.3, 2.0])
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_stop_request_during_start_up_exits_zero_quietly(tmp_path, sig, delay):
+    """Ctrl-C or SIGTERM before the listening line (importing, loading models, building the cell)."""
+    import time
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "uacell", "serve", "--port", str(free_port()), "--data-dir", str(tmp_path / "d")],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+    time.sleep(delay)
+    proc.send_signal(sig)
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 0, out
+    assert "Traceback" not in out
+
+
+def test_a_data_directory_that_cannot_be_made_is_one_clear_line(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    proc = subprocess.run(
+        [sys.executable, "-m", "uacell", "serve", "--port", str(free_port()), "--data-dir", str(blocker / "data")],
+        capture_output=True, text=True, timeout=60, check=False,
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("uacell: cannot create data directory"), proc.stderr

@@ -88,7 +88,25 @@ def _user(args: argparse.Namespace) -> int:
     return run_user_command(args, data_dir)
 
 
+class _Stopped(Exception):
+    """SIGINT or SIGTERM arrived before the server's own handlers were in place."""
+
+
+def _stop_early(signum, frame) -> None:
+    raise _Stopped
+
+
 def _serve(args: argparse.Namespace) -> int:
+    # Until the event loop takes over, a stop request ends start-up quietly (exit 0, no traceback).
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _stop_early)
+    try:
+        return _prepare_and_run(args)
+    except _Stopped:
+        return 0
+
+
+def _prepare_and_run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     if args.host:
         config.server.host = args.host
@@ -103,6 +121,10 @@ def _serve(args: argparse.Namespace) -> int:
         spec = getattr(config, section).equipment
         if spec:
             load_factory(spec, section)
+    try:
+        config.server.data_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot create data directory {config.server.data_dir}: {exc.strerror or exc}") from exc
     return asyncio.run(_run(config))
 
 
@@ -115,6 +137,11 @@ async def _run(config) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     await app.setup()
+    if stop.is_set():  # asked to stop while setting up: never start listening
+        log.info("shutting down")
+        with contextlib.suppress(Exception):
+            await app.stop()
+        return 0
     # asyncua logs a traceback of its own when it cannot bind; uacell says it in one line instead.
     server_log = logging.getLogger("asyncua.server.server")
     level = server_log.level
