@@ -297,6 +297,19 @@ async def test_methods_no_binding_declares_never_get_the_stacks_default_answers(
     assert r.calls == []
 
 
+async def test_condition_refresh_is_open_to_alarm_clients(rig):
+    """Alarm clients call ConditionType.ConditionRefresh when they subscribe; asyncua implements it."""
+    r = rig
+    condition_type = ua.NodeId(ua.ObjectIds.ConditionType)
+    refresh = ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh)
+    res = await _raw_call(r.client, condition_type, refresh, ua.Variant(999999, ua.VariantType.UInt32))
+    assert res.StatusCode.value == ua.StatusCodes.BadSubscriptionIdInvalid  # it ran: the id is checked
+    sub = await r.client.create_subscription(100, _Collector())
+    res = await _raw_call(r.client, condition_type, refresh, ua.Variant(sub.subscription_id, ua.VariantType.UInt32))
+    assert res.StatusCode.is_good(), res.StatusCode
+    await sub.delete()
+
+
 async def test_a_callback_method_outside_the_role_table_is_admin_only_and_never_raises(rig):
     from uacell.ua.context import INTERNAL
 

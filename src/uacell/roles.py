@@ -102,6 +102,8 @@ METHOD_ROLES: dict[tuple[Family, str], Role] = {
     (Family.FILE, "Write"): EN,
     **{(Family.DIRECTORY, m): EN for m in ("CreateFile", "CreateDirectory", "Delete", "MoveOrCopy")},
     **{(Family.CONDITION, m): OP for m in ("Acknowledge", "Confirm", "AddComment")},
+    # Alarm clients ask for the current conditions when they subscribe: as reading, anyone may.
+    **{(Family.CONDITION, m): Role.OBSERVER for m in ("ConditionRefresh", "ConditionRefresh2")},
     **{(Family.CONDITION, m): EN for m in ("Enable", "Disable")},
     # uacell's own simulation methods: raising a fault on purpose is an engineer's test.
     (Family.CONDITION, "SimulateAlarm"): EN,

@@ -73,6 +73,8 @@ class UacellServer:
             log.warning("%s", warning)
         self.users = UserStore.in_data_dir(self.data_dir)
         self.server.iserver.set_user_manager(UacellUserManager(self.policy, self.users))
+        # ConditionRefresh(2) for alarm clients, with Severity 100 on its RefreshStart/End events.
+        self.server.iserver.bind_condition_methods = 100
         await self.server.init()
         self.server.set_endpoint(self.endpoint)
         self.server.set_server_name("uacell")

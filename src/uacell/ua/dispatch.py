@@ -243,6 +243,14 @@ class MethodDispatcher(MethodService):
                     return True
         return False
 
+    def _type_hint(self, object_id: ua.NodeId) -> str:
+        """The BrowseName the role table knows the object by: its type's, or its own for a type node."""
+        obj = self._aspace[object_id]
+        has_type = ua.NodeId(ua.ObjectIds.HasTypeDefinition)
+        type_id = next((r.NodeId for r in obj.references if r.IsForward and r.ReferenceTypeId == has_type), None)
+        holder = self._aspace.get(type_id) if type_id is not None else obj
+        return holder.attributes[_A.BrowseName].value.Value.Value.Name if holder is not None else ""
+
     async def _unbound(self, request: ua.CallMethodRequest, caller: Caller) -> ua.CallMethodResult:
         """A method no binding declared: never the stack's default answers, never past the role table."""
         try:
@@ -257,8 +265,9 @@ class MethodDispatcher(MethodService):
                 return _result(ua.StatusCodes.BadMethodInvalid)
             if method.call is None:
                 return _result(ua.StatusCodes.BadNotImplemented)
-            if Role.parse(caller.role) < Role.ADMIN:  # not in the table: admin only (deny by default)
-                return _result(ua.StatusCodes.BadUserAccessDenied)
+            name = method.attributes[_A.BrowseName].value.Value.Value.Name
+            if not may_call(Role.parse(caller.role), name, self._type_hint(request.ObjectId)):
+                return _result(ua.StatusCodes.BadUserAccessDenied)  # not in the table: admin only
             result = await super()._call(request)
             if result.StatusCode.value == ua.StatusCodes.BadUnexpectedError:
                 result.StatusCode = ua.StatusCode(ua.StatusCodes.BadInternalError)
