@@ -1,3 +1,3 @@
-from uacell.cli import main
+from uacell._entry import run
 
-raise SystemExit(main())
+raise SystemExit(run())

@@ -11,7 +11,7 @@ import signal
 import sys
 from pathlib import Path
 
-from uacell import __version__
+from uacell import __version__, _entry
 from uacell.config import load_config, load_factory
 from uacell.errors import ConfigError
 from uacell.models import ModelError, fetch_models, locate_models, models_dir
@@ -88,22 +88,17 @@ def _user(args: argparse.Namespace) -> int:
     return run_user_command(args, data_dir)
 
 
-class _Stopped(Exception):
-    """SIGINT or SIGTERM arrived before the server's own handlers were in place."""
-
-
-def _stop_early(signum, frame) -> None:
-    raise _Stopped
-
-
 def _serve(args: argparse.Namespace) -> int:
-    # Until the event loop takes over, a stop request ends start-up quietly (exit 0, no traceback).
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _stop_early)
+    # Until the event loop takes over, a stop request ends start-up quietly (exit 0, no traceback);
+    # `uacell` and `python -m uacell` install the handler first thing (uacell._entry), main() here
+    # for callers that enter through it.
+    _entry.install_early_stop()
     try:
         return _prepare_and_run(args)
-    except _Stopped:
-        return 0
+    except BaseException:
+        if _entry.stop_requested:
+            return 0
+        raise
 
 
 def _prepare_and_run(args: argparse.Namespace) -> int:

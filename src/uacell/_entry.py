@@ -1,0 +1,42 @@
+"""The `uacell` command's entry point, kept tiny so that a stop request is caught from the start.
+
+Until the server's event loop takes over, SIGINT/SIGTERM end start-up quietly (exit 0, no
+traceback): the handler is installed here, before the heavy imports (asyncua and friends).
+"""
+
+from __future__ import annotations
+
+import signal
+
+stop_requested = False
+
+
+class Stopped(Exception):
+    """Raised by the early stop handler into whatever start-up was doing."""
+
+
+def _stop_early(signum, frame) -> None:
+    global stop_requested
+    stop_requested = True
+    raise Stopped
+
+
+def install_early_stop() -> None:
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _stop_early)
+
+
+def run() -> int:
+    import sys
+
+    if "serve" in sys.argv[1:]:  # other commands keep Ctrl-C's usual meaning
+        install_early_stop()
+    try:
+        from uacell.cli import main
+
+        return main()
+    except BaseException:
+        # The stop may land anywhere, even inside an import that then fails with an error of its own.
+        if stop_requested:
+            return 0
+        raise
