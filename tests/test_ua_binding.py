@@ -372,3 +372,30 @@ def test_unbinding_drops_the_methods_own_serialization_lock():
     d._locks[id(bound)] = asyncio.Lock()
     d.unbind(bound.method_id)
     assert d._locks == {} and d.methods == {}
+
+
+async def _call_with_diagnostics(r: Rig, mask: int, *args: ua.Variant) -> ua.CallMethodResult:
+    from asyncua.ua.ua_binary import struct_from_binary
+
+    req = ua.CallMethodRequest()
+    req.ObjectId = r.tc.nodeid
+    req.MethodId = ua.NodeId(f"{TC_PATH}.LoadByName", r.ns)
+    req.InputArguments = list(args)
+    request = ua.CallRequest()
+    request.Parameters.MethodsToCall = [req]
+    request.RequestHeader.ReturnDiagnostics = mask
+    data = await r.client.uaclient.protocol.send_request(request)
+    response = struct_from_binary(ua.CallResponse, data)
+    (result,) = response.Results
+    return result
+
+
+async def test_argument_problems_come_with_diagnostics_when_the_client_asks(rig):
+    r = rig
+    bad = ua.Variant("bad", ua.VariantType.String)
+    asked = await _call_with_diagnostics(r, 0x80, bad)  # operation-level AdditionalInfo
+    assert asked.StatusCode.value == ua.StatusCodes.BadInvalidArgument
+    assert [i.AdditionalInfo for i in asked.InputArgumentDiagnosticInfos] == ["bad name"]
+    not_asked = await _call_with_diagnostics(r, 0, bad)
+    assert not_asked.StatusCode.value == ua.StatusCodes.BadInvalidArgument
+    assert not_asked.InputArgumentDiagnosticInfos == []

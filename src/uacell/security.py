@@ -243,7 +243,8 @@ class UacellSession(InternalSession):
 
 
 def _install_processor_hook() -> None:
-    """Wrap UaProcessor._process_message once: publish the processor, throttle ActivateSession."""
+    """Wrap UaProcessor._process_message once: publish the processor and the request's ReturnDiagnostics,
+    throttle ActivateSession."""
     if getattr(UaProcessor, "_uacell_installed", False):
         return
     original = UaProcessor._process_message
@@ -251,12 +252,14 @@ def _install_processor_hook() -> None:
     @functools.wraps(original)
     async def _process_message(self: UaProcessor, typeid, requesthdr, seqhdr, body):
         token = _processor.set(self)
+        diagnostics = context.set_return_diagnostics(int(getattr(requesthdr, "ReturnDiagnostics", 0) or 0))
         try:
             security = getattr(self.iserver, "_uacell_security", None)
             if security is not None and typeid == _ACTIVATE:
                 return await security.activate(self, lambda: original(self, typeid, requesthdr, seqhdr, body))
             return await original(self, typeid, requesthdr, seqhdr, body)
         finally:
+            context.reset_return_diagnostics(diagnostics)
             _processor.reset(token)
 
     UaProcessor._process_message = _process_message  # type: ignore[method-assign]

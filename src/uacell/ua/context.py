@@ -17,6 +17,8 @@ from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.internal_session import InternalSession
 
 _session: contextvars.ContextVar[InternalSession | None] = contextvars.ContextVar("uacell_session", default=None)
+# The ReturnDiagnostics mask of the request being served (OPC 10000-4 RequestHeader).
+_diagnostics: contextvars.ContextVar[int] = contextvars.ContextVar("uacell_diagnostics", default=0)
 
 
 class UacellUser(User):
@@ -66,6 +68,19 @@ def caller_of(session: InternalSession | None, default_role: str = "observer") -
 
 def current_session() -> InternalSession | None:
     return _session.get()
+
+
+def set_return_diagnostics(mask: int) -> contextvars.Token[int]:
+    return _diagnostics.set(mask)
+
+
+def reset_return_diagnostics(token: contextvars.Token[int]) -> None:
+    _diagnostics.reset(token)
+
+
+def return_diagnostics() -> int:
+    """The current request's ReturnDiagnostics bits (0: the client asked for none)."""
+    return _diagnostics.get()
 
 
 def current_caller() -> Caller:

@@ -39,6 +39,9 @@ log = logging.getLogger(__name__)
 Handler = Callable[..., Awaitable[Sequence[Any] | None]]
 Guard = Callable[[Caller, "BoundMethod"], None]
 _A = ua.AttributeIds
+# ReturnDiagnostics bits for operation-level SymbolicId, LocalizedText, AdditionalInfo, InnerStatusCode,
+# InnerDiagnostics (OPC 10000-4 DiagnosticsMask)
+_OPERATION_DIAGNOSTICS = 0x20 | 0x40 | 0x80 | 0x100 | 0x200
 
 
 @dataclass
@@ -316,6 +319,11 @@ class MethodDispatcher(MethodService):
                 results = [ua.StatusCode(ua.StatusCodes.Good)] * n
                 results[err.argument] = ua.StatusCode(getattr(ua.StatusCodes, err.argument_status))
             result = _result(getattr(ua.StatusCodes, err.status), results, n=n)
+            if results is not None and context.return_diagnostics() & _OPERATION_DIAGNOSTICS:
+                # The reason, for clients that ask for operation-level diagnostics (OPC 10000-4 Call).
+                infos = [ua.DiagnosticInfo() for _ in range(n)]
+                infos[err.argument] = ua.DiagnosticInfo(AdditionalInfo=err.message)
+                result.InputArgumentDiagnosticInfos = infos
             await self._after()
             return result
         await self._after()
