@@ -15,6 +15,9 @@ from pathlib import Path
 
 import pytest
 
+from uacell.config import Config
+from uacell.server import UacellServer
+
 ROOT = Path(__file__).resolve().parents[1]
 INTEROP = ROOT / "interop"
 START_TIMEOUT = 120.0
@@ -48,8 +51,21 @@ class ServeProcess:
 def start_serve(data_dir: Path, *extra: str, port: int | None = None, env: dict | None = None) -> ServeProcess:
     """Run `uacell serve` on a free loopback port and wait for its listening line."""
     port = port or free_port()
-    cmd = [sys.executable, "-m", "uacell", "--log-level", "WARNING", "serve", "--host", "127.0.0.1",
-           "--port", str(port), "--data-dir", str(data_dir), *extra]
+    cmd = [
+        sys.executable,
+        "-m",
+        "uacell",
+        "--log-level",
+        "WARNING",
+        "serve",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--data-dir",
+        str(data_dir),
+        *extra,
+    ]
     proc = subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, **(env or {})}
     )
@@ -75,20 +91,28 @@ def serve_process(tmp_path: Path) -> Iterator[ServeProcess]:
     sp.stop()
 
 
+def fast_config(data_dir: Path) -> Config:
+    """The demo cell on a free loopback port, with the simulators sped up for tests."""
+    config = Config()
+    config.server.port = free_port()
+    config.server.data_dir = data_dir
+    config.robot.time_scale = 20.0
+    config.packml.acting_time = 0.05
+    return config
+
+
+async def start_app(config: Config, binders: list | None = None) -> UacellServer:
+    """An in-process uacell server, set up and listening."""
+    server = UacellServer(config, binders=binders)
+    await server.setup()
+    await server.start()
+    return server
+
+
 @pytest.fixture
 async def app(tmp_path: Path) -> AsyncIterator:
     """An in-process uacell server with the demo cell on a free loopback port."""
-    from uacell.config import Config
-    from uacell.server import UacellServer
-
-    config = Config()
-    config.server.port = free_port()
-    config.server.data_dir = tmp_path / "data"
-    config.robot.time_scale = 20.0
-    config.packml.acting_time = 0.05
-    server = UacellServer(config)
-    await server.setup()
-    await server.start()
+    server = await start_app(fast_config(tmp_path / "data"))
     try:
         yield server
     finally:

@@ -8,7 +8,6 @@ what each instance must carry, including the members that a nested child's *own*
 
 from __future__ import annotations
 
-import socket
 from collections.abc import AsyncIterator, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
+from conftest import fast_config, start_app
 
 from uacell.cell import _NOISE, Part, demo_cell
 from uacell.ua.instantiate import Selection
@@ -284,24 +284,11 @@ async def check_node(
             problems.append(f"{where}/{rel}: mandatory placeholder {_fmt(p.browse_name)} has no instance")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def space(tmp_path_factory) -> AsyncIterator[Space]:
     """One demo-cell server for the module, seen through one client session."""
-    from uacell.config import Config
-    from uacell.server import UacellServer
 
-    config = Config()
-    config.server.port = _free_port()
-    config.server.data_dir = Path(tmp_path_factory.mktemp("completeness")) / "data"
-    app = UacellServer(config)
-    await app.setup()
-    await app.start()
+    app = await start_app(fast_config(Path(tmp_path_factory.mktemp("completeness")) / "data"))
     client = Client(app.endpoint, timeout=60)
     try:
         await client.connect()

@@ -8,11 +8,10 @@ import textwrap
 
 import pytest
 from asyncua import Client, ua
-from conftest import free_port
+from conftest import fast_config, free_port, start_app
 
-from uacell.config import Config, load_factory
+from uacell.config import load_factory
 from uacell.errors import ConfigError
-from uacell.server import UacellServer
 
 DRIVER = textwrap.dedent(
     """
@@ -56,14 +55,10 @@ def test_bad_factory_specs_are_clear_config_errors(spec, message):
 async def test_units_run_on_the_configured_equipment(tmp_path, monkeypatch):
     (tmp_path / "plant_driver.py").write_text(DRIVER)
     monkeypatch.syspath_prepend(str(tmp_path))
-    config = Config()
-    config.server.port = free_port()
-    config.server.data_dir = tmp_path / "data"
+    config = fast_config(tmp_path / "data")
     config.packml.equipment = "plant_driver:make"
     config.robot.equipment = "plant_driver:make_robot"
-    app = UacellServer(config)
-    await app.setup()
-    await app.start()
+    app = await start_app(config)
     try:
         import plant_driver
 

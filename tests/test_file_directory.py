@@ -13,9 +13,8 @@ from pathlib import Path
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
-from conftest import free_port
+from conftest import fast_config, start_app
 
-from uacell.config import Config
 from uacell.roles import Role
 from uacell.server import UacellServer
 from uacell.ua.file_directory import FILE_DIRECTORY_TYPE, FILE_TYPE, FileDirectoryBinding
@@ -94,12 +93,7 @@ async def server(tmp_path_factory):
     _write_baseline(programs)
     rig = Rig()
     rig.clients = []
-    config = Config()
-    config.server.port = free_port()
-    config.server.data_dir = base / "data"
-    app = UacellServer(config, binders=[lambda a: _binder(a, rig, programs, base / "samples")])
-    await app.setup()
-    await app.start()
+    app = await start_app(fast_config(base / "data"), [lambda a: _binder(a, rig, programs, base / "samples")])
     rig.app = app
     try:
         yield rig

@@ -15,9 +15,8 @@ import time
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
-from conftest import free_port
+from conftest import fast_config, start_app
 
-from uacell.config import Config
 from uacell.server import UacellServer
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
@@ -31,14 +30,7 @@ PASSWORD = "pw-locks"
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def app(tmp_path_factory):
-    config = Config()
-    config.server.port = free_port()
-    config.server.data_dir = tmp_path_factory.mktemp("locks") / "data"
-    config.robot.time_scale = 20.0
-    config.packml.acting_time = 0.05
-    server = UacellServer(config)
-    await server.setup()
-    await server.start()
+    server = await start_app(fast_config(tmp_path_factory.mktemp("locks") / "data"))
     server.users.add("alice", "operator", PASSWORD)
     server.users.add("bob", "operator", PASSWORD)
     server.users.add("erin", "engineer", PASSWORD)
@@ -225,8 +217,14 @@ asyncio.run(main(sys.argv[1], sys.argv[2] == "1"))
 @pytest.mark.parametrize("subscribed", [False, True], ids=["plain", "with-subscription"])
 async def test_lock_freed_when_the_holding_process_is_killed(app, subscribed):
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-c", _HOLDER, app.endpoint, "1" if subscribed else "0",
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=os.environ.copy(),
+        sys.executable,
+        "-c",
+        _HOLDER,
+        app.endpoint,
+        "1" if subscribed else "0",
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        env=os.environ.copy(),
     )
     try:
         line = await asyncio.wait_for(proc.stdout.readline(), 60)

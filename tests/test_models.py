@@ -7,7 +7,6 @@ import hashlib
 import json
 import os
 import shutil
-import socket
 import stat
 import subprocess
 import sys
@@ -20,6 +19,7 @@ from pathlib import Path
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
+from conftest import fast_config, free_port, start_app
 
 from uacell.models import MODELS, ModelError, fetch_models, locate_models, models_dir, source
 from uacell.ua.nodesets import without_design_tool_only
@@ -148,7 +148,7 @@ def test_models_path_refuses_a_tampered_copy_in_one_line(good_copy):
 def test_serve_with_a_bad_models_dir_exits_2_with_one_clear_line(tmp_path, how):
     bad = tmp_path / "no-models-here"
     bad.mkdir()
-    args = ["serve", "--port", str(_free_port()), "--data-dir", str(tmp_path / "data")]
+    args = ["serve", "--port", str(free_port()), "--data-dir", str(tmp_path / "data")]
     if how == "option":
         proc = _uacell(*args, "--models-dir", str(bad), timeout=60)
     else:
@@ -305,24 +305,11 @@ def test_a_nodeset_without_design_tool_only_nodes_is_unchanged(real_models):
 # The loaded server (one for this module)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def served(tmp_path_factory) -> AsyncIterator[tuple[str, Client]]:
     """A demo-cell server and a client session on it (no data type definitions loaded yet)."""
-    from uacell.config import Config
-    from uacell.server import UacellServer
 
-    config = Config()
-    config.server.port = _free_port()
-    config.server.data_dir = Path(tmp_path_factory.mktemp("models")) / "data"
-    app = UacellServer(config)
-    await app.setup()
-    await app.start()
+    app = await start_app(fast_config(Path(tmp_path_factory.mktemp("models")) / "data"))
     client = Client(app.endpoint, timeout=60)
     try:
         await client.connect()

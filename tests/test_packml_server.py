@@ -10,9 +10,8 @@ import time
 from pathlib import Path
 
 from asyncua import Client, ua
-from conftest import free_port
+from conftest import fast_config, start_app
 
-from uacell.config import Config
 from uacell.models import fsm_table
 from uacell.server import UacellServer
 
@@ -30,9 +29,25 @@ TYPES = {
 }
 # TR88 state numbers (docs/packml.md), checked against CurrentState/Number.
 NUMBERS = {
-    "Clearing": 1, "Stopped": 2, "Starting": 3, "Idle": 4, "Suspended": 5, "Execute": 6, "Stopping": 7,
-    "Aborting": 8, "Aborted": 9, "Holding": 10, "Held": 11, "Unholding": 12, "Suspending": 13,
-    "Unsuspending": 14, "Resetting": 15, "Completing": 16, "Complete": 17, "Running": 18, "Cleared": 19,
+    "Clearing": 1,
+    "Stopped": 2,
+    "Starting": 3,
+    "Idle": 4,
+    "Suspended": 5,
+    "Execute": 6,
+    "Stopping": 7,
+    "Aborting": 8,
+    "Aborted": 9,
+    "Holding": 10,
+    "Held": 11,
+    "Unholding": 12,
+    "Suspending": 13,
+    "Unsuspending": 14,
+    "Resetting": 15,
+    "Completing": 16,
+    "Complete": 17,
+    "Running": 18,
+    "Cleared": 19,
 }
 TIMEOUT = 10.0
 
@@ -105,8 +120,12 @@ class Events:
 
     def event_notification(self, event) -> None:
         self.got.append(
-            (self.by_node.get(event.SourceNode, str(event.SourceNode)), event.Transition.Text,
-             event.FromState.Text, event.ToState.Text)
+            (
+                self.by_node.get(event.SourceNode, str(event.SourceNode)),
+                event.Transition.Text,
+                event.FromState.Text,
+                event.ToState.Text,
+            )
         )
 
     async def expect(self, *expected: tuple[str, str, str, str]) -> None:
@@ -137,12 +156,30 @@ class Changes:
         return out
 
 
-JOB_STATES = {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding",
-              "Suspending", "Suspended", "Unsuspending"}
-SM_METHODS = [(BASE, "Abort", "Base"), (BASE, "Clear", "Base"), (MACH, "Stop", "Machine"),
-              (MACH, "Reset", "Machine"), (EXEC, "Reset", "Execute"), (EXEC, "Start", "Execute"),
-              (EXEC, "Hold", "Execute"), (EXEC, "Unhold", "Execute"), (EXEC, "Suspend", "Execute"),
-              (EXEC, "Unsuspend", "Execute"), (EXEC, "ToComplete", "Execute")]
+JOB_STATES = {
+    "Starting",
+    "Execute",
+    "Completing",
+    "Holding",
+    "Held",
+    "Unholding",
+    "Suspending",
+    "Suspended",
+    "Unsuspending",
+}
+SM_METHODS = [
+    (BASE, "Abort", "Base"),
+    (BASE, "Clear", "Base"),
+    (MACH, "Stop", "Machine"),
+    (MACH, "Reset", "Machine"),
+    (EXEC, "Reset", "Execute"),
+    (EXEC, "Start", "Execute"),
+    (EXEC, "Hold", "Execute"),
+    (EXEC, "Unhold", "Execute"),
+    (EXEC, "Suspend", "Execute"),
+    (EXEC, "Unsuspend", "Execute"),
+    (EXEC, "ToComplete", "Execute"),
+]
 UNIT_METHODS = ["SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "RemoteCommand", "SetInterlock"]
 
 
@@ -153,9 +190,14 @@ async def check_executable(u: Unit, state: str) -> None:
 
     machine_names = {"Base": "BaseStateMachine", "Machine": "MachineState", "Execute": "ExecuteState"}
     expected = {f"{obj}.{m}": (machine_names[k], m) in ALLOWED_PRODUCE[state] for obj, m, k in SM_METHODS}
-    expected |= {f"{F}.{m}": {"SetUnitMode": state in {"Stopped", "Idle", "Aborted"},
-                              "SetProduct": state not in JOB_STATES,
-                              "SetParameter": state not in JOB_STATES}.get(m, True) for m in UNIT_METHODS}
+    expected |= {
+        f"{F}.{m}": {
+            "SetUnitMode": state in {"Stopped", "Idle", "Aborted"},
+            "SetProduct": state not in JOB_STATES,
+            "SetParameter": state not in JOB_STATES,
+        }.get(m, True)
+        for m in UNIT_METHODS
+    }
     deadline = time.monotonic() + TIMEOUT
     while True:  # completions refresh Executable through the publisher, just after CurrentState
         got = {path: (await u.node(path).read_attribute(ua.AttributeIds.Executable)).Value.Value for path in expected}
@@ -172,8 +214,13 @@ async def make_unit(client: Client) -> Unit:
 def descriptors(*items: tuple[int, str, float]) -> ua.Variant:
     values = [
         ua.PackMLDescriptorDataType(
-            ID=i, Name=n, Unit=ua.EUInformation(NamespaceUri="http://www.opcfoundation.org/UA/units/un/cefact",
-                                                UnitId=4408652, DisplayName=ua.LocalizedText("°C")),
+            ID=i,
+            Name=n,
+            Unit=ua.EUInformation(
+                NamespaceUri="http://www.opcfoundation.org/UA/units/un/cefact",
+                UnitId=4408652,
+                DisplayName=ua.LocalizedText("°C"),
+            ),
             Value=v,
         )
         for i, n, v in items
@@ -212,13 +259,15 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
         assert sorted(states, key=str) == sorted((ua.NodeId(s.node[1], u.pml) for s in table.states.values()), key=str)
         transitions = await u.node(f"{path}.AvailableTransitions").read_value()
         assert sorted(transitions, key=str) == sorted(
-            (ua.NodeId(t.node[1], u.pml) for t in table.transitions.values()), key=str)
+            (ua.NodeId(t.node[1], u.pml) for t in table.transitions.values()), key=str
+        )
         assert (len(states), len(transitions)) == {"Base": (3, 3), "Machine": (4, 4), "Execute": (12, 19)}[machine]
     assert await u.value("Status.CurMachSpeed") == 0.0
     await u.ok(MACH, "Reset")
     await u.wait(("Cleared", "Running", "Idle"))
-    await ev.expect(("Machine", "StoppedToRunning", "Stopped", "Running"),
-                    ("Execute", "ResettingToIdle", "Resetting", "Idle"))
+    await ev.expect(
+        ("Machine", "StoppedToRunning", "Stopped", "Running"), ("Execute", "ResettingToIdle", "Resetting", "Idle")
+    )
 
     await u.ok(F, "SetMachSpeed", f32(600.0))  # 10 packages/s, so counts grow quickly
     assert await u.value("Status.MachSpeed") == 600.0
@@ -226,12 +275,14 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
     await check_executable(u, "Idle")
     await u.ok(EXEC, "Start", descriptors((1, "Temperature", 180.5), (2, "Fill", 0.25)))
     await u.wait(("Cleared", "Running", "Execute"))
-    await ev.expect(("Execute", "IdleToStarting", "Idle", "Starting"),
-                    ("Execute", "StartingToExecute", "Starting", "Execute"))
+    await ev.expect(
+        ("Execute", "IdleToStarting", "Idle", "Starting"), ("Execute", "StartingToExecute", "Starting", "Execute")
+    )
     await check_executable(u, "Execute")
     params = await u.value("Status.StartParameters")
     assert [(p.ID, p.Name, p.Value, p.Unit.UnitId, p.Unit.DisplayName.Text) for p in params] == [
-        (1, "Temperature", 180.5, 4408652, "°C"), (2, "Fill", 0.25, 4408652, "°C"),
+        (1, "Temperature", 180.5, 4408652, "°C"),
+        (2, "Fill", 0.25, 4408652, "°C"),
     ]
     assert await u.value("Status.Parameter") == []  # Start does not touch Status/Parameter
     assert await u.value("Status.CurMachSpeed") == 600.0
@@ -244,8 +295,9 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
 
     await u.ok(EXEC, "Hold")
     await u.wait(("Cleared", "Running", "Held"))
-    await ev.expect(("Execute", "ExecuteToHolding", "Execute", "Holding"),
-                    ("Execute", "HoldingToHeld", "Holding", "Held"))
+    await ev.expect(
+        ("Execute", "ExecuteToHolding", "Execute", "Holding"), ("Execute", "HoldingToHeld", "Holding", "Held")
+    )
     await check_executable(u, "Held")
     assert await u.value("Status.CurMachSpeed") == 0.0
     held = await u.count()
@@ -254,38 +306,48 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
 
     await u.ok(EXEC, "Unhold")
     await u.wait(("Cleared", "Running", "Execute"))
-    await ev.expect(("Execute", "HeldToUnholding", "Held", "Unholding"),
-                    ("Execute", "UnholdingToExecute", "Unholding", "Execute"))
+    await ev.expect(
+        ("Execute", "HeldToUnholding", "Held", "Unholding"), ("Execute", "UnholdingToExecute", "Unholding", "Execute")
+    )
     await u.ok(EXEC, "Suspend")
     await u.wait(("Cleared", "Running", "Suspended"))
-    await ev.expect(("Execute", "ExecuteToSuspending", "Execute", "Suspending"),
-                    ("Execute", "SuspendingToSuspended", "Suspending", "Suspended"))
+    await ev.expect(
+        ("Execute", "ExecuteToSuspending", "Execute", "Suspending"),
+        ("Execute", "SuspendingToSuspended", "Suspending", "Suspended"),
+    )
     await check_executable(u, "Suspended")
     await u.ok(EXEC, "Unsuspend")
     await u.wait(("Cleared", "Running", "Execute"))
-    await ev.expect(("Execute", "SuspendedToUnsuspending", "Suspended", "Unsuspending"),
-                    ("Execute", "UnsuspendingToExecute", "Unsuspending", "Execute"))
+    await ev.expect(
+        ("Execute", "SuspendedToUnsuspending", "Suspended", "Unsuspending"),
+        ("Execute", "UnsuspendingToExecute", "Unsuspending", "Execute"),
+    )
     await u.ok(EXEC, "ToComplete")
     await u.wait(("Cleared", "Running", "Complete"))
-    await ev.expect(("Execute", "ExecuteToCompleting", "Execute", "Completing"),
-                    ("Execute", "CompletingToComplete", "Completing", "Complete"))
+    await ev.expect(
+        ("Execute", "ExecuteToCompleting", "Execute", "Completing"),
+        ("Execute", "CompletingToComplete", "Completing", "Complete"),
+    )
     assert await u.value("Status.CurMachSpeed") == 0.0
     await u.ok(EXEC, "Reset")
     await u.wait(("Cleared", "Running", "Idle"))
-    await ev.expect(("Execute", "CompleteToResetting", "Complete", "Resetting"),
-                    ("Execute", "ResettingToIdle", "Resetting", "Idle"))
+    await ev.expect(
+        ("Execute", "CompleteToResetting", "Complete", "Resetting"), ("Execute", "ResettingToIdle", "Resetting", "Idle")
+    )
 
     await u.ok(MACH, "Stop")
     await u.wait(("Cleared", "Stopped", None))
-    await ev.expect(("Machine", "RunningToStopping", "Running", "Stopping"),
-                    ("Machine", "StoppingToStopped", "Stopping", "Stopped"))
+    await ev.expect(
+        ("Machine", "RunningToStopping", "Running", "Stopping"), ("Machine", "StoppingToStopped", "Stopping", "Stopped")
+    )
     res = await u.call(EXEC, "Hold")  # Execute inactive while Stopped
     assert res.StatusCode.value == ua.StatusCodes.BadInvalidState
 
     await u.ok(BASE, "Abort")
     await u.wait(("Aborted", None, None))
-    await ev.expect(("Base", "ClearedToAborting", "Cleared", "Aborting"),
-                    ("Base", "AbortingToAborted", "Aborting", "Aborted"))
+    await ev.expect(
+        ("Base", "ClearedToAborting", "Cleared", "Aborting"), ("Base", "AbortingToAborted", "Aborting", "Aborted")
+    )
     await check_executable(u, "Aborted")
     stop_reason = await u.value("Admin.StopReason")
     assert (stop_reason.ID, stop_reason.Message) == (3, "Stop commanded")  # first out since last Execute
@@ -295,8 +357,9 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
         assert res.StatusCode.value == ua.StatusCodes.BadInvalidState, method
     await u.ok(BASE, "Clear")
     await u.wait(("Cleared", "Stopped", None))
-    await ev.expect(("Base", "AbortedToCleared", "Aborted", "Cleared"),
-                    ("Machine", "ClearingToStopped", "Clearing", "Stopped"))
+    await ev.expect(
+        ("Base", "AbortedToCleared", "Aborted", "Cleared"), ("Machine", "ClearingToStopped", "Clearing", "Stopped")
+    )
     assert [p.ID for p in await u.value("Status.StartParameters")] == [1, 2]  # kept until the next Start
     await check_executable(u, "Stopped")
     # Decision 29: while an acting state runs, StateChangeInProcess is true and StateRequested names the
@@ -339,14 +402,26 @@ async def test_start_errors_modes_speed_and_fault(app, client):
     cases = [
         ([], ua.StatusCodes.BadArgumentsMissing, []),
         ([descriptors((1, "a", 1.0)), descriptors()], ua.StatusCodes.BadTooManyArguments, []),
-        ([ua.Variant([eu], ua.VariantType.ExtensionObject, is_array=True)], ua.StatusCodes.BadTypeMismatch,
-         [ua.StatusCodes.BadTypeMismatch]),
-        ([ua.Variant([1, 2], ua.VariantType.Int32, is_array=True)], ua.StatusCodes.BadTypeMismatch,
-         [ua.StatusCodes.BadTypeMismatch]),
-        ([ua.Variant(descriptors((1, "a", 1.0)).Value[0], ua.VariantType.ExtensionObject)],  # scalar
-         ua.StatusCodes.BadTypeMismatch, [ua.StatusCodes.BadTypeMismatch]),
-        ([descriptors((1, "a", 1.0), (2, "b", 2.0), (1, "c", 3.0))], ua.StatusCodes.BadInvalidArgument,
-         [ua.StatusCodes.BadInvalidArgument]),
+        (
+            [ua.Variant([eu], ua.VariantType.ExtensionObject, is_array=True)],
+            ua.StatusCodes.BadTypeMismatch,
+            [ua.StatusCodes.BadTypeMismatch],
+        ),
+        (
+            [ua.Variant([1, 2], ua.VariantType.Int32, is_array=True)],
+            ua.StatusCodes.BadTypeMismatch,
+            [ua.StatusCodes.BadTypeMismatch],
+        ),
+        (
+            [ua.Variant(descriptors((1, "a", 1.0)).Value[0], ua.VariantType.ExtensionObject)],  # scalar
+            ua.StatusCodes.BadTypeMismatch,
+            [ua.StatusCodes.BadTypeMismatch],
+        ),
+        (
+            [descriptors((1, "a", 1.0), (2, "b", 2.0), (1, "c", 3.0))],
+            ua.StatusCodes.BadInvalidArgument,
+            [ua.StatusCodes.BadInvalidArgument],
+        ),
         ([descriptors((1, "a", math.nan))], ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadInvalidArgument]),
         ([descriptors((1, "a", math.inf))], ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadInvalidArgument]),
     ]
@@ -376,8 +451,9 @@ async def test_start_errors_modes_speed_and_fault(app, client):
         assert [r.value for r in res.InputArgumentResults] == [ua.StatusCodes.BadInvalidArgument]
         await eng.ok(F, "SetParameter", descriptors((3, "Speed", 2.5)))
         assert [(p.ID, p.Name, p.Value) for p in await u.value("Status.Parameter")] == [(3, "Speed", 2.5)]
-        product = ua.PackMLProductDataType(ProductID=12, ProcessVariables=descriptors((1, "Fill", 0.5)).Value,
-                                           Ingredients=[])
+        product = ua.PackMLProductDataType(
+            ProductID=12, ProcessVariables=descriptors((1, "Fill", 0.5)).Value, Ingredients=[]
+        )
         await eng.ok(F, "SetProduct", ua.Variant([product], ua.VariantType.ExtensionObject, is_array=True))
         (got,) = await u.value("Status.Product")
         assert (got.ProductID, [(p.ID, p.Value) for p in got.ProcessVariables]) == (12, [(1, 0.5)])
@@ -427,8 +503,11 @@ async def test_start_errors_modes_speed_and_fault(app, client):
 
     # InjectFault: engineers and admins only; aborts the unit with an alarm and the StopReason
     fault = ua.NodeId(f"{F}.InjectFault", u.ns)
-    req = ua.CallMethodRequest(ObjectId=ua.NodeId(F, u.ns), MethodId=fault,
-                               InputArguments=[i32(42), ua.Variant("jam at infeed", ua.VariantType.String)])
+    req = ua.CallMethodRequest(
+        ObjectId=ua.NodeId(F, u.ns),
+        MethodId=fault,
+        InputArguments=[i32(42), ua.Variant("jam at infeed", ua.VariantType.String)],
+    )
     (res,) = await client.uaclient.call([req])
     assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied  # anonymous = operator
     assert await u.states() == ("Cleared", "Running", "Execute")
@@ -456,14 +535,7 @@ async def test_start_errors_modes_speed_and_fault(app, client):
 
 
 async def _start_app(data_dir: Path) -> UacellServer:
-    config = Config()
-    config.server.port = free_port()
-    config.server.data_dir = data_dir
-    config.packml.acting_time = 0.05
-    app = UacellServer(config)
-    await app.setup()
-    await app.start()
-    return app
+    return await start_app(fast_config(data_dir))
 
 
 async def test_admin_counters_survive_a_restart(tmp_path):

@@ -15,9 +15,8 @@ from collections.abc import Callable
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
-from conftest import free_port
+from conftest import fast_config, start_app
 
-from uacell.config import Config
 from uacell.robotics.equipment import ExecutionMode, StopMode
 from uacell.roles import Role
 from uacell.server import UacellServer
@@ -88,15 +87,9 @@ class Rig:
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def rig(tmp_path_factory):
-    config = Config()
-    config.server.port = free_port()
-    config.server.data_dir = tmp_path_factory.mktemp("robotics") / "data"
+    config = fast_config(tmp_path_factory.mktemp("robotics") / "data")
     config.server.anonymous_role = "engineer"
-    config.robot.time_scale = 20.0
-    config.packml.acting_time = 0.05
-    app = UacellServer(config)
-    await app.setup()
-    await app.start()
+    app = await start_app(config)
     client = Client(app.endpoint, timeout=30)
     await client.connect()
     await client.load_data_type_definitions()

@@ -15,11 +15,10 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, Server, ua
 from asyncua.crypto import security_policies as sp
-from conftest import free_port
+from conftest import fast_config, start_app
 from cryptography import x509
 from cryptography.x509.oid import ExtensionOID
 
-from uacell.config import Config
 from uacell.errors import CallError
 from uacell.pki import PkiPaths, TrustList, make_client_certificate
 from uacell.roles import Family, Role, may_call
@@ -83,9 +82,14 @@ async def secure_client(
 def default_arguments(app: UacellServer, inputs: list[ua.Argument]) -> list[ua.Variant]:
     """Well-typed, harmless input values for a method's InputArguments."""
     scalars = {
-        ua.VariantType.Boolean: False, ua.VariantType.Float: 0.0, ua.VariantType.Double: 0.0,
-        ua.VariantType.String: "", ua.VariantType.ByteString: b"", ua.VariantType.NodeId: ua.NodeId(0, 0),
-        ua.VariantType.ExpandedNodeId: ua.ExpandedNodeId(0, 0), ua.VariantType.LocalizedText: ua.LocalizedText(""),
+        ua.VariantType.Boolean: False,
+        ua.VariantType.Float: 0.0,
+        ua.VariantType.Double: 0.0,
+        ua.VariantType.String: "",
+        ua.VariantType.ByteString: b"",
+        ua.VariantType.NodeId: ua.NodeId(0, 0),
+        ua.VariantType.ExpandedNodeId: ua.ExpandedNodeId(0, 0),
+        ua.VariantType.LocalizedText: ua.LocalizedText(""),
     }
     out = []
     for arg in inputs:
@@ -108,16 +112,9 @@ async def call(client: Client, obj: ua.NodeId, method: ua.NodeId, args: list[ua.
 
 
 async def _serve(data_dir: Path, host: str) -> UacellServer:
-    config = Config()
+    config = fast_config(data_dir)
     config.server.host = host
-    config.server.port = free_port()
-    config.server.data_dir = data_dir
-    config.robot.time_scale = 20.0
-    config.packml.acting_time = 0.05
-    app = UacellServer(config)
-    await app.setup()
-    await app.start()
-    return app
+    return await start_app(config)
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
@@ -190,8 +187,9 @@ async def test_loopback_endpoints_are_secure_policies_plus_none(env):
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("policy", POLICIES)
 async def test_secure_session_with_each_policy_and_mode(env, policy, mode):
-    client = await secure_client(env, env.client_cert, user="probe-engineer", password=PASSWORD,
-                                 policy=POLICIES[policy], mode=MODES[mode])
+    client = await secure_client(
+        env, env.client_cert, user="probe-engineer", password=PASSWORD, policy=POLICIES[policy], mode=MODES[mode]
+    )
     try:
         assert client.security_policy.URI == POLICIES[policy].URI
         assert client.security_policy.Mode == MODES[mode]
@@ -255,8 +253,9 @@ async def test_clear_text_password_on_unencrypted_channel_refused(env):
 
     def plaintext_policy(token_type):
         policy = original(token_type)
-        return ua.UserTokenPolicy(PolicyId=policy.PolicyId, TokenType=policy.TokenType,
-                                  SecurityPolicyUri=sp.SecurityPolicyNone.URI)
+        return ua.UserTokenPolicy(
+            PolicyId=policy.PolicyId, TokenType=policy.TokenType, SecurityPolicyUri=sp.SecurityPolicyNone.URI
+        )
 
     client.server_policy = plaintext_policy
     with pytest.raises(ua.UaStatusCodeError) as err:
@@ -340,8 +339,11 @@ async def test_writes_checked_against_the_role_table(env, sessions):
     node_id = env.test_nodes["value"]
     for role, client in sessions.items():
         params = ua.WriteParameters()
-        wv = ua.WriteValue(NodeId=node_id, AttributeId=ua.AttributeIds.Value,
-                           Value=ua.DataValue(ua.Variant(float(role) + 10, ua.VariantType.Double)))
+        wv = ua.WriteValue(
+            NodeId=node_id,
+            AttributeId=ua.AttributeIds.Value,
+            Value=ua.DataValue(ua.Variant(float(role) + 10, ua.VariantType.Double)),
+        )
         params.NodesToWrite = [wv]
         (status,) = await client.uaclient.write(params)
         if role >= Role.ENGINEER:
@@ -375,10 +377,12 @@ async def test_role_method_matrix(env, sessions):
                 allowed = may_call(role, bound.name, bound.family, file_mode=mode)
                 want = ua.StatusCodes.BadInvalidState if allowed else ua.StatusCodes.BadUserAccessDenied
                 assert res.StatusCode.value == want, (bound.family, bound.name, role, res.StatusCode.name)
-                executable = (await client.get_node(bound.method_id).read_attribute(
-                    ua.AttributeIds.Executable)).Value.Value
-                user_exec = (await client.get_node(bound.method_id).read_attribute(
-                    ua.AttributeIds.UserExecutable)).Value.Value
+                executable = (
+                    await client.get_node(bound.method_id).read_attribute(ua.AttributeIds.Executable)
+                ).Value.Value
+                user_exec = (
+                    await client.get_node(bound.method_id).read_attribute(ua.AttributeIds.UserExecutable)
+                ).Value.Value
                 assert user_exec is (executable and may_call(role, bound.name, bound.family)), (bound.name, role)
                 checked += 1
             families.add(bound.family)
@@ -437,8 +441,12 @@ async def test_non_loopback_anonymous_is_observer(wide):
         assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
         assert (await client.get_node(method).read_attribute(ua.AttributeIds.UserExecutable)).Value.Value is False
         lock = ua.NodeId("Robot1.Controllers.Controller1.Lock", ns)
-        res = await call(client, lock, ua.NodeId("Robot1.Controllers.Controller1.Lock.InitLock", ns),
-                         [ua.Variant("", ua.VariantType.String)])
+        res = await call(
+            client,
+            lock,
+            ua.NodeId("Robot1.Controllers.Controller1.Lock.InitLock", ns),
+            [ua.Variant("", ua.VariantType.String)],
+        )
         assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
         # reading stays open
         assert (await client.get_node(ua.NodeId(f"{TC}.CurrentState", ns)).read_value()).Text == "Idle"

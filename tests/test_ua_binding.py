@@ -12,9 +12,8 @@ import dataclasses
 
 import pytest
 from asyncua import Client, ua
-from conftest import free_port
+from conftest import fast_config, start_app
 
-from uacell.config import Config
 from uacell.errors import CallError
 from uacell.fsm import Reason, StateMachine
 from uacell.models import fsm_table
@@ -90,12 +89,7 @@ async def _test_binder(app: UacellServer, rig: Rig):
 @pytest.fixture
 async def rig(tmp_path):
     r = Rig()
-    config = Config()
-    config.server.port = free_port()
-    config.server.data_dir = tmp_path / "data"
-    app = UacellServer(config, binders=[lambda a: _test_binder(a, r)])
-    await app.setup()
-    await app.start()
+    app = await start_app(fast_config(tmp_path / "data"), [lambda a: _test_binder(a, r)])
     client = Client(app.endpoint, timeout=30)
     await client.connect()
     r.app, r.client = app, client
