@@ -6,7 +6,8 @@ The demo cell of design.md is ``demo_cell()``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from copy import deepcopy
+from dataclasses import dataclass, field, replace
 
 from asyncua import Server, ua
 
@@ -205,3 +206,28 @@ async def build_cell(server: Server, model_indexes: dict[str, int], parts=None) 
         ref = ua.ObjectIds.HasComponent if root == "DeviceSet" else ua.ObjectIds.Organizes
         builder.build(roots[root], part, reference_type=ref)
     return builder
+
+
+def sized_cell(units: int, robots: int, task_controls: int = 1) -> list[tuple[str, Part]]:
+    """The demo cell scaled up: ``robots`` robots (``Robot<i>`` with ``Controller<i>`` and
+    ``task_controls`` task controls each) and ``units`` PackML units ``Filler<i>``; the first robot
+    and unit are the demo cell's, with the same NodeIds (benchmarks, tests of cell-size independence)."""
+    (robot_root, robot), (unit_root, filler) = demo_cell()
+    parts: list[tuple[str, Part]] = []
+    for i in range(1, robots + 1):
+        copy = deepcopy(robot)
+        copy.name = f"Robot{i}"
+        controller = next(p for p in copy.children if p.role == "controller")
+        controller.name = f"Controller{i}"
+        task = next(p for p in controller.children if p.role == "task_control")
+        others = [p for p in controller.children if p.role != "task_control"]
+        tasks = []
+        for t in range(1, task_controls + 1):
+            tc = deepcopy(task)
+            tc.name = f"TaskControl{t}"
+            tasks.append(tc)
+        controller.children = tasks + others
+        parts.append((robot_root, copy))
+    for i in range(1, units + 1):
+        parts.append((unit_root, replace(filler, name=f"Filler{i}")))
+    return parts

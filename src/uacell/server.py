@@ -9,7 +9,7 @@ from pathlib import Path
 from asyncua import Server, ua
 
 from uacell import __version__
-from uacell.cell import CellBuilder, build_cell
+from uacell.cell import CellBuilder, Part, build_cell
 from uacell.config import Config
 from uacell.packml.binding import bind_packml
 from uacell.robotics.binding import bind_robotics
@@ -40,9 +40,12 @@ def _quiet_asyncua() -> None:
 class UacellServer:
     """One uacell server: call ``setup()``, then ``start()``; ``stop()`` at the end."""
 
-    def __init__(self, config: Config, binders: list[Binder] | None = None) -> None:
+    def __init__(
+        self, config: Config, binders: list[Binder] | None = None, parts: list[tuple[str, Part]] | None = None
+    ) -> None:
         _quiet_asyncua()
         self.config = config
+        self.parts = parts  # the cell's parts; None: the demo cell
         self.server = Server()
         self.cell: CellBuilder | None = None
         self.model_indexes: dict[str, int] = {}
@@ -51,7 +54,7 @@ class UacellServer:
         self.dispatcher = MethodDispatcher.install(self.server)
         self.publisher = Publisher()
         self.dispatcher.after_call.append(self.publisher.flush)
-        self.publisher.idle_hooks.append(self.dispatcher.refresh_executable)
+        self.publisher.idle_hooks.append(self.dispatcher.refresh_touched)
         self.refs: NodeRefs | None = None
         self.writes = WriteRouter()
 
@@ -85,7 +88,7 @@ class UacellServer:
         self.server.product_uri = PRODUCT_URI
         await self.server.set_build_info(PRODUCT_URI, "uacell", "uacell", __version__, "0", ua.DateTime.now())
         self.model_indexes = await load_models(self.server, self.config.server.models_dir)
-        self.cell = await build_cell(self.server, self.model_indexes)
+        self.cell = await build_cell(self.server, self.model_indexes, parts=self.parts)
         self.refs = NodeRefs(await self.server.get_namespace_array())
         self.dispatcher.declarations = self.cell.instantiator.declarations
         for binder in self.binders:

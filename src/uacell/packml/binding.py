@@ -217,8 +217,9 @@ class UnitBinding:
         if values:
             self.app.publisher.submit(lambda: self.write(values))
         if "Executable" in changed:
-            # Acting states complete outside any call: Executable must follow then too.
-            self.app.publisher.submit(self.app.dispatcher.refresh_executable)
+            # Acting states complete outside any call: Executable must follow then too (this unit's only).
+            self.app.dispatcher.touch(self.unit)
+            self.app.publisher.submit(self.app.dispatcher.refresh_touched)
 
     def variant(self, key: str, value: Any) -> ua.Variant | None:
         found = self._variable(key)

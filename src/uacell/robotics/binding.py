@@ -213,7 +213,7 @@ class RoboticsBinding:
         d = self.app.dispatcher
         d.bind(
             obj, d.method_of(obj, name), family, handler,
-            executable=executable, serialize_on=serialize_on, element=element,
+            executable=executable, serialize_on=serialize_on, element=element, scope=self.cell,
         )
 
     def bind_methods(self) -> None:
@@ -654,8 +654,8 @@ class RoboticsBinding:
             for path, value in (("ParameterSet/InControl", in_control), ("ParameterSet/OnPath", in_control)):
                 with contextlib.suppress(KeyError):
                     await self.write(self.child(self.arm.node, path), value, ua.VariantType.Boolean)
-        # State changes outside calls (program end, power up) must update Executable too.
-        await self.app.dispatcher.refresh_executable()
+        # State changes outside calls (program end, power up) must update Executable too (this cell's only).
+        await self.app.dispatcher.refresh_executable(self.cell)
 
     def protected_files(self) -> set[str]:
         files: set[str] = set()

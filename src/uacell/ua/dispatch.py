@@ -57,6 +57,9 @@ class BoundMethod:
     serialize_on: object | None = None  # calls sharing this key run one at a time
     element: object | None = None  # what guards (locks) look at
     file_mode_argument: int | None = None  # FileType.Open: which argument is the mode
+    # the model whose state decides ``executable`` (default: serialize_on, else the method itself);
+    # a call or a change re-evaluates Executable only for the methods of the scope it touched
+    scope: object | None = field(default=None, repr=False)
     last_executable: bool | None = field(default=None, repr=False)
 
 
@@ -73,11 +76,25 @@ class MethodDispatcher(MethodService):
         self.types = TypeChecker(server)
         # instance method -> its declaration in the type (set by the server once the cell exists),
         # so that a call naming the type's method (e.g. Acknowledge, i=9111) on an object works too
-        self.declarations: dict[ua.NodeId, ua.NodeId] = {}
+        self._declarations: dict[ua.NodeId, ua.NodeId] = {}
+        self._by_decl: dict[tuple[ua.NodeId, ua.NodeId], BoundMethod] | None = None  # built on first use
+        # Executable: the bound methods with an ``executable`` by scope, and the scopes touched since
+        # the last refresh (ordered, by id: scopes are arbitrary model objects)
+        self._scoped: dict[int, list[BoundMethod]] = {}
+        self._touched: dict[int, None] = {}
         self._closing = False
         self._running = 0  # calls whose behaviour is under way
         self._idle = asyncio.Event()
         self._idle.set()
+
+    @property
+    def declarations(self) -> dict[ua.NodeId, ua.NodeId]:
+        return self._declarations
+
+    @declarations.setter
+    def declarations(self, value: dict[ua.NodeId, ua.NodeId]) -> None:
+        self._declarations = value
+        self._by_decl = None
 
     @classmethod
     def install(cls, server: Server) -> MethodDispatcher:
@@ -105,7 +122,11 @@ class MethodDispatcher(MethodService):
         serialize_on: object | None = None,
         element: object | None = None,
         file_mode_argument: int | None = None,
+        scope: object | None = None,
     ) -> BoundMethod:
+        """Bind ``method_id`` of ``object_id`` to ``handler``. ``executable()`` is re-evaluated after a
+        call of any method of the same ``scope`` (default ``serialize_on``), and whenever a binding
+        calls ``touch(scope)`` or ``refresh_executable(scope)`` for a change made outside calls."""
         name = self._aspace[method_id].attributes[_A.BrowseName].value.Value.Value.Name
         bound = BoundMethod(
             object_id,
@@ -120,7 +141,13 @@ class MethodDispatcher(MethodService):
             element,
             file_mode_argument,
         )
+        if method_id in self.methods:
+            self.unbind(method_id)
+        bound.scope = scope if scope is not None else (serialize_on if serialize_on is not None else bound)
         self.methods[method_id] = bound
+        if executable is not None:
+            self._scoped.setdefault(id(bound.scope), []).append(bound)
+        self._by_decl = None
         return bound
 
     async def add_method(
@@ -153,8 +180,16 @@ class MethodDispatcher(MethodService):
     def unbind(self, method_id: ua.NodeId) -> None:
         """Forget a method whose node is being deleted."""
         bound = self.methods.pop(method_id, None)
-        if bound is not None and bound.serialize_on is None:
+        if bound is None:
+            return
+        if bound.serialize_on is None:
             self._locks.pop(id(bound), None)  # its own serialization lock goes with it
+        peers = self._scoped.get(id(bound.scope))
+        if peers is not None and bound in peers:
+            peers.remove(bound)
+            if not peers:
+                del self._scoped[id(bound.scope)]
+        self._by_decl = None
 
     def method_of(self, object_id: ua.NodeId, name: str) -> ua.NodeId:
         for ref in self._aspace[object_id].references:
@@ -163,9 +198,30 @@ class MethodDispatcher(MethodService):
         raise KeyError(f"{object_id} has no method {name}")
 
     # --- Executable ---------------------------------------------------------------------------
-    async def refresh_executable(self) -> None:
-        """Write Executable wherever it changed (decision 4)."""
-        for bound in self.methods.values():
+    def touch(self, scope: object) -> None:
+        """Note that the model ``scope`` changed: the next ``refresh_touched()`` re-evaluates its methods."""
+        self._touched[id(scope)] = None
+
+    async def refresh_touched(self) -> None:
+        """Re-evaluate Executable of the scopes touched since the last time (the publisher's idle hook)."""
+        while self._touched:
+            key = next(iter(self._touched))
+            del self._touched[key]
+            await self._refresh(self._scoped.get(key, ()))
+
+    async def refresh_executable(self, scope: object | None = None) -> None:
+        """Write Executable wherever it changed (decision 4): of the methods of ``scope``, or of every
+        bound method when no scope is given (start-up, tests)."""
+        if scope is not None:
+            self._touched.pop(id(scope), None)
+            await self._refresh(self._scoped.get(id(scope), ()))
+            return
+        self._touched.clear()
+        for group in list(self._scoped.values()):
+            await self._refresh(group)
+
+    async def _refresh(self, group: Sequence[BoundMethod]) -> None:
+        for bound in list(group):
             if bound.executable is None:
                 continue
             try:
@@ -191,11 +247,15 @@ class MethodDispatcher(MethodService):
 
     def _by_declaration(self, object_id: ua.NodeId, method_id: ua.NodeId) -> BoundMethod | None:
         """The method bound on ``object_id`` whose declaration is ``method_id`` (OPC 10000-4 Call lets a
-        client name the MethodDeclaration of the object's type)."""
-        for bound in self.methods.values():
-            if bound.object_id == object_id and self.declarations.get(bound.method_id) == method_id:
-                return bound
-        return None
+        client name the MethodDeclaration of the object's type): one look-up in an index built once."""
+        if self._by_decl is None:
+            index: dict[tuple[ua.NodeId, ua.NodeId], BoundMethod] = {}
+            for bound in self.methods.values():
+                declaration = self._declarations.get(bound.method_id)
+                if declaration is not None:
+                    index.setdefault((bound.object_id, declaration), bound)
+            self._by_decl = index
+        return self._by_decl.get((object_id, method_id))
 
     async def dispatch(self, request: ua.CallMethodRequest, caller: Caller | None = None) -> ua.CallMethodResult:
         if self._closing:
@@ -222,7 +282,7 @@ class MethodDispatcher(MethodService):
             return await self._dispatch(bound, request, caller)
         except Exception:
             log.exception("%s on %s failed unexpectedly", bound.name, request.ObjectId.to_string())
-            await self._after()
+            await self._after(bound)
             return _result(ua.StatusCodes.BadInternalError)
 
     def _belongs(self, object_id: ua.NodeId, method_id: ua.NodeId) -> bool:
@@ -324,20 +384,21 @@ class MethodDispatcher(MethodService):
                 infos = [ua.DiagnosticInfo() for _ in range(n)]
                 infos[err.argument] = ua.DiagnosticInfo(AdditionalInfo=err.message)
                 result.InputArgumentDiagnosticInfos = infos
-            await self._after()
+            await self._after(bound)
             return result
-        await self._after()
+        await self._after(bound)
         result = _result(ua.StatusCodes.Good, n=n)
         result.OutputArguments = [self.types.variant(v, a) for v, a in zip(outputs or [], bound.outputs, strict=False)]
         return result
 
-    async def _after(self) -> None:
-        """Publish what the behaviour changed and refresh Executable; a failure here is logged, never
-        turned into the call's answer (the behaviour has already happened)."""
+    async def _after(self, bound: BoundMethod) -> None:
+        """Publish what the behaviour changed and refresh Executable of the call's scope; a failure here
+        is logged, never turned into the call's answer (the behaviour has already happened)."""
         try:
+            self.touch(bound.scope)
             for hook in self.after_call:
                 await hook()
-            await self.refresh_executable()
+            await self.refresh_touched()
         except Exception:
             log.exception("publishing after a call failed")
 
