@@ -360,7 +360,7 @@ def test_unbinding_drops_the_methods_own_serialization_lock():
     from uacell.ua.dispatch import BoundMethod, MethodDispatcher
 
     d = MethodDispatcher.__new__(MethodDispatcher)
-    d.methods, d._locks = {}, {}
+    d.methods, d._locks, d._scoped = {}, {}, {}
     bound = BoundMethod(ua.NodeId(1), ua.NodeId(2), "M", Family.FILE, None, [], [])
     d.methods[bound.method_id] = bound
     d._locks[id(bound)] = asyncio.Lock()

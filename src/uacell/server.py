@@ -55,6 +55,7 @@ class UacellServer:
         self.publisher = Publisher()
         self.dispatcher.after_call.append(self.publisher.flush)
         self.publisher.idle_hooks.append(self.dispatcher.refresh_touched)
+        self.publisher.touch_hooks.append(self.dispatcher.touch)
         self.refs: NodeRefs | None = None
         self.writes = WriteRouter()
 

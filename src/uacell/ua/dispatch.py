@@ -37,6 +37,7 @@ from uacell.ua.context import Caller
 log = logging.getLogger(__name__)
 
 Handler = Callable[..., Awaitable[Sequence[Any] | None]]
+_UNSCOPED = object()  # the scope of methods bound with neither ``scope`` nor ``serialize_on``
 Guard = Callable[[Caller, "BoundMethod"], None]
 _A = ua.AttributeIds
 # ReturnDiagnostics bits for operation-level SymbolicId, LocalizedText, AdditionalInfo, InnerStatusCode,
@@ -57,8 +58,8 @@ class BoundMethod:
     serialize_on: object | None = None  # calls sharing this key run one at a time
     element: object | None = None  # what guards (locks) look at
     file_mode_argument: int | None = None  # FileType.Open: which argument is the mode
-    # the model whose state decides ``executable`` (default: serialize_on, else the method itself);
-    # a call or a change re-evaluates Executable only for the methods of the scope it touched
+    # the model whose state decides ``executable`` (default: serialize_on); a call or a change
+    # re-evaluates Executable only for the methods of the scope it touched (and those with no scope)
     scope: object | None = field(default=None, repr=False)
     last_executable: bool | None = field(default=None, repr=False)
 
@@ -82,6 +83,7 @@ class MethodDispatcher(MethodService):
         # the last refresh (ordered, by id: scopes are arbitrary model objects)
         self._scoped: dict[int, list[BoundMethod]] = {}
         self._touched: dict[int, None] = {}
+        self._alias: dict[int, object] = {}  # id(serialize_on) -> its methods' scope
         self._closing = False
         self._running = 0  # calls whose behaviour is under way
         self._idle = asyncio.Event()
@@ -143,10 +145,12 @@ class MethodDispatcher(MethodService):
         )
         if method_id in self.methods:
             self.unbind(method_id)
-        bound.scope = scope if scope is not None else (serialize_on if serialize_on is not None else bound)
+        bound.scope = scope if scope is not None else (serialize_on if serialize_on is not None else _UNSCOPED)
         self.methods[method_id] = bound
         if executable is not None:
             self._scoped.setdefault(id(bound.scope), []).append(bound)
+            if serialize_on is not None:
+                self._alias.setdefault(id(serialize_on), bound.scope)
         self._by_decl = None
         return bound
 
@@ -199,11 +203,14 @@ class MethodDispatcher(MethodService):
 
     # --- Executable ---------------------------------------------------------------------------
     def touch(self, scope: object) -> None:
-        """Note that the model ``scope`` changed: the next ``refresh_touched()`` re-evaluates its methods."""
-        self._touched[id(scope)] = None
+        """Note that the model ``scope`` changed (a scope, or the ``serialize_on`` of methods bound with
+        one, e.g. a state machine): the next ``refresh_touched()`` re-evaluates its methods."""
+        key = id(scope)
+        self._touched[id(self._alias.get(key, scope))] = None
 
     async def refresh_touched(self) -> None:
         """Re-evaluate Executable of the scopes touched since the last time (the publisher's idle hook)."""
+        self._touched[id(_UNSCOPED)] = None  # nothing says what they depend on: always
         while self._touched:
             key = next(iter(self._touched))
             del self._touched[key]

@@ -37,8 +37,15 @@ class Publisher:
         self._queue: asyncio.Queue[Callable[[], Awaitable[None]]] = asyncio.Queue()
         self._task: asyncio.Task[None] | None = None
         # Run whenever the queue has drained: the server refreshes Executable here, so that changes made
-        # outside method calls (acting states completing, a program ending) reach it too (decision 4).
+        # outside method calls (acting states completing, a program ending) reach it too (decision 4);
+        # ``touch(machine)`` tells the touch hooks (the dispatcher) which machine changed, so that only
+        # the methods whose Executable depends on it are re-evaluated.
         self.idle_hooks: list[Callable[[], Awaitable[None]]] = []
+        self.touch_hooks: list[Callable[[object], None]] = []
+
+    def touch(self, scope: object) -> None:
+        for hook in self.touch_hooks:
+            hook(scope)
 
     def submit(self, job: Callable[[], Awaitable[None]]) -> None:
         self._queue.put_nowait(job)
@@ -92,10 +99,19 @@ def _child(server: Server, node: ua.NodeId, name: str) -> ua.NodeId | None:
 class StateMachineBinding:
     """Publishes one machine (and, through ``bind_tree``, its sub-machines) on its instance node."""
 
-    def __init__(self, server: Server, node: ua.NodeId, machine: StateMachine, refs: NodeRefs, publisher: Publisher):
+    def __init__(
+        self,
+        server: Server,
+        node: ua.NodeId,
+        machine: StateMachine,
+        refs: NodeRefs,
+        publisher: Publisher,
+        root: StateMachine | None = None,
+    ):
         self.server = server
         self.node = node
         self.machine = machine
+        self.root = root or machine  # the top machine of the tree: what the dispatcher knows it by
         self.refs = refs
         self.publisher = publisher
         self.children: list[StateMachineBinding] = []
@@ -146,6 +162,7 @@ class StateMachineBinding:
 
     def _on_change(self, change: Change) -> None:
         # The parent's state decides whether sub-machines are active: republish the whole subtree.
+        self.publisher.touch(self.root)
         self.publisher.submit(self.publish_tree)
         if change.transition is not None:
             self.publisher.submit(lambda: self.fire(change))
@@ -225,15 +242,20 @@ class StateMachineBinding:
 
 
 async def bind_tree(
-    server: Server, node: ua.NodeId, machine: StateMachine, publisher: Publisher, refs: NodeRefs | None = None
+    server: Server,
+    node: ua.NodeId,
+    machine: StateMachine,
+    publisher: Publisher,
+    refs: NodeRefs | None = None,
+    root: StateMachine | None = None,
 ) -> StateMachineBinding:
     """Bind ``machine`` on ``node`` and each sub-machine on the child of the same BrowseName."""
     refs = refs or NodeRefs(await server.get_namespace_array())
-    binding = StateMachineBinding(server, node, machine, refs, publisher)
+    binding = StateMachineBinding(server, node, machine, refs, publisher, root)
     for sub in machine.children:
         sub_node = _child(server, node, sub.name)
         if sub_node is None:
             raise KeyError(f"{machine.name} instance has no {sub.name}")
-        binding.children.append(await bind_tree(server, sub_node, sub, publisher, refs))
+        binding.children.append(await bind_tree(server, sub_node, sub, publisher, refs, binding.root))
     await binding.start()
     return binding

@@ -1,0 +1,94 @@
+"""The servers the suite measures, each started as its own process by ``python -m benchmarks.peers``.
+
+- ``asyncua [--nodesets]``: a bare asyncua server with one echo method (``Objects/Echo``), optionally
+  importing the same four NodeSets as uacell (asyncua's ``import_xml``);
+- ``uacell --cell demo|large|units``: uacell with the cell ``benchmarks.cells.bench_cell`` names,
+  acting times zero.
+
+Each prints ``listening`` once clients can connect and runs until SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import sys
+
+ECHO_NAMESPACE = "urn:uacell:bench"
+
+
+async def _until_stopped() -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, stop.set)
+    await stop.wait()
+
+
+async def bare_asyncua(port: int, nodesets: bool) -> None:
+    from asyncua import Server, ua
+
+    logging.getLogger("asyncua").setLevel(logging.ERROR)
+    server = Server()
+    await server.init()
+    server.set_endpoint(f"opc.tcp://127.0.0.1:{port}/")
+    if nodesets:
+        # asyncua's own importer; the files lose their DesignToolOnly nodes first, as in uacell
+        # (asyncua cannot import them: their parents are not in the files)
+        from uacell.models.source import MODELS, locate_models
+        from uacell.ua.nodesets import without_design_tool_only
+
+        paths = locate_models()
+        for model in MODELS:
+            await server.import_xml(xmlstring=without_design_tool_only(paths[model.key])[0])
+    ns = await server.register_namespace(ECHO_NAMESPACE)
+    objects = server.nodes.objects
+    await objects.add_method(
+        ua.NodeId("Echo", ns), ua.QualifiedName("Echo", ns), lambda parent, *args: list(args),
+        [ua.VariantType.Variant], [ua.VariantType.Variant],
+    )  # fmt: skip
+    await server.start()
+    print("listening", flush=True)
+    await _until_stopped()
+    await server.stop()
+
+
+async def uacell(port: int, cell: str, data_dir: str) -> None:
+    from pathlib import Path
+
+    from benchmarks.cells import bench_cell
+    from uacell.config import Config
+    from uacell.server import UacellServer
+
+    logging.basicConfig(level=logging.ERROR)
+    config = Config()
+    config.server.port = port
+    config.server.data_dir = Path(data_dir)
+    config.packml.acting_time = 0.0
+    app = UacellServer(config, parts=bench_cell(cell))
+    await app.setup()
+    await app.start()
+    print("listening", flush=True)
+    await _until_stopped()
+    await app.stop()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.peers")
+    parser.add_argument("kind", choices=("asyncua", "uacell"))
+    parser.add_argument("--port", type=int, required=True)
+    parser.add_argument("--nodesets", action="store_true")
+    parser.add_argument("--cell", default="demo")
+    parser.add_argument("--data-dir", default="")
+    args = parser.parse_args()
+    if args.kind == "asyncua":
+        asyncio.run(bare_asyncua(args.port, args.nodesets))
+    else:
+        asyncio.run(uacell(args.port, args.cell, args.data_dir))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
