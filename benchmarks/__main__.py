@@ -1,96 +1,538 @@
-"""Start-up time and memory of `uacell serve`, side by side with a bare asyncua server.
+"""uacell's benchmark suite: ``python -m benchmarks`` (``make bench``), ``--quick`` for a short run.
 
-The machines are shared and noisy, so absolute numbers mean little: each round starts both servers
-one after the other and the report gives the ratio uacell / bare asyncua (median over the rounds).
+It starts every peer itself (uacell, a bare asyncua echo server, a bare node-opcua echo server) and
+drives them with the node-opcua client of ``interop/bench_client.js`` in its own process. Machines
+are shared and noisy, so every comparison is measured side by side: each round runs every peer once,
+in an order that rotates from round to round, and a ratio is the median of the per-round ratios.
+It prints one table (measure, uacell, reference, ratio, target, PASS/FAIL) and writes every raw
+figure as JSON (``--json``). A FAIL is reported, never an error: the exit status is 0 unless the suite
+itself broke. docs/performance.md explains each figure.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
+import logging
 import os
+import platform
 import socket
 import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
-BARE = r"""
-import asyncio, sys
-from asyncua import Server
-async def main():
-    s = Server()
-    await s.init()
-    s.set_endpoint(f"opc.tcp://127.0.0.1:{sys.argv[1]}/")
-    await s.start()
-    print("uacell listening on", flush=True)
-    await asyncio.sleep(3600)
-asyncio.run(main())
-"""
+ROOT = Path(__file__).resolve().parent.parent
+INTEROP = ROOT / "interop"
+CLIENT = INTEROP / "bench_client.js"
+log = logging.getLogger("benchmarks")
+
+FILLER = "/PackML:PackMLObjects/Cell:Filler1"
+TASK_CONTROL = (
+    "/DI:DeviceSet/Cell:Robot1/Robotics:Controllers/Cell:Controller1/Robotics:TaskControls"
+    "/Cell:TaskControl1/Robotics:TaskControlOperation/Robotics:TaskControlStateMachine"
+)
+SPEED = {"type": "Float", "value": 120.0}
+SET_SPEED = [{"object": FILLER, "method": "/PackML:SetMachSpeed", "args": [SPEED]}]
+ECHO = [{"object": "/Bench:Bench", "method": "/Bench:Echo", "args": [SPEED]}]
+LOAD_CYCLE = [
+    {"object": TASK_CONTROL, "method": "/Robotics:LoadByName", "args": [{"type": "String", "value": "pick_and_place"}]},
+    {"object": TASK_CONTROL, "method": "/Robotics:UnloadProgram", "args": []},
+]
+READ_STATE = [{"read": FILLER + "/PackML:BaseStateMachine/CurrentState"}]
+STATE = FILLER + "/PackML:BaseStateMachine/PackML:MachineState/CurrentState"
+TC_STATE = TASK_CONTROL + "/CurrentState"
 
 
-def _port() -> int:
+# --- processes -----------------------------------------------------------------------------------
+def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        return int(s.getsockname()[1])
 
 
-def _rss_kib(pid: int) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1])
+def rss_kib(pid: int) -> int:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
     return 0
 
 
-def _measure(cmd: list[str]) -> tuple[float, int]:
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+@dataclass
+class Peer:
+    """A server process that prints ``listening`` once clients can connect."""
+
+    name: str
+    cmd: list[str]
+    cwd: Path = ROOT
+    port: int = 0
+    proc: subprocess.Popen[str] | None = None
+    startup: float = 0.0  # seconds from spawn to the listening line
+
+    @property
+    def endpoint(self) -> str:
+        return f"opc.tcp://127.0.0.1:{self.port}/"
+
+    def start(self, timeout: float = 300.0) -> Peer:
+        t0 = time.perf_counter()
+        self.proc = subprocess.Popen(
+            self.cmd, cwd=self.cwd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+        )
+        timer = threading.Timer(timeout, self.proc.kill)
+        timer.start()
+        try:
+            assert self.proc.stdout is not None
+            for line in self.proc.stdout:
+                if line.strip().endswith("listening"):
+                    break
+            else:
+                raise RuntimeError(f"{self.name} did not start (exit {self.proc.poll()})")
+        finally:
+            timer.cancel()
+        self.startup = time.perf_counter() - t0
+        return self
+
+    def rss_kib(self) -> int:
+        return rss_kib(self.proc.pid) if self.proc else 0
+
+    def stop(self) -> None:
+        # Graceful shutdown is not measured: SIGTERM, then SIGKILL after a short grace.
+        if self.proc is None:
+            return
+        self.proc.terminate()
+        try:
+            self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(10)
+        self.proc = None
+
+
+class Peers:
+    """Builds the peers' commands; every uacell peer gets its own data directory."""
+
+    def __init__(self, tmp: Path) -> None:
+        self.tmp = tmp
+        self.count = 0
+        from uacell.models.source import MODELS, locate_models
+
+        paths = locate_models()
+        self.nodeset_files = [str(paths[m.key]) for m in MODELS]
+
+    def uacell(self, cell: str = "demo") -> Peer:
+        self.count += 1
+        port = free_port()
+        data = self.tmp / f"uacell-{cell}-{self.count}"
+        cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", cell]
+        return Peer(f"uacell {cell} cell", [*cmd, "--data-dir", str(data)], port=port)
+
+    def asyncua(self, nodesets: bool = False) -> Peer:
+        port = free_port()
+        cmd = [sys.executable, "-m", "benchmarks.peers", "asyncua", "--port", str(port)]
+        name = "asyncua echo" + (" + NodeSets" if nodesets else "")
+        return Peer(name, cmd + (["--nodesets"] if nodesets else []), port=port)
+
+    def node(self, nodesets: bool = False) -> Peer:
+        port = free_port()
+        cmd = ["node", str(INTEROP / "bench_server.js"), str(port), *(self.nodeset_files if nodesets else [])]
+        return Peer("node-opcua echo" + (" + NodeSets" if nodesets else ""), cmd, cwd=INTEROP, port=port)
+
+
+@contextlib.contextmanager
+def running(*peers: Peer) -> Iterator[tuple[Peer, ...]]:
     try:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            if line.startswith("uacell listening on"):
-                break
-        else:
-            raise RuntimeError(f"{cmd[:3]} did not start")
-        elapsed = time.perf_counter() - t0
-        time.sleep(0.5)
-        return elapsed, _rss_kib(proc.pid)
+        for p in peers:
+            p.start()
+        yield peers
     finally:
-        proc.terminate()
-        proc.wait(30)
+        for p in peers:
+            p.stop()
+
+
+def client(endpoint: str, spec: dict[str, Any], timeout: float = 300.0) -> dict[str, Any]:
+    proc = subprocess.run(
+        ["node", str(CLIENT), endpoint, json.dumps(spec)],
+        cwd=INTEROP,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
+    lines = [ln for ln in proc.stdout.splitlines() if ln.strip()]
+    if proc.returncode != 0 or not lines:
+        tail = proc.stderr.strip().splitlines()[-3:]
+        raise RuntimeError(f"bench client {spec['mode']} failed: {' / '.join(tail)}")
+    return json.loads(lines[-1])
+
+
+def rotated(items: list[Any], round_no: int) -> list[Any]:
+    k = round_no % len(items)
+    return items[k:] + items[:k]
+
+
+def median(values: list[float]) -> float | None:
+    values = [v for v in values if v is not None]
+    return statistics.median(values) if values else None
+
+
+# --- the report ------------------------------------------------------------------------------------
+@dataclass
+class Row:
+    measure: str
+    value: str
+    reference: str
+    ratio: float | None
+    target: str = ""
+    passed: bool | None = None
+
+
+@dataclass
+class Report:
+    rows: list[Row] = field(default_factory=list)
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    def add(self, measure: str, value: str, reference: str, ratio: float | None, target: str = "", ok=None) -> None:
+        passed = None if ok is None or ratio is None else bool(ok(ratio))
+        self.rows.append(Row(measure, value, reference, ratio, target, passed))
+        verdict = {True: "PASS", False: "FAIL", None: ""}[passed]
+        print(f"  {measure}: {value} vs {reference} -> {fmt(ratio)} {target} {verdict}", flush=True)
+
+    def print(self) -> None:
+        head = ("measure", "uacell", "reference", "ratio", "target", "")
+        table = [head] + [
+            (r.measure, r.value, r.reference, fmt(r.ratio), r.target, {True: "PASS", False: "FAIL", None: ""}[r.passed])
+            for r in self.rows
+        ]
+        widths = [max(len(str(row[i])) for row in table) for i in range(len(head))]
+        print()
+        for i, row in enumerate(table):
+            print("  ".join(str(c).ljust(w) for c, w in zip(row, widths, strict=True)).rstrip())
+            if i == 0:
+                print("  ".join("-" * w for w in widths))
+        targets = [r for r in self.rows if r.passed is not None]
+        print(f"\n{sum(r.passed for r in targets)}/{len(targets)} targets met", flush=True)
+
+
+def fmt(x: float | None, unit: str = "x") -> str:
+    return "n/a" if x is None else f"{x:.2f}{unit}"
+
+
+# --- sections ----------------------------------------------------------------------------------------
+def calls_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
+    """1a: SetMachSpeed and the LoadByName/UnloadProgram cycle against both echo servers; PackML Start."""
+    print("== method calls (demo cell vs asyncua echo vs node-opcua echo)", flush=True)
+    raw: dict[str, Any] = {}
+    report.raw["calls"] = raw
+    uac, asy, nod = peers.uacell(), peers.asyncua(), peers.node()
+    targets = {uac.name: SET_SPEED, asy.name: ECHO, nod.name: ECHO}
+    with running(uac, asy, nod):
+        for n in args.sessions:
+            for r in range(args.rounds):
+                for p in rotated([uac, asy, nod], r):
+                    spec = {"mode": "calls", "sessions": n, "seconds": args.seconds, "steps": targets[p.name]}
+                    raw.setdefault(f"{p.name} x{n}", []).append(client(p.endpoint, spec))
+            ours = raw[f"{uac.name} x{n}"]
+            value = f"{median([x['rate'] for x in ours]):.0f}/s p50 {median([x['p50_ms'] for x in ours]):.1f} ms"
+            value += f" p99 {median([x['p99_ms'] for x in ours]):.1f} ms"
+            for ref, floor in ((asy, 0.9), (nod, 1.0 if n == 8 else None)):
+                theirs = raw[f"{ref.name} x{n}"]
+                reference = f"{ref.name} {median([x['rate'] for x in theirs]):.0f}/s"
+                reference += f" p50 {median([x['p50_ms'] for x in theirs]):.1f} ms"
+                target = f">= {floor}x" if floor is not None else ""
+                ok = (lambda x, f=floor: x >= f) if floor is not None else None
+                ratio = median([a["rate"] / b["rate"] for a, b in zip(raw[f"{uac.name} x{n}"], theirs, strict=True)])
+                report.add(f"SetMachSpeed calls/s, {n} session(s)", value, reference, ratio, target, ok)
+            errors = sum(x["errors"] for x in ours)
+            if errors:
+                print(f"  ! {errors} SetMachSpeed calls failed: {ours[0].get('first_error')}")
+        # The cycle: one task control, so one session (a second session's LoadByName would be refused).
+        for r in range(args.rounds):
+            for p in rotated([uac, asy], r):
+                steps = LOAD_CYCLE if p is uac else ECHO
+                spec = {"mode": "calls", "sessions": 1, "seconds": args.seconds, "steps": steps}
+                raw.setdefault(f"{p.name} cycle", []).append(client(p.endpoint, spec))
+            raw.setdefault("start", []).append(
+                client(uac.endpoint, {"mode": "start", "object": FILLER, "parameters": 5, "seconds": args.seconds})
+            )
+        ours, theirs = raw[f"{uac.name} cycle"], raw[f"{asy.name} cycle"]
+        ratios = [a["rate"] / b["rate"] for a, b in zip(ours, theirs, strict=True)]
+        report.add(
+            "LoadByName+UnloadProgram calls/s, 1 session",
+            f"{median([x['rate'] for x in ours]):.0f}/s p99 {median([x['p99_ms'] for x in ours]):.1f} ms",
+            f"{asy.name} {median([x['rate'] for x in theirs]):.0f}/s",
+            median(ratios),
+            ">= 0.75x",
+            lambda x: x >= 0.75,
+        )
+        if sum(x["errors"] for x in ours):
+            print(f"  ! cycle calls failed: {ours[0].get('first_error')}")
+        start = raw["start"]
+        echo_p50 = median([x["p50_ms"] for x in theirs])
+        start_p50 = median([x["p50_ms"] for x in start])
+        report.add(
+            "PackML Start (5 parameters) latency, 1 session",
+            f"p50 {start_p50:.1f} ms p99 {median([x['p99_ms'] for x in start]):.1f} ms",
+            f"{asy.name} p50 {echo_p50:.1f} ms",
+            echo_p50 / start_p50 if echo_p50 and start_p50 else None,
+        )
+
+
+def large_cell_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
+    """1b: SetMachSpeed on the large cell, as a ratio to the demo cell."""
+    print("== cell size (100 PackML units and 10 robots vs the demo cell)", flush=True)
+    raw: dict[str, Any] = {}
+    report.raw["cell_size"] = raw
+    demo, large = peers.uacell("demo"), peers.uacell("large")
+    with running(demo, large):
+        for n in args.size_sessions:
+            for r in range(args.rounds):
+                for p in rotated([demo, large], r):
+                    spec = {"mode": "calls", "sessions": n, "seconds": args.seconds, "steps": SET_SPEED}
+                    raw.setdefault(f"{p.name} x{n}", []).append(client(p.endpoint, spec))
+            ours, theirs = raw[f"{large.name} x{n}"], raw[f"{demo.name} x{n}"]
+            report.add(
+                f"SetMachSpeed calls/s on the large cell, {n} session(s)",
+                f"{median([x['rate'] for x in ours]):.0f}/s",
+                f"demo cell {median([x['rate'] for x in theirs]):.0f}/s",
+                median([a["rate"] / b["rate"] for a, b in zip(ours, theirs, strict=True)]),
+                ">= 0.95x",
+                lambda x: x >= 0.95,
+            )
+
+
+def startup_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
+    """1c and 3: start-up time (spawn to listening) and RSS after start-up."""
+    print("== start-up and memory", flush=True)
+    raw: dict[str, list[dict[str, float]]] = {}
+    report.raw["startup"] = raw
+    makers: list[tuple[str, Callable[[], Peer]]] = [
+        ("demo", lambda: peers.uacell("demo")),
+        ("large", lambda: peers.uacell("large")),
+        ("units", lambda: peers.uacell("units")),
+        ("asyncua", lambda: peers.asyncua(False)),
+        ("asyncua+nodesets", lambda: peers.asyncua(True)),
+        ("node-opcua+nodesets", lambda: peers.node(True)),
+    ]
+    for r in range(args.startup_rounds):
+        for key, make in rotated(makers, r):
+            peer = make()
+            with running(peer):
+                time.sleep(1.0)  # let start-up work finish before reading RSS
+                raw.setdefault(key, []).append({"seconds": peer.startup, "rss_kib": peer.rss_kib()})
+            print(f"  {key}: {peer.startup:.2f} s, {raw[key][-1]['rss_kib'] // 1024} MiB", flush=True)
+
+    def t(key: str) -> float:
+        return median([x["seconds"] for x in raw[key]]) or 0.0
+
+    def m(key: str) -> float:
+        return (median([x["rss_kib"] for x in raw[key]]) or 0.0) / 1024
+
+    def ratio(a: str, b: str, what: str = "seconds") -> float | None:
+        return median([x[what] / y[what] for x, y in zip(raw[a], raw[b], strict=True)])
+
+    demo = f"{t('demo'):.2f} s, {m('demo'):.0f} MiB"
+    for ref in ("asyncua", "asyncua+nodesets", "node-opcua+nodesets"):
+        ok = (lambda x: x <= 0.6) if ref == "asyncua" else None
+        report.add(
+            "start-up, demo cell", demo, f"{ref} {t(ref):.2f} s", ratio("demo", ref), "<= 0.6x" if ok else "", ok
+        )
+    for ref in ("asyncua", "asyncua+nodesets", "node-opcua+nodesets"):
+        report.add("RSS, demo cell", f"{m('demo'):.0f} MiB", f"{ref} {m(ref):.0f} MiB", ratio("demo", ref, "rss_kib"))
+    report.add(
+        "start-up, large cell",
+        f"{t('large'):.2f} s, {m('large'):.0f} MiB",
+        f"demo cell {t('demo'):.2f} s",
+        ratio("large", "demo"),
+        "<= 3x",
+        lambda x: x <= 3.0,
+    )
+    from benchmarks.cells import SIZES
+
+    units, robots, _ = SIZES["units"]
+    per_unit = (m("units") - m("demo")) / (units - 1)
+    per_robot = (m("large") - m("units")) / (SIZES["large"][1] - robots)
+    report.add("RSS per added PackML unit", f"{per_unit:.2f} MiB", "2 MiB", per_unit / 2.0, "<= 1x", lambda x: x <= 1)
+    report.add("RSS per added robot (2 task controls)", f"{per_robot:.2f} MiB", "", None)
+    raw["per_unit_mib"] = per_unit  # type: ignore[assignment]
+    raw["per_robot_mib"] = per_robot  # type: ignore[assignment]
+
+
+def notify_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
+    """1d: from a call's return to the data change of CurrentState and to the TransitionEvent."""
+    print("== state-change notification latency (LoadByName/UnloadProgram on TaskControl1)", flush=True)
+    raw: dict[str, Any] = {}
+    report.raw["notify"] = raw
+    with running(peers.uacell()) as (uac,):
+        for r in range(args.rounds):
+            for interval in rotated([0, 50], r):
+                spec = {
+                    "mode": "notify",
+                    "interval": interval,
+                    "seconds": args.seconds,
+                    "object": TASK_CONTROL,
+                    "current": TC_STATE,
+                    "steps": LOAD_CYCLE,
+                }
+                raw.setdefault(str(interval), []).append(client(uac.endpoint, spec))
+    for interval in (0, 50):
+        runs = raw[str(interval)]
+        for what, name in (("value", "CurrentState data change"), ("event", "TransitionEvent")):
+            p50 = median([x[what]["p50_ms"] for x in runs])
+            p99 = median([x[what]["p99_ms"] for x in runs])
+            limit = interval + 5
+            report.add(
+                f"{name} latency, {interval} ms publishing",
+                f"p50 {fmt(p50, ' ms')} p99 {fmt(p99, ' ms')}",
+                f"{limit} ms",
+                p50 / limit if p50 is not None else None,
+                "<= 1x (p50)",
+                lambda x: x <= 1.0,
+            )
+        missed = sum(x["missed"] for x in runs)
+        if missed:
+            print(f"  ! {missed} notifications did not arrive within 2 s ({interval} ms)")
+
+
+def sessions_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
+    """1e: many sessions, each subscribed to a state; a Read and a SetMachSpeed from one more client."""
+    total = args.many_sessions
+    procs_n = max(1, min(4, total // 100))
+    print(f"== {total} concurrent sessions from {procs_n} client processes", flush=True)
+    raw: dict[str, Any] = {}
+    report.raw["sessions"] = raw
+    with running(peers.uacell()) as (uac,):
+        time.sleep(1.0)
+        before = uac.rss_kib()
+        holders = []
+        share = [total // procs_n + (1 if i < total % procs_n else 0) for i in range(procs_n)]
+        for n in share:
+            spec = {"mode": "hold", "sessions": n, "current": STATE}
+            holders.append(
+                subprocess.Popen(
+                    ["node", str(CLIENT), uac.endpoint, json.dumps(spec)],
+                    cwd=INTEROP,
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    stderr=subprocess.DEVNULL,
+                    text=True,
+                )
+            )
+        ready = 0
+        try:
+            for h in holders:
+                assert h.stdout is not None
+                line = h.stdout.readline()
+                ready += json.loads(line)["ready"] if line.strip() else 0
+            after = uac.rss_kib()
+            one = {"mode": "calls", "sessions": 1, "seconds": args.seconds}
+            probe = {
+                "read": client(uac.endpoint, one | {"steps": READ_STATE}),
+                "call": client(uac.endpoint, one | {"steps": SET_SPEED}),
+            }
+        finally:
+            results = []
+            for h in holders:
+                try:
+                    out, _ = h.communicate("stop\n", timeout=120)
+                    lines = [ln for ln in out.splitlines() if ln.strip()]
+                    results.append(json.loads(lines[-1]) if lines else {})
+                except (subprocess.TimeoutExpired, json.JSONDecodeError):
+                    h.kill()
+                    h.wait()
+                    results.append({})
+    alive = sum(r.get("alive", 0) for r in results)
+    raw.update(
+        {"requested": total, "ready": ready, "alive": alive, "holders": results, "rss_before_kib": before}
+        | {"rss_after_kib": after, "probe": probe}
+    )
+    per_session = (after - before) / max(1, ready)
+    report.add(
+        "sessions held (subscribed, publishing)",
+        f"{alive}",
+        f"{total}",
+        alive / total,
+        ">= 1x",
+        lambda x: x >= 1.0,
+    )
+    report.add(f"RSS per session ({ready} sessions)", f"{per_session:.0f} KiB", "", None)
+    read = probe["read"]
+    report.add(
+        f"Read p99 with {ready} sessions",
+        f"p50 {read['p50_ms']:.1f} ms p99 {read['p99_ms']:.1f} ms",
+        "100 ms",
+        read["p99_ms"] / 100.0,
+        "<= 1x",
+        lambda x: x <= 1.0,
+    )
+    call = probe["call"]
+    report.add(
+        f"SetMachSpeed p99 with {ready} sessions", f"p50 {call['p50_ms']:.1f} ms p99 {call['p99_ms']:.1f} ms", "", None
+    )
+
+
+SECTIONS = {
+    "calls": calls_section,
+    "size": large_cell_section,
+    "notify": notify_section,
+    "startup": startup_section,
+    "sessions": sessions_section,
+}
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks")
-    parser.add_argument("--rounds", type=int, default=3)
+    parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="one round, short runs, 100 sessions (a few minutes)")
+    parser.add_argument("--rounds", type=int, help="interleaved rounds (default 3, quick 1)")
+    parser.add_argument("--seconds", type=float, help="length of each load run (default 3, quick 1.5)")
+    parser.add_argument("--sessions-total", type=int, dest="many_sessions", help="concurrent sessions (1000/100)")
+    parser.add_argument("--only", choices=sorted(SECTIONS), action="append", help="run only these sections")
+    parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "last-run.json", help="raw figures")
     args = parser.parse_args()
-    startup, memory = [], []
-    with tempfile.TemporaryDirectory() as tmp:
-        for i in range(args.rounds):
-            bare_t, bare_m = _measure([sys.executable, "-c", BARE, str(_port())])
-            cell_t, cell_m = _measure(
-                [
-                    sys.executable,
-                    "-m",
-                    "uacell",
-                    "--log-level",
-                    "ERROR",
-                    "serve",
-                    "--port",
-                    str(_port()),
-                    "--data-dir",
-                    os.path.join(tmp, f"d{i}"),
-                ]
-            )
-            startup.append(cell_t / bare_t)
-            memory.append(cell_m / bare_m)
-            print(
-                f"round {i + 1}: start-up {cell_t:.2f}s vs {bare_t:.2f}s, "
-                f"RSS {cell_m // 1024} MiB vs {bare_m // 1024} MiB"
-            )
-    print(f"start-up ratio uacell/bare asyncua (median): {statistics.median(startup):.2f}")
-    print(f"memory ratio uacell/bare asyncua (median):   {statistics.median(memory):.2f}")
+    args.rounds = args.rounds or (1 if args.quick else 3)
+    args.seconds = args.seconds or (1.5 if args.quick else 3.0)
+    args.many_sessions = args.many_sessions or (100 if args.quick else 1000)
+    args.startup_rounds = 1 if args.quick else max(1, args.rounds - 1)
+    args.sessions = (1, 8, 32)
+    args.size_sessions = (1, 8)
+    report = Report()
+    report.raw["meta"] = {
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
+        "host": platform.node(),
+        "cpus": os.cpu_count(),
+        "load_average": os.getloadavg(),
+        "python": platform.python_version(),
+        "arguments": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+    }
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="uacell-bench-") as tmp:
+        peers = Peers(Path(tmp))
+        for name, section in SECTIONS.items():
+            if args.only and name not in args.only:
+                continue
+            started = time.monotonic()
+            try:
+                section(report, peers, args)
+            except Exception as err:  # a broken section is reported, the others still run
+                print(f"  ! section {name} failed: {err}", flush=True)
+                report.raw.setdefault("errors", {})[name] = str(err)
+            report.raw["meta"].setdefault("section_seconds", {})[name] = round(time.monotonic() - started, 1)
+    report.raw["meta"]["seconds"] = round(time.monotonic() - t0, 1)
+    report.raw["meta"]["load_average_after"] = os.getloadavg()
+    report.raw["rows"] = [r.__dict__ for r in report.rows]
+    report.print()
+    args.json.write_text(json.dumps(report.raw, indent=1, default=str) + "\n")
+    print(f"raw figures: {args.json} (run took {report.raw['meta']['seconds']:.0f} s)")
     return 0
 
 

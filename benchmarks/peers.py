@@ -1,6 +1,6 @@
 """The servers the suite measures, each started as its own process by ``python -m benchmarks.peers``.
 
-- ``asyncua [--nodesets]``: a bare asyncua server with one echo method (``Objects/Echo``), optionally
+- ``asyncua [--nodesets]``: a bare asyncua server with one echo method (``Objects/Bench/Echo``), optionally
   importing the same four NodeSets as uacell (asyncua's ``import_xml``);
 - ``uacell --cell demo|large|units``: uacell with the cell ``benchmarks.cells.bench_cell`` names,
   acting times zero.
@@ -44,8 +44,8 @@ async def bare_asyncua(port: int, nodesets: bool) -> None:
         for model in MODELS:
             await server.import_xml(xmlstring=without_design_tool_only(paths[model.key])[0])
     ns = await server.register_namespace(ECHO_NAMESPACE)
-    objects = server.nodes.objects
-    await objects.add_method(
+    bench = await server.nodes.objects.add_object(ua.NodeId("Bench", ns), ua.QualifiedName("Bench", ns))
+    await bench.add_method(
         ua.NodeId("Echo", ns), ua.QualifiedName("Echo", ns), lambda parent, *args: list(args),
         [ua.VariantType.Variant], [ua.VariantType.Variant],
     )  # fmt: skip
