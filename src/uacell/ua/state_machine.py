@@ -18,6 +18,7 @@ import logging
 import uuid
 from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime
+from typing import Any
 
 from asyncua import Server, ua
 from asyncua.server.event_generator import EventGenerator
@@ -127,6 +128,7 @@ class StateMachineBinding:
         self.available_states = c("AvailableStates")
         self.available_transitions = c("AvailableTransitions")
         self._event: EventGenerator | None = None
+        self._written: dict[ua.NodeId, tuple[Any, ...]] = {}  # node -> what was last written there
         self._display = {name: self._display_name(info.node) for name, info in machine.table.states.items()} | {
             name: self._display_name(info.node) for name, info in machine.table.transitions.items()
         }
@@ -177,6 +179,11 @@ class StateMachineBinding:
     ) -> None:
         if node is None:
             return
+        # A machine's whole subtree is republished on every change: write only what changed.
+        key = (status.value,) if status is not None else (0, value.VariantType, value.Value) if value else (0,)
+        if self._written.get(node) == key:
+            return
+        self._written[node] = key
         if status is not None:
             dv = ua.DataValue(StatusCode=status, SourceTimestamp=datetime.now(UTC), ServerTimestamp=datetime.now(UTC))
         else:
