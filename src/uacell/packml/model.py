@@ -60,7 +60,8 @@ MODE_DISABLED: dict[int, frozenset[str]] = {
 SET_UNIT_MODE_STATES = frozenset({"Stopped", "Idle", "Aborted"})
 # uacell's rule: products and parameters change only while no job runs (between Start and Complete).
 JOB_STATES = frozenset(
-    {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding", "Suspending", "Suspended", "Unsuspending"}
+    {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding",
+     "Suspending", "Suspended", "Unsuspending"}
 )
 # StopReason.ID for a commanded stop: the TR88 command number (packml-v101.md §11).
 STOP_COMMAND_IDS = {"Stop": 3, "Hold": 4, "Suspend": 6, "Abort": 8}
@@ -160,12 +161,10 @@ class PackMLUnit:
         machine_t = fsm_table("PackML", "PackMLMachineStateMachineType", models_dir)
         execute_t = fsm_table("PackML", "PackMLExecuteStateMachineType", models_dir)
         self.base = StateMachine(BASE, base_t, "Cleared")
-        self.machine = StateMachine(
-            MACHINE, machine_t, "Stopped", parent=self.base, parent_state=_hosting(base_t.states.values(), MACHINE)
-        )
-        self.execute = StateMachine(
-            EXECUTE, execute_t, "Idle", parent=self.machine, parent_state=_hosting(machine_t.states.values(), EXECUTE)
-        )
+        self.machine = StateMachine(MACHINE, machine_t, "Stopped", parent=self.base,
+                                    parent_state=_hosting(base_t.states.values(), MACHINE))
+        self.execute = StateMachine(EXECUTE, execute_t, "Idle", parent=self.machine,
+                                    parent_state=_hosting(machine_t.states.values(), EXECUTE))
         self.machines: dict[str, StateMachine] = {m.name: m for m in self.base.walk()}
         self._methods = {name: m.table.methods for name, m in self.machines.items()}
         # Executable of every method, for the inputs of _refusal it was computed from (see _executable_now)
@@ -173,9 +172,7 @@ class PackMLUnit:
         self._executable_memo: dict[tuple[str | None, str], bool] = {}
         # The "state complete" transitions: those no method causes. Their from-states are the acting states.
         self._sc: dict[tuple[str, str], TransitionInfo] = {
-            (m.name, t.from_state): t
-            for m in self.machines.values()
-            for t in m.table.transitions.values()
+            (m.name, t.from_state): t for m in self.machines.values() for t in m.table.transitions.values()
             if not t.causes
         }
 
@@ -336,12 +333,9 @@ class PackMLUnit:
         """Call ``method`` of ``machine_name`` (None: a unit method) with the method's input arguments."""
         if machine_name is UNIT:
             handler = {
-                "SetUnitMode": self.set_unit_mode,
-                "SetMachSpeed": self.set_mach_speed,
-                "SetProduct": self.set_product,
-                "SetParameter": self.set_parameter,
-                "RemoteCommand": self.remote_command,
-                "SetInterlock": self.set_interlock,
+                "SetUnitMode": self.set_unit_mode, "SetMachSpeed": self.set_mach_speed,
+                "SetProduct": self.set_product, "SetParameter": self.set_parameter,
+                "RemoteCommand": self.remote_command, "SetInterlock": self.set_interlock,
             }.get(method)
             if handler is None:
                 raise CallError("BadMethodInvalid", f"the unit has no method {method}")
@@ -440,12 +434,8 @@ class PackMLUnit:
             if method == "Start":
                 self.status.start_parameters = parameters
             if method in STOP_COMMAND_IDS:
-                self._record_stop(
-                    stop_reason
-                    or PackMLAlarmDataType(
-                        STOP_COMMAND_IDS[method], 0, f"{method} commanded", 0, self._wall(), None, False
-                    )
-                )
+                self._record_stop(stop_reason or PackMLAlarmDataType(
+                    STOP_COMMAND_IDS[method], 0, f"{method} commanded", 0, self._wall(), None, False))
             if method == "Clear":
                 self._acknowledge_alarms()
             self._take(sm, t, reason)
@@ -472,7 +462,9 @@ class PackMLUnit:
                 return
         raise CallError("BadInvalidState", f"{method} is not possible in {self.state}")
 
-    def report_production(self, processed: int = 0, defective: int = 0, consumed: int | Mapping[int, int] = 0) -> None:
+    def report_production(
+        self, processed: int = 0, defective: int = 0, consumed: int | Mapping[int, int] = 0
+    ) -> None:
         with self._operation():
             a = self.admin
             if processed:
@@ -506,11 +498,8 @@ class PackMLUnit:
             w = self.admin.warning
             w[:] = [x for x in w if x.id != warning_id]
             if active:
-                _push(
-                    w,
-                    PackMLAlarmDataType(warning_id, 0, message, 0, self._wall(), None, True),
-                    self.admin.warning_extent,
-                )
+                _push(w, PackMLAlarmDataType(warning_id, 0, message, 0, self._wall(), None, True),
+                      self.admin.warning_extent)
 
     def set_blocked(self, blocked: bool) -> None:
         with self._operation():
@@ -524,11 +513,8 @@ class PackMLUnit:
 
     def set_unit_mode(self, mode: int) -> None:
         if isinstance(mode, bool) or not isinstance(mode, int) or mode not in self.supported_modes:
-            raise CallError(
-                "BadInvalidArgument",
-                f"RequestedMode {mode!r} is not a supported mode ({sorted(self.supported_modes)})",
-                argument=0,
-            )
+            raise CallError("BadInvalidArgument", f"RequestedMode {mode!r} is not a supported mode "
+                            f"({sorted(self.supported_modes)})", argument=0)
         self._check(UNIT, "SetUnitMode")
         with self._operation():
             s = self.status
@@ -549,8 +535,7 @@ class PackMLUnit:
         low, high = self.status.mach_speed_range
         if not low <= value <= high:
             raise CallError(
-                "BadInvalidArgument",
-                f"RequestedMachineSpeed {value} is outside the EURange [{low}, {high}]",
+                "BadInvalidArgument", f"RequestedMachineSpeed {value} is outside the EURange [{low}, {high}]",
                 argument=0,
             )
         self.equipment.on_mach_speed(value)
@@ -581,11 +566,9 @@ class PackMLUnit:
         """State true = interlocked: MaterialInterlock[id] becomes false (its bit means "ready")."""
         n = len(self.status.material_interlock)
         if isinstance(interlock_id, bool) or not isinstance(interlock_id, int) or not 0 <= interlock_id < n:
-            raise CallError(
-                "BadInvalidArgument",
-                f"InterlockId {interlock_id!r} is not an index of MaterialInterlock (0..{n - 1})",
-                argument=0,
-            )
+            raise CallError("BadInvalidArgument",
+                            f"InterlockId {interlock_id!r} is not an index of MaterialInterlock (0..{n - 1})",
+                            argument=0)
         if not isinstance(state, bool):
             raise CallError("BadInvalidArgument", f"State must be a Boolean, got {state!r}", argument=1)
         self.equipment.on_interlock(interlock_id, state)
@@ -602,11 +585,8 @@ class PackMLUnit:
             self._mode_cum = [0.0] * len(self._mode_cum)
             self._state_cum = [[0.0] * STATE_COLUMNS for _ in self._state_cum]
             self._mode_cur = self._state_cur = self._acc = 0.0
-            for counts in (
-                self.admin.prod_processed_count,
-                self.admin.prod_defective_count,
-                self.admin.prod_consumed_count,
-            ):
+            for counts in (self.admin.prod_processed_count, self.admin.prod_defective_count,
+                           self.admin.prod_consumed_count):
                 counts[:] = [dataclasses.replace(c, count=0) for c in counts]
             self.save()
 
@@ -703,17 +683,10 @@ class PackMLUnit:
     def _call_hooks(self, state: str) -> None:
         eq = self.equipment
         hooks: dict[str, Callable[[], None]] = {
-            "Clearing": eq.on_clearing,
-            "Stopping": eq.on_stopping,
-            "Aborting": eq.on_aborting,
-            "Resetting": eq.on_resetting,
-            "Starting": lambda: eq.on_starting(self.status.start_parameters),
-            "Completing": eq.on_completing,
-            "Holding": eq.on_holding,
-            "Unholding": eq.on_unholding,
-            "Suspending": eq.on_suspending,
-            "Unsuspending": eq.on_unsuspending,
-            "Execute": eq.on_execute,
+            "Clearing": eq.on_clearing, "Stopping": eq.on_stopping, "Aborting": eq.on_aborting,
+            "Resetting": eq.on_resetting, "Starting": lambda: eq.on_starting(self.status.start_parameters),
+            "Completing": eq.on_completing, "Holding": eq.on_holding, "Unholding": eq.on_unholding,
+            "Suspending": eq.on_suspending, "Unsuspending": eq.on_unsuspending, "Execute": eq.on_execute,
         }
         try:
             eq.on_state(state)
@@ -777,14 +750,9 @@ class PackMLUnit:
         """The durable Admin values as clients read them (whole seconds, counts)."""
         a = self.admin
         return (
-            tuple(a.prod_processed_count),
-            tuple(a.prod_defective_count),
-            tuple(a.prod_consumed_count),
-            tuple(a.mode_cumulative_time),
-            tuple(map(tuple, a.state_cumulative_time)),
-            a.acc_time_since_reset,
-            a.stop_reason,
-            tuple(a.alarm_history),
+            tuple(a.prod_processed_count), tuple(a.prod_defective_count), tuple(a.prod_consumed_count),
+            tuple(a.mode_cumulative_time), tuple(map(tuple, a.state_cumulative_time)), a.acc_time_since_reset,
+            a.stop_reason, tuple(a.alarm_history),
         )
 
     def _publish(self) -> None:
@@ -824,16 +792,13 @@ class PackMLUnit:
             return
         try:
             a = self.admin
-            for key, counts in (
-                ("prod_processed_count", a.prod_processed_count),
-                ("prod_defective_count", a.prod_defective_count),
-                ("prod_consumed_count", a.prod_consumed_count),
-            ):
+            for key, counts in (("prod_processed_count", a.prod_processed_count),
+                                ("prod_defective_count", a.prod_defective_count),
+                                ("prod_consumed_count", a.prod_consumed_count)):
                 stored = {c.id: c for c in map(count_from_json, data.get(key, []))}
                 counts[:] = [
                     dataclasses.replace(c, count=stored[c.id].count, acc_count=stored[c.id].acc_count)
-                    if c.id in stored
-                    else c
+                    if c.id in stored else c
                     for c in counts
                 ]
             for i, x in enumerate(data.get("mode_cumulative_time", [])[: len(self._mode_cum)]):
