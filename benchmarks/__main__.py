@@ -359,9 +359,10 @@ def startup_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
     )
     from benchmarks.cells import SIZES
 
-    units, robots, _ = SIZES["units"]
+    units = SIZES["units"][0]
+    large_units, large_robots, _ = SIZES["large"]
     per_unit = (m("units") - m("demo")) / (units - 1)
-    per_robot = (m("large") - m("units")) / (SIZES["large"][1] - robots)
+    per_robot = (m("large") - m("demo") - per_unit * (large_units - 1)) / (large_robots - 1)
     report.add("RSS per added PackML unit", f"{per_unit:.2f} MiB", "2 MiB", per_unit / 2.0, "<= 1x", lambda x: x <= 1)
     report.add("RSS per added robot (2 task controls)", f"{per_robot:.2f} MiB", "", None)
     raw["per_unit_mib"] = per_unit  # type: ignore[assignment]
@@ -395,7 +396,7 @@ def notify_section(report: Report, peers: Peers, args: argparse.Namespace) -> No
                 f"{name} latency, {interval} ms publishing",
                 f"p50 {fmt(p50, ' ms')} p99 {fmt(p99, ' ms')}",
                 f"{limit} ms",
-                p50 / limit if p50 is not None else None,
+                max(p50, 0.0) / limit if p50 is not None else None,  # < 0: it arrived before the response
                 "<= 1x (p50)",
                 lambda x: x <= 1.0,
             )
@@ -494,13 +495,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="one round, short runs, 100 sessions (a few minutes)")
     parser.add_argument("--rounds", type=int, help="interleaved rounds (default 3, quick 1)")
-    parser.add_argument("--seconds", type=float, help="length of each load run (default 3, quick 1.5)")
+    parser.add_argument("--seconds", type=float, help="length of each load run (default 2.5, quick 1.5)")
     parser.add_argument("--sessions-total", type=int, dest="many_sessions", help="concurrent sessions (1000/100)")
     parser.add_argument("--only", choices=sorted(SECTIONS), action="append", help="run only these sections")
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "last-run.json", help="raw figures")
     args = parser.parse_args()
     args.rounds = args.rounds or (1 if args.quick else 3)
-    args.seconds = args.seconds or (1.5 if args.quick else 3.0)
+    args.seconds = args.seconds or (1.5 if args.quick else 2.5)
     args.many_sessions = args.many_sessions or (100 if args.quick else 1000)
     args.startup_rounds = 1 if args.quick else max(1, args.rounds - 1)
     args.sessions = (1, 8, 32)

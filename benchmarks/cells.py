@@ -6,12 +6,12 @@ from __future__ import annotations
 from uacell.cell import Part, demo_cell, sized_cell
 
 # name -> (PackML units, robots, task controls per robot)
-SIZES = {"large": (100, 10, 2), "units": (100, 1, 1), "robots": (1, 10, 2)}
+SIZES = {"large": (100, 10, 2), "units": (21, 1, 1)}
 
 
 def bench_cell(name: str) -> list[tuple[str, Part]]:
     """``demo``: the demo cell; ``large``: 100 PackML units and 10 robots with two task controls each;
-    ``units``/``robots``: the demo cell with 100 units / 10 robots (RSS per unit and per robot)."""
+    ``units``: the demo robot with 21 units (RSS per unit; per robot from the large cell)."""
     if name == "demo":
         return demo_cell()
     return sized_cell(*SIZES[name])

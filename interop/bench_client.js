@@ -208,6 +208,8 @@ async function notify(endpoint, spec) {
     requestedPublishingInterval: spec.interval, requestedMaxKeepAliveCount: 100, requestedLifetimeCount: 1000,
     maxNotificationsPerPublish: 0, publishingEnabled: true, priority: 10,
   });
+  // node-opcua's ClientSubscription turns a requested 0 into 100 ms; the request leaves on the next turn
+  sub.publishingInterval = spec.interval;
   await new Promise((r) => sub.once("started", r));
   let onValue = null;
   let onEvent = null;
