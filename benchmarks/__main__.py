@@ -433,8 +433,10 @@ def sessions_section(report: Report, peers: Peers, args: argparse.Namespace) -> 
         try:
             for h in holders:
                 assert h.stdout is not None
-                line = h.stdout.readline()
-                ready += json.loads(line)["ready"] if line.strip() else 0
+                for line in h.stdout:  # node-opcua may print warnings before the JSON line
+                    if line.startswith('{"ready"'):
+                        ready += json.loads(line)["ready"]
+                        break
             after = uac.rss_kib()
             one = {"mode": "calls", "sessions": 1, "seconds": args.seconds}
             probe = {
