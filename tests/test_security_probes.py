@@ -163,14 +163,6 @@ async def test_channel_policy_or_mode_not_offered_is_refused(wide):
             assert await raw.at_eof()
 
 
-async def test_loopback_offers_none_and_serves_sessions_on_it(env):
-    raw, _ = await none_session("127.0.0.1", env.config.server.port)
-    async with raw:
-        await raw.activate_session(anonymous_token())
-        state = await raw.read_value(ua.NodeId(ua.ObjectIds.Server_ServerStatus_State))
-        assert state.Value.Value == ua.ServerState.Running
-
-
 # a plant-network address in a network namespace --------------------------------------------------------
 
 PLANT_ADDRESS = "192.0.2.10"  # TEST-NET-1
