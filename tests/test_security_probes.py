@@ -163,6 +163,20 @@ async def test_channel_policy_or_mode_not_offered_is_refused(wide):
             assert await raw.at_eof()
 
 
+async def test_create_session_wants_an_opc_tcp_endpoint_url(env):
+    async with await RawClient.connect("127.0.0.1", env.config.server.port) as raw:
+        await raw.hello()
+        await raw.open_channel()
+        with pytest.raises(Fault) as refused:
+            await raw.create_session(endpoint_url=f"http://127.0.0.1:{env.config.server.port}/")
+        assert refused.value.code == S.BadTcpEndpointUrlInvalid
+        with pytest.raises(Fault) as refused:  # the refused session cannot be activated afterwards
+            await raw.activate_session(anonymous_token())
+        assert refused.value.code == S.BadSessionIdInvalid
+        await raw.create_session()  # with the URL it used
+        await raw.activate_session(anonymous_token())
+
+
 # a plant-network address in a network namespace --------------------------------------------------------
 
 PLANT_ADDRESS = "192.0.2.10"  # TEST-NET-1
@@ -356,7 +370,7 @@ async def test_user_token_encrypted_with_another_algorithm_is_refused(env):
 
 
 async def test_flood_of_untrusted_certificates_keeps_rejected_capped(env, caplog):
-    caplog.set_level(logging.WARNING, logger="uacell.pki")
+    caplog.set_level(logging.WARNING, logger="uacell")
     rejected = PkiPaths.in_data_dir(env.data_dir).rejected
     key = generate_key()  # one key, a fresh self-signed certificate per attempt (as a flood would)
     thumbprints = []
@@ -374,4 +388,5 @@ async def test_flood_of_untrusted_certificates_keeps_rejected_capped(env, caplog
     assert len(kept) == REJECTED_CAP
     assert {t for t in thumbprints[-REJECTED_CAP:]} == {n.rsplit("[", 1)[1].split("]")[0] for n in kept}
     assert len(_warnings(caplog, "keeps at most")) == 1  # logged once, not per dropped file
+    assert len(_warnings(caplog, "refused untrusted client certificate")) == 1  # once per address and minute
     assert os.listdir(PkiPaths.in_data_dir(env.data_dir).trusted)  # the trusted client is untouched

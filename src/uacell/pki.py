@@ -20,7 +20,7 @@ import re
 import shutil
 import socket
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -340,11 +340,18 @@ class TrustList:
     """
 
     def __init__(
-        self, paths: PkiPaths, *, trust_on_first_use: bool = False, rejected_limit: RejectedLimit | None = None
+        self,
+        paths: PkiPaths,
+        *,
+        trust_on_first_use: bool = False,
+        rejected_limit: RejectedLimit | None = None,
+        report_refusal: Callable[[str], object] | None = None,
     ) -> None:
         self.paths = paths
         self.trust_on_first_use = trust_on_first_use
         self.rejected_limit = rejected_limit or RejectedLimit()
+        # How refusals are logged (the server rate-limits them per client address); default: a warning each.
+        self.report_refusal: Callable[[str], object] = report_refusal or _log.warning
         self._pruning_logged = False
         paths.create()
         self.prune_rejected()
@@ -404,9 +411,9 @@ class TrustList:
             _log.warning("trusting client certificate%s on first use: %s (delete it to revoke)", who, path)
             return True
         path = self.reject(der)
-        _log.warning(
-            "refused untrusted client certificate%s (thumbprint %s). To trust it, move %s to %s/",
-            who, thumbprint(der), path, self.paths.trusted,
+        self.report_refusal(
+            f"refused untrusted client certificate{who} (thumbprint {thumbprint(der)}). "
+            f"To trust it, move {path} to {self.paths.trusted}/"
         )
         return False
 
@@ -429,8 +436,10 @@ class CertificateValidator:
             # Checked first so that trust on first use never records an expired or mismatched certificate.
             await self._basic.validate(cert, app_description)
         except ServiceError as exc:
-            _log.warning("refused client certificate %s of %s: %s", thumbprint(der),
-                         app_description.ApplicationUri, ua.StatusCode(exc.code).name)
+            self.trust_list.report_refusal(
+                f"refused client certificate {thumbprint(der)} of {app_description.ApplicationUri}: "
+                f"{ua.StatusCode(exc.code).name}"
+            )
             raise
         if not self.trust_list.admit(der, app_description.ApplicationUri or ""):
             raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)

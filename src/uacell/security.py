@@ -212,7 +212,10 @@ class Security:
         await prepare_certificate(self.server, self.app.data_dir, self.server.get_application_uri(), [cfg.host])
         limit = RejectedLimit(cfg.rejected_max_files, cfg.rejected_max_age_days * 86400.0)
         self.trust_list = TrustList(
-            PkiPaths.in_data_dir(self.app.data_dir), trust_on_first_use=cfg.trust_on_first_use, rejected_limit=limit
+            PkiPaths.in_data_dir(self.app.data_dir),
+            trust_on_first_use=cfg.trust_on_first_use,
+            rejected_limit=limit,
+            report_refusal=self._report_certificate_refusal,
         )
         if cfg.trust_on_first_use:
             log.warning("trust_on_first_use is on: every new client certificate is trusted and kept in %s",
@@ -228,6 +231,10 @@ class Security:
         context.add_read_hook(_read_hook)
         log.info("security: endpoints %s; anonymous clients are %s", ", ".join(p.name for p in self.policies),
                  policy.anonymous_role.label)
+
+    def _report_certificate_refusal(self, message: str) -> None:
+        address = _address(_processor.get())
+        self.refusals.warning(address, "certificate", f"{message} (client address {address})")
 
     # sessions ------------------------------------------------------------------------------------
 
@@ -374,6 +381,9 @@ class Security:
     async def activate(self, processor: UaProcessor, call: Callable[[], Any]) -> Any:
         """Run one ActivateSession: wait out the address's penalty, then record success or failure."""
         address = _address(processor)
+        session = processor.session
+        if session is not None and (session.state == SessionState.Closed or session.nonce is None):
+            raise ServiceError(_S.BadSessionIdInvalid)  # its CreateSession was refused
         # One attempt at a time per address, so parallel connections cannot skip the delay.
         async with self._address_lock(address):
             wait = self.throttle.wait_time(address)
