@@ -40,9 +40,9 @@ import logging
 import os
 import struct
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 from urllib.parse import urlparse
 
 from asyncua import Server, ua
@@ -91,7 +91,7 @@ _DISCOVERY = {
 _S = ua.StatusCodes
 # The asymmetric encryption algorithm each security policy names (OPC 10000-7), for user token secrets.
 _TOKEN_ALGORITHM: dict[str, str] = {
-    cls.URI: cls.AsymmetricEncryptionURI for cls, _, _ in SECURITY_POLICY_TYPE_MAP.values()
+    cast(Any, cls).URI: cast(Any, cls).AsymmetricEncryptionURI for cls, _, _ in SECURITY_POLICY_TYPE_MAP.values()
 }
 _DECRYPT: dict[str, Callable[[Any, bytes], bytes]] = {
     "http://www.w3.org/2001/04/xmlenc#rsa-1_5": uacrypto.decrypt_rsa15,
@@ -448,7 +448,7 @@ class UacellSession(InternalSession):
         if self.external:
             # asyncua counts AuthenticationTokens up from 1000; OPC 10000-4 (7.31) asks for a secret.
             self.iserver.unregister_external_session(self)
-            self.auth_token = ua.NodeId(os.urandom(32), 0, ua.NodeIdType.ByteString)
+            self.auth_token = ua.NodeId(ua.ByteString(os.urandom(32)), ua.Int16(0), ua.NodeIdType.ByteString)
             self.iserver.register_external_session(self)
 
     async def create_session(self, params: ua.CreateSessionParameters, sockname=None) -> ua.CreateSessionResult:
@@ -498,8 +498,8 @@ def _install_processor_hook() -> None:
     if getattr(UaProcessor, "_uacell_installed", False):
         return
     original = UaProcessor._process_message
-    original_process = UaProcessor.process
-    original_open = UaProcessor.open_secure_channel
+    original_process: Callable[..., Awaitable[Any]] = UaProcessor.process
+    original_open: Callable[..., Any] = UaProcessor.open_secure_channel
 
     @functools.wraps(original_process)
     async def process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
@@ -523,7 +523,7 @@ def _install_processor_hook() -> None:
         return original_open(self, algohdr, seqhdr, body)
 
     @functools.wraps(original)
-    async def _process_message(self: UaProcessor, typeid, requesthdr, seqhdr, body):
+    async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any, seqhdr: Any, body: Buffer) -> Any:
         token = _processor.set(self)
         diagnostics = context.set_return_diagnostics(int(getattr(requesthdr, "ReturnDiagnostics", 0) or 0))
         try:
