@@ -366,6 +366,57 @@ async def test_user_token_encrypted_with_another_algorithm_is_refused(env):
         assert await _engineer_may_write(raw)
 
 
+# sessions moved to another secure channel (OPC 10000-4, 5.6.3.1) ----------------------------------------
+
+
+async def test_session_cannot_be_taken_over_from_another_channel(env):
+    port = env.config.server.port
+    cert, key = env.client_files
+    victim = Client(env.endpoint, timeout=30)
+    victim.application_uri = CLIENT_URI
+    await victim.set_security(sp.SecurityPolicyBasic256Sha256, str(cert), str(key), mode=ua.MessageSecurityMode.Sign)
+    await victim.connect()
+    try:
+        stolen = victim.uaclient.protocol.authentication_token
+        assert stolen.NodeIdType == ua.NodeIdType.ByteString and len(stolen.Identifier) == 32  # not guessable
+        async with await RawClient.connect("127.0.0.1", port) as thief:
+            await thief.hello()
+            await thief.open_channel()  # None: no certificate, unlike the victim's channel
+            thief.auth = stolen
+            with pytest.raises(Fault) as refused:
+                await thief.activate_session(anonymous_token())
+            assert refused.value.code == S.BadSecurityChecksFailed
+        state = victim.get_node(ua.NodeId(ua.ObjectIds.Server_ServerStatus_State))
+        assert await state.read_value() == ua.ServerState.Running  # the victim keeps its session
+    finally:
+        await victim.disconnect()
+
+
+async def test_session_moves_to_a_new_channel_only_activated_and_with_the_same_identity(env):
+    port = env.config.server.port
+    first, fresh = await none_session("127.0.0.1", port)
+    async with first:
+        async with await RawClient.connect("127.0.0.1", port) as second:
+            await second.hello()
+            await second.open_channel()
+            second.auth = first.auth
+            with pytest.raises(Fault) as refused:  # first activation belongs to the creating channel
+                await second.activate_session(anonymous_token())
+            assert refused.value.code == S.BadSessionNotActivated
+        result = await first.activate_session(anonymous_token())
+        async with await RawClient.connect("127.0.0.1", port) as third:
+            await third.hello()
+            await third.open_channel()
+            third.auth = first.auth
+            token = user_token("eve-engineer", PASSWORD, result.ServerNonce, fresh.server_certificate)
+            with pytest.raises(Fault) as refused:
+                await third.activate_session(token)
+            assert refused.value.code == S.BadIdentityChangeNotSupported
+            await third.activate_session(anonymous_token())  # the same identity, same (no) certificate
+            state = await third.read_value(ua.NodeId(ua.ObjectIds.Server_ServerStatus_State))
+            assert state.Value.Value == ua.ServerState.Running
+
+
 # 5. a flood of untrusted certificates -----------------------------------------------------------------
 
 

@@ -322,6 +322,30 @@ class Security:
                                   f"refused session from {address}: EndpointUrl {url!r} is not an opc.tcp URL")
             raise ServiceError(_S.BadTcpEndpointUrlInvalid)
 
+    def check_reassociation(self, processor: UaProcessor, auth_token: ua.NodeId, body: Buffer) -> None:
+        """ActivateSession of an existing session on a new secure channel (OPC 10000-4, 5.6.3.1): only for an
+        activated session, from a channel with the same client certificate, with the same identity."""
+        session = self.server.iserver.lookup_external_session(auth_token)
+        if not isinstance(session, UacellSession):
+            return  # asyncua answers Bad_SessionIdInvalid
+        address = _address(processor)
+        if not session.is_activated():
+            code, why = _S.BadSessionNotActivated, "it was never activated on the channel that created it"
+        elif session.channel_certificate != processor._connection.security_policy.peer_certificate:
+            code, why = _S.BadSecurityChecksFailed, "the new channel's client certificate is not the session's"
+        else:
+            params = struct_from_binary(ua.ActivateSessionParameters, body.copy())
+            token = params.UserIdentityToken
+            name = token.UserName if isinstance(token, ua.UserNameIdentityToken) else None
+            if name != getattr(session.user, "name", None):
+                code, why = _S.BadIdentityChangeNotSupported, "the identity differs from the session's"
+            else:
+                return
+        self.refusals.warning(address, f"reassociation:{code}",
+                              f"refused to move a session to a new channel from {address}: {why} "
+                              f"({ua.StatusCode(code).name})")
+        raise ServiceError(code)
+
     def refuse_channel(self, processor: UaProcessor, refused: _ChannelRefused) -> None:
         """Answer a refused OpenSecureChannel with an Error message (OPC 10000-6, 7.1.2.5); the caller
         then closes the connection."""
@@ -444,6 +468,7 @@ class UacellSession(InternalSession):
     def __init__(self, security: Security, *args: Any, **kwargs: Any) -> None:
         self._security = security
         self._client_description: ua.ApplicationDescription | None = None
+        self.channel_certificate: bytes | None = None  # the client certificate of the creating channel
         super().__init__(*args, **kwargs)
         if self.external:
             # asyncua counts AuthenticationTokens up from 1000; OPC 10000-4 (7.31) asks for a secret.
@@ -454,6 +479,8 @@ class UacellSession(InternalSession):
     async def create_session(self, params: ua.CreateSessionParameters, sockname=None) -> ua.CreateSessionResult:
         self._client_description = params.ClientDescription  # Caller.client: LockingClient shows it
         processor = _processor.get()
+        if processor is not None:
+            self.channel_certificate = processor._connection.security_policy.peer_certificate
         if _channel_mode(processor) == ua.MessageSecurityMode.None_:
             # OPC 10000-4 CreateSession: on a SecurityPolicy None channel the client certificate plays
             # no part (nothing is signed with it), so it is not checked against the trust list.
@@ -531,6 +558,8 @@ def _install_processor_hook() -> None:
             if security is not None:
                 security.check_service(self, typeid)
             if security is not None and typeid == _ACTIVATE:
+                if self.session is None:  # a session created on another channel
+                    security.check_reassociation(self, requesthdr.AuthenticationToken, body)
                 return await security.activate(self, lambda: original(self, typeid, requesthdr, seqhdr, body))
             return await original(self, typeid, requesthdr, seqhdr, body)
         finally:
