@@ -18,6 +18,8 @@ binders run. It
   or over a SignAndEncrypt channel (``Bad_IdentityTokenRejected`` otherwise); an encrypted password
   must use the algorithm of the endpoint's user token policy and carry the last server nonce this
   session was sent (``Bad_IdentityTokenInvalid`` otherwise), so a captured token cannot be replayed;
+- gives sessions random AuthenticationTokens and lets a session move to another secure channel only
+  when activated, from the same client certificate and with the same identity;
 - slows down repeated login failures per client address (``uacell.users.LoginThrottle``);
 - uses its own session class: writes need the ``write`` action of ``uacell.roles``, the client's
   ApplicationUri is kept for ``Caller.client``, and ``on_session_closed`` hooks run when a session
