@@ -178,6 +178,11 @@ class RefusalLog:
             self._left_out.pop(key, None)
 
 
+def _drop_fault_echo(record: logging.LogRecord) -> bool:
+    """asyncua logs every ServiceFault it sends at ERROR; uacell logs its refusals itself (rate-limited)."""
+    return not str(record.msg).startswith("sending service fault response")
+
+
 class _ChannelRefused(Exception):
     def __init__(self, code: int, reason: str) -> None:
         super().__init__(reason)
@@ -230,6 +235,7 @@ class Security:
         iserver.create_session = self._create_session  # type: ignore[method-assign]
         iserver.decrypt_user_token = self.decrypt_user_token  # type: ignore[method-assign]
         _install_processor_hook()
+        logging.getLogger("asyncua.server.uaprocessor").addFilter(_drop_fault_echo)  # added once
         context.add_read_hook(_read_hook)
         log.info("security: endpoints %s; anonymous clients are %s", ", ".join(p.name for p in self.policies),
                  policy.anonymous_role.label)
