@@ -21,7 +21,7 @@ from asyncua import ua
 
 from uacell.config import load_factory
 from uacell.packml.admin_store import AdminStore
-from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLUnit
+from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLTables, PackMLUnit
 from uacell.packml.sim import SimulatedUnit
 from uacell.packml.types import (
     EUInformation,
@@ -338,8 +338,8 @@ async def bind_unit(app: Any, built: Any) -> UnitBinding:
         equipment,
         name=name,
         store=AdminStore(app.data_dir / "packml" / f"{name}.json"),
+        tables=PackMLTables.load(app.tables),
         mach_speed=cfg.mach_speed,
-        models_dir=app.config.server.models_dir,
     )
     b = UnitBinding(app, built, unit)
     base = b.child("BaseStateMachine")
