@@ -112,8 +112,8 @@ def _prepare_and_run(args: argparse.Namespace) -> int:
     if args.models_dir:
         config.server.models_dir = args.models_dir
     locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
-    for section in ("robot", "packml"):
-        spec = getattr(config, section).equipment
+    for section, settings in config.sections.items():
+        spec = getattr(settings, "equipment", "")
         if spec:
             load_factory(spec, section)
     try:
