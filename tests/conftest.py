@@ -38,7 +38,9 @@ class ServeProcess:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             rc = self.proc.wait()
-        self.output.append(self.proc.stdout.read() if self.proc.stdout else "")
+        if self.proc.stdout is not None and not self.proc.stdout.closed:
+            self.output.append(self.proc.stdout.read())
+            self.proc.stdout.close()
         return rc
 
 
@@ -74,7 +76,10 @@ def start_serve(data_dir: Path, *extra: str, port: int | None = None, env: dict 
         if line.startswith("uacell listening on "):
             return ServeProcess(proc, line.split(" on ", 1)[1].strip(), data_dir, lines)
     proc.kill()
-    raise AssertionError("uacell serve did not start:\n" + "".join(lines) + (proc.stdout.read() or ""))
+    proc.wait()
+    rest = proc.stdout.read() or ""
+    proc.stdout.close()
+    raise AssertionError("uacell serve did not start:\n" + "".join(lines) + rest)
 
 
 @pytest.fixture
