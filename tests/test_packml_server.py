@@ -11,6 +11,7 @@ from pathlib import Path
 
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import wait_until
 
 from uacell.models import fsm_table
 from uacell.server import UacellServer
@@ -247,7 +248,8 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
         node = u.node(f"{F}.Status.{name}")
         changes.names[node] = name
         await status_sub.subscribe_data_change(node, queuesize=100, sampling_interval=0)
-    await asyncio.sleep(0.2)
+    # the initial values have arrived: later notifications are changes
+    await wait_until(lambda: set(changes.got) == {"StateRequested", "StateChangeInProcess"})
 
     await u.wait(("Cleared", "Stopped", None))  # decision 23; Execute inactive while Stopped
     await check_executable(u, "Stopped")
