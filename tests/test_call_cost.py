@@ -17,6 +17,7 @@ from asyncua import Client, ua
 from conftest import fast_config
 
 from uacell.cell import sized_cell
+from uacell.packml.binding import UNITS
 from uacell.server import UacellServer
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
@@ -119,7 +120,7 @@ async def test_a_robotics_call_evaluates_only_its_own_controller_and_executable_
 async def test_a_change_outside_calls_refreshes_only_its_unit(cell):
     app, client, counts = cell
     await quiet(app, counts)
-    unit = app.packml_units["Filler2"]
+    unit = app.registry(UNITS)["Filler2"].unit
     assert await executable(client, app, "Filler2", "SetUnitMode") is True
     before = await executable(client, app, "Filler2.BaseStateMachine", "Abort")
     unit.abort()  # the model changes outside any call: Aborting, then Aborted after the acting time
