@@ -11,21 +11,28 @@ models_dir = "/opt/UA-Nodeset"    # default: the cache filled by 'uacell models 
 anonymous_role = "operator"       # default: operator on loopback, observer otherwise
 allow_none_security = true        # default: only on loopback
 trust_on_first_use = false
+application_uri = "urn:HOST:uacell"  # default: per host
+application_name = "uacell@HOST"     # default: per host
 
-[robot]
+[robot]                           # defaults for every controller that does not set its own
 time_scale = 1.0                  # simulated robot: >1 runs faster than real time
 equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
 
-[packml]
+[packml]                          # defaults for every PackML unit that does not set its own
 acting_time = 1.0                 # seconds each acting state of the simulated unit takes
 mach_speed = 60.0                 # initial MachSpeed, packages/min
 equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
+
+[[robots]] ...                    # the cell (docs/configuration.md); without [[robots]] and
+[[packml_units]] ...              # [[packml_units]] the shipped demo cell
 ```
 """
 
 from __future__ import annotations
 
 import importlib
+import re
+import socket
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
@@ -33,9 +40,27 @@ from pathlib import Path
 
 import platformdirs
 
+from uacell.cellconfig import CellConfig, SectionParser, builtin_cell_path, parse_cell
 from uacell.errors import ConfigError
+from uacell.packml.config import parse_units
+from uacell.robotics.config import parse_robots
 
 ROLES = ("observer", "operator", "engineer", "admin")
+# Each companion's cell section (an array of tables) and its parser.
+CELL_SECTIONS: dict[str, SectionParser] = {"robots": parse_robots, "packml_units": parse_units}
+
+
+def _host() -> str:
+    return re.sub(r"[^A-Za-z0-9.-]", "-", socket.gethostname()) or "localhost"
+
+
+def default_application_uri() -> str:
+    """Unique per host (clients and certificates tell installations apart by it)."""
+    return f"urn:{_host()}:uacell"
+
+
+def default_application_name() -> str:
+    return f"uacell@{_host()}"
 
 
 @dataclass
@@ -47,6 +72,8 @@ class ServerConfig:
     anonymous_role: str | None = None
     allow_none_security: bool | None = None
     trust_on_first_use: bool = False
+    application_uri: str = field(default_factory=default_application_uri)
+    application_name: str = field(default_factory=default_application_name)
 
 
 @dataclass
@@ -67,6 +94,7 @@ class Config:
     server: ServerConfig = field(default_factory=ServerConfig)
     robot: RobotConfig = field(default_factory=RobotConfig)
     packml: PackMLConfig = field(default_factory=PackMLConfig)
+    cell: CellConfig = field(default_factory=lambda: load_cell(builtin_cell_path("demo")))
     source: Path | None = None
 
 
@@ -98,20 +126,41 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
     return value
 
 
+def _read_toml(path: Path) -> dict[str, object]:
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"cannot read configuration {path}: {exc.strerror or exc}") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"configuration {path} is not valid TOML: {exc}") from exc
+
+
+def load_cell(path: str | Path) -> CellConfig:
+    """The cell sections of the TOML file ``path`` (the demo cell if it has none)."""
+    path = Path(path)
+    return _cell_of(_read_toml(path), path)
+
+
+def _cell_of(data: dict[str, object], path: Path) -> CellConfig:
+    if not any(key in data for key in CELL_SECTIONS):
+        demo = builtin_cell_path("demo")
+        if path != demo:
+            return load_cell(demo)
+    return parse_cell(data, str(path), CELL_SECTIONS)
+
+
 def load_config(path: str | Path | None = None) -> Config:
     """Read ``path`` (or return the defaults); raises ConfigError saying what is wrong and where."""
     config = Config()
     if path is None:
         return config
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"cannot read configuration {path}: {exc.strerror or exc}") from exc
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"configuration {path} is not valid TOML: {exc}") from exc
+    data = _read_toml(path)
     config.source = path
+    config.cell = _cell_of(data, path)
     for section, values in data.items():
+        if section in CELL_SECTIONS:
+            continue
         cls = _SECTIONS.get(section)
         if cls is None or not isinstance(values, dict):
             raise ConfigError(f"configuration {path}: unknown section [{section}]")
