@@ -39,6 +39,11 @@ def _parser() -> argparse.ArgumentParser:
     path = msub.add_parser("path", help="print the directory uacell reads them from")
     path.add_argument("--models-dir", help="check this directory instead")
 
+    conf = sub.add_parser("config", help="the configuration file")
+    confsub = conf.add_subparsers(dest="action", required=True)
+    check = confsub.add_parser("check", help="validate a configuration and print the cell it would serve")
+    check.add_argument("file", nargs="?", type=Path, help="TOML configuration file (default: none, the demo cell)")
+
     user = sub.add_parser("user", help="manage the users who may log in")
     user.add_argument("--config", type=Path, help="TOML configuration file (for its data directory)")
     user.add_argument("--data-dir", type=Path, help="data directory")
@@ -63,6 +68,10 @@ def main(argv: list[str] | None = None) -> int:
             return _models(args)
         if args.command == "user":
             return _user(args)
+        if args.command == "config":
+            from uacell.config_check import run_check
+
+            return run_check(args.file)
     except (ConfigError, ModelError) as exc:
         print(f"uacell: {exc}", file=sys.stderr)
         return 2

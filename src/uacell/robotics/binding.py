@@ -24,7 +24,7 @@ import contextlib
 import logging
 import uuid
 from collections import deque
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -32,12 +32,12 @@ from typing import Any
 from asyncua import ua
 from asyncua.server.event_generator import EventGenerator
 
-from uacell.config import load_factory
-from uacell.errors import CallError
-from uacell.robotics.equipment import RobotEquipment, StopMode
+from uacell.equipment import EquipmentSpec, close_equipment, make_equipment
+from uacell.errors import CallError, ConfigError
+from uacell.robotics.config import ControllerSpec, MotionDeviceSpec, TaskControlSpec
+from uacell.robotics.equipment import AxisInfo, RobotEquipment, StopMode
 from uacell.robotics.model import PROGRAM_SUFFIX, Condition, DirectoryLibrary, RobotCell, Status, TaskControl
-from uacell.robotics.program import samples
-from uacell.robotics.sim import SimulatedRobot
+from uacell.robotics.program import AXIS_COUNT, samples
 from uacell.roles import Family, Role
 from uacell.ua.context import Caller
 from uacell.ua.file_directory import FileDirectoryBinding
@@ -70,15 +70,36 @@ def _now() -> datetime:
 
 
 # --- programs ------------------------------------------------------------------------------------
-def install_samples(root: Path) -> bool:
-    """Write the sample programs and modules into ``root`` if it does not exist yet (first start)."""
+def install_samples(root: Path, axes: Sequence[AxisInfo] = ()) -> bool:
+    """Write sample programs into ``root`` if it does not exist yet (first start).
+
+    A six-axis arm gets the shipped samples (docs/programs.md); an arm with another number of axes a
+    generated ``Wave`` program that moves each axis within its limits.
+    """
     if root.exists():
         return False
     root.mkdir(parents=True)
-    for name, text in samples().items():
+    files = samples() if len(axes) in (0, AXIS_COUNT) else {"wave.robot": wave_program(axes)}
+    for name, text in files.items():
         (root / name).write_text(text, encoding="utf-8")
-    log.info("installed %d sample programs in %s", len(samples()), root)
+    log.info("installed %d sample programs in %s", len(files), root)
     return True
+
+
+def wave_program(axes: Sequence[AxisInfo]) -> str:
+    """A program for any arm: home, each axis a little way out and back, home."""
+    home = [0.0 if a.min_position <= 0.0 <= a.max_position else a.min_position for a in axes]
+    lines = [f"# Wave: generated for a {len(axes)}-axis arm", "program Wave version 1.0", "speed 50"]
+
+    def move(values: Sequence[float]) -> str:
+        return "move " + " ".join(f"{v:g}" for v in values)
+
+    lines.append(move(home))
+    for i, a in enumerate(axes):
+        out = list(home)
+        out[i] = home[i] + min(20.0, (a.max_position - home[i]) / 2)
+        lines += [move(out), move(home)]
+    return "\n".join(lines) + "\n"
 
 
 class StoreLibrary(DirectoryLibrary):
@@ -572,11 +593,9 @@ class RoboticsBinding:
         if self.arm is None:
             return
         self.axis_nodes: list[dict[str, ua.NodeId]] = []
-        for i, _ in enumerate(self.cell.equipment.axes, start=1):
-            try:
-                axis = self.child(self.arm.node, f"Axes/Axis{i}")
-            except KeyError:
-                break
+        names = [c.name for c in self.arm.part.children if c.folder == "Axes"]
+        for name, _ in zip(names, self.cell.equipment.axes, strict=False):
+            axis = self.child(self.arm.node, f"Axes/{name}")
             nodes = {}
             for key in ("ActualPosition", "ActualSpeed", "ActualAcceleration"):
                 with contextlib.suppress(KeyError):
@@ -675,6 +694,7 @@ class RoboticsBinding:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._axis_task
         await self.cell.close()
+        await close_equipment(self.cell.equipment, self.controller.path)
         if self.files.directory is not None:
             await self.files.directory.close()
 
@@ -685,12 +705,73 @@ def _executable(model: Any, machine: str, method: str) -> Callable[[], bool]:
 
 # --- client writes ---------------------------------------------------------------------------------
 # --- the binder ------------------------------------------------------------------------------------
-def make_equipment(cfg: Any) -> RobotEquipment:
-    """``[robot] equipment = "module:factory"`` called with the [robot] section, else the simulator."""
-    if cfg.equipment:
-        return load_factory(cfg.equipment, "robot")(cfg)  # type: ignore[return-value]
-    # [robot] time_scale > 1 runs faster than real time; the simulator's scale is real s per simulated s.
-    return SimulatedRobot(time_scale=1.0 / cfg.time_scale)
+SIMULATOR = "uacell.robotics.sim:simulator"
+
+
+async def make_controller_equipment(app: Any, controller: Any, axes: tuple[AxisInfo, ...]) -> RobotEquipment:
+    """The controller's own factory and settings, else ``[robot] equipment``, else the simulator."""
+    spec = controller.part.spec if isinstance(controller.part.spec, ControllerSpec) else None
+    factory = (spec.equipment if spec else "") or app.config.robot.equipment or SIMULATOR
+    settings = dict(spec.settings) if spec else {}
+    if factory == SIMULATOR:
+        if spec is not None and spec.time_scale is not None:
+            settings["time_scale"] = spec.time_scale
+        settings.setdefault("time_scale", app.config.robot.time_scale)
+    equipment: RobotEquipment = await make_equipment(
+        factory, EquipmentSpec(controller.path, settings, axes), RobotEquipment
+    )
+    if axes and len(equipment.axes) != len(axes):
+        await close_equipment(equipment, controller.path)
+        raise ConfigError(
+            f"{controller.path}: equipment {factory!r} reports {len(equipment.axes)} axes,"
+            f" the motion device it moves has {len(axes)}"
+        )
+    return equipment
+
+
+def _arm_of(app: Any, controller: Any) -> Any | None:
+    """The motion device the controller moves: the configured one, else the robot's first."""
+    system_path = controller.path.split(".Controllers.")[0]
+    arms = [m for m in app.cell.by_role("motion_device") if m.path.startswith(system_path + ".")]
+    spec = controller.part.spec
+    if isinstance(spec, ControllerSpec):
+        return next((m for m in arms if m.part.name == spec.motion_device), None)
+    return arms[0] if arms else None
+
+
+def programs_root(data_dir: Path, controller_path: str) -> Path:
+    """``<data_dir>/programs/<robot>/<controller>``: its own for every controller of the cell."""
+    robot, _, name = controller_path.partition(".Controllers.")
+    return Path(data_dir) / PROGRAMS_DIR / robot / name
+
+
+async def bind_controller(app: Any, controller: Any) -> RoboticsBinding:
+    tasks = [t for t in app.cell.by_role("task_control") if t.path.startswith(controller.path + ".")]
+    arm = _arm_of(app, controller)
+    axes = tuple(arm.part.spec.axes) if arm is not None and isinstance(arm.part.spec, MotionDeviceSpec) else ()
+    spec = controller.part.spec if isinstance(controller.part.spec, ControllerSpec) else None
+    equipment = await make_controller_equipment(app, controller, axes)
+    root = programs_root(app.data_dir, controller.path)
+    install_samples(root, equipment.axes)
+    store = FileStore(root)
+    library = StoreLibrary(store)
+    cell = RobotCell(
+        equipment,
+        library,
+        task_names=[t.part.name for t in tasks],
+        motion_devices=[arm.part.name] if arm else (),
+        possible_stop_modes=spec.possible_stop_modes if spec else tuple(StopMode),
+        default_stop_mode=spec.default_stop_mode if spec else StopMode.ON_PATH,
+    )
+    for t in tasks:
+        if isinstance(t.part.spec, TaskControlSpec):
+            cell.tasks[t.part.name].execution_mode = t.part.spec.execution_mode
+    binding = RoboticsBinding(app, controller, tasks, arm, cell)
+    binding.store = store
+    store.protect = binding.protect
+    await bind_programs(app, binding, store)
+    await binding.setup()
+    return binding
 
 
 async def bind_robotics(app: Any) -> Callable[[], Awaitable[None]] | None:
@@ -699,38 +780,22 @@ async def bind_robotics(app: Any) -> Callable[[], Awaitable[None]] | None:
     if not controllers:
         return None
     bindings: list[RoboticsBinding] = []
-    for controller in controllers:
-        tasks = [t for t in app.cell.by_role("task_control") if t.path.startswith(controller.path + ".")]
-        system_path = controller.path.split(".Controllers.")[0]
-        arms = [m for m in app.cell.by_role("motion_device") if m.path.startswith(system_path + ".")]
-        arm = arms[0] if arms else None
-        root = Path(app.data_dir) / PROGRAMS_DIR
-        if len(controllers) > 1:
-            root = root / controller.part.name
-        install_samples(root)
-        store = FileStore(root)
-        library = StoreLibrary(store)
-        equipment = make_equipment(app.config.robot)
-        cell = RobotCell(
-            equipment,
-            library,
-            task_names=[t.part.name for t in tasks],
-            motion_devices=[arm.part.name] if arm else (),
-        )
-        binding = RoboticsBinding(app, controller, tasks, arm, cell)
-        binding.store = store
-        store.protect = binding.protect
-        await bind_programs(app, binding, store)
-        await binding.setup()
-        bindings.append(binding)
-    # In-process tests and tools reach the model here.
-    app.robot_cell = bindings[0].cell
-    app.robotics = bindings[0]
 
     async def close() -> None:
         for b in bindings:
             await b.close()
 
+    try:
+        for controller in controllers:
+            bindings.append(await bind_controller(app, controller))
+    except BaseException:
+        await close()  # the drivers already connected
+        raise
+    # In-process tests and tools reach the models here (by controller browse path).
+    app.robot_cells = {b.controller.path: b.cell for b in bindings}
+    app.robot_bindings = {b.controller.path: b for b in bindings}
+    app.robot_cell = bindings[0].cell
+    app.robotics = bindings[0]
     return close
 
 
@@ -740,4 +805,4 @@ async def bind_programs(app: Any, binding: RoboticsBinding, store: FileStore) ->
     binding.files.directory = await FileDirectoryBinding.create(app, programs, store)
 
 
-__all__ = ["RoboticsBinding", "StoreLibrary", "bind_robotics", "install_samples", "make_equipment"]
+__all__ = ["RoboticsBinding", "StoreLibrary", "bind_robotics", "install_samples", "programs_root"]

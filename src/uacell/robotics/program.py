@@ -135,9 +135,13 @@ def _number(token: str, line: int, what: str) -> float:
 
 
 def parse(text: str, limits: Sequence[tuple[float, float]] | None = None) -> Program:
-    """Parse a program or module. ``limits`` are the (min, max) degrees of each axis, if known."""
-    if limits is not None and len(limits) != AXIS_COUNT:
-        raise ValueError(f"limits must give {AXIS_COUNT} axes")
+    """Parse a program or module. ``limits`` are the (min, max) degrees of each axis, if known.
+
+    A ``move`` gives one position per axis: as many as ``limits`` has, else ``AXIS_COUNT``.
+    """
+    axis_count = len(limits) if limits is not None else AXIS_COUNT
+    if axis_count < 1:
+        raise ValueError("limits must give at least one axis")
     header: tuple[Kind, str, str] | None = None
     uses: list[str] = []
     routines: dict[str, tuple[Instruction, ...]] = {}
@@ -187,8 +191,8 @@ def parse(text: str, limits: Sequence[tuple[float, float]] | None = None) -> Pro
             if args[0] not in uses:
                 uses.append(args[0])
         elif keyword == "move":
-            if len(args) != AXIS_COUNT:
-                raise ProgramError(number, f"'move' takes {AXIS_COUNT} joint positions in degrees")
+            if len(args) != axis_count:
+                raise ProgramError(number, f"'move' takes {axis_count} joint positions in degrees")
             joints = tuple(_number(a, number, f"axis {i + 1}") for i, a in enumerate(args))
             for i, (value, lim) in enumerate(zip(joints, limits or (), strict=False)):
                 if not lim[0] <= value <= lim[1]:
