@@ -121,10 +121,10 @@ def _prepare_and_run(args: argparse.Namespace) -> int:
     if args.models_dir:
         config.server.models_dir = args.models_dir
     locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
-    for section in ("robot", "packml"):
-        spec = getattr(config, section).equipment
-        if spec:
-            load_factory(spec, section)
+    from uacell.config_check import equipment_specs
+
+    for where, spec in equipment_specs(config):
+        load_factory(spec, where)  # importable and callable, before any other work
     try:
         config.server.data_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -140,7 +140,13 @@ async def _run(config) -> int:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
-    await app.setup()
+    try:
+        await app.setup()
+    except BaseException:
+        # e.g. an equipment factory failed: close what was already made (drivers connected) first.
+        with contextlib.suppress(Exception):
+            await app.stop()
+        raise
     if stop.is_set():  # asked to stop while setting up: never start listening
         log.info("shutting down")
         with contextlib.suppress(Exception):

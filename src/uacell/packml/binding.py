@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import inspect
 import logging
 from collections.abc import Awaitable, Callable, Sequence
 from datetime import datetime
@@ -19,8 +20,11 @@ from typing import Any
 
 from asyncua import ua
 
-from uacell.config import load_factory
+from uacell.equipment import EquipmentSpec, make_equipment
+from uacell.errors import ConfigError
 from uacell.packml.admin_store import AdminStore
+from uacell.packml.config import UnitSpec
+from uacell.packml.equipment import PackMLEquipment
 from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLUnit
 from uacell.packml.sim import SimulatedUnit
 from uacell.packml.types import (
@@ -302,6 +306,9 @@ class UnitBinding:
             with contextlib.suppress(asyncio.CancelledError):
                 await self.task
         self.unit.close()
+        closed = self.unit.equipment_closed
+        if inspect.isawaitable(closed):  # a driver's close() may be a coroutine
+            await closed
 
 
 def _start_inputs(parameter: Any) -> tuple[Any, ...]:
@@ -327,18 +334,43 @@ _INPUTS: dict[str, Callable[..., tuple[Any, ...]]] = {
 }
 
 
+SIMULATOR = "uacell.packml.sim:simulator"
+
+
+async def make_unit_equipment(app: Any, built: Any) -> PackMLEquipment:
+    """The unit's own factory and settings, else ``[packml] equipment``, else the simulator."""
+    spec = built.part.spec if isinstance(built.part.spec, UnitSpec) else None
+    cfg = app.config.packml
+    factory = (spec.equipment if spec else "") or cfg.equipment or SIMULATOR
+    settings = dict(spec.settings) if spec else {}
+    if factory == SIMULATOR:
+        if spec is not None and spec.acting_time is not None:
+            settings["acting_time"] = spec.acting_time
+        settings.setdefault("acting_time", cfg.acting_time)
+        if spec is not None and spec.acting_times:
+            settings["acting_times"] = {**spec.acting_times, **settings.get("acting_times", {})}
+    equipment: PackMLEquipment = await make_equipment(
+        factory, EquipmentSpec(built.path, settings), PackMLEquipment
+    )
+    return equipment
+
+
 async def bind_unit(app: Any, built: Any) -> UnitBinding:
     name = built.part.name
-    cfg = app.config.packml
-    # Real equipment comes from a factory named in the configuration; the simulator otherwise.
-    equipment = (
-        load_factory(cfg.equipment, "packml")(cfg) if cfg.equipment else SimulatedUnit(acting_time=cfg.acting_time)
-    )
+    spec = built.part.spec if isinstance(built.part.spec, UnitSpec) else UnitSpec(name)
+    mach_speed = spec.mach_speed if spec.mach_speed is not None else app.config.packml.mach_speed
+    low, high = spec.mach_speed_range
+    if not low <= mach_speed <= high:
+        raise ConfigError(f"{built.path}: [packml] mach_speed {mach_speed:g} is outside its range {low:g}..{high:g}")
+    equipment = await make_unit_equipment(app, built)
     unit = PackMLUnit(
         equipment,
         name=name,
         store=AdminStore(app.data_dir / "packml" / f"{name}.json"),
-        mach_speed=cfg.mach_speed,
+        mach_speed=mach_speed,
+        mach_speed_range=spec.mach_speed_range,
+        mach_design_speed=spec.design_speed,
+        initial_mode=spec.unit_mode,
         models_dir=app.config.server.models_dir,
     )
     b = UnitBinding(app, built, unit)
@@ -360,10 +392,7 @@ async def bind_unit(app: Any, built: Any) -> UnitBinding:
 
 async def bind_packml(app: Any) -> Callable[[], Awaitable[None]] | None:
     """The PackML binder for ``UacellServer``: every part with role ``packml_unit``."""
-    bindings = [await bind_unit(app, built) for built in app.cell.by_role("packml_unit")]
-    app.packml_units = {b.unit.name: b.unit for b in bindings}
-    if not bindings:
-        return None
+    bindings: list[UnitBinding] = []
 
     async def close() -> None:
         for b in bindings:
@@ -373,6 +402,15 @@ async def bind_packml(app: Any) -> Callable[[], Awaitable[None]] | None:
                 log.exception("closing PackML unit %s failed", b.unit.name)
         await app.publisher.flush()
 
+    try:
+        for built in app.cell.by_role("packml_unit"):
+            bindings.append(await bind_unit(app, built))
+    except BaseException:
+        await close()  # the drivers already connected
+        raise
+    app.packml_units = {b.unit.name: b.unit for b in bindings}
+    if not bindings:
+        return None
     return close
 
 
