@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import packml_tables
 
 from uacell.packml import AdminStore, EquipmentBase, PackMLUnit
 
@@ -43,7 +44,7 @@ def test_absent_corrupt_or_foreign_file_gives_defaults(tmp_path: Path, caplog: p
         assert store.load() is None
     assert len([r for r in caplog.records if r.levelno == logging.WARNING]) == 3
     store.path.write_bytes(b"\xff\xfe garbage")
-    unit = PackMLUnit(EquipmentBase(), store=store)  # never a crash
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store)  # never a crash
     assert unit.admin.prod_processed_count[0].count == 0
 
 
@@ -91,7 +92,7 @@ def test_killed_writer_leaves_a_complete_file(tmp_path: Path) -> None:
 def test_counters_survive_a_restart(tmp_path: Path) -> None:
     clock = Clock()
     store = AdminStore(tmp_path / "Filler1.json")
-    unit = PackMLUnit(EquipmentBase(), store=store, clock=clock)
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
     clock.t += 7.0
     unit.reset_machine()
     unit.state_complete()
@@ -99,7 +100,7 @@ def test_counters_survive_a_restart(tmp_path: Path) -> None:
     unit.fault(9, "guard door open")
     unit.close()
 
-    again = PackMLUnit(EquipmentBase(), store=store, clock=clock)
+    again = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
     a = again.admin
     assert (a.prod_processed_count[0].count, a.prod_processed_count[0].acc_count) == (30, 30)
     assert a.prod_defective_count[0].count == 3 and a.prod_consumed_count[0].count == 31
@@ -109,14 +110,14 @@ def test_counters_survive_a_restart(tmp_path: Path) -> None:
     assert again.states == ("Cleared", "Stopped", None)  # decision 23, whatever state was stored
     again.reset_counters()
     again.close()
-    third = PackMLUnit(EquipmentBase(), store=store, clock=clock)
+    third = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
     assert (third.admin.prod_processed_count[0].count, third.admin.prod_processed_count[0].acc_count) == (0, 30)
 
 
 def test_saves_on_state_change_and_before_publishing(tmp_path: Path) -> None:
     clock = Clock()
     store = AdminStore(tmp_path / "u.json")
-    unit = PackMLUnit(EquipmentBase(), store=store, clock=clock, save_interval=10.0)
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock, save_interval=10.0)
     unit.reset_machine()  # a state change saves at once
     assert store.load() is not None
     unit.report_production(processed=5)
@@ -131,7 +132,7 @@ def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: p
     the unit write ten times a second."""
     clock = Clock()
     store = AdminStore(tmp_path / "u.json")
-    unit = PackMLUnit(EquipmentBase(), store=store, clock=clock)
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
     saves: list[int] = []
     real_save = store.save
     monkeypatch.setattr(store, "save", lambda data: (saves.append(1), real_save(data)))
@@ -170,7 +171,7 @@ def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: p
 def test_unwritable_store_is_logged_not_raised(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("")
-    unit = PackMLUnit(EquipmentBase(), store=AdminStore(blocker / "sub" / "u.json"))
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=AdminStore(blocker / "sub" / "u.json"))
     with caplog.at_level(logging.ERROR):
         unit.reset_machine()
         unit.state_complete()

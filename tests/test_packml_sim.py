@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 
 import pytest
+from helpers import packml_tables
 
 from uacell.packml import PackMLDescriptorDataType, PackMLUnit, SimulatedUnit
 
@@ -20,7 +21,7 @@ class Clock:
 def sim_unit(**sim_kw: object) -> tuple[PackMLUnit, SimulatedUnit, Clock]:
     clock = Clock()
     sim = SimulatedUnit(**{"acting_time": 0.5, **sim_kw})  # type: ignore[arg-type]
-    unit = PackMLUnit(sim, clock=clock, mach_speed=120.0)
+    unit = PackMLUnit(sim, tables=packml_tables(), clock=clock, mach_speed=120.0)
     return unit, sim, clock
 
 
@@ -134,7 +135,7 @@ def test_admin_times_follow_states() -> None:
 
 @pytest.mark.asyncio
 async def test_real_time_run_loop() -> None:
-    unit = PackMLUnit(SimulatedUnit(acting_time=0.01))
+    unit = PackMLUnit(SimulatedUnit(acting_time=0.01), tables=packml_tables())
     task = asyncio.create_task(unit.run(period=0.002))
     try:
         unit.reset_machine()

@@ -8,6 +8,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import pytest
+from helpers import robotics_tables
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -82,7 +83,7 @@ async def until(predicate: Callable[[], bool], timeout: float = 3.0) -> None:
 @pytest.fixture
 async def cell(tmp_path: Path):  # type: ignore[no-untyped-def]
     robot = SimulatedRobot(time_scale=SCALE, power_up_time=2.0, power_down_time=0.5)
-    c = RobotCell(robot, make_library(tmp_path))
+    c = RobotCell(robot, make_library(tmp_path), tables=robotics_tables())
     yield c
     await c.close()
 
@@ -420,6 +421,7 @@ async def test_stop_mode_zero_is_the_configured_default(tmp_path: Path, monkeypa
     cell = RobotCell(
         robot,
         make_library(tmp_path),
+        tables=robotics_tables(),
         possible_stop_modes=(StopMode.QUICK_STOP, StopMode.END_OF_INSTRUCTION),
         default_stop_mode=StopMode.END_OF_INSTRUCTION,
     )
@@ -440,7 +442,7 @@ async def test_stop_mode_zero_is_the_configured_default(tmp_path: Path, monkeypa
     finally:
         await cell.close()
     with pytest.raises(ValueError):
-        RobotCell(robot, cell.library, possible_stop_modes=(StopMode.QUICK_STOP,))
+        RobotCell(robot, cell.library, tables=robotics_tables(), possible_stop_modes=(StopMode.QUICK_STOP,))
 
 
 async def test_start_needs_the_system_ready(cell: RobotCell) -> None:
@@ -724,7 +726,7 @@ async def test_alarm_right_after_start_stops_the_program_with_error(cell: RobotC
 # --- coupling with two task controls (decision 19) -----------------------------------------------------------
 async def test_system_start_and_stop_drive_every_task(tmp_path: Path) -> None:
     robot = SimulatedRobot(time_scale=SCALE, power_up_time=0.1)
-    cell = RobotCell(robot, make_library(tmp_path), task_names=("TC1", "TC2", "TC3"))
+    cell = RobotCell(robot, make_library(tmp_path), tables=robotics_tables(), task_names=("TC1", "TC2", "TC3"))
     try:
         so, (t1, t2, t3) = cell.system, cell.tasks.values()
         await system_ready(cell)
@@ -821,7 +823,7 @@ def check_consistent(cell: RobotCell) -> None:
 
 async def run_commands(root: Path, commands: list[str]) -> None:
     robot = SimulatedRobot(time_scale=0.0002, power_up_time=2.0, power_down_time=2.0)
-    cell = RobotCell(robot, make_library(root))
+    cell = RobotCell(robot, make_library(root), tables=robotics_tables())
     so, tc = cell.system, tc_of(cell)
     try:
         for command in commands:
@@ -876,7 +878,7 @@ def test_program_type_is_what_the_equipment_receives(tmp_path: Path) -> None:
 
     async def scenario() -> None:
         robot = SimulatedRobot(time_scale=SCALE)
-        cell = RobotCell(robot, make_library(tmp_path))
+        cell = RobotCell(robot, make_library(tmp_path), tables=robotics_tables())
         real_load = robot.load
 
         async def spy(task: str, program: Program) -> None:
@@ -889,3 +891,35 @@ def test_program_type_is_what_the_equipment_receives(tmp_path: Path) -> None:
 
     asyncio.run(scenario())
     assert [(p.name, p.version, p.uses) for p in loaded] == [("PickAndPlace", "2.0", ("Gripper",))]
+
+
+def test_the_tables_are_checked_against_every_name_the_model_uses() -> None:
+    import dataclasses
+
+    from uacell.models import StateTables
+    from uacell.robotics.model import STAYS, RoboticsTables
+
+    real = StateTables()
+
+    def without_suspended(model: str, type_name: str):  # type: ignore[no-untyped-def]
+        table = real(model, type_name)
+        if type_name != "ReadySubstateMachineType":
+            return table
+        states = {k: v for k, v in table.states.items() if k != "Suspended"}
+        return dataclasses.replace(table, states=states)
+
+    with pytest.raises(LookupError, match="ReadySubstateMachineType in the NodeSet has no Suspended"):
+        RoboticsTables.load(without_suspended)
+    tables = RoboticsTables.load(real)
+    # Every method the model lets act without a transition is one the NodeSet gives some machine.
+    assert {m for m, _ in STAYS} <= tables.task_control.methods | tables.ready.methods
+
+
+async def test_executable_follows_the_nodeset_causes_plus_the_declared_stays(cell: RobotCell) -> None:
+    tc = tc_of(cell)
+    # Idle: only the loads (IdleToReady is caused by LoadByName/LoadByNodeId); nothing to unload yet.
+    offered = {m for machine, m in tc.methods() if tc.executable(machine, m)}
+    assert offered == {"LoadByName", "LoadByNodeId"}
+    assert {(machine, m) for machine, m in cell.system.methods() if cell.system.executable(machine, m)} == {
+        ("SystemOperationStateMachine", "GetReady")
+    }

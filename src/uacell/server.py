@@ -11,6 +11,7 @@ from asyncua import Server, ua
 from uacell import __version__
 from uacell.cell import CellBuilder, build_cell
 from uacell.config import Config, default_application_uri
+from uacell.models import StateTables
 from uacell.packml.binding import bind_packml
 from uacell.robotics.binding import bind_robotics
 from uacell.roles import Role, listening_policy
@@ -46,6 +47,8 @@ class UacellServer:
         self.server = Server()
         self.cell: CellBuilder | None = None
         self.model_indexes: dict[str, int] = {}
+        # The state-machine tables of the configured NodeSets: binders hand them to the models.
+        self.tables = StateTables(config.server.models_dir)
         self.binders = binders if binders is not None else default_binders()
         self._closers: list[Callable[[], Awaitable[None]]] = []
         self.dispatcher = MethodDispatcher.install(self.server)

@@ -25,7 +25,7 @@ from uacell.errors import ConfigError
 from uacell.packml.admin_store import AdminStore
 from uacell.packml.config import UnitSpec
 from uacell.packml.equipment import PackMLEquipment
-from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLUnit
+from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLTables, PackMLUnit
 from uacell.packml.sim import SimulatedUnit
 from uacell.packml.types import (
     EUInformation,
@@ -371,7 +371,7 @@ async def bind_unit(app: Any, built: Any) -> UnitBinding:
         mach_speed_range=spec.mach_speed_range,
         mach_design_speed=spec.design_speed,
         initial_mode=spec.unit_mode,
-        models_dir=app.config.server.models_dir,
+        tables=PackMLTables.load(app.tables),
     )
     b = UnitBinding(app, built, unit)
     base = b.child("BaseStateMachine")

@@ -36,7 +36,15 @@ from uacell.equipment import EquipmentSpec, close_equipment, make_equipment
 from uacell.errors import CallError, ConfigError
 from uacell.robotics.config import ControllerSpec, MotionDeviceSpec, TaskControlSpec
 from uacell.robotics.equipment import AxisInfo, RobotEquipment, StopMode
-from uacell.robotics.model import PROGRAM_SUFFIX, Condition, DirectoryLibrary, RobotCell, Status, TaskControl
+from uacell.robotics.model import (
+    PROGRAM_SUFFIX,
+    Condition,
+    DirectoryLibrary,
+    RobotCell,
+    RoboticsTables,
+    Status,
+    TaskControl,
+)
 from uacell.robotics.program import AXIS_COUNT, samples
 from uacell.roles import Family, Role
 from uacell.ua.context import Caller
@@ -61,8 +69,6 @@ _STOP_MODE_NAMES = {
     StopMode.QUICK_STOP: "QuickStop",
     StopMode.END_OF_INSTRUCTION: "EndOfInstruction",
 }
-TC_METHODS = ("LoadByNodeId", "LoadByName", "UnloadProgram", "UnloadByNodeId", "UnloadByName", "Start", "Stop")
-SO_METHODS = ("GetReady", "StandDown", "Start", "Stop")
 
 
 def _now() -> datetime:
@@ -238,28 +244,20 @@ class RoboticsBinding:
         )
 
     def bind_methods(self) -> None:
+        # Which methods each machine has is the NodeSet's (HasCause); the handlers are ours.
         for name, task in self.cell.tasks.items():
             node = self.tc_machine_node(name)
-            element = self.task_parts[name].node
-            for method in TC_METHODS:
+            nodes = {task.machine.name: node, task.ready.name: self.child(node, task.ready.name)}
+            for machine, method in task.methods():
                 self._bind(
-                    node, method, Family.TASK_CONTROL, self._tc_handler(task, method),
-                    _executable(task, "TaskControlStateMachine", method), task.machine, element,
+                    nodes[machine], method, Family.TASK_CONTROL, self._tc_handler(task, method),
+                    _executable(task, machine, method), task.machine, self.task_parts[name].node,
                 )
-            ready = self.child(node, "ReadySubstateMachine")
-
-            async def reset(caller, _task: TaskControl = task) -> list[int]:
-                return [await _task.reset_to_program_start()]
-
-            self._bind(
-                ready, "ResetToProgramStart", Family.TASK_CONTROL, reset,
-                _executable(task, "ReadySubstateMachine", "ResetToProgramStart"), task.machine, element,
-            )
         system = self.cell.system
-        for method in SO_METHODS:
+        for machine, method in system.methods():
             self._bind(
                 self.so_machine_node, method, Family.SYSTEM_OPERATION, self._so_handler(method),
-                _executable(system, "SystemOperationStateMachine", method), system.machine, self.controller.node,
+                _executable(system, machine, method), system.machine, self.controller.node,
             )
 
     def _tc_handler(self, task: TaskControl, method: str):
@@ -290,7 +288,11 @@ class RoboticsBinding:
         async def stop(caller, mode: int) -> list[int]:
             return [await task.stop(int(mode))]
 
+        async def reset(caller) -> list[int]:
+            return [await task.reset_to_program_start()]
+
         return {
+            "ResetToProgramStart": reset,
             "LoadByNodeId": load_by_node_id,
             "LoadByName": load_by_name,
             "UnloadProgram": unload_program,
@@ -758,6 +760,7 @@ async def bind_controller(app: Any, controller: Any) -> RoboticsBinding:
     cell = RobotCell(
         equipment,
         library,
+        tables=RoboticsTables.load(app.tables),
         task_names=[t.part.name for t in tasks],
         motion_devices=[arm.part.name] if arm else (),
         possible_stop_modes=spec.possible_stop_modes if spec else tuple(StopMode),

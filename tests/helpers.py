@@ -1,0 +1,56 @@
+"""What several test files share: the models' state tables, clocks, waits on conditions, free ports.
+
+Import as ``from helpers import ...`` (pytest puts ``tests/`` on the path).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import socket
+from collections.abc import Callable
+
+from uacell.models import StateTables
+from uacell.packml import PackMLTables
+from uacell.robotics import RoboticsTables
+
+
+@functools.cache
+def robotics_tables() -> RoboticsTables:
+    """The Robotics tables from the default models directory (the cache ``make setup`` fills)."""
+    return RoboticsTables.load(StateTables())
+
+
+@functools.cache
+def packml_tables() -> PackMLTables:
+    return PackMLTables.load(StateTables())
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on at 127.0.0.1 right now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+class FakeClock:
+    """A monotonic clock tests advance by hand: ``clock()`` reads it, ``clock.advance(s)`` moves it."""
+
+    def __init__(self, start: float = 1000.0) -> None:
+        self.now = start
+
+    def __call__(self) -> float:
+        return self.now
+
+    def advance(self, seconds: float) -> None:
+        self.now += seconds
+
+
+async def wait_until(predicate: Callable[[], bool], timeout: float = 30.0, step: float = 0.005) -> None:
+    """Wait until ``predicate()`` holds (checked every ``step`` s); fail after ``timeout`` s."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not predicate():
+        assert loop.time() < deadline, "condition not reached"
+        await asyncio.sleep(step)
