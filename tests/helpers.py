@@ -10,9 +10,13 @@ import functools
 import socket
 from collections.abc import Callable
 
+from uacell.locking import LockManager
 from uacell.models import StateTables
 from uacell.packml import PackMLTables
-from uacell.robotics import RoboticsTables
+from uacell.robotics import RobotCell, RoboticsTables
+from uacell.robotics.binding import CONTROLLERS, RoboticsBinding
+from uacell.server import UacellServer
+from uacell.ua.locks import LOCK_SERVICE
 
 
 @functools.cache
@@ -54,3 +58,20 @@ async def wait_until(predicate: Callable[[], bool], timeout: float = 30.0, step:
     while not predicate():
         assert loop.time() < deadline, "condition not reached"
         await asyncio.sleep(step)
+
+
+CONTROLLER1 = "Robot1.Controllers.Controller1"
+
+
+def robot_binding(app: UacellServer, path: str = CONTROLLER1) -> RoboticsBinding:
+    """The Robotics binding of the controller at ``path`` in the demo cell."""
+    return app.registry(CONTROLLERS)[path]
+
+
+def robot_cell(app: UacellServer, path: str = CONTROLLER1) -> RobotCell:
+    """The pure model of the controller at ``path``."""
+    return robot_binding(app, path).cell
+
+
+def lock_manager(app: UacellServer) -> LockManager:
+    return app.registry(LOCK_SERVICE)[""].manager

@@ -10,9 +10,11 @@ import textwrap
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, free_port, start_app
+from helpers import robot_cell
 
 from uacell.config import load_cell, load_factory
 from uacell.errors import ConfigError
+from uacell.packml.binding import UNITS
 from uacell.server import UacellServer
 
 DRIVER = textwrap.dedent(
@@ -79,12 +81,12 @@ async def test_units_run_on_the_configured_equipment(tmp_path, monkeypatch):
     try:
         import plant_driver
 
-        unit = app.packml_units["Filler1"]
+        unit = app.registry(UNITS)["Filler1"].unit
         assert type(unit.equipment).__name__ == "PlantFiller"
         assert sorted(s.part for s in plant_driver.made) == ["Filler1", "Robot1.Controllers.Controller1"]
         robot_spec = next(s for s in plant_driver.made if s.part.startswith("Robot1"))
         assert [a.name for a in robot_spec.axes] == [f"Axis{i}" for i in range(1, 7)]
-        assert type(app.robot_cell.equipment).__name__ == "PlantRobot"
+        assert type(robot_cell(app).equipment).__name__ == "PlantRobot"
         async with Client(app.endpoint, timeout=30) as client:
             ns = await client.get_namespace_index("urn:uacell:cell")
             machine = client.get_node(ua.NodeId("Filler1.BaseStateMachine.MachineState", ns))
@@ -126,9 +128,9 @@ async def test_each_part_has_its_own_factory_and_settings(tmp_path, monkeypatch)
         assert [(s.part, dict(s.settings)) for s in plant_driver.made] == [
             ("Plant", {"address": "10.0.0.7", "port": 502, "recipe": {"size": 3}})
         ]
-        assert type(app.packml_units["Plant"].equipment).__name__ == "PlantFiller"
-        assert type(app.packml_units["Simulated"].equipment).__name__ == "SimulatedUnit"
-        assert app.packml_units["Simulated"].equipment.acting_time == 0.05
+        assert type(app.registry(UNITS)["Plant"].unit.equipment).__name__ == "PlantFiller"
+        assert type(app.registry(UNITS)["Simulated"].unit.equipment).__name__ == "SimulatedUnit"
+        assert app.registry(UNITS)["Simulated"].unit.equipment.acting_time == 0.05
     finally:
         await app.stop()
     assert plant_driver.closed == ["Plant"]

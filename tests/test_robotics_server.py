@@ -16,6 +16,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import robot_binding, robot_cell
 
 from uacell.robotics.equipment import ExecutionMode, StopMode
 from uacell.roles import Role
@@ -105,7 +106,7 @@ async def rig(tmp_path_factory):
 
 
 async def _reset(r: Rig) -> None:
-    cell = r.app.robot_cell
+    cell = robot_cell(r.app)
     equipment = cell.equipment
     for name in list(equipment.active_alarms):
         equipment.clear_alarm(name)
@@ -128,7 +129,7 @@ async def _reset(r: Rig) -> None:
     async with asyncio.timeout(TIMEOUT):
         while system.state != "Idle" or system.powering_down or system.idle.current != "StandBy":
             await asyncio.sleep(0.01)
-    store = r.app.robotics.store
+    store = robot_binding(r.app).store
     for entry in store.entries():
         if entry.relpath not in SAMPLES and "/" not in entry.relpath:
             store.delete(entry.relpath)
@@ -438,7 +439,7 @@ async def test_execution_mode_is_writable_except_while_executing_and_step_runs_o
     node = r.client.get_node(nid(r, f"{TASK}.ParameterSet.ExecutionMode"))
     await node.write_value(ua.Variant(int(ExecutionMode.STEP), ua.VariantType.Int32))
     assert await node.read_value() == 2
-    assert r.app.robot_cell.tasks["TaskControl1"].execution_mode is ExecutionMode.STEP
+    assert robot_cell(r.app).tasks["TaskControl1"].execution_mode is ExecutionMode.STEP
     with pytest.raises(ua.UaStatusCodeError) as err:
         await node.write_value(ua.Variant(7, ua.VariantType.Int32))
     assert err.value.code == ua.StatusCodes.BadOutOfRange
@@ -477,7 +478,7 @@ async def test_every_unload(fresh):
     assert await state(r, TC) == "Idle"
     assert await read(r, f"{TASK}.ParameterSet.TaskProgramLoaded") is False
     assert await read(r, f"{TASK}.ParameterSet.TaskProgramName") == ""
-    assert r.app.robot_cell.tasks["TaskControl1"].modules == []
+    assert robot_cell(r.app).tasks["TaskControl1"].modules == []
     # UnloadProgram
     assert await status(r, TC, "UnloadProgram") == 1  # nothing loaded
     assert await status(r, TC, "LoadByName", s("palletize")) == 0
@@ -603,7 +604,7 @@ async def test_executable_attribute_matches_what_a_call_does(fresh):
     assert await executables(r) == ready_on
     assert await status(r, SO, "GetReady") == 1
     # an active alarm: no Start (Status 3) until it is cleared and acknowledged
-    equipment, system = r.app.robot_cell.equipment, r.app.robot_cell.system
+    equipment, system = robot_cell(r.app).equipment, robot_cell(r.app).system
     equipment.raise_alarm("EmergencyStop")
     assert await executables(r) == {**ready_on, "TC.Start": False, "SO.Start": False}
     assert await status(r, TC, "Start") == 3
@@ -619,7 +620,7 @@ async def test_executable_attribute_matches_what_a_call_does(fresh):
     assert await status(r, TC, "Stop", mode(int(StopMode.END_OF_INSTRUCTION))) == 0
     assert await executables(r) == only()
     assert await status(r, TC, "Stop", mode(0)) == 1 and await status(r, SO, "Stop", mode(0)) == 1
-    await r.app.robot_cell.equipment.stop("TaskControl1", StopMode.QUICK_STOP)
+    await robot_cell(r.app).equipment.stop("TaskControl1", StopMode.QUICK_STOP)
     await wait_state(r, TC, "Ready")
     assert await executables(r) == ready_on  # also refreshed when the state changes without a call
 
@@ -681,7 +682,7 @@ async def test_active_alarm_is_status_3_unacknowledged_is_4_and_acknowledge_clea
     assert await read(r, f"{cond}.AckedState.Id") is False
     assert await read(r, f"{cond}.Retain") is True
     assert await status(r, SO, "GetReady") == 3
-    r.app.robot_cell.equipment.clear_alarm("EmergencyStop")
+    robot_cell(r.app).equipment.clear_alarm("EmergencyStop")
     await r.app.settle()
     assert await read(r, f"{cond}.ActiveState.Id") is False
     assert await status(r, SO, "GetReady") == 4
@@ -712,7 +713,7 @@ async def test_alarm_while_executing_stops_the_program_with_reason_error_and_sta
     assert await status(r, TC, "LoadByName", s("long")) == 0
     events, sub = await subscribe_transitions(r, TC)
     assert await status(r, TC, "Start") == 0
-    r.app.robot_cell.equipment.raise_alarm("CollisionDetected")
+    robot_cell(r.app).equipment.raise_alarm("CollisionDetected")
     await events.wait_for(is_transition("ExecutingToReady"))
     assert await read(r, f"{TC}.LastTransitionReason") == 4
     assert await status(r, TC, "Start") == 3

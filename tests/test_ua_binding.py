@@ -17,6 +17,7 @@ from conftest import fast_config, start_app
 from uacell.errors import CallError
 from uacell.fsm import Reason, StateMachine
 from uacell.models import fsm_table
+from uacell.robotics.companion import TASK_CONTROL
 from uacell.roles import Family, Role
 from uacell.server import UacellServer
 from uacell.ua.state_machine import bind_tree
@@ -70,16 +71,16 @@ async def _test_binder(app: UacellServer, rig: Rig):
     d.bind(
         node,
         d.method_of(node, "LoadByName"),
-        Family.TASK_CONTROL,
+        TASK_CONTROL,
         load_by_name,
         executable=lambda: rig.machine.current in ("Idle", "Ready"),
         serialize_on=rig.machine,
     )
-    d.bind(node, d.method_of(node, "LoadByNodeId"), Family.TASK_CONTROL, load_by_node_id)
+    d.bind(node, d.method_of(node, "LoadByNodeId"), TASK_CONTROL, load_by_node_id)
     d.bind(
         node,
         d.method_of(node, "Stop"),
-        Family.TASK_CONTROL,
+        TASK_CONTROL,
         stop,
         executable=lambda: rig.machine.current == "Executing",
     )

@@ -254,9 +254,9 @@ def parse_cell(data: Mapping[str, Any], source: str, parsers: Mapping[str, Secti
     """The cell sections of a parsed TOML document (other sections are left to the caller)."""
     root = Table(dict(data), "", source)
     cell = CellConfig(source=source)
-    for key, parser in parsers.items():
-        if key in data:
-            cell.sections[key] = parser(root, key)
+    for key in data:  # in the order the file gives them
+        if key in parsers:
+            cell.sections[key] = parsers[key](root, key)
     unique([n for s in cell.sections.values() for n in s.top_names()], "a part named")
     return cell
 

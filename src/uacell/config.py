@@ -1,5 +1,8 @@
 """uacell's configuration: a TOML file, overridden by command-line options.
 
+``[server]`` is uacell's own; every other section belongs to a companion, which declares it
+(``uacell.companion.Companion.section``/``settings``) in its package.
+
 Every key is optional; without a file uacell serves the demo cell on 127.0.0.1:4840.
 
 ```toml
@@ -37,17 +40,22 @@ import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any, TypeVar
 
 import platformdirs
 
 from uacell.cellconfig import CellConfig, SectionParser, builtin_cell_path, parse_cell
+from uacell.companion import companions
 from uacell.errors import ConfigError
-from uacell.packml.config import parse_units
-from uacell.robotics.config import parse_robots
+
+T = TypeVar("T")
 
 ROLES = ("observer", "operator", "engineer", "admin")
-# Each companion's cell section (an array of tables) and its parser.
-CELL_SECTIONS: dict[str, SectionParser] = {"robots": parse_robots, "packml_units": parse_units}
+
+
+def _cell_sections() -> dict[str, SectionParser]:
+    """Each companion's cell section (an array of tables, e.g. ``robots``) and its parser."""
+    return {c.cell_section: c.cell_parser for c in companions() if c.cell_section and c.cell_parser}
 
 
 def _host() -> str:
@@ -76,29 +84,38 @@ class ServerConfig:
     application_name: str = field(default_factory=default_application_name)
 
 
-@dataclass
-class RobotConfig:
-    time_scale: float = 1.0
-    equipment: str = ""
-
-
-@dataclass
-class PackMLConfig:
-    acting_time: float = 1.0
-    mach_speed: float = 60.0
-    equipment: str = ""
-
-
-@dataclass
 class Config:
-    server: ServerConfig = field(default_factory=ServerConfig)
-    robot: RobotConfig = field(default_factory=RobotConfig)
-    packml: PackMLConfig = field(default_factory=PackMLConfig)
-    cell: CellConfig = field(default_factory=lambda: load_cell(builtin_cell_path("demo")))
-    source: Path | None = None
+    """``server`` plus one section per companion that declares one (``config.robot``, ``config.packml``)."""
+
+    def __init__(self) -> None:
+        self.server = ServerConfig()
+        self.source: Path | None = None
+        # The cell: the companions' cell sections ([[robots]], [[packml_units]]), else the demo cell.
+        self.cell: CellConfig = load_cell(builtin_cell_path("demo"))
+        self.sections: dict[str, Any] = {
+            c.section: c.settings() for c in companions() if c.section is not None and c.settings is not None
+        }
+
+    def section(self, name: str, kind: type[T]) -> T:
+        """The section ``name``, typed: ``config.section("robot", RobotConfig)``."""
+        value = self.sections[name]
+        if not isinstance(value, kind):
+            raise TypeError(f"[{name}] is a {type(value).__name__}, not a {kind.__name__}")
+        return value
+
+    def __getattr__(self, name: str) -> Any:
+        sections = self.__dict__.get("sections", {})
+        if name in sections:
+            return sections[name]
+        raise AttributeError(name)
 
 
-_SECTIONS = {"server": ServerConfig, "robot": RobotConfig, "packml": PackMLConfig}
+def _section_types() -> dict[str, type[Any]]:
+    types: dict[str, type[Any]] = {"server": ServerConfig}
+    for c in companions():
+        if c.section is not None and c.settings is not None:
+            types[c.section] = c.settings
+    return types
 
 
 def _coerce(section: str, key: str, value: object, default: object) -> object:
@@ -142,11 +159,12 @@ def load_cell(path: str | Path) -> CellConfig:
 
 
 def _cell_of(data: dict[str, object], path: Path) -> CellConfig:
-    if not any(key in data for key in CELL_SECTIONS):
+    sections = _cell_sections()
+    if not any(key in data for key in sections):
         demo = builtin_cell_path("demo")
         if path != demo:
             return load_cell(demo)
-    return parse_cell(data, str(path), CELL_SECTIONS)
+    return parse_cell(data, str(path), sections)
 
 
 def load_config(path: str | Path | None = None) -> Config:
@@ -159,12 +177,12 @@ def load_config(path: str | Path | None = None) -> Config:
     config.source = path
     config.cell = _cell_of(data, path)
     for section, values in data.items():
-        if section in CELL_SECTIONS:
+        if section in _cell_sections():
             continue
-        cls = _SECTIONS.get(section)
+        cls = _section_types().get(section)
         if cls is None or not isinstance(values, dict):
             raise ConfigError(f"configuration {path}: unknown section [{section}]")
-        target = getattr(config, section)
+        target = config.server if section == "server" else config.sections[section]
         known = {f.name for f in fields(cls)}
         for key, value in values.items():
             if key not in known:

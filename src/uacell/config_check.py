@@ -10,7 +10,7 @@ from uacell.roles import Role, listening_policy
 
 def equipment_specs(config: Config) -> list[tuple[str, str]]:
     """(where, "package.module:factory") of every factory the configuration names."""
-    specs = [(s, getattr(config, s).equipment) for s in ("robot", "packml")]
+    specs = [(name, getattr(settings, "equipment", "")) for name, settings in config.sections.items()]
     for section in config.cell.sections.values():
         for _, part in section.parts():
             stack = [(part.name, part)]

@@ -1,4 +1,4 @@
-"""The ``[[packml_units]]`` section of a cell configuration: one PackMLBaseObjectType per entry.
+"""The ``[packml]`` section and the ``[[packml_units]]`` of a cell: one PackMLBaseObjectType per entry.
 
 Pure: reads and checks the tables (``uacell.cellconfig.Table``) and turns them into ``Part`` trees
 (``uacell.cell``). docs/configuration.md documents every key.
@@ -28,6 +28,15 @@ ACTING_STATES = (
     "Suspending",
     "Unsuspending",
 )
+
+
+@dataclass
+class PackMLConfig:
+    """The ``[packml]`` section: defaults for every unit that does not set its own."""
+
+    acting_time: float = 1.0  # seconds each acting state of the simulated unit takes
+    mach_speed: float = 60.0  # initial MachSpeed, packages/min
+    equipment: str = ""  # "package.module:factory" for real equipment (docs/equipment.md)
 
 
 @dataclass

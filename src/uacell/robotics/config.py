@@ -1,4 +1,4 @@
-"""The ``[[robots]]`` section of a cell configuration: robots, controllers, task controls, motion devices.
+"""The ``[robot]`` section and the ``[[robots]]`` of a cell: robots, controllers, task controls, motion devices.
 
 Pure: reads and checks the tables (``uacell.cellconfig.Table``) and turns them into ``Part`` trees
 (``uacell.cell``). docs/configuration.md documents every key.
@@ -30,6 +30,14 @@ EXTRA_AXIS = (-180.0, 180.0, 300.0)
 _ONE_TASK = [{"name": "TaskControl1"}]
 _ONE_ARM = [{"name": "Arm1"}]
 _ONE_CONTROLLER = [{"name": "Controller1"}]
+
+
+@dataclass
+class RobotConfig:
+    """The ``[robot]`` section: defaults for every controller that does not set its own."""
+
+    time_scale: float = 1.0  # simulated robot: >1 runs faster than real time
+    equipment: str = ""  # "package.module:factory" for real equipment (docs/equipment.md)
 
 
 @dataclass

@@ -31,7 +31,7 @@ from asyncua.server.address_space import MethodService
 
 from uacell.errors import CallError
 from uacell.roles import Family, Role, may_call
-from uacell.ua import context
+from uacell.ua import context, toolkit
 from uacell.ua.context import Caller
 
 log = logging.getLogger(__name__)
@@ -88,11 +88,11 @@ class MethodDispatcher(MethodService):
 
     # --- registration -----------------------------------------------------------------------
     def arguments(self, method_id: ua.NodeId, name: str) -> list[ua.Argument]:
-        for ref in self._aspace[method_id].references:
-            if ref.IsForward and ref.BrowseName.Name == name:
-                value = self._aspace[ref.NodeId].attributes[_A.Value].value.Value.Value
-                return list(value or [])
-        return []
+        prop = toolkit.find_child(self._aspace, method_id, name)
+        if prop is None:
+            return []
+        value = self._aspace[prop].attributes[_A.Value].value.Value.Value
+        return list(value or [])
 
     def bind(
         self,
@@ -236,7 +236,7 @@ class MethodDispatcher(MethodService):
         type_id = next((r.NodeId for r in obj.references if r.IsForward and r.ReferenceTypeId == has_type), None)
         while type_id is not None:
             holders.append(type_id)
-            type_id = self.types._supertype(type_id)
+            type_id = toolkit.supertype(self._aspace, type_id)
         for holder in holders:
             data = self._aspace.get(holder)
             if data is None:
@@ -371,14 +371,6 @@ class TypeChecker:
         self.aspace = server.iserver.aspace
         self._builtin: dict[ua.NodeId, ua.VariantType | None] = {}
 
-    def _supertype(self, node: ua.NodeId) -> ua.NodeId | None:
-        data = self.aspace.get(node)
-        if data is None:
-            return None
-        for ref in data.references:
-            if not ref.IsForward and ref.ReferenceTypeId == ua.NodeId(ua.ObjectIds.HasSubtype):
-                return ref.NodeId
-        return None
 
     def builtin_of(self, datatype: ua.NodeId) -> ua.VariantType | None:
         """The VariantType a DataType is encoded as (enumerations -> Int32, structures -> ExtensionObject)."""
@@ -401,7 +393,7 @@ class TypeChecker:
                 if i in _ABSTRACT_NUMBERS:
                     found = None
                     break
-            node = self._supertype(node)
+            node = toolkit.supertype(self.aspace, node)
         self._builtin[datatype] = found
         return found
 
@@ -409,7 +401,7 @@ class TypeChecker:
         while node is not None:
             if node == base:
                 return True
-            node = self._supertype(node)
+            node = toolkit.supertype(self.aspace, node)
         return False
 
     def _scalar_ok(self, value: Any, vtype: ua.VariantType, arg: ua.Argument, expected: ua.VariantType | None) -> bool:

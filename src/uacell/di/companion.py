@@ -1,0 +1,36 @@
+"""DI (OPC 10000-100) as a uacell companion: DeviceSet and the LockingServices binder.
+
+Which parts carry a Lock and which families a lock guards are the other companions' to say
+(``Companion.locks``, ``Companion.lock_guarded``); ``uacell.ua.locks`` binds what they declare.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from uacell.companion import Closer, Companion, Root
+from uacell.roles import Family, Role
+
+if TYPE_CHECKING:
+    from uacell.server import UacellServer
+
+LOCKING = Family("Locking")
+
+
+async def _bind(app: UacellServer) -> Closer | None:
+    from uacell.ua.locks import bind_locks
+
+    return await bind_locks(app)
+
+
+DI_LOCKING = Companion(
+    name="DI",
+    binder=_bind,
+    # Devices are components of DeviceSet (ns=DI;i=5001).
+    roots=(Root("DeviceSet", "DI", 5001, 47),),
+    roles={
+        **{(LOCKING, m): Role.OPERATOR for m in ("InitLock", "RenewLock", "ExitLock")},
+        (LOCKING, "BreakLock"): Role.ENGINEER,
+    },
+    type_hints={"LockingServicesType": LOCKING, "Lock": LOCKING},
+)
