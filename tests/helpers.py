@@ -51,7 +51,7 @@ class FakeClock:
         self.now += seconds
 
 
-async def wait_until(predicate: Callable[[], bool], timeout: float = 30.0, step: float = 0.005) -> None:
+async def wait_until(predicate: Callable[[], bool], timeout: float = 30.0, step: float = 0.0005) -> None:
     """Wait until ``predicate()`` holds (checked every ``step`` s); fail after ``timeout`` s."""
     loop = asyncio.get_running_loop()
     deadline = loop.time() + timeout
@@ -75,3 +75,22 @@ def robot_cell(app: UacellServer, path: str = CONTROLLER1) -> RobotCell:
 
 def lock_manager(app: UacellServer) -> LockManager:
     return app.registry(LOCK_SERVICE)[""].manager
+
+
+class VirtualTime:
+    """Injected time for simulators: ``sleep(s)`` moves ``clock()`` on by ``s`` at once, then yields.
+
+    One sleeper at a time sees exact time; concurrent sleepers each move the shared clock on.
+    """
+
+    def __init__(self, start: float = 0.0) -> None:
+        self.now = start
+        self.slept = 0.0
+
+    def clock(self) -> float:
+        return self.now
+
+    async def sleep(self, seconds: float) -> None:
+        self.now += seconds
+        self.slept += seconds
+        await asyncio.sleep(0)

@@ -13,17 +13,9 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers import packml_tables
+from helpers import FakeClock, packml_tables
 
 from uacell.packml import AdminStore, EquipmentBase, PackMLUnit
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 50.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def test_round_trip_and_no_temporary_files_left(tmp_path: Path) -> None:
@@ -90,10 +82,10 @@ def test_killed_writer_leaves_a_complete_file(tmp_path: Path) -> None:
 
 
 def test_counters_survive_a_restart(tmp_path: Path) -> None:
-    clock = Clock()
+    clock = FakeClock(50.0)
     store = AdminStore(tmp_path / "Filler1.json")
     unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
-    clock.t += 7.0
+    clock.now += 7.0
     unit.reset_machine()
     unit.state_complete()
     unit.report_production(processed=30, defective=3, consumed=31)
@@ -115,14 +107,14 @@ def test_counters_survive_a_restart(tmp_path: Path) -> None:
 
 
 def test_saves_on_state_change_and_before_publishing(tmp_path: Path) -> None:
-    clock = Clock()
+    clock = FakeClock(50.0)
     store = AdminStore(tmp_path / "u.json")
     unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock, save_interval=10.0)
     unit.reset_machine()  # a state change saves at once
     assert store.load() is not None
     unit.report_production(processed=5)
     assert store.load()["prod_processed_count"][0]["count"] == 5  # stored before clients could see it
-    clock.t += 10.0
+    clock.now += 10.0
     unit.tick()
     assert store.load()["acc_time_since_reset"] == 10.0
 
@@ -130,7 +122,7 @@ def test_saves_on_state_change_and_before_publishing(tmp_path: Path) -> None:
 def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Decision 28: a crash right after a client read a value never loses it, yet time alone does not make
     the unit write ten times a second."""
-    clock = Clock()
+    clock = FakeClock(50.0)
     store = AdminStore(tmp_path / "u.json")
     unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
     saves: list[int] = []
@@ -159,7 +151,7 @@ def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: p
     unit.state_complete()
     saves.clear()
     for i in range(100):  # 10 s of ticks, producing now and then
-        clock.t += 0.1
+        clock.now += 0.1
         if i % 7 == 0:
             unit.report_production(processed=1, consumed=1)
         unit.tick()

@@ -36,7 +36,7 @@ UNIT_METHODS = [(UNIT, m) for m in
                 ("SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "RemoteCommand", "SetInterlock")]
 DONE = "done"  # the running acting state completes
 
-# packml-v101.md §5.1, typed here on purpose (the model derives it from the NodeSet tables).
+# OPC 30050 v1.01 (ISA-TR88) commands per state, typed here on purpose (the model derives it from the NodeSet tables).
 ALLOWED_PRODUCE: dict[str, set[tuple[Any, str]]] = {
     "Stopped": {MRESET, ABORT},
     "Resetting": {STOP, ABORT},
@@ -557,7 +557,7 @@ def test_docs_transition_numbers_match_the_tables() -> None:
     assert documented == actual
 
 
-# packml-v101.md §5: the 26 transitions of OPC 30050 v1.01 (from -> to), typed here to check the NodeSet.
+# The 26 transitions of OPC 30050 v1.01 (from -> to), typed here to check the NodeSet.
 SPEC_TRANSITIONS = {
     BASE: {"ClearedToAborting": ("Cleared", "Aborting"), "AbortingToAborted": ("Aborting", "Aborted"),
            "AbortedToCleared": ("Aborted", "Cleared")},

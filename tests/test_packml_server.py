@@ -185,7 +185,7 @@ UNIT_METHODS = ["SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "Re
 
 async def check_executable(u: Unit, state: str) -> None:
     """Decision 4, read over the client: each method's Executable attribute in ``state`` (mode Produce)
-    against the spec's table (packml-v101.md §5.1, as typed in test_packml_model)."""
+    against the OPC 30050 v1.01 command table (as typed in test_packml_model)."""
     from test_packml_model import ALLOWED_PRODUCE
 
     machine_names = {"Base": "BaseStateMachine", "Machine": "MachineState", "Execute": "ExecuteState"}

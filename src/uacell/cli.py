@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from uacell import __version__, _entry
-from uacell.config import load_config, load_factory
+from uacell.config import Config, load_config, load_factory
 from uacell.errors import ConfigError
 from uacell.models import ModelError, fetch_models, locate_models, models_dir
 
@@ -132,7 +132,7 @@ def _prepare_and_run(args: argparse.Namespace) -> int:
     return asyncio.run(_run(config))
 
 
-async def _run(config) -> int:
+async def _run(config: Config) -> int:
     from uacell.server import UacellServer
 
     app = UacellServer(config)

@@ -15,6 +15,7 @@ reads everything companion-specific from there:
 from __future__ import annotations
 
 import functools
+import importlib
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -28,6 +29,16 @@ if TYPE_CHECKING:
 Closer = Callable[[], Awaitable[None]]
 # Called once the cell exists, before the server listens; returns what to run at shutdown (or None).
 Binder = Callable[["UacellServer"], Awaitable[Closer | None]]
+
+
+def lazy_binder(module: str, name: str) -> Binder:
+    """The binder ``module.name``, imported when the server binds (configuration loading stays light)."""
+
+    async def bind(app: UacellServer) -> Closer | None:
+        binder: Binder = getattr(importlib.import_module(module), name)
+        return await binder(app)
+
+    return bind
 
 
 @dataclass(frozen=True)

@@ -207,4 +207,5 @@ def load_factory(spec: str, section: str) -> Callable[..., object]:
         raise ConfigError(f"[{section}] equipment {spec!r} cannot be loaded: {exc}") from exc
     if not callable(factory):
         raise ConfigError(f"[{section}] equipment {spec!r} is not callable")
-    return factory
+    loaded: Callable[..., object] = factory
+    return loaded

@@ -105,7 +105,7 @@ class Security:
         cfg = self.app.config.server
         policy = self.app.policy
         iserver = self.server.iserver
-        iserver._uacell_security = self  # type: ignore[attr-defined]
+        iserver._uacell_security = self
         await prepare_certificate(self.server, self.app.data_dir, self.server.get_application_uri(), [cfg.host])
         self.trust_list = TrustList(PkiPaths.in_data_dir(self.app.data_dir), trust_on_first_use=cfg.trust_on_first_use)
         if cfg.trust_on_first_use:
@@ -116,14 +116,15 @@ class Security:
         self.server.set_security_policy(self.policies)
         # X509 user tokens are not mapped to users: offering them would log such users in as anonymous.
         self.server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
-        iserver.create_session = self._create_session  # type: ignore[method-assign]
+        iserver.create_session = self._create_session
         original_decrypt = iserver.decrypt_user_token
 
         def decrypt_user_token(isession: Any, token: ua.UserNameIdentityToken) -> tuple[str, str]:
             self.refuse_plaintext(token)
-            return original_decrypt(isession, token)
+            decrypted: tuple[str, str] = original_decrypt(isession, token)
+            return decrypted
 
-        iserver.decrypt_user_token = decrypt_user_token  # type: ignore[method-assign]
+        iserver.decrypt_user_token = decrypt_user_token
         _install_processor_hook()
         context.add_read_hook(_read_hook)
         log.info("security: endpoints %s; anonymous clients are %s", ", ".join(p.name for p in self.policies),
@@ -210,7 +211,7 @@ def _with_value(dv: ua.DataValue, value: Any, vtype: ua.VariantType) -> ua.DataV
     return dataclasses.replace(dv, Value=ua.Variant(value, vtype))
 
 
-def _read_hook(session: InternalSession, params: Any, results: list) -> None:
+def _read_hook(session: InternalSession, params: Any, results: list[Any]) -> None:
     security = getattr(session.iserver, "_uacell_security", None)
     if security is not None:
         security.adjust_read(session, params, results)
@@ -224,7 +225,9 @@ class UacellSession(InternalSession):
         self._client_description: ua.ApplicationDescription | None = None
         super().__init__(*args, **kwargs)
 
-    async def create_session(self, params: ua.CreateSessionParameters, sockname=None) -> ua.CreateSessionResult:
+    async def create_session(
+        self, params: ua.CreateSessionParameters, sockname: Any = None
+    ) -> ua.CreateSessionResult:
         self._client_description = params.ClientDescription  # Caller.client: LockingClient shows it
         if _channel_mode(_processor.get()) == ua.MessageSecurityMode.None_:
             # OPC 10000-4 CreateSession: on a SecurityPolicy None channel the client certificate plays
@@ -250,7 +253,7 @@ def _install_processor_hook() -> None:
     original = UaProcessor._process_message
 
     @functools.wraps(original)
-    async def _process_message(self: UaProcessor, typeid, requesthdr, seqhdr, body):
+    async def _process_message(self: UaProcessor, typeid: Any, requesthdr: Any, seqhdr: Any, body: Any) -> Any:
         token = _processor.set(self)
         diagnostics = context.set_return_diagnostics(int(getattr(requesthdr, "ReturnDiagnostics", 0) or 0))
         try:
@@ -262,8 +265,8 @@ def _install_processor_hook() -> None:
             context.reset_return_diagnostics(diagnostics)
             _processor.reset(token)
 
-    UaProcessor._process_message = _process_message  # type: ignore[method-assign]
-    UaProcessor._uacell_installed = True  # type: ignore[attr-defined]
+    UaProcessor._process_message = _process_message
+    UaProcessor._uacell_installed = True
 
 
 async def install_security(app: UacellServer) -> Security:

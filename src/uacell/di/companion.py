@@ -6,26 +6,14 @@ Which parts carry a Lock and which families a lock guards are the other companio
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from uacell.companion import Closer, Companion, Root
+from uacell.companion import Companion, Root, lazy_binder
 from uacell.roles import Family, Role
-
-if TYPE_CHECKING:
-    from uacell.server import UacellServer
 
 LOCKING = Family("Locking")
 
-
-async def _bind(app: UacellServer) -> Closer | None:
-    from uacell.ua.locks import bind_locks
-
-    return await bind_locks(app)
-
-
 DI_LOCKING = Companion(
     name="DI",
-    binder=_bind,
+    binder=lazy_binder("uacell.ua.locks", "bind_locks"),
     # Devices are components of DeviceSet (ns=DI;i=5001).
     roots=(Root("DeviceSet", "DI", 5001, 47),),
     roles={

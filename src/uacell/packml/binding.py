@@ -108,7 +108,8 @@ class Structures:
 
     def cls(self, identifier: int) -> type:
         # Looked up on use: the classes are (re)registered when a server loads the PackML NodeSet.
-        return ua.extension_objects_by_datatype[ua.NodeId(identifier, self.ns)]
+        cls: type = ua.extension_objects_by_datatype[ua.NodeId(identifier, self.ns)]
+        return cls
 
     def convert(self, value: Any) -> Any:
         """A model value (dataclass, list, tuple range, scalar) as the value to put in a Variant."""
@@ -278,12 +279,12 @@ class UnitBinding:
                 d.method_of(obj, method),
                 PACKML,
                 self._handler(machine_name, method),
-                executable=(lambda m=machine_name, n=method: unit.executable(m, n)),
+                executable=functools.partial(unit.executable, machine_name, method),
                 serialize_on=unit,
             )
 
     def _handler(self, machine_name: str | None, method: str) -> Callable[..., Awaitable[list[Any]]]:
-        convert = _INPUTS.get(method, lambda *a: a)
+        convert: Callable[..., tuple[Any, ...]] = _INPUTS.get(method, _as_given)
 
         async def handler(caller: Caller, *values: Any) -> list[Any]:
             log.info("%s: %s.%s by %s", self.unit.name, machine_name or "unit", method, caller.display_user)
@@ -308,6 +309,10 @@ class UnitBinding:
         closed = self.unit.equipment_closed
         if inspect.isawaitable(closed):  # a driver's close() may be a coroutine
             await closed
+
+
+def _as_given(*values: Any) -> tuple[Any, ...]:
+    return values
 
 
 async def _nothing() -> None:

@@ -2,14 +2,9 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from uacell.companion import Closer, Companion, Root
+from uacell.companion import Companion, Root, lazy_binder
 from uacell.packml.config import PackMLConfig, parse_units
 from uacell.roles import Family, Role
-
-if TYPE_CHECKING:
-    from uacell.server import UacellServer
 
 PACKML = Family("PackML")
 UNIT_PART = "packml_unit"  # the part role (``uacell.cell.Part.role``) the PackML binder binds
@@ -20,15 +15,9 @@ _OPERATOR_METHODS = (
 )  # fmt: skip
 
 
-async def _bind(app: UacellServer) -> Closer | None:
-    from uacell.packml.binding import bind_packml
-
-    return await bind_packml(app)
-
-
 PACKML_COMPANION = Companion(
     name="PackML",
-    binder=_bind,
+    binder=lazy_binder("uacell.packml.binding", "bind_packml"),
     section="packml",
     settings=PackMLConfig,
     cell_section="packml_units",

@@ -63,7 +63,7 @@ JOB_STATES = frozenset(
     {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding",
      "Suspending", "Suspended", "Unsuspending"}
 )
-# StopReason.ID for a commanded stop: the TR88 command number (packml-v101.md §11).
+# StopReason.ID for a commanded stop: the ISA-TR88 command number (Stop 3, Hold 4, Suspend 6, Abort 8).
 STOP_COMMAND_IDS = {"Stop": 3, "Hold": 4, "Suspend": 6, "Abort": 8}
 STATE_COLUMNS = 18  # StateCurrentTime/StateCumulativeTime second index: TR88 state numbers 0..17
 INT32_WRAP = 2**31
@@ -337,11 +337,12 @@ class PackMLUnit:
     def command(self, machine_name: str | None, method: str, *args: Any) -> None:
         """Call ``method`` of ``machine_name`` (None: a unit method) with the method's input arguments."""
         if machine_name is UNIT:
-            handler = {
+            handlers: dict[str, Callable[..., Any]] = {
                 "SetUnitMode": self.set_unit_mode, "SetMachSpeed": self.set_mach_speed,
                 "SetProduct": self.set_product, "SetParameter": self.set_parameter,
                 "RemoteCommand": self.remote_command, "SetInterlock": self.set_interlock,
-            }.get(method)
+            }
+            handler = handlers.get(method)
             if handler is None:
                 raise CallError("BadMethodInvalid", f"the unit has no method {method}")
             handler(*args)
@@ -827,7 +828,7 @@ _MISSING = object()
 
 
 def _hosting(states: Iterable[Any], submachine: str) -> str:
-    return next(s.name for s in states if s.submachine == submachine)
+    return next(str(s.name) for s in states if s.submachine == submachine)
 
 
 def _counted(c: PackMLCountDataType, n: int) -> PackMLCountDataType:

@@ -2,14 +2,9 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from uacell.companion import Closer, Companion, LockRule
+from uacell.companion import Companion, LockRule, lazy_binder
 from uacell.robotics.config import RobotConfig, parse_robots
 from uacell.roles import Family, Role
-
-if TYPE_CHECKING:
-    from uacell.server import UacellServer
 
 TASK_CONTROL = Family("TaskControl")
 SYSTEM_OPERATION = Family("SystemOperation")
@@ -23,15 +18,9 @@ _TASK_CONTROL_METHODS = (
 )  # fmt: skip
 
 
-async def _bind(app: UacellServer) -> Closer | None:
-    from uacell.robotics.binding import bind_robotics
-
-    return await bind_robotics(app)
-
-
 ROBOTICS = Companion(
     name="Robotics",
-    binder=_bind,
+    binder=lazy_binder("uacell.robotics.binding", "bind_robotics"),
     section="robot",
     settings=RobotConfig,
     cell_section="robots",

@@ -6,10 +6,12 @@ Pure: reads and checks the tables (``uacell.cellconfig.Table``) and turns them i
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
 from uacell.cellconfig import STATE_MACHINE, Part, Table, check_name, identification_lines, read_identification, unique
+from uacell.errors import ConfigError
 from uacell.robotics.equipment import AxisInfo, ExecutionMode, StopMode
 from uacell.robotics.sim import DEFAULT_AXES
 
@@ -82,6 +84,10 @@ class RobotSpec:
 
 
 # --- reading --------------------------------------------------------------------------------------
+def _axis_error(table: Table, index: int, message: str) -> ConfigError:
+    return table.error(f"axes[{index}]", message)
+
+
 def _axes(table: Table) -> tuple[AxisInfo, ...]:
     value = table.raw("axes")
     if value is None:
@@ -101,7 +107,7 @@ def _axes(table: Table) -> tuple[AxisInfo, ...]:
             else EXTRA_AXIS
         )
         if isinstance(item, str):
-            check_name(item, lambda m, i=i: table.error(f"axes[{i}]", m))
+            check_name(item, functools.partial(_axis_error, table, i))
             axes.append(AxisInfo(item, low, high, speed))
             tables.append(table)
             continue

@@ -1,6 +1,6 @@
 """OPC 40010-1 remote operation, free of OPC UA: TaskControl, SystemOperation and the cell wiring them.
 
-The rules are uacell's decisions 8-21 (docs/robotics.md is the client's view of them). State lives
+The rules are docs/decisions.md 8-21 (docs/robotics.md is the client's view of them). State lives
 only in ``uacell.fsm.StateMachine`` objects built from the NodeSet tables; the OPC UA binding
 listens to them and to ``listeners`` (called after any other observable change) and publishes.
 Operations return the Int32 ``Status`` of the Robotics methods, or raise ``CallError`` for Bad codes.

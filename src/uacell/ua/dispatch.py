@@ -144,7 +144,7 @@ class MethodDispatcher(MethodService):
             arg.Description = ua.LocalizedText(text)
             arguments.append(arg)
 
-        async def unused(parent, *args):  # never called: the dispatcher answers every call
+        async def unused(parent: Any, *args: Any) -> list[ua.StatusCode]:  # never called: the dispatcher answers
             return [ua.StatusCode(ua.StatusCodes.BadInternalError)]
 
         method = await self.server.get_node(object_id).add_method(nodeid, name, unused, arguments, [])
@@ -319,7 +319,8 @@ class MethodDispatcher(MethodService):
                 results = [ua.StatusCode(ua.StatusCodes.Good)] * n
                 results[err.argument] = ua.StatusCode(getattr(ua.StatusCodes, err.argument_status))
             result = _result(getattr(ua.StatusCodes, err.status), results, n=n)
-            if results is not None and context.return_diagnostics() & _OPERATION_DIAGNOSTICS:
+            diagnostics = context.return_diagnostics() & _OPERATION_DIAGNOSTICS
+            if results is not None and err.argument is not None and diagnostics:
                 # The reason, for clients that ask for operation-level diagnostics (OPC 10000-4 Call).
                 infos = [ua.DiagnosticInfo() for _ in range(n)]
                 infos[err.argument] = ua.DiagnosticInfo(AdditionalInfo=err.message)

@@ -24,6 +24,7 @@ import logging
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 from asyncua import Server, ua
 from asyncua.server.address_space import AddressSpace
@@ -112,7 +113,7 @@ class TypeIndex:
         self._member_refs = toolkit.subtypes(aspace, ua.NodeId(_AGGREGATES)) | {ua.NodeId(_ORGANIZES)}
 
 
-    def attr(self, node: ua.NodeId, attribute: ua.AttributeIds):
+    def attr(self, node: ua.NodeId, attribute: ua.AttributeIds) -> Any:
         value = self.aspace[node].attributes.get(attribute)
         return None if value is None or value.value is None or value.value.Value is None else value.value.Value.Value
 
@@ -328,13 +329,22 @@ class Instantiator:
         attrs.SpecifiedAttributes = _mask("DisplayName", "Description", "EventNotifier", "WriteMask", "UserWriteMask")
         self._add(parent, nodeid, qname, ua.NodeClass.Object, attrs, type_id, reference_type)
 
-    def _common(self, attrs, decl: ua.NodeId) -> None:
+    def _common(self, attrs: Any, decl: ua.NodeId) -> None:
         attrs.DisplayName = self.types.attr(decl, _A.DisplayName) or ua.LocalizedText()
         attrs.Description = self.types.attr(decl, _A.Description) or ua.LocalizedText()
         attrs.WriteMask = 0
         attrs.UserWriteMask = 0
 
-    def _add(self, parent, nodeid, qname, node_class, attrs, type_id, reference_type) -> None:
+    def _add(
+        self,
+        parent: ua.NodeId,
+        nodeid: ua.NodeId,
+        qname: ua.QualifiedName,
+        node_class: ua.NodeClass,
+        attrs: Any,
+        type_id: ua.NodeId | None,
+        reference_type: int,
+    ) -> None:
         item = ua.AddNodesItem()
         item.RequestedNewNodeId = nodeid
         item.BrowseName = qname

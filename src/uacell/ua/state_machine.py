@@ -99,7 +99,7 @@ class StateMachineBinding:
         self.refs = refs
         self.publisher = publisher
         self.children: list[StateMachineBinding] = []
-        c = lambda *path: self._path(*path)  # noqa: E731
+        c = self._path
         self.current = c("CurrentState")
         self.current_id = c("CurrentState", "Id")
         self.current_number = c("CurrentState", "Number")

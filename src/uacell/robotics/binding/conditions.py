@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import uuid
 from collections import deque
+from collections.abc import Sequence
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from asyncua import ua
 
@@ -25,6 +27,22 @@ log = logging.getLogger(__name__)
 
 SIMULATE_ALARM = "SimulateAlarm"
 ALARM_SEVERITY = 800
+
+
+@runtime_checkable
+class AlarmSimulation(Protocol):
+    """Equipment that can raise and clear alarms on request (the simulator): SimulateAlarm is offered."""
+
+    @property
+    def alarm_names(self) -> Sequence[str]: ...
+
+    def raise_alarm(self, name: str, message: str = "") -> None: ...
+
+    def clear_alarm(self, name: str) -> None: ...
+
+
+def _unacked(condition: Condition) -> bool:
+    return not condition.acked
 
 
 class ConditionNode:
@@ -90,7 +108,7 @@ class Conditions:
             await self.publish_condition(cond, model, fire=False)
             b.bind_method(
                 node, "Acknowledge", Family.CONDITION, self._acknowledge(cond),
-                lambda c=model: not c.acked, system.machine, b.controller.node,
+                functools.partial(_unacked, model), system.machine, b.controller.node,
             )  # fmt: skip
         system.condition_listeners.append(self.condition_changed)
         await self._setup_simulate_alarm()
@@ -174,7 +192,7 @@ class Conditions:
     async def _setup_simulate_alarm(self) -> None:
         b = self.binding
         equipment = b.cell.equipment
-        if not hasattr(equipment, "raise_alarm"):
+        if not isinstance(equipment, AlarmSimulation):
             return
         inputs = (
             ("Name", ua.VariantType.String, "alarm name (a condition in SystemOperation/Conditions)"),
