@@ -9,9 +9,10 @@ import pytest
 
 from uacell.equipment import EquipmentSpec, make_equipment
 from uacell.errors import ConfigError
-from uacell.robotics.binding import StoreLibrary, install_samples, wave_program
+from uacell.robotics.binding import StoreLibrary, install_samples
 from uacell.robotics.equipment import AxisInfo, RobotEquipment
 from uacell.robotics.model import DirectoryLibrary
+from uacell.robotics.program import wave_program
 from uacell.robotics.sim import SimulatedRobot
 from uacell.ua.file_store import TEMP_PREFIX, FileStore
 

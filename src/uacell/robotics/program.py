@@ -24,6 +24,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from importlib import resources
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from uacell.robotics.equipment import AxisInfo
 
 AXIS_COUNT = 6
 MAX_SPEED_PERCENT = 100.0
@@ -311,3 +315,19 @@ def samples() -> dict[str, str]:
     """The sample programs and modules shipped with uacell: file name -> text."""
     folder = resources.files("uacell") / "samples"
     return {f.name: f.read_text(encoding="utf-8") for f in folder.iterdir() if f.name.endswith(".robot")}
+
+
+def wave_program(axes: Sequence[AxisInfo]) -> str:
+    """A program for any arm: home, each axis a little way out and back, home."""
+    home = [0.0 if a.min_position <= 0.0 <= a.max_position else a.min_position for a in axes]
+    lines = [f"# Wave: generated for a {len(axes)}-axis arm", "program Wave version 1.0", "speed 50"]
+
+    def move(values: Sequence[float]) -> str:
+        return "move " + " ".join(f"{v:g}" for v in values)
+
+    lines.append(move(home))
+    for i, a in enumerate(axes):
+        out = list(home)
+        out[i] = home[i] + min(20.0, (a.max_position - home[i]) / 2)
+        lines += [move(out), move(home)]
+    return "\n".join(lines) + "\n"

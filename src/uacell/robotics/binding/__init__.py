@@ -24,7 +24,7 @@ The pure ``RobotCell`` (``uacell.robotics.model``) owns every rule; this package
 """
 
 from uacell.robotics.binding.core import CONTROLLERS, TASK_CONTROLS, RoboticsBinding, bind_robotics, programs_root
-from uacell.robotics.binding.programs import StoreLibrary, install_samples, wave_program
+from uacell.robotics.binding.programs import StoreLibrary, install_samples
 
 __all__ = [
     "CONTROLLERS",
@@ -34,5 +34,4 @@ __all__ = [
     "bind_robotics",
     "install_samples",
     "programs_root",
-    "wave_program",
 ]

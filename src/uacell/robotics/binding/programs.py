@@ -12,7 +12,7 @@ from asyncua import ua
 from uacell.errors import CallError
 from uacell.robotics.equipment import AxisInfo
 from uacell.robotics.model import PROGRAM_SUFFIX, DirectoryLibrary
-from uacell.robotics.program import AXIS_COUNT, samples
+from uacell.robotics.program import AXIS_COUNT, samples, wave_program
 from uacell.ua.file_directory import FileDirectoryBinding
 from uacell.ua.file_store import FileStore
 
@@ -37,22 +37,6 @@ def install_samples(root: Path, axes: Sequence[AxisInfo] = ()) -> bool:
         (root / name).write_text(text, encoding="utf-8")
     log.info("installed %d sample programs in %s", len(files), root)
     return True
-
-
-def wave_program(axes: Sequence[AxisInfo]) -> str:
-    """A program for any arm: home, each axis a little way out and back, home."""
-    home = [0.0 if a.min_position <= 0.0 <= a.max_position else a.min_position for a in axes]
-    lines = [f"# Wave: generated for a {len(axes)}-axis arm", "program Wave version 1.0", "speed 50"]
-
-    def move(values: Sequence[float]) -> str:
-        return "move " + " ".join(f"{v:g}" for v in values)
-
-    lines.append(move(home))
-    for i, a in enumerate(axes):
-        out = list(home)
-        out[i] = home[i] + min(20.0, (a.max_position - home[i]) / 2)
-        lines += [move(out), move(home)]
-    return "\n".join(lines) + "\n"
 
 
 class StoreLibrary(DirectoryLibrary):
