@@ -19,7 +19,8 @@ def equipment_specs(config: Config) -> list[tuple[str, str]]:
                 spec = getattr(p.spec, "equipment", "")
                 if spec:
                     specs.append((path, spec))
-                stack.extend((f"{path}.{c.name}", c) for c in p.children)
+                # The browse path, as NodeIds spell it: Robot1.Controllers.Controller1
+                stack.extend((".".join(x for x in (path, *c.folder.split("/"), c.name) if x), c) for c in p.children)
     return [(where, spec) for where, spec in specs if spec]
 
 
