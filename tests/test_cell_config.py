@@ -219,6 +219,10 @@ ERRORS = [
         "[server] anonymous_role must be one of observer, operator, engineer, admin",
     ),
     (("[[packml_units]]", "[cell]\n[[packml_units]]"), "unknown section [cell]"),
+    (
+        ("[[packml_units]]", '[server]\napplication_uri = ""\n[[packml_units]]'),
+        "[server] application_uri must not be empty",
+    ),
 ]
 
 

@@ -193,6 +193,9 @@ def load_config(path: str | Path | None = None) -> Config:
                 raise ConfigError(f"configuration {path}: {exc}") from exc
     if not 0 <= config.server.port <= 65535:
         raise ConfigError(f"configuration {path}: [server] port must be 0..65535")
+    for key in ("application_uri", "application_name"):
+        if not getattr(config.server, key).strip():
+            raise ConfigError(f"configuration {path}: [server] {key} must not be empty")
     return config
 
 
