@@ -53,7 +53,7 @@ async def app(tmp_path_factory):
 
 class Session:
     def __init__(self, app: UacellServer, uri: str = "urn:test:cell") -> None:
-        self.client = Client(app.endpoint, timeout=30)
+        self.client = Client(app.endpoint, timeout=30, watchdog_intervall=30.0)  # loaded machines: no 1 s probe
         self.client.application_uri = uri
 
     async def __aenter__(self) -> Session:

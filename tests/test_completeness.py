@@ -291,7 +291,8 @@ async def _serve_cell(base: Path, cell: str) -> AsyncIterator[Space]:
     config = fast_config(base / "data")
     config.cell = load_cell(builtin_cell_path(cell))
     app = await start_app(config)
-    client = Client(app.endpoint, timeout=60)
+    # The health probe (a ServerStatus read) gets 30 s, not 1 s: a loaded machine must not drop the session.
+    client = Client(app.endpoint, timeout=60, watchdog_intervall=30.0)
     try:
         await client.connect()
         s = Space(client)
