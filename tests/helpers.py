@@ -8,7 +8,11 @@ from __future__ import annotations
 import asyncio
 import functools
 import socket
+import uuid
 from collections.abc import Callable
+from typing import Any, Protocol
+
+from asyncua import ua
 
 from uacell.locking import LockManager
 from uacell.models import StateTables
@@ -17,6 +21,7 @@ from uacell.robotics import RobotCell, RoboticsTables
 from uacell.robotics.binding import CONTROLLERS, RoboticsBinding
 from uacell.server import UacellServer
 from uacell.ua.locks import LOCK_SERVICE
+from uacell.ua.toolkit import EventEmitter
 
 
 @functools.cache
@@ -94,3 +99,36 @@ class VirtualTime:
         self.now += seconds
         self.slept += seconds
         await asyncio.sleep(0)
+
+
+def server_value(app: UacellServer, nodeid: ua.NodeId) -> Any:
+    """The Value of ``nodeid`` as the server holds it (no client round trip)."""
+    return app.server.iserver.aspace.read_attribute_value(nodeid, ua.AttributeIds.Value).Value.Value
+
+
+class EventSink(Protocol):
+    events: list[Any]
+
+    async def wait_for(self, match: Callable[[Any], bool], timeout: float = ...) -> Any: ...
+
+
+async def delivered(app: UacellServer, sink: EventSink, *sources: ua.NodeId) -> None:
+    """Wait until ``sink`` holds every TransitionEvent the server produced so far from ``sources``.
+
+    The server settles (every model change published, every event triggered), then fires a marker
+    event from each source; events of a subscription arrive in order, so once the markers are in,
+    nothing produced before them is still on its way. The markers are then dropped from ``sink``.
+    """
+    await app.settle()
+    marker = f"uacell-test-marker {uuid.uuid4().hex}"
+    for source in sources:
+        emitter = await EventEmitter.create(app.server, ua.ObjectIds.TransitionEventType, source)
+        await emitter.fire(
+            (source,), EventId=uuid.uuid4().bytes, Message=ua.LocalizedText(marker), SourceNode=source, Severity=1
+        )
+
+    def is_marker(event: Any) -> bool:
+        return getattr(getattr(event, "Message", None), "Text", None) == marker
+
+    await sink.wait_for(lambda _e: sum(1 for e in sink.events if is_marker(e)) >= len(sources))
+    sink.events[:] = [e for e in sink.events if not is_marker(e)]

@@ -16,7 +16,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import robot_binding, robot_cell
+from helpers import delivered, robot_binding, robot_cell, server_value, wait_until
 
 from uacell.robotics.equipment import ExecutionMode, StopMode
 from uacell.roles import Role
@@ -194,7 +194,6 @@ async def subscribe_transitions(r: Rig, *paths: str) -> tuple[Events, object]:
     evtype = r.client.get_node(ua.ObjectIds.TransitionEventType)
     for path in paths:
         await sub.subscribe_events(r.client.get_node(nid(r, path)), evtype)
-    await asyncio.sleep(0.1)
     return events, sub
 
 
@@ -280,7 +279,7 @@ async def test_unknown_name_is_minus_one_with_idle_to_idle_reason_error(fresh):
     ev = await events.wait_for(is_transition("IdleToIdle"))
     assert ev.FromState.Text == "Idle" and ev.ToState.Text == "Idle"
     assert ev.SourceNode == nid(r, TC)
-    await asyncio.sleep(0.1)
+    await delivered(r.app, events, nid(r, TC))
     assert events.transitions() == ["IdleToIdle"]  # one event for the one transition
     assert await state(r, TC) == "Idle"
     assert (await read(r, f"{TC}.LastTransition")).Text == "IdleToIdle"
@@ -326,7 +325,7 @@ async def test_bad_node_ids_answer_bad_codes_with_argument_result_and_no_transit
     res = await call(r, TC, "LoadByNodeId", variants[case])
     assert res.StatusCode.value == expected
     assert [c.value for c in res.InputArgumentResults] == [expected]
-    await asyncio.sleep(0.1)
+    await delivered(r.app, events, nid(r, TC))
     assert events.transitions() == []
     assert await state(r, TC) == "Idle"
     assert await read(r, f"{TC}.LastTransition") == before
@@ -347,7 +346,7 @@ async def test_load_in_ready_replaces_and_a_failure_keeps_the_old_program(fresh)
     assert await status(r, TC, "LoadByName", s("broken")) == -2
     assert await state(r, TC) == "Ready"
     assert await read(r, f"{TASK}.ParameterSet.TaskProgramName") == "Palletize"
-    await asyncio.sleep(0.1)
+    await delivered(r.app, events, nid(r, TC))
     assert events.transitions() == []  # no IdleToIdle/IdleToReady in Ready
     await sub.delete()
 
@@ -394,8 +393,9 @@ async def test_start_runs_the_program_to_its_end_and_the_axes_move(fresh):
     assert events.transitions(nid(r, SO)) == ["ReadyToExecuting", "ExecutingToReady"]
     assert await read(r, f"{TC}.LastTransitionReason") == 5
     assert await state(r, READY) == "AtProgramStart"
-    await r.app.settle()
-    await asyncio.sleep(0.3)  # one more axis sample
+    # the sampler publishes the resting arm once it notices
+    await wait_until(lambda: server_value(r.app, axis.nodeid) == pytest.approx(60.0))
+    await wait_until(lambda: server_value(r.app, speed.nodeid) == 0.0)
     assert await axis.read_value() == pytest.approx(60.0)
     assert await speed.read_value() == 0.0
     positions = [v for n, v in samples.events if n == axis]
@@ -426,7 +426,7 @@ async def test_stop_suspends_and_reset_to_program_start(fresh):
     await events.wait_for(is_transition("SuspendedToProgramStart"))
     assert await state(r, READY) == "AtProgramStart"
     assert await status(r, READY, "ResetToProgramStart") == 0  # already there: no transition
-    await asyncio.sleep(0.1)
+    await delivered(r.app, events, nid(r, READY))
     assert events.transitions(nid(r, READY)).count("SuspendedToProgramStart") == 1
     await sub.delete()
 
@@ -646,7 +646,6 @@ async def test_active_alarm_is_status_3_unacknowledged_is_4_and_acknowledge_clea
     sub = await r.client.create_subscription(20, events)
     alarm_type = r.client.get_node(ua.ObjectIds.AlarmConditionType)
     await sub.subscribe_events(r.client.get_node(ua.ObjectIds.Server), alarm_type)
-    await asyncio.sleep(0.1)
     # an admin raises the alarm through the server-specific method
     manager = r.app.server.iserver.user_manager
     policy = manager.policy

@@ -154,8 +154,7 @@ async def test_subscription_receives_the_transition_event(rig, source):
     sub = await r.client.create_subscription(50, handler)
     target = r.tc if source == "machine" else r.client.get_node(ua.ObjectIds.Server)
     evtype = r.client.get_node(ua.ObjectIds.TransitionEventType)
-    await sub.subscribe_events(target, evtype)
-    await asyncio.sleep(0.2)
+    await sub.subscribe_events(target, evtype)  # active once the server has answered
     res = await call(r, "LoadByName", ua.Variant("prog", ua.VariantType.String))
     assert res.StatusCode.is_good()
     await asyncio.wait_for(handler.arrived.wait(), 10)

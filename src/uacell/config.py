@@ -16,6 +16,8 @@ allow_none_security = true        # default: only on loopback
 trust_on_first_use = false
 application_uri = "urn:HOST:uacell"  # default: per host
 application_name = "uacell@HOST"     # default: per host
+rejected_max_files = 100          # refused client certificates kept in pki/rejected/ (oldest dropped)
+rejected_max_age_days = 30.0      # ... and for how long
 
 [robot]                           # defaults for every controller that does not set its own
 time_scale = 1.0                  # simulated robot: >1 runs faster than real time
@@ -82,6 +84,8 @@ class ServerConfig:
     trust_on_first_use: bool = False
     application_uri: str = field(default_factory=default_application_uri)
     application_name: str = field(default_factory=default_application_name)
+    rejected_max_files: int = 100
+    rejected_max_age_days: float = 30.0
 
 
 class Config:
@@ -196,6 +200,8 @@ def load_config(path: str | Path | None = None) -> Config:
     for key in ("application_uri", "application_name"):
         if not getattr(config.server, key).strip():
             raise ConfigError(f"configuration {path}: [server] {key} must not be empty")
+    if config.server.rejected_max_files < 1:
+        raise ConfigError(f"configuration {path}: [server] rejected_max_files must be 1 or more")
     return config
 
 

@@ -6,7 +6,9 @@ part above it, non-lockable members guarded with it) and which method families a
 NodeIds (``BuiltPart.node``). A binder passes ``element=<part NodeId>`` to ``dispatcher.bind``; the
 guard refuses guarded methods there with Bad_ResourceUnavailable while another session holds a lock
 on the element or a part above it. For Robotics: Controllers, the TaskControls below them, and each
-Controller's SystemOperation as a member.
+Controller's SystemOperation as a member. The write guard refuses, with DI's Bad_Locked, every write
+to a node below a locked element (found by walking the hierarchy up from the written node) by another
+session.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from asyncua import ua
 from uacell.background import Background
 from uacell.companion import companions
 from uacell.di.companion import LOCKING
+from uacell.errors import CallError
 from uacell.locking import LockManager, LockOwner
 from uacell.registry import RegistryKey
 from uacell.roles import Family
@@ -51,6 +54,13 @@ _LOCK_VARIABLES = (
 LOCK_SERVICE: RegistryKey[LockBinding] = RegistryKey("lock service")
 # Every Lock object, keyed by the browse path of the part that carries it.
 LOCKS: RegistryKey[ua.NodeId] = RegistryKey("lock")
+# Child references followed upwards from a written node to the lockable element above it.
+_CHILD_REFS = {
+    ua.NodeId(i)
+    for i in (ua.ObjectIds.HasComponent, ua.ObjectIds.HasProperty, ua.ObjectIds.HasOrderedComponent,
+              ua.ObjectIds.Organizes)
+}
+_MAX_DEPTH = 32
 
 
 class LockBinding:
@@ -121,6 +131,40 @@ class LockBinding:
         if bound.family in self.guarded and bound.element is not None and bound.element in self.manager:
             self.manager.check(bound.element, caller.session_id)
 
+    def element_of(self, node: ua.NodeId) -> Hashable | None:
+        """The nearest lockable-tree element at or above ``node`` (through child references), if any."""
+        aspace = self.app.server.iserver.aspace
+        level: list[ua.NodeId] = [node]
+        seen = {node}
+        for _ in range(_MAX_DEPTH):
+            if not level:
+                return None
+            for current in level:
+                if current in self.manager:
+                    found: Hashable = current
+                    return found
+            parents: list[ua.NodeId] = []
+            for current in level:
+                data = aspace.get(current)
+                for ref in data.references if data is not None else ():
+                    if not ref.IsForward and ref.ReferenceTypeId in _CHILD_REFS and ref.NodeId not in seen:
+                        seen.add(ref.NodeId)
+                        parents.append(ref.NodeId)
+            level = parents
+        return None
+
+    def write_guard(self, caller: Caller, item: ua.WriteValue) -> ua.StatusCode | None:
+        """DI LockingServices: writes below an element another session has locked answer Bad_Locked."""
+        element = self.element_of(item.NodeId)
+        if element is None:
+            return None
+        try:
+            self.manager.check(element, caller.session_id, status="BadLocked")
+        except CallError as refused:
+            log.info("write of %s refused for %s: %s", item.NodeId.to_string(), caller.display_user, refused.message)
+            return ua.StatusCode(getattr(ua.StatusCodes, refused.status))
+        return None
+
     def session_closed(self, session: InternalSession) -> None:
         self.manager.session_closed(caller_of(session).session_id)
 
@@ -175,6 +219,7 @@ async def bind_locks(app: UacellServer) -> Callable[[], Awaitable[None]]:
     binding.build_tree()
     binding.bind_methods()
     app.dispatcher.guards.append(binding.guard)
+    app.writes.guards.append(binding.write_guard)
     app.security.on_session_closed.append(binding.session_closed)
     await binding.publish_all()
     binding.start()
