@@ -112,6 +112,22 @@ class EventSink(Protocol):
     async def wait_for(self, match: Callable[[Any], bool], timeout: float = ...) -> Any: ...
 
 
+async def fire_marker(app: UacellServer, source: ua.NodeId, marker: str) -> None:
+    """Settle the server, then fire a TransitionEvent from ``source`` whose Message, Transition,
+    FromState and ToState are all ``marker``: once a subscriber has it, it has everything before it."""
+    await app.settle()
+    text = (ua.LocalizedText(marker), ua.VariantType.LocalizedText)
+    emitter = await EventEmitter.create(app.server, ua.ObjectIds.TransitionEventType, source)
+    await emitter.fire(
+        (source,),
+        {"Transition": text, "FromState": text, "ToState": text},
+        EventId=uuid.uuid4().bytes,
+        Message=ua.LocalizedText(marker),
+        SourceNode=source,
+        Severity=1,
+    )
+
+
 async def delivered(app: UacellServer, sink: EventSink, *sources: ua.NodeId) -> None:
     """Wait until ``sink`` holds every TransitionEvent the server produced so far from ``sources``.
 
@@ -119,13 +135,9 @@ async def delivered(app: UacellServer, sink: EventSink, *sources: ua.NodeId) -> 
     event from each source; events of a subscription arrive in order, so once the markers are in,
     nothing produced before them is still on its way. The markers are then dropped from ``sink``.
     """
-    await app.settle()
     marker = f"uacell-test-marker {uuid.uuid4().hex}"
     for source in sources:
-        emitter = await EventEmitter.create(app.server, ua.ObjectIds.TransitionEventType, source)
-        await emitter.fire(
-            (source,), EventId=uuid.uuid4().bytes, Message=ua.LocalizedText(marker), SourceNode=source, Severity=1
-        )
+        await fire_marker(app, source, marker)
 
     def is_marker(event: Any) -> bool:
         return getattr(getattr(event, "Message", None), "Text", None) == marker

@@ -16,7 +16,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import lock_manager
+from helpers import lock_manager, server_value, wait_until
 from uaraw import anonymous_token, none_session
 
 from uacell.server import UacellServer
@@ -211,8 +211,10 @@ async def test_lock_expires_after_max_inactive_lock_time(app):
     async with Session(app, "urn:test:a") as a, Session(app, "urn:test:b") as b:
         assert await a.init_lock(TASK) == 0
         first = await b.var(TASK, "RemainingLockTime")
-        await asyncio.sleep(0.6)
-        assert await b.var(TASK, "RemainingLockTime") < first  # kept current while locked
+        remaining = ua.NodeId(f"{TASK}.Lock.RemainingLockTime", b.ns)
+        # kept current while locked (the server's expiry tick updates it)
+        await wait_until(lambda: server_value(app, remaining) < first, timeout=3.0)
+        assert await b.var(TASK, "RemainingLockTime") < first
         assert await wait_unlocked(b, TASK, 3.0) < 3.0
         assert await b.load() != RESOURCE
         assert await a.lock(TASK, "RenewLock") == -1

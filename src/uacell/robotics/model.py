@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Awaitable, Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
 from enum import IntEnum
 from pathlib import Path, PurePosixPath
 from typing import Protocol
 
+from uacell.background import Background
 from uacell.errors import CallError
 from uacell.fsm import Reason, StateMachine
 from uacell.models import FsmTable, TableLoader
@@ -196,24 +197,6 @@ def _notify(listeners: Iterable[Listener]) -> None:
         listener()
 
 
-class _Background:
-    """Background coroutines owned by one object (cancelled by ``close``)."""
-
-    def __init__(self) -> None:
-        self.tasks: set[asyncio.Task[None]] = set()
-
-    def spawn(self, coro: Awaitable[None]) -> asyncio.Task[None]:
-        task: asyncio.Task[None] = asyncio.ensure_future(coro)
-        self.tasks.add(task)
-        task.add_done_callback(self.tasks.discard)
-        return task
-
-    async def close(self) -> None:
-        for task in list(self.tasks):
-            task.cancel()
-        await asyncio.gather(*self.tasks, return_exceptions=True)
-
-
 class _Guarded:
     """The one refusal path of a Robotics object (docs/decisions.md 4 and 8).
 
@@ -285,7 +268,7 @@ class TaskControl(_Guarded):
         self.stopping = False
         self.listeners: list[Listener] = []
         self._lock = asyncio.Lock()
-        self._bg = _Background()
+        self._bg = Background()
         self._run: asyncio.Task[None] | None = None
         self._resolution: object = _UNKNOWN
         if system is not None:
@@ -651,7 +634,7 @@ class SystemOperation(_Guarded):
         self.last_error = ""
         self._stop_requested = False
         self._getting_ready: asyncio.Task[None] | None = None
-        self._bg = _Background()
+        self._bg = Background()
         equipment.add_alarm_listener(self._on_alarm)
 
     def __repr__(self) -> str:
