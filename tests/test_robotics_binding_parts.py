@@ -10,6 +10,7 @@ import pytest
 from uacell.equipment import EquipmentSpec, make_equipment
 from uacell.errors import ConfigError
 from uacell.robotics.binding import StoreLibrary, install_samples
+from uacell.robotics.binding.programs import adopt_legacy_programs
 from uacell.robotics.equipment import AxisInfo, RobotEquipment
 from uacell.robotics.model import DirectoryLibrary
 from uacell.robotics.program import wave_program
@@ -98,3 +99,46 @@ def test_store_library_resolves_names_and_hides_temporary_files(tmp_path):
     assert library.resolve("ghost") is None
     assert library.resolve("notes") is None
     assert library.read("sub/extra.robot").startswith("program Extra")
+
+
+def test_programs_of_the_old_single_directory_layout_move_to_the_first_controller(tmp_path):
+    programs = tmp_path / "programs"
+    (programs / "sub").mkdir(parents=True)
+    (programs / "mine.robot").write_text("program Mine\nend\n", encoding="utf-8")
+    (programs / "sub" / "part.robot").write_text("module Part\nend\n", encoding="utf-8")
+    (programs / "Robot2").mkdir()  # another robot's directory stays where it is
+    root = programs / "Robot1" / "Controller1"
+    assert adopt_legacy_programs(programs, root, ["Robot1", "Robot2"]) == 2
+    assert (root / "mine.robot").read_text(encoding="utf-8") == "program Mine\nend\n"
+    assert (root / "sub" / "part.robot").exists()
+    assert sorted(p.name for p in programs.iterdir()) == ["Robot1", "Robot2"]
+    # Once the controller has its directory, nothing moves again.
+    (programs / "late.robot").write_text("program Late\nend\n", encoding="utf-8")
+    assert adopt_legacy_programs(programs, root, ["Robot1", "Robot2"]) == 0
+    assert (programs / "late.robot").exists()
+
+
+def test_a_new_layout_without_legacy_program_files_is_left_alone(tmp_path):
+    programs = tmp_path / "programs"
+    (programs / "Robot1" / "Controller1").mkdir(parents=True)
+    root = programs / "Robot1" / "Controller2"
+    assert adopt_legacy_programs(programs, root, ["Robot1"]) == 0
+    assert not root.exists()
+
+
+async def test_the_demo_controller_serves_programs_stored_by_an_older_uacell(tmp_path):
+    from asyncua import Client
+    from conftest import fast_config, start_app
+
+    data = tmp_path / "data"
+    (data / "programs").mkdir(parents=True)
+    (data / "programs" / "legacy.robot").write_text("program Legacy\nmove 0 0 0 0 0 0\nend\n", encoding="utf-8")
+    app = await start_app(fast_config(data))
+    try:
+        async with Client(app.endpoint) as client:
+            ns = await client.get_namespace_index("urn:uacell:cell")
+            programs = client.get_node(f"ns={ns};s=Robot1.Controllers.Controller1.Programs")
+            names = {(await c.read_browse_name()).Name for c in await programs.get_children()}
+            assert "legacy.robot" in names
+    finally:
+        await app.stop()

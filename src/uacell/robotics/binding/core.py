@@ -214,7 +214,7 @@ def programs_root(data_dir: Path, controller_path: str) -> Path:
 
 async def bind_controller(app: UacellServer, controller: BuiltPart, tables: RoboticsTables) -> RoboticsBinding:
     """One controller with its task controls and motion device, on its own equipment and Programs."""
-    from uacell.robotics.binding.programs import StoreLibrary, install_samples
+    from uacell.robotics.binding.programs import StoreLibrary, adopt_legacy_programs, install_samples
 
     tasks = [t for t in app.cell.by_role(TASK_CONTROL_PART) if t.path.startswith(controller.path + ".")]
     arm = _arm_of(app, controller)
@@ -222,6 +222,9 @@ async def bind_controller(app: UacellServer, controller: BuiltPart, tables: Robo
     spec = controller.part.spec if isinstance(controller.part.spec, ControllerSpec) else None
     equipment = await make_controller_equipment(app, controller, axes)
     root = programs_root(app.data_dir, controller.path)
+    robots = sorted({c.path.partition(".Controllers.")[0] for c in app.cell.by_role(CONTROLLER)})
+    if controller is app.cell.by_role(CONTROLLER)[0]:
+        adopt_legacy_programs(root.parent.parent, root, robots)
     install_samples(root, equipment.axes)
     store = FileStore(root)
     cell = RobotCell(

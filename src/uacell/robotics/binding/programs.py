@@ -39,6 +39,25 @@ def install_samples(root: Path, axes: Sequence[AxisInfo] = ()) -> bool:
     return True
 
 
+def adopt_legacy_programs(programs_dir: Path, root: Path, keep: Sequence[str]) -> int:
+    """Move the files of the single-controller layout (``programs/*``) into ``root``; return how many.
+
+    Before cells were configurable, the one controller's files lived directly in ``programs/``. On
+    the first start of a newer uacell they become that controller's (``programs/<robot>/<controller>``),
+    so nothing a user stored is lost. ``keep`` are the robots' directory names, never moved.
+    """
+    if root.exists() or not programs_dir.is_dir():
+        return 0
+    legacy = [e for e in sorted(programs_dir.iterdir()) if e.name not in keep]
+    if not any(e.is_file() and e.suffix == PROGRAM_SUFFIX for e in legacy):
+        return 0
+    root.mkdir(parents=True)
+    for entry in legacy:
+        entry.rename(root / entry.name)
+    log.warning("moved %d entries of the old programs/ layout to %s", len(legacy), root)
+    return len(legacy)
+
+
 class StoreLibrary(DirectoryLibrary):
     """The ProgramLibrary over a FileStore: the store's listing hides its temporary files."""
 
