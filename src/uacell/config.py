@@ -20,7 +20,35 @@ equipment = ""                    # "package.module:factory" for real equipment 
 acting_time = 1.0                 # seconds each acting state of the simulated unit takes
 mach_speed = 60.0                 # initial MachSpeed, packages/min
 equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
+
+[programs]                        # what one robot program may cost (docs/programs.md)
+max_file_bytes = 262144
+max_lines = 10000
+max_nesting = 16
+max_steps = 20000
+max_call_depth = 16
+max_work = 200000
+max_folder_bytes = 67108864       # the whole Programs folder
+
+[limits]                          # what clients may hold and send (docs/security.md, "Limits")
+connections = 256
+sessions = 100
+subscriptions_per_session = 20
+subscriptions = 500
+monitored_items_per_subscription = 1000
+monitored_items = 20000
+file_handles_per_session = 16
+file_handles = 128
+max_chunk_size = 65535
+max_message_size = 4194304
+pending_chunks_per_connection = 64
+login_base_delay = 1.0
+login_max_delay = 30.0
+login_free_failures = 2
+password_checks = 2
 ```
+
+Every key of ``[programs]`` and ``[limits]`` is a positive number.
 """
 
 from __future__ import annotations
@@ -63,14 +91,57 @@ class PackMLConfig:
 
 
 @dataclass
+class ProgramsConfig:
+    """Bounds of one robot program (``uacell.robotics.program.ProgramLimits``) and of the folder."""
+
+    max_file_bytes: int = 256 * 1024
+    max_lines: int = 10_000
+    max_nesting: int = 16
+    max_steps: int = 20_000
+    max_call_depth: int = 16
+    max_work: int = 200_000
+    max_folder_bytes: int = 64 * 1024 * 1024
+
+
+@dataclass
+class LimitsConfig:
+    """What clients may hold and send (docs/security.md, "Limits")."""
+
+    connections: int = 256  # TCP connections, before and after a session is activated
+    sessions: int = 100
+    subscriptions_per_session: int = 20
+    subscriptions: int = 500
+    monitored_items_per_subscription: int = 1000
+    monitored_items: int = 20_000
+    file_handles_per_session: int = 16
+    file_handles: int = 128
+    max_chunk_size: int = 65535  # the largest chunk (receive/send buffer) the server accepts
+    max_message_size: int = 4 * 1024 * 1024  # the largest request, all its chunks together
+    pending_chunks_per_connection: int = 64  # chunks received but not yet processed, per connection
+    login_base_delay: float = 1.0  # first delay after the free failures, doubled per further failure
+    login_max_delay: float = 30.0
+    login_free_failures: int = 2  # failures in a row without delay
+    password_checks: int = 2  # password hashes verified at once, server-wide
+
+
+@dataclass
 class Config:
     server: ServerConfig = field(default_factory=ServerConfig)
     robot: RobotConfig = field(default_factory=RobotConfig)
     packml: PackMLConfig = field(default_factory=PackMLConfig)
+    programs: ProgramsConfig = field(default_factory=ProgramsConfig)
+    limits: LimitsConfig = field(default_factory=LimitsConfig)
     source: Path | None = None
 
 
-_SECTIONS = {"server": ServerConfig, "robot": RobotConfig, "packml": PackMLConfig}
+_SECTIONS = {
+    "server": ServerConfig,
+    "robot": RobotConfig,
+    "packml": PackMLConfig,
+    "programs": ProgramsConfig,
+    "limits": LimitsConfig,
+}
+_POSITIVE = ("programs", "limits")  # sections whose every value must be above zero
 
 
 def _coerce(section: str, key: str, value: object, default: object) -> object:
@@ -86,6 +157,8 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
     if isinstance(default, int):
         if not isinstance(value, int) or isinstance(value, bool):
             raise ConfigError(f"{name} must be an integer")
+        if section in _POSITIVE and value < 1:
+            raise ConfigError(f"{name} must be a positive integer")
         return value
     if isinstance(default, float):
         if not isinstance(value, int | float) or isinstance(value, bool) or value <= 0:
@@ -126,6 +199,11 @@ def load_config(path: str | Path | None = None) -> Config:
                 raise ConfigError(f"configuration {path}: {exc}") from exc
     if not 0 <= config.server.port <= 65535:
         raise ConfigError(f"configuration {path}: [server] port must be 0..65535")
+    limits = config.limits
+    if not 8192 <= limits.max_chunk_size <= limits.max_message_size:
+        raise ConfigError(f"configuration {path}: [limits] max_chunk_size must be 8192..max_message_size")
+    if limits.login_base_delay > limits.login_max_delay:
+        raise ConfigError(f"configuration {path}: [limits] login_base_delay must not exceed login_max_delay")
     return config
 
 

@@ -16,6 +16,7 @@ from uacell.robotics.binding import bind_robotics
 from uacell.roles import Role, listening_policy
 from uacell.ua.access import UacellUserManager
 from uacell.ua.dispatch import MethodDispatcher
+from uacell.ua.file_store import HandlePool
 from uacell.ua.nodesets import load_models
 from uacell.ua.state_machine import NodeRefs, Publisher
 from uacell.ua.writes import WriteRouter
@@ -54,6 +55,9 @@ class UacellServer:
         self.publisher.idle_hooks.append(self.dispatcher.refresh_executable)
         self.refs: NodeRefs | None = None
         self.writes = WriteRouter()
+        limits = config.limits
+        # Every file handle any client holds, over all FileType trees (docs/security.md, "Limits").
+        self.file_handles = HandlePool(limits.file_handles_per_session, limits.file_handles)
 
     @property
     def data_dir(self) -> Path:

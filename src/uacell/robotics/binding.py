@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import uuid
 from collections import deque
@@ -36,7 +37,7 @@ from uacell.config import load_factory
 from uacell.errors import CallError
 from uacell.robotics.equipment import RobotEquipment, StopMode
 from uacell.robotics.model import PROGRAM_SUFFIX, Condition, DirectoryLibrary, RobotCell, Status, TaskControl
-from uacell.robotics.program import samples
+from uacell.robotics.program import DEFAULT_LIMITS, ProgramLimits, samples
 from uacell.robotics.sim import SimulatedRobot
 from uacell.roles import Family, Role
 from uacell.ua.context import Caller
@@ -685,12 +686,17 @@ def _executable(model: Any, machine: str, method: str) -> Callable[[], bool]:
 
 # --- client writes ---------------------------------------------------------------------------------
 # --- the binder ------------------------------------------------------------------------------------
-def make_equipment(cfg: Any) -> RobotEquipment:
+def make_equipment(cfg: Any, program_limits: ProgramLimits = DEFAULT_LIMITS) -> RobotEquipment:
     """``[robot] equipment = "module:factory"`` called with the [robot] section, else the simulator."""
     if cfg.equipment:
         return load_factory(cfg.equipment, "robot")(cfg)  # type: ignore[return-value]
     # [robot] time_scale > 1 runs faster than real time; the simulator's scale is real s per simulated s.
-    return SimulatedRobot(time_scale=1.0 / cfg.time_scale)
+    return SimulatedRobot(time_scale=1.0 / cfg.time_scale, program_limits=program_limits)
+
+
+def program_limits(cfg: Any) -> ProgramLimits:
+    """The ``[programs]`` section as ``ProgramLimits``."""
+    return ProgramLimits(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(ProgramLimits)})
 
 
 async def bind_robotics(app: Any) -> Callable[[], Awaitable[None]] | None:
@@ -708,14 +714,17 @@ async def bind_robotics(app: Any) -> Callable[[], Awaitable[None]] | None:
         if len(controllers) > 1:
             root = root / controller.part.name
         install_samples(root)
-        store = FileStore(root)
+        bounds = program_limits(app.config.programs)
+        store = FileStore(root, max_bytes=app.config.programs.max_folder_bytes, handles=app.file_handles)
         library = StoreLibrary(store)
-        equipment = make_equipment(app.config.robot)
+        library.max_bytes = bounds.max_file_bytes
+        equipment = make_equipment(app.config.robot, bounds)
         cell = RobotCell(
             equipment,
             library,
             task_names=[t.part.name for t in tasks],
             motion_devices=[arm.part.name] if arm else (),
+            bounds=bounds,
         )
         binding = RoboticsBinding(app, controller, tasks, arm, cell)
         binding.store = store

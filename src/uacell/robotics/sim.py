@@ -25,7 +25,7 @@ from uacell.robotics.equipment import (
     RunOutcome,
     StopMode,
 )
-from uacell.robotics.program import Kind, Program, ProgramError, Step, expand
+from uacell.robotics.program import DEFAULT_LIMITS, Kind, Program, ProgramError, ProgramLimits, Step, expand
 
 log = logging.getLogger(__name__)
 
@@ -93,10 +93,12 @@ class SimulatedRobot:
         axes: Sequence[AxisInfo] = DEFAULT_AXES,
         alarms: Sequence[str] = DEFAULT_ALARMS,
         home: Sequence[float] | None = None,
+        program_limits: ProgramLimits = DEFAULT_LIMITS,
     ) -> None:
         if time_scale <= 0:
             raise ValueError("time_scale must be positive")
         self.time_scale = time_scale
+        self.program_limits = program_limits
         self.power_up_time = power_up_time
         self.power_down_time = power_down_time
         self._axes = tuple(axes)
@@ -240,13 +242,16 @@ class SimulatedRobot:
             # Raised between the Start and this run's first step: raise_alarm saw no running task.
             t.stop = None
             raise AlarmStop(f"alarm {', '.join(self.active_alarms)} is active")
-        try:
-            steps = expand(t.program, t.modules or {})
-        except ProgramError as e:
-            t.stop = None
-            raise EquipmentError(f"{t.program.name}: {e}") from e
+        program = t.program
         t.running, t.alarm, t.wake = True, None, asyncio.Event()
         try:
+            # Off the event loop: expansion is bounded by program_limits but may take a moment.
+            try:
+                steps = await asyncio.to_thread(expand, program, dict(t.modules or {}), self.program_limits)
+            except ProgramError as e:
+                raise EquipmentError(f"{program.name}: {e}") from e
+            if t.alarm:  # raised while expanding
+                raise AlarmStop(f"alarm {t.alarm} is active")
             return await self._run(t, steps, pointer if 0 <= pointer < len(steps) else 0, mode, progress)
         finally:
             t.running, t.wake, t.stop = False, None, None
@@ -258,6 +263,8 @@ class SimulatedRobot:
             step = steps[i]
             progress(i, step.line)
             finished = await self._execute(t, step)
+            # A step may take no time at all (wait 0, a move to where the arm is): let others run.
+            await asyncio.sleep(0)
             if t.alarm:
                 raise AlarmStop(f"alarm {t.alarm} stopped the robot at line {step.line} of {step.origin}")
             if not finished:  # QuickStop / OnPath cut the instruction: resume redoes it
