@@ -150,7 +150,7 @@ async def cell(tmp_path: Path):  # type: ignore[no-untyped-def]
         "spin.robot": "program Spin\nwait 0\n",
         "tool.robot": "module Tool\nroutine big\n  repeat 10000\n    wait 0\n  end\nend\n",
         "usesbig.robot": "program UsesBig\nuse Tool\nrepeat 3\ncall Tool.big\nend\n",
-        "huge.robot": "program Huge\n" + "# padding\n" * 30000,
+        "huge.robot": "program Huge\n" + "# padding\n" * 20000,
     }
     for name, text in files.items():
         data = text.encode("latin-1") if name == "latin1.robot" else text.encode()
@@ -167,7 +167,7 @@ async def cell(tmp_path: Path):  # type: ignore[no-untyped-def]
         ("spin3", "no move or wait"),
         ("spin3wait", "more than 20000 steps"),
         ("deep", "nest deeper than 16"),
-        ("huge", "larger than 262144 bytes"),
+        ("huge", "larger than 131072 bytes"),
         ("latin1", "not UTF-8 text"),
     ],
 )

@@ -22,7 +22,7 @@ mach_speed = 60.0                 # initial MachSpeed, packages/min
 equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
 
 [programs]                        # what one robot program may cost (docs/programs.md)
-max_file_bytes = 262144
+max_file_bytes = 131072
 max_lines = 10000
 max_nesting = 16
 max_steps = 20000
@@ -40,8 +40,9 @@ monitored_items = 20000
 file_handles_per_session = 16
 file_handles = 128
 max_chunk_size = 65535
-max_message_size = 4194304
-pending_chunks_per_connection = 64
+max_message_size = 262144
+pending_chunks_per_connection = 32
+operations_per_request = 1000
 login_base_delay = 1.0
 login_max_delay = 30.0
 login_free_failures = 2
@@ -94,7 +95,7 @@ class PackMLConfig:
 class ProgramsConfig:
     """Bounds of one robot program (``uacell.robotics.program.ProgramLimits``) and of the folder."""
 
-    max_file_bytes: int = 256 * 1024
+    max_file_bytes: int = 128 * 1024
     max_lines: int = 10_000
     max_nesting: int = 16
     max_steps: int = 20_000
@@ -116,8 +117,9 @@ class LimitsConfig:
     file_handles_per_session: int = 16
     file_handles: int = 128
     max_chunk_size: int = 65535  # the largest chunk (receive/send buffer) the server accepts
-    max_message_size: int = 4 * 1024 * 1024  # the largest request, all its chunks together
-    pending_chunks_per_connection: int = 64  # chunks received but not yet processed, per connection
+    max_message_size: int = 256 * 1024  # the largest request, all its chunks together
+    pending_chunks_per_connection: int = 32  # chunks received but not yet processed, per connection
+    operations_per_request: int = 1000  # nodes one Read/Write/Browse/Call/... may name
     login_base_delay: float = 1.0  # first delay after the free failures, doubled per further failure
     login_max_delay: float = 30.0
     login_free_failures: int = 2  # failures in a row without delay

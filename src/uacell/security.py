@@ -41,6 +41,7 @@ from uacell.roles import Family, Role, may, may_call
 from uacell.ua import context
 from uacell.ua.access import user_access_level
 from uacell.ua.context import caller_of
+from uacell.ua.limits import LimitedSession
 from uacell.users import LoginThrottle
 
 if TYPE_CHECKING:
@@ -216,7 +217,7 @@ def _read_hook(session: InternalSession, params: Any, results: list) -> None:
         security.adjust_read(session, params, results)
 
 
-class UacellSession(InternalSession):
+class UacellSession(LimitedSession):
     """A session that checks writes against the role table and reports its end."""
 
     def __init__(self, security: Security, *args: Any, **kwargs: Any) -> None:

@@ -17,6 +17,7 @@ from uacell.roles import Role, listening_policy
 from uacell.ua.access import UacellUserManager
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.file_store import HandlePool
+from uacell.ua.limits import install_limits, publish_operation_limits
 from uacell.ua.nodesets import load_models
 from uacell.ua.state_machine import NodeRefs, Publisher
 from uacell.ua.writes import WriteRouter
@@ -80,6 +81,7 @@ class UacellServer:
         # ConditionRefresh(2) for alarm clients, with Severity 100 on its RefreshStart/End events.
         self.server.iserver.bind_condition_methods = 100
         await self.server.init()
+        self.limits = install_limits(self)
         self.server.set_endpoint(self.endpoint)
         self.server.set_server_name("uacell")
         await self.server.set_application_uri(APPLICATION_URI)
@@ -98,6 +100,7 @@ class UacellServer:
                 self._closers.append(closer)
 
     async def start(self) -> None:
+        await publish_operation_limits(self.server, self.limits)
         await self.server.start()
         await self.dispatcher.refresh_executable()
 

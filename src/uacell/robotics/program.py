@@ -63,7 +63,7 @@ class NothingToExecute(ProgramError):
 class ProgramLimits:
     """What one program or module may cost the server (docs/programs.md, ``[programs]`` configuration)."""
 
-    max_file_bytes: int = 256 * 1024  # size of a file's text
+    max_file_bytes: int = 128 * 1024  # size of a file's text
     max_lines: int = 10_000  # lines of a file, comments and blank lines included
     max_nesting: int = 16  # repeat (and routine) blocks open at once
     max_steps: int = MAX_STEPS  # moves and waits after loops are unrolled and calls inlined
