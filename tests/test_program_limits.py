@@ -223,3 +223,48 @@ async def test_a_running_program_of_instant_steps_yields_to_the_loop(cell: Robot
     assert await tc.stop(StopMode.QUICK_STOP) == Status.OK
     await asyncio.wait_for(tc.wait_until_not_executing(), 5)
     assert tc.state == "Ready"
+
+
+# --- the log under a flood ------------------------------------------------------------------------
+def test_repeated_identical_errors_are_rate_limited() -> None:
+    import logging
+
+    from uacell.logs import RepeatFilter
+
+    now = [0.0]
+    repeat = RepeatFilter(burst=3, window=60.0, clock=lambda: now[0])
+    logger = logging.getLogger("uacell.test.flood")
+    records: list[logging.LogRecord] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            records.append(record)
+
+    handler = Keep()
+    handler.addFilter(repeat)
+    logger.addHandler(handler)
+    logger.propagate = False
+    logger.setLevel(logging.INFO)
+    try:
+        for i in range(1000):
+            logger.error("socket.accept() out of system resource (%d)", i)
+        logger.error("another error")
+        logger.info("info is never limited %d", 1)
+        logger.info("info is never limited %d", 2)
+        assert [r.getMessage() for r in records] == [
+            "socket.accept() out of system resource (0)",
+            "socket.accept() out of system resource (1)",
+            "socket.accept() out of system resource (2)",
+            "another error",
+            "info is never limited 1",
+            "info is never limited 2",
+        ]
+        now[0] = 61.0
+        logger.error("socket.accept() out of system resource (%d)", 1000)
+        assert (
+            records[-1].getMessage()
+            == "socket.accept() out of system resource (1000) [997 identical messages suppressed]"
+        )
+    finally:
+        logger.removeHandler(handler)
+        logger.propagate = True

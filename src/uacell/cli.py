@@ -14,9 +14,11 @@ from pathlib import Path
 from uacell import __version__, _entry
 from uacell.config import load_config, load_factory
 from uacell.errors import ConfigError
+from uacell.logs import install_repeat_filter
 from uacell.models import ModelError, fetch_models, locate_models, models_dir
 
 log = logging.getLogger("uacell")
+STOP_GRACE = 3.0  # seconds a stop request waits for the server to close in order (SIGTERM: gone within 5 s)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -56,6 +58,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    install_repeat_filter()  # a flood of identical errors must not fill the disk
     try:
         if args.command == "serve":
             return _serve(args)
@@ -154,5 +157,10 @@ async def _run(config) -> int:
     print(f"uacell listening on {app.endpoint}", flush=True)
     await stop.wait()
     log.info("shutting down")
-    await app.stop()
+    try:
+        # Calls under way get a moment to finish; whatever still runs after it is cancelled.
+        async with asyncio.timeout(STOP_GRACE):
+            await app.stop()
+    except TimeoutError:
+        log.warning("shutdown took longer than %.0f s: stopping without waiting further", STOP_GRACE)
     return 0
