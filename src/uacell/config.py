@@ -46,6 +46,7 @@ operations_per_request = 1000
 login_base_delay = 1.0
 login_max_delay = 30.0
 login_free_failures = 2
+login_free_failures_per_user = 10
 password_checks = 2
 ```
 
@@ -122,7 +123,8 @@ class LimitsConfig:
     operations_per_request: int = 1000  # nodes one Read/Write/Browse/Call/... may name
     login_base_delay: float = 1.0  # first delay after the free failures, doubled per further failure
     login_max_delay: float = 30.0
-    login_free_failures: int = 2  # failures in a row without delay
+    login_free_failures: int = 2  # failures in a row of one user name at one address without delay
+    login_free_failures_per_user: int = 10  # the same over all addresses
     password_checks: int = 2  # password hashes verified at once, server-wide
 
 

@@ -9,7 +9,8 @@ binders run. It
 - checks client certificates against ``pki/trusted`` (``uacell.pki.CertificateValidator``);
 - accepts anonymous and user-name identity tokens, but a user name only with an encrypted password
   or over a SignAndEncrypt channel (``Bad_IdentityTokenRejected`` otherwise);
-- slows down repeated login failures per client address (``uacell.users.LoginThrottle``);
+- slows down repeated login failures per user name, at one address and across addresses
+  (``uacell.users.LoginThrottle``), and checks passwords in worker threads, a few at a time;
 - uses its own session class: writes need the ``write`` action of ``uacell.roles``, the client's
   ApplicationUri is kept for ``Caller.client``, and ``on_session_closed`` hooks run when a session
   closes or times out (locks are released there);
@@ -35,11 +36,12 @@ from asyncua import Server, ua
 from asyncua.common.utils import ServiceError
 from asyncua.server.internal_session import InternalSession, SessionState
 from asyncua.server.uaprocessor import UaProcessor
+from asyncua.ua.ua_binary import struct_from_binary
 
 from uacell.pki import CertificateValidator, PkiPaths, TrustList, ensure_server_certificate
 from uacell.roles import Family, Role, may, may_call
 from uacell.ua import context
-from uacell.ua.access import user_access_level
+from uacell.ua.access import user_access_level, verified_login
 from uacell.ua.context import caller_of
 from uacell.ua.limits import LimitedSession
 from uacell.users import LoginThrottle
@@ -96,9 +98,16 @@ class Security:
     def __init__(self, app: UacellServer) -> None:
         self.app = app
         self.server: Server = app.server
-        self.throttle = LoginThrottle()
+        limits = app.config.limits
+        self.throttle = LoginThrottle(
+            base=limits.login_base_delay,
+            cap=limits.login_max_delay,
+            free=limits.login_free_failures,
+            free_per_user=limits.login_free_failures_per_user,
+        )
+        self.password_checks = asyncio.Semaphore(limits.password_checks)
         self.on_session_closed: list[Callable[[InternalSession], None]] = []
-        self._address_locks: dict[str, asyncio.Lock] = {}
+        self._user_locks: dict[str, asyncio.Lock] = {}
         self.trust_list: TrustList | None = None
         self.policies: list[ua.SecurityPolicyType] = []
 
@@ -157,28 +166,56 @@ class Security:
                     token.UserName, _address(processor))
         raise ServiceError(ua.StatusCodes.BadIdentityTokenRejected)
 
-    def _address_lock(self, address: str) -> asyncio.Lock:
-        return self._address_locks.setdefault(address, asyncio.Lock())
+    async def activate(self, processor: UaProcessor, requesthdr: Any, body: Any, call: Callable[[], Any]) -> Any:
+        """Run one ActivateSession: throttled per user name (never for anonymous logins), the password
+        checked in a worker thread, at most ``[limits] password_checks`` at once server-wide."""
+        token = _identity_token(body)
+        if not isinstance(token, ua.UserNameIdentityToken) or not token.UserName:
+            return await call()  # anonymous or another token type: asyncua decides, nobody waits
+        user, address = str(token.UserName), _address(processor)
+        # One attempt at a time per user name, so parallel connections cannot skip the delay.
+        lock = self._user_locks.setdefault(user, asyncio.Lock())
+        try:
+            async with lock:
+                wait = self.throttle.wait_time(user, address)
+                if wait > 0:
+                    log.info("delaying login of user %r from %s by %.1f s after failed attempts", user, address, wait)
+                    await asyncio.sleep(wait)
+                verified = await self._verify_off_loop(processor, requesthdr, token)
+                try:
+                    result = await call()
+                except ServiceError as exc:
+                    if exc.code == ua.StatusCodes.BadUserAccessDenied:
+                        self.throttle.failed(user, address)
+                    raise
+                finally:
+                    if verified is not None:
+                        verified_login.reset(verified)
+                logged_in = getattr(processor.session, "user", None)
+                if logged_in is not None and not getattr(logged_in, "anonymous", True):
+                    self.throttle.succeeded(user, address)
+                return result
+        finally:
+            if not lock.locked() and self._user_locks.get(user) is lock:
+                del self._user_locks[user]  # a spray of names leaves nothing behind
 
-    async def activate(self, processor: UaProcessor, call: Callable[[], Any]) -> Any:
-        """Run one ActivateSession: wait out the address's penalty, then record success or failure."""
-        address = _address(processor)
-        # One attempt at a time per address, so parallel connections cannot skip the delay.
-        async with self._address_lock(address):
-            wait = self.throttle.wait_time(address)
-            if wait > 0:
-                log.info("delaying login from %s by %.1f s after failed attempts", address, wait)
-                await asyncio.sleep(wait)
-            try:
-                result = await call()
-            except ServiceError as exc:
-                if exc.code == ua.StatusCodes.BadUserAccessDenied:
-                    self.throttle.failed(address)
-                raise
-            user = getattr(processor.session, "user", None)
-            if user is not None and not getattr(user, "anonymous", True):
-                self.throttle.succeeded(address)
-            return result
+    async def _verify_off_loop(self, processor: UaProcessor, requesthdr: Any, token: ua.UserNameIdentityToken) -> Any:
+        """Check the password in a worker thread (the hash takes tens of ms) and leave the outcome for
+        ``UacellUserManager.get_user``; None when asyncua's own path must decide (it refuses then)."""
+        if not token.EncryptionAlgorithm and _channel_mode(processor) != ua.MessageSecurityMode.SignAndEncrypt:
+            return None  # a clear-text password is refused before any check
+        iserver = self.server.iserver
+        isession = processor.session or iserver.lookup_external_session(requesthdr.AuthenticationToken)
+        if isession is None:
+            return None
+        try:
+            # asyncua's plain decryption (no side effects); the real activation decrypts again.
+            name, password = type(iserver).decrypt_user_token(iserver, isession, token)
+        except Exception:
+            return None  # asyncua answers the malformed token itself
+        async with self.password_checks:
+            role = await asyncio.to_thread(self.app.users.verify, name, password or "")
+        return verified_login.set((name, password or "", role))
 
     # per-session attributes ------------------------------------------------------------------------
 
@@ -257,7 +294,9 @@ def _install_processor_hook() -> None:
         try:
             security = getattr(self.iserver, "_uacell_security", None)
             if security is not None and typeid == _ACTIVATE:
-                return await security.activate(self, lambda: original(self, typeid, requesthdr, seqhdr, body))
+                return await security.activate(
+                    self, requesthdr, body, lambda: original(self, typeid, requesthdr, seqhdr, body)
+                )
             return await original(self, typeid, requesthdr, seqhdr, body)
         finally:
             context.reset_return_diagnostics(diagnostics)
@@ -265,6 +304,14 @@ def _install_processor_hook() -> None:
 
     UaProcessor._process_message = _process_message  # type: ignore[method-assign]
     UaProcessor._uacell_installed = True  # type: ignore[attr-defined]
+
+
+def _identity_token(body: Any) -> Any:
+    """The UserIdentityToken of an ActivateSession body, read without consuming it (None if unreadable)."""
+    try:
+        return struct_from_binary(ua.ActivateSessionParameters, body.copy()).UserIdentityToken
+    except Exception:
+        return None
 
 
 async def install_security(app: UacellServer) -> Security:
