@@ -11,6 +11,9 @@ asyncua server before it listens:
   Hello is accepted first) closes the connection at once, before anything of it is buffered;
   ``pending_chunks_per_connection`` bounds what waits behind a busy connection;
 - **connections** beyond the limit are closed as soon as they are accepted;
+- a request whose body cannot be decoded (a malformed ExtensionObject, invalid UTF-8, a truncated
+  array) answers ``Bad_DecodingError`` with one INFO line, instead of asyncua's Bad_InternalError and
+  traceback;
 - **sessions** (Bad_TooManySessions), **subscriptions** per session and in all
   (Bad_TooManySubscriptions), **monitored items** per subscription and in all
   (Bad_TooManyMonitoredItems, per item), **operations per request** (Bad_TooManyOperations, before
@@ -28,9 +31,11 @@ import struct
 from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
-from asyncua.common.utils import ServiceError
+from asyncua.common.utils import Buffer, ServiceError
 from asyncua.server.binary_server_asyncio import OPCUAProtocol
 from asyncua.server.internal_session import InternalSession
+from asyncua.server.uaprocessor import UaProcessor
+from asyncua.ua.ua_binary import struct_from_binary
 
 if TYPE_CHECKING:
     from uacell.config import LimitsConfig
@@ -114,6 +119,8 @@ def install_limits(app: Any) -> ServerLimits:
     server.limits.max_message_size = limits.max_message_size
     server.limits.max_chunk_count = limits.max_chunk_count
     _install_protocol_guard()
+    _install_decoding_guard()
+    _demote_expected_refusals()
     log.info(
         "limits: %d connections, %d sessions, %d subscriptions, %d monitored items, requests up to %d bytes "
         "in chunks of %d; open-file limit %d",
@@ -185,6 +192,59 @@ def _install_protocol_guard() -> None:
 
     OPCUAProtocol.data_received = data_received  # type: ignore[method-assign]
     OPCUAProtocol._uacell_guarded = True  # type: ignore[attr-defined]
+
+
+class _ExpectedRefusals(logging.Filter):
+    """asyncua logs every refused request (a service fault, a message over the limits) as an ERROR;
+    they are the client's doing, so uacell says them once at INFO instead."""
+
+    PREFIXES = ("sending service fault response", "Message size:", "Number of message chunks:")
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno >= logging.ERROR and not record.exc_info and str(record.msg).startswith(self.PREFIXES):
+            log.info("refused a request: %s", record.getMessage())
+            return False
+        return True
+
+
+def _demote_expected_refusals() -> None:
+    for name in ("asyncua.server.uaprocessor", "asyncua.uaprotocol"):
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, _ExpectedRefusals) for f in logger.filters):
+            logger.addFilter(_ExpectedRefusals())
+
+
+def _install_decoding_guard() -> None:
+    """Answer a request asyncua cannot decode with Bad_DecodingError (asyncua: Bad_InternalError)."""
+    if getattr(UaProcessor, "_uacell_decoding_guarded", False):
+        return
+    original = UaProcessor._process_message
+
+    async def _process_message(self: UaProcessor, typeid: Any, requesthdr: Any, seqhdr: Any, body: Buffer) -> Any:
+        try:
+            return await original(self, typeid, requesthdr, seqhdr, body)
+        except (ServiceError, ua.UaStatusCodeError):
+            raise
+        except Exception as exc:
+            if _decodes(typeid, body):
+                raise  # not the request's fault: asyncua answers Bad_InternalError and logs it
+            log.info("a request from %s cannot be decoded (%s): Bad_DecodingError", self.name, exc)
+            raise ServiceError(ua.StatusCodes.BadDecodingError) from None
+
+    UaProcessor._process_message = _process_message  # type: ignore[method-assign]
+    UaProcessor._uacell_decoding_guarded = True  # type: ignore[attr-defined]
+
+
+def _decodes(typeid: Any, body: Buffer) -> bool:
+    """Does the whole request (from its TypeId on) decode? Decided again only when a request failed."""
+    cls = ua.extension_objects_by_typeid.get(typeid)
+    if cls is None:
+        return False
+    try:
+        struct_from_binary(cls, Buffer(body._data))
+    except Exception:
+        return False
+    return True
 
 
 # --- sessions, subscriptions, monitored items, operations ------------------------------------------------
