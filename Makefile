@@ -1,11 +1,11 @@
-# make setup | serve | test | bench | lint: each does whatever set-up is still missing.
+# make setup | serve | test | bench | lint | soak: each does whatever set-up is still missing.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.uacell-installed
 NODE_STAMP := interop/node_modules/.uacell-installed
 
-.PHONY: setup serve test bench lint clean models
+.PHONY: setup serve test bench lint clean models soak
 
 setup: $(STAMP) models $(NODE_STAMP)
 
@@ -30,6 +30,11 @@ test: setup
 
 bench: setup
 	$(BIN)/python -m benchmarks
+
+# Not part of `make test`: 200 sessions with subscriptions for 10 minutes while the cell cycles;
+# reports the server's RSS growth and lost notifications (SOAK_ARGS="--sessions 50 --minutes 2").
+soak: setup
+	$(BIN)/python tools/soak.py $(SOAK_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -138,14 +138,27 @@ async def test_anything_but_a_small_hello_first_is_refused(app: UacellServer, fi
     assert await closed_by_server(reader, writer)
 
 
-async def test_acknowledge_announces_the_configured_limits(app: UacellServer) -> None:
+@pytest.mark.parametrize(("offered", "agreed"), [(65535, 65535), (1 << 20, 65535), (100, 8192), (20000, 20000)])
+async def test_acknowledge_agrees_on_the_chunk_size(app: UacellServer, offered: int, agreed: int) -> None:
     reader, writer = await connect_raw(app)
-    writer.write(hello(app.endpoint))
+    writer.write(hello(app.endpoint, recv=offered, send=offered))
     ack = await read_ack(reader)
-    assert ack["ReceiveBufferSize"] == 65535 and ack["SendBufferSize"] == 65535
-    assert ack["MaxMessageSize"] == MAX_MESSAGE
-    assert ack["MaxChunkCount"] == -(-MAX_MESSAGE // 65535)
+    assert ack["ReceiveBufferSize"] == agreed and ack["SendBufferSize"] == agreed
+    # Announced as "no limit" (asyncua clients would apply them to responses); enforced on requests.
+    assert ack["MaxMessageSize"] == 0 and ack["MaxChunkCount"] == 0
+    assert app.server.limits.max_message_size == MAX_MESSAGE
+    assert app.server.limits.max_chunk_count == -(-MAX_MESSAGE // 65535)
     writer.close()
+
+
+async def test_responses_larger_than_the_request_limit_reach_asyncua_clients(app: UacellServer) -> None:
+    async with session(app) as c:
+        # Browsing every DataType answers far more than a request may hold.
+        await c.load_data_type_definitions()
+        value = ua.Variant("x" * (MAX_MESSAGE // 2), ua.VariantType.String)
+        strings = [ua.ReadValueId(NodeId=ua.NodeId(ua.ObjectIds.Server_NamespaceArray), AttributeId=13)] * 1000
+        assert len(await c.uaclient.read(ua.ReadParameters(NodesToRead=strings))) == 1000
+        assert value.Value  # the limit is about requests only
 
 
 @pytest.mark.parametrize("declared", [8193, 2**31])
@@ -157,6 +170,23 @@ async def test_a_chunk_beyond_the_negotiated_buffer_closes_at_once(app: UacellSe
     await writer.drain()
     assert await closed_by_server(reader, writer)
     assert largest_buffer(app) <= PRE_HELLO_BYTES
+
+
+async def test_a_connection_that_queues_too_many_bytes_is_closed(app: UacellServer) -> None:
+    limits = app.server.iserver._uacell_limits
+    saved = limits.pending_bytes_per_connection
+    limits.pending_bytes_per_connection = 100_000
+    try:
+        reader, writer = await connect_raw(app)
+        writer.write(hello(app.endpoint))
+        await read_ack(reader)
+        chunk = b"MSGC" + struct.pack("<I", 60_000) + b"\0" * (60_000 - 8)
+        writer.write(chunk * 4)  # arrives faster than anything is processed
+        await writer.drain()
+        assert await closed_by_server(reader, writer)
+    finally:
+        limits.pending_bytes_per_connection = saved
+    await still_serving(app)
 
 
 async def test_a_request_beyond_the_maximum_message_size_is_refused(app: UacellServer) -> None:

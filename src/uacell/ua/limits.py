@@ -6,10 +6,15 @@ asyncua server before it listens:
 - **descriptors**: the soft RLIMIT_NOFILE is raised to the hard one; connections and open files are
   kept below it with ``FD_RESERVE`` descriptors to spare, so the listening socket, durable saves and
   the log never starve (the connection limit is lowered, with a warning, when the system allows less);
-- **transport**: the chunk size, maximum message size and chunk count the server acknowledges; a chunk
-  whose declared size exceeds what was negotiated (before a Hello: ``PRE_HELLO_BYTES``, and only a
-  Hello is accepted first) closes the connection at once, before anything of it is buffered;
-  ``pending_chunks_per_connection`` bounds what waits behind a busy connection;
+- **transport**: the chunk size the server acknowledges (at least 8192 bytes, OPC 10000-6), and the
+  maximum message size and chunk count it enforces on requests (Bad_RequestTooLarge); a chunk whose
+  declared size exceeds what was negotiated (before a Hello: ``PRE_HELLO_BYTES``, and only a Hello is
+  accepted first) closes the connection at once, before anything of it is buffered;
+  ``pending_chunks_per_connection`` and ``pending_bytes_per_connection`` bound what waits behind a
+  busy connection (beyond them it is closed). The Acknowledge
+  announces no message-size or chunk-count limit (0): asyncua clients apply the limits a server
+  announces to the *responses* they receive, so announcing the request limit would make them drop any
+  large response (a Browse of all DataTypes, say);
 - **connections** beyond the limit are closed as soon as they are accepted;
 - a request whose body cannot be decoded (a malformed ExtensionObject, invalid UTF-8, a truncated
   array) answers ``Bad_DecodingError`` with one INFO line, instead of asyncua's Bad_InternalError and
@@ -31,6 +36,7 @@ import struct
 from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
+from asyncua.common.connection import TransportLimits
 from asyncua.common.utils import Buffer, ServiceError
 from asyncua.server.binary_server_asyncio import OPCUAProtocol
 from asyncua.server.internal_session import InternalSession
@@ -62,6 +68,7 @@ class ServerLimits:
     max_chunk_size: int
     max_message_size: int
     pending_chunks_per_connection: int
+    pending_bytes_per_connection: int
     operations_per_request: int
     live_sessions: set[int] = dataclasses.field(default_factory=set)
 
@@ -114,10 +121,12 @@ def install_limits(app: Any) -> ServerLimits:
     iserver.max_connections = limits.connections
     iserver.max_subscriptions = limits.subscriptions
     iserver.max_pending_messages_per_connection = limits.pending_chunks_per_connection
-    server.limits.max_recv_buffer = limits.max_chunk_size
-    server.limits.max_send_buffer = limits.max_chunk_size
-    server.limits.max_message_size = limits.max_message_size
-    server.limits.max_chunk_count = limits.max_chunk_count
+    server.limits = ServerTransportLimits(
+        max_recv_buffer=limits.max_chunk_size,
+        max_send_buffer=limits.max_chunk_size,
+        max_chunk_count=limits.max_chunk_count,
+        max_message_size=limits.max_message_size,
+    )
     _install_protocol_guard()
     _install_decoding_guard()
     _demote_expected_refusals()
@@ -140,6 +149,26 @@ def _limits_of(iserver: Any) -> ServerLimits | None:
 
 
 # --- transport -------------------------------------------------------------------------------------
+MIN_BUFFER = 8192  # the smallest chunk OPC 10000-6 allows
+
+
+class ServerTransportLimits(TransportLimits):
+    """One connection's limits (asyncua copies the server's per connection): the chunk sizes follow
+    the Hello; the message size and chunk count stay the server's, enforced, and are announced as 0."""
+
+    def create_acknowledge_and_set_limits(self, msg: ua.Hello) -> ua.Acknowledge:
+        ack = ua.Acknowledge()
+        # asyncua's reading of the fields, which its clients share: ReceiveBufferSize is what the
+        # server sends in, SendBufferSize what it receives in. Never below the minimum chunk.
+        ack.ReceiveBufferSize = max(MIN_BUFFER, min(msg.ReceiveBufferSize, self.max_send_buffer))
+        ack.SendBufferSize = max(MIN_BUFFER, min(msg.SendBufferSize, self.max_recv_buffer))
+        ack.MaxMessageSize = 0
+        ack.MaxChunkCount = 0
+        self.max_send_buffer = ack.ReceiveBufferSize
+        self.max_recv_buffer = ack.SendBufferSize
+        return ack
+
+
 def _refuse_chunk(protocol: OPCUAProtocol, reason: str) -> None:
     log.warning("closing connection from %s: %s", protocol.peer_name, reason)
     protocol._buffer = b""
@@ -182,6 +211,10 @@ def _install_protocol_guard() -> None:
                 return
             if kind == b"HEL":
                 self._uacell_hello = True  # type: ignore[attr-defined]
+            queued = sum(len(item[1]) for item in self.messages._queue if item[1] is not None)  # type: ignore[attr-defined]
+            if queued + size > limits.pending_bytes_per_connection:
+                _refuse_chunk(self, f"{queued} bytes wait unprocessed (at most {limits.pending_bytes_per_connection})")
+                return
             # One complete chunk: asyncua parses and queues it (and closes on a full queue).
             original(self, pending[:size])
             if self.transport is None or self.transport.is_closing():
