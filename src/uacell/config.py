@@ -32,7 +32,7 @@ max_folder_bytes = 67108864       # the whole Programs folder
 
 [limits]                          # what clients may hold and send (docs/security.md, "Limits")
 connections = 256
-sessions = 100
+sessions = 200
 subscriptions_per_session = 20
 subscriptions = 500
 monitored_items_per_subscription = 1000
@@ -111,7 +111,7 @@ class LimitsConfig:
     """What clients may hold and send (docs/security.md, "Limits")."""
 
     connections: int = 256  # TCP connections, before and after a session is activated
-    sessions: int = 100
+    sessions: int = 200
     subscriptions_per_session: int = 20
     subscriptions: int = 500
     monitored_items_per_subscription: int = 1000
