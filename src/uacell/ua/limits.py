@@ -33,7 +33,7 @@ import logging
 import math
 import resource
 import struct
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from asyncua import ua
 from asyncua.common.connection import TransportLimits
@@ -156,6 +156,9 @@ class ServerTransportLimits(TransportLimits):
     """One connection's limits (asyncua copies the server's per connection): the chunk sizes follow
     the Hello; the message size and chunk count stay the server's, enforced, and are announced as 0."""
 
+    max_recv_buffer: int
+    max_send_buffer: int
+
     def create_acknowledge_and_set_limits(self, msg: ua.Hello) -> ua.Acknowledge:
         ack = ua.Acknowledge()
         # asyncua's reading of the fields, which its clients share: ReceiveBufferSize is what the
@@ -210,8 +213,8 @@ def _install_protocol_guard() -> None:
                 self._buffer = pending
                 return
             if kind == b"HEL":
-                self._uacell_hello = True  # type: ignore[attr-defined]
-            queued = sum(len(item[1]) for item in self.messages._queue if item[1] is not None)  # type: ignore[attr-defined]
+                self._uacell_hello = True
+            queued = sum(len(item[1]) for item in self.messages._queue if item[1] is not None)
             if queued + size > limits.pending_bytes_per_connection:
                 _refuse_chunk(self, f"{queued} bytes wait unprocessed (at most {limits.pending_bytes_per_connection})")
                 return
@@ -223,8 +226,8 @@ def _install_protocol_guard() -> None:
             self._buffer = b""
             pending = pending[size:]
 
-    OPCUAProtocol.data_received = data_received  # type: ignore[method-assign]
-    OPCUAProtocol._uacell_guarded = True  # type: ignore[attr-defined]
+    OPCUAProtocol.data_received = data_received
+    OPCUAProtocol._uacell_guarded = True
 
 
 class _ExpectedRefusals(logging.Filter):
@@ -264,8 +267,8 @@ def _install_decoding_guard() -> None:
             log.info("a request from %s cannot be decoded (%s): Bad_DecodingError", self.name, exc)
             raise ServiceError(ua.StatusCodes.BadDecodingError) from None
 
-    UaProcessor._process_message = _process_message  # type: ignore[method-assign]
-    UaProcessor._uacell_decoding_guarded = True  # type: ignore[attr-defined]
+    UaProcessor._process_message = _process_message
+    UaProcessor._uacell_decoding_guarded = True
 
 
 def _decodes(typeid: Any, body: Buffer) -> bool:
@@ -317,31 +320,31 @@ class LimitedSession(InternalSession):
 
     async def read(self, params: ua.ReadParameters) -> list[ua.DataValue]:
         _check_operations(self.iserver, len(params.NodesToRead or ()), "Read")
-        return await super().read(params)
+        return cast("list[ua.DataValue]", await super().read(params))
 
     async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
         _check_operations(self.iserver, len(params.NodesToWrite or ()), "Write")
-        return await super().write(params)
+        return cast("list[ua.StatusCode]", await super().write(params))
 
     async def browse(self, params: ua.BrowseParameters) -> list[ua.BrowseResult]:
         _check_operations(self.iserver, len(params.NodesToBrowse or ()), "Browse")
-        return await super().browse(params)
+        return cast("list[ua.BrowseResult]", await super().browse(params))
 
     async def call(self, params: list[ua.CallMethodRequest]) -> list[ua.CallMethodResult]:
         _check_operations(self.iserver, len(params or ()), "Call")
-        return await super().call(params)
+        return cast("list[ua.CallMethodResult]", await super().call(params))
 
     async def translate_browsepaths_to_nodeids(self, params: list[ua.BrowsePath]) -> list[ua.BrowsePathResult]:
         _check_operations(self.iserver, len(params or ()), "TranslateBrowsePathsToNodeIds")
-        return await super().translate_browsepaths_to_nodeids(params)
+        return cast("list[ua.BrowsePathResult]", await super().translate_browsepaths_to_nodeids(params))
 
     async def register_nodes(self, nodes: list[ua.NodeId]) -> list[ua.NodeId]:
         _check_operations(self.iserver, len(nodes or ()), "RegisterNodes")
-        return await super().register_nodes(nodes)
+        return cast("list[ua.NodeId]", await super().register_nodes(nodes))
 
     async def history_read(self, params: ua.HistoryReadParameters) -> list[ua.HistoryReadResult]:
         _check_operations(self.iserver, len(params.NodesToRead or ()), "HistoryRead")
-        return await super().history_read(params)
+        return cast("list[ua.HistoryReadResult]", await super().history_read(params))
 
     async def create_session(self, params: ua.CreateSessionParameters, sockname: Any = None) -> Any:
         limits = _limits_of(self.iserver)
@@ -384,16 +387,15 @@ class LimitedSession(InternalSession):
         _check_operations(self.iserver, len(params.ItemsToCreate or ()), "CreateMonitoredItems")
         limits = _limits_of(self.iserver)
         sub = self.subscription_service.subscriptions.get(params.SubscriptionId)
-        if limits is None or sub is None:
-            return await super().create_monitored_items(params)
-        in_sub = len(sub.monitored_item_srv._monitored_items)
-        in_all = sum(
-            len(s.monitored_item_srv._monitored_items) for s in self.subscription_service.subscriptions.values()
-        )
-        room = max(0, min(limits.monitored_items_per_subscription - in_sub, limits.monitored_items - in_all))
         items = list(params.ItemsToCreate or [])
+        room = len(items)
+        if limits is not None and sub is not None:
+            subscriptions = self.subscription_service.subscriptions.values()
+            in_sub = len(sub.monitored_item_srv._monitored_items)
+            in_all = sum(len(s.monitored_item_srv._monitored_items) for s in subscriptions)
+            room = max(0, min(limits.monitored_items_per_subscription - in_sub, limits.monitored_items - in_all))
         if len(items) <= room:
-            return await super().create_monitored_items(params)
+            return cast("list[ua.MonitoredItemCreateResult]", await super().create_monitored_items(params))
         log.info("refused %d monitored item(s): limit reached", len(items) - room)
         created: list[ua.MonitoredItemCreateResult] = []
         if room:
