@@ -231,10 +231,10 @@ def _install_protocol_guard() -> None:
 
 
 class _ExpectedRefusals(logging.Filter):
-    """asyncua logs every refused request (a service fault, a message over the limits) as an ERROR;
-    they are the client's doing, so uacell says them once at INFO instead."""
+    """asyncua logs a request over the message limits as an ERROR; it is the client's doing, so uacell
+    says it at INFO instead (asyncua's echo of every service fault is dropped by ``uacell.security``)."""
 
-    PREFIXES = ("sending service fault response", "Message size:", "Number of message chunks:")
+    PREFIXES = ("Message size:", "Number of message chunks:")
 
     def filter(self, record: logging.LogRecord) -> bool:
         if record.levelno >= logging.ERROR and not record.exc_info and str(record.msg).startswith(self.PREFIXES):
@@ -244,10 +244,9 @@ class _ExpectedRefusals(logging.Filter):
 
 
 def _demote_expected_refusals() -> None:
-    for name in ("asyncua.server.uaprocessor", "asyncua.uaprotocol"):
-        logger = logging.getLogger(name)
-        if not any(isinstance(f, _ExpectedRefusals) for f in logger.filters):
-            logger.addFilter(_ExpectedRefusals())
+    logger = logging.getLogger("asyncua.uaprotocol")
+    if not any(isinstance(f, _ExpectedRefusals) for f in logger.filters):
+        logger.addFilter(_ExpectedRefusals())
 
 
 def _install_decoding_guard() -> None:
