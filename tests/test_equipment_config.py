@@ -9,9 +9,11 @@ import textwrap
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, free_port, start_app
+from helpers import robot_cell
 
 from uacell.config import load_factory
 from uacell.errors import ConfigError
+from uacell.packml.binding import UNITS
 
 DRIVER = textwrap.dedent(
     """
@@ -62,10 +64,10 @@ async def test_units_run_on_the_configured_equipment(tmp_path, monkeypatch):
     try:
         import plant_driver
 
-        unit = app.packml_units["Filler1"]
+        unit = app.registry(UNITS)["Filler1"].unit
         assert type(unit.equipment).__name__ == "PlantFiller"
         assert plant_driver.made == [config.packml, config.robot] or plant_driver.made == [config.robot, config.packml]
-        assert type(app.robot_cell.equipment).__name__ == "PlantRobot"
+        assert type(robot_cell(app).equipment).__name__ == "PlantRobot"
         async with Client(app.endpoint, timeout=30) as client:
             ns = await client.get_namespace_index("urn:uacell:cell")
             machine = client.get_node(ua.NodeId("Filler1.BaseStateMachine.MachineState", ns))

@@ -7,9 +7,9 @@ import types
 
 import pytest
 
-from uacell.config import RobotConfig
 from uacell.errors import ConfigError
 from uacell.robotics.binding import StoreLibrary, install_samples, make_equipment
+from uacell.robotics.config import RobotConfig
 from uacell.robotics.model import DirectoryLibrary
 from uacell.robotics.sim import SimulatedRobot
 from uacell.ua.file_store import TEMP_PREFIX, FileStore

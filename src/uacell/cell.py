@@ -1,7 +1,8 @@
 """The cell uacell serves: which standard instances exist, where, and with which optional members.
 
 A cell is declared as data (``Part`` trees) and built by the deep instantiation of ``uacell.ua``.
-The demo cell of design.md is ``demo_cell()``.
+The default cell is ``demo_cell()``: one robot and one filler. Where parts go (``DeviceSet``,
+``PackMLObjects``) is each companion's declaration (``uacell.companion.Root``).
 """
 
 from __future__ import annotations
@@ -9,7 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from asyncua import Server, ua
+from asyncua.server.address_space import AddressSpace
 
+from uacell.companion import companions
+from uacell.ua import toolkit
 from uacell.ua.instantiate import Instantiator, Selection
 
 CELL_NAMESPACE = "urn:uacell:cell"
@@ -22,7 +26,7 @@ _NOISE = (
     "**/LastTransition/Name",
     "**/ValuePrecision",
 )
-# What every state machine publishes (decision 1).
+# What every state machine publishes (docs/decisions.md 1).
 _STATE_MACHINE = ("**/CurrentState/Number", "**/LastTransition/Number", "**/LastTransition/TransitionTime")
 
 
@@ -138,36 +142,26 @@ class CellBuilder:
         self.instantiator = Instantiator(server, namespace_index)
         self.model_indexes = model_indexes
         self.built: list[BuiltPart] = []
+        self._types: dict[tuple[str, str, int], ua.NodeId] = {}
 
     @property
-    def aspace(self):
-        return self.server.iserver.aspace
+    def aspace(self) -> AddressSpace:
+        aspace: AddressSpace = self.server.iserver.aspace
+        return aspace
 
-    def type_node(self, model: str, type_name: str) -> ua.NodeId:
-        ns = self.model_indexes[model]
-        for ref in self._subtype_closure():
-            if ref.NamespaceIndex == ns:
-                name = self.instantiator.types.attr(ref, ua.AttributeIds.BrowseName)
-                if name is not None and name.Name == type_name:
-                    return ref
-        raise KeyError(f"{model} has no type {type_name}")
-
-    def _subtype_closure(self) -> set[ua.NodeId]:
-        cached = getattr(self, "_types", None)
-        if cached is None:
-            cached = self._types = self.instantiator.types._subtypes(ua.NodeId(ua.ObjectIds.BaseObjectType))
-        return cached
+    def type_node(self, model: str, type_name: str, root: int = ua.ObjectIds.BaseObjectType) -> ua.NodeId:
+        """The type called ``type_name`` in model ``model``, below ``root`` (ObjectTypes by default)."""
+        key = (model, type_name, root)
+        if key not in self._types:
+            found = toolkit.type_named(self.aspace, ua.NodeId(root), self.model_indexes[model], type_name)
+            if found is None:
+                raise KeyError(f"{model} has no type {type_name}")
+            self._types[key] = found
+        return self._types[key]
 
     def child(self, node: ua.NodeId, path: str) -> ua.NodeId:
         """Follow a BrowseName path (names without namespace) down from ``node``."""
-        for name in [p for p in path.split("/") if p]:
-            for ref in self.aspace[node].references:
-                if ref.IsForward and ref.BrowseName.Name == name and ref.ReferenceTypeId != ua.NodeId(40):
-                    node = ref.NodeId
-                    break
-            else:
-                raise KeyError(f"{node} has no child {name!r}")
-        return node
+        return toolkit.child(self.aspace, node, path)
 
     def build(self, parent: ua.NodeId, part: Part, id_prefix: str = "", reference_type: int = 47) -> BuiltPart:
         where = self.child(parent, part.folder) if part.folder else parent
@@ -192,16 +186,14 @@ class CellBuilder:
         return [b for b in self.built if b.part.role == role]
 
 
-async def build_cell(server: Server, model_indexes: dict[str, int], parts=None) -> CellBuilder:
-    """Create the cell's instances; ``parts`` defaults to the demo cell."""
+async def build_cell(
+    server: Server, model_indexes: dict[str, int], parts: list[tuple[str, Part]] | None = None
+) -> CellBuilder:
+    """Create the cell's instances; ``parts`` (root name, part) defaults to the demo cell."""
     ns = await server.register_namespace(CELL_NAMESPACE)
     builder = CellBuilder(server, ns, model_indexes)
-    roots = {
-        "DeviceSet": ua.NodeId(5001, model_indexes["DI"]),
-        "PackMLObjects": ua.NodeId(72, model_indexes["PackML"]),
-    }
-    for root, part in parts or demo_cell():
-        # Devices are components of DeviceSet (DI); PackML units are organized by PackMLObjects.
-        ref = ua.ObjectIds.HasComponent if root == "DeviceSet" else ua.ObjectIds.Organizes
-        builder.build(roots[root], part, reference_type=ref)
+    roots = {root.name: root for c in companions() for root in c.roots}
+    for name, part in parts or demo_cell():
+        root = roots[name]
+        builder.build(ua.NodeId(root.node, model_indexes[root.model]), part, reference_type=root.reference)
     return builder

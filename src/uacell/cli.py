@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from uacell import __version__, _entry
-from uacell.config import load_config, load_factory
+from uacell.config import Config, load_config, load_factory
 from uacell.errors import ConfigError
 from uacell.logs import install_repeat_filter
 from uacell.models import ModelError, fetch_models, locate_models, models_dir
@@ -115,8 +115,8 @@ def _prepare_and_run(args: argparse.Namespace) -> int:
     if args.models_dir:
         config.server.models_dir = args.models_dir
     locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
-    for section in ("robot", "packml"):
-        spec = getattr(config, section).equipment
+    for section, settings in config.sections.items():
+        spec = getattr(settings, "equipment", "")
         if spec:
             load_factory(spec, section)
     try:
@@ -126,7 +126,7 @@ def _prepare_and_run(args: argparse.Namespace) -> int:
     return asyncio.run(_run(config))
 
 
-async def _run(config) -> int:
+async def _run(config: Config) -> int:
     from uacell.server import UacellServer
 
     app = UacellServer(config)

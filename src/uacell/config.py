@@ -1,5 +1,8 @@
 """uacell's configuration: a TOML file, overridden by command-line options.
 
+``[server]``, ``[programs]`` and ``[limits]`` are uacell's own; every other section belongs to a companion, which declares it
+(``uacell.companion.Companion.section``/``settings``) in its package.
+
 Every key is optional; without a file uacell serves the demo cell on 127.0.0.1:4840.
 
 ```toml
@@ -63,10 +66,14 @@ import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any, TypeVar
 
 import platformdirs
 
+from uacell.companion import companions
 from uacell.errors import ConfigError
+
+T = TypeVar("T")
 
 ROLES = ("observer", "operator", "engineer", "admin")
 
@@ -82,19 +89,6 @@ class ServerConfig:
     trust_on_first_use: bool = False
     rejected_max_files: int = 100
     rejected_max_age_days: float = 30.0
-
-
-@dataclass
-class RobotConfig:
-    time_scale: float = 1.0
-    equipment: str = ""
-
-
-@dataclass
-class PackMLConfig:
-    acting_time: float = 1.0
-    mach_speed: float = 60.0
-    equipment: str = ""
 
 
 @dataclass
@@ -134,24 +128,43 @@ class LimitsConfig:
     password_checks: int = 2  # password hashes verified at once, server-wide
 
 
-@dataclass
-class Config:
-    server: ServerConfig = field(default_factory=ServerConfig)
-    robot: RobotConfig = field(default_factory=RobotConfig)
-    packml: PackMLConfig = field(default_factory=PackMLConfig)
-    programs: ProgramsConfig = field(default_factory=ProgramsConfig)
-    limits: LimitsConfig = field(default_factory=LimitsConfig)
-    source: Path | None = None
-
-
-_SECTIONS = {
-    "server": ServerConfig,
-    "robot": RobotConfig,
-    "packml": PackMLConfig,
-    "programs": ProgramsConfig,
-    "limits": LimitsConfig,
-}
+_OWN = {"server": ServerConfig, "programs": ProgramsConfig, "limits": LimitsConfig}
 _POSITIVE = ("programs", "limits")  # sections whose every value must be above zero
+
+
+class Config:
+    """``server``, ``programs``, ``limits`` plus one section per companion that declares one
+    (``config.robot``, ``config.packml``)."""
+
+    def __init__(self) -> None:
+        self.server = ServerConfig()
+        self.programs = ProgramsConfig()
+        self.limits = LimitsConfig()
+        self.source: Path | None = None
+        self.sections: dict[str, Any] = {
+            c.section: c.settings() for c in companions() if c.section is not None and c.settings is not None
+        }
+
+    def section(self, name: str, kind: type[T]) -> T:
+        """The section ``name``, typed: ``config.section("robot", RobotConfig)``."""
+        value = self.sections[name]
+        if not isinstance(value, kind):
+            raise TypeError(f"[{name}] is a {type(value).__name__}, not a {kind.__name__}")
+        return value
+
+    def __getattr__(self, name: str) -> Any:
+        sections = self.__dict__.get("sections", {})
+        if name in sections:
+            return sections[name]
+        raise AttributeError(name)
+
+
+def _section_types() -> dict[str, type[Any]]:
+    types: dict[str, type[Any]] = dict(_OWN)
+    for c in companions():
+        if c.section is not None and c.settings is not None:
+            types[c.section] = c.settings
+    return types
 
 
 def _coerce(section: str, key: str, value: object, default: object) -> object:
@@ -195,10 +208,10 @@ def load_config(path: str | Path | None = None) -> Config:
         raise ConfigError(f"configuration {path} is not valid TOML: {exc}") from exc
     config.source = path
     for section, values in data.items():
-        cls = _SECTIONS.get(section)
+        cls = _section_types().get(section)
         if cls is None or not isinstance(values, dict):
             raise ConfigError(f"configuration {path}: unknown section [{section}]")
-        target = getattr(config, section)
+        target = getattr(config, section) if section in _OWN else config.sections[section]
         known = {f.name for f in fields(cls)}
         for key, value in values.items():
             if key not in known:
@@ -230,4 +243,5 @@ def load_factory(spec: str, section: str) -> Callable[..., object]:
         raise ConfigError(f"[{section}] equipment {spec!r} cannot be loaded: {exc}") from exc
     if not callable(factory):
         raise ConfigError(f"[{section}] equipment {spec!r} is not callable")
-    return factory
+    loaded: Callable[..., object] = factory
+    return loaded

@@ -33,6 +33,11 @@ class UnitPort(Protocol):
         ...
 
     @property
+    def acting_state(self) -> str | None:
+        """The acting state that runs (it ends when the equipment completes it), if any."""
+        ...
+
+    @property
     def state(self) -> str:
         """The unit's innermost current state (e.g. ``"Execute"``, ``"Stopped"``, ``"Aborted"``)."""
         ...

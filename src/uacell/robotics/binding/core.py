@@ -1,0 +1,228 @@
+"""One ``RoboticsBinding`` per Controller part: the shared helpers, publishing, and the binder."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+from asyncua import ua
+
+from uacell.cell import BuiltPart
+from uacell.companion import Closer
+from uacell.config import load_factory
+from uacell.fsm import StateMachine
+from uacell.registry import RegistryKey
+from uacell.robotics.companion import CONTROLLER, MOTION_DEVICE, TASK_CONTROL_PART
+from uacell.robotics.config import RobotConfig
+from uacell.robotics.equipment import RobotEquipment, StopMode
+from uacell.robotics.model import RobotCell, RoboticsTables, TaskControl
+from uacell.robotics.program import DEFAULT_LIMITS, ProgramLimits
+from uacell.robotics.sim import SimulatedRobot
+from uacell.roles import Family
+from uacell.ua.file_store import FileStore
+from uacell.ua.state_machine import bind_tree
+from uacell.ua.toolkit import ValueWriter
+
+if TYPE_CHECKING:
+    from uacell.server import UacellServer
+
+log = logging.getLogger(__name__)
+
+PROGRAMS_DIR = "programs"
+# Every bound controller, keyed by its browse path ("Robot1.Controllers.Controller1").
+CONTROLLERS: RegistryKey[RoboticsBinding] = RegistryKey("controller")
+# Every task control model, keyed by its browse path ("Robot1.Controllers.Controller1.TaskControls.TaskControl1").
+TASK_CONTROLS: RegistryKey[TaskControl] = RegistryKey("task control")
+_STOP_MODE_NAMES = {
+    StopMode.ON_PATH: "OnPath",
+    StopMode.END_OF_CYCLE: "EndOfCycle",
+    StopMode.PROCESS_STOP: "ProcessStop",
+    StopMode.QUICK_STOP: "QuickStop",
+    StopMode.END_OF_INSTRUCTION: "EndOfInstruction",
+}
+
+Handler = Callable[..., Awaitable[list[Any]]]
+
+
+class Concern(Protocol):
+    """One concern of a controller's binding (programs, task controls, ...)."""
+
+    async def setup(self) -> None: ...
+
+    async def publish(self) -> None: ...
+
+    async def close(self) -> None: ...
+
+
+class RoboticsBinding:
+    """One controller (with its task controls and motion device) on its instance nodes."""
+
+    def __init__(
+        self,
+        app: UacellServer,
+        controller: BuiltPart,
+        tasks: list[BuiltPart],
+        arm: BuiltPart | None,
+        cell: RobotCell,
+        store: FileStore,
+    ) -> None:
+        from uacell.robotics.binding.arm import Arm
+        from uacell.robotics.binding.conditions import Conditions
+        from uacell.robotics.binding.programs import Programs
+        from uacell.robotics.binding.system_operation import SystemOperationNodes
+        from uacell.robotics.binding.task_control import TaskControls
+
+        self.app = app
+        self.controller = controller
+        self.task_parts = {t.part.name: t for t in tasks}
+        self.arm = arm
+        self.cell = cell
+        self.store = store
+        self.ns: int = app.cell.instantiator.ns
+        self.values = ValueWriter(app.server.iserver.aspace, app.dispatcher.types.builtin_of)
+        self._pending = False
+        self.programs = Programs(self)
+        self.task_controls = TaskControls(self)
+        self.system_operation = SystemOperationNodes(self)
+        self.conditions = Conditions(self)
+        self.axes = Arm(self)
+        self.concerns: list[Concern] = [
+            self.programs, self.task_controls, self.system_operation, self.conditions, self.axes,
+        ]  # fmt: skip
+
+    # --- helpers every concern uses -----------------------------------------------------------
+    def child(self, node: ua.NodeId, path: str) -> ua.NodeId:
+        return self.app.cell.child(node, path)
+
+    async def bind_machine(self, node: ua.NodeId, machine: StateMachine) -> None:
+        await bind_tree(self.app.server, node, machine, self.app.publisher, self.app.refs)
+
+    def bind_method(
+        self,
+        obj: ua.NodeId,
+        name: str,
+        family: Family,
+        handler: Handler,
+        executable: Callable[[], bool] | None,
+        serialize_on: object,
+        element: ua.NodeId,
+    ) -> None:
+        d = self.app.dispatcher
+        d.bind(
+            obj, d.method_of(obj, name), family, handler,
+            executable=executable, serialize_on=serialize_on, element=element,
+        )  # fmt: skip
+
+    async def publish_stop_modes(
+        self, machine_node: ua.NodeId, possible: tuple[StopMode, ...], default: StopMode
+    ) -> None:
+        values = [
+            ua.EnumValueType(
+                Value=int(m),
+                DisplayName=ua.LocalizedText(_STOP_MODE_NAMES.get(m, m.name), "en"),
+                Description=ua.LocalizedText(),
+            )
+            for m in possible
+        ]
+        for child, value, vtype in (
+            ("PossibleStopModes", values, ua.VariantType.ExtensionObject),
+            ("ConfiguredDefaultStopMode", int(default), ua.VariantType.Int16),
+        ):
+            try:
+                target = self.child(machine_node, child)
+            except KeyError:
+                continue
+            await self.values.write(target, value, vtype, force=True)
+            # Fixed by configuration: a client write would not change the behaviour.
+            await self.values.set_access(target, ua.AccessLevel.CurrentRead.mask)
+
+    # --- life -----------------------------------------------------------------------------------
+    async def setup(self) -> None:
+        for concern in self.concerns:
+            await concern.setup()
+        self.cell.add_listener(self.changed)
+        await self.publish()
+
+    def changed(self) -> None:
+        # Coalesce: one pending publish job reads the latest model state when it runs.
+        if not self._pending:
+            self._pending = True
+            self.app.publisher.submit(self.publish)
+
+    async def publish(self) -> None:
+        self._pending = False
+        for concern in self.concerns:
+            await concern.publish()
+
+    async def close(self) -> None:
+        await self.axes.close()
+        await self.cell.close()
+        for concern in self.concerns:
+            if concern is not self.axes:
+                await concern.close()
+
+
+def executable(model: Any, machine: str, method: str) -> Callable[[], bool]:
+    return lambda: bool(model.executable(machine, method))
+
+
+# --- the binder ------------------------------------------------------------------------------------
+def make_equipment(cfg: RobotConfig, program_limits: ProgramLimits = DEFAULT_LIMITS) -> RobotEquipment:
+    """``[robot] equipment = "module:factory"`` called with the [robot] section, else the simulator."""
+    if cfg.equipment:
+        return load_factory(cfg.equipment, "robot")(cfg)  # type: ignore[return-value]  # the factory's promise
+    # [robot] time_scale > 1 runs faster than real time; the simulator's scale is real s per simulated s.
+    return SimulatedRobot(time_scale=1.0 / cfg.time_scale, program_limits=program_limits)
+
+
+def program_limits(cfg: Any) -> ProgramLimits:
+    """The ``[programs]`` section as ``ProgramLimits``."""
+    return ProgramLimits(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(ProgramLimits)})
+
+
+async def bind_robotics(app: UacellServer) -> Closer | None:
+    """Bind every controller of the cell (role ``controller``) with its task controls and arm."""
+    from uacell.robotics.binding.programs import StoreLibrary, install_samples
+
+    controllers = app.cell.by_role(CONTROLLER)
+    if not controllers:
+        return None
+    tables = RoboticsTables.load(app.tables)
+    cfg = app.config.section("robot", RobotConfig)
+    bindings: list[RoboticsBinding] = []
+    for controller in controllers:
+        tasks = [t for t in app.cell.by_role(TASK_CONTROL_PART) if t.path.startswith(controller.path + ".")]
+        system_path = controller.path.split(".Controllers.")[0]
+        arms = [m for m in app.cell.by_role(MOTION_DEVICE) if m.path.startswith(system_path + ".")]
+        arm = arms[0] if arms else None
+        root = Path(app.data_dir) / PROGRAMS_DIR
+        if len(controllers) > 1:
+            root = root / controller.part.name
+        install_samples(root)
+        bounds = program_limits(app.config.programs)
+        store = FileStore(root, max_bytes=app.config.programs.max_folder_bytes, handles=app.file_handles)
+        library = StoreLibrary(store)
+        library.max_bytes = bounds.max_file_bytes
+        cell = RobotCell(
+            make_equipment(cfg, bounds),
+            library,
+            tables=tables,
+            task_names=[t.part.name for t in tasks],
+            motion_devices=[arm.part.name] if arm else (),
+            bounds=bounds,
+        )
+        binding = RoboticsBinding(app, controller, tasks, arm, cell, store)
+        await binding.setup()
+        bindings.append(binding)
+        app.registry(CONTROLLERS).add(controller.path, binding)
+        for task in tasks:
+            app.registry(TASK_CONTROLS).add(task.path, cell.tasks[task.part.name])
+
+    async def close() -> None:
+        for b in bindings:
+            await b.close()
+
+    return close
