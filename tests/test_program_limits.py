@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import robotics_tables
 
 from uacell.robotics.equipment import ExecutionMode, StopMode
 from uacell.robotics.model import DirectoryLibrary, RobotCell, Status
@@ -156,7 +157,7 @@ async def cell(tmp_path: Path):  # type: ignore[no-untyped-def]
         data = text.encode("latin-1") if name == "latin1.robot" else text.encode()
         (tmp_path / name).write_bytes(data)
     robot = SimulatedRobot(time_scale=0.0005, power_up_time=2.0, power_down_time=0.5)
-    c = RobotCell(robot, DirectoryLibrary(tmp_path))
+    c = RobotCell(robot, DirectoryLibrary(tmp_path), tables=robotics_tables())
     yield c
     await c.close()
 

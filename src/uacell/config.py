@@ -1,7 +1,7 @@
 """uacell's configuration: a TOML file, overridden by command-line options.
 
-``[server]``, ``[programs]`` and ``[limits]`` are uacell's own; every other section belongs to a companion, which declares it
-(``uacell.companion.Companion.section``/``settings``) in its package.
+``[server]``, ``[programs]`` and ``[limits]`` are uacell's own; every other section belongs to a
+companion, which declares it (``uacell.companion.Companion.section``/``settings``) in its package.
 
 Every key is optional; without a file uacell serves the demo cell on 127.0.0.1:4840.
 
