@@ -19,10 +19,12 @@ from typing import Any, TypeVar
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import robot_binding, robot_cell
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_robotics_model import check_consistent
 
+from uacell.packml.binding import UNITS
 from uacell.roles import Role
 from uacell.server import UacellServer
 
@@ -87,7 +89,7 @@ class Rig:
         # Standard methods uacell does not implement itself: ConditionRefresh(2) on ConditionType (as
         # OPC 10000-9 says) and on every condition, with the ids of the type's declarations.
         conditions = [ua.NodeId(ua.ObjectIds.ConditionType)]
-        conditions += [c.node for c in self.app.robotics.conditions.values()]
+        conditions += [c.node for c in robot_binding(self.app).conditions.nodes.values()]
         for name, ident in (
             ("ConditionRefresh", ua.ObjectIds.ConditionType_ConditionRefresh),
             ("ConditionRefresh2", ua.ObjectIds.ConditionType_ConditionRefresh2),
@@ -95,8 +97,9 @@ class Rig:
             method = ua.NodeId(ident)
             for obj in conditions:
                 self.targets.append(Target(obj, method, name, dispatcher.arguments(method, "InputArguments")))
-        files = self.app.robotics.files.directory
-        self.node_pool = [files.node_of(e.relpath) for e in self.app.robotics.store.entries()]
+        files = robot_binding(self.app).programs.directory
+        assert files is not None
+        self.node_pool = [files.node_of(e.relpath) for e in robot_binding(self.app).store.entries()]
         self.node_pool += [ua.NodeId(0, 0), ua.NodeId("no.such.node", 2), ua.NodeId(ua.ObjectIds.Server)]
         assert all(t.method_id in aspace for t in self.targets)
 
@@ -278,14 +281,14 @@ def test_after_the_fuzzing_the_server_is_consistent_and_answers(rig: Rig, proble
 
     async def check() -> None:
         await rig.app.settle()
-        check_consistent(rig.app.robot_cell)
+        check_consistent(robot_cell(rig.app))
         client = rig.clients[Role.OBSERVER]
         ns = await client.get_namespace_index("urn:uacell:cell")
-        task = rig.app.robot_cell.tasks["TaskControl1"]
-        for path, model in ((TC, task.machine), (SO, rig.app.robot_cell.system.machine)):
+        task = robot_cell(rig.app).tasks["TaskControl1"]
+        for path, model in ((TC, task.machine), (SO, robot_cell(rig.app).system.machine)):
             text = (await client.get_node(ua.NodeId(f"{path}.CurrentState", ns)).read_value()).Text
             assert text == model.current, path
-        unit = next(iter(rig.app.packml_units.values()))
+        unit = rig.app.registry(UNITS).values()[0].unit
         for machine in unit.machines.values():
             if machine.active:
                 node = ua.NodeId(f"Filler1.{_packml_path(machine.name)}.CurrentState", ns)

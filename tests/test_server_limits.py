@@ -20,6 +20,7 @@ import pytest_asyncio
 from asyncua import Client, ua
 from asyncua.ua.ua_binary import struct_to_binary
 from conftest import fast_config, start_app
+from helpers import robot_binding
 
 from uacell.roles import Role
 from uacell.server import UacellServer
@@ -325,7 +326,7 @@ async def _open(client: Client, node: ua.NodeId, mode: int = 1) -> ua.CallMethod
 
 
 async def test_file_handles_per_session_and_in_all_are_released_with_the_session(app: UacellServer) -> None:
-    node = app.robotics.files.directory.node_of("pick_and_place.robot")
+    node = robot_binding(app).programs.directory.node_of("pick_and_place.robot")
     pool = app.file_handles
     async with session(app) as a, session(app) as b:
         for _ in range(3):
@@ -350,7 +351,7 @@ async def test_file_handles_per_session_and_in_all_are_released_with_the_session
 async def test_the_programs_folder_cannot_outgrow_its_limit(app: UacellServer) -> None:
     ns = app.cell.instantiator.ns
     folder = ua.NodeId(PROGRAMS, ns)
-    store = app.robotics.store
+    store = robot_binding(app).store
     manager = app.server.iserver.user_manager
     manager.policy = dataclasses.replace(manager.policy, anonymous_role=Role.ENGINEER)
     try:
