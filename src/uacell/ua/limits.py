@@ -152,7 +152,7 @@ def _limits_of(iserver: Any) -> ServerLimits | None:
 MIN_BUFFER = 8192  # the smallest chunk OPC 10000-6 allows
 
 
-class ServerTransportLimits(TransportLimits):
+class ServerTransportLimits(TransportLimits):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """One connection's limits (asyncua copies the server's per connection): the chunk sizes follow
     the Hello; the message size and chunk count stay the server's, enforced, and are announced as 0."""
 
@@ -314,7 +314,7 @@ def _check_operations(iserver: Any, count: int, service: str) -> None:
         raise ServiceError(ua.StatusCodes.BadTooManyOperations)
 
 
-class LimitedSession(InternalSession):
+class LimitedSession(InternalSession):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """A session counted against ``[limits]``; subscriptions, monitored items and operations too."""
 
     async def read(self, params: ua.ReadParameters) -> list[ua.DataValue]:
