@@ -20,6 +20,13 @@ equipment = ""                    # "package.module:factory" for real equipment 
 acting_time = 1.0                 # seconds each acting state of the simulated unit takes
 mach_speed = 60.0                 # initial MachSpeed, packages/min
 equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
+
+[web]                             # the browser HMI (docs/web.md)
+enabled = true                    # 'uacell serve' runs it beside the server
+host = "127.0.0.1"                # any non-loopback address is served over HTTPS only
+port = 8080                       # 0: any free port (the listening line says which)
+certificate = ""                  # PEM certificate for HTTPS (default: the server's certificate)
+private_key = ""                  # its PEM private key (default: the server's key)
 ```
 """
 
@@ -63,14 +70,24 @@ class PackMLConfig:
 
 
 @dataclass
+class WebConfig:
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = 8080
+    certificate: str = ""
+    private_key: str = ""
+
+
+@dataclass
 class Config:
     server: ServerConfig = field(default_factory=ServerConfig)
     robot: RobotConfig = field(default_factory=RobotConfig)
     packml: PackMLConfig = field(default_factory=PackMLConfig)
+    web: WebConfig = field(default_factory=WebConfig)
     source: Path | None = None
 
 
-_SECTIONS = {"server": ServerConfig, "robot": RobotConfig, "packml": PackMLConfig}
+_SECTIONS = {"server": ServerConfig, "robot": RobotConfig, "packml": PackMLConfig, "web": WebConfig}
 
 
 def _coerce(section: str, key: str, value: object, default: object) -> object:
@@ -124,8 +141,9 @@ def load_config(path: str | Path | None = None) -> Config:
                 setattr(target, key, _coerce(section, key, value, getattr(target, key)))
             except ConfigError as exc:
                 raise ConfigError(f"configuration {path}: {exc}") from exc
-    if not 0 <= config.server.port <= 65535:
-        raise ConfigError(f"configuration {path}: [server] port must be 0..65535")
+    for section in ("server", "web"):
+        if not 0 <= getattr(config, section).port <= 65535:
+            raise ConfigError(f"configuration {path}: [{section}] port must be 0..65535")
     return config
 
 
