@@ -51,8 +51,9 @@ def _static_dir() -> str:
 class WebApp:
     """The HMI for one OPC UA server ``url``; ``app`` is the ASGI application."""
 
-    def __init__(self, url: str, credentials: Credentials, *, https: bool = False,
-                 idle_timeout: float = IDLE_TIMEOUT) -> None:
+    def __init__(
+        self, url: str, credentials: Credentials, *, https: bool = False, idle_timeout: float = IDLE_TIMEOUT
+    ) -> None:
         self.url = url
         self.credentials = credentials
         self.https = https
@@ -61,18 +62,20 @@ class WebApp:
         self.closing = asyncio.Event()
         self._reaper: asyncio.Task[None] | None = None
         static = _static_dir()
-        self.app = Starlette(routes=[
-            Route("/", self.index),
-            Route("/api/session", self.session_info),
-            Route("/api/login", self.login, methods=["POST"]),
-            Route("/api/logout", self.logout, methods=["POST"]),
-            Route("/api/events", self.events),
-            Route("/api/call", self.call, methods=["POST"]),
-            Route("/api/file", self.file, methods=["POST"]),
-            Route("/api/upload", self.upload, methods=["POST"]),
-            Route("/api/delete", self.delete, methods=["POST"]),
-            Mount("/static", StaticFiles(directory=static), name="static"),
-        ])
+        self.app = Starlette(
+            routes=[
+                Route("/", self.index),
+                Route("/api/session", self.session_info),
+                Route("/api/login", self.login, methods=["POST"]),
+                Route("/api/logout", self.logout, methods=["POST"]),
+                Route("/api/events", self.events),
+                Route("/api/call", self.call, methods=["POST"]),
+                Route("/api/file", self.file, methods=["POST"]),
+                Route("/api/upload", self.upload, methods=["POST"]),
+                Route("/api/delete", self.delete, methods=["POST"]),
+                Mount("/static", StaticFiles(directory=static), name="static"),
+            ]
+        )
         self._index = f"{static}/index.html"
 
     # sessions --------------------------------------------------------------------------------
@@ -213,8 +216,9 @@ class WebApp:
                 try:
                     while s.id in self.sessions and s.ua is ua:
                         getter = asyncio.ensure_future(queue.get())
-                        done, _ = await asyncio.wait({getter, closing}, timeout=HEARTBEAT,
-                                                     return_when=asyncio.FIRST_COMPLETED)
+                        done, _ = await asyncio.wait(
+                            {getter, closing}, timeout=HEARTBEAT, return_when=asyncio.FIRST_COMPLETED
+                        )
                         if closing in done:
                             getter.cancel()
                             return
@@ -267,8 +271,13 @@ class WebApp:
         except CallFailed as exc:
             return JSONResponse({"good": False, "code": exc.name, "meaning": exc.doc})
         except (OSError, TimeoutError, ConnectionError) as exc:
-            return JSONResponse({"good": False, "code": "BadServerNotConnected",
-                                 "meaning": f"the OPC UA server cannot be reached ({type(exc).__name__})"})
+            return JSONResponse(
+                {
+                    "good": False,
+                    "code": "BadServerNotConnected",
+                    "meaning": f"the OPC UA server cannot be reached ({type(exc).__name__})",
+                }
+            )
 
     async def call(self, request: Request) -> Response:
         return await self._act(request, "call")
@@ -294,4 +303,3 @@ _SECURITY_HEADERS = {
 
 def _sse(message: dict[str, Any]) -> str:
     return f"data: {json.dumps(message, separators=(',', ':'))}\n\n"
-

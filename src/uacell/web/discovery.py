@@ -30,8 +30,16 @@ _FILE_TYPE = ua.NodeId(ua.ObjectIds.FileType)
 
 # What the page shows of a PackML unit's Status and Admin objects (those present are used).
 UNIT_STATUS = (
-    "UnitModeCurrent", "UnitSupportedModes", "MachSpeed", "CurMachSpeed", "StateRequested",
-    "StateChangeInProcess", "MaterialInterlocked", "EquipmentBlocked", "EquipmentStarved", "StartParameters",
+    "UnitModeCurrent",
+    "UnitSupportedModes",
+    "MachSpeed",
+    "CurMachSpeed",
+    "StateRequested",
+    "StateChangeInProcess",
+    "MaterialInterlocked",
+    "EquipmentBlocked",
+    "EquipmentStarved",
+    "StartParameters",
 )
 UNIT_ADMIN = ("ProdProcessedCount", "ProdDefectiveCount", "ProdConsumedCount", "StopReason", "Alarm", "Warning")
 UNIT_METHODS = ("SetUnitMode", "SetMachSpeed")
@@ -116,8 +124,11 @@ class Discoverer:
     async def of_type(self, folder: ua.NodeId | None, type_id: ua.NodeId) -> list[Child]:
         if folder is None:
             return []
-        return [c for c in await self.children(folder) if c.node_class == ua.NodeClass.Object
-                and await self.is_a(c.type_definition, type_id)]
+        return [
+            c
+            for c in await self.children(folder)
+            if c.node_class == ua.NodeClass.Object and await self.is_a(c.type_definition, type_id)
+        ]
 
     # registering what the page uses ----------------------------------------------------------
 
@@ -197,10 +208,13 @@ class Discoverer:
             if node is None:
                 break
             prefix = f"{name}/{machine_name}"
-            machines.append({
-                "name": machine_name, **await self.machine(prefix, node),
-                "methods": await self.methods(prefix, node, method_names),
-            })
+            machines.append(
+                {
+                    "name": machine_name,
+                    **await self.machine(prefix, node),
+                    "methods": await self.methods(prefix, node, method_names),
+                }
+            )
         status = await self.child(unit.node, "Status")
         admin = await self.child(unit.node, "Admin")
         variables = {n: await self.variable(f"{name}/Status/{n}", status, n) for n in UNIT_STATUS}
@@ -222,15 +236,18 @@ class Discoverer:
             prefix = f"{robot.name}/{device.name}"
             axes = []
             for axis in await self.of_type(await self.child(device.node, "Axes"), ua.NodeId(16601, r)):
-                key = await self.variable(f"{prefix}/{axis.name}/ActualPosition", axis.node, "ParameterSet",
-                                          "ActualPosition")
+                key = await self.variable(
+                    f"{prefix}/{axis.name}/ActualPosition", axis.node, "ParameterSet", "ActualPosition"
+                )
                 if key:
                     axes.append({"name": axis.name, "position": key})
-            devices.append({
-                "name": device.name,
-                "axes": axes,
-                "in_control": await self.variable(f"{prefix}/InControl", device.node, "ParameterSet", "InControl"),
-            })
+            devices.append(
+                {
+                    "name": device.name,
+                    "axes": axes,
+                    "in_control": await self.variable(f"{prefix}/InControl", device.node, "ParameterSet", "InControl"),
+                }
+            )
         return {"name": robot.name, "controllers": controllers, "motion_devices": devices}
 
     async def controller(self, prefix: str, controller: Child, r: int) -> dict[str, Any]:
@@ -239,12 +256,15 @@ class Discoverer:
         conditions = []
         for cond in await self.of_type(await self.child(sysop, "Conditions"), _CONDITION_TYPE):
             key = f"{prefix}/Conditions/{cond.name}"
-            conditions.append({
-                "name": cond.name,
-                "variables": {v: await self.variable(f"{key}/{v}", cond.node, *v.split("/"))
-                              for v in CONDITION_VARIABLES},
-                "methods": await self.methods(key, cond.node, ("Acknowledge",)),
-            })
+            conditions.append(
+                {
+                    "name": cond.name,
+                    "variables": {
+                        v: await self.variable(f"{key}/{v}", cond.node, *v.split("/")) for v in CONDITION_VARIABLES
+                    },
+                    "methods": await self.methods(key, cond.node, ("Acknowledge",)),
+                }
+            )
         programs = await self.child(controller.node, "Programs")
         if programs is not None:
             self.cell.directories[f"{prefix}/Programs"] = programs

@@ -32,8 +32,9 @@ from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 
 from uacell.errors import ConfigError
-from uacell.pki import PkiPaths, TrustList, atomic_write, ensure_server_certificate, thumbprint
+from uacell.pki import PkiPaths, TrustList, ensure_server_certificate, thumbprint
 from uacell.roles import is_loopback
+from uacell.users import atomic_write
 from uacell.web.app import WebApp
 from uacell.web.uasession import APPLICATION_URI, Credentials
 
@@ -73,8 +74,9 @@ async def pinned_server_certificate(data_dir: Path, url: str) -> Path:
     x509.load_der_x509_certificate(der)
     pinned.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(pinned, der, mode=0o644)
-    log.warning("web: trusting the certificate of %s on first use (thumbprint %s), kept in %s",
-                url, thumbprint(der), pinned)
+    log.warning(
+        "web: trusting the certificate of %s on first use (thumbprint %s), kept in %s", url, thumbprint(der), pinned
+    )
     return pinned
 
 
@@ -156,8 +158,13 @@ async def start_web(
     web = WebApp(server_url, credentials, https=https)
     sock = _bind(host, port)
     config = uvicorn.Config(
-        web.app, log_level="warning", access_log=False, lifespan="off", ssl_certfile=ssl_cert,
-        ssl_keyfile=ssl_key, timeout_graceful_shutdown=3,
+        web.app,
+        log_level="warning",
+        access_log=False,
+        lifespan="off",
+        ssl_certfile=ssl_cert,
+        ssl_keyfile=ssl_key,
+        timeout_graceful_shutdown=3,
     )
     config.load()
     server = uvicorn.Server(config)

@@ -35,8 +35,15 @@ EVENTS_KEPT = 30
 _FILE_CHUNK = 60000
 # OPC 40010-1 method result Status names (docs/robotics.md), shown beside the number.
 ROBOTICS_STATUS = {
-    0: "OK", 1: "E_SystemState", 2: "E_UnexpectedError", 3: "E_ActiveAlarm", 4: "E_AcknowledgeRequired",
-    -1: "not found", -2: "invalid content", -3: "unresolved reference", -4: "module in use",
+    0: "OK",
+    1: "E_SystemState",
+    2: "E_UnexpectedError",
+    3: "E_ActiveAlarm",
+    4: "E_AcknowledgeRequired",
+    -1: "not found",
+    -2: "invalid content",
+    -3: "unresolved reference",
+    -4: "module in use",
 }
 
 
@@ -211,8 +218,11 @@ class UaSession:
         c = self.credentials
         server_cert = str(c.server_certificate) if c.server_certificate else None
         await client.set_security(
-            SecurityPolicyBasic256Sha256, str(c.certificate), str(c.private_key),
-            server_certificate=server_cert, mode=ua.MessageSecurityMode.SignAndEncrypt,
+            SecurityPolicyBasic256Sha256,
+            str(c.certificate),
+            str(c.private_key),
+            server_certificate=server_cert,
+            mode=ua.MessageSecurityMode.SignAndEncrypt,
         )
         return client
 
@@ -310,9 +320,15 @@ class UaSession:
 
     def snapshot(self) -> dict[str, Any]:
         return {
-            "status": self.status, "problem": self.problem, "user": self.user, "layout": self.cell.layout,
-            "values": self.values, "methods": self.methods, "events": list(self.events),
-            "files": self.files, "modules": self.modules,
+            "status": self.status,
+            "problem": self.problem,
+            "user": self.user,
+            "layout": self.cell.layout,
+            "values": self.values,
+            "methods": self.methods,
+            "events": list(self.events),
+            "files": self.files,
+            "modules": self.modules,
         }
 
     def _emit(self, message: dict[str, Any]) -> None:
@@ -437,8 +453,7 @@ class UaSession:
         code = result.StatusCode.value
         name, doc = status_text(code)
         outputs = [jsonable(v.Value) for v in result.OutputArguments or []]
-        answer: dict[str, Any] = {"good": result.StatusCode.is_good(), "code": name, "meaning": doc,
-                                  "outputs": outputs}
+        answer: dict[str, Any] = {"good": result.StatusCode.is_good(), "code": name, "meaning": doc, "outputs": outputs}
         arg_results = [r.name for r in result.InputArgumentResults or [] if not r.is_good()]
         if arg_results:
             answer["argument_results"] = arg_results
@@ -448,8 +463,12 @@ class UaSession:
     async def _file_method(self, file_node: ua.NodeId, name: str, *inputs: ua.Variant) -> list[Any]:
         client = self._require()
         method = next(
-            (r.NodeId for r in await Node(client.uaclient, file_node).get_children_descriptions()
-             if r.BrowseName.Name == name), None,
+            (
+                r.NodeId
+                for r in await Node(client.uaclient, file_node).get_children_descriptions()
+                if r.BrowseName.Name == name
+            ),
+            None,
         )
         if method is None:
             raise CallFailed(ua.StatusCodes.BadMethodInvalid, name)
@@ -490,7 +509,10 @@ class UaSession:
         if node is None:
             dir_node = self.cell.directories[directory]
             node, handle = await self._file_method(
-                dir_node, "CreateFile", ua.Variant(name, ua.VariantType.String), ua.Variant(True, ua.VariantType.Boolean)
+                dir_node,
+                "CreateFile",
+                ua.Variant(name, ua.VariantType.String),
+                ua.Variant(True, ua.VariantType.Boolean),
             )
         else:
             (handle,) = await self._file_method(node, "Open", ua.Variant(2 | 4, ua.VariantType.Byte))
