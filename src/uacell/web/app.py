@@ -213,6 +213,7 @@ class WebApp:
             try:
                 yield _sse({"type": "snapshot", **ua.snapshot()})
                 closing = asyncio.ensure_future(self.closing.wait())
+                getter: asyncio.Future[dict[str, Any]] | None = None
                 try:
                     while s.id in self.sessions and s.ua is ua:
                         getter = asyncio.ensure_future(queue.get())
@@ -233,6 +234,8 @@ class WebApp:
                     yield _sse({"type": "expired"})
                 finally:
                     closing.cancel()
+                    if getter is not None:
+                        getter.cancel()
             finally:
                 s.streams -= 1
                 s.last_seen = time.monotonic()

@@ -154,25 +154,43 @@ def _scalar(argument: ua.Argument, value: Any) -> Any:
         raise ValueError(f"{name}: {value!r} is not a valid {vt.name}") from exc
 
 
+_INTS = {"SByte", "Byte", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64"}
+
+
 def _structure(cls: type, value: dict[str, Any]) -> Any:
+    """A structure from a JSON object, field by field (names compared without case)."""
     obj = cls()
-    names = {f.name.lower(): f for f in dataclasses.fields(obj)}
-    hints = {f.name: type(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    fields = {f.name.lower(): f for f in dataclasses.fields(obj)}
     for key, item in value.items():
-        f = names.get(str(key).lower())
+        f = fields.get(str(key).lower())
         if f is None:
-            raise ValueError
-        kind = hints[f.name]
-        if kind is ua.LocalizedText:
-            item = ua.LocalizedText(str(item))
-        elif kind is float:
-            item = float(item)
-        elif kind is int:
-            item = int(item)
-        elif kind is str:
-            item = str(item)
-        setattr(obj, f.name, item)
+            raise ValueError(f"no field {key}")
+        setattr(obj, f.name, _field(str(f.type), item))
     return obj
+
+
+def _field(type_name: str, item: Any) -> Any:
+    base = type_name.rsplit(".", 1)[-1].strip("'\"")
+    if base in _INTS:
+        if isinstance(item, bool) or float(item) != int(float(item)):
+            raise ValueError(f"{item!r} is not a whole number")
+        return int(float(item))
+    if base in ("Float", "Double"):
+        return float(item)
+    if base == "Boolean":
+        if not isinstance(item, bool):
+            raise ValueError(f"{item!r} is not true or false")
+        return item
+    if base == "String":
+        return str(item)
+    if base == "LocalizedText":
+        return ua.LocalizedText(str(item))
+    if base == "EUInformation" and isinstance(item, str):  # a unit given by its name, e.g. "ml"
+        return ua.EUInformation(DisplayName=ua.LocalizedText(item), Description=ua.LocalizedText(item))
+    cls = getattr(ua, base, None)
+    if cls is not None and dataclasses.is_dataclass(cls) and isinstance(item, dict):
+        return _structure(cls, item)
+    raise ValueError(f"{item!r} does not fit {base}")
 
 
 Listener = Callable[[dict[str, Any]], None]

@@ -370,6 +370,10 @@ function startParameters(u) {
   }));
 }
 
+const unitName = (u) => {
+  const name = u && typeof u === "object" ? u.DisplayName : u;
+  return name ? ` ${name}` : "";
+};
 const first = (v) => (Array.isArray(v) ? v[0] : v);
 const fmt = (v, digits = 1) => (typeof v === "number" ? v.toFixed(digits) : (v ?? "–"));
 
@@ -392,7 +396,7 @@ function updateUnit(u) {
   const alarms = v("Alarm") || [];
   set("v-alarms", alarms.length ? alarms.map((a) => a.Message || a.ID).join("; ") : "none");
   const params = v("StartParameters") || [];
-  set("v-startparams", params.length ? params.map((p) => `${p.Name || p.ID} = ${p.Value}${p.Unit ? " " + p.Unit : ""}`).join(", ") : "none");
+  set("v-startparams", params.length ? params.map((p) => `${p.Name || p.ID} = ${p.Value}${unitName(p.Unit)}`).join(", ") : "none");
   const speed = $(".speed-input", card);
   if (speed && document.activeElement !== speed && !speed.value) speed.value = v("MachSpeed") ?? "";
 }
