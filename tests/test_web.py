@@ -9,7 +9,11 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import signal
 import ssl
+import subprocess
+import sys
+import time
 import urllib.error
 import urllib.request
 from http.cookiejar import CookieJar
@@ -18,7 +22,7 @@ from typing import Any
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
-from conftest import fast_config, start_app
+from conftest import fast_config, free_port, start_app
 
 from uacell.errors import ConfigError
 from uacell.pki import PkiPaths
@@ -304,3 +308,49 @@ async def test_static_files_are_package_data() -> None:
     assert {"index.html", "app.js", "style.css"} <= names
     text = (static / "index.html").read_text() + (static / "app.js").read_text()
     assert "http://" not in text.replace("http://www.w3.org/2000/svg", "") and "https://" not in text
+
+
+def _sse_until(b: Browser, want, timeout: float = 90.0) -> dict:
+    """Read the page's event stream until a message satisfies ``want``; return it."""
+    deadline = time.monotonic() + timeout
+    with b.opener.open(urllib.request.Request(b.base + "/api/events"), timeout=30) as res:
+        while time.monotonic() < deadline:
+            line = res.readline()
+            assert line, "the event stream ended"
+            if line.startswith(b"data: "):
+                message = json.loads(line[6:])
+                if want(message):
+                    return message
+    raise AssertionError("no such message in time")
+
+
+async def test_uacell_web_standalone_until_the_server_trusts_its_certificate(stack, tmp_path):
+    app, _ = stack
+    port = free_port()
+    hmi = tmp_path / "hmi"
+    log_file = (tmp_path / "web.log").open("w")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "uacell", "web", "--server", app.endpoint, "--port", str(port), "--data-dir", str(hmi)],
+        stdout=subprocess.PIPE,
+        stderr=log_file,
+        text=True,
+    )
+    try:
+        line = await asyncio.to_thread(proc.stdout.readline)
+        assert line.strip() == f"uacell web on http://127.0.0.1:{port}/"
+        assert len(list((hmi / "web" / "pki" / "server").glob("*.der"))) == 1  # the server's, pinned
+        b = Browser(f"http://127.0.0.1:{port}")
+        await b.start()
+        refused = await asyncio.to_thread(_sse_until, b, lambda m: "BadCertificateUntrusted" in m.get("problem", ""))
+        assert refused["status"] == "unreachable"
+        # As docs/security.md says for any client: move its certificate from rejected/ to trusted/.
+        pki = PkiPaths.in_data_dir(app.data_dir)
+        (rejected,) = [f for f in pki.rejected.iterdir() if "uacell" in f.name]
+        rejected.rename(pki.trusted / rejected.name)
+        back = await asyncio.to_thread(_sse_until, b, lambda m: m.get("status") == "connected")
+        assert back["type"] == "snapshot" and back["layout"]["units"][0]["name"] == "Filler1"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert await asyncio.to_thread(proc.wait, 30) == 0
+        proc.stdout.close()
+        log_file.close()

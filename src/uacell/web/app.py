@@ -24,7 +24,7 @@ from starlette.responses import FileResponse, JSONResponse, Response, StreamingR
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from uacell.web.uasession import CallFailed, Credentials, UaSession
+from uacell.web.uasession import CallFailed, CellCache, Credentials, UaSession
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +59,7 @@ class WebApp:
         self.https = https
         self.idle_timeout = idle_timeout
         self.sessions: dict[str, WebSession] = {}
+        self.cells = CellCache()
         self.closing = asyncio.Event()
         self._reaper: asyncio.Task[None] | None = None
         static = _static_dir()
@@ -122,7 +123,7 @@ class WebApp:
     async def _ua(self, s: WebSession) -> UaSession:
         """The session's OPC UA session, made anonymously on first use."""
         if s.ua is None:
-            ua = UaSession(self.url, self.credentials)
+            ua = UaSession(self.url, self.credentials, cache=self.cells)
             s.ua = ua
             try:
                 await ua.connect()
@@ -175,7 +176,7 @@ class WebApp:
         user, password = body.get("user"), body.get("password")
         if not isinstance(user, str) or not user or not isinstance(password, str):
             return JSONResponse({"error": "user name and password are required"}, status_code=400)
-        ua = UaSession(self.url, self.credentials, user=user, password=password)
+        ua = UaSession(self.url, self.credentials, user=user, password=password, cache=self.cells)
         try:
             await ua.connect()
         except CallFailed as exc:

@@ -32,7 +32,16 @@ from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 
 from uacell.errors import ConfigError
-from uacell.pki import PkiPaths, TrustList, ensure_server_certificate, thumbprint
+from uacell.pki import (
+    PkiPaths,
+    TrustList,
+    cert_to_der,
+    coverage_problems,
+    generate_key,
+    key_to_pem,
+    make_certificate,
+    thumbprint,
+)
 from uacell.roles import is_loopback
 from uacell.users import atomic_write
 from uacell.web.app import WebApp
@@ -48,7 +57,28 @@ def web_dir(data_dir: Path) -> Path:
 def hmi_certificate(data_dir: Path) -> tuple[Path, Path]:
     """Make (or reuse) the HMI's own client certificate; returns (cert.der, key.pem)."""
     paths = PkiPaths(web_dir(data_dir) / "pki")
-    return ensure_server_certificate(paths, APPLICATION_URI, ["localhost"])
+    if paths.cert.exists() and paths.key.exists():
+        try:
+            cert = x509.load_der_x509_certificate(paths.cert.read_bytes())
+            if not coverage_problems(cert, APPLICATION_URI, []):
+                return paths.cert, paths.key
+        except ValueError:
+            pass
+    paths.create()
+    key = generate_key()
+    cert = make_certificate(
+        key,
+        APPLICATION_URI,
+        common_name=f"uacell web HMI@{socket.gethostname()}",
+        dns_names=[socket.gethostname()],
+        server=False,
+        client=True,
+    )
+    atomic_write(paths.key, key_to_pem(key), mode=0o600)
+    der = cert_to_der(cert)
+    atomic_write(paths.cert, der, mode=0o644)
+    log.info("created the web HMI's certificate %s (thumbprint %s)", paths.cert, thumbprint(der))
+    return paths.cert, paths.key
 
 
 def trust_hmi(data_dir: Path) -> None:
@@ -114,7 +144,10 @@ def _bind(host: str, port: int) -> socket.socket:
     except OSError as exc:
         sock.close()
         reason = "address already in use" if exc.errno == errno.EADDRINUSE else (exc.strerror or str(exc))
-        raise ConfigError(f"web: cannot listen on {host}:{port}: {reason}") from None
+        raise ConfigError(
+            f"web: cannot listen on {host}:{port}: {reason} (choose another with --web-port/--port "
+            "or [web] port, or turn the HMI off with --no-web or [web] enabled = false)"
+        ) from None
     sock.listen(128)
     sock.setblocking(False)
     return sock

@@ -196,11 +196,39 @@ def _field(type_name: str, item: Any) -> Any:
 Listener = Callable[[dict[str, Any]], None]
 
 
+class CellCache:
+    """The cell as found by one session, reused by the others of the same HMI (browsing takes a while).
+
+    Found again whenever a session had lost the server: it may have restarted with another cell.
+    """
+
+    def __init__(self) -> None:
+        self.cell: Cell | None = None
+        self._lock = asyncio.Lock()
+
+    async def get(self, client: Client) -> Cell:
+        async with self._lock:
+            if self.cell is None:
+                self.cell = await discover(client)
+            return self.cell
+
+    def forget(self) -> None:
+        self.cell = None
+
+
 class UaSession:
     """A web user's OPC UA session; ``connect()`` raises CallFailed when the server refuses them."""
 
-    def __init__(self, url: str, credentials: Credentials, user: str | None = None, password: str | None = None):
+    def __init__(
+        self,
+        url: str,
+        credentials: Credentials,
+        user: str | None = None,
+        password: str | None = None,
+        cache: CellCache | None = None,
+    ) -> None:
         self.url = url
+        self.cache = cache or CellCache()
         self.credentials = credentials
         self.user = user
         self._password = password
@@ -266,7 +294,7 @@ class UaSession:
             c.__name__ == "PackMLDescriptorDataType" for c in ua.extension_objects_by_datatype.values()
         ):
             await client.load_data_type_definitions()
-        self.cell = await discover(client)
+        self.cell = await self.cache.get(client)
         self._by_node = {node: key for key, node in self.cell.variables.items()}
         self.values = {}
         values = await client.create_subscription(50, _Handler(self))
@@ -287,6 +315,7 @@ class UaSession:
 
     async def _lost(self, exc: Exception) -> None:
         log.info("web session of %s lost the server: %s", self.user or "anonymous", exc)
+        self.cache.forget()
         self.fail(f"the OPC UA server {self.url} cannot be reached")
 
     def fail(self, problem: str) -> None:
