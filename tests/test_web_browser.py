@@ -410,3 +410,35 @@ def test_an_expired_session_goes_back_to_login(page, serve):
     page.fill("#login-password", PASSWORD)
     page.click("#login-submit")
     page.wait_for_function("() => document.querySelector('#who').textContent === 'otto'", timeout=TIMEOUT)
+
+
+def test_an_alarm_is_shown_and_acknowledged_in_the_page(page, serve, ua_thread):
+    login(page, "erin")
+    row = page.locator('.condition[data-condition="EmergencyStop"]')
+    page.click('button[data-label="Simulate emergency stop"]')
+    page.wait_for_selector('.condition[data-condition="EmergencyStop"][data-active="true"]', timeout=TIMEOUT)
+    assert row.locator(".c-state").inner_text() == "ACTIVE"
+    assert robot_button(page, "Get ready").is_disabled()  # the server: not Executable with an active alarm
+    page.click('button[data-label="Release emergency stop"]')
+    page.wait_for_function(
+        "el => el.textContent === 'inactive, not acknowledged'",
+        arg=row.locator(".c-state").element_handle(),
+        timeout=TIMEOUT,
+    )
+    ack = row.locator('button[data-label="Acknowledge"]')
+    page.wait_for_function("b => !b.disabled", arg=ack.element_handle(), timeout=TIMEOUT)
+    ack.click()
+    assert "Acknowledge: Good" in result(page, "Good")
+    page.wait_for_function(
+        "el => el.textContent === 'ok'", arg=row.locator(".c-state").element_handle(), timeout=TIMEOUT
+    )
+
+    async def acked() -> tuple[bool, str]:
+        async with Ua(serve.endpoint) as c:
+            cond = f"{CTRL}.SystemOperation.Conditions.EmergencyStop"
+            return (
+                await c.node(f"{cond}.AckedState.Id").read_value(),
+                (await c.node(f"{cond}.Comment").read_value()).Text,
+            )
+
+    assert ua_thread.run(acked()) == (True, "acknowledged in the web HMI")

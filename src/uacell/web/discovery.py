@@ -170,6 +170,9 @@ class Discoverer:
             "key": prefix,
             "state": await self.variable(f"{prefix}/CurrentState", node, "CurrentState"),
             "reason": await self.variable(f"{prefix}/LastTransitionReason", node, "LastTransitionReason"),
+            "reason_text": await self.variable(
+                f"{prefix}/LastTransitionReason/ValueAsText", node, "LastTransitionReason", "ValueAsText"
+            ),
         }
 
     async def lock(self, prefix: str, obj: ua.NodeId) -> dict[str, Any] | None:

@@ -402,7 +402,11 @@ class UaSession:
     def _event(self, event: Any) -> None:
         source = getattr(event, "SourceNode", None)
         machine = self.cell.machines.get(source.to_string()) if isinstance(source, ua.NodeId) else None
-        reason_key = f"{machine}/LastTransitionReason" if machine else ""
+        # The machine's LastTransitionReason is published before its event: its value now is this one's.
+        reason = None
+        if machine:
+            reason = self.values.get(f"{machine}/LastTransitionReason/ValueAsText")
+            reason = reason or self.values.get(f"{machine}/LastTransitionReason")
         entry = {
             "time": jsonable(getattr(event, "Time", None)),
             "machine": machine or jsonable(getattr(event, "SourceName", "")),
@@ -410,7 +414,7 @@ class UaSession:
             "from": jsonable(getattr(event, "FromState", None)),
             "to": jsonable(getattr(event, "ToState", None)),
             "message": jsonable(getattr(event, "Message", None)),
-            "reason_key": reason_key if reason_key in self.cell.variables else None,
+            "reason": reason,
         }
         self.events.appendleft(entry)
         self._emit({"type": "event", "event": entry})

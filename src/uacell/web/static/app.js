@@ -598,7 +598,7 @@ function renderEvents() {
   list.textContent = "";
   for (const e of S.events.slice(0, 15)) {
     const t = e.time ? new Date(e.time).toLocaleTimeString() : "";
-    const reason = e.reason_key && S.values[e.reason_key] !== undefined ? ` (reason ${S.values[e.reason_key]})` : "";
+    const reason = e.reason !== null && e.reason !== undefined ? ` (reason: ${e.reason})` : "";
     list.append(el("li", {}, el("time", {text: t}), ` ${e.machine}: ${e.from} → ${e.to}${reason}`));
   }
 }
