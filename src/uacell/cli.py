@@ -10,11 +10,17 @@ import logging
 import signal
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from uacell import __version__, _entry
 from uacell.config import load_config, load_factory
 from uacell.errors import ConfigError
 from uacell.models import ModelError, fetch_models, locate_models, models_dir
+
+if TYPE_CHECKING:
+    from uacell.config import Config
+    from uacell.server import UacellServer
+    from uacell.web.server import RunningWeb
 
 log = logging.getLogger("uacell")
 
@@ -188,13 +194,15 @@ async def _run(config) -> int:
     return 0
 
 
-def _https_files(config) -> tuple[Path | None, Path | None]:
+def _https_files(config: Config) -> tuple[Path | None, Path | None]:
     web = config.web
-    return (Path(web.certificate).expanduser() if web.certificate else None,
-            Path(web.private_key).expanduser() if web.private_key else None)
+    return (
+        Path(web.certificate).expanduser() if web.certificate else None,
+        Path(web.private_key).expanduser() if web.private_key else None,
+    )
 
 
-async def _start_web_beside(config, app):
+async def _start_web_beside(config: Config, app: UacellServer) -> RunningWeb:
     """The web HMI beside the server: its certificate trusted here, HTTPS with the server's by default."""
     from uacell.pki import PkiPaths
     from uacell.roles import is_loopback
@@ -211,8 +219,13 @@ async def _start_web_beside(config, app):
         host = "127.0.0.1"
     shown = f"[{host}]" if ":" in host else host
     return await start_web(
-        f"opc.tcp://{shown}:{config.server.port}/", data_dir, host=config.web.host, port=config.web.port,
-        server_certificate=pki.cert, https_certificate=cert, https_key=key,
+        f"opc.tcp://{shown}:{config.server.port}/",
+        data_dir,
+        host=config.web.host,
+        port=config.web.port,
+        server_certificate=pki.cert,
+        https_certificate=cert,
+        https_key=key,
     )
 
 
@@ -230,7 +243,7 @@ def _web(args: argparse.Namespace) -> int:
     return asyncio.run(_run_web(args.server, data_dir, config))
 
 
-async def _run_web(server: str, data_dir: Path, config) -> int:
+async def _run_web(server: str, data_dir: Path, config: Config) -> int:
     from uacell.web.server import start_web
 
     stop = asyncio.Event()
@@ -239,8 +252,9 @@ async def _run_web(server: str, data_dir: Path, config) -> int:
         loop.add_signal_handler(sig, stop.set)
     cert, key = _https_files(config)
     try:
-        web = await start_web(server, data_dir, host=config.web.host, port=config.web.port,
-                              https_certificate=cert, https_key=key)
+        web = await start_web(
+            server, data_dir, host=config.web.host, port=config.web.port, https_certificate=cert, https_key=key
+        )
     except ConfigError as exc:
         print(f"uacell: {exc}", file=sys.stderr)
         return 2

@@ -188,7 +188,7 @@ def _field(type_name: str, item: Any) -> Any:
     if base == "EUInformation" and isinstance(item, str):  # a unit given by its name, e.g. "ml"
         return ua.EUInformation(DisplayName=ua.LocalizedText(item), Description=ua.LocalizedText(item))
     cls = getattr(ua, base, None)
-    if cls is not None and dataclasses.is_dataclass(cls) and isinstance(item, dict):
+    if isinstance(cls, type) and dataclasses.is_dataclass(cls) and isinstance(item, dict):
         return _structure(cls, item)
     raise ValueError(f"{item!r} does not fit {base}")
 
