@@ -432,7 +432,7 @@ function renderController(r, c) {
   const box = el("div", {class: "controller", id: `ctrl-${r.name}-${c.name}`, "data-controller": c.name},
     el("h3", {text: c.name}),
     stateLine("SystemOperation", "v-sysop"),
-    lockBox(c.lock, []),
+    lockBox(c.lock, [c.lock]),
     el("div", {class: "commands"},
       button("Get ready", so.methods.GetReady, {locks: ctrlLocks}), button("Stand down", so.methods.StandDown, {locks: ctrlLocks}),
       button("Start all", so.methods.Start, {locks: ctrlLocks}), button("Stop all", so.methods.Stop, {locks: ctrlLocks, args: () => [0]})));
@@ -463,7 +463,7 @@ function renderTask(r, c, t) {
   const box = el("div", {class: "task", id: `task-${r.name}-${t.name}`, "data-task": t.name},
     el("h4", {text: `Task control ${t.name}`}),
     stateLine("State", "v-task"), stateLine("Program", "v-program"), stateLine("Modules", "v-modules"),
-    lockBox(t.lock, [c.lock]),
+    lockBox(t.lock, [t.lock, c.lock]),
     el("div", {class: "commands"}, select,
       button("Load", m.LoadByName, {locks, args: () => [select.value.replace(/\.robot$/, "")]}),
       button("Unload", m.UnloadProgram, {locks}), button("Start", m.Start, {locks}),
