@@ -216,6 +216,10 @@ def test_the_page_shows_the_demo_cell(page, serve, ua_thread):
     assert page.locator("table.axes tr").count() == 6
     files = page.locator(".file-list li").evaluate_all("items => items.map(i => i.dataset.file)")
     assert files == ["gripper.robot", "palletize.robot", "pick_and_place.robot"]
+    # Deleting and uploading programs is for engineers: the server's UserExecutable says no.
+    page.wait_for_function("() => document.querySelectorAll('.file-list button[data-method]').length === 3")
+    assert all(b.is_disabled() for b in page.locator(".file-list button[data-method]").all())
+    assert page.locator("button.upload").is_disabled()
     # Anonymous on loopback is an operator: Reset is offered in Stopped, Start is not.
     assert unit_button(page, "Reset").is_enabled() and not unit_button(page, "Start").is_enabled()
     shot(page, "web-overview.png")
@@ -418,7 +422,8 @@ def test_an_alarm_is_shown_and_acknowledged_in_the_page(page, serve, ua_thread):
     page.click('button[data-label="Simulate emergency stop"]')
     page.wait_for_selector('.condition[data-condition="EmergencyStop"][data-active="true"]', timeout=TIMEOUT)
     assert row.locator(".c-state").inner_text() == "ACTIVE"
-    assert robot_button(page, "Get ready").is_disabled()  # the server: not Executable with an active alarm
+    # The server: GetReady is not Executable while an alarm is active.
+    page.wait_for_function("b => b.disabled", arg=robot_button(page, "Get ready").element_handle(), timeout=TIMEOUT)
     page.click('button[data-label="Release emergency stop"]')
     page.wait_for_function(
         "el => el.textContent === 'inactive, not acknowledged'",

@@ -269,8 +269,10 @@ class Discoverer:
                 }
             )
         programs = await self.child(controller.node, "Programs")
+        program_methods: dict[str, str] = {}
         if programs is not None:
             self.cell.directories[f"{prefix}/Programs"] = programs
+            program_methods = await self.methods(f"{prefix}/Programs", programs, ("CreateFile", "Delete"))
         tasks = []
         for task in await self.of_type(await self.child(controller.node, "TaskControls"), ua.NodeId(1011, r)):
             tasks.append(await self.task_control(f"{prefix}/{task.name}", task))
@@ -288,6 +290,7 @@ class Discoverer:
             "conditions": conditions,
             "lock": await self.lock(prefix, controller.node),
             "programs": f"{prefix}/Programs" if programs is not None else None,
+            "program_methods": program_methods,
             "task_controls": tasks,
             "simulate_alarm": await self.method(f"{prefix}/SimulateAlarm", controller.node, "SimulateAlarm"),
         }

@@ -472,17 +472,27 @@ function renderTask(r, c, t) {
   return box;
 }
 
+// A button for a file operation: enabled as the directory method it uses (CreateFile, Delete) is.
+function fileButton(label, key, cls) {
+  const b = el("button", {type: "button", class: cls, "data-method": key || "", text: label});
+  b._keys = key ? [key] : [];
+  b._locks = [];
+  return b;
+}
+
 function renderPrograms(c) {
   const name = el("input", {class: "upload-name", placeholder: "name.robot", "aria-label": "file name"});
   const text = el("textarea", {class: "upload-text", rows: 6, placeholder: "program Name\nmove 0 0 0 0 0 0", "aria-label": "program text"});
-  const upload = el("button", {type: "button", class: "upload", text: "Upload"});
+  const upload = fileButton("Upload", (c.program_methods || {}).CreateFile, "upload");
   upload.addEventListener("click", async () => {
     const {status, data} = await api("/api/upload", {directory: c.programs, path: name.value.trim(), content: text.value});
     showResult(`Upload ${name.value}`, status === 200 ? data : {good: false, code: data.error});
   });
-  return el("div", {class: "programs", "data-directory": c.programs},
+  const box = el("div", {class: "programs", "data-directory": c.programs},
     el("h4", {text: "Program files"}), el("ul", {class: "file-list"}),
     el("details", {class: "upload-box"}, el("summary", {text: "Upload a program (engineers)"}), name, text, upload));
+  box._deleteKey = (c.program_methods || {}).Delete;
+  return box;
 }
 
 function renderFiles() {
@@ -498,7 +508,7 @@ function renderFiles() {
           $("#viewer-title").textContent = f.path; $("#viewer-text").textContent = data.content; $("#viewer").showModal();
         } else showResult(`View ${f.path}`, status === 200 ? data : {good: false, code: data.error});
       });
-      const del = el("button", {type: "button", class: "small danger", text: "Delete"});
+      const del = fileButton("Delete", box._deleteKey, "small danger");
       del.addEventListener("click", async () => {
         const {status, data} = await api("/api/delete", {directory: dir, path: f.path});
         showResult(`Delete ${f.path}`, status === 200 ? data : {good: false, code: data.error});
@@ -506,6 +516,7 @@ function renderFiles() {
       list.append(el("li", {"data-file": f.path}, el("span", {text: f.path}), view, del));
     }
   }
+  updateButtons();
   for (const sel of $$("select.program-select")) {
     const keep = sel.value;
     sel.textContent = "";
