@@ -28,7 +28,6 @@ from uacell.errors import ConfigError
 from uacell.pki import PkiPaths
 from uacell.web.discovery import discover
 from uacell.web.server import start_web, trust_hmi
-from uacell.web.uasession import CallFailed
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
@@ -238,51 +237,6 @@ async def test_https_only_on_a_non_loopback_address(stack, tmp_path):
             await asyncio.to_thread(plain.opener.open, f"http://127.0.0.1:{port}/", None, 10)
     finally:
         await web.stop()
-
-
-async def _next(queue: asyncio.Queue, want, timeout: float = 60.0) -> dict:
-    async def wait() -> dict:
-        while True:
-            message = await queue.get()
-            if want(message):
-                return message
-
-    return await asyncio.wait_for(wait(), timeout)
-
-
-async def test_server_unreachable_is_reported_and_the_session_comes_back(tmp_path):
-    data = tmp_path / "data"
-    config = fast_config(data)
-    app = await start_app(config)
-    trust_hmi(data)
-    web = await start_web(app.endpoint, data, port=0, server_certificate=PkiPaths.in_data_dir(data).cert)
-    try:
-        from uacell.web.app import WebSession
-
-        s = WebSession("test-session", "csrf")
-        web.web.sessions[s.id] = s
-        session = await web.web._ua(s)
-        assert session.status == "connected"
-        queue: asyncio.Queue = asyncio.Queue()
-        session.listeners.add(queue.put_nowait)
-        await app.stop()
-        lost = await _next(queue, lambda m: m["type"] == "status")
-        assert lost["status"] == "unreachable" and "cannot be reached" in lost["problem"]
-        with pytest.raises(CallFailed) as refused:
-            await session.call("Filler1/MachineState/Reset", [])
-        assert refused.value.name == "BadServerNotConnected"
-        app = await start_app(config)
-        back = await _next(queue, lambda m: m["type"] == "snapshot", timeout=120)
-        assert back["status"] == "connected" and back["values"]["Filler1/BaseStateMachine/CurrentState"] == "Cleared"
-        answer = await session.call("Filler1/SetMachSpeed", [42.0])
-        assert answer["good"]
-        await app.settle()
-        async with Client(app.endpoint, timeout=20) as c:
-            ns = await c.get_namespace_index("urn:uacell:cell")
-            assert await c.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns)).read_value() == 42.0
-    finally:
-        await web.stop()
-        await app.stop()
 
 
 async def test_web_section_of_the_configuration(tmp_path):

@@ -56,8 +56,16 @@ class UaThread:
         return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
 
     def close(self) -> None:
+        async def drain() -> None:  # what stopped servers and clients left behind
+            tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+
+        self.run(drain(), 30)
         self.loop.call_soon_threadsafe(self.loop.stop)
         self.thread.join(10)
+        self.loop.close()
 
 
 @pytest.fixture(scope="module")
@@ -447,3 +455,41 @@ def test_an_alarm_is_shown_and_acknowledged_in_the_page(page, serve, ua_thread):
             )
 
     assert ua_thread.run(acked()) == (True, "acknowledged in the web HMI")
+
+
+def test_the_page_says_when_the_server_is_unreachable_and_comes_back(browser, ua_thread, tmp_path):
+    from conftest import fast_config, start_app
+
+    from uacell.pki import PkiPaths
+    from uacell.web.server import start_web, trust_hmi
+
+    data = tmp_path / "data"
+    config = fast_config(data)
+    app = ua_thread.run(start_app(config))
+    trust_hmi(data)
+    web = ua_thread.run(start_web(app.endpoint, data, port=0, server_certificate=PkiPaths.in_data_dir(data).cert))
+    context = browser.new_context(viewport={"width": 1400, "height": 1000})
+    try:
+        page = context.new_page()
+        page.goto(web.url)
+        page.wait_for_selector("#conn[data-status=connected]", timeout=TIMEOUT)
+        ua_thread.run(app.stop())
+        page.wait_for_selector("#conn[data-status=unreachable]", timeout=TIMEOUT)
+        assert page.inner_text("#conn") == "server unreachable"
+        notice = page.inner_text("#notice")
+        assert f"the OPC UA server {app.endpoint} cannot be reached" in notice and "Reconnecting" in notice
+        assert all(b.is_disabled() for b in page.locator("button[data-method]").all())
+        app = ua_thread.run(start_app(config))  # the same port and data directory
+        page.wait_for_selector("#conn[data-status=connected]", timeout=60_000)
+        assert page.locator("#notice").is_hidden()
+        page.fill('section.unit[data-unit="Filler1"] .speed-input', "42")
+        page.click('section.unit[data-unit="Filler1"] button[data-label="Set speed"]')
+        assert "Set speed: Good" in result(page, "Good")
+        page.wait_for_function(
+            """() => document.querySelector('section.unit[data-unit="Filler1"] .v-machspeed').textContent === '42.0'""",
+            timeout=TIMEOUT,
+        )
+    finally:
+        context.close()
+        ua_thread.run(web.stop())
+        ua_thread.run(app.stop())
