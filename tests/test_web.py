@@ -181,6 +181,19 @@ async def test_login_rotates_the_session_and_keeps_the_password_out_of_logs(stac
     assert status == 401 and answer["expired"]
 
 
+async def test_the_number_of_web_sessions_is_bounded(stack, monkeypatch):
+    _app, web = stack
+    monkeypatch.setattr("uacell.web.app.MAX_SESSIONS", 2)
+    browsers = [Browser(web.url) for _ in range(3)]
+    for b in browsers:
+        await b.start()
+    status, answer = await browsers[0].post("/api/call", {"key": "Filler1/SetMachSpeed", "args": [60.0]})
+    assert status == 401 and answer["expired"]
+    for b in browsers[1:]:
+        status, answer = await b.post("/api/call", {"key": "Filler1/SetMachSpeed", "args": [60.0]})
+        assert status == 200 and answer["code"] == "Good"
+
+
 async def test_observer_gets_every_method_refused_by_the_server(stack):
     app, web = stack
     b = Browser(web.url)

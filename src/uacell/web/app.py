@@ -31,6 +31,7 @@ log = logging.getLogger(__name__)
 COOKIE = "uacell_session"
 IDLE_TIMEOUT = 30 * 60.0  # a web session nobody has used for this long ends (its OPC UA session too)
 HEARTBEAT = 15.0
+MAX_SESSIONS = 200  # beyond this, the longest unused web session (without a page open) ends
 MAX_UPLOAD = 1_000_000
 
 
@@ -62,6 +63,7 @@ class WebApp:
         self.cells = CellCache()
         self.closing = asyncio.Event()
         self._reaper: asyncio.Task[None] | None = None
+        self._ending: set[asyncio.Task[None]] = set()
         static = _static_dir()
         self.app = Starlette(
             routes=[
@@ -82,6 +84,13 @@ class WebApp:
     # sessions --------------------------------------------------------------------------------
 
     def _new_session(self) -> WebSession:
+        idle = sorted((x for x in self.sessions.values() if x.streams == 0), key=lambda x: x.last_seen)
+        while len(self.sessions) >= MAX_SESSIONS and idle:
+            oldest = idle.pop(0)
+            self.sessions.pop(oldest.id, None)
+            task = asyncio.get_running_loop().create_task(self._end(oldest))
+            self._ending.add(task)
+            task.add_done_callback(self._ending.discard)
         s = WebSession(secrets.token_urlsafe(32), secrets.token_urlsafe(32))
         self.sessions[s.id] = s
         if self._reaper is None or self._reaper.done():

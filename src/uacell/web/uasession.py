@@ -288,6 +288,7 @@ class UaSession:
         client.connection_lost_callback = self._lost
         self.status = "connected"
         self.problem = ""
+        self._emit({"type": "snapshot", **self.snapshot()})
 
     async def _prepare(self, client: Client) -> None:
         if not ua.extension_objects_by_datatype or not any(
@@ -345,7 +346,6 @@ class UaSession:
                 log.debug("reconnecting to %s failed: %r", self.url, exc)
                 continue
             log.info("web session of %s reconnected", self.user or "anonymous")
-            self._emit({"type": "snapshot", **self.snapshot()})
             return
 
     async def close(self) -> None:
