@@ -321,3 +321,33 @@ async def test_uacell_web_standalone_until_the_server_trusts_its_certificate(sta
         assert await asyncio.to_thread(proc.wait, 30) == 0
         proc.stdout.close()
         log_file.close()
+
+
+async def test_json_arguments_become_the_variants_the_method_declares():
+    from uacell.web.uasession import jsonable, to_variant
+
+    def arg(name: str, data_type: int, rank: int = -1) -> ua.Argument:
+        return ua.Argument(Name=name, DataType=ua.NodeId(data_type), ValueRank=rank)
+
+    v = to_variant(arg("Speed", ua.ObjectIds.Float), 42)
+    assert (v.Value, v.VariantType) == (42.0, ua.VariantType.Float)
+    v = to_variant(arg("EventId", ua.ObjectIds.ByteString), "00ff")
+    assert (v.Value, v.VariantType) == (b"\x00\xff", ua.VariantType.ByteString)
+    v = to_variant(arg("Comment", ua.ObjectIds.LocalizedText), "done")
+    assert v.Value == ua.LocalizedText("done")
+    v = to_variant(arg("Modes", ua.ObjectIds.Int32, 1), [1, 2.0])
+    assert (v.Value, v.VariantType, v.is_array) == ([1, 2], ua.VariantType.Int32, True)
+    for bad in (
+        (arg("Mode", ua.ObjectIds.Int32), "two"),
+        (arg("Mode", ua.ObjectIds.Int32), 1.5),
+        (arg("Active", ua.ObjectIds.Boolean), "yes"),
+        (arg("Modes", ua.ObjectIds.Int32, 1), 3),
+    ):
+        with pytest.raises(ValueError, match=bad[0].Name):
+            to_variant(*bad)
+    assert jsonable([ua.LocalizedText("Idle"), ua.NodeId(5, 2), b"\x01", float("nan")]) == [
+        "Idle",
+        "ns=2;i=5",
+        "01",
+        None,
+    ]

@@ -24,7 +24,7 @@ from starlette.responses import FileResponse, JSONResponse, Response, StreamingR
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from uacell.web.uasession import CallFailed, CellCache, Credentials, UaSession
+from uacell.web.uasession import CallFailed, CellCache, Credentials, UaSession, UnknownKey
 
 log = logging.getLogger(__name__)
 
@@ -277,7 +277,7 @@ class WebApp:
             elif action == "delete":
                 await ua.delete_file(directory, path)
             return JSONResponse({"good": True, "code": "Good", "meaning": ""})
-        except KeyError as exc:
+        except UnknownKey as exc:
             return JSONResponse({"error": f"unknown {exc}"}, status_code=404)
         except ValueError as exc:
             return JSONResponse({"error": str(exc)}, status_code=400)

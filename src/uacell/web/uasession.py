@@ -47,6 +47,10 @@ ROBOTICS_STATUS = {
 }
 
 
+class UnknownKey(LookupError):
+    """The page named a method or directory this cell does not have."""
+
+
 class CallFailed(Exception):
     """An OPC UA request answered with a Bad status code."""
 
@@ -209,6 +213,8 @@ class CellCache:
     async def get(self, client: Client) -> Cell:
         async with self._lock:
             if self.cell is None:
+                # The server's structures (PackML parameters, counts, alarms) for decoding and encoding.
+                await client.load_data_type_definitions()
                 self.cell = await discover(client)
             return self.cell
 
@@ -254,7 +260,7 @@ class UaSession:
     # connection ------------------------------------------------------------------------------
 
     async def _new_client(self) -> Client:
-        client = Client(self.url, timeout=15, watchdog_intervall=1.0)
+        client = Client(self.url, timeout=30, watchdog_intervall=1.0)
         client.application_uri = APPLICATION_URI
         client.name = client.description = "uacell web HMI"
         client.session_timeout = 60000
@@ -291,10 +297,6 @@ class UaSession:
         self._emit({"type": "snapshot", **self.snapshot()})
 
     async def _prepare(self, client: Client) -> None:
-        if not ua.extension_objects_by_datatype or not any(
-            c.__name__ == "PackMLDescriptorDataType" for c in ua.extension_objects_by_datatype.values()
-        ):
-            await client.load_data_type_definitions()
         self.cell = await self.cache.get(client)
         self._by_node = {node: key for key, node in self.cell.variables.items()}
         self.values = {}
@@ -485,9 +487,10 @@ class UaSession:
 
     async def call(self, key: str, args: list[Any]) -> dict[str, Any]:
         """Call the method ``key`` with JSON ``args`` in this session; the server's answer as JSON."""
+        self._require()
         ref = self.cell.methods.get(key)
         if ref is None:
-            raise KeyError(key)
+            raise UnknownKey(key)
         if len(args) > len(ref.arguments):
             raise ValueError(f"{key} takes {len(ref.arguments)} arguments")
         inputs = [to_variant(a, v) for a, v in zip(ref.arguments, args, strict=False)]
@@ -533,7 +536,7 @@ class UaSession:
         client = self._require()
         node = self.cell.directories.get(directory)
         if node is None:
-            raise KeyError(directory)
+            raise UnknownKey(directory)
         return next((f["node"] for f in await list_files(client, node) if f["path"] == path), None)
 
     async def read_file(self, directory: str, path: str) -> str:

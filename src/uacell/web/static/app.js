@@ -358,6 +358,8 @@ function renderUnit(u) {
   fact("Stop reason", "v-stopreason"); fact("Alarms", "v-alarms"); fact("Start parameters used", "v-startparams");
   return el("section", {class: "card unit", id: `unit-${u.name}`, "data-unit": u.name},
     el("h2", {text: `${u.name}: PackML unit`}),
+    el("p", {class: "hint", text: "To produce: Reset, then Start (the counts grow in Execute). Complete ends the "
+      + "batch, Reset again for the next; Hold/Suspend pause it; Stop or Abort at any time, Clear after an Abort."}),
     el("div", {class: "unit-grid"}, diagram(u), el("div", {}, facts)),
     commands, params, unitControls);
 }
@@ -431,6 +433,8 @@ function renderController(r, c) {
   const ctrlLocks = [c.lock];
   const box = el("div", {class: "controller", id: `ctrl-${r.name}-${c.name}`, "data-controller": c.name},
     el("h3", {text: c.name}),
+    el("p", {class: "hint", text: "To run a program: Get ready (drives on), choose a program below and Load it, "
+      + "then Start; Stop pauses, Stand down switches the drives off."}),
     stateLine("SystemOperation", "v-sysop"),
     lockBox(c.lock, [c.lock]),
     el("div", {class: "commands"},
