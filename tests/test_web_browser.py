@@ -367,7 +367,10 @@ def test_a_lock_held_by_another_session_disables_the_robots_commands(page, serve
         ua_thread.run(peer.__aexit__())
 
 
-WAVE = "# uploaded from the web HMI\nprogram Wave version 1.0\nspeed 100\nmove 40 -20 10 0 30 0\nmove 0 0 0 0 0 0\n"
+WAVE = (
+    "# uploaded from the web HMI\nprogram Wave version 1.0\nspeed 100\n"
+    "move 40 -20 10 0 30 0\nwait 8\nmove 0 0 0 0 0 0\n"
+)
 
 
 def test_a_program_uploaded_in_the_page_is_loaded_and_run(page, serve, ua_thread):
