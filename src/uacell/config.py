@@ -11,6 +11,8 @@ models_dir = "/opt/UA-Nodeset"    # default: the cache filled by 'uacell models 
 anonymous_role = "operator"       # default: operator on loopback, observer otherwise
 allow_none_security = true        # default: only on loopback
 trust_on_first_use = false
+rejected_max_files = 100          # refused client certificates kept in pki/rejected/ (oldest dropped)
+rejected_max_age_days = 30.0      # ... and for how long
 
 [robot]
 time_scale = 1.0                  # simulated robot: >1 runs faster than real time
@@ -54,6 +56,8 @@ class ServerConfig:
     anonymous_role: str | None = None
     allow_none_security: bool | None = None
     trust_on_first_use: bool = False
+    rejected_max_files: int = 100
+    rejected_max_age_days: float = 30.0
 
 
 @dataclass
@@ -144,6 +148,8 @@ def load_config(path: str | Path | None = None) -> Config:
     for section in ("server", "web"):
         if not 0 <= getattr(config, section).port <= 65535:
             raise ConfigError(f"configuration {path}: [{section}] port must be 0..65535")
+    if config.server.rejected_max_files < 1:
+        raise ConfigError(f"configuration {path}: [server] rejected_max_files must be 1 or more")
     return config
 
 
