@@ -245,6 +245,17 @@ async def test_https_only_on_a_non_loopback_address(stack, tmp_path):
         status, _ = await b.get("/")
         assert status == 200
         assert "secure" in b.last_headers.get_all("set-cookie")[0].lower()
+        # The server listens on loopback only (anonymous: operator, meant for the local machine), the
+        # HMI on the network: it takes logged-in users only.
+        await b.start()
+        first = await asyncio.to_thread(_sse_until, b, lambda m: m["type"] == "snapshot")
+        assert first["status"] == "login-required" and not first["layout"]
+        status, answer = await b.post("/api/call", {"key": "Filler1/MachineState/Reset", "args": []})
+        assert answer["code"] == "BadUserAccessDenied"
+        assert await _state(app, FILLER) == "Stopped"
+        assert (await b.login("otto"))[0] == 200
+        back = await asyncio.to_thread(_sse_until, b, lambda m: m["type"] == "snapshot")
+        assert back["status"] == "connected" and back["user"] == "otto"
         plain = Browser(f"http://127.0.0.1:{port}")
         with pytest.raises((urllib.error.URLError, ConnectionError, OSError)):
             await asyncio.to_thread(plain.opener.open, f"http://127.0.0.1:{port}/", None, 10)

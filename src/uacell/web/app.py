@@ -53,10 +53,19 @@ class WebApp:
     """The HMI for one OPC UA server ``url``; ``app`` is the ASGI application."""
 
     def __init__(
-        self, url: str, credentials: Credentials, *, https: bool = False, idle_timeout: float = IDLE_TIMEOUT
+        self,
+        url: str,
+        credentials: Credentials,
+        *,
+        https: bool = False,
+        idle_timeout: float = IDLE_TIMEOUT,
+        anonymous: bool = True,
     ) -> None:
         self.url = url
         self.credentials = credentials
+        # False: visitors must log in (the HMI is on the network, the OPC UA server on loopback, where
+        # the server would grant anonymous clients the rights it means for the local machine only).
+        self.anonymous = anonymous
         self.https = https
         self.idle_timeout = idle_timeout
         self.sessions: dict[str, WebSession] = {}
@@ -134,6 +143,10 @@ class WebApp:
         if s.ua is None:
             ua = UaSession(self.url, self.credentials, cache=self.cells)
             s.ua = ua
+            if s.user is None and not self.anonymous:
+                ua.status = "login-required"
+                ua.problem = "Log in to use this HMI: it takes no anonymous users on this address"
+                return ua
             try:
                 await ua.connect()
             except CallFailed as exc:

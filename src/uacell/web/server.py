@@ -188,7 +188,10 @@ async def start_web(
         except Exception as exc:  # not reachable yet: the page says so and keeps trying
             log.warning("web: cannot reach %s yet (%s); the HMI keeps trying", server_url, type(exc).__name__)
     credentials = Credentials(cert, key, server_certificate)
-    web = WebApp(server_url, credentials, https=https)
+    # Anonymous visitors get the server's anonymous role, which on a loopback-only server is meant for
+    # the local machine: an HMI on the network then takes logged-in users only.
+    anonymous = not https or not is_loopback(urlparse(server_url).hostname or "")
+    web = WebApp(server_url, credentials, https=https, anonymous=anonymous)
     sock = _bind(host, port)
     config = uvicorn.Config(
         web.app,

@@ -361,6 +361,8 @@ class UaSession:
             self.client = None
 
     def _require(self) -> Client:
+        if self.status == "login-required":
+            raise CallFailed(ua.StatusCodes.BadUserAccessDenied, "log in first")
         if self.client is None or self.status != "connected":
             raise CallFailed(ua.StatusCodes.BadServerNotConnected, "not connected")
         return self.client

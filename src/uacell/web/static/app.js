@@ -111,9 +111,10 @@ function setConn(status, problem) {
   const b = $("#conn");
   b.dataset.status = status;
   b.textContent = {connected: "live", unreachable: "server unreachable", "web-lost": "HMI unreachable",
-                   connecting: "connecting…"}[status] || status;
+                   connecting: "connecting…", "login-required": "log in"}[status] || status;
   const n = $("#notice");
   if (status === "connected") { n.hidden = true; n.textContent = ""; }
+  else if (status === "login-required") { n.hidden = false; n.textContent = `${problem}.`; openLogin(`${problem}.`); }
   else if (problem) { n.hidden = false; n.textContent = `${problem}. Reconnecting…`; }
   updateButtons();
 }
