@@ -318,11 +318,7 @@ def test_an_observer_sees_every_command_disabled_and_a_forced_call_refused(page,
         timeout=TIMEOUT,
     )
     # Forced: the button made clickable in the page; the server refuses the observer's call.
-    page.evaluate(
-        """() => document.querySelector('section.unit[data-unit="Filler1"] button[data-label="Reset"]')
-                 .disabled = false"""
-    )
-    unit_button(page, "Reset").click()
+    unit_button(page, "Reset").evaluate("b => { b.disabled = false; b.click(); }")
     text = result(page, "BadUserAccessDenied")
     assert "Reset: BadUserAccessDenied (User does not have permission to perform the requested operation" in text
 
@@ -350,8 +346,7 @@ def test_a_lock_held_by_another_session_disables_the_robots_commands(page, serve
         assert get_ready.get_attribute("title") == "locked by otto"
         shot(page.locator("section.robot"), "web-lock.png")
         # Forced anyway: the server answers Bad_ResourceUnavailable.
-        get_ready.evaluate("b => b.disabled = false")
-        get_ready.click()
+        get_ready.evaluate("b => { b.disabled = false; b.click(); }")  # in one go: updates re-disable it
         assert "Get ready: BadResourceUnavailable" in result(page, "BadResourceUnavailable")
 
         async def sysop() -> str | None:
