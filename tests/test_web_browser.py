@@ -203,8 +203,14 @@ def robot_button(page, label: str, scope: str = ".controller"):
     return page.locator(f'{scope} > .commands button[data-label="{label}"]').first
 
 
-def result(page, code: str) -> str:
-    page.wait_for_selector(f'#result[data-code="{code}"]', timeout=TIMEOUT)
+def result(page, what: str, code: str) -> str:
+    """The answer bar's text once it shows the answer to ``what`` (a button's label) with ``code``."""
+    page.wait_for_function(
+        """([what, code]) => { const r = document.querySelector('#result');
+             return r.dataset.code === code && r.textContent.startsWith(what + ': '); }""",
+        arg=[what, code],
+        timeout=TIMEOUT,
+    )
     return page.inner_text("#result")
 
 
@@ -265,7 +271,7 @@ def test_reset_then_start_with_two_parameters(page, serve, ua_thread):
     shows_state(page, "Execute")
     seen = page.evaluate("window.__seen")
     assert seen == ["Stopped", "Resetting", "Idle", "Starting", "Execute"], seen
-    assert result(page, "Good").startswith("Start: Good")
+    assert result(page, "Start", "Good").startswith("Start: Good")
     processed = page.locator('section.unit[data-unit="Filler1"] .v-processed')
     page.wait_for_function("el => Number(el.textContent) > 0", arg=processed.element_handle(), timeout=TIMEOUT)
     first = int(processed.inner_text())
@@ -319,7 +325,7 @@ def test_an_observer_sees_every_command_disabled_and_a_forced_call_refused(page,
     )
     # Forced: the button made clickable in the page; the server refuses the observer's call.
     unit_button(page, "Reset").evaluate("b => { b.disabled = false; b.click(); }")
-    text = result(page, "BadUserAccessDenied")
+    text = result(page, "Reset", "BadUserAccessDenied")
     assert "Reset: BadUserAccessDenied (User does not have permission to perform the requested operation" in text
 
     async def state() -> str | None:
@@ -347,7 +353,7 @@ def test_a_lock_held_by_another_session_disables_the_robots_commands(page, serve
         shot(page.locator("section.robot"), "web-lock.png")
         # Forced anyway: the server answers Bad_ResourceUnavailable.
         get_ready.evaluate("b => { b.disabled = false; b.click(); }")  # in one go: updates re-disable it
-        assert "Get ready: BadResourceUnavailable" in result(page, "BadResourceUnavailable")
+        assert "Get ready: BadResourceUnavailable" in result(page, "Get ready", "BadResourceUnavailable")
 
         async def sysop() -> str | None:
             async with Ua(serve.endpoint) as c:
@@ -374,7 +380,7 @@ def test_a_program_uploaded_in_the_page_is_loaded_and_run(page, serve, ua_thread
     page.fill(".upload-name", "wave.robot")
     page.fill(".upload-text", WAVE)
     page.click("button.upload")
-    assert "Upload wave.robot: Good" in result(page, "Good")
+    assert "Upload wave.robot: Good" in result(page, "Upload wave.robot", "Good")
     page.wait_for_selector('.file-list li[data-file="wave.robot"]', timeout=TIMEOUT)
     assert (serve.data_dir / "programs" / "wave.robot").read_text() == WAVE
     page.select_option("select.program-select", "wave.robot")
@@ -439,7 +445,7 @@ def test_an_alarm_is_shown_and_acknowledged_in_the_page(page, serve, ua_thread):
     ack = row.locator('button[data-label="Acknowledge"]')
     page.wait_for_function("b => !b.disabled", arg=ack.element_handle(), timeout=TIMEOUT)
     ack.click()
-    assert "Acknowledge: Good" in result(page, "Good")
+    assert "Acknowledge: Good" in result(page, "Acknowledge", "Good")
     page.wait_for_function(
         "el => el.textContent === 'ok'", arg=row.locator(".c-state").element_handle(), timeout=TIMEOUT
     )
@@ -482,7 +488,7 @@ def test_the_page_says_when_the_server_is_unreachable_and_comes_back(browser, ua
         assert page.locator("#notice").is_hidden()
         page.fill('section.unit[data-unit="Filler1"] .speed-input', "42")
         page.click('section.unit[data-unit="Filler1"] button[data-label="Set speed"]')
-        assert "Set speed: Good" in result(page, "Good")
+        assert "Set speed: Good" in result(page, "Set speed", "Good")
         page.wait_for_function(
             """() => document.querySelector('section.unit[data-unit="Filler1"] .v-machspeed').textContent === '42.0'""",
             timeout=TIMEOUT,
