@@ -17,6 +17,7 @@ import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
@@ -236,7 +237,7 @@ def _read_password(from_stdin: bool) -> str:
     return first
 
 
-def run_user_command(args, data_dir: Path) -> int:
+def run_user_command(args: Any, data_dir: Path) -> int:
     """``uacell user add|remove|list`` (args from uacell.cli); returns the exit status."""
     import sys
 
