@@ -5,9 +5,19 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.uacell-installed
 NODE_STAMP := interop/node_modules/.uacell-installed
 
-.PHONY: setup serve test bench lint clean models soak
+.PHONY: setup serve test bench lint clean models soak browser
 
-setup: $(STAMP) models $(NODE_STAMP)
+setup: $(STAMP) models $(NODE_STAMP) browser
+
+# Chromium for the web HMI's browser tests (Playwright drives it; it never downloads a browser).
+browser:
+	@if command -v chromium >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+		echo "installing Debian's chromium for the browser tests"; \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; \
+	else \
+		echo "make setup: chromium is missing, so the web HMI's browser tests will be skipped (as root: apt-get install chromium)"; \
+	fi
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)

@@ -189,7 +189,7 @@ def main() -> int:
             "--config",
             str(config),
         ]
-        cmd += ["--port", str(port), "--data-dir", str(Path(tmp) / "data")]
+        cmd += ["--port", str(port), "--data-dir", str(Path(tmp) / "data"), "--no-web"]
         server = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             assert server.stdout is not None

@@ -57,6 +57,13 @@ login_free_failures = 2
 login_free_failures_per_user = 10
 password_checks = 2
 
+[web]                             # the browser HMI (docs/web.md)
+enabled = true                    # 'uacell serve' runs it beside the server
+host = "127.0.0.1"                # any non-loopback address is served over HTTPS only
+port = 8080                       # 0: any free port (the listening line says which)
+certificate = ""                  # PEM certificate for HTTPS (default: the server's certificate)
+private_key = ""                  # its PEM private key (default: the server's key)
+
 [[robots]] ...                    # the cell (docs/configuration.md); without [[robots]] and
 [[packml_units]] ...              # [[packml_units]] the shipped demo cell
 ```
@@ -156,18 +163,28 @@ class LimitsConfig:
     password_checks: int = 2  # password hashes verified at once, server-wide
 
 
-_OWN = {"server": ServerConfig, "programs": ProgramsConfig, "limits": LimitsConfig}
+@dataclass
+class WebConfig:
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = 8080
+    certificate: str = ""
+    private_key: str = ""
+
+
+_OWN = {"server": ServerConfig, "programs": ProgramsConfig, "limits": LimitsConfig, "web": WebConfig}
 _POSITIVE = ("programs", "limits")  # sections whose every value must be above zero
 
 
 class Config:
-    """``server``, ``programs``, ``limits`` plus one section per companion that declares one
+    """``server``, ``programs``, ``limits``, ``web`` plus one section per companion that declares one
     (``config.robot``, ``config.packml``)."""
 
     def __init__(self) -> None:
         self.server = ServerConfig()
         self.programs = ProgramsConfig()
         self.limits = LimitsConfig()
+        self.web = WebConfig()
         self.source: Path | None = None
         # The cell: the companions' cell sections ([[robots]], [[packml_units]]), else the demo cell.
         self.cell: CellConfig = load_cell(builtin_cell_path("demo"))
@@ -272,8 +289,9 @@ def load_config(path: str | Path | None = None) -> Config:
                 setattr(target, key, _coerce(section, key, value, getattr(target, key)))
             except ConfigError as exc:
                 raise ConfigError(f"configuration {path}: {exc}") from exc
-    if not 0 <= config.server.port <= 65535:
-        raise ConfigError(f"configuration {path}: [server] port must be 0..65535")
+    for section, port in (("server", config.server.port), ("web", config.web.port)):
+        if not 0 <= port <= 65535:
+            raise ConfigError(f"configuration {path}: [{section}] port must be 0..65535")
     for key in ("application_uri", "application_name"):
         if not getattr(config.server, key).strip():
             raise ConfigError(f"configuration {path}: [server] {key} must not be empty")
