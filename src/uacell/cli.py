@@ -1,4 +1,10 @@
-"""The ``uacell`` command: serve, models, user."""
+"""The ``uacell`` command: serve, health, models, user, cert.
+
+Every subcommand takes the same configuration: ``--config FILE`` (or ``$UACELL_CONFIG``) and
+``--data-dir DIR`` (or ``$UACELL_DATA_DIR``), so that ``uacell user ...`` and ``uacell cert ...`` act
+on the service's data. These and the logging options are accepted before the subcommand and anywhere
+after it. Every option is checked before anything is written.
+"""
 
 from __future__ import annotations
 
@@ -10,59 +16,161 @@ import logging
 import signal
 import sys
 from pathlib import Path
+from typing import Any
 
 from uacell import __version__, _entry
-from uacell.config import load_config, load_factory
+from uacell.config import (
+    LOG_FORMATS,
+    LOG_LEVELS,
+    ROLES,
+    Config,
+    check_directory,
+    check_file,
+    check_host,
+    check_port,
+    load_config,
+    load_factory,
+    validate,
+)
 from uacell.errors import ConfigError
 from uacell.models import ModelError, fetch_models, locate_models, models_dir
 
 log = logging.getLogger("uacell")
 
 
+def _port(text: str) -> int:
+    try:
+        return check_port(int(text), "port")
+    except (ValueError, ConfigError) as exc:
+        raise argparse.ArgumentTypeError(f"must be a TCP port 1..65535, not {text!r}") from exc
+
+
+def _host(text: str) -> str:
+    try:
+        return check_host(text, "host")
+    except ConfigError as exc:
+        raise argparse.ArgumentTypeError(f"must be an IP address or host name, not {text!r}") from exc
+
+
+def _common() -> argparse.ArgumentParser:
+    """Options every (sub)command accepts; SUPPRESS keeps a later parser from resetting an earlier value."""
+    p = argparse.ArgumentParser(add_help=False)
+    g = p.add_argument_group("configuration and logging (accepted anywhere)")
+    s = argparse.SUPPRESS
+    g.add_argument("--config", type=Path, default=s, help="TOML configuration file (default: $UACELL_CONFIG)")
+    g.add_argument(
+        "--data-dir",
+        type=Path,
+        default=s,
+        help="data directory (default: $UACELL_DATA_DIR, the configuration's data_dir, or the per-user data directory)",
+    )
+    g.add_argument("--log-level", type=str.upper, choices=LOG_LEVELS, default=s, help="default INFO")
+    g.add_argument("--log-format", choices=LOG_FORMATS, default=s, help="text (default) or json lines")
+    g.add_argument("--log-file", type=Path, default=s, help="also log to this file, rotated")
+    return p
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="uacell", description="OPC UA server for robot cells and packaging units")
+    common = _common()
+    p = argparse.ArgumentParser(
+        prog="uacell", description="OPC UA server for robot cells and packaging units", parents=[common]
+    )
     p.add_argument("--version", action="version", version=f"uacell {__version__}")
-    p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     sub = p.add_subparsers(dest="command", required=True)
 
-    serve = sub.add_parser("serve", help="serve the configured cell (the demo cell by default)")
-    serve.add_argument("--config", type=Path, help="TOML configuration file")
-    serve.add_argument("--host", help="address to listen on (default 127.0.0.1)")
-    serve.add_argument("--port", type=int, help="TCP port (default 4840)")
-    serve.add_argument("--data-dir", type=Path, help="data directory (default: per-user data directory)")
+    def leaf(parent: Any, name: str, help: str) -> argparse.ArgumentParser:
+        parser: argparse.ArgumentParser = parent.add_parser(name, help=help, description=help, parents=[common])
+        return parser
+
+    serve = leaf(sub, "serve", "serve the configured cell (the demo cell by default)")
+    serve.add_argument("--host", type=_host, help="address to listen on (default 127.0.0.1)")
+    serve.add_argument("--port", type=_port, help="TCP port (default 4840)")
     serve.add_argument("--models-dir", help="directory holding the official NodeSet files")
 
-    models = sub.add_parser("models", help="the official NodeSet files")
+    health = leaf(sub, "health", "exit 0 when the server answers and is Running (for health checks)")
+    health.add_argument("--endpoint", help="default: opc.tcp://<configured host>:<port>/")
+    health.add_argument("--timeout", type=float, default=10.0, help="seconds (default 10)")
+
+    models = leaf(sub, "models", "the official NodeSet files")
     msub = models.add_subparsers(dest="action", required=True)
-    fetch = msub.add_parser("fetch", help="download and verify them into the per-user cache")
+    fetch = leaf(msub, "fetch", "download and verify them into the per-user cache")
     fetch.add_argument("--force", action="store_true", help="fetch again even if the cache is complete")
-    path = msub.add_parser("path", help="print the directory uacell reads them from")
+    path = leaf(msub, "path", "print the directory uacell reads them from")
     path.add_argument("--models-dir", help="check this directory instead")
 
-    user = sub.add_parser("user", help="manage the users who may log in")
-    user.add_argument("--config", type=Path, help="TOML configuration file (for its data directory)")
-    user.add_argument("--data-dir", type=Path, help="data directory")
+    user = leaf(sub, "user", "manage the users who may log in")
     usub = user.add_subparsers(dest="action", required=True)
-    add = usub.add_parser("add", help="add a user or change an existing user's role and password")
+    add = leaf(usub, "add", "add a new user (refused when the name exists)")
     add.add_argument("name")
-    add.add_argument("--role", required=True, choices=["observer", "operator", "engineer", "admin"])
+    add.add_argument("--role", required=True, choices=ROLES)
     add.add_argument("--password-stdin", action="store_true", help="read the password from standard input")
-    rm = usub.add_parser("remove", help="remove a user")
+    passwd = leaf(usub, "passwd", "set an existing user's password")
+    passwd.add_argument("name")
+    passwd.add_argument("--password-stdin", action="store_true", help="read the password from standard input")
+    role = leaf(usub, "role", "change an existing user's role")
+    role.add_argument("name")
+    role.add_argument("role", choices=ROLES)
+    rm = leaf(usub, "remove", "remove a user")
     rm.add_argument("name")
-    usub.add_parser("list", help="list users and their roles")
+    leaf(usub, "list", "list users and their roles")
+
+    cert = leaf(sub, "cert", "the server's certificate and the client certificates it trusts or rejected")
+    csub = cert.add_subparsers(dest="action", required=True)
+    leaf(csub, "list", "own, trusted and rejected certificates")
+    for name, text in (
+        ("trust", "trust a client certificate (from rejected/ or a file)"),
+        ("reject", "stop trusting a client certificate (moved to rejected/)"),
+        ("remove", "delete a trusted or rejected client certificate"),
+    ):
+        c = leaf(csub, name, text)
+        c.add_argument("id", help="a thumbprint (or its first characters) or a certificate file")
+    leaf(csub, "renew", "make a new server certificate now (the old one is kept in pki/own/backup/)")
     return p
+
+
+def resolve_config(args: argparse.Namespace) -> Config:
+    """The configuration the options name, with command-line values applied and every value checked."""
+    config = load_config(getattr(args, "config", None))
+    if getattr(args, "data_dir", None) is not None:
+        config.server.data_dir = args.data_dir.expanduser()
+    if getattr(args, "host", None):
+        config.server.host = args.host
+    if getattr(args, "port", None) is not None:
+        config.server.port = args.port
+    if getattr(args, "models_dir", None):
+        config.server.models_dir = args.models_dir
+    if getattr(args, "log_level", None):
+        config.logging.level = args.log_level
+    if getattr(args, "log_format", None):
+        config.logging.format = args.log_format
+    if getattr(args, "log_file", None) is not None:
+        config.logging.file = args.log_file.expanduser()
+    validate(config)
+    return config
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    from uacell import logs
+
+    logs.configure_console(getattr(args, "log_level", "INFO"), getattr(args, "log_format", "text"))
     try:
-        if args.command == "serve":
-            return _serve(args)
         if args.command == "models":
             return _models(args)
+        config = resolve_config(args)
+        if args.command == "serve":
+            return _serve(args, config)
+        logs.configure(config, audit=args.command in ("user", "cert"))
+        if args.command == "health":
+            return _health(args, config)
         if args.command == "user":
-            return _user(args)
+            from uacell.users import run_user_command
+
+            return run_user_command(args, config)
+        if args.command == "cert":
+            from uacell.certs import run_cert_command
+
+            return run_cert_command(args, config)
     except (ConfigError, ModelError) as exc:
         print(f"uacell: {exc}", file=sys.stderr)
         return 2
@@ -80,50 +188,54 @@ def _models(args: argparse.Namespace) -> int:
     return 0
 
 
-def _user(args: argparse.Namespace) -> int:
-    from uacell.users import run_user_command
+def _health(args: argparse.Namespace, config: Config) -> int:
+    from uacell.health import check
 
-    config = load_config(args.config)
-    data_dir = args.data_dir or config.server.data_dir
-    return run_user_command(args, data_dir)
+    host = config.server.host
+    host = "127.0.0.1" if host in ("0.0.0.0", "::", "[::]") else host
+    endpoint = args.endpoint or f"opc.tcp://{host}:{config.server.port}/"
+    ok, message = asyncio.run(check(endpoint, args.timeout))
+    print(f"uacell: {endpoint}: {message}", file=sys.stdout if ok else sys.stderr)
+    return 0 if ok else 1
 
 
-def _serve(args: argparse.Namespace) -> int:
+def _serve(args: argparse.Namespace, config: Config) -> int:
     # Until the event loop takes over, a stop request ends start-up quietly (exit 0, no traceback);
     # `uacell` and `python -m uacell` install the handler first thing (uacell._entry), main() here
     # for callers that enter through it.
     _entry.install_early_stop()
     try:
-        return _prepare_and_run(args)
+        return _prepare_and_run(config)
     except BaseException:
         if _entry.stop_requested:
             return 0
         raise
 
 
-def _prepare_and_run(args: argparse.Namespace) -> int:
-    config = load_config(args.config)
-    if args.host:
-        config.server.host = args.host
-    if args.port is not None:
-        config.server.port = args.port
-    if args.data_dir:
-        config.server.data_dir = args.data_dir
-    if args.models_dir:
-        config.server.models_dir = args.models_dir
+def _prepare_and_run(config: Config) -> int:
+    from uacell import logs
+
     locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
     for section in ("robot", "packml"):
         spec = getattr(config, section).equipment
         if spec:
             load_factory(spec, section)
+    check_directory(config.server.data_dir, "data directory")
+    if config.logging.file is not None:
+        check_file(config.logging.file, "log file")
     try:
         config.server.data_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"cannot create data directory {config.server.data_dir}: {exc.strerror or exc}") from exc
+    try:
+        logs.configure(config, audit=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot open log file: {exc}") from exc
     return asyncio.run(_run(config))
 
 
-async def _run(config) -> int:
+async def _run(config: Config) -> int:
+    from uacell import notify
     from uacell.server import UacellServer
 
     app = UacellServer(config)
@@ -152,7 +264,9 @@ async def _run(config) -> int:
     finally:
         server_log.setLevel(level)
     print(f"uacell listening on {app.endpoint}", flush=True)
+    notify.notify(f"READY=1\nSTATUS=listening on {app.endpoint}")
     await stop.wait()
     log.info("shutting down")
+    notify.notify("STOPPING=1")
     await app.stop()
     return 0

@@ -4,8 +4,8 @@
                                             first start, remade (old pair kept in ``own/backup/``)
                                             when the application URI or listening hosts change
 ``pki/trusted/``                            client certificates the server trusts (DER or PEM)
-``pki/rejected/``                           refused client certificates; move one to trusted/ to
-                                            trust it
+``pki/rejected/``                           refused client certificates, ``<thumbprint>.der``;
+                                            ``uacell cert trust`` (or moving one to trusted/) trusts it
 
 ``CertificateValidator`` plugs the trust list into asyncua's ``Server.set_certificate_validator``.
 """
@@ -16,7 +16,6 @@ import datetime as dt
 import hashlib
 import ipaddress
 import logging
-import re
 import shutil
 import socket
 from collections.abc import Iterable
@@ -297,10 +296,8 @@ def _load_any(data: bytes) -> x509.Certificate:
 
 
 def _file_name(cert: x509.Certificate, der: bytes) -> str:
-    cns = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
-    cn = str(cns[0].value) if cns else "certificate"
-    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", cn).strip("_")[:60] or "certificate"
-    return f"{safe} [{thumbprint(der)}].der"
+    # By thumbprint alone: no spaces or brackets, so a path from the log can be pasted into a shell.
+    return f"{thumbprint(der)}.der"
 
 
 class TrustList:
@@ -357,8 +354,9 @@ class TrustList:
             return True
         path = self.reject(der)
         _log.warning(
-            "refused untrusted client certificate%s (thumbprint %s). To trust it, move %s to %s/",
-            who, thumbprint(der), path, self.paths.trusted,
+            "refused untrusted client certificate%s (thumbprint %s). To trust it, move %s to %s/ "
+            "(or run: uacell cert trust %s --data-dir %s)",
+            who, thumbprint(der), path, self.paths.trusted, thumbprint(der)[:12], self.paths.root.parent,
         )
         return False
 
