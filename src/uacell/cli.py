@@ -261,6 +261,11 @@ async def _run(config: Config) -> int:
         with contextlib.suppress(Exception):
             await app.stop()
         return 2
+    except ConfigError as exc:  # the metrics endpoint cannot listen
+        print(f"uacell: {exc}", file=sys.stderr)
+        with contextlib.suppress(Exception):
+            await app.stop()
+        return 2
     finally:
         server_log.setLevel(level)
     print(f"uacell listening on {app.endpoint}", flush=True)

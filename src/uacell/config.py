@@ -239,11 +239,12 @@ def check_directory(path: Path, name: str) -> Path:
     """``path`` is a directory, or can be made one: it is not a file, nor below a file."""
     for p in (path, *path.parents):
         if p.exists():
+            if not p.is_dir() and p == path:
+                raise ConfigError(f"{name} {path} is not a directory")
             if not p.is_dir():
-                what = "is" if p == path else f"is below {p}, which is"
-                raise ConfigError(f"{name} {path} {what} not a directory")
+                raise ConfigError(f"cannot create {name} {path}: {p} is not a directory")
             if not os.access(p, os.W_OK | os.X_OK):
-                raise ConfigError(f"{name} {path}: {p} is not writable")
+                raise ConfigError(f"cannot create {name} {path}: {p} is not writable")
             return path
     return path
 
@@ -252,7 +253,7 @@ def check_file(path: Path, name: str) -> Path:
     """``path`` can be written as a file: not a directory, and its directory can be made."""
     if path.is_dir():
         raise ConfigError(f"{name} {path} is a directory")
-    check_directory(path.parent, f"{name}'s directory for")
+    check_directory(path.parent, f"the directory of {name}")
     return path
 
 

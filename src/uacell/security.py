@@ -66,6 +66,8 @@ _A = ua.AttributeIds
 
 # The UaProcessor (one per TCP connection) handling the current request.
 _processor: contextvars.ContextVar[UaProcessor | None] = contextvars.ContextVar("uacell_processor", default=None)
+# The user name an ActivateSession under way presents (for the audit trail of a refused login).
+_login_name: contextvars.ContextVar[list[str] | None] = contextvars.ContextVar("uacell_login_name", default=None)
 
 
 def _address(processor: UaProcessor | None) -> str:
@@ -120,6 +122,9 @@ class Security:
         original_decrypt = iserver.decrypt_user_token
 
         def decrypt_user_token(isession: Any, token: ua.UserNameIdentityToken) -> tuple[str, str]:
+            holder = _login_name.get()
+            if holder is not None:
+                holder.append(str(token.UserName))
             self.refuse_plaintext(token)
             return original_decrypt(isession, token)
 
@@ -168,16 +173,29 @@ class Security:
             if wait > 0:
                 log.info("delaying login from %s by %.1f s after failed attempts", address, wait)
                 await asyncio.sleep(wait)
+            names: list[str] = []
+            token = _login_name.set(names)
             try:
                 result = await call()
             except ServiceError as exc:
                 if exc.code == ua.StatusCodes.BadUserAccessDenied:
                     self.throttle.failed(address)
+                self._audit_login(processor, address, names, ua.StatusCode(exc.code).name)
                 raise
+            finally:
+                _login_name.reset(token)
             user = getattr(processor.session, "user", None)
             if user is not None and not getattr(user, "anonymous", True):
                 self.throttle.succeeded(address)
+            self._audit_login(processor, address, names, "Good")
             return result
+
+    def _audit_login(self, processor: UaProcessor, address: str, names: list[str], result: str) -> None:
+        from uacell.ua.observers import session_fields
+
+        fields = session_fields(processor.session) if processor.session is not None else {}
+        fields["user"] = names[-1] if names else fields.get("user", "anonymous")
+        self.app.audit.record("login", **fields, address=address, result=result)
 
     # per-session attributes ------------------------------------------------------------------------
 
@@ -222,15 +240,25 @@ class UacellSession(InternalSession):
     def __init__(self, security: Security, *args: Any, **kwargs: Any) -> None:
         self._security = security
         self._client_description: ua.ApplicationDescription | None = None
+        self.client_address = ""
         super().__init__(*args, **kwargs)
 
     async def create_session(self, params: ua.CreateSessionParameters, sockname=None) -> ua.CreateSessionResult:
         self._client_description = params.ClientDescription  # Caller.client: LockingClient shows it
-        if _channel_mode(_processor.get()) == ua.MessageSecurityMode.None_:
+        processor = _processor.get()
+        self.client_address = _address(processor)
+        if _channel_mode(processor) == ua.MessageSecurityMode.None_:
             # OPC 10000-4 CreateSession: on a SecurityPolicy None channel the client certificate plays
             # no part (nothing is signed with it), so it is not checked against the trust list.
             params = dataclasses.replace(params, ClientCertificate=None)
-        return await super().create_session(params, sockname=sockname)
+        result = await super().create_session(params, sockname=sockname)
+        self._audit("session_open")
+        return result
+
+    def _audit(self, event: str) -> None:
+        from uacell.ua.observers import session_fields
+
+        self._security.app.audit.record(event, **session_fields(self), address=self.client_address)
 
     async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
         return await self._security.app.writes.write(caller_of(self), params, super().write)
@@ -239,6 +267,7 @@ class UacellSession(InternalSession):
         already = self.state == SessionState.Closed
         await super().close_session(delete_subs)
         if not already:
+            self._audit("session_close")
             self._security.session_closed(self)
 
 

@@ -9,14 +9,17 @@ from pathlib import Path
 from asyncua import Server, ua
 
 from uacell import __version__
+from uacell.audit import AuditTrail
 from uacell.cell import CellBuilder, build_cell
 from uacell.config import Config
+from uacell.metrics import Metrics
 from uacell.packml.binding import bind_packml
 from uacell.robotics.binding import bind_robotics
 from uacell.roles import Role, listening_policy
 from uacell.ua.access import UacellUserManager
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.nodesets import load_models
+from uacell.ua.observers import install_audit
 from uacell.ua.state_machine import NodeRefs, Publisher
 from uacell.ua.writes import WriteRouter
 from uacell.users import UserStore
@@ -54,6 +57,8 @@ class UacellServer:
         self.publisher.idle_hooks.append(self.dispatcher.refresh_executable)
         self.refs: NodeRefs | None = None
         self.writes = WriteRouter()
+        self.audit = AuditTrail(None)  # the configured trail from setup() on
+        self.metrics: Metrics | None = None
 
     @property
     def data_dir(self) -> Path:
@@ -66,6 +71,8 @@ class UacellServer:
     async def setup(self) -> None:
         _quiet_asyncua()
         self.data_dir.mkdir(parents=True, exist_ok=True)
+        self.audit = AuditTrail.for_config(self.config)
+        install_audit(self, self.audit)
         cfg = self.config.server
         anonymous = Role.parse(cfg.anonymous_role) if cfg.anonymous_role else None
         self.policy = listening_policy([cfg.host], anonymous, cfg.allow_none_security)
@@ -96,6 +103,9 @@ class UacellServer:
     async def start(self) -> None:
         await self.server.start()
         await self.dispatcher.refresh_executable()
+        if self.config.metrics.enabled:
+            self.metrics = Metrics(self)
+            await self.metrics.start(self.config.metrics.host, self.config.metrics.port)
 
     async def settle(self) -> None:
         """Wait until every model change so far is visible in the address space."""
@@ -112,6 +122,9 @@ class UacellServer:
                 log.exception("error while shutting down")
         await self.publisher.close()
         await self.server.stop()
+        if self.metrics is not None:
+            await self.metrics.stop()
+        self.audit.close()
 
 
 def default_binders() -> list[Binder]:
