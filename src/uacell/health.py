@@ -1,6 +1,9 @@
-"""``uacell health``: is the server up? It connects, reads Server/ServerStatus/State and disconnects.
+"""``uacell health``: is the server up? Used by the container image's HEALTHCHECK; exit 0 means healthy.
 
-Used by the container image's HEALTHCHECK and usable by any monitoring; exit 0 means Running.
+It asks the server for its endpoints (OPC UA discovery, open to everyone on every endpoint). Where an
+unencrypted endpoint is offered (loopback), it also opens an anonymous session and requires
+Server/ServerStatus/State to be Running. Elsewhere, answering discovery is the sign of life: reading the
+state would need a trusted client certificate.
 """
 
 from __future__ import annotations
@@ -12,19 +15,22 @@ from asyncua import Client, ua
 
 
 async def check(endpoint: str, timeout: float = 10.0) -> tuple[bool, str]:
-    """(True, "Running") when the server at ``endpoint`` answers and runs; otherwise (False, why)."""
+    """(True, what was seen) when the server at ``endpoint`` is healthy; otherwise (False, why)."""
     logging.getLogger("asyncua").setLevel(logging.CRITICAL)  # one line of our own says what failed
-    client = Client(endpoint, timeout=timeout)
     try:
         async with asyncio.timeout(timeout):
+            endpoints = await Client(endpoint, timeout=timeout).connect_and_get_server_endpoints()
+            if not any(e.SecurityMode == ua.MessageSecurityMode.None_ for e in endpoints):
+                return True, f"answers ({len(endpoints)} secure endpoints)"
+            client = Client(endpoint, timeout=timeout)
             await client.connect()
             try:
-                state = await client.get_node(ua.NodeId(ua.ObjectIds.Server_ServerStatus_State)).read_value()
+                node = client.get_node(ua.NodeId(ua.ObjectIds.Server_ServerStatus_State))
+                state = ua.ServerState(await node.read_value())
             finally:
                 await client.disconnect()
     except TimeoutError:
         return False, f"no answer within {timeout:g} s"
     except (OSError, ua.UaError) as exc:
         return False, f"not reachable: {exc}"
-    name = ua.ServerState(state).name
-    return state == ua.ServerState.Running, name
+    return state == ua.ServerState.Running, state.name
