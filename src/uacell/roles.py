@@ -48,6 +48,7 @@ class Family(StrEnum):
     FILE = "File"
     DIRECTORY = "Directory"
     CONDITION = "Condition"
+    SERVER = "Server"
 
 
 # ObjectType BrowseNames (and a few instance names) a dispatcher may pass as the hint.
@@ -71,6 +72,7 @@ _TYPE_HINTS: dict[str, Family] = {
     "ConditionType": Family.CONDITION,
     "AcknowledgeableConditionType": Family.CONDITION,
     "AlarmConditionType": Family.CONDITION,
+    "ServerType": Family.SERVER,
 }
 
 OP, EN = Role.OPERATOR, Role.ENGINEER
@@ -105,6 +107,8 @@ METHOD_ROLES: dict[tuple[Family, str], Role] = {
     # Alarm clients ask for the current conditions when they subscribe: as reading, anyone may.
     **{(Family.CONDITION, m): Role.OBSERVER for m in ("ConditionRefresh", "ConditionRefresh2")},
     **{(Family.CONDITION, m): EN for m in ("Enable", "Disable")},
+    # OPC 10000-5 9.1: a client asks which monitored items its own subscription has (after a reconnect).
+    (Family.SERVER, "GetMonitoredItems"): Role.OBSERVER,
     # uacell's own simulation methods: raising a fault on purpose is an engineer's test.
     (Family.CONDITION, "SimulateAlarm"): EN,
     (Family.PACKML, "InjectFault"): EN,

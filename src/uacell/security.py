@@ -41,6 +41,7 @@ from uacell.roles import Family, Role, may, may_call
 from uacell.ua import context
 from uacell.ua.access import user_access_level
 from uacell.ua.context import caller_of
+from uacell.ua.diagnostics import readable_by as diagnostics_readable_by
 from uacell.users import LoginThrottle
 
 if TYPE_CHECKING:
@@ -206,6 +207,9 @@ class Security:
             if dv.StatusCode is not None and not dv.StatusCode.is_good():
                 continue
             attr = rv.AttributeId
+            if attr == _A.Value and not diagnostics_readable_by(rv.NodeId, role):
+                results[i] = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadUserAccessDenied))
+                continue
             if attr == _A.UserExecutable:
                 allowed = self.app.dispatcher.user_executable(rv.NodeId, role)
                 if allowed is not None:
@@ -253,6 +257,9 @@ class UacellSession(InternalSession):
             params = dataclasses.replace(params, ClientCertificate=None)
         result = await super().create_session(params, sockname=sockname)
         self._audit("session_open")
+        diagnostics = self._security.app.diagnostics
+        if diagnostics is not None:
+            diagnostics.session_created(self, params, processor)
         return result
 
     def _audit(self, event: str) -> None:
@@ -268,6 +275,8 @@ class UacellSession(InternalSession):
         await super().close_session(delete_subs)
         if not already:
             self._audit("session_close")
+            if self._security.app.diagnostics is not None:
+                self._security.app.diagnostics.session_closed(self)
             self._security.session_closed(self)
 
 
@@ -284,9 +293,16 @@ def _install_processor_hook() -> None:
         diagnostics = context.set_return_diagnostics(int(getattr(requesthdr, "ReturnDiagnostics", 0) or 0))
         try:
             security = getattr(self.iserver, "_uacell_security", None)
-            if security is not None and typeid == _ACTIVATE:
-                return await security.activate(self, lambda: original(self, typeid, requesthdr, seqhdr, body))
-            return await original(self, typeid, requesthdr, seqhdr, body)
+            server_diagnostics = getattr(self.iserver, "_uacell_diagnostics", None)
+
+            async def serve() -> Any:
+                if security is not None and typeid == _ACTIVATE:
+                    return await security.activate(self, lambda: original(self, typeid, requesthdr, seqhdr, body))
+                return await original(self, typeid, requesthdr, seqhdr, body)
+
+            if server_diagnostics is not None:
+                return await server_diagnostics.request(self, typeid, serve)
+            return await serve()
         finally:
             context.reset_return_diagnostics(diagnostics)
             _processor.reset(token)

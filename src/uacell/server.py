@@ -17,6 +17,7 @@ from uacell.packml.binding import bind_packml
 from uacell.robotics.binding import bind_robotics
 from uacell.roles import Role, listening_policy
 from uacell.ua.access import UacellUserManager
+from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.nodesets import load_models
 from uacell.ua.observers import install_audit
@@ -59,6 +60,7 @@ class UacellServer:
         self.writes = WriteRouter()
         self.audit = AuditTrail(None)  # the configured trail from setup() on
         self.metrics: Metrics | None = None
+        self.diagnostics: Diagnostics | None = None
 
     @property
     def data_dir(self) -> Path:
@@ -95,6 +97,7 @@ class UacellServer:
         self.cell = await build_cell(self.server, self.model_indexes)
         self.refs = NodeRefs(await self.server.get_namespace_array())
         self.dispatcher.declarations = self.cell.instantiator.declarations
+        bind_get_monitored_items(self)
         for binder in self.binders:
             closer = await binder(self)
             if closer is not None:
@@ -103,6 +106,8 @@ class UacellServer:
     async def start(self) -> None:
         await self.server.start()
         await self.dispatcher.refresh_executable()
+        self.diagnostics = Diagnostics(self)
+        await self.diagnostics.start()
         if self.config.metrics.enabled:
             self.metrics = Metrics(self)
             await self.metrics.start(self.config.metrics.host, self.config.metrics.port)
@@ -121,6 +126,8 @@ class UacellServer:
             except Exception:
                 log.exception("error while shutting down")
         await self.publisher.close()
+        if self.diagnostics is not None:
+            await self.diagnostics.stop()
         await self.server.stop()
         if self.metrics is not None:
             await self.metrics.stop()
