@@ -131,6 +131,7 @@ class ConditionNode:
         self.source = source
         self.event_ids: deque[bytes] = deque(maxlen=32)
         self.event: Any = None
+        self.reported_enabled = True
 
     def child(self, path: str) -> ua.NodeId:
         return self.binding.app.cell.child(self.node, path)
@@ -461,10 +462,37 @@ class RoboticsBinding:
             await gen.init(type_node, node, add_generates_event=False)
             cond.event = gen.event
             await self.publish_condition(cond, system.conditions[name], fire=False)
+            model = system.conditions[name]
             self._bind(
                 node, "Acknowledge", Family.CONDITION, self._acknowledge(cond),
-                lambda c=system.conditions[name]: not c.acked, system.machine, self.controller.node,
+                lambda c=model: c.enabled and not c.acked, system.machine, self.controller.node,
             )
+            # OPC 10000-9 ConditionType AddComment, Enable, Disable
+            for method, handler, executable in (
+                ("AddComment", self._add_comment(cond), lambda c=model: c.enabled),
+                ("Enable", self._set_enabled(cond, True), lambda c=model: not c.enabled),
+                ("Disable", self._set_enabled(cond, False), lambda c=model: c.enabled),
+            ):
+                self._bind(node, method, Family.CONDITION, handler, executable, system.machine, self.controller.node)
+
+    def _add_comment(self, cond: ConditionNode):
+        async def add_comment(caller, event_id: bytes, comment: ua.LocalizedText) -> list:
+            if event_id not in cond.event_ids:
+                raise CallError("BadEventIdUnknown", f"no event {event_id!r} of {cond.name}", argument=0)
+            text = (comment.Text or "") if isinstance(comment, ua.LocalizedText) else ""
+            self.cell.system.add_comment(cond.name, text)
+            await self.write(cond.child("ClientUserId"), caller.display_user, ua.VariantType.String)
+            return []
+
+        return add_comment
+
+    def _set_enabled(self, cond: ConditionNode, enabled: bool):
+        async def set_enabled(caller) -> list:
+            self.cell.system.set_enabled(cond.name, enabled)
+            log.warning("%s %s condition %s", caller.display_user, "enables" if enabled else "disables", cond.name)
+            return []
+
+        return set_enabled
 
     def _acknowledge(self, cond: ConditionNode):
         async def acknowledge(caller, event_id: bytes, comment: ua.LocalizedText) -> list:
@@ -483,14 +511,18 @@ class RoboticsBinding:
     def condition_changed(self, cond: Condition) -> None:
         node = self.conditions.get(cond.name)
         if node is not None:
-            snapshot = Condition(cond.name, cond.message, cond.active, cond.acked)
+            snapshot = Condition(cond.name, cond.message, cond.active, cond.acked, cond.enabled, cond.comment)
             self.app.publisher.submit(lambda: self.publish_condition(node, snapshot, fire=True))
 
     async def publish_condition(self, node: ConditionNode, cond: Condition, *, fire: bool) -> None:
         now = _now()
         event_id = uuid.uuid4().bytes
         node.event_ids.append(event_id)
-        retain = cond.active or not cond.acked
+        retain = cond.enabled and (cond.active or not cond.acked)
+        # A disabled condition reports nothing, except the event that says it was disabled (OPC 10000-9).
+        fire = fire and (cond.enabled or node.reported_enabled)
+        node.reported_enabled = cond.enabled
+        enabled_state = ua.LocalizedText("Enabled" if cond.enabled else "Disabled", "en")
         message = ua.LocalizedText(
             f"{cond.name}: {cond.message or cond.name}" if cond.active else f"{cond.name} cleared", "en"
         )
@@ -508,6 +540,9 @@ class RoboticsBinding:
                 ua.LocalizedText("Acknowledged" if cond.acked else "Unacknowledged", "en"), ua.VariantType.LocalizedText
             ),
             "AckedState/Id": (cond.acked, ua.VariantType.Boolean),
+            "EnabledState": (enabled_state, ua.VariantType.LocalizedText),
+            "EnabledState/Id": (cond.enabled, ua.VariantType.Boolean),
+            "Comment": (ua.LocalizedText(cond.comment), ua.VariantType.LocalizedText),
         }
         for child, (value, vtype) in values.items():
             with contextlib.suppress(KeyError):
@@ -527,8 +562,9 @@ class RoboticsBinding:
             "ConditionName": (cond.name, ua.VariantType.String),
             "BranchId": (ua.NodeId(), ua.VariantType.NodeId),
             "Retain": (retain, ua.VariantType.Boolean),
-            "EnabledState": (ua.LocalizedText("Enabled", "en"), ua.VariantType.LocalizedText),
-            "EnabledState/Id": (True, ua.VariantType.Boolean),
+            "EnabledState": values["EnabledState"],
+            "EnabledState/Id": values["EnabledState/Id"],
+            "Comment": values["Comment"],
             "ActiveState": values["ActiveState"],
             "ActiveState/Id": values["ActiveState/Id"],
             "AckedState": values["AckedState"],
