@@ -412,3 +412,64 @@ def test_container_image_builds_and_serves():
     finally:
         subprocess.run([docker, "stop", "-t", "30", name], capture_output=True, timeout=120, check=False)
         subprocess.run([docker, "rmi", tag], capture_output=True, timeout=120, check=False)
+
+
+# --- logging ----------------------------------------------------------------------------------------------
+
+
+def test_log_file_rotates_and_per_logger_levels_apply(tmp_path):
+    import logging
+
+    from uacell import logs
+    from uacell.config import Config
+
+    config = Config()
+    config.logging.file = tmp_path / "logs" / "uacell.log"
+    config.logging.max_bytes = 1024
+    config.logging.backups = 2
+    config.logging.format = "json"
+    config.logging.levels = {"uacell.test.quiet": "ERROR"}
+    root = logging.getLogger()
+    saved = (root.level, list(root.handlers))
+    try:
+        logs.configure(config)
+        for i in range(200):
+            logging.getLogger("uacell.test.loud").info("line %d of the rotation test", i)
+            logging.getLogger("uacell.test.quiet").warning("never written")
+        for h in root.handlers:
+            h.flush()
+    finally:
+        logs.configure_console("WARNING")
+        root.setLevel(saved[0])
+    files = sorted(p.name for p in (tmp_path / "logs").iterdir())
+    assert files == ["uacell.log", "uacell.log.1", "uacell.log.2"]
+    lines = [json.loads(ln) for ln in (tmp_path / "logs" / "uacell.log").read_text().splitlines()]
+    assert lines and all(e["logger"] == "uacell.test.loud" and e["level"] == "INFO" for e in lines)
+    assert lines[-1]["message"] == "line 199 of the rotation test"
+    assert "never written" not in "".join(p.read_text() for p in (tmp_path / "logs").iterdir())
+
+
+async def test_serve_logs_json_and_a_refused_login_is_one_info_line(tmp_path):
+    log_file = tmp_path / "uacell.log"
+    sp = start_serve(tmp_path / "data", "--log-format", "json", "--log-level", "INFO", "--log-file", str(log_file))
+    try:
+        client = Client(sp.endpoint, timeout=20)
+        client.set_user("nobody")
+        client.set_password("wrong password")
+        with pytest.raises(ua.UaStatusCodeError):
+            await client.connect()
+    finally:
+        assert sp.stop() == 0
+    out = "".join(sp.output)
+    entries = [json.loads(ln) for ln in out.splitlines() if ln.startswith("{")]
+    assert entries, out
+    refusals = [e for e in entries if "refused login of user 'nobody'" in e["message"]]
+    assert [e["level"] for e in refusals] == ["INFO"]
+    assert not [e for e in entries if e["level"] in ("ERROR", "CRITICAL")], out
+    assert "Traceback" not in out
+    in_file = [json.loads(ln) for ln in log_file.read_text().splitlines()]
+    assert any("refused login of user 'nobody'" in e["message"] for e in in_file)
+    audit = [json.loads(ln) for ln in (tmp_path / "data" / "audit.log").read_text().splitlines()]
+    assert [(e["event"], e["user"], e["result"]) for e in audit if e["event"] == "login"] == [
+        ("login", "nobody", "BadUserAccessDenied")
+    ]

@@ -16,6 +16,8 @@ from typing import Any
 from uacell.config import Config
 
 _HANDLER_MARK = "_uacell_handler"
+# Loggers whose level the configuration set ([logging] levels): uacell's own defaults leave them alone.
+configured_levels: set[str] = set()
 TEXT_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 # LogRecord attributes that are not extra fields.
 _STANDARD = set(vars(logging.LogRecord("", 0, "", 0, "", None, None))) | {"message", "asctime", "taskName"}
@@ -83,3 +85,4 @@ def configure(config: Config, *, audit: bool = False) -> None:
     root.setLevel(cfg.level)
     for name, level in cfg.levels.items():
         logging.getLogger(name).setLevel(level)
+        configured_levels.add(name)

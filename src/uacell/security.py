@@ -158,7 +158,7 @@ class Security:
         processor = _processor.get()
         if token.EncryptionAlgorithm or _channel_mode(processor) == ua.MessageSecurityMode.SignAndEncrypt:
             return
-        log.warning("refused login of user %r from %s: clear-text password on an unencrypted channel",
+        log.info("refused login of user %r from %s: clear-text password on an unencrypted channel",
                     token.UserName, _address(processor))
         raise ServiceError(ua.StatusCodes.BadIdentityTokenRejected)
 

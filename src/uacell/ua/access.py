@@ -25,7 +25,7 @@ class UacellUserManager:
             return UacellUser(None, self.policy.anonymous_role.label, anonymous=True)
         role = self.users.verify(username, password or "")
         if role is None:
-            log.warning("refused login of user %r: wrong user name or password", username)
+            log.info("refused login of user %r: wrong user name or password", username)
             return None
         return UacellUser(username, Role.parse(role).label)
 
