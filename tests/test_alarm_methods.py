@@ -185,3 +185,30 @@ async def test_add_comment_enable_disable_through_asyncua(rig):
     finally:
         await observer.disconnect()
     await sub.delete()
+
+
+@pytest.mark.interop
+async def test_node_opcua_comments_disables_and_enables_an_alarm(tmp_path):
+    from conftest import run_node
+
+    config = fast_config(tmp_path / "data")
+    config.server.anonymous_role = "engineer"  # Enable/Disable are an engineer's
+    app = await start_app(config)
+    try:
+        app.robot_cell.equipment.raise_alarm("EmergencyStop")
+        await app.settle()
+        out = await asyncio.to_thread(run_node, "alarms.js", app.endpoint)
+    finally:
+        await app.stop()
+    assert out == {
+        "addCommentUnknown": "BadEventIdUnknown",
+        "addComment": "Good",
+        "comment": "from node-opcua",
+        "disable": "Good",
+        "enabledAfterDisable": False,
+        "disableAgain": "BadConditionAlreadyDisabled",
+        "addCommentDisabled": "BadConditionDisabled",
+        "enable": "Good",
+        "enabledAfterEnable": True,
+        "enableAgain": "BadConditionAlreadyEnabled",
+    }
