@@ -112,7 +112,7 @@ class Metrics:
             registry=self.registry,
             buckets=(0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0),
         )
-        self.registry.register(_AddressSpaceCollector(app))  # type: ignore[arg-type]
+        self.registry.register(_AddressSpaceCollector(app))
         app.dispatcher.observers.append(self._on_call)
         self._server: asyncio.Server | None = None
         self.port = 0
