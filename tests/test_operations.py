@@ -473,3 +473,35 @@ async def test_serve_logs_json_and_a_refused_login_is_one_info_line(tmp_path):
     assert [(e["event"], e["user"], e["result"]) for e in audit if e["event"] == "login"] == [
         ("login", "nobody", "BadUserAccessDenied")
     ]
+
+
+def test_a_metrics_port_in_use_is_one_clear_line(tmp_path):
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        cfg = tmp_path / "uacell.toml"
+        cfg.write_text(f"[metrics]\nenabled = true\nport = {port}\n")
+        proc = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "uacell",
+                "serve",
+                "--port",
+                str(free_port()),
+                "--data-dir",
+                str(tmp_path / "d"),
+                "--config",
+                str(cfg),
+                "--log-level",
+                "ERROR",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=180,
+            check=False,
+        )
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1].startswith(f"uacell: cannot serve metrics on 127.0.0.1:{port}")
+    assert "Traceback" not in proc.stderr

@@ -160,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
         config = resolve_config(args)
         if args.command == "serve":
             return _serve(args, config)
-        logs.configure(config, audit=args.command in ("user", "cert"))
+        logs.configure(config)
         if args.command == "health":
             return _health(args, config)
         if args.command == "user":
@@ -228,7 +228,7 @@ def _prepare_and_run(config: Config) -> int:
     except OSError as exc:
         raise ConfigError(f"cannot create data directory {config.server.data_dir}: {exc.strerror or exc}") from exc
     try:
-        logs.configure(config, audit=True)
+        logs.configure(config)
     except OSError as exc:
         raise ConfigError(f"cannot open log file: {exc}") from exc
     return asyncio.run(_run(config))

@@ -63,11 +63,10 @@ def configure_console(level: str = "INFO", fmt: str = "text") -> None:
     root.setLevel(level)
 
 
-def configure(config: Config, *, audit: bool = False) -> None:
+def configure(config: Config) -> None:
     """Apply ``[logging]``: level, format, file with rotation, per-logger levels.
 
-    ``audit`` is accepted for symmetry with the commands that change security data; the audit trail's
-    own file is opened by whoever records (``uacell.audit.AuditTrail``).
+    The audit trail has its own file, opened by whoever records (``uacell.audit.AuditTrail``).
     """
     cfg = config.logging
     handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr)]
