@@ -3,7 +3,7 @@
 "use strict";
 const {
   OPCUAClient, MessageSecurityMode, SecurityPolicy, AttributeIds, ClientSubscription, ClientMonitoredItem,
-  TimestampsToReturn, DataType,
+  TimestampsToReturn, DataType, UserTokenType,
 } = require("node-opcua-client");
 const { done, main } = require("./lib");
 
@@ -57,6 +57,19 @@ main(async () => {
   out.monitoredItemId = item.monitoredItemId;
   out.clientHandle = item.monitoringParameters.clientHandle;
   out.unknownSubscription = (await call(987654)).statusCode.name;
+  const [, , , userName, password] = process.argv;
+  const security = await session.read({ nodeId: "i=3708", attributeId: AttributeIds.Value });
+  out.securityAnonymous = security.statusCode.name;
+  if (userName) {
+    // an admin reads SessionSecurityDiagnosticsArray: node-opcua decodes the standard encoding
+    const admin = await client.createSession({ type: UserTokenType.UserName, userName, password });
+    const dv = await admin.read({ nodeId: "i=3708", attributeId: AttributeIds.Value });
+    out.securityAdmin = (dv.value.value || []).map((e) => ({
+      clientUserIdOfSession: e.clientUserIdOfSession, authenticationMechanism: e.authenticationMechanism,
+      encoding: e.encoding, transportProtocol: e.transportProtocol, securityPolicyUri: e.securityPolicyUri,
+    }));
+    await admin.close();
+  }
   await subscription.terminate();
   await session.close();
   await client.disconnect();

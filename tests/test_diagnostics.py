@@ -178,7 +178,7 @@ async def test_get_monitored_items_answers_for_the_callers_own_subscription(app)
 
 @pytest.mark.interop
 async def test_node_opcua_reads_the_diagnostics_and_gets_monitored_items(app):
-    out = await asyncio.to_thread(run_node, "diagnostics.js", app.endpoint)
+    out = await asyncio.to_thread(run_node, "diagnostics.js", app.endpoint, "root", PASSWORD)
     assert out["enabledFlag"] is True
     assert out["summary"]["currentSessionCount"] >= 1
     assert out["summary"]["currentSubscriptionCount"] >= 1
@@ -188,3 +188,14 @@ async def test_node_opcua_reads_the_diagnostics_and_gets_monitored_items(app):
     assert out["monitoredItems"]["serverHandles"] == [out["monitoredItemId"]]
     assert out["monitoredItems"]["clientHandles"] == [out["clientHandle"]]
     assert out["unknownSubscription"] == "BadSubscriptionIdInvalid"
+    assert out["securityAnonymous"] == "BadUserAccessDenied"
+    admin = [e for e in out["securityAdmin"] if e["clientUserIdOfSession"] == "root"]
+    assert admin == [
+        {
+            "clientUserIdOfSession": "root",
+            "authenticationMechanism": "UserName",
+            "encoding": "UA Binary",
+            "transportProtocol": "opc.tcp",
+            "securityPolicyUri": "http://opcfoundation.org/UA/SecurityPolicy#None",
+        }
+    ]
