@@ -243,6 +243,8 @@ async def _run(config: Config) -> int:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    if _entry.stop_requested:  # a stop whose exception some library code caught (e.g. a logging handler)
+        stop.set()
     await app.setup()
     if stop.is_set():  # asked to stop while setting up: never start listening
         log.info("shutting down")

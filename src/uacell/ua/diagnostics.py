@@ -96,12 +96,22 @@ class SessionSecurityDiagnosticsDataType:
     ClientCertificate: ua.ByteString = None
 
 
-ua.register_extension_object(
-    "SessionSecurityDiagnosticsDataType",
-    ua.NodeId(ua.ObjectIds.SessionSecurityDiagnosticsDataType_Encoding_DefaultBinary),
-    SessionSecurityDiagnosticsDataType,
-    ua.NodeId(ua.ObjectIds.SessionSecurityDiagnosticsDataType),
-)
+def _register_corrected_types() -> None:
+    uatypes_log = logging.getLogger("asyncua.ua.uatypes")
+    disabled = uatypes_log.disabled
+    uatypes_log.disabled = True  # asyncua announces every registration at INFO
+    try:
+        ua.register_extension_object(
+            "SessionSecurityDiagnosticsDataType",
+            ua.NodeId(ua.ObjectIds.SessionSecurityDiagnosticsDataType_Encoding_DefaultBinary),
+            SessionSecurityDiagnosticsDataType,
+            ua.NodeId(ua.ObjectIds.SessionSecurityDiagnosticsDataType),
+        )
+    finally:
+        uatypes_log.disabled = disabled
+
+
+_register_corrected_types()
 
 
 @dataclass
