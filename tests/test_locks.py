@@ -16,6 +16,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from uaraw import anonymous_token, none_session
 
 from uacell.server import UacellServer
 
@@ -146,6 +147,32 @@ async def test_controller_lock_covers_task_control_and_system_operation(app):
         assert await a.lock(CTRL, "ExitLock") == 0
         assert await b.get_ready() != RESOURCE  # SystemOperation is free again
         assert await b.load() == RESOURCE  # TaskControl1 still locked by a
+
+
+LOCKED = ua.StatusCodes.BadLocked
+MODE = f"{TASK}.ParameterSet.ExecutionMode"
+
+
+async def test_lock_covers_writes_from_other_sessions(app):
+    """A hand-built anonymous session (operator on loopback) writes ExecutionMode past alice's locks."""
+    raw, _ = await none_session("127.0.0.1", app.config.server.port)
+    async with raw, Session(app, "urn:test:a", "alice") as a:
+        await raw.activate_session(anonymous_token())
+        mode = ua.NodeId(MODE, a.ns)
+        node = a.client.get_node(mode)
+        step, continuous = ua.Variant(2, ua.VariantType.Int32), ua.Variant(1, ua.VariantType.Int32)
+        assert (await raw.write_value(mode, step)).value == ua.StatusCodes.Good  # operators may write it
+        for element in (TASK, CTRL):  # the TaskControl's own lock, and its Controller's
+            assert await a.init_lock(element) == 0
+            assert (await raw.write_value(mode, continuous)).value == LOCKED
+            assert await node.read_value() == 2  # unchanged
+            await node.write_value(continuous)  # the owner writes
+            assert await node.read_value() == 1
+            await node.write_value(step)
+            assert await a.lock(element, "ExitLock") == 0
+        assert (await raw.write_value(mode, continuous)).value == ua.StatusCodes.Good  # free again
+        assert await node.read_value() == 1
+        await node.write_value(ua.Variant(0, ua.VariantType.Int32))
 
 
 async def test_task_control_lock_leaves_system_operation_free(app):

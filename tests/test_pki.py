@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as dt
 import ipaddress
 import logging
+import os
 import shutil
 import socket
 import stat
@@ -19,13 +20,17 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
+from uacell.config import load_config
+from uacell.errors import ConfigError
 from uacell.pki import (
     CertificateValidator,
     PkiPaths,
+    RejectedLimit,
     TrustList,
     ensure_server_certificate,
     generate_key,
     make_client_certificate,
+    prune_rejected,
     thumbprint,
 )
 
@@ -210,3 +215,62 @@ async def test_asyncua_server_uses_the_validator(
         [rejected] = paths.rejected.iterdir()
         shutil.move(rejected, paths.trusted / rejected.name)
         await connect()
+
+
+# pki/rejected/ cap ------------------------------------------------------------------------------------
+
+
+def _rejected_files(directory: Path, ages: list[float], now: float) -> list[Path]:
+    """Certificate files in ``directory``, the i-th ``ages[i]`` seconds old."""
+    directory.mkdir(parents=True, exist_ok=True)
+    files = []
+    for i, age in enumerate(ages):
+        f = directory / f"cert{i} [{i:040x}].der"
+        f.write_bytes(b"x")
+        os.utime(f, (now - age, now - age))
+        files.append(f)
+    return files
+
+
+def test_prune_rejected_drops_aged_then_oldest_beyond_the_count(tmp_path: Path) -> None:
+    now = 1_000_000.0
+    files = _rejected_files(tmp_path, [500.0, 10.0, 2000.0, 30.0, 20.0], now)
+    (tmp_path / "notes.txt").write_text("not a certificate")
+    dropped = prune_rejected(tmp_path, RejectedLimit(max_files=2, max_age=1000.0), now=now)
+    # aged first (2000 s), then the oldest of the rest (500 s, 30 s); the two newest stay
+    assert dropped == [files[2], files[0], files[3]]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([files[1].name, files[4].name, "notes.txt"])
+    assert prune_rejected(tmp_path, RejectedLimit(max_files=2, max_age=1000.0), now=now) == []
+
+
+def test_trust_list_caps_rejected_and_logs_once(paths: PkiPaths, caplog: pytest.LogCaptureFixture) -> None:
+    trust_list = TrustList(paths, rejected_limit=RejectedLimit(max_files=3, max_age=86400.0))
+    caplog.set_level(logging.WARNING, logger="uacell.pki")
+    key = generate_key()
+    ders = [make_client_certificate(CLIENT_URI, key=key, common_name=f"flood {i}")[0] for i in range(6)]
+    start = dt.datetime.now().timestamp() - 100
+    for i, der in enumerate(ders):
+        path = trust_list.reject(der)
+        os.utime(path, (start + i, start + i))  # strictly increasing, all within the age limit
+    kept = sorted(p.name for p in paths.rejected.iterdir())
+    assert kept == sorted(f"flood_{i} [{thumbprint(d)}].der" for i, d in enumerate(ders) if i >= 3)
+    assert len([r for r in caplog.records if "keeps at most 3" in r.getMessage()]) == 1
+
+
+def test_trust_list_start_drops_aged_rejected(paths: PkiPaths) -> None:
+    old = _rejected_files(paths.rejected, [40 * 86400.0, 60.0], dt.datetime.now().timestamp())
+    TrustList(paths, rejected_limit=RejectedLimit(max_files=10, max_age=30 * 86400.0))
+    assert [p.name for p in paths.rejected.iterdir()] == [old[1].name]
+
+
+def test_rejected_limits_come_from_the_configuration(tmp_path: Path) -> None:
+    cfg = tmp_path / "uacell.toml"
+    cfg.write_text("[server]\nrejected_max_files = 7\nrejected_max_age_days = 2\n")
+    config = load_config(cfg)
+    assert (config.server.rejected_max_files, config.server.rejected_max_age_days) == (7, 2.0)
+    cfg.write_text("[server]\nrejected_max_files = 0\n")
+    with pytest.raises(ConfigError, match="rejected_max_files"):
+        load_config(cfg)
+    cfg.write_text("[server]\nrejected_max_age_days = -1\n")
+    with pytest.raises(ConfigError, match="rejected_max_age_days"):
+        load_config(cfg)

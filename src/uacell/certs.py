@@ -22,6 +22,7 @@ from uacell.config import Config
 from uacell.pki import (
     _CERT_SUFFIXES,
     PkiPaths,
+    RejectedLimit,
     TrustList,
     _load_any,
     cert_to_der,
@@ -127,21 +128,21 @@ def _resolve(paths: PkiPaths, ident: str, kinds: tuple[str, ...]) -> list[CertIn
     return find(paths, ident, kinds)
 
 
-def trust(paths: PkiPaths, ident: str) -> Path:
+def trust(paths: PkiPaths, ident: str, limit: RejectedLimit | None = None) -> Path:
     hits = _resolve(paths, ident, ("rejected", "trusted"))
-    target = TrustList(paths).trust(hits[0].der)
+    target = TrustList(paths, rejected_limit=limit).trust(hits[0].der)
     for c in hits:
         if c.kind == "rejected":
             c.path.unlink(missing_ok=True)
     return target
 
 
-def reject(paths: PkiPaths, ident: str) -> Path:
+def reject(paths: PkiPaths, ident: str, limit: RejectedLimit | None = None) -> Path:
     hits = _resolve(paths, ident, ("trusted",))
     trusted = [c for c in hits if c.kind == "trusted"]
     if not trusted:
         raise CertError(f"{ident} is not trusted")
-    target = TrustList(paths).reject(hits[0].der)
+    target = TrustList(paths, rejected_limit=limit).reject(hits[0].der)
     for c in trusted:
         c.path.unlink(missing_ok=True)
     return target
@@ -178,16 +179,18 @@ def run_cert_command(args: Any, config: Config) -> int:
     from uacell.server import APPLICATION_URI
 
     paths = PkiPaths.in_data_dir(config.server.data_dir)
+    cfg = config.server
+    limit = RejectedLimit(cfg.rejected_max_files, cfg.rejected_max_age_days * 86400.0)  # as the server keeps it
     try:
         if args.action == "list":
             _print_list(paths)
             return 0
         if args.action == "trust":
-            path = trust(paths, args.id)
+            path = trust(paths, args.id, limit)
             print(f"trusted {path.stem}: {path}")
             detail: dict[str, Any] = {"thumbprint": path.stem, "file": str(path)}
         elif args.action == "reject":
-            path = reject(paths, args.id)
+            path = reject(paths, args.id, limit)
             print(f"rejected {path.stem}: {path}")
             detail = {"thumbprint": path.stem, "file": str(path)}
         elif args.action == "remove":

@@ -11,6 +11,8 @@ models_dir = "/opt/UA-Nodeset"    # default: the cache filled by 'uacell models 
 anonymous_role = "operator"       # default: operator on loopback, observer otherwise
 allow_none_security = true        # default: only on loopback
 trust_on_first_use = false
+rejected_max_files = 100          # refused client certificates kept in pki/rejected/ (oldest dropped)
+rejected_max_age_days = 30.0      # ... and for how long
 
 [robot]
 time_scale = 1.0                  # simulated robot: >1 runs faster than real time
@@ -72,6 +74,8 @@ class ServerConfig:
     anonymous_role: str | None = None
     allow_none_security: bool | None = None
     trust_on_first_use: bool = False
+    rejected_max_files: int = 100
+    rejected_max_age_days: float = 30.0
 
 
 @dataclass
@@ -177,7 +181,10 @@ def load_config(path: str | Path | None = None) -> Config:
     env_data_dir = os.environ.get(DATA_DIR_ENV)
     if env_data_dir:
         config.server.data_dir = Path(env_data_dir).expanduser()
-    validate(config)
+    try:
+        validate(config)
+    except ConfigError as exc:
+        raise ConfigError(f"configuration {config.source}: {exc}" if config.source else str(exc)) from exc
     return config
 
 
@@ -261,6 +268,8 @@ def validate(config: Config) -> None:
     """Raise ConfigError for the first value that cannot work; writes nothing."""
     check_port(config.server.port, "[server] port")
     check_host(config.server.host, "[server] host")
+    if config.server.rejected_max_files < 1:
+        raise ConfigError("[server] rejected_max_files must be 1 or more")
     check_directory(config.server.data_dir, "data directory")
     log = config.logging
     if log.file is not None:

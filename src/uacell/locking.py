@@ -2,7 +2,8 @@
 
 Lockable elements form a tree (``Controller1`` above ``TaskControl1`` and its ``SystemOperation``). A
 lock is held by one session. While another session holds a lock on an element or on an ancestor of
-it, ``check`` refuses Robotics operation methods there with Bad_ResourceUnavailable (decision 20). A
+it, ``check`` refuses Robotics operation methods there with Bad_ResourceUnavailable (decision 20) and
+writes to the element's variables with Bad_Locked (DI LockingServices). A
 lock ends on ExitLock, BreakLock, the owner's session closing, or MaxInactiveLockTime without
 activity from the owner. Expiry is computed lazily from an injected clock; the server may also call
 ``expire()`` periodically so the published ``Locked`` variables follow promptly.
@@ -217,17 +218,15 @@ class LockManager:
                 return True
         return False
 
-    def check(self, element: Hashable, session: Hashable) -> None:
-        """Refuse with Bad_ResourceUnavailable when blocked; a call by the owner renews its locks."""
+    def check(self, element: Hashable, session: Hashable, status: str = "BadResourceUnavailable") -> None:
+        """Refuse with ``status`` (Robotics methods: Bad_ResourceUnavailable; writes: DI's Bad_Locked)
+        when blocked; a request by the owner renews its locks."""
         for node in self._lineage(element):
             lock = self._live(node)
             if lock is None:
                 continue
             if lock.owner.session != session:
-                raise CallError(
-                    "BadResourceUnavailable",
-                    f"{element} is locked by {_describe(lock.owner)} (lock on {node})",
-                )
+                raise CallError(status, f"{element} is locked by {_describe(lock.owner)} (lock on {node})")
             # DI: a request by the initiator for the locked element restarts the lock timer.
             lock.deadline = self._clock() + self.max_inactive
 

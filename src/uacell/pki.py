@@ -6,6 +6,7 @@
 ``pki/trusted/``                            client certificates the server trusts (DER or PEM)
 ``pki/rejected/``                           refused client certificates, ``<thumbprint>.der``;
                                             ``uacell cert trust`` (or moving one to trusted/) trusts it
+                                            (capped in count and age: ``prune_rejected``)
 
 ``CertificateValidator`` plugs the trust list into asyncua's ``Server.set_certificate_validator``.
 """
@@ -18,7 +19,8 @@ import ipaddress
 import logging
 import shutil
 import socket
-from collections.abc import Iterable
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -300,6 +302,34 @@ def _file_name(cert: x509.Certificate, der: bytes) -> str:
     return f"{thumbprint(der)}.der"
 
 
+@dataclass(frozen=True)
+class RejectedLimit:
+    """How many refused certificates ``pki/rejected/`` keeps, and for how long (seconds)."""
+
+    max_files: int = 100
+    max_age: float = 30 * 86400.0
+
+
+def prune_rejected(directory: Path, limit: RejectedLimit, now: float | None = None) -> list[Path]:
+    """Delete certificates in ``directory`` older than ``limit.max_age``, then the oldest beyond
+    ``limit.max_files``; returns the files deleted, oldest first. Age is the file's modification time."""
+    now = time.time() if now is None else now
+    files = []
+    for f in directory.iterdir():
+        if f.suffix.lower() in _CERT_SUFFIXES and f.is_file():
+            try:
+                files.append((f.stat().st_mtime, f.name, f))
+            except OSError:  # removed meanwhile
+                continue
+    files.sort()
+    doomed = [f for mtime, _, f in files if now - mtime > limit.max_age]
+    kept = [f for mtime, _, f in files if now - mtime <= limit.max_age]
+    doomed += kept[: max(0, len(kept) - limit.max_files)]
+    for f in doomed:
+        f.unlink(missing_ok=True)
+    return doomed
+
+
 class TrustList:
     """Answers whether a client certificate is trusted: its exact DER is in ``pki/trusted/``.
 
@@ -307,10 +337,35 @@ class TrustList:
     and accepted; otherwise it is written to rejected/ and refused.
     """
 
-    def __init__(self, paths: PkiPaths, *, trust_on_first_use: bool = False) -> None:
+    def __init__(
+        self,
+        paths: PkiPaths,
+        *,
+        trust_on_first_use: bool = False,
+        rejected_limit: RejectedLimit | None = None,
+        report_refusal: Callable[[str], object] | None = None,
+    ) -> None:
         self.paths = paths
         self.trust_on_first_use = trust_on_first_use
+        self.rejected_limit = rejected_limit or RejectedLimit()
+        # How refusals are logged (the server rate-limits them per client address); default: a warning each.
+        self.report_refusal: Callable[[str], object] = report_refusal or _log.warning
+        self._pruning_logged = False
         paths.create()
+        self.prune_rejected()
+
+    def prune_rejected(self) -> list[Path]:
+        """Keep ``pki/rejected/`` within its limit (oldest dropped first); the first drop is logged."""
+        dropped = prune_rejected(self.paths.rejected, self.rejected_limit)
+        if dropped and not self._pruning_logged:
+            self._pruning_logged = True
+            limit = self.rejected_limit
+            _log.warning(
+                "%s keeps at most %d refused certificates for %.0f days: dropped the oldest (%s); "
+                "further drops are not logged",
+                self.paths.rejected, limit.max_files, limit.max_age / 86400, ", ".join(f.name for f in dropped),
+            )
+        return dropped
 
     def _trusted_digests(self) -> set[bytes]:
         # Read on every check: operators add files while the server runs, and sessions are rare.
@@ -341,6 +396,7 @@ class TrustList:
         target = self.paths.rejected / _file_name(cert, der)
         if not target.exists():
             atomic_write(target, der, mode=0o644)
+            self.prune_rejected()
         return target
 
     def admit(self, der: bytes, application_uri: str = "") -> bool:
@@ -353,10 +409,10 @@ class TrustList:
             _log.warning("trusting client certificate%s on first use: %s (delete it to revoke)", who, path)
             return True
         path = self.reject(der)
-        _log.warning(
-            "refused untrusted client certificate%s (thumbprint %s). To trust it, move %s to %s/ "
-            "(or run: uacell cert trust %s --data-dir %s)",
-            who, thumbprint(der), path, self.paths.trusted, thumbprint(der)[:12], self.paths.root.parent,
+        self.report_refusal(
+            f"refused untrusted client certificate{who} (thumbprint {thumbprint(der)}). "
+            f"To trust it, move {path} to {self.paths.trusted}/ "
+            f"(or run: uacell cert trust {thumbprint(der)[:12]} --data-dir {self.paths.root.parent})"
         )
         return False
 
@@ -379,8 +435,10 @@ class CertificateValidator:
             # Checked first so that trust on first use never records an expired or mismatched certificate.
             await self._basic.validate(cert, app_description)
         except ServiceError as exc:
-            _log.warning("refused client certificate %s of %s: %s", thumbprint(der),
-                         app_description.ApplicationUri, ua.StatusCode(exc.code).name)
+            self.trust_list.report_refusal(
+                f"refused client certificate {thumbprint(der)} of {app_description.ApplicationUri}: "
+                f"{ua.StatusCode(exc.code).name}"
+            )
             raise
         if not self.trust_list.admit(der, app_description.ApplicationUri or ""):
             raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)

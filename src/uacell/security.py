@@ -6,9 +6,20 @@ binders run. It
 - makes or reuses the server certificate in ``<data_dir>/pki/own`` and offers Basic256Sha256,
   Aes128_Sha256_RsaOaep and Aes256_Sha256_RsaPss with Sign and SignAndEncrypt, plus None where the
   listening policy allows it;
+- accepts exactly the security policies and modes of the endpoints it offers: an OpenSecureChannel
+  asking for another is answered with an Error message (Bad_SecurityPolicyRejected or
+  Bad_SecurityModeRejected) and the connection closed. The one exception is policy None where it is
+  not offered: such a channel serves discovery only (GetEndpoints, FindServers; OPC 10000-4 wants
+  discovery reachable without security) and every other request on it, CreateSession and
+  ActivateSession included, answers Bad_SecurityPolicyRejected. Refusals are logged once per client
+  address, reason and interval (``RefusalLog``);
 - checks client certificates against ``pki/trusted`` (``uacell.pki.CertificateValidator``);
 - accepts anonymous and user-name identity tokens, but a user name only with an encrypted password
-  or over a SignAndEncrypt channel (``Bad_IdentityTokenRejected`` otherwise);
+  or over a SignAndEncrypt channel (``Bad_IdentityTokenRejected`` otherwise); an encrypted password
+  must use the algorithm of the endpoint's user token policy and carry the last server nonce this
+  session was sent (``Bad_IdentityTokenInvalid`` otherwise), so a captured token cannot be replayed;
+- gives sessions random AuthenticationTokens and lets a session move to another secure channel only
+  when activated, from the same client certificate and with the same identity;
 - slows down repeated login failures per client address (``uacell.users.LoginThrottle``);
 - uses its own session class: writes need the ``write`` action of ``uacell.roles``, the client's
   ApplicationUri is kept for ``Caller.client``, and ``on_session_closed`` hooks run when a session
@@ -26,17 +37,25 @@ import asyncio
 import contextvars
 import dataclasses
 import functools
+import hmac
 import logging
-from collections.abc import Callable
+import os
+import struct
+import time
+from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
+from urllib.parse import urlparse
 
 from asyncua import Server, ua
-from asyncua.common.utils import ServiceError
+from asyncua.common.utils import Buffer, ServiceError, create_nonce
+from asyncua.crypto import uacrypto
+from asyncua.crypto.security_policies import SECURITY_POLICY_TYPE_MAP, SecurityPolicyNone
 from asyncua.server.internal_session import InternalSession, SessionState
 from asyncua.server.uaprocessor import UaProcessor
+from asyncua.ua.ua_binary import struct_from_binary, uatcp_to_binary
 
-from uacell.pki import CertificateValidator, PkiPaths, TrustList, ensure_server_certificate
+from uacell.pki import CertificateValidator, PkiPaths, RejectedLimit, TrustList, ensure_server_certificate
 from uacell.roles import Family, Role, may, may_call
 from uacell.ua import context
 from uacell.ua.access import user_access_level
@@ -62,6 +81,26 @@ SECURE_POLICIES: list[ua.SecurityPolicyType] = [
 ]
 
 _ACTIVATE = ua.NodeId(ua.ObjectIds.ActivateSessionRequest_Encoding_DefaultBinary)
+# What a SecurityPolicy None channel may ask where None is not an offered endpoint.
+_DISCOVERY = {
+    ua.NodeId(i)
+    for i in (
+        ua.ObjectIds.GetEndpointsRequest_Encoding_DefaultBinary,
+        ua.ObjectIds.FindServersRequest_Encoding_DefaultBinary,
+        ua.ObjectIds.FindServersOnNetworkRequest_Encoding_DefaultBinary,
+        ua.ObjectIds.CloseSecureChannelRequest_Encoding_DefaultBinary,
+    )
+}
+_S = ua.StatusCodes
+# The asymmetric encryption algorithm each security policy names (OPC 10000-7), for user token secrets.
+_TOKEN_ALGORITHM: dict[str, str] = {
+    cast(Any, cls).URI: cast(Any, cls).AsymmetricEncryptionURI for cls, _, _ in SECURITY_POLICY_TYPE_MAP.values()
+}
+_DECRYPT: dict[str, Callable[[Any, bytes], bytes]] = {
+    "http://www.w3.org/2001/04/xmlenc#rsa-1_5": uacrypto.decrypt_rsa15,
+    "http://www.w3.org/2001/04/xmlenc#rsa-oaep": uacrypto.decrypt_rsa_oaep,
+    "http://opcfoundation.org/UA/security/rsa-oaep-sha2-256": uacrypto.decrypt_rsa_oaep_sha256,
+}
 _USER_WRITABLE = ua.QualifiedName("UserWritable", 0)
 _A = ua.AttributeIds
 
@@ -84,6 +123,76 @@ def _channel_mode(processor: UaProcessor | None) -> ua.MessageSecurityMode:
     return processor._connection.security_policy.Mode
 
 
+def _channel_policy(processor: UaProcessor | None) -> tuple[str, ua.MessageSecurityMode]:
+    """The security policy URI and mode of the processor's secure channel."""
+    if processor is None:
+        return SecurityPolicyNone.URI, ua.MessageSecurityMode.None_
+    policy = processor._connection.security_policy
+    return policy.URI, policy.Mode
+
+
+def open_token_secret(plain: bytes, nonce: bytes | None) -> bytes:
+    """The password inside a decrypted user token secret (OPC 10000-4, 7.41: a UInt32 length, then the
+    password, then the server nonce). Raises ValueError unless the secret ends with ``nonce``."""
+    if not nonce:
+        raise ValueError("this session has no server nonce to check against")
+    if len(plain) < 4:
+        raise ValueError("secret too short")
+    (length,) = struct.unpack_from("<I", plain)
+    if length < len(nonce) or 4 + length > len(plain):
+        raise ValueError("secret length out of range")
+    secret = plain[4 : 4 + length]
+    if not hmac.compare_digest(secret[len(secret) - len(nonce) :], nonce):
+        raise ValueError("the server nonce in the token is not the one this session was sent")
+    return secret[: len(secret) - len(nonce)]
+
+
+class RefusalLog:
+    """Logs a refusal at most once per client address, reason and ``interval`` seconds, so a flood of
+    attempts cannot flood the log; the next report says how many were left out."""
+
+    MAX_KEYS = 4096
+
+    def __init__(self, interval: float = 60.0, clock: Callable[[], float] = time.monotonic) -> None:
+        self.interval = interval
+        self._clock = clock
+        self._last: dict[tuple[str, str], float] = {}
+        self._left_out: dict[tuple[str, str], int] = {}
+
+    def warning(self, address: str, reason: str, message: str) -> bool:
+        """Log ``message`` unless this address and reason were logged less than ``interval`` ago."""
+        now = self._clock()
+        key = (address, reason)
+        last = self._last.get(key)
+        if last is not None and now - last < self.interval:
+            self._left_out[key] = self._left_out.get(key, 0) + 1
+            return False
+        if len(self._last) >= self.MAX_KEYS:
+            self._forget(now)
+        left_out = self._left_out.pop(key, 0)
+        self._last[key] = now
+        more = f" ({left_out} more such refusals from {address} not logged)" if left_out else ""
+        log.warning("%s%s", message, more)
+        return True
+
+    def _forget(self, now: float) -> None:
+        for key in [k for k, t in self._last.items() if now - t >= self.interval]:
+            del self._last[key]
+            self._left_out.pop(key, None)
+
+
+def _drop_fault_echo(record: logging.LogRecord) -> bool:
+    """asyncua logs every ServiceFault it sends at ERROR; uacell logs its refusals itself (rate-limited)."""
+    return not str(record.msg).startswith("sending service fault response")
+
+
+class _ChannelRefused(Exception):
+    def __init__(self, code: int, reason: str) -> None:
+        super().__init__(reason)
+        self.code = code
+        self.reason = reason
+
+
 async def prepare_certificate(server: Server, data_dir: Path, application_uri: str, hosts: list[str]) -> Path:
     """Make or reuse ``pki/own/cert.der`` + ``key.pem`` and load them into ``server``; returns the cert path."""
     cert, key = ensure_server_certificate(PkiPaths.in_data_dir(data_dir), application_uri, hosts)
@@ -103,6 +212,7 @@ class Security:
         self._address_locks: dict[str, asyncio.Lock] = {}
         self.trust_list: TrustList | None = None
         self.policies: list[ua.SecurityPolicyType] = []
+        self.refusals = RefusalLog()
 
     async def install(self) -> None:
         cfg = self.app.config.server
@@ -110,7 +220,13 @@ class Security:
         iserver = self.server.iserver
         iserver._uacell_security = self  # type: ignore[attr-defined]
         await prepare_certificate(self.server, self.app.data_dir, self.server.get_application_uri(), [cfg.host])
-        self.trust_list = TrustList(PkiPaths.in_data_dir(self.app.data_dir), trust_on_first_use=cfg.trust_on_first_use)
+        limit = RejectedLimit(cfg.rejected_max_files, cfg.rejected_max_age_days * 86400.0)
+        self.trust_list = TrustList(
+            PkiPaths.in_data_dir(self.app.data_dir),
+            trust_on_first_use=cfg.trust_on_first_use,
+            rejected_limit=limit,
+            report_refusal=self._report_certificate_refusal,
+        )
         if cfg.trust_on_first_use:
             log.warning("trust_on_first_use is on: every new client certificate is trusted and kept in %s",
                         self.trust_list.paths.trusted)
@@ -120,20 +236,16 @@ class Security:
         # X509 user tokens are not mapped to users: offering them would log such users in as anonymous.
         self.server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
         iserver.create_session = self._create_session  # type: ignore[method-assign]
-        original_decrypt = iserver.decrypt_user_token
-
-        def decrypt_user_token(isession: Any, token: ua.UserNameIdentityToken) -> tuple[str, str]:
-            holder = _login_name.get()
-            if holder is not None:
-                holder.append(str(token.UserName))
-            self.refuse_plaintext(token)
-            return original_decrypt(isession, token)
-
-        iserver.decrypt_user_token = decrypt_user_token  # type: ignore[method-assign]
+        iserver.decrypt_user_token = self.decrypt_user_token  # type: ignore[method-assign]
         _install_processor_hook()
+        logging.getLogger("asyncua.server.uaprocessor").addFilter(_drop_fault_echo)  # added once
         context.add_read_hook(_read_hook)
         log.info("security: endpoints %s; anonymous clients are %s", ", ".join(p.name for p in self.policies),
                  policy.anonymous_role.label)
+
+    def _report_certificate_refusal(self, message: str) -> None:
+        address = _address(_processor.get())
+        self.refusals.warning(address, "certificate", f"{message} (client address {address})")
 
     # sessions ------------------------------------------------------------------------------------
 
@@ -151,6 +263,106 @@ class Security:
             except Exception:
                 log.exception("session-closed hook failed")
 
+    # endpoints -----------------------------------------------------------------------------------
+
+    def endpoints(self) -> list[ua.EndpointDescription]:
+        """The endpoints this server offers (asyncua fills them in when the server starts)."""
+        return list(self.server.iserver.endpoints)
+
+    def channel_refusal(
+        self, uri: str | None, mode: ua.MessageSecurityMode | None, *, discovery: bool = False
+    ) -> int | None:
+        """Bad_SecurityPolicyRejected or Bad_SecurityModeRejected unless an offered endpoint has this
+        policy (and, when given, this mode); None when it does. With ``discovery``, policy None with mode
+        None is always accepted (for GetEndpoints and FindServers only)."""
+        same_policy = [e for e in self.endpoints() if e.SecurityPolicyUri == uri]
+        if not same_policy and discovery and uri == SecurityPolicyNone.URI:
+            return _S.BadSecurityModeRejected if mode not in (None, ua.MessageSecurityMode.None_) else None
+        if not same_policy:
+            return _S.BadSecurityPolicyRejected
+        if mode is not None and all(e.SecurityMode != mode for e in same_policy):
+            return _S.BadSecurityModeRejected
+        return None
+
+    def check_channel(self, processor: UaProcessor, uri: str | None, mode: ua.MessageSecurityMode | None) -> None:
+        """At OpenSecureChannel: raise _ChannelRefused for a policy or mode no offered endpoint has
+        (policy None passes, for discovery: ``check_service`` limits what it may ask)."""
+        code = self.channel_refusal(uri, mode, discovery=True)
+        if code is None:
+            return
+        what = f"security policy {uri}" if code == _S.BadSecurityPolicyRejected else f"security mode {mode}"
+        self.refusals.warning(_address(processor), f"channel:{code}",
+                              f"refused secure channel from {_address(processor)}: {what} is not offered "
+                              f"({ua.StatusCode(code).name})")
+        raise _ChannelRefused(code, f"{what} is not offered by this server")
+
+    def endpoint_of(self, processor: UaProcessor | None) -> ua.EndpointDescription | None:
+        """The offered endpoint whose policy and mode the processor's channel uses."""
+        uri, mode = _channel_policy(processor)
+        for endpoint in self.endpoints():
+            if endpoint.SecurityPolicyUri == uri and endpoint.SecurityMode == mode:
+                return endpoint
+        return None
+
+    def check_service(self, processor: UaProcessor, typeid: ua.NodeId) -> None:
+        """On a channel that is no offered endpoint (policy None kept for discovery), refuse every request
+        but discovery with Bad_SecurityPolicyRejected."""
+        if typeid in _DISCOVERY or self.endpoint_of(processor) is not None:
+            return
+        address = _address(processor)
+        uri, mode = _channel_policy(processor)
+        self.refusals.warning(address, "service",
+                              f"refused request from {address} on a {uri.rsplit('#', 1)[-1]}/{mode.name} channel: "
+                              "no such endpoint is offered, only discovery is served (Bad_SecurityPolicyRejected)")
+        raise ServiceError(_S.BadSecurityPolicyRejected)
+
+    def check_session(self, processor: UaProcessor | None, params: ua.CreateSessionParameters) -> None:
+        """At CreateSession (OPC 10000-4, 5.6.2): the channel's policy and mode must be an offered
+        endpoint's, and the EndpointUrl an opc.tcp URL."""
+        address = _address(processor)
+        uri, mode = _channel_policy(processor)
+        code = self.channel_refusal(uri, mode)
+        if code is not None:
+            self.refusals.warning(address, f"session:{code}",
+                                  f"refused session from {address}: its channel ({uri}, {mode.name}) is not an "
+                                  f"offered endpoint ({ua.StatusCode(code).name})")
+            raise ServiceError(code)
+        url = params.EndpointUrl
+        if url and urlparse(url).scheme.lower() != "opc.tcp":
+            self.refusals.warning(address, "session:url",
+                                  f"refused session from {address}: EndpointUrl {url!r} is not an opc.tcp URL")
+            raise ServiceError(_S.BadTcpEndpointUrlInvalid)
+
+    def check_reassociation(self, processor: UaProcessor, auth_token: ua.NodeId, body: Buffer) -> None:
+        """ActivateSession of an existing session on a new secure channel (OPC 10000-4, 5.6.3.1): only for an
+        activated session, from a channel with the same client certificate, with the same identity."""
+        session = self.server.iserver.lookup_external_session(auth_token)
+        if not isinstance(session, UacellSession):
+            return  # asyncua answers Bad_SessionIdInvalid
+        address = _address(processor)
+        if not session.is_activated():
+            code, why = _S.BadSessionNotActivated, "it was never activated on the channel that created it"
+        elif session.channel_certificate != processor._connection.security_policy.peer_certificate:
+            code, why = _S.BadSecurityChecksFailed, "the new channel's client certificate is not the session's"
+        else:
+            params = struct_from_binary(ua.ActivateSessionParameters, body.copy())
+            token = params.UserIdentityToken
+            name = token.UserName if isinstance(token, ua.UserNameIdentityToken) else None
+            if name != getattr(session.user, "name", None):
+                code, why = _S.BadIdentityChangeNotSupported, "the identity differs from the session's"
+            else:
+                return
+        self.refusals.warning(address, f"reassociation:{code}",
+                              f"refused to move a session to a new channel from {address}: {why} "
+                              f"({ua.StatusCode(code).name})")
+        raise ServiceError(code)
+
+    def refuse_channel(self, processor: UaProcessor, refused: _ChannelRefused) -> None:
+        """Answer a refused OpenSecureChannel with an Error message (OPC 10000-6, 7.1.2.5); the caller
+        then closes the connection."""
+        message = ua.ErrorMessage(ua.StatusCode(refused.code), refused.reason)
+        processor._transport.write(uatcp_to_binary(ua.MessageType.Error, message))
+
     # logins --------------------------------------------------------------------------------------
 
     def refuse_plaintext(self, token: ua.UserNameIdentityToken) -> None:
@@ -162,12 +374,54 @@ class Security:
                     token.UserName, _address(processor))
         raise ServiceError(ua.StatusCodes.BadIdentityTokenRejected)
 
+    def _invalid_token(self, token: ua.UserNameIdentityToken, reason: str, why: str) -> ServiceError:
+        address = _address(_processor.get())
+        self.refusals.warning(address, f"token:{reason}",
+                              f"refused login of user {token.UserName!r} from {address}: {why} "
+                              "(Bad_IdentityTokenInvalid)")
+        return ServiceError(_S.BadIdentityTokenInvalid)
+
+    def decrypt_user_token(self, isession: InternalSession, token: ua.UserNameIdentityToken) -> tuple[str, str]:
+        """asyncua's hook for user-name tokens: (user name, password), or ServiceError.
+
+        The token must name a user token policy of the session's endpoint; an encrypted password must
+        use that policy's algorithm and end with the server nonce last sent to this session."""
+        holder = _login_name.get()
+        if holder is not None:  # for the audit trail, also when the login is refused
+            holder.append(str(token.UserName))
+        self.refuse_plaintext(token)
+        endpoint = self.endpoint_of(_processor.get())
+        policies = [p for p in (endpoint.UserIdentityTokens if endpoint else [])
+                    if p.TokenType == ua.UserTokenType.UserName and p.PolicyId == token.PolicyId]
+        if not policies:
+            raise self._invalid_token(token, "policy", f"no user-name token policy {token.PolicyId!r} on this endpoint")
+        policy_uri = policies[0].SecurityPolicyUri or (endpoint.SecurityPolicyUri if endpoint else "")
+        expected = _TOKEN_ALGORITHM.get(policy_uri or "", "")
+        algorithm = token.EncryptionAlgorithm or ""
+        if algorithm != expected:
+            wanted = expected or "no encryption"
+            raise self._invalid_token(
+                token, "algorithm", f"password encrypted with {algorithm or 'nothing'}, the endpoint asks for {wanted}"
+            )
+        password = token.Password or b""
+        if not algorithm:
+            return token.UserName, password.decode("utf-8") if isinstance(password, bytes) else str(password)
+        try:
+            plain = _DECRYPT[algorithm](self.server.iserver.private_key, password)
+            secret = open_token_secret(plain, isession.nonce)
+            return token.UserName, secret.decode("utf-8")
+        except ValueError as exc:  # includes cryptography's decryption errors and UnicodeDecodeError
+            raise self._invalid_token(token, "secret", str(exc) or "the password cannot be decrypted") from None
+
     def _address_lock(self, address: str) -> asyncio.Lock:
         return self._address_locks.setdefault(address, asyncio.Lock())
 
     async def activate(self, processor: UaProcessor, call: Callable[[], Any]) -> Any:
         """Run one ActivateSession: wait out the address's penalty, then record success or failure."""
         address = _address(processor)
+        session = processor.session
+        if session is not None and (session.state == SessionState.Closed or session.nonce is None):
+            raise ServiceError(_S.BadSessionIdInvalid)  # its CreateSession was refused
         # One attempt at a time per address, so parallel connections cannot skip the delay.
         async with self._address_lock(address):
             wait = self.throttle.wait_time(address)
@@ -244,18 +498,33 @@ class UacellSession(InternalSession):
     def __init__(self, security: Security, *args: Any, **kwargs: Any) -> None:
         self._security = security
         self._client_description: ua.ApplicationDescription | None = None
+        self.channel_certificate: bytes | None = None  # the client certificate of the creating channel
         self.client_address = ""
+        self._audited_open = False
         super().__init__(*args, **kwargs)
+        if self.external:
+            # asyncua counts AuthenticationTokens up from 1000; OPC 10000-4 (7.31) asks for a secret.
+            self.iserver.unregister_external_session(self)
+            self.auth_token = ua.NodeId(ua.ByteString(os.urandom(32)), ua.Int16(0), ua.NodeIdType.ByteString)
+            self.iserver.register_external_session(self)
 
     async def create_session(self, params: ua.CreateSessionParameters, sockname=None) -> ua.CreateSessionResult:
         self._client_description = params.ClientDescription  # Caller.client: LockingClient shows it
         processor = _processor.get()
         self.client_address = _address(processor)
+        if processor is not None:
+            self.channel_certificate = processor._connection.security_policy.peer_certificate
         if _channel_mode(processor) == ua.MessageSecurityMode.None_:
             # OPC 10000-4 CreateSession: on a SecurityPolicy None channel the client certificate plays
             # no part (nothing is signed with it), so it is not checked against the trust list.
             params = dataclasses.replace(params, ClientCertificate=None)
-        result = await super().create_session(params, sockname=sockname)
+        try:
+            self._security.check_session(processor, params)
+            result = await super().create_session(params, sockname=sockname)
+        except BaseException:
+            await self.close_session()  # a refused session must not be activated later
+            raise
+        self._audited_open = True
         self._audit("session_open")
         diagnostics = self._security.app.diagnostics
         if diagnostics is not None:
@@ -267,6 +536,16 @@ class UacellSession(InternalSession):
 
         self._security.app.audit.record(event, **session_fields(self), address=self.client_address)
 
+    def activate_session(
+        self, params: ua.ActivateSessionParameters, peer_certificate: bytes | None
+    ) -> ua.ActivateSessionResult:
+        issued = self.nonce
+        result = super().activate_session(params, peer_certificate)
+        if self.nonce == issued:  # a nonce is never accepted twice: the next activation needs a fresh one
+            self.nonce = create_nonce(32)
+            result.ServerNonce = self.nonce
+        return result
+
     async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
         return await self._security.app.writes.write(caller_of(self), params, super().write)
 
@@ -274,21 +553,52 @@ class UacellSession(InternalSession):
         already = self.state == SessionState.Closed
         await super().close_session(delete_subs)
         if not already:
-            self._audit("session_close")
+            if self._audited_open:
+                self._audit("session_close")
             if self._security.app.diagnostics is not None:
                 self._security.app.diagnostics.session_closed(self)
             self._security.session_closed(self)
 
 
+def _peek_policy_uri(header: ua.Header, body: Buffer) -> str | None:
+    try:
+        return struct_from_binary(ua.AsymmetricAlgorithmHeader, body.copy(header.body_size)).SecurityPolicyURI
+    except Exception:  # malformed: asyncua's own parsing refuses it
+        return None
+
+
 def _install_processor_hook() -> None:
-    """Wrap UaProcessor._process_message once: publish the processor and the request's ReturnDiagnostics,
-    throttle ActivateSession."""
+    """Wrap UaProcessor once: refuse secure channels no offered endpoint allows; publish the processor and
+    the request's ReturnDiagnostics; throttle ActivateSession."""
     if getattr(UaProcessor, "_uacell_installed", False):
         return
     original = UaProcessor._process_message
+    original_process: Callable[..., Awaitable[Any]] = UaProcessor.process
+    original_open: Callable[..., Any] = UaProcessor.open_secure_channel
+
+    @functools.wraps(original_process)
+    async def process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
+        security = getattr(self.iserver, "_uacell_security", None)
+        if security is None or header.MessageType != ua.MessageType.SecureOpen or self._connection.is_open():
+            return await original_process(self, header, body)
+        try:
+            # asyncua would fall back to its initial None policy when no offered policy matches.
+            security.check_channel(self, _peek_policy_uri(header, body), None)
+            return await original_process(self, header, body)
+        except _ChannelRefused as refused:
+            security.refuse_channel(self, refused)
+            return False  # the connection is closed
+
+    @functools.wraps(original_open)
+    def open_secure_channel(self: UaProcessor, algohdr: Any, seqhdr: Any, body: Buffer) -> Any:
+        security = getattr(self.iserver, "_uacell_security", None)
+        if security is not None and not self._connection.is_open():
+            request = struct_from_binary(ua.OpenSecureChannelRequest, body.copy())
+            security.check_channel(self, algohdr.SecurityPolicyURI, request.Parameters.SecurityMode)
+        return original_open(self, algohdr, seqhdr, body)
 
     @functools.wraps(original)
-    async def _process_message(self: UaProcessor, typeid, requesthdr, seqhdr, body):
+    async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any, seqhdr: Any, body: Buffer) -> Any:
         token = _processor.set(self)
         diagnostics = context.set_return_diagnostics(int(getattr(requesthdr, "ReturnDiagnostics", 0) or 0))
         try:
@@ -296,7 +606,11 @@ def _install_processor_hook() -> None:
             server_diagnostics = getattr(self.iserver, "_uacell_diagnostics", None)
 
             async def serve() -> Any:
+                if security is not None:
+                    security.check_service(self, typeid)
                 if security is not None and typeid == _ACTIVATE:
+                    if self.session is None:  # a session created on another channel
+                        security.check_reassociation(self, requesthdr.AuthenticationToken, body)
                     return await security.activate(self, lambda: original(self, typeid, requesthdr, seqhdr, body))
                 return await original(self, typeid, requesthdr, seqhdr, body)
 
@@ -308,6 +622,8 @@ def _install_processor_hook() -> None:
             _processor.reset(token)
 
     UaProcessor._process_message = _process_message  # type: ignore[method-assign]
+    UaProcessor.process = process  # type: ignore[method-assign]
+    UaProcessor.open_secure_channel = open_secure_channel  # type: ignore[method-assign]
     UaProcessor._uacell_installed = True  # type: ignore[attr-defined]
 
 

@@ -36,12 +36,6 @@ PRODUCT_URI = "urn:uacell"
 Binder = Callable[["UacellServer"], Awaitable[Callable[[], Awaitable[None]] | None]]
 
 
-def _expected_fault(record: logging.LogRecord) -> bool:
-    # asyncua logs every refused request (a wrong password, an untrusted certificate) as an ERROR;
-    # uacell reports those itself at INFO/WARNING and in the audit trail.
-    return not str(record.msg).startswith("sending service fault response")
-
-
 def _quiet_asyncua() -> None:
     # asyncua logs every NodeSet quirk and every session at INFO/WARNING; keep uacell's log readable.
     # A level set in [logging] levels wins.
@@ -49,9 +43,6 @@ def _quiet_asyncua() -> None:
         logger = logging.getLogger(name)
         if name not in configured_levels:
             logger.setLevel(logging.ERROR)
-    processor = logging.getLogger("asyncua.server.uaprocessor")
-    if _expected_fault not in processor.filters:
-        processor.addFilter(_expected_fault)
 
 
 class UacellServer:

@@ -5,7 +5,8 @@ by their object NodeIds (``BuiltPart.node``); a Controller's SystemOperation obj
 element below it. The Robotics binder passes ``element=<TaskControl or Controller NodeId>`` (the
 SystemOperation NodeId works too) to ``dispatcher.bind``; the guard refuses TaskControl and
 SystemOperation methods there with Bad_ResourceUnavailable while another session holds a lock on
-the element or its Controller.
+the element or its Controller. The write guard refuses, with DI's Bad_Locked, every write to a node
+below a locked element (found by walking the hierarchy up from the written node) by another session.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import TYPE_CHECKING
 
 from asyncua import ua
 
+from uacell.errors import CallError
 from uacell.locking import LockManager, LockOwner
 from uacell.roles import Family
 from uacell.ua.context import Caller, caller_of
@@ -34,6 +36,13 @@ DI = "http://opcfoundation.org/UA/DI/"
 _MAX_INACTIVE_LOCK_TIME = 6387  # DI: ServerCapabilities/MaxInactiveLockTime
 TICK = 0.5  # seconds between expiry checks and RemainingLockTime updates
 _GUARDED = (Family.TASK_CONTROL, Family.SYSTEM_OPERATION)
+# Child references followed upwards from a written node to the lockable element above it.
+_CHILD_REFS = {
+    ua.NodeId(i)
+    for i in (ua.ObjectIds.HasComponent, ua.ObjectIds.HasProperty, ua.ObjectIds.HasOrderedComponent,
+              ua.ObjectIds.Organizes)
+}
+_MAX_DEPTH = 32
 
 
 class LockBinding:
@@ -104,6 +113,38 @@ class LockBinding:
         if bound.family in _GUARDED and bound.element is not None and bound.element in self.manager:
             self.manager.check(bound.element, caller.session_id)
 
+    def element_of(self, node: ua.NodeId) -> Hashable | None:
+        """The nearest lockable-tree element at or above ``node`` (through child references), if any."""
+        aspace = self.app.server.iserver.aspace
+        level, seen = [node], {node}
+        for _ in range(_MAX_DEPTH):
+            if not level:
+                return None
+            for current in level:
+                if current in self.manager:
+                    return current
+            parents = []
+            for current in level:
+                data = aspace.get(current)
+                for ref in data.references if data is not None else ():
+                    if not ref.IsForward and ref.ReferenceTypeId in _CHILD_REFS and ref.NodeId not in seen:
+                        seen.add(ref.NodeId)
+                        parents.append(ref.NodeId)
+            level = parents
+        return None
+
+    def write_guard(self, caller: Caller, item: ua.WriteValue) -> ua.StatusCode | None:
+        """DI LockingServices: writes below an element another session has locked answer Bad_Locked."""
+        element = self.element_of(item.NodeId)
+        if element is None:
+            return None
+        try:
+            self.manager.check(element, caller.session_id, status="BadLocked")
+        except CallError as refused:
+            log.info("write of %s refused for %s: %s", item.NodeId.to_string(), caller.display_user, refused.message)
+            return ua.StatusCode(getattr(ua.StatusCodes, refused.status))
+        return None
+
     def session_closed(self, session: InternalSession) -> None:
         self.manager.session_closed(caller_of(session).session_id)
 
@@ -166,6 +207,7 @@ async def bind_locks(app: UacellServer) -> Callable[[], Awaitable[None]]:
     binding.build_tree()
     binding.bind_methods()
     app.dispatcher.guards.append(binding.guard)
+    app.writes.guards.append(binding.write_guard)
     app.security.on_session_closed.append(binding.session_closed)
     await binding.publish_all()
     binding.start()

@@ -2,7 +2,8 @@
 
 By default writing needs the ``write`` action of ``uacell.roles`` (engineer). A binding can route a
 node: its writes then need the role it names and go to its hook, which applies them through the
-model and answers the status code (asyncua itself cannot refuse a write per node).
+model and answers the status code (asyncua itself cannot refuse a write per node). Guards (the DI
+lock guard of ``uacell.ua.locks``) may refuse any item a role allows, with the status code they name.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from uacell.ua.context import Caller
 log = logging.getLogger(__name__)
 
 WriteHook = Callable[[ua.DataValue, Caller], Awaitable[ua.StatusCode]]
+# A guard answers a status code to refuse the item, or None to let it through.
+WriteGuard = Callable[[Caller, ua.WriteValue], ua.StatusCode | None]
 # Told of every answered write item (audit trail): caller, the item, its result.
 WriteObserver = Callable[[Caller, ua.WriteValue, ua.StatusCode], None]
 _A = ua.AttributeIds
@@ -26,6 +29,7 @@ _A = ua.AttributeIds
 class WriteRouter:
     def __init__(self) -> None:
         self._routes: dict[ua.NodeId, tuple[Role, WriteHook]] = {}
+        self.guards: list[WriteGuard] = []
         self.observers: list[WriteObserver] = []
 
     def route(self, node: ua.NodeId, hook: WriteHook, role: Role = ACTION_ROLES["write"]) -> None:
@@ -51,6 +55,10 @@ class WriteRouter:
             if role < self.required_role(item.NodeId):
                 log.info("write of %s refused for %s (%s)", item.NodeId.to_string(), caller.display_user, role.label)
                 results[i] = ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+                continue
+            refusal = next((r for r in (guard(caller, item) for guard in self.guards) if r is not None), None)
+            if refusal is not None:
+                results[i] = refusal
                 continue
             route = self._routes.get(item.NodeId)
             if route is None or item.AttributeId != _A.Value or item.IndexRange:
