@@ -63,8 +63,12 @@ main(async () => {
   if (userName) {
     // an admin reads SessionSecurityDiagnosticsArray: node-opcua decodes the standard encoding
     const admin = await client.createSession({ type: UserTokenType.UserName, userName, password });
-    const dv = await admin.read({ nodeId: "i=3708", attributeId: AttributeIds.Value });
-    out.securityAdmin = (dv.value.value || []).map((e) => ({
+    // refreshed at most a second after a session change: wait until this admin session is in it
+    const entries = await until(
+      async () => (await admin.read({ nodeId: "i=3708", attributeId: AttributeIds.Value })).value.value || [],
+      (arr) => arr.some((e) => e.clientUserIdOfSession === userName),
+    );
+    out.securityAdmin = entries.map((e) => ({
       clientUserIdOfSession: e.clientUserIdOfSession, authenticationMechanism: e.authenticationMechanism,
       encoding: e.encoding, transportProtocol: e.transportProtocol, securityPolicyUri: e.securityPolicyUri,
     }));

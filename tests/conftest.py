@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -14,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from helpers import free_port
 
 from uacell.config import Config
 from uacell.server import UacellServer
@@ -21,12 +21,6 @@ from uacell.server import UacellServer
 ROOT = Path(__file__).resolve().parents[1]
 INTEROP = ROOT / "interop"
 START_TIMEOUT = 120.0
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @dataclass
@@ -44,7 +38,9 @@ class ServeProcess:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             rc = self.proc.wait()
-        self.output.append(self.proc.stdout.read() if self.proc.stdout else "")
+        if self.proc.stdout is not None and not self.proc.stdout.closed:
+            self.output.append(self.proc.stdout.read())
+            self.proc.stdout.close()
         return rc
 
 
@@ -80,7 +76,10 @@ def start_serve(data_dir: Path, *extra: str, port: int | None = None, env: dict 
         if line.startswith("uacell listening on "):
             return ServeProcess(proc, line.split(" on ", 1)[1].strip(), data_dir, lines)
     proc.kill()
-    raise AssertionError("uacell serve did not start:\n" + "".join(lines) + (proc.stdout.read() or ""))
+    proc.wait()
+    rest = proc.stdout.read() or ""
+    proc.stdout.close()
+    raise AssertionError("uacell serve did not start:\n" + "".join(lines) + rest)
 
 
 @pytest.fixture

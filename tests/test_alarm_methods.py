@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import robot_cell, robotics_tables
 
 from uacell.errors import CallError
 from uacell.robotics.model import DirectoryLibrary, RobotCell, Status
@@ -28,7 +29,7 @@ TIMEOUT = 30.0
 
 
 async def test_model_enable_disable_and_comment(tmp_path: Path) -> None:
-    cell = RobotCell(SimulatedRobot(time_scale=20.0), DirectoryLibrary(tmp_path))
+    cell = RobotCell(SimulatedRobot(time_scale=20.0), DirectoryLibrary(tmp_path), tables=robotics_tables())
     try:
         so = cell.system
         seen: list[tuple[bool, str]] = []
@@ -122,7 +123,7 @@ async def test_add_comment_enable_disable_through_asyncua(rig):
     events = Events()
     sub = await client.create_subscription(20, events)
     await sub.subscribe_events(client.get_node(ua.ObjectIds.Server), client.get_node(ua.ObjectIds.AlarmConditionType))
-    app.robot_cell.equipment.raise_alarm("EmergencyStop")
+    robot_cell(app).equipment.raise_alarm("EmergencyStop")
     await app.settle()
     read = lambda p: client.get_node(nid(app, f"{COND}.{p}")).read_value()  # noqa: E731
     event_id = await read("EventId")
@@ -195,7 +196,7 @@ async def test_node_opcua_comments_disables_and_enables_an_alarm(tmp_path):
     config.server.anonymous_role = "engineer"  # Enable/Disable are an engineer's
     app = await start_app(config)
     try:
-        app.robot_cell.equipment.raise_alarm("EmergencyStop")
+        robot_cell(app).equipment.raise_alarm("EmergencyStop")
         await app.settle()
         out = await asyncio.to_thread(run_node, "alarms.js", app.endpoint)
     finally:

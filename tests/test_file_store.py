@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -52,6 +54,22 @@ def root(tmp_path: Path) -> Path:
     (base / "sub" / "b.robot").write_bytes(b"0123456789")
     (base / "sub" / "deep" / "c.robot").write_bytes(b"c")
     return base
+
+
+@pytest.fixture(autouse=True)
+def close_every_store(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """Tests leave handles open on purpose; their files are closed when the test ends."""
+    made: list[FileStore] = []
+    original = FileStore.__init__
+
+    def init(self: FileStore, *args: Any, **kwargs: Any) -> None:
+        original(self, *args, **kwargs)
+        made.append(self)
+
+    monkeypatch.setattr(FileStore, "__init__", init)
+    yield
+    for store in made:
+        store.close_all()
 
 
 @pytest.fixture

@@ -3,26 +3,18 @@
 from __future__ import annotations
 
 import pytest
+from helpers import FakeClock
 
 from uacell.errors import CallError
 from uacell.locking import E_ALREADY_LOCKED, E_INVALID, E_NOT_LOCKED, OK, LockManager, LockOwner
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
-
 
 A = LockOwner("session-a", "urn:client:a", "alice")
 B = LockOwner("session-b", "urn:client:b", "bob")
 
 
 @pytest.fixture
-def clock() -> Clock:
-    return Clock()
+def clock() -> FakeClock:
+    return FakeClock(100.0)
 
 
 @pytest.fixture
@@ -31,7 +23,7 @@ def changes() -> list[object]:
 
 
 @pytest.fixture
-def locks(clock: Clock, changes: list[object]) -> LockManager:
+def locks(clock: FakeClock, changes: list[object]) -> LockManager:
     m = LockManager(10.0, clock=clock, on_change=changes.append)
     m.add("Controller1")
     m.add("TaskControl1", "Controller1")
@@ -61,7 +53,7 @@ def test_controller_lock_covers_task_control_and_system_operation(locks: LockMan
     assert not locks.blocked_for("Controller2", "session-b")
 
 
-def test_status_variables(locks: LockManager, clock: Clock) -> None:
+def test_status_variables(locks: LockManager, clock: FakeClock) -> None:
     assert locks.status("TaskControl1").locked is False
     locks.init_lock("TaskControl1", A)
     clock.now += 4
@@ -88,7 +80,7 @@ def test_non_lockable_element(locks: LockManager) -> None:
         locks.init_lock("Nowhere", A)
 
 
-def test_exit_and_renew_by_owner_only(locks: LockManager, clock: Clock) -> None:
+def test_exit_and_renew_by_owner_only(locks: LockManager, clock: FakeClock) -> None:
     assert locks.exit_lock("TaskControl1", "session-a") == E_NOT_LOCKED
     assert locks.renew_lock("TaskControl1", "session-a") == E_NOT_LOCKED
     locks.init_lock("TaskControl1", A)
@@ -119,7 +111,7 @@ def test_session_close_frees_its_locks_only(locks: LockManager) -> None:
     assert locks.session_closed("session-a") == []
 
 
-def test_expiry_after_max_inactive_time(locks: LockManager, clock: Clock, changes: list[object]) -> None:
+def test_expiry_after_max_inactive_time(locks: LockManager, clock: FakeClock, changes: list[object]) -> None:
     locks.init_lock("TaskControl1", A)
     clock.now += 9.9
     assert locks.blocked_for("TaskControl1", "session-b")
@@ -128,7 +120,7 @@ def test_expiry_after_max_inactive_time(locks: LockManager, clock: Clock, change
     assert changes == ["TaskControl1", "TaskControl1"]  # locked, then expired
 
 
-def test_periodic_expire_reports_freed_elements(locks: LockManager, clock: Clock) -> None:
+def test_periodic_expire_reports_freed_elements(locks: LockManager, clock: FakeClock) -> None:
     locks.init_lock("TaskControl1", A)
     locks.init_lock("Controller2", B)
     clock.now += 5
@@ -139,7 +131,7 @@ def test_periodic_expire_reports_freed_elements(locks: LockManager, clock: Clock
     assert locks.status("Controller2").remaining_ms == pytest.approx(5000.0)
 
 
-def test_owner_activity_renews_the_lock(locks: LockManager, clock: Clock) -> None:
+def test_owner_activity_renews_the_lock(locks: LockManager, clock: FakeClock) -> None:
     locks.init_lock("Controller1", A)
     clock.now += 8
     locks.check("TaskControl1", "session-a")  # the owner calls a method below its lock

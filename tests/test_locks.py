@@ -16,6 +16,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import lock_manager, server_value, wait_until
 from uaraw import anonymous_token, none_session
 
 from uacell.server import UacellServer
@@ -44,7 +45,7 @@ async def app(tmp_path_factory):
 @pytest.fixture(autouse=True)
 def no_locks_left(app):
     yield
-    manager = app.locks.manager
+    manager = lock_manager(app)
     manager.max_inactive = 60.0
     for element in manager.locked_elements():
         manager.break_lock(element, by="test cleanup")
@@ -206,12 +207,14 @@ async def test_lock_ends_when_its_session_closes(app):
 
 
 async def test_lock_expires_after_max_inactive_lock_time(app):
-    app.locks.manager.max_inactive = 1.0
+    lock_manager(app).max_inactive = 1.0
     async with Session(app, "urn:test:a") as a, Session(app, "urn:test:b") as b:
         assert await a.init_lock(TASK) == 0
         first = await b.var(TASK, "RemainingLockTime")
-        await asyncio.sleep(0.6)
-        assert await b.var(TASK, "RemainingLockTime") < first  # kept current while locked
+        remaining = ua.NodeId(f"{TASK}.Lock.RemainingLockTime", b.ns)
+        # kept current while locked (the server's expiry tick updates it)
+        await wait_until(lambda: server_value(app, remaining) < first, timeout=3.0)
+        assert await b.var(TASK, "RemainingLockTime") < first
         assert await wait_unlocked(b, TASK, 3.0) < 3.0
         assert await b.load() != RESOURCE
         assert await a.lock(TASK, "RenewLock") == -1
@@ -276,4 +279,4 @@ async def test_max_inactive_lock_time_published(app):
     async with Session(app, "urn:test:a") as a:
         di = await a.client.get_namespace_index("http://opcfoundation.org/UA/DI/")
         value = await a.client.get_node(ua.NodeId(6387, di)).read_value()
-        assert value == app.locks.manager.max_inactive_ms == 60000.0
+        assert value == lock_manager(app).max_inactive_ms == 60000.0

@@ -417,3 +417,25 @@ async def test_the_faster_importer_builds_exactly_the_address_space_asyncua_buil
     plain = await references(False)
     assert len(fast) > 20000
     assert fast == plain
+
+
+async def test_serve_with_only_a_models_dir_and_no_cache_serves_both_companions(tmp_path, good_copy):
+    """The named defect: with ``--models-dir`` and no default cache the Robotics binder once failed
+    with "not found in <cache>", because the models read their state tables from the cache."""
+    from conftest import start_serve
+
+    empty_cache = tmp_path / "no-cache"
+    empty_cache.mkdir()
+    env = {"XDG_CACHE_HOME": str(empty_cache), source.ENV_VAR: ""}
+    sp = await asyncio.to_thread(start_serve, tmp_path / "data", "--models-dir", str(good_copy), env=env)
+    try:
+        async with Client(sp.endpoint, timeout=30) as client:
+            ns = await client.get_namespace_index("urn:uacell:cell")
+            tc = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperation"
+            state = client.get_node(ua.NodeId(f"{tc}.TaskControlStateMachine.CurrentState", ns))
+            assert (await state.read_value()).Text == "Idle"
+            base = client.get_node(ua.NodeId("Filler1.BaseStateMachine.CurrentState", ns))
+            assert (await base.read_value()).Text == "Cleared"
+    finally:
+        assert sp.stop() == 0, "".join(sp.output)
+    assert not any(empty_cache.iterdir()), "the server must not have filled the default cache"

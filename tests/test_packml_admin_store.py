@@ -13,16 +13,9 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import FakeClock, packml_tables
 
 from uacell.packml import AdminStore, EquipmentBase, PackMLUnit
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 50.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def test_round_trip_and_no_temporary_files_left(tmp_path: Path) -> None:
@@ -43,7 +36,7 @@ def test_absent_corrupt_or_foreign_file_gives_defaults(tmp_path: Path, caplog: p
         assert store.load() is None
     assert len([r for r in caplog.records if r.levelno == logging.WARNING]) == 3
     store.path.write_bytes(b"\xff\xfe garbage")
-    unit = PackMLUnit(EquipmentBase(), store=store)  # never a crash
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store)  # never a crash
     assert unit.admin.prod_processed_count[0].count == 0
 
 
@@ -89,17 +82,17 @@ def test_killed_writer_leaves_a_complete_file(tmp_path: Path) -> None:
 
 
 def test_counters_survive_a_restart(tmp_path: Path) -> None:
-    clock = Clock()
+    clock = FakeClock(50.0)
     store = AdminStore(tmp_path / "Filler1.json")
-    unit = PackMLUnit(EquipmentBase(), store=store, clock=clock)
-    clock.t += 7.0
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
+    clock.now += 7.0
     unit.reset_machine()
     unit.state_complete()
     unit.report_production(processed=30, defective=3, consumed=31)
     unit.fault(9, "guard door open")
     unit.close()
 
-    again = PackMLUnit(EquipmentBase(), store=store, clock=clock)
+    again = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
     a = again.admin
     assert (a.prod_processed_count[0].count, a.prod_processed_count[0].acc_count) == (30, 30)
     assert a.prod_defective_count[0].count == 3 and a.prod_consumed_count[0].count == 31
@@ -109,19 +102,19 @@ def test_counters_survive_a_restart(tmp_path: Path) -> None:
     assert again.states == ("Cleared", "Stopped", None)  # decision 23, whatever state was stored
     again.reset_counters()
     again.close()
-    third = PackMLUnit(EquipmentBase(), store=store, clock=clock)
+    third = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
     assert (third.admin.prod_processed_count[0].count, third.admin.prod_processed_count[0].acc_count) == (0, 30)
 
 
 def test_saves_on_state_change_and_before_publishing(tmp_path: Path) -> None:
-    clock = Clock()
+    clock = FakeClock(50.0)
     store = AdminStore(tmp_path / "u.json")
-    unit = PackMLUnit(EquipmentBase(), store=store, clock=clock, save_interval=10.0)
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock, save_interval=10.0)
     unit.reset_machine()  # a state change saves at once
     assert store.load() is not None
     unit.report_production(processed=5)
     assert store.load()["prod_processed_count"][0]["count"] == 5  # stored before clients could see it
-    clock.t += 10.0
+    clock.now += 10.0
     unit.tick()
     assert store.load()["acc_time_since_reset"] == 10.0
 
@@ -129,9 +122,9 @@ def test_saves_on_state_change_and_before_publishing(tmp_path: Path) -> None:
 def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Decision 28: a crash right after a client read a value never loses it, yet time alone does not make
     the unit write ten times a second."""
-    clock = Clock()
+    clock = FakeClock(50.0)
     store = AdminStore(tmp_path / "u.json")
-    unit = PackMLUnit(EquipmentBase(), store=store, clock=clock)
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
     saves: list[int] = []
     real_save = store.save
     monkeypatch.setattr(store, "save", lambda data: (saves.append(1), real_save(data)))
@@ -158,7 +151,7 @@ def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: p
     unit.state_complete()
     saves.clear()
     for i in range(100):  # 10 s of ticks, producing now and then
-        clock.t += 0.1
+        clock.now += 0.1
         if i % 7 == 0:
             unit.report_production(processed=1, consumed=1)
         unit.tick()
@@ -170,7 +163,7 @@ def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: p
 def test_unwritable_store_is_logged_not_raised(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("")
-    unit = PackMLUnit(EquipmentBase(), store=AdminStore(blocker / "sub" / "u.json"))
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=AdminStore(blocker / "sub" / "u.json"))
     with caplog.at_level(logging.ERROR):
         unit.reset_machine()
         unit.state_complete()

@@ -6,6 +6,7 @@ import math
 from typing import Any
 
 import pytest
+from helpers import packml_tables
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -35,7 +36,7 @@ UNIT_METHODS = [(UNIT, m) for m in
                 ("SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "RemoteCommand", "SetInterlock")]
 DONE = "done"  # the running acting state completes
 
-# packml-v101.md §5.1, typed here on purpose (the model derives it from the NodeSet tables).
+# OPC 30050 v1.01 (ISA-TR88) commands per state, typed here on purpose (the model derives it from the NodeSet tables).
 ALLOWED_PRODUCE: dict[str, set[tuple[Any, str]]] = {
     "Stopped": {MRESET, ABORT},
     "Resetting": {STOP, ABORT},
@@ -112,7 +113,7 @@ def snapshot(unit: PackMLUnit) -> tuple[Any, ...]:
 
 
 def new_unit(**kw: Any) -> PackMLUnit:
-    return PackMLUnit(EquipmentBase(), **kw)
+    return PackMLUnit(EquipmentBase(), tables=packml_tables(), **kw)
 
 
 def test_tables_have_all_26_transitions_and_entry_states() -> None:
@@ -318,7 +319,7 @@ def test_equipment_may_refuse_start_parameters() -> None:
                 if p.id != 1:
                     raise CallError("BadInvalidArgument", f"Parameter[{i}].ID {p.id} is unknown", argument=0)
 
-    unit = PackMLUnit(Picky())
+    unit = PackMLUnit(Picky(), tables=packml_tables())
     walk(unit, _IDLE)
     before = snapshot(unit)
     with pytest.raises(CallError, match="unknown"):
@@ -333,7 +334,7 @@ def test_start_parameters_kept_until_next_start() -> None:
         def on_starting(self, parameters: Any) -> None:
             received.append(tuple(parameters))
 
-    unit = PackMLUnit(Eq())
+    unit = PackMLUnit(Eq(), tables=packml_tables())
     walk(unit, _IDLE)
     first = [D(1, "Speed", EUInformation(display_name="m/s"), 2.5)]
     unit.start(first)
@@ -439,7 +440,7 @@ def test_equipment_fault_category_and_failing_hook() -> None:
         def on_starting(self, parameters: Any) -> None:
             raise RuntimeError("PLC unreachable")
 
-    unit = PackMLUnit(Broken())
+    unit = PackMLUnit(Broken(), tables=packml_tables())
     walk(unit, _IDLE)
     unit.start([])  # the hook fails: the unit aborts with an alarm of category 0 naming the error
     assert unit.states == ("Aborting", None, None)
@@ -556,7 +557,7 @@ def test_docs_transition_numbers_match_the_tables() -> None:
     assert documented == actual
 
 
-# packml-v101.md §5: the 26 transitions of OPC 30050 v1.01 (from -> to), typed here to check the NodeSet.
+# The 26 transitions of OPC 30050 v1.01 (from -> to), typed here to check the NodeSet.
 SPEC_TRANSITIONS = {
     BASE: {"ClearedToAborting": ("Cleared", "Aborting"), "AbortingToAborted": ("Aborting", "Aborted"),
            "AbortedToCleared": ("Aborted", "Cleared")},

@@ -7,10 +7,12 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+import uuid
 from pathlib import Path
 
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import fire_marker, wait_until
 
 from uacell.models import fsm_table
 from uacell.server import UacellServer
@@ -114,9 +116,12 @@ class Unit:
 
 
 class Events:
-    def __init__(self, unit: Unit) -> None:
+    """TransitionEvents received through the Server object, as (machine, transition, from, to)."""
+
+    def __init__(self, unit: Unit, app: UacellServer) -> None:
         self.by_node = {ua.NodeId(p, unit.ns): m for m, p in MACHINES.items()}
         self.got: list[tuple[str, str, str, str]] = []
+        self.app = app
 
     def event_notification(self, event) -> None:
         self.got.append(
@@ -133,7 +138,11 @@ class Events:
         while len(self.got) < len(expected):
             assert time.monotonic() < deadline, f"events {self.got}, expected {expected}"
             await asyncio.sleep(0.02)
-        await asyncio.sleep(0.05)  # nothing more may follow
+        # Nothing more may follow: whatever the server produced before the marker has arrived with it.
+        marker = f"marker {uuid.uuid4().hex}"
+        await fire_marker(self.app, ua.NodeId(ua.ObjectIds.Server), marker)
+        await wait_until(lambda: any(g[1] == marker for g in self.got), timeout=TIMEOUT)
+        self.got[:] = [g for g in self.got if g[1] != marker]
         assert self.got == list(expected)
         self.got.clear()
 
@@ -185,7 +194,7 @@ UNIT_METHODS = ["SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "Re
 
 async def check_executable(u: Unit, state: str) -> None:
     """Decision 4, read over the client: each method's Executable attribute in ``state`` (mode Produce)
-    against the spec's table (packml-v101.md §5.1, as typed in test_packml_model)."""
+    against the OPC 30050 v1.01 command table (as typed in test_packml_model)."""
     from test_packml_model import ALLOWED_PRODUCE
 
     machine_names = {"Base": "BaseStateMachine", "Machine": "MachineState", "Execute": "ExecuteState"}
@@ -238,7 +247,7 @@ def i32(x: int) -> ua.Variant:
 
 async def test_full_walk_with_states_events_speed_and_production(app, client):
     u = await make_unit(client)
-    ev = Events(u)
+    ev = Events(u, app)
     sub = await client.create_subscription(20, ev)
     await sub.subscribe_events(client.get_node(ua.ObjectIds.Server), client.get_node(ua.ObjectIds.TransitionEventType))
     changes = Changes()
@@ -247,7 +256,8 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
         node = u.node(f"{F}.Status.{name}")
         changes.names[node] = name
         await status_sub.subscribe_data_change(node, queuesize=100, sampling_interval=0)
-    await asyncio.sleep(0.2)
+    # the initial values have arrived: later notifications are changes
+    await wait_until(lambda: set(changes.got) == {"StateRequested", "StateChangeInProcess"})
 
     await u.wait(("Cleared", "Stopped", None))  # decision 23; Execute inactive while Stopped
     await check_executable(u, "Stopped")

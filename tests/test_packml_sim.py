@@ -5,29 +5,22 @@ from __future__ import annotations
 import asyncio
 
 import pytest
+from helpers import FakeClock, packml_tables
 
 from uacell.packml import PackMLDescriptorDataType, PackMLUnit, SimulatedUnit
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 1000.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
-def sim_unit(**sim_kw: object) -> tuple[PackMLUnit, SimulatedUnit, Clock]:
-    clock = Clock()
+def sim_unit(**sim_kw: object) -> tuple[PackMLUnit, SimulatedUnit, FakeClock]:
+    clock = FakeClock(1000.0)
     sim = SimulatedUnit(**{"acting_time": 0.5, **sim_kw})  # type: ignore[arg-type]
-    unit = PackMLUnit(sim, clock=clock, mach_speed=120.0)
+    unit = PackMLUnit(sim, tables=packml_tables(), clock=clock, mach_speed=120.0)
     return unit, sim, clock
 
 
-def advance(unit: PackMLUnit, clock: Clock, seconds: float, step: float = 0.1) -> None:
-    end = clock.t + seconds
-    while clock.t < end - 1e-9:
-        clock.t = min(end, clock.t + step)
+def advance(unit: PackMLUnit, clock: FakeClock, seconds: float, step: float = 0.1) -> None:
+    end = clock.now + seconds
+    while clock.now < end - 1e-9:
+        clock.now = min(end, clock.now + step)
         unit.tick()
 
 
@@ -134,7 +127,7 @@ def test_admin_times_follow_states() -> None:
 
 @pytest.mark.asyncio
 async def test_real_time_run_loop() -> None:
-    unit = PackMLUnit(SimulatedUnit(acting_time=0.01))
+    unit = PackMLUnit(SimulatedUnit(acting_time=0.01), tables=packml_tables())
     task = asyncio.create_task(unit.run(period=0.002))
     try:
         unit.reset_machine()

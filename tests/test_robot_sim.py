@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 
 import pytest
+from helpers import VirtualTime, wait_until
 
 from uacell.robotics.equipment import (
     AlarmStop,
@@ -62,13 +63,6 @@ class Recorder:
     def __call__(self, pointer: int, line: int) -> None:
         self.pointers.append(pointer)
         self.lines.append(line)
-
-
-async def until(predicate, timeout: float = 2.0) -> None:  # type: ignore[no-untyped-def]
-    deadline = asyncio.get_running_loop().time() + timeout
-    while not predicate():
-        assert asyncio.get_running_loop().time() < deadline, "condition not reached"
-        await asyncio.sleep(0.001)
 
 
 def test_implements_the_protocol_with_a_realistic_arm() -> None:
@@ -129,7 +123,7 @@ async def test_step_mode_executes_one_instruction_per_run() -> None:
 async def test_continuous_mode_restarts_until_stopped() -> None:
     robot = await powered_robot("program P\nmove 10 0 0 0 0 0\nmove 0 0 0 0 0 0\n", scale=0.001)
     run = asyncio.create_task(robot.run(TASK, 0, ExecutionMode.CONTINUOUS, Recorder()))
-    await until(lambda: robot.cycles >= 3)
+    await wait_until(lambda: robot.cycles >= 3)
     await robot.stop(TASK, StopMode.END_OF_CYCLE)
     assert await run == RunOutcome(0, True)
     assert robot.positions == (0.0,) * 6
@@ -140,7 +134,7 @@ async def start_long(
 ) -> tuple[SimulatedRobot, asyncio.Task[RunOutcome]]:
     robot = await powered_robot(*more, text, scale=scale)
     run = asyncio.create_task(robot.run(TASK, 0, ExecutionMode.CYCLE, Recorder()))
-    await until(lambda: robot.positions[5] < -30)  # well inside the first move
+    await wait_until(lambda: robot.positions[5] < -30)  # well inside the first move
     return robot, run
 
 
@@ -160,7 +154,7 @@ async def test_on_path_brakes_along_the_path() -> None:
     speed = robot.axis_states()[5].speed
     at_request = robot.positions[5]
     await robot.stop(TASK, StopMode.ON_PATH)
-    await until(lambda: robot.axis_states()[5].speed != speed or run.done())
+    await wait_until(lambda: robot.axis_states()[5].speed != speed or run.done())
     assert run.done() or abs(robot.axis_states()[5].speed) < abs(speed)  # decelerating
     outcome = await run
     assert outcome == RunOutcome(0, False)
@@ -194,7 +188,7 @@ async def test_process_stop_finishes_the_routine_call() -> None:
     robot = await powered_robot(MODULE, GROUPED)
     progress = Recorder()
     run = asyncio.create_task(robot.run(TASK, 0, ExecutionMode.CYCLE, progress))
-    await until(lambda: progress.pointers[-1:] == [1] and robot.positions[5] > -300)  # inside M.two
+    await wait_until(lambda: progress.pointers[-1:] == [1] and robot.positions[5] > -300)  # inside M.two
     await robot.stop(TASK, StopMode.PROCESS_STOP)
     assert await run == RunOutcome(3, False)  # both moves of the routine done, the last one not
     assert robot.positions[5] == 300.0
@@ -254,3 +248,23 @@ async def test_load_unload_and_refusals() -> None:
     await robot.load(TASK, parse(GROUPED))
     with pytest.raises(EquipmentError, match="module M is not loaded"):
         await robot.run(TASK, 0, ExecutionMode.CYCLE, Recorder())
+
+
+async def test_an_injected_clock_runs_hours_of_robot_time_without_wall_time() -> None:
+    """Model tests need not depend on wall time: the simulator takes its clock and sleep."""
+    time = VirtualTime(1000.0)
+    robot = SimulatedRobot(power_up_time=3600.0, clock=time.clock, sleep=time.sleep)
+    loop = asyncio.get_running_loop()
+    started = loop.time()
+    await robot.power_up()
+    assert robot.powered and time.now == pytest.approx(1000.0 + 3600.0)
+    text = "program P\nspeed 1\nmove 0 0 0 0 0 -350\nwait 3600\nmove 0 0 0 0 0 0\n"
+    await robot.load(TASK, parse(text, [a.limits for a in robot.axes]))
+    progress = Recorder()
+    outcome = await robot.run(TASK, 0, ExecutionMode.CYCLE, progress)
+    assert outcome == RunOutcome(0, True) and progress.pointers == [0, 1, 2]
+    assert robot.positions[5] == 0.0
+    # 350 degrees at 1 % of axis 6's speed, there and back, plus the one-hour wait.
+    move = 350.0 / (DEFAULT_AXES[5].max_speed * 0.01)
+    assert time.slept == pytest.approx(3600.0 + 2 * move + 3600.0, rel=1e-6)
+    assert loop.time() - started < 5.0  # hours of robot time, no wall time to speak of

@@ -8,6 +8,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import pytest
+from helpers import robotics_tables, wait_until
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -71,18 +72,10 @@ class Log:
         self.items.clear()
 
 
-async def until(predicate: Callable[[], bool], timeout: float = 3.0) -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not predicate():
-        assert loop.time() < deadline, "condition not reached"
-        await asyncio.sleep(0.0005)
-
-
 @pytest.fixture
 async def cell(tmp_path: Path):  # type: ignore[no-untyped-def]
     robot = SimulatedRobot(time_scale=SCALE, power_up_time=2.0, power_down_time=0.5)
-    c = RobotCell(robot, make_library(tmp_path))
+    c = RobotCell(robot, make_library(tmp_path), tables=robotics_tables())
     yield c
     await c.close()
 
@@ -93,7 +86,7 @@ def tc_of(cell: RobotCell) -> TaskControl:
 
 async def system_ready(cell: RobotCell) -> None:
     assert await cell.system.get_ready() == Status.OK
-    await until(lambda: cell.system.state == "Ready")
+    await wait_until(lambda: cell.system.state == "Ready")
 
 
 async def tc_in(cell: RobotCell, state: str) -> TaskControl:
@@ -107,11 +100,11 @@ async def tc_in(cell: RobotCell, state: str) -> TaskControl:
     if state == "AtProgramStart":
         return tc
     assert await tc.start() == Status.OK
-    await until(lambda: tc.pointer == 1)  # in the long wait
+    await wait_until(lambda: tc.pointer == 1)  # in the long wait
     if state == "Executing":
         return tc
     assert await tc.stop(StopMode.QUICK_STOP) == Status.OK
-    await until(lambda: tc.state == "Ready")
+    await wait_until(lambda: tc.state == "Ready")
     assert state == "Suspended" and tc.ready.current == "Suspended"
     return tc
 
@@ -189,7 +182,7 @@ async def test_task_control_every_state_and_method(
     before = (tc.program_name, [m.name for m in tc.modules], tc.pointer)
     assert await invoke(tc) == status
     if call == "stop" and status == 0:
-        await until(lambda: tc.state != "Executing")
+        await wait_until(lambda: tc.state != "Executing")
     assert (tc.state, tc.ready.current if tc.ready.active else None) == result
     assert log.transitions() == transitions
     # Decision 4: Executable is true exactly when the state lets the call succeed (vendor Status values
@@ -357,7 +350,7 @@ async def test_resume_continues_where_suspended(cell: RobotCell) -> None:
     seen: list[int] = []
     tc.listeners.append(lambda: seen.append(tc.pointer))
     assert await tc.start() == Status.OK
-    await until(lambda: tc.current_line == 4)  # the wait, line 4 of slow.robot
+    await wait_until(lambda: tc.current_line == 4)  # the wait, line 4 of slow.robot
     assert min(seen) == 1  # it did not start again at the move
 
 
@@ -380,7 +373,7 @@ async def test_continuous_mode_runs_until_stopped_at_end_of_cycle(cell: RobotCel
     assert await tc.set_execution_mode(ExecutionMode.CONTINUOUS) == Status.OK
     assert await tc.load_by_name("short") == Status.OK
     assert await tc.start() == Status.OK
-    await until(lambda: cell.equipment.cycles >= 2)  # type: ignore[attr-defined]
+    await wait_until(lambda: cell.equipment.cycles >= 2)  # type: ignore[attr-defined]
     assert tc.state == "Executing"
     assert await tc.stop(StopMode.END_OF_CYCLE) == Status.OK
     await tc.wait_until_not_executing()
@@ -420,6 +413,7 @@ async def test_stop_mode_zero_is_the_configured_default(tmp_path: Path, monkeypa
     cell = RobotCell(
         robot,
         make_library(tmp_path),
+        tables=robotics_tables(),
         possible_stop_modes=(StopMode.QUICK_STOP, StopMode.END_OF_INSTRUCTION),
         default_stop_mode=StopMode.END_OF_INSTRUCTION,
     )
@@ -440,7 +434,7 @@ async def test_stop_mode_zero_is_the_configured_default(tmp_path: Path, monkeypa
     finally:
         await cell.close()
     with pytest.raises(ValueError):
-        RobotCell(robot, cell.library, possible_stop_modes=(StopMode.QUICK_STOP,))
+        RobotCell(robot, cell.library, tables=robotics_tables(), possible_stop_modes=(StopMode.QUICK_STOP,))
 
 
 async def test_start_needs_the_system_ready(cell: RobotCell) -> None:
@@ -485,7 +479,7 @@ async def test_system_stop_refused_by_the_equipment_leaves_the_system_running(
     check_consistent(cell)
     monkeypatch.setattr(cell.equipment, "stop", real_stop)
     assert so.executable(SO, "Stop") and await so.stop(StopMode.QUICK_STOP) == Status.OK
-    await until(lambda: so.state == "Ready")
+    await wait_until(lambda: so.state == "Ready")
     assert log.transitions() == [
         (EXE, "RunningToStopping", EXT),
         (TC, "ExecutingToReady", EXT),
@@ -542,7 +536,7 @@ async def so_in(cell: RobotCell, state: str) -> SystemOperation:
     if state == "Ready":
         return so
     assert await so.start() == Status.OK
-    await until(lambda: tc.pointer == 1)
+    await wait_until(lambda: tc.pointer == 1)
     if state == "Stopping":
         assert await so.stop(StopMode.END_OF_INSTRUCTION) == Status.OK  # the 2000 s wait: stays Stopping
     return so
@@ -593,7 +587,7 @@ async def test_system_operation_every_state_and_method(
     executable = so.executable(SO, method)
     log = Log(*so.machines(), *tc_of(cell).machines())
     assert await SO_CALLS[method](so) == status
-    await until(lambda: len(log.transitions()) >= len(transitions) and not so.powering_down)
+    await wait_until(lambda: len(log.transitions()) >= len(transitions) and not so.powering_down)
     await asyncio.sleep(0.005)  # nothing else follows
     assert so.state == result
     assert log.transitions() == transitions
@@ -608,7 +602,7 @@ async def test_get_ready_is_asynchronous_and_visible(cell: RobotCell) -> None:
     assert await so.get_ready() == Status.OK
     assert (so.state, so.idle.current) == ("Idle", "GettingReady")
     assert not so.executable(SO, "GetReady") and so.executable(SO, "StandDown")
-    await until(lambda: so.state == "Ready")
+    await wait_until(lambda: so.state == "Ready")
     assert cell.equipment.powered  # type: ignore[attr-defined]
 
 
@@ -617,7 +611,7 @@ async def test_failed_power_up_takes_idle_to_idle_with_error(cell: RobotCell) ->
     cell.equipment.fail_power_up = True  # type: ignore[attr-defined]
     log = Log(*so.machines())
     assert await so.get_ready() == Status.OK
-    await until(lambda: so.idle.current == "StandBy")
+    await wait_until(lambda: so.idle.current == "StandBy")
     assert log.transitions() == [
         (IDLE, "StandByToGettingReady", EXT),
         (IDLE, "GettingReadyToStandBy", ERR),
@@ -646,7 +640,7 @@ async def test_get_ready_waits_for_the_power_down_of_a_cancelled_get_ready(cell:
     assert not so.executable(SO, "GetReady")
     assert await so.get_ready() == Status.E_SYSTEM_STATE
     assert so.idle.current == "StandBy"
-    await until(lambda: not so.powering_down, timeout=10.0)
+    await wait_until(lambda: not so.powering_down, timeout=10.0)
     cell.equipment.power_up_time = 2.0  # type: ignore[attr-defined]
     assert so.executable(SO, "GetReady")
     await system_ready(cell)
@@ -699,7 +693,7 @@ async def test_alarm_while_executing_stops_everything_with_error(cell: RobotCell
     tc = tc_of(cell)
     log = Log(*so.machines(), *tc.machines())
     cell.equipment.raise_alarm("CollisionDetected", "axis 3")  # type: ignore[attr-defined]
-    await until(lambda: so.state == "Ready")
+    await wait_until(lambda: so.state == "Ready")
     assert log.transitions() == [(TC, "ExecutingToReady", ERR), (SO, "ExecutingToReady", ERR)]
     assert tc.ready.current == "Suspended" and "CollisionDetected" in tc.last_error
 
@@ -724,7 +718,7 @@ async def test_alarm_right_after_start_stops_the_program_with_error(cell: RobotC
 # --- coupling with two task controls (decision 19) -----------------------------------------------------------
 async def test_system_start_and_stop_drive_every_task(tmp_path: Path) -> None:
     robot = SimulatedRobot(time_scale=SCALE, power_up_time=0.1)
-    cell = RobotCell(robot, make_library(tmp_path), task_names=("TC1", "TC2", "TC3"))
+    cell = RobotCell(robot, make_library(tmp_path), tables=robotics_tables(), task_names=("TC1", "TC2", "TC3"))
     try:
         so, (t1, t2, t3) = cell.system, cell.tasks.values()
         await system_ready(cell)
@@ -742,13 +736,13 @@ async def test_system_start_and_stop_drive_every_task(tmp_path: Path) -> None:
         # Cancel the long waits by a quick stop underneath: the stops complete.
         await robot.stop("TC1", StopMode.QUICK_STOP)
         await robot.stop("TC2", StopMode.QUICK_STOP)
-        await until(lambda: so.state == "Ready")
+        await wait_until(lambda: so.state == "Ready")
         assert so.machine.last_reason == SYS
         assert await t1.start() == Status.OK and await t2.start() == Status.OK
         assert so.state == "Executing"
         assert await so.stand_down() == Status.E_SYSTEM_STATE
         assert await so.stop(StopMode.QUICK_STOP) == Status.OK
-        await until(lambda: so.state == "Ready")
+        await wait_until(lambda: so.state == "Ready")
         assert so.machine.last_reason == EXT and t1.state == t2.state == "Ready"
     finally:
         await cell.close()
@@ -821,7 +815,7 @@ def check_consistent(cell: RobotCell) -> None:
 
 async def run_commands(root: Path, commands: list[str]) -> None:
     robot = SimulatedRobot(time_scale=0.0002, power_up_time=2.0, power_down_time=2.0)
-    cell = RobotCell(robot, make_library(root))
+    cell = RobotCell(robot, make_library(root), tables=robotics_tables())
     so, tc = cell.system, tc_of(cell)
     try:
         for command in commands:
@@ -876,7 +870,7 @@ def test_program_type_is_what_the_equipment_receives(tmp_path: Path) -> None:
 
     async def scenario() -> None:
         robot = SimulatedRobot(time_scale=SCALE)
-        cell = RobotCell(robot, make_library(tmp_path))
+        cell = RobotCell(robot, make_library(tmp_path), tables=robotics_tables())
         real_load = robot.load
 
         async def spy(task: str, program: Program) -> None:
@@ -889,3 +883,35 @@ def test_program_type_is_what_the_equipment_receives(tmp_path: Path) -> None:
 
     asyncio.run(scenario())
     assert [(p.name, p.version, p.uses) for p in loaded] == [("PickAndPlace", "2.0", ("Gripper",))]
+
+
+def test_the_tables_are_checked_against_every_name_the_model_uses() -> None:
+    import dataclasses
+
+    from uacell.models import StateTables
+    from uacell.robotics.model import STAYS, RoboticsTables
+
+    real = StateTables()
+
+    def without_suspended(model: str, type_name: str):  # type: ignore[no-untyped-def]
+        table = real(model, type_name)
+        if type_name != "ReadySubstateMachineType":
+            return table
+        states = {k: v for k, v in table.states.items() if k != "Suspended"}
+        return dataclasses.replace(table, states=states)
+
+    with pytest.raises(LookupError, match="ReadySubstateMachineType in the NodeSet has no Suspended"):
+        RoboticsTables.load(without_suspended)
+    tables = RoboticsTables.load(real)
+    # Every method the model lets act without a transition is one the NodeSet gives some machine.
+    assert {m for m, _ in STAYS} <= tables.task_control.methods | tables.ready.methods
+
+
+async def test_executable_follows_the_nodeset_causes_plus_the_declared_stays(cell: RobotCell) -> None:
+    tc = tc_of(cell)
+    # Idle: only the loads (IdleToReady is caused by LoadByName/LoadByNodeId); nothing to unload yet.
+    offered = {m for machine, m in tc.methods() if tc.executable(machine, m)}
+    assert offered == {"LoadByName", "LoadByNodeId"}
+    assert {(machine, m) for machine, m in cell.system.methods() if cell.system.executable(machine, m)} == {
+        ("SystemOperationStateMachine", "GetReady")
+    }

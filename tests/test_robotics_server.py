@@ -16,6 +16,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import delivered, robot_binding, robot_cell, server_value, wait_until
 
 from uacell.robotics.equipment import ExecutionMode, StopMode
 from uacell.roles import Role
@@ -105,7 +106,7 @@ async def rig(tmp_path_factory):
 
 
 async def _reset(r: Rig) -> None:
-    cell = r.app.robot_cell
+    cell = robot_cell(r.app)
     equipment = cell.equipment
     for name in list(equipment.active_alarms):
         equipment.clear_alarm(name)
@@ -128,7 +129,7 @@ async def _reset(r: Rig) -> None:
     async with asyncio.timeout(TIMEOUT):
         while system.state != "Idle" or system.powering_down or system.idle.current != "StandBy":
             await asyncio.sleep(0.01)
-    store = r.app.robotics.store
+    store = robot_binding(r.app).store
     for entry in store.entries():
         if entry.relpath not in SAMPLES and "/" not in entry.relpath:
             store.delete(entry.relpath)
@@ -193,7 +194,6 @@ async def subscribe_transitions(r: Rig, *paths: str) -> tuple[Events, object]:
     evtype = r.client.get_node(ua.ObjectIds.TransitionEventType)
     for path in paths:
         await sub.subscribe_events(r.client.get_node(nid(r, path)), evtype)
-    await asyncio.sleep(0.1)
     return events, sub
 
 
@@ -279,7 +279,7 @@ async def test_unknown_name_is_minus_one_with_idle_to_idle_reason_error(fresh):
     ev = await events.wait_for(is_transition("IdleToIdle"))
     assert ev.FromState.Text == "Idle" and ev.ToState.Text == "Idle"
     assert ev.SourceNode == nid(r, TC)
-    await asyncio.sleep(0.1)
+    await delivered(r.app, events, nid(r, TC))
     assert events.transitions() == ["IdleToIdle"]  # one event for the one transition
     assert await state(r, TC) == "Idle"
     assert (await read(r, f"{TC}.LastTransition")).Text == "IdleToIdle"
@@ -325,7 +325,7 @@ async def test_bad_node_ids_answer_bad_codes_with_argument_result_and_no_transit
     res = await call(r, TC, "LoadByNodeId", variants[case])
     assert res.StatusCode.value == expected
     assert [c.value for c in res.InputArgumentResults] == [expected]
-    await asyncio.sleep(0.1)
+    await delivered(r.app, events, nid(r, TC))
     assert events.transitions() == []
     assert await state(r, TC) == "Idle"
     assert await read(r, f"{TC}.LastTransition") == before
@@ -346,7 +346,7 @@ async def test_load_in_ready_replaces_and_a_failure_keeps_the_old_program(fresh)
     assert await status(r, TC, "LoadByName", s("broken")) == -2
     assert await state(r, TC) == "Ready"
     assert await read(r, f"{TASK}.ParameterSet.TaskProgramName") == "Palletize"
-    await asyncio.sleep(0.1)
+    await delivered(r.app, events, nid(r, TC))
     assert events.transitions() == []  # no IdleToIdle/IdleToReady in Ready
     await sub.delete()
 
@@ -393,8 +393,9 @@ async def test_start_runs_the_program_to_its_end_and_the_axes_move(fresh):
     assert events.transitions(nid(r, SO)) == ["ReadyToExecuting", "ExecutingToReady"]
     assert await read(r, f"{TC}.LastTransitionReason") == 5
     assert await state(r, READY) == "AtProgramStart"
-    await r.app.settle()
-    await asyncio.sleep(0.3)  # one more axis sample
+    # the sampler publishes the resting arm once it notices
+    await wait_until(lambda: server_value(r.app, axis.nodeid) == pytest.approx(60.0))
+    await wait_until(lambda: server_value(r.app, speed.nodeid) == 0.0)
     assert await axis.read_value() == pytest.approx(60.0)
     assert await speed.read_value() == 0.0
     positions = [v for n, v in samples.events if n == axis]
@@ -425,7 +426,7 @@ async def test_stop_suspends_and_reset_to_program_start(fresh):
     await events.wait_for(is_transition("SuspendedToProgramStart"))
     assert await state(r, READY) == "AtProgramStart"
     assert await status(r, READY, "ResetToProgramStart") == 0  # already there: no transition
-    await asyncio.sleep(0.1)
+    await delivered(r.app, events, nid(r, READY))
     assert events.transitions(nid(r, READY)).count("SuspendedToProgramStart") == 1
     await sub.delete()
 
@@ -438,7 +439,7 @@ async def test_execution_mode_is_writable_except_while_executing_and_step_runs_o
     node = r.client.get_node(nid(r, f"{TASK}.ParameterSet.ExecutionMode"))
     await node.write_value(ua.Variant(int(ExecutionMode.STEP), ua.VariantType.Int32))
     assert await node.read_value() == 2
-    assert r.app.robot_cell.tasks["TaskControl1"].execution_mode is ExecutionMode.STEP
+    assert robot_cell(r.app).tasks["TaskControl1"].execution_mode is ExecutionMode.STEP
     with pytest.raises(ua.UaStatusCodeError) as err:
         await node.write_value(ua.Variant(7, ua.VariantType.Int32))
     assert err.value.code == ua.StatusCodes.BadOutOfRange
@@ -477,7 +478,7 @@ async def test_every_unload(fresh):
     assert await state(r, TC) == "Idle"
     assert await read(r, f"{TASK}.ParameterSet.TaskProgramLoaded") is False
     assert await read(r, f"{TASK}.ParameterSet.TaskProgramName") == ""
-    assert r.app.robot_cell.tasks["TaskControl1"].modules == []
+    assert robot_cell(r.app).tasks["TaskControl1"].modules == []
     # UnloadProgram
     assert await status(r, TC, "UnloadProgram") == 1  # nothing loaded
     assert await status(r, TC, "LoadByName", s("palletize")) == 0
@@ -603,7 +604,7 @@ async def test_executable_attribute_matches_what_a_call_does(fresh):
     assert await executables(r) == ready_on
     assert await status(r, SO, "GetReady") == 1
     # an active alarm: no Start (Status 3) until it is cleared and acknowledged
-    equipment, system = r.app.robot_cell.equipment, r.app.robot_cell.system
+    equipment, system = robot_cell(r.app).equipment, robot_cell(r.app).system
     equipment.raise_alarm("EmergencyStop")
     assert await executables(r) == {**ready_on, "TC.Start": False, "SO.Start": False}
     assert await status(r, TC, "Start") == 3
@@ -619,7 +620,7 @@ async def test_executable_attribute_matches_what_a_call_does(fresh):
     assert await status(r, TC, "Stop", mode(int(StopMode.END_OF_INSTRUCTION))) == 0
     assert await executables(r) == only()
     assert await status(r, TC, "Stop", mode(0)) == 1 and await status(r, SO, "Stop", mode(0)) == 1
-    await r.app.robot_cell.equipment.stop("TaskControl1", StopMode.QUICK_STOP)
+    await robot_cell(r.app).equipment.stop("TaskControl1", StopMode.QUICK_STOP)
     await wait_state(r, TC, "Ready")
     assert await executables(r) == ready_on  # also refreshed when the state changes without a call
 
@@ -645,7 +646,6 @@ async def test_active_alarm_is_status_3_unacknowledged_is_4_and_acknowledge_clea
     sub = await r.client.create_subscription(20, events)
     alarm_type = r.client.get_node(ua.ObjectIds.AlarmConditionType)
     await sub.subscribe_events(r.client.get_node(ua.ObjectIds.Server), alarm_type)
-    await asyncio.sleep(0.1)
     # an admin raises the alarm through the server-specific method
     manager = r.app.server.iserver.user_manager
     policy = manager.policy
@@ -681,7 +681,7 @@ async def test_active_alarm_is_status_3_unacknowledged_is_4_and_acknowledge_clea
     assert await read(r, f"{cond}.AckedState.Id") is False
     assert await read(r, f"{cond}.Retain") is True
     assert await status(r, SO, "GetReady") == 3
-    r.app.robot_cell.equipment.clear_alarm("EmergencyStop")
+    robot_cell(r.app).equipment.clear_alarm("EmergencyStop")
     await r.app.settle()
     assert await read(r, f"{cond}.ActiveState.Id") is False
     assert await status(r, SO, "GetReady") == 4
@@ -712,7 +712,7 @@ async def test_alarm_while_executing_stops_the_program_with_reason_error_and_sta
     assert await status(r, TC, "LoadByName", s("long")) == 0
     events, sub = await subscribe_transitions(r, TC)
     assert await status(r, TC, "Start") == 0
-    r.app.robot_cell.equipment.raise_alarm("CollisionDetected")
+    robot_cell(r.app).equipment.raise_alarm("CollisionDetected")
     await events.wait_for(is_transition("ExecutingToReady"))
     assert await read(r, f"{TC}.LastTransitionReason") == 4
     assert await status(r, TC, "Start") == 3

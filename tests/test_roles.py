@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import pytest
 
+from uacell.robotics.companion import SYSTEM_OPERATION
 from uacell.roles import (
-    METHOD_ROLES,
-    Family,
     Role,
     anonymous_role,
     is_loopback,
     listening_policy,
     may,
     may_call,
+    method_roles,
     none_security_allowed,
     required_role,
 )
@@ -31,7 +31,7 @@ def test_roles_are_ordered_and_parse_from_names() -> None:
     [
         ("LoadByName", "TaskControlStateMachineType", Role.OPERATOR),
         ("3:ResetToProgramStart", "3:ReadySubstateMachineType", Role.OPERATOR),
-        ("GetReady", Family.SYSTEM_OPERATION, Role.OPERATOR),
+        ("GetReady", SYSTEM_OPERATION, Role.OPERATOR),
         ("Start", "PackMLMachineStateMachineType", Role.OPERATOR),
         ("SetMachSpeed", "PackMLBaseObjectType", Role.OPERATOR),
         ("SetUnitMode", "PackMLBaseObjectType", Role.OPERATOR),
@@ -62,7 +62,7 @@ def test_file_open_depends_on_mode() -> None:
 
 
 def test_role_method_matrix() -> None:
-    for (family, method), least in METHOD_ROLES.items():
+    for (family, method), least in method_roles().items():
         for role in Role:
             assert may_call(role, method, family, file_mode=1) is (role >= least), (role, family, method)
 

@@ -19,9 +19,11 @@ from conftest import fast_config, start_app
 from cryptography import x509
 from cryptography.x509.oid import ExtensionOID
 
+from uacell.di.companion import LOCKING
 from uacell.errors import CallError
 from uacell.pki import PkiPaths, TrustList, make_client_certificate
-from uacell.roles import Family, Role, may_call
+from uacell.robotics.companion import SYSTEM_OPERATION, TASK_CONTROL
+from uacell.roles import Role, may_call
 from uacell.security import prepare_certificate
 from uacell.server import APPLICATION_URI, UacellServer
 from uacell.users import LoginThrottle
@@ -389,7 +391,7 @@ async def test_role_method_matrix(env, sessions):
     finally:
         env.dispatcher.guards.remove(probe)
     # The matrix covered what is bound today, at least Robotics and locks.
-    assert {Family.TASK_CONTROL, Family.SYSTEM_OPERATION, Family.LOCKING} <= families
+    assert {TASK_CONTROL, SYSTEM_OPERATION, LOCKING} <= families
     assert checked == 4 * len(env.dispatcher.methods)
 
 

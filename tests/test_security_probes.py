@@ -275,6 +275,8 @@ def _serve_in_namespace(namespace: str, data_dir: Path, port: int) -> Iterator[N
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
 
 
 async def test_none_channel_on_a_plant_network_address(plant_namespace, tmp_path):

@@ -17,6 +17,7 @@ from conftest import fast_config, start_app
 from uacell.errors import CallError
 from uacell.fsm import Reason, StateMachine
 from uacell.models import fsm_table
+from uacell.robotics.companion import TASK_CONTROL
 from uacell.roles import Family, Role
 from uacell.server import UacellServer
 from uacell.ua.state_machine import bind_tree
@@ -70,16 +71,16 @@ async def _test_binder(app: UacellServer, rig: Rig):
     d.bind(
         node,
         d.method_of(node, "LoadByName"),
-        Family.TASK_CONTROL,
+        TASK_CONTROL,
         load_by_name,
         executable=lambda: rig.machine.current in ("Idle", "Ready"),
         serialize_on=rig.machine,
     )
-    d.bind(node, d.method_of(node, "LoadByNodeId"), Family.TASK_CONTROL, load_by_node_id)
+    d.bind(node, d.method_of(node, "LoadByNodeId"), TASK_CONTROL, load_by_node_id)
     d.bind(
         node,
         d.method_of(node, "Stop"),
-        Family.TASK_CONTROL,
+        TASK_CONTROL,
         stop,
         executable=lambda: rig.machine.current == "Executing",
     )
@@ -153,8 +154,7 @@ async def test_subscription_receives_the_transition_event(rig, source):
     sub = await r.client.create_subscription(50, handler)
     target = r.tc if source == "machine" else r.client.get_node(ua.ObjectIds.Server)
     evtype = r.client.get_node(ua.ObjectIds.TransitionEventType)
-    await sub.subscribe_events(target, evtype)
-    await asyncio.sleep(0.2)
+    await sub.subscribe_events(target, evtype)  # active once the server has answered
     res = await call(r, "LoadByName", ua.Variant("prog", ua.VariantType.String))
     assert res.StatusCode.is_good()
     await asyncio.wait_for(handler.arrived.wait(), 10)

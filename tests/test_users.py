@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 from argon2 import PasswordHasher
+from helpers import FakeClock
 
 from uacell.roles import Role
 from uacell.users import LoginThrottle, User, UserError, UserStore, validate_name
@@ -120,16 +121,8 @@ def test_empty_password_and_unknown_role_are_refused(store: UserStore) -> None:
     assert store.list() == []
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
 def test_throttle_grows_exponentially_to_a_cap_and_resets() -> None:
-    clock = Clock()
+    clock = FakeClock(0.0)
     t = LoginThrottle(base=1.0, cap=8.0, free=2, clock=clock)
     assert t.wait_time("10.0.0.9") == 0.0
     delays = [t.failed("10.0.0.9") for _ in range(7)]
@@ -144,7 +137,7 @@ def test_throttle_grows_exponentially_to_a_cap_and_resets() -> None:
 
 
 def test_throttle_forgets_idle_addresses() -> None:
-    clock = Clock()
+    clock = FakeClock(0.0)
     t = LoginThrottle(base=1.0, cap=30.0, free=0, forget_after=60.0, clock=clock)
     t.failed("a")
     t.failed("a")

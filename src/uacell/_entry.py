@@ -15,7 +15,7 @@ class Stopped(Exception):
     """Raised by the early stop handler into whatever start-up was doing."""
 
 
-def _stop_early(signum, frame) -> None:
+def _stop_early(signum: int, frame: object) -> None:
     global stop_requested
     stop_requested = True
     raise Stopped

@@ -1,16 +1,24 @@
 """The cell uacell serves: which standard instances exist, where, and with which optional members.
 
 A cell is declared as data (``Part`` trees) and built by the deep instantiation of ``uacell.ua``.
-The demo cell of design.md is ``demo_cell()``.
+The cell comes from the configuration (``uacell.cellconfig``); the default is the shipped demo cell,
+``demo_cell()``. Where parts go (``DeviceSet``, ``PackMLObjects``) is each companion's declaration
+(``uacell.companion.Root``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from asyncua import Server, ua
+from asyncua.server.address_space import AddressSpace
 
+from uacell.cellconfig import STATE_MACHINE, Part
+from uacell.companion import companions
+from uacell.ua import toolkit
 from uacell.ua.instantiate import Instantiator, Selection
+
+__all__ = ["CELL_NAMESPACE", "STATE_MACHINE", "BuiltPart", "CellBuilder", "Part", "build_cell", "demo_cell"]
 
 CELL_NAMESPACE = "urn:uacell:cell"
 
@@ -22,104 +30,14 @@ _NOISE = (
     "**/LastTransition/Name",
     "**/ValuePrecision",
 )
-# What every state machine publishes (decision 1).
-_STATE_MACHINE = ("**/CurrentState/Number", "**/LastTransition/Number", "**/LastTransition/TransitionTime")
-
-
-@dataclass
-class Part:
-    """An instance of ``type_name`` (in model ``model``) called ``name``, placed in ``folder``.
-
-    ``folder`` is a BrowseName path below the parent part ("" = the parent itself); ``include`` lists
-    the Optional members to create (see ``Selection``); ``children`` are parts placed below this one
-    (typically in place of a placeholder).
-    """
-
-    name: str
-    model: str
-    type_name: str
-    folder: str = ""
-    include: tuple[str, ...] = ()
-    children: list[Part] = field(default_factory=list)
-    role: str = ""  # what the server binds to it: "controller", "task_control", "motion_device", "packml_unit"
 
 
 def demo_cell() -> list[tuple[str, Part]]:
-    """The default cell: a robot in DeviceSet and a filler in PackMLObjects."""
-    axes = [
-        Part(
-            f"Axis{i}",
-            "Robotics",
-            "AxisType",
-            "Axes",
-            include=("ParameterSet/ActualSpeed", "ParameterSet/ActualAcceleration"),
-        )
-        for i in range(1, 7)
-    ]
-    power_trains = [
-        Part(
-            f"PowerTrain{i}",
-            "Robotics",
-            "PowerTrainType",
-            "PowerTrains",
-            children=[Part(f"Motor{i}", "Robotics", "MotorType")],
-        )
-        for i in range(1, 7)
-    ]
-    arm = Part(
-        "Arm1",
-        "Robotics",
-        "MotionDeviceType",
-        "MotionDevices",
-        include=("ParameterSet/InControl", "ParameterSet/OnPath", "FlangeLoad"),
-        children=axes + power_trains,
-        role="motion_device",
-    )
-    task_control = Part(
-        "TaskControl1",
-        "Robotics",
-        "TaskControlType",
-        "TaskControls",
-        include=(
-            "Lock",
-            "ParameterSet/ExecutionMode",
-            "TaskModules",
-            "TaskControlOperation",
-            "TaskControlOperation/**",
-            *_STATE_MACHINE,
-        ),
-        role="task_control",
-    )
-    controller = Part(
-        "Controller1",
-        "Robotics",
-        "ControllerType",
-        "Controllers",
-        include=(
-            "Lock",
-            "Programs",
-            "SystemOperation",
-            "SystemOperation/**",
-            *_STATE_MACHINE,
-        ),
-        children=[task_control, Part("Software1", "DI", "SoftwareType", "Software")],
-        role="controller",
-    )
-    robot = Part(
-        "Robot1",
-        "Robotics",
-        "MotionDeviceSystemType",
-        include=(),
-        children=[controller, arm, Part("SafetyState1", "Robotics", "SafetyStateType", "SafetyStates")],
-    )
-    filler = Part(
-        "Filler1",
-        "PackML",
-        "PackMLBaseObjectType",
-        include=("**",),
-        role="packml_unit",
-    )
-    return [("DeviceSet", robot), ("PackMLObjects", filler)]
+    """The default cell (the shipped ``cells/demo.toml``): a robot in DeviceSet and a filler in PackMLObjects."""
+    from uacell.cellconfig import builtin_cell_path
+    from uacell.config import load_cell
+
+    return load_cell(builtin_cell_path("demo")).parts()
 
 
 @dataclass
@@ -138,36 +56,26 @@ class CellBuilder:
         self.instantiator = Instantiator(server, namespace_index)
         self.model_indexes = model_indexes
         self.built: list[BuiltPart] = []
+        self._types: dict[tuple[str, str, int], ua.NodeId] = {}
 
     @property
-    def aspace(self):
-        return self.server.iserver.aspace
+    def aspace(self) -> AddressSpace:
+        aspace: AddressSpace = self.server.iserver.aspace
+        return aspace
 
-    def type_node(self, model: str, type_name: str) -> ua.NodeId:
-        ns = self.model_indexes[model]
-        for ref in self._subtype_closure():
-            if ref.NamespaceIndex == ns:
-                name = self.instantiator.types.attr(ref, ua.AttributeIds.BrowseName)
-                if name is not None and name.Name == type_name:
-                    return ref
-        raise KeyError(f"{model} has no type {type_name}")
-
-    def _subtype_closure(self) -> set[ua.NodeId]:
-        cached = getattr(self, "_types", None)
-        if cached is None:
-            cached = self._types = self.instantiator.types._subtypes(ua.NodeId(ua.ObjectIds.BaseObjectType))
-        return cached
+    def type_node(self, model: str, type_name: str, root: int = ua.ObjectIds.BaseObjectType) -> ua.NodeId:
+        """The type called ``type_name`` in model ``model``, below ``root`` (ObjectTypes by default)."""
+        key = (model, type_name, root)
+        if key not in self._types:
+            found = toolkit.type_named(self.aspace, ua.NodeId(root), self.model_indexes[model], type_name)
+            if found is None:
+                raise KeyError(f"{model} has no type {type_name}")
+            self._types[key] = found
+        return self._types[key]
 
     def child(self, node: ua.NodeId, path: str) -> ua.NodeId:
         """Follow a BrowseName path (names without namespace) down from ``node``."""
-        for name in [p for p in path.split("/") if p]:
-            for ref in self.aspace[node].references:
-                if ref.IsForward and ref.BrowseName.Name == name and ref.ReferenceTypeId != ua.NodeId(40):
-                    node = ref.NodeId
-                    break
-            else:
-                raise KeyError(f"{node} has no child {name!r}")
-        return node
+        return toolkit.child(self.aspace, node, path)
 
     def build(self, parent: ua.NodeId, part: Part, id_prefix: str = "", reference_type: int = 47) -> BuiltPart:
         where = self.child(parent, part.folder) if part.folder else parent
@@ -178,7 +86,7 @@ class CellBuilder:
             where,
             type_node,
             ua.QualifiedName(part.name, self.instantiator.ns),
-            Selection(part.include, _NOISE),
+            Selection((*part.include, *part.values), _NOISE),
             reference_type=reference_type,
             path=path,
         )
@@ -188,20 +96,32 @@ class CellBuilder:
             self.build(node, child, path)
         return built
 
+    async def write_values(self) -> None:
+        """Each part's ``values`` (String or LocalizedText members, e.g. DI identification)."""
+        for built in self.built:
+            for member, text in built.part.values.items():
+                node = self.child(built.node, member)
+                datatype = self.aspace[node].attributes[ua.AttributeIds.DataType].value.Value.Value
+                localized = datatype == ua.NodeId(ua.ObjectIds.LocalizedText)
+                variant = ua.Variant(
+                    ua.LocalizedText(text) if localized else text,
+                    ua.VariantType.LocalizedText if localized else ua.VariantType.String,
+                )
+                await self.aspace.write_attribute_value(node, ua.AttributeIds.Value, ua.DataValue(variant))
+
     def by_role(self, role: str) -> list[BuiltPart]:
         return [b for b in self.built if b.part.role == role]
 
 
-async def build_cell(server: Server, model_indexes: dict[str, int], parts=None) -> CellBuilder:
-    """Create the cell's instances; ``parts`` defaults to the demo cell."""
+async def build_cell(
+    server: Server, model_indexes: dict[str, int], parts: list[tuple[str, Part]] | None = None
+) -> CellBuilder:
+    """Create the cell's instances; ``parts`` (root name, part) defaults to the demo cell."""
     ns = await server.register_namespace(CELL_NAMESPACE)
     builder = CellBuilder(server, ns, model_indexes)
-    roots = {
-        "DeviceSet": ua.NodeId(5001, model_indexes["DI"]),
-        "PackMLObjects": ua.NodeId(72, model_indexes["PackML"]),
-    }
-    for root, part in parts or demo_cell():
-        # Devices are components of DeviceSet (DI); PackML units are organized by PackMLObjects.
-        ref = ua.ObjectIds.HasComponent if root == "DeviceSet" else ua.ObjectIds.Organizes
-        builder.build(roots[root], part, reference_type=ref)
+    roots = {root.name: root for c in companions() for root in c.roots}
+    for name, part in parts or demo_cell():
+        root = roots[name]
+        builder.build(ua.NodeId(root.node, model_indexes[root.model]), part, reference_type=root.reference)
+    await builder.write_values()
     return builder

@@ -98,6 +98,11 @@ def _parser() -> argparse.ArgumentParser:
     path = leaf(msub, "path", "print the directory uacell reads them from")
     path.add_argument("--models-dir", help="check this directory instead")
 
+    conf = sub.add_parser("config", help="the configuration file")
+    confsub = conf.add_subparsers(dest="action", required=True)
+    check = confsub.add_parser("check", help="validate a configuration and print the cell it would serve")
+    check.add_argument("file", nargs="?", type=Path, help="TOML configuration file (default: none, the demo cell)")
+
     user = leaf(sub, "user", "manage the users who may log in")
     usub = user.add_subparsers(dest="action", required=True)
     add = leaf(usub, "add", "add a new user (refused when the name exists)")
@@ -157,6 +162,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "models":
             return _models(args)
+        if args.command == "config":
+            from uacell.config_check import run_check
+
+            return run_check(args.file)
         config = resolve_config(args)
         if args.command == "serve":
             return _serve(args, config)
@@ -216,10 +225,10 @@ def _prepare_and_run(config: Config) -> int:
     from uacell import logs
 
     locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
-    for section in ("robot", "packml"):
-        spec = getattr(config, section).equipment
-        if spec:
-            load_factory(spec, section)
+    from uacell.config_check import equipment_specs
+
+    for where, spec in equipment_specs(config):
+        load_factory(spec, where)  # importable and callable, before any other work
     check_directory(config.server.data_dir, "data directory")
     if config.logging.file is not None:
         check_file(config.logging.file, "log file")
@@ -245,7 +254,13 @@ async def _run(config: Config) -> int:
         loop.add_signal_handler(sig, stop.set)
     if _entry.stop_requested:  # a stop whose exception some library code caught (e.g. a logging handler)
         stop.set()
-    await app.setup()
+    try:
+        await app.setup()
+    except BaseException:
+        # e.g. an equipment factory failed: close what was already made (drivers connected) first.
+        with contextlib.suppress(Exception):
+            await app.stop()
+        raise
     if stop.is_set():  # asked to stop while setting up: never start listening
         log.info("shutting down")
         with contextlib.suppress(Exception):

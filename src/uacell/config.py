@@ -1,5 +1,8 @@
 """uacell's configuration: a TOML file, overridden by command-line options.
 
+``[server]`` is uacell's own; every other section belongs to a companion, which declares it
+(``uacell.companion.Companion.section``/``settings``) in its package.
+
 Every key is optional; without a file uacell serves the demo cell on 127.0.0.1:4840.
 
 ```toml
@@ -11,17 +14,22 @@ models_dir = "/opt/UA-Nodeset"    # default: the cache filled by 'uacell models 
 anonymous_role = "operator"       # default: operator on loopback, observer otherwise
 allow_none_security = true        # default: only on loopback
 trust_on_first_use = false
+application_uri = "urn:HOST:uacell"  # default: per host
+application_name = "uacell@HOST"     # default: per host
 rejected_max_files = 100          # refused client certificates kept in pki/rejected/ (oldest dropped)
 rejected_max_age_days = 30.0      # ... and for how long
 
-[robot]
+[robot]                           # defaults for every controller that does not set its own
 time_scale = 1.0                  # simulated robot: >1 runs faster than real time
 equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
 
-[packml]
+[packml]                          # defaults for every PackML unit that does not set its own
 acting_time = 1.0                 # seconds each acting state of the simulated unit takes
 mach_speed = 60.0                 # initial MachSpeed, packages/min
 equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
+
+[[robots]] ...                    # the cell (docs/configuration.md); without [[robots]] and
+[[packml_units]] ...              # [[packml_units]] the shipped demo cell
 
 [logging]                         # docs/operations.md
 level = "INFO"                    # DEBUG, INFO, WARNING, ERROR
@@ -49,20 +57,44 @@ import importlib
 import ipaddress
 import os
 import re
+import socket
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any, TypeVar
 
 import platformdirs
 
+from uacell.cellconfig import CellConfig, SectionParser, builtin_cell_path, parse_cell
+from uacell.companion import companions
 from uacell.errors import ConfigError
+
+T = TypeVar("T")
 
 ROLES = ("observer", "operator", "engineer", "admin")
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 LOG_FORMATS = ("text", "json")
 CONFIG_ENV = "UACELL_CONFIG"
 DATA_DIR_ENV = "UACELL_DATA_DIR"
+
+
+def _cell_sections() -> dict[str, SectionParser]:
+    """Each companion's cell section (an array of tables, e.g. ``robots``) and its parser."""
+    return {c.cell_section: c.cell_parser for c in companions() if c.cell_section and c.cell_parser}
+
+
+def _host() -> str:
+    return re.sub(r"[^A-Za-z0-9.-]", "-", socket.gethostname()) or "localhost"
+
+
+def default_application_uri() -> str:
+    """Unique per host (clients and certificates tell installations apart by it)."""
+    return f"urn:{_host()}:uacell"
+
+
+def default_application_name() -> str:
+    return f"uacell@{_host()}"
 
 
 @dataclass
@@ -74,21 +106,10 @@ class ServerConfig:
     anonymous_role: str | None = None
     allow_none_security: bool | None = None
     trust_on_first_use: bool = False
+    application_uri: str = field(default_factory=default_application_uri)
+    application_name: str = field(default_factory=default_application_name)
     rejected_max_files: int = 100
     rejected_max_age_days: float = 30.0
-
-
-@dataclass
-class RobotConfig:
-    time_scale: float = 1.0
-    equipment: str = ""
-
-
-@dataclass
-class PackMLConfig:
-    acting_time: float = 1.0
-    mach_speed: float = 60.0
-    equipment: str = ""
 
 
 @dataclass
@@ -115,26 +136,46 @@ class UsersConfig:
     min_password_length: int = 10
 
 
-@dataclass
-class Config:
-    server: ServerConfig = field(default_factory=ServerConfig)
-    robot: RobotConfig = field(default_factory=RobotConfig)
-    packml: PackMLConfig = field(default_factory=PackMLConfig)
-    logging: LoggingConfig = field(default_factory=LoggingConfig)
-    metrics: MetricsConfig = field(default_factory=MetricsConfig)
-    users: UsersConfig = field(default_factory=UsersConfig)
-    source: Path | None = None
-
-
-_SECTIONS: dict[str, type] = {
-    "server": ServerConfig,
-    "robot": RobotConfig,
-    "packml": PackMLConfig,
-    "logging": LoggingConfig,
-    "metrics": MetricsConfig,
-    "users": UsersConfig,
-}
+# Operations sections every server has, beside [server] (docs/operations.md).
+_CORE_SECTIONS: dict[str, type[Any]] = {"logging": LoggingConfig, "metrics": MetricsConfig, "users": UsersConfig}
 _PATHS = {"data_dir", "file", "audit_file"}
+
+
+class Config:
+    """``server`` plus one section per companion that declares one (``config.robot``, ``config.packml``)."""
+
+    def __init__(self) -> None:
+        self.server = ServerConfig()
+        self.logging = LoggingConfig()
+        self.metrics = MetricsConfig()
+        self.users = UsersConfig()
+        self.source: Path | None = None
+        # The cell: the companions' cell sections ([[robots]], [[packml_units]]), else the demo cell.
+        self.cell: CellConfig = load_cell(builtin_cell_path("demo"))
+        self.sections: dict[str, Any] = {
+            c.section: c.settings() for c in companions() if c.section is not None and c.settings is not None
+        }
+
+    def section(self, name: str, kind: type[T]) -> T:
+        """The section ``name``, typed: ``config.section("robot", RobotConfig)``."""
+        value = self.sections[name]
+        if not isinstance(value, kind):
+            raise TypeError(f"[{name}] is a {type(value).__name__}, not a {kind.__name__}")
+        return value
+
+    def __getattr__(self, name: str) -> Any:
+        sections = self.__dict__.get("sections", {})
+        if name in sections:
+            return sections[name]
+        raise AttributeError(name)
+
+
+def _section_types() -> dict[str, type[Any]]:
+    types: dict[str, type[Any]] = {"server": ServerConfig, **_CORE_SECTIONS}
+    for c in companions():
+        if c.section is not None and c.settings is not None:
+            types[c.section] = c.settings
+    return types
 
 
 def _coerce(section: str, key: str, value: object, default: object) -> object:
@@ -172,6 +213,30 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
     return value.upper() if key == "level" else value
 
 
+def _read_toml(path: Path) -> dict[str, object]:
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"cannot read configuration {path}: {exc.strerror or exc}") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"configuration {path} is not valid TOML: {exc}") from exc
+
+
+def load_cell(path: str | Path) -> CellConfig:
+    """The cell sections of the TOML file ``path`` (the demo cell if it has none)."""
+    path = Path(path)
+    return _cell_of(_read_toml(path), path)
+
+
+def _cell_of(data: dict[str, object], path: Path) -> CellConfig:
+    sections = _cell_sections()
+    if not any(key in data for key in sections):
+        demo = builtin_cell_path("demo")
+        if path != demo:
+            return load_cell(demo)
+    return parse_cell(data, str(path), sections)
+
+
 def load_config(path: str | Path | None = None) -> Config:
     """Read ``path`` (or return the defaults); raises ConfigError saying what is wrong and where.
 
@@ -193,18 +258,19 @@ def _load_file(path: str | Path | None) -> Config:
     if path is None:
         return config
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"cannot read configuration {path}: {exc.strerror or exc}") from exc
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"configuration {path} is not valid TOML: {exc}") from exc
+    data = _read_toml(path)
     config.source = path
+    config.cell = _cell_of(data, path)
     for section, values in data.items():
-        cls = _SECTIONS.get(section)
+        if section in _cell_sections():
+            continue
+        cls = _section_types().get(section)
         if cls is None or not isinstance(values, dict):
             raise ConfigError(f"configuration {path}: unknown section [{section}]")
-        target = getattr(config, section)
+        if section == "server" or section in _CORE_SECTIONS:
+            target = getattr(config, section)
+        else:
+            target = config.sections[section]
         known = {f.name for f in fields(cls)}
         for key, value in values.items():
             if key not in known:
@@ -213,6 +279,9 @@ def _load_file(path: str | Path | None) -> Config:
                 setattr(target, key, _coerce(section, key, value, getattr(target, key)))
             except ConfigError as exc:
                 raise ConfigError(f"configuration {path}: {exc}") from exc
+    for key in ("application_uri", "application_name"):
+        if not getattr(config.server, key).strip():
+            raise ConfigError(f"configuration {path}: [server] {key} must not be empty")
     return config
 
 
@@ -297,4 +366,5 @@ def load_factory(spec: str, section: str) -> Callable[..., object]:
         raise ConfigError(f"[{section}] equipment {spec!r} cannot be loaded: {exc}") from exc
     if not callable(factory):
         raise ConfigError(f"[{section}] equipment {spec!r} is not callable")
-    return factory
+    loaded: Callable[..., object] = factory
+    return loaded

@@ -8,7 +8,7 @@ when) live in ``robotics.model`` and ``packml.model``, which drive these machine
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from enum import IntEnum
@@ -17,7 +17,7 @@ from uacell.models.tables import FsmTable, TransitionInfo
 
 
 class Reason(IntEnum):
-    """Robotics LastTransitionReason values (decision 21); PackML machines simply ignore them."""
+    """Robotics LastTransitionReason values (docs/decisions.md, 21); PackML machines ignore them."""
 
     UNKNOWN = 0
     EXTERNAL = 1
@@ -80,6 +80,14 @@ class StateMachine:
 
     def is_in(self, *states: str) -> bool:
         return self.active and self.current in states
+
+    def allows(self, method: str, stays: Collection[tuple[str, str]] = ()) -> bool:
+        """The one guard every model starts from: the machine is active, and ``method`` causes a
+        transition from the current state (the NodeSet's HasCause) or is declared in ``stays`` as
+        acting there without one (``(method, state)`` pairs)."""
+        if not self.active:
+            return False
+        return self.table.caused_by(method, self.current) is not None or (method, self.current) in stays
 
     def take(self, transition: str, reason: Reason = Reason.EXTERNAL) -> Change:
         """Take ``transition`` (a name from the table); it must start at the current state."""

@@ -1,16 +1,19 @@
 """Roles, the one table of who may call what, and the listening policy for anonymous clients.
 
 Roles are ordered: ``observer < operator < engineer < admin``; a role may do everything the roles below
-it may. The table ``METHOD_ROLES`` maps (method family, method BrowseName) to the least role that may
-call it. Anything not in the table needs ``admin`` (deny by default). Pure: no OPC UA stack here.
+it may. The table ``method_roles()`` maps (method family, method BrowseName) to the least role that may
+call it (``method_roles()``: the rows of base OPC UA objects here, each companion's in its package).
+Anything not in the table needs ``admin`` (deny by default). Pure: no OPC UA stack here.
 """
 
 from __future__ import annotations
 
+import functools
 import ipaddress
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from enum import IntEnum, StrEnum
+from enum import IntEnum
+from typing import ClassVar
 
 
 class Role(IntEnum):
@@ -38,37 +41,32 @@ class Role(IntEnum):
         return self.name.lower()
 
 
-class Family(StrEnum):
-    """Where a method lives; the same BrowseName (Start, Stop, Open) means different things per family."""
+class Family(str):
+    """Where a method lives; the same BrowseName (Start, Stop, Open) means different things per family.
 
-    TASK_CONTROL = "TaskControl"
-    SYSTEM_OPERATION = "SystemOperation"
-    PACKML = "PackML"
-    LOCKING = "Locking"
-    FILE = "File"
-    DIRECTORY = "Directory"
-    CONDITION = "Condition"
-    SERVER = "Server"
+    The families of base OPC UA objects are here; each companion declares its own
+    (``uacell.companion.Companion.type_hints``) together with the rows of the role table for them.
+    """
+
+    __slots__ = ()
+    FILE: ClassVar[Family]
+    DIRECTORY: ClassVar[Family]
+    CONDITION: ClassVar[Family]
+    SERVER: ClassVar[Family]
+
+    def __repr__(self) -> str:
+        return f"Family({str(self)!r})"
 
 
-# ObjectType BrowseNames (and a few instance names) a dispatcher may pass as the hint.
+Family.FILE = Family("File")
+Family.DIRECTORY = Family("Directory")
+Family.CONDITION = Family("Condition")
+Family.SERVER = Family("Server")
+
+# ObjectType BrowseNames (and a few instance names) a dispatcher may pass as the hint; companions add theirs.
 _TYPE_HINTS: dict[str, Family] = {
-    "TaskControlStateMachineType": Family.TASK_CONTROL,
-    "TaskControlOperation": Family.TASK_CONTROL,
-    "TaskControlType": Family.TASK_CONTROL,
-    "ReadySubstateMachineType": Family.TASK_CONTROL,
-    "OperationStateMachineType": Family.TASK_CONTROL,
-    "SystemOperationStateMachineType": Family.SYSTEM_OPERATION,
-    "SystemOperation": Family.SYSTEM_OPERATION,
-    "PackMLBaseObjectType": Family.PACKML,
-    "PackMLBaseStateMachineType": Family.PACKML,
-    "PackMLMachineStateMachineType": Family.PACKML,
-    "PackMLExecuteStateMachineType": Family.PACKML,
-    "LockingServicesType": Family.LOCKING,
-    "Lock": Family.LOCKING,
     "FileType": Family.FILE,
     "FileDirectoryType": Family.DIRECTORY,
-    "Programs": Family.DIRECTORY,
     "ConditionType": Family.CONDITION,
     "AcknowledgeableConditionType": Family.CONDITION,
     "AlarmConditionType": Family.CONDITION,
@@ -77,29 +75,9 @@ _TYPE_HINTS: dict[str, Family] = {
 
 OP, EN = Role.OPERATOR, Role.ENGINEER
 
-# THE table. SetMachSpeed and SetUnitMode are operator methods: they change how the unit runs now
-# (speed, Produce/Maintenance/Manual), as an operator does at the HMI; SetProduct and SetParameter change
-# what it makes and how, which is engineering. FileType Open is listed for reading; opening for writing
-# needs ENGINEER (see required_role's file_mode).
-METHOD_ROLES: dict[tuple[Family, str], Role] = {
-    **{
-        (Family.TASK_CONTROL, m): OP
-        for m in (
-            "LoadByNodeId", "LoadByName", "UnloadProgram", "UnloadByNodeId", "UnloadByName",
-            "Start", "Stop", "ResetToProgramStart",
-        )
-    },
-    **{(Family.SYSTEM_OPERATION, m): OP for m in ("GetReady", "StandDown", "Start", "Stop")},
-    **{
-        (Family.PACKML, m): OP
-        for m in (
-            "Abort", "Clear", "Stop", "Reset", "Start", "Hold", "Unhold", "Suspend", "Unsuspend",
-            "ToComplete", "SetUnitMode", "SetMachSpeed", "RemoteCommand", "SetInterlock",
-        )
-    },
-    **{(Family.PACKML, m): EN for m in ("SetProduct", "SetParameter")},
-    **{(Family.LOCKING, m): OP for m in ("InitLock", "RenewLock", "ExitLock")},
-    (Family.LOCKING, "BreakLock"): EN,
+# The rows for base OPC UA objects; ``method_roles()`` adds every companion's rows. FileType Open is
+# listed for reading; opening for writing needs ENGINEER (see required_role's file_mode).
+_BASE_ROLES: dict[tuple[Family, str], Role] = {
     **{(Family.FILE, m): OP for m in ("Open", "Read", "GetPosition", "SetPosition", "Close")},
     (Family.FILE, "Write"): EN,
     **{(Family.DIRECTORY, m): EN for m in ("CreateFile", "CreateDirectory", "Delete", "MoveOrCopy")},
@@ -109,10 +87,29 @@ METHOD_ROLES: dict[tuple[Family, str], Role] = {
     **{(Family.CONDITION, m): EN for m in ("Enable", "Disable")},
     # OPC 10000-5 9.1: a client asks which monitored items its own subscription has (after a reconnect).
     (Family.SERVER, "GetMonitoredItems"): Role.OBSERVER,
-    # uacell's own simulation methods: raising a fault on purpose is an engineer's test.
-    (Family.CONDITION, "SimulateAlarm"): EN,
-    (Family.PACKML, "InjectFault"): EN,
 }
+
+
+@functools.cache
+def method_roles() -> dict[tuple[Family, str], Role]:
+    """THE table: (method family, method BrowseName) -> the least role that may call it."""
+    from uacell.companion import companions
+
+    table = dict(_BASE_ROLES)
+    for companion in companions():
+        table.update(companion.roles)
+    return table
+
+
+@functools.cache
+def _type_hints() -> dict[str, Family]:
+    from uacell.companion import companions
+
+    hints = dict(_TYPE_HINTS)
+    for companion in companions():
+        hints.update(companion.type_hints)
+    return hints
+
 
 # Services other than Call. Attribute writes change configuration, hence engineer.
 ACTION_ROLES: dict[str, Role] = {
@@ -128,12 +125,11 @@ def family_of(hint: str | Family) -> Family | None:
     if isinstance(hint, Family):
         return hint
     name = hint.split(":", 1)[1] if ":" in hint else hint  # accept "3:TaskControlStateMachineType"
-    if name in _TYPE_HINTS:
-        return _TYPE_HINTS[name]
-    try:
-        return Family(name)
-    except ValueError:
-        return None
+    hints = _type_hints()
+    if name in hints:
+        return hints[name]
+    known = {family for family, _ in method_roles()}
+    return Family(name) if name in known else None
 
 
 def required_role(method: str, object_type_hint: str | Family, *, file_mode: int | None = None) -> Role:
@@ -148,7 +144,7 @@ def required_role(method: str, object_type_hint: str | Family, *, file_mode: int
         return Role.ADMIN
     if family is Family.FILE and name == "Open" and (file_mode is None or file_mode & _FILE_WRITE_BITS):
         return Role.ENGINEER
-    return METHOD_ROLES.get((family, name), Role.ADMIN)
+    return method_roles().get((family, name), Role.ADMIN)
 
 
 def may_call(

@@ -218,7 +218,7 @@ class Security:
         cfg = self.app.config.server
         policy = self.app.policy
         iserver = self.server.iserver
-        iserver._uacell_security = self  # type: ignore[attr-defined]
+        iserver._uacell_security = self
         await prepare_certificate(self.server, self.app.data_dir, self.server.get_application_uri(), [cfg.host])
         limit = RejectedLimit(cfg.rejected_max_files, cfg.rejected_max_age_days * 86400.0)
         self.trust_list = TrustList(
@@ -235,8 +235,8 @@ class Security:
         self.server.set_security_policy(self.policies)
         # X509 user tokens are not mapped to users: offering them would log such users in as anonymous.
         self.server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
-        iserver.create_session = self._create_session  # type: ignore[method-assign]
-        iserver.decrypt_user_token = self.decrypt_user_token  # type: ignore[method-assign]
+        iserver.create_session = self._create_session
+        iserver.decrypt_user_token = self.decrypt_user_token
         _install_processor_hook()
         logging.getLogger("asyncua.server.uaprocessor").addFilter(_drop_fault_echo)  # added once
         context.add_read_hook(_read_hook)
@@ -277,11 +277,11 @@ class Security:
         None is always accepted (for GetEndpoints and FindServers only)."""
         same_policy = [e for e in self.endpoints() if e.SecurityPolicyUri == uri]
         if not same_policy and discovery and uri == SecurityPolicyNone.URI:
-            return _S.BadSecurityModeRejected if mode not in (None, ua.MessageSecurityMode.None_) else None
+            return int(_S.BadSecurityModeRejected) if mode not in (None, ua.MessageSecurityMode.None_) else None
         if not same_policy:
-            return _S.BadSecurityPolicyRejected
+            return int(_S.BadSecurityPolicyRejected)
         if mode is not None and all(e.SecurityMode != mode for e in same_policy):
-            return _S.BadSecurityModeRejected
+            return int(_S.BadSecurityModeRejected)
         return None
 
     def check_channel(self, processor: UaProcessor, uri: str | None, mode: ua.MessageSecurityMode | None) -> None:
@@ -486,14 +486,16 @@ def _with_value(dv: ua.DataValue, value: Any, vtype: ua.VariantType) -> ua.DataV
     return dataclasses.replace(dv, Value=ua.Variant(value, vtype))
 
 
-def _read_hook(session: InternalSession, params: Any, results: list) -> None:
+def _read_hook(session: InternalSession, params: Any, results: list[Any]) -> None:
     security = getattr(session.iserver, "_uacell_security", None)
     if security is not None:
         security.adjust_read(session, params, results)
 
 
-class UacellSession(InternalSession):
+class UacellSession(InternalSession):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """A session that checks writes against the role table and reports its end."""
+
+    nonce: bytes
 
     def __init__(self, security: Security, *args: Any, **kwargs: Any) -> None:
         self._security = security
@@ -508,7 +510,9 @@ class UacellSession(InternalSession):
             self.auth_token = ua.NodeId(ua.ByteString(os.urandom(32)), ua.Int16(0), ua.NodeIdType.ByteString)
             self.iserver.register_external_session(self)
 
-    async def create_session(self, params: ua.CreateSessionParameters, sockname=None) -> ua.CreateSessionResult:
+    async def create_session(
+        self, params: ua.CreateSessionParameters, sockname: Any = None
+    ) -> ua.CreateSessionResult:
         self._client_description = params.ClientDescription  # Caller.client: LockingClient shows it
         processor = _processor.get()
         self.client_address = _address(processor)
@@ -562,7 +566,9 @@ class UacellSession(InternalSession):
 
 def _peek_policy_uri(header: ua.Header, body: Buffer) -> str | None:
     try:
-        return struct_from_binary(ua.AsymmetricAlgorithmHeader, body.copy(header.body_size)).SecurityPolicyURI
+        algorithm = struct_from_binary(ua.AsymmetricAlgorithmHeader, body.copy(header.body_size))
+        uri: str | None = algorithm.SecurityPolicyURI
+        return uri
     except Exception:  # malformed: asyncua's own parsing refuses it
         return None
 
@@ -621,10 +627,10 @@ def _install_processor_hook() -> None:
             context.reset_return_diagnostics(diagnostics)
             _processor.reset(token)
 
-    UaProcessor._process_message = _process_message  # type: ignore[method-assign]
-    UaProcessor.process = process  # type: ignore[method-assign]
-    UaProcessor.open_secure_channel = open_secure_channel  # type: ignore[method-assign]
-    UaProcessor._uacell_installed = True  # type: ignore[attr-defined]
+    UaProcessor._process_message = _process_message
+    UaProcessor.process = process
+    UaProcessor.open_secure_channel = open_secure_channel
+    UaProcessor._uacell_installed = True
 
 
 async def install_security(app: UacellServer) -> Security:

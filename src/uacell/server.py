@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 from asyncua import Server, ua
@@ -11,11 +10,12 @@ from asyncua import Server, ua
 from uacell import __version__
 from uacell.audit import AuditTrail
 from uacell.cell import CellBuilder, build_cell
-from uacell.config import Config
+from uacell.companion import Binder, Closer, companions
+from uacell.config import Config, default_application_uri
 from uacell.logs import configured_levels
 from uacell.metrics import Metrics
-from uacell.packml.binding import bind_packml
-from uacell.robotics.binding import bind_robotics
+from uacell.models import StateTables
+from uacell.registry import Registries, Registry, RegistryKey, T
 from uacell.roles import Role, listening_policy
 from uacell.ua.access import UacellUserManager
 from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
@@ -28,12 +28,10 @@ from uacell.users import UserStore
 
 log = logging.getLogger(__name__)
 
-APPLICATION_URI = "urn:uacell:server"
+APPLICATION_URI = default_application_uri()  # unless [server] application_uri says otherwise
 PRODUCT_URI = "urn:uacell"
 
-# Called once the cell exists, before the server listens: each binds one domain to its nodes and
-# returns a coroutine function to run at shutdown (or None).
-Binder = Callable[["UacellServer"], Awaitable[Callable[[], Awaitable[None]] | None]]
+__all__ = ["Binder", "UacellServer", "default_binders"]
 
 
 def _quiet_asyncua() -> None:
@@ -46,25 +44,50 @@ def _quiet_asyncua() -> None:
 
 
 class UacellServer:
-    """One uacell server: call ``setup()``, then ``start()``; ``stop()`` at the end."""
+    """One uacell server: call ``setup()``, then ``start()``; ``stop()`` at the end.
+
+    This is the application object binders receive. What they bind they register in typed registries
+    keyed by the part's browse path (``app.registry(CONTROLLERS)["Robot1.Controllers.Controller1"]``);
+    the keys are declared next to the parts' code.
+    """
 
     def __init__(self, config: Config, binders: list[Binder] | None = None) -> None:
         _quiet_asyncua()
         self.config = config
         self.server = Server()
-        self.cell: CellBuilder | None = None
+        self._cell: CellBuilder | None = None
         self.model_indexes: dict[str, int] = {}
+        # The state-machine tables of the configured NodeSets: binders hand them to the models.
+        self.tables = StateTables(config.server.models_dir)
         self.binders = binders if binders is not None else default_binders()
-        self._closers: list[Callable[[], Awaitable[None]]] = []
+        self._closers: list[Closer] = []
+        self.registries = Registries()
         self.dispatcher = MethodDispatcher.install(self.server)
         self.publisher = Publisher()
         self.dispatcher.after_call.append(self.publisher.flush)
         self.publisher.idle_hooks.append(self.dispatcher.refresh_executable)
-        self.refs: NodeRefs | None = None
+        self._refs: NodeRefs | None = None
         self.writes = WriteRouter()
         self.audit = AuditTrail(None)  # the configured trail from setup() on
         self.metrics: Metrics | None = None
         self.diagnostics: Diagnostics | None = None
+
+    @property
+    def cell(self) -> CellBuilder:
+        """The built cell (binders run after it is built)."""
+        if self._cell is None:
+            raise RuntimeError("the cell is built in setup()")
+        return self._cell
+
+    @property
+    def refs(self) -> NodeRefs:
+        if self._refs is None:
+            raise RuntimeError("the namespaces are known in setup()")
+        return self._refs
+
+    def registry(self, key: RegistryKey[T]) -> Registry[T]:
+        """The registry ``key`` names (created empty on first use)."""
+        return self.registries.of(key)
 
     @property
     def data_dir(self) -> Path:
@@ -90,16 +113,16 @@ class UacellServer:
         self.server.iserver.bind_condition_methods = 100
         await self.server.init()
         self.server.set_endpoint(self.endpoint)
-        self.server.set_server_name("uacell")
-        await self.server.set_application_uri(APPLICATION_URI)
+        self.server.set_server_name(cfg.application_name)
+        await self.server.set_application_uri(cfg.application_uri)
         from uacell.security import install_security
 
         self.security = await install_security(self)
         self.server.product_uri = PRODUCT_URI
         await self.server.set_build_info(PRODUCT_URI, "uacell", "uacell", __version__, "0", ua.DateTime.now())
         self.model_indexes = await load_models(self.server, self.config.server.models_dir)
-        self.cell = await build_cell(self.server, self.model_indexes)
-        self.refs = NodeRefs(await self.server.get_namespace_array())
+        self._cell = await build_cell(self.server, self.model_indexes, self.config.cell.parts())
+        self._refs = NodeRefs(await self.server.get_namespace_array())
         self.dispatcher.declarations = self.cell.instantiator.declarations
         bind_get_monitored_items(self)
         for binder in self.binders:
@@ -139,7 +162,5 @@ class UacellServer:
 
 
 def default_binders() -> list[Binder]:
-    """The domain bindings of a full server (filled in as the domains are bound)."""
-    from uacell.ua.locks import bind_locks
-
-    return [bind_packml, bind_robotics, bind_locks]
+    """The binders of every companion (``uacell.companion.companions``), in their order."""
+    return [c.binder for c in companions() if c.binder is not None]

@@ -8,7 +8,7 @@ from uacell.models.source import (
     locate_models,
     models_dir,
 )
-from uacell.models.tables import FsmTable, StateInfo, TransitionInfo, fsm_table
+from uacell.models.tables import FsmTable, StateInfo, StateTables, TableLoader, TransitionInfo, fsm_table
 
 __all__ = [
     "MODELS",
@@ -16,6 +16,8 @@ __all__ = [
     "ModelError",
     "ModelFile",
     "StateInfo",
+    "StateTables",
+    "TableLoader",
     "TransitionInfo",
     "fetch_models",
     "fsm_table",

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import xml.etree.ElementTree as ET
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -89,6 +90,12 @@ class FsmTable:
     @property
     def initial_state(self) -> str | None:
         return next((s.name for s in self.states.values() if s.initial), None)
+
+    def check_names(self, states: Iterable[str] = (), methods: Iterable[str] = ()) -> None:
+        """Raise ``LookupError`` unless the type declares every state and method named in code."""
+        missing = [s for s in states if s not in self.states] + [m for m in methods if m not in self.methods]
+        if missing:
+            raise LookupError(f"{self.type_name} in the NodeSet has no {', '.join(missing)}")
 
     def transition_number(self, name: str) -> int:
         """The TransitionNumber from the type, or uacell's numbering where the type gives none.
@@ -245,3 +252,21 @@ def fsm_table(model_key: str, type_name: str, models_dir: str | None = None) -> 
     if model_key not in MODELS_BY_KEY:
         raise KeyError(f"unknown model {model_key!r}")
     return _cached_table(model_key, type_name, models_dir)
+
+
+# What the models are handed: (model key, type BrowseName) -> that type's table.
+TableLoader = Callable[[str, str], FsmTable]
+
+
+class StateTables:
+    """The ``TableLoader`` over the NodeSets of one models directory (each table read once).
+
+    The server builds it from ``[server] models_dir``; pure models receive the tables it returns and
+    never read a file themselves.
+    """
+
+    def __init__(self, models_dir: str | None = None) -> None:
+        self.models_dir = models_dir
+
+    def __call__(self, model_key: str, type_name: str) -> FsmTable:
+        return fsm_table(model_key, type_name, self.models_dir)

@@ -3,7 +3,7 @@ simulator and durable Admin data."""
 
 from uacell.packml.admin_store import AdminStore
 from uacell.packml.equipment import EquipmentBase, InstantEquipment, PackMLEquipment, UnitPort
-from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, UNIT_METHODS, Admin, PackMLUnit, Status
+from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, UNIT_METHODS, Admin, PackMLTables, PackMLUnit, Status
 from uacell.packml.sim import SimulatedUnit
 from uacell.packml.types import (
     EUInformation,
@@ -34,6 +34,7 @@ __all__ = [
     "PackMLIngredientsDataType",
     "PackMLProductDataType",
     "PackMLRemoteInterfaceDataType",
+    "PackMLTables",
     "PackMLUnit",
     "ProductionMaintenanceModeEnum",
     "SimulatedUnit",

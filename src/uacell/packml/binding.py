@@ -10,18 +10,26 @@ values to and from the model's dataclasses. Server-defined additions, in the cel
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
+import functools
+import inspect
 import logging
 from collections.abc import Awaitable, Callable, Sequence
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
 
-from uacell.config import load_factory
+from uacell.background import Background
+from uacell.cell import BuiltPart
+from uacell.companion import Closer
+from uacell.equipment import EquipmentSpec, make_equipment
+from uacell.errors import ConfigError
 from uacell.packml.admin_store import AdminStore
-from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLUnit
+from uacell.packml.companion import PACKML, UNIT_PART
+from uacell.packml.config import PackMLConfig, UnitSpec
+from uacell.packml.equipment import PackMLEquipment
+from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLTables, PackMLUnit
 from uacell.packml.sim import SimulatedUnit
 from uacell.packml.types import (
     EUInformation,
@@ -32,8 +40,13 @@ from uacell.packml.types import (
     PackMLProductDataType,
     PackMLRemoteInterfaceDataType,
 )
-from uacell.roles import Family
+from uacell.registry import RegistryKey
+from uacell.ua.context import Caller
 from uacell.ua.state_machine import bind_tree
+from uacell.ua.toolkit import ValueWriter
+
+if TYPE_CHECKING:
+    from uacell.server import UacellServer
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +57,8 @@ MODE_ENUM = "ProductionMaintenanceModeEnum"
 TICK_PERIOD = 0.1
 INJECT_FAULT = "InjectFault"
 _A = ua.AttributeIds
+# Every bound unit, keyed by its browse path ("Filler1").
+UNITS: RegistryKey[UnitBinding] = RegistryKey("PackML unit")
 
 
 # --- asyncua structures -> model ----------------------------------------------------------------
@@ -93,7 +108,8 @@ class Structures:
 
     def cls(self, identifier: int) -> type:
         # Looked up on use: the classes are (re)registered when a server loads the PackML NodeSet.
-        return ua.extension_objects_by_datatype[ua.NodeId(identifier, self.ns)]
+        cls: type = ua.extension_objects_by_datatype[ua.NodeId(identifier, self.ns)]
+        return cls
 
     def convert(self, value: Any) -> Any:
         """A model value (dataclass, list, tuple range, scalar) as the value to put in a Variant."""
@@ -146,7 +162,7 @@ def _utc(t: datetime | None) -> datetime:
 class UnitBinding:
     """One PackML unit on its instance node."""
 
-    def __init__(self, app: Any, built: Any, unit: PackMLUnit) -> None:
+    def __init__(self, app: UacellServer, built: BuiltPart, unit: PackMLUnit) -> None:
         self.app = app
         self.built = built
         self.unit = unit
@@ -155,7 +171,8 @@ class UnitBinding:
         self.aspace = app.server.iserver.aspace
         self.structures = Structures(app.model_indexes["PackML"])
         self.variables: dict[str, tuple[ua.NodeId, ua.VariantType, int]] = {}  # key -> node, type, rank
-        self.task: asyncio.Task[None] | None = None
+        self.values = ValueWriter(self.aspace, app.dispatcher.types.builtin_of)
+        self.background = Background()
 
     # nodes ------------------------------------------------------------------------------------
     def child(self, path: str) -> ua.NodeId:
@@ -206,7 +223,7 @@ class UnitBinding:
             ua.NodeId(f"{self.built.path}.{INJECT_FAULT}", self.ns),
             ua.QualifiedName(INJECT_FAULT, self.ns),
             (("Id", ua.VariantType.Int32, "alarm ID"), ("Message", ua.VariantType.String, "alarm message")),
-            Family.PACKML,
+            PACKML,
             self._inject_fault,
             serialize_on=self.unit,
         )
@@ -215,10 +232,10 @@ class UnitBinding:
     def on_change(self, changed: dict[str, Any]) -> None:
         values = {k: v for k, v in changed.items() if k != "Executable"}
         if values:
-            self.app.publisher.submit(lambda: self.write(values))
-        if "Executable" in changed:
-            # Acting states complete outside any call: Executable must follow then too.
-            self.app.publisher.submit(self.app.dispatcher.refresh_executable)
+            self.app.publisher.submit(functools.partial(self.write, values))
+        elif "Executable" in changed:
+            # Acting states complete outside any call: the publisher's idle hook refreshes Executable.
+            self.app.publisher.submit(_nothing)
 
     def variant(self, key: str, value: Any) -> ua.Variant | None:
         found = self._variable(key)
@@ -239,27 +256,17 @@ class UnitBinding:
         for key, value in values.items():
             v = self.variant(key, value)
             if v is not None:
-                node = self.variables[key][0]
-                await self.app.server.write_attribute_value(node, ua.DataValue(v))
+                await self.values.write(self.variables[key][0], v, force=True)
 
     async def publish_constants(self) -> None:
-        modes = self._mode_enum()
-        if modes is not None:
-            node = self.child("Status/UnitSupportedModes")
-            await self.app.server.write_attribute_value(node, ua.DataValue(ua.Variant(modes, ua.VariantType.NodeId)))
+        try:
+            modes = self.app.cell.type_node("PackML", MODE_ENUM, root=ua.ObjectIds.Enumeration)
+        except KeyError:
+            log.warning("the PackML NodeSet has no %s", MODE_ENUM)
+        else:
+            await self.values.write(self.child("Status/UnitSupportedModes"), modes, ua.VariantType.NodeId, force=True)
         with contextlib.suppress(KeyError):
-            node = self.child("TagID")
-            await self.app.server.write_attribute_value(
-                node, ua.DataValue(ua.Variant(self.unit.name, ua.VariantType.String))
-            )
-
-    def _mode_enum(self) -> ua.NodeId | None:
-        ns = self.structures.ns
-        for ref in self.aspace[ua.NodeId(ua.ObjectIds.Enumeration)].references:
-            if ref.IsForward and ref.BrowseName == ua.QualifiedName(MODE_ENUM, ns):
-                return ref.NodeId
-        log.warning("the PackML NodeSet has no %s", MODE_ENUM)
-        return None
+            await self.values.write(self.child("TagID"), self.unit.name, ua.VariantType.String, force=True)
 
     # methods ------------------------------------------------------------------------------------
     def bind_methods(self, machine_nodes: dict[str | None, ua.NodeId]) -> None:
@@ -270,23 +277,23 @@ class UnitBinding:
             d.bind(
                 obj,
                 d.method_of(obj, method),
-                Family.PACKML,
+                PACKML,
                 self._handler(machine_name, method),
-                executable=(lambda m=machine_name, n=method: unit.executable(m, n)),
+                executable=functools.partial(unit.executable, machine_name, method),
                 serialize_on=unit,
             )
 
     def _handler(self, machine_name: str | None, method: str) -> Callable[..., Awaitable[list[Any]]]:
-        convert = _INPUTS.get(method, lambda *a: a)
+        convert: Callable[..., tuple[Any, ...]] = _INPUTS.get(method, _as_given)
 
-        async def handler(caller: Any, *values: Any) -> list[Any]:
+        async def handler(caller: Caller, *values: Any) -> list[Any]:
             log.info("%s: %s.%s by %s", self.unit.name, machine_name or "unit", method, caller.display_user)
             self.unit.command(machine_name, method, *convert(*values))
             return []
 
         return handler
 
-    async def _inject_fault(self, caller: Any, alarm_id: int, message: str) -> list[Any]:
+    async def _inject_fault(self, caller: Caller, alarm_id: int, message: str) -> list[Any]:
         log.warning("%s: fault injected by %s", self.unit.name, caller.display_user)
         eq = self.unit.equipment
         if isinstance(eq, SimulatedUnit):
@@ -297,11 +304,19 @@ class UnitBinding:
 
     # life ---------------------------------------------------------------------------------------
     async def close(self) -> None:
-        if self.task is not None:
-            self.task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self.task
+        await self.background.close()
         self.unit.close()
+        closed = self.unit.equipment_closed
+        if inspect.isawaitable(closed):  # a driver's close() may be a coroutine
+            await closed
+
+
+def _as_given(*values: Any) -> tuple[Any, ...]:
+    return values
+
+
+async def _nothing() -> None:
+    pass
 
 
 def _start_inputs(parameter: Any) -> tuple[Any, ...]:
@@ -327,19 +342,45 @@ _INPUTS: dict[str, Callable[..., tuple[Any, ...]]] = {
 }
 
 
-async def bind_unit(app: Any, built: Any) -> UnitBinding:
-    name = built.part.name
-    cfg = app.config.packml
-    # Real equipment comes from a factory named in the configuration; the simulator otherwise.
-    equipment = (
-        load_factory(cfg.equipment, "packml")(cfg) if cfg.equipment else SimulatedUnit(acting_time=cfg.acting_time)
+SIMULATOR = "uacell.packml.sim:simulator"
+
+
+async def make_unit_equipment(app: UacellServer, built: BuiltPart) -> PackMLEquipment:
+    """The unit's own factory and settings, else ``[packml] equipment``, else the simulator."""
+    spec = built.part.spec if isinstance(built.part.spec, UnitSpec) else None
+    cfg = app.config.section("packml", PackMLConfig)
+    factory = (spec.equipment if spec else "") or cfg.equipment or SIMULATOR
+    settings = dict(spec.settings) if spec else {}
+    if factory == SIMULATOR:
+        if spec is not None and spec.acting_time is not None:
+            settings["acting_time"] = spec.acting_time
+        settings.setdefault("acting_time", cfg.acting_time)
+        if spec is not None and spec.acting_times:
+            settings["acting_times"] = {**spec.acting_times, **settings.get("acting_times", {})}
+    equipment: PackMLEquipment = await make_equipment(
+        factory, EquipmentSpec(built.path, settings), PackMLEquipment
     )
+    return equipment
+
+
+async def bind_unit(app: UacellServer, built: BuiltPart) -> UnitBinding:
+    name = built.part.name
+    spec = built.part.spec if isinstance(built.part.spec, UnitSpec) else UnitSpec(name)
+    defaults = app.config.section("packml", PackMLConfig)
+    mach_speed = spec.mach_speed if spec.mach_speed is not None else defaults.mach_speed
+    low, high = spec.mach_speed_range
+    if not low <= mach_speed <= high:
+        raise ConfigError(f"{built.path}: [packml] mach_speed {mach_speed:g} is outside its range {low:g}..{high:g}")
+    equipment = await make_unit_equipment(app, built)
     unit = PackMLUnit(
         equipment,
         name=name,
         store=AdminStore(app.data_dir / "packml" / f"{name}.json"),
-        mach_speed=cfg.mach_speed,
-        models_dir=app.config.server.models_dir,
+        mach_speed=mach_speed,
+        mach_speed_range=spec.mach_speed_range,
+        mach_design_speed=spec.design_speed,
+        initial_mode=spec.unit_mode,
+        tables=PackMLTables.load(app.tables),
     )
     b = UnitBinding(app, built, unit)
     base = b.child("BaseStateMachine")
@@ -354,16 +395,14 @@ async def bind_unit(app: Any, built: Any) -> UnitBinding:
     values.pop("Executable")
     await b.write(values)
     unit.listeners.append(b.on_change)
-    b.task = asyncio.get_running_loop().create_task(unit.run(TICK_PERIOD), name=f"packml-{name}")
+    b.background.spawn(unit.run(TICK_PERIOD), name=f"packml-{name}")
+    app.registry(UNITS).add(built.path, b)
     return b
 
 
-async def bind_packml(app: Any) -> Callable[[], Awaitable[None]] | None:
-    """The PackML binder for ``UacellServer``: every part with role ``packml_unit``."""
-    bindings = [await bind_unit(app, built) for built in app.cell.by_role("packml_unit")]
-    app.packml_units = {b.unit.name: b.unit for b in bindings}
-    if not bindings:
-        return None
+async def bind_packml(app: UacellServer) -> Closer | None:
+    """The PackML binder: every part with role ``packml_unit``."""
+    bindings: list[UnitBinding] = []
 
     async def close() -> None:
         for b in bindings:
@@ -373,6 +412,14 @@ async def bind_packml(app: Any) -> Callable[[], Awaitable[None]] | None:
                 log.exception("closing PackML unit %s failed", b.unit.name)
         await app.publisher.flush()
 
+    try:
+        for built in app.cell.by_role(UNIT_PART):
+            bindings.append(await bind_unit(app, built))
+    except BaseException:
+        await close()  # the drivers already connected
+        raise
+    if not bindings:
+        return None
     return close
 
 

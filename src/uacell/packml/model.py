@@ -1,8 +1,8 @@
 """The pure ISA-TR88 / OPC 30050 PackML unit: three nested state machines, unit modes, Status, Admin.
 
-The transitions are the NodeSet's (``fsm_table``); this module adds only what the tables cannot say:
-which sub-state a machine is entered at (decision 23), when the unit mode disables a command
-(decision 26), the rules of the unit methods, and the Status/Admin bookkeeping (decisions 28, 29).
+The transitions are the NodeSet's (``PackMLTables``, handed in by the caller); this module adds only
+what the tables cannot say: which sub-state a machine is entered at (decision 23), when the unit mode
+disables a command (decision 26), the rules of the unit methods, and the Status/Admin bookkeeping (decisions 28, 29).
 Every public operation either succeeds or raises ``CallError`` having changed nothing (decision 22).
 """
 
@@ -20,7 +20,7 @@ from typing import Any
 
 from uacell.errors import CallError
 from uacell.fsm import Reason, StateMachine
-from uacell.models.tables import TransitionInfo, fsm_table
+from uacell.models.tables import FsmTable, TableLoader, TransitionInfo
 from uacell.packml.admin_store import AdminStore
 from uacell.packml.equipment import EquipmentBase, PackMLEquipment
 from uacell.packml.types import (
@@ -63,13 +63,34 @@ JOB_STATES = frozenset(
     {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding",
      "Suspending", "Suspended", "Unsuspending"}
 )
-# StopReason.ID for a commanded stop: the TR88 command number (packml-v101.md §11).
+# StopReason.ID for a commanded stop: the ISA-TR88 command number (Stop 3, Hold 4, Suspend 6, Abort 8).
 STOP_COMMAND_IDS = {"Stop": 3, "Hold": 4, "Suspend": 6, "Abort": 8}
 STATE_COLUMNS = 18  # StateCurrentTime/StateCumulativeTime second index: TR88 state numbers 0..17
 INT32_WRAP = 2**31
 PACKAGES = EUInformation("http://www.opcfoundation.org/UA/units/un/cefact", 5262926, "pkg", "package")
 
 Listener = Callable[[dict[str, Any]], None]
+
+
+@dataclass(frozen=True)
+class PackMLTables:
+    """The three PackML state-machine tables, handed to ``PackMLUnit`` by whoever knows the NodeSets."""
+
+    base: FsmTable
+    machine: FsmTable
+    execute: FsmTable
+
+    @classmethod
+    def load(cls, tables: TableLoader) -> PackMLTables:
+        loaded = cls(
+            base=tables("PackML", "PackMLBaseStateMachineType"),
+            machine=tables("PackML", "PackMLMachineStateMachineType"),
+            execute=tables("PackML", "PackMLExecuteStateMachineType"),
+        )
+        loaded.base.check_names(("Cleared",))
+        loaded.machine.check_names(("Stopped", ENTRY_STATE[MACHINE]))
+        loaded.execute.check_names(("Idle", "Execute", ENTRY_STATE[EXECUTE], *JOB_STATES))
+        return loaded
 
 
 def _i32(x: float) -> int:
@@ -130,6 +151,7 @@ class PackMLUnit:
         self,
         equipment: PackMLEquipment | None = None,
         *,
+        tables: PackMLTables,
         name: str = "Filler1",
         store: AdminStore | None = None,
         mach_speed: float = 100.0,
@@ -146,7 +168,6 @@ class PackMLUnit:
         save_interval: float = 10.0,
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], datetime] = lambda: datetime.now(UTC),
-        models_dir: str | None = None,
     ) -> None:
         self.name = name
         self.store = store
@@ -157,9 +178,7 @@ class PackMLUnit:
         if initial_mode not in self.supported_modes:
             raise ValueError(f"initial mode {initial_mode} is not a supported mode")
 
-        base_t = fsm_table("PackML", "PackMLBaseStateMachineType", models_dir)
-        machine_t = fsm_table("PackML", "PackMLMachineStateMachineType", models_dir)
-        execute_t = fsm_table("PackML", "PackMLExecuteStateMachineType", models_dir)
+        base_t, machine_t, execute_t = tables.base, tables.machine, tables.execute
         self.base = StateMachine(BASE, base_t, "Cleared")
         self.machine = StateMachine(MACHINE, machine_t, "Stopped", parent=self.base,
                                     parent_state=_hosting(base_t.states.values(), MACHINE))
@@ -318,11 +337,12 @@ class PackMLUnit:
     def command(self, machine_name: str | None, method: str, *args: Any) -> None:
         """Call ``method`` of ``machine_name`` (None: a unit method) with the method's input arguments."""
         if machine_name is UNIT:
-            handler = {
+            handlers: dict[str, Callable[..., Any]] = {
                 "SetUnitMode": self.set_unit_mode, "SetMachSpeed": self.set_mach_speed,
                 "SetProduct": self.set_product, "SetParameter": self.set_parameter,
                 "RemoteCommand": self.remote_command, "SetInterlock": self.set_interlock,
-            }.get(method)
+            }
+            handler = handlers.get(method)
             if handler is None:
                 raise CallError("BadMethodInvalid", f"the unit has no method {method}")
             handler(*args)
@@ -388,7 +408,7 @@ class PackMLUnit:
             return f"{machine_name} has no method {method}"
         if not sm.active:
             return f"{method}: {machine_name} is not active (unit is {state})"
-        if sm.table.caused_by(method, sm.current) is None:
+        if not sm.allows(method):
             return f"{method} is not allowed in {state}"
         if method in MODE_DISABLED.get(self.status.unit_mode_current, ()):
             return f"{method} is disabled in unit mode {self._mode_name()}"
@@ -616,7 +636,8 @@ class PackMLUnit:
         """Shut down: account time, save, tell the equipment."""
         self._account()
         self.save()
-        self.equipment.close()
+        # A driver's close() may be a coroutine: the caller awaits it (uacell.packml.binding).
+        self.equipment_closed: object = self.equipment.close()
 
     # --- internals -----------------------------------------------------------------------------
 
@@ -807,7 +828,7 @@ _MISSING = object()
 
 
 def _hosting(states: Iterable[Any], submachine: str) -> str:
-    return next(s.name for s in states if s.submachine == submachine)
+    return next(str(s.name) for s in states if s.submachine == submachine)
 
 
 def _counted(c: PackMLCountDataType, n: int) -> PackMLCountDataType:

@@ -1,6 +1,6 @@
 """OPC 40010-1 remote operation, free of OPC UA: TaskControl, SystemOperation and the cell wiring them.
 
-The rules are uacell's decisions 8-21 (docs/robotics.md is the client's view of them). State lives
+The rules are docs/decisions.md 8-21 (docs/robotics.md is the client's view of them). State lives
 only in ``uacell.fsm.StateMachine`` objects built from the NodeSet tables; the OPC UA binding
 listens to them and to ``listeners`` (called after any other observable change) and publishes.
 Operations return the Int32 ``Status`` of the Robotics methods, or raise ``CallError`` for Bad codes.
@@ -10,15 +10,16 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Awaitable, Callable, Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, fields
 from enum import IntEnum
 from pathlib import Path, PurePosixPath
 from typing import Protocol
 
+from uacell.background import Background
 from uacell.errors import CallError
 from uacell.fsm import Reason, StateMachine
-from uacell.models import fsm_table
+from uacell.models import FsmTable, TableLoader
 from uacell.robotics.equipment import (
     EquipmentError,
     ExecutionMode,
@@ -48,16 +49,63 @@ class Status(IntEnum):
     MODULE_REFERENCED = -4  # unload of a module the program or another module uses
 
 
-TC_METHODS = (
-    "LoadByNodeId",
-    "LoadByName",
-    "UnloadProgram",
-    "UnloadByNodeId",
-    "UnloadByName",
-    "Start",
-    "Stop",
+# --- the NodeSet's names ----------------------------------------------------------------------------
+# Machines (BrowseNames of the instance machines) and their states, as OPC 40010-1 names them.
+# ``RoboticsTables`` checks every one against the NodeSet when the tables are loaded; transitions are
+# never named: they are looked up in the table by cause (method) or by from/to state.
+TASK_CONTROL = "TaskControlStateMachine"
+READY_SUB = "ReadySubstateMachine"
+SYSTEM_OPERATION = "SystemOperationStateMachine"
+IDLE_SUB = "IdleSubstateMachine"
+EXECUTING_SUB = "ExecutingSubstateMachine"
+IDLE, READY, EXECUTING = "Idle", "Ready", "Executing"  # TaskControl and SystemOperation
+AT_PROGRAM_START, SUSPENDED = "AtProgramStart", "Suspended"  # ReadySubstateMachineType
+STAND_BY, GETTING_READY = "StandBy", "GettingReady"  # IdleSubstateMachineType
+RUNNING, STOPPING = "Running", "Stopping"  # ExecutingSubstateMachineType
+
+# Calls that act in a state without taking a transition (docs/decisions.md 11, 15, 16): the one place
+# Robotics adds to the NodeSet's HasCause table. Everything else a method may do, the table says.
+STAYS: frozenset[tuple[str, str]] = frozenset(
+    {
+        ("LoadByName", READY),  # 11: replaces the program or adds a module
+        ("LoadByNodeId", READY),
+        ("UnloadByName", IDLE),  # 15: a module loaded without a program
+        ("UnloadByNodeId", IDLE),
+        ("ResetToProgramStart", AT_PROGRAM_START),  # 16: Status 0, no transition
+    }
 )
-SO_METHODS = ("GetReady", "StandDown", "Start", "Stop")
+
+
+@dataclass(frozen=True)
+class RoboticsTables:
+    """The five Robotics state-machine tables, handed to the models by whoever knows the NodeSets."""
+
+    task_control: FsmTable
+    ready: FsmTable
+    system_operation: FsmTable
+    idle: FsmTable
+    executing: FsmTable
+
+    @classmethod
+    def load(cls, tables: TableLoader) -> RoboticsTables:
+        """Read the tables through ``tables`` and check every name this module uses against them."""
+        loaded = cls(
+            task_control=tables("Robotics", "TaskControlStateMachineType"),
+            ready=tables("Robotics", "ReadySubstateMachineType"),
+            system_operation=tables("Robotics", "SystemOperationStateMachineType"),
+            idle=tables("Robotics", "IdleSubstateMachineType"),
+            executing=tables("Robotics", "ExecutingSubstateMachineType"),
+        )
+        loaded.task_control.check_names((IDLE, READY, EXECUTING))
+        loaded.ready.check_names((AT_PROGRAM_START, SUSPENDED))
+        loaded.system_operation.check_names((IDLE, READY, EXECUTING))
+        loaded.idle.check_names((STAND_BY, GETTING_READY))
+        loaded.executing.check_names((RUNNING, STOPPING))
+        every = {m for f in fields(cls) for m in getattr(loaded, f.name).methods}
+        unknown = sorted({m for m, _ in STAYS} - every)
+        if unknown:
+            raise LookupError(f"the Robotics NodeSet has no method {', '.join(unknown)}")
+        return loaded
 
 
 # --- where programs come from ---------------------------------------------------------------------
@@ -151,26 +199,35 @@ def _notify(listeners: Iterable[Listener]) -> None:
         listener()
 
 
-class _Background:
-    """Background coroutines owned by one object (cancelled by ``close``)."""
+class _Guarded:
+    """The one refusal path of a Robotics object (docs/decisions.md 4 and 8).
 
-    def __init__(self) -> None:
-        self.tasks: set[asyncio.Task[None]] = set()
+    A method may act when its machine ``allows`` it (the NodeSet's HasCause table plus ``STAYS``) and
+    the method's entry in ``_conditions`` (if any) has no objection. Operations answer the Status this
+    returns; ``Executable`` is true exactly when it returns None.
+    """
 
-    def spawn(self, coro: Awaitable[None]) -> asyncio.Task[None]:
-        task: asyncio.Task[None] = asyncio.ensure_future(coro)
-        self.tasks.add(task)
-        task.add_done_callback(self.tasks.discard)
-        return task
+    _machines: dict[str, StateMachine]
+    _conditions: dict[str, Callable[[], Status | None]]
 
-    async def close(self) -> None:
-        for task in list(self.tasks):
-            task.cancel()
-        await asyncio.gather(*self.tasks, return_exceptions=True)
+    def _refusal(self, machine_name: str, method: str) -> Status | None:
+        """Why ``method`` of machine ``machine_name`` cannot act now (a Status), or None if it can."""
+        machine = self._machines.get(machine_name)
+        if machine is None or method not in machine.table.methods or not machine.allows(method, STAYS):
+            return Status.E_SYSTEM_STATE
+        condition = self._conditions.get(method)
+        return condition() if condition is not None else None
+
+    def executable(self, machine_name: str, method: str) -> bool:
+        return self._refusal(machine_name, method) is None
+
+    def methods(self) -> list[tuple[str, str]]:
+        """Every (machine name, method) the NodeSet gives this object's machines."""
+        return [(name, m) for name, machine in self._machines.items() for m in sorted(machine.table.methods)]
 
 
 # --- TaskControl -----------------------------------------------------------------------------------
-class TaskControl:
+class TaskControl(_Guarded):
     """One task control: loads programs and modules, runs them on the equipment (TaskControlStateMachine)."""
 
     def __init__(
@@ -179,6 +236,7 @@ class TaskControl:
         equipment: RobotEquipment,
         library: ProgramLibrary,
         *,
+        tables: RoboticsTables,
         system: SystemOperation | None = None,
         motion_devices: Sequence[str] = ("Arm1",),
         possible_stop_modes: Sequence[StopMode] = tuple(StopMode),
@@ -193,16 +251,16 @@ class TaskControl:
         self.possible_stop_modes = tuple(possible_stop_modes)
         self.default_stop_mode = default_stop_mode
         self.execution_mode = execution_mode
-        self.machine = StateMachine(
-            "TaskControlStateMachine", fsm_table("Robotics", "TaskControlStateMachineType"), "Idle"
-        )
-        self.ready = StateMachine(
-            "ReadySubstateMachine",
-            fsm_table("Robotics", "ReadySubstateMachineType"),
-            "AtProgramStart",
-            parent=self.machine,
-            parent_state="Ready",
-        )
+        self.machine = StateMachine(TASK_CONTROL, tables.task_control, IDLE)
+        self.ready = StateMachine(READY_SUB, tables.ready, AT_PROGRAM_START, parent=self.machine, parent_state=READY)
+        self._machines = {m.name: m for m in self.machine.walk()}
+        # What a method needs beyond the table (None: nothing more, else the Status to answer).
+        self._conditions: dict[str, Callable[[], Status | None]] = {
+            "Start": self._start_conditions,
+            "Stop": lambda: Status.E_SYSTEM_STATE if self.stopping else None,
+            "UnloadByName": self._something_loaded,
+            "UnloadByNodeId": self._something_loaded,
+        }
         self.program: Program | None = None
         self.program_file: str | None = None
         self._modules: dict[str, tuple[Program, str | None]] = {}
@@ -212,7 +270,7 @@ class TaskControl:
         self.stopping = False
         self.listeners: list[Listener] = []
         self._lock = asyncio.Lock()
-        self._bg = _Background()
+        self._bg = Background()
         self._run: asyncio.Task[None] | None = None
         self._resolution: object = _UNKNOWN
         if system is not None:
@@ -243,7 +301,7 @@ class TaskControl:
 
     @property
     def executing(self) -> bool:
-        return self.machine.current == "Executing"
+        return self.machine.current == EXECUTING
 
     def machines(self) -> list[StateMachine]:
         return self.machine.walk()
@@ -254,32 +312,15 @@ class TaskControl:
         if self.system is not None:
             self.system._changed()
 
-    # executable (decision 4)
-    def executable(self, machine_name: str, method: str) -> bool:
-        state = self.machine.current
-        if machine_name == "ReadySubstateMachine":
-            return method == "ResetToProgramStart" and state == "Ready"
-        if machine_name != "TaskControlStateMachine":
-            return False
-        match method:
-            case "LoadByNodeId" | "LoadByName":
-                return state in ("Idle", "Ready")
-            case "UnloadProgram":
-                return state == "Ready"
-            case "UnloadByNodeId" | "UnloadByName":
-                return state == "Ready" or (state == "Idle" and bool(self._modules))
-            case "Start":
-                return self._start_check() is None
-            case "Stop":
-                return state == "Executing" and not self.stopping
-        return False
+    def _something_loaded(self) -> Status | None:
+        return Status.E_SYSTEM_STATE if self.program is None and not self._modules else None
 
     # loading
     async def load_by_name(self, name: str) -> int:
         """LoadByName: a program or module from the library by file name (without extension)."""
         async with self._lock:
-            if self.machine.current == "Executing":
-                return Status.E_SYSTEM_STATE
+            if (problem := self._refusal(TASK_CONTROL, "LoadByName")) is not None:
+                return problem
             relpath = self.library.resolve(name)
             if relpath is None:
                 return self._load_failed(Status.NOT_FOUND, f"no program or module named {name!r}")
@@ -288,8 +329,8 @@ class TaskControl:
     async def load_file(self, relpath: str) -> int:
         """LoadByNodeId, after the binding resolved the NodeId to a file in Programs."""
         async with self._lock:
-            if self.machine.current == "Executing":
-                return Status.E_SYSTEM_STATE
+            if (problem := self._refusal(TASK_CONTROL, "LoadByNodeId")) is not None:
+                return problem
             return await self._load(relpath)
 
     async def _load(self, relpath: str) -> int:
@@ -319,7 +360,7 @@ class TaskControl:
         except Exception as e:  # a bug in a library or equipment must not leave the machine half-done
             log.exception("%s: loading %s failed", self.name, relpath)
             return self._load_failed(Status.E_UNEXPECTED_ERROR, f"internal error: {e}")
-        if self.machine.current == "Executing":  # a run started while the controller was loading
+        if self.machine.current == EXECUTING:  # a run started while the controller was loading
             return self._load_failed(Status.E_SYSTEM_STATE, "task control started during load")
         self.last_error = ""
         if program.kind is Kind.MODULE:
@@ -328,26 +369,26 @@ class TaskControl:
             replaces_used = any(m.name == program.name and m.is_referenced for m in self.modules)
             self._modules[program.name] = (program, relpath)
             log.info("%s: loaded module %s %s", self.name, program.name, program.version)
-            if replaces_used and self.machine.current == "Ready" and self.ready.current == "Suspended":
+            if replaces_used and self.ready.is_in(SUSPENDED):
                 self.pointer, self.current_line = 0, 0
-                self.ready.take("SuspendedToProgramStart", Reason.EXTERNAL)
+                self.ready.move(AT_PROGRAM_START, Reason.EXTERNAL)
             self._changed()
             return Status.OK
         self.program, self.program_file, self.pointer, self.current_line = program, relpath, 0, 0
         log.info("%s: loaded program %s %s", self.name, program.name, program.version)
-        if self.machine.current == "Idle":
-            self.machine.take("IdleToReady", Reason.EXTERNAL)
-            self.ready.enter("AtProgramStart", Reason.EXTERNAL)
-        elif self.ready.current == "Suspended":
-            self.ready.take("SuspendedToProgramStart", Reason.EXTERNAL)
+        if self.machine.current == IDLE:
+            self.machine.move(READY, Reason.EXTERNAL)
+            self.ready.enter(AT_PROGRAM_START, Reason.EXTERNAL)
+        elif self.ready.current == SUSPENDED:
+            self.ready.move(AT_PROGRAM_START, Reason.EXTERNAL)
         self._changed()
         return Status.OK
 
     def _load_failed(self, status: Status, reason: str) -> int:
         self.last_error = reason
         log.warning("%s: load failed (Status %d): %s", self.name, status, reason)
-        if self.machine.current == "Idle" and status != Status.E_SYSTEM_STATE:
-            self.machine.take("IdleToIdle", Reason.ERROR)
+        if self.machine.current == IDLE and status != Status.E_SYSTEM_STATE:
+            self.machine.move(IDLE, Reason.ERROR)
         self._changed()
         return status
 
@@ -355,15 +396,15 @@ class TaskControl:
     async def unload_program(self) -> int:
         """UnloadProgram: the program and all modules; Ready -> Idle."""
         async with self._lock:
-            if self.machine.current != "Ready":
-                return Status.E_SYSTEM_STATE
+            if (problem := self._refusal(TASK_CONTROL, "UnloadProgram")) is not None:
+                return problem
             return await self._unload_all()
 
     async def unload_by_name(self, name: str) -> int:
         """UnloadByName: the program (as UnloadProgram) or one module."""
         async with self._lock:
-            if self._unload_impossible():
-                return Status.E_SYSTEM_STATE
+            if (problem := self._refusal(TASK_CONTROL, "UnloadByName")) is not None:
+                return problem
             if self.program is not None and name == self.program.name:
                 return await self._unload_all()
             return await self._unload_module(name)
@@ -371,8 +412,8 @@ class TaskControl:
     async def unload_by_file(self, relpath: str) -> int:
         """UnloadByNodeId with the FileType node of a loaded program or module."""
         async with self._lock:
-            if self._unload_impossible():
-                return Status.E_SYSTEM_STATE
+            if (problem := self._refusal(TASK_CONTROL, "UnloadByNodeId")) is not None:
+                return problem
             if self.program is not None and self.program_file == relpath:
                 return await self._unload_all()
             for program, rel in self._modules.values():
@@ -383,13 +424,9 @@ class TaskControl:
     async def unload_module(self, name: str) -> int:
         """UnloadByNodeId with a TaskModule node."""
         async with self._lock:
-            if self._unload_impossible():
-                return Status.E_SYSTEM_STATE
+            if (problem := self._refusal(TASK_CONTROL, "UnloadByNodeId")) is not None:
+                return problem
             return await self._unload_module(name)
-
-    def _unload_impossible(self) -> bool:
-        """Decision 8: Executing, or nothing loaded at all (Idle without modules)."""
-        return self.machine.current == "Executing" or (self.program is None and not self._modules)
 
     async def _unload_all(self) -> int:
         assert self.program is not None
@@ -403,7 +440,7 @@ class TaskControl:
             return self._fail(Status.E_UNEXPECTED_ERROR, f"controller could not unload: {e}")
         log.info("%s: unloaded program %s", self.name, self.program.name)
         self.program, self.program_file, self.pointer, self.current_line = None, None, 0, 0
-        self.machine.take("ReadyToIdle", Reason.EXTERNAL)
+        self.machine.move(IDLE, Reason.EXTERNAL)
         self._changed()
         return Status.OK
 
@@ -430,7 +467,10 @@ class TaskControl:
     # running
     def _start_check(self) -> Status | None:
         """Why Start would fail now (None: it can succeed)."""
-        if self.machine.current != "Ready" or self.program is None or self._lock.locked():
+        return self._refusal(TASK_CONTROL, "Start")
+
+    def _start_conditions(self) -> Status | None:
+        if self.program is None or self._lock.locked():
             return Status.E_SYSTEM_STATE
         if self.system is not None:
             if not self.system.allows_task_start():
@@ -464,7 +504,7 @@ class TaskControl:
                 return self._fail(problem, str(self._unresolved()))
             return self._fail(problem, f"cannot start in {self.machine.current}")
         self.stopping = False
-        self.machine.take("ReadyToExecuting", reason)
+        self.machine.move(EXECUTING, reason)
         mode = self.execution_mode
         log.info("%s: started %s at step %d (%s)", self.name, self.program_name, self.pointer, mode.name)
         self._run = self._bg.spawn(self._execute(self.pointer, self.execution_mode))
@@ -502,10 +542,10 @@ class TaskControl:
         stopped = self.stopping
         self.stopping = False
         self.pointer, self.current_line = outcome.pointer, 0
-        self.machine.take("ExecutingToReady", reason)
+        self.machine.move(READY, reason)
         # Decision 16: after Stop, Suspended; after the program ended by itself, AtProgramStart.
         at_start = outcome.completed and not stopped and reason != Reason.ERROR
-        self.ready.enter("AtProgramStart" if at_start else "Suspended", reason)
+        self.ready.enter(AT_PROGRAM_START if at_start else SUSPENDED, reason)
         log.info("%s: %s is Ready (%s, step %d)", self.name, self.program_name, reason.name, self.pointer)
         if self.system is not None:
             self.system._task_finished(self, reason)
@@ -517,8 +557,8 @@ class TaskControl:
         return await self._stop(mode)
 
     async def _stop(self, mode: StopMode, system_reason: Reason = Reason.SYSTEM) -> int:
-        if self.machine.current != "Executing" or self.stopping:
-            return Status.E_SYSTEM_STATE
+        if (problem := self._refusal(TASK_CONTROL, "Stop")) is not None:
+            return problem
         self.stopping = True
         try:
             await self.equipment.stop(self.name, mode)
@@ -533,11 +573,11 @@ class TaskControl:
 
     async def reset_to_program_start(self) -> int:
         """ResetToProgramStart: in Ready, move the program pointer to the start."""
-        if self.machine.current != "Ready":
-            return Status.E_SYSTEM_STATE
+        if (problem := self._refusal(READY_SUB, "ResetToProgramStart")) is not None:
+            return problem
         self.pointer, self.current_line = 0, 0
-        if self.ready.current == "Suspended":
-            self.ready.take("SuspendedToProgramStart", Reason.EXTERNAL)
+        if self.ready.current == SUSPENDED:
+            self.ready.move(AT_PROGRAM_START, Reason.EXTERNAL)
             self._changed()
         return Status.OK
 
@@ -545,7 +585,7 @@ class TaskControl:
         """Change ExecutionMode (CYCLE 0, CONTINUOUS 1, STEP 2); not while Executing."""
         if mode not in [int(m) for m in ExecutionMode]:
             raise CallError("BadInvalidArgument", f"ExecutionMode {mode} is unknown", argument=0)
-        if self.machine.current == "Executing":
+        if self.machine.current == EXECUTING:
             return Status.E_SYSTEM_STATE
         self.execution_mode = ExecutionMode(mode)
         self._changed()
@@ -561,36 +601,33 @@ class TaskControl:
 
 
 # --- SystemOperation -------------------------------------------------------------------------------
-class SystemOperation:
+class SystemOperation(_Guarded):
     """The robot system's power state and alarms (SystemOperationStateMachine), coupled to task controls."""
 
     def __init__(
         self,
         equipment: RobotEquipment,
         *,
+        tables: RoboticsTables,
         possible_stop_modes: Sequence[StopMode] = tuple(StopMode),
         default_stop_mode: StopMode = StopMode.ON_PATH,
     ) -> None:
         self.equipment = equipment
         self.possible_stop_modes = tuple(possible_stop_modes)
         self.default_stop_mode = default_stop_mode
-        self.machine = StateMachine(
-            "SystemOperationStateMachine", fsm_table("Robotics", "SystemOperationStateMachineType"), "Idle"
-        )
-        self.idle = StateMachine(
-            "IdleSubstateMachine",
-            fsm_table("Robotics", "IdleSubstateMachineType"),
-            "StandBy",
-            parent=self.machine,
-            parent_state="Idle",
-        )
+        self.machine = StateMachine(SYSTEM_OPERATION, tables.system_operation, IDLE)
+        self.idle = StateMachine(IDLE_SUB, tables.idle, STAND_BY, parent=self.machine, parent_state=IDLE)
         self.executing = StateMachine(
-            "ExecutingSubstateMachine",
-            fsm_table("Robotics", "ExecutingSubstateMachineType"),
-            "Running",
-            parent=self.machine,
-            parent_state="Executing",
+            EXECUTING_SUB, tables.executing, RUNNING, parent=self.machine, parent_state=EXECUTING
         )
+        self._machines = {m.name: m for m in self.machine.walk()}
+        # What a method needs beyond the table (None: nothing more, else the Status to answer).
+        self._conditions: dict[str, Callable[[], Status | None]] = {
+            "GetReady": self._get_ready_conditions,
+            "StandDown": self._stand_down_conditions,
+            "Start": self._start_conditions,
+            "Stop": lambda: None if self.executing.is_in(RUNNING) else Status.E_SYSTEM_STATE,
+        }
         self.tasks: list[TaskControl] = []
         self.conditions: dict[str, Condition] = {n: Condition(n) for n in equipment.alarm_names}
         self.listeners: list[Listener] = []
@@ -599,7 +636,7 @@ class SystemOperation:
         self.last_error = ""
         self._stop_requested = False
         self._getting_ready: asyncio.Task[None] | None = None
-        self._bg = _Background()
+        self._bg = Background()
         equipment.add_alarm_listener(self._on_alarm)
 
     def __repr__(self) -> str:
@@ -687,70 +724,49 @@ class SystemOperation:
     # coupling with task controls (decision 19)
     def allows_task_start(self) -> bool:
         m = self.machine
-        return not self.powering_down and (
-            m.current == "Ready" or (m.current == "Executing" and self.executing.current == "Running")
-        )
+        return not self.powering_down and (m.current == READY or self.executing.is_in(RUNNING))
 
     def _task_started(self, task: TaskControl) -> None:
-        if self.machine.current == "Ready":
+        if self.machine.current == READY:
             self._stop_requested = False
-            self.machine.take("ReadyToExecuting", Reason.SYSTEM)
-            self.executing.enter("Running", Reason.SYSTEM)
+            self.machine.move(EXECUTING, Reason.SYSTEM)
+            self.executing.enter(RUNNING, Reason.SYSTEM)
             self._changed()
 
     def _task_stopping(self, reason: Reason = Reason.SYSTEM) -> None:
         # The system is Stopping once every executing task is on its way to a stop.
-        if (
-            self.machine.current == "Executing"
-            and self.executing.current == "Running"
-            and all(t.stopping for t in self.tasks if t.executing)
-        ):
-            self.executing.take("RunningToStopping", reason)
+        if self.executing.is_in(RUNNING) and all(t.stopping for t in self.tasks if t.executing):
+            self.executing.move(STOPPING, reason)
             self._changed()
 
     def _task_finished(self, task: TaskControl, reason: Reason) -> None:
-        if self.machine.current != "Executing" or any(t.executing for t in self.tasks):
+        if self.machine.current != EXECUTING or any(t.executing for t in self.tasks):
             return
         if self._stop_requested:
             reason = Reason.EXTERNAL
         elif reason == Reason.EXTERNAL:  # a task-control Stop: for the system it is a consequence
             reason = Reason.SYSTEM
         self._stop_requested = False
-        self.machine.take("ExecutingToReady", reason)
+        self.machine.move(READY, reason)
         self._changed()
 
-    # executable (decision 4)
-    def executable(self, machine_name: str, method: str) -> bool:
-        if machine_name != "SystemOperationStateMachine":
-            return False
-        m = self.machine
-        match method:
-            case "GetReady":
-                return (
-                    m.current == "Idle"
-                    and self.idle.current == "StandBy"
-                    and not self.powering_down
-                    and self.alarm_status() is None
-                )
-            case "StandDown":
-                return (m.current == "Idle" and self.idle.current == "GettingReady") or (
-                    m.current == "Ready" and not self.powering_down
-                )
-            case "Start":
-                return self._start_check() is None
-            case "Stop":
-                return m.current == "Executing" and self.executing.current == "Running"
-        return False
+    def _get_ready_conditions(self) -> Status | None:
+        if not self.idle.is_in(STAND_BY) or self.powering_down:
+            return Status.E_SYSTEM_STATE
+        return self.alarm_status()
+
+    def _stand_down_conditions(self) -> Status | None:
+        # In Idle StandDown cancels GettingReady; in Ready it powers down (once).
+        if self.idle.is_in(GETTING_READY) or (self.machine.current == READY and not self.powering_down):
+            return None
+        return Status.E_SYSTEM_STATE
 
     # methods
     async def get_ready(self) -> int:
         """GetReady: Idle -> (GettingReady) -> Ready once drive power is up. Returns when accepted."""
-        if self.machine.current != "Idle" or self.idle.current != "StandBy" or self.powering_down:
-            return Status.E_SYSTEM_STATE
-        alarm = self.alarm_status()
-        if alarm is not None:
-            return alarm
-        self.idle.take("StandByToGettingReady", Reason.EXTERNAL)
+        if (problem := self._refusal(SYSTEM_OPERATION, "GetReady")) is not None:
+            return problem
+        self.idle.move(GETTING_READY, Reason.EXTERNAL)
         self._getting_ready = self._bg.spawn(self._power_up())
         self._changed()
         return Status.OK
@@ -766,30 +782,29 @@ class SystemOperation:
             self.last_error = f"getting ready failed: {e}"
             log.warning("%s", self.last_error)
             self._getting_ready = None
-            self.idle.take("GettingReadyToStandBy", Reason.ERROR)
-            self.machine.take("IdleToIdle", Reason.ERROR)
+            self.idle.move(STAND_BY, Reason.ERROR)
+            self.machine.move(IDLE, Reason.ERROR)
             self._changed()
             return
         self._getting_ready = None
-        self.machine.take("IdleToReady", Reason.EXTERNAL)
+        self.machine.move(READY, Reason.EXTERNAL)
         self._changed()
 
     async def stand_down(self) -> int:
         """StandDown: Ready -> Idle (drive power off), or cancel GettingReady (IdleToIdle)."""
-        m = self.machine
-        if m.current == "Idle" and self.idle.current == "GettingReady":
+        if (problem := self._refusal(SYSTEM_OPERATION, "StandDown")) is not None:
+            return problem
+        if self.idle.is_in(GETTING_READY):
             if self._getting_ready is not None:
                 self._getting_ready.cancel()
                 self._getting_ready = None
-            self.idle.take("GettingReadyToStandBy", Reason.EXTERNAL)
-            m.take("IdleToIdle", Reason.EXTERNAL)
+            self.idle.move(STAND_BY, Reason.EXTERNAL)
+            self.machine.move(IDLE, Reason.EXTERNAL)
             # Until the drives are off again a GetReady would race the power-down: it answers 1.
             self.powering_down = True
             self._bg.spawn(self._power_down(transition=False))
             self._changed()
             return Status.OK
-        if m.current != "Ready" or self.powering_down:
-            return Status.E_SYSTEM_STATE
         self.powering_down = True
         self._bg.spawn(self._power_down(transition=True))
         self._changed()
@@ -809,18 +824,21 @@ class SystemOperation:
             self._changed()
             return
         self.powering_down = False
-        if transition and self.machine.current == "Ready":
-            self.machine.take("ReadyToIdle", Reason.EXTERNAL)
-            self.idle.enter("StandBy", Reason.EXTERNAL)
+        if transition and self.machine.current == READY:
+            self.machine.move(IDLE, Reason.EXTERNAL)
+            self.idle.enter(STAND_BY, Reason.EXTERNAL)
         self._changed()
 
     def _start_check(self) -> Status | None:
-        if self.machine.current != "Ready" or self.powering_down:
+        return self._refusal(SYSTEM_OPERATION, "Start")
+
+    def _start_conditions(self) -> Status | None:
+        if self.powering_down:
             return Status.E_SYSTEM_STATE
         alarm = self.alarm_status()
         if alarm is not None:
             return alarm
-        problems = [t._start_check() for t in self.tasks if t.machine.current == "Ready" and t.program]
+        problems = [t._start_check() for t in self.tasks if t.machine.current == READY and t.program]
         if not problems:
             return Status.E_SYSTEM_STATE  # nothing to start: the system cannot be Executing without a task
         if all(p is not None for p in problems):
@@ -833,10 +851,10 @@ class SystemOperation:
         if problem is not None:
             return problem
         self._stop_requested = False
-        self.machine.take("ReadyToExecuting", Reason.EXTERNAL)
-        self.executing.enter("Running", Reason.EXTERNAL)
+        self.machine.move(EXECUTING, Reason.EXTERNAL)
+        self.executing.enter(RUNNING, Reason.EXTERNAL)
         for task in self.tasks:
-            if task.machine.current == "Ready" and task._start_check() is None:
+            if task.machine.current == READY and task._start_check() is None:
                 task._start(Reason.SYSTEM)
         self._changed()
         return Status.OK
@@ -844,8 +862,8 @@ class SystemOperation:
     async def stop(self, stop_mode: int) -> int:
         """Stop: stops every executing task control; ExecutingToReady when all have stopped."""
         mode = _resolve_stop_mode(stop_mode, self.possible_stop_modes, self.default_stop_mode)
-        if self.machine.current != "Executing" or self.executing.current != "Running":
-            return Status.E_SYSTEM_STATE
+        if (problem := self._refusal(SYSTEM_OPERATION, "Stop")) is not None:
+            return problem
         self._stop_requested = True
         failed = []
         for task in list(self.tasks):
@@ -875,6 +893,7 @@ class RobotCell:
         equipment: RobotEquipment,
         library: ProgramLibrary,
         *,
+        tables: RoboticsTables,
         task_names: Sequence[str] = ("TaskControl1",),
         motion_devices: Sequence[str] = ("Arm1",),
         possible_stop_modes: Sequence[StopMode] = tuple(StopMode),
@@ -885,13 +904,14 @@ class RobotCell:
         self.equipment = equipment
         self.library = library
         self.system = SystemOperation(
-            equipment, possible_stop_modes=possible_stop_modes, default_stop_mode=default_stop_mode
+            equipment, tables=tables, possible_stop_modes=possible_stop_modes, default_stop_mode=default_stop_mode
         )
         self.tasks: dict[str, TaskControl] = {
             name: TaskControl(
                 name,
                 equipment,
                 library,
+                tables=tables,
                 system=self.system,
                 motion_devices=motion_devices,
                 possible_stop_modes=possible_stop_modes,

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from uacell.robotics.equipment import (
     AlarmListener,
@@ -93,10 +94,16 @@ class SimulatedRobot:
         axes: Sequence[AxisInfo] = DEFAULT_AXES,
         alarms: Sequence[str] = DEFAULT_ALARMS,
         home: Sequence[float] | None = None,
+        clock: Callable[[], float] | None = None,
+        sleep: Callable[[float], Awaitable[None]] | None = None,
     ) -> None:
+        """``clock`` (seconds) and ``sleep`` default to the event loop's; tests inject a virtual pair
+        (``clock`` must advance by what ``sleep`` waits) so that nothing depends on wall time."""
         if time_scale <= 0:
             raise ValueError("time_scale must be positive")
         self.time_scale = time_scale
+        self._clock = clock
+        self._sleep_for = sleep or asyncio.sleep
         self.power_up_time = power_up_time
         self.power_down_time = power_down_time
         self._axes = tuple(axes)
@@ -113,7 +120,8 @@ class SimulatedRobot:
     # --- time -------------------------------------------------------------------------------
     def _now(self) -> float:
         """Simulated seconds."""
-        return asyncio.get_running_loop().time() / self.time_scale
+        now = self._clock() if self._clock is not None else asyncio.get_running_loop().time()
+        return now / self.time_scale
 
     def _now_or_zero(self) -> float:
         try:
@@ -122,7 +130,7 @@ class SimulatedRobot:
             return self._segment.t0 + self._segment.duration
 
     async def _sleep(self, sim_seconds: float) -> None:
-        await asyncio.sleep(max(0.0, sim_seconds) * self.time_scale)
+        await self._sleep_for(max(0.0, sim_seconds) * self.time_scale)
 
     # --- description and alarms -------------------------------------------------------------
     @property
@@ -282,13 +290,27 @@ class SimulatedRobot:
         if t.stop is not None and t.stop in (StopMode.QUICK_STOP, StopMode.ON_PATH):
             return True
         t.wake.clear()
+        delay = max(0.0, sim_seconds) * self.time_scale
+        if self._sleep_for is not asyncio.sleep:  # injected time: race its sleep against the stop
+            return await self._race(t.wake, delay)
         # asyncio.timeout, not wait_for: 3.11's wait_for loses a cancel that races a set event.
         try:
-            async with asyncio.timeout(max(0.0, sim_seconds) * self.time_scale):
+            async with asyncio.timeout(delay):
                 await t.wake.wait()
         except TimeoutError:
             return False
         return True
+
+    async def _race(self, wake: asyncio.Event, delay: float) -> bool:
+        sleeper = asyncio.ensure_future(self._sleep_for(delay))
+        waker = asyncio.ensure_future(wake.wait())
+        try:
+            await asyncio.wait({sleeper, waker}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in (sleeper, waker):
+                task.cancel()
+            await asyncio.gather(sleeper, waker, return_exceptions=True)
+        return wake.is_set()
 
     async def _execute(self, t: _Task, step: Step) -> bool:
         """Carry out one step; False if a stop cut it short."""
@@ -334,3 +356,34 @@ class SimulatedRobot:
         await self._sleep(seg.t0 + seg.duration - now)
         self._freeze()
         return True
+
+
+# What the ``settings`` table of a simulated controller may hold (docs/configuration.md).
+SIMULATOR_SETTINGS = ("time_scale", "power_up_time", "power_down_time", "alarms")
+
+
+def simulator(spec: Any) -> SimulatedRobot:
+    """The equipment factory of a simulated controller (``uacell.robotics.sim:simulator``).
+
+    ``spec`` is a ``uacell.equipment.EquipmentSpec``: its ``axes`` are the configured axes of the
+    motion device (the six default ones if empty), its ``settings`` may set ``time_scale`` (> 1 runs
+    faster than real time), ``power_up_time``/``power_down_time`` (simulated seconds) and ``alarms``
+    (the alarm names).
+    """
+    settings = dict(spec.settings)
+    unknown = sorted(set(settings) - set(SIMULATOR_SETTINGS))
+    if unknown:
+        raise ValueError(f"the simulator has no setting {unknown[0]!r} (it knows {', '.join(SIMULATOR_SETTINGS)})")
+    scale = float(settings.get("time_scale", 1.0))
+    if scale <= 0:
+        raise ValueError("time_scale must be greater than 0")
+    alarms = settings.get("alarms", DEFAULT_ALARMS)
+    if not isinstance(alarms, list | tuple) or not all(isinstance(a, str) for a in alarms):
+        raise ValueError("alarms must be an array of names")
+    return SimulatedRobot(
+        time_scale=1.0 / scale,  # SimulatedRobot counts real seconds per simulated second
+        power_up_time=float(settings.get("power_up_time", 2.0)),
+        power_down_time=float(settings.get("power_down_time", 0.5)),
+        axes=tuple(spec.axes) or DEFAULT_AXES,
+        alarms=tuple(alarms),
+    )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 from asyncua import ua
 
@@ -20,7 +21,9 @@ class UacellUserManager:
         self.policy = policy
         self.users = users
 
-    def get_user(self, iserver, username: str | None = None, password: str | None = None, certificate=None):
+    def get_user(
+        self, iserver: Any, username: str | None = None, password: str | None = None, certificate: Any = None
+    ) -> UacellUser | None:
         if username is None:
             return UacellUser(None, self.policy.anonymous_role.label, anonymous=True)
         role = self.users.verify(username, password or "")
@@ -35,4 +38,5 @@ def user_access_level(role: str, access_level: int, needed: Role | None = None) 
     (default: the ``write`` action of the role table)."""
     if Role.parse(role) >= (needed if needed is not None else ACTION_ROLES["write"]):
         return access_level
-    return access_level & ~ua.AccessLevel.CurrentWrite.mask
+    write: int = ua.AccessLevel.CurrentWrite.mask
+    return access_level & ~write

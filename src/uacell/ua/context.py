@@ -21,7 +21,7 @@ _session: contextvars.ContextVar[InternalSession | None] = contextvars.ContextVa
 _diagnostics: contextvars.ContextVar[int] = contextvars.ContextVar("uacell_diagnostics", default=0)
 
 
-class UacellUser(User):
+class UacellUser(User):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """An asyncua user that also carries uacell's role ("observer", "operator", "engineer", "admin")."""
 
     def __init__(self, name: str | None, uacell_role: str, anonymous: bool = False) -> None:
@@ -50,7 +50,7 @@ class Caller:
 INTERNAL = Caller("internal", "internal", None, "admin")
 
 # Post-processors of Read results: (session, read parameters, results) -> None (edits results in place).
-ReadHook = Callable[[InternalSession, Any, list], None]
+ReadHook = Callable[[InternalSession, Any, list[Any]], None]
 _read_hooks: list[ReadHook] = []
 
 
@@ -100,7 +100,7 @@ def install() -> None:
     original_read = InternalSession.read
 
     @functools.wraps(original_call)
-    async def call(self: InternalSession, params):
+    async def call(self: InternalSession, params: Any) -> Any:
         token = _session.set(self)
         try:
             return await original_call(self, params)
@@ -108,13 +108,13 @@ def install() -> None:
             _session.reset(token)
 
     @functools.wraps(original_read)
-    async def read(self: InternalSession, params):
+    async def read(self: InternalSession, params: Any) -> Any:
         results = await original_read(self, params)
         if self.external:
             for hook in _read_hooks:
                 hook(self, params, results)
         return results
 
-    InternalSession.call = call  # type: ignore[method-assign]
-    InternalSession.read = read  # type: ignore[method-assign]
-    InternalSession._uacell_installed = True  # type: ignore[attr-defined]
+    InternalSession.call = call
+    InternalSession.read = read
+    InternalSession._uacell_installed = True

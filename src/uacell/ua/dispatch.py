@@ -32,7 +32,7 @@ from asyncua.server.address_space import MethodService
 
 from uacell.errors import CallError
 from uacell.roles import Family, Role, may_call
-from uacell.ua import context
+from uacell.ua import context, toolkit
 from uacell.ua.context import Caller
 
 log = logging.getLogger(__name__)
@@ -63,7 +63,7 @@ class BoundMethod:
     last_executable: bool | None = field(default=None, repr=False)
 
 
-class MethodDispatcher(MethodService):
+class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """Replaces asyncua's MethodService; install with ``MethodDispatcher.install(server)``."""
 
     def __init__(self, server: Server) -> None:
@@ -92,11 +92,11 @@ class MethodDispatcher(MethodService):
 
     # --- registration -----------------------------------------------------------------------
     def arguments(self, method_id: ua.NodeId, name: str) -> list[ua.Argument]:
-        for ref in self._aspace[method_id].references:
-            if ref.IsForward and ref.BrowseName.Name == name:
-                value = self._aspace[ref.NodeId].attributes[_A.Value].value.Value.Value
-                return list(value or [])
-        return []
+        prop = toolkit.find_child(self._aspace, method_id, name)
+        if prop is None:
+            return []
+        value = self._aspace[prop].attributes[_A.Value].value.Value.Value
+        return list(value or [])
 
     def bind(
         self,
@@ -148,7 +148,7 @@ class MethodDispatcher(MethodService):
             arg.Description = ua.LocalizedText(text)
             arguments.append(arg)
 
-        async def unused(parent, *args):  # never called: the dispatcher answers every call
+        async def unused(parent: Any, *args: Any) -> list[ua.StatusCode]:  # never called: the dispatcher answers
             return [ua.StatusCode(ua.StatusCodes.BadInternalError)]
 
         method = await self.server.get_node(object_id).add_method(nodeid, name, unused, arguments, [])
@@ -269,7 +269,7 @@ class MethodDispatcher(MethodService):
         type_id = next((r.NodeId for r in obj.references if r.IsForward and r.ReferenceTypeId == has_type), None)
         while type_id is not None:
             holders.append(type_id)
-            type_id = self.types._supertype(type_id)
+            type_id = toolkit.supertype(self._aspace, type_id)
         for holder in holders:
             data = self._aspace.get(holder)
             if data is None:
@@ -352,7 +352,8 @@ class MethodDispatcher(MethodService):
                 results = [ua.StatusCode(ua.StatusCodes.Good)] * n
                 results[err.argument] = ua.StatusCode(getattr(ua.StatusCodes, err.argument_status))
             result = _result(getattr(ua.StatusCodes, err.status), results, n=n)
-            if results is not None and context.return_diagnostics() & _OPERATION_DIAGNOSTICS:
+            diagnostics = context.return_diagnostics() & _OPERATION_DIAGNOSTICS
+            if results is not None and err.argument is not None and diagnostics:
                 # The reason, for clients that ask for operation-level diagnostics (OPC 10000-4 Call).
                 infos = [ua.DiagnosticInfo() for _ in range(n)]
                 infos[err.argument] = ua.DiagnosticInfo(AdditionalInfo=err.message)
@@ -404,14 +405,6 @@ class TypeChecker:
         self.aspace = server.iserver.aspace
         self._builtin: dict[ua.NodeId, ua.VariantType | None] = {}
 
-    def _supertype(self, node: ua.NodeId) -> ua.NodeId | None:
-        data = self.aspace.get(node)
-        if data is None:
-            return None
-        for ref in data.references:
-            if not ref.IsForward and ref.ReferenceTypeId == ua.NodeId(ua.ObjectIds.HasSubtype):
-                return ref.NodeId
-        return None
 
     def builtin_of(self, datatype: ua.NodeId) -> ua.VariantType | None:
         """The VariantType a DataType is encoded as (enumerations -> Int32, structures -> ExtensionObject)."""
@@ -434,7 +427,7 @@ class TypeChecker:
                 if i in _ABSTRACT_NUMBERS:
                     found = None
                     break
-            node = self._supertype(node)
+            node = toolkit.supertype(self.aspace, node)
         self._builtin[datatype] = found
         return found
 
@@ -442,7 +435,7 @@ class TypeChecker:
         while node is not None:
             if node == base:
                 return True
-            node = self._supertype(node)
+            node = toolkit.supertype(self.aspace, node)
         return False
 
     def _scalar_ok(self, value: Any, vtype: ua.VariantType, arg: ua.Argument, expected: ua.VariantType | None) -> bool:

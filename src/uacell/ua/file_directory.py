@@ -28,16 +28,21 @@ from asyncua import ua
 from asyncua.server.internal_session import InternalSession
 
 from uacell.errors import CallError
+from uacell.registry import RegistryKey
 from uacell.roles import Family
-from uacell.ua import context
+from uacell.ua import context, toolkit
 from uacell.ua.context import Caller
 from uacell.ua.file_store import Change, FileStore
 from uacell.ua.instantiate import Selection
+from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
     from uacell.server import UacellServer
 
 log = logging.getLogger(__name__)
+
+# Every bound directory, keyed by the browse path of its node ("Robot1.Controllers.Controller1.Programs").
+FILE_DIRECTORIES: RegistryKey[FileDirectoryBinding] = RegistryKey("file directory")
 
 FILE_TYPE = ua.NodeId(ua.ObjectIds.FileType)
 FILE_DIRECTORY_TYPE = ua.NodeId(ua.ObjectIds.FileDirectoryType)
@@ -68,7 +73,6 @@ class FileDirectoryBinding:
         family_dir: Family,
         family_file: Family,
     ) -> None:
-        assert app.cell is not None, "bind after the cell is built"
         self.app = app
         self.node = directory_node
         self.store = store
@@ -82,7 +86,7 @@ class FileDirectoryBinding:
         self._paths: dict[ua.NodeId, str] = {directory_node: ""}
         self._is_dir: dict[str, bool] = {}
         self._variables: dict[str, dict[str, ua.NodeId]] = {}
-        self._written: dict[ua.NodeId, Any] = {}
+        self.values = ValueWriter(self._aspace, app.dispatcher.types.builtin_of)
         # handle -> (session, relpath) for handles opened through this binding
         self._handles: dict[int, tuple[Hashable, str]] = {}
         self._unhook: Callable[[], None] | None = None
@@ -119,6 +123,7 @@ class FileDirectoryBinding:
         store.listeners.append(self._on_change)
         if watch_sessions:
             self._watch_sessions()
+        app.registry(FILE_DIRECTORIES).add(self._base, self)
         log.info("bound %s to %s (%d entries)", directory_node.to_string(), store.root, len(self._nodes))
         return self
 
@@ -260,7 +265,7 @@ class FileDirectoryBinding:
         for n in doomed:
             self.app.dispatcher.unbind(n)
             self._instantiator.declarations.pop(n, None)
-            self._written.pop(n, None)
+            self.values.forget(n)
         # Only the parent refers to the entry from outside its subtree; asyncua's own
         # DeleteTargetReferences would scan the whole address space once per node.
         parent_rel = relpath.rpartition("/")[0]
@@ -309,11 +314,7 @@ class FileDirectoryBinding:
             "MaxByteStringLength": self.store.max_read,
         }
         for name, nodeid in self._variables.get(relpath, {}).items():
-            value = values[name]
-            if self._written.get(nodeid) == value:
-                continue
-            self._written[nodeid] = value
-            await self.app.server.write_attribute_value(nodeid, ua.DataValue(ua.Variant(value, _VARIABLES[name])))
+            await self.values.write(nodeid, values[name], _VARIABLES[name])
 
     # ------------------------------------------------------------------ method binding
 
@@ -348,11 +349,8 @@ class FileDirectoryBinding:
                 # Open's only input is the mode: the dispatcher checks the role against it.
                 file_mode_argument=0 if name == "Open" else None,
             )
-        variables: dict[str, ua.NodeId] = {}
-        for ref in self._aspace[node].references:
-            if ref.IsForward and ref.BrowseName.Name in _VARIABLES:
-                variables[ref.BrowseName.Name] = ref.NodeId
-        self._variables[relpath] = variables
+        found = {name: toolkit.find_child(self._aspace, node, name) for name in _VARIABLES}
+        self._variables[relpath] = {name: n for name, n in found.items() if n is not None}
 
     # --- FileType
 

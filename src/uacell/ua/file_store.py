@@ -263,6 +263,12 @@ class FileStore:
                 logger.info("closed %d file handle(s) of a closed session", len(mine))
             return len(mine)
 
+    def close_all(self) -> int:
+        """Drop every handle of every session (shutting down); uncommitted writes are discarded."""
+        with self._lock:
+            sessions = {h.session for h in self._handles.values()}
+        return sum(self.close_session(session) for session in sessions)
+
     # ------------------------------------------------------------------ FileDirectoryType
 
     def create_file(

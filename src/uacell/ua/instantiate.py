@@ -24,9 +24,12 @@ import logging
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 from asyncua import Server, ua
 from asyncua.server.address_space import AddressSpace
+
+from uacell.ua import toolkit
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +40,6 @@ MANDATORY_PLACEHOLDER = 11510
 HAS_ADDIN = 17604
 _HAS_MODELLING_RULE = 37
 _HAS_TYPE_DEFINITION = 40
-_HAS_SUBTYPE = 45
 _AGGREGATES = 44
 _ORGANIZES = 35
 _DEFAULT_INSTANCE_BROWSE_NAME = "DefaultInstanceBrowseName"
@@ -108,26 +110,15 @@ class TypeIndex:
     def __init__(self, aspace: AddressSpace) -> None:
         self.aspace = aspace
         self._members: dict[ua.NodeId, list[Member]] = {}
-        self._member_refs = self._subtypes(ua.NodeId(_AGGREGATES)) | {ua.NodeId(_ORGANIZES)}
+        self._member_refs = toolkit.subtypes(aspace, ua.NodeId(_AGGREGATES)) | {ua.NodeId(_ORGANIZES)}
 
-    def _subtypes(self, root: ua.NodeId) -> set[ua.NodeId]:
-        out, todo = {root}, [root]
-        while todo:
-            for ref in self.aspace[todo.pop()].references:
-                if ref.IsForward and ref.ReferenceTypeId == ua.NodeId(_HAS_SUBTYPE) and ref.NodeId not in out:
-                    out.add(ref.NodeId)
-                    todo.append(ref.NodeId)
-        return out
 
-    def attr(self, node: ua.NodeId, attribute: ua.AttributeIds):
+    def attr(self, node: ua.NodeId, attribute: ua.AttributeIds) -> Any:
         value = self.aspace[node].attributes.get(attribute)
         return None if value is None or value.value is None or value.value.Value is None else value.value.Value.Value
 
     def supertype(self, type_id: ua.NodeId) -> ua.NodeId | None:
-        for ref in self.aspace[type_id].references:
-            if not ref.IsForward and ref.ReferenceTypeId == ua.NodeId(_HAS_SUBTYPE):
-                return ref.NodeId
-        return None
+        return toolkit.supertype(self.aspace, type_id)
 
     def type_chain(self, type_id: ua.NodeId) -> list[ua.NodeId]:
         chain: list[ua.NodeId] = []
@@ -207,11 +198,11 @@ class TypeIndex:
         if member.type_definition is None:
             return member.browse_name
         for t in self.type_chain(member.type_definition):
-            for ref in self.aspace[t].references:
-                if ref.IsForward and ref.BrowseName.Name == _DEFAULT_INSTANCE_BROWSE_NAME:
-                    value = self.attr(ref.NodeId, _A.Value)
-                    if isinstance(value, ua.QualifiedName) and value.Name:
-                        return ua.QualifiedName(value.Name, member.type_definition.NamespaceIndex)
+            prop = toolkit.find_child(self.aspace, t, _DEFAULT_INSTANCE_BROWSE_NAME)
+            if prop is not None:
+                value = self.attr(prop, _A.Value)
+                if isinstance(value, ua.QualifiedName) and value.Name:
+                    return ua.QualifiedName(value.Name, member.type_definition.NamespaceIndex)
         return member.browse_name
 
 
@@ -338,13 +329,22 @@ class Instantiator:
         attrs.SpecifiedAttributes = _mask("DisplayName", "Description", "EventNotifier", "WriteMask", "UserWriteMask")
         self._add(parent, nodeid, qname, ua.NodeClass.Object, attrs, type_id, reference_type)
 
-    def _common(self, attrs, decl: ua.NodeId) -> None:
+    def _common(self, attrs: Any, decl: ua.NodeId) -> None:
         attrs.DisplayName = self.types.attr(decl, _A.DisplayName) or ua.LocalizedText()
         attrs.Description = self.types.attr(decl, _A.Description) or ua.LocalizedText()
         attrs.WriteMask = 0
         attrs.UserWriteMask = 0
 
-    def _add(self, parent, nodeid, qname, node_class, attrs, type_id, reference_type) -> None:
+    def _add(
+        self,
+        parent: ua.NodeId,
+        nodeid: ua.NodeId,
+        qname: ua.QualifiedName,
+        node_class: ua.NodeClass,
+        attrs: Any,
+        type_id: ua.NodeId | None,
+        reference_type: int,
+    ) -> None:
         item = ua.AddNodesItem()
         item.RequestedNewNodeId = nodeid
         item.BrowseName = qname

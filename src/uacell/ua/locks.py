@@ -1,29 +1,38 @@
-"""DI LockingServices on the cell's Controllers and TaskControls, and the lock guard of decision 20.
+"""DI LockingServices on the parts the companions name, and the lock guard (docs/decisions.md 20).
 
-Every Controller part and the TaskControl parts below it form the tree of ``uacell.locking``, keyed
-by their object NodeIds (``BuiltPart.node``); a Controller's SystemOperation object is a non-lockable
-element below it. The Robotics binder passes ``element=<TaskControl or Controller NodeId>`` (the
-SystemOperation NodeId works too) to ``dispatcher.bind``; the guard refuses TaskControl and
-SystemOperation methods there with Bad_ResourceUnavailable while another session holds a lock on
-the element or its Controller. The write guard refuses, with DI's Bad_Locked, every write to a node
-below a locked element (found by walking the hierarchy up from the written node) by another session.
+Each companion says which parts carry a Lock (``Companion.locks``: a part role, the role of the
+part above it, non-lockable members guarded with it) and which method families a lock guards
+(``Companion.lock_guarded``). Those parts form the tree of ``uacell.locking``, keyed by their object
+NodeIds (``BuiltPart.node``). A binder passes ``element=<part NodeId>`` to ``dispatcher.bind``; the
+guard refuses guarded methods there with Bad_ResourceUnavailable while another session holds a lock
+on the element or a part above it. For Robotics: Controllers, the TaskControls below them, and each
+Controller's SystemOperation as a member. The write guard refuses, with DI's Bad_Locked, every write
+to a node below a locked element (found by walking the hierarchy up from the written node) by another
+session.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 from collections.abc import Awaitable, Callable, Hashable
 from typing import TYPE_CHECKING
 
 from asyncua import ua
 
+from uacell.background import Background
+from uacell.companion import companions
+from uacell.di.companion import LOCKING
 from uacell.errors import CallError
 from uacell.locking import LockManager, LockOwner
+from uacell.registry import RegistryKey
 from uacell.roles import Family
+from uacell.ua import toolkit
 from uacell.ua.context import Caller, caller_of
 from uacell.ua.dispatch import BoundMethod
+from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
     from asyncua.server.internal_session import InternalSession
@@ -35,7 +44,16 @@ log = logging.getLogger(__name__)
 DI = "http://opcfoundation.org/UA/DI/"
 _MAX_INACTIVE_LOCK_TIME = 6387  # DI: ServerCapabilities/MaxInactiveLockTime
 TICK = 0.5  # seconds between expiry checks and RemainingLockTime updates
-_GUARDED = (Family.TASK_CONTROL, Family.SYSTEM_OPERATION)
+_LOCK_VARIABLES = (
+    ("Locked", ua.VariantType.Boolean),
+    ("LockingClient", ua.VariantType.String),
+    ("LockingUser", ua.VariantType.String),
+    ("RemainingLockTime", ua.VariantType.Double),
+)
+# The one LockBinding of a server, under "" (it is not a part).
+LOCK_SERVICE: RegistryKey[LockBinding] = RegistryKey("lock service")
+# Every Lock object, keyed by the browse path of the part that carries it.
+LOCKS: RegistryKey[ua.NodeId] = RegistryKey("lock")
 # Child references followed upwards from a written node to the lockable element above it.
 _CHILD_REFS = {
     ua.NodeId(i)
@@ -54,32 +72,32 @@ class LockBinding:
         if manager is not None:
             manager._on_change = self._changed
         self.lock_nodes: dict[Hashable, ua.NodeId] = {}  # element -> its Lock object
-        self._task: asyncio.Task[None] | None = None
+        self.guarded: frozenset[Family] = frozenset().union(*(c.lock_guarded for c in companions()))
+        self.values = ValueWriter(app.server.iserver.aspace, app.dispatcher.types.builtin_of)
+        self._background = Background()
 
     # tree -------------------------------------------------------------------------------------------
 
-    def _lock_child(self, node: ua.NodeId) -> ua.NodeId | None:
-        try:
-            return self.app.cell.child(node, "Lock")
-        except KeyError:
-            return None
-
     def build_tree(self) -> None:
+        """The companions' lock rules, in order: a rule's parents come from an earlier rule."""
         cell = self.app.cell
-        task_controls = cell.by_role("task_control")
-        for ctrl in cell.by_role("controller"):
-            self._add(ctrl.node, None)
-            with contextlib.suppress(KeyError):
-                self.manager.add(cell.child(ctrl.node, "SystemOperation"), ctrl.node, lockable=False)
-            for tc in task_controls:
-                if tc.path.startswith(ctrl.path + "."):
-                    self._add(tc.node, ctrl.node)
+        for rule in (r for c in companions() for r in c.locks):
+            parents = cell.by_role(rule.parent_role) if rule.parent_role else []
+            for part in cell.by_role(rule.role):
+                above = [p for p in parents if part.path.startswith(p.path + ".")]
+                if rule.parent_role and not above:
+                    continue
+                self._add(part.node, part.path, above[0].node if above else None)
+                for member in rule.members:
+                    with contextlib.suppress(KeyError):
+                        self.manager.add(cell.child(part.node, member), part.node, lockable=False)
 
-    def _add(self, node: ua.NodeId, parent: ua.NodeId | None) -> None:
-        lock = self._lock_child(node)
+    def _add(self, node: ua.NodeId, path: str, parent: ua.NodeId | None) -> None:
+        lock = toolkit.find_child(self.app.server.iserver.aspace, node, "Lock")
         self.manager.add(node, parent, lockable=lock is not None)
         if lock is not None:
             self.lock_nodes[node] = lock
+            self.app.registry(LOCKS).add(path, lock)
 
     # methods ----------------------------------------------------------------------------------------
 
@@ -88,7 +106,7 @@ class LockBinding:
         for element, lock in self.lock_nodes.items():
             handlers = self._handlers(element)
             for name, handler in handlers.items():
-                d.bind(lock, d.method_of(lock, name), Family.LOCKING, handler, element=element)
+                d.bind(lock, d.method_of(lock, name), LOCKING, handler, element=element)
 
     def _handlers(self, element: Hashable) -> dict[str, Callable[..., Awaitable[list[int]]]]:
         m = self.manager
@@ -109,21 +127,23 @@ class LockBinding:
         return {"InitLock": init_lock, "RenewLock": renew_lock, "ExitLock": exit_lock, "BreakLock": break_lock}
 
     def guard(self, caller: Caller, bound: BoundMethod) -> None:
-        """Decision 20: Robotics operation methods are refused while another session holds a lock."""
-        if bound.family in _GUARDED and bound.element is not None and bound.element in self.manager:
+        """Decision 20: guarded methods are refused while another session holds a lock."""
+        if bound.family in self.guarded and bound.element is not None and bound.element in self.manager:
             self.manager.check(bound.element, caller.session_id)
 
     def element_of(self, node: ua.NodeId) -> Hashable | None:
         """The nearest lockable-tree element at or above ``node`` (through child references), if any."""
         aspace = self.app.server.iserver.aspace
-        level, seen = [node], {node}
+        level: list[ua.NodeId] = [node]
+        seen = {node}
         for _ in range(_MAX_DEPTH):
             if not level:
                 return None
             for current in level:
                 if current in self.manager:
-                    return current
-            parents = []
+                    found: Hashable = current
+                    return found
+            parents: list[ua.NodeId] = []
             for current in level:
                 data = aspace.get(current)
                 for ref in data.references if data is not None else ():
@@ -157,15 +177,10 @@ class LockBinding:
     async def publish(self, element: Hashable) -> None:
         lock = self.lock_nodes[element]
         status = self.manager.status(element)
-        values = (
-            ("Locked", status.locked, ua.VariantType.Boolean),
-            ("LockingClient", status.locking_client, ua.VariantType.String),
-            ("LockingUser", status.locking_user, ua.VariantType.String),
-            ("RemainingLockTime", status.remaining_ms, ua.VariantType.Double),
-        )
-        for name, value, vtype in values:
+        values = (status.locked, status.locking_client, status.locking_user, status.remaining_ms)
+        for (name, vtype), value in zip(_LOCK_VARIABLES, values, strict=True):
             node = ua.NodeId(f"{lock.Identifier}.{name}", lock.NamespaceIndex)
-            await self.app.server.write_attribute_value(node, ua.DataValue(ua.Variant(value, vtype)))
+            await self.values.write(node, value, vtype, force=True)
 
     async def publish_all(self) -> None:
         for element in self.lock_nodes:
@@ -176,8 +191,7 @@ class LockBinding:
             return
         node = ua.NodeId(_MAX_INACTIVE_LOCK_TIME, di)
         if node in self.app.server.iserver.aspace:
-            dv = ua.DataValue(ua.Variant(self.manager.max_inactive_ms, ua.VariantType.Double))
-            await self.app.server.write_attribute_value(node, dv)
+            await self.values.write(node, self.manager.max_inactive_ms, ua.VariantType.Double, force=True)
 
     async def _tick(self) -> None:
         # Expiry is lazy in LockManager; this loop makes Locked and RemainingLockTime follow promptly.
@@ -187,23 +201,21 @@ class LockBinding:
                 self.manager.expire()
                 for element in self.manager.locked_elements():
                     if element in self.lock_nodes:
-                        self.app.publisher.submit(lambda e=element: self.publish(e))
+                        self.app.publisher.submit(functools.partial(self.publish, element))
             except Exception:
                 log.exception("lock expiry check failed")
 
     def start(self) -> None:
-        self._task = asyncio.get_running_loop().create_task(self._tick())
+        self._background.spawn(self._tick(), name="lock-expiry")
 
     async def close(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
+        await self._background.close()
 
 
 async def bind_locks(app: UacellServer) -> Callable[[], Awaitable[None]]:
-    """Binder: LockingServices on every Controller and TaskControl of the cell."""
+    """Binder: LockingServices on every part a companion's lock rules name."""
     binding = LockBinding(app)
+    app.registry(LOCK_SERVICE).add("", binding)
     binding.build_tree()
     binding.bind_methods()
     app.dispatcher.guards.append(binding.guard)
@@ -211,5 +223,4 @@ async def bind_locks(app: UacellServer) -> Callable[[], Awaitable[None]]:
     app.security.on_session_closed.append(binding.session_closed)
     await binding.publish_all()
     binding.start()
-    app.locks = binding  # type: ignore[attr-defined]
     return binding.close

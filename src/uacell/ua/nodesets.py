@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import Any
 
 from asyncua import Server, ua
 from asyncua.common.xmlimporter import XmlImporter
@@ -54,7 +55,7 @@ def without_design_tool_only(path: Path) -> tuple[str, int]:
     return ET.tostring(root, encoding="unicode"), len(dropped)
 
 
-class _Importer(XmlImporter):
+class _Importer(XmlImporter):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """asyncua's importer, with the reference-type subtype closure cached while it adds the missing
     inverse references.
 
@@ -63,7 +64,7 @@ class _Importer(XmlImporter):
     (its ReferenceTypes included) is already in the address space, so the closure cannot change.
     """
 
-    async def _add_missing_reverse_references(self, new_nodes):
+    async def _add_missing_reverse_references(self, new_nodes: Any) -> Any:
         view = self.session.iserver.view_service
         closure: dict[ua.NodeId, frozenset[ua.NodeId]] = {}
         null = ua.NodeId(ua.ObjectIds.Null)

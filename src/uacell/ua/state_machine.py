@@ -20,10 +20,11 @@ from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime
 
 from asyncua import Server, ua
-from asyncua.server.event_generator import EventGenerator
 
 from uacell.fsm import Change, StateMachine
 from uacell.models.tables import NodeRef
+from uacell.ua import toolkit
+from uacell.ua.toolkit import EventEmitter, ValueWriter
 
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds
@@ -64,9 +65,11 @@ class Publisher:
                 return
 
     async def flush(self) -> None:
-        """Wait until everything submitted so far is in the address space."""
-        if not self._queue.empty() or self._queue._unfinished_tasks:  # type: ignore[attr-defined]
-            await self._queue.join()
+        """Wait until everything submitted so far is in the address space, and the idle hooks have run
+        after it (so ``Executable`` is current too). Never call it from inside a job."""
+        task = self._task
+        if task is not None and not task.done():
+            await asyncio.shield(task)
 
     async def close(self) -> None:
         await self.flush()
@@ -82,24 +85,21 @@ class NodeRefs:
         return ua.NodeId(ref[1], self._index[ref[0]])
 
 
-def _child(server: Server, node: ua.NodeId, name: str) -> ua.NodeId | None:
-    for ref in server.iserver.aspace[node].references:
-        if ref.IsForward and ref.BrowseName.Name == name and ref.ReferenceTypeId != ua.NodeId(40):
-            return ref.NodeId
-    return None
-
-
 class StateMachineBinding:
     """Publishes one machine (and, through ``bind_tree``, its sub-machines) on its instance node."""
 
-    def __init__(self, server: Server, node: ua.NodeId, machine: StateMachine, refs: NodeRefs, publisher: Publisher):
+    def __init__(
+        self, server: Server, node: ua.NodeId, machine: StateMachine, refs: NodeRefs, publisher: Publisher
+    ) -> None:
         self.server = server
+        self.aspace = server.iserver.aspace
+        self.values = ValueWriter(self.aspace, lambda _datatype: None)
         self.node = node
         self.machine = machine
         self.refs = refs
         self.publisher = publisher
         self.children: list[StateMachineBinding] = []
-        c = lambda *path: self._path(*path)  # noqa: E731
+        c = self._path
         self.current = c("CurrentState")
         self.current_id = c("CurrentState", "Id")
         self.current_number = c("CurrentState", "Number")
@@ -110,7 +110,7 @@ class StateMachineBinding:
         self.reason = c("LastTransitionReason")
         self.available_states = c("AvailableStates")
         self.available_transitions = c("AvailableTransitions")
-        self._event: EventGenerator | None = None
+        self._event: EventEmitter | None = None
         self._display = {name: self._display_name(info.node) for name, info in machine.table.states.items()} | {
             name: self._display_name(info.node) for name, info in machine.table.transitions.items()
         }
@@ -118,7 +118,7 @@ class StateMachineBinding:
     def _path(self, *names: str) -> ua.NodeId | None:
         node: ua.NodeId | None = self.node
         for name in names:
-            node = _child(self.server, node, name) if node is not None else None
+            node = toolkit.find_child(self.aspace, node, name) if node is not None else None
         return node
 
     def _display_name(self, ref: NodeRef) -> ua.LocalizedText:
@@ -128,9 +128,7 @@ class StateMachineBinding:
         return data.attributes[_A.DisplayName].value.Value.Value
 
     async def start(self) -> None:
-        gen = EventGenerator(self.server.iserver.isession)
-        await gen.init(ua.ObjectIds.TransitionEventType, self.node, add_generates_event=False)
-        self._event = gen
+        self._event = await EventEmitter.create(self.server, ua.ObjectIds.TransitionEventType, self.node)
         table = self.machine.table
         if self.available_states is not None:
             ids = [self.refs(s.node) for s in sorted(table.states.values(), key=lambda s: s.number)]
@@ -161,10 +159,9 @@ class StateMachineBinding:
         if node is None:
             return
         if status is not None:
-            dv = ua.DataValue(StatusCode=status, SourceTimestamp=datetime.now(UTC), ServerTimestamp=datetime.now(UTC))
+            await self.values.write_status(node, status)
         else:
-            dv = ua.DataValue(value, SourceTimestamp=datetime.now(UTC), ServerTimestamp=datetime.now(UTC))
-        await self.server.iserver.aspace.write_attribute_value(node, _A.Value, dv)
+            await self.values.write(node, value, force=True)
 
     async def publish(self) -> None:
         m = self.machine
@@ -187,7 +184,7 @@ class StateMachineBinding:
             await self._write(self.last_time, ua.Variant(m.last_transition_time, ua.VariantType.DateTime), bad)
         if self.reason is not None:
             await self._write(self.reason, ua.Variant(int(m.last_reason), ua.VariantType.Int16))
-            text = _child(self.server, self.reason, "ValueAsText")
+            text = toolkit.find_child(self.aspace, self.reason, "ValueAsText")
             if text is not None:
                 await self._write(
                     text, ua.Variant(ua.LocalizedText(m.last_reason.name.title()), ua.VariantType.LocalizedText)
@@ -197,15 +194,7 @@ class StateMachineBinding:
         """Fire the TransitionEvent, to the machine's subscribers and to the Server object's."""
         assert self._event is not None and change.transition is not None
         table = self.machine.table
-        ev = self._event.event
         t = change.transition
-        ev.EventId = ua.Variant(uuid.uuid4().hex.encode(), ua.VariantType.ByteString)
-        ev.Time = change.time
-        ev.ReceiveTime = datetime.now(UTC)
-        ev.Severity = 100
-        ev.SourceNode = self.node
-        ev.SourceName = self.machine.name
-        ev.Message = ua.LocalizedText(f"{self.machine.name}: {t.name} ({t.from_state} to {t.to_state})")
         fields = {
             "Transition": (self._display[t.name], ua.VariantType.LocalizedText),
             "Transition/Id": (self.refs(t.node), ua.VariantType.NodeId),
@@ -214,14 +203,17 @@ class StateMachineBinding:
             "ToState": (self._display[t.to_state], ua.VariantType.LocalizedText),
             "ToState/Id": (self.refs(table.states[t.to_state].node), ua.VariantType.NodeId),
         }
-        for name, (value, vtype) in fields.items():
-            setattr(ev, name, value)
-            ev.data_types[name] = vtype
-        service = self.server.iserver.isession.subscription_service
-        for source in (self.node, ua.NodeId(ua.ObjectIds.Server)):
-            ev.emitting_node = source
-            await service.trigger_event(ev)
-        ev.emitting_node = self.node
+        await self._event.fire(
+            (self.node, ua.NodeId(ua.ObjectIds.Server)),
+            fields,
+            EventId=ua.Variant(uuid.uuid4().hex.encode(), ua.VariantType.ByteString),
+            Time=change.time,
+            ReceiveTime=datetime.now(UTC),
+            Severity=100,
+            SourceNode=self.node,
+            SourceName=self.machine.name,
+            Message=ua.LocalizedText(f"{self.machine.name}: {t.name} ({t.from_state} to {t.to_state})"),
+        )
 
 
 async def bind_tree(
@@ -231,7 +223,7 @@ async def bind_tree(
     refs = refs or NodeRefs(await server.get_namespace_array())
     binding = StateMachineBinding(server, node, machine, refs, publisher)
     for sub in machine.children:
-        sub_node = _child(server, node, sub.name)
+        sub_node = toolkit.find_child(server.iserver.aspace, node, sub.name)
         if sub_node is None:
             raise KeyError(f"{machine.name} instance has no {sub.name}")
         binding.children.append(await bind_tree(server, sub_node, sub, publisher, refs))

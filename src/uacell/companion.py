@@ -1,0 +1,89 @@
+"""What a companion specification brings to uacell, declared in one place in its own package.
+
+A companion (OPC 40010-1 Robotics, OPC 30050 PackML, DI LockingServices, ...) is a ``Companion``
+value in its package's ``companion.py``; ``companions()`` lists them, one line each. The shared code
+reads everything companion-specific from there:
+
+- ``uacell.roles``: the method families (``type_hints``) and the rows of the role table (``roles``);
+- ``uacell.config``: the configuration section (``section`` with its dataclass ``settings``) and
+  the parts it adds to the cell (``cell_section``, read by ``cell_parser``);
+- ``uacell.cell``: where instances live (``roots``);
+- ``uacell.server``: the binder that ties the companion's models to their nodes (``binder``);
+- ``uacell.ua.locks``: which parts carry a DI Lock and which families it guards (``locks``).
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from uacell.cellconfig import SectionParser
+from uacell.roles import Family, Role
+
+if TYPE_CHECKING:
+    from uacell.server import UacellServer
+
+Closer = Callable[[], Awaitable[None]]
+# Called once the cell exists, before the server listens; returns what to run at shutdown (or None).
+Binder = Callable[["UacellServer"], Awaitable[Closer | None]]
+
+
+def lazy_binder(module: str, name: str) -> Binder:
+    """The binder ``module.name``, imported when the server binds (configuration loading stays light)."""
+
+    async def bind(app: UacellServer) -> Closer | None:
+        binder: Binder = getattr(importlib.import_module(module), name)
+        return await binder(app)
+
+    return bind
+
+
+@dataclass(frozen=True)
+class Root:
+    """A standard object instances are placed in (``"DeviceSet"``: DI's ns=DI;i=5001, HasComponent)."""
+
+    name: str
+    model: str  # model key of the node's namespace
+    node: int  # numeric id in that namespace
+    reference: int  # ns0 id of the reference type from the root to a part (HasComponent, Organizes)
+
+
+@dataclass(frozen=True)
+class LockRule:
+    """Parts of ``role`` carry a DI Lock; below the part of ``parent_role`` that contains them (if any).
+
+    ``members`` are children (BrowseName paths) that are not lockable themselves but are guarded by
+    the part's lock (a Controller's SystemOperation).
+    """
+
+    role: str
+    parent_role: str | None = None
+    members: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Companion:
+    name: str
+    binder: Binder | None = None
+    section: str | None = None  # configuration section, e.g. "robot"
+    settings: type[Any] | None = None  # its dataclass: every field optional, typed by its default
+    cell_section: str | None = None  # its parts in the cell configuration, e.g. "robots" ([[robots]])
+    cell_parser: SectionParser | None = None  # reads and checks them (uacell.cellconfig.CellSection)
+    roots: tuple[Root, ...] = ()
+    roles: Mapping[tuple[Family, str], Role] = field(default_factory=dict)  # (family, method) -> least role
+    type_hints: Mapping[str, Family] = field(default_factory=dict)  # ObjectType/instance name -> family
+    locks: tuple[LockRule, ...] = ()
+    lock_guarded: frozenset[Family] = frozenset()  # families a foreign lock refuses (docs/decisions.md 20)
+
+
+@functools.cache
+def companions() -> tuple[Companion, ...]:
+    """Every companion this build of uacell serves: one line each."""
+    from uacell.di.companion import DI_LOCKING
+    from uacell.packml.companion import PACKML_COMPANION
+    from uacell.robotics.companion import ROBOTICS
+
+    return (PACKML_COMPANION, ROBOTICS, DI_LOCKING)

@@ -1,0 +1,40 @@
+"""OPC 30050 PackML as a uacell companion: everything the shared code needs to know, in one place."""
+
+from __future__ import annotations
+
+from uacell.companion import Companion, Root, lazy_binder
+from uacell.packml.config import PackMLConfig, parse_units
+from uacell.roles import Family, Role
+
+PACKML = Family("PackML")
+UNIT_PART = "packml_unit"  # the part role (``uacell.cell.Part.role``) the PackML binder binds
+
+_OPERATOR_METHODS = (
+    "Abort", "Clear", "Stop", "Reset", "Start", "Hold", "Unhold", "Suspend", "Unsuspend",
+    "ToComplete", "SetUnitMode", "SetMachSpeed", "RemoteCommand", "SetInterlock",
+)  # fmt: skip
+
+
+PACKML_COMPANION = Companion(
+    name="PackML",
+    binder=lazy_binder("uacell.packml.binding", "bind_packml"),
+    section="packml",
+    settings=PackMLConfig,
+    cell_section="packml_units",
+    cell_parser=parse_units,
+    # PackML units are organized by PackMLObjects (ns=PackML;i=72).
+    roots=(Root("PackMLObjects", "PackML", 72, 35),),
+    # SetMachSpeed and SetUnitMode are operator methods: they change how the unit runs now (speed,
+    # Produce/Maintenance/Manual), as an operator does at the HMI; SetProduct and SetParameter change
+    # what it makes and how, which is engineering; so is raising a fault on purpose (InjectFault).
+    roles={
+        **{(PACKML, m): Role.OPERATOR for m in _OPERATOR_METHODS},
+        **{(PACKML, m): Role.ENGINEER for m in ("SetProduct", "SetParameter", "InjectFault")},
+    },
+    type_hints={
+        "PackMLBaseObjectType": PACKML,
+        "PackMLBaseStateMachineType": PACKML,
+        "PackMLMachineStateMachineType": PACKML,
+        "PackMLExecuteStateMachineType": PACKML,
+    },
+)

@@ -1,0 +1,100 @@
+"""The controller's motion device: axis values sampled while they change, InControl and OnPath."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import logging
+from typing import TYPE_CHECKING
+
+from asyncua import ua
+
+from uacell.background import Background
+from uacell.robotics.model import EXECUTING, READY
+
+if TYPE_CHECKING:
+    from uacell.robotics.binding.core import RoboticsBinding
+
+log = logging.getLogger(__name__)
+
+AXIS_PERIOD = 0.1  # seconds between axis samples
+_ROTARY = 1  # AxisMotionProfileEnumeration ROTARY
+_AXIS_VALUES = ("ActualPosition", "ActualSpeed", "ActualAcceleration")
+
+
+class Arm:
+    """The motion device of one controller (if it has one)."""
+
+    def __init__(self, binding: RoboticsBinding) -> None:
+        self.binding = binding
+        self.axis_nodes: list[dict[str, ua.NodeId]] = []
+        self._last_axes: list[tuple[float, float]] | None = None
+        self._background = Background()
+
+    async def setup(self) -> None:
+        b = self.binding
+        if b.arm is None:
+            return
+        # The axes as configured (their BrowseNames), in the order the equipment reports them.
+        names = [c.name for c in b.arm.part.children if c.folder == "Axes"]
+        for name, _ in zip(names, b.cell.equipment.axes, strict=False):
+            axis = b.child(b.arm.node, f"Axes/{name}")
+            nodes = {}
+            for key in _AXIS_VALUES:
+                with contextlib.suppress(KeyError):
+                    nodes[key] = b.child(axis, f"ParameterSet/{key}")
+            self.axis_nodes.append(nodes)
+            with contextlib.suppress(KeyError):
+                await b.values.write(b.child(axis, "MotionProfile"), _ROTARY, ua.VariantType.Int32)
+        with contextlib.suppress(KeyError):
+            await b.values.write(b.child(b.arm.node, "ParameterSet/SpeedOverride"), 100.0, ua.VariantType.Double)
+        await self.publish_axes(0.0)
+        self._background.spawn(self._sample_axes(), name=f"axes-{b.arm.path}")
+
+    async def _sample_axes(self) -> None:
+        loop = asyncio.get_running_loop()
+        last = loop.time()
+        equipment = self.binding.cell.equipment
+        while True:
+            await asyncio.sleep(AXIS_PERIOD)
+            now = loop.time()
+            dt, last = now - last, now
+            try:
+                states = [(round(a.position, 4), round(a.speed, 4)) for a in equipment.axis_states()]
+            except Exception:
+                log.exception("reading the axes failed")
+                continue
+            if states != self._last_axes:
+                self.binding.app.publisher.submit(functools.partial(self.publish_axes, dt))
+
+    async def publish_axes(self, dt: float) -> None:
+        b = self.binding
+        equipment = b.cell.equipment
+        states = [(round(a.position, 4), round(a.speed, 4)) for a in equipment.axis_states()]
+        previous = self._last_axes
+        self._last_axes = states
+        scale = getattr(equipment, "time_scale", 1.0)
+        for i, (nodes, (pos, speed)) in enumerate(zip(self.axis_nodes, states, strict=False)):
+            if "ActualPosition" in nodes:
+                await b.values.write(nodes["ActualPosition"], pos, ua.VariantType.Double)
+            if "ActualSpeed" in nodes:
+                await b.values.write(nodes["ActualSpeed"], speed, ua.VariantType.Double)
+            if "ActualAcceleration" in nodes:
+                accel = 0.0
+                if previous is not None and dt > 0:
+                    # Speeds are per simulated second; dt is real time.
+                    accel = round((speed - previous[i][1]) / (dt / scale), 2)
+                await b.values.write(nodes["ActualAcceleration"], accel, ua.VariantType.Double)
+
+    async def publish(self) -> None:
+        b = self.binding
+        if b.arm is None:
+            return
+        in_control = b.cell.system.state in (READY, EXECUTING)
+        for path in ("ParameterSet/InControl", "ParameterSet/OnPath"):
+            with contextlib.suppress(KeyError):
+                await b.values.write(b.child(b.arm.node, path), in_control, ua.VariantType.Boolean)
+
+    async def close(self) -> None:
+        await self._background.close()

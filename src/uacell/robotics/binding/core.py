@@ -1,0 +1,269 @@
+"""One ``RoboticsBinding`` per Controller part: the shared helpers, publishing, and the binder."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+from asyncua import ua
+
+from uacell.cell import BuiltPart
+from uacell.companion import Closer
+from uacell.equipment import EquipmentSpec, close_equipment, make_equipment
+from uacell.errors import ConfigError
+from uacell.fsm import StateMachine
+from uacell.registry import RegistryKey
+from uacell.robotics.companion import CONTROLLER, MOTION_DEVICE, TASK_CONTROL_PART
+from uacell.robotics.config import ControllerSpec, MotionDeviceSpec, RobotConfig, TaskControlSpec
+from uacell.robotics.equipment import AxisInfo, RobotEquipment, StopMode
+from uacell.robotics.model import RobotCell, RoboticsTables, TaskControl
+from uacell.roles import Family
+from uacell.ua.file_store import FileStore
+from uacell.ua.state_machine import bind_tree
+from uacell.ua.toolkit import ValueWriter
+
+if TYPE_CHECKING:
+    from uacell.server import UacellServer
+
+log = logging.getLogger(__name__)
+
+PROGRAMS_DIR = "programs"
+# Every bound controller, keyed by its browse path ("Robot1.Controllers.Controller1").
+CONTROLLERS: RegistryKey[RoboticsBinding] = RegistryKey("controller")
+# Every task control model, keyed by its browse path ("Robot1.Controllers.Controller1.TaskControls.TaskControl1").
+TASK_CONTROLS: RegistryKey[TaskControl] = RegistryKey("task control")
+_STOP_MODE_NAMES = {
+    StopMode.ON_PATH: "OnPath",
+    StopMode.END_OF_CYCLE: "EndOfCycle",
+    StopMode.PROCESS_STOP: "ProcessStop",
+    StopMode.QUICK_STOP: "QuickStop",
+    StopMode.END_OF_INSTRUCTION: "EndOfInstruction",
+}
+
+Handler = Callable[..., Awaitable[list[Any]]]
+
+
+class Concern(Protocol):
+    """One concern of a controller's binding (programs, task controls, ...)."""
+
+    async def setup(self) -> None: ...
+
+    async def publish(self) -> None: ...
+
+    async def close(self) -> None: ...
+
+
+class RoboticsBinding:
+    """One controller (with its task controls and motion device) on its instance nodes."""
+
+    def __init__(
+        self,
+        app: UacellServer,
+        controller: BuiltPart,
+        tasks: list[BuiltPart],
+        arm: BuiltPart | None,
+        cell: RobotCell,
+        store: FileStore,
+    ) -> None:
+        from uacell.robotics.binding.arm import Arm
+        from uacell.robotics.binding.conditions import Conditions
+        from uacell.robotics.binding.programs import Programs
+        from uacell.robotics.binding.system_operation import SystemOperationNodes
+        from uacell.robotics.binding.task_control import TaskControls
+
+        self.app = app
+        self.controller = controller
+        self.task_parts = {t.part.name: t for t in tasks}
+        self.arm = arm
+        self.cell = cell
+        self.store = store
+        self.ns: int = app.cell.instantiator.ns
+        self.values = ValueWriter(app.server.iserver.aspace, app.dispatcher.types.builtin_of)
+        self._pending = False
+        self.programs = Programs(self)
+        self.task_controls = TaskControls(self)
+        self.system_operation = SystemOperationNodes(self)
+        self.conditions = Conditions(self)
+        self.axes = Arm(self)
+        self.concerns: list[Concern] = [
+            self.programs, self.task_controls, self.system_operation, self.conditions, self.axes,
+        ]  # fmt: skip
+
+    # --- helpers every concern uses -----------------------------------------------------------
+    def child(self, node: ua.NodeId, path: str) -> ua.NodeId:
+        return self.app.cell.child(node, path)
+
+    async def bind_machine(self, node: ua.NodeId, machine: StateMachine) -> None:
+        await bind_tree(self.app.server, node, machine, self.app.publisher, self.app.refs)
+
+    def bind_method(
+        self,
+        obj: ua.NodeId,
+        name: str,
+        family: Family,
+        handler: Handler,
+        executable: Callable[[], bool] | None,
+        serialize_on: object,
+        element: ua.NodeId,
+    ) -> None:
+        d = self.app.dispatcher
+        d.bind(
+            obj, d.method_of(obj, name), family, handler,
+            executable=executable, serialize_on=serialize_on, element=element,
+        )  # fmt: skip
+
+    async def publish_stop_modes(
+        self, machine_node: ua.NodeId, possible: tuple[StopMode, ...], default: StopMode
+    ) -> None:
+        values = [
+            ua.EnumValueType(
+                Value=int(m),
+                DisplayName=ua.LocalizedText(_STOP_MODE_NAMES.get(m, m.name), "en"),
+                Description=ua.LocalizedText(),
+            )
+            for m in possible
+        ]
+        for child, value, vtype in (
+            ("PossibleStopModes", values, ua.VariantType.ExtensionObject),
+            ("ConfiguredDefaultStopMode", int(default), ua.VariantType.Int16),
+        ):
+            try:
+                target = self.child(machine_node, child)
+            except KeyError:
+                continue
+            await self.values.write(target, value, vtype, force=True)
+            # Fixed by configuration: a client write would not change the behaviour.
+            await self.values.set_access(target, ua.AccessLevel.CurrentRead.mask)
+
+    # --- life -----------------------------------------------------------------------------------
+    async def setup(self) -> None:
+        for concern in self.concerns:
+            await concern.setup()
+        self.cell.add_listener(self.changed)
+        await self.publish()
+
+    def changed(self) -> None:
+        # Coalesce: one pending publish job reads the latest model state when it runs.
+        if not self._pending:
+            self._pending = True
+            self.app.publisher.submit(self.publish)
+
+    async def publish(self) -> None:
+        self._pending = False
+        for concern in self.concerns:
+            await concern.publish()
+
+    async def close(self) -> None:
+        await self.axes.close()
+        await self.cell.close()
+        await close_equipment(self.cell.equipment, self.controller.path)
+        for concern in self.concerns:
+            if concern is not self.axes:
+                await concern.close()
+
+
+def executable(model: Any, machine: str, method: str) -> Callable[[], bool]:
+    return lambda: bool(model.executable(machine, method))
+
+
+# --- the binder ------------------------------------------------------------------------------------
+SIMULATOR = "uacell.robotics.sim:simulator"
+
+
+async def make_controller_equipment(
+    app: UacellServer, controller: BuiltPart, axes: tuple[AxisInfo, ...]
+) -> RobotEquipment:
+    """The controller's own factory and settings, else ``[robot] equipment``, else the simulator."""
+    spec = controller.part.spec if isinstance(controller.part.spec, ControllerSpec) else None
+    defaults = app.config.section("robot", RobotConfig)
+    factory = (spec.equipment if spec else "") or defaults.equipment or SIMULATOR
+    settings = dict(spec.settings) if spec else {}
+    if factory == SIMULATOR:
+        if spec is not None and spec.time_scale is not None:
+            settings["time_scale"] = spec.time_scale
+        settings.setdefault("time_scale", defaults.time_scale)
+    equipment: RobotEquipment = await make_equipment(
+        factory, EquipmentSpec(controller.path, settings, axes), RobotEquipment
+    )
+    if axes and len(equipment.axes) != len(axes):
+        await close_equipment(equipment, controller.path)
+        raise ConfigError(
+            f"{controller.path}: equipment {factory!r} reports {len(equipment.axes)} axes,"
+            f" the motion device it moves has {len(axes)}"
+        )
+    return equipment
+
+
+def _arm_of(app: UacellServer, controller: BuiltPart) -> BuiltPart | None:
+    """The motion device the controller moves: the configured one, else the robot's first."""
+    system_path = controller.path.split(".Controllers.")[0]
+    arms = [m for m in app.cell.by_role(MOTION_DEVICE) if m.path.startswith(system_path + ".")]
+    spec = controller.part.spec
+    if isinstance(spec, ControllerSpec):
+        return next((m for m in arms if m.part.name == spec.motion_device), None)
+    return arms[0] if arms else None
+
+
+def programs_root(data_dir: Path, controller_path: str) -> Path:
+    """``<data_dir>/programs/<robot>/<controller>``: its own for every controller of the cell."""
+    robot, _, name = controller_path.partition(".Controllers.")
+    return Path(data_dir) / PROGRAMS_DIR / robot / name
+
+
+async def bind_controller(app: UacellServer, controller: BuiltPart, tables: RoboticsTables) -> RoboticsBinding:
+    """One controller with its task controls and motion device, on its own equipment and Programs."""
+    from uacell.robotics.binding.programs import StoreLibrary, adopt_legacy_programs, install_samples
+
+    tasks = [t for t in app.cell.by_role(TASK_CONTROL_PART) if t.path.startswith(controller.path + ".")]
+    arm = _arm_of(app, controller)
+    axes = tuple(arm.part.spec.axes) if arm is not None and isinstance(arm.part.spec, MotionDeviceSpec) else ()
+    spec = controller.part.spec if isinstance(controller.part.spec, ControllerSpec) else None
+    equipment = await make_controller_equipment(app, controller, axes)
+    root = programs_root(app.data_dir, controller.path)
+    robots = sorted({c.path.partition(".Controllers.")[0] for c in app.cell.by_role(CONTROLLER)})
+    if controller is app.cell.by_role(CONTROLLER)[0]:
+        adopt_legacy_programs(root.parent.parent, root, robots)
+    install_samples(root, equipment.axes)
+    store = FileStore(root)
+    cell = RobotCell(
+        equipment,
+        StoreLibrary(store),
+        tables=tables,
+        task_names=[t.part.name for t in tasks],
+        motion_devices=[arm.part.name] if arm else (),
+        possible_stop_modes=spec.possible_stop_modes if spec else tuple(StopMode),
+        default_stop_mode=spec.default_stop_mode if spec else StopMode.ON_PATH,
+    )
+    for t in tasks:
+        if isinstance(t.part.spec, TaskControlSpec):
+            cell.tasks[t.part.name].execution_mode = t.part.spec.execution_mode
+    binding = RoboticsBinding(app, controller, tasks, arm, cell, store)
+    await binding.setup()
+    return binding
+
+
+async def bind_robotics(app: UacellServer) -> Closer | None:
+    """Bind every controller of the cell (role ``controller``) with its task controls and arm."""
+    controllers = app.cell.by_role(CONTROLLER)
+    if not controllers:
+        return None
+    tables = RoboticsTables.load(app.tables)
+    bindings: list[RoboticsBinding] = []
+
+    async def close() -> None:
+        for b in bindings:
+            await b.close()
+
+    try:
+        for controller in controllers:
+            binding = await bind_controller(app, controller, tables)
+            bindings.append(binding)
+            app.registry(CONTROLLERS).add(controller.path, binding)
+            for task in binding.task_parts.values():
+                app.registry(TASK_CONTROLS).add(task.path, binding.cell.tasks[task.part.name])
+    except BaseException:
+        await close()  # the drivers already connected
+        raise
+    return close

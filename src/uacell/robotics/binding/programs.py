@@ -1,0 +1,142 @@
+"""``Controller/Programs``: the program files, their protection while loaded, and client NodeIds."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from asyncua import ua
+
+from uacell.errors import CallError
+from uacell.robotics.equipment import AxisInfo
+from uacell.robotics.model import PROGRAM_SUFFIX, DirectoryLibrary
+from uacell.robotics.program import AXIS_COUNT, samples, wave_program
+from uacell.ua.file_directory import FileDirectoryBinding
+from uacell.ua.file_store import FileStore
+
+if TYPE_CHECKING:
+    from uacell.robotics.binding.core import RoboticsBinding
+
+log = logging.getLogger(__name__)
+_A = ua.AttributeIds
+
+
+def install_samples(root: Path, axes: Sequence[AxisInfo] = ()) -> bool:
+    """Write sample programs into ``root`` if it does not exist yet (first start).
+
+    A six-axis arm gets the shipped samples (docs/programs.md); an arm with another number of axes a
+    generated ``Wave`` program that moves each axis within its limits.
+    """
+    if root.exists():
+        return False
+    root.mkdir(parents=True)
+    files = samples() if len(axes) in (0, AXIS_COUNT) else {"wave.robot": wave_program(axes)}
+    for name, text in files.items():
+        (root / name).write_text(text, encoding="utf-8")
+    log.info("installed %d sample programs in %s", len(files), root)
+    return True
+
+
+def adopt_legacy_programs(programs_dir: Path, root: Path, keep: Sequence[str]) -> int:
+    """Move the files of the single-controller layout (``programs/*``) into ``root``; return how many.
+
+    Before cells were configurable, the one controller's files lived directly in ``programs/``. On
+    the first start of a newer uacell they become that controller's (``programs/<robot>/<controller>``),
+    so nothing a user stored is lost. ``keep`` are the robots' directory names, never moved.
+    """
+    if root.exists() or not programs_dir.is_dir():
+        return 0
+    legacy = [e for e in sorted(programs_dir.iterdir()) if e.name not in keep]
+    if not any(e.is_file() and e.suffix == PROGRAM_SUFFIX for e in legacy):
+        return 0
+    root.mkdir(parents=True)
+    for entry in legacy:
+        entry.rename(root / entry.name)
+    log.warning("moved %d entries of the old programs/ layout to %s", len(legacy), root)
+    return len(legacy)
+
+
+class StoreLibrary(DirectoryLibrary):
+    """The ProgramLibrary over a FileStore: the store's listing hides its temporary files."""
+
+    def __init__(self, store: FileStore) -> None:
+        super().__init__(store.root)
+        self.store = store
+
+    def _files(self) -> list[Path]:
+        return sorted(
+            self.root / e.relpath for e in self.store.entries() if not e.is_dir and e.relpath.endswith(PROGRAM_SUFFIX)
+        )
+
+
+class Programs:
+    """The Programs directory of one controller, and the NodeIds clients name files and modules by."""
+
+    def __init__(self, binding: RoboticsBinding) -> None:
+        self.binding = binding
+        self.directory: FileDirectoryBinding | None = None
+        self._protected: set[str] = set()
+
+    async def setup(self) -> None:
+        b = self.binding
+        b.store.protect = self.protect
+        node = b.child(b.controller.node, "Programs")
+        self.directory = await FileDirectoryBinding.create(b.app, node, b.store)
+
+    async def publish(self) -> None:
+        protected = self.protected_files()
+        if protected != self._protected and self.directory is not None:
+            # Writable/UserWritable of the files that became (un)protected.
+            for relpath in protected ^ self._protected:
+                self.directory.refresh(relpath)
+        self._protected = protected
+
+    async def close(self) -> None:
+        if self.directory is not None:
+            await self.directory.close()
+
+    # --- protection -------------------------------------------------------------------------------
+    def protected_files(self) -> set[str]:
+        files: set[str] = set()
+        for task in self.binding.cell.tasks.values():
+            if task.program_file is not None:
+                files.add(task.program_file)
+            files.update(m.relpath for m in task.modules if m.relpath is not None)
+        return files
+
+    def protect(self, relpath: str) -> bool:
+        """The loaded programs and modules cannot be deleted, moved or overwritten."""
+        return relpath in self.protected_files()
+
+    # --- NodeIds given by clients (docs/decisions.md 10) -------------------------------------------
+    def local_nodeid(self, id_: Any) -> ua.NodeId:
+        """The local NodeId an ExpandedNodeId names; Bad_NodeIdInvalid if null, remote or of an unknown URI."""
+        if id_ is None or not isinstance(id_, ua.NodeId):
+            raise CallError("BadNodeIdInvalid", "Id is null", argument=0)
+        server_index = getattr(id_, "ServerIndex", 0) or 0
+        if server_index != 0:
+            raise CallError("BadNodeIdInvalid", f"Id names server {server_index}", argument=0)
+        index = id_.NamespaceIndex
+        uri = getattr(id_, "NamespaceUri", None)
+        if uri:
+            array = self.binding.app.server.iserver.aspace.read_attribute_value(
+                ua.NodeId(ua.ObjectIds.Server_NamespaceArray), _A.Value
+            ).Value.Value
+            if uri not in array:
+                raise CallError("BadNodeIdInvalid", f"unknown namespace {uri}", argument=0)
+            index = array.index(uri)
+        nodeid = ua.NodeId(id_.Identifier, index, id_.NodeIdType)
+        if nodeid.is_null():
+            raise CallError("BadNodeIdInvalid", "Id is null", argument=0)
+        return nodeid
+
+    def file_of(self, id_: Any) -> str:
+        """The relpath in Programs of the FileType node ``id_``; Bad_NodeIdUnknown if it is none."""
+        nodeid = self.local_nodeid(id_)
+        # None for directories and anything outside Programs
+        relpath = self.directory.relpath_of(nodeid) if self.directory is not None else None
+        if relpath is None:
+            raise CallError("BadNodeIdUnknown", f"{nodeid.to_string()} is not a file in Programs", argument=0)
+        return relpath

@@ -1,0 +1,51 @@
+"""OPC 40010-1 Robotics as a uacell companion: everything the shared code needs to know, in one place."""
+
+from __future__ import annotations
+
+from uacell.companion import Companion, LockRule, lazy_binder
+from uacell.robotics.config import RobotConfig, parse_robots
+from uacell.roles import Family, Role
+
+TASK_CONTROL = Family("TaskControl")
+SYSTEM_OPERATION = Family("SystemOperation")
+
+# Part roles in the cell (``uacell.cell.Part.role``) the Robotics binder binds.
+CONTROLLER, TASK_CONTROL_PART, MOTION_DEVICE = "controller", "task_control", "motion_device"
+
+_TASK_CONTROL_METHODS = (
+    "LoadByNodeId", "LoadByName", "UnloadProgram", "UnloadByNodeId", "UnloadByName",
+    "Start", "Stop", "ResetToProgramStart",
+)  # fmt: skip
+
+
+ROBOTICS = Companion(
+    name="Robotics",
+    binder=lazy_binder("uacell.robotics.binding", "bind_robotics"),
+    section="robot",
+    settings=RobotConfig,
+    cell_section="robots",
+    cell_parser=parse_robots,
+    roles={
+        **{(TASK_CONTROL, m): Role.OPERATOR for m in _TASK_CONTROL_METHODS},
+        **{(SYSTEM_OPERATION, m): Role.OPERATOR for m in ("GetReady", "StandDown", "Start", "Stop")},
+        # uacell's own simulation method: raising a fault on purpose is an engineer's test.
+        (Family.CONDITION, "SimulateAlarm"): Role.ENGINEER,
+    },
+    type_hints={
+        "TaskControlStateMachineType": TASK_CONTROL,
+        "TaskControlOperation": TASK_CONTROL,
+        "TaskControlType": TASK_CONTROL,
+        "ReadySubstateMachineType": TASK_CONTROL,
+        "OperationStateMachineType": TASK_CONTROL,
+        "SystemOperationStateMachineType": SYSTEM_OPERATION,
+        "SystemOperation": SYSTEM_OPERATION,
+        "Programs": Family.DIRECTORY,
+    },
+    # docs/decisions.md 20: Controllers and their TaskControls carry the DI Lock; a Controller's
+    # SystemOperation is guarded by the Controller's lock.
+    locks=(
+        LockRule(CONTROLLER, members=("SystemOperation",)),
+        LockRule(TASK_CONTROL_PART, parent_role=CONTROLLER),
+    ),
+    lock_guarded=frozenset({TASK_CONTROL, SYSTEM_OPERATION}),
+)

@@ -1,0 +1,169 @@
+"""The binding toolkit: the few address-space operations every binding needs, written once.
+
+- ``find_child``/``child``: a child (any forward reference but HasTypeDefinition) by BrowseName name;
+- ``supertype``/``subtypes``/``type_named``: walking the type hierarchy;
+- ``ValueWriter``: writes Values typed by the variable's DataType, with timestamps, only when changed;
+- ``EventEmitter``: one event of a type, fired to several notifiers (the source, its parents, Server).
+
+Background tasks are run by ``uacell.background.Background``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+from datetime import UTC, datetime
+from typing import Any
+
+from asyncua import Server, ua
+from asyncua.server.address_space import AddressSpace
+from asyncua.server.event_generator import EventGenerator
+
+_A = ua.AttributeIds
+_HAS_TYPE_DEFINITION = ua.NodeId(ua.ObjectIds.HasTypeDefinition)
+_HAS_SUBTYPE = ua.NodeId(ua.ObjectIds.HasSubtype)
+
+
+def find_child(aspace: AddressSpace, node: ua.NodeId, name: str) -> ua.NodeId | None:
+    """The target of a forward reference of ``node`` (not HasTypeDefinition) whose BrowseName is ``name``."""
+    data = aspace.get(node)
+    if data is None:
+        return None
+    for ref in data.references:
+        if ref.IsForward and ref.BrowseName.Name == name and ref.ReferenceTypeId != _HAS_TYPE_DEFINITION:
+            target: ua.NodeId = ref.NodeId
+            return target
+    return None
+
+
+def child(aspace: AddressSpace, node: ua.NodeId, path: str) -> ua.NodeId:
+    """Follow a BrowseName path (``"A/B"``, names without namespace) down from ``node``; KeyError if absent."""
+    for name in (p for p in path.split("/") if p):
+        found = find_child(aspace, node, name)
+        if found is None:
+            raise KeyError(f"{node} has no child {name!r}")
+        node = found
+    return node
+
+
+def supertype(aspace: AddressSpace, type_id: ua.NodeId) -> ua.NodeId | None:
+    """The type ``type_id`` is a subtype of (None for a root or an unknown node)."""
+    data = aspace.get(type_id)
+    if data is None:
+        return None
+    for ref in data.references:
+        if not ref.IsForward and ref.ReferenceTypeId == _HAS_SUBTYPE:
+            parent: ua.NodeId = ref.NodeId
+            return parent
+    return None
+
+
+def subtypes(aspace: AddressSpace, root: ua.NodeId) -> set[ua.NodeId]:
+    """``root`` and every type below it."""
+    out, todo = {root}, [root]
+    while todo:
+        for ref in aspace[todo.pop()].references:
+            if ref.IsForward and ref.ReferenceTypeId == _HAS_SUBTYPE and ref.NodeId not in out:
+                out.add(ref.NodeId)
+                todo.append(ref.NodeId)
+    return out
+
+
+def type_named(aspace: AddressSpace, root: ua.NodeId, namespace: int, name: str) -> ua.NodeId | None:
+    """The subtype of ``root`` in ``namespace`` whose BrowseName name is ``name``."""
+    for ref in subtypes(aspace, root):
+        if ref.NamespaceIndex != namespace:
+            continue
+        attr = aspace[ref].attributes.get(_A.BrowseName)
+        if attr is not None and attr.value is not None and attr.value.Value is not None:
+            if attr.value.Value.Value.Name == name:
+                return ref
+    return None
+
+
+class ValueWriter:
+    """Writes variable Values into the address space (not through the services: no access checks).
+
+    The VariantType comes from the variable's DataType unless given; a value equal to the last one
+    this writer wrote is skipped unless ``force``. Lists are written as arrays.
+    """
+
+    def __init__(self, aspace: AddressSpace, builtin_of: Callable[[ua.NodeId], ua.VariantType | None]) -> None:
+        self.aspace = aspace
+        self._builtin_of = builtin_of
+        self._written: dict[ua.NodeId, Any] = {}
+
+    def vtype(self, nodeid: ua.NodeId) -> ua.VariantType:
+        datatype = self.aspace[nodeid].attributes[_A.DataType].value.Value.Value
+        return self._builtin_of(datatype) or ua.VariantType.Variant
+
+    async def write(
+        self, nodeid: ua.NodeId, value: Any, vtype: ua.VariantType | None = None, *, force: bool = False
+    ) -> None:
+        if not force and nodeid in self._written and self._written[nodeid] == value:
+            return
+        self._written[nodeid] = value
+        variant = (
+            value
+            if isinstance(value, ua.Variant)
+            else ua.Variant(value, vtype or self.vtype(nodeid), is_array=isinstance(value, list))
+        )
+        now = datetime.now(UTC)
+        await self.aspace.write_attribute_value(
+            nodeid, _A.Value, ua.DataValue(variant, SourceTimestamp=now, ServerTimestamp=now)
+        )
+
+    async def write_status(self, nodeid: ua.NodeId, status: ua.StatusCode) -> None:
+        """A Value that is only a status (e.g. Bad_StateNotActive), with timestamps."""
+        self._written.pop(nodeid, None)
+        now = datetime.now(UTC)
+        dv = ua.DataValue(StatusCode=status, SourceTimestamp=now, ServerTimestamp=now)
+        await self.aspace.write_attribute_value(nodeid, _A.Value, dv)
+
+    async def set_access(self, nodeid: ua.NodeId, level: int) -> None:
+        """AccessLevel and UserAccessLevel (the security layer narrows the latter per session)."""
+        for attr in (_A.AccessLevel, _A.UserAccessLevel):
+            await self.aspace.write_attribute_value(nodeid, attr, ua.DataValue(ua.Variant(level, ua.VariantType.Byte)))
+
+    def forget(self, node: ua.NodeId) -> None:
+        """Forget what was written to ``node`` (it is deleted; a node of the same id starts afresh)."""
+        self._written.pop(node, None)
+
+    def forget_below(self, node: ua.NodeId) -> None:
+        """Forget what was written to the variables of a deleted node (string NodeIds below ``node``)."""
+        prefix = f"{node.Identifier}."
+        for key in [k for k in self._written if isinstance(k.Identifier, str) and k.Identifier.startswith(prefix)]:
+            del self._written[key]
+
+
+class EventEmitter:
+    """Fires events of one type whose SourceNode is ``source``, to each notifier given to ``fire``."""
+
+    def __init__(self, server: Server, generator: EventGenerator, source: ua.NodeId) -> None:
+        self.server = server
+        self.event: Any = generator.event
+        self.source = source
+
+    @classmethod
+    async def create(cls, server: Server, event_type: int | ua.NodeId, source: ua.NodeId) -> EventEmitter:
+        generator = EventGenerator(server.iserver.isession)
+        await generator.init(event_type, source, add_generates_event=False)
+        return cls(server, generator, source)
+
+    async def fire(
+        self,
+        notifiers: Iterable[ua.NodeId],
+        fields: Mapping[str, tuple[Any, ua.VariantType]] = {},
+        **base: Any,
+    ) -> None:
+        """Fill the base fields (EventId, Time, Message, ...) and the typed ``fields``, then fire."""
+        ev = self.event
+        for name, value in base.items():
+            setattr(ev, name, value)
+        for name, (value, vtype) in fields.items():
+            setattr(ev, name, value)
+            ev.data_types[name] = vtype
+        service = self.server.iserver.isession.subscription_service
+        for notifier in notifiers:
+            ev.emitting_node = notifier
+            await service.trigger_event(ev)
+        ev.emitting_node = self.source

@@ -1,0 +1,146 @@
+"""What several test files share: the models' state tables, clocks, waits on conditions, free ports.
+
+Import as ``from helpers import ...`` (pytest puts ``tests/`` on the path).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import socket
+import uuid
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from asyncua import ua
+
+from uacell.locking import LockManager
+from uacell.models import StateTables
+from uacell.packml import PackMLTables
+from uacell.robotics import RobotCell, RoboticsTables
+from uacell.robotics.binding import CONTROLLERS, RoboticsBinding
+from uacell.server import UacellServer
+from uacell.ua.locks import LOCK_SERVICE
+from uacell.ua.toolkit import EventEmitter
+
+
+@functools.cache
+def robotics_tables() -> RoboticsTables:
+    """The Robotics tables from the default models directory (the cache ``make setup`` fills)."""
+    return RoboticsTables.load(StateTables())
+
+
+@functools.cache
+def packml_tables() -> PackMLTables:
+    return PackMLTables.load(StateTables())
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on at 127.0.0.1 right now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+class FakeClock:
+    """A monotonic clock tests advance by hand: ``clock()`` reads it, ``clock.advance(s)`` moves it."""
+
+    def __init__(self, start: float = 1000.0) -> None:
+        self.now = start
+
+    def __call__(self) -> float:
+        return self.now
+
+    def advance(self, seconds: float) -> None:
+        self.now += seconds
+
+
+async def wait_until(predicate: Callable[[], bool], timeout: float = 30.0, step: float = 0.0005) -> None:
+    """Wait until ``predicate()`` holds (checked every ``step`` s); fail after ``timeout`` s."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not predicate():
+        assert loop.time() < deadline, "condition not reached"
+        await asyncio.sleep(step)
+
+
+CONTROLLER1 = "Robot1.Controllers.Controller1"
+
+
+def robot_binding(app: UacellServer, path: str = CONTROLLER1) -> RoboticsBinding:
+    """The Robotics binding of the controller at ``path`` in the demo cell."""
+    return app.registry(CONTROLLERS)[path]
+
+
+def robot_cell(app: UacellServer, path: str = CONTROLLER1) -> RobotCell:
+    """The pure model of the controller at ``path``."""
+    return robot_binding(app, path).cell
+
+
+def lock_manager(app: UacellServer) -> LockManager:
+    return app.registry(LOCK_SERVICE)[""].manager
+
+
+class VirtualTime:
+    """Injected time for simulators: ``sleep(s)`` moves ``clock()`` on by ``s`` at once, then yields.
+
+    One sleeper at a time sees exact time; concurrent sleepers each move the shared clock on.
+    """
+
+    def __init__(self, start: float = 0.0) -> None:
+        self.now = start
+        self.slept = 0.0
+
+    def clock(self) -> float:
+        return self.now
+
+    async def sleep(self, seconds: float) -> None:
+        self.now += seconds
+        self.slept += seconds
+        await asyncio.sleep(0)
+
+
+def server_value(app: UacellServer, nodeid: ua.NodeId) -> Any:
+    """The Value of ``nodeid`` as the server holds it (no client round trip)."""
+    return app.server.iserver.aspace.read_attribute_value(nodeid, ua.AttributeIds.Value).Value.Value
+
+
+class EventSink(Protocol):
+    events: list[Any]
+
+    async def wait_for(self, match: Callable[[Any], bool], timeout: float = ...) -> Any: ...
+
+
+async def fire_marker(app: UacellServer, source: ua.NodeId, marker: str) -> None:
+    """Settle the server, then fire a TransitionEvent from ``source`` whose Message, Transition,
+    FromState and ToState are all ``marker``: once a subscriber has it, it has everything before it."""
+    await app.settle()
+    text = (ua.LocalizedText(marker), ua.VariantType.LocalizedText)
+    emitter = await EventEmitter.create(app.server, ua.ObjectIds.TransitionEventType, source)
+    await emitter.fire(
+        (source,),
+        {"Transition": text, "FromState": text, "ToState": text},
+        EventId=uuid.uuid4().bytes,
+        Message=ua.LocalizedText(marker),
+        SourceNode=source,
+        Severity=1,
+    )
+
+
+async def delivered(app: UacellServer, sink: EventSink, *sources: ua.NodeId) -> None:
+    """Wait until ``sink`` holds every TransitionEvent the server produced so far from ``sources``.
+
+    The server settles (every model change published, every event triggered), then fires a marker
+    event from each source; events of a subscription arrive in order, so once the markers are in,
+    nothing produced before them is still on its way. The markers are then dropped from ``sink``.
+    """
+    marker = f"uacell-test-marker {uuid.uuid4().hex}"
+    for source in sources:
+        await fire_marker(app, source, marker)
+
+    def is_marker(event: Any) -> bool:
+        return getattr(getattr(event, "Message", None), "Text", None) == marker
+
+    await sink.wait_for(lambda _e: sum(1 for e in sink.events if is_marker(e)) >= len(sources))
+    sink.events[:] = [e for e in sink.events if not is_marker(e)]
