@@ -28,7 +28,7 @@ def test_node_opcua_secure_session_with_user_name(tmp_path):
     assert add.returncode == 0, add.stderr
     listed = subprocess.run([sys.executable, "-m", "uacell", "user", "--data-dir", str(data), "list"],
                             capture_output=True, text=True, timeout=60, check=True)
-    assert listed.stdout.split() == ["nora", "operator"]
+    assert listed.stdout.splitlines() == [f"{data / 'users.toml'}: 1 user", "nora\toperator"]
     der, key_pem = make_client_certificate(NODE_URI)
     cert_file, key_file = tmp_path / "node-cert.pem", tmp_path / "node-key.pem"
     cert_file.write_bytes(x509.load_der_x509_certificate(der).public_bytes(serialization.Encoding.PEM))

@@ -441,7 +441,7 @@ async def test_flood_of_untrusted_certificates_keeps_rejected_capped(env, caplog
             assert refused.value.code == S.BadCertificateUntrusted
     kept = sorted(p.name for p in rejected.iterdir())
     assert len(kept) == REJECTED_CAP
-    assert {t for t in thumbprints[-REJECTED_CAP:]} == {n.rsplit("[", 1)[1].split("]")[0] for n in kept}
+    assert {f"{t}.der" for t in thumbprints[-REJECTED_CAP:]} == set(kept)  # named by thumbprint
     assert len(_warnings(caplog, "keeps at most")) == 1  # logged once, not per dropped file
     assert len(_warnings(caplog, "refused untrusted client certificate")) == 1  # once per address and minute
     assert os.listdir(PkiPaths.in_data_dir(env.data_dir).trusted)  # the trusted client is untouched

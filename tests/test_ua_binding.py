@@ -283,11 +283,15 @@ async def test_methods_no_binding_declares_never_get_the_stacks_default_answers(
     # a node that is not a method at all
     res = await _raw_call(r.client, r.tc.nodeid, ua.NodeId(f"{TC_PATH}.CurrentState", r.ns))
     assert res.StatusCode.value == ua.StatusCodes.BadMethodInvalid
-    # the object's own method that nobody implements (the rig binds no Start; asyncua none of Server's)
+    # the object's own method that nobody implements (the rig binds no Start; asyncua no ResendData)
     res = await _raw_call(r.client, r.tc.nodeid, ua.NodeId(f"{TC_PATH}.Start", r.ns))
     assert res.StatusCode.value == ua.StatusCodes.BadNotImplemented
-    res = await _raw_call(r.client, server_obj, get_monitored, one)
+    resend = ua.NodeId(ua.ObjectIds.Server_ResendData)
+    res = await _raw_call(r.client, server_obj, resend, one)
     assert res.StatusCode.value == ua.StatusCodes.BadNotImplemented
+    # GetMonitoredItems is uacell's own (tests/test_diagnostics.py): it checks the subscription id
+    res = await _raw_call(r.client, server_obj, get_monitored, ua.Variant(987654, ua.VariantType.UInt32))
+    assert res.StatusCode.value == ua.StatusCodes.BadSubscriptionIdInvalid
     assert r.calls == []
 
 

@@ -37,11 +37,31 @@ def test_add_verify_list_remove(store: UserStore) -> None:
         store.remove("alice")
 
 
-def test_add_replaces_role_and_password(store: UserStore) -> None:
+def test_add_refuses_an_existing_name_and_passwd_role_change_one_thing(store: UserStore) -> None:
     store.add("alice", "operator", "one")
-    store.add("alice", "admin", "two")
+    before = store.path.read_bytes()
+    with pytest.raises(UserError, match="'alice' exists"):
+        store.add("alice", "admin", "two")
+    assert store.path.read_bytes() == before
+    store.set_password("alice", "two")
     assert store.verify("alice", "one") is None
+    assert store.verify("alice", "two") is Role.OPERATOR
+    store.set_role("alice", "admin")
     assert store.verify("alice", "two") is Role.ADMIN
+    with pytest.raises(UserError, match="no user 'bob'"):
+        store.set_password("bob", "x")
+    with pytest.raises(UserError, match="no user 'bob'"):
+        store.set_role("bob", "admin")
+
+
+def test_minimum_password_length(store: UserStore) -> None:
+    with pytest.raises(UserError, match="at least 8 characters"):
+        store.add("alice", "operator", "short", min_length=8)
+    assert store.list() == []
+    store.add("alice", "operator", "long enough", min_length=8)
+    with pytest.raises(UserError, match="at least 12 characters"):
+        store.set_password("alice", "still short", min_length=12)
+    assert store.verify("alice", "long enough") is Role.OPERATOR
 
 
 def test_file_holds_only_hashes_and_is_private(store: UserStore) -> None:

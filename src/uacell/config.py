@@ -66,6 +66,24 @@ private_key = ""                  # its PEM private key (default: the server's k
 
 [[robots]] ...                    # the cell (docs/configuration.md); without [[robots]] and
 [[packml_units]] ...              # [[packml_units]] the shipped demo cell
+
+[logging]                         # docs/operations.md
+level = "INFO"                    # DEBUG, INFO, WARNING, ERROR
+format = "text"                   # "text" or "json" (one JSON object a line)
+file = ""                         # also log to this file (rotated); default: standard error only
+max_bytes = 10485760              # rotate the log file (and the audit file) at this size
+backups = 5                       # rotated files kept
+audit = true                      # the audit trail (JSON lines)
+audit_file = ""                   # default: <data_dir>/audit.log
+levels = { "uacell.robotics" = "DEBUG" }   # per-logger levels
+
+[metrics]
+enabled = false                   # a Prometheus endpoint at http://host:port/metrics
+host = "127.0.0.1"
+port = 9840
+
+[users]
+min_password_length = 10          # for 'uacell user add' and 'uacell user passwd'
 ```
 
 Every key of ``[programs]`` and ``[limits]`` is a positive number.
@@ -74,6 +92,8 @@ Every key of ``[programs]`` and ``[limits]`` is a positive number.
 from __future__ import annotations
 
 import importlib
+import ipaddress
+import os
 import re
 import socket
 import tomllib
@@ -91,6 +111,10 @@ from uacell.errors import ConfigError
 T = TypeVar("T")
 
 ROLES = ("observer", "operator", "engineer", "admin")
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
+LOG_FORMATS = ("text", "json")
+CONFIG_ENV = "UACELL_CONFIG"
+DATA_DIR_ENV = "UACELL_DATA_DIR"
 
 
 def _cell_sections() -> dict[str, SectionParser]:
@@ -172,12 +196,49 @@ class WebConfig:
     private_key: str = ""
 
 
-_OWN = {"server": ServerConfig, "programs": ProgramsConfig, "limits": LimitsConfig, "web": WebConfig}
 _POSITIVE = ("programs", "limits")  # sections whose every value must be above zero
 
 
+@dataclass
+class LoggingConfig:
+    level: str = "INFO"
+    format: str = "text"
+    file: Path | None = None
+    max_bytes: int = 10 * 1024 * 1024
+    backups: int = 5
+    audit: bool = True
+    audit_file: Path | None = None  # None: <data_dir>/audit.log
+    levels: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass
+class MetricsConfig:
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: int = 9840
+
+
+@dataclass
+class UsersConfig:
+    min_password_length: int = 10
+
+
+# uacell's own sections (the companions declare theirs).
+_OWN: dict[str, type[Any]] = {
+    "server": ServerConfig,
+    "programs": ProgramsConfig,
+    "limits": LimitsConfig,
+    "web": WebConfig,
+    "logging": LoggingConfig,
+    "metrics": MetricsConfig,
+    "users": UsersConfig,
+}
+_PATHS = {"data_dir", "file", "audit_file"}
+
+
 class Config:
-    """``server``, ``programs``, ``limits``, ``web`` plus one section per companion that declares one
+    """uacell's own sections (``server``, ``programs``, ``limits``, ``web``, ``logging``, ``metrics``,
+    ``users``) plus one section per companion that declares one
     (``config.robot``, ``config.packml``)."""
 
     def __init__(self) -> None:
@@ -185,6 +246,9 @@ class Config:
         self.programs = ProgramsConfig()
         self.limits = LimitsConfig()
         self.web = WebConfig()
+        self.logging = LoggingConfig()
+        self.metrics = MetricsConfig()
+        self.users = UsersConfig()
         self.source: Path | None = None
         # The cell: the companions' cell sections ([[robots]], [[packml_units]]), else the demo cell.
         self.cell: CellConfig = load_cell(builtin_cell_path("demo"))
@@ -216,10 +280,16 @@ def _section_types() -> dict[str, type[Any]]:
 
 def _coerce(section: str, key: str, value: object, default: object) -> object:
     name = f"[{section}] {key}"
-    if key == "data_dir":
+    if key in _PATHS:
         if not isinstance(value, str):
             raise ConfigError(f"{name} must be a path string")
-        return Path(value).expanduser()
+        return Path(value).expanduser() if value else None
+    if key == "levels":
+        if not isinstance(value, dict) or not all(
+            isinstance(k, str) and isinstance(v, str) and v.upper() in LOG_LEVELS for k, v in value.items()
+        ):
+            raise ConfigError(f"{name} must map logger names to one of {', '.join(LOG_LEVELS)}")
+        return {k: v.upper() for k, v in value.items()}
     if isinstance(default, bool) or key in ("allow_none_security",):
         if not isinstance(value, bool):
             raise ConfigError(f"{name} must be true or false")
@@ -238,7 +308,11 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
         raise ConfigError(f"{name} must be a string")
     if key == "anonymous_role" and value not in ROLES:
         raise ConfigError(f"{name} must be one of {', '.join(ROLES)}")
-    return value
+    if key == "level" and value.upper() not in LOG_LEVELS:
+        raise ConfigError(f"{name} must be one of {', '.join(LOG_LEVELS)}")
+    if key == "format" and value not in LOG_FORMATS:
+        raise ConfigError(f"{name} must be one of {', '.join(LOG_FORMATS)}")
+    return value.upper() if key == "level" else value
 
 
 def _read_toml(path: Path) -> dict[str, object]:
@@ -266,7 +340,22 @@ def _cell_of(data: dict[str, object], path: Path) -> CellConfig:
 
 
 def load_config(path: str | Path | None = None) -> Config:
-    """Read ``path`` (or return the defaults); raises ConfigError saying what is wrong and where."""
+    """Read ``path`` (or return the defaults); raises ConfigError saying what is wrong and where.
+
+    Without ``path``, ``$UACELL_CONFIG`` names the file; ``$UACELL_DATA_DIR`` overrides ``data_dir``.
+    """
+    config = _load_file(path if path is not None else (os.environ.get(CONFIG_ENV) or None))
+    env_data_dir = os.environ.get(DATA_DIR_ENV)
+    if env_data_dir:
+        config.server.data_dir = Path(env_data_dir).expanduser()
+    try:
+        validate(config)
+    except ConfigError as exc:
+        raise ConfigError(f"configuration {config.source}: {exc}" if config.source else str(exc)) from exc
+    return config
+
+
+def _load_file(path: str | Path | None) -> Config:
     config = Config()
     if path is None:
         return config
@@ -289,20 +378,88 @@ def load_config(path: str | Path | None = None) -> Config:
                 setattr(target, key, _coerce(section, key, value, getattr(target, key)))
             except ConfigError as exc:
                 raise ConfigError(f"configuration {path}: {exc}") from exc
-    for section, port in (("server", config.server.port), ("web", config.web.port)):
-        if not 0 <= port <= 65535:
-            raise ConfigError(f"configuration {path}: [{section}] port must be 0..65535")
+    if not 0 <= config.web.port <= 65535:
+        raise ConfigError(f"configuration {path}: [web] port must be 0..65535")
     for key in ("application_uri", "application_name"):
         if not getattr(config.server, key).strip():
             raise ConfigError(f"configuration {path}: [server] {key} must not be empty")
-    if config.server.rejected_max_files < 1:
-        raise ConfigError(f"configuration {path}: [server] rejected_max_files must be 1 or more")
     limits = config.limits
     if not 8192 <= limits.max_chunk_size <= limits.max_message_size:
         raise ConfigError(f"configuration {path}: [limits] max_chunk_size must be 8192..max_message_size")
     if limits.login_base_delay > limits.login_max_delay:
         raise ConfigError(f"configuration {path}: [limits] login_base_delay must not exceed login_max_delay")
     return config
+
+
+# Validation: everything checked before anything is written ------------------------------------------------
+
+_HOST_LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
+
+
+def check_port(value: int, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 65535:
+        raise ConfigError(f"{name} must be a TCP port 1..65535, not {value!r}")
+    return value
+
+
+def check_host(value: str, name: str) -> str:
+    """An IP address or a DNS host name (RFC 1123); nothing is resolved here."""
+    h = value.strip()
+    bare = h[1:-1] if h.startswith("[") and h.endswith("]") else h
+    try:
+        ipaddress.ip_address(bare)
+        return h
+    except ValueError:
+        pass
+    labels = bare.rstrip(".").split(".")
+    if not bare or len(bare) > 253 or not all(_HOST_LABEL.fullmatch(label) for label in labels):
+        raise ConfigError(f"{name} must be an IP address or host name, not {value!r}")
+    return h
+
+
+def check_directory(path: Path, name: str) -> Path:
+    """``path`` is a directory, or can be made one: it is not a file, nor below a file."""
+    for p in (path, *path.parents):
+        if p.exists():
+            if not p.is_dir() and p == path:
+                raise ConfigError(f"{name} {path} is not a directory")
+            if not p.is_dir():
+                raise ConfigError(f"cannot create {name} {path}: {p} is not a directory")
+            if not os.access(p, os.W_OK | os.X_OK):
+                raise ConfigError(f"cannot create {name} {path}: {p} is not writable")
+            return path
+    return path
+
+
+def check_file(path: Path, name: str) -> Path:
+    """``path`` can be written as a file: not a directory, and its directory can be made."""
+    if path.is_dir():
+        raise ConfigError(f"{name} {path} is a directory")
+    check_directory(path.parent, f"the directory of {name}")
+    return path
+
+
+def validate(config: Config) -> None:
+    """Raise ConfigError for the first value that cannot work; writes nothing."""
+    check_port(config.server.port, "[server] port")
+    check_host(config.server.host, "[server] host")
+    check_host(config.web.host, "[web] host")
+    if config.server.rejected_max_files < 1:
+        raise ConfigError("[server] rejected_max_files must be 1 or more")
+    check_directory(config.server.data_dir, "data directory")
+    log = config.logging
+    if log.file is not None:
+        check_file(log.file, "log file")
+    if log.audit_file is not None:
+        check_file(log.audit_file, "audit file")
+    if log.max_bytes < 1024:
+        raise ConfigError(f"[logging] max_bytes must be at least 1024, not {log.max_bytes}")
+    if log.backups < 0:
+        raise ConfigError(f"[logging] backups must be 0 or more, not {log.backups}")
+    check_port(config.metrics.port, "[metrics] port")
+    check_host(config.metrics.host, "[metrics] host")
+    if not 1 <= config.users.min_password_length <= 1024:
+        raise ConfigError("[users] min_password_length must be 1..1024")
 
 
 def load_factory(spec: str, section: str) -> Callable[..., object]:

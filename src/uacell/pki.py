@@ -4,8 +4,9 @@
                                             first start, remade (old pair kept in ``own/backup/``)
                                             when the application URI or listening hosts change
 ``pki/trusted/``                            client certificates the server trusts (DER or PEM)
-``pki/rejected/``                           refused client certificates; move one to trusted/ to
-                                            trust it (capped in count and age: ``prune_rejected``)
+``pki/rejected/``                           refused client certificates, ``<thumbprint>.der``;
+                                            ``uacell cert trust`` (or moving one to trusted/) trusts it
+                                            (capped in count and age: ``prune_rejected``)
 
 ``CertificateValidator`` plugs the trust list into asyncua's ``Server.set_certificate_validator``.
 """
@@ -16,7 +17,6 @@ import datetime as dt
 import hashlib
 import ipaddress
 import logging
-import re
 import shutil
 import socket
 import time
@@ -298,10 +298,8 @@ def _load_any(data: bytes) -> x509.Certificate:
 
 
 def _file_name(cert: x509.Certificate, der: bytes) -> str:
-    cns = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
-    cn = str(cns[0].value) if cns else "certificate"
-    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", cn).strip("_")[:60] or "certificate"
-    return f"{safe} [{thumbprint(der)}].der"
+    # By thumbprint alone: no spaces or brackets, so a path from the log can be pasted into a shell.
+    return f"{thumbprint(der)}.der"
 
 
 @dataclass(frozen=True)
@@ -413,7 +411,8 @@ class TrustList:
         path = self.reject(der)
         self.report_refusal(
             f"refused untrusted client certificate{who} (thumbprint {thumbprint(der)}). "
-            f"To trust it, move {path} to {self.paths.trusted}/"
+            f"To trust it, move {path} to {self.paths.trusted}/ "
+            f"(or run: uacell cert trust {thumbprint(der)[:12]} --data-dir {self.paths.root.parent})"
         )
         return False
 

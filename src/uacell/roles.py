@@ -52,6 +52,7 @@ class Family(str):
     FILE: ClassVar[Family]
     DIRECTORY: ClassVar[Family]
     CONDITION: ClassVar[Family]
+    SERVER: ClassVar[Family]
 
     def __repr__(self) -> str:
         return f"Family({str(self)!r})"
@@ -60,6 +61,7 @@ class Family(str):
 Family.FILE = Family("File")
 Family.DIRECTORY = Family("Directory")
 Family.CONDITION = Family("Condition")
+Family.SERVER = Family("Server")
 
 # ObjectType BrowseNames (and a few instance names) a dispatcher may pass as the hint; companions add theirs.
 _TYPE_HINTS: dict[str, Family] = {
@@ -68,6 +70,7 @@ _TYPE_HINTS: dict[str, Family] = {
     "ConditionType": Family.CONDITION,
     "AcknowledgeableConditionType": Family.CONDITION,
     "AlarmConditionType": Family.CONDITION,
+    "ServerType": Family.SERVER,
 }
 
 OP, EN = Role.OPERATOR, Role.ENGINEER
@@ -82,6 +85,8 @@ _BASE_ROLES: dict[tuple[Family, str], Role] = {
     # Alarm clients ask for the current conditions when they subscribe: as reading, anyone may.
     **{(Family.CONDITION, m): Role.OBSERVER for m in ("ConditionRefresh", "ConditionRefresh2")},
     **{(Family.CONDITION, m): EN for m in ("Enable", "Disable")},
+    # OPC 10000-5 9.1: a client asks which monitored items its own subscription has (after a reconnect).
+    (Family.SERVER, "GetMonitoredItems"): Role.OBSERVER,
 }
 
 

@@ -61,6 +61,7 @@ from uacell.roles import Family, Role, may, may_call
 from uacell.ua import context
 from uacell.ua.access import user_access_level, verified_login
 from uacell.ua.context import caller_of
+from uacell.ua.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua.limits import LimitedSession
 from uacell.users import LoginThrottle
 
@@ -107,6 +108,7 @@ _A = ua.AttributeIds
 
 # The UaProcessor (one per TCP connection) handling the current request.
 _processor: contextvars.ContextVar[UaProcessor | None] = contextvars.ContextVar("uacell_processor", default=None)
+# The user name an ActivateSession under way presents (for the audit trail of a refused login).
 
 
 def _address(processor: UaProcessor | None) -> str:
@@ -376,7 +378,7 @@ class Security:
         processor = _processor.get()
         if token.EncryptionAlgorithm or _channel_mode(processor) == ua.MessageSecurityMode.SignAndEncrypt:
             return
-        log.warning("refused login of user %r from %s: clear-text password on an unencrypted channel",
+        log.info("refused login of user %r from %s: clear-text password on an unencrypted channel",
                     token.UserName, _address(processor))
         raise ServiceError(ua.StatusCodes.BadIdentityTokenRejected)
 
@@ -423,9 +425,11 @@ class Security:
         if session is not None and (session.state == SessionState.Closed or session.nonce is None):
             raise ServiceError(_S.BadSessionIdInvalid)  # its CreateSession was refused
         token = _identity_token(body)
+        address = _address(processor)
         if not isinstance(token, ua.UserNameIdentityToken) or not token.UserName:
-            return await call()  # anonymous or another token type: asyncua decides, nobody waits
-        user, address = str(token.UserName), _address(processor)
+            # Anonymous or another token type: asyncua decides, nobody waits.
+            return await self._audited(processor, address, None, call)
+        user = str(token.UserName)
         # One attempt at a time per user name, so parallel connections cannot skip the delay.
         lock = self._user_locks.setdefault(user, asyncio.Lock())
         try:
@@ -436,7 +440,7 @@ class Security:
                     await asyncio.sleep(wait)
                 verified = await self._verify_off_loop(processor, requesthdr, token)
                 try:
-                    result = await call()
+                    result = await self._audited(processor, address, user, call)
                 except ServiceError as exc:
                     if exc.code == ua.StatusCodes.BadUserAccessDenied:
                         self.throttle.failed(user, address)
@@ -470,6 +474,23 @@ class Security:
             role = await asyncio.to_thread(self.app.users.verify, name, password or "")
         return verified_login.set((name, password or "", role))
 
+    async def _audited(self, processor: UaProcessor, address: str, user: str | None, call: Callable[[], Any]) -> Any:
+        """Run an activation and record it in the audit trail, refused or not."""
+        try:
+            result = await call()
+        except ServiceError as exc:
+            self._audit_login(processor, address, user, ua.StatusCode(exc.code).name)
+            raise
+        self._audit_login(processor, address, user, "Good")
+        return result
+
+    def _audit_login(self, processor: UaProcessor, address: str, user: str | None, result: str) -> None:
+        from uacell.ua.observers import session_fields
+
+        fields = session_fields(processor.session) if processor.session is not None else {}
+        fields["user"] = user or fields.get("user", "anonymous")
+        self.app.audit.record("login", **fields, address=address, result=result)
+
     # per-session attributes ------------------------------------------------------------------------
 
     def adjust_read(self, session: InternalSession, params: ua.ReadParameters, results: list[ua.DataValue]) -> None:
@@ -479,6 +500,9 @@ class Security:
             if dv.StatusCode is not None and not dv.StatusCode.is_good():
                 continue
             attr = rv.AttributeId
+            if attr == _A.Value and not diagnostics_readable_by(rv.NodeId, role):
+                results[i] = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadUserAccessDenied))
+                continue
             if attr == _A.UserExecutable:
                 allowed = self.app.dispatcher.user_executable(rv.NodeId, role)
                 if allowed is not None:
@@ -516,6 +540,8 @@ class UacellSession(LimitedSession):
         self._security = security
         self._client_description: ua.ApplicationDescription | None = None
         self.channel_certificate: bytes | None = None  # the client certificate of the creating channel
+        self.client_address = ""
+        self._audited_open = False
         super().__init__(*args, **kwargs)
         if self.external:
             # asyncua counts AuthenticationTokens up from 1000; OPC 10000-4 (7.31) asks for a secret.
@@ -528,6 +554,7 @@ class UacellSession(LimitedSession):
     ) -> ua.CreateSessionResult:
         self._client_description = params.ClientDescription  # Caller.client: LockingClient shows it
         processor = _processor.get()
+        self.client_address = _address(processor)
         if processor is not None:
             self.channel_certificate = processor._connection.security_policy.peer_certificate
         if _channel_mode(processor) == ua.MessageSecurityMode.None_:
@@ -536,10 +563,21 @@ class UacellSession(LimitedSession):
             params = dataclasses.replace(params, ClientCertificate=None)
         try:
             self._security.check_session(processor, params)
-            return await super().create_session(params, sockname=sockname)
+            result = await super().create_session(params, sockname=sockname)
         except BaseException:
             await self.close_session()  # a refused session must not be activated later
             raise
+        self._audited_open = True
+        self._audit("session_open")
+        diagnostics = self._security.app.diagnostics
+        if diagnostics is not None:
+            diagnostics.session_created(self, params, processor)
+        return result
+
+    def _audit(self, event: str) -> None:
+        from uacell.ua.observers import session_fields
+
+        self._security.app.audit.record(event, **session_fields(self), address=self.client_address)
 
     def activate_session(
         self, params: ua.ActivateSessionParameters, peer_certificate: bytes | None
@@ -558,6 +596,10 @@ class UacellSession(LimitedSession):
         already = self.state == SessionState.Closed
         await super().close_session(delete_subs)
         if not already:
+            if self._audited_open:
+                self._audit("session_close")
+            if self._security.app.diagnostics is not None:
+                self._security.app.diagnostics.session_closed(self)
             self._security.session_closed(self)
 
 
@@ -606,15 +648,22 @@ def _install_processor_hook() -> None:
         diagnostics = context.set_return_diagnostics(int(getattr(requesthdr, "ReturnDiagnostics", 0) or 0))
         try:
             security = getattr(self.iserver, "_uacell_security", None)
-            if security is not None:
-                security.check_service(self, typeid)
-            if security is not None and typeid == _ACTIVATE:
-                if self.session is None:  # a session created on another channel
-                    security.check_reassociation(self, requesthdr.AuthenticationToken, body)
-                return await security.activate(
-                    self, requesthdr, body, lambda: original(self, typeid, requesthdr, seqhdr, body)
-                )
-            return await original(self, typeid, requesthdr, seqhdr, body)
+            server_diagnostics = getattr(self.iserver, "_uacell_diagnostics", None)
+
+            async def serve() -> Any:
+                if security is not None:
+                    security.check_service(self, typeid)
+                if security is not None and typeid == _ACTIVATE:
+                    if self.session is None:  # a session created on another channel
+                        security.check_reassociation(self, requesthdr.AuthenticationToken, body)
+                    return await security.activate(
+                        self, requesthdr, body, lambda: original(self, typeid, requesthdr, seqhdr, body)
+                    )
+                return await original(self, typeid, requesthdr, seqhdr, body)
+
+            if server_diagnostics is not None:
+                return await server_diagnostics.request(self, typeid, serve)
+            return await serve()
         finally:
             context.reset_return_diagnostics(diagnostics)
             _processor.reset(token)

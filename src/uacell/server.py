@@ -8,17 +8,22 @@ from pathlib import Path
 from asyncua import Server, ua
 
 from uacell import __version__
+from uacell.audit import AuditTrail
 from uacell.cell import CellBuilder, Part, build_cell
 from uacell.companion import Binder, Closer, companions
 from uacell.config import Config, default_application_uri
+from uacell.logs import configured_levels
+from uacell.metrics import Metrics
 from uacell.models import StateTables
 from uacell.registry import Registries, Registry, RegistryKey, T
 from uacell.roles import Role, listening_policy
 from uacell.ua.access import UacellUserManager
+from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.file_store import HandlePool
 from uacell.ua.limits import install_limits, publish_operation_limits
 from uacell.ua.nodesets import load_models
+from uacell.ua.observers import install_audit
 from uacell.ua.state_machine import NodeRefs, Publisher
 from uacell.ua.writes import WriteRouter
 from uacell.users import UserStore
@@ -33,8 +38,11 @@ __all__ = ["Binder", "UacellServer", "default_binders"]
 
 def _quiet_asyncua() -> None:
     # asyncua logs every NodeSet quirk and every session at INFO/WARNING; keep uacell's log readable.
+    # A level set in [logging] levels wins.
     for name in ("asyncua", "asyncua.common.xmlimporter", "asyncua.server.address_space"):
-        logging.getLogger(name).setLevel(logging.ERROR)
+        logger = logging.getLogger(name)
+        if name not in configured_levels:
+            logger.setLevel(logging.ERROR)
 
 
 class UacellServer:
@@ -69,6 +77,9 @@ class UacellServer:
         limits = config.limits
         # Every file handle any client holds, over all FileType trees (docs/security.md, "Limits").
         self.file_handles = HandlePool(limits.file_handles_per_session, limits.file_handles)
+        self.audit = AuditTrail(None)  # the configured trail from setup() on
+        self.metrics: Metrics | None = None
+        self.diagnostics: Diagnostics | None = None
 
     @property
     def cell(self) -> CellBuilder:
@@ -98,6 +109,8 @@ class UacellServer:
     async def setup(self) -> None:
         _quiet_asyncua()
         self.data_dir.mkdir(parents=True, exist_ok=True)
+        self.audit = AuditTrail.for_config(self.config)
+        install_audit(self, self.audit)
         cfg = self.config.server
         anonymous = Role.parse(cfg.anonymous_role) if cfg.anonymous_role else None
         self.policy = listening_policy([cfg.host], anonymous, cfg.allow_none_security)
@@ -122,6 +135,7 @@ class UacellServer:
         self._cell = await build_cell(self.server, self.model_indexes, parts)
         self._refs = NodeRefs(await self.server.get_namespace_array())
         self.dispatcher.declarations = self.cell.instantiator.declarations
+        bind_get_monitored_items(self)
         for binder in self.binders:
             closer = await binder(self)
             if closer is not None:
@@ -131,6 +145,11 @@ class UacellServer:
         await publish_operation_limits(self.server, self.limits)
         await self.server.start()
         await self.dispatcher.refresh_executable()
+        self.diagnostics = Diagnostics(self)
+        await self.diagnostics.start()
+        if self.config.metrics.enabled:
+            self.metrics = Metrics(self)
+            await self.metrics.start(self.config.metrics.host, self.config.metrics.port)
 
     async def settle(self) -> None:
         """Wait until every model change so far is visible in the address space."""
@@ -146,7 +165,12 @@ class UacellServer:
             except Exception:
                 log.exception("error while shutting down")
         await self.publisher.close()
+        if self.diagnostics is not None:
+            await self.diagnostics.stop()
         await self.server.stop()
+        if self.metrics is not None:
+            await self.metrics.stop()
+        self.audit.close()
 
 
 def default_binders() -> list[Binder]:

@@ -18,12 +18,15 @@ import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
 
 from uacell.roles import Role
+
+if TYPE_CHECKING:
+    from uacell.config import Config
 
 _log = logging.getLogger(__name__)
 
@@ -43,6 +46,15 @@ def validate_name(name: str) -> str:
             "starting with a letter or digit"
         )
     return name
+
+
+def check_password(password: str, min_length: int = 1) -> str:
+    """Return ``password`` if it is long enough (``[users] min_password_length``)."""
+    if not password:
+        raise UserError("the password must not be empty")
+    if len(password) < min_length:
+        raise UserError(f"the password must have at least {min_length} characters")
+    return password
 
 
 @dataclass(frozen=True)
@@ -126,14 +138,31 @@ class UserStore:
 
     # writing ------------------------------------------------------------------------------------
 
-    def add(self, name: str, role: Role | str, password: str) -> None:
-        """Add ``name`` or replace its role and password."""
+    def add(self, name: str, role: Role | str, password: str, *, min_length: int = 1) -> None:
+        """Add ``name``; refused (UserError) when it exists: ``set_password``/``set_role`` change one."""
         validate_name(name)
         role = Role.parse(role)
-        if not password:
-            raise UserError("the password must not be empty")
+        check_password(password, min_length)
         entries = dict(self._load())
+        if name in entries:
+            raise UserError(f"user {name!r} exists (change it with 'uacell user passwd' or 'uacell user role')")
         entries[name] = (role, self._hasher.hash(password))
+        self._save(entries)
+
+    def set_password(self, name: str, password: str, *, min_length: int = 1) -> None:
+        check_password(password, min_length)
+        entries = dict(self._load())
+        if name not in entries:
+            raise UserError(f"no user {name!r}")
+        entries[name] = (entries[name][0], self._hasher.hash(password))
+        self._save(entries)
+
+    def set_role(self, name: str, role: Role | str) -> None:
+        role = Role.parse(role)
+        entries = dict(self._load())
+        if name not in entries:
+            raise UserError(f"no user {name!r}")
+        entries[name] = (role, entries[name][1])
         self._save(entries)
 
     def remove(self, name: str) -> None:
@@ -145,13 +174,17 @@ class UserStore:
 
     def _save(self, entries: dict[str, tuple[Role, str]]) -> None:
         lines = [
-            "# uacell users. Managed with `uacell user add|remove|list`.",
+            "# uacell users. Managed with `uacell user add|passwd|role|remove|list`.",
             "# Passwords are stored only as argon2id hashes.",
         ]
         for name, (role, hashed) in sorted(entries.items()):
             # JSON string escaping is valid TOML basic-string escaping for these ASCII values.
-            lines += ["", f"[users.{json.dumps(name)}]", f"role = {json.dumps(role.label)}",
-                      f"hash = {json.dumps(hashed)}"]
+            lines += [
+                "",
+                f"[users.{json.dumps(name)}]",
+                f"role = {json.dumps(role.label)}",
+                f"hash = {json.dumps(hashed)}",
+            ]
         atomic_write(self.path, ("\n".join(lines) + "\n").encode())
         self._stamp = None
 
@@ -248,6 +281,10 @@ class LoginThrottle:
                 del self._failures[key]
 
 
+class NoTerminal(UserError):
+    """The password cannot be asked for: no terminal and no --password-stdin."""
+
+
 def _read_password(from_stdin: bool) -> str:
     """The new password: the first line of standard input, or typed twice at a prompt."""
     import getpass
@@ -255,35 +292,68 @@ def _read_password(from_stdin: bool) -> str:
 
     if from_stdin:
         return sys.stdin.readline().rstrip("\r\n")
+    if not sys.stdin.isatty():
+        raise NoTerminal("no terminal to ask for the password: give it on standard input with --password-stdin")
     first = getpass.getpass("Password: ")
     if getpass.getpass("Repeat password: ") != first:
         raise UserError("the passwords do not match")
     return first
 
 
-def run_user_command(args: Any, data_dir: Path) -> int:
-    """``uacell user add|remove|list`` (args from uacell.cli); returns the exit status."""
+def run_user_command(args: Any, config: Config) -> int:
+    """``uacell user add|passwd|role|remove|list`` (args from uacell.cli); returns the exit status."""
     import sys
 
-    store = UserStore.in_data_dir(Path(data_dir))
+    from uacell.audit import AuditTrail
+
+    store = UserStore.in_data_dir(config.server.data_dir)
+    min_length = config.users.min_password_length
+    trail: AuditTrail | None = None
     try:
+        if args.action == "list":
+            users = store.list()
+            print(
+                f"{store.path}: {len(users) or 'no'} user{'' if len(users) == 1 else 's'}"
+                + ("" if store.path.exists() else " (the file does not exist)")
+            )
+            for user in users:
+                print(f"{user.name}\t{user.role.label}")
+            return 0
+        validate_name(args.name)
         if args.action == "add":
-            validate_name(args.name)
-            existed = store.role_of(args.name) is not None
-            store.add(args.name, args.role, _read_password(args.password_stdin))
-            print(f"{'updated' if existed else 'added'} user {args.name} ({args.role}) in {store.path}")
+            if store.role_of(args.name) is not None:  # before asking for a password in vain
+                raise UserError(
+                    f"user {args.name!r} exists in {store.path} "
+                    "(change it with 'uacell user passwd' or 'uacell user role')"
+                )
+            store.add(args.name, args.role, _read_password(args.password_stdin), min_length=min_length)
+            done = f"added user {args.name} ({args.role})"
+        elif args.action == "passwd":
+            if store.role_of(args.name) is None:
+                raise UserError(f"no user {args.name!r} in {store.path}")
+            store.set_password(args.name, _read_password(args.password_stdin), min_length=min_length)
+            done = f"changed the password of user {args.name}"
+        elif args.action == "role":
+            store.set_role(args.name, args.role)
+            done = f"changed the role of user {args.name} to {args.role}"
         elif args.action == "remove":
             store.remove(args.name)
-            print(f"removed user {args.name} from {store.path}")
-        elif args.action == "list":
-            for user in store.list():
-                print(f"{user.name}\t{user.role.label}")
+            done = f"removed user {args.name}"
         else:
             raise UserError(f"unknown action {args.action!r}")
+        print(f"{done} in {store.path}")
+        trail = AuditTrail.for_config(config)
+        trail.record("user", action=args.action, user=args.name, role=getattr(args, "role", None), file=str(store.path))
+    except NoTerminal as exc:
+        print(f"uacell: {exc}", file=sys.stderr)
+        return 2
     except (UserError, ValueError, OSError) as exc:
         print(f"uacell: {exc}", file=sys.stderr)
         return 1
     except (KeyboardInterrupt, EOFError):
         print("uacell: cancelled", file=sys.stderr)
         return 130
+    finally:
+        if trail is not None:
+            trail.close()
     return 0

@@ -190,6 +190,8 @@ class Condition:
     message: str = ""
     active: bool = False
     acked: bool = True
+    enabled: bool = True  # OPC 10000-9 Enable/Disable: a disabled condition is not reported nor evaluated
+    comment: str = ""
 
 
 Listener = Callable[[], None]
@@ -693,9 +695,10 @@ class SystemOperation(_Guarded):
     # conditions (decision 18)
     def alarm_status(self) -> Status | None:
         """E_ActiveAlarm if a condition is active, E_AcknowledgeRequired if one awaits acknowledging."""
-        if any(c.active for c in self.conditions.values()):
+        enabled = [c for c in self.conditions.values() if c.enabled]
+        if any(c.active for c in enabled):
             return Status.E_ACTIVE_ALARM
-        if any(not c.acked for c in self.conditions.values()):
+        if any(not c.acked for c in enabled):
             return Status.E_ACKNOWLEDGE_REQUIRED
         return None
 
@@ -710,18 +713,48 @@ class SystemOperation(_Guarded):
             listener(cond)
         self._changed()
 
-    def acknowledge(self, name: str, comment: str = "") -> None:
-        """The condition's Acknowledge method."""
+    def _condition(self, name: str) -> Condition:
         cond = self.conditions.get(name)
         if cond is None:
             raise CallError("BadNodeIdUnknown", f"no condition {name!r}")
-        if cond.acked:
-            raise CallError("BadConditionBranchAlreadyAcked", f"{name} is already acknowledged")
-        cond.acked = True
-        log.info("condition %s acknowledged%s", name, f": {comment}" if comment else "")
+        return cond
+
+    def _condition_changed(self, cond: Condition) -> None:
         for listener in list(self.condition_listeners):
             listener(cond)
         self._changed()
+
+    def acknowledge(self, name: str, comment: str = "") -> None:
+        """The condition's Acknowledge method."""
+        cond = self._condition(name)
+        if not cond.enabled:
+            raise CallError("BadConditionDisabled", f"{name} is disabled")
+        if cond.acked:
+            raise CallError("BadConditionBranchAlreadyAcked", f"{name} is already acknowledged")
+        cond.acked = True
+        if comment:
+            cond.comment = comment
+        log.info("condition %s acknowledged%s", name, f": {comment}" if comment else "")
+        self._condition_changed(cond)
+
+    def add_comment(self, name: str, comment: str) -> None:
+        """The condition's AddComment method (OPC 10000-9, 5.5.5)."""
+        cond = self._condition(name)
+        if not cond.enabled:
+            raise CallError("BadConditionDisabled", f"{name} is disabled")
+        cond.comment = comment
+        log.info("condition %s comment: %s", name, comment)
+        self._condition_changed(cond)
+
+    def set_enabled(self, name: str, enabled: bool) -> None:
+        """The condition's Enable / Disable methods (OPC 10000-9, 5.5.4)."""
+        cond = self._condition(name)
+        if cond.enabled == enabled:
+            status = "BadConditionAlreadyEnabled" if enabled else "BadConditionAlreadyDisabled"
+            raise CallError(status, f"{name} is already {'enabled' if enabled else 'disabled'}")
+        cond.enabled = enabled
+        log.info("condition %s %s", name, "enabled" if enabled else "disabled")
+        self._condition_changed(cond)
 
     # coupling with task controls (decision 19)
     def allows_task_start(self) -> bool:

@@ -39,7 +39,7 @@ class UacellUserManager:
         else:
             role = self.users.verify(username, password or "")
         if role is None:
-            log.warning("refused login of user %r: wrong user name or password", username)
+            log.info("refused login of user %r: wrong user name or password", username)
             return None
         return UacellUser(username, Role.parse(role).label)
 

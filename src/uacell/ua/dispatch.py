@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -40,6 +41,8 @@ log = logging.getLogger(__name__)
 Handler = Callable[..., Awaitable[Sequence[Any] | None]]
 _UNSCOPED = object()  # the scope of methods bound with neither ``scope`` nor ``serialize_on``
 Guard = Callable[[Caller, "BoundMethod"], None]
+# Told of every answered call (audit trail, metrics): caller, request, method name, result, seconds taken.
+CallObserver = Callable[[Caller, ua.CallMethodRequest, str, ua.CallMethodResult, float], None]
 _A = ua.AttributeIds
 # ReturnDiagnostics bits for operation-level SymbolicId, LocalizedText, AdditionalInfo, InnerStatusCode,
 # InnerDiagnostics (OPC 10000-4 DiagnosticsMask)
@@ -74,6 +77,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         self.methods: dict[ua.NodeId, BoundMethod] = {}
         self.guards: list[Guard] = []
         self.after_call: list[Callable[[], Awaitable[None]]] = []
+        self.observers: list[CallObserver] = []
         self._locks: dict[int, asyncio.Lock] = {}
         self.types = TypeChecker(server)
         # instance method -> its declaration in the type (set by the server once the cell exists),
@@ -270,12 +274,41 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
             return _result(ua.StatusCodes.BadShutdown)
         self._running += 1
         self._idle.clear()
+        started = time.perf_counter()
         try:
-            return await self._answer(request, caller)
+            result = await self._answer(request, caller)
         finally:
             self._running -= 1
             if self._running == 0:
                 self._idle.set()
+        self._observe(caller, request, result, time.perf_counter() - started)
+        return result
+
+    def method_name(self, method_id: ua.NodeId) -> str:
+        """The BrowseName of a bound or unbound method ("" for an unknown node)."""
+        bound = self.methods.get(method_id)
+        if bound is not None:
+            return bound.name
+        data = self._aspace.get(method_id)
+        name = data.attributes.get(_A.BrowseName) if data is not None else None
+        return str(name.value.Value.Value.Name) if name is not None else ""
+
+    def _observe(
+        self, caller: Caller | None, request: ua.CallMethodRequest, result: ua.CallMethodResult, seconds: float
+    ) -> None:
+        if not self.observers:
+            return
+        try:
+            who = caller or context.current_caller()
+            name = self.method_name(request.MethodId)
+        except Exception:
+            log.exception("describing a call of %s failed", request.MethodId)
+            return
+        for observer in self.observers:
+            try:
+                observer(who, request, name, result, seconds)
+            except Exception:
+                log.exception("call observer failed")
 
     async def _answer(self, request: ua.CallMethodRequest, caller: Caller | None) -> ua.CallMethodResult:
         try:

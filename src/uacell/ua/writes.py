@@ -21,6 +21,8 @@ log = logging.getLogger(__name__)
 WriteHook = Callable[[ua.DataValue, Caller], Awaitable[ua.StatusCode]]
 # A guard answers a status code to refuse the item, or None to let it through.
 WriteGuard = Callable[[Caller, ua.WriteValue], ua.StatusCode | None]
+# Told of every answered write item (audit trail): caller, the item, its result.
+WriteObserver = Callable[[Caller, ua.WriteValue, ua.StatusCode], None]
 _A = ua.AttributeIds
 
 
@@ -28,6 +30,7 @@ class WriteRouter:
     def __init__(self) -> None:
         self._routes: dict[ua.NodeId, tuple[Role, WriteHook]] = {}
         self.guards: list[WriteGuard] = []
+        self.observers: list[WriteObserver] = []
 
     def route(self, node: ua.NodeId, hook: WriteHook, role: Role = ACTION_ROLES["write"]) -> None:
         """Send client writes of ``node``'s Value to ``hook``; callers need at least ``role``."""
@@ -71,4 +74,11 @@ class WriteRouter:
             sub.NodesToWrite = [items[i] for i in rest]
             for i, status in zip(rest, await write_through(sub), strict=True):
                 results[i] = status
-        return [r if r is not None else ua.StatusCode(ua.StatusCodes.BadInternalError) for r in results]
+        answers = [r if r is not None else ua.StatusCode(ua.StatusCodes.BadInternalError) for r in results]
+        for item, status in zip(items, answers, strict=True):
+            for observer in self.observers:
+                try:
+                    observer(caller, item, status)
+                except Exception:
+                    log.exception("write observer failed")
+        return answers

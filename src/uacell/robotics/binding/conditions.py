@@ -42,7 +42,15 @@ class AlarmSimulation(Protocol):
 
 
 def _unacked(condition: Condition) -> bool:
-    return not condition.acked
+    return condition.enabled and not condition.acked
+
+
+def _enabled(condition: Condition) -> bool:
+    return condition.enabled
+
+
+def _disabled(condition: Condition) -> bool:
+    return not condition.enabled
 
 
 class ConditionNode:
@@ -55,6 +63,7 @@ class ConditionNode:
         self.source = source
         self.event_ids: deque[bytes] = deque(maxlen=32)
         self.emitter: EventEmitter | None = None
+        self.reported_enabled = True
 
     def child(self, path: str) -> ua.NodeId:
         return self.binding.child(self.node, path)
@@ -110,6 +119,13 @@ class Conditions:
                 node, "Acknowledge", Family.CONDITION, self._acknowledge(cond),
                 functools.partial(_unacked, model), system.machine, b.controller.node,
             )  # fmt: skip
+            # OPC 10000-9 ConditionType AddComment, Enable, Disable
+            for method, handler, executable in (
+                ("AddComment", self._add_comment(cond), functools.partial(_enabled, model)),
+                ("Enable", self._set_enabled(cond, True), functools.partial(_disabled, model)),
+                ("Disable", self._set_enabled(cond, False), functools.partial(_enabled, model)),
+            ):
+                b.bind_method(node, method, Family.CONDITION, handler, executable, system.machine, b.controller.node)
         system.condition_listeners.append(self.condition_changed)
         await self._setup_simulate_alarm()
 
@@ -128,10 +144,33 @@ class Conditions:
 
         return acknowledge
 
+    def _add_comment(self, cond: ConditionNode) -> Handler:
+        b = self.binding
+
+        async def add_comment(caller: Caller, event_id: bytes, comment: ua.LocalizedText) -> list[Any]:
+            if event_id not in cond.event_ids:
+                raise CallError("BadEventIdUnknown", f"no event {event_id!r} of {cond.name}", argument=0)
+            text = (comment.Text or "") if isinstance(comment, ua.LocalizedText) else ""
+            b.cell.system.add_comment(cond.name, text)
+            await b.values.write(cond.child("ClientUserId"), caller.display_user, ua.VariantType.String)
+            return []
+
+        return add_comment
+
+    def _set_enabled(self, cond: ConditionNode, enabled: bool) -> Handler:
+        b = self.binding
+
+        async def set_enabled(caller: Caller) -> list[Any]:
+            b.cell.system.set_enabled(cond.name, enabled)
+            log.warning("%s %s condition %s", caller.display_user, "enables" if enabled else "disables", cond.name)
+            return []
+
+        return set_enabled
+
     def condition_changed(self, cond: Condition) -> None:
         node = self.nodes.get(cond.name)
         if node is not None:
-            snapshot = Condition(cond.name, cond.message, cond.active, cond.acked)
+            snapshot = Condition(cond.name, cond.message, cond.active, cond.acked, cond.enabled, cond.comment)
 
             async def publish() -> None:
                 await self.publish_condition(node, snapshot, fire=True)
@@ -143,7 +182,11 @@ class Conditions:
         now = datetime.now(UTC)
         event_id = uuid.uuid4().bytes
         node.event_ids.append(event_id)
-        retain = cond.active or not cond.acked
+        retain = cond.enabled and (cond.active or not cond.acked)
+        # A disabled condition reports nothing, except the event that says it was disabled (OPC 10000-9).
+        fire = fire and (cond.enabled or node.reported_enabled)
+        node.reported_enabled = cond.enabled
+        enabled_state = ua.LocalizedText("Enabled" if cond.enabled else "Disabled", "en")
         message = ua.LocalizedText(
             f"{cond.name}: {cond.message or cond.name}" if cond.active else f"{cond.name} cleared", "en"
         )
@@ -154,6 +197,9 @@ class Conditions:
             "ActiveState/Id": (cond.active, ua.VariantType.Boolean),
             "AckedState": (acked, ua.VariantType.LocalizedText),
             "AckedState/Id": (cond.acked, ua.VariantType.Boolean),
+            "EnabledState": (enabled_state, ua.VariantType.LocalizedText),
+            "EnabledState/Id": (cond.enabled, ua.VariantType.Boolean),
+            "Comment": (ua.LocalizedText(cond.comment), ua.VariantType.LocalizedText),
         }
         values: dict[str, tuple[Any, ua.VariantType]] = {
             "EventId": (event_id, ua.VariantType.ByteString),
@@ -173,8 +219,6 @@ class Conditions:
             "ConditionName": (cond.name, ua.VariantType.String),
             "BranchId": (ua.NodeId(), ua.VariantType.NodeId),
             "Retain": (retain, ua.VariantType.Boolean),
-            "EnabledState": (ua.LocalizedText("Enabled", "en"), ua.VariantType.LocalizedText),
-            "EnabledState/Id": (True, ua.VariantType.Boolean),
             **states,
         }
         await node.emitter.fire(

@@ -1,0 +1,170 @@
+"""An optional Prometheus endpoint (prometheus-client): ``[metrics] enabled = true``.
+
+Served at ``http://<host>:<port>/metrics`` (default 127.0.0.1:9840, loopback only) by a small asyncio
+HTTP responder on the server's own event loop. Per server, in its own registry:
+
+- ``uacell_sessions``: open client sessions;
+- ``uacell_calls_total{method, result}`` and ``uacell_call_duration_seconds{method}`` (histogram);
+- ``uacell_state_machine_state{machine, state}``: 1 for each state machine's current state;
+- ``uacell_packml_count{unit, counter, id, name}`` and ``uacell_packml_acc_count{...}``: the PackML Admin
+  counters (ProdProcessedCount, ProdDefectiveCount, ProdConsumedCount).
+
+States and counters are read from the address space when scraped, so they are exactly what clients see.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Iterator
+from typing import TYPE_CHECKING, Any
+
+from asyncua import ua
+from prometheus_client import CollectorRegistry, Counter, Histogram, generate_latest
+from prometheus_client.core import GaugeMetricFamily, Metric
+from prometheus_client.exposition import CONTENT_TYPE_LATEST
+
+from uacell.errors import ConfigError
+from uacell.ua.context import Caller
+
+if TYPE_CHECKING:
+    from uacell.server import UacellServer
+
+log = logging.getLogger(__name__)
+_A = ua.AttributeIds
+_COUNTERS = ("ProdProcessedCount", "ProdDefectiveCount", "ProdConsumedCount")
+_MAX_REQUEST = 8192
+
+
+class _AddressSpaceCollector:
+    """Sessions, current states and PackML counters, read at scrape time."""
+
+    def __init__(self, app: UacellServer) -> None:
+        self.app = app
+        self._states: list[tuple[str, ua.NodeId]] | None = None
+        self._counters: list[tuple[str, str, ua.NodeId]] | None = None
+
+    def _scan(self) -> None:
+        """Find the cell's CurrentState and Admin counter variables once (their NodeIds follow the path)."""
+        states: list[tuple[str, ua.NodeId]] = []
+        counters: list[tuple[str, str, ua.NodeId]] = []
+        ns = self.app.cell.instantiator.ns if self.app.cell is not None else -1
+        for node in list(self.app.server.iserver.aspace.keys()):
+            if node.NamespaceIndex != ns or not isinstance(node.Identifier, str):
+                continue
+            path = node.Identifier
+            if path.endswith(".CurrentState"):
+                states.append((path.removesuffix(".CurrentState"), node))
+            for counter in _COUNTERS:
+                if path.endswith(f".Admin.{counter}"):
+                    counters.append((path.removesuffix(f".Admin.{counter}"), counter, node))
+        self._states, self._counters = sorted(states, key=lambda s: s[0]), counters
+
+    def _value(self, node: ua.NodeId) -> Any:
+        data = self.app.server.iserver.aspace.get(node)
+        if data is None:
+            return None
+        dv = data.attributes[_A.Value].value
+        return None if dv is None or dv.Value is None else dv.Value.Value
+
+    def collect(self) -> Iterator[Metric]:
+        if self._states is None:
+            self._scan()
+        sessions = GaugeMetricFamily("uacell_sessions", "Open client sessions")
+        sessions.add_metric([], len(self.app.server.iserver._external_sessions))
+        yield sessions
+        states = GaugeMetricFamily(
+            "uacell_state_machine_state", "1 for the current state of each state machine", labels=["machine", "state"]
+        )
+        for machine, node in self._states or []:
+            value = self._value(node)
+            if isinstance(value, ua.LocalizedText) and value.Text:
+                states.add_metric([machine, value.Text], 1)
+        yield states
+        count = GaugeMetricFamily(
+            "uacell_packml_count", "PackML Admin counters: Count", labels=["unit", "counter", "id", "name"]
+        )
+        acc = GaugeMetricFamily(
+            "uacell_packml_acc_count", "PackML Admin counters: AccCount", labels=["unit", "counter", "id", "name"]
+        )
+        for unit, counter, node in self._counters or []:
+            for item in self._value(node) or []:
+                labels = [unit, counter, str(getattr(item, "ID", "")), str(getattr(item, "Name", ""))]
+                count.add_metric(labels, float(getattr(item, "Count", 0)))
+                acc.add_metric(labels, float(getattr(item, "AccCount", 0)))
+        yield count
+        yield acc
+
+
+class Metrics:
+    """The metrics of one server and, once started, the endpoint that serves them."""
+
+    def __init__(self, app: UacellServer) -> None:
+        self.registry = CollectorRegistry()
+        self.calls = Counter(
+            "uacell_calls", "Method calls by method and result", ["method", "result"], registry=self.registry
+        )
+        self.latency = Histogram(
+            "uacell_call_duration_seconds",
+            "Time to answer a method call",
+            ["method"],
+            registry=self.registry,
+            buckets=(0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0),
+        )
+        self.registry.register(_AddressSpaceCollector(app))
+        app.dispatcher.observers.append(self._on_call)
+        self._server: asyncio.Server | None = None
+        self.port = 0
+
+    def _on_call(
+        self, _caller: Caller, _request: ua.CallMethodRequest, method: str, result: ua.CallMethodResult, seconds: float
+    ) -> None:
+        name = method or "unknown"
+        self.calls.labels(name, str(result.StatusCode.name)).inc()
+        self.latency.labels(name).observe(seconds)
+
+    def render(self) -> bytes:
+        return generate_latest(self.registry)
+
+    async def start(self, host: str, port: int) -> None:
+        try:
+            self._server = await asyncio.start_server(self._serve, host, port)
+        except OSError as exc:
+            raise ConfigError(f"cannot serve metrics on {host}:{port}: {exc.strerror or exc}") from exc
+        self.port = self._server.sockets[0].getsockname()[1]
+        log.info("metrics at http://%s:%d/metrics", host, self.port)
+
+    async def stop(self) -> None:
+        if self._server is not None:
+            self._server.close()
+            with contextlib.suppress(Exception):
+                await self._server.wait_closed()
+            self._server = None
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), 10.0)
+            request_line = head[:_MAX_REQUEST].split(b"\r\n", 1)[0].decode("latin-1").split()
+            if len(request_line) >= 2 and request_line[0] in ("GET", "HEAD") and request_line[1] in ("/metrics", "/"):
+                body, status, ctype = self.render(), "200 OK", CONTENT_TYPE_LATEST
+            else:
+                body, status, ctype = b"not found: try /metrics\n", "404 Not Found", "text/plain"
+            if request_line and request_line[0] == "HEAD":
+                body_out = b""
+            else:
+                body_out = body
+            writer.write(
+                f"HTTP/1.1 {status}\r\nContent-Type: {ctype}\r\nContent-Length: {len(body)}\r\n"
+                "Connection: close\r\n\r\n".encode()
+                + body_out
+            )
+            await writer.drain()
+        except (TimeoutError, asyncio.IncompleteReadError, asyncio.LimitOverrunError, ConnectionError):
+            pass
+        except Exception:
+            log.exception("metrics request failed")
+        finally:
+            writer.close()
+            with contextlib.suppress(Exception):
+                await writer.wait_closed()
