@@ -86,7 +86,7 @@ async def test_a_refused_login_counts_as_a_rejected_session(app):
         bad.set_password("wrong")
         with pytest.raises(ua.UaStatusCodeError):
             await bad.connect()
-        app.security.throttle.succeeded("127.0.0.1")
+        app.security.throttle.succeeded("root", "127.0.0.1")
         after = await until(
             lambda: read(observer, OID.Server_ServerDiagnostics_ServerDiagnosticsSummary),
             lambda s: s.RejectedSessionCount == before.RejectedSessionCount + 1,

@@ -91,7 +91,7 @@ async def test_audit_records_a_login_failure_with_user_address_and_application_u
     with pytest.raises(ua.UaStatusCodeError) as err:
         await client.connect()
     assert err.value.code == ua.StatusCodes.BadUserAccessDenied
-    app.security.throttle.succeeded("127.0.0.1")
+    app.security.throttle.succeeded("eve", "127.0.0.1")
     entry = await wait_for_audit(app, lambda e: e["event"] == "login" and e["result"] != "Good")
     assert entry["user"] == "eve"
     assert entry["result"] == "BadUserAccessDenied"

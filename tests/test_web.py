@@ -321,10 +321,15 @@ async def test_uacell_web_standalone_until_the_server_trusts_its_certificate(sta
         await b.start()
         refused = await asyncio.to_thread(_sse_until, b, lambda m: "BadCertificateUntrusted" in m.get("problem", ""))
         assert refused["status"] == "unreachable"
-        # As docs/security.md says for any client: move its certificate from rejected/ to trusted/.
+        # As docs/security.md says for any client: trust it with `uacell cert trust` (the HMI's is the
+        # only certificate the server refused).
         pki = PkiPaths.in_data_dir(app.data_dir)
-        (rejected,) = [f for f in pki.rejected.iterdir() if "uacell" in f.name]
-        rejected.rename(pki.trusted / rejected.name)
+        (rejected,) = list(pki.rejected.iterdir())
+        trust = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "uacell", "cert", "trust", rejected.stem, "--data-dir", str(app.data_dir)
+        )
+        assert await trust.wait() == 0
+        assert (pki.trusted / rejected.name).exists()
         back = await asyncio.to_thread(_sse_until, b, lambda m: m.get("status") == "connected")
         assert back["type"] == "snapshot" and back["layout"]["units"][0]["name"] == "Filler1"
     finally:
