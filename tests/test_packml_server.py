@@ -15,6 +15,7 @@ from conftest import fast_config, start_app
 from helpers import fire_marker, wait_until
 
 from uacell.models import fsm_table
+from uacell.packml.binding import UNITS
 from uacell.server import UacellServer
 
 CELL = "urn:uacell:cell"
@@ -310,9 +311,26 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
     )
     await check_executable(u, "Held")
     assert await u.value("Status.CurMachSpeed") == 0.0
+    await app.settle()
     held = await u.count()
-    await asyncio.sleep(0.3)
-    assert await u.count() == held  # no production outside Execute
+    # No production outside Execute: let the unit's own tick poll the equipment over 0.3 s of its clock
+    # (3 packages at 600/min), then settle so that anything produced would be published.
+    unit = app.registry(UNITS)[F].unit
+    polled: list[float] = []
+    poll = unit.equipment.poll
+
+    def spy(now: float) -> None:
+        polled.append(now)
+        poll(now)
+
+    unit.equipment.poll = spy  # type: ignore[method-assign]
+    try:
+        held_at = unit.now()
+        await wait_until(lambda: bool(polled) and polled[-1] >= held_at + 0.3, timeout=TIMEOUT)
+    finally:
+        del unit.equipment.poll
+    await app.settle()
+    assert await u.count() == held
 
     await u.ok(EXEC, "Unhold")
     await u.wait(("Cleared", "Running", "Execute"))

@@ -13,6 +13,7 @@ import dataclasses
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import wait_until
 
 from uacell.errors import CallError
 from uacell.fsm import Reason, StateMachine
@@ -333,26 +334,29 @@ async def test_calls_during_shutdown_finish_and_later_ones_answer_bad_shutdown(r
     gate = asyncio.Event()
     node_id = ua.NodeId(TC_PATH, r.ns)
     original = d.methods[d.method_of(node_id, "LoadByNodeId")].handler
+    order: list[str] = []
 
     async def slow(caller, node_id):
         await gate.wait()
+        order.append("call finished")
         return [0]
 
     d.methods[d.method_of(node_id, "LoadByNodeId")].handler = slow
     running = asyncio.create_task(call(r, "LoadByNodeId", ua.Variant(ua.NodeId(1), ua.VariantType.ExpandedNodeId)))
-    while d._running == 0:
-        await asyncio.sleep(0.01)
+    await wait_until(lambda: d._running > 0)
     closing = asyncio.create_task(d.close(timeout=10))
-    await asyncio.sleep(0.1)
-    assert not closing.done()  # waits for the call under way
+    closing.add_done_callback(lambda _t: order.append("closed"))
+    await wait_until(lambda: d._closing)  # close has begun
     req = ua.CallMethodRequest(
         ObjectId=node_id, MethodId=d.method_of(node_id, "LoadByName"), InputArguments=[ua.Variant("prog")]
     )
     late = await d.dispatch(req)  # asyncua answers one connection's requests in turn: call directly
     assert late.StatusCode.value == ua.StatusCodes.BadShutdown
+    assert not closing.done()
     gate.set()
     assert (await running).StatusCode.is_good()
     await closing
+    assert order == ["call finished", "closed"]  # close waited for the call under way
     d.methods[d.method_of(node_id, "LoadByNodeId")].handler = original
 
 
