@@ -12,7 +12,7 @@ from pathlib import Path
 
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import fire_marker, wait_until
+from helpers import fire_marker, raw_call, wait_until
 
 from uacell.models import fsm_table
 from uacell.packml.binding import UNITS
@@ -69,12 +69,8 @@ class Unit:
         return await self.node(f"{F}.{path}").read_value()
 
     async def call(self, obj: str, method: str, *args: ua.Variant, obj_id: ua.NodeId | None = None):
-        req = ua.CallMethodRequest()
-        req.ObjectId = obj_id or ua.NodeId(obj, self.ns)
-        req.MethodId = ua.NodeId(f"{obj}.{method}", self.ns)
-        req.InputArguments = list(args)
-        (res,) = await self.client.uaclient.call([req])
-        return res
+        method_id = ua.NodeId(f"{obj}.{method}", self.ns)
+        return await raw_call(self.client, obj_id or ua.NodeId(obj, self.ns), method_id, *args)
 
     async def ok(self, obj: str, method: str, *args: ua.Variant) -> None:
         res = await self.call(obj, method, *args)
@@ -530,13 +526,8 @@ async def test_start_errors_modes_speed_and_fault(app, client):
     assert await u.value("Status.CurMachSpeed") == 120.0
 
     # InjectFault: engineers and admins only; aborts the unit with an alarm and the StopReason
-    fault = ua.NodeId(f"{F}.InjectFault", u.ns)
-    req = ua.CallMethodRequest(
-        ObjectId=ua.NodeId(F, u.ns),
-        MethodId=fault,
-        InputArguments=[i32(42), ua.Variant("jam at infeed", ua.VariantType.String)],
-    )
-    (res,) = await client.uaclient.call([req])
+    fault = (i32(42), ua.Variant("jam at infeed", ua.VariantType.String))
+    res = await u.call(F, "InjectFault", *fault)
     assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied  # anonymous = operator
     assert await u.states() == ("Cleared", "Running", "Execute")
     admin = Client(app.endpoint, timeout=30)
@@ -547,7 +538,7 @@ async def test_start_errors_modes_speed_and_fault(app, client):
         res = await Unit(admin, u.ns, u.pml).call(F, "SetParameter", descriptors((4, "late", 1.0)))
         assert res.StatusCode.value == ua.StatusCodes.BadInvalidState  # not while a job runs
         assert [p.ID for p in await u.value("Status.Parameter")] == [3]
-        (res,) = await admin.uaclient.call([req])
+        res = await Unit(admin, u.ns, u.pml).call(F, "InjectFault", *fault)
     finally:
         await admin.disconnect()
     assert res.StatusCode.is_good(), res.StatusCode
