@@ -1,11 +1,12 @@
 // Power up the robot (SystemOperation GetReady), load a program by name into TaskControl1, Start it and
 // collect the TransitionEvents of the task control until the program ends (ExecutingToReady).
-// Usage: node robotics_run.js <endpoint> [programName]
+// Usage: node robotics_run.js <endpoint> [programName [robot controller taskControl]]
+// (default: the demo cell's Robot1/Controller1/TaskControl1)
 "use strict";
 const {
   AttributeIds, DataType, ClientSubscription, ClientMonitoredItem, TimestampsToReturn, constructEventFilter,
 } = require("node-opcua-client");
-const { connect, resolve, done, main, TASK_CONTROL, SYSTEM_OPERATION } = require("./lib");
+const { connect, resolve, done, main } = require("./lib");
 
 async function readText(session, nodeId) {
   const dv = await session.read({ nodeId, attributeId: AttributeIds.Value });
@@ -31,9 +32,12 @@ async function callStatus(session, objectId, methodId, inputArguments = []) {
 main(async () => {
   const endpoint = process.argv[2];
   const program = process.argv[3] || "pick_and_place";
+  const [robot, controller, task] = process.argv.slice(4, 7);
+  const ctrl = `/DI:DeviceSet/Cell:${robot || "Robot1"}/Robotics:Controllers/Cell:${controller || "Controller1"}`;
+  const taskControl = `${ctrl}/Robotics:TaskControls/Cell:${task || "TaskControl1"}`;
   const { client, session, ns } = await connect(endpoint);
-  const tc = await resolve(session, ns, "i=85", TASK_CONTROL);
-  const so = await resolve(session, ns, "i=85", SYSTEM_OPERATION);
+  const tc = await resolve(session, ns, "i=85", `${taskControl}/Robotics:TaskControlOperation/Robotics:TaskControlStateMachine`);
+  const so = await resolve(session, ns, "i=85", `${ctrl}/Robotics:SystemOperation/Robotics:SystemOperationStateMachine`);
   const m = async (obj, name) => resolve(session, ns, obj, `/Robotics:${name}`);
   const out = { events: [] };
 
@@ -70,7 +74,7 @@ main(async () => {
 
   out.loadGripper = await callStatus(session, tc, await m(tc, "LoadByName"), [{ dataType: DataType.String, value: "gripper" }]);
   out.load = await callStatus(session, tc, await m(tc, "LoadByName"), [{ dataType: DataType.String, value: program }]);
-  const params = await resolve(session, ns, "i=85", TASK_CONTROL.replace(/\/Robotics:TaskControlOperation\/Robotics:TaskControlStateMachine$/, ""));
+  const params = await resolve(session, ns, "i=85", taskControl);
   out.programName = (await session.read({
     nodeId: await resolve(session, ns, params, "/DI:ParameterSet/Robotics:TaskProgramName"), attributeId: AttributeIds.Value,
   })).value.value;

@@ -18,6 +18,8 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 
 from uacell.cell import _NOISE, Part, demo_cell
+from uacell.cellconfig import builtin_cell_path
+from uacell.config import load_cell
 from uacell.ua.instantiate import Selection
 
 module_loop = pytest.mark.asyncio(loop_scope="module")
@@ -284,12 +286,13 @@ async def check_node(
             problems.append(f"{where}/{rel}: mandatory placeholder {_fmt(p.browse_name)} has no instance")
 
 
-@pytest_asyncio.fixture(scope="module", loop_scope="module")
-async def space(tmp_path_factory) -> AsyncIterator[Space]:
-    """One demo-cell server for the module, seen through one client session."""
-
-    app = await start_app(fast_config(Path(tmp_path_factory.mktemp("completeness")) / "data"))
-    client = Client(app.endpoint, timeout=60)
+async def _serve_cell(base: Path, cell: str) -> AsyncIterator[Space]:
+    """A server with the shipped cell ``cell`` (demo or example), seen through one client session."""
+    config = fast_config(base / "data")
+    config.cell = load_cell(builtin_cell_path(cell))
+    app = await start_app(config)
+    # The health probe (a ServerStatus read) gets 30 s, not 1 s: a loaded machine must not drop the session.
+    client = Client(app.endpoint, timeout=60, watchdog_intervall=30.0)
     try:
         await client.connect()
         s = Space(client)
@@ -303,9 +306,10 @@ async def space(tmp_path_factory) -> AsyncIterator[Space]:
                 ("PackML", "http://opcfoundation.org/UA/PackML/"),
             )
         }
-        robot = await client.nodes.objects.get_child([f"{s.ns['DI']}:DeviceSet", f"{s.cell_ns}:Robot1"])
-        filler = await client.nodes.objects.get_child([f"{s.ns['PackML']}:PackMLObjects", f"{s.cell_ns}:Filler1"])
-        s.roots = {"Robot1": robot.nodeid, "Filler1": filler.nodeid}
+        s.roots = {}
+        for root, part in config.cell.parts():
+            folder = f"{s.ns['DI']}:DeviceSet" if root == "DeviceSet" else f"{s.ns['PackML']}:PackMLObjects"
+            s.roots[part.name] = (await client.nodes.objects.get_child([folder, f"{s.cell_ns}:{part.name}"])).nodeid
         await s.prefetch(list(s.roots.values()))
         yield s
     finally:
@@ -313,8 +317,22 @@ async def space(tmp_path_factory) -> AsyncIterator[Space]:
         await app.stop()
 
 
-def _parts() -> list[tuple[str, Part, tuple[str, ...]]]:
-    """Every part of the demo cell with the BrowseName path (names only) to it from its root."""
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def space(tmp_path_factory) -> AsyncIterator[Space]:
+    """One demo-cell server for the module."""
+    async for s in _serve_cell(Path(tmp_path_factory.mktemp("completeness")), "demo"):
+        yield s
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def example_space(tmp_path_factory) -> AsyncIterator[Space]:
+    """One server with the larger shipped example cell for the module."""
+    async for s in _serve_cell(Path(tmp_path_factory.mktemp("completeness-example")), "example"):
+        yield s
+
+
+def _parts(cell: list[tuple[str, Part]]) -> list[tuple[str, Part, tuple[str, ...]]]:
+    """Every part of a cell with the BrowseName path (names only) to it from its root."""
     out: list[tuple[str, Part, tuple[str, ...]]] = []
 
     def walk(root: str, part: Part, path: tuple[str, ...]) -> None:
@@ -322,12 +340,13 @@ def _parts() -> list[tuple[str, Part, tuple[str, ...]]]:
         for child in part.children:
             walk(root, child, (*path, *[f for f in child.folder.split("/") if f], child.name))
 
-    for _, part in demo_cell():
+    for _, part in cell:
         walk(part.name, part, ())
     return out
 
 
-PARTS = _parts()
+PARTS = _parts(demo_cell())
+EXAMPLE_PARTS = _parts(load_cell(builtin_cell_path("example")).parts())
 
 
 async def _child_by_name(space: Space, node: ua.NodeId, name: str) -> ua.NodeId:
@@ -350,9 +369,7 @@ def test_demo_cell_has_the_instances_of_design_md():
     assert {f"PowerTrain{i}" for i in range(1, 7)} <= names
 
 
-@module_loop
-@pytest.mark.parametrize(("root", "part", "path"), PARTS, ids=[p.name for _, p, _ in PARTS])
-async def test_instance_is_complete_against_its_type_tree(space, root, part, path):
+async def _check_part(space: Space, root: str, part: Part, path: tuple[str, ...]) -> None:
     node = await _part_node(space, root, path)
     info = await space.get(node)
     type_id = info.target(HAS_TYPE_DEFINITION)
@@ -360,13 +377,41 @@ async def test_instance_is_complete_against_its_type_tree(space, root, part, pat
     assert info.node_class == ua.NodeClass.Object
     assert type_name == ua.QualifiedName(part.type_name, space.ns[part.model])
     problems: list[str] = []
-    await check_node(space, node, None, type_id, "/".join((root, *path)), "", Selection(part.include, _NOISE), problems)
+    # The members a part asks for: its Optional ones plus those its configuration gives values.
+    selection = Selection((*part.include, *part.values), _NOISE)
+    await check_node(space, node, None, type_id, "/".join((root, *path)), "", selection, problems)
     assert not problems, f"{len(problems)} problems:\n" + "\n".join(problems[:40])
 
 
 @module_loop
-@pytest.mark.parametrize("root", ["Robot1", "Filler1"])
-async def test_no_placeholder_names_and_no_states_or_transitions_below(space, root):
+@pytest.mark.parametrize(("root", "part", "path"), PARTS, ids=[p.name for _, p, _ in PARTS])
+async def test_instance_is_complete_against_its_type_tree(space, root, part, path):
+    await _check_part(space, root, part, path)
+
+
+@module_loop
+@pytest.mark.parametrize(("root", "part", "path"), EXAMPLE_PARTS, ids=["/".join((r, *p)) for r, _, p in EXAMPLE_PARTS])
+async def test_example_instance_is_complete_against_its_type_tree(example_space, root, part, path):
+    await _check_part(example_space, root, part, path)
+
+
+def test_example_cell_has_the_parts_it_promises():
+    names = {"/".join((r, *p)) for r, _, p in EXAMPLE_PARTS}
+    assert {
+        "Welder/Controllers/ControllerA/TaskControls/Seam",
+        "Welder/Controllers/ControllerA/TaskControls/Service",
+        "Welder/Controllers/ControllerB/TaskControls/Seam",
+        "Welder/Controllers/ControllerB/TaskControls/Cleaning",
+        "Handler/Controllers/Controller1/TaskControls/Palletize",
+        "Filler",
+        "Capper",
+        "Labeler",
+    } <= names
+    assert {f"Welder/MotionDevices/ArmB/Axes/J{i}" for i in range(1, 8)} <= names
+    assert "Welder/MotionDevices/ArmB/PowerTrains/PowerTrain7/Motor7" in names
+
+
+async def _walk_for_placeholders(space: Space, root: str) -> None:
     bad: list[str] = []
     todo, seen = [(space.roots[root], root)], set()
     count = 0
@@ -387,6 +432,31 @@ async def test_no_placeholder_names_and_no_states_or_transitions_below(space, ro
                 todo.append((ref.NodeId, label))
     assert count > 100  # the walk really went through the instance
     assert not bad, "\n".join(bad)
+
+
+@module_loop
+@pytest.mark.parametrize("root", ["Robot1", "Filler1"])
+async def test_no_placeholder_names_and_no_states_or_transitions_below(space, root):
+    await _walk_for_placeholders(space, root)
+
+
+@module_loop
+@pytest.mark.parametrize("root", ["Welder", "Handler", "Filler", "Capper", "Labeler"])
+async def test_example_has_no_placeholder_names_and_no_states_or_transitions_below(example_space, root):
+    await _walk_for_placeholders(example_space, root)
+
+
+@module_loop
+async def test_identification_from_the_configuration_is_served(example_space):
+    welder = await _node(example_space, "Welder")
+    di = example_space.ns["DI"]
+    assert (await (await welder.get_child(f"{di}:Manufacturer")).read_value()).Text == "uacell"
+    assert (await (await welder.get_child(f"{di}:SerialNumber")).read_value()) == "EX-W-0001"
+    assert (await (await welder.get_child(f"{di}:ProductInstanceUri")).read_value()) == "urn:uacell:example:Welder"
+    arm = await _node(example_space, "Welder", "MotionDevices", "ArmB")
+    assert (await (await arm.get_child(f"{di}:Model")).read_value()).Text == "Simulated seven-axis arm"
+    controller = await _node(example_space, "Welder", "Controllers", "ControllerA")
+    assert (await (await controller.get_child(f"{di}:SoftwareRevision")).read_value()) == "1.0"
 
 
 # Usage-like spot checks, through the plain Node API.

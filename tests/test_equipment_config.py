@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -11,31 +12,47 @@ from asyncua import Client, ua
 from conftest import fast_config, free_port, start_app
 from helpers import robot_cell
 
-from uacell.config import load_factory
+from uacell.config import load_cell, load_factory
 from uacell.errors import ConfigError
 from uacell.packml.binding import UNITS
+from uacell.server import UacellServer
 
 DRIVER = textwrap.dedent(
     """
+    import asyncio
+
     from uacell.packml.equipment import InstantEquipment
-
-    made = []
-
-    class PlantFiller(InstantEquipment):
-        pass
-
-    def make(config):
-        made.append(config)
-        return PlantFiller()
-
     from uacell.robotics.sim import SimulatedRobot
 
-    class PlantRobot(SimulatedRobot):
-        pass
+    made = []
+    closed = []
 
-    def make_robot(config):
-        made.append(config)
-        return PlantRobot(time_scale=0.05)
+    class PlantFiller(InstantEquipment):
+        def __init__(self, spec):
+            self.spec = spec
+
+        async def close(self):  # a driver's close hook may be a coroutine
+            await asyncio.sleep(0)
+            closed.append(self.spec.part)
+
+    async def make(spec):  # a driver that connects at start-up
+        await asyncio.sleep(0)
+        made.append(spec)
+        return PlantFiller(spec)
+
+    class PlantRobot(SimulatedRobot):
+        def close(self):
+            closed.append("robot")
+
+    def make_robot(spec):
+        made.append(spec)
+        return PlantRobot(time_scale=0.05, axes=spec.axes)
+
+    def broken(spec):
+        raise ConnectionRefusedError("controller 10.0.0.9 does not answer")
+
+    def not_equipment(spec):
+        return object()
     """
 )
 
@@ -55,8 +72,8 @@ def test_bad_factory_specs_are_clear_config_errors(spec, message):
 
 
 async def test_units_run_on_the_configured_equipment(tmp_path, monkeypatch):
-    (tmp_path / "plant_driver.py").write_text(DRIVER)
-    monkeypatch.syspath_prepend(str(tmp_path))
+    """The old [robot]/[packml] equipment keys still give every part without its own a factory."""
+    _driver(tmp_path, monkeypatch)
     config = fast_config(tmp_path / "data")
     config.packml.equipment = "plant_driver:make"
     config.robot.equipment = "plant_driver:make_robot"
@@ -66,7 +83,9 @@ async def test_units_run_on_the_configured_equipment(tmp_path, monkeypatch):
 
         unit = app.registry(UNITS)["Filler1"].unit
         assert type(unit.equipment).__name__ == "PlantFiller"
-        assert plant_driver.made == [config.packml, config.robot] or plant_driver.made == [config.robot, config.packml]
+        assert sorted(s.part for s in plant_driver.made) == ["Filler1", "Robot1.Controllers.Controller1"]
+        robot_spec = next(s for s in plant_driver.made if s.part.startswith("Robot1"))
+        assert [a.name for a in robot_spec.axes] == [f"Axis{i}" for i in range(1, 7)]
         assert type(robot_cell(app).equipment).__name__ == "PlantRobot"
         async with Client(app.endpoint, timeout=30) as client:
             ns = await client.get_namespace_index("urn:uacell:cell")
@@ -82,6 +101,111 @@ async def test_units_run_on_the_configured_equipment(tmp_path, monkeypatch):
             assert (await execute.read_value()).Text == "Idle"
     finally:
         await app.stop()
+    assert sorted(plant_driver.closed) == ["Filler1", "robot"]  # each driver's close hook ran
+
+
+CELL = """
+[[packml_units]]
+name = "Simulated"
+acting_time = 0.05
+
+[[packml_units]]
+name = "Plant"
+equipment = "plant_driver:make"
+settings = { address = "10.0.0.7", port = 502, recipe = { size = 3 } }
+"""
+
+
+async def test_each_part_has_its_own_factory_and_settings(tmp_path, monkeypatch):
+    _driver(tmp_path, monkeypatch)
+    (tmp_path / "cell.toml").write_text(CELL)
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(tmp_path / "cell.toml")
+    app = await start_app(config)
+    try:
+        import plant_driver
+
+        assert [(s.part, dict(s.settings)) for s in plant_driver.made] == [
+            ("Plant", {"address": "10.0.0.7", "port": 502, "recipe": {"size": 3}})
+        ]
+        assert type(app.registry(UNITS)["Plant"].unit.equipment).__name__ == "PlantFiller"
+        assert type(app.registry(UNITS)["Simulated"].unit.equipment).__name__ == "SimulatedUnit"
+        assert app.registry(UNITS)["Simulated"].unit.equipment.acting_time == 0.05
+    finally:
+        await app.stop()
+    assert plant_driver.closed == ["Plant"]
+
+
+@pytest.mark.parametrize(
+    ("factory", "message"),
+    [
+        ("plant_driver:broken", "Plant: equipment 'plant_driver:broken' failed: ConnectionRefusedError: controller"),
+        (
+            "plant_driver:not_equipment",
+            "Plant: equipment 'plant_driver:not_equipment' returned object, not a "
+            "PackMLEquipment (missing attach, poll,",
+        ),
+    ],
+)
+async def test_a_factory_that_fails_or_returns_no_equipment_stops_start_up_naming_the_part(
+    tmp_path, monkeypatch, factory, message
+):
+    _driver(tmp_path, monkeypatch)
+    (tmp_path / "cell.toml").write_text(CELL.replace("plant_driver:make", factory))
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(tmp_path / "cell.toml")
+    app = UacellServer(config)
+    try:
+        with pytest.raises(ConfigError) as caught:
+            await app.setup()
+        assert str(caught.value).startswith(message)
+        assert "\n" not in str(caught.value)
+    finally:
+        await app.stop()
+
+
+def test_serve_with_a_failing_factory_is_one_line_and_exit_2(tmp_path):
+    (tmp_path / "plant_driver.py").write_text(DRIVER)
+    (tmp_path / "cell.toml").write_text(CELL.replace("plant_driver:make", "plant_driver:broken"))
+    proc = _serve(tmp_path, tmp_path / "cell.toml", env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    assert proc.returncode == 2
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("uacell:")]
+    assert errors == [
+        "uacell: Plant: equipment 'plant_driver:broken' failed: ConnectionRefusedError: controller 10.0.0.9 does not"
+        " answer"
+    ]
+    assert "Traceback" not in proc.stderr and "listening" not in proc.stdout
+
+
+def _driver(tmp_path, monkeypatch) -> None:
+    """plant_driver importable from tmp_path, freshly imported (its lists empty)."""
+    (tmp_path / "plant_driver.py").write_text(DRIVER)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "plant_driver", raising=False)
+
+
+def _serve(tmp_path, config, env=None):
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "uacell",
+            "--log-level",
+            "WARNING",
+            "serve",
+            "--config",
+            str(config),
+            "--port",
+            str(free_port()),
+            "--data-dir",
+            str(tmp_path / "d"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=180,
+        check=False,
+        env=env,
+    )
 
 
 async def _packml_ns(client) -> int:

@@ -7,30 +7,53 @@ import types
 
 import pytest
 
+from uacell.equipment import EquipmentSpec, make_equipment
 from uacell.errors import ConfigError
-from uacell.robotics.binding import StoreLibrary, install_samples, make_equipment
-from uacell.robotics.config import RobotConfig
+from uacell.robotics.binding import StoreLibrary, install_samples
+from uacell.robotics.binding.programs import adopt_legacy_programs
+from uacell.robotics.equipment import AxisInfo, RobotEquipment
 from uacell.robotics.model import DirectoryLibrary
+from uacell.robotics.program import wave_program
 from uacell.robotics.sim import SimulatedRobot
 from uacell.ua.file_store import TEMP_PREFIX, FileStore
 
 
-def test_time_scale_above_one_makes_the_simulator_faster():
-    robot = make_equipment(RobotConfig(time_scale=20.0))
+async def test_time_scale_above_one_makes_the_simulator_faster():
+    spec = EquipmentSpec("Robot1.Controllers.Controller1", {"time_scale": 20.0})
+    robot = await make_equipment("uacell.robotics.sim:simulator", spec, RobotEquipment)
     assert isinstance(robot, SimulatedRobot)
     assert robot.time_scale == pytest.approx(0.05)  # real seconds per simulated second
+    assert [a.name for a in robot.axes] == ["A1", "A2", "A3", "A4", "A5", "A6"]  # no configured axes
 
 
-def test_equipment_factory_is_called_with_the_robot_section(monkeypatch):
+async def test_the_simulator_moves_the_configured_axes_and_refuses_unknown_settings():
+    axes = tuple(AxisInfo(f"J{i}", -90.0, 90.0, 100.0) for i in range(1, 8))
+    spec = EquipmentSpec("R.Controllers.C", {"power_up_time": 0.5, "alarms": ["Fence"]}, axes)
+    robot = await make_equipment("uacell.robotics.sim:simulator", spec, RobotEquipment)
+    assert [a.name for a in robot.axes] == [f"J{i}" for i in range(1, 8)]
+    assert robot.alarm_names == ("Fence",) and robot.power_up_time == 0.5
+    with pytest.raises(ConfigError, match=r"^R.Controllers.C: .* no setting 'colour'"):
+        await make_equipment(
+            "uacell.robotics.sim:simulator", EquipmentSpec("R.Controllers.C", {"colour": 1}), RobotEquipment
+        )
+
+
+async def test_equipment_factory_is_called_with_the_part_and_its_settings(monkeypatch):
     made = []
     module = types.ModuleType("fake_robot_driver")
-    module.make = lambda cfg: made.append(cfg) or "driver"
+
+    async def connect(spec):  # a driver that connects at start-up
+        made.append(spec)
+        return SimulatedRobot()
+
+    module.make = connect
     monkeypatch.setitem(sys.modules, "fake_robot_driver", module)
-    cfg = RobotConfig(equipment="fake_robot_driver:make")
-    assert make_equipment(cfg) == "driver"
-    assert made == [cfg]
-    with pytest.raises(ConfigError):
-        make_equipment(RobotConfig(equipment="fake_robot_driver:missing"))
+    spec = EquipmentSpec("Robot1.Controllers.Controller1", {"address": "10.0.0.5"})
+    robot = await make_equipment("fake_robot_driver:make", spec, RobotEquipment)
+    assert isinstance(robot, SimulatedRobot)
+    assert made == [spec]
+    with pytest.raises(ConfigError, match=r"Robot1.Controllers.Controller1\] equipment .* cannot be loaded"):
+        await make_equipment("fake_robot_driver:missing", spec, RobotEquipment)
 
 
 def test_samples_are_installed_only_when_the_directory_does_not_exist(tmp_path):
@@ -40,6 +63,22 @@ def test_samples_are_installed_only_when_the_directory_does_not_exist(tmp_path):
     (root / "palletize.robot").unlink()
     assert install_samples(root) is False  # a user's deletion stays deleted
     assert not (root / "palletize.robot").exists()
+
+
+def test_an_arm_with_other_than_six_axes_gets_a_generated_program_that_fits_it(tmp_path):
+    from uacell.robotics.program import parse
+
+    axes = [AxisInfo(f"J{i}", -10.0 * i, 10.0 * i, 90.0) for i in range(1, 8)]
+    root = tmp_path / "programs"
+    assert install_samples(root, axes) is True
+    assert [p.name for p in root.iterdir()] == ["wave.robot"]
+    program = parse((root / "wave.robot").read_text(), [a.limits for a in axes])
+    moves = [i.joints for i in program.instructions if hasattr(i, "joints")]
+    assert len(moves) == 1 + 2 * 7 and all(len(m) == 7 for m in moves)
+    assert {m for m in moves if any(m)} == {
+        tuple(min(20.0, 5.0 * i) if k == i - 1 else 0.0 for k in range(7)) for i in range(1, 8)
+    }
+    assert wave_program(axes) == (root / "wave.robot").read_text()
 
 
 def test_store_library_resolves_names_and_hides_temporary_files(tmp_path):
@@ -60,3 +99,46 @@ def test_store_library_resolves_names_and_hides_temporary_files(tmp_path):
     assert library.resolve("ghost") is None
     assert library.resolve("notes") is None
     assert library.read("sub/extra.robot").startswith("program Extra")
+
+
+def test_programs_of_the_old_single_directory_layout_move_to_the_first_controller(tmp_path):
+    programs = tmp_path / "programs"
+    (programs / "sub").mkdir(parents=True)
+    (programs / "mine.robot").write_text("program Mine\nend\n", encoding="utf-8")
+    (programs / "sub" / "part.robot").write_text("module Part\nend\n", encoding="utf-8")
+    (programs / "Robot2").mkdir()  # another robot's directory stays where it is
+    root = programs / "Robot1" / "Controller1"
+    assert adopt_legacy_programs(programs, root, ["Robot1", "Robot2"]) == 2
+    assert (root / "mine.robot").read_text(encoding="utf-8") == "program Mine\nend\n"
+    assert (root / "sub" / "part.robot").exists()
+    assert sorted(p.name for p in programs.iterdir()) == ["Robot1", "Robot2"]
+    # Once the controller has its directory, nothing moves again.
+    (programs / "late.robot").write_text("program Late\nend\n", encoding="utf-8")
+    assert adopt_legacy_programs(programs, root, ["Robot1", "Robot2"]) == 0
+    assert (programs / "late.robot").exists()
+
+
+def test_a_new_layout_without_legacy_program_files_is_left_alone(tmp_path):
+    programs = tmp_path / "programs"
+    (programs / "Robot1" / "Controller1").mkdir(parents=True)
+    root = programs / "Robot1" / "Controller2"
+    assert adopt_legacy_programs(programs, root, ["Robot1"]) == 0
+    assert not root.exists()
+
+
+async def test_the_demo_controller_serves_programs_stored_by_an_older_uacell(tmp_path):
+    from asyncua import Client
+    from conftest import fast_config, start_app
+
+    data = tmp_path / "data"
+    (data / "programs").mkdir(parents=True)
+    (data / "programs" / "legacy.robot").write_text("program Legacy\nmove 0 0 0 0 0 0\nend\n", encoding="utf-8")
+    app = await start_app(fast_config(data))
+    try:
+        async with Client(app.endpoint) as client:
+            ns = await client.get_namespace_index("urn:uacell:cell")
+            programs = client.get_node(f"ns={ns};s=Robot1.Controllers.Controller1.Programs")
+            names = {(await c.read_browse_name()).Name for c in await programs.get_children()}
+            assert "legacy.robot" in names
+    finally:
+        await app.stop()

@@ -1,20 +1,24 @@
 """The cell uacell serves: which standard instances exist, where, and with which optional members.
 
 A cell is declared as data (``Part`` trees) and built by the deep instantiation of ``uacell.ua``.
-The default cell is ``demo_cell()``: one robot and one filler. Where parts go (``DeviceSet``,
-``PackMLObjects``) is each companion's declaration (``uacell.companion.Root``).
+The cell comes from the configuration (``uacell.cellconfig``); the default is the shipped demo cell,
+``demo_cell()``. Where parts go (``DeviceSet``, ``PackMLObjects``) is each companion's declaration
+(``uacell.companion.Root``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from asyncua import Server, ua
 from asyncua.server.address_space import AddressSpace
 
+from uacell.cellconfig import STATE_MACHINE, Part
 from uacell.companion import companions
 from uacell.ua import toolkit
 from uacell.ua.instantiate import Instantiator, Selection
+
+__all__ = ["CELL_NAMESPACE", "STATE_MACHINE", "BuiltPart", "CellBuilder", "Part", "build_cell", "demo_cell"]
 
 CELL_NAMESPACE = "urn:uacell:cell"
 
@@ -26,104 +30,14 @@ _NOISE = (
     "**/LastTransition/Name",
     "**/ValuePrecision",
 )
-# What every state machine publishes (docs/decisions.md 1).
-_STATE_MACHINE = ("**/CurrentState/Number", "**/LastTransition/Number", "**/LastTransition/TransitionTime")
-
-
-@dataclass
-class Part:
-    """An instance of ``type_name`` (in model ``model``) called ``name``, placed in ``folder``.
-
-    ``folder`` is a BrowseName path below the parent part ("" = the parent itself); ``include`` lists
-    the Optional members to create (see ``Selection``); ``children`` are parts placed below this one
-    (typically in place of a placeholder).
-    """
-
-    name: str
-    model: str
-    type_name: str
-    folder: str = ""
-    include: tuple[str, ...] = ()
-    children: list[Part] = field(default_factory=list)
-    role: str = ""  # what the server binds to it: "controller", "task_control", "motion_device", "packml_unit"
 
 
 def demo_cell() -> list[tuple[str, Part]]:
-    """The default cell: a robot in DeviceSet and a filler in PackMLObjects."""
-    axes = [
-        Part(
-            f"Axis{i}",
-            "Robotics",
-            "AxisType",
-            "Axes",
-            include=("ParameterSet/ActualSpeed", "ParameterSet/ActualAcceleration"),
-        )
-        for i in range(1, 7)
-    ]
-    power_trains = [
-        Part(
-            f"PowerTrain{i}",
-            "Robotics",
-            "PowerTrainType",
-            "PowerTrains",
-            children=[Part(f"Motor{i}", "Robotics", "MotorType")],
-        )
-        for i in range(1, 7)
-    ]
-    arm = Part(
-        "Arm1",
-        "Robotics",
-        "MotionDeviceType",
-        "MotionDevices",
-        include=("ParameterSet/InControl", "ParameterSet/OnPath", "FlangeLoad"),
-        children=axes + power_trains,
-        role="motion_device",
-    )
-    task_control = Part(
-        "TaskControl1",
-        "Robotics",
-        "TaskControlType",
-        "TaskControls",
-        include=(
-            "Lock",
-            "ParameterSet/ExecutionMode",
-            "TaskModules",
-            "TaskControlOperation",
-            "TaskControlOperation/**",
-            *_STATE_MACHINE,
-        ),
-        role="task_control",
-    )
-    controller = Part(
-        "Controller1",
-        "Robotics",
-        "ControllerType",
-        "Controllers",
-        include=(
-            "Lock",
-            "Programs",
-            "SystemOperation",
-            "SystemOperation/**",
-            *_STATE_MACHINE,
-        ),
-        children=[task_control, Part("Software1", "DI", "SoftwareType", "Software")],
-        role="controller",
-    )
-    robot = Part(
-        "Robot1",
-        "Robotics",
-        "MotionDeviceSystemType",
-        include=(),
-        children=[controller, arm, Part("SafetyState1", "Robotics", "SafetyStateType", "SafetyStates")],
-    )
-    filler = Part(
-        "Filler1",
-        "PackML",
-        "PackMLBaseObjectType",
-        include=("**",),
-        role="packml_unit",
-    )
-    return [("DeviceSet", robot), ("PackMLObjects", filler)]
+    """The default cell (the shipped ``cells/demo.toml``): a robot in DeviceSet and a filler in PackMLObjects."""
+    from uacell.cellconfig import builtin_cell_path
+    from uacell.config import load_cell
+
+    return load_cell(builtin_cell_path("demo")).parts()
 
 
 @dataclass
@@ -172,7 +86,7 @@ class CellBuilder:
             where,
             type_node,
             ua.QualifiedName(part.name, self.instantiator.ns),
-            Selection(part.include, _NOISE),
+            Selection((*part.include, *part.values), _NOISE),
             reference_type=reference_type,
             path=path,
         )
@@ -181,6 +95,19 @@ class CellBuilder:
         for child in part.children:
             self.build(node, child, path)
         return built
+
+    async def write_values(self) -> None:
+        """Each part's ``values`` (String or LocalizedText members, e.g. DI identification)."""
+        for built in self.built:
+            for member, text in built.part.values.items():
+                node = self.child(built.node, member)
+                datatype = self.aspace[node].attributes[ua.AttributeIds.DataType].value.Value.Value
+                localized = datatype == ua.NodeId(ua.ObjectIds.LocalizedText)
+                variant = ua.Variant(
+                    ua.LocalizedText(text) if localized else text,
+                    ua.VariantType.LocalizedText if localized else ua.VariantType.String,
+                )
+                await self.aspace.write_attribute_value(node, ua.AttributeIds.Value, ua.DataValue(variant))
 
     def by_role(self, role: str) -> list[BuiltPart]:
         return [b for b in self.built if b.part.role == role]
@@ -196,4 +123,5 @@ async def build_cell(
     for name, part in parts or demo_cell():
         root = roots[name]
         builder.build(ua.NodeId(root.node, model_indexes[root.model]), part, reference_type=root.reference)
+    await builder.write_values()
     return builder

@@ -39,6 +39,11 @@ def _parser() -> argparse.ArgumentParser:
     path = msub.add_parser("path", help="print the directory uacell reads them from")
     path.add_argument("--models-dir", help="check this directory instead")
 
+    conf = sub.add_parser("config", help="the configuration file")
+    confsub = conf.add_subparsers(dest="action", required=True)
+    check = confsub.add_parser("check", help="validate a configuration and print the cell it would serve")
+    check.add_argument("file", nargs="?", type=Path, help="TOML configuration file (default: none, the demo cell)")
+
     user = sub.add_parser("user", help="manage the users who may log in")
     user.add_argument("--config", type=Path, help="TOML configuration file (for its data directory)")
     user.add_argument("--data-dir", type=Path, help="data directory")
@@ -63,6 +68,10 @@ def main(argv: list[str] | None = None) -> int:
             return _models(args)
         if args.command == "user":
             return _user(args)
+        if args.command == "config":
+            from uacell.config_check import run_check
+
+            return run_check(args.file)
     except (ConfigError, ModelError) as exc:
         print(f"uacell: {exc}", file=sys.stderr)
         return 2
@@ -112,10 +121,10 @@ def _prepare_and_run(args: argparse.Namespace) -> int:
     if args.models_dir:
         config.server.models_dir = args.models_dir
     locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
-    for section, settings in config.sections.items():
-        spec = getattr(settings, "equipment", "")
-        if spec:
-            load_factory(spec, section)
+    from uacell.config_check import equipment_specs
+
+    for where, spec in equipment_specs(config):
+        load_factory(spec, where)  # importable and callable, before any other work
     try:
         config.server.data_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -131,7 +140,13 @@ async def _run(config: Config) -> int:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
-    await app.setup()
+    try:
+        await app.setup()
+    except BaseException:
+        # e.g. an equipment factory failed: close what was already made (drivers connected) first.
+        with contextlib.suppress(Exception):
+            await app.stop()
+        raise
     if stop.is_set():  # asked to stop while setting up: never start listening
         log.info("shutting down")
         with contextlib.suppress(Exception):

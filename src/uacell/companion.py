@@ -5,7 +5,8 @@ value in its package's ``companion.py``; ``companions()`` lists them, one line e
 reads everything companion-specific from there:
 
 - ``uacell.roles``: the method families (``type_hints``) and the rows of the role table (``roles``);
-- ``uacell.config``: the configuration section (``section`` with its dataclass ``settings``);
+- ``uacell.config``: the configuration section (``section`` with its dataclass ``settings``) and
+  the parts it adds to the cell (``cell_section``, read by ``cell_parser``);
 - ``uacell.cell``: where instances live (``roots``);
 - ``uacell.server``: the binder that ties the companion's models to their nodes (``binder``);
 - ``uacell.ua.locks``: which parts carry a DI Lock and which families it guards (``locks``).
@@ -19,6 +20,7 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from uacell.cellconfig import SectionParser
 from uacell.roles import Family, Role
 
 if TYPE_CHECKING:
@@ -68,6 +70,8 @@ class Companion:
     binder: Binder | None = None
     section: str | None = None  # configuration section, e.g. "robot"
     settings: type[Any] | None = None  # its dataclass: every field optional, typed by its default
+    cell_section: str | None = None  # its parts in the cell configuration, e.g. "robots" ([[robots]])
+    cell_parser: SectionParser | None = None  # reads and checks them (uacell.cellconfig.CellSection)
     roots: tuple[Root, ...] = ()
     roles: Mapping[tuple[Family, str], Role] = field(default_factory=dict)  # (family, method) -> least role
     type_hints: Mapping[str, Family] = field(default_factory=dict)  # ObjectType/instance name -> family

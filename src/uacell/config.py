@@ -14,23 +14,30 @@ models_dir = "/opt/UA-Nodeset"    # default: the cache filled by 'uacell models 
 anonymous_role = "operator"       # default: operator on loopback, observer otherwise
 allow_none_security = true        # default: only on loopback
 trust_on_first_use = false
+application_uri = "urn:HOST:uacell"  # default: per host
+application_name = "uacell@HOST"     # default: per host
 rejected_max_files = 100          # refused client certificates kept in pki/rejected/ (oldest dropped)
 rejected_max_age_days = 30.0      # ... and for how long
 
-[robot]
+[robot]                           # defaults for every controller that does not set its own
 time_scale = 1.0                  # simulated robot: >1 runs faster than real time
 equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
 
-[packml]
+[packml]                          # defaults for every PackML unit that does not set its own
 acting_time = 1.0                 # seconds each acting state of the simulated unit takes
 mach_speed = 60.0                 # initial MachSpeed, packages/min
 equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
+
+[[robots]] ...                    # the cell (docs/configuration.md); without [[robots]] and
+[[packml_units]] ...              # [[packml_units]] the shipped demo cell
 ```
 """
 
 from __future__ import annotations
 
 import importlib
+import re
+import socket
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
@@ -39,12 +46,31 @@ from typing import Any, TypeVar
 
 import platformdirs
 
+from uacell.cellconfig import CellConfig, SectionParser, builtin_cell_path, parse_cell
 from uacell.companion import companions
 from uacell.errors import ConfigError
 
 T = TypeVar("T")
 
 ROLES = ("observer", "operator", "engineer", "admin")
+
+
+def _cell_sections() -> dict[str, SectionParser]:
+    """Each companion's cell section (an array of tables, e.g. ``robots``) and its parser."""
+    return {c.cell_section: c.cell_parser for c in companions() if c.cell_section and c.cell_parser}
+
+
+def _host() -> str:
+    return re.sub(r"[^A-Za-z0-9.-]", "-", socket.gethostname()) or "localhost"
+
+
+def default_application_uri() -> str:
+    """Unique per host (clients and certificates tell installations apart by it)."""
+    return f"urn:{_host()}:uacell"
+
+
+def default_application_name() -> str:
+    return f"uacell@{_host()}"
 
 
 @dataclass
@@ -56,6 +82,8 @@ class ServerConfig:
     anonymous_role: str | None = None
     allow_none_security: bool | None = None
     trust_on_first_use: bool = False
+    application_uri: str = field(default_factory=default_application_uri)
+    application_name: str = field(default_factory=default_application_name)
     rejected_max_files: int = 100
     rejected_max_age_days: float = 30.0
 
@@ -66,6 +94,8 @@ class Config:
     def __init__(self) -> None:
         self.server = ServerConfig()
         self.source: Path | None = None
+        # The cell: the companions' cell sections ([[robots]], [[packml_units]]), else the demo cell.
+        self.cell: CellConfig = load_cell(builtin_cell_path("demo"))
         self.sections: dict[str, Any] = {
             c.section: c.settings() for c in companions() if c.section is not None and c.settings is not None
         }
@@ -117,20 +147,42 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
     return value
 
 
+def _read_toml(path: Path) -> dict[str, object]:
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"cannot read configuration {path}: {exc.strerror or exc}") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"configuration {path} is not valid TOML: {exc}") from exc
+
+
+def load_cell(path: str | Path) -> CellConfig:
+    """The cell sections of the TOML file ``path`` (the demo cell if it has none)."""
+    path = Path(path)
+    return _cell_of(_read_toml(path), path)
+
+
+def _cell_of(data: dict[str, object], path: Path) -> CellConfig:
+    sections = _cell_sections()
+    if not any(key in data for key in sections):
+        demo = builtin_cell_path("demo")
+        if path != demo:
+            return load_cell(demo)
+    return parse_cell(data, str(path), sections)
+
+
 def load_config(path: str | Path | None = None) -> Config:
     """Read ``path`` (or return the defaults); raises ConfigError saying what is wrong and where."""
     config = Config()
     if path is None:
         return config
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"cannot read configuration {path}: {exc.strerror or exc}") from exc
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"configuration {path} is not valid TOML: {exc}") from exc
+    data = _read_toml(path)
     config.source = path
+    config.cell = _cell_of(data, path)
     for section, values in data.items():
+        if section in _cell_sections():
+            continue
         cls = _section_types().get(section)
         if cls is None or not isinstance(values, dict):
             raise ConfigError(f"configuration {path}: unknown section [{section}]")
@@ -145,6 +197,9 @@ def load_config(path: str | Path | None = None) -> Config:
                 raise ConfigError(f"configuration {path}: {exc}") from exc
     if not 0 <= config.server.port <= 65535:
         raise ConfigError(f"configuration {path}: [server] port must be 0..65535")
+    for key in ("application_uri", "application_name"):
+        if not getattr(config.server, key).strip():
+            raise ConfigError(f"configuration {path}: [server] {key} must not be empty")
     if config.server.rejected_max_files < 1:
         raise ConfigError(f"configuration {path}: [server] rejected_max_files must be 1 or more")
     return config

@@ -470,7 +470,7 @@ def _read_hook(session: InternalSession, params: Any, results: list[Any]) -> Non
         security.adjust_read(session, params, results)
 
 
-class UacellSession(InternalSession):
+class UacellSession(InternalSession):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """A session that checks writes against the role table and reports its end."""
 
     nonce: bytes

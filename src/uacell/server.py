@@ -10,7 +10,7 @@ from asyncua import Server, ua
 from uacell import __version__
 from uacell.cell import CellBuilder, build_cell
 from uacell.companion import Binder, Closer, companions
-from uacell.config import Config
+from uacell.config import Config, default_application_uri
 from uacell.models import StateTables
 from uacell.registry import Registries, Registry, RegistryKey, T
 from uacell.roles import Role, listening_policy
@@ -23,7 +23,7 @@ from uacell.users import UserStore
 
 log = logging.getLogger(__name__)
 
-APPLICATION_URI = "urn:uacell:server"
+APPLICATION_URI = default_application_uri()  # unless [server] application_uri says otherwise
 PRODUCT_URI = "urn:uacell"
 
 __all__ = ["Binder", "UacellServer", "default_binders"]
@@ -100,15 +100,15 @@ class UacellServer:
         self.server.iserver.bind_condition_methods = 100
         await self.server.init()
         self.server.set_endpoint(self.endpoint)
-        self.server.set_server_name("uacell")
-        await self.server.set_application_uri(APPLICATION_URI)
+        self.server.set_server_name(cfg.application_name)
+        await self.server.set_application_uri(cfg.application_uri)
         from uacell.security import install_security
 
         self.security = await install_security(self)
         self.server.product_uri = PRODUCT_URI
         await self.server.set_build_info(PRODUCT_URI, "uacell", "uacell", __version__, "0", ua.DateTime.now())
         self.model_indexes = await load_models(self.server, self.config.server.models_dir)
-        self._cell = await build_cell(self.server, self.model_indexes)
+        self._cell = await build_cell(self.server, self.model_indexes, self.config.cell.parts())
         self._refs = NodeRefs(await self.server.get_namespace_array())
         self.dispatcher.declarations = self.cell.instantiator.declarations
         for binder in self.binders:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import inspect
 import logging
 from collections.abc import Awaitable, Callable, Sequence
 from datetime import datetime
@@ -22,10 +23,11 @@ from asyncua import ua
 from uacell.background import Background
 from uacell.cell import BuiltPart
 from uacell.companion import Closer
-from uacell.config import load_factory
+from uacell.equipment import EquipmentSpec, make_equipment
+from uacell.errors import ConfigError
 from uacell.packml.admin_store import AdminStore
 from uacell.packml.companion import PACKML, UNIT_PART
-from uacell.packml.config import PackMLConfig
+from uacell.packml.config import PackMLConfig, UnitSpec
 from uacell.packml.equipment import PackMLEquipment
 from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLTables, PackMLUnit
 from uacell.packml.sim import SimulatedUnit
@@ -304,6 +306,9 @@ class UnitBinding:
     async def close(self) -> None:
         await self.background.close()
         self.unit.close()
+        closed = self.unit.equipment_closed
+        if inspect.isawaitable(closed):  # a driver's close() may be a coroutine
+            await closed
 
 
 def _as_given(*values: Any) -> tuple[Any, ...]:
@@ -337,21 +342,45 @@ _INPUTS: dict[str, Callable[..., tuple[Any, ...]]] = {
 }
 
 
+SIMULATOR = "uacell.packml.sim:simulator"
+
+
+async def make_unit_equipment(app: UacellServer, built: BuiltPart) -> PackMLEquipment:
+    """The unit's own factory and settings, else ``[packml] equipment``, else the simulator."""
+    spec = built.part.spec if isinstance(built.part.spec, UnitSpec) else None
+    cfg = app.config.section("packml", PackMLConfig)
+    factory = (spec.equipment if spec else "") or cfg.equipment or SIMULATOR
+    settings = dict(spec.settings) if spec else {}
+    if factory == SIMULATOR:
+        if spec is not None and spec.acting_time is not None:
+            settings["acting_time"] = spec.acting_time
+        settings.setdefault("acting_time", cfg.acting_time)
+        if spec is not None and spec.acting_times:
+            settings["acting_times"] = {**spec.acting_times, **settings.get("acting_times", {})}
+    equipment: PackMLEquipment = await make_equipment(
+        factory, EquipmentSpec(built.path, settings), PackMLEquipment
+    )
+    return equipment
+
+
 async def bind_unit(app: UacellServer, built: BuiltPart) -> UnitBinding:
     name = built.part.name
-    cfg = app.config.section("packml", PackMLConfig)
-    # Real equipment comes from a factory named in the configuration; the simulator otherwise.
-    equipment: PackMLEquipment = (
-        load_factory(cfg.equipment, "packml")(cfg)  # type: ignore[assignment]  # the factory's promise
-        if cfg.equipment
-        else SimulatedUnit(acting_time=cfg.acting_time)
-    )
+    spec = built.part.spec if isinstance(built.part.spec, UnitSpec) else UnitSpec(name)
+    defaults = app.config.section("packml", PackMLConfig)
+    mach_speed = spec.mach_speed if spec.mach_speed is not None else defaults.mach_speed
+    low, high = spec.mach_speed_range
+    if not low <= mach_speed <= high:
+        raise ConfigError(f"{built.path}: [packml] mach_speed {mach_speed:g} is outside its range {low:g}..{high:g}")
+    equipment = await make_unit_equipment(app, built)
     unit = PackMLUnit(
         equipment,
         name=name,
         store=AdminStore(app.data_dir / "packml" / f"{name}.json"),
+        mach_speed=mach_speed,
+        mach_speed_range=spec.mach_speed_range,
+        mach_design_speed=spec.design_speed,
+        initial_mode=spec.unit_mode,
         tables=PackMLTables.load(app.tables),
-        mach_speed=cfg.mach_speed,
     )
     b = UnitBinding(app, built, unit)
     base = b.child("BaseStateMachine")
@@ -373,9 +402,7 @@ async def bind_unit(app: UacellServer, built: BuiltPart) -> UnitBinding:
 
 async def bind_packml(app: UacellServer) -> Closer | None:
     """The PackML binder: every part with role ``packml_unit``."""
-    bindings = [await bind_unit(app, built) for built in app.cell.by_role(UNIT_PART)]
-    if not bindings:
-        return None
+    bindings: list[UnitBinding] = []
 
     async def close() -> None:
         for b in bindings:
@@ -385,6 +412,14 @@ async def bind_packml(app: UacellServer) -> Closer | None:
                 log.exception("closing PackML unit %s failed", b.unit.name)
         await app.publisher.flush()
 
+    try:
+        for built in app.cell.by_role(UNIT_PART):
+            bindings.append(await bind_unit(app, built))
+    except BaseException:
+        await close()  # the drivers already connected
+        raise
+    if not bindings:
+        return None
     return close
 
 

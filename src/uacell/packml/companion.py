@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from uacell.companion import Companion, Root, lazy_binder
-from uacell.packml.config import PackMLConfig
+from uacell.packml.config import PackMLConfig, parse_units
 from uacell.roles import Family, Role
 
 PACKML = Family("PackML")
@@ -20,6 +20,8 @@ PACKML_COMPANION = Companion(
     binder=lazy_binder("uacell.packml.binding", "bind_packml"),
     section="packml",
     settings=PackMLConfig,
+    cell_section="packml_units",
+    cell_parser=parse_units,
     # PackML units are organized by PackMLObjects (ns=PackML;i=72).
     roots=(Root("PackMLObjects", "PackML", 72, 35),),
     # SetMachSpeed and SetUnitMode are operator methods: they change how the unit runs now (speed,

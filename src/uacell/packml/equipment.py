@@ -15,7 +15,7 @@ anything else is logged and turned into a fault (the unit aborts).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Awaitable, Mapping, Sequence
 from typing import Protocol, runtime_checkable
 
 from uacell.packml.types import (
@@ -114,8 +114,8 @@ class PackMLEquipment(Protocol):
     def on_remote_command(self, commands: Sequence[PackMLRemoteInterfaceDataType]) -> None: ...
     def on_interlock(self, interlock_id: int, interlocked: bool) -> None: ...
 
-    def close(self) -> None:
-        """The server shuts down."""
+    def close(self) -> Awaitable[None] | None:
+        """The server shuts down: release the controller (a coroutine is awaited)."""
         ...
 
 

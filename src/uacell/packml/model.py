@@ -636,7 +636,8 @@ class PackMLUnit:
         """Shut down: account time, save, tell the equipment."""
         self._account()
         self.save()
-        self.equipment.close()
+        # A driver's close() may be a coroutine: the caller awaits it (uacell.packml.binding).
+        self.equipment_closed: object = self.equipment.close()
 
     # --- internals -----------------------------------------------------------------------------
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 from uacell.packml.equipment import EquipmentBase
 from uacell.packml.types import PackMLDescriptorDataType
@@ -92,3 +93,27 @@ class SimulatedUnit(EquipmentBase):
 def _whole(x: float) -> int:
     # Tolerate float rounding: 0.1 * 10 steps must count as 1, not 0.
     return int(x + 1e-9)
+
+
+# What the ``settings`` table of a simulated unit may hold (docs/configuration.md).
+SIMULATOR_SETTINGS = ("acting_time", "acting_times", "defect_share", "consumed_per_package", "job_size")
+
+
+def simulator(spec: Any) -> SimulatedUnit:
+    """The equipment factory of a simulated unit (``uacell.packml.sim:simulator``).
+
+    ``spec.settings`` may set ``acting_time`` (seconds per acting state), ``acting_times`` (per state),
+    ``defect_share``, ``consumed_per_package`` and ``job_size``.
+    """
+    settings = dict(spec.settings)
+    unknown = sorted(set(settings) - set(SIMULATOR_SETTINGS))
+    if unknown:
+        raise ValueError(f"the simulator has no setting {unknown[0]!r} (it knows {', '.join(SIMULATOR_SETTINGS)})")
+    job_size = settings.get("job_size")
+    return SimulatedUnit(
+        float(settings.get("acting_time", 0.5)),
+        acting_times={str(k): float(v) for k, v in dict(settings.get("acting_times", {})).items()},
+        defect_share=float(settings.get("defect_share", 0.02)),
+        consumed_per_package=float(settings.get("consumed_per_package", 1.0)),
+        job_size=None if job_size is None else int(job_size),
+    )

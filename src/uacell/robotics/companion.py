@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from uacell.companion import Companion, LockRule, lazy_binder
-from uacell.robotics.config import RobotConfig
+from uacell.robotics.config import RobotConfig, parse_robots
 from uacell.roles import Family, Role
 
 TASK_CONTROL = Family("TaskControl")
@@ -23,6 +23,8 @@ ROBOTICS = Companion(
     binder=lazy_binder("uacell.robotics.binding", "bind_robotics"),
     section="robot",
     settings=RobotConfig,
+    cell_section="robots",
+    cell_parser=parse_robots,
     roles={
         **{(TASK_CONTROL, m): Role.OPERATOR for m in _TASK_CONTROL_METHODS},
         **{(SYSTEM_OPERATION, m): Role.OPERATOR for m in ("GetReady", "StandDown", "Start", "Stop")},

@@ -24,6 +24,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from importlib import resources
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from uacell.robotics.equipment import AxisInfo
 
 AXIS_COUNT = 6
 MAX_SPEED_PERCENT = 100.0
@@ -135,9 +139,13 @@ def _number(token: str, line: int, what: str) -> float:
 
 
 def parse(text: str, limits: Sequence[tuple[float, float]] | None = None) -> Program:
-    """Parse a program or module. ``limits`` are the (min, max) degrees of each axis, if known."""
-    if limits is not None and len(limits) != AXIS_COUNT:
-        raise ValueError(f"limits must give {AXIS_COUNT} axes")
+    """Parse a program or module. ``limits`` are the (min, max) degrees of each axis, if known.
+
+    A ``move`` gives one position per axis: as many as ``limits`` has, else ``AXIS_COUNT``.
+    """
+    axis_count = len(limits) if limits is not None else AXIS_COUNT
+    if axis_count < 1:
+        raise ValueError("limits must give at least one axis")
     header: tuple[Kind, str, str] | None = None
     uses: list[str] = []
     routines: dict[str, tuple[Instruction, ...]] = {}
@@ -187,8 +195,8 @@ def parse(text: str, limits: Sequence[tuple[float, float]] | None = None) -> Pro
             if args[0] not in uses:
                 uses.append(args[0])
         elif keyword == "move":
-            if len(args) != AXIS_COUNT:
-                raise ProgramError(number, f"'move' takes {AXIS_COUNT} joint positions in degrees")
+            if len(args) != axis_count:
+                raise ProgramError(number, f"'move' takes {axis_count} joint positions in degrees")
             joints = tuple(_number(a, number, f"axis {i + 1}") for i, a in enumerate(args))
             for i, (value, lim) in enumerate(zip(joints, limits or (), strict=False)):
                 if not lim[0] <= value <= lim[1]:
@@ -307,3 +315,19 @@ def samples() -> dict[str, str]:
     """The sample programs and modules shipped with uacell: file name -> text."""
     folder = resources.files("uacell") / "samples"
     return {f.name: f.read_text(encoding="utf-8") for f in folder.iterdir() if f.name.endswith(".robot")}
+
+
+def wave_program(axes: Sequence[AxisInfo]) -> str:
+    """A program for any arm: home, each axis a little way out and back, home."""
+    home = [0.0 if a.min_position <= 0.0 <= a.max_position else a.min_position for a in axes]
+    lines = [f"# Wave: generated for a {len(axes)}-axis arm", "program Wave version 1.0", "speed 50"]
+
+    def move(values: Sequence[float]) -> str:
+        return "move " + " ".join(f"{v:g}" for v in values)
+
+    lines.append(move(home))
+    for i, a in enumerate(axes):
+        out = list(home)
+        out[i] = home[i] + min(20.0, (a.max_position - home[i]) / 2)
+        lines += [move(out), move(home)]
+    return "\n".join(lines) + "\n"

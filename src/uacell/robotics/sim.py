@@ -12,6 +12,7 @@ import asyncio
 import logging
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from uacell.robotics.equipment import (
     AlarmListener,
@@ -355,3 +356,34 @@ class SimulatedRobot:
         await self._sleep(seg.t0 + seg.duration - now)
         self._freeze()
         return True
+
+
+# What the ``settings`` table of a simulated controller may hold (docs/configuration.md).
+SIMULATOR_SETTINGS = ("time_scale", "power_up_time", "power_down_time", "alarms")
+
+
+def simulator(spec: Any) -> SimulatedRobot:
+    """The equipment factory of a simulated controller (``uacell.robotics.sim:simulator``).
+
+    ``spec`` is a ``uacell.equipment.EquipmentSpec``: its ``axes`` are the configured axes of the
+    motion device (the six default ones if empty), its ``settings`` may set ``time_scale`` (> 1 runs
+    faster than real time), ``power_up_time``/``power_down_time`` (simulated seconds) and ``alarms``
+    (the alarm names).
+    """
+    settings = dict(spec.settings)
+    unknown = sorted(set(settings) - set(SIMULATOR_SETTINGS))
+    if unknown:
+        raise ValueError(f"the simulator has no setting {unknown[0]!r} (it knows {', '.join(SIMULATOR_SETTINGS)})")
+    scale = float(settings.get("time_scale", 1.0))
+    if scale <= 0:
+        raise ValueError("time_scale must be greater than 0")
+    alarms = settings.get("alarms", DEFAULT_ALARMS)
+    if not isinstance(alarms, list | tuple) or not all(isinstance(a, str) for a in alarms):
+        raise ValueError("alarms must be an array of names")
+    return SimulatedRobot(
+        time_scale=1.0 / scale,  # SimulatedRobot counts real seconds per simulated second
+        power_up_time=float(settings.get("power_up_time", 2.0)),
+        power_down_time=float(settings.get("power_down_time", 0.5)),
+        axes=tuple(spec.axes) or DEFAULT_AXES,
+        alarms=tuple(alarms),
+    )

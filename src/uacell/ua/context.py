@@ -21,7 +21,7 @@ _session: contextvars.ContextVar[InternalSession | None] = contextvars.ContextVa
 _diagnostics: contextvars.ContextVar[int] = contextvars.ContextVar("uacell_diagnostics", default=0)
 
 
-class UacellUser(User):
+class UacellUser(User):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """An asyncua user that also carries uacell's role ("observer", "operator", "engineer", "admin")."""
 
     def __init__(self, name: str | None, uacell_role: str, anonymous: bool = False) -> None:

@@ -60,7 +60,7 @@ class BoundMethod:
     last_executable: bool | None = field(default=None, repr=False)
 
 
-class MethodDispatcher(MethodService):
+class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """Replaces asyncua's MethodService; install with ``MethodDispatcher.install(server)``."""
 
     def __init__(self, server: Server) -> None:

@@ -55,7 +55,7 @@ def without_design_tool_only(path: Path) -> tuple[str, int]:
     return ET.tostring(root, encoding="unicode"), len(dropped)
 
 
-class _Importer(XmlImporter):
+class _Importer(XmlImporter):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """asyncua's importer, with the reference-type subtype closure cached while it adds the missing
     inverse references.
 

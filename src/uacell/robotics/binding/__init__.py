@@ -2,10 +2,11 @@
 
 The pure ``RobotCell`` (``uacell.robotics.model``) owns every rule; this package only translates:
 
-- ``core``: one ``RoboticsBinding`` per Controller part (with its TaskControls and motion device),
-  the shared node helpers, coalesced publishing, and the binder ``bind_robotics``;
-- ``programs``: ``Controller/Programs``, a ``FileStore`` over ``<data_dir>/programs`` (the sample
-  programs are installed when that directory does not exist yet) bound by
+- ``core``: one ``RoboticsBinding`` per Controller part (with its TaskControls and motion device,
+  its equipment from the factory and settings the configuration names), the shared node helpers,
+  coalesced publishing, and the binder ``bind_robotics``;
+- ``programs``: ``Controller/Programs``, a ``FileStore`` over ``<data_dir>/programs/<robot>/<controller>``
+  (sample programs are installed when that directory does not exist yet) bound by
   ``uacell.ua.file_directory``; the loaded program and modules are protected (Bad_InvalidState on
   delete/overwrite); NodeIds given by clients to LoadByNodeId/UnloadByNodeId;
 - ``task_control``: TaskControlStateMachine and ReadySubstateMachine with their methods,
@@ -22,7 +23,7 @@ The pure ``RobotCell`` (``uacell.robotics.model``) owns every rule; this package
 (Bad_InvalidState otherwise).
 """
 
-from uacell.robotics.binding.core import CONTROLLERS, TASK_CONTROLS, RoboticsBinding, bind_robotics, make_equipment
+from uacell.robotics.binding.core import CONTROLLERS, TASK_CONTROLS, RoboticsBinding, bind_robotics, programs_root
 from uacell.robotics.binding.programs import StoreLibrary, install_samples
 
 __all__ = [
@@ -32,5 +33,5 @@ __all__ = [
     "StoreLibrary",
     "bind_robotics",
     "install_samples",
-    "make_equipment",
+    "programs_root",
 ]

@@ -36,11 +36,10 @@ class Arm:
         b = self.binding
         if b.arm is None:
             return
-        for i, _ in enumerate(b.cell.equipment.axes, start=1):
-            try:
-                axis = b.child(b.arm.node, f"Axes/Axis{i}")
-            except KeyError:
-                break
+        # The axes as configured (their BrowseNames), in the order the equipment reports them.
+        names = [c.name for c in b.arm.part.children if c.folder == "Axes"]
+        for name, _ in zip(names, b.cell.equipment.axes, strict=False):
+            axis = b.child(b.arm.node, f"Axes/{name}")
             nodes = {}
             for key in _AXIS_VALUES:
                 with contextlib.suppress(KeyError):

@@ -11,14 +11,14 @@ from asyncua import ua
 
 from uacell.cell import BuiltPart
 from uacell.companion import Closer
-from uacell.config import load_factory
+from uacell.equipment import EquipmentSpec, close_equipment, make_equipment
+from uacell.errors import ConfigError
 from uacell.fsm import StateMachine
 from uacell.registry import RegistryKey
 from uacell.robotics.companion import CONTROLLER, MOTION_DEVICE, TASK_CONTROL_PART
-from uacell.robotics.config import RobotConfig
-from uacell.robotics.equipment import RobotEquipment, StopMode
+from uacell.robotics.config import ControllerSpec, MotionDeviceSpec, RobotConfig, TaskControlSpec
+from uacell.robotics.equipment import AxisInfo, RobotEquipment, StopMode
 from uacell.robotics.model import RobotCell, RoboticsTables, TaskControl
-from uacell.robotics.sim import SimulatedRobot
 from uacell.roles import Family
 from uacell.ua.file_store import FileStore
 from uacell.ua.state_machine import bind_tree
@@ -158,6 +158,7 @@ class RoboticsBinding:
     async def close(self) -> None:
         await self.axes.close()
         await self.cell.close()
+        await close_equipment(self.cell.equipment, self.controller.path)
         for concern in self.concerns:
             if concern is not self.axes:
                 await concern.close()
@@ -168,50 +169,101 @@ def executable(model: Any, machine: str, method: str) -> Callable[[], bool]:
 
 
 # --- the binder ------------------------------------------------------------------------------------
-def make_equipment(cfg: RobotConfig) -> RobotEquipment:
-    """``[robot] equipment = "module:factory"`` called with the [robot] section, else the simulator."""
-    if cfg.equipment:
-        return load_factory(cfg.equipment, "robot")(cfg)  # type: ignore[return-value]  # the factory's promise
-    # [robot] time_scale > 1 runs faster than real time; the simulator's scale is real s per simulated s.
-    return SimulatedRobot(time_scale=1.0 / cfg.time_scale)
+SIMULATOR = "uacell.robotics.sim:simulator"
+
+
+async def make_controller_equipment(
+    app: UacellServer, controller: BuiltPart, axes: tuple[AxisInfo, ...]
+) -> RobotEquipment:
+    """The controller's own factory and settings, else ``[robot] equipment``, else the simulator."""
+    spec = controller.part.spec if isinstance(controller.part.spec, ControllerSpec) else None
+    defaults = app.config.section("robot", RobotConfig)
+    factory = (spec.equipment if spec else "") or defaults.equipment or SIMULATOR
+    settings = dict(spec.settings) if spec else {}
+    if factory == SIMULATOR:
+        if spec is not None and spec.time_scale is not None:
+            settings["time_scale"] = spec.time_scale
+        settings.setdefault("time_scale", defaults.time_scale)
+    equipment: RobotEquipment = await make_equipment(
+        factory, EquipmentSpec(controller.path, settings, axes), RobotEquipment
+    )
+    if axes and len(equipment.axes) != len(axes):
+        await close_equipment(equipment, controller.path)
+        raise ConfigError(
+            f"{controller.path}: equipment {factory!r} reports {len(equipment.axes)} axes,"
+            f" the motion device it moves has {len(axes)}"
+        )
+    return equipment
+
+
+def _arm_of(app: UacellServer, controller: BuiltPart) -> BuiltPart | None:
+    """The motion device the controller moves: the configured one, else the robot's first."""
+    system_path = controller.path.split(".Controllers.")[0]
+    arms = [m for m in app.cell.by_role(MOTION_DEVICE) if m.path.startswith(system_path + ".")]
+    spec = controller.part.spec
+    if isinstance(spec, ControllerSpec):
+        return next((m for m in arms if m.part.name == spec.motion_device), None)
+    return arms[0] if arms else None
+
+
+def programs_root(data_dir: Path, controller_path: str) -> Path:
+    """``<data_dir>/programs/<robot>/<controller>``: its own for every controller of the cell."""
+    robot, _, name = controller_path.partition(".Controllers.")
+    return Path(data_dir) / PROGRAMS_DIR / robot / name
+
+
+async def bind_controller(app: UacellServer, controller: BuiltPart, tables: RoboticsTables) -> RoboticsBinding:
+    """One controller with its task controls and motion device, on its own equipment and Programs."""
+    from uacell.robotics.binding.programs import StoreLibrary, adopt_legacy_programs, install_samples
+
+    tasks = [t for t in app.cell.by_role(TASK_CONTROL_PART) if t.path.startswith(controller.path + ".")]
+    arm = _arm_of(app, controller)
+    axes = tuple(arm.part.spec.axes) if arm is not None and isinstance(arm.part.spec, MotionDeviceSpec) else ()
+    spec = controller.part.spec if isinstance(controller.part.spec, ControllerSpec) else None
+    equipment = await make_controller_equipment(app, controller, axes)
+    root = programs_root(app.data_dir, controller.path)
+    robots = sorted({c.path.partition(".Controllers.")[0] for c in app.cell.by_role(CONTROLLER)})
+    if controller is app.cell.by_role(CONTROLLER)[0]:
+        adopt_legacy_programs(root.parent.parent, root, robots)
+    install_samples(root, equipment.axes)
+    store = FileStore(root)
+    cell = RobotCell(
+        equipment,
+        StoreLibrary(store),
+        tables=tables,
+        task_names=[t.part.name for t in tasks],
+        motion_devices=[arm.part.name] if arm else (),
+        possible_stop_modes=spec.possible_stop_modes if spec else tuple(StopMode),
+        default_stop_mode=spec.default_stop_mode if spec else StopMode.ON_PATH,
+    )
+    for t in tasks:
+        if isinstance(t.part.spec, TaskControlSpec):
+            cell.tasks[t.part.name].execution_mode = t.part.spec.execution_mode
+    binding = RoboticsBinding(app, controller, tasks, arm, cell, store)
+    await binding.setup()
+    return binding
 
 
 async def bind_robotics(app: UacellServer) -> Closer | None:
     """Bind every controller of the cell (role ``controller``) with its task controls and arm."""
-    from uacell.robotics.binding.programs import StoreLibrary, install_samples
-
     controllers = app.cell.by_role(CONTROLLER)
     if not controllers:
         return None
     tables = RoboticsTables.load(app.tables)
-    cfg = app.config.section("robot", RobotConfig)
     bindings: list[RoboticsBinding] = []
-    for controller in controllers:
-        tasks = [t for t in app.cell.by_role(TASK_CONTROL_PART) if t.path.startswith(controller.path + ".")]
-        system_path = controller.path.split(".Controllers.")[0]
-        arms = [m for m in app.cell.by_role(MOTION_DEVICE) if m.path.startswith(system_path + ".")]
-        arm = arms[0] if arms else None
-        root = Path(app.data_dir) / PROGRAMS_DIR
-        if len(controllers) > 1:
-            root = root / controller.part.name
-        install_samples(root)
-        store = FileStore(root)
-        cell = RobotCell(
-            make_equipment(cfg),
-            StoreLibrary(store),
-            tables=tables,
-            task_names=[t.part.name for t in tasks],
-            motion_devices=[arm.part.name] if arm else (),
-        )
-        binding = RoboticsBinding(app, controller, tasks, arm, cell, store)
-        await binding.setup()
-        bindings.append(binding)
-        app.registry(CONTROLLERS).add(controller.path, binding)
-        for task in tasks:
-            app.registry(TASK_CONTROLS).add(task.path, cell.tasks[task.part.name])
 
     async def close() -> None:
         for b in bindings:
             await b.close()
 
+    try:
+        for controller in controllers:
+            binding = await bind_controller(app, controller, tables)
+            bindings.append(binding)
+            app.registry(CONTROLLERS).add(controller.path, binding)
+            for task in binding.task_parts.values():
+                app.registry(TASK_CONTROLS).add(task.path, binding.cell.tasks[task.part.name])
+    except BaseException:
+        await close()  # the drivers already connected
+        raise
     return close

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
 
 from uacell.errors import CallError
+from uacell.robotics.equipment import AxisInfo
 from uacell.robotics.model import PROGRAM_SUFFIX, DirectoryLibrary
-from uacell.robotics.program import samples
+from uacell.robotics.program import AXIS_COUNT, samples, wave_program
 from uacell.ua.file_directory import FileDirectoryBinding
 from uacell.ua.file_store import FileStore
 
@@ -21,15 +23,39 @@ log = logging.getLogger(__name__)
 _A = ua.AttributeIds
 
 
-def install_samples(root: Path) -> bool:
-    """Write the sample programs and modules into ``root`` if it does not exist yet (first start)."""
+def install_samples(root: Path, axes: Sequence[AxisInfo] = ()) -> bool:
+    """Write sample programs into ``root`` if it does not exist yet (first start).
+
+    A six-axis arm gets the shipped samples (docs/programs.md); an arm with another number of axes a
+    generated ``Wave`` program that moves each axis within its limits.
+    """
     if root.exists():
         return False
     root.mkdir(parents=True)
-    for name, text in samples().items():
+    files = samples() if len(axes) in (0, AXIS_COUNT) else {"wave.robot": wave_program(axes)}
+    for name, text in files.items():
         (root / name).write_text(text, encoding="utf-8")
-    log.info("installed %d sample programs in %s", len(samples()), root)
+    log.info("installed %d sample programs in %s", len(files), root)
     return True
+
+
+def adopt_legacy_programs(programs_dir: Path, root: Path, keep: Sequence[str]) -> int:
+    """Move the files of the single-controller layout (``programs/*``) into ``root``; return how many.
+
+    Before cells were configurable, the one controller's files lived directly in ``programs/``. On
+    the first start of a newer uacell they become that controller's (``programs/<robot>/<controller>``),
+    so nothing a user stored is lost. ``keep`` are the robots' directory names, never moved.
+    """
+    if root.exists() or not programs_dir.is_dir():
+        return 0
+    legacy = [e for e in sorted(programs_dir.iterdir()) if e.name not in keep]
+    if not any(e.is_file() and e.suffix == PROGRAM_SUFFIX for e in legacy):
+        return 0
+    root.mkdir(parents=True)
+    for entry in legacy:
+        entry.rename(root / entry.name)
+    log.warning("moved %d entries of the old programs/ layout to %s", len(legacy), root)
+    return len(legacy)
 
 
 class StoreLibrary(DirectoryLibrary):

@@ -1,0 +1,80 @@
+"""Making each part's equipment: the factory the configuration names, called with the part's settings.
+
+A factory is ``"package.module:name"``, a callable that takes one ``EquipmentSpec`` and returns the
+equipment (``RobotEquipment`` for a controller, ``PackMLEquipment`` for a PackML unit), or a coroutine
+that does (a driver that connects at start-up). Whatever goes wrong (the import, the call, a result
+that lacks a member of the Protocol) stops start-up with one ``ConfigError`` line naming the part.
+At shutdown ``close_equipment`` calls the equipment's ``close()`` (plain or coroutine) if it has one.
+"""
+
+from __future__ import annotations
+
+import inspect
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from uacell.config import load_factory
+from uacell.errors import ConfigError
+from uacell.robotics.equipment import AxisInfo
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class EquipmentSpec:
+    """What a factory gets: which part it drives and that part's ``settings`` table."""
+
+    part: str  # the part's browse path, e.g. "Robot1.Controllers.Controller1" or "Filler1"
+    settings: Mapping[str, Any] = field(default_factory=dict)
+    axes: tuple[AxisInfo, ...] = ()  # a controller: the configured axes of the motion device it moves
+
+
+def protocol_members(protocol: type) -> list[str]:
+    """The members a ``typing.Protocol`` declares (its own and its bases'), in declaration order."""
+    names: list[str] = []
+    for cls in reversed(protocol.__mro__):
+        if cls is object or not getattr(cls, "_is_protocol", False) or cls.__module__ == "typing":
+            continue
+        names += [n for n in vars(cls) if not n.startswith("_") and n not in names]
+    return names
+
+
+def missing_members(obj: object, protocol: type) -> list[str]:
+    return [n for n in protocol_members(protocol) if not hasattr(obj, n)]
+
+
+async def make_equipment(factory: str, spec: EquipmentSpec, protocol: type) -> Any:
+    """Import and call ``factory`` for ``spec.part``; check the result against ``protocol``."""
+    where = spec.part
+    make = load_factory(factory, where)
+    try:
+        result = make(spec)
+        if inspect.isawaitable(result):
+            result = await result
+    except ConfigError:
+        raise
+    except Exception as exc:
+        raise ConfigError(f"{where}: equipment {factory!r} failed: {type(exc).__name__}: {exc}") from exc
+    missing = missing_members(result, protocol)
+    if missing:
+        raise ConfigError(
+            f"{where}: equipment {factory!r} returned {type(result).__name__}, not a {protocol.__name__}"
+            f" (missing {', '.join(missing)})"
+        )
+    log.info("%s: equipment %s.%s (from %s)", where, type(result).__module__, type(result).__qualname__, factory)
+    return result
+
+
+async def close_equipment(equipment: object, where: str) -> None:
+    """Call ``equipment.close()`` if it has one (awaiting it if it is a coroutine); log failures."""
+    close = getattr(equipment, "close", None)
+    if close is None:
+        return
+    try:
+        result = close()
+        if inspect.isawaitable(result):
+            await result
+    except Exception:
+        log.exception("%s: closing the equipment failed", where)
