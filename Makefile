@@ -1,13 +1,23 @@
-# make setup | serve | test | bench | lint: each does whatever set-up is still missing.
+# make setup | serve | test | bench | lint | soak: each does whatever set-up is still missing.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.uacell-installed
 NODE_STAMP := interop/node_modules/.uacell-installed
 
-.PHONY: setup serve test bench lint clean models
+.PHONY: setup serve test bench lint clean models soak browser
 
-setup: $(STAMP) models $(NODE_STAMP)
+setup: $(STAMP) models $(NODE_STAMP) browser
+
+# Chromium for the web HMI's browser tests (Playwright drives it; it never downloads a browser).
+browser:
+	@if command -v chromium >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+		echo "installing Debian's chromium for the browser tests"; \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; \
+	else \
+		echo "make setup: chromium is missing, so the web HMI's browser tests will be skipped (as root: apt-get install chromium)"; \
+	fi
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -30,6 +40,11 @@ test: setup
 
 bench: setup
 	$(BIN)/python -m benchmarks
+
+# Not part of `make test`: 200 sessions with subscriptions for 10 minutes while the cell cycles;
+# reports the server's RSS growth and lost notifications (SOAK_ARGS="--sessions 50 --minutes 2").
+soak: setup
+	$(BIN)/python tools/soak.py $(SOAK_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

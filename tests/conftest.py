@@ -44,9 +44,18 @@ class ServeProcess:
         return rc
 
 
-def start_serve(data_dir: Path, *extra: str, port: int | None = None, env: dict | None = None) -> ServeProcess:
-    """Run `uacell serve` on a free loopback port and wait for its listening line."""
+def start_serve(
+    data_dir: Path, *extra: str, port: int | None = None, env: dict | None = None, web: bool = False
+) -> ServeProcess:
+    """Run `uacell serve` on a free loopback port and wait for its listening line.
+
+    The web HMI is off unless ``web`` (then on a free port: pass ``--web-port`` in ``extra`` to choose).
+    """
     port = port or free_port()
+    if not web:
+        extra = ("--no-web", *extra)
+    elif "--web-port" not in extra:
+        extra = ("--web-port", str(free_port()), *extra)
     cmd = [
         sys.executable,
         "-m",

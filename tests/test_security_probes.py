@@ -250,6 +250,7 @@ def _serve_in_namespace(namespace: str, data_dir: Path, port: int) -> Iterator[N
         str(port),
         "--data-dir",
         str(data_dir),
+        "--no-web",
     ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []

@@ -88,7 +88,8 @@ def test_a_stop_request_during_start_up_exits_zero_quietly(tmp_path, sig, delay)
     import time
 
     proc = subprocess.Popen(
-        [sys.executable, "-m", "uacell", "serve", "--port", str(free_port()), "--data-dir", str(tmp_path / "d")],
+        [sys.executable, "-m", "uacell", "serve", "--port", str(free_port()), "--data-dir", str(tmp_path / "d"),
+         "--no-web"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )
     time.sleep(delay)

@@ -104,23 +104,23 @@ def test_empty_password_and_unknown_role_are_refused(store: UserStore) -> None:
 def test_throttle_grows_exponentially_to_a_cap_and_resets() -> None:
     clock = FakeClock(0.0)
     t = LoginThrottle(base=1.0, cap=8.0, free=2, clock=clock)
-    assert t.wait_time("10.0.0.9") == 0.0
-    delays = [t.failed("10.0.0.9") for _ in range(7)]
+    assert t.wait_time("alice", "10.0.0.9") == 0.0
+    delays = [t.failed("alice", "10.0.0.9") for _ in range(7)]
     assert delays == [0.0, 0.0, 1.0, 2.0, 4.0, 8.0, 8.0]
-    assert t.wait_time("10.0.0.9") == 8.0
-    assert t.wait_time("10.0.0.10") == 0.0  # other clients are not affected
+    assert t.wait_time("alice", "10.0.0.9") == 8.0
+    assert t.wait_time("bob", "10.0.0.9") == 0.0  # other users are not affected
     clock.now += 5
-    assert t.wait_time("10.0.0.9") == 3.0
-    t.succeeded("10.0.0.9")
-    assert t.wait_time("10.0.0.9") == 0.0
-    assert t.failed("10.0.0.9") == 0.0  # counting starts afresh
+    assert t.wait_time("alice", "10.0.0.9") == 3.0
+    t.succeeded("alice", "10.0.0.9")
+    assert t.wait_time("alice", "10.0.0.9") == 0.0
+    assert t.failed("alice", "10.0.0.9") == 0.0  # counting starts afresh
 
 
 def test_throttle_forgets_idle_addresses() -> None:
     clock = FakeClock(0.0)
     t = LoginThrottle(base=1.0, cap=30.0, free=0, forget_after=60.0, clock=clock)
-    t.failed("a")
-    t.failed("a")
+    t.failed("alice", "a")
+    t.failed("alice", "a")
     clock.now += 61
-    assert t.wait_time("a") == 0.0
-    assert t.failed("a") == 1.0  # a first failure again
+    assert t.wait_time("alice", "a") == 0.0
+    assert t.failed("alice", "a") == 1.0  # a first failure again

@@ -10,13 +10,21 @@ import logging
 import signal
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from uacell import __version__, _entry
 from uacell.config import Config, load_config, load_factory
 from uacell.errors import ConfigError
+from uacell.logs import install_repeat_filter
 from uacell.models import ModelError, fetch_models, locate_models, models_dir
 
+if TYPE_CHECKING:
+    from uacell.config import Config
+    from uacell.server import UacellServer
+    from uacell.web.server import RunningWeb
+
 log = logging.getLogger("uacell")
+STOP_GRACE = 3.0  # seconds a stop request waits for the server to close in order (SIGTERM: gone within 5 s)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -31,6 +39,16 @@ def _parser() -> argparse.ArgumentParser:
     serve.add_argument("--port", type=int, help="TCP port (default 4840)")
     serve.add_argument("--data-dir", type=Path, help="data directory (default: per-user data directory)")
     serve.add_argument("--models-dir", help="directory holding the official NodeSet files")
+    serve.add_argument("--web-host", help="address of the web HMI (default 127.0.0.1)")
+    serve.add_argument("--web-port", type=int, help="port of the web HMI (default 8080, 0: any free port)")
+    serve.add_argument("--no-web", action="store_true", help="do not run the web HMI beside the server")
+
+    web = sub.add_parser("web", help="run the web HMI for an OPC UA server")
+    web.add_argument("--server", required=True, help="the server's endpoint, e.g. opc.tcp://HOST:4840/")
+    web.add_argument("--config", type=Path, help="TOML configuration file (its [web] section)")
+    web.add_argument("--host", help="address to listen on (default 127.0.0.1; any other: HTTPS only)")
+    web.add_argument("--port", type=int, help="TCP port (default 8080, 0: any free port)")
+    web.add_argument("--data-dir", type=Path, help="data directory (holds the HMI's certificate)")
 
     models = sub.add_parser("models", help="the official NodeSet files")
     msub = models.add_subparsers(dest="action", required=True)
@@ -61,6 +79,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    install_repeat_filter()  # a flood of identical errors must not fill the disk
     try:
         if args.command == "serve":
             return _serve(args)
@@ -68,6 +87,8 @@ def main(argv: list[str] | None = None) -> int:
             return _models(args)
         if args.command == "user":
             return _user(args)
+        if args.command == "web":
+            return _web(args)
         if args.command == "config":
             from uacell.config_check import run_check
 
@@ -120,6 +141,12 @@ def _prepare_and_run(args: argparse.Namespace) -> int:
         config.server.data_dir = args.data_dir
     if args.models_dir:
         config.server.models_dir = args.models_dir
+    if args.web_host:
+        config.web.host = args.web_host
+    if args.web_port is not None:
+        config.web.port = args.web_port
+    if args.no_web:
+        config.web.enabled = False
     locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
     from uacell.config_check import equipment_specs
 
@@ -167,7 +194,94 @@ async def _run(config: Config) -> int:
     finally:
         server_log.setLevel(level)
     print(f"uacell listening on {app.endpoint}", flush=True)
+    web = None
+    if config.web.enabled:
+        try:
+            web = await _start_web_beside(config, app)
+        except ConfigError as exc:
+            print(f"uacell: {exc}", file=sys.stderr)
+            with contextlib.suppress(Exception):
+                await app.stop()
+            return 2
+        print(f"uacell web on {web.url}", flush=True)
     await stop.wait()
     log.info("shutting down")
-    await app.stop()
+    try:
+        # Calls under way get a moment to finish; whatever still runs after it is cancelled.
+        async with asyncio.timeout(STOP_GRACE):
+            if web is not None:
+                await web.stop()
+            await app.stop()
+    except TimeoutError:
+        log.warning("shutdown took longer than %.0f s: stopping without waiting further", STOP_GRACE)
+    return 0
+
+
+def _https_files(config: Config) -> tuple[Path | None, Path | None]:
+    web = config.web
+    return (
+        Path(web.certificate).expanduser() if web.certificate else None,
+        Path(web.private_key).expanduser() if web.private_key else None,
+    )
+
+
+async def _start_web_beside(config: Config, app: UacellServer) -> RunningWeb:
+    """The web HMI beside the server: its certificate trusted here, HTTPS with the server's by default."""
+    from uacell.pki import PkiPaths
+    from uacell.roles import is_loopback
+    from uacell.web.server import start_web, trust_hmi
+
+    data_dir = config.server.data_dir
+    trust_hmi(data_dir)
+    pki = PkiPaths.in_data_dir(data_dir)
+    cert, key = _https_files(config)
+    if cert is None and key is None and not is_loopback(config.web.host):
+        cert, key = pki.cert, pki.key
+    host = config.server.host
+    if host in ("0.0.0.0", "::", ""):
+        host = "127.0.0.1"
+    shown = f"[{host}]" if ":" in host else host
+    return await start_web(
+        f"opc.tcp://{shown}:{config.server.port}/",
+        data_dir,
+        host=config.web.host,
+        port=config.web.port,
+        server_certificate=pki.cert,
+        https_certificate=cert,
+        https_key=key,
+    )
+
+
+def _web(args: argparse.Namespace) -> int:
+    config = load_config(args.config)
+    if args.host:
+        config.web.host = args.host
+    if args.port is not None:
+        config.web.port = args.port
+    data_dir = args.data_dir or config.server.data_dir
+    try:
+        data_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot create data directory {data_dir}: {exc.strerror or exc}") from exc
+    return asyncio.run(_run_web(args.server, data_dir, config))
+
+
+async def _run_web(server: str, data_dir: Path, config: Config) -> int:
+    from uacell.web.server import start_web
+
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    cert, key = _https_files(config)
+    try:
+        web = await start_web(
+            server, data_dir, host=config.web.host, port=config.web.port, https_certificate=cert, https_key=key
+        )
+    except ConfigError as exc:
+        print(f"uacell: {exc}", file=sys.stderr)
+        return 2
+    print(f"uacell web on {web.url}", flush=True)
+    await stop.wait()
+    await web.stop()
     return 0

@@ -1,7 +1,7 @@
 """uacell's configuration: a TOML file, overridden by command-line options.
 
-``[server]`` is uacell's own; every other section belongs to a companion, which declares it
-(``uacell.companion.Companion.section``/``settings``) in its package.
+``[server]``, ``[programs]`` and ``[limits]`` are uacell's own; every other section belongs to a
+companion, which declares it (``uacell.companion.Companion.section``/``settings``) in its package.
 
 Every key is optional; without a file uacell serves the demo cell on 127.0.0.1:4840.
 
@@ -28,9 +28,47 @@ acting_time = 1.0                 # seconds each acting state of the simulated u
 mach_speed = 60.0                 # initial MachSpeed, packages/min
 equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
 
+[programs]                        # what one robot program may cost (docs/programs.md)
+max_file_bytes = 131072
+max_lines = 10000
+max_nesting = 16
+max_steps = 20000
+max_call_depth = 16
+max_work = 200000
+max_folder_bytes = 67108864       # the whole Programs folder
+
+[limits]                          # what clients may hold and send (docs/security.md, "Limits")
+connections = 256
+sessions = 200
+subscriptions_per_session = 20
+subscriptions = 500
+monitored_items_per_subscription = 1000
+monitored_items = 20000
+file_handles_per_session = 16
+file_handles = 128
+max_chunk_size = 65535
+max_message_size = 262144
+pending_chunks_per_connection = 500
+pending_bytes_per_connection = 1048576
+operations_per_request = 1000
+login_base_delay = 1.0
+login_max_delay = 30.0
+login_free_failures = 2
+login_free_failures_per_user = 10
+password_checks = 2
+
+[web]                             # the browser HMI (docs/web.md)
+enabled = true                    # 'uacell serve' runs it beside the server
+host = "127.0.0.1"                # any non-loopback address is served over HTTPS only
+port = 8080                       # 0: any free port (the listening line says which)
+certificate = ""                  # PEM certificate for HTTPS (default: the server's certificate)
+private_key = ""                  # its PEM private key (default: the server's key)
+
 [[robots]] ...                    # the cell (docs/configuration.md); without [[robots]] and
 [[packml_units]] ...              # [[packml_units]] the shipped demo cell
 ```
+
+Every key of ``[programs]`` and ``[limits]`` is a positive number.
 """
 
 from __future__ import annotations
@@ -88,11 +126,65 @@ class ServerConfig:
     rejected_max_age_days: float = 30.0
 
 
+@dataclass
+class ProgramsConfig:
+    """Bounds of one robot program (``uacell.robotics.program.ProgramLimits``) and of the folder."""
+
+    max_file_bytes: int = 128 * 1024
+    max_lines: int = 10_000
+    max_nesting: int = 16
+    max_steps: int = 20_000
+    max_call_depth: int = 16
+    max_work: int = 200_000
+    max_folder_bytes: int = 64 * 1024 * 1024
+
+
+@dataclass
+class LimitsConfig:
+    """What clients may hold and send (docs/security.md, "Limits")."""
+
+    connections: int = 256  # TCP connections, before and after a session is activated
+    sessions: int = 200
+    subscriptions_per_session: int = 20
+    subscriptions: int = 500
+    monitored_items_per_subscription: int = 1000
+    monitored_items: int = 20_000
+    file_handles_per_session: int = 16
+    file_handles: int = 128
+    max_chunk_size: int = 65535  # the largest chunk (receive/send buffer) the server accepts
+    max_message_size: int = 256 * 1024  # the largest request, all its chunks together
+    pending_chunks_per_connection: int = 500  # chunks received but not yet processed, per connection
+    pending_bytes_per_connection: int = 1024 * 1024  # the same in bytes
+    operations_per_request: int = 1000  # nodes one Read/Write/Browse/Call/... may name
+    login_base_delay: float = 1.0  # first delay after the free failures, doubled per further failure
+    login_max_delay: float = 30.0
+    login_free_failures: int = 2  # failures in a row of one user name at one address without delay
+    login_free_failures_per_user: int = 10  # the same over all addresses
+    password_checks: int = 2  # password hashes verified at once, server-wide
+
+
+@dataclass
+class WebConfig:
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: int = 8080
+    certificate: str = ""
+    private_key: str = ""
+
+
+_OWN = {"server": ServerConfig, "programs": ProgramsConfig, "limits": LimitsConfig, "web": WebConfig}
+_POSITIVE = ("programs", "limits")  # sections whose every value must be above zero
+
+
 class Config:
-    """``server`` plus one section per companion that declares one (``config.robot``, ``config.packml``)."""
+    """``server``, ``programs``, ``limits``, ``web`` plus one section per companion that declares one
+    (``config.robot``, ``config.packml``)."""
 
     def __init__(self) -> None:
         self.server = ServerConfig()
+        self.programs = ProgramsConfig()
+        self.limits = LimitsConfig()
+        self.web = WebConfig()
         self.source: Path | None = None
         # The cell: the companions' cell sections ([[robots]], [[packml_units]]), else the demo cell.
         self.cell: CellConfig = load_cell(builtin_cell_path("demo"))
@@ -115,7 +207,7 @@ class Config:
 
 
 def _section_types() -> dict[str, type[Any]]:
-    types: dict[str, type[Any]] = {"server": ServerConfig}
+    types: dict[str, type[Any]] = dict(_OWN)
     for c in companions():
         if c.section is not None and c.settings is not None:
             types[c.section] = c.settings
@@ -135,6 +227,8 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
     if isinstance(default, int):
         if not isinstance(value, int) or isinstance(value, bool):
             raise ConfigError(f"{name} must be an integer")
+        if section in _POSITIVE and value < 1:
+            raise ConfigError(f"{name} must be a positive integer")
         return value
     if isinstance(default, float):
         if not isinstance(value, int | float) or isinstance(value, bool) or value <= 0:
@@ -186,7 +280,7 @@ def load_config(path: str | Path | None = None) -> Config:
         cls = _section_types().get(section)
         if cls is None or not isinstance(values, dict):
             raise ConfigError(f"configuration {path}: unknown section [{section}]")
-        target = config.server if section == "server" else config.sections[section]
+        target = getattr(config, section) if section in _OWN else config.sections[section]
         known = {f.name for f in fields(cls)}
         for key, value in values.items():
             if key not in known:
@@ -195,13 +289,19 @@ def load_config(path: str | Path | None = None) -> Config:
                 setattr(target, key, _coerce(section, key, value, getattr(target, key)))
             except ConfigError as exc:
                 raise ConfigError(f"configuration {path}: {exc}") from exc
-    if not 0 <= config.server.port <= 65535:
-        raise ConfigError(f"configuration {path}: [server] port must be 0..65535")
+    for section, port in (("server", config.server.port), ("web", config.web.port)):
+        if not 0 <= port <= 65535:
+            raise ConfigError(f"configuration {path}: [{section}] port must be 0..65535")
     for key in ("application_uri", "application_name"):
         if not getattr(config.server, key).strip():
             raise ConfigError(f"configuration {path}: [server] {key} must not be empty")
     if config.server.rejected_max_files < 1:
         raise ConfigError(f"configuration {path}: [server] rejected_max_files must be 1 or more")
+    limits = config.limits
+    if not 8192 <= limits.max_chunk_size <= limits.max_message_size:
+        raise ConfigError(f"configuration {path}: [limits] max_chunk_size must be 8192..max_message_size")
+    if limits.login_base_delay > limits.login_max_delay:
+        raise ConfigError(f"configuration {path}: [limits] login_base_delay must not exceed login_max_delay")
     return config
 
 

@@ -20,7 +20,8 @@ binders run. It
   session was sent (``Bad_IdentityTokenInvalid`` otherwise), so a captured token cannot be replayed;
 - gives sessions random AuthenticationTokens and lets a session move to another secure channel only
   when activated, from the same client certificate and with the same identity;
-- slows down repeated login failures per client address (``uacell.users.LoginThrottle``);
+- slows down repeated login failures per user name, at one address and across addresses
+  (``uacell.users.LoginThrottle``), and checks passwords in worker threads, a few at a time;
 - uses its own session class: writes need the ``write`` action of ``uacell.roles``, the client's
   ApplicationUri is kept for ``Caller.client``, and ``on_session_closed`` hooks run when a session
   closes or times out (locks are released there);
@@ -58,8 +59,9 @@ from asyncua.ua.ua_binary import struct_from_binary, uatcp_to_binary
 from uacell.pki import CertificateValidator, PkiPaths, RejectedLimit, TrustList, ensure_server_certificate
 from uacell.roles import Family, Role, may, may_call
 from uacell.ua import context
-from uacell.ua.access import user_access_level
+from uacell.ua.access import user_access_level, verified_login
 from uacell.ua.context import caller_of
+from uacell.ua.limits import LimitedSession
 from uacell.users import LoginThrottle
 
 if TYPE_CHECKING:
@@ -204,9 +206,16 @@ class Security:
     def __init__(self, app: UacellServer) -> None:
         self.app = app
         self.server: Server = app.server
-        self.throttle = LoginThrottle()
+        limits = app.config.limits
+        self.throttle = LoginThrottle(
+            base=limits.login_base_delay,
+            cap=limits.login_max_delay,
+            free=limits.login_free_failures,
+            free_per_user=limits.login_free_failures_per_user,
+        )
+        self.password_checks = asyncio.Semaphore(limits.password_checks)
         self.on_session_closed: list[Callable[[InternalSession], None]] = []
-        self._address_locks: dict[str, asyncio.Lock] = {}
+        self._user_locks: dict[str, asyncio.Lock] = {}
         self.trust_list: TrustList | None = None
         self.policies: list[ua.SecurityPolicyType] = []
         self.refusals = RefusalLog()
@@ -407,31 +416,59 @@ class Security:
         except ValueError as exc:  # includes cryptography's decryption errors and UnicodeDecodeError
             raise self._invalid_token(token, "secret", str(exc) or "the password cannot be decrypted") from None
 
-    def _address_lock(self, address: str) -> asyncio.Lock:
-        return self._address_locks.setdefault(address, asyncio.Lock())
-
-    async def activate(self, processor: UaProcessor, call: Callable[[], Any]) -> Any:
-        """Run one ActivateSession: wait out the address's penalty, then record success or failure."""
-        address = _address(processor)
+    async def activate(self, processor: UaProcessor, requesthdr: Any, body: Any, call: Callable[[], Any]) -> Any:
+        """Run one ActivateSession: throttled per user name (never for anonymous logins), the password
+        checked in a worker thread, at most ``[limits] password_checks`` at once server-wide."""
         session = processor.session
         if session is not None and (session.state == SessionState.Closed or session.nonce is None):
             raise ServiceError(_S.BadSessionIdInvalid)  # its CreateSession was refused
-        # One attempt at a time per address, so parallel connections cannot skip the delay.
-        async with self._address_lock(address):
-            wait = self.throttle.wait_time(address)
-            if wait > 0:
-                log.info("delaying login from %s by %.1f s after failed attempts", address, wait)
-                await asyncio.sleep(wait)
-            try:
-                result = await call()
-            except ServiceError as exc:
-                if exc.code == ua.StatusCodes.BadUserAccessDenied:
-                    self.throttle.failed(address)
-                raise
-            user = getattr(processor.session, "user", None)
-            if user is not None and not getattr(user, "anonymous", True):
-                self.throttle.succeeded(address)
-            return result
+        token = _identity_token(body)
+        if not isinstance(token, ua.UserNameIdentityToken) or not token.UserName:
+            return await call()  # anonymous or another token type: asyncua decides, nobody waits
+        user, address = str(token.UserName), _address(processor)
+        # One attempt at a time per user name, so parallel connections cannot skip the delay.
+        lock = self._user_locks.setdefault(user, asyncio.Lock())
+        try:
+            async with lock:
+                wait = self.throttle.wait_time(user, address)
+                if wait > 0:
+                    log.info("delaying login of user %r from %s by %.1f s after failed attempts", user, address, wait)
+                    await asyncio.sleep(wait)
+                verified = await self._verify_off_loop(processor, requesthdr, token)
+                try:
+                    result = await call()
+                except ServiceError as exc:
+                    if exc.code == ua.StatusCodes.BadUserAccessDenied:
+                        self.throttle.failed(user, address)
+                    raise
+                finally:
+                    if verified is not None:
+                        verified_login.reset(verified)
+                logged_in = getattr(processor.session, "user", None)
+                if logged_in is not None and not getattr(logged_in, "anonymous", True):
+                    self.throttle.succeeded(user, address)
+                return result
+        finally:
+            if not lock.locked() and self._user_locks.get(user) is lock:
+                del self._user_locks[user]  # a spray of names leaves nothing behind
+
+    async def _verify_off_loop(self, processor: UaProcessor, requesthdr: Any, token: ua.UserNameIdentityToken) -> Any:
+        """Check the password in a worker thread (the hash takes tens of ms) and leave the outcome for
+        ``UacellUserManager.get_user``; None when asyncua's own path must decide (it refuses then)."""
+        if not token.EncryptionAlgorithm and _channel_mode(processor) != ua.MessageSecurityMode.SignAndEncrypt:
+            return None  # a clear-text password is refused before any check
+        iserver = self.server.iserver
+        isession = processor.session or iserver.lookup_external_session(requesthdr.AuthenticationToken)
+        if isession is None:
+            return None
+        try:
+            # The same checks and decryption as the activation itself (no side effects); it runs again.
+            name, password = self.decrypt_user_token(isession, token)
+        except Exception:
+            return None  # the activation refuses the token itself
+        async with self.password_checks:
+            role = await asyncio.to_thread(self.app.users.verify, name, password or "")
+        return verified_login.set((name, password or "", role))
 
     # per-session attributes ------------------------------------------------------------------------
 
@@ -470,7 +507,7 @@ def _read_hook(session: InternalSession, params: Any, results: list[Any]) -> Non
         security.adjust_read(session, params, results)
 
 
-class UacellSession(InternalSession):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
+class UacellSession(LimitedSession):
     """A session that checks writes against the role table and reports its end."""
 
     nonce: bytes
@@ -574,7 +611,9 @@ def _install_processor_hook() -> None:
             if security is not None and typeid == _ACTIVATE:
                 if self.session is None:  # a session created on another channel
                     security.check_reassociation(self, requesthdr.AuthenticationToken, body)
-                return await security.activate(self, lambda: original(self, typeid, requesthdr, seqhdr, body))
+                return await security.activate(
+                    self, requesthdr, body, lambda: original(self, typeid, requesthdr, seqhdr, body)
+                )
             return await original(self, typeid, requesthdr, seqhdr, body)
         finally:
             context.reset_return_diagnostics(diagnostics)
@@ -584,6 +623,14 @@ def _install_processor_hook() -> None:
     UaProcessor.process = process
     UaProcessor.open_secure_channel = open_secure_channel
     UaProcessor._uacell_installed = True
+
+
+def _identity_token(body: Any) -> Any:
+    """The UserIdentityToken of an ActivateSession body, read without consuming it (None if unreadable)."""
+    try:
+        return struct_from_binary(ua.ActivateSessionParameters, body.copy()).UserIdentityToken
+    except Exception:
+        return None
 
 
 async def install_security(app: UacellServer) -> Security:

@@ -16,6 +16,8 @@ from uacell.registry import Registries, Registry, RegistryKey, T
 from uacell.roles import Role, listening_policy
 from uacell.ua.access import UacellUserManager
 from uacell.ua.dispatch import MethodDispatcher
+from uacell.ua.file_store import HandlePool
+from uacell.ua.limits import install_limits, publish_operation_limits
 from uacell.ua.nodesets import load_models
 from uacell.ua.state_machine import NodeRefs, Publisher
 from uacell.ua.writes import WriteRouter
@@ -60,6 +62,9 @@ class UacellServer:
         self.publisher.idle_hooks.append(self.dispatcher.refresh_executable)
         self._refs: NodeRefs | None = None
         self.writes = WriteRouter()
+        limits = config.limits
+        # Every file handle any client holds, over all FileType trees (docs/security.md, "Limits").
+        self.file_handles = HandlePool(limits.file_handles_per_session, limits.file_handles)
 
     @property
     def cell(self) -> CellBuilder:
@@ -99,6 +104,7 @@ class UacellServer:
         # ConditionRefresh(2) for alarm clients, with Severity 100 on its RefreshStart/End events.
         self.server.iserver.bind_condition_methods = 100
         await self.server.init()
+        self.limits = install_limits(self)
         self.server.set_endpoint(self.endpoint)
         self.server.set_server_name(cfg.application_name)
         await self.server.set_application_uri(cfg.application_uri)
@@ -117,6 +123,7 @@ class UacellServer:
                 self._closers.append(closer)
 
     async def start(self) -> None:
+        await publish_operation_limits(self.server, self.limits)
         await self.server.start()
         await self.dispatcher.refresh_executable()
 

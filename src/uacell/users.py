@@ -12,6 +12,7 @@ import logging
 import os
 import re
 import tempfile
+import threading
 import time
 import tomllib
 from collections.abc import Callable
@@ -61,6 +62,7 @@ class UserStore:
         self._entries: dict[str, tuple[Role, str]] = {}
         self._stamp: tuple[int, int] | None = None
         self._dummy_hash: str | None = None
+        self._lock = threading.RLock()
 
     @classmethod
     def in_data_dir(cls, data_dir: Path, *, hasher: PasswordHasher | None = None) -> UserStore:
@@ -70,6 +72,10 @@ class UserStore:
 
     def _load(self) -> dict[str, tuple[Role, str]]:
         """The entries, re-read when the file changed (the CLI may edit it while the server runs)."""
+        with self._lock:  # password checks run in worker threads
+            return self._load_locked()
+
+    def _load_locked(self) -> dict[str, tuple[Role, str]]:
         try:
             st = self.path.stat()
         except FileNotFoundError:
@@ -111,9 +117,11 @@ class UserStore:
             return None
         if self._hasher.check_needs_rehash(stored):
             # Parameters were raised since this hash was made: store a fresh one.
-            entries = dict(self._load())
-            entries[name] = (entry[0], self._hasher.hash(password))
-            self._save(entries)
+            fresh = self._hasher.hash(password)
+            with self._lock:
+                entries = dict(self._load())
+                entries[name] = (entry[0], fresh)
+                self._save(entries)
         return entry[0]
 
     # writing ------------------------------------------------------------------------------------
@@ -173,11 +181,14 @@ def atomic_write(path: Path, data: bytes, mode: int = 0o600) -> None:
 
 
 class LoginThrottle:
-    """Slow down repeated login failures per client address.
+    """Slow down repeated login failures of one user name.
 
-    After ``free`` failures in a row, each further failure makes the address wait ``base * 2**k``
-    seconds (capped at ``cap``) before its next attempt counts; a success resets it. Addresses idle
-    for ``forget_after`` seconds are forgotten.
+    Failures count per user name *at one address* and per user name *across all addresses*: after
+    ``free`` failures in a row at one address (``free_per_user`` over all addresses, so that changing
+    the source address does not help), each further failure makes the next attempt for that name wait
+    ``base * 2**k`` seconds (capped at ``cap``); a success resets both. Anonymous logins and other user
+    names, from the same address or not, are never delayed. Entries idle for ``forget_after`` seconds
+    are forgotten, and at most ``max_entries`` are kept (a spray of names cannot exhaust memory).
     """
 
     def __init__(
@@ -186,42 +197,55 @@ class LoginThrottle:
         base: float = 1.0,
         cap: float = 30.0,
         free: int = 2,
+        free_per_user: int = 10,
         forget_after: float = 900.0,
+        max_entries: int = 10_000,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        self.base, self.cap, self.free, self.forget_after = base, cap, free, forget_after
+        self.base, self.cap, self.free, self.free_per_user = base, cap, free, free_per_user
+        self.forget_after, self.max_entries = forget_after, max_entries
         self._clock = clock
-        self._failures: dict[str, tuple[int, float]] = {}  # address -> (count, not before)
-        self._last_seen: dict[str, float] = {}
+        # ("at", user, address) or ("user", user) -> (failures in a row, not before, last seen)
+        self._failures: dict[tuple[str, ...], tuple[int, float, float]] = {}
 
-    def wait_time(self, address: str) -> float:
-        """Seconds before ``address`` may try again (0.0 when it may try now)."""
+    @staticmethod
+    def _keys(user: str, address: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        return ("at", user, address), ("user", user)
+
+    def wait_time(self, user: str, address: str) -> float:
+        """Seconds before ``user`` may try again from ``address`` (0.0 when it may try now)."""
         self._forget_idle()
-        entry = self._failures.get(address)
-        if entry is None:
-            return 0.0
-        return max(0.0, entry[1] - self._clock())
-
-    def failed(self, address: str) -> float:
-        """Record a failure; returns the delay now imposed on ``address``."""
         now = self._clock()
-        count = self._failures.get(address, (0, now))[0] + 1
-        excess = count - self.free
-        delay = min(self.base * 2 ** min(excess - 1, 32), self.cap) if excess > 0 else 0.0
-        self._failures[address] = (count, now + delay)
-        self._last_seen[address] = now
+        return max(
+            (max(0.0, e[1] - now) for k in self._keys(user, address) if (e := self._failures.get(k))), default=0.0
+        )
+
+    def failed(self, user: str, address: str) -> float:
+        """Record a failure; returns the delay now imposed on ``user`` at ``address``."""
+        now = self._clock()
+        if len(self._failures) >= self.max_entries:
+            self._forget_idle(make_room=True)
+        for key, free in zip(self._keys(user, address), (self.free, self.free_per_user), strict=True):
+            count = self._failures.get(key, (0, now, now))[0] + 1
+            excess = count - free
+            delay = min(self.base * 2 ** min(excess - 1, 32), self.cap) if excess > 0 else 0.0
+            self._failures[key] = (count, now + delay, now)
+        delay = self.wait_time(user, address)
         if delay:
-            _log.warning("%d failed logins in a row from %s: next attempt in %.1f s", count, address, delay)
+            _log.warning("failed logins of user %r (last from %s): next attempt in %.1f s", user, address, delay)
         return delay
 
-    def succeeded(self, address: str) -> None:
-        self._failures.pop(address, None)
-        self._last_seen.pop(address, None)
+    def succeeded(self, user: str, address: str) -> None:
+        for key in self._keys(user, address):
+            self._failures.pop(key, None)
 
-    def _forget_idle(self) -> None:
+    def _forget_idle(self, make_room: bool = False) -> None:
         now = self._clock()
-        for address in [a for a, t in self._last_seen.items() if now - t > self.forget_after]:
-            self.succeeded(address)
+        for key in [k for k, e in self._failures.items() if now - e[2] > self.forget_after]:
+            del self._failures[key]
+        if make_room and len(self._failures) >= self.max_entries:
+            for key in sorted(self._failures, key=lambda k: self._failures[k][2])[: self.max_entries // 2]:
+                del self._failures[key]
 
 
 def _read_password(from_stdin: bool) -> str:

@@ -28,7 +28,17 @@ from uacell.robotics.equipment import (
     RunOutcome,
     StopMode,
 )
-from uacell.robotics.program import Kind, Program, ProgramError, expand, parse
+from uacell.robotics.program import (
+    DEFAULT_LIMITS,
+    Kind,
+    NothingToExecute,
+    Program,
+    ProgramError,
+    ProgramLimits,
+    ProgramTooLarge,
+    measure,
+    parse,
+)
 
 log = logging.getLogger(__name__)
 
@@ -126,10 +136,14 @@ class ProgramLibrary(Protocol):
 
 
 class DirectoryLibrary:
-    """Programs stored as ``*.robot`` files in a directory tree; a file's name is its stem."""
+    """Programs stored as ``*.robot`` files in a directory tree; a file's name is its stem.
 
-    def __init__(self, root: Path | str) -> None:
+    ``read`` reads at most ``max_bytes`` (``ProgramTooLarge`` beyond) and decodes UTF-8 strictly.
+    """
+
+    def __init__(self, root: Path | str, *, max_bytes: int = DEFAULT_LIMITS.max_file_bytes) -> None:
         self.root = Path(root)
+        self.max_bytes = max_bytes
 
     def _files(self) -> list[Path]:
         if not self.root.is_dir():
@@ -150,7 +164,11 @@ class DirectoryLibrary:
         rel = PurePosixPath(relpath)
         if rel.is_absolute() or ".." in rel.parts:
             raise FileNotFoundError(relpath)
-        return (self.root / rel).read_text(encoding="utf-8")
+        with (self.root / rel).open("rb") as f:
+            data = f.read(self.max_bytes + 1)
+        if len(data) > self.max_bytes:
+            raise ProgramTooLarge(0, f"the file is larger than {self.max_bytes} bytes")
+        return data.decode("utf-8")
 
 
 # --- observable data -------------------------------------------------------------------------------
@@ -240,10 +258,12 @@ class TaskControl(_Guarded):
         possible_stop_modes: Sequence[StopMode] = tuple(StopMode),
         default_stop_mode: StopMode = StopMode.ON_PATH,
         execution_mode: ExecutionMode = ExecutionMode.CYCLE,
+        bounds: ProgramLimits = DEFAULT_LIMITS,
     ) -> None:
         self.name = name
         self.equipment = equipment
         self.library = library
+        self.bounds = bounds
         self.system = system
         self.motion_devices = tuple(motion_devices)
         self.possible_stop_modes = tuple(possible_stop_modes)
@@ -331,18 +351,30 @@ class TaskControl(_Guarded):
                 return problem
             return await self._load(relpath)
 
+    def _read_and_check(self, relpath: str, modules: dict[str, Program]) -> Program:
+        """Read, parse and measure ``relpath`` (in a worker thread: bounded by ``self.bounds``)."""
+        try:
+            text = self.library.read(relpath)
+        except FileNotFoundError:
+            raise _Failure(Status.NOT_FOUND, f"no file {relpath!r}") from None
+        except ProgramError as e:
+            raise _Failure(Status.INVALID_CONTENT, f"{relpath}: {e}") from e
+        except UnicodeDecodeError as e:
+            raise _Failure(Status.INVALID_CONTENT, f"{relpath}: not UTF-8 text ({e.reason} at byte {e.start})") from e
+        except OSError as e:
+            raise _Failure(Status.E_UNEXPECTED_ERROR, f"cannot read {relpath!r}: {e}") from e
+        try:
+            program = parse(text, [a.limits for a in self.equipment.axes], bounds=self.bounds)
+            # What can be known before Start: the file alone (and the modules loaded now) is within bounds.
+            measure(program, modules, self.bounds, partial=True)
+        except ProgramError as e:
+            raise _Failure(Status.INVALID_CONTENT, f"{relpath}: {e}") from e
+        return program
+
     async def _load(self, relpath: str) -> int:
         try:
-            try:
-                text = self.library.read(relpath)
-            except FileNotFoundError:
-                raise _Failure(Status.NOT_FOUND, f"no file {relpath!r}") from None
-            except (OSError, UnicodeDecodeError) as e:
-                raise _Failure(Status.E_UNEXPECTED_ERROR, f"cannot read {relpath!r}: {e}") from e
-            try:
-                program = parse(text, [a.limits for a in self.equipment.axes])
-            except ProgramError as e:
-                raise _Failure(Status.INVALID_CONTENT, f"{relpath}: {e}") from e
+            modules = {n: m for n, (m, _) in self._modules.items()}
+            program = await asyncio.to_thread(self._read_and_check, relpath, modules)
             if program.kind is Kind.MODULE and self.program is not None and program.name == self.program.name:
                 raise _Failure(Status.INVALID_CONTENT, f"module {program.name} has the program's name")
             if program.kind is Kind.PROGRAM and program.name in self._modules:
@@ -476,7 +508,10 @@ class TaskControl(_Guarded):
             alarm = self.system.alarm_status()
             if alarm is not None:
                 return alarm
-        if self._unresolved() is not None:
+        problem = self._unresolved()
+        if isinstance(problem, ProgramTooLarge | NothingToExecute):
+            return Status.INVALID_CONTENT
+        if problem is not None:
             return Status.UNRESOLVED_REFERENCE
         return None
 
@@ -486,7 +521,7 @@ class TaskControl(_Guarded):
             self._resolution = None
             if self.program is not None:
                 try:
-                    expand(self.program, {n: m for n, (m, _) in self._modules.items()})
+                    measure(self.program, {n: m for n, (m, _) in self._modules.items()}, self.bounds)
                 except ProgramError as e:
                     self._resolution = e
         return self._resolution  # type: ignore[return-value]
@@ -498,7 +533,7 @@ class TaskControl(_Guarded):
     def _start(self, reason: Reason) -> int:
         problem = self._start_check()
         if problem is not None:
-            if problem == Status.UNRESOLVED_REFERENCE:
+            if problem in (Status.UNRESOLVED_REFERENCE, Status.INVALID_CONTENT):
                 return self._fail(problem, str(self._unresolved()))
             return self._fail(problem, f"cannot start in {self.machine.current}")
         self.stopping = False
@@ -865,6 +900,7 @@ class RobotCell:
         motion_devices: Sequence[str] = ("Arm1",),
         possible_stop_modes: Sequence[StopMode] = tuple(StopMode),
         default_stop_mode: StopMode = StopMode.ON_PATH,
+        bounds: ProgramLimits = DEFAULT_LIMITS,
     ) -> None:
         if default_stop_mode not in possible_stop_modes:
             raise ValueError("the default stop mode must be one of the possible stop modes")
@@ -883,6 +919,7 @@ class RobotCell:
                 motion_devices=motion_devices,
                 possible_stop_modes=possible_stop_modes,
                 default_stop_mode=default_stop_mode,
+                bounds=bounds,
             )
             for name in task_names
         }

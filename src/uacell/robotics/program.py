@@ -14,7 +14,12 @@ A file is a *program* (what a task control runs) or a *module* (routines that pr
 
 ``parse`` turns text into a ``Program`` or raises ``ProgramError`` naming the line and the reason.
 ``expand`` resolves calls and loops against the loaded modules into the flat list of ``Step`` that
-the robot executes; a program pointer is an index into that list.
+the robot executes; a program pointer is an index into that list. ``measure`` counts those steps
+without building them (its cost grows with the text, not with the loops).
+
+``ProgramLimits`` bounds everything a file can make the server do: its size and line count, how deep
+blocks nest, how many steps it expands to, how deep calls nest and how many instructions checking and
+expanding may visit. A program beyond them raises ``ProgramTooLarge`` (a ``ProgramError``).
 """
 
 from __future__ import annotations
@@ -48,6 +53,34 @@ class ProgramError(ValueError):
         super().__init__(f"line {line}: {reason}" if line else reason)
         self.line = line
         self.reason = reason
+
+
+class ProgramTooLarge(ProgramError):
+    """The text is beyond a ``ProgramLimits`` bound (size, lines, nesting, steps, call depth, work)."""
+
+
+class NothingToExecute(ProgramError):
+    """The program, with its calls resolved, has no move or wait: there is nothing to run."""
+
+
+@dataclass(frozen=True)
+class ProgramLimits:
+    """What one program or module may cost the server (docs/programs.md, ``[programs]`` configuration)."""
+
+    max_file_bytes: int = 128 * 1024  # size of a file's text
+    max_lines: int = 10_000  # lines of a file, comments and blank lines included
+    max_nesting: int = 16  # repeat (and routine) blocks open at once
+    max_steps: int = MAX_STEPS  # moves and waits after loops are unrolled and calls inlined
+    max_call_depth: int = MAX_CALL_DEPTH  # calls nested in calls
+    max_work: int = 200_000  # instructions visited while checking and expanding one program
+
+    def __post_init__(self) -> None:
+        for name, value in vars(self).items():
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, not {value!r}")
+
+
+DEFAULT_LIMITS = ProgramLimits()
 
 
 class Kind(StrEnum):
@@ -138,14 +171,25 @@ def _number(token: str, line: int, what: str) -> float:
     return value
 
 
-def parse(text: str, limits: Sequence[tuple[float, float]] | None = None) -> Program:
-    """Parse a program or module. ``limits`` are the (min, max) degrees of each axis, if known.
+def parse(
+    text: str,
+    limits: Sequence[tuple[float, float]] | None = None,
+    *,
+    bounds: ProgramLimits = DEFAULT_LIMITS,
+) -> Program:
+    """Parse a program or module. ``limits`` are the (min, max) degrees of each axis, if known;
+    ``bounds`` the size, line and nesting limits (``ProgramTooLarge`` beyond them).
 
     A ``move`` gives one position per axis: as many as ``limits`` has, else ``AXIS_COUNT``.
     """
     axis_count = len(limits) if limits is not None else AXIS_COUNT
     if axis_count < 1:
         raise ValueError("limits must give at least one axis")
+    if len(text) > bounds.max_file_bytes or len(text.encode("utf-8", "surrogatepass")) > bounds.max_file_bytes:
+        raise ProgramTooLarge(0, f"the file is larger than {bounds.max_file_bytes} bytes")
+    lines = text.splitlines()
+    if len(lines) > bounds.max_lines:
+        raise ProgramTooLarge(0, f"the file has more than {bounds.max_lines} lines")
     header: tuple[Kind, str, str] | None = None
     uses: list[str] = []
     routines: dict[str, tuple[Instruction, ...]] = {}
@@ -157,7 +201,7 @@ def parse(text: str, limits: Sequence[tuple[float, float]] | None = None) -> Pro
     def body() -> list[Instruction]:
         return stack[-1][3] if stack else main
 
-    for number, raw in enumerate(text.splitlines(), start=1):
+    for number, raw in enumerate(lines, start=1):
         words = raw.split("#", 1)[0].split()
         if not words:
             continue
@@ -232,6 +276,8 @@ def parse(text: str, limits: Sequence[tuple[float, float]] | None = None) -> Pro
             count = _number(args[0], number, "repeat")
             if count != int(count) or not 1 <= count <= MAX_REPEAT:
                 raise ProgramError(number, f"repeat count must be a whole number from 1 to {MAX_REPEAT}")
+            if len(stack) >= bounds.max_nesting:
+                raise ProgramTooLarge(number, f"blocks nest deeper than {bounds.max_nesting}")
             stack.append(("repeat", number, int(count), []))
         elif keyword == "routine":
             expect(1, "a name")
@@ -269,18 +315,129 @@ def parse(text: str, limits: Sequence[tuple[float, float]] | None = None) -> Pro
     return Program(name, kind, version, tuple(main), tuple(uses), routines, text)
 
 
-def expand(program: Program, modules: Mapping[str, Program]) -> tuple[Step, ...]:
+class _Measure:
+    """Step counts of instruction lists and routines, each computed once (cost: the text, not the loops)."""
+
+    def __init__(self, program: Program, modules: Mapping[str, Program], bounds: ProgramLimits, partial: bool) -> None:
+        self.program, self.modules, self.bounds, self.partial = program, modules, bounds, partial
+        self.sizes: dict[int, int] = {}  # id(Repeat) -> steps of one pass of its body
+        self.routines: dict[tuple[str, str], tuple[int, int]] = {}  # -> (steps, call height)
+        self.busy: set[tuple[str, str]] = set()
+        self.unresolved = False
+        self.work = 0
+
+    def visit(self, count: int = 1) -> None:
+        self.work += count
+        if self.work > self.bounds.max_work:
+            limit = self.bounds.max_work
+            raise ProgramTooLarge(0, f"{self.program.name} takes more than {limit} instructions to expand")
+
+    def cap(self, steps: int) -> int:
+        # Beyond the limit the exact number does not matter: keeps the integers small.
+        return min(steps, self.bounds.max_steps + 1)
+
+    def target(self, call: Call, origin: str) -> Program | None:
+        target = self.program if call.module == self.program.name else self.modules.get(call.module)
+        if target is None or target.kind is not Kind.MODULE:
+            if self.partial:
+                return None
+            raise ProgramError(call.line, f"module {call.module} is not loaded ({origin})")
+        if call.routine not in target.routines:
+            if self.partial:
+                return None
+            raise ProgramError(call.line, f"module {call.module} has no routine {call.routine} ({origin})")
+        return target
+
+    def items(self, items: Sequence[Instruction], origin: str) -> tuple[int, int]:
+        """(steps, call height) of ``items``."""
+        steps = height = 0
+        for item in items:
+            self.visit()
+            if isinstance(item, Move | Wait):
+                steps += 1
+            elif isinstance(item, Repeat):
+                body, h = self.items(item.body, origin)
+                self.sizes[id(item)] = body
+                steps, height = steps + item.count * body, max(height, h)
+            elif isinstance(item, Call):
+                target = self.target(item, origin)
+                if target is None:
+                    self.unresolved = True
+                    continue
+                body, h = self.routine(item, target, origin)
+                steps, height = steps + body, max(height, h + 1)
+            steps = self.cap(steps)
+        return steps, height
+
+    def routine(self, call: Call, target: Program, origin: str) -> tuple[int, int]:
+        key = (call.module, call.routine)
+        known = self.routines.get(key)
+        if known is not None:
+            return known
+        if key in self.busy:  # a routine that calls itself, directly or not, nests without end
+            raise ProgramError(call.line, f"calls nest deeper than {self.bounds.max_call_depth} ({origin})")
+        self.busy.add(key)
+        result = self.items(target.routines[call.routine], call.module)
+        self.busy.discard(key)
+        if result[1] + 1 > self.bounds.max_call_depth:
+            raise ProgramError(call.line, f"calls nest deeper than {self.bounds.max_call_depth} ({origin})")
+        self.routines[key] = result
+        return result
+
+    def total(self) -> int:
+        program = self.program
+        if program.kind is Kind.MODULE:
+            steps = 0
+            for name in program.routines:
+                steps = max(steps, self.routine(Call(0, program.name, name), program, program.name)[0])
+        else:
+            steps, _ = self.items(program.instructions, program.name)
+        if steps > self.bounds.max_steps:
+            raise ProgramTooLarge(0, f"{program.name} expands to more than {self.bounds.max_steps} steps")
+        if steps == 0 and program.kind is Kind.PROGRAM and not self.unresolved:
+            raise NothingToExecute(0, f"{program.name} has no move or wait to execute")
+        return steps
+
+
+def measure(
+    program: Program,
+    modules: Mapping[str, Program],
+    bounds: ProgramLimits = DEFAULT_LIMITS,
+    *,
+    partial: bool = False,
+) -> int:
+    """How many steps ``expand`` gives (for a module: its largest routine), without building them.
+
+    Raises what ``expand`` raises. With ``partial`` calls that do not resolve (yet) count as no step
+    instead of failing: the check at load time, before the modules are known.
+    """
+    m = _Measure(program, modules, bounds, partial)
+    try:
+        return m.total()
+    except RecursionError:  # only with limits raised far beyond their defaults
+        raise ProgramTooLarge(0, f"{program.name} nests too deeply to check") from None
+
+
+def expand(
+    program: Program, modules: Mapping[str, Program], bounds: ProgramLimits = DEFAULT_LIMITS
+) -> tuple[Step, ...]:
     """The flat steps of ``program`` with calls resolved in ``modules`` (by name) and loops unrolled.
 
-    Raises ``ProgramError`` (at the calling line) when a module is not loaded, a routine is missing,
-    calls recurse too deeply, or the expansion is too long.
+    Raises ``ProgramError`` (at the calling line) when a module is not loaded, a routine is missing or
+    calls recurse too deeply, and ``ProgramTooLarge`` when the expansion is beyond ``bounds``.
     """
+    m = _Measure(program, modules, bounds, partial=False)
+    try:
+        m.total()
+    except RecursionError:
+        raise ProgramTooLarge(0, f"{program.name} nests too deeply to check") from None
     steps: list[Step] = []
     groups = 0
 
-    def walk(items: Sequence[Instruction], origin: str, speed: float, group: int | None, depth: int) -> float:
+    def walk(items: Sequence[Instruction], origin: str, speed: float, group: int | None) -> float:
         nonlocal groups
         for item in items:
+            m.visit()
             match item:
                 case Move(line, joints):
                     steps.append(Step("move", line, origin, joints=joints, speed=speed, group=group))
@@ -289,25 +446,20 @@ def expand(program: Program, modules: Mapping[str, Program]) -> tuple[Step, ...]
                 case Speed(_, percent):
                     speed = percent
                 case Repeat(_, count, body):
-                    for _ in range(count):
-                        speed = walk(body, origin, speed, group, depth)
-                case Call(line, module, routine):
-                    target = program if module == program.name else modules.get(module)
-                    if target is None or target.kind is not Kind.MODULE:
-                        raise ProgramError(line, f"module {module} is not loaded ({origin})")
-                    if routine not in target.routines:
-                        raise ProgramError(line, f"module {module} has no routine {routine} ({origin})")
-                    if depth >= MAX_CALL_DEPTH:
-                        raise ProgramError(line, f"calls nest deeper than {MAX_CALL_DEPTH} ({origin})")
+                    # A body without steps only changes the speed: one pass has the effect of all.
+                    for _ in range(count if m.sizes[id(item)] else 1):
+                        speed = walk(body, origin, speed, group)
+                case Call(_, module, routine):
+                    if not m.routines[(module, routine)][0]:
+                        continue  # a routine's speed changes stay inside it: nothing to do
+                    target = program if module == program.name else modules[module]
                     if group is None:
                         groups += 1
                     # A routine's speed changes stay inside it, like a local setting.
-                    walk(target.routines[routine], module, speed, group or groups, depth + 1)
-            if len(steps) > MAX_STEPS:
-                raise ProgramError(0, f"{program.name} expands to more than {MAX_STEPS} steps")
+                    walk(target.routines[routine], module, speed, group or groups)
         return speed
 
-    walk(program.instructions, program.name, MAX_SPEED_PERCENT, None, 0)
+    walk(program.instructions, program.name, MAX_SPEED_PERCENT, None)
     return tuple(steps)
 
 

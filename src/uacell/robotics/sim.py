@@ -26,7 +26,7 @@ from uacell.robotics.equipment import (
     RunOutcome,
     StopMode,
 )
-from uacell.robotics.program import Kind, Program, ProgramError, Step, expand
+from uacell.robotics.program import DEFAULT_LIMITS, Kind, Program, ProgramError, ProgramLimits, Step, expand
 
 log = logging.getLogger(__name__)
 
@@ -96,6 +96,7 @@ class SimulatedRobot:
         home: Sequence[float] | None = None,
         clock: Callable[[], float] | None = None,
         sleep: Callable[[float], Awaitable[None]] | None = None,
+        program_limits: ProgramLimits = DEFAULT_LIMITS,
     ) -> None:
         """``clock`` (seconds) and ``sleep`` default to the event loop's; tests inject a virtual pair
         (``clock`` must advance by what ``sleep`` waits) so that nothing depends on wall time."""
@@ -104,6 +105,7 @@ class SimulatedRobot:
         self.time_scale = time_scale
         self._clock = clock
         self._sleep_for = sleep or asyncio.sleep
+        self.program_limits = program_limits
         self.power_up_time = power_up_time
         self.power_down_time = power_down_time
         self._axes = tuple(axes)
@@ -248,13 +250,16 @@ class SimulatedRobot:
             # Raised between the Start and this run's first step: raise_alarm saw no running task.
             t.stop = None
             raise AlarmStop(f"alarm {', '.join(self.active_alarms)} is active")
-        try:
-            steps = expand(t.program, t.modules or {})
-        except ProgramError as e:
-            t.stop = None
-            raise EquipmentError(f"{t.program.name}: {e}") from e
+        program = t.program
         t.running, t.alarm, t.wake = True, None, asyncio.Event()
         try:
+            # Off the event loop: expansion is bounded by program_limits but may take a moment.
+            try:
+                steps = await asyncio.to_thread(expand, program, dict(t.modules or {}), self.program_limits)
+            except ProgramError as e:
+                raise EquipmentError(f"{program.name}: {e}") from e
+            if t.alarm:  # raised while expanding
+                raise AlarmStop(f"alarm {t.alarm} is active")
             return await self._run(t, steps, pointer if 0 <= pointer < len(steps) else 0, mode, progress)
         finally:
             t.running, t.wake, t.stop = False, None, None
@@ -266,6 +271,8 @@ class SimulatedRobot:
             step = steps[i]
             progress(i, step.line)
             finished = await self._execute(t, step)
+            # A step may take no time at all (wait 0, a move to where the arm is): let others run.
+            await asyncio.sleep(0)
             if t.alarm:
                 raise AlarmStop(f"alarm {t.alarm} stopped the robot at line {step.line} of {step.origin}")
             if not finished:  # QuickStop / OnPath cut the instruction: resume redoes it

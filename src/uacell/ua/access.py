@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextvars
 import logging
 from typing import Any
 
@@ -12,6 +13,12 @@ from uacell.ua.context import UacellUser
 from uacell.users import UserStore
 
 log = logging.getLogger(__name__)
+
+#: (user name, password, role or None) checked for the ActivateSession under way, so that ``get_user``
+#: (which asyncua calls synchronously on the event loop) need not hash the password again.
+verified_login: contextvars.ContextVar[tuple[str, str, Role | None] | None] = contextvars.ContextVar(
+    "uacell_verified_login", default=None
+)
 
 
 class UacellUserManager:
@@ -26,7 +33,11 @@ class UacellUserManager:
     ) -> UacellUser | None:
         if username is None:
             return UacellUser(None, self.policy.anonymous_role.label, anonymous=True)
-        role = self.users.verify(username, password or "")
+        checked = verified_login.get()
+        if checked is not None and checked[:2] == (username, password or ""):
+            role = checked[2]
+        else:
+            role = self.users.verify(username, password or "")
         if role is None:
             log.warning("refused login of user %r: wrong user name or password", username)
             return None

@@ -14,8 +14,9 @@ For each call it answers, in this order:
 
 A method uacell does not bind answers ``Bad_MethodInvalid`` unless it is a component of the object
 (or of its type); one that is answers ``Bad_NotImplemented`` when nobody implements it, and otherwise
-goes to asyncua's callback only for an ``admin`` caller (the role table denies by default), with the
-same ``Bad_InternalError`` guarantee. Once the server is closing, calls answer ``Bad_Shutdown``.
+goes to asyncua's callback (e.g. ConditionRefresh) after the same argument checks and only for a
+caller the role table allows (admin by default), with the same ``Bad_InternalError`` guarantee. Once
+the server is closing, calls answer ``Bad_Shutdown``.
 """
 
 from __future__ import annotations
@@ -269,6 +270,11 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
             if method.call is None:
                 return _result(ua.StatusCodes.BadNotImplemented)
             name = method.attributes[_A.BrowseName].value.Value.Value.Name
+            refused = self._check_arguments(
+                list(request.InputArguments or []), self.arguments(request.MethodId, "InputArguments")
+            )
+            if refused is not None:
+                return refused
             if not may_call(Role.parse(caller.role), name, self._type_hint(request.ObjectId)):
                 return _result(ua.StatusCodes.BadUserAccessDenied)  # not in the table: admin only
             result = await super()._call(request)
@@ -278,6 +284,17 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         except Exception:
             log.exception("call of %s on %s failed unexpectedly", request.MethodId, request.ObjectId)
             return _result(ua.StatusCodes.BadInternalError)
+
+    def _check_arguments(self, args: list[ua.Variant], inputs: list[ua.Argument]) -> ua.CallMethodResult | None:
+        """The refusal for arguments that do not match ``inputs`` (count, then types), or None."""
+        if len(args) < len(inputs):
+            return _result(ua.StatusCodes.BadArgumentsMissing)
+        if len(args) > len(inputs):
+            return _result(ua.StatusCodes.BadTooManyArguments)
+        checks = [self.types.check(v, a) for v, a in zip(args, inputs, strict=True)]
+        if any(not c.is_good() for c in checks):
+            return _result(ua.StatusCodes.BadTypeMismatch, checks)
+        return None
 
     async def close(self, timeout: float = 5.0) -> None:
         """Refuse new calls (Bad_Shutdown) and wait, up to ``timeout`` s, for those under way."""
@@ -295,13 +312,9 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
             return _result(code)
         args = list(request.InputArguments or [])
         n = len(bound.inputs)
-        if len(args) < n:
-            return _result(ua.StatusCodes.BadArgumentsMissing)
-        if len(args) > n:
-            return _result(ua.StatusCodes.BadTooManyArguments)
-        checks = [self.types.check(v, a) for v, a in zip(args, bound.inputs, strict=True)]
-        if any(not c.is_good() for c in checks):
-            return _result(ua.StatusCodes.BadTypeMismatch, checks)
+        refused = self._check_arguments(args, bound.inputs)
+        if refused is not None:
+            return refused
         values = [v.Value for v in args]
         mode = values[bound.file_mode_argument] if bound.file_mode_argument is not None else None
         if not may_call(Role.parse(caller.role), bound.name, bound.family, file_mode=mode):

@@ -10,6 +10,10 @@ Writes never touch the real file before Close: a write handle works on a private
 the same directory, and Close replaces the file atomically and durably (fsync, rename, fsync of the
 directory). A crash or a dropped session leaves the old content. Temporary files are hidden from
 listings and removed when the store starts.
+
+Bounded: a ``HandlePool`` (shared by every store of a server) caps open handles per session and in
+all, and ``max_bytes`` caps what the directory holds (each entry counts ``ENTRY_BYTES`` on top of its
+size; content being written counts as soon as it is written). Both refuse with Bad_ResourceUnavailable.
 """
 
 from __future__ import annotations
@@ -40,6 +44,45 @@ TEMP_PREFIX = ".uacell-tmp-"
 
 _MAX_NAME_BYTES = 255  # NAME_MAX on the file systems uacell runs on
 _MAX_HANDLE = 0xFFFFFFFF  # handles are UInt32; 0 means "no handle" in CreateFile
+#: What each file or directory costs on top of its content, for ``max_bytes``: many empty files fill it too.
+ENTRY_BYTES = 512
+
+
+class HandlePool:
+    """Open file handles: at most ``per_session`` for one session and ``total`` over all sessions.
+
+    One pool serves every ``FileStore`` of a server, so the limits hold server-wide.
+    """
+
+    def __init__(self, per_session: int = 16, total: int = 128) -> None:
+        if per_session < 1 or total < 1:
+            raise ValueError("handle limits must be positive")
+        self.per_session, self.total = per_session, total
+        self._open: dict[Hashable, int] = {}
+        self._lock = threading.Lock()
+
+    @property
+    def in_use(self) -> int:
+        with self._lock:
+            return sum(self._open.values())
+
+    def take(self, session: Hashable) -> None:
+        """Count one more handle for ``session``; Bad_ResourceUnavailable beyond a limit."""
+        with self._lock:
+            mine = self._open.get(session, 0)
+            if mine >= self.per_session:
+                _refuse("BadResourceUnavailable", f"a session may hold at most {self.per_session} open files")
+            if sum(self._open.values()) >= self.total:
+                _refuse("BadResourceUnavailable", f"the server holds {self.total} open files, its limit")
+            self._open[session] = mine + 1
+
+    def give(self, session: Hashable) -> None:
+        with self._lock:
+            left = self._open.get(session, 0) - 1
+            if left > 0:
+                self._open[session] = left
+            else:
+                self._open.pop(session, None)
 
 
 @dataclass(frozen=True)
@@ -77,6 +120,7 @@ class _Handle:
     file: BinaryIO
     position: int
     temp: Path | None  # write handles only: the private copy that Close commits
+    base: int = 0  # write handles: the file's committed size when opened (what the copy may grow from)
 
     @property
     def readable(self) -> bool:
@@ -117,13 +161,24 @@ class FileStore:
     moved or opened for writing. ``listeners`` receive a ``Change`` after every visible change.
     """
 
-    def __init__(self, root: Path, *, protect: Protect | None = None, max_read: int = 1 << 20) -> None:
+    def __init__(
+        self,
+        root: Path,
+        *,
+        protect: Protect | None = None,
+        max_read: int = 1 << 20,
+        max_bytes: int | None = None,
+        handles: HandlePool | None = None,
+    ) -> None:
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
         self._real_root = Path(os.path.realpath(self.root))
         self.protect: Protect | None = protect
         self.listeners: list[Listener] = []
         self.max_read = max_read
+        self.max_bytes = max_bytes
+        self.handles = handles if handles is not None else HandlePool()
+        self._usage: int | None = None  # committed bytes (see ENTRY_BYTES), None: walk to know
         self._handles: dict[int, _Handle] = {}
         self._next_handle = 1
         self._lock = threading.RLock()
@@ -167,17 +222,20 @@ class FileStore:
                 _refuse("BadNotReadable", f"{relpath} is open for writing")
             if mode & MODE_READ and not os.access(path, os.R_OK):
                 _refuse("BadNotReadable", f"{relpath} cannot be read")
+            self.handles.take(session)
             try:
+                base = path.stat().st_size
                 if mode & MODE_WRITE:
                     file, temp = self._private_copy(path, erase=bool(mode & MODE_ERASE_EXISTING))
                 else:
                     file, temp = open(path, "rb"), None
             except OSError as exc:
-                logger.exception("cannot open %s", relpath)
+                self.handles.give(session)
+                logger.error("cannot open %s: %s", relpath, exc)
                 _refuse("BadUnexpectedError", f"cannot open {relpath}: {exc.strerror}")
             position = os.fstat(file.fileno()).st_size if mode & MODE_APPEND else 0
             handle = self._new_handle()
-            self._handles[handle] = _Handle(session, relpath, mode, file, position, temp)
+            self._handles[handle] = _Handle(session, relpath, mode, file, position, temp, base)
             logger.debug("open %s mode %d -> handle %d", relpath, mode, handle)
             self._emit("changed", relpath, False)
             return handle
@@ -210,6 +268,8 @@ class FileStore:
                 _refuse("BadNotWritable", f"{h.relpath} is in use and cannot be written")
             if not data:
                 return
+            size = os.fstat(h.file.fileno()).st_size
+            self._check_room(max(0, h.position + len(data) - size))
             try:
                 h.file.seek(h.position)
                 h.file.write(data)
@@ -240,6 +300,7 @@ class FileStore:
         with self._lock:
             h = self._handle(session, handle)
             del self._handles[handle]
+            self.handles.give(session)
             try:
                 if h.temp is None:
                     h.file.close()
@@ -257,6 +318,7 @@ class FileStore:
             mine = [n for n, h in self._handles.items() if h.session == session]
             for n in mine:
                 h = self._handles.pop(n)
+                self.handles.give(session)
                 self._discard(h)
                 self._emit("changed", h.relpath, False)
             if mine:
@@ -281,6 +343,7 @@ class FileStore:
             path = parent / name
             if os.path.lexists(path):
                 _refuse("BadBrowseNameDuplicated", f"{name} already exists", argument=0)
+            self._check_room(ENTRY_BYTES)
             try:
                 fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
                 try:
@@ -294,6 +357,7 @@ class FileStore:
                 logger.exception("cannot create %s", path)
                 _refuse("BadUnexpectedError", f"cannot create {name}: {exc.strerror}")
             relpath = self._rel(path)
+            self._grew(ENTRY_BYTES)
             logger.info("created file %s", relpath)
             self._emit("added", relpath, False)
             handle = self.open(session, relpath, MODE_READ | MODE_WRITE) if request_file_open else None
@@ -307,6 +371,7 @@ class FileStore:
             path = parent / name
             if os.path.lexists(path):
                 _refuse("BadBrowseNameDuplicated", f"{name} already exists", argument=0)
+            self._check_room(ENTRY_BYTES)
             try:
                 path.mkdir()
                 _fsync_dir(parent)
@@ -316,6 +381,7 @@ class FileStore:
                 logger.exception("cannot create directory %s", path)
                 _refuse("BadUnexpectedError", f"cannot create {name}: {exc.strerror}")
             relpath = self._rel(path)
+            self._grew(ENTRY_BYTES)
             logger.info("created directory %s", relpath)
             self._emit("added", relpath, True)
             return relpath
@@ -342,6 +408,7 @@ class FileStore:
             except OSError as exc:
                 logger.exception("cannot delete %s", relpath)
                 _refuse("BadUnexpectedError", f"cannot delete {relpath}: {exc.strerror}")
+            self._usage = None
             logger.info("deleted %s", relpath)
             for e in reversed(gone):
                 self._emit("removed", e.relpath, e.is_dir)
@@ -368,6 +435,8 @@ class FileStore:
             if src.is_dir() and dest_rel.startswith(src_rel + "/"):
                 _refuse("BadInvalidArgument", "a directory cannot go inside itself", argument=1)
             gone = [] if create_copy else [self._entry(src), *(self._entry(p) for p in self._walk(src))]
+            if create_copy:
+                self._check_room(self._size_of(src))
             try:
                 if create_copy:
                     self._copy(src, dest)
@@ -379,6 +448,7 @@ class FileStore:
             except OSError as exc:
                 logger.exception("cannot %s %s", "copy" if create_copy else "move", src_rel)
                 _refuse("BadUnexpectedError", f"cannot move or copy {src_rel}: {exc.strerror}")
+            self._usage = None
             logger.info("%s %s -> %s", "copied" if create_copy else "moved", src_rel, dest_rel)
             for e in reversed(gone):
                 self._emit("removed", e.relpath, e.is_dir)
@@ -388,6 +458,37 @@ class FileStore:
             return dest_rel
 
     # ------------------------------------------------------------------ internals
+
+    def usage(self) -> int:
+        """Bytes the directory holds as ``max_bytes`` counts them (committed content, ENTRY_BYTES each)."""
+        with self._lock:
+            if self._usage is None:
+                self._usage = sum(self._size_of(p, walk=False) for p in self._walk(self.root))
+            return self._usage
+
+    def _size_of(self, path: Path, *, walk: bool = True) -> int:
+        paths = [path, *self._walk(path)] if walk else [path]
+        total = 0
+        for p in paths:
+            with contextlib.suppress(OSError):
+                total += ENTRY_BYTES + (0 if p.is_dir() else p.stat().st_size)
+        return total
+
+    def _grew(self, size: int) -> None:
+        if self._usage is not None:
+            self._usage += size
+
+    def _check_room(self, extra: int) -> None:
+        """Bad_ResourceUnavailable if ``extra`` more bytes (on top of uncommitted writes) exceed max_bytes."""
+        if self.max_bytes is None or extra <= 0:
+            return
+        pending = 0
+        for h in self._handles.values():
+            if h.temp is not None:
+                with contextlib.suppress(OSError):
+                    pending += max(0, os.fstat(h.file.fileno()).st_size - h.base)
+        if self.usage() + pending + extra > self.max_bytes:
+            _refuse("BadResourceUnavailable", f"the directory would hold more than {self.max_bytes} bytes")
 
     def _emit(self, kind: Literal["added", "removed", "changed"], relpath: str, is_dir: bool) -> None:
         change = Change(kind, relpath, is_dir)
@@ -522,6 +623,7 @@ class FileStore:
             h.file.close()
             os.replace(h.temp, target)
             _fsync_dir(target.parent)
+            self._usage = None
         except OSError as exc:
             logger.exception("cannot commit %s; the old content is kept", h.relpath)
             self._discard(h)

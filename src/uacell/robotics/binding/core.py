@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Awaitable, Callable
 from pathlib import Path
@@ -19,6 +20,8 @@ from uacell.robotics.companion import CONTROLLER, MOTION_DEVICE, TASK_CONTROL_PA
 from uacell.robotics.config import ControllerSpec, MotionDeviceSpec, RobotConfig, TaskControlSpec
 from uacell.robotics.equipment import AxisInfo, RobotEquipment, StopMode
 from uacell.robotics.model import RobotCell, RoboticsTables, TaskControl
+from uacell.robotics.program import ProgramLimits
+from uacell.robotics.sim import SimulatedRobot
 from uacell.roles import Family
 from uacell.ua.file_store import FileStore
 from uacell.ua.state_machine import bind_tree
@@ -169,6 +172,11 @@ def executable(model: Any, machine: str, method: str) -> Callable[[], bool]:
 
 
 # --- the binder ------------------------------------------------------------------------------------
+def program_limits(cfg: Any) -> ProgramLimits:
+    """The ``[programs]`` section as ``ProgramLimits``."""
+    return ProgramLimits(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(ProgramLimits)})
+
+
 SIMULATOR = "uacell.robotics.sim:simulator"
 
 
@@ -221,16 +229,22 @@ async def bind_controller(app: UacellServer, controller: BuiltPart, tables: Robo
     axes = tuple(arm.part.spec.axes) if arm is not None and isinstance(arm.part.spec, MotionDeviceSpec) else ()
     spec = controller.part.spec if isinstance(controller.part.spec, ControllerSpec) else None
     equipment = await make_controller_equipment(app, controller, axes)
+    bounds = program_limits(app.config.programs)
+    if isinstance(equipment, SimulatedRobot):
+        equipment.program_limits = bounds  # the simulator expands programs within the same bounds
     root = programs_root(app.data_dir, controller.path)
     robots = sorted({c.path.partition(".Controllers.")[0] for c in app.cell.by_role(CONTROLLER)})
     if controller is app.cell.by_role(CONTROLLER)[0]:
         adopt_legacy_programs(root.parent.parent, root, robots)
     install_samples(root, equipment.axes)
-    store = FileStore(root)
+    store = FileStore(root, max_bytes=app.config.programs.max_folder_bytes, handles=app.file_handles)
+    library = StoreLibrary(store)
+    library.max_bytes = bounds.max_file_bytes
     cell = RobotCell(
         equipment,
-        StoreLibrary(store),
+        library,
         tables=tables,
+        bounds=bounds,
         task_names=[t.part.name for t in tasks],
         motion_devices=[arm.part.name] if arm else (),
         possible_stop_modes=spec.possible_stop_modes if spec else tuple(StopMode),

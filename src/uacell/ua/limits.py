@@ -1,0 +1,403 @@
+"""What clients may hold and send: connections, sessions, subscriptions, monitored items, messages.
+
+``install_limits(app)`` applies the ``[limits]`` configuration (docs/security.md, "Limits") to one
+asyncua server before it listens:
+
+- **descriptors**: the soft RLIMIT_NOFILE is raised to the hard one; connections and open files are
+  kept below it with ``FD_RESERVE`` descriptors to spare, so the listening socket, durable saves and
+  the log never starve (the connection limit is lowered, with a warning, when the system allows less);
+- **transport**: the chunk size the server acknowledges (at least 8192 bytes, OPC 10000-6), and the
+  maximum message size and chunk count it enforces on requests (Bad_RequestTooLarge); a chunk whose
+  declared size exceeds what was negotiated (before a Hello: ``PRE_HELLO_BYTES``, and only a Hello is
+  accepted first) closes the connection at once, before anything of it is buffered;
+  ``pending_chunks_per_connection`` and ``pending_bytes_per_connection`` bound what waits behind a
+  busy connection (beyond them it is closed). The Acknowledge
+  announces no message-size or chunk-count limit (0): asyncua clients apply the limits a server
+  announces to the *responses* they receive, so announcing the request limit would make them drop any
+  large response (a Browse of all DataTypes, say);
+- **connections** beyond the limit are closed as soon as they are accepted;
+- a request whose body cannot be decoded (a malformed ExtensionObject, invalid UTF-8, a truncated
+  array) answers ``Bad_DecodingError`` with one INFO line, instead of asyncua's Bad_InternalError and
+  traceback;
+- **sessions** (Bad_TooManySessions), **subscriptions** per session and in all
+  (Bad_TooManySubscriptions), **monitored items** per subscription and in all
+  (Bad_TooManyMonitoredItems, per item), **operations per request** (Bad_TooManyOperations, before
+  any is carried out; published in ServerCapabilities/OperationLimits), through ``LimitedSession``,
+  which uacell's session class inherits.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import resource
+import struct
+from typing import TYPE_CHECKING, Any, cast
+
+from asyncua import ua
+from asyncua.common.connection import TransportLimits
+from asyncua.common.utils import Buffer, ServiceError
+from asyncua.server.binary_server_asyncio import OPCUAProtocol
+from asyncua.server.internal_session import InternalSession
+from asyncua.server.uaprocessor import UaProcessor
+from asyncua.ua.ua_binary import struct_from_binary
+
+if TYPE_CHECKING:
+    from uacell.config import LimitsConfig
+
+log = logging.getLogger(__name__)
+
+#: Descriptors kept free for the listening socket, files the server writes, logs and libraries.
+FD_RESERVE = 64
+#: The largest first message accepted: a Hello (its EndpointUrl is at most 4096 bytes) and some room.
+PRE_HELLO_BYTES = 8192
+_HEADER = struct.Struct("<3scI")  # MessageType, ChunkType, MessageSize (OPC 10000-6 7.1.2.2)
+
+
+@dataclasses.dataclass
+class ServerLimits:
+    """The limits in force (after the descriptor check) and the sessions they count."""
+
+    connections: int
+    sessions: int
+    subscriptions_per_session: int
+    subscriptions: int
+    monitored_items_per_subscription: int
+    monitored_items: int
+    max_chunk_size: int
+    max_message_size: int
+    pending_chunks_per_connection: int
+    pending_bytes_per_connection: int
+    operations_per_request: int
+    live_sessions: set[int] = dataclasses.field(default_factory=set)
+
+    @classmethod
+    def from_config(cls, cfg: LimitsConfig) -> ServerLimits:
+        names = {f.name for f in dataclasses.fields(cls)} - {"live_sessions"}
+        return cls(**{n: getattr(cfg, n) for n in names})
+
+    @property
+    def max_chunk_count(self) -> int:
+        return math.ceil(self.max_message_size / self.max_chunk_size)
+
+
+def raise_descriptor_limit(wanted: int) -> int:
+    """Raise the soft RLIMIT_NOFILE towards the hard one (at least ``wanted`` if allowed); the new soft limit."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    target = hard if hard != resource.RLIM_INFINITY else max(soft, wanted, 65536)
+    if target > soft:
+        try:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (target, hard))
+            soft = target
+        except (ValueError, OSError) as exc:  # e.g. a hard limit the kernel caps lower (nr_open)
+            log.warning("cannot raise the open-file limit from %d to %d: %s", soft, target, exc)
+    return soft
+
+
+def fit_descriptors(limits: ServerLimits, file_handles: int, soft: int) -> None:
+    """Lower ``limits.connections`` so that connections + file handles + FD_RESERVE fit in ``soft``."""
+    room = soft - file_handles - FD_RESERVE
+    if limits.connections > room:
+        fitted = max(1, room)
+        log.warning(
+            "open-file limit %d leaves room for %d connections (configured %d): lowering the limit",
+            soft,
+            fitted,
+            limits.connections,
+        )
+        limits.connections = fitted
+
+
+def install_limits(app: Any) -> ServerLimits:
+    """Apply ``app.config.limits`` to ``app.server`` (call before the server starts listening)."""
+    cfg = app.config.limits
+    limits = ServerLimits.from_config(cfg)
+    soft = raise_descriptor_limit(limits.connections + cfg.file_handles + FD_RESERVE)
+    fit_descriptors(limits, cfg.file_handles, soft)
+    server = app.server
+    iserver = server.iserver
+    iserver._uacell_limits = limits
+    iserver.max_connections = limits.connections
+    iserver.max_subscriptions = limits.subscriptions
+    iserver.max_pending_messages_per_connection = limits.pending_chunks_per_connection
+    server.limits = ServerTransportLimits(
+        max_recv_buffer=limits.max_chunk_size,
+        max_send_buffer=limits.max_chunk_size,
+        max_chunk_count=limits.max_chunk_count,
+        max_message_size=limits.max_message_size,
+    )
+    _install_protocol_guard()
+    _install_decoding_guard()
+    _demote_expected_refusals()
+    log.info(
+        "limits: %d connections, %d sessions, %d subscriptions, %d monitored items, requests up to %d bytes "
+        "in chunks of %d; open-file limit %d",
+        limits.connections,
+        limits.sessions,
+        limits.subscriptions,
+        limits.monitored_items,
+        limits.max_message_size,
+        limits.max_chunk_size,
+        soft,
+    )
+    return limits
+
+
+def _limits_of(iserver: Any) -> ServerLimits | None:
+    return getattr(iserver, "_uacell_limits", None)
+
+
+# --- transport -------------------------------------------------------------------------------------
+MIN_BUFFER = 8192  # the smallest chunk OPC 10000-6 allows
+
+
+class ServerTransportLimits(TransportLimits):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
+    """One connection's limits (asyncua copies the server's per connection): the chunk sizes follow
+    the Hello; the message size and chunk count stay the server's, enforced, and are announced as 0."""
+
+    max_recv_buffer: int
+    max_send_buffer: int
+
+    def create_acknowledge_and_set_limits(self, msg: ua.Hello) -> ua.Acknowledge:
+        ack = ua.Acknowledge()
+        # asyncua's reading of the fields, which its clients share: ReceiveBufferSize is what the
+        # server sends in, SendBufferSize what it receives in. Never below the minimum chunk.
+        ack.ReceiveBufferSize = max(MIN_BUFFER, min(msg.ReceiveBufferSize, self.max_send_buffer))
+        ack.SendBufferSize = max(MIN_BUFFER, min(msg.SendBufferSize, self.max_recv_buffer))
+        ack.MaxMessageSize = 0
+        ack.MaxChunkCount = 0
+        self.max_send_buffer = ack.ReceiveBufferSize
+        self.max_recv_buffer = ack.SendBufferSize
+        return ack
+
+
+def _refuse_chunk(protocol: OPCUAProtocol, reason: str) -> None:
+    log.warning("closing connection from %s: %s", protocol.peer_name, reason)
+    protocol._buffer = b""
+    if protocol.transport is not None:
+        protocol.transport.abort()
+
+
+def _install_protocol_guard() -> None:
+    """Check each chunk's declared size before asyncua buffers it (asyncua buffers whatever is declared)."""
+    if getattr(OPCUAProtocol, "_uacell_guarded", False):
+        return
+    original = OPCUAProtocol.data_received
+
+    def data_received(self: OPCUAProtocol, data: bytes) -> None:
+        limits = _limits_of(self.iserver)
+        if limits is None or self.processor is None:
+            original(self, data)
+            return
+        pending = self._buffer + data
+        self._buffer = b""
+        while pending:
+            if len(pending) < _HEADER.size:
+                self._buffer = pending
+                return
+            kind, _, size = _HEADER.unpack_from(pending)
+            hello_seen = getattr(self, "_uacell_hello", False)
+            if not hello_seen:
+                if kind != b"HEL":
+                    _refuse_chunk(self, f"first message is {kind!r}, not a Hello")
+                    return
+                allowed = PRE_HELLO_BYTES
+            else:
+                # The negotiated receive buffer (the configured one until the Hello is processed).
+                allowed = min(self.processor._limits.max_recv_buffer, limits.max_chunk_size)
+            if size > allowed or size < _HEADER.size:
+                _refuse_chunk(self, f"a {kind!r} chunk declares {size} bytes (at most {allowed} accepted)")
+                return
+            if len(pending) < size:
+                self._buffer = pending
+                return
+            if kind == b"HEL":
+                self._uacell_hello = True
+            queued = sum(len(item[1]) for item in self.messages._queue if item[1] is not None)
+            if queued + size > limits.pending_bytes_per_connection:
+                _refuse_chunk(self, f"{queued} bytes wait unprocessed (at most {limits.pending_bytes_per_connection})")
+                return
+            # One complete chunk: asyncua parses and queues it (and closes on a full queue).
+            original(self, pending[:size])
+            if self.transport is None or self.transport.is_closing():
+                self._buffer = b""
+                return
+            self._buffer = b""
+            pending = pending[size:]
+
+    OPCUAProtocol.data_received = data_received
+    OPCUAProtocol._uacell_guarded = True
+
+
+class _ExpectedRefusals(logging.Filter):
+    """asyncua logs a request over the message limits as an ERROR; it is the client's doing, so uacell
+    says it at INFO instead (asyncua's echo of every service fault is dropped by ``uacell.security``)."""
+
+    PREFIXES = ("Message size:", "Number of message chunks:")
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno >= logging.ERROR and not record.exc_info and str(record.msg).startswith(self.PREFIXES):
+            log.info("refused a request: %s", record.getMessage())
+            return False
+        return True
+
+
+def _demote_expected_refusals() -> None:
+    logger = logging.getLogger("asyncua.uaprotocol")
+    if not any(isinstance(f, _ExpectedRefusals) for f in logger.filters):
+        logger.addFilter(_ExpectedRefusals())
+
+
+def _install_decoding_guard() -> None:
+    """Answer a request asyncua cannot decode with Bad_DecodingError (asyncua: Bad_InternalError)."""
+    if getattr(UaProcessor, "_uacell_decoding_guarded", False):
+        return
+    original = UaProcessor._process_message
+
+    async def _process_message(self: UaProcessor, typeid: Any, requesthdr: Any, seqhdr: Any, body: Buffer) -> Any:
+        try:
+            return await original(self, typeid, requesthdr, seqhdr, body)
+        except (ServiceError, ua.UaStatusCodeError):
+            raise
+        except Exception as exc:
+            if _decodes(typeid, body):
+                raise  # not the request's fault: asyncua answers Bad_InternalError and logs it
+            log.info("a request from %s cannot be decoded (%s): Bad_DecodingError", self.name, exc)
+            raise ServiceError(ua.StatusCodes.BadDecodingError) from None
+
+    UaProcessor._process_message = _process_message
+    UaProcessor._uacell_decoding_guarded = True
+
+
+def _decodes(typeid: Any, body: Buffer) -> bool:
+    """Does the whole request (from its TypeId on) decode? Decided again only when a request failed."""
+    cls = ua.extension_objects_by_typeid.get(typeid)
+    if cls is None:
+        return False
+    try:
+        struct_from_binary(cls, Buffer(body._data))
+    except Exception:
+        return False
+    return True
+
+
+# --- sessions, subscriptions, monitored items, operations ------------------------------------------------
+#: ServerCapabilities/OperationLimits properties that ``operations_per_request`` sets.
+_OPERATION_LIMITS = (
+    ua.ObjectIds.Server_ServerCapabilities_OperationLimits_MaxNodesPerRead,
+    ua.ObjectIds.Server_ServerCapabilities_OperationLimits_MaxNodesPerWrite,
+    ua.ObjectIds.Server_ServerCapabilities_OperationLimits_MaxNodesPerMethodCall,
+    ua.ObjectIds.Server_ServerCapabilities_OperationLimits_MaxNodesPerBrowse,
+    ua.ObjectIds.Server_ServerCapabilities_OperationLimits_MaxNodesPerRegisterNodes,
+    ua.ObjectIds.Server_ServerCapabilities_OperationLimits_MaxNodesPerTranslateBrowsePathsToNodeIds,
+    ua.ObjectIds.Server_ServerCapabilities_OperationLimits_MaxMonitoredItemsPerCall,
+    ua.ObjectIds.Server_ServerCapabilities_OperationLimits_MaxNodesPerHistoryReadData,
+    ua.ObjectIds.Server_ServerCapabilities_OperationLimits_MaxNodesPerHistoryReadEvents,
+)
+
+
+async def publish_operation_limits(server: Any, limits: ServerLimits) -> None:
+    """Write ``operations_per_request`` into ServerCapabilities/OperationLimits (where the nodes exist)."""
+    for ident in _OPERATION_LIMITS:
+        node = server.get_node(ua.NodeId(ident))
+        try:
+            await node.write_value(ua.Variant(limits.operations_per_request, ua.VariantType.UInt32))
+        except ua.UaError:
+            log.debug("no OperationLimits node %s", ident)
+
+
+def _check_operations(iserver: Any, count: int, service: str) -> None:
+    limits = _limits_of(iserver)
+    if limits is not None and count > limits.operations_per_request:
+        log.info("refused %s of %d operations (at most %d)", service, count, limits.operations_per_request)
+        raise ServiceError(ua.StatusCodes.BadTooManyOperations)
+
+
+class LimitedSession(InternalSession):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
+    """A session counted against ``[limits]``; subscriptions, monitored items and operations too."""
+
+    async def read(self, params: ua.ReadParameters) -> list[ua.DataValue]:
+        _check_operations(self.iserver, len(params.NodesToRead or ()), "Read")
+        return cast("list[ua.DataValue]", await super().read(params))
+
+    async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
+        _check_operations(self.iserver, len(params.NodesToWrite or ()), "Write")
+        return cast("list[ua.StatusCode]", await super().write(params))
+
+    async def browse(self, params: ua.BrowseParameters) -> list[ua.BrowseResult]:
+        _check_operations(self.iserver, len(params.NodesToBrowse or ()), "Browse")
+        return cast("list[ua.BrowseResult]", await super().browse(params))
+
+    async def call(self, params: list[ua.CallMethodRequest]) -> list[ua.CallMethodResult]:
+        _check_operations(self.iserver, len(params or ()), "Call")
+        return cast("list[ua.CallMethodResult]", await super().call(params))
+
+    async def translate_browsepaths_to_nodeids(self, params: list[ua.BrowsePath]) -> list[ua.BrowsePathResult]:
+        _check_operations(self.iserver, len(params or ()), "TranslateBrowsePathsToNodeIds")
+        return cast("list[ua.BrowsePathResult]", await super().translate_browsepaths_to_nodeids(params))
+
+    async def register_nodes(self, nodes: list[ua.NodeId]) -> list[ua.NodeId]:
+        _check_operations(self.iserver, len(nodes or ()), "RegisterNodes")
+        return cast("list[ua.NodeId]", await super().register_nodes(nodes))
+
+    async def history_read(self, params: ua.HistoryReadParameters) -> list[ua.HistoryReadResult]:
+        _check_operations(self.iserver, len(params.NodesToRead or ()), "HistoryRead")
+        return cast("list[ua.HistoryReadResult]", await super().history_read(params))
+
+    async def create_session(self, params: ua.CreateSessionParameters, sockname: Any = None) -> Any:
+        limits = _limits_of(self.iserver)
+        if limits is not None:
+            if len(limits.live_sessions) >= limits.sessions:
+                log.warning("refused a session: %d sessions is the limit", limits.sessions)
+                raise ServiceError(ua.StatusCodes.BadTooManySessions)
+            limits.live_sessions.add(id(self))
+        try:
+            return await super().create_session(params, sockname=sockname)
+        except BaseException:
+            if limits is not None:
+                limits.live_sessions.discard(id(self))
+            raise
+
+    async def close_session(self, delete_subs: bool = True) -> None:
+        limits = _limits_of(self.iserver)
+        try:
+            await super().close_session(delete_subs)
+        finally:
+            if limits is not None:
+                limits.live_sessions.discard(id(self))
+
+    def _own_subscriptions(self) -> list[Any]:
+        subs = self.subscription_service.subscriptions.values()
+        return [s for s in subs if getattr(s, "session_id", None) == self.session_id]
+
+    async def create_subscription(
+        self, params: ua.CreateSubscriptionParameters, callback: Any, request_callback: Any = None
+    ) -> ua.CreateSubscriptionResult:
+        limits = _limits_of(self.iserver)
+        if limits is not None and len(self._own_subscriptions()) >= limits.subscriptions_per_session:
+            log.info("refused a subscription: %d per session is the limit", limits.subscriptions_per_session)
+            raise ServiceError(ua.StatusCodes.BadTooManySubscriptions)
+        return await super().create_subscription(params, callback, request_callback=request_callback)
+
+    async def create_monitored_items(
+        self, params: ua.CreateMonitoredItemsParameters
+    ) -> list[ua.MonitoredItemCreateResult]:
+        _check_operations(self.iserver, len(params.ItemsToCreate or ()), "CreateMonitoredItems")
+        limits = _limits_of(self.iserver)
+        sub = self.subscription_service.subscriptions.get(params.SubscriptionId)
+        items = list(params.ItemsToCreate or [])
+        room = len(items)
+        if limits is not None and sub is not None:
+            subscriptions = self.subscription_service.subscriptions.values()
+            in_sub = len(sub.monitored_item_srv._monitored_items)
+            in_all = sum(len(s.monitored_item_srv._monitored_items) for s in subscriptions)
+            room = max(0, min(limits.monitored_items_per_subscription - in_sub, limits.monitored_items - in_all))
+        if len(items) <= room:
+            return cast("list[ua.MonitoredItemCreateResult]", await super().create_monitored_items(params))
+        log.info("refused %d monitored item(s): limit reached", len(items) - room)
+        created: list[ua.MonitoredItemCreateResult] = []
+        if room:
+            created = await super().create_monitored_items(dataclasses.replace(params, ItemsToCreate=items[:room]))
+        refused = ua.MonitoredItemCreateResult(StatusCode=ua.StatusCode(ua.StatusCodes.BadTooManyMonitoredItems))
+        return [*created, *(dataclasses.replace(refused) for _ in items[room:])]

@@ -1,0 +1,331 @@
+"""The web HMI's HTTP side: pages, login, CSRF, server-sent events, calls (Starlette).
+
+Each browser gets a web session (a random id in an HttpOnly, SameSite=Strict cookie, Secure over
+HTTPS) that owns one ``UaSession``: anonymous until the user logs in with a name and password the
+OPC UA server checks. Every state-changing request is a POST carrying the session's CSRF token in
+the ``X-CSRF-Token`` header. Passwords travel only in POST bodies and are never logged.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import secrets
+import time
+from collections.abc import AsyncIterator
+from dataclasses import dataclass, field
+from importlib import resources
+from typing import Any
+
+from starlette.applications import Starlette
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+
+from uacell.web.uasession import CallFailed, CellCache, Credentials, UaSession, UnknownKey
+
+log = logging.getLogger(__name__)
+
+COOKIE = "uacell_session"
+IDLE_TIMEOUT = 30 * 60.0  # a web session nobody has used for this long ends (its OPC UA session too)
+HEARTBEAT = 15.0
+MAX_SESSIONS = 200  # beyond this, the longest unused web session (without a page open) ends
+MAX_UPLOAD = 1_000_000
+
+
+@dataclass
+class WebSession:
+    id: str
+    csrf: str
+    ua: UaSession | None = None
+    user: str | None = None
+    last_seen: float = field(default_factory=time.monotonic)
+    streams: int = 0
+
+
+def _static_dir() -> str:
+    return str(resources.files("uacell.web") / "static")
+
+
+class WebApp:
+    """The HMI for one OPC UA server ``url``; ``app`` is the ASGI application."""
+
+    def __init__(
+        self,
+        url: str,
+        credentials: Credentials,
+        *,
+        https: bool = False,
+        idle_timeout: float = IDLE_TIMEOUT,
+        anonymous: bool = True,
+    ) -> None:
+        self.url = url
+        self.credentials = credentials
+        # False: visitors must log in (the HMI is on the network, the OPC UA server on loopback, where
+        # the server would grant anonymous clients the rights it means for the local machine only).
+        self.anonymous = anonymous
+        self.https = https
+        self.idle_timeout = idle_timeout
+        self.sessions: dict[str, WebSession] = {}
+        self.cells = CellCache()
+        self.closing = asyncio.Event()
+        self._reaper: asyncio.Task[None] | None = None
+        self._ending: set[asyncio.Task[None]] = set()
+        static = _static_dir()
+        self.app = Starlette(
+            routes=[
+                Route("/", self.index),
+                Route("/api/session", self.session_info),
+                Route("/api/login", self.login, methods=["POST"]),
+                Route("/api/logout", self.logout, methods=["POST"]),
+                Route("/api/events", self.events),
+                Route("/api/call", self.call, methods=["POST"]),
+                Route("/api/file", self.file, methods=["POST"]),
+                Route("/api/upload", self.upload, methods=["POST"]),
+                Route("/api/delete", self.delete, methods=["POST"]),
+                Mount("/static", StaticFiles(directory=static), name="static"),
+            ]
+        )
+        self._index = f"{static}/index.html"
+
+    # sessions --------------------------------------------------------------------------------
+
+    def _new_session(self) -> WebSession:
+        idle = sorted((x for x in self.sessions.values() if x.streams == 0), key=lambda x: x.last_seen)
+        while len(self.sessions) >= MAX_SESSIONS and idle:
+            oldest = idle.pop(0)
+            self.sessions.pop(oldest.id, None)
+            task = asyncio.get_running_loop().create_task(self._end(oldest))
+            self._ending.add(task)
+            task.add_done_callback(self._ending.discard)
+        s = WebSession(secrets.token_urlsafe(32), secrets.token_urlsafe(32))
+        self.sessions[s.id] = s
+        if self._reaper is None or self._reaper.done():
+            self._reaper = asyncio.get_running_loop().create_task(self._reap())
+        return s
+
+    def _session(self, request: Request) -> WebSession | None:
+        s = self.sessions.get(request.cookies.get(COOKIE, ""))
+        if s is not None:
+            s.last_seen = time.monotonic()
+        return s
+
+    def _set_cookie(self, response: Response, s: WebSession) -> Response:
+        response.set_cookie(COOKIE, s.id, httponly=True, samesite="strict", secure=self.https, path="/")
+        return response
+
+    async def _end(self, s: WebSession) -> None:
+        self.sessions.pop(s.id, None)
+        if s.ua is not None:
+            await s.ua.close()
+            s.ua = None
+
+    async def _reap(self) -> None:
+        while self.sessions and not self.closing.is_set():
+            await asyncio.sleep(min(60.0, self.idle_timeout / 2))
+            now = time.monotonic()
+            for s in list(self.sessions.values()):
+                if s.streams == 0 and now - s.last_seen > self.idle_timeout:
+                    log.info("web session of %s ended after %.0f s unused", s.user or "anonymous", now - s.last_seen)
+                    await self._end(s)
+
+    async def close(self) -> None:
+        self.closing.set()
+        for s in list(self.sessions.values()):
+            await self._end(s)
+        if self._reaper is not None:
+            self._reaper.cancel()
+
+    async def _ua(self, s: WebSession) -> UaSession:
+        """The session's OPC UA session, made anonymously on first use."""
+        if s.ua is None:
+            ua = UaSession(self.url, self.credentials, cache=self.cells)
+            s.ua = ua
+            if s.user is None and not self.anonymous:
+                ua.status = "login-required"
+                ua.problem = "Log in to use this HMI: it takes no anonymous users on this address"
+                return ua
+            try:
+                await ua.connect()
+            except CallFailed as exc:
+                log.warning("web: the server %s refused the HMI's session: %s", self.url, exc.name)
+                ua.fail(f"the server refused the HMI's session: {exc.name} ({exc.doc})")
+            except Exception as exc:
+                log.info("web: cannot reach %s: %s", self.url, exc)
+                ua.fail(f"the OPC UA server {self.url} cannot be reached")
+        return s.ua
+
+    # requests --------------------------------------------------------------------------------
+
+    async def _checked(self, request: Request) -> tuple[WebSession, dict[str, Any]] | Response:
+        """The session and JSON body of a state-changing request, or the refusal."""
+        s = self._session(request)
+        if s is None:
+            return JSONResponse({"error": "session expired", "expired": True}, status_code=401)
+        token = request.headers.get("x-csrf-token", "")
+        if not secrets.compare_digest(token.encode(), s.csrf.encode()):
+            log.warning("web: refused a request to %s without a valid CSRF token", request.url.path)
+            return JSONResponse({"error": "missing or wrong CSRF token"}, status_code=403)
+        try:
+            body = await request.json()
+        except (ValueError, UnicodeDecodeError):
+            return JSONResponse({"error": "the request body must be JSON"}, status_code=400)
+        if not isinstance(body, dict):
+            return JSONResponse({"error": "the request body must be a JSON object"}, status_code=400)
+        return s, body
+
+    async def index(self, request: Request) -> Response:
+        response = FileResponse(self._index, headers=_SECURITY_HEADERS)
+        if self._session(request) is None:
+            self._set_cookie(response, self._new_session())
+        return response
+
+    async def session_info(self, request: Request) -> Response:
+        s = self._session(request)
+        fresh = s is None
+        if s is None:
+            s = self._new_session()
+        response = JSONResponse({"csrf": s.csrf, "user": s.user, "fresh": fresh, "server": self.url})
+        return self._set_cookie(response, s) if fresh else response
+
+    async def login(self, request: Request) -> Response:
+        checked = await self._checked(request)
+        if isinstance(checked, Response):
+            return checked
+        s, body = checked
+        user, password = body.get("user"), body.get("password")
+        if not isinstance(user, str) or not user or not isinstance(password, str):
+            return JSONResponse({"error": "user name and password are required"}, status_code=400)
+        ua = UaSession(self.url, self.credentials, user=user, password=password, cache=self.cells)
+        try:
+            await ua.connect()
+        except CallFailed as exc:
+            log.info("web login of %s refused: %s", user, exc.name)
+            return JSONResponse({"error": f"{exc.name}: {exc.doc}", "code": exc.name}, status_code=401)
+        except Exception as exc:
+            log.info("web login of %s failed: server unreachable (%s)", user, type(exc).__name__)
+            return JSONResponse({"error": f"the OPC UA server {self.url} cannot be reached"}, status_code=503)
+        log.info("web login of %s", user)
+        await self._end(s)
+        fresh = self._new_session()  # a new id and CSRF token after every login
+        fresh.ua, fresh.user = ua, user
+        return self._set_cookie(JSONResponse({"user": user, "csrf": fresh.csrf}), fresh)
+
+    async def logout(self, request: Request) -> Response:
+        checked = await self._checked(request)
+        if isinstance(checked, Response):
+            return checked
+        s, _ = checked
+        log.info("web logout of %s", s.user or "anonymous")
+        await self._end(s)
+        fresh = self._new_session()
+        return self._set_cookie(JSONResponse({"user": None, "csrf": fresh.csrf}), fresh)
+
+    async def events(self, request: Request) -> Response:
+        s = self._session(request)
+        if s is None:
+            return JSONResponse({"error": "session expired", "expired": True}, status_code=401)
+        ua = await self._ua(s)
+        queue: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+
+        async def stream() -> AsyncIterator[str]:
+            s.streams += 1
+            ua.listeners.add(queue.put_nowait)
+            try:
+                yield _sse({"type": "snapshot", **ua.snapshot()})
+                closing = asyncio.ensure_future(self.closing.wait())
+                getter: asyncio.Future[dict[str, Any]] | None = None
+                try:
+                    while s.id in self.sessions and s.ua is ua:
+                        getter = asyncio.ensure_future(queue.get())
+                        done, _ = await asyncio.wait(
+                            {getter, closing}, timeout=HEARTBEAT, return_when=asyncio.FIRST_COMPLETED
+                        )
+                        if closing in done:
+                            getter.cancel()
+                            return
+                        if getter in done:
+                            batch = [getter.result()]
+                            while not queue.empty():
+                                batch.append(queue.get_nowait())
+                            yield "".join(_sse(m) for m in batch)
+                        else:
+                            getter.cancel()
+                            yield ": keep-alive\n\n"
+                    yield _sse({"type": "expired"})
+                finally:
+                    closing.cancel()
+                    if getter is not None:
+                        getter.cancel()
+            finally:
+                s.streams -= 1
+                s.last_seen = time.monotonic()
+                ua.listeners.discard(queue.put_nowait)
+
+        headers = {"Cache-Control": "no-store", "X-Accel-Buffering": "no"}
+        return StreamingResponse(stream(), media_type="text/event-stream", headers=headers)
+
+    async def _act(self, request: Request, action: str) -> Response:
+        checked = await self._checked(request)
+        if isinstance(checked, Response):
+            return checked
+        s, body = checked
+        ua = await self._ua(s)
+        try:
+            if action == "call":
+                args = body.get("args", [])
+                if not isinstance(args, list):
+                    return JSONResponse({"error": "args must be a list"}, status_code=400)
+                return JSONResponse(await ua.call(str(body.get("key", "")), args))
+            directory, path = str(body.get("directory", "")), str(body.get("path", ""))
+            if action == "file":
+                return JSONResponse({"content": await ua.read_file(directory, path)})
+            if action == "upload":
+                content = str(body.get("content", "")).encode("utf-8")
+                if len(content) > MAX_UPLOAD or not path or "/" in path:
+                    return JSONResponse({"error": "a file name and at most 1 MB of text"}, status_code=400)
+                await ua.write_file(directory, path, content)
+            elif action == "delete":
+                await ua.delete_file(directory, path)
+            return JSONResponse({"good": True, "code": "Good", "meaning": ""})
+        except UnknownKey as exc:
+            return JSONResponse({"error": f"unknown {exc}"}, status_code=404)
+        except ValueError as exc:
+            return JSONResponse({"error": str(exc)}, status_code=400)
+        except CallFailed as exc:
+            return JSONResponse({"good": False, "code": exc.name, "meaning": exc.doc})
+        except (OSError, TimeoutError, ConnectionError) as exc:
+            return JSONResponse(
+                {
+                    "good": False,
+                    "code": "BadServerNotConnected",
+                    "meaning": f"the OPC UA server cannot be reached ({type(exc).__name__})",
+                }
+            )
+
+    async def call(self, request: Request) -> Response:
+        return await self._act(request, "call")
+
+    async def file(self, request: Request) -> Response:
+        return await self._act(request, "file")
+
+    async def upload(self, request: Request) -> Response:
+        return await self._act(request, "upload")
+
+    async def delete(self, request: Request) -> Response:
+        return await self._act(request, "delete")
+
+
+_SECURITY_HEADERS = {
+    "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; style-src 'self'; script-src 'self'",
+    "X-Frame-Options": "DENY",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+    "Cache-Control": "no-store",
+}
+
+
+def _sse(message: dict[str, Any]) -> str:
+    return f"data: {json.dumps(message, separators=(',', ':'))}\n\n"

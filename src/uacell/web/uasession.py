@@ -1,0 +1,611 @@
+"""One web user's OPC UA session: their identity, their subscriptions, their calls.
+
+Everything the page shows comes from OPC UA subscriptions of this session (values, ``Executable``
+of every method, TransitionEvents); ``UserExecutable`` is read back by this session whenever an
+``Executable`` changes, so what the page enables is what the server says this user may do now.
+Calls are made with this session, so roles, locks and the audit trail are the server's.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import enum
+import logging
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from asyncua import Client, Node, ua
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+from asyncua.ua.uaerrors import UaStatusCodeError
+
+from uacell.web.discovery import Cell, discover, list_files
+
+log = logging.getLogger(__name__)
+
+APPLICATION_URI = "urn:uacell:web"
+RETRY_SECONDS = 2.0
+EVENTS_KEPT = 30
+_FILE_CHUNK = 60000
+# OPC 40010-1 method result Status names (docs/robotics.md), shown beside the number.
+ROBOTICS_STATUS = {
+    0: "OK",
+    1: "E_SystemState",
+    2: "E_UnexpectedError",
+    3: "E_ActiveAlarm",
+    4: "E_AcknowledgeRequired",
+    -1: "not found",
+    -2: "invalid content",
+    -3: "unresolved reference",
+    -4: "module in use",
+}
+
+
+class UnknownKey(LookupError):
+    """The page named a method or directory this cell does not have."""
+
+
+class CallFailed(Exception):
+    """An OPC UA request answered with a Bad status code."""
+
+    def __init__(self, code: int, context: str = "") -> None:
+        self.code = code
+        name, doc = status_text(code)
+        super().__init__(f"{context}: {name}" if context else name)
+        self.name = name
+        self.doc = doc
+
+
+def status_text(code: int) -> tuple[str, str]:
+    """The status code's name and meaning, as OPC UA defines them."""
+    name, doc = ua.status_codes.get_name_and_doc(code)
+    return name, doc
+
+
+@dataclass(frozen=True)
+class Credentials:
+    """How the HMI identifies itself to the server (its application instance certificate)."""
+
+    certificate: Path
+    private_key: Path
+    server_certificate: Path | None = None  # pinned; None: taken from the server's endpoints
+
+
+def jsonable(value: Any) -> Any:
+    """An OPC UA value as JSON: texts as strings, NodeIds as strings, structures as objects."""
+    if value is None or isinstance(value, bool | int | str):
+        return value.value if isinstance(value, enum.Enum) else value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, ua.LocalizedText):
+        return value.Text
+    if isinstance(value, ua.QualifiedName):
+        return value.Name
+    if isinstance(value, ua.NodeId):
+        return value.to_string()
+    if isinstance(value, ua.StatusCode):
+        return value.name
+    if isinstance(value, datetime):
+        return value.isoformat()
+    if isinstance(value, bytes):
+        return value.hex()
+    if isinstance(value, enum.Enum):
+        return value.value
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if dataclasses.is_dataclass(value):
+        return {f.name: jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    return str(value)
+
+
+_ALIASES = {290: ua.VariantType.Double, 294: ua.VariantType.DateTime, 884: ua.VariantType.ExtensionObject}
+
+
+def to_variant(argument: ua.Argument, value: Any) -> ua.Variant:
+    """A JSON value as the Variant ``argument`` asks for (ValueError says what does not fit)."""
+    if argument.ValueRank >= 1:
+        if not isinstance(value, list):
+            raise ValueError(f"{argument.Name} must be a list")
+        items = [_scalar(argument, v) for v in value]
+        return ua.Variant(items, _variant_type(argument.DataType), is_array=True)
+    return ua.Variant(_scalar(argument, value), _variant_type(argument.DataType))
+
+
+def _variant_type(data_type: ua.NodeId) -> ua.VariantType:
+    if data_type.NamespaceIndex == 0 and isinstance(data_type.Identifier, int):
+        if 1 <= data_type.Identifier <= 25:
+            return ua.VariantType(data_type.Identifier)
+        if data_type.Identifier in _ALIASES:
+            return _ALIASES[data_type.Identifier]
+    if data_type in ua.enums_by_datatype or data_type == ua.NodeId(ua.ObjectIds.Enumeration):
+        return ua.VariantType.Int32
+    return ua.VariantType.ExtensionObject
+
+
+def _scalar(argument: ua.Argument, value: Any) -> Any:
+    vt = _variant_type(argument.DataType)
+    name = argument.Name
+    try:
+        if vt == ua.VariantType.Boolean:
+            if not isinstance(value, bool):
+                raise ValueError
+            return value
+        if vt in (ua.VariantType.Float, ua.VariantType.Double):
+            return float(value)
+        if vt.name.startswith(("Int", "UInt", "SByte", "Byte")) and vt != ua.VariantType.ByteString:
+            if isinstance(value, bool) or float(value) != int(float(value)):
+                raise ValueError
+            return int(float(value))
+        if vt == ua.VariantType.String:
+            return str(value)
+        if vt == ua.VariantType.LocalizedText:
+            return ua.LocalizedText(str(value))
+        if vt == ua.VariantType.ByteString:
+            return bytes.fromhex(str(value))
+        if vt == ua.VariantType.NodeId:
+            return ua.NodeId.from_string(str(value))
+        cls = ua.extension_objects_by_datatype.get(argument.DataType)
+        if cls is None or not isinstance(value, dict):
+            raise ValueError
+        return _structure(cls, value)
+    except (ValueError, TypeError, ua.UaError) as exc:
+        raise ValueError(f"{name}: {value!r} is not a valid {vt.name}") from exc
+
+
+_INTS = {"SByte", "Byte", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64"}
+
+
+def _structure(cls: type, value: dict[str, Any]) -> Any:
+    """A structure from a JSON object, field by field (names compared without case)."""
+    obj = cls()
+    fields = {f.name.lower(): f for f in dataclasses.fields(obj)}
+    for key, item in value.items():
+        f = fields.get(str(key).lower())
+        if f is None:
+            raise ValueError(f"no field {key}")
+        setattr(obj, f.name, _field(str(f.type), item))
+    return obj
+
+
+def _field(type_name: str, item: Any) -> Any:
+    base = type_name.rsplit(".", 1)[-1].strip("'\"")
+    if base in _INTS:
+        if isinstance(item, bool) or float(item) != int(float(item)):
+            raise ValueError(f"{item!r} is not a whole number")
+        return int(float(item))
+    if base in ("Float", "Double"):
+        return float(item)
+    if base == "Boolean":
+        if not isinstance(item, bool):
+            raise ValueError(f"{item!r} is not true or false")
+        return item
+    if base == "String":
+        return str(item)
+    if base == "LocalizedText":
+        return ua.LocalizedText(str(item))
+    if base == "EUInformation" and isinstance(item, str):  # a unit given by its name, e.g. "ml"
+        return ua.EUInformation(DisplayName=ua.LocalizedText(item), Description=ua.LocalizedText(item))
+    cls = getattr(ua, base, None)
+    if isinstance(cls, type) and dataclasses.is_dataclass(cls) and isinstance(item, dict):
+        return _structure(cls, item)
+    raise ValueError(f"{item!r} does not fit {base}")
+
+
+Listener = Callable[[dict[str, Any]], None]
+
+
+class CellCache:
+    """The cell as found by one session, reused by the others of the same HMI (browsing takes a while).
+
+    Found again whenever a session had lost the server: it may have restarted with another cell.
+    """
+
+    def __init__(self) -> None:
+        self.cell: Cell | None = None
+        self._lock = asyncio.Lock()
+
+    async def get(self, client: Client) -> Cell:
+        async with self._lock:
+            if self.cell is None:
+                # The server's structures (PackML parameters, counts, alarms) for decoding and encoding.
+                await client.load_data_type_definitions()
+                self.cell = await discover(client)
+            return self.cell
+
+    def forget(self) -> None:
+        self.cell = None
+
+
+class UaSession:
+    """A web user's OPC UA session; ``connect()`` raises CallFailed when the server refuses them."""
+
+    def __init__(
+        self,
+        url: str,
+        credentials: Credentials,
+        user: str | None = None,
+        password: str | None = None,
+        cache: CellCache | None = None,
+    ) -> None:
+        self.url = url
+        self.cache = cache or CellCache()
+        self.credentials = credentials
+        self.user = user
+        self._password = password
+        self.client: Client | None = None
+        self.cell = Cell()
+        self.status = "connecting"
+        self.problem = ""
+        self.values: dict[str, Any] = {}
+        self.methods: dict[str, dict[str, bool]] = {}
+        self.events: deque[dict[str, Any]] = deque(maxlen=EVENTS_KEPT)
+        self.files: dict[str, list[dict[str, Any]]] = {}
+        self.modules: dict[str, list[str]] = {}
+        self.listeners: set[Listener] = set()
+        self._pending: dict[str, Any] = {}
+        self._flush_scheduled = False
+        self._methods_task: asyncio.Task[None] | None = None
+        self._methods_again = False
+        self._modules_task: asyncio.Task[None] | None = None
+        self._reconnect_task: asyncio.Task[None] | None = None
+        self._closed = False
+        self._by_node: dict[ua.NodeId, str] = {}
+
+    # connection ------------------------------------------------------------------------------
+
+    async def _new_client(self) -> Client:
+        client = Client(self.url, timeout=30, watchdog_intervall=1.0)
+        client.application_uri = APPLICATION_URI
+        client.name = client.description = "uacell web HMI"
+        client.session_timeout = 60000
+        if self.user is not None:
+            client.set_user(self.user)
+            client.set_password(self._password or "")
+        c = self.credentials
+        server_cert = str(c.server_certificate) if c.server_certificate else None
+        await client.set_security(
+            SecurityPolicyBasic256Sha256,
+            str(c.certificate),
+            str(c.private_key),
+            server_certificate=server_cert,
+            mode=ua.MessageSecurityMode.SignAndEncrypt,
+        )
+        return client
+
+    async def connect(self) -> None:
+        client = await self._new_client()
+        try:
+            await client.connect()
+        except UaStatusCodeError as exc:
+            raise CallFailed(exc.code, "connect") from None
+        self.client = client
+        try:
+            await self._prepare(client)
+        except Exception:
+            with contextlib.suppress(Exception):
+                await client.disconnect()
+            raise
+        client.connection_lost_callback = self._lost
+        self.status = "connected"
+        self.problem = ""
+        self._emit({"type": "snapshot", **self.snapshot()})
+
+    async def _prepare(self, client: Client) -> None:
+        self.cell = await self.cache.get(client)
+        self._by_node = {node: key for key, node in self.cell.variables.items()}
+        self.values = {}
+        values = await client.create_subscription(50, _Handler(self))
+        nodes = [Node(client.uaclient, n) for n in self.cell.variables.values()]
+        if nodes:
+            await values.subscribe_data_change(nodes, queuesize=10)
+        await values.subscribe_events(
+            Node(client.uaclient, ua.NodeId(ua.ObjectIds.Server)),
+            Node(client.uaclient, ua.NodeId(ua.ObjectIds.TransitionEventType)),
+        )
+        executable = await client.create_subscription(50, _ExecutableHandler(self))
+        methods = [Node(client.uaclient, m.method) for m in self.cell.methods.values()]
+        if methods:
+            await executable.subscribe_data_change(methods, attr=ua.AttributeIds.Executable)
+        await self.refresh_methods()
+        await self.refresh_files()
+        await self.refresh_modules()
+
+    async def _lost(self, exc: Exception) -> None:
+        log.info("web session of %s lost the server: %s", self.user or "anonymous", exc)
+        self.cache.forget()
+        self.fail(f"the OPC UA server {self.url} cannot be reached")
+
+    def fail(self, problem: str) -> None:
+        """Say ``problem`` to the page and keep trying to connect again."""
+        if self._closed:
+            return
+        self.status = "unreachable"
+        self.problem = problem
+        self._emit({"type": "status", "status": self.status, "problem": self.problem})
+        if self._reconnect_task is None or self._reconnect_task.done():
+            self._reconnect_task = asyncio.get_running_loop().create_task(self._reconnect())
+
+    async def _reconnect(self) -> None:
+        old, self.client = self.client, None
+        if old is not None:
+            with contextlib.suppress(Exception):
+                await old.disconnect()
+        while not self._closed:
+            await asyncio.sleep(RETRY_SECONDS)
+            try:
+                await self.connect()
+            except CallFailed as exc:
+                self.problem = f"the server refused the session: {exc.name}"
+                self._emit({"type": "status", "status": self.status, "problem": self.problem})
+                continue
+            except Exception as exc:  # the server is still away (or went away again while we set up)
+                log.debug("reconnecting to %s failed: %r", self.url, exc)
+                continue
+            log.info("web session of %s reconnected", self.user or "anonymous")
+            return
+
+    async def close(self) -> None:
+        self._closed = True
+        for task in (self._reconnect_task, self._methods_task, self._modules_task):
+            if task is not None and not task.done():
+                task.cancel()
+        if self.client is not None:
+            with contextlib.suppress(Exception):
+                await self.client.disconnect()
+            self.client = None
+
+    def _require(self) -> Client:
+        if self.status == "login-required":
+            raise CallFailed(ua.StatusCodes.BadUserAccessDenied, "log in first")
+        if self.client is None or self.status != "connected":
+            raise CallFailed(ua.StatusCodes.BadServerNotConnected, "not connected")
+        return self.client
+
+    # what the page sees ----------------------------------------------------------------------
+
+    def snapshot(self) -> dict[str, Any]:
+        return {
+            "status": self.status,
+            "problem": self.problem,
+            "user": self.user,
+            "layout": self.cell.layout,
+            "values": self.values,
+            "methods": self.methods,
+            "events": list(self.events),
+            "files": self.files,
+            "modules": self.modules,
+        }
+
+    def _emit(self, message: dict[str, Any]) -> None:
+        for listener in list(self.listeners):
+            listener(message)
+
+    def _value(self, node: ua.NodeId, value: Any) -> None:
+        key = self._by_node.get(node)
+        if key is None:
+            return
+        self.values[key] = self._pending[key] = jsonable(value)
+        if key.endswith(("/TaskProgramName", "/CurrentState")):
+            self._schedule_modules()
+        if not self._flush_scheduled:
+            self._flush_scheduled = True
+            asyncio.get_running_loop().call_soon(self._flush)
+
+    def _flush(self) -> None:
+        self._flush_scheduled = False
+        pending, self._pending = self._pending, {}
+        if pending:
+            self._emit({"type": "values", "values": pending})
+
+    def _event(self, event: Any) -> None:
+        source = getattr(event, "SourceNode", None)
+        machine = self.cell.machines.get(source.to_string()) if isinstance(source, ua.NodeId) else None
+        # The machine's LastTransitionReason is published before its event: its value now is this one's.
+        reason = None
+        if machine:
+            reason = self.values.get(f"{machine}/LastTransitionReason/ValueAsText")
+            reason = reason or self.values.get(f"{machine}/LastTransitionReason")
+        entry = {
+            "time": jsonable(getattr(event, "Time", None)),
+            "machine": machine or jsonable(getattr(event, "SourceName", "")),
+            "transition": jsonable(getattr(event, "Transition", None)),
+            "from": jsonable(getattr(event, "FromState", None)),
+            "to": jsonable(getattr(event, "ToState", None)),
+            "message": jsonable(getattr(event, "Message", None)),
+            "reason": reason,
+        }
+        self.events.appendleft(entry)
+        self._emit({"type": "event", "event": entry})
+
+    def _executable_changed(self) -> None:
+        if self._methods_task is not None and not self._methods_task.done():
+            self._methods_again = True
+            return
+        self._methods_task = asyncio.get_running_loop().create_task(self._methods_loop())
+
+    async def _methods_loop(self) -> None:
+        while True:
+            self._methods_again = False
+            try:
+                await self.refresh_methods()
+            except Exception as exc:
+                log.debug("reading UserExecutable failed: %s", exc)
+            if not self._methods_again:
+                return
+
+    async def refresh_methods(self) -> None:
+        """Read Executable and UserExecutable of every method in this session (its role's answer)."""
+        client = self.client
+        if client is None or not self.cell.methods:
+            return
+        keys = list(self.cell.methods)
+        params = ua.ReadParameters()
+        for key in keys:
+            for attr in (ua.AttributeIds.Executable, ua.AttributeIds.UserExecutable):
+                params.NodesToRead.append(ua.ReadValueId(NodeId=self.cell.methods[key].method, AttributeId=attr))
+        results = await client.uaclient.read(params)
+        state = {}
+        for i, key in enumerate(keys):
+            x, u = results[2 * i], results[2 * i + 1]
+            state[key] = {
+                "executable": bool(x.Value and x.Value.Value),
+                "user_executable": bool(u.Value and u.Value.Value),
+            }
+        changed = {k: v for k, v in state.items() if self.methods.get(k) != v}
+        self.methods.update(state)
+        if changed:
+            self._emit({"type": "methods", "methods": changed})
+
+    async def refresh_files(self) -> None:
+        client = self.client
+        if client is None:
+            return
+        for key, directory in self.cell.directories.items():
+            files = await list_files(client, directory)
+            self.files[key] = [{"name": f["name"], "path": f["path"]} for f in files]
+        self._emit({"type": "files", "files": self.files})
+
+    def _schedule_modules(self) -> None:
+        if self.cell.folders and (self._modules_task is None or self._modules_task.done()):
+            self._modules_task = asyncio.get_running_loop().create_task(self.refresh_modules())
+
+    async def refresh_modules(self) -> None:
+        client = self.client
+        if client is None:
+            return
+        with contextlib.suppress(Exception):
+            for key, folder in self.cell.folders.items():
+                refs = await Node(client.uaclient, folder).get_children_descriptions()
+                self.modules[key] = sorted(r.BrowseName.Name for r in refs)
+            self._emit({"type": "modules", "modules": self.modules})
+
+    # what the user does ----------------------------------------------------------------------
+
+    async def call(self, key: str, args: list[Any]) -> dict[str, Any]:
+        """Call the method ``key`` with JSON ``args`` in this session; the server's answer as JSON."""
+        self._require()
+        ref = self.cell.methods.get(key)
+        if ref is None:
+            raise UnknownKey(key)
+        if len(args) > len(ref.arguments):
+            raise ValueError(f"{key} takes {len(ref.arguments)} arguments")
+        inputs = [to_variant(a, v) for a, v in zip(ref.arguments, args, strict=False)]
+        answer = await self._call(ref.object, ref.method, inputs, key)
+        outputs = answer["outputs"]
+        if ref.robotics and outputs and isinstance(outputs[0], int):
+            answer["status_name"] = ROBOTICS_STATUS.get(outputs[0], "")
+        return answer
+
+    async def _call(self, obj: ua.NodeId, method: ua.NodeId, inputs: list[ua.Variant], what: str) -> dict[str, Any]:
+        client = self._require()
+        request = ua.CallMethodRequest(ObjectId=obj, MethodId=method, InputArguments=inputs)
+        (result,) = await client.uaclient.call([request])
+        code = result.StatusCode.value
+        name, doc = status_text(code)
+        outputs = [jsonable(v.Value) for v in result.OutputArguments or []]
+        answer: dict[str, Any] = {"good": result.StatusCode.is_good(), "code": name, "meaning": doc, "outputs": outputs}
+        arg_results = [r.name for r in result.InputArgumentResults or [] if not r.is_good()]
+        if arg_results:
+            answer["argument_results"] = arg_results
+        log.info("%s called %s: %s", self.user or "anonymous", what, name)
+        return answer
+
+    async def _file_method(self, file_node: ua.NodeId, name: str, *inputs: ua.Variant) -> list[Any]:
+        client = self._require()
+        method = next(
+            (
+                r.NodeId
+                for r in await Node(client.uaclient, file_node).get_children_descriptions()
+                if r.BrowseName.Name == name
+            ),
+            None,
+        )
+        if method is None:
+            raise CallFailed(ua.StatusCodes.BadMethodInvalid, name)
+        request = ua.CallMethodRequest(ObjectId=file_node, MethodId=method, InputArguments=list(inputs))
+        (result,) = await client.uaclient.call([request])
+        if not result.StatusCode.is_good():
+            raise CallFailed(result.StatusCode.value, name)
+        return [v.Value for v in result.OutputArguments or []]
+
+    async def _find_file(self, directory: str, path: str) -> ua.NodeId | None:
+        client = self._require()
+        node = self.cell.directories.get(directory)
+        if node is None:
+            raise UnknownKey(directory)
+        return next((f["node"] for f in await list_files(client, node) if f["path"] == path), None)
+
+    async def read_file(self, directory: str, path: str) -> str:
+        node = await self._find_file(directory, path)
+        if node is None:
+            raise CallFailed(ua.StatusCodes.BadNotFound, path)
+        (handle,) = await self._file_method(node, "Open", ua.Variant(1, ua.VariantType.Byte))
+        h = ua.Variant(handle, ua.VariantType.UInt32)
+        data = b""
+        try:
+            while True:
+                (chunk,) = await self._file_method(node, "Read", h, ua.Variant(_FILE_CHUNK, ua.VariantType.Int32))
+                if not chunk:
+                    break
+                data += chunk
+        finally:
+            with contextlib.suppress(CallFailed):
+                await self._file_method(node, "Close", h)
+        return data.decode("utf-8", errors="replace")
+
+    async def write_file(self, directory: str, name: str, content: bytes) -> None:
+        """Create ``name`` in the directory (or replace its content) through FileType methods."""
+        node = await self._find_file(directory, name)
+        if node is None:
+            dir_node = self.cell.directories[directory]
+            node, handle = await self._file_method(
+                dir_node,
+                "CreateFile",
+                ua.Variant(name, ua.VariantType.String),
+                ua.Variant(True, ua.VariantType.Boolean),
+            )
+        else:
+            (handle,) = await self._file_method(node, "Open", ua.Variant(2 | 4, ua.VariantType.Byte))
+        h = ua.Variant(handle, ua.VariantType.UInt32)
+        try:
+            for start in range(0, len(content), _FILE_CHUNK):
+                chunk = content[start : start + _FILE_CHUNK]
+                await self._file_method(node, "Write", h, ua.Variant(chunk, ua.VariantType.ByteString))
+        finally:
+            with contextlib.suppress(CallFailed):
+                await self._file_method(node, "Close", h)
+        log.info("%s wrote program file %s", self.user or "anonymous", name)
+        await self.refresh_files()
+
+    async def delete_file(self, directory: str, path: str) -> None:
+        node = await self._find_file(directory, path)
+        if node is None:
+            raise CallFailed(ua.StatusCodes.BadNotFound, path)
+        await self._file_method(self.cell.directories[directory], "Delete", ua.Variant(node, ua.VariantType.NodeId))
+        log.info("%s deleted program file %s", self.user or "anonymous", path)
+        await self.refresh_files()
+
+
+class _Handler:
+    def __init__(self, session: UaSession) -> None:
+        self.session = session
+
+    def datachange_notification(self, node: Node, val: Any, data: Any) -> None:
+        self.session._value(node.nodeid, val)
+
+    def event_notification(self, event: Any) -> None:
+        self.session._event(event)
+
+
+class _ExecutableHandler:
+    def __init__(self, session: UaSession) -> None:
+        self.session = session
+
+    def datachange_notification(self, node: Node, val: Any, data: Any) -> None:
+        self.session._executable_changed()

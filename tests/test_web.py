@@ -1,0 +1,364 @@
+"""The web HMI over HTTP (no browser): discovery, sessions, cookies, CSRF, roles, HTTPS, reconnecting.
+
+An in-process uacell server with the HMI beside it (as `uacell serve` runs it); requests go to the
+HMI's real HTTP port with urllib, the answers and the server's state are checked.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import signal
+import ssl
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from http.cookiejar import CookieJar
+from typing import Any
+
+import pytest
+import pytest_asyncio
+from asyncua import Client, ua
+from conftest import fast_config, free_port, start_app
+
+from uacell.errors import ConfigError
+from uacell.pki import PkiPaths
+from uacell.web.discovery import discover
+from uacell.web.server import start_web, trust_hmi
+
+pytestmark = pytest.mark.asyncio(loop_scope="module")
+
+PASSWORD = "pw-web-1"
+FILLER = "Filler1.BaseStateMachine.MachineState"
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def stack(tmp_path_factory):
+    data = tmp_path_factory.mktemp("web") / "data"
+    app = await start_app(fast_config(data))
+    app.users.add("olga", "observer", PASSWORD)
+    app.users.add("otto", "operator", PASSWORD)
+    trust_hmi(data)
+    web = await start_web(app.endpoint, data, port=0, server_certificate=PkiPaths.in_data_dir(data).cert)
+    try:
+        yield app, web
+    finally:
+        await web.stop()
+        await app.stop()
+
+
+class Browser:
+    """A cookie-keeping HTTP client (urllib, run in a thread)."""
+
+    def __init__(self, base: str, context: ssl.SSLContext | None = None) -> None:
+        self.base = base.rstrip("/")
+        self.jar = CookieJar()
+        handlers: list[Any] = [urllib.request.HTTPCookieProcessor(self.jar)]
+        if context is not None:
+            handlers.append(urllib.request.HTTPSHandler(context=context))
+        self.opener = urllib.request.build_opener(*handlers)
+        self.csrf = ""
+        self.last_headers: Any = None
+
+    def _send(self, path: str, body: dict | None, headers: dict[str, str]) -> tuple[int, Any]:
+        data = json.dumps(body).encode() if body is not None else None
+        req = urllib.request.Request(self.base + path, data=data, headers=headers, method="POST" if data else "GET")
+        try:
+            with self.opener.open(req, timeout=60) as res:
+                self.last_headers = res.headers
+                raw = res.read()
+                status = res.status
+        except urllib.error.HTTPError as exc:
+            self.last_headers = exc.headers
+            raw, status = exc.read(), exc.code
+        try:
+            return status, json.loads(raw)
+        except ValueError:
+            return status, raw.decode(errors="replace")
+
+    async def get(self, path: str) -> tuple[int, Any]:
+        return await asyncio.to_thread(self._send, path, None, {})
+
+    async def post(self, path: str, body: dict, csrf: str | None = None) -> tuple[int, Any]:
+        headers = {"Content-Type": "application/json", "X-CSRF-Token": self.csrf if csrf is None else csrf}
+        return await asyncio.to_thread(self._send, path, body, headers)
+
+    async def start(self) -> None:
+        status, info = await self.get("/api/session")
+        assert status == 200
+        self.csrf = info["csrf"]
+
+    async def login(self, user: str, password: str = PASSWORD) -> tuple[int, Any]:
+        status, answer = await self.post("/api/login", {"user": user, "password": password})
+        if status == 200:
+            self.csrf = answer["csrf"]
+        return status, answer
+
+    def cookie(self) -> str:
+        return next(c.value for c in self.jar if c.name == "uacell_session")
+
+
+async def _state(app, machine: str) -> str:
+    async with Client(app.endpoint, timeout=20) as c:
+        ns = await c.get_namespace_index("urn:uacell:cell")
+        return (await c.get_node(ua.NodeId(f"{machine}.CurrentState", ns)).read_value()).Text
+
+
+async def test_discovery_finds_the_demo_cell_by_type_and_browse_name(stack):
+    app, _ = stack
+    async with Client(app.endpoint, timeout=20) as client:
+        cell = await discover(client)
+        (unit,) = cell.layout["units"]
+        assert unit["name"] == "Filler1"
+        assert [m["name"] for m in unit["machines"]] == ["BaseStateMachine", "MachineState", "ExecuteState"]
+        execute = unit["machines"][2]["methods"]
+        assert set(execute) == {"Reset", "Start", "Hold", "Unhold", "Suspend", "Unsuspend", "ToComplete"}
+        (robot,) = cell.layout["robots"]
+        (controller,) = robot["controllers"]
+        (task,) = controller["task_controls"]
+        (arm,) = robot["motion_devices"]
+        assert (robot["name"], controller["name"], task["name"], arm["name"]) == (
+            "Robot1",
+            "Controller1",
+            "TaskControl1",
+            "Arm1",
+        )
+        assert [a["name"] for a in arm["axes"]] == [f"Axis{i}" for i in range(1, 7)]
+        assert {c["name"] for c in controller["conditions"]} == {"EmergencyStop", "CollisionDetected"}
+        # Each key leads to the node of that BrowseName path.
+        node = client.get_node(cell.variables[f"{task['key']}/CurrentState"])
+        assert (await node.read_value()).Text == "Idle"
+        start = client.get_node(cell.methods[execute["Start"]].method)
+        assert (await start.read_browse_name()).Name == "Start"
+        assert [a.Name for a in cell.methods[execute["Start"]].arguments] == ["Parameter"]
+
+
+async def test_cookie_is_httponly_samesite_and_actions_need_the_csrf_token(stack):
+    app, web = stack
+    b = Browser(web.url)
+    status, page = await b.get("/")
+    assert status == 200 and "<svg" not in page and "/static/app.js" in page
+    cookie = b.last_headers.get_all("set-cookie")[0].lower()
+    assert "httponly" in cookie and "samesite=strict" in cookie and "secure" not in cookie
+    assert "content-security-policy" in {k.lower() for k in b.last_headers}
+    await b.start()
+    before = await _state(app, FILLER)
+    key = "Filler1/MachineState/Reset"
+    for token in ("", "not-the-token"):
+        status, answer = await b.post("/api/call", {"key": key, "args": []}, csrf=token)
+        assert status == 403 and "CSRF" in answer["error"]
+    assert await _state(app, FILLER) == before == "Stopped"
+    status, answer = await b.post("/api/call", {"key": key, "args": []})
+    assert status == 200 and answer["good"] and answer["code"] == "Good"
+    await app.settle()
+    assert await _state(app, f"{FILLER}.ExecuteState") in ("Resetting", "Idle")
+    # Leave the unit as found.
+    status, answer = await b.post("/api/call", {"key": "Filler1/MachineState/Stop", "args": []})
+    assert answer["good"]
+
+
+async def test_login_rotates_the_session_and_keeps_the_password_out_of_logs(stack, caplog):
+    _app, web = stack
+    b = Browser(web.url)
+    await b.start()
+    anonymous = b.cookie()
+    caplog.set_level(logging.DEBUG)
+    status, answer = await b.login("otto", "wrong-password-xyz")
+    assert status == 401 and answer["code"] == "BadUserAccessDenied"
+    assert b.cookie() == anonymous
+    status, answer = await b.login("otto")
+    assert status == 200 and answer["user"] == "otto"
+    assert b.cookie() != anonymous
+    assert PASSWORD not in caplog.text and "wrong-password-xyz" not in caplog.text
+    assert "web login of otto" in caplog.text
+    # The anonymous session is gone: its cookie is refused as expired.
+    stale = Browser(web.url)
+    stale.opener.addheaders = [("Cookie", f"uacell_session={anonymous}")]
+    status, answer = await stale.post("/api/call", {"key": "Filler1/MachineState/Reset", "args": []}, csrf="")
+    assert status == 401 and answer["expired"]
+
+
+async def test_the_number_of_web_sessions_is_bounded(stack, monkeypatch):
+    _app, web = stack
+    monkeypatch.setattr("uacell.web.app.MAX_SESSIONS", 2)
+    browsers = [Browser(web.url) for _ in range(3)]
+    for b in browsers:
+        await b.start()
+    status, answer = await browsers[0].post("/api/call", {"key": "Filler1/SetMachSpeed", "args": [60.0]})
+    assert status == 401 and answer["expired"]
+    for b in browsers[1:]:
+        status, answer = await b.post("/api/call", {"key": "Filler1/SetMachSpeed", "args": [60.0]})
+        assert status == 200 and answer["code"] == "Good"
+
+
+async def test_observer_gets_every_method_refused_by_the_server(stack):
+    app, web = stack
+    b = Browser(web.url)
+    await b.start()
+    assert (await b.login("olga"))[0] == 200
+    ua_session = web.web.sessions[b.cookie()].ua
+    assert ua_session is not None and ua_session.methods
+    assert not any(m["user_executable"] for m in ua_session.methods.values())
+    assert ua_session.methods["Filler1/MachineState/Reset"]["executable"]  # the state allows it, the role not
+    status, answer = await b.post("/api/call", {"key": "Filler1/MachineState/Reset", "args": []})
+    assert status == 200 and not answer["good"]
+    assert answer["code"] == "BadUserAccessDenied" and "permission" in answer["meaning"].lower()
+    assert await _state(app, FILLER) == "Stopped"
+
+
+async def test_bad_arguments_are_refused_before_reaching_the_server(stack):
+    _app, web = stack
+    b = Browser(web.url)
+    await b.start()
+    status, answer = await b.post("/api/call", {"key": "Filler1/SetMachSpeed", "args": ["fast"]})
+    assert status == 400 and "RequestedMachineSpeed" in answer["error"]
+    status, answer = await b.post("/api/call", {"key": "Filler1/NoSuchMethod", "args": []})
+    assert status == 404
+    status, answer = await b.post("/api/call", {"key": "Filler1/SetMachSpeed", "args": [1e9]})
+    assert status == 200 and answer["code"] == "BadInvalidArgument"
+
+
+async def test_https_only_on_a_non_loopback_address(stack, tmp_path):
+    app, _ = stack
+    with pytest.raises(ConfigError, match="HTTPS only"):
+        await start_web(app.endpoint, tmp_path / "d", host="0.0.0.0", port=0)
+    pki = PkiPaths.in_data_dir(app.data_dir)
+    web = await start_web(
+        app.endpoint,
+        app.data_dir,
+        host="0.0.0.0",
+        port=0,
+        server_certificate=pki.cert,
+        https_certificate=pki.cert,
+        https_key=pki.key,
+    )
+    try:
+        port = int(web.url.rsplit(":", 1)[1].strip("/"))
+        assert web.url.startswith("https://")
+        context = ssl.create_default_context()
+        context.check_hostname = False
+        context.verify_mode = ssl.CERT_NONE
+        b = Browser(f"https://127.0.0.1:{port}", context)
+        status, _ = await b.get("/")
+        assert status == 200
+        assert "secure" in b.last_headers.get_all("set-cookie")[0].lower()
+        # The server listens on loopback only (anonymous: operator, meant for the local machine), the
+        # HMI on the network: it takes logged-in users only.
+        await b.start()
+        first = await asyncio.to_thread(_sse_until, b, lambda m: m["type"] == "snapshot")
+        assert first["status"] == "login-required" and not first["layout"]
+        status, answer = await b.post("/api/call", {"key": "Filler1/MachineState/Reset", "args": []})
+        assert answer["code"] == "BadUserAccessDenied"
+        assert await _state(app, FILLER) == "Stopped"
+        assert (await b.login("otto"))[0] == 200
+        back = await asyncio.to_thread(_sse_until, b, lambda m: m["type"] == "snapshot")
+        assert back["status"] == "connected" and back["user"] == "otto"
+        plain = Browser(f"http://127.0.0.1:{port}")
+        with pytest.raises((urllib.error.URLError, ConnectionError, OSError)):
+            await asyncio.to_thread(plain.opener.open, f"http://127.0.0.1:{port}/", None, 10)
+    finally:
+        await web.stop()
+
+
+async def test_web_section_of_the_configuration(tmp_path):
+    from uacell.config import load_config
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[web]\nenabled = false\nport = 9090\nhost = "::1"\n')
+    config = load_config(cfg)
+    assert (config.web.enabled, config.web.port, config.web.host) == (False, 9090, "::1")
+    cfg.write_text("[web]\nport = 70000\n")
+    with pytest.raises(ConfigError, match=r"\[web\] port"):
+        load_config(cfg)
+    cfg.write_text('[web]\nenabled = "yes"\n')
+    with pytest.raises(ConfigError, match="true or false"):
+        load_config(cfg)
+
+
+async def test_static_files_are_package_data() -> None:
+    from importlib import resources
+
+    static = resources.files("uacell.web") / "static"
+    names = {p.name for p in static.iterdir()}
+    assert {"index.html", "app.js", "style.css"} <= names
+    text = (static / "index.html").read_text() + (static / "app.js").read_text()
+    assert "http://" not in text.replace("http://www.w3.org/2000/svg", "") and "https://" not in text
+
+
+def _sse_until(b: Browser, want, timeout: float = 90.0) -> dict:
+    """Read the page's event stream until a message satisfies ``want``; return it."""
+    deadline = time.monotonic() + timeout
+    with b.opener.open(urllib.request.Request(b.base + "/api/events"), timeout=30) as res:
+        while time.monotonic() < deadline:
+            line = res.readline()
+            assert line, "the event stream ended"
+            if line.startswith(b"data: "):
+                message = json.loads(line[6:])
+                if want(message):
+                    return message
+    raise AssertionError("no such message in time")
+
+
+async def test_uacell_web_standalone_until_the_server_trusts_its_certificate(stack, tmp_path):
+    app, _ = stack
+    port = free_port()
+    hmi = tmp_path / "hmi"
+    log_file = (tmp_path / "web.log").open("w")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "uacell", "web", "--server", app.endpoint, "--port", str(port), "--data-dir", str(hmi)],
+        stdout=subprocess.PIPE,
+        stderr=log_file,
+        text=True,
+    )
+    try:
+        line = await asyncio.to_thread(proc.stdout.readline)
+        assert line.strip() == f"uacell web on http://127.0.0.1:{port}/"
+        assert len(list((hmi / "web" / "pki" / "server").glob("*.der"))) == 1  # the server's, pinned
+        b = Browser(f"http://127.0.0.1:{port}")
+        await b.start()
+        refused = await asyncio.to_thread(_sse_until, b, lambda m: "BadCertificateUntrusted" in m.get("problem", ""))
+        assert refused["status"] == "unreachable"
+        # As docs/security.md says for any client: move its certificate from rejected/ to trusted/.
+        pki = PkiPaths.in_data_dir(app.data_dir)
+        (rejected,) = [f for f in pki.rejected.iterdir() if "uacell" in f.name]
+        rejected.rename(pki.trusted / rejected.name)
+        back = await asyncio.to_thread(_sse_until, b, lambda m: m.get("status") == "connected")
+        assert back["type"] == "snapshot" and back["layout"]["units"][0]["name"] == "Filler1"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert await asyncio.to_thread(proc.wait, 30) == 0
+        proc.stdout.close()
+        log_file.close()
+
+
+async def test_json_arguments_become_the_variants_the_method_declares():
+    from uacell.web.uasession import jsonable, to_variant
+
+    def arg(name: str, data_type: int, rank: int = -1) -> ua.Argument:
+        return ua.Argument(Name=name, DataType=ua.NodeId(data_type), ValueRank=rank)
+
+    v = to_variant(arg("Speed", ua.ObjectIds.Float), 42)
+    assert (v.Value, v.VariantType) == (42.0, ua.VariantType.Float)
+    v = to_variant(arg("EventId", ua.ObjectIds.ByteString), "00ff")
+    assert (v.Value, v.VariantType) == (b"\x00\xff", ua.VariantType.ByteString)
+    v = to_variant(arg("Comment", ua.ObjectIds.LocalizedText), "done")
+    assert v.Value == ua.LocalizedText("done")
+    v = to_variant(arg("Modes", ua.ObjectIds.Int32, 1), [1, 2.0])
+    assert (v.Value, v.VariantType, v.is_array) == ([1, 2], ua.VariantType.Int32, True)
+    for bad in (
+        (arg("Mode", ua.ObjectIds.Int32), "two"),
+        (arg("Mode", ua.ObjectIds.Int32), 1.5),
+        (arg("Active", ua.ObjectIds.Boolean), "yes"),
+        (arg("Modes", ua.ObjectIds.Int32, 1), 3),
+    ):
+        with pytest.raises(ValueError, match=bad[0].Name):
+            to_variant(*bad)
+    assert jsonable([ua.LocalizedText("Idle"), ua.NodeId(5, 2), b"\x01", float("nan")]) == [
+        "Idle",
+        "ns=2;i=5",
+        "01",
+        None,
+    ]

@@ -1,0 +1,500 @@
+"""The web HMI in a real headless browser (Debian's Chromium driven by Playwright).
+
+One `uacell serve` (with the HMI beside it, as a user runs it) serves the demo cell for the module;
+each test opens a fresh browser context (its own cookies, so its own web and OPC UA session). The
+page is driven like a person would; what arrived is checked in the page and, through an OPC UA
+client, in the server. Screenshots land in docs/ (docs/web.md shows them).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import shutil
+import threading
+import time
+from collections.abc import Coroutine, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from asyncua import Client, ua
+from conftest import ROOT, ServeProcess, start_serve
+
+from uacell.users import UserStore
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+pytestmark = pytest.mark.skipif(
+    not Path(CHROMIUM).exists(), reason="Chromium is not installed (make setup installs it where it can)"
+)
+
+ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+PASSWORD = "pw-browser-1"
+DOCS = ROOT / "docs"
+MACHINE = "Filler1.BaseStateMachine.MachineState"
+CTRL = "Robot1.Controllers.Controller1"
+TIMEOUT = 30_000  # ms, for conditions that take the simulators' time
+
+
+class UaThread:
+    """An event loop in a thread, so that sync tests can hold OPC UA sessions open while they browse."""
+
+    def __init__(self) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+
+    def run(self, coro: Coroutine[Any, Any, Any], timeout: float = 120.0) -> Any:
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
+
+    def close(self) -> None:
+        async def drain() -> None:  # what stopped servers and clients left behind
+            tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+
+        self.run(drain(), 30)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+        self.loop.close()
+
+
+@pytest.fixture(scope="module")
+def serve(tmp_path_factory) -> Iterator[ServeProcess]:
+    data = tmp_path_factory.mktemp("web-browser") / "data"
+    users = UserStore.in_data_dir(data)
+    for name, role in (("olga", "observer"), ("otto", "operator"), ("erin", "engineer")):
+        users.add(name, role, PASSWORD)
+    config = data.parent / "uacell.toml"
+    config.write_text("[packml]\nacting_time = 0.5\nmach_speed = 120.0\n[robot]\ntime_scale = 4.0\n")
+    sp = start_serve(data, "--config", str(config), web=True)
+    while not any(line.startswith("uacell web on ") for line in sp.output):
+        line = sp.proc.stdout.readline() if sp.proc.stdout else ""
+        assert line, "".join(sp.output)
+        sp.output.append(line)
+    sp.web = next(line.split(" on ", 1)[1].strip() for line in sp.output if line.startswith("uacell web on "))
+    yield sp
+    assert sp.stop() == 0
+
+
+@pytest.fixture(scope="module")
+def ua_thread() -> Iterator[UaThread]:
+    t = UaThread()
+    yield t
+    t.close()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def page(browser, serve):
+    context = browser.new_context(viewport={"width": 1400, "height": 1000})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(serve.web)
+    page.wait_for_selector("#conn[data-status=connected]", timeout=TIMEOUT)
+    page.wait_for_selector('section.unit[data-unit="Filler1"] g.state.current', timeout=TIMEOUT)
+    yield page
+    context.close()
+    assert not errors, errors
+
+
+class Ua:
+    """An OPC UA client session of the tests (by NodeId: tests may, the HMI may not)."""
+
+    def __init__(self, endpoint: str, user: str | None = None) -> None:
+        self.client = Client(endpoint, timeout=30)
+        self.client.application_uri = "urn:uacell:test:browser-peer"
+        if user:
+            self.client.set_user(user)
+            self.client.set_password(PASSWORD)
+
+    async def __aenter__(self) -> Ua:
+        await self.client.connect()
+        self.ns = await self.client.get_namespace_index("urn:uacell:cell")
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.client.disconnect()
+
+    def node(self, path: str):
+        return self.client.get_node(ua.NodeId(path, self.ns))
+
+    async def state(self, machine: str) -> str | None:
+        dv = await self.node(f"{machine}.CurrentState").read_data_value(raise_on_bad_status=False)
+        return dv.Value.Value.Text if dv.StatusCode.is_good() and dv.Value and dv.Value.Value else None
+
+    async def call(self, obj: str, method: str, *args: ua.Variant) -> ua.CallMethodResult:
+        req = ua.CallMethodRequest(
+            ObjectId=ua.NodeId(obj, self.ns), MethodId=ua.NodeId(f"{obj}.{method}", self.ns), InputArguments=list(args)
+        )
+        (res,) = await self.client.uaclient.call([req])
+        return res
+
+    async def wait_state(self, machine: str, want: str, timeout: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout
+        while (state := await self.state(machine)) != want:
+            assert time.monotonic() < deadline, f"{machine} stayed {state}, wanted {want}"
+            await asyncio.sleep(0.05)
+
+    async def filler_to_stopped(self) -> None:
+        """Abort and Clear unless Filler1 already stands in Stopped."""
+        if await self.state(MACHINE) == "Stopped":
+            return
+        if await self.state("Filler1.BaseStateMachine") == "Cleared":
+            assert (await self.call("Filler1.BaseStateMachine", "Abort")).StatusCode.is_good()
+        await self.wait_state("Filler1.BaseStateMachine", "Aborted")
+        assert (await self.call("Filler1.BaseStateMachine", "Clear")).StatusCode.is_good()
+        await self.wait_state(MACHINE, "Stopped")
+
+
+def filler_stopped(serve: ServeProcess, ua_thread: UaThread) -> None:
+    async def go() -> None:
+        async with Ua(serve.endpoint) as c:
+            await c.filler_to_stopped()
+
+    ua_thread.run(go())
+
+
+def current(page) -> str | None:
+    return page.locator('section.unit[data-unit="Filler1"] g.state.current').first.get_attribute("data-state")
+
+
+def shows_state(page, state: str, timeout: float = TIMEOUT) -> None:
+    page.wait_for_selector(f'section.unit[data-unit="Filler1"] g.state.current[data-state="{state}"]', timeout=timeout)
+
+
+def login(page, user: str) -> None:
+    page.click("#login-open")
+    page.fill("#login-user", user)
+    page.fill("#login-password", PASSWORD)
+    page.click("#login-submit")
+    page.wait_for_function(f"() => document.querySelector('#who').textContent === '{user}'", timeout=TIMEOUT)
+    page.wait_for_selector("#conn[data-status=connected]", timeout=TIMEOUT)
+
+
+def shot(target, name: str) -> None:
+    target.screenshot(path=str(DOCS / name))
+
+
+def unit_button(page, label: str):
+    return page.locator(f'section.unit[data-unit="Filler1"] .commands button[data-label="{label}"]')
+
+
+def robot_button(page, label: str, scope: str = ".controller"):
+    return page.locator(f'{scope} > .commands button[data-label="{label}"]').first
+
+
+def result(page, what: str, code: str) -> str:
+    """The answer bar's text once it shows the answer to ``what`` (a button's label) with ``code``."""
+    page.wait_for_function(
+        """([what, code]) => { const r = document.querySelector('#result');
+             return r.dataset.code === code && r.textContent.startsWith(what + ': '); }""",
+        arg=[what, code],
+        timeout=TIMEOUT,
+    )
+    return page.inner_text("#result")
+
+
+# --- the tests -----------------------------------------------------------------------------------
+
+
+def test_the_page_shows_the_demo_cell(page, serve, ua_thread):
+    filler_stopped(serve, ua_thread)
+    shows_state(page, "Stopped")
+    tree = page.inner_text("#tree")
+    for part in ("Filler1", "Robot1", "Controller1", "TaskControl1", "Arm1"):
+        assert part in tree
+    assert page.locator("svg.tr88 g.state").count() == 17
+    assert page.locator("svg.tr88 g.state.acting").count() == 10  # the acting states look different
+    assert page.inner_text(".controller .v-sysop") == "Idle / StandBy"
+    assert page.inner_text(".task .v-task") == "Idle"
+    assert page.locator("table.axes tr").count() == 6
+    files = page.locator(".file-list li").evaluate_all("items => items.map(i => i.dataset.file)")
+    assert files == ["gripper.robot", "palletize.robot", "pick_and_place.robot"]
+    # Deleting and uploading programs is for engineers: the server's UserExecutable says no.
+    page.wait_for_function("() => document.querySelectorAll('.file-list button[data-method]').length === 3")
+    assert all(b.is_disabled() for b in page.locator(".file-list button[data-method]").all())
+    assert page.locator("button.upload").is_disabled()
+    # Anonymous on loopback is an operator: Reset is offered in Stopped, Start is not.
+    assert unit_button(page, "Reset").is_enabled() and not unit_button(page, "Start").is_enabled()
+    shot(page, "web-overview.png")
+
+
+RECORD = """() => {
+  window.__seen = [];
+  const note = () => {
+    const g = document.querySelector('section.unit[data-unit="Filler1"] g.state.current');
+    const s = g && g.dataset.state;
+    if (s && window.__seen[window.__seen.length - 1] !== s) window.__seen.push(s);
+  };
+  note();
+  new MutationObserver(note).observe(document.querySelector('svg.tr88'), {subtree: true, attributes: true});
+}"""
+
+
+def test_reset_then_start_with_two_parameters(page, serve, ua_thread):
+    filler_stopped(serve, ua_thread)
+    shows_state(page, "Stopped")
+    page.evaluate(RECORD)
+    unit_button(page, "Reset").click()
+    shows_state(page, "Idle")
+    page.click('section.unit[data-unit="Filler1"] .params summary')
+    for _ in range(2):
+        page.click('section.unit[data-unit="Filler1"] .add-param')
+    rows = page.locator('section.unit[data-unit="Filler1"] .param-rows tr')
+    for i, (pid, name, unit, value) in enumerate([(1, "FillVolume", "ml", "250.5"), (2, "CapTorque", "Nm", "1.25")]):
+        row = rows.nth(i)
+        row.locator(".p-id").fill(str(pid))
+        row.locator(".p-name").fill(name)
+        row.locator(".p-unit").fill(unit)
+        row.locator(".p-value").fill(value)
+    unit_button(page, "Start").click()
+    shows_state(page, "Execute")
+    seen = page.evaluate("window.__seen")
+    assert seen == ["Stopped", "Resetting", "Idle", "Starting", "Execute"], seen
+    assert result(page, "Start", "Good").startswith("Start: Good")
+    processed = page.locator('section.unit[data-unit="Filler1"] .v-processed')
+    page.wait_for_function("el => Number(el.textContent) > 0", arg=processed.element_handle(), timeout=TIMEOUT)
+    first = int(processed.inner_text())
+    page.wait_for_function(f"el => Number(el.textContent) > {first}", arg=processed.element_handle(), timeout=TIMEOUT)
+    used = page.inner_text('section.unit[data-unit="Filler1"] .v-startparams')
+    assert used == "FillVolume = 250.5 ml, CapTorque = 1.25 Nm"
+    assert page.inner_text('section.unit[data-unit="Filler1"] .v-curmachspeed') == "120.0"
+
+    async def arrived() -> list:
+        async with Ua(serve.endpoint) as c:
+            await c.client.load_data_type_definitions()
+            return await c.node("Filler1.Status.StartParameters").read_value()
+
+    params = ua_thread.run(arrived())
+    assert [(p.ID, p.Name, p.Unit.DisplayName.Text, p.Value) for p in params] == [
+        (1, "FillVolume", "ml", 250.5),
+        (2, "CapTorque", "Nm", 1.25),
+    ]
+    shot(page.locator('section.unit[data-unit="Filler1"]'), "web-packml.png")
+
+
+def test_an_opc_ua_clients_state_change_appears_within_a_second(page, serve, ua_thread):
+    filler_stopped(serve, ua_thread)
+    shows_state(page, "Stopped")
+
+    async def reset() -> None:
+        async with Ua(serve.endpoint, "otto") as c:
+            assert (await c.call(MACHINE, "Reset")).StatusCode.is_good()
+
+    ua_thread.run(reset())
+    start = time.monotonic()
+    page.wait_for_function(
+        """() => ['Resetting', 'Idle'].includes(
+             document.querySelector('section.unit[data-unit="Filler1"] g.state.current')?.dataset.state)""",
+        timeout=1000,
+    )
+    assert time.monotonic() - start < 1.0
+    shows_state(page, "Idle")
+    entry = page.locator("#event-list li").first.inner_text()
+    assert "Resetting → Idle" in entry or "Stopped → Running" in entry
+
+
+def test_an_observer_sees_every_command_disabled_and_a_forced_call_refused(page, serve, ua_thread):
+    filler_stopped(serve, ua_thread)
+    login(page, "olga")
+    shows_state(page, "Stopped")
+    page.wait_for_function(
+        "() => { const b = [...document.querySelectorAll('button[data-method]')];"
+        " return b.length > 20 && b.every(x => x.disabled); }",
+        timeout=TIMEOUT,
+    )
+    # Forced: the button made clickable in the page; the server refuses the observer's call.
+    unit_button(page, "Reset").evaluate("b => { b.disabled = false; b.click(); }")
+    text = result(page, "Reset", "BadUserAccessDenied")
+    assert "Reset: BadUserAccessDenied (User does not have permission to perform the requested operation" in text
+
+    async def state() -> str | None:
+        async with Ua(serve.endpoint) as c:
+            return await c.state(MACHINE)
+
+    assert ua_thread.run(state()) == "Stopped"
+    shot(page, "web-observer.png")
+
+
+def test_a_lock_held_by_another_session_disables_the_robots_commands(page, serve, ua_thread):
+    peer = Ua(serve.endpoint, "otto")
+    ua_thread.run(peer.__aenter__())
+    try:
+        get_ready = robot_button(page, "Get ready")
+        load = robot_button(page, "Load", ".task")
+        page.wait_for_function("b => !b.disabled", arg=get_ready.element_handle(), timeout=TIMEOUT)
+        res = ua_thread.run(peer.call(f"{CTRL}.Lock", "InitLock", ua.Variant("maintenance", ua.VariantType.String)))
+        assert res.StatusCode.is_good() and res.OutputArguments[0].Value == 0
+        page.wait_for_function("b => b.disabled", arg=get_ready.element_handle(), timeout=TIMEOUT)
+        assert load.is_disabled() and robot_button(page, "Start", ".task").is_disabled()
+        assert page.inner_text(".controller > .lock .v-lock") == "locked"
+        assert "locked by otto" in page.inner_text(".task .lock-note")
+        assert get_ready.get_attribute("title") == "locked by otto"
+        shot(page.locator("section.robot"), "web-lock.png")
+        # Forced anyway: the server answers Bad_ResourceUnavailable.
+        get_ready.evaluate("b => { b.disabled = false; b.click(); }")  # in one go: updates re-disable it
+        assert "Get ready: BadResourceUnavailable" in result(page, "Get ready", "BadResourceUnavailable")
+
+        async def sysop() -> str | None:
+            async with Ua(serve.endpoint) as c:
+                return await c.state(f"{CTRL}.SystemOperation.SystemOperationStateMachine")
+
+        assert ua_thread.run(sysop()) == "Idle"
+        res = ua_thread.run(peer.call(f"{CTRL}.Lock", "ExitLock"))
+        assert res.StatusCode.is_good() and res.OutputArguments[0].Value == 0
+        page.wait_for_function("b => !b.disabled", arg=get_ready.element_handle(), timeout=TIMEOUT)
+        assert page.inner_text(".controller > .lock .v-lock") == "free"
+    finally:
+        ua_thread.run(peer.__aexit__())
+
+
+WAVE = (
+    "# uploaded from the web HMI\nprogram Wave version 1.0\nspeed 100\n"
+    "move 40 -20 10 0 30 0\nwait 8\nmove 0 0 0 0 0 0\n"
+)
+
+
+def test_a_program_uploaded_in_the_page_is_loaded_and_run(page, serve, ua_thread):
+    login(page, "erin")
+    page.click(".upload-box summary")
+    page.fill(".upload-name", "wave.robot")
+    page.fill(".upload-text", WAVE)
+    page.click("button.upload")
+    assert "Upload wave.robot: Good" in result(page, "Upload wave.robot", "Good")
+    page.wait_for_selector('.file-list li[data-file="wave.robot"]', timeout=TIMEOUT)
+    (stored,) = (serve.data_dir / "programs").rglob("wave.robot")  # the controller's program directory
+    assert stored.read_text() == WAVE
+    page.select_option("select.program-select", "wave.robot")
+    robot_button(page, "Load", ".task").click()
+    page.wait_for_function(
+        "() => document.querySelector('.task .v-task').textContent.startsWith('Ready')", timeout=TIMEOUT
+    )
+    assert page.inner_text(".task .v-program") == "Wave"
+    robot_button(page, "Get ready").click()
+    page.wait_for_function(
+        "() => document.querySelector('.controller .v-sysop').textContent === 'Ready'", timeout=TIMEOUT
+    )
+    page.evaluate(
+        """() => { window.__task = []; const el = document.querySelector('.task .v-task');
+                   new MutationObserver(() => window.__task.push(el.textContent))
+                     .observe(el, {childList: true, characterData: true, subtree: true}); }"""
+    )
+    start = robot_button(page, "Start", ".task")
+    page.wait_for_function("b => !b.disabled", arg=start.element_handle(), timeout=TIMEOUT)
+    start.click()
+    page.wait_for_function("() => window.__task.includes('Executing')", timeout=TIMEOUT)
+    page.wait_for_function(
+        "() => Number(document.querySelector('tr[data-axis=Axis1] .pos').textContent) > 5", timeout=TIMEOUT
+    )
+    shot(page.locator("section.robot"), "web-robot.png")
+    page.wait_for_function(
+        "() => document.querySelector('.task .v-task').textContent === 'Ready / AtProgramStart'", timeout=TIMEOUT
+    )
+    assert re.search(r"TaskControl1: Executing → Ready", page.inner_text("#event-list"))
+    robot_button(page, "Stand down").click()
+    page.wait_for_function(
+        "() => document.querySelector('.controller .v-sysop').textContent.startsWith('Idle')", timeout=TIMEOUT
+    )
+
+
+def test_an_expired_session_goes_back_to_login(page, serve):
+    page.context.clear_cookies()
+    page.click('section.unit[data-unit="Filler1"] button[data-label="Set speed"]')
+    page.wait_for_selector("#login[open]", timeout=TIMEOUT)
+    assert "expired" in page.inner_text("#login-why")
+    page.fill("#login-user", "otto")
+    shot(page, "web-login.png")
+    page.fill("#login-password", PASSWORD)
+    page.click("#login-submit")
+    page.wait_for_function("() => document.querySelector('#who').textContent === 'otto'", timeout=TIMEOUT)
+
+
+def test_an_alarm_is_shown_and_acknowledged_in_the_page(page, serve, ua_thread):
+    login(page, "erin")
+    row = page.locator('.condition[data-condition="EmergencyStop"]')
+    page.click('button[data-label="Simulate emergency stop"]')
+    page.wait_for_selector('.condition[data-condition="EmergencyStop"][data-active="true"]', timeout=TIMEOUT)
+    assert row.locator(".c-state").inner_text() == "ACTIVE"
+    # The server: GetReady is not Executable while an alarm is active.
+    page.wait_for_function("b => b.disabled", arg=robot_button(page, "Get ready").element_handle(), timeout=TIMEOUT)
+    page.click('button[data-label="Release emergency stop"]')
+    page.wait_for_function(
+        "el => el.textContent === 'inactive, not acknowledged'",
+        arg=row.locator(".c-state").element_handle(),
+        timeout=TIMEOUT,
+    )
+    ack = row.locator('button[data-label="Acknowledge"]')
+    page.wait_for_function("b => !b.disabled", arg=ack.element_handle(), timeout=TIMEOUT)
+    ack.click()
+    assert "Acknowledge: Good" in result(page, "Acknowledge", "Good")
+    page.wait_for_function(
+        "el => el.textContent === 'ok'", arg=row.locator(".c-state").element_handle(), timeout=TIMEOUT
+    )
+
+    async def acked() -> tuple[bool, str]:
+        async with Ua(serve.endpoint) as c:
+            cond = f"{CTRL}.SystemOperation.Conditions.EmergencyStop"
+            return (
+                await c.node(f"{cond}.AckedState.Id").read_value(),
+                (await c.node(f"{cond}.Comment").read_value()).Text,
+            )
+
+    assert ua_thread.run(acked()) == (True, "acknowledged in the web HMI")
+
+
+def test_the_page_says_when_the_server_is_unreachable_and_comes_back(browser, ua_thread, tmp_path):
+    from conftest import fast_config, start_app
+
+    from uacell.pki import PkiPaths
+    from uacell.web.server import start_web, trust_hmi
+
+    data = tmp_path / "data"
+    config = fast_config(data)
+    app = ua_thread.run(start_app(config))
+    trust_hmi(data)
+    web = ua_thread.run(start_web(app.endpoint, data, port=0, server_certificate=PkiPaths.in_data_dir(data).cert))
+    context = browser.new_context(viewport={"width": 1400, "height": 1000})
+    try:
+        page = context.new_page()
+        page.goto(web.url)
+        page.wait_for_selector("#conn[data-status=connected]", timeout=TIMEOUT)
+        ua_thread.run(app.stop())
+        page.wait_for_selector("#conn[data-status=unreachable]", timeout=TIMEOUT)
+        assert page.inner_text("#conn") == "server unreachable"
+        notice = page.inner_text("#notice")
+        assert f"the OPC UA server {app.endpoint} cannot be reached" in notice and "Reconnecting" in notice
+        assert all(b.is_disabled() for b in page.locator("button[data-method]").all())
+        app = ua_thread.run(start_app(config))  # the same port and data directory
+        page.wait_for_selector("#conn[data-status=connected]", timeout=60_000)
+        assert page.locator("#notice").is_hidden()
+        page.fill('section.unit[data-unit="Filler1"] .speed-input', "42")
+        page.click('section.unit[data-unit="Filler1"] button[data-label="Set speed"]')
+        assert "Set speed: Good" in result(page, "Set speed", "Good")
+        page.wait_for_function(
+            """() => document.querySelector('section.unit[data-unit="Filler1"] .v-machspeed').textContent === '42.0'""",
+            timeout=TIMEOUT,
+        )
+    finally:
+        context.close()
+        ua_thread.run(web.stop())
+        ua_thread.run(app.stop())
