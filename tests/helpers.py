@@ -12,7 +12,7 @@ import uuid
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from asyncua import ua
+from asyncua import Client, ua
 
 from uacell.locking import LockManager
 from uacell.models import StateTables
@@ -99,6 +99,14 @@ class VirtualTime:
         self.now += seconds
         self.slept += seconds
         await asyncio.sleep(0)
+
+
+async def raw_call(client: Client, obj: ua.NodeId, method: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
+    """Call ``method`` on ``obj`` and return the CallMethodResult as it arrived (StatusCode, input
+    argument results, outputs); ``Node.call_method`` would raise on a Bad status instead."""
+    req = ua.CallMethodRequest(ObjectId=obj, MethodId=method, InputArguments=list(args))
+    (res,) = await client.uaclient.call([req])
+    return res
 
 
 def server_value(app: UacellServer, nodeid: ua.NodeId) -> Any:

@@ -14,6 +14,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import raw_call
 
 from uacell.cellconfig import builtin_cell_path
 from uacell.config import Config, load_cell
@@ -75,12 +76,7 @@ class Session:
         return dv.Value.Value.Text if dv.StatusCode.is_good() else None
 
     async def call(self, obj: str, method: str, *args: ua.Variant) -> ua.CallMethodResult:
-        req = ua.CallMethodRequest()
-        req.ObjectId = ua.NodeId(obj, self.ns)
-        req.MethodId = ua.NodeId(f"{obj}.{method}", self.ns)
-        req.InputArguments = list(args)
-        (res,) = await self.client.uaclient.call([req])
-        return res
+        return await raw_call(self.client, ua.NodeId(obj, self.ns), ua.NodeId(f"{obj}.{method}", self.ns), *args)
 
     async def status(self, obj: str, method: str, *args: ua.Variant) -> int | ua.StatusCode:
         res = await self.call(obj, method, *args)

@@ -14,6 +14,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import raw_call
 
 from uacell.roles import Role
 from uacell.server import UacellServer
@@ -141,12 +142,7 @@ def handle_v(handle: int) -> ua.Variant:
 
 
 async def call(client: Client, obj: ua.NodeId, method: str, *args: ua.Variant) -> ua.CallMethodResult:
-    req = ua.CallMethodRequest()
-    req.ObjectId = obj
-    req.MethodId = ua.NodeId(f"{obj.Identifier}.{method}", obj.NamespaceIndex)
-    req.InputArguments = list(args)
-    (res,) = await client.uaclient.call([req])
-    return res
+    return await raw_call(client, obj, ua.NodeId(f"{obj.Identifier}.{method}", obj.NamespaceIndex), *args)
 
 
 async def ok(client: Client, obj: ua.NodeId, method: str, *args: ua.Variant) -> list:

@@ -16,7 +16,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import lock_manager, server_value, wait_until
+from helpers import lock_manager, raw_call, server_value, wait_until
 from uaraw import anonymous_token, none_session
 
 from uacell.server import UacellServer
@@ -71,12 +71,7 @@ class Session:
         await self.client.disconnect()
 
     async def call(self, obj: str, method: str, *args: ua.Variant) -> ua.CallMethodResult:
-        req = ua.CallMethodRequest()
-        req.ObjectId = ua.NodeId(obj, self.ns)
-        req.MethodId = ua.NodeId(f"{obj}.{method}", self.ns)
-        req.InputArguments = list(args)
-        (res,) = await self.client.uaclient.call([req])
-        return res
+        return await raw_call(self.client, ua.NodeId(obj, self.ns), ua.NodeId(f"{obj}.{method}", self.ns), *args)
 
     async def lock(self, element: str, method: str, *args: ua.Variant) -> int | ua.StatusCode:
         """A Lock method's Int32 status, or the call's bad StatusCode."""

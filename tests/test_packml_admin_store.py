@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers import FakeClock, packml_tables
+from helpers import FakeClock, packml_tables, raw_call
 
 from uacell.packml import AdminStore, EquipmentBase, PackMLUnit
 
@@ -196,9 +196,7 @@ async def test_kill_9_during_production_loses_nothing_a_client_read(tmp_path: Pa
         return counts, acc, cum[1][6]  # Produce row, Execute column
 
     async def call(client: Client, ns: int, obj: str, method: str, *args: ua.Variant) -> None:
-        req = ua.CallMethodRequest(ObjectId=ua.NodeId(obj, ns), MethodId=ua.NodeId(f"{obj}.{method}", ns),
-                                   InputArguments=list(args))
-        (res,) = await client.uaclient.call([req])
+        res = await raw_call(client, ua.NodeId(obj, ns), ua.NodeId(f"{obj}.{method}", ns), *args)
         assert res.StatusCode.is_good(), (method, res.StatusCode)
 
     async def execute_state(client: Client, ns: int) -> str | None:

@@ -12,9 +12,10 @@ from pathlib import Path
 
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import fire_marker, wait_until
+from helpers import fire_marker, raw_call, wait_until
 
 from uacell.models import fsm_table
+from uacell.packml.binding import UNITS
 from uacell.server import UacellServer
 
 CELL = "urn:uacell:cell"
@@ -68,12 +69,8 @@ class Unit:
         return await self.node(f"{F}.{path}").read_value()
 
     async def call(self, obj: str, method: str, *args: ua.Variant, obj_id: ua.NodeId | None = None):
-        req = ua.CallMethodRequest()
-        req.ObjectId = obj_id or ua.NodeId(obj, self.ns)
-        req.MethodId = ua.NodeId(f"{obj}.{method}", self.ns)
-        req.InputArguments = list(args)
-        (res,) = await self.client.uaclient.call([req])
-        return res
+        method_id = ua.NodeId(f"{obj}.{method}", self.ns)
+        return await raw_call(self.client, obj_id or ua.NodeId(obj, self.ns), method_id, *args)
 
     async def ok(self, obj: str, method: str, *args: ua.Variant) -> None:
         res = await self.call(obj, method, *args)
@@ -310,9 +307,26 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
     )
     await check_executable(u, "Held")
     assert await u.value("Status.CurMachSpeed") == 0.0
+    await app.settle()
     held = await u.count()
-    await asyncio.sleep(0.3)
-    assert await u.count() == held  # no production outside Execute
+    # No production outside Execute: let the unit's own tick poll the equipment over 0.3 s of its clock
+    # (3 packages at 600/min), then settle so that anything produced would be published.
+    unit = app.registry(UNITS)[F].unit
+    polled: list[float] = []
+    poll = unit.equipment.poll
+
+    def spy(now: float) -> None:
+        polled.append(now)
+        poll(now)
+
+    unit.equipment.poll = spy  # type: ignore[method-assign]
+    try:
+        held_at = unit.now()
+        await wait_until(lambda: bool(polled) and polled[-1] >= held_at + 0.3, timeout=TIMEOUT)
+    finally:
+        del unit.equipment.poll
+    await app.settle()
+    assert await u.count() == held
 
     await u.ok(EXEC, "Unhold")
     await u.wait(("Cleared", "Running", "Execute"))
@@ -512,13 +526,8 @@ async def test_start_errors_modes_speed_and_fault(app, client):
     assert await u.value("Status.CurMachSpeed") == 120.0
 
     # InjectFault: engineers and admins only; aborts the unit with an alarm and the StopReason
-    fault = ua.NodeId(f"{F}.InjectFault", u.ns)
-    req = ua.CallMethodRequest(
-        ObjectId=ua.NodeId(F, u.ns),
-        MethodId=fault,
-        InputArguments=[i32(42), ua.Variant("jam at infeed", ua.VariantType.String)],
-    )
-    (res,) = await client.uaclient.call([req])
+    fault = (i32(42), ua.Variant("jam at infeed", ua.VariantType.String))
+    res = await u.call(F, "InjectFault", *fault)
     assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied  # anonymous = operator
     assert await u.states() == ("Cleared", "Running", "Execute")
     admin = Client(app.endpoint, timeout=30)
@@ -529,7 +538,7 @@ async def test_start_errors_modes_speed_and_fault(app, client):
         res = await Unit(admin, u.ns, u.pml).call(F, "SetParameter", descriptors((4, "late", 1.0)))
         assert res.StatusCode.value == ua.StatusCodes.BadInvalidState  # not while a job runs
         assert [p.ID for p in await u.value("Status.Parameter")] == [3]
-        (res,) = await admin.uaclient.call([req])
+        res = await Unit(admin, u.ns, u.pml).call(F, "InjectFault", *fault)
     finally:
         await admin.disconnect()
     assert res.StatusCode.is_good(), res.StatusCode

@@ -196,12 +196,14 @@ async def test_process_stop_finishes_the_routine_call() -> None:
 
 async def test_wait_is_cut_by_quick_stop_and_finished_by_end_of_instruction() -> None:
     robot = await powered_robot("program W\nwait 5\nwait 5\n")
-    run = asyncio.create_task(robot.run(TASK, 0, ExecutionMode.CYCLE, Recorder()))
-    await asyncio.sleep(0.005)
+    progress = Recorder()
+    run = asyncio.create_task(robot.run(TASK, 0, ExecutionMode.CYCLE, progress))
+    await wait_until(lambda: progress.pointers == [0])  # inside the first wait
     await robot.stop(TASK, StopMode.QUICK_STOP)
     assert await asyncio.wait_for(run, 1.0) == RunOutcome(0, False)  # not the 2 x 50 ms of waits
-    run = asyncio.create_task(robot.run(TASK, 0, ExecutionMode.CYCLE, Recorder()))
-    await asyncio.sleep(0.005)
+    progress = Recorder()
+    run = asyncio.create_task(robot.run(TASK, 0, ExecutionMode.CYCLE, progress))
+    await wait_until(lambda: progress.pointers == [0])
     t0 = asyncio.get_running_loop().time()
     await robot.stop(TASK, StopMode.END_OF_INSTRUCTION)
     assert await run == RunOutcome(1, False)

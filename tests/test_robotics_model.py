@@ -542,6 +542,13 @@ async def so_in(cell: RobotCell, state: str) -> SystemOperation:
     return so
 
 
+def background_settled(cell: RobotCell) -> bool:
+    """Every background task of ``cell`` has ended, but a running program and a power-up."""
+    so, tcs = cell.system, list(cell.tasks.values())
+    parked = {so._getting_ready, *(tc._run for tc in tcs)}
+    return all(t.done() or t in parked for t in (*so._bg.tasks, *(t for tc in tcs for t in tc._bg.tasks)))
+
+
 SO_CALLS: dict[str, Callable[[SystemOperation], Awaitable[int]]] = {
     "GetReady": lambda s: s.get_ready(),
     "StandDown": lambda s: s.stand_down(),
@@ -588,7 +595,9 @@ async def test_system_operation_every_state_and_method(
     log = Log(*so.machines(), *tc_of(cell).machines())
     assert await SO_CALLS[method](so) == status
     await wait_until(lambda: len(log.transitions()) >= len(transitions) and not so.powering_down)
-    await asyncio.sleep(0.005)  # nothing else follows
+    # Nothing else follows: the cell's background work has ended, but for a program still running or
+    # a power-up still under way (both parked in waits of thousands of seconds).
+    await wait_until(lambda: background_settled(cell))
     assert so.state == result
     assert log.transitions() == transitions
     assert executable == (status == 0)

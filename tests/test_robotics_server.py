@@ -16,7 +16,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import delivered, robot_binding, robot_cell, server_value, wait_until
+from helpers import delivered, raw_call, robot_binding, robot_cell, server_value, wait_until
 
 from uacell.robotics.equipment import ExecutionMode, StopMode
 from uacell.roles import Role
@@ -156,12 +156,7 @@ async def state(r: Rig, path: str) -> str:
 
 
 async def call_on(r: Rig, obj: ua.NodeId, method: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
-    req = ua.CallMethodRequest()
-    req.ObjectId = obj
-    req.MethodId = method
-    req.InputArguments = list(args)
-    (res,) = await r.client.uaclient.call([req])
-    return res
+    return await raw_call(r.client, obj, method, *args)
 
 
 async def call(r: Rig, path: str, method: str, *args: ua.Variant) -> ua.CallMethodResult:
@@ -652,12 +647,9 @@ async def test_active_alarm_is_status_3_unacknowledged_is_4_and_acknowledge_clea
     manager.policy = dataclasses.replace(policy, anonymous_role=Role.ADMIN)
     admin = Client(r.app.endpoint, timeout=30)
     await admin.connect()
+    simulate = nid(r, CTRL), nid(r, f"{CTRL}.SimulateAlarm"), s("EmergencyStop")
     try:
-        req = ua.CallMethodRequest()
-        req.ObjectId = nid(r, CTRL)
-        req.MethodId = nid(r, f"{CTRL}.SimulateAlarm")
-        req.InputArguments = [s("EmergencyStop"), ua.Variant(True, ua.VariantType.Boolean)]
-        (res,) = await admin.uaclient.call([req])
+        res = await raw_call(admin, *simulate, ua.Variant(True, ua.VariantType.Boolean))
         assert res.StatusCode.is_good(), res.StatusCode
     finally:
         await admin.disconnect()
@@ -667,8 +659,7 @@ async def test_active_alarm_is_status_3_unacknowledged_is_4_and_acknowledge_clea
     operator = Client(r.app.endpoint, timeout=30)
     await operator.connect()
     try:
-        req.InputArguments = [s("EmergencyStop"), ua.Variant(False, ua.VariantType.Boolean)]
-        (res,) = await operator.uaclient.call([req])
+        res = await raw_call(operator, *simulate, ua.Variant(False, ua.VariantType.Boolean))
         assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
     finally:
         await operator.disconnect()

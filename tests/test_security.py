@@ -18,6 +18,7 @@ from asyncua.crypto import security_policies as sp
 from conftest import fast_config, start_app
 from cryptography import x509
 from cryptography.x509.oid import ExtensionOID
+from helpers import raw_call
 
 from uacell.di.companion import LOCKING
 from uacell.errors import CallError
@@ -104,10 +105,7 @@ def default_arguments(app: UacellServer, inputs: list[ua.Argument]) -> list[ua.V
 
 
 async def call(client: Client, obj: ua.NodeId, method: ua.NodeId, args: list[ua.Variant]) -> ua.CallMethodResult:
-    req = ua.CallMethodRequest()
-    req.ObjectId, req.MethodId, req.InputArguments = obj, method, args
-    (res,) = await client.uaclient.call([req])
-    return res
+    return await raw_call(client, obj, method, *args)
 
 
 # fixtures ---------------------------------------------------------------------------------------------

@@ -13,6 +13,7 @@ import dataclasses
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import raw_call, wait_until
 
 from uacell.errors import CallError
 from uacell.fsm import Reason, StateMachine
@@ -109,12 +110,7 @@ def node(r: Rig, *path: str):
 
 
 async def call(r: Rig, method: str, *args: ua.Variant, on=None) -> ua.CallMethodResult:
-    req = ua.CallMethodRequest()
-    req.ObjectId = on or r.tc.nodeid
-    req.MethodId = ua.NodeId(f"{TC_PATH}.{method}", r.ns)
-    req.InputArguments = list(args)
-    (res,) = await r.client.uaclient.call([req])
-    return res
+    return await raw_call(r.client, on or r.tc.nodeid, ua.NodeId(f"{TC_PATH}.{method}", r.ns), *args)
 
 
 async def test_current_state_and_last_transition_after_a_transition(rig):
@@ -239,11 +235,9 @@ async def test_observer_gets_user_access_denied_and_nothing_changes(rig):
     observer = Client(r.app.endpoint, timeout=30)
     await observer.connect()
     try:
-        req = ua.CallMethodRequest()
-        req.ObjectId = r.tc.nodeid
-        req.MethodId = ua.NodeId(f"{TC_PATH}.LoadByName", r.ns)
-        req.InputArguments = [ua.Variant("prog", ua.VariantType.String)]
-        (res,) = await observer.uaclient.call([req])
+        res = await raw_call(
+            observer, r.tc.nodeid, ua.NodeId(f"{TC_PATH}.LoadByName", r.ns), ua.Variant("prog", ua.VariantType.String)
+        )
         assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
     finally:
         await observer.disconnect()
@@ -265,32 +259,25 @@ async def test_executable_follows_changes_made_outside_method_calls(rig):
     assert (await node(r, "LoadByName").read_attribute(ua.AttributeIds.Executable)).Value.Value is False
 
 
-async def _raw_call(client, object_id, method_id, *args):
-    req = ua.CallMethodRequest()
-    req.ObjectId, req.MethodId, req.InputArguments = object_id, method_id, list(args)
-    (res,) = await client.uaclient.call([req])
-    return res
-
-
 async def test_methods_no_binding_declares_never_get_the_stacks_default_answers(rig):
     r = rig
     server_obj = ua.NodeId(ua.ObjectIds.Server)
     get_monitored = ua.NodeId(ua.ObjectIds.Server_GetMonitoredItems)
     one = ua.Variant(1, ua.VariantType.UInt32)
     # another object's method, called on the task control: not its method
-    res = await _raw_call(r.client, r.tc.nodeid, get_monitored, one)
+    res = await raw_call(r.client, r.tc.nodeid, get_monitored, one)
     assert res.StatusCode.value == ua.StatusCodes.BadMethodInvalid
     # a node that is not a method at all
-    res = await _raw_call(r.client, r.tc.nodeid, ua.NodeId(f"{TC_PATH}.CurrentState", r.ns))
+    res = await raw_call(r.client, r.tc.nodeid, ua.NodeId(f"{TC_PATH}.CurrentState", r.ns))
     assert res.StatusCode.value == ua.StatusCodes.BadMethodInvalid
     # the object's own method that nobody implements (the rig binds no Start; asyncua no ResendData)
-    res = await _raw_call(r.client, r.tc.nodeid, ua.NodeId(f"{TC_PATH}.Start", r.ns))
+    res = await raw_call(r.client, r.tc.nodeid, ua.NodeId(f"{TC_PATH}.Start", r.ns))
     assert res.StatusCode.value == ua.StatusCodes.BadNotImplemented
     resend = ua.NodeId(ua.ObjectIds.Server_ResendData)
-    res = await _raw_call(r.client, server_obj, resend, one)
+    res = await raw_call(r.client, server_obj, resend, one)
     assert res.StatusCode.value == ua.StatusCodes.BadNotImplemented
     # GetMonitoredItems is uacell's own (tests/test_diagnostics.py): it checks the subscription id
-    res = await _raw_call(r.client, server_obj, get_monitored, ua.Variant(987654, ua.VariantType.UInt32))
+    res = await raw_call(r.client, server_obj, get_monitored, ua.Variant(987654, ua.VariantType.UInt32))
     assert res.StatusCode.value == ua.StatusCodes.BadSubscriptionIdInvalid
     assert r.calls == []
 
@@ -300,10 +287,10 @@ async def test_condition_refresh_is_open_to_alarm_clients(rig):
     r = rig
     condition_type = ua.NodeId(ua.ObjectIds.ConditionType)
     refresh = ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh)
-    res = await _raw_call(r.client, condition_type, refresh, ua.Variant(999999, ua.VariantType.UInt32))
+    res = await raw_call(r.client, condition_type, refresh, ua.Variant(999999, ua.VariantType.UInt32))
     assert res.StatusCode.value == ua.StatusCodes.BadSubscriptionIdInvalid  # it ran: the id is checked
     sub = await r.client.create_subscription(100, _Collector())
-    res = await _raw_call(r.client, condition_type, refresh, ua.Variant(sub.subscription_id, ua.VariantType.UInt32))
+    res = await raw_call(r.client, condition_type, refresh, ua.Variant(sub.subscription_id, ua.VariantType.UInt32))
     assert res.StatusCode.is_good(), res.StatusCode
     await sub.delete()
 
@@ -321,7 +308,7 @@ async def test_a_callback_method_outside_the_role_table_is_admin_only_and_never_
     method = await r.app.server.get_node(r.tc.nodeid).add_method(
         ua.NodeId("Test.Boom", r.ns), ua.QualifiedName("Boom", r.ns), boom, [], []
     )
-    res = await _raw_call(r.client, r.tc.nodeid, method.nodeid)  # anonymous operator
+    res = await raw_call(r.client, r.tc.nodeid, method.nodeid)  # anonymous operator
     assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
     assert ran == []
     req = ua.CallMethodRequest(ObjectId=r.tc.nodeid, MethodId=method.nodeid, InputArguments=[])
@@ -337,26 +324,29 @@ async def test_calls_during_shutdown_finish_and_later_ones_answer_bad_shutdown(r
     gate = asyncio.Event()
     node_id = ua.NodeId(TC_PATH, r.ns)
     original = d.methods[d.method_of(node_id, "LoadByNodeId")].handler
+    order: list[str] = []
 
     async def slow(caller, node_id):
         await gate.wait()
+        order.append("call finished")
         return [0]
 
     d.methods[d.method_of(node_id, "LoadByNodeId")].handler = slow
     running = asyncio.create_task(call(r, "LoadByNodeId", ua.Variant(ua.NodeId(1), ua.VariantType.ExpandedNodeId)))
-    while d._running == 0:
-        await asyncio.sleep(0.01)
+    await wait_until(lambda: d._running > 0)
     closing = asyncio.create_task(d.close(timeout=10))
-    await asyncio.sleep(0.1)
-    assert not closing.done()  # waits for the call under way
+    closing.add_done_callback(lambda _t: order.append("closed"))
+    await wait_until(lambda: d._closing)  # close has begun
     req = ua.CallMethodRequest(
         ObjectId=node_id, MethodId=d.method_of(node_id, "LoadByName"), InputArguments=[ua.Variant("prog")]
     )
     late = await d.dispatch(req)  # asyncua answers one connection's requests in turn: call directly
     assert late.StatusCode.value == ua.StatusCodes.BadShutdown
+    assert not closing.done()
     gate.set()
     assert (await running).StatusCode.is_good()
     await closing
+    assert order == ["call finished", "closed"]  # close waited for the call under way
     d.methods[d.method_of(node_id, "LoadByNodeId")].handler = original
 
 
