@@ -14,6 +14,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import wait_until
 from test_security import ClientCert, secure_client
 
 from uacell import security
@@ -124,7 +125,8 @@ async def test_a_throttled_user_delays_neither_anonymous_clients_nor_other_users
     await _login(app, cert, "user0", "wrong")  # from now on user0 waits 2 s at 127.0.0.1
     assert app.security.throttle.wait_time("user0", "127.0.0.1") > 1.0
     delayed = asyncio.create_task(_login(app, cert, "user0", PASSWORD))
-    await asyncio.sleep(0.2)  # user0's attempt is waiting out its delay now
+    # user0's attempt holds its user's login lock while it waits out the delay.
+    await wait_until(lambda: (lock := app.security._user_locks.get("user0")) is not None and lock.locked())
     anonymous = await _anonymous(app)
     other, ok = await _login(app, cert, "user1", PASSWORD)
     waited, user0_ok = await delayed

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from asyncua import Client, ua
 from conftest import start_serve
+from helpers import raw_call
 
 from uacell.robotics.equipment import ExecutionMode
 
@@ -24,10 +25,7 @@ INSTANT = "program Instant\nwait 0\n"
 
 
 async def _call(client: Client, ns: int, path: str, method: str, *args: ua.Variant) -> int:
-    req = ua.CallMethodRequest(
-        ObjectId=ua.NodeId(path, ns), MethodId=ua.NodeId(f"{path}.{method}", ns), InputArguments=list(args)
-    )
-    (res,) = await client.uaclient.call([req])
+    res = await raw_call(client, ua.NodeId(path, ns), ua.NodeId(f"{path}.{method}", ns), *args)
     assert res.StatusCode.is_good(), (method, res.StatusCode)
     return res.OutputArguments[0].Value
 

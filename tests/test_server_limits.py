@@ -20,7 +20,7 @@ import pytest_asyncio
 from asyncua import Client, ua
 from asyncua.ua.ua_binary import struct_to_binary
 from conftest import fast_config, start_app
-from helpers import robot_binding
+from helpers import raw_call, robot_binding
 
 from uacell.roles import Role
 from uacell.server import UacellServer
@@ -209,6 +209,7 @@ async def test_the_largest_request_stalls_other_sessions_only_briefly(app: Uacel
         state = other.get_node(ua.NodeId(ua.ObjectIds.Server_ServerStatus_State))
         worst = 0.0
         done = asyncio.Event()
+        probing = asyncio.Event()
 
         async def probe() -> None:
             nonlocal worst
@@ -216,10 +217,11 @@ async def test_the_largest_request_stalls_other_sessions_only_briefly(app: Uacel
                 start = time.perf_counter()
                 await state.read_value()
                 worst = max(worst, time.perf_counter() - start)
+                probing.set()
                 await asyncio.sleep(0.01)
 
         prober = asyncio.create_task(probe())
-        await asyncio.sleep(0.05)
+        await probing.wait()  # the other session reads before the heavy request is sent
         params = ua.ReadParameters(NodesToRead=nodes)
         started = time.perf_counter()
         try:
@@ -316,9 +318,7 @@ def _method(obj: ua.NodeId, name: str) -> ua.NodeId:
 
 
 async def _call(client: Client, obj: ua.NodeId, name: str, *args: ua.Variant) -> ua.CallMethodResult:
-    req = ua.CallMethodRequest(ObjectId=obj, MethodId=_method(obj, name), InputArguments=list(args))
-    (res,) = await client.uaclient.call([req])
-    return res
+    return await raw_call(client, obj, _method(obj, name), *args)
 
 
 async def _open(client: Client, node: ua.NodeId, mode: int = 1) -> ua.CallMethodResult:

@@ -20,6 +20,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import ROOT, ServeProcess, start_serve
+from helpers import raw_call
 
 from uacell.users import UserStore
 
@@ -143,11 +144,7 @@ class Ua:
         return dv.Value.Value.Text if dv.StatusCode.is_good() and dv.Value and dv.Value.Value else None
 
     async def call(self, obj: str, method: str, *args: ua.Variant) -> ua.CallMethodResult:
-        req = ua.CallMethodRequest(
-            ObjectId=ua.NodeId(obj, self.ns), MethodId=ua.NodeId(f"{obj}.{method}", self.ns), InputArguments=list(args)
-        )
-        (res,) = await self.client.uaclient.call([req])
-        return res
+        return await raw_call(self.client, ua.NodeId(obj, self.ns), ua.NodeId(f"{obj}.{method}", self.ns), *args)
 
     async def wait_state(self, machine: str, want: str, timeout: float = 30.0) -> None:
         deadline = time.monotonic() + timeout
