@@ -360,6 +360,11 @@ def test_a_lock_held_by_another_session_disables_the_robots_commands(page, serve
         res = ua_thread.run(peer.call(f"{CTRL}.Lock", "ExitLock"))
         assert res.StatusCode.is_good() and res.OutputArguments[0].Value == 0
         page.wait_for_function("b => !b.disabled", arg=get_ready.element_handle(), timeout=TIMEOUT)
+        # The lock's own variables may arrive in a later notification than the buttons' state.
+        page.wait_for_function(
+            "() => document.querySelector('.controller > .lock .v-lock')?.textContent.trim() === 'free'",
+            timeout=TIMEOUT,
+        )
         assert page.inner_text(".controller > .lock .v-lock") == "free"
     finally:
         ua_thread.run(peer.__aexit__())
