@@ -235,6 +235,8 @@ async def test_two_units_produce_at_their_own_speeds_and_keep_their_admin_data_a
     data = tmp_path / "data"
     app = await start_app(example_config(data))
     try:
+        # One task ticks the three units (not one task each).
+        assert [t.get_name() for t in asyncio.all_tasks() if t.get_name().startswith("packml")] == ["packml-tick"]
         async with Session(app) as c:
             await c.client.load_data_type_definitions()
             counts = await _produce(c, ("Filler", "Capper"), until=3)  # 60 and 180 packages/min

@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -16,6 +17,7 @@ import pytest
 from helpers import FakeClock, packml_tables, raw_call
 
 from uacell.packml import AdminStore, EquipmentBase, PackMLUnit
+from uacell.packml.admin_store import AdminWriter
 
 
 def test_round_trip_and_no_temporary_files_left(tmp_path: Path) -> None:
@@ -241,3 +243,189 @@ async def test_kill_9_during_production_loses_nothing_a_client_read(tmp_path: Pa
     for name, now, before in zip(watched, counts, last[0], strict=True):
         assert now[0] >= before[0] and now[1] >= before[1], (name, now, before)
     assert counts[0][0] >= 12 and acc >= last[1] and execute_time >= last[2] >= 1
+
+
+# --- one writer thread for every unit's store -------------------------------------------------------
+
+
+class SlowDisk:
+    """Stands in for a slow disk under ``AdminStore._replace``: each write waits until ``release()``d and
+    records which thread wrote what."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.gate = threading.Event()
+        self.started = threading.Event()
+        self.writes: list[tuple[str, dict]] = []
+        self.threads: set[int] = set()
+        real = AdminStore._replace
+
+        def replace(store: AdminStore, data: dict) -> None:
+            self.threads.add(threading.get_ident())
+            self.started.set()
+            assert self.gate.wait(30), "the test never released the slow disk"
+            real(store, data)
+            self.writes.append((store.path.name, data))
+
+        monkeypatch.setattr(AdminStore, "_replace", replace)
+
+    def release(self) -> None:
+        self.gate.set()
+
+
+async def test_saves_run_off_the_loop_and_values_are_published_once_durable(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    disk = SlowDisk(monkeypatch)
+    writer = AdminWriter(asyncio.get_running_loop())
+    store = AdminStore(tmp_path / "Filler1.json", writer)
+    clock = FakeClock(50.0)
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
+    published: list[dict] = []
+
+    def seen(changed: dict) -> None:
+        if "Admin/ProdProcessedCount" in changed:
+            stored = json.loads(store.path.read_text())  # what a crash right now would keep
+            assert stored["prod_processed_count"][0]["count"] == changed["Admin/ProdProcessedCount"][0].count
+        published.append(changed)
+
+    unit.listeners.append(seen)
+    try:
+        unit.report_production(processed=5)
+        # The write blocks on the slow disk, yet the loop runs on: the save is not on it.
+        await asyncio.to_thread(disk.started.wait, 30)
+        for _ in range(3):
+            await asyncio.sleep(0)
+        assert unit.admin.prod_processed_count[0].count == 5
+        assert not any("Admin/ProdProcessedCount" in c for c in published)  # not durable yet: not shown
+        assert not store.path.exists()
+        disk.release()
+        await store.stored()
+        assert disk.threads and threading.get_ident() not in disk.threads
+        counts = [c["Admin/ProdProcessedCount"][0].count for c in published if "Admin/ProdProcessedCount" in c]
+        assert counts == [5]
+    finally:
+        disk.release()
+        await writer.close()
+    assert writer._thread.is_alive() is False
+
+
+async def test_a_store_changed_while_queued_is_written_once_with_the_newest_data(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    disk = SlowDisk(monkeypatch)
+    writer = AdminWriter(asyncio.get_running_loop())
+    a, b = AdminStore(tmp_path / "a.json", writer), AdminStore(tmp_path / "b.json", writer)
+    done: list[tuple[str, int, OSError | None]] = []
+
+    def submit(store: AdminStore, n: int) -> None:
+        store.submit({"n": n}, lambda error: done.append((store.path.name, n, error)))
+
+    try:
+        submit(a, 1)
+        await asyncio.to_thread(disk.started.wait, 30)  # a=1 is being written: the rest queues
+        for n in (2, 3, 4):
+            submit(a, n)
+        submit(b, 1)
+        submit(a, 5)
+        disk.release()
+        await writer.flush()
+    finally:
+        disk.release()
+        await writer.close()
+    assert [(name, data["n"]) for name, data in disk.writes] == [("a.json", 1), ("a.json", 5), ("b.json", 1)]
+    assert done == [("a.json", 1, None), ("a.json", 5, None), ("b.json", 1, None)]  # superseded data is not told
+    assert a.load() == {"n": 5, "version": 1} and b.load() == {"n": 1, "version": 1}
+
+
+async def test_a_unit_producing_on_a_slow_disk_publishes_the_newest_stored_count(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    disk = SlowDisk(monkeypatch)
+    writer = AdminWriter(asyncio.get_running_loop())
+    store = AdminStore(tmp_path / "Filler1.json", writer)
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=FakeClock(50.0))
+    published: list[int] = []
+    unit.listeners.append(
+        lambda changed: published.extend(c[0].count for k, c in changed.items() if k == "Admin/ProdProcessedCount")
+    )
+    try:
+        unit.report_production(processed=1)
+        await asyncio.to_thread(disk.started.wait, 30)
+        for _ in range(10):  # ten more packages while the first is written: one more write
+            unit.report_production(processed=1)
+        disk.release()
+        await store.stored()
+    finally:
+        disk.release()
+        await writer.close()
+    assert [data["prod_processed_count"][0]["count"] for _, data in disk.writes] == [1, 11]
+    assert published == [1, 11]
+
+
+async def test_a_failing_store_is_logged_once_and_does_not_stop_the_writer(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    writer = AdminWriter(asyncio.get_running_loop())
+    bad = AdminStore(blocker / "sub" / "u.json", writer)
+    good = AdminStore(tmp_path / "good.json", writer)
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=bad)
+    published: list[int] = []
+    unit.listeners.append(
+        lambda changed: published.extend(c[0].count for k, c in changed.items() if k == "Admin/ProdProcessedCount")
+    )
+    try:
+        with caplog.at_level(logging.ERROR):
+            for n in (1, 2):
+                unit.report_production(processed=1)
+                await bad.stored()
+                assert published[-1:] == [n]  # a failing disk does not freeze what clients see
+        good.submit({"n": 1}, lambda error: None)
+        await writer.flush()
+    finally:
+        await writer.close()
+    assert good.load() == {"n": 1, "version": 1}
+    assert [r.getMessage() for r in caplog.records].count(f"Filler1: cannot save PackML admin data to {bad.path}") == 1
+
+
+WRITER_THREAD = """
+import asyncio, sys
+from pathlib import Path
+from uacell.packml.admin_store import AdminStore, AdminWriter
+
+async def main() -> None:
+    writer = AdminWriter(asyncio.get_running_loop())
+    stores = [AdminStore(Path(sys.argv[1]) / f"u{i}.json", writer) for i in range(4)]
+    n = 0
+    print("ready", flush=True)
+    while True:
+        n += 1
+        for i, store in enumerate(stores):
+            store.submit({"n": n, "pad": ["x" * 1000] * 50, "check": n * 7},
+                         lambda error, i=i, n=n: print(f"stored {i} {n}", flush=True))
+        await asyncio.sleep(0.002)
+
+asyncio.run(main())
+"""
+
+
+def test_killed_writer_thread_keeps_every_store_at_least_as_told(tmp_path: Path) -> None:
+    """The writer thread killed (SIGKILL) at any moment: every file is whole, and holds at least the data
+    the writer had reported durable (what clients could have read)."""
+    proc = subprocess.Popen([sys.executable, "-c", WRITER_THREAD, str(tmp_path)], stdout=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stdout.readline() == b"ready\n"
+    told = dict.fromkeys(range(4), 0)
+    deadline = time.monotonic() + 60
+    try:
+        while min(told.values()) < 20:  # some stored batches, then a kill right after a report
+            assert time.monotonic() < deadline, told
+            _, i, n = proc.stdout.readline().split()
+            told[int(i)] = int(n)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    proc.stdout.close()
+    for i, n in told.items():
+        data = json.loads((tmp_path / f"u{i}.json").read_text())
+        assert data["check"] == data["n"] * 7 and data["n"] >= n, (i, data["n"], n)

@@ -8,6 +8,7 @@ import pytest
 from helpers import FakeClock, packml_tables
 
 from uacell.packml import PackMLDescriptorDataType, PackMLUnit, SimulatedUnit
+from uacell.packml.model import run_units
 
 
 def sim_unit(**sim_kw: object) -> tuple[PackMLUnit, SimulatedUnit, FakeClock]:
@@ -136,6 +137,25 @@ async def test_real_time_run_loop() -> None:
             if unit.state == "Idle":
                 break
         assert unit.state == "Idle"
+    finally:
+        task.cancel()
+
+
+@pytest.mark.asyncio
+async def test_one_run_loop_ticks_every_unit() -> None:
+    clock = FakeClock(10.0)
+    units = [PackMLUnit(SimulatedUnit(acting_time=1.0), tables=packml_tables(), name=n, clock=clock) for n in "AB"]
+    task = asyncio.create_task(run_units(units, period=0.002))
+    try:
+        for unit in units:
+            unit.reset_machine()
+        clock.advance(1.0)  # the acting states end on the units' own clock, at the next tick of each
+        for _ in range(500):
+            await asyncio.sleep(0.002)
+            if all(u.state == "Idle" for u in units):
+                break
+        assert [u.state for u in units] == ["Idle", "Idle"]
+        assert [u.admin.acc_time_since_reset for u in units] == [1, 1]
     finally:
         task.cancel()
 

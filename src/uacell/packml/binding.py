@@ -10,6 +10,7 @@ values to and from the model's dataclasses. Server-defined additions, in the cel
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import functools
 import inspect
@@ -25,11 +26,11 @@ from uacell.cell import BuiltPart
 from uacell.companion import Closer
 from uacell.equipment import EquipmentSpec, make_equipment
 from uacell.errors import ConfigError
-from uacell.packml.admin_store import AdminStore
+from uacell.packml.admin_store import AdminStore, AdminWriter
 from uacell.packml.companion import PACKML, UNIT_PART
 from uacell.packml.config import PackMLConfig, UnitSpec
 from uacell.packml.equipment import PackMLEquipment
-from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLTables, PackMLUnit
+from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLTables, PackMLUnit, run_units
 from uacell.packml.sim import SimulatedUnit
 from uacell.packml.types import (
     EUInformation,
@@ -172,7 +173,6 @@ class UnitBinding:
         self.structures = Structures(app.model_indexes["PackML"])
         self.variables: dict[str, tuple[ua.NodeId, ua.VariantType, int]] = {}  # key -> node, type, rank
         self.values = ValueWriter(self.aspace, app.dispatcher.types.builtin_of)
-        self.background = Background()
 
     # nodes ------------------------------------------------------------------------------------
     def child(self, path: str) -> ua.NodeId:
@@ -292,6 +292,7 @@ class UnitBinding:
         async def handler(caller: Caller, *values: Any) -> list[Any]:
             log.info("%s: %s.%s by %s", self.unit.name, machine_name or "unit", method, caller.display_user)
             self.unit.command(machine_name, method, *convert(*values))
+            await self.stored()
             return []
 
         return handler
@@ -303,11 +304,17 @@ class UnitBinding:
             eq.inject_fault(alarm_id, message or "injected fault")
         else:
             self.unit.fault(alarm_id, message or "injected fault", category=1)
+        await self.stored()
         return []
+
+    async def stored(self) -> None:
+        """Wait until the unit's Admin data is durable: a call answers once the values it changed are
+        published (they are published once stored, decision 28)."""
+        if self.unit.store is not None:
+            await self.unit.store.stored()
 
     # life ---------------------------------------------------------------------------------------
     async def close(self) -> None:
-        await self.background.close()
         self.unit.close()
         closed = self.unit.equipment_closed
         if inspect.isawaitable(closed):  # a driver's close() may be a coroutine
@@ -366,7 +373,7 @@ async def make_unit_equipment(app: UacellServer, built: BuiltPart) -> PackMLEqui
     return equipment
 
 
-async def bind_unit(app: UacellServer, built: BuiltPart) -> UnitBinding:
+async def bind_unit(app: UacellServer, built: BuiltPart, writer: AdminWriter) -> UnitBinding:
     name = built.part.name
     spec = built.part.spec if isinstance(built.part.spec, UnitSpec) else UnitSpec(name)
     defaults = app.config.section("packml", PackMLConfig)
@@ -378,7 +385,7 @@ async def bind_unit(app: UacellServer, built: BuiltPart) -> UnitBinding:
     unit = PackMLUnit(
         equipment,
         name=name,
-        store=AdminStore(app.data_dir / "packml" / f"{name}.json"),
+        store=AdminStore(app.data_dir / "packml" / f"{name}.json", writer),
         mach_speed=mach_speed,
         mach_speed_range=spec.mach_speed_range,
         mach_design_speed=spec.design_speed,
@@ -398,31 +405,37 @@ async def bind_unit(app: UacellServer, built: BuiltPart) -> UnitBinding:
     values.pop("Executable")
     await b.write(values)
     unit.listeners.append(b.on_change)
-    b.background.spawn(unit.run(TICK_PERIOD), name=f"packml-{name}")
     app.registry(UNITS).add(built.path, b)
     return b
 
 
 async def bind_packml(app: UacellServer) -> Closer | None:
-    """The PackML binder: every part with role ``packml_unit``."""
+    """The PackML binder: every part with role ``packml_unit``. One task ticks every unit, and one
+    writer thread stores every unit's Admin data."""
     bindings: list[UnitBinding] = []
+    writer = AdminWriter(asyncio.get_running_loop())
+    background = Background()
 
     async def close() -> None:
+        await background.close()
         for b in bindings:
             try:
                 await b.close()
             except Exception:
                 log.exception("closing PackML unit %s failed", b.unit.name)
+        await writer.close()  # the last saves are durable, and published
         await app.publisher.flush()
 
     try:
         for built in app.cell.by_role(UNIT_PART):
-            bindings.append(await bind_unit(app, built))
+            bindings.append(await bind_unit(app, built, writer))
     except BaseException:
         await close()  # the drivers already connected
         raise
     if not bindings:
+        await writer.close()
         return None
+    background.spawn(run_units([b.unit for b in bindings], TICK_PERIOD), name="packml-tick")
     return close
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import functools
 import logging
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -68,6 +69,12 @@ STOP_COMMAND_IDS = {"Stop": 3, "Hold": 4, "Suspend": 6, "Abort": 8}
 STATE_COLUMNS = 18  # StateCurrentTime/StateCumulativeTime second index: TR88 state numbers 0..17
 INT32_WRAP = 2**31
 PACKAGES = EUInformation("http://www.opcfoundation.org/UA/units/un/cefact", 5262926, "pkg", "package")
+
+# The stored Admin values as clients read them (decision 28): published only once they are durable.
+DURABLE_KEYS = (
+    "Admin/ProdProcessedCount", "Admin/ProdDefectiveCount", "Admin/ProdConsumedCount", "Admin/ModeCumulativeTime",
+    "Admin/StateCumulativeTime", "Admin/AccTimeSinceReset", "Admin/StopReason", "Admin/AlarmHistory",
+)
 
 Listener = Callable[[dict[str, Any]], None]
 
@@ -224,12 +231,14 @@ class PackMLUnit:
         self._stop_armed = True  # the next stop event becomes StopReason (first out)
         self._last_account = clock()
         self._last_save = self._last_account
-        self._saved: tuple[Any, ...] | None = None  # the durable values as last stored
+        self._saved: dict[str, Any] = {}  # the durable values as last stored: what clients may see
+        self._submitted: dict[str, Any] | None = None  # the durable values last handed to the store
         self._save_failing = False
+        self._publishing = False
         self._last_values: dict[str, Any] = {}
         if store is not None:
             self._load(store)
-            self._saved = self._durable()  # what clients will first see is what was stored
+            self._saved = self._submitted = self._durable()  # what clients will first see is what was stored
         self._refresh()
         self._last_values = self.values()
         self.equipment: PackMLEquipment = equipment if equipment is not None else EquipmentBase()
@@ -328,21 +337,14 @@ class PackMLUnit:
             "Admin/Parameter": list(a.parameter),
             "Admin/Alarm": list(a.alarm),
             "Admin/AlarmExtent": a.alarm_extent,
-            "Admin/AlarmHistory": list(a.alarm_history),
             "Admin/AlarmHistoryExtent": a.alarm_history_extent,
             "Admin/Warning": list(a.warning),
             "Admin/WarningExtent": a.warning_extent,
-            "Admin/StopReason": a.stop_reason,
             "Admin/StopReasonExtent": a.stop_reason_extent,
             "Admin/ModeCurrentTime": list(a.mode_current_time),
-            "Admin/ModeCumulativeTime": list(a.mode_cumulative_time),
             "Admin/StateCurrentTime": [list(r) for r in a.state_current_time],
-            "Admin/StateCumulativeTime": [list(r) for r in a.state_cumulative_time],
-            "Admin/ProdConsumedCount": list(a.prod_consumed_count),
-            "Admin/ProdProcessedCount": list(a.prod_processed_count),
-            "Admin/ProdDefectiveCount": list(a.prod_defective_count),
-            "Admin/AccTimeSinceReset": a.acc_time_since_reset,
             "Admin/MachDesignSpeed": a.mach_design_speed,
+            **self._durable(),
             "Executable": dict(self._executable_now()),
         }
 
@@ -611,23 +613,38 @@ class PackMLUnit:
             self.save()
 
     def save(self) -> None:
-        """Store the durable Admin data now (if the unit has a store); failures are logged."""
+        """Hand the durable Admin data to the store (if the unit has one). The store tells the unit once
+        the data is durable (at once, or later from a writer thread); only then do clients see the stored
+        values (decision 28). Failures are logged."""
         self._last_save = self._clock()
         if self.store is None:
             return
         durable = self._durable()
-        try:
-            self.store.save(self._admin_json())
-        except OSError:
-            # Saves are retried at every change: log the failure once, not ten times a second.
+        self._submitted = durable
+        self.store.submit(self._admin_json(), functools.partial(self._stored, durable))
+
+    def _stored(self, durable: dict[str, Any], error: OSError | None) -> None:
+        if error is not None:
+            # Retried at the next change of a stored value: log the failure once, not at every try. A
+            # failing disk does not freeze the values clients see.
             if not self._save_failing:
-                log.exception("%s: cannot save PackML admin data to %s", self.name, self.store.path)
+                log.error("%s: cannot save PackML admin data to %s", self.name, self.store_path, exc_info=error)
             self._save_failing = True
-            return
-        if self._save_failing:
-            log.warning("%s: PackML admin data saved to %s again", self.name, self.store.path)
+        elif self._save_failing:
+            log.warning("%s: PackML admin data saved to %s again", self.name, self.store_path)
             self._save_failing = False
         self._saved = durable
+        if self._depth == 0 and not self._publishing:  # stored later, outside any change: publish now
+            self._publish()
+
+    async def run(self, period: float = 0.1) -> None:
+        """Call ``tick`` every ``period`` seconds until cancelled (a server ticks its units with one
+        ``run_units``)."""
+        await run_units([self], period)
+
+    @property
+    def store_path(self) -> str:
+        return str(self.store.path) if self.store is not None else "(no store)"
 
     def tick(self) -> None:
         """Advance time: Admin times, the equipment's ``poll``, a throttled save; publish changes."""
@@ -636,15 +653,6 @@ class PackMLUnit:
             self.equipment.poll(self._clock())
             if self._clock() - self._last_save >= self.save_interval:
                 self.save()
-
-    async def run(self, period: float = 0.1) -> None:
-        """Call ``tick`` every ``period`` seconds until cancelled."""
-        while True:
-            try:
-                self.tick()
-            except Exception:
-                log.exception("%s: tick failed", self.name)
-            await asyncio.sleep(period)
 
     def close(self) -> None:
         """Shut down: account time, save, tell the equipment."""
@@ -767,21 +775,33 @@ class PackMLUnit:
         a.state_cumulative_time = [[_i32(x) for x in row] for row in self._state_cum]
         a.acc_time_since_reset = _i32(self._acc)
 
-    def _durable(self) -> tuple[Any, ...]:
-        """The durable Admin values as clients read them (whole seconds, counts)."""
+    def _durable(self) -> dict[str, Any]:
+        """The durable Admin values as clients read them (whole seconds, counts), by DURABLE_KEYS."""
         a = self.admin
-        return (
-            tuple(a.prod_processed_count), tuple(a.prod_defective_count), tuple(a.prod_consumed_count),
-            tuple(a.mode_cumulative_time), tuple(map(tuple, a.state_cumulative_time)), a.acc_time_since_reset,
-            a.stop_reason, tuple(a.alarm_history),
-        )
+        return {
+            "Admin/ProdProcessedCount": list(a.prod_processed_count),
+            "Admin/ProdDefectiveCount": list(a.prod_defective_count),
+            "Admin/ProdConsumedCount": list(a.prod_consumed_count),
+            "Admin/ModeCumulativeTime": list(a.mode_cumulative_time),
+            "Admin/StateCumulativeTime": [list(r) for r in a.state_cumulative_time],
+            "Admin/AccTimeSinceReset": a.acc_time_since_reset,
+            "Admin/StopReason": a.stop_reason,
+            "Admin/AlarmHistory": list(a.alarm_history),
+        }
 
     def _publish(self) -> None:
         self._refresh()
-        # Decision 28: store before publishing, so that a crash never loses a value a client has read.
-        if self.store is not None and self._durable() != self._saved:
-            self.save()
         values = self.values()
+        if self.store is not None:
+            # Decision 28: store before publishing, so that a crash never loses a value a client has read.
+            submitted = self._submitted
+            if submitted is None or any(values[k] != submitted[k] for k in DURABLE_KEYS):
+                self._publishing = True
+                try:
+                    self.save()
+                finally:
+                    self._publishing = False
+            values.update(self._saved)  # clients see the stored values, the newer ones once stored
         changed = {k: v for k, v in values.items() if self._last_values.get(k, _MISSING) != v}
         self._last_values = values
         if not changed:
@@ -839,6 +859,18 @@ class PackMLUnit:
 
 
 _MISSING = object()
+
+
+async def run_units(units: Sequence[PackMLUnit], period: float = 0.1) -> None:
+    """Call every unit's ``tick`` every ``period`` seconds until cancelled: one task for all the units
+    of a cell, in ``units``' order."""
+    while True:
+        for unit in units:
+            try:
+                unit.tick()
+            except Exception:
+                log.exception("%s: tick failed", unit.name)
+        await asyncio.sleep(period)
 
 
 def _hosting(states: Iterable[Any], submachine: str) -> str:
