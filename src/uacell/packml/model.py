@@ -66,6 +66,7 @@ JOB_STATES = frozenset(
 )
 # StopReason.ID for a commanded stop: the ISA-TR88 command number (Stop 3, Hold 4, Suspend 6, Abort 8).
 STOP_COMMAND_IDS = {"Stop": 3, "Hold": 4, "Suspend": 6, "Abort": 8}
+TICK_GROUP = 10  # run_units lets the event loop run other work after every this many units
 STATE_COLUMNS = 18  # StateCurrentTime/StateCumulativeTime second index: TR88 state numbers 0..17
 INT32_WRAP = 2**31
 PACKAGES = EUInformation("http://www.opcfoundation.org/UA/units/un/cefact", 5262926, "pkg", "package")
@@ -208,6 +209,7 @@ class PackMLUnit:
         self._mode_cur = 0.0
         self._state_cur = 0.0
         self._acc = 0.0
+        self._times_shown: tuple[int, ...] | None = None  # what the Admin times were last built from
         self.status = Status(
             unit_mode_current=int(initial_mode),
             mach_speed_range=(float(mach_speed_range[0]), float(mach_speed_range[1])),
@@ -227,6 +229,10 @@ class PackMLUnit:
 
         self.listeners: list[Listener] = []
         self._depth = 0
+        # Changes that may have altered a published value, counted; an operation publishes only if the
+        # count moved since the last publish (a tick that changes no whole second publishes nothing).
+        self._changes = 0
+        self._published_changes = -1
         self._pending: list[str | None] = []
         self._stop_armed = True  # the next stop event becomes StopReason (first out)
         self._last_account = clock()
@@ -607,6 +613,8 @@ class PackMLUnit:
             self._mode_cum = [0.0] * len(self._mode_cum)
             self._state_cum = [[0.0] * STATE_COLUMNS for _ in self._state_cum]
             self._mode_cur = self._state_cur = self._acc = 0.0
+            self._times_shown = None
+            self._account()
             for counts in (self.admin.prod_processed_count, self.admin.prod_defective_count,
                            self.admin.prod_consumed_count):
                 counts[:] = [dataclasses.replace(c, count=0) for c in counts]
@@ -633,9 +641,11 @@ class PackMLUnit:
         elif self._save_failing:
             log.warning("%s: PackML admin data saved to %s again", self.name, self.store_path)
             self._save_failing = False
-        self._saved = durable
-        if self._depth == 0 and not self._publishing:  # stored later, outside any change: publish now
-            self._publish()
+        if durable != self._saved:
+            self._saved = durable
+            self._changes += 1
+        if self._depth == 0 and not self._publishing and self._changes != self._published_changes:
+            self._publish()  # stored later, outside any change: publish now
 
     async def run(self, period: float = 0.1) -> None:
         """Call ``tick`` every ``period`` seconds until cancelled (a server ticks its units with one
@@ -648,8 +658,7 @@ class PackMLUnit:
 
     def tick(self) -> None:
         """Advance time: Admin times, the equipment's ``poll``, a throttled save; publish changes."""
-        with self._operation():
-            self._account()
+        with self._operation(changes=False):  # accounts the time when it ends (and before any transition)
             self.equipment.poll(self._clock())
             if self._clock() - self._last_save >= self.save_interval:
                 self.save()
@@ -669,9 +678,13 @@ class PackMLUnit:
             raise CallError("BadInvalidState", why)
 
     @contextlib.contextmanager
-    def _operation(self) -> Iterator[None]:
-        """Group changes: completions requested meanwhile run afterwards, then one publish."""
+    def _operation(self, changes: bool = True) -> Iterator[None]:
+        """Group changes: completions requested meanwhile run afterwards, then one publish. An operation
+        that ``changes`` nothing itself (a tick) publishes only what its nested operations, the time
+        (a whole second) or a save changed."""
         self._depth += 1
+        if changes:
+            self._changes += 1
         try:
             yield
         finally:
@@ -680,12 +693,14 @@ class PackMLUnit:
                 while self._pending:
                     state = self._pending.pop(0)
                     self._depth += 1
+                    self._changes += 1
                     try:
                         self._complete_now(state)
                     finally:
                         self._depth -= 1
                 self._account()
-                self._publish()
+                if self._changes != self._published_changes:
+                    self._publish()
 
     def _complete_now(self, state: str | None) -> bool:
         sm = self.innermost()
@@ -766,6 +781,16 @@ class PackMLUnit:
         self._mode_cur += dt
         self._state_cur += dt
         self._acc += dt
+        # Only the current mode's and state's entries moved: rebuild the Admin times (whole seconds) only
+        # when one of those changed a whole second, or the mode or state changed.
+        shown = (
+            mode, state, _i32(self._mode_cur), _i32(self._state_cur), _i32(self._mode_cum[mode]),
+            _i32(self._state_cum[mode][state]), _i32(self._acc),
+        )  # fmt: skip
+        if shown == self._times_shown:
+            return
+        self._times_shown = shown
+        self._changes += 1
         a = self.admin
         a.mode_current_time = [0] * len(self._mode_cum)
         a.mode_current_time[mode] = _i32(self._mode_cur)
@@ -802,6 +827,8 @@ class PackMLUnit:
                 finally:
                     self._publishing = False
             values.update(self._saved)  # clients see the stored values, the newer ones once stored
+        if self._depth == 0:
+            self._published_changes = self._changes
         changed = {k: v for k, v in values.items() if self._last_values.get(k, _MISSING) != v}
         self._last_values = values
         if not changed:
@@ -863,9 +890,11 @@ _MISSING = object()
 
 async def run_units(units: Sequence[PackMLUnit], period: float = 0.1) -> None:
     """Call every unit's ``tick`` every ``period`` seconds until cancelled: one task for all the units
-    of a cell, in ``units``' order."""
+    of a cell, in ``units``' order, letting other work run between groups of units."""
     while True:
-        for unit in units:
+        for i, unit in enumerate(units):
+            if i and not i % TICK_GROUP:
+                await asyncio.sleep(0)
             try:
                 unit.tick()
             except Exception:
