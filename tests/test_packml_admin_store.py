@@ -17,7 +17,7 @@ import pytest
 from helpers import FakeClock, packml_tables, raw_call
 
 from uacell.packml import AdminStore, EquipmentBase, PackMLUnit
-from uacell.packml.admin_store import AdminWriter
+from uacell.packml.admin_store import BATCH, AdminWriter
 
 
 def test_round_trip_and_no_temporary_files_left(tmp_path: Path) -> None:
@@ -298,8 +298,10 @@ async def test_saves_run_off_the_loop_and_values_are_published_once_durable(
         assert unit.admin.prod_processed_count[0].count == 5
         assert not any("Admin/ProdProcessedCount" in c for c in published)  # not durable yet: not shown
         assert not store.path.exists()
+        assert unit.storing  # a call that did this would wait
         disk.release()
         await store.stored()
+        assert not unit.storing
         assert disk.threads and threading.get_ident() not in disk.threads
         counts = [c["Admin/ProdProcessedCount"][0].count for c in published if "Admin/ProdProcessedCount" in c]
         assert counts == [5]
@@ -335,6 +337,28 @@ async def test_a_store_changed_while_queued_is_written_once_with_the_newest_data
     assert [(name, data["n"]) for name, data in disk.writes] == [("a.json", 1), ("a.json", 5), ("b.json", 1)]
     assert done == [("a.json", 1, None), ("a.json", 5, None), ("b.json", 1, None)]  # superseded data is not told
     assert a.load() == {"n": 5, "version": 1} and b.load() == {"n": 1, "version": 1}
+
+
+async def test_a_store_somebody_waits_for_is_written_next(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    disk = SlowDisk(monkeypatch)
+    writer = AdminWriter(asyncio.get_running_loop())
+    stores = [AdminStore(tmp_path / f"u{i:02}.json", writer) for i in range(3 * BATCH)]
+    try:
+        stores[0].submit({"n": 0}, lambda error: None)
+        await asyncio.to_thread(disk.started.wait, 30)
+        for store in stores[1:]:
+            store.submit({"n": 0}, lambda error: None)
+        waited = asyncio.ensure_future(stores[-1].stored())
+        await asyncio.sleep(0)
+        disk.release()
+        await waited
+        written = [name for name, _ in disk.writes]
+        assert written.index(stores[-1].path.name) == 1  # the batch after the first, at its head
+        await writer.flush()
+    finally:
+        disk.release()
+        await writer.close()
+    assert sorted(name for name, _ in disk.writes) == sorted(s.path.name for s in stores)  # each once
 
 
 async def test_a_unit_producing_on_a_slow_disk_publishes_the_newest_stored_count(

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import logging
 import os
@@ -25,6 +26,7 @@ from typing import Any
 log = logging.getLogger(__name__)
 
 FORMAT_VERSION = 1
+BATCH = 10  # stores written per batch (one directory fsync each): bounds how long a waiting call waits
 # Told once the data it was submitted with is durable (None) or could not be stored (the error).
 Done = Callable[[OSError | None], None]
 
@@ -101,9 +103,10 @@ class AdminWriter:
     """One thread that stores the Admin data of every unit of a server, off the event loop.
 
     ``submit`` queues a store's data; data queued for a store that has not been written yet is
-    replaced by newer data (written once, only the newest ``done`` is called). The thread takes
-    everything queued at once, writes each file atomically, fsyncs each directory once for the
-    batch, and then calls the batch's ``done`` callbacks on the event loop, in submission order.
+    replaced by newer data (written once, only the newest ``done`` is called). The thread takes up to
+    ``BATCH`` queued stores at a time, writes each file atomically, fsyncs each directory once for the
+    batch, and then calls the batch's ``done`` callbacks on the event loop, in submission order. A
+    store somebody waits for (``flush(store)``) moves to the head of the queue.
     """
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
@@ -131,6 +134,8 @@ class AdminWriter:
         with self._cond:
             if self._idle(store):
                 return
+            if store in self._queue:  # somebody waits for it: next
+                self._queue = {store: self._queue.pop(store), **self._queue}
             waiter: asyncio.Future[None] = self._loop.create_future()
             self._waiters.append((store, waiter))
         await waiter
@@ -155,7 +160,9 @@ class AdminWriter:
                     self._cond.wait()
                 if not self._queue:
                     return
-                batch, self._queue = self._queue, {}
+                batch = dict(itertools.islice(self._queue.items(), BATCH))
+                for store in batch:
+                    del self._queue[store]
                 self._writing = frozenset(batch)
             results = self._write(batch)
             with self._cond:

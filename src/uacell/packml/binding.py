@@ -308,9 +308,9 @@ class UnitBinding:
         return []
 
     async def stored(self) -> None:
-        """Wait until the unit's Admin data is durable: a call answers once the values it changed are
-        published (they are published once stored, decision 28)."""
-        if self.unit.store is not None:
+        """Wait until the unit's stored values (other than times) are durable: a call answers once the
+        values it changed are published (they are published once stored, decision 28)."""
+        if self.unit.store is not None and self.unit.storing:
             await self.unit.store.stored()
 
     # life ---------------------------------------------------------------------------------------

@@ -76,6 +76,7 @@ DURABLE_KEYS = (
     "Admin/ProdProcessedCount", "Admin/ProdDefectiveCount", "Admin/ProdConsumedCount", "Admin/ModeCumulativeTime",
     "Admin/StateCumulativeTime", "Admin/AccTimeSinceReset", "Admin/StopReason", "Admin/AlarmHistory",
 )
+DURABLE_TIMES = frozenset({"Admin/ModeCumulativeTime", "Admin/StateCumulativeTime", "Admin/AccTimeSinceReset"})
 
 Listener = Callable[[dict[str, Any]], None]
 
@@ -651,6 +652,15 @@ class PackMLUnit:
         """Call ``tick`` every ``period`` seconds until cancelled (a server ticks its units with one
         ``run_units``)."""
         await run_units([self], period)
+
+    @property
+    def storing(self) -> bool:
+        """A stored value other than a time (a count, StopReason, AlarmHistory) changed and is not yet
+        durable, hence not yet published: a call that made such a change answers once it is."""
+        submitted = self._submitted
+        if self.store is None or submitted is None:
+            return False
+        return any(submitted[k] != self._saved[k] for k in DURABLE_KEYS if k not in DURABLE_TIMES)
 
     @property
     def store_path(self) -> str:
