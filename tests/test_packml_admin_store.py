@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import logging
 import os
@@ -160,6 +161,37 @@ def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: p
     assert unit.admin.prod_processed_count[0].count == 15
     # one save per visible change (a package, a whole second of the times), far fewer than the 100 ticks
     assert 15 <= len(saves) <= 15 + 3 * 11
+
+
+def test_time_alone_is_stored_and_published_once_a_second(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The stored times pass their whole seconds at different instants; time alone makes one save (and one
+    publication of the stored times) a second, a package is stored at once."""
+    clock = FakeClock(50.0)
+    store = AdminStore(tmp_path / "u.json")
+    unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
+    clock.now += 0.55
+    unit.tick()
+    unit.reset_machine()
+    unit.state_complete()  # Idle: its seconds and the unit's now fall at different instants
+    saves: list[float] = []
+    real_save = store.save
+    monkeypatch.setattr(store, "save", lambda data: (saves.append(clock.now), real_save(data)))
+    published: list[tuple[float, int]] = []
+    unit.listeners.append(
+        lambda changed: published.extend(
+            (clock.now, v) for k, v in changed.items() if k == "Admin/AccTimeSinceReset"
+        )
+    )
+    for _ in range(100):  # 10 s
+        clock.now += 0.1
+        unit.tick()
+    assert 9 <= len(saves) <= 11
+    assert all(b - a >= 1.0 - 1e-6 for a, b in itertools.pairwise(saves))
+    assert [v for _, v in published] == list(range(1, len(published) + 1)) and len(published) >= 9
+    assert all(v <= t - 50.0 < v + 2.0 for t, v in published)  # at most a second late
+    saves.clear()
+    unit.report_production(processed=1)  # not a time: stored at once
+    assert len(saves) == 1 and store.load()["prod_processed_count"][0]["count"] == 1
 
 
 def test_unwritable_store_is_logged_not_raised(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:

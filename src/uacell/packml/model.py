@@ -77,6 +77,9 @@ DURABLE_KEYS = (
     "Admin/StateCumulativeTime", "Admin/AccTimeSinceReset", "Admin/StopReason", "Admin/AlarmHistory",
 )
 DURABLE_TIMES = frozenset({"Admin/ModeCumulativeTime", "Admin/StateCumulativeTime", "Admin/AccTimeSinceReset"})
+# A change of the stored times alone (a whole second passed) is stored, and then published, at most this
+# often (seconds): the three times pass their whole seconds at different instants.
+TIMES_SAVE_PERIOD = 1.0
 
 Listener = Callable[[dict[str, Any]], None]
 
@@ -242,6 +245,7 @@ class PackMLUnit:
         self._submitted: dict[str, Any] | None = None  # the durable values last handed to the store
         self._save_failing = False
         self._publishing = False
+        self._times_due = False  # stored times changed, to be saved at a tick (TIMES_SAVE_PERIOD)
         self._last_values: dict[str, Any] = {}
         if store is not None:
             self._load(store)
@@ -626,6 +630,7 @@ class PackMLUnit:
         the data is durable (at once, or later from a writer thread); only then do clients see the stored
         values (decision 28). Failures are logged."""
         self._last_save = self._clock()
+        self._times_due = False
         if self.store is None:
             return
         durable = self._durable()
@@ -670,7 +675,9 @@ class PackMLUnit:
         """Advance time: Admin times, the equipment's ``poll``, a throttled save; publish changes."""
         with self._operation(changes=False):  # accounts the time when it ends (and before any transition)
             self.equipment.poll(self._clock())
-            if self._clock() - self._last_save >= self.save_interval:
+            since = self._clock() - self._last_save
+            if since >= self.save_interval or (self._times_due and since >= TIMES_SAVE_PERIOD):
+                self._account()
                 self.save()
 
     def close(self) -> None:
@@ -830,7 +837,10 @@ class PackMLUnit:
         if self.store is not None:
             # Decision 28: store before publishing, so that a crash never loses a value a client has read.
             submitted = self._submitted
-            if submitted is None or any(values[k] != submitted[k] for k in DURABLE_KEYS):
+            moved = [k for k in DURABLE_KEYS if submitted is None or values[k] != submitted[k]]
+            if moved and DURABLE_TIMES.issuperset(moved) and self._clock() - self._last_save < TIMES_SAVE_PERIOD:
+                self._times_due = True  # only time passed: stored at a tick, once a second at most
+            elif moved:
                 self._publishing = True
                 try:
                     self.save()
