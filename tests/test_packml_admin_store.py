@@ -35,7 +35,7 @@ def test_absent_corrupt_or_foreign_file_gives_defaults(tmp_path: Path, caplog: p
         assert store.load() is None
         store.path.write_text('{"version": 1, "prod_proc')
         assert store.load() is None
-        store.path.write_text('[1, 2]')
+        store.path.write_text("[1, 2]")
         assert store.load() is None
     assert len([r for r in caplog.records if r.levelno == logging.WARNING]) == 3
     store.path.write_bytes(b"\xff\xfe garbage")
@@ -135,9 +135,11 @@ def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: p
     def check(changed: dict) -> None:
         stored = store.load()
         assert stored is not None
-        for key, field in (("Admin/ProdProcessedCount", "prod_processed_count"),
-                           ("Admin/ProdDefectiveCount", "prod_defective_count"),
-                           ("Admin/ProdConsumedCount", "prod_consumed_count")):
+        for key, field in (
+            ("Admin/ProdProcessedCount", "prod_processed_count"),
+            ("Admin/ProdDefectiveCount", "prod_defective_count"),
+            ("Admin/ProdConsumedCount", "prod_consumed_count"),
+        ):
             for c in changed.get(key, []):
                 (s,) = [x for x in stored[field] if x["id"] == c.id]
                 assert (s["count"], s["acc_count"]) == (c.count, c.acc_count)
@@ -178,9 +180,7 @@ def test_time_alone_is_stored_and_published_once_a_second(tmp_path: Path, monkey
     monkeypatch.setattr(store, "save", lambda data: (saves.append(clock.now), real_save(data)))
     published: list[tuple[float, int]] = []
     unit.listeners.append(
-        lambda changed: published.extend(
-            (clock.now, v) for k, v in changed.items() if k == "Admin/AccTimeSinceReset"
-        )
+        lambda changed: published.extend((clock.now, v) for k, v in changed.items() if k == "Admin/AccTimeSinceReset")
     )
     for _ in range(100):  # 10 s
         clock.now += 0.1
@@ -204,7 +204,8 @@ def test_unwritable_store_is_logged_not_raised(tmp_path: Path, caplog: pytest.Lo
         unit.report_production(processed=3)
     assert unit.state == "Idle"
     assert [r.getMessage() for r in caplog.records].count(
-        f"Filler1: cannot save PackML admin data to {blocker / 'sub' / 'u.json'}") == 1  # once, not per change
+        f"Filler1: cannot save PackML admin data to {blocker / 'sub' / 'u.json'}"
+    ) == 1  # once, not per change
 
 
 async def test_kill_9_during_production_loses_nothing_a_client_read(tmp_path: Path) -> None:
