@@ -85,7 +85,7 @@ class AdminStore:
         # Atomic but not yet durable: the caller fsyncs the directory (once for several stores).
         directory = self.path.parent
         directory.mkdir(parents=True, exist_ok=True)
-        payload = json.dumps({**data, "version": FORMAT_VERSION}, indent=1, sort_keys=True)
+        payload = json.dumps({**data, "version": FORMAT_VERSION}, sort_keys=True)  # no indent: the C encoder
         fd, tmp_name = tempfile.mkstemp(prefix=self.path.name + ".", suffix=".tmp", dir=directory)
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as f:

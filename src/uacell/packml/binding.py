@@ -58,6 +58,7 @@ MODE_ENUM = "ProductionMaintenanceModeEnum"
 TICK_PERIOD = 0.1
 INJECT_FAULT = "InjectFault"
 _A = ua.AttributeIds
+_PLAIN = (bool, int, float, str)  # model values that go into a Variant as they are
 # Every bound unit, keyed by its browse path ("Filler1").
 UNITS: RegistryKey[UnitBinding] = RegistryKey("PackML unit")
 
@@ -114,8 +115,10 @@ class Structures:
 
     def convert(self, value: Any) -> Any:
         """A model value (dataclass, list, tuple range, scalar) as the value to put in a Variant."""
+        if isinstance(value, _PLAIN):
+            return value
         if isinstance(value, list):
-            return [self.convert(v) for v in value]
+            return [v if isinstance(v, _PLAIN) else self.convert(v) for v in value]
         if isinstance(value, EUInformation):
             return ua.EUInformation(
                 NamespaceUri=value.namespace_uri,

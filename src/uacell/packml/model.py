@@ -629,11 +629,13 @@ class PackMLUnit:
         """Hand the durable Admin data to the store (if the unit has one). The store tells the unit once
         the data is durable (at once, or later from a writer thread); only then do clients see the stored
         values (decision 28). Failures are logged."""
+        self._save(self._durable())
+
+    def _save(self, durable: dict[str, Any]) -> None:
         self._last_save = self._clock()
         self._times_due = False
         if self.store is None:
             return
-        durable = self._durable()
         self._submitted = durable
         self.store.submit(self._admin_json(), functools.partial(self._stored, durable))
 
@@ -843,7 +845,7 @@ class PackMLUnit:
             elif moved:
                 self._publishing = True
                 try:
-                    self.save()
+                    self._save({k: values[k] for k in DURABLE_KEYS})
                 finally:
                     self._publishing = False
             values.update(self._saved)  # clients see the stored values, the newer ones once stored
