@@ -62,6 +62,13 @@ _CREATE_SESSION = ua.NodeId(_O.CreateSessionRequest_Encoding_DefaultBinary)
 _ACTIVATE_SESSION = ua.NodeId(_O.ActivateSessionRequest_Encoding_DefaultBinary)
 _CLOSE_SESSION = ua.NodeId(_O.CloseSessionRequest_Encoding_DefaultBinary)
 _CREATE_SUBSCRIPTION = ua.NodeId(_O.CreateSubscriptionRequest_Encoding_DefaultBinary)
+# Requests that change a session or what the summary counts: the values are refreshed at once. Any other
+# request only moves its session's counters, which the once-a-second refresh publishes (a refresh after
+# every request would cost every call the whole session array).
+_AT_ONCE = {_CREATE_SESSION, _ACTIVATE_SESSION, _CLOSE_SESSION, _CREATE_SUBSCRIPTION} | {
+    ua.NodeId(getattr(_O, f"{service}Request_Encoding_DefaultBinary"))
+    for service in ("DeleteSubscriptions", "TransferSubscriptions", "CreateMonitoredItems", "DeleteMonitoredItems")
+}
 _SECURITY_CODES = {
     getattr(ua.StatusCodes, name)
     for name in (
@@ -218,7 +225,8 @@ class Diagnostics:
                 name = getattr(user, "name", None) or ""
                 if not record.user_history or record.user_history[-1] != name:
                     record.user_history.append(name)
-        self._dirty.set()
+        if not ok or typeid in _AT_ONCE:
+            self._dirty.set()
 
     def record(self, session: InternalSession) -> SessionRecord:
         return self.sessions.setdefault(str(session.session_id), SessionRecord())
