@@ -31,12 +31,17 @@ _log.propagate = False  # its own trail; not repeated in the service log
 
 class _AuditFormatter(logging.Formatter):
     def format(self, record: logging.LogRecord) -> str:
-        entry = {
-            "time": dt.datetime.fromtimestamp(record.created, dt.UTC).isoformat(timespec="milliseconds"),
-            "event": record.getMessage(),
-            **getattr(record, "audit", {}),
-        }
-        return json.dumps(entry, default=str, ensure_ascii=False)
+        # The rotating handler formats each record twice (size check, then write): build the line once.
+        line: str | None = getattr(record, "audit_line", None)
+        if line is None:
+            entry = {
+                "time": dt.datetime.fromtimestamp(record.created, dt.UTC).isoformat(timespec="milliseconds"),
+                "event": record.getMessage(),
+                **getattr(record, "audit", {}),
+            }
+            line = json.dumps(entry, default=str, ensure_ascii=False)
+            record.audit_line = line
+        return line
 
 
 class AuditTrail:

@@ -310,7 +310,11 @@ class PackMLUnit:
         """Executable of every method, recomputed only when an input of ``_refusal`` changed: the three
         machines' states, the unit mode and the material interlocks."""
         s = self.status
-        key = (self.states, s.unit_mode_current, bool(s.material_interlock), s.material_interlocked)
+        # The three machines' own current states decide which are active, hence the unit's state.
+        key = (
+            self.base.current, self.machine.current, self.execute.current,
+            s.unit_mode_current, bool(s.material_interlock), s.material_interlocked,
+        )  # fmt: skip
         if key != self._executable_key:
             self._executable_memo = {k: self._refusal(*k) is None for k in self.methods()}
             self._executable_key = key
