@@ -124,6 +124,10 @@ def test_temporaries_and_symlinks_are_not_listed(store: FileStore, root: Path, t
     (root / "linkdir").symlink_to(tmp_path)
     listed = [e.relpath for e in store.entries()]
     assert listed == ["a.robot", "sub", "sub/b.robot", "sub/deep", "sub/deep/c.robot"]
+    (root / "sub" / "notes.txt").write_bytes(b"x")
+    (root / "sub" / "dir.robot").mkdir()
+    assert store.files(".robot") == ["a.robot", "sub/b.robot", "sub/deep/c.robot"]  # files only, no link
+    assert store.files() == ["a.robot", "sub/b.robot", "sub/deep/c.robot", "sub/notes.txt"]
     store.close(S1, h)
 
 

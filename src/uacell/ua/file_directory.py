@@ -32,7 +32,7 @@ from uacell.registry import RegistryKey
 from uacell.roles import Family
 from uacell.ua import context, toolkit
 from uacell.ua.context import Caller
-from uacell.ua.file_store import Change, FileStore
+from uacell.ua.file_store import Change, Entry, FileStore
 from uacell.ua.instantiate import Selection
 from uacell.ua.toolkit import ValueWriter
 
@@ -119,7 +119,7 @@ class FileDirectoryBinding:
         for entry in store.entries():
             self._ensure_node(entry.relpath, entry.is_dir)
             if not entry.is_dir:
-                await self._publish_values(entry.relpath)
+                await self._publish_values(entry.relpath, entry)
         store.listeners.append(self._on_change)
         if watch_sessions:
             self._watch_sessions()
@@ -223,7 +223,7 @@ class FileDirectoryBinding:
             self._remove_node(relpath)  # replaced by an entry of the other kind
         self._ensure_node(relpath, entry.is_dir)
         if not entry.is_dir:
-            await self._publish_values(relpath)
+            await self._publish_values(relpath, entry)
 
     def _ensure_node(self, relpath: str, is_dir: bool) -> ua.NodeId:
         node = self._nodes.get(relpath)
@@ -297,13 +297,15 @@ class FileDirectoryBinding:
                     todo.append(target)
         return out
 
-    async def _publish_values(self, relpath: str) -> None:
+    async def _publish_values(self, relpath: str, entry: Entry | None = None) -> None:
+        """Size, Writable, OpenCount ... of the file at ``relpath`` (``entry``: the store's, if just read)."""
         if relpath not in self._nodes:
             return
-        try:
-            entry = self.store.entry(relpath)
-        except CallError:
-            return
+        if entry is None:
+            try:
+                entry = self.store.entry(relpath)
+            except CallError:
+                return
         writable = entry.writable and not (self.store.protect is not None and self.store.protect(relpath))
         values = {
             "Size": entry.size,

@@ -192,6 +192,12 @@ class FileStore:
             base = self._existing(dir_relpath, want_dir=True)
             return [self._entry(p) for p in self._walk(base)]
 
+    def files(self, suffix: str = "") -> list[str]:
+        """The relative paths of every visible file whose name ends in ``suffix``, sorted: a listing that,
+        unlike ``entries``, asks the disk for nothing but the directories."""
+        with self._lock:
+            return sorted(self._rel(p) for p in self._walk(self.root, files_only=True) if p.name.endswith(suffix))
+
     def entry(self, relpath: str) -> Entry:
         """The entry at ``relpath``; Bad_NotFound if there is none."""
         with self._lock:
@@ -567,15 +573,15 @@ class FileStore:
         writable = os.access(path, os.W_OK) and os.access(path.parent, os.W_OK)
         return Entry(self._rel(path), False, path.stat().st_size, writable)
 
-    def _walk(self, base: Path) -> Iterator[Path]:
-        """Visible entries below ``base``, top-down and sorted: no temporaries, no symlinks."""
+    def _walk(self, base: Path, *, files_only: bool = False) -> Iterator[Path]:
+        """Visible entries (or only files) below ``base``, top-down and sorted: no temporaries, no symlinks."""
         if not base.is_dir():
             return
         for dirpath, dirnames, filenames in os.walk(base):
             here = Path(dirpath)
             dirnames[:] = sorted(d for d in dirnames if not d.startswith(TEMP_PREFIX) and not (here / d).is_symlink())
             files = [f for f in filenames if not f.startswith(TEMP_PREFIX) and not (here / f).is_symlink()]
-            for name in sorted([*dirnames, *files]):
+            for name in sorted(files if files_only else [*dirnames, *files]):
                 yield here / name
 
     def _new_handle(self) -> int:

@@ -66,9 +66,7 @@ class StoreLibrary(DirectoryLibrary):
         self.store = store
 
     def _files(self) -> list[Path]:
-        return sorted(
-            self.root / e.relpath for e in self.store.entries() if not e.is_dir and e.relpath.endswith(PROGRAM_SUFFIX)
-        )
+        return sorted(self.root / relpath for relpath in self.store.files(PROGRAM_SUFFIX))
 
 
 class Programs:
