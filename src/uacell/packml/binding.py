@@ -370,9 +370,7 @@ async def make_unit_equipment(app: UacellServer, built: BuiltPart) -> PackMLEqui
         settings.setdefault("acting_time", cfg.acting_time)
         if spec is not None and spec.acting_times:
             settings["acting_times"] = {**spec.acting_times, **settings.get("acting_times", {})}
-    equipment: PackMLEquipment = await make_equipment(
-        factory, EquipmentSpec(built.path, settings), PackMLEquipment
-    )
+    equipment: PackMLEquipment = await make_equipment(factory, EquipmentSpec(built.path, settings), PackMLEquipment)
     return equipment
 
 

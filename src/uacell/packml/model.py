@@ -61,8 +61,7 @@ MODE_DISABLED: dict[int, frozenset[str]] = {
 SET_UNIT_MODE_STATES = frozenset({"Stopped", "Idle", "Aborted"})
 # uacell's rule: products and parameters change only while no job runs (between Start and Complete).
 JOB_STATES = frozenset(
-    {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding",
-     "Suspending", "Suspended", "Unsuspending"}
+    {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding", "Suspending", "Suspended", "Unsuspending"}
 )
 # StopReason.ID for a commanded stop: the ISA-TR88 command number (Stop 3, Hold 4, Suspend 6, Abort 8).
 STOP_COMMAND_IDS = {"Stop": 3, "Hold": 4, "Suspend": 6, "Abort": 8}
@@ -73,8 +72,14 @@ PACKAGES = EUInformation("http://www.opcfoundation.org/UA/units/un/cefact", 5262
 
 # The stored Admin values as clients read them (decision 28): published only once they are durable.
 DURABLE_KEYS = (
-    "Admin/ProdProcessedCount", "Admin/ProdDefectiveCount", "Admin/ProdConsumedCount", "Admin/ModeCumulativeTime",
-    "Admin/StateCumulativeTime", "Admin/AccTimeSinceReset", "Admin/StopReason", "Admin/AlarmHistory",
+    "Admin/ProdProcessedCount",
+    "Admin/ProdDefectiveCount",
+    "Admin/ProdConsumedCount",
+    "Admin/ModeCumulativeTime",
+    "Admin/StateCumulativeTime",
+    "Admin/AccTimeSinceReset",
+    "Admin/StopReason",
+    "Admin/AlarmHistory",
 )
 DURABLE_TIMES = frozenset({"Admin/ModeCumulativeTime", "Admin/StateCumulativeTime", "Admin/AccTimeSinceReset"})
 # A change of the stored times alone (a whole second passed) is stored, and then published, at most this
@@ -192,10 +197,12 @@ class PackMLUnit:
 
         base_t, machine_t, execute_t = tables.base, tables.machine, tables.execute
         self.base = StateMachine(BASE, base_t, "Cleared")
-        self.machine = StateMachine(MACHINE, machine_t, "Stopped", parent=self.base,
-                                    parent_state=_hosting(base_t.states.values(), MACHINE))
-        self.execute = StateMachine(EXECUTE, execute_t, "Idle", parent=self.machine,
-                                    parent_state=_hosting(machine_t.states.values(), EXECUTE))
+        self.machine = StateMachine(
+            MACHINE, machine_t, "Stopped", parent=self.base, parent_state=_hosting(base_t.states.values(), MACHINE)
+        )
+        self.execute = StateMachine(
+            EXECUTE, execute_t, "Idle", parent=self.machine, parent_state=_hosting(machine_t.states.values(), EXECUTE)
+        )
         self.machines: dict[str, StateMachine] = {m.name: m for m in self.base.walk()}
         self._methods = {name: m.table.methods for name, m in self.machines.items()}
         # Executable of every method, for the inputs of _refusal it was computed from (see _executable_now)
@@ -203,7 +210,9 @@ class PackMLUnit:
         self._executable_memo: dict[tuple[str | None, str], bool] = {}
         # The "state complete" transitions: those no method causes. Their from-states are the acting states.
         self._sc: dict[tuple[str, str], TransitionInfo] = {
-            (m.name, t.from_state): t for m in self.machines.values() for t in m.table.transitions.values()
+            (m.name, t.from_state): t
+            for m in self.machines.values()
+            for t in m.table.transitions.values()
             if not t.causes
         }
 
@@ -369,9 +378,12 @@ class PackMLUnit:
         """Call ``method`` of ``machine_name`` (None: a unit method) with the method's input arguments."""
         if machine_name is UNIT:
             handlers: dict[str, Callable[..., Any]] = {
-                "SetUnitMode": self.set_unit_mode, "SetMachSpeed": self.set_mach_speed,
-                "SetProduct": self.set_product, "SetParameter": self.set_parameter,
-                "RemoteCommand": self.remote_command, "SetInterlock": self.set_interlock,
+                "SetUnitMode": self.set_unit_mode,
+                "SetMachSpeed": self.set_mach_speed,
+                "SetProduct": self.set_product,
+                "SetParameter": self.set_parameter,
+                "RemoteCommand": self.remote_command,
+                "SetInterlock": self.set_interlock,
             }
             handler = handlers.get(method)
             if handler is None:
@@ -471,8 +483,12 @@ class PackMLUnit:
             if method == "Start":
                 self.status.start_parameters = parameters
             if method in STOP_COMMAND_IDS:
-                self._record_stop(stop_reason or PackMLAlarmDataType(
-                    STOP_COMMAND_IDS[method], 0, f"{method} commanded", 0, self._wall(), None, False))
+                self._record_stop(
+                    stop_reason
+                    or PackMLAlarmDataType(
+                        STOP_COMMAND_IDS[method], 0, f"{method} commanded", 0, self._wall(), None, False
+                    )
+                )
             if method == "Clear":
                 self._acknowledge_alarms()
             self._take(sm, t, reason)
@@ -499,9 +515,7 @@ class PackMLUnit:
                 return
         raise CallError("BadInvalidState", f"{method} is not possible in {self.state}")
 
-    def report_production(
-        self, processed: int = 0, defective: int = 0, consumed: int | Mapping[int, int] = 0
-    ) -> None:
+    def report_production(self, processed: int = 0, defective: int = 0, consumed: int | Mapping[int, int] = 0) -> None:
         with self._operation():
             a = self.admin
             if processed:
@@ -535,8 +549,11 @@ class PackMLUnit:
             w = self.admin.warning
             w[:] = [x for x in w if x.id != warning_id]
             if active:
-                _push(w, PackMLAlarmDataType(warning_id, 0, message, 0, self._wall(), None, True),
-                      self.admin.warning_extent)
+                _push(
+                    w,
+                    PackMLAlarmDataType(warning_id, 0, message, 0, self._wall(), None, True),
+                    self.admin.warning_extent,
+                )
 
     def set_blocked(self, blocked: bool) -> None:
         with self._operation():
@@ -550,8 +567,11 @@ class PackMLUnit:
 
     def set_unit_mode(self, mode: int) -> None:
         if isinstance(mode, bool) or not isinstance(mode, int) or mode not in self.supported_modes:
-            raise CallError("BadInvalidArgument", f"RequestedMode {mode!r} is not a supported mode "
-                            f"({sorted(self.supported_modes)})", argument=0)
+            raise CallError(
+                "BadInvalidArgument",
+                f"RequestedMode {mode!r} is not a supported mode ({sorted(self.supported_modes)})",
+                argument=0,
+            )
         self._check(UNIT, "SetUnitMode")
         with self._operation():
             s = self.status
@@ -572,7 +592,8 @@ class PackMLUnit:
         low, high = self.status.mach_speed_range
         if not low <= value <= high:
             raise CallError(
-                "BadInvalidArgument", f"RequestedMachineSpeed {value} is outside the EURange [{low}, {high}]",
+                "BadInvalidArgument",
+                f"RequestedMachineSpeed {value} is outside the EURange [{low}, {high}]",
                 argument=0,
             )
         self.equipment.on_mach_speed(value)
@@ -603,9 +624,11 @@ class PackMLUnit:
         """State true = interlocked: MaterialInterlock[id] becomes false (its bit means "ready")."""
         n = len(self.status.material_interlock)
         if isinstance(interlock_id, bool) or not isinstance(interlock_id, int) or not 0 <= interlock_id < n:
-            raise CallError("BadInvalidArgument",
-                            f"InterlockId {interlock_id!r} is not an index of MaterialInterlock (0..{n - 1})",
-                            argument=0)
+            raise CallError(
+                "BadInvalidArgument",
+                f"InterlockId {interlock_id!r} is not an index of MaterialInterlock (0..{n - 1})",
+                argument=0,
+            )
         if not isinstance(state, bool):
             raise CallError("BadInvalidArgument", f"State must be a Boolean, got {state!r}", argument=1)
         self.equipment.on_interlock(interlock_id, state)
@@ -624,8 +647,11 @@ class PackMLUnit:
             self._mode_cur = self._state_cur = self._acc = 0.0
             self._times_shown = None
             self._account()
-            for counts in (self.admin.prod_processed_count, self.admin.prod_defective_count,
-                           self.admin.prod_consumed_count):
+            for counts in (
+                self.admin.prod_processed_count,
+                self.admin.prod_defective_count,
+                self.admin.prod_consumed_count,
+            ):
                 counts[:] = [dataclasses.replace(c, count=0) for c in counts]
             self.save()
 
@@ -750,10 +776,17 @@ class PackMLUnit:
     def _call_hooks(self, state: str) -> None:
         eq = self.equipment
         hooks: dict[str, Callable[[], None]] = {
-            "Clearing": eq.on_clearing, "Stopping": eq.on_stopping, "Aborting": eq.on_aborting,
-            "Resetting": eq.on_resetting, "Starting": lambda: eq.on_starting(self.status.start_parameters),
-            "Completing": eq.on_completing, "Holding": eq.on_holding, "Unholding": eq.on_unholding,
-            "Suspending": eq.on_suspending, "Unsuspending": eq.on_unsuspending, "Execute": eq.on_execute,
+            "Clearing": eq.on_clearing,
+            "Stopping": eq.on_stopping,
+            "Aborting": eq.on_aborting,
+            "Resetting": eq.on_resetting,
+            "Starting": lambda: eq.on_starting(self.status.start_parameters),
+            "Completing": eq.on_completing,
+            "Holding": eq.on_holding,
+            "Unholding": eq.on_unholding,
+            "Suspending": eq.on_suspending,
+            "Unsuspending": eq.on_unsuspending,
+            "Execute": eq.on_execute,
         }
         try:
             eq.on_state(state)
@@ -886,13 +919,16 @@ class PackMLUnit:
             return
         try:
             a = self.admin
-            for key, counts in (("prod_processed_count", a.prod_processed_count),
-                                ("prod_defective_count", a.prod_defective_count),
-                                ("prod_consumed_count", a.prod_consumed_count)):
+            for key, counts in (
+                ("prod_processed_count", a.prod_processed_count),
+                ("prod_defective_count", a.prod_defective_count),
+                ("prod_consumed_count", a.prod_consumed_count),
+            ):
                 stored = {c.id: c for c in map(count_from_json, data.get(key, []))}
                 counts[:] = [
                     dataclasses.replace(c, count=stored[c.id].count, acc_count=stored[c.id].acc_count)
-                    if c.id in stored else c
+                    if c.id in stored
+                    else c
                     for c in counts
                 ]
             for i, x in enumerate(data.get("mode_cumulative_time", [])[: len(self._mode_cum)]):

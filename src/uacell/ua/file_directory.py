@@ -200,8 +200,13 @@ class FileDirectoryBinding:
     def _on_change(self, change: Change) -> None:
         caller = context.current_caller()
         self.app.audit.record(
-            "program_file", user=caller.display_user, session=caller.session_id, operation=change.kind,
-            path=change.relpath, directory=change.is_dir, root=str(self.store.root),
+            "program_file",
+            user=caller.display_user,
+            session=caller.session_id,
+            operation=change.kind,
+            path=change.relpath,
+            directory=change.is_dir,
+            root=str(self.store.root),
         )
         self._submit(change.relpath)
 
