@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
+import shutil
+import tempfile
 import signal
 import subprocess
 import sys
@@ -15,8 +18,15 @@ from pathlib import Path
 import pytest
 from helpers import free_port
 
-from uacell.config import Config
+from uacell.config import CACHE_DIR_ENV, Config
 from uacell.server import UacellServer
+
+# One address-space snapshot for the whole run (uacell.ua.snapshot): the first server writes it and
+# every later one, in process or not, starts from it. tests/test_snapshot.py gives its servers their
+# own cache directories to check building, staleness and damage.
+_TEST_CACHE = tempfile.mkdtemp(prefix="uacell-test-cache-")
+os.environ.setdefault(CACHE_DIR_ENV, _TEST_CACHE)
+atexit.register(shutil.rmtree, _TEST_CACHE, True)
 
 ROOT = Path(__file__).resolve().parents[1]
 INTEROP = ROOT / "interop"

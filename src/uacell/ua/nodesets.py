@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import logging
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +18,7 @@ from asyncua import Server, ua
 from asyncua.common.xmlimporter import XmlImporter
 
 from uacell.models.source import MODELS, locate_models
+from uacell.ua import snapshot
 
 log = logging.getLogger(__name__)
 
@@ -97,3 +100,65 @@ async def load_models(server: Server, models_dir: str | None = None) -> dict[str
         await _Importer(server).import_xml(xmlstring=xml)
         indexes[model.key] = await server.get_namespace_index(model.namespace_uri)
     return indexes
+
+
+@dataclass
+class PreparedSpace:
+    """What ``init_address_space`` did: the models' namespace indexes, and the snapshot still to write."""
+
+    indexes: dict[str, int]
+    source: str  # "snapshot" or "nodesets"
+    pending: Callable[[], None] | None = None  # writes the snapshot; run it in a thread once listening
+
+
+async def init_address_space(server: Server, models_dir: str | None, cache: Path | None) -> PreparedSpace:
+    """``server.init()`` and the official models, from the snapshot in ``cache`` when it is valid.
+
+    ``cache`` None: no snapshot is read or written. Otherwise a missing, stale or damaged snapshot
+    means building as usual (logged at INFO) and handing back the job that writes a new one.
+    """
+    locate_models(models_dir)  # every file there and verified, even when the snapshot will do
+    path = cache / snapshot.FILENAME if cache is not None else None
+    key = snapshot.snapshot_key({m.filename: m.sha256 for m in MODELS}) if path is not None else {}
+    found: snapshot.Snapshot | None = None
+    if path is not None:
+        try:
+            found = snapshot.read_snapshot(path, key)
+        except snapshot.SnapshotInvalid as e:
+            log.info("the address-space snapshot %s %s: building the address space", path, e)
+            snapshot.discard(path)
+    if found is not None:
+        nodes = found.nodes
+
+        async def from_snapshot(_shelf_file: object) -> None:
+            server.iserver.aspace._nodes = nodes
+
+        # asyncua's init() fills the standard nodes here; everything else it does stays as it is.
+        server.iserver.load_standard_address_space = from_snapshot
+        try:
+            await server.init()
+        finally:
+            del server.iserver.load_standard_address_space
+        for position, uri in enumerate(found.namespaces, start=2):
+            index = await server.register_namespace(uri)
+            if index != position:
+                raise RuntimeError(f"namespace {uri} got index {index}, the snapshot has it at {position}")
+        # The importer registers the models' structure classes (asyncua.ua) as it goes; here they are
+        # made from the DataTypeDefinitions, before any value of theirs is read from the snapshot.
+        await server.load_data_type_definitions()
+        indexes = {m.key: await server.get_namespace_index(m.namespace_uri) for m in MODELS}
+        log.info("address space from the snapshot %s (%d nodes stored)", path, nodes.stored)
+        return PreparedSpace(indexes, "snapshot")
+    await server.init()
+    indexes = await load_models(server, models_dir)
+    if path is None:
+        return PreparedSpace(indexes, "nodesets")
+    copy = snapshot.stripped_copy(server.iserver.aspace._nodes)
+    namespaces = list((await server.get_namespace_array())[2:])
+    target = path
+
+    def write() -> None:
+        snapshot.write_snapshot(target, key, namespaces, copy)
+        log.info("wrote the address-space snapshot %s (%d nodes)", target, len(copy))
+
+    return PreparedSpace(indexes, "nodesets", write)

@@ -1,0 +1,250 @@
+"""A snapshot of the prepared address space, so that later starts skip building it.
+
+Building the address space is most of a start: asyncua creates its ~6,000 standard nodes one by one
+and the four companion NodeSets are parsed and imported with their inverse references. Neither
+depends on the configuration, only on the NodeSet files and the versions of uacell, asyncua and
+Python. So the first start writes what they produced (every node, without the Python callbacks
+bound to them) to one file in the cache directory, and later starts read the nodes from it on
+demand instead (``LazyNodes``): a node is unpickled the first time something asks for it, and most
+standard nodes are never asked for. The cell's own instances are built on every start, because
+they follow the configuration.
+
+The file is a cache, never a source of truth:
+
+- it is keyed (``snapshot_key``) by everything that shapes it: the SHA-256 of every NodeSet file,
+  the snapshot format, the digest of the code that builds it, and the uacell, asyncua and Python
+  versions; a different key is stale;
+- it carries the SHA-256 of its content and is verified before any node is read from it;
+- it is written to a private temporary file (mode 0600, in a 0700 directory), flushed to disk and
+  renamed over the old one, so a reader sees the old file or the new one, never half of one;
+- a missing, stale or damaged file makes the server build the address space as if there were no
+  cache (logged at INFO) and write a new one: it never fails a start.
+
+Layout: ``MAGIC``, a 4-byte big-endian length and that many bytes of JSON metadata (key, namespace
+URIs, index length, content digest), then the content: a pickled index ``{NodeId: (offset,
+length)}`` followed by one pickled ``NodeData`` per node.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import pickle
+import platform
+import struct
+import tempfile
+from collections.abc import Iterator, Mapping, MutableMapping
+from dataclasses import dataclass
+from importlib.metadata import version
+from pathlib import Path
+from typing import Any
+
+from asyncua import ua
+from asyncua.server.address_space import AttributeValue, NodeData
+
+from uacell import __version__
+
+log = logging.getLogger(__name__)
+
+FORMAT = 1
+MAGIC = b"uacell address space snapshot\n"
+FILENAME = "address-space.snapshot"
+_LENGTH = struct.Struct(">I")
+
+
+class SnapshotInvalid(Exception):
+    """The file is not a usable snapshot for this server (the message says why)."""
+
+
+def snapshot_key(nodesets: Mapping[str, str]) -> dict[str, Any]:
+    """Everything that shapes the prepared address space, as a JSON-able mapping.
+
+    ``nodesets`` maps each NodeSet file's name to its SHA-256. The code that builds the snapshot
+    (this module and ``uacell.ua.nodesets``) is keyed by its own digest too, so a changed loader
+    never reads a snapshot written by the old one, even within one uacell version.
+    """
+    here = Path(__file__).parent
+    code = hashlib.sha256()
+    for source in ("snapshot.py", "nodesets.py"):
+        code.update((here / source).read_bytes())
+    return {
+        "format": FORMAT,
+        "uacell": __version__,
+        "code": code.hexdigest(),
+        "asyncua": version("asyncua"),
+        "python": f"{platform.python_implementation()} {platform.python_version()}",
+        "nodesets": dict(sorted(nodesets.items())),
+    }
+
+
+def stripped_copy(nodes: Mapping[ua.NodeId, NodeData]) -> list[tuple[ua.NodeId, NodeData]]:
+    """Every node as data only: no method callback, value callback, setter or data-change callback.
+
+    Run it on the event loop (nothing may change the nodes meanwhile); the copy can then be pickled
+    in another thread while the server goes on. Values are shared, not copied: asyncua replaces a
+    ``DataValue`` on write, it never changes one in place.
+    """
+    copies: list[tuple[ua.NodeId, NodeData]] = []
+    for nodeid, data in nodes.items():
+        copy = NodeData(nodeid)
+        copy.references = list(data.references)
+        copy.attributes = {attr: AttributeValue(value.value) for attr, value in data.attributes.items()}
+        copies.append((nodeid, copy))
+    return copies
+
+
+@dataclass
+class Snapshot:
+    """A verified snapshot: its namespace URIs (from index 2 on) and its nodes, read on demand."""
+
+    namespaces: list[str]
+    nodes: LazyNodes
+
+
+class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
+    """The address space's node table, backed by a snapshot's content.
+
+    A node is unpickled into ``cache`` on first access; new and changed nodes live in ``cache`` only.
+    Iteration and ``len`` cover the nodes loaded so far (as asyncua's own shelf-backed table does):
+    a node that was never read cannot hold a reference to a node created since, so code that scans
+    for references (asyncua's DeleteNodes) still finds every one.
+    """
+
+    def __init__(self, content: memoryview, index_length: int) -> None:
+        self._content = content
+        self._index: dict[ua.NodeId, tuple[int, int]] = pickle.loads(self._content[:index_length])
+        self._deleted: set[ua.NodeId] = set()
+        self.cache: dict[ua.NodeId, NodeData] = {}
+
+    def __getitem__(self, key: ua.NodeId) -> NodeData:
+        try:
+            return self.cache[key]
+        except KeyError:
+            if key in self._deleted:
+                raise
+            where = self._index.get(key)
+            if where is None:
+                raise
+            offset, length = where
+            node: NodeData = pickle.loads(self._content[offset : offset + length])
+            self.cache[key] = node
+            return node
+
+    def __setitem__(self, key: ua.NodeId, value: NodeData) -> None:
+        self._deleted.discard(key)
+        self.cache[key] = value
+
+    def __delitem__(self, key: ua.NodeId) -> None:
+        if key not in self:
+            raise KeyError(key)
+        self.cache.pop(key, None)
+        self._deleted.add(key)
+
+    def __contains__(self, key: object) -> bool:
+        if key in self.cache:
+            return True
+        return isinstance(key, ua.NodeId) and key in self._index and key not in self._deleted
+
+    def __iter__(self) -> Iterator[ua.NodeId]:
+        return iter(self.cache)
+
+    def __len__(self) -> int:
+        return len(self.cache)
+
+    @property
+    def stored(self) -> int:
+        """How many nodes the snapshot holds."""
+        return len(self._index)
+
+
+def write_snapshot(
+    path: Path, key: Mapping[str, Any], namespaces: list[str], nodes: list[tuple[ua.NodeId, NodeData]]
+) -> None:
+    """Write ``nodes`` (from ``stripped_copy``) as the snapshot at ``path``, atomically, owner-only."""
+    blobs = [pickle.dumps(data, protocol=pickle.HIGHEST_PROTOCOL) for _nodeid, data in nodes]
+    # Offsets are into the content, which starts with the index; the index's own length shifts them.
+    relative: dict[ua.NodeId, tuple[int, int]] = {}
+    offset = 0
+    for (nodeid, _data), blob in zip(nodes, blobs, strict=True):
+        relative[nodeid] = (offset, len(blob))
+        offset += len(blob)
+    shift = 0
+    while True:  # the index's length depends on the offsets it holds; two rounds settle it
+        index = pickle.dumps(
+            {nodeid: (start + shift, length) for nodeid, (start, length) in relative.items()},
+            protocol=pickle.HIGHEST_PROTOCOL,
+        )
+        if len(index) == shift:
+            break
+        shift = len(index)
+    digest = hashlib.sha256(index)
+    for blob in blobs:
+        digest.update(blob)
+    meta = json.dumps(
+        {"key": dict(key), "namespaces": namespaces, "index_length": len(index), "sha256": digest.hexdigest()},
+        sort_keys=True,
+    ).encode()
+    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)  # mode 0600
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(MAGIC)
+            f.write(_LENGTH.pack(len(meta)))
+            f.write(meta)
+            f.write(index)
+            for blob in blobs:
+                f.write(blob)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+def read_snapshot(path: Path, key: Mapping[str, Any]) -> Snapshot | None:
+    """The verified snapshot at ``path``; None if there is none; ``SnapshotInvalid`` if unusable."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return None
+    except OSError as e:
+        raise SnapshotInvalid(f"cannot be read: {e}") from e
+    if not data.startswith(MAGIC) or len(data) < len(MAGIC) + _LENGTH.size:
+        raise SnapshotInvalid("is not a snapshot file")
+    start = len(MAGIC) + _LENGTH.size
+    (meta_length,) = _LENGTH.unpack_from(data, len(MAGIC))
+    try:
+        meta = json.loads(data[start : start + meta_length])
+        stored_key, namespaces = meta["key"], meta["namespaces"]
+        index_length, expected = int(meta["index_length"]), str(meta["sha256"])
+    except (ValueError, KeyError, TypeError) as e:
+        raise SnapshotInvalid("has unreadable metadata") from e
+    if stored_key != dict(key):
+        raise SnapshotInvalid("is stale (NodeSets or versions changed)")
+    content = memoryview(data)[start + meta_length :]
+    if hashlib.sha256(content).hexdigest() != expected:
+        raise SnapshotInvalid("is damaged (its content does not match its digest)")
+    if not isinstance(namespaces, list) or not all(isinstance(n, str) for n in namespaces):
+        raise SnapshotInvalid("has unreadable metadata")
+    try:
+        nodes = LazyNodes(content, index_length)
+    except Exception as e:  # a digest match makes this unlikely; never fail a start over a cache
+        raise SnapshotInvalid(f"has an unreadable index: {e}") from e
+    return Snapshot(namespaces, nodes)
+
+
+def discard(path: Path) -> None:
+    """Remove the snapshot and any temporary file a crash left beside it."""
+    for stale in [path, *path.parent.glob(f".{path.name}.*.tmp")]:
+        with contextlib.suppress(FileNotFoundError):
+            stale.unlink()
