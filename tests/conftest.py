@@ -55,11 +55,18 @@ class ServeProcess:
 
 
 def start_serve(
-    data_dir: Path, *extra: str, port: int | None = None, env: dict | None = None, web: bool = False
+    data_dir: Path,
+    *extra: str,
+    port: int | None = None,
+    env: dict | None = None,
+    web: bool = False,
+    host: str = "127.0.0.1",
+    prefix: tuple[str, ...] = (),
 ) -> ServeProcess:
     """Run `uacell serve` on a free loopback port and wait for its listening line.
 
     The web HMI is off unless ``web`` (then on a free port: pass ``--web-port`` in ``extra`` to choose).
+    ``prefix`` runs the command through another (``ip netns exec NS``); ``host`` is where it listens.
     """
     port = port or free_port()
     if not web:
@@ -67,6 +74,7 @@ def start_serve(
     elif "--web-port" not in extra:
         extra = ("--web-port", str(free_port()), *extra)
     cmd = [
+        *prefix,
         sys.executable,
         "-m",
         "uacell",
@@ -74,7 +82,7 @@ def start_serve(
         "WARNING",
         "serve",
         "--host",
-        "127.0.0.1",
+        host,
         "--port",
         str(port),
         "--data-dir",
