@@ -11,7 +11,7 @@ from asyncua import Server, ua
 
 from uacell import __version__
 from uacell.audit import AuditTrail
-from uacell.cell import CellBuilder, Part, build_cell
+from uacell.cell import CellBuilder, Part, build_cell, cell_digest
 from uacell.companion import Binder, Closer, companions
 from uacell.config import Config, default_application_uri
 from uacell.logs import configured_levels
@@ -125,11 +125,15 @@ class UacellServer:
         self.server.iserver.set_user_manager(UacellUserManager(self.policy, self.users))
         # ConditionRefresh(2) for alarm clients, with Severity 100 on its RefreshStart/End events.
         self.server.iserver.bind_condition_methods = 100
-        # asyncua's init() and the official models, from the address-space snapshot when valid.
-        prepared = await init_address_space(self.server, cfg.models_dir, cfg.snapshot_dir)
+        # asyncua's init(), the official models and the cell's instances: from the address-space
+        # snapshot when there is one for this cell, else built (and a snapshot written once listening).
+        parts = self.parts if self.parts is not None else self.config.cell.parts()
+        prepared = await init_address_space(self.server, cfg.models_dir, cfg.snapshot_dir, cell_digest(parts))
         self.model_indexes = prepared.indexes
         self.address_space_source = prepared.source
-        self._snapshot_job = prepared.pending
+        self._cell = await build_cell(self.server, self.model_indexes, parts, restored=prepared.extras)
+        if prepared.capture is not None:
+            self._snapshot_job = await prepared.capture(self._cell.extras())
         self.limits = install_limits(self)
         self.server.set_endpoint(self.endpoint)
         self.server.set_server_name(cfg.application_name)
@@ -139,8 +143,6 @@ class UacellServer:
         self.security = await install_security(self)
         self.server.product_uri = PRODUCT_URI
         await self.server.set_build_info(PRODUCT_URI, "uacell", "uacell", __version__, "0", ua.DateTime.now())
-        parts = self.parts if self.parts is not None else self.config.cell.parts()
-        self._cell = await build_cell(self.server, self.model_indexes, parts)
         self._refs = NodeRefs(await self.server.get_namespace_array())
         self.dispatcher.declarations = self.cell.instantiator.declarations
         bind_get_monitored_items(self)

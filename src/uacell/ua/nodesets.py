@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import xml.etree.ElementTree as ET
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -104,22 +104,32 @@ async def load_models(server: Server, models_dir: str | None = None) -> dict[str
 
 @dataclass
 class PreparedSpace:
-    """What ``init_address_space`` did: the models' namespace indexes, and the snapshot still to write."""
+    """What ``init_address_space`` did: the models' namespace indexes and where the nodes came from.
+
+    From a snapshot, ``extras`` is what ``capture`` was given when it was written (the cell's
+    bookkeeping); otherwise ``capture`` (None when the cache is off) returns the job that writes the
+    snapshot: call it once the cell is built, run the job in a thread once listening.
+    """
 
     indexes: dict[str, int]
     source: str  # "snapshot" or "nodesets"
-    pending: Callable[[], None] | None = None  # writes the snapshot; run it in a thread once listening
+    extras: dict[str, Any] | None = None
+    capture: Callable[[dict[str, Any]], Awaitable[Callable[[], None]]] | None = None
 
 
-async def init_address_space(server: Server, models_dir: str | None, cache: Path | None) -> PreparedSpace:
-    """``server.init()`` and the official models, from the snapshot in ``cache`` when it is valid.
+async def init_address_space(
+    server: Server, models_dir: str | None, cache: Path | None, cell: str = ""
+) -> PreparedSpace:
+    """``server.init()`` and the official models, from the snapshot in ``cache`` when there is one.
 
-    ``cache`` None: no snapshot is read or written. Otherwise a missing, stale or damaged snapshot
-    means building as usual (logged at INFO) and handing back the job that writes a new one.
+    ``cell`` is the digest of the cell that will be built (``uacell.cell.cell_digest``): a snapshot
+    holds its instances too. ``cache`` None: no snapshot is read or written. A stale snapshot has
+    another key, so another file: it is not found. A damaged one is logged at INFO and removed. In
+    both cases the address space is built as usual.
     """
     locate_models(models_dir)  # every file there and verified, even when the snapshot will do
-    path = cache / snapshot.FILENAME if cache is not None else None
-    key = snapshot.snapshot_key({m.filename: m.sha256 for m in MODELS}) if path is not None else {}
+    key = snapshot.snapshot_key({m.filename: m.sha256 for m in MODELS}, cell) if cache is not None else {}
+    path = snapshot.snapshot_path(cache, key) if cache is not None else None
     found: snapshot.Snapshot | None = None
     if path is not None:
         try:
@@ -127,6 +137,8 @@ async def init_address_space(server: Server, models_dir: str | None, cache: Path
         except snapshot.SnapshotInvalid as e:
             log.info("the address-space snapshot %s %s: building the address space", path, e)
             snapshot.discard(path)
+        if found is None:
+            log.info("no address-space snapshot for this cell and these models yet: building the address space")
     if found is not None:
         nodes = found.nodes
 
@@ -148,17 +160,23 @@ async def init_address_space(server: Server, models_dir: str | None, cache: Path
         await server.load_data_type_definitions()
         indexes = {m.key: await server.get_namespace_index(m.namespace_uri) for m in MODELS}
         log.info("address space from the snapshot %s (%d nodes stored)", path, nodes.stored)
-        return PreparedSpace(indexes, "snapshot")
+        return PreparedSpace(indexes, "snapshot", found.extras)
     await server.init()
     indexes = await load_models(server, models_dir)
     if path is None:
         return PreparedSpace(indexes, "nodesets")
-    copy = snapshot.stripped_copy(server.iserver.aspace._nodes)
-    namespaces = list((await server.get_namespace_array())[2:])
     target = path
 
-    def write() -> None:
-        snapshot.write_snapshot(target, key, namespaces, copy)
-        log.info("wrote the address-space snapshot %s (%d nodes)", target, len(copy))
+    async def capture(extras: dict[str, Any]) -> Callable[[], None]:
+        # On the event loop, before anything else changes the nodes; the writing can wait.
+        copy = snapshot.stripped_copy(server.iserver.aspace._nodes)
+        namespaces = list((await server.get_namespace_array())[2:])
 
-    return PreparedSpace(indexes, "nodesets", write)
+        def write() -> None:
+            snapshot.write_snapshot(target, key, namespaces, copy, extras)
+            snapshot.prune(target.parent)
+            log.info("wrote the address-space snapshot %s (%d nodes)", target, len(copy))
+
+        return write
+
+    return PreparedSpace(indexes, "nodesets", capture=capture)

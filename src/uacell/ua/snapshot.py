@@ -1,13 +1,13 @@
 """A snapshot of the prepared address space, so that later starts skip building it.
 
-Building the address space is most of a start: asyncua creates its ~6,000 standard nodes one by one
-and the four companion NodeSets are parsed and imported with their inverse references. Neither
-depends on the configuration, only on the NodeSet files and the versions of uacell, asyncua and
-Python. So the first start writes what they produced (every node, without the Python callbacks
-bound to them) to one file in the cache directory, and later starts read the nodes from it on
-demand instead (``LazyNodes``): a node is unpickled the first time something asks for it, and most
-standard nodes are never asked for. The cell's own instances are built on every start, because
-they follow the configuration.
+Building the address space is most of a start: asyncua creates its ~6,000 standard nodes one by one,
+the four companion NodeSets are parsed and imported with their inverse references, and the cell's
+instances are created member by member (15,000 nodes for 100 PackML units). All of it depends only
+on the NodeSet files, the cell's shape and the versions of the code. So the first start writes what
+they produced (every node, without the Python callbacks bound to them) to a file in the cache
+directory, and later starts read the nodes from it on demand instead (``LazyNodes``): a node is
+unpickled the first time something asks for it, and most standard nodes are never asked for. What
+the bindings add and write (values, methods, their callbacks) is done on every start, as before.
 
 The file is a cache, never a source of truth:
 
@@ -21,8 +21,9 @@ The file is a cache, never a source of truth:
   cache (logged at INFO) and write a new one: it never fails a start.
 
 Layout: ``MAGIC``, a 4-byte big-endian length and that many bytes of JSON metadata (key, namespace
-URIs, index length, content digest), then the content: a pickled index ``{NodeId: (offset,
-length)}`` followed by one pickled ``NodeData`` per node.
+URIs, index length, content digest), then the content: a pickled index (``{NodeId: chunk}``, the
+chunks' ``(offset, length)``, extras) followed by the chunks, each a pickled list of ``NodeData``.
+Each key has its own file (``snapshot_path``); the few most recent are kept (``prune``).
 """
 
 from __future__ import annotations
@@ -51,7 +52,9 @@ log = logging.getLogger(__name__)
 
 FORMAT = 1
 MAGIC = b"uacell address space snapshot\n"
-FILENAME = "address-space.snapshot"
+PREFIX, SUFFIX = "address-space-", ".snapshot"
+KEEP = 3  # snapshots kept per cache directory (one per cell and model set recently served)
+CHUNK = 32  # nodes unpickled together: neighbours are usually wanted together, and share a memo
 _LENGTH = struct.Struct(">I")
 
 
@@ -59,17 +62,21 @@ class SnapshotInvalid(Exception):
     """The file is not a usable snapshot for this server (the message says why)."""
 
 
-def snapshot_key(nodesets: Mapping[str, str]) -> dict[str, Any]:
+_CODE = ("ua/snapshot.py", "ua/nodesets.py", "ua/instantiate.py", "cell.py")  # what builds the snapshot
+
+
+def snapshot_key(nodesets: Mapping[str, str], cell: str) -> dict[str, Any]:
     """Everything that shapes the prepared address space, as a JSON-able mapping.
 
-    ``nodesets`` maps each NodeSet file's name to its SHA-256. The code that builds the snapshot
-    (this module and ``uacell.ua.nodesets``) is keyed by its own digest too, so a changed loader
-    never reads a snapshot written by the old one, even within one uacell version.
+    ``nodesets`` maps each NodeSet file's name to its SHA-256; ``cell`` is the digest of the cell's
+    shape (``uacell.cell.cell_digest``). The code that builds the snapshot is keyed by its own
+    digest too, so a changed loader or instantiation never reads a snapshot the old one wrote, even
+    within one uacell version.
     """
-    here = Path(__file__).parent
+    package = Path(__file__).parents[1]
     code = hashlib.sha256()
-    for source in ("snapshot.py", "nodesets.py"):
-        code.update((here / source).read_bytes())
+    for source in _CODE:
+        code.update((package / source).read_bytes())
     return {
         "format": FORMAT,
         "uacell": __version__,
@@ -77,7 +84,22 @@ def snapshot_key(nodesets: Mapping[str, str]) -> dict[str, Any]:
         "asyncua": version("asyncua"),
         "python": f"{platform.python_implementation()} {platform.python_version()}",
         "nodesets": dict(sorted(nodesets.items())),
+        "cell": cell,
     }
+
+
+def snapshot_path(cache: Path, key: Mapping[str, Any]) -> Path:
+    """The file of the snapshot keyed ``key``: one per key, so that cells do not evict each other."""
+    digest = hashlib.sha256(json.dumps(dict(key), sort_keys=True).encode()).hexdigest()
+    return cache / f"{PREFIX}{digest[:16]}{SUFFIX}"
+
+
+def prune(cache: Path, keep: int = KEEP) -> None:
+    """Remove all but the ``keep`` most recently written snapshots."""
+    found = sorted(cache.glob(f"{PREFIX}*{SUFFIX}"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
+    for old in found[keep:]:
+        with contextlib.suppress(FileNotFoundError):
+            old.unlink()
 
 
 def stripped_copy(nodes: Mapping[ua.NodeId, NodeData]) -> list[tuple[ua.NodeId, NodeData]]:
@@ -98,24 +120,30 @@ def stripped_copy(nodes: Mapping[ua.NodeId, NodeData]) -> list[tuple[ua.NodeId, 
 
 @dataclass
 class Snapshot:
-    """A verified snapshot: its namespace URIs (from index 2 on) and its nodes, read on demand."""
+    """A verified snapshot: its namespace URIs (from index 2 on), its nodes (read on demand) and what
+    its writer asked to keep beside them (``extras``, e.g. the cell's instance declarations)."""
 
     namespaces: list[str]
     nodes: LazyNodes
+    extras: dict[str, Any]
 
 
 class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
     """The address space's node table, backed by a snapshot's content.
 
-    A node is unpickled into ``cache`` on first access; new and changed nodes live in ``cache`` only.
-    Iteration and ``len`` cover the nodes loaded so far (as asyncua's own shelf-backed table does):
-    a node that was never read cannot hold a reference to a node created since, so code that scans
-    for references (asyncua's DeleteNodes) still finds every one.
+    Nodes are stored in chunks of neighbours (``CHUNK`` nodes, in the order they were created: a
+    type's members, an instance's children); a chunk is unpickled into ``cache`` the first time one
+    of its nodes is asked for. New and changed nodes live in ``cache`` only. Iteration and ``len``
+    cover the nodes loaded so far (as asyncua's own shelf-backed table does): a node that was never
+    loaded cannot hold a reference to a node created since, so code that scans for references
+    (asyncua's DeleteNodes) still finds every one.
     """
 
-    def __init__(self, content: memoryview, index_length: int) -> None:
-        self._content = content
-        self._index: dict[ua.NodeId, tuple[int, int]] = pickle.loads(self._content[:index_length])
+    def __init__(self, chunks: memoryview, where: dict[ua.NodeId, int], spans: list[tuple[int, int]]) -> None:
+        self._chunks = chunks
+        self._where = where  # node -> its chunk
+        self._spans = spans  # chunk -> (offset, length) in ``chunks``
+        self._loaded: set[int] = set()
         self._deleted: set[ua.NodeId] = set()
         self.cache: dict[ua.NodeId, NodeData] = {}
 
@@ -123,15 +151,19 @@ class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
         try:
             return self.cache[key]
         except KeyError:
-            if key in self._deleted:
+            chunk = self._where.get(key)
+            if chunk is None or chunk in self._loaded or key in self._deleted:
                 raise
-            where = self._index.get(key)
-            if where is None:
-                raise
-            offset, length = where
-            node: NodeData = pickle.loads(self._content[offset : offset + length])
-            self.cache[key] = node
-            return node
+            self._load(chunk)
+            return self.cache[key]
+
+    def _load(self, chunk: int) -> None:
+        self._loaded.add(chunk)
+        offset, length = self._spans[chunk]
+        nodes: list[NodeData] = pickle.loads(self._chunks[offset : offset + length])
+        for node in nodes:
+            if node.nodeid not in self._deleted:
+                self.cache.setdefault(node.nodeid, node)  # a node set since wins
 
     def __setitem__(self, key: ua.NodeId, value: NodeData) -> None:
         self._deleted.discard(key)
@@ -146,7 +178,7 @@ class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
     def __contains__(self, key: object) -> bool:
         if key in self.cache:
             return True
-        return isinstance(key, ua.NodeId) and key in self._index and key not in self._deleted
+        return isinstance(key, ua.NodeId) and key in self._where and key not in self._deleted
 
     def __iter__(self) -> Iterator[ua.NodeId]:
         return iter(self.cache)
@@ -157,29 +189,32 @@ class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
     @property
     def stored(self) -> int:
         """How many nodes the snapshot holds."""
-        return len(self._index)
+        return len(self._where)
 
 
 def write_snapshot(
-    path: Path, key: Mapping[str, Any], namespaces: list[str], nodes: list[tuple[ua.NodeId, NodeData]]
+    path: Path,
+    key: Mapping[str, Any],
+    namespaces: list[str],
+    nodes: list[tuple[ua.NodeId, NodeData]],
+    extras: Mapping[str, Any] | None = None,
 ) -> None:
-    """Write ``nodes`` (from ``stripped_copy``) as the snapshot at ``path``, atomically, owner-only."""
-    blobs = [pickle.dumps(data, protocol=pickle.HIGHEST_PROTOCOL) for _nodeid, data in nodes]
-    # Offsets are into the content, which starts with the index; the index's own length shifts them.
-    relative: dict[ua.NodeId, tuple[int, int]] = {}
+    """Write ``nodes`` (from ``stripped_copy``) as the snapshot at ``path``, atomically, owner-only.
+
+    ``extras``: picklable data kept beside the nodes (``Snapshot.extras``)."""
+    where: dict[ua.NodeId, int] = {}
+    spans: list[tuple[int, int]] = []
+    blobs: list[bytes] = []
     offset = 0
-    for (nodeid, _data), blob in zip(nodes, blobs, strict=True):
-        relative[nodeid] = (offset, len(blob))
+    for start in range(0, len(nodes), CHUNK):
+        group = nodes[start : start + CHUNK]
+        blob = pickle.dumps([data for _nodeid, data in group], protocol=pickle.HIGHEST_PROTOCOL)
+        for nodeid, _data in group:
+            where[nodeid] = len(spans)
+        spans.append((offset, len(blob)))
+        blobs.append(blob)
         offset += len(blob)
-    shift = 0
-    while True:  # the index's length depends on the offsets it holds; two rounds settle it
-        index = pickle.dumps(
-            {nodeid: (start + shift, length) for nodeid, (start, length) in relative.items()},
-            protocol=pickle.HIGHEST_PROTOCOL,
-        )
-        if len(index) == shift:
-            break
-        shift = len(index)
+    index = pickle.dumps((where, spans, dict(extras or {})), protocol=pickle.HIGHEST_PROTOCOL)
     digest = hashlib.sha256(index)
     for blob in blobs:
         digest.update(blob)
@@ -237,10 +272,10 @@ def read_snapshot(path: Path, key: Mapping[str, Any]) -> Snapshot | None:
     if not isinstance(namespaces, list) or not all(isinstance(n, str) for n in namespaces):
         raise SnapshotInvalid("has unreadable metadata")
     try:
-        nodes = LazyNodes(content, index_length)
+        where, spans, extras = pickle.loads(content[:index_length])
     except Exception as e:  # a digest match makes this unlikely; never fail a start over a cache
         raise SnapshotInvalid(f"has an unreadable index: {e}") from e
-    return Snapshot(namespaces, nodes)
+    return Snapshot(namespaces, LazyNodes(content[index_length:], where, spans), extras)
 
 
 def discard(path: Path) -> None:
