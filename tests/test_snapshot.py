@@ -171,8 +171,9 @@ def test_only_the_most_recent_snapshots_are_kept(tmp_path: Path) -> None:
         (lambda data: data[: len(data) // 2], "damaged"),  # cut short
         (lambda data: b"not a snapshot at all", "not a snapshot"),
         (lambda data: snapshot.MAGIC + b"\x00\x00\x00\x05{oops", "metadata"),
+        (lambda data: b"", "cannot be read"),
     ],
-    ids=["flipped-bit", "truncated", "foreign", "bad-metadata"],
+    ids=["flipped-bit", "truncated", "foreign", "bad-metadata", "empty"],
 )
 def test_a_damaged_snapshot_is_refused(tmp_path: Path, damage, reason: str) -> None:
     path = tmp_path / NAME

@@ -32,6 +32,7 @@ import contextlib
 import hashlib
 import json
 import logging
+import mmap
 import os
 import pickle
 import platform
@@ -249,12 +250,12 @@ def write_snapshot(
 def read_snapshot(path: Path, key: Mapping[str, Any]) -> Snapshot | None:
     """The verified snapshot at ``path``; None if there is none; ``SnapshotInvalid`` if unusable."""
     try:
-        data = path.read_bytes()
+        data = _map(path)
     except FileNotFoundError:
         return None
-    except OSError as e:
+    except (OSError, ValueError) as e:
         raise SnapshotInvalid(f"cannot be read: {e}") from e
-    if not data.startswith(MAGIC) or len(data) < len(MAGIC) + _LENGTH.size:
+    if len(data) < len(MAGIC) + _LENGTH.size or data[: len(MAGIC)] != MAGIC:
         raise SnapshotInvalid("is not a snapshot file")
     start = len(MAGIC) + _LENGTH.size
     (meta_length,) = _LENGTH.unpack_from(data, len(MAGIC))
@@ -269,6 +270,9 @@ def read_snapshot(path: Path, key: Mapping[str, Any]) -> Snapshot | None:
     content = memoryview(data)[start + meta_length :]
     if hashlib.sha256(content).hexdigest() != expected:
         raise SnapshotInvalid("is damaged (its content does not match its digest)")
+    # Hashing read every page: give them back; the chunks that are loaded come in again from the page
+    # cache, the rest never count in the server's memory.
+    data.madvise(mmap.MADV_DONTNEED)
     if not isinstance(namespaces, list) or not all(isinstance(n, str) for n in namespaces):
         raise SnapshotInvalid("has unreadable metadata")
     try:
@@ -276,6 +280,13 @@ def read_snapshot(path: Path, key: Mapping[str, Any]) -> Snapshot | None:
     except Exception as e:  # a digest match makes this unlikely; never fail a start over a cache
         raise SnapshotInvalid(f"has an unreadable index: {e}") from e
     return Snapshot(namespaces, LazyNodes(content[index_length:], where, spans), extras)
+
+
+def _map(path: Path) -> mmap.mmap:
+    """The file, mapped read-only. Writers replace the file (a new inode), never change it in place,
+    so a mapping stays what was verified."""
+    with path.open("rb") as f:
+        return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
 
 
 def discard(path: Path) -> None:
