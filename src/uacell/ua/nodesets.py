@@ -134,11 +134,11 @@ async def init_address_space(
     if path is not None:
         try:
             found = snapshot.read_snapshot(path, key)
+            if found is None:
+                log.info("no address-space snapshot for this cell and these models yet: building the address space")
         except snapshot.SnapshotInvalid as e:
             log.info("the address-space snapshot %s %s: building the address space", path, e)
             snapshot.discard(path)
-        if found is None:
-            log.info("no address-space snapshot for this cell and these models yet: building the address space")
     if found is not None:
         nodes = found.nodes
 
