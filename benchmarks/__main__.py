@@ -120,7 +120,7 @@ class Peer:
 
 
 class Peers:
-    """Builds the peers' commands; every uacell peer gets its own data directory."""
+    """Builds the peers' commands: uacell peers restart with their cell's data directory, or start afresh."""
 
     def __init__(self, tmp: Path) -> None:
         self.tmp = tmp
@@ -132,15 +132,17 @@ class Peers:
         self.nodeset_files = [str(paths[m.key]) for m in MODELS]
 
     def uacell(self, cell: str = "demo", snapshot: bool = True) -> Peer:
-        """A uacell peer; ``snapshot``: sharing the address-space snapshots of one cache directory, as
-        a server does after its first start (the first peer of each cell writes it, untimed, here);
-        else with an empty cache directory of its own: a first start."""
+        """A uacell peer; ``snapshot``: a restart, with the cell's data directory and the shared cache
+        directory of address-space snapshots (the first peer of each cell writes its snapshot,
+        untimed, here); else a first start, with empty directories of its own."""
         if snapshot and cell not in self.prepared:
             self.prepared.add(cell)
             self._prepare_snapshot(cell)
         self.count += 1
         port = free_port()
-        data = self.tmp / f"uacell-{cell}-{self.count}"
+        # A restart keeps its data directory (its certificate: no new key to generate); a first
+        # start has an empty one. Peers of one cell never run at the same time.
+        data = self.tmp / (f"uacell-{cell}" if snapshot else f"uacell-{cell}-{self.count}")
         cache = self.cache if snapshot else data / "cache"
         cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", cell]
         return Peer(f"uacell {cell} cell", [*cmd, "--data-dir", str(data), "--cache-dir", str(cache)], port=port)
