@@ -49,6 +49,8 @@ PACKML_MACHINES = (
     ("ExecuteState", ("Reset", "Start", "Hold", "Unhold", "Suspend", "Unsuspend", "ToComplete")),
 )
 SYSOP_METHODS = ("GetReady", "StandDown", "Start", "Stop")
+# CurrentLine and ProgramPointer are uacell's own (docs/robotics.md): absent on other servers.
+TASK_VARIABLES = ("TaskProgramName", "TaskProgramLoaded", "ExecutionMode", "CurrentLine", "ProgramPointer")
 TASK_METHODS = ("LoadByName", "UnloadProgram", "UnloadByName", "Start", "Stop")
 LOCK_VARIABLES = ("Locked", "LockingUser", "LockingClient", "RemainingLockTime")
 LOCK_METHODS = ("InitLock", "RenewLock", "ExitLock", "BreakLock")
@@ -308,10 +310,7 @@ class Discoverer:
             "name": task.name,
             **await self.machine(prefix, machine),
             "ready": await self.machine(f"{prefix}/ReadySubstateMachine", ready),
-            "variables": {
-                n: await self.variable(f"{prefix}/{n}", params, n)
-                for n in ("TaskProgramName", "TaskProgramLoaded", "ExecutionMode")
-            },
+            "variables": {n: await self.variable(f"{prefix}/{n}", params, n) for n in TASK_VARIABLES},
             "modules": f"{prefix}/TaskModules" if modules is not None else None,
             "lock": await self.lock(prefix, task.node),
             "methods": methods,

@@ -410,6 +410,13 @@ function stateLine(label, cls) {
   return el("div", {class: "state-line"}, el("span", {class: "label", text: label}), el("strong", {class: cls, text: "–"}));
 }
 
+// The loaded program and, while an instruction executes, its source line (where the server says it).
+function programLine() {
+  const line = stateLine("Program", "v-program");
+  line.append(el("span", {class: "v-line", hidden: true}));
+  return line;
+}
+
 function renderRobot(r) {
   const card = el("section", {class: "card robot", id: `robot-${r.name}`, "data-robot": r.name}, el("h2", {text: `${r.name}: robot`}));
   for (const c of r.controllers) card.append(renderController(r, c));
@@ -467,7 +474,7 @@ function renderTask(r, c, t) {
   const m = t.methods;
   const box = el("div", {class: "task", id: `task-${r.name}-${t.name}`, "data-task": t.name},
     el("h4", {text: `Task control ${t.name}`}),
-    stateLine("State", "v-task"), stateLine("Program", "v-program"), stateLine("Modules", "v-modules"),
+    stateLine("State", "v-task"), programLine(), stateLine("Modules", "v-modules"),
     lockBox(t.lock, [t.lock, c.lock]),
     el("div", {class: "commands"}, select,
       button("Load", m.LoadByName, {locks, args: () => [select.value.replace(/\.robot$/, "")]}),
@@ -594,6 +601,10 @@ function updateRobots() {
     if (S.values[t.ready.state]) text += ` / ${S.values[t.ready.state]}`;
     $(".v-task", box).textContent = text;
     $(".v-program", box).textContent = S.values[t.variables.TaskProgramName] || "none";
+    const line = t.variables.CurrentLine ? S.values[t.variables.CurrentLine] : null;
+    const lineBox = $(".v-line", box);
+    lineBox.textContent = line ? `line ${line}` : "";
+    lineBox.hidden = !line;
     $(".v-modules", box).textContent = (S.modules[t.modules] || []).join(", ") || "none";
   }
   for (const lock of $$(".v-lock")) {
