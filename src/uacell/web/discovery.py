@@ -200,7 +200,9 @@ class Discoverer:
         if PACKML in index:
             for unit in await self.of_type(top.get("PackMLObjects"), ua.NodeId(6, index[PACKML])):
                 units.append(await self.unit(unit))
-        self.cell.layout = {"robots": robots, "units": units}
+        # Auditing: the server fires AuditUpdateStateEvents naming who caused each transition (uacell does).
+        auditing = await Node(self.client.uaclient, ua.NodeId(ua.ObjectIds.Server_Auditing)).read_value()
+        self.cell.layout = {"robots": robots, "units": units, "auditing": bool(auditing)}
         log.debug("found %d robots and %d PackML units", len(robots), len(units))
         return self.cell
 

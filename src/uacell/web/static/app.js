@@ -99,6 +99,7 @@ function handle(m) {
       S.events.length = Math.min(S.events.length, 30);
       renderEvents();
       break;
+    case "events": S.events = m.events; renderEvents(); break;
     case "files": S.files = m.files; renderFiles(); break;
     case "modules": S.modules = m.modules; update(); break;
     case "status": setConn(m.status, m.problem); break;
@@ -623,10 +624,16 @@ function renderEvents() {
   const list = $("#event-list");
   if (!list) return;
   list.textContent = "";
+  // Who: the user the server's AuditUpdateStateEvent names; "automatic" when the server audits and
+  // sent none (the transition followed by itself); "—" when the server does not say.
+  const auditing = !!(S.layout && S.layout.auditing);
   for (const e of S.events.slice(0, 15)) {
     const t = e.time ? new Date(e.time).toLocaleTimeString() : "";
     const reason = e.reason !== null && e.reason !== undefined ? ` (reason: ${e.reason})` : "";
-    list.append(el("li", {}, el("time", {text: t}), ` ${e.machine}: ${e.from} → ${e.to}${reason}`));
+    const who = e.user ? e.user : (auditing ? "automatic" : "—");
+    list.append(el("li", {"data-user": e.user || ""}, el("time", {text: t}), ` ${e.machine}: ${e.from} → ${e.to} `,
+      el("span", {class: e.user ? "ev-user" : "ev-user auto", title: e.method ? `called ${e.method}` : null, text: who}),
+      reason));
   }
 }
 
