@@ -314,19 +314,24 @@ async def test_the_page_learns_who_caused_a_transition_and_the_current_line(stac
     status, answer = await b.post("/api/call", {"key": "Filler1/MachineState/Reset", "args": []})
     assert status == 200 and answer["good"]
 
-    def attributed(message: dict) -> bool:
-        events = message.get("events") or []
-        return any(e["user"] == "otto" for e in events) and any(e["to"] == "Idle" for e in events)
+    seen: list[dict] = []  # the page's list of last transitions, as the stream keeps it
 
-    message = await asyncio.to_thread(_sse_until, b, attributed)
-    caused = next(e for e in message["events"] if e["user"] == "otto")
+    def attributed(message: dict) -> bool:
+        if "events" in message:  # a snapshot, or the list again after an entry learnt its user
+            seen[:] = message["events"]
+        elif message.get("type") == "event":
+            seen.insert(0, message["event"])
+        return any(e["user"] == "otto" for e in seen) and any(e["to"] == "Idle" for e in seen)
+
+    await asyncio.to_thread(_sse_until, b, attributed)
+    caused = next(e for e in seen if e["user"] == "otto")
     assert (caused["machine"], caused["from"], caused["to"], caused["method"]) == (
         "Filler1/MachineState",
         "Stopped",
         "Running",
         "Reset",
     )
-    followed = next(e for e in message["events"] if e["to"] == "Idle")
+    followed = next(e for e in seen if e["to"] == "Idle")
     assert followed["user"] is None  # Resetting -> Idle completed by itself: no audit event
     # The layout says the server audits, and names the task control's current line.
     layout = web.web.sessions[b.cookie()].ua.cell.layout
