@@ -18,6 +18,7 @@ from conftest import fast_config, start_app
 from helpers import delivered, raw_call, wait_until
 
 from uacell.background import Background
+from uacell.packml.binding import UNITS
 from uacell.users import UserStore
 
 module_loop = pytest.mark.asyncio(loop_scope="module")
@@ -144,6 +145,31 @@ async def test_a_users_packml_command_is_audited_and_the_acting_state_that_follo
         at_server = await server.wait_for(lambda e: e.EventType == AUDIT)
         assert (at_server.SourceNode, at_server.ClientUserId) == (ua.NodeId(MACHINE, ns), "otto")
         assert await client.get_node(ua.ObjectIds.Server_Auditing).read_value() is True
+    finally:
+        await client.disconnect()
+
+
+async def test_a_start_with_parameters_carries_them_in_its_audit_event(app) -> None:
+    client, ns = await connect(app, "otto")
+    try:
+        await client.load_data_type_definitions()
+        unit = app.registry(UNITS)["Filler1"].unit
+        if unit.state != "Idle":  # the first test leaves it there; otherwise bring it there
+            await wait_until(lambda: unit.state in ("Stopped", "Idle"))
+            if unit.state == "Stopped":
+                await call(client, ns, MACHINE, "Reset")
+            await wait_until(lambda: unit.state == "Idle")
+        execute = await watch(client, ua.NodeId(EXECUTE, ns))
+        parameter = ua.PackMLDescriptorDataType(ID=7, Name="FillVolume", Value=250.5)
+        await call(client, ns, EXECUTE, "Start", ua.Variant([parameter], ua.VariantType.ExtensionObject))
+        await execute.wait_for(lambda e: e.EventType == TRANSITION and e.Transition.Text == "StartingToExecute")
+        await delivered(app, execute, ua.NodeId(EXECUTE, ns))
+        assert pairs(execute) == [("IdleToStarting", "otto"), ("StartingToExecute", None)]
+        (audit,) = execute.audits()
+        (argument,) = audit.InputArguments
+        assert [(d.ID, d.Name, d.Value) for d in argument.Value] == [(7, "FillVolume", 250.5)]
+        await call(client, ns, MACHINE, "Stop")
+        await wait_until(lambda: unit.state == "Stopped")
     finally:
         await client.disconnect()
 
