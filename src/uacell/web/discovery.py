@@ -200,11 +200,16 @@ class Discoverer:
         if PACKML in index:
             for unit in await self.of_type(top.get("PackMLObjects"), ua.NodeId(6, index[PACKML])):
                 units.append(await self.unit(unit))
-        # Auditing: the server fires AuditUpdateStateEvents naming who caused each transition (uacell does).
-        auditing = await Node(self.client.uaclient, ua.NodeId(ua.ObjectIds.Server_Auditing)).read_value()
-        self.cell.layout = {"robots": robots, "units": units, "auditing": bool(auditing)}
+        self.cell.layout = {"robots": robots, "units": units, "auditing": await self.auditing()}
         log.debug("found %d robots and %d PackML units", len(robots), len(units))
         return self.cell
+
+    async def auditing(self) -> bool:
+        """Does the server audit (``Server/Auditing``)? uacell does: it fires AuditUpdateStateEvents naming
+        who caused each transition."""
+        node = Node(self.client.uaclient, ua.NodeId(ua.ObjectIds.Server_Auditing))
+        dv = await node.read_data_value(raise_on_bad_status=False)
+        return bool(dv.StatusCode.is_good() and dv.Value is not None and dv.Value.Value)
 
     async def unit(self, unit: Child) -> dict[str, Any]:
         name = unit.name
