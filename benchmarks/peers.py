@@ -55,10 +55,11 @@ async def bare_asyncua(port: int, nodesets: bool) -> None:
     await server.stop()
 
 
-async def uacell(port: int, cell: str, data_dir: str) -> None:
+async def uacell(port: int, cell: str, data_dir: str, cache_dir: str) -> None:
     from pathlib import Path
 
     from benchmarks.cells import bench_cell
+    from uacell import _entry
     from uacell.config import Config
     from uacell.server import UacellServer
 
@@ -66,9 +67,11 @@ async def uacell(port: int, cell: str, data_dir: str) -> None:
     config = Config()
     config.server.port = port
     config.server.data_dir = Path(data_dir)
+    config.server.cache_dir = Path(cache_dir) if cache_dir else None
     config.packml.acting_time = 0.0
     app = UacellServer(config, parts=bench_cell(cell))
     await app.setup()
+    _entry.resume_gc()  # as `uacell serve` does
     await app.start()
     print("listening", flush=True)
     await _until_stopped()
@@ -82,11 +85,15 @@ def main() -> int:
     parser.add_argument("--nodesets", action="store_true")
     parser.add_argument("--cell", default="demo")
     parser.add_argument("--data-dir", default="")
+    parser.add_argument("--cache-dir", default="")
     args = parser.parse_args()
     if args.kind == "asyncua":
         asyncio.run(bare_asyncua(args.port, args.nodesets))
     else:
-        asyncio.run(uacell(args.port, args.cell, args.data_dir))
+        from uacell import _entry
+
+        _entry.pause_gc()  # as `uacell serve` does, from its first line
+        asyncio.run(uacell(args.port, args.cell, args.data_dir, args.cache_dir))
     return 0
 
 

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import AsyncIterator, Iterator
 from dataclasses import dataclass
@@ -15,8 +18,15 @@ from pathlib import Path
 import pytest
 from helpers import free_port
 
-from uacell.config import Config
+from uacell.config import CACHE_DIR_ENV, Config
 from uacell.server import UacellServer
+
+# One address-space snapshot for the whole run (uacell.ua.snapshot): the first server writes it and
+# every later one, in process or not, starts from it. tests/test_snapshot.py gives its servers their
+# own cache directories to check building, staleness and damage.
+_TEST_CACHE = tempfile.mkdtemp(prefix="uacell-test-cache-")
+os.environ.setdefault(CACHE_DIR_ENV, _TEST_CACHE)
+atexit.register(shutil.rmtree, _TEST_CACHE, True)
 
 ROOT = Path(__file__).resolve().parents[1]
 INTEROP = ROOT / "interop"
@@ -45,11 +55,18 @@ class ServeProcess:
 
 
 def start_serve(
-    data_dir: Path, *extra: str, port: int | None = None, env: dict | None = None, web: bool = False
+    data_dir: Path,
+    *extra: str,
+    port: int | None = None,
+    env: dict | None = None,
+    web: bool = False,
+    host: str = "127.0.0.1",
+    prefix: tuple[str, ...] = (),
 ) -> ServeProcess:
     """Run `uacell serve` on a free loopback port and wait for its listening line.
 
     The web HMI is off unless ``web`` (then on a free port: pass ``--web-port`` in ``extra`` to choose).
+    ``prefix`` runs the command through another (``ip netns exec NS``); ``host`` is where it listens.
     """
     port = port or free_port()
     if not web:
@@ -57,6 +74,7 @@ def start_serve(
     elif "--web-port" not in extra:
         extra = ("--web-port", str(free_port()), *extra)
     cmd = [
+        *prefix,
         sys.executable,
         "-m",
         "uacell",
@@ -64,7 +82,7 @@ def start_serve(
         "WARNING",
         "serve",
         "--host",
-        "127.0.0.1",
+        host,
         "--port",
         str(port),
         "--data-dir",

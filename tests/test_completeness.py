@@ -16,6 +16,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import free_port
 
 from uacell.cell import _NOISE, Part, demo_cell
 from uacell.cellconfig import builtin_cell_path
@@ -286,11 +287,23 @@ async def check_node(
             problems.append(f"{where}/{rel}: mandatory placeholder {_fmt(p.browse_name)} has no instance")
 
 
-async def _serve_cell(base: Path, cell: str) -> AsyncIterator[Space]:
-    """A server with the shipped cell ``cell`` (demo or example), seen through one client session."""
+async def _serve_cell(base: Path, cell: str, from_snapshot: bool) -> AsyncIterator[Space]:
+    """A server with the shipped cell ``cell`` (demo or example), seen through one client session.
+
+    Its own cache directory: ``from_snapshot`` starts (and stops) a first server that writes the
+    address-space snapshot there, so that the checked one starts from it; otherwise the checked
+    server builds its address space from the NodeSets.
+    """
     config = fast_config(base / "data")
+    config.server.cache_dir = base / "cache"
     config.cell = load_cell(builtin_cell_path(cell))
+    if from_snapshot:
+        first = await start_app(config)
+        await first.snapshot_written()
+        await first.stop()
+        config.server.port = free_port()
     app = await start_app(config)
+    assert app.address_space_source == ("snapshot" if from_snapshot else "nodesets")
     # The health probe (a ServerStatus read) gets 30 s, not 1 s: a loaded machine must not drop the session.
     client = Client(app.endpoint, timeout=60, watchdog_intervall=30.0)
     try:
@@ -319,15 +332,15 @@ async def _serve_cell(base: Path, cell: str) -> AsyncIterator[Space]:
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def space(tmp_path_factory) -> AsyncIterator[Space]:
-    """One demo-cell server for the module."""
-    async for s in _serve_cell(Path(tmp_path_factory.mktemp("completeness")), "demo"):
+    """One demo-cell server for the module, started from an address-space snapshot."""
+    async for s in _serve_cell(Path(tmp_path_factory.mktemp("completeness")), "demo", from_snapshot=True):
         yield s
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def example_space(tmp_path_factory) -> AsyncIterator[Space]:
-    """One server with the larger shipped example cell for the module."""
-    async for s in _serve_cell(Path(tmp_path_factory.mktemp("completeness-example")), "example"):
+    """One server with the larger shipped example cell for the module, built from the NodeSets."""
+    async for s in _serve_cell(Path(tmp_path_factory.mktemp("completeness-example")), "example", from_snapshot=False):
         yield s
 
 

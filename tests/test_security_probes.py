@@ -11,9 +11,7 @@ import logging
 import os
 import socket
 import subprocess
-import sys
 import threading
-import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,7 +20,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from asyncua.crypto import security_policies as sp
-from conftest import START_TIMEOUT, fast_config, start_app
+from conftest import fast_config, start_app, start_serve
 from cryptography import x509
 from uaraw import Fault, RawClient, Refused, anonymous_token, none_session, user_token
 
@@ -233,51 +231,11 @@ def _connect_in_namespace(namespace: str, host: str, port: int) -> socket.socket
 
 @contextlib.contextmanager
 def _serve_in_namespace(namespace: str, data_dir: Path, port: int) -> Iterator[None]:
-    cmd = [
-        "ip",
-        "netns",
-        "exec",
-        namespace,
-        sys.executable,
-        "-m",
-        "uacell",
-        "--log-level",
-        "WARNING",
-        "serve",
-        "--host",
-        PLANT_ADDRESS,
-        "--port",
-        str(port),
-        "--data-dir",
-        str(data_dir),
-        "--no-web",
-    ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    lines: list[str] = []
+    served = start_serve(data_dir, port=port, host=PLANT_ADDRESS, prefix=("ip", "netns", "exec", namespace))
     try:
-        deadline = time.monotonic() + START_TIMEOUT
-        assert proc.stdout is not None
-        while time.monotonic() < deadline:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            lines.append(line)
-            if line.startswith("uacell listening on "):
-                break
-        else:
-            raise AssertionError("uacell serve did not start in time:\n" + "".join(lines))
-        assert lines and lines[-1].startswith("uacell listening on "), "".join(lines)
         yield
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        if proc.stdout is not None:
-            proc.stdout.close()
+        served.stop()
 
 
 async def test_none_channel_on_a_plant_network_address(plant_namespace, tmp_path):

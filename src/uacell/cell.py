@@ -8,8 +8,10 @@ The cell comes from the configuration (``uacell.cellconfig``); the default is th
 
 from __future__ import annotations
 
+import hashlib
 from copy import deepcopy
 from dataclasses import dataclass, replace
+from typing import Any
 
 from asyncua import Server, ua
 from asyncua.server.address_space import AddressSpace
@@ -78,24 +80,37 @@ class CellBuilder:
         """Follow a BrowseName path (names without namespace) down from ``node``."""
         return toolkit.child(self.aspace, node, path)
 
-    def build(self, parent: ua.NodeId, part: Part, id_prefix: str = "", reference_type: int = 47) -> BuiltPart:
+    def build(
+        self, parent: ua.NodeId, part: Part, id_prefix: str = "", reference_type: int = 47, create: bool = True
+    ) -> BuiltPart:
+        """Create ``part`` and its children below ``parent``; ``create`` False: they exist already
+        (from an address-space snapshot), only record them."""
         where = self.child(parent, part.folder) if part.folder else parent
         type_node = self.type_node(part.model, part.type_name)
         segments = [id_prefix, *part.folder.split("/"), part.name]
         path = ".".join(s for s in segments if s)
-        node = self.instantiator.create(
-            where,
-            type_node,
-            ua.QualifiedName(part.name, self.instantiator.ns),
-            Selection((*part.include, *part.values), _NOISE),
-            reference_type=reference_type,
-            path=path,
-        )
+        if create:
+            node = self.instantiator.create(
+                where,
+                type_node,
+                ua.QualifiedName(part.name, self.instantiator.ns),
+                Selection((*part.include, *part.values), _NOISE),
+                reference_type=reference_type,
+                path=path,
+            )
+        else:
+            node = self.instantiator.nodeid(path)
+            if node not in self.aspace:
+                raise KeyError(f"the address-space snapshot has no {path}")
         built = BuiltPart(part, node, type_node, path)
         self.built.append(built)
         for child in part.children:
-            self.build(node, child, path)
+            self.build(node, child, path, create=create)
         return built
+
+    def extras(self) -> dict[str, Any]:
+        """What a snapshot of the built cell keeps beside its nodes (``build_cell(restored=...)``)."""
+        return {"declarations": dict(self.instantiator.declarations)}
 
     async def write_values(self) -> None:
         """Each part's ``values`` (String or LocalizedText members, e.g. DI identification)."""
@@ -115,17 +130,49 @@ class CellBuilder:
 
 
 async def build_cell(
-    server: Server, model_indexes: dict[str, int], parts: list[tuple[str, Part]] | None = None
+    server: Server,
+    model_indexes: dict[str, int],
+    parts: list[tuple[str, Part]] | None = None,
+    restored: dict[str, Any] | None = None,
 ) -> CellBuilder:
-    """Create the cell's instances; ``parts`` (root name, part) defaults to the demo cell."""
+    """Create the cell's instances; ``parts`` (root name, part) defaults to the demo cell.
+
+    ``restored``: the instances came with the address-space snapshot (which was written with
+    ``CellBuilder.extras()`` of the same cell): only the builder's records are made.
+    """
     ns = await server.register_namespace(CELL_NAMESPACE)
     builder = CellBuilder(server, ns, model_indexes)
+    if restored is not None:
+        builder.instantiator.declarations.update(restored["declarations"])
     roots = {root.name: root for c in companions() for root in c.roots}
     for name, part in parts or demo_cell():
         root = roots[name]
-        builder.build(ua.NodeId(root.node, model_indexes[root.model]), part, reference_type=root.reference)
-    await builder.write_values()
+        where = ua.NodeId(root.node, model_indexes[root.model])
+        builder.build(where, part, reference_type=root.reference, create=restored is None)
+    if restored is None:
+        await builder.write_values()
     return builder
+
+
+def _shape(part: Part) -> tuple[Any, ...]:
+    return (
+        part.name,
+        part.model,
+        part.type_name,
+        part.folder,
+        part.include,
+        part.role,
+        sorted(part.values.items()),
+        [_shape(c) for c in part.children],
+    )
+
+
+def cell_digest(parts: list[tuple[str, Part]] | None) -> str:
+    """SHA-256 of everything that shapes the cell's instances: the parts (not their equipment
+    settings, which the binders apply), where the companions place them, and the cell namespace."""
+    roots = sorted(repr(root) for c in companions() for root in c.roots)
+    shape = [(name, _shape(part)) for name, part in parts or demo_cell()]
+    return hashlib.sha256(repr((CELL_NAMESPACE, roots, shape)).encode()).hexdigest()
 
 
 def sized_cell(units: int, robots: int, task_controls: int = 1) -> list[tuple[str, Part]]:

@@ -246,6 +246,7 @@ def _serve(args: argparse.Namespace, config: Config) -> int:
     # `uacell` and `python -m uacell` install the handler first thing (uacell._entry), main() here
     # for callers that enter through it.
     _entry.install_early_stop()
+    _entry.pause_gc()
     try:
         return _prepare_and_run(config)
     except BaseException:
@@ -294,6 +295,7 @@ async def _run(config: Config) -> int:
         with contextlib.suppress(Exception):
             await app.stop()
         raise
+    _entry.resume_gc()  # what start-up built lives as long as the server: out of the collector's way
     if stop.is_set():  # asked to stop while setting up: never start listening
         log.info("shutting down")
         with contextlib.suppress(Exception):

@@ -18,6 +18,8 @@ application_uri = "urn:HOST:uacell"  # default: per host
 application_name = "uacell@HOST"     # default: per host
 rejected_max_files = 100          # refused client certificates kept in pki/rejected/ (oldest dropped)
 rejected_max_age_days = 30.0      # ... and for how long
+address_space_cache = true        # keep a snapshot of the prepared address space (docs/performance.md)
+cache_dir = ""                    # where; default: <data_dir>/cache (or $UACELL_CACHE_DIR)
 
 [robot]                           # defaults for every controller that does not set its own
 time_scale = 1.0                  # simulated robot: >1 runs faster than real time
@@ -115,11 +117,17 @@ LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 LOG_FORMATS = ("text", "json")
 CONFIG_ENV = "UACELL_CONFIG"
 DATA_DIR_ENV = "UACELL_DATA_DIR"
+CACHE_DIR_ENV = "UACELL_CACHE_DIR"
 
 
 def _cell_sections() -> dict[str, SectionParser]:
     """Each companion's cell section (an array of tables, e.g. ``robots``) and its parser."""
     return {c.cell_section: c.cell_parser for c in companions() if c.cell_section and c.cell_parser}
+
+
+def _env_path(name: str) -> Path | None:
+    value = os.environ.get(name)
+    return Path(value).expanduser() if value else None
 
 
 def _host() -> str:
@@ -148,6 +156,15 @@ class ServerConfig:
     application_name: str = field(default_factory=default_application_name)
     rejected_max_files: int = 100
     rejected_max_age_days: float = 30.0
+    address_space_cache: bool = True
+    cache_dir: Path | None = field(default_factory=lambda: _env_path(CACHE_DIR_ENV))  # None: <data_dir>/cache
+
+    @property
+    def snapshot_dir(self) -> Path | None:
+        """Where the address-space snapshot lives; None when the cache is off."""
+        if not self.address_space_cache:
+            return None
+        return self.cache_dir or self.data_dir / "cache"
 
 
 @dataclass
@@ -233,7 +250,7 @@ _OWN: dict[str, type[Any]] = {
     "metrics": MetricsConfig,
     "users": UsersConfig,
 }
-_PATHS = {"data_dir", "file", "audit_file"}
+_PATHS = {"data_dir", "file", "audit_file", "cache_dir"}
 
 
 class Config:
@@ -342,12 +359,16 @@ def _cell_of(data: dict[str, object], path: Path) -> CellConfig:
 def load_config(path: str | Path | None = None) -> Config:
     """Read ``path`` (or return the defaults); raises ConfigError saying what is wrong and where.
 
-    Without ``path``, ``$UACELL_CONFIG`` names the file; ``$UACELL_DATA_DIR`` overrides ``data_dir``.
+    Without ``path``, ``$UACELL_CONFIG`` names the file; ``$UACELL_DATA_DIR`` overrides ``data_dir``
+    and ``$UACELL_CACHE_DIR`` overrides ``cache_dir``.
     """
     config = _load_file(path if path is not None else (os.environ.get(CONFIG_ENV) or None))
     env_data_dir = os.environ.get(DATA_DIR_ENV)
     if env_data_dir:
         config.server.data_dir = Path(env_data_dir).expanduser()
+    env_cache_dir = os.environ.get(CACHE_DIR_ENV)
+    if env_cache_dir:
+        config.server.cache_dir = Path(env_cache_dir).expanduser()
     try:
         validate(config)
     except ConfigError as exc:

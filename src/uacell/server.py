@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import asyncio
 import logging
+from collections.abc import Callable
 from pathlib import Path
 
 from asyncua import Server, ua
 
 from uacell import __version__
 from uacell.audit import AuditTrail
-from uacell.cell import CellBuilder, Part, build_cell
+from uacell.cell import CellBuilder, Part, build_cell, cell_digest
 from uacell.companion import Binder, Closer, companions
 from uacell.config import Config, default_application_uri
 from uacell.logs import configured_levels
@@ -22,7 +24,7 @@ from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.file_store import HandlePool
 from uacell.ua.limits import install_limits, publish_operation_limits
-from uacell.ua.nodesets import load_models
+from uacell.ua.nodesets import init_address_space
 from uacell.ua.observers import install_audit
 from uacell.ua.state_machine import NodeRefs, Publisher
 from uacell.ua.writes import WriteRouter
@@ -80,6 +82,9 @@ class UacellServer:
         self.audit = AuditTrail(None)  # the configured trail from setup() on
         self.metrics: Metrics | None = None
         self.diagnostics: Diagnostics | None = None
+        self.address_space_source = ""  # "snapshot" or "nodesets", once set up
+        self._snapshot_job: Callable[[], None] | None = None
+        self._snapshot_task: asyncio.Task[None] | None = None
 
     @property
     def cell(self) -> CellBuilder:
@@ -120,7 +125,15 @@ class UacellServer:
         self.server.iserver.set_user_manager(UacellUserManager(self.policy, self.users))
         # ConditionRefresh(2) for alarm clients, with Severity 100 on its RefreshStart/End events.
         self.server.iserver.bind_condition_methods = 100
-        await self.server.init()
+        # asyncua's init(), the official models and the cell's instances: from the address-space
+        # snapshot when there is one for this cell, else built (and a snapshot written once listening).
+        parts = self.parts if self.parts is not None else self.config.cell.parts()
+        prepared = await init_address_space(self.server, cfg.models_dir, cfg.snapshot_dir, cell_digest(parts))
+        self.model_indexes = prepared.indexes
+        self.address_space_source = prepared.source
+        self._cell = await build_cell(self.server, self.model_indexes, parts, restored=prepared.extras)
+        if prepared.capture is not None:
+            self._snapshot_job = await prepared.capture(self._cell.extras())
         self.limits = install_limits(self)
         self.server.set_endpoint(self.endpoint)
         self.server.set_server_name(cfg.application_name)
@@ -132,9 +145,6 @@ class UacellServer:
         self.security = await install_security(self)
         self.server.product_uri = PRODUCT_URI
         await self.server.set_build_info(PRODUCT_URI, "uacell", "uacell", __version__, "0", ua.DateTime.now())
-        self.model_indexes = await load_models(self.server, self.config.server.models_dir)
-        parts = self.parts if self.parts is not None else self.config.cell.parts()
-        self._cell = await build_cell(self.server, self.model_indexes, parts)
         self._refs = NodeRefs(await self.server.get_namespace_array())
         self.dispatcher.declarations = self.cell.instantiator.declarations
         bind_get_monitored_items(self)
@@ -146,12 +156,26 @@ class UacellServer:
     async def start(self) -> None:
         await publish_operation_limits(self.server, self.limits)
         await self.server.start()
+        if self._snapshot_job is not None:  # first start: write the snapshot for the next ones
+            self._snapshot_task = asyncio.get_running_loop().create_task(self._write_snapshot(self._snapshot_job))
+            self._snapshot_job = None
         await self.dispatcher.refresh_executable()
         self.diagnostics = Diagnostics(self)
         await self.diagnostics.start()
         if self.config.metrics.enabled:
             self.metrics = Metrics(self)
             await self.metrics.start(self.config.metrics.host, self.config.metrics.port)
+
+    async def _write_snapshot(self, job: Callable[[], None]) -> None:
+        try:
+            await asyncio.to_thread(job)
+        except Exception as e:  # a cache: the server runs on without it
+            log.warning("could not write the address-space snapshot: %s", e)
+
+    async def snapshot_written(self) -> None:
+        """Wait until the snapshot this start writes (if any) is on disk."""
+        if self._snapshot_task is not None:
+            await asyncio.shield(self._snapshot_task)
 
     async def settle(self) -> None:
         """Wait until every model change so far is visible in the address space."""
@@ -170,6 +194,7 @@ class UacellServer:
         if self.diagnostics is not None:
             await self.diagnostics.stop()
         await self.server.stop()
+        await self.snapshot_written()
         if self.metrics is not None:
             await self.metrics.stop()
         self.audit.close()

@@ -112,7 +112,6 @@ class TypeIndex:
         self._members: dict[ua.NodeId, list[Member]] = {}
         self._member_refs = toolkit.subtypes(aspace, ua.NodeId(_AGGREGATES)) | {ua.NodeId(_ORGANIZES)}
 
-
     def attr(self, node: ua.NodeId, attribute: ua.AttributeIds) -> Any:
         value = self.aspace[node].attributes.get(attribute)
         return None if value is None or value.value is None or value.value.Value is None else value.value.Value.Value
@@ -218,7 +217,8 @@ class Instantiator:
         # their standard definition)
         self.declarations: dict[ua.NodeId, ua.NodeId] = {}
 
-    def _nodeid(self, path: str) -> ua.NodeId:
+    def nodeid(self, path: str) -> ua.NodeId:
+        """The NodeId of the instance at ``path`` (as ``create`` makes it)."""
         return ua.NodeId(path, self.ns)
 
     def create(
@@ -235,7 +235,7 @@ class Instantiator:
         selection = selection or Selection()
         qname = name if isinstance(name, ua.QualifiedName) else ua.QualifiedName(name, self.ns)
         base = path or qname.Name
-        nodeid = self._nodeid(base)
+        nodeid = self.nodeid(base)
         self._add_object(parent, nodeid, qname, type_id, None, _as_nodeid(reference_type))
         self._fill(nodeid, base, "", None, type_id, selection)
         return nodeid
@@ -259,7 +259,7 @@ class Instantiator:
             rel = f"{rel_path}/{qname.Name}" if rel_path else qname.Name
             if member.rule != MANDATORY and not selection.wants(rel):
                 continue
-            child = self._nodeid(f"{id_path}.{qname.Name}")
+            child = self.nodeid(f"{id_path}.{qname.Name}")
             if child in self.types.aspace:
                 continue
             self._add_member(nodeid, child, qname, member)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import logging
 import xml.etree.ElementTree as ET
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +18,7 @@ from asyncua import Server, ua
 from asyncua.common.xmlimporter import XmlImporter
 
 from uacell.models.source import MODELS, locate_models
+from uacell.ua import snapshot
 
 log = logging.getLogger(__name__)
 
@@ -97,3 +100,83 @@ async def load_models(server: Server, models_dir: str | None = None) -> dict[str
         await _Importer(server).import_xml(xmlstring=xml)
         indexes[model.key] = await server.get_namespace_index(model.namespace_uri)
     return indexes
+
+
+@dataclass
+class PreparedSpace:
+    """What ``init_address_space`` did: the models' namespace indexes and where the nodes came from.
+
+    From a snapshot, ``extras`` is what ``capture`` was given when it was written (the cell's
+    bookkeeping); otherwise ``capture`` (None when the cache is off) returns the job that writes the
+    snapshot: call it once the cell is built, run the job in a thread once listening.
+    """
+
+    indexes: dict[str, int]
+    source: str  # "snapshot" or "nodesets"
+    extras: dict[str, Any] | None = None
+    capture: Callable[[dict[str, Any]], Awaitable[Callable[[], None]]] | None = None
+
+
+async def init_address_space(
+    server: Server, models_dir: str | None, cache: Path | None, cell: str = ""
+) -> PreparedSpace:
+    """``server.init()`` and the official models, from the snapshot in ``cache`` when there is one.
+
+    ``cell`` is the digest of the cell that will be built (``uacell.cell.cell_digest``): a snapshot
+    holds its instances too. ``cache`` None: no snapshot is read or written. A stale snapshot has
+    another key, so another file: it is not found. A damaged one is logged at INFO and removed. In
+    both cases the address space is built as usual.
+    """
+    locate_models(models_dir)  # every file there and verified, even when the snapshot will do
+    key = snapshot.snapshot_key({m.filename: m.sha256 for m in MODELS}, cell) if cache is not None else {}
+    path = snapshot.snapshot_path(cache, key) if cache is not None else None
+    found: snapshot.Snapshot | None = None
+    if path is not None:
+        try:
+            found = snapshot.read_snapshot(path, key)
+            if found is None:
+                log.info("no address-space snapshot for this cell and these models yet: building the address space")
+        except snapshot.SnapshotInvalid as e:
+            log.info("the address-space snapshot %s %s: building the address space", path, e)
+            snapshot.discard(path)
+    if found is not None:
+        nodes = found.nodes
+
+        async def from_snapshot(_shelf_file: object) -> None:
+            server.iserver.aspace._nodes = nodes
+
+        # asyncua's init() fills the standard nodes here; everything else it does stays as it is.
+        server.iserver.load_standard_address_space = from_snapshot
+        try:
+            await server.init()
+        finally:
+            del server.iserver.load_standard_address_space
+        for position, uri in enumerate(found.namespaces, start=2):
+            index = await server.register_namespace(uri)
+            if index != position:
+                raise RuntimeError(f"namespace {uri} got index {index}, the snapshot has it at {position}")
+        # The importer registers the models' structure classes (asyncua.ua) as it goes; here they are
+        # made from the DataTypeDefinitions, before any value of theirs is read from the snapshot.
+        await server.load_data_type_definitions()
+        indexes = {m.key: await server.get_namespace_index(m.namespace_uri) for m in MODELS}
+        log.info("address space from the snapshot %s (%d nodes stored)", path, nodes.stored)
+        return PreparedSpace(indexes, "snapshot", found.extras)
+    await server.init()
+    indexes = await load_models(server, models_dir)
+    if path is None:
+        return PreparedSpace(indexes, "nodesets")
+    target = path
+
+    async def capture(extras: dict[str, Any]) -> Callable[[], None]:
+        # On the event loop, before anything else changes the nodes; the writing can wait.
+        copy = snapshot.stripped_copy(server.iserver.aspace._nodes)
+        namespaces = list((await server.get_namespace_array())[2:])
+
+        def write() -> None:
+            snapshot.write_snapshot(target, key, namespaces, copy, extras)
+            snapshot.prune(target.parent)
+            log.info("wrote the address-space snapshot %s (%d nodes)", target, len(copy))
+
+        return write
+
+    return PreparedSpace(indexes, "nodesets", capture=capture)

@@ -1,0 +1,296 @@
+"""A snapshot of the prepared address space, so that later starts skip building it.
+
+Building the address space is most of a start: asyncua creates its ~6,000 standard nodes one by one,
+the four companion NodeSets are parsed and imported with their inverse references, and the cell's
+instances are created member by member (15,000 nodes for 100 PackML units). All of it depends only
+on the NodeSet files, the cell's shape and the versions of the code. So the first start writes what
+they produced (every node, without the Python callbacks bound to them) to a file in the cache
+directory, and later starts read the nodes from it on demand instead (``LazyNodes``): a node is
+unpickled the first time something asks for it, and most standard nodes are never asked for. What
+the bindings add and write (values, methods, their callbacks) is done on every start, as before.
+
+The file is a cache, never a source of truth:
+
+- it is keyed (``snapshot_key``) by everything that shapes it: the SHA-256 of every NodeSet file,
+  the snapshot format, the digest of the code that builds it, and the uacell, asyncua and Python
+  versions; a different key is stale;
+- it carries the SHA-256 of its content and is verified before any node is read from it;
+- it is written to a private temporary file (mode 0600, in a 0700 directory), flushed to disk and
+  renamed over the old one, so a reader sees the old file or the new one, never half of one;
+- a missing, stale or damaged file makes the server build the address space as if there were no
+  cache (logged at INFO) and write a new one: it never fails a start.
+
+Layout: ``MAGIC``, a 4-byte big-endian length and that many bytes of JSON metadata (key, namespace
+URIs, index length, content digest), then the content: a pickled index (``{NodeId: chunk}``, the
+chunks' ``(offset, length)``, extras) followed by the chunks, each a pickled list of ``NodeData``.
+Each key has its own file (``snapshot_path``); the few most recent are kept (``prune``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import mmap
+import os
+import pickle
+import platform
+import struct
+import tempfile
+from collections.abc import Iterator, Mapping, MutableMapping
+from dataclasses import dataclass
+from importlib.metadata import version
+from pathlib import Path
+from typing import Any
+
+from asyncua import ua
+from asyncua.server.address_space import AttributeValue, NodeData
+
+from uacell import __version__
+
+log = logging.getLogger(__name__)
+
+FORMAT = 1
+MAGIC = b"uacell address space snapshot\n"
+PREFIX, SUFFIX = "address-space-", ".snapshot"
+KEEP = 3  # snapshots kept per cache directory (one per cell and model set recently served)
+CHUNK = 32  # nodes unpickled together: neighbours are usually wanted together, and share a memo
+_LENGTH = struct.Struct(">I")
+
+
+class SnapshotInvalid(Exception):
+    """The file is not a usable snapshot for this server (the message says why)."""
+
+
+_CODE = ("ua/snapshot.py", "ua/nodesets.py", "ua/instantiate.py", "cell.py")  # what builds the snapshot
+
+
+def snapshot_key(nodesets: Mapping[str, str], cell: str) -> dict[str, Any]:
+    """Everything that shapes the prepared address space, as a JSON-able mapping.
+
+    ``nodesets`` maps each NodeSet file's name to its SHA-256; ``cell`` is the digest of the cell's
+    shape (``uacell.cell.cell_digest``). The code that builds the snapshot is keyed by its own
+    digest too, so a changed loader or instantiation never reads a snapshot the old one wrote, even
+    within one uacell version.
+    """
+    package = Path(__file__).parents[1]
+    code = hashlib.sha256()
+    for source in _CODE:
+        code.update((package / source).read_bytes())
+    return {
+        "format": FORMAT,
+        "uacell": __version__,
+        "code": code.hexdigest(),
+        "asyncua": version("asyncua"),
+        "python": f"{platform.python_implementation()} {platform.python_version()}",
+        "nodesets": dict(sorted(nodesets.items())),
+        "cell": cell,
+    }
+
+
+def snapshot_path(cache: Path, key: Mapping[str, Any]) -> Path:
+    """The file of the snapshot keyed ``key``: one per key, so that cells do not evict each other."""
+    digest = hashlib.sha256(json.dumps(dict(key), sort_keys=True).encode()).hexdigest()
+    return cache / f"{PREFIX}{digest[:16]}{SUFFIX}"
+
+
+def prune(cache: Path, keep: int = KEEP) -> None:
+    """Remove all but the ``keep`` most recently written snapshots."""
+    found = sorted(cache.glob(f"{PREFIX}*{SUFFIX}"), key=lambda p: p.stat().st_mtime_ns, reverse=True)
+    for old in found[keep:]:
+        with contextlib.suppress(FileNotFoundError):
+            old.unlink()
+
+
+def stripped_copy(nodes: Mapping[ua.NodeId, NodeData]) -> list[tuple[ua.NodeId, NodeData]]:
+    """Every node as data only: no method callback, value callback, setter or data-change callback.
+
+    Run it on the event loop (nothing may change the nodes meanwhile); the copy can then be pickled
+    in another thread while the server goes on. Values are shared, not copied: asyncua replaces a
+    ``DataValue`` on write, it never changes one in place.
+    """
+    copies: list[tuple[ua.NodeId, NodeData]] = []
+    for nodeid, data in nodes.items():
+        copy = NodeData(nodeid)
+        copy.references = list(data.references)
+        copy.attributes = {attr: AttributeValue(value.value) for attr, value in data.attributes.items()}
+        copies.append((nodeid, copy))
+    return copies
+
+
+@dataclass
+class Snapshot:
+    """A verified snapshot: its namespace URIs (from index 2 on), its nodes (read on demand) and what
+    its writer asked to keep beside them (``extras``, e.g. the cell's instance declarations)."""
+
+    namespaces: list[str]
+    nodes: LazyNodes
+    extras: dict[str, Any]
+
+
+class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
+    """The address space's node table, backed by a snapshot's content.
+
+    Nodes are stored in chunks of neighbours (``CHUNK`` nodes, in the order they were created: a
+    type's members, an instance's children); a chunk is unpickled into ``cache`` the first time one
+    of its nodes is asked for. New and changed nodes live in ``cache`` only. Iteration and ``len``
+    cover the nodes loaded so far (as asyncua's own shelf-backed table does): a node that was never
+    loaded cannot hold a reference to a node created since, so code that scans for references
+    (asyncua's DeleteNodes) still finds every one.
+    """
+
+    def __init__(self, chunks: memoryview, where: dict[ua.NodeId, int], spans: list[tuple[int, int]]) -> None:
+        self._chunks = chunks
+        self._where = where  # node -> its chunk
+        self._spans = spans  # chunk -> (offset, length) in ``chunks``
+        self._loaded: set[int] = set()
+        self._deleted: set[ua.NodeId] = set()
+        self.cache: dict[ua.NodeId, NodeData] = {}
+
+    def __getitem__(self, key: ua.NodeId) -> NodeData:
+        try:
+            return self.cache[key]
+        except KeyError:
+            chunk = self._where.get(key)
+            if chunk is None or chunk in self._loaded or key in self._deleted:
+                raise
+            self._load(chunk)
+            return self.cache[key]
+
+    def _load(self, chunk: int) -> None:
+        self._loaded.add(chunk)
+        offset, length = self._spans[chunk]
+        nodes: list[NodeData] = pickle.loads(self._chunks[offset : offset + length])
+        for node in nodes:
+            if node.nodeid not in self._deleted:
+                self.cache.setdefault(node.nodeid, node)  # a node set since wins
+
+    def __setitem__(self, key: ua.NodeId, value: NodeData) -> None:
+        self._deleted.discard(key)
+        self.cache[key] = value
+
+    def __delitem__(self, key: ua.NodeId) -> None:
+        if key not in self:
+            raise KeyError(key)
+        self.cache.pop(key, None)
+        self._deleted.add(key)
+
+    def __contains__(self, key: object) -> bool:
+        if key in self.cache:
+            return True
+        return isinstance(key, ua.NodeId) and key in self._where and key not in self._deleted
+
+    def __iter__(self) -> Iterator[ua.NodeId]:
+        return iter(self.cache)
+
+    def __len__(self) -> int:
+        return len(self.cache)
+
+    @property
+    def stored(self) -> int:
+        """How many nodes the snapshot holds."""
+        return len(self._where)
+
+
+def write_snapshot(
+    path: Path,
+    key: Mapping[str, Any],
+    namespaces: list[str],
+    nodes: list[tuple[ua.NodeId, NodeData]],
+    extras: Mapping[str, Any] | None = None,
+) -> None:
+    """Write ``nodes`` (from ``stripped_copy``) as the snapshot at ``path``, atomically, owner-only.
+
+    ``extras``: picklable data kept beside the nodes (``Snapshot.extras``)."""
+    where: dict[ua.NodeId, int] = {}
+    spans: list[tuple[int, int]] = []
+    blobs: list[bytes] = []
+    offset = 0
+    for start in range(0, len(nodes), CHUNK):
+        group = nodes[start : start + CHUNK]
+        blob = pickle.dumps([data for _nodeid, data in group], protocol=pickle.HIGHEST_PROTOCOL)
+        for nodeid, _data in group:
+            where[nodeid] = len(spans)
+        spans.append((offset, len(blob)))
+        blobs.append(blob)
+        offset += len(blob)
+    index = pickle.dumps((where, spans, dict(extras or {})), protocol=pickle.HIGHEST_PROTOCOL)
+    digest = hashlib.sha256(index)
+    for blob in blobs:
+        digest.update(blob)
+    meta = json.dumps(
+        {"key": dict(key), "namespaces": namespaces, "index_length": len(index), "sha256": digest.hexdigest()},
+        sort_keys=True,
+    ).encode()
+    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)  # mode 0600
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(MAGIC)
+            f.write(_LENGTH.pack(len(meta)))
+            f.write(meta)
+            f.write(index)
+            for blob in blobs:
+                f.write(blob)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+def read_snapshot(path: Path, key: Mapping[str, Any]) -> Snapshot | None:
+    """The verified snapshot at ``path``; None if there is none; ``SnapshotInvalid`` if unusable."""
+    try:
+        data = _map(path)
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as e:
+        raise SnapshotInvalid(f"cannot be read: {e}") from e
+    if len(data) < len(MAGIC) + _LENGTH.size or data[: len(MAGIC)] != MAGIC:
+        raise SnapshotInvalid("is not a snapshot file")
+    start = len(MAGIC) + _LENGTH.size
+    (meta_length,) = _LENGTH.unpack_from(data, len(MAGIC))
+    try:
+        meta = json.loads(data[start : start + meta_length])
+        stored_key, namespaces = meta["key"], meta["namespaces"]
+        index_length, expected = int(meta["index_length"]), str(meta["sha256"])
+    except (ValueError, KeyError, TypeError) as e:
+        raise SnapshotInvalid("has unreadable metadata") from e
+    if stored_key != dict(key):
+        raise SnapshotInvalid("is stale (NodeSets or versions changed)")
+    content = memoryview(data)[start + meta_length :]
+    if hashlib.sha256(content).hexdigest() != expected:
+        raise SnapshotInvalid("is damaged (its content does not match its digest)")
+    # Hashing read every page: give them back; the chunks that are loaded come in again from the page
+    # cache, the rest never count in the server's memory.
+    data.madvise(mmap.MADV_DONTNEED)
+    if not isinstance(namespaces, list) or not all(isinstance(n, str) for n in namespaces):
+        raise SnapshotInvalid("has unreadable metadata")
+    try:
+        where, spans, extras = pickle.loads(content[:index_length])
+    except Exception as e:  # a digest match makes this unlikely; never fail a start over a cache
+        raise SnapshotInvalid(f"has an unreadable index: {e}") from e
+    return Snapshot(namespaces, LazyNodes(content[index_length:], where, spans), extras)
+
+
+def _map(path: Path) -> mmap.mmap:
+    """The file, mapped read-only. Writers replace the file (a new inode), never change it in place,
+    so a mapping stays what was verified."""
+    with path.open("rb") as f:
+        return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+
+
+def discard(path: Path) -> None:
+    """Remove the snapshot and any temporary file a crash left beside it."""
+    for stale in [path, *path.parent.glob(f".{path.name}.*.tmp")]:
+        with contextlib.suppress(FileNotFoundError):
+            stale.unlink()

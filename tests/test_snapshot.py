@@ -1,0 +1,338 @@
+"""The address-space snapshot (uacell.ua.snapshot): its file, and servers that write and read it.
+
+The completeness test (tests/test_completeness.py) checks the demo cell of a server started from a
+snapshot; the rest of the suite shares one snapshot (tests/conftest.py), so most servers in it start
+from one. Here: the file format's guarantees, and the server's choice between snapshot and NodeSets.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import stat
+from pathlib import Path
+
+import pytest
+from asyncua import Client, ua
+from asyncua.server.address_space import AttributeValue, NodeData
+from conftest import fast_config, start_app
+
+from uacell.cell import cell_digest
+from uacell.ua import snapshot
+from uacell.ua.snapshot import LazyNodes, SnapshotInvalid, read_snapshot, stripped_copy, write_snapshot
+
+KEY = {"format": 1, "nodesets": {"A.xml": "aa"}, "cell": "c1"}
+NAME = "address-space-test.snapshot"
+
+
+def _node(identifier: int, value: str) -> NodeData:
+    node = NodeData(ua.NodeId(identifier, 2))
+    attr = AttributeValue(ua.DataValue(ua.Variant(value, ua.VariantType.String)))
+    attr.value_callback = lambda nodeid, attr: ua.DataValue()
+    attr.datachange_callbacks = {1: print}
+    node.attributes[ua.AttributeIds.Value] = attr
+    node.references.append(ua.ReferenceDescription(NodeId=ua.NodeId(identifier + 1, 2)))
+    node.call = print
+    return node
+
+
+def _nodes(count: int = 5) -> dict[ua.NodeId, NodeData]:
+    return {n.nodeid: n for n in (_node(i, f"value {i}") for i in range(1, count + 1))}
+
+
+def _write(path: Path, nodes: dict[ua.NodeId, NodeData] | None = None) -> None:
+    write_snapshot(path, KEY, ["urn:a", "urn:b"], stripped_copy(nodes or _nodes()), {"declarations": {1: 2}})
+
+
+def _value(node: NodeData) -> object:
+    dv = node.attributes[ua.AttributeIds.Value].value
+    assert dv is not None and dv.Value is not None
+    return dv.Value.Value
+
+
+def test_a_snapshot_keeps_nodes_without_their_callbacks_and_reads_them_on_demand(tmp_path: Path) -> None:
+    path = tmp_path / "cache" / NAME
+    _write(path)
+    found = read_snapshot(path, KEY)
+    assert found is not None
+    assert found.namespaces == ["urn:a", "urn:b"]
+    assert found.extras == {"declarations": {1: 2}}
+    nodes = found.nodes
+    assert nodes.stored == 5 and len(nodes) == 0  # nothing unpickled yet
+    node = nodes[ua.NodeId(3, 2)]
+    assert _value(node) == "value 3"
+    assert [r.NodeId for r in node.references] == [ua.NodeId(4, 2)]
+    assert node.call is None
+    value = node.attributes[ua.AttributeIds.Value]
+    assert value.value_callback is None and value.datachange_callbacks == {} and value.value_setter is None
+    assert ua.NodeId(5, 2) in nodes and ua.NodeId(6, 2) not in nodes
+    assert nodes.get(ua.NodeId(6, 2)) is None
+
+
+def test_nodes_are_loaded_a_chunk_at_a_time(tmp_path: Path) -> None:
+    path = tmp_path / NAME
+    count = snapshot.CHUNK * 2 + 3
+    _write(path, _nodes(count))
+    found = read_snapshot(path, KEY)
+    assert found is not None and found.nodes.stored == count
+    nodes = found.nodes
+    last = ua.NodeId(count, 2)
+    assert _value(nodes[last]) == f"value {count}"
+    assert set(nodes) == {ua.NodeId(i, 2) for i in range(snapshot.CHUNK * 2 + 1, count + 1)}  # its chunk only
+    assert _value(nodes[ua.NodeId(1, 2)]) == "value 1"
+    assert len(nodes) == snapshot.CHUNK + 3
+
+
+def test_nodes_added_changed_and_deleted_live_beside_the_snapshot(tmp_path: Path) -> None:
+    path = tmp_path / NAME
+    _write(path)
+    found = read_snapshot(path, KEY)
+    assert found is not None
+    nodes: LazyNodes = found.nodes
+    del nodes[ua.NodeId(2, 2)]  # never loaded before
+    assert ua.NodeId(2, 2) not in nodes
+    with pytest.raises(KeyError):
+        nodes[ua.NodeId(2, 2)]
+    with pytest.raises(KeyError):
+        del nodes[ua.NodeId(2, 2)]
+    assert _value(nodes[ua.NodeId(3, 2)]) == "value 3"  # its chunk loads without the deleted node
+    assert ua.NodeId(2, 2) not in nodes
+    new = _node(2, "again")
+    nodes[ua.NodeId(2, 2)] = new
+    assert nodes[ua.NodeId(2, 2)] is new
+    nodes[ua.NodeId(40, 2)] = _node(40, "new")
+    assert _value(nodes[ua.NodeId(40, 2)]) == "new"
+    assert _value(nodes[ua.NodeId(2, 2)]) == "again"  # set after its chunk was loaded: the new one stays
+    assert set(nodes) == {ua.NodeId(i, 2) for i in (1, 2, 3, 4, 5, 40)}
+
+
+def test_the_file_is_readable_by_its_owner_only(tmp_path: Path) -> None:
+    path = tmp_path / "cache" / NAME
+    _write(path)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    assert stat.S_IMODE(path.parent.stat().st_mode) == 0o700
+    assert sorted(p.name for p in path.parent.iterdir()) == [NAME]  # no temporary left
+
+
+def test_no_file_is_no_snapshot(tmp_path: Path) -> None:
+    assert read_snapshot(tmp_path / NAME, KEY) is None
+
+
+def test_a_snapshot_with_another_key_is_stale(tmp_path: Path) -> None:
+    path = tmp_path / NAME
+    _write(path)
+    other = {**KEY, "nodesets": {"A.xml": "bb"}}
+    with pytest.raises(SnapshotInvalid, match="stale"):
+        read_snapshot(path, other)
+
+
+def test_the_key_names_everything_that_shapes_the_snapshot(tmp_path: Path) -> None:
+    key = snapshot.snapshot_key({"B.xml": "22", "A.xml": "11"}, "cell-1")
+    assert set(key) == {"format", "uacell", "code", "asyncua", "python", "nodesets", "cell"}
+    assert list(key["nodesets"]) == ["A.xml", "B.xml"]
+    others = [
+        snapshot.snapshot_key({"A.xml": "11", "B.xml": "23"}, "cell-1"),
+        snapshot.snapshot_key({"A.xml": "11", "B.xml": "22"}, "cell-2"),
+    ]
+    assert all(other != key for other in others)
+    # One file per key: serving another cell does not evict this one's snapshot.
+    paths = {snapshot.snapshot_path(tmp_path, k) for k in [key, *others]}
+    assert len(paths) == 3 and all(p.parent == tmp_path for p in paths)
+    assert snapshot.snapshot_path(tmp_path, dict(key)) == snapshot.snapshot_path(tmp_path, key)
+
+
+def test_the_cell_digest_follows_the_cells_shape_only() -> None:
+    from uacell.cell import cell_digest, demo_cell
+
+    demo = demo_cell()
+    assert cell_digest(demo) == cell_digest(demo_cell()) == cell_digest(None)
+    renamed = demo_cell()
+    renamed[1][1].name = "Filler9"
+    assert cell_digest(renamed) != cell_digest(demo)
+    respecified = demo_cell()
+    respecified[1][1].spec = object()  # equipment settings are the binders' business
+    assert cell_digest(respecified) == cell_digest(demo)
+
+
+def test_only_the_most_recent_snapshots_are_kept(tmp_path: Path) -> None:
+    for i in range(snapshot.KEEP + 2):
+        path = tmp_path / f"{snapshot.PREFIX}{i}{snapshot.SUFFIX}"
+        path.write_bytes(b"x")
+        os.utime(path, ns=(i * 10**9, i * 10**9))
+    snapshot.prune(tmp_path)
+    kept = sorted(p.name for p in tmp_path.iterdir())
+    assert kept == [f"{snapshot.PREFIX}{i}{snapshot.SUFFIX}" for i in range(2, snapshot.KEEP + 2)]
+
+
+@pytest.mark.parametrize(
+    "damage, reason",
+    [
+        (lambda data: data[:-1] + bytes([data[-1] ^ 1]), "damaged"),  # one bit of the last node
+        (lambda data: data[: len(data) // 2], "damaged"),  # cut short
+        (lambda data: b"not a snapshot at all", "not a snapshot"),
+        (lambda data: snapshot.MAGIC + b"\x00\x00\x00\x05{oops", "metadata"),
+        (lambda data: b"", "cannot be read"),
+    ],
+    ids=["flipped-bit", "truncated", "foreign", "bad-metadata", "empty"],
+)
+def test_a_damaged_snapshot_is_refused(tmp_path: Path, damage, reason: str) -> None:
+    path = tmp_path / NAME
+    _write(path)
+    path.write_bytes(damage(path.read_bytes()))
+    with pytest.raises(SnapshotInvalid, match=reason):
+        read_snapshot(path, KEY)
+
+
+def test_a_write_that_fails_leaves_the_old_snapshot_whole(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / NAME
+    _write(path, _nodes(3))
+    before = path.read_bytes()
+
+    def fail(fd: int) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(snapshot.os, "fsync", fail)
+    with pytest.raises(OSError, match="No space"):
+        _write(path, _nodes(7))
+    monkeypatch.undo()
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == [NAME]
+    found = read_snapshot(path, KEY)
+    assert found is not None and found.nodes.stored == 3
+
+
+def test_discard_removes_the_snapshot_and_leftovers_of_a_crash(tmp_path: Path) -> None:
+    path = tmp_path / NAME
+    _write(path)
+    leftover = tmp_path / f".{NAME}.x1y2.tmp"
+    leftover.write_bytes(b"half")
+    snapshot.discard(path)
+    assert list(tmp_path.iterdir()) == []
+
+
+# --- servers ---------------------------------------------------------------------------------
+
+
+async def _start(tmp_path: Path, cache: Path | None, enabled: bool = True):
+    config = fast_config(tmp_path / "data")
+    config.server.cache_dir = cache
+    config.server.address_space_cache = enabled
+    return await start_app(config)
+
+
+async def _mach_speed(app) -> float:
+    async with Client(app.endpoint, timeout=30) as client:
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        packml = await client.get_namespace_index("http://opcfoundation.org/UA/PackML/")
+        node = await client.nodes.objects.get_child(
+            [f"{packml}:PackMLObjects", f"{ns}:Filler1", f"{packml}:Status", f"{packml}:MachSpeed"]
+        )
+        value: float = await node.read_value()
+        return value
+
+
+def _snapshots(cache: Path) -> list[Path]:
+    return sorted(cache.glob(f"{snapshot.PREFIX}*{snapshot.SUFFIX}"))
+
+
+async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(tmp_path: Path) -> None:
+    cache = tmp_path / "cache"
+    first = await _start(tmp_path, cache)
+    try:
+        assert first.address_space_source == "nodesets"
+        await first.snapshot_written()
+        [path] = _snapshots(cache)
+        speed = await _mach_speed(first)
+    finally:
+        await first.stop()
+    written = path.stat().st_mtime_ns
+    second = await _start(tmp_path, cache)
+    try:
+        assert second.address_space_source == "snapshot"
+        assert await _mach_speed(second) == speed
+        await second.snapshot_written()  # nothing to write
+    finally:
+        await second.stop()
+    assert _snapshots(cache) == [path] and path.stat().st_mtime_ns == written  # read, not rewritten
+
+
+async def test_another_cell_gets_its_own_snapshot(tmp_path: Path) -> None:
+    from uacell.cellconfig import builtin_cell_path
+    from uacell.config import load_cell
+
+    cache = tmp_path / "cache"
+    demo = await _start(tmp_path, cache)
+    await demo.snapshot_written()
+    await demo.stop()
+    config = fast_config(tmp_path / "data")
+    config.server.cache_dir = cache
+    config.cell = load_cell(builtin_cell_path("example"))
+    example = await start_app(config)
+    try:
+        assert example.address_space_source == "nodesets"
+        await example.snapshot_written()
+    finally:
+        await example.stop()
+    assert len(_snapshots(cache)) == 2
+    again = await _start(tmp_path, cache)
+    try:
+        assert again.address_space_source == "snapshot"  # the demo cell's is still there
+    finally:
+        await again.stop()
+
+
+@pytest.mark.parametrize("spoil", ["damage", "stale"])
+async def test_a_damaged_or_stale_snapshot_is_rebuilt_silently(
+    tmp_path: Path, spoil: str, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    cache = tmp_path / "cache"
+    first = await _start(tmp_path, cache)
+    await first.snapshot_written()
+    await first.stop()
+    [path] = _snapshots(cache)
+    if spoil == "damage":
+        data = bytearray(path.read_bytes())
+        data[len(data) // 2] ^= 0xFF
+        path.write_bytes(bytes(data))
+    else:
+        monkeypatch.setattr(snapshot, "__version__", "0.0.0-older")
+    with caplog.at_level(logging.INFO, logger="uacell.ua.nodesets"):
+        again = await _start(tmp_path, cache)
+    try:
+        assert again.address_space_source == "nodesets"
+        assert await _mach_speed(again) > 0
+        await again.snapshot_written()
+    finally:
+        await again.stop()
+    said = [r.getMessage() for r in caplog.records if r.levelno == logging.INFO and "snapshot" in r.getMessage()]
+    # A damaged file is named and removed; a stale one is keyed differently: it is simply not found.
+    expected = "is damaged" if spoil == "damage" else "no address-space snapshot for this cell"
+    assert any(expected in m for m in said), said
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING and "snapshot" in r.getMessage()]
+    key = snapshot.snapshot_key(_pinned(), cell_digest(None))
+    assert read_snapshot(snapshot.snapshot_path(cache, key), key) is not None  # a good one again
+
+
+def _pinned() -> dict[str, str]:
+    from uacell.models.source import MODELS
+
+    return {m.filename: m.sha256 for m in MODELS}
+
+
+async def test_with_the_cache_off_nothing_is_read_or_written(tmp_path: Path) -> None:
+    cache = tmp_path / "cache"
+    app = await _start(tmp_path, cache, enabled=False)
+    try:
+        assert app.address_space_source == "nodesets"
+        await app.snapshot_written()
+    finally:
+        await app.stop()
+    assert not cache.exists()
+
+
+async def test_the_default_cache_is_in_the_data_directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("UACELL_CACHE_DIR", raising=False)
+    config = fast_config(tmp_path / "data")
+    assert config.server.snapshot_dir == tmp_path / "data" / "cache"
+    monkeypatch.setenv("UACELL_CACHE_DIR", os.fspath(tmp_path / "elsewhere"))
+    assert fast_config(tmp_path / "data").server.snapshot_dir == tmp_path / "elsewhere"
