@@ -30,6 +30,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from benchmarks.web import web_section
+
 ROOT = Path(__file__).resolve().parent.parent
 INTEROP = ROOT / "interop"
 CLIENT = INTEROP / "bench_client.js"
@@ -531,6 +533,7 @@ SECTIONS = {
     "notify": notify_section,
     "startup": startup_section,
     "sessions": sessions_section,
+    "web": web_section,
 }
 
 

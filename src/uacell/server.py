@@ -140,6 +140,8 @@ class UacellServer:
         self.server.set_endpoint(self.endpoint)
         self.server.set_server_name(cfg.application_name)
         await self.server.set_application_uri(cfg.application_uri)
+        # State machines fire AuditUpdateStateEvents for the transitions calls cause (ua/state_machine.py).
+        await self.server.get_node(ua.ObjectIds.Server_Auditing).write_value(True)
         from uacell.security import install_security
 
         self.security = await install_security(self)
