@@ -30,6 +30,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from benchmarks.web import web_section
+
 ROOT = Path(__file__).resolve().parent.parent
 INTEROP = ROOT / "interop"
 CLIENT = INTEROP / "bench_client.js"
@@ -120,22 +122,29 @@ class Peer:
 
 
 class Peers:
-    """Builds the peers' commands; every uacell peer gets its own data directory."""
+    """Builds the peers' commands: uacell peers restart with their cell's data directory, or start afresh."""
 
     def __init__(self, tmp: Path) -> None:
         self.tmp = tmp
         self.count = 0
+        self.prepared: set[str] = set()  # cells whose snapshot is in the shared cache directory
         from uacell.models.source import MODELS, locate_models
 
         paths = locate_models()
         self.nodeset_files = [str(paths[m.key]) for m in MODELS]
 
     def uacell(self, cell: str = "demo", snapshot: bool = True) -> Peer:
-        """A uacell peer; ``snapshot``: sharing one address-space snapshot (written by the first start
-        that finds none), else with a cache directory of its own, empty: a first start."""
+        """A uacell peer; ``snapshot``: a restart, with the cell's data directory and the shared cache
+        directory of address-space snapshots (the first peer of each cell writes its snapshot,
+        untimed, here); else a first start, with empty directories of its own."""
+        if snapshot and cell not in self.prepared:
+            self.prepared.add(cell)
+            self._prepare_snapshot(cell)
         self.count += 1
         port = free_port()
-        data = self.tmp / f"uacell-{cell}-{self.count}"
+        # A restart keeps its data directory (its certificate: no new key to generate); a first
+        # start has an empty one. Peers of one cell never run at the same time.
+        data = self.tmp / (f"uacell-{cell}" if snapshot else f"uacell-{cell}-{self.count}")
         cache = self.cache if snapshot else data / "cache"
         cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", cell]
         return Peer(f"uacell {cell} cell", [*cmd, "--data-dir", str(data), "--cache-dir", str(cache)], port=port)
@@ -144,17 +153,16 @@ class Peers:
     def cache(self) -> Path:
         return self.tmp / "cache"
 
-    def prepare_snapshot(self) -> None:
-        """Start a demo-cell peer until it has written the shared snapshot (untimed)."""
-        target = self.cache / "address-space.snapshot"
-        if target.exists():
-            return
-        with running(self.uacell("demo")):
-            deadline = time.monotonic() + 300
-            while not target.exists() and time.monotonic() < deadline:
+    def _prepare_snapshot(self, cell: str) -> None:
+        """Run a peer of ``cell`` until it has written its snapshot into the shared cache directory."""
+        before = set(self.cache.glob("address-space-*.snapshot"))
+        with running(self.uacell(cell)):
+            deadline = time.monotonic() + 600
+            while time.monotonic() < deadline:
+                if set(self.cache.glob("address-space-*.snapshot")) - before:
+                    return
                 time.sleep(0.2)
-        if not target.exists():
-            raise RuntimeError("the uacell peer wrote no address-space snapshot")
+        raise RuntimeError(f"the uacell peer ({cell} cell) wrote no address-space snapshot")
 
     def asyncua(self, nodesets: bool = False) -> Peer:
         port = free_port()
@@ -525,6 +533,7 @@ SECTIONS = {
     "notify": notify_section,
     "startup": startup_section,
     "sessions": sessions_section,
+    "web": web_section,
 }
 
 
@@ -555,9 +564,6 @@ def main() -> int:
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="uacell-bench-") as tmp:
         peers = Peers(Path(tmp))
-        # Every uacell peer starts from one address-space snapshot, as a server does after its first
-        # start; written here, untimed, so that no measurement overlaps its writing.
-        peers.prepare_snapshot()
         for name, section in SECTIONS.items():
             if args.only and name not in args.only:
                 continue

@@ -1,5 +1,7 @@
 // Power up the robot (SystemOperation GetReady), load a program by name into TaskControl1, Start it and
-// collect the TransitionEvents of the task control until the program ends (ExecutingToReady).
+// collect the TransitionEvents of the task control until the program ends (ExecutingToReady), the
+// AuditUpdateStateEvents of the transitions the calls caused, and the CurrentLine values published
+// while the program ran (uacell's ParameterSet/CurrentLine).
 // Usage: node robotics_run.js <endpoint> [programName [robot controller taskControl]]
 // (default: the demo cell's Robot1/Controller1/TaskControl1)
 "use strict";
@@ -46,7 +48,9 @@ main(async () => {
     requestedPublishingInterval: 50, requestedLifetimeCount: 1000, requestedMaxKeepAliveCount: 20,
     maxNotificationsPerPublish: 100, publishingEnabled: true, priority: 1,
   });
-  const fields = ["EventType", "SourceNode", "Transition", "Transition/Id", "FromState", "ToState"];
+  const fields = [
+    "EventType", "SourceNode", "Transition", "Transition/Id", "FromState", "ToState", "FromState.Id", "ToState.Id",
+  ];
   const item = ClientMonitoredItem.create(
     subscription,
     { nodeId: tc, attributeId: AttributeIds.EventNotifier },
@@ -55,16 +59,57 @@ main(async () => {
   );
   let ended;
   const programEnded = new Promise((res) => { ended = res; });
+  const text = (v) => (v.value ? v.value.toString() : null);
+  out.audits = [];
+  out.otherEvents = 0;
   item.on("changed", (values) => {
+    const type = text(values[0]);
+    if (type === "ns=0;i=2315") { // AuditUpdateStateEventType: its fields are asked for below
+      return;
+    }
+    if (type !== "ns=0;i=2311") { // not a TransitionEvent
+      out.otherEvents += 1;
+      return;
+    }
     const ev = {
-      source: values[1].value ? values[1].value.toString() : null,
+      source: text(values[1]),
       transition: values[2].value ? values[2].value.text : null,
-      transitionId: values[3].value ? values[3].value.toString() : null,
+      transitionId: text(values[3]),
       from: values[4].value ? values[4].value.text : null,
       to: values[5].value ? values[5].value.text : null,
+      fromId: text(values[6]),
+      toId: text(values[7]),
     };
     out.events.push(ev);
     if (ev.transition === "ExecutingToReady") ended();
+  });
+  // The AuditUpdateStateEvents of the task control (who caused which transition).
+  const auditFields = [
+    "EventType", "SourceNode", "SourceName", "ClientUserId", "MethodId", "OldStateId", "NewStateId", "Status",
+    "ServerId", "InputArguments", "ActionTimeStamp",
+  ];
+  const audits = ClientMonitoredItem.create(
+    subscription,
+    { nodeId: tc, attributeId: AttributeIds.EventNotifier },
+    { samplingInterval: 0, discardOldest: true, queueSize: 100, filter: constructEventFilter(auditFields) },
+    TimestampsToReturn.Neither,
+  );
+  let auditSeen = () => {};
+  audits.on("changed", (values) => {
+    if (text(values[0]) !== "ns=0;i=2315") return;
+    out.audits.push({
+      source: text(values[1]),
+      sourceName: values[2].value,
+      user: values[3].value === undefined ? null : values[3].value,
+      method: text(values[4]),
+      oldId: text(values[5]),
+      newId: text(values[6]),
+      status: values[7].value,
+      serverId: values[8].value,
+      inputs: (values[9].value || []).map((v) => (v && v.value !== undefined ? v.value : v)),
+      actionTime: values[10].value ? values[10].value.toISOString() : null,
+    });
+    auditSeen(out.audits[out.audits.length - 1]);
   });
   await new Promise((res) => setTimeout(res, 300));
 
@@ -78,7 +123,18 @@ main(async () => {
   out.programName = (await session.read({
     nodeId: await resolve(session, ns, params, "/DI:ParameterSet/Robotics:TaskProgramName"), attributeId: AttributeIds.Value,
   })).value.value;
-  out.start = await callStatus(session, tc, await m(tc, "Start"));
+  // uacell's CurrentLine, live while the program runs.
+  const currentLine = await resolve(session, ns, params, "/DI:ParameterSet/Cell:CurrentLine");
+  out.lines = [];
+  const lineItem = ClientMonitoredItem.create(
+    subscription,
+    { nodeId: currentLine, attributeId: AttributeIds.Value },
+    { samplingInterval: 0, discardOldest: true, queueSize: 100 },
+    TimestampsToReturn.Neither,
+  );
+  lineItem.on("changed", (dv) => out.lines.push(dv.value.value));
+  out.startMethod = await m(tc, "Start");
+  out.start = await callStatus(session, tc, out.startMethod);
   await Promise.race([
     programEnded,
     new Promise((_, rej) => setTimeout(() => rej(new Error(`no ExecutingToReady: ${JSON.stringify(out.events)}`)), 60000)),
@@ -88,6 +144,17 @@ main(async () => {
     nodeId: await resolve(session, ns, tc, "/Robotics:LastTransitionReason"), attributeId: AttributeIds.Value,
   })).value.value;
   out.readySubstate = await readText(session, await resolve(session, ns, tc, "/Robotics:ReadySubstateMachine/CurrentState"));
+  out.lineAfter = (await session.read({ nodeId: currentLine, attributeId: AttributeIds.Value })).value.value;
+  out.lineDataType = (await session.read({ nodeId: currentLine, attributeId: AttributeIds.DataType })).value.value.toString();
+  // UnloadProgram's audit event comes after any the program's end could have caused: once it is in,
+  // every audit event of the run is.
+  out.unloadMethod = await m(tc, "UnloadProgram");
+  const unloaded = new Promise((res) => { auditSeen = (a) => { if (a.method === out.unloadMethod) res(); }; });
+  out.unload = await callStatus(session, tc, out.unloadMethod);
+  await Promise.race([
+    unloaded,
+    new Promise((_, rej) => setTimeout(() => rej(new Error(`no audit event of UnloadProgram: ${JSON.stringify(out.audits)}`)), 30000)),
+  ]);
   await subscription.terminate();
   await session.close();
   await client.disconnect();

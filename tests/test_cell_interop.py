@@ -59,5 +59,7 @@ def test_node_opcua_browses_the_example_cell_and_runs_a_program_on_the_second_ro
         ("IdleToReady", "Idle", "Ready"),
         ("ReadyToExecuting", "Ready", "Executing"),
         ("ExecutingToReady", "Executing", "Ready"),
+        ("ReadyToIdle", "Ready", "Idle"),  # the script's UnloadProgram at the end
     ]
     assert (out["finalState"], out["reason"]) == ("Ready", 5)
+    assert [a["sourceName"] for a in out["audits"]] == ["Method/LoadByName", "Method/Start", "Method/UnloadProgram"]

@@ -46,7 +46,29 @@ def test_node_opcua_runs_a_program_and_sees_every_transition(fast_robot):
         ("IdleToReady", "Idle", "Ready"),
         ("ReadyToExecuting", "Ready", "Executing"),
         ("ExecutingToReady", "Executing", "Ready"),
+        ("ReadyToIdle", "Ready", "Idle"),  # UnloadProgram at the end
     ]
+    assert out["otherEvents"] == 0
+    # An AuditUpdateStateEvent (anonymous: ClientUserId null) after each transition a call caused,
+    # none after the program's own end.
+    audits = out["audits"]
+    by_new_state = {e["toId"]: e for e in out["events"]}
+    assert [(a["sourceName"], a["user"], a["status"]) for a in audits] == [
+        ("Method/LoadByName", None, True),
+        ("Method/Start", None, True),
+        ("Method/UnloadProgram", None, True),
+    ]
+    for audit, event in zip(audits, [out["events"][0], out["events"][1], out["events"][3]], strict=True):
+        assert (audit["oldId"], audit["newId"]) == (event["fromId"], event["toId"])
+        assert audit["source"] == event["source"] and audit["serverId"] and audit["actionTime"]
+        assert audit["newId"] in by_new_state
+    assert audits[0]["inputs"] == ["pick_and_place"]  # loading the module gripper first took no transition
+    assert (audits[1]["method"], audits[1]["inputs"]) == (out["startMethod"], [])
+    assert audits[2]["method"] == out["unloadMethod"]
+    # uacell's CurrentLine: lines while the program ran, 0 after it ended (UInt32, i=7).
+    assert out["lineDataType"] == "ns=0;i=7"
+    assert out["lineAfter"] == 0
+    assert any(v > 0 for v in out["lines"]) and out["lines"][-1] == 0, out["lines"]
     # Transition/Id is the Transition node of the type (Robotics namespace), not a copy
     assert all(e["transitionId"] and ";i=" in e["transitionId"] for e in out["events"])
     assert (out["finalState"], out["reason"], out["readySubstate"]) == ("Ready", 5, "AtProgramStart")

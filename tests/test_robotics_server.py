@@ -452,6 +452,60 @@ async def test_execution_mode_is_writable_except_while_executing_and_step_runs_o
     await sub.delete()
 
 
+# A program whose instructions take turns long enough (about 0.3 s real each) to watch the line move.
+LINES = "program Lines version 1\nmove 10 0 0 0 0 0\nwait 6\nmove 0 0 0 0 0 0\nwait 6\n"
+
+
+async def test_current_line_and_program_pointer_follow_the_run_and_return_to_zero(fresh):
+    r = fresh
+    await upload(r, "lines.robot", LINES)
+    await power_up(r)
+    assert await status(r, TC, "LoadByName", s("lines")) == 0
+    line = r.client.get_node(nid(r, f"{TASK}.ParameterSet.CurrentLine"))
+    pointer = r.client.get_node(nid(r, f"{TASK}.ParameterSet.ProgramPointer"))
+    # Server-defined, read-only UInt32 variables in uacell's namespace, said so in their Description.
+    for node in (line, pointer):
+        assert await node.read_data_type() == ua.NodeId(ua.ObjectIds.UInt32)
+        assert (await node.read_browse_name()).NamespaceIndex == r.ns
+        assert (await node.read_description()).Text.startswith("uacell: ")
+        assert await node.get_access_level() == {ua.AccessLevel.CurrentRead}
+        with pytest.raises(ua.UaStatusCodeError):
+            await node.write_value(ua.Variant(7, ua.VariantType.UInt32))
+    assert (await line.read_value(), await pointer.read_value()) == (0, 0)
+    seen = Events()
+    data_sub = await r.client.create_subscription(20, seen)
+    await data_sub.subscribe_data_change([line, pointer])
+    events, sub = await subscribe_transitions(r, TC)
+    assert await status(r, TC, "Start") == 0
+    # Read while it runs: the first wait (line 3, step 1), then the second (line 5, step 3).
+    async with asyncio.timeout(TIMEOUT):
+        while (await line.read_value(), await pointer.read_value()) != (3, 1):
+            await asyncio.sleep(0.01)
+        while (await line.read_value(), await pointer.read_value()) != (5, 3):
+            await asyncio.sleep(0.01)
+    await events.wait_for(is_transition("ExecutingToReady"))
+    await wait_until(lambda: server_value(r.app, line.nodeid) == 0)
+    assert (await line.read_value(), await pointer.read_value()) == (0, 0)  # at the program start again
+    await seen.wait_for(lambda _e: [v for n, v in seen.events if n == line][-1:] == [0])
+    values = [v for n, v in seen.events if n == line]
+    # The subscriber saw each instruction's line in order (a quick move may be coalesced away), then 0.
+    assert values[0] == 0 and values[-1] == 0 and {3, 5} <= set(values), values
+    assert [v for v in values if v] == sorted(v for v in values if v), values
+    # A Stop keeps the pointer (Start resumes there) and clears the line.
+    assert await status(r, TC, "Start") == 0
+    async with asyncio.timeout(TIMEOUT):
+        while await line.read_value() != 3:
+            await asyncio.sleep(0.01)
+    assert await status(r, TC, "Stop", mode(int(StopMode.QUICK_STOP))) == 0
+    await events.wait_for(lambda e: len(events.transitions(nid(r, TC))) >= 4)
+    await wait_until(lambda: server_value(r.app, line.nodeid) == 0)
+    assert (await line.read_value(), await pointer.read_value()) == (0, 1)
+    assert await status(r, READY, "ResetToProgramStart") == 0
+    await wait_until(lambda: server_value(r.app, pointer.nodeid) == 0)
+    await data_sub.delete()
+    await sub.delete()
+
+
 # --- unloading -------------------------------------------------------------------------------------
 async def test_every_unload(fresh):
     r = fresh

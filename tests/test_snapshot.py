@@ -83,6 +83,25 @@ def test_nodes_are_loaded_a_chunk_at_a_time(tmp_path: Path) -> None:
     assert len(nodes) == snapshot.CHUNK + 3
 
 
+def test_instances_are_loaded_in_larger_chunks(tmp_path: Path) -> None:
+    numeric = _nodes(3)
+    instances = {}
+    for i in range(snapshot.INSTANCE_CHUNK + 1):
+        node = NodeData(ua.NodeId(f"Cell.Part{i}", 3))
+        node.attributes[ua.AttributeIds.Value] = AttributeValue(ua.DataValue(ua.Variant(i, ua.VariantType.Int32)))
+        instances[node.nodeid] = node
+    path = tmp_path / NAME
+    _write(path, {**numeric, **instances})
+    found = read_snapshot(path, KEY)
+    assert found is not None
+    nodes = found.nodes
+    assert _value(nodes[ua.NodeId("Cell.Part0", 3)]) == 0
+    assert set(nodes) == {ua.NodeId(f"Cell.Part{i}", 3) for i in range(snapshot.INSTANCE_CHUNK)}  # no numeric
+    assert _value(nodes[ua.NodeId(f"Cell.Part{snapshot.INSTANCE_CHUNK}", 3)]) == snapshot.INSTANCE_CHUNK
+    assert _value(nodes[ua.NodeId(2, 2)]) == "value 2"
+    assert len(nodes) == snapshot.INSTANCE_CHUNK + 1 + 3
+
+
 def test_nodes_added_changed_and_deleted_live_beside_the_snapshot(tmp_path: Path) -> None:
     path = tmp_path / NAME
     _write(path)

@@ -23,8 +23,10 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, free_port, start_app
+from helpers import wait_until
 
 from uacell.errors import ConfigError
+from uacell.packml.binding import UNITS
 from uacell.pki import PkiPaths
 from uacell.web.discovery import discover
 from uacell.web.server import start_web, trust_hmi
@@ -300,6 +302,44 @@ def _sse_until(b: Browser, want, timeout: float = 90.0) -> dict:
                 if want(message):
                     return message
     raise AssertionError("no such message in time")
+
+
+async def test_the_page_learns_who_caused_a_transition_and_the_current_line(stack):
+    app, web = stack
+    unit = app.registry(UNITS)["Filler1"].unit
+    await wait_until(lambda: unit.state == "Stopped")  # after an earlier test's Stop
+    b = Browser(web.url)
+    await b.start()
+    assert (await b.login("otto"))[0] == 200
+    status, answer = await b.post("/api/call", {"key": "Filler1/MachineState/Reset", "args": []})
+    assert status == 200 and answer["good"]
+
+    seen: list[dict] = []  # the page's list of last transitions, as the stream keeps it
+
+    def attributed(message: dict) -> bool:
+        if "events" in message:  # a snapshot, or the list again after an entry learnt its user
+            seen[:] = message["events"]
+        elif message.get("type") == "event":
+            seen.insert(0, message["event"])
+        return any(e["user"] == "otto" for e in seen) and any(e["to"] == "Idle" for e in seen)
+
+    await asyncio.to_thread(_sse_until, b, attributed)
+    caused = next(e for e in seen if e["user"] == "otto")
+    assert (caused["machine"], caused["from"], caused["to"], caused["method"]) == (
+        "Filler1/MachineState",
+        "Stopped",
+        "Running",
+        "Reset",
+    )
+    followed = next(e for e in seen if e["to"] == "Idle")
+    assert followed["user"] is None  # Resetting -> Idle completed by itself: no audit event
+    # The layout says the server audits, and names the task control's current line.
+    layout = web.web.sessions[b.cookie()].ua.cell.layout
+    assert layout["auditing"] is True
+    (task,) = layout["robots"][0]["controllers"][0]["task_controls"]
+    assert task["variables"]["CurrentLine"] == "Robot1/Controller1/TaskControl1/CurrentLine"
+    status, answer = await b.post("/api/call", {"key": "Filler1/MachineState/Stop", "args": []})
+    assert answer["good"]
 
 
 async def test_uacell_web_standalone_until_the_server_trusts_its_certificate(stack, tmp_path):

@@ -311,6 +311,24 @@ def test_an_opc_ua_clients_state_change_appears_within_a_second(page, serve, ua_
     assert "Resetting → Idle" in entry or "Stopped → Running" in entry
 
 
+def test_the_transition_list_names_the_user_who_caused_a_transition(page, serve, ua_thread):
+    filler_stopped(serve, ua_thread)
+    login(page, "otto")
+    shows_state(page, "Stopped")
+    unit_button(page, "Reset").click()
+    shows_state(page, "Idle")
+    # The server's AuditUpdateStateEvent names otto on the transition his Reset caused ...
+    caused = page.locator('#event-list li[data-user="otto"]', has_text="Filler1/MachineState: Stopped → Running")
+    caused.first.wait_for(timeout=TIMEOUT)
+    assert caused.first.locator(".ev-user").inner_text() == "otto"
+    # ... and none on the one that followed by itself.
+    followed = page.locator("#event-list li", has_text="Filler1/ExecuteState: Resetting → Idle").first
+    followed.wait_for(timeout=TIMEOUT)
+    assert followed.get_attribute("data-user") == ""
+    assert followed.locator(".ev-user").inner_text() == "automatic"
+    shot(page.locator("#events"), "web-events.png")
+
+
 def test_an_observer_sees_every_command_disabled_and_a_forced_call_refused(page, serve, ua_thread):
     filler_stopped(serve, ua_thread)
     login(page, "olga")
@@ -408,10 +426,14 @@ def test_a_program_uploaded_in_the_page_is_loaded_and_run(page, serve, ua_thread
     page.wait_for_function(
         "() => Number(document.querySelector('tr[data-axis=Axis1] .pos').textContent) > 5", timeout=TIMEOUT
     )
+    # The current line, as the server publishes it: the wait of 8 s (2 s at time_scale 4) is line 5.
+    page.wait_for_function("() => document.querySelector('.task .v-line').textContent === 'line 5'", timeout=TIMEOUT)
+    assert page.locator(".task .v-line").is_visible()
     shot(page.locator("section.robot"), "web-robot.png")
     page.wait_for_function(
         "() => document.querySelector('.task .v-task').textContent === 'Ready / AtProgramStart'", timeout=TIMEOUT
     )
+    page.wait_for_function("() => document.querySelector('.task .v-line').hidden", timeout=TIMEOUT)  # line 0
     assert re.search(r"TaskControl1: Executing → Ready", page.inner_text("#event-list"))
     robot_button(page, "Stand down").click()
     page.wait_for_function(

@@ -1,9 +1,14 @@
 """Background coroutines owned by one object, cancelled and awaited together: the one way uacell runs
-them (models, bindings and the server alike). Pure asyncio."""
+them (models, bindings and the server alike). Pure asyncio.
+
+Each task runs in a fresh ``contextvars.Context``: a task spawned while a client's request runs (a
+program run started by a method call, a robot powering up) does not inherit that request's context,
+so what it does later is never taken for the caller's (``uacell.ua.context.current_call``)."""
 
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import logging
 from collections.abc import Coroutine
 from typing import Any
@@ -18,7 +23,8 @@ class Background:
         self.tasks: set[asyncio.Task[Any]] = set()
 
     def spawn(self, coro: Coroutine[Any, Any, Any], name: str | None = None) -> asyncio.Task[Any]:
-        task: asyncio.Task[Any] = asyncio.get_running_loop().create_task(coro, name=name)
+        loop = asyncio.get_running_loop()
+        task: asyncio.Task[Any] = loop.create_task(coro, name=name, context=contextvars.Context())
         self.tasks.add(task)
         task.add_done_callback(self.tasks.discard)
         return task

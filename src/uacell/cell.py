@@ -109,8 +109,10 @@ class CellBuilder:
         return built
 
     def extras(self) -> dict[str, Any]:
-        """What a snapshot of the built cell keeps beside its nodes (``build_cell(restored=...)``)."""
-        return {"declarations": dict(self.instantiator.declarations)}
+        """What a snapshot of the built cell keeps beside its nodes (``build_cell(restored=...)``):
+        which declaration each instance member came from, and the types looked up by name so far
+        (finding one walks a type tree, which would load much of a snapshot)."""
+        return {"declarations": dict(self.instantiator.declarations), "types": dict(self._types)}
 
     async def write_values(self) -> None:
         """Each part's ``values`` (String or LocalizedText members, e.g. DI identification)."""
@@ -144,6 +146,7 @@ async def build_cell(
     builder = CellBuilder(server, ns, model_indexes)
     if restored is not None:
         builder.instantiator.declarations.update(restored["declarations"])
+        builder._types.update(restored["types"])
     roots = {root.name: root for c in companions() for root in c.roots}
     for name, part in parts or demo_cell():
         root = roots[name]

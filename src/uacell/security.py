@@ -646,6 +646,7 @@ def _install_processor_hook() -> None:
     async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any, seqhdr: Any, body: Buffer) -> Any:
         token = _processor.set(self)
         diagnostics = context.set_return_diagnostics(int(getattr(requesthdr, "ReturnDiagnostics", 0) or 0))
+        audit_entry = context.set_audit_entry_id(str(getattr(requesthdr, "AuditEntryId", "") or ""))
         try:
             security = getattr(self.iserver, "_uacell_security", None)
             server_diagnostics = getattr(self.iserver, "_uacell_diagnostics", None)
@@ -665,6 +666,7 @@ def _install_processor_hook() -> None:
                 return await server_diagnostics.request(self, typeid, serve)
             return await serve()
         finally:
+            context.reset_audit_entry_id(audit_entry)
             context.reset_return_diagnostics(diagnostics)
             _processor.reset(token)
 

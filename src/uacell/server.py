@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from asyncua import Server, ua
 
@@ -83,7 +85,7 @@ class UacellServer:
         self.metrics: Metrics | None = None
         self.diagnostics: Diagnostics | None = None
         self.address_space_source = ""  # "snapshot" or "nodesets", once set up
-        self._snapshot_job: Callable[[], None] | None = None
+        self._snapshot_job: Callable[[dict[str, Any]], None] | None = None
         self._snapshot_task: asyncio.Task[None] | None = None
 
     @property
@@ -133,11 +135,13 @@ class UacellServer:
         self.address_space_source = prepared.source
         self._cell = await build_cell(self.server, self.model_indexes, parts, restored=prepared.extras)
         if prepared.capture is not None:
-            self._snapshot_job = await prepared.capture(self._cell.extras())
+            self._snapshot_job = await prepared.capture()
         self.limits = install_limits(self)
         self.server.set_endpoint(self.endpoint)
         self.server.set_server_name(cfg.application_name)
         await self.server.set_application_uri(cfg.application_uri)
+        # State machines fire AuditUpdateStateEvents for the transitions calls cause (ua/state_machine.py).
+        await self.server.get_node(ua.ObjectIds.Server_Auditing).write_value(True)
         from uacell.security import install_security
 
         self.security = await install_security(self)
@@ -155,7 +159,9 @@ class UacellServer:
         await publish_operation_limits(self.server, self.limits)
         await self.server.start()
         if self._snapshot_job is not None:  # first start: write the snapshot for the next ones
-            self._snapshot_task = asyncio.get_running_loop().create_task(self._write_snapshot(self._snapshot_job))
+            # The cell's bookkeeping as the binders left it (types they looked up included).
+            write = functools.partial(self._snapshot_job, self.cell.extras())
+            self._snapshot_task = asyncio.get_running_loop().create_task(self._write_snapshot(write))
             self._snapshot_job = None
         await self.dispatcher.refresh_executable()
         self.diagnostics = Diagnostics(self)

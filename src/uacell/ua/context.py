@@ -2,7 +2,10 @@
 
 asyncua passes neither the session nor the user to method callbacks. uacell wraps the session's
 ``call`` (and ``read``, for per-user attributes) once, so that a context variable holds the calling
-session while the request runs; ``current_caller()`` turns it into a ``Caller``.
+session while the request runs; ``current_caller()`` turns it into a ``Caller``. While the method
+dispatcher runs a method's behaviour, ``current_call()`` says which call it is (for the
+AuditUpdateStateEvents of the transitions the call causes). Background tasks start in a fresh
+context (``uacell.background``), so nothing they do is taken for a call's.
 """
 
 from __future__ import annotations
@@ -11,14 +14,18 @@ import contextvars
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
+from asyncua import ua
 from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.internal_session import InternalSession
 
 _session: contextvars.ContextVar[InternalSession | None] = contextvars.ContextVar("uacell_session", default=None)
 # The ReturnDiagnostics mask of the request being served (OPC 10000-4 RequestHeader).
 _diagnostics: contextvars.ContextVar[int] = contextvars.ContextVar("uacell_diagnostics", default=0)
+# The AuditEntryId of the request being served (OPC 10000-4 RequestHeader), "" when none.
+_audit_entry: contextvars.ContextVar[str] = contextvars.ContextVar("uacell_audit_entry", default="")
 
 
 class UacellUser(User):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
@@ -48,6 +55,22 @@ class Caller:
 
 
 INTERNAL = Caller("internal", "internal", None, "admin")
+
+
+@dataclass(frozen=True)
+class MethodCall:
+    """A method call whose behaviour is running: who called what, with which inputs, when."""
+
+    caller: Caller
+    object_id: ua.NodeId
+    method_id: ua.NodeId
+    name: str  # the method's BrowseName
+    inputs: tuple[ua.Variant, ...]
+    started: datetime  # when the server took the call (an audit event's ActionTimeStamp)
+    audit_entry_id: str = ""  # the client's AuditEntryId of the request
+
+
+_call: contextvars.ContextVar[MethodCall | None] = contextvars.ContextVar("uacell_call", default=None)
 
 # Post-processors of Read results: (session, read parameters, results) -> None (edits results in place).
 ReadHook = Callable[[InternalSession, Any, list[Any]], None]
@@ -85,6 +108,33 @@ def return_diagnostics() -> int:
 
 def current_caller() -> Caller:
     return caller_of(_session.get())
+
+
+def set_audit_entry_id(entry: str) -> contextvars.Token[str]:
+    return _audit_entry.set(entry)
+
+
+def reset_audit_entry_id(token: contextvars.Token[str]) -> None:
+    _audit_entry.reset(token)
+
+
+def audit_entry_id() -> str:
+    """The current request's AuditEntryId ("" when the client sent none)."""
+    return _audit_entry.get()
+
+
+def enter_call(call: MethodCall) -> contextvars.Token[MethodCall | None]:
+    """The dispatcher runs ``call``'s behaviour from here until ``leave_call``."""
+    return _call.set(call)
+
+
+def leave_call(token: contextvars.Token[MethodCall | None]) -> None:
+    _call.reset(token)
+
+
+def current_call() -> MethodCall | None:
+    """The method call whose behaviour is running in this task (None outside calls)."""
+    return _call.get()
 
 
 def add_read_hook(hook: ReadHook) -> None:

@@ -26,6 +26,7 @@ import logging
 import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from typing import Any
 
 from asyncua import Server, ua
@@ -424,7 +425,16 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
                 guard(caller, bound)
             lock = self._locks.setdefault(id(bound.serialize_on or bound), asyncio.Lock())
             async with lock:
-                outputs = await bound.handler(caller, *values)
+                # Transitions the behaviour causes are the caller's (AuditUpdateStateEvents).
+                call = context.MethodCall(
+                    caller, bound.object_id, bound.method_id, bound.name, tuple(args), datetime.now(UTC),
+                    context.audit_entry_id(),
+                )  # fmt: skip
+                token = context.enter_call(call)
+                try:
+                    outputs = await bound.handler(caller, *values)
+                finally:
+                    context.leave_call(token)
         except CallError as err:
             log.info("%s refused for %s: %s", bound.name, caller.display_user, err.message)
             results = None

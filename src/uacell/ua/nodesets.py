@@ -106,15 +106,16 @@ async def load_models(server: Server, models_dir: str | None = None) -> dict[str
 class PreparedSpace:
     """What ``init_address_space`` did: the models' namespace indexes and where the nodes came from.
 
-    From a snapshot, ``extras`` is what ``capture`` was given when it was written (the cell's
-    bookkeeping); otherwise ``capture`` (None when the cache is off) returns the job that writes the
-    snapshot: call it once the cell is built, run the job in a thread once listening.
+    From a snapshot, ``extras`` is what its writer kept beside the nodes (the cell's bookkeeping);
+    otherwise ``capture`` (None when the cache is off) copies the nodes (call it once the cell is
+    built, before anything else changes them) and returns the job that writes the snapshot with
+    the extras it is given: run it in a thread once listening.
     """
 
     indexes: dict[str, int]
     source: str  # "snapshot" or "nodesets"
     extras: dict[str, Any] | None = None
-    capture: Callable[[dict[str, Any]], Awaitable[Callable[[], None]]] | None = None
+    capture: Callable[[], Awaitable[Callable[[dict[str, Any]], None]]] | None = None
 
 
 async def init_address_space(
@@ -167,12 +168,12 @@ async def init_address_space(
         return PreparedSpace(indexes, "nodesets")
     target = path
 
-    async def capture(extras: dict[str, Any]) -> Callable[[], None]:
+    async def capture() -> Callable[[dict[str, Any]], None]:
         # On the event loop, before anything else changes the nodes; the writing can wait.
         copy = snapshot.stripped_copy(server.iserver.aspace._nodes)
         namespaces = list((await server.get_namespace_array())[2:])
 
-        def write() -> None:
+        def write(extras: dict[str, Any]) -> None:
             snapshot.write_snapshot(target, key, namespaces, copy, extras)
             snapshot.prune(target.parent)
             log.info("wrote the address-space snapshot %s (%d nodes)", target, len(copy))

@@ -55,7 +55,10 @@ FORMAT = 1
 MAGIC = b"uacell address space snapshot\n"
 PREFIX, SUFFIX = "address-space-", ".snapshot"
 KEEP = 3  # snapshots kept per cache directory (one per cell and model set recently served)
-CHUNK = 32  # nodes unpickled together: neighbours are usually wanted together, and share a memo
+# Nodes unpickled together. Neighbours are usually wanted together and share the pickle's memo, which
+# makes a chunk much cheaper than its nodes one by one: instances (string NodeIds, all wanted by their
+# bindings) go in large chunks; standard and NodeSet nodes (numeric NodeIds, a few wanted) in small ones.
+CHUNK, INSTANCE_CHUNK = 8, 64
 _LENGTH = struct.Struct(">I")
 
 
@@ -132,9 +135,9 @@ class Snapshot:
 class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
     """The address space's node table, backed by a snapshot's content.
 
-    Nodes are stored in chunks of neighbours (``CHUNK`` nodes, in the order they were created: a
-    type's members, an instance's children); a chunk is unpickled into ``cache`` the first time one
-    of its nodes is asked for. New and changed nodes live in ``cache`` only. Iteration and ``len``
+    Nodes are stored in chunks of neighbours (in the order they were created: a type's members, an
+    instance's children; ``CHUNK`` and ``INSTANCE_CHUNK``); a chunk is unpickled into ``cache`` the
+    first time one of its nodes is asked for. New and changed nodes live in ``cache`` only. Iteration and ``len``
     cover the nodes loaded so far (as asyncua's own shelf-backed table does): a node that was never
     loaded cannot hold a reference to a node created since, so code that scans for references
     (asyncua's DeleteNodes) still finds every one.
@@ -193,6 +196,21 @@ class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
         return len(self._where)
 
 
+def _chunks(nodes: list[tuple[ua.NodeId, NodeData]]) -> Iterator[list[tuple[ua.NodeId, NodeData]]]:
+    """Consecutive nodes of one kind (instance or not), at most that kind's chunk size at a time."""
+    group: list[tuple[ua.NodeId, NodeData]] = []
+    kind = False
+    for item in nodes:
+        instance = isinstance(item[0].Identifier, str)
+        if group and (instance != kind or len(group) == (INSTANCE_CHUNK if kind else CHUNK)):
+            yield group
+            group = []
+        group.append(item)
+        kind = instance
+    if group:
+        yield group
+
+
 def write_snapshot(
     path: Path,
     key: Mapping[str, Any],
@@ -207,8 +225,7 @@ def write_snapshot(
     spans: list[tuple[int, int]] = []
     blobs: list[bytes] = []
     offset = 0
-    for start in range(0, len(nodes), CHUNK):
-        group = nodes[start : start + CHUNK]
+    for group in _chunks(nodes):
         blob = pickle.dumps([data for _nodeid, data in group], protocol=pickle.HIGHEST_PROTOCOL)
         for nodeid, _data in group:
             where[nodeid] = len(spans)

@@ -5,7 +5,10 @@ it keeps ``CurrentState`` (+``Id``, ``Number``) and ``LastTransition`` (+``Id``,
 ``TransitionTime``) current, with ``Id`` the State/Transition node *of the type*; fills
 ``AvailableStates``/``AvailableTransitions``; publishes ``LastTransitionReason`` where the type has
 it; answers ``Bad_StateNotActive`` for an inactive sub-machine; and fires a ``TransitionEventType``
-event for every transition to subscribers of the machine and of the Server object.
+event for every transition to subscribers of the machine and of the Server object. A transition
+that happens while a client's method call runs (``uacell.ua.context.current_call``) is that
+client's: right after its TransitionEvent the machine also fires an ``AuditUpdateStateEventType``
+event (OPC 10000-16) naming the user, the method and the old and new state.
 
 Changes reach the address space through one ordered ``Publisher`` so that events and values keep
 the order in which the model produced them; the method dispatcher flushes it before answering.
@@ -14,6 +17,7 @@ the order in which the model produced them; the method dispatcher flushes it bef
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import logging
 import uuid
 from collections.abc import Awaitable, Callable
@@ -25,6 +29,7 @@ from asyncua import Server, ua
 from uacell.fsm import Change, StateMachine
 from uacell.models.tables import NodeRef
 from uacell.ua import toolkit
+from uacell.ua.context import MethodCall, current_call
 from uacell.ua.toolkit import EventEmitter, ValueWriter
 
 log = logging.getLogger(__name__)
@@ -52,7 +57,8 @@ class Publisher:
     def submit(self, job: Callable[[], Awaitable[None]]) -> None:
         self._queue.put_nowait(job)
         if self._task is None or self._task.done():
-            self._task = asyncio.get_running_loop().create_task(self._run())
+            # A fresh context: the queue's task must not carry the request that happened to start it.
+            self._task = asyncio.get_running_loop().create_task(self._run(), context=contextvars.Context())
 
     async def _run(self) -> None:
         while True:
@@ -126,6 +132,7 @@ class StateMachineBinding:
         self.available_states = c("AvailableStates")
         self.available_transitions = c("AvailableTransitions")
         self._event: EventEmitter | None = None
+        self._audit: EventEmitter | None = None  # made on the first transition a call causes
         self._written: dict[ua.NodeId, tuple[Any, ...]] = {}  # node -> what was last written there
         self._display = {name: self._display_name(info.node) for name, info in machine.table.states.items()} | {
             name: self._display_name(info.node) for name, info in machine.table.transitions.items()
@@ -163,7 +170,10 @@ class StateMachineBinding:
         self.publisher.touch(self.root)
         self.publisher.submit(self.publish_tree)
         if change.transition is not None:
-            self.publisher.submit(lambda: self.fire(change))
+            # The model moves its machines synchronously inside the call that causes a transition: the
+            # call is known here, not later in the publisher's task.
+            call = current_call()
+            self.publisher.submit(lambda: self.fire(change, call))
 
     async def publish_tree(self) -> None:
         await self.publish()
@@ -212,8 +222,9 @@ class StateMachineBinding:
                     text, ua.Variant(ua.LocalizedText(m.last_reason.name.title()), ua.VariantType.LocalizedText)
                 )
 
-    async def fire(self, change: Change) -> None:
-        """Fire the TransitionEvent, to the machine's subscribers and to the Server object's."""
+    async def fire(self, change: Change, call: MethodCall | None = None) -> None:
+        """Fire the TransitionEvent, to the machine's subscribers and to the Server object's; and after
+        it, when ``call`` caused the transition, the AuditUpdateStateEvent naming the caller."""
         assert self._event is not None and change.transition is not None
         table = self.machine.table
         t = change.transition
@@ -235,6 +246,44 @@ class StateMachineBinding:
             SourceNode=self.node,
             SourceName=self.machine.name,
             Message=ua.LocalizedText(f"{self.machine.name}: {t.name} ({t.from_state} to {t.to_state})"),
+        )
+        if call is not None:
+            await self.audit(change, call)
+
+    async def audit(self, change: Change, call: MethodCall) -> None:
+        """The AuditUpdateStateEvent (OPC 10000-16 4.4.18) of a transition ``call`` caused."""
+        assert change.transition is not None
+        if self._audit is None:
+            self._audit = await EventEmitter.create(self.server, ua.ObjectIds.AuditUpdateStateEventType, self.node)
+        t = change.transition
+        states = self.machine.table.states
+        user = call.caller.user  # None for an anonymous session (OPC 10000-5 6.4.3: ClientUserId null)
+        fields = {
+            "ActionTimeStamp": (call.started, ua.VariantType.DateTime),
+            "Status": (True, ua.VariantType.Boolean),
+            "ServerId": (self.server.get_application_uri(), ua.VariantType.String),
+            "ClientAuditEntryId": (call.audit_entry_id or None, ua.VariantType.String),
+            "ClientUserId": (user, ua.VariantType.String),
+            "ClientApplicationUri": (call.caller.client or None, ua.VariantType.String),
+            "MethodId": (call.method_id, ua.VariantType.NodeId),
+            "StatusCodeId": (ua.StatusCode(ua.StatusCodes.Good), ua.VariantType.StatusCode),
+            "InputArguments": (list(call.inputs), ua.VariantType.Variant),
+            "OldStateId": (self.refs(states[t.from_state].node), ua.VariantType.NodeId),
+            "NewStateId": (self.refs(states[t.to_state].node), ua.VariantType.NodeId),
+        }
+        await self._audit.fire(
+            (self.node, ua.NodeId(ua.ObjectIds.Server)),
+            fields,
+            EventId=ua.Variant(uuid.uuid4().hex.encode(), ua.VariantType.ByteString),
+            Time=change.time,
+            ReceiveTime=datetime.now(UTC),
+            Severity=100,
+            SourceNode=self.node,
+            SourceName=f"Method/{call.name}",  # OPC 10000-16 4.4.18
+            Message=ua.LocalizedText(
+                f"{self.machine.name}: {t.name} ({t.from_state} to {t.to_state}) by {user or 'anonymous'}"
+                f" calling {call.name}"
+            ),
         )
 
 

@@ -49,6 +49,8 @@ PACKML_MACHINES = (
     ("ExecuteState", ("Reset", "Start", "Hold", "Unhold", "Suspend", "Unsuspend", "ToComplete")),
 )
 SYSOP_METHODS = ("GetReady", "StandDown", "Start", "Stop")
+# CurrentLine and ProgramPointer are uacell's own (docs/robotics.md): absent on other servers.
+TASK_VARIABLES = ("TaskProgramName", "TaskProgramLoaded", "ExecutionMode", "CurrentLine", "ProgramPointer")
 TASK_METHODS = ("LoadByName", "UnloadProgram", "UnloadByName", "Start", "Stop")
 LOCK_VARIABLES = ("Locked", "LockingUser", "LockingClient", "RemainingLockTime")
 LOCK_METHODS = ("InitLock", "RenewLock", "ExitLock", "BreakLock")
@@ -198,9 +200,16 @@ class Discoverer:
         if PACKML in index:
             for unit in await self.of_type(top.get("PackMLObjects"), ua.NodeId(6, index[PACKML])):
                 units.append(await self.unit(unit))
-        self.cell.layout = {"robots": robots, "units": units}
+        self.cell.layout = {"robots": robots, "units": units, "auditing": await self.auditing()}
         log.debug("found %d robots and %d PackML units", len(robots), len(units))
         return self.cell
+
+    async def auditing(self) -> bool:
+        """Does the server audit (``Server/Auditing``)? uacell does: it fires AuditUpdateStateEvents naming
+        who caused each transition."""
+        node = Node(self.client.uaclient, ua.NodeId(ua.ObjectIds.Server_Auditing))
+        dv = await node.read_data_value(raise_on_bad_status=False)
+        return bool(dv.StatusCode.is_good() and dv.Value is not None and dv.Value.Value)
 
     async def unit(self, unit: Child) -> dict[str, Any]:
         name = unit.name
@@ -308,10 +317,7 @@ class Discoverer:
             "name": task.name,
             **await self.machine(prefix, machine),
             "ready": await self.machine(f"{prefix}/ReadySubstateMachine", ready),
-            "variables": {
-                n: await self.variable(f"{prefix}/{n}", params, n)
-                for n in ("TaskProgramName", "TaskProgramLoaded", "ExecutionMode")
-            },
+            "variables": {n: await self.variable(f"{prefix}/{n}", params, n) for n in TASK_VARIABLES},
             "modules": f"{prefix}/TaskModules" if modules is not None else None,
             "lock": await self.lock(prefix, task.node),
             "methods": methods,

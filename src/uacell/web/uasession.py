@@ -1,9 +1,10 @@
 """One web user's OPC UA session: their identity, their subscriptions, their calls.
 
 Everything the page shows comes from OPC UA subscriptions of this session (values, ``Executable``
-of every method, TransitionEvents); ``UserExecutable`` is read back by this session whenever an
-``Executable`` changes, so what the page enables is what the server says this user may do now.
-Calls are made with this session, so roles, locks and the audit trail are the server's.
+of every method, TransitionEvents and the AuditUpdateStateEvents that name who caused them);
+``UserExecutable`` is read back by this session whenever an ``Executable`` changes, so what the page
+enables is what the server says this user may do now. Calls are made with this session, so roles,
+locks and the audit trail are the server's.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ log = logging.getLogger(__name__)
 APPLICATION_URI = "urn:uacell:web"
 RETRY_SECONDS = 2.0
 EVENTS_KEPT = 30
+_AUDIT_UPDATE_STATE = ua.NodeId(ua.ObjectIds.AuditUpdateStateEventType)
 _FILE_CHUNK = 60000
 # OPC 40010-1 method result Status names (docs/robotics.md), shown beside the number.
 ROBOTICS_STATUS = {
@@ -306,7 +308,10 @@ class UaSession:
             await values.subscribe_data_change(nodes, queuesize=10)
         await values.subscribe_events(
             Node(client.uaclient, ua.NodeId(ua.ObjectIds.Server)),
-            Node(client.uaclient, ua.NodeId(ua.ObjectIds.TransitionEventType)),
+            [
+                Node(client.uaclient, ua.NodeId(ua.ObjectIds.TransitionEventType)),
+                Node(client.uaclient, _AUDIT_UPDATE_STATE),
+            ],
         )
         executable = await client.create_subscription(50, _ExecutableHandler(self))
         methods = [Node(client.uaclient, m.method) for m in self.cell.methods.values()]
@@ -405,6 +410,9 @@ class UaSession:
 
     def _event(self, event: Any) -> None:
         source = getattr(event, "SourceNode", None)
+        if getattr(event, "EventType", None) == _AUDIT_UPDATE_STATE:
+            self._audit(event, source)
+            return
         machine = self.cell.machines.get(source.to_string()) if isinstance(source, ua.NodeId) else None
         # The machine's LastTransitionReason is published before its event: its value now is this one's.
         reason = None
@@ -419,9 +427,28 @@ class UaSession:
             "to": jsonable(getattr(event, "ToState", None)),
             "message": jsonable(getattr(event, "Message", None)),
             "reason": reason,
+            "source": jsonable(source),
+            "from_id": jsonable(getattr(event, "FromState/Id", None)),
+            "to_id": jsonable(getattr(event, "ToState/Id", None)),
+            "user": None,  # set by the AuditUpdateStateEvent that follows when a call caused it
         }
         self.events.appendleft(entry)
         self._emit({"type": "event", "event": entry})
+
+    def _audit(self, event: Any, source: Any) -> None:
+        """Who caused a transition: the AuditUpdateStateEvent the server fires right after the
+        TransitionEvent of a transition a method call caused (none for one that followed by itself)."""
+        key = (
+            jsonable(source),
+            jsonable(getattr(event, "OldStateId", None)),
+            jsonable(getattr(event, "NewStateId", None)),
+        )
+        for entry in self.events:  # newest first
+            if entry["user"] is None and (entry["source"], entry["from_id"], entry["to_id"]) == key:
+                entry["user"] = getattr(event, "ClientUserId", None) or "anonymous"  # null: an anonymous session
+                entry["method"] = str(getattr(event, "SourceName", "") or "").removeprefix("Method/")
+                self._emit({"type": "events", "events": list(self.events)})
+                return
 
     def _executable_changed(self) -> None:
         if self._methods_task is not None and not self._methods_task.done():

@@ -1,8 +1,13 @@
-"""TaskControls: their machines and methods, ParameterSet, TaskModules, MotionDevicesUnderControl."""
+"""TaskControls: their machines and methods, ParameterSet, TaskModules, MotionDevicesUnderControl.
+
+Beside the standard ParameterSet variables, each TaskControl gets two server-defined read-only ones in
+uacell's namespace: ``ParameterSet/CurrentLine`` and ``ParameterSet/ProgramPointer`` (docs/robotics.md).
+"""
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 from typing import TYPE_CHECKING
 
@@ -22,6 +27,13 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 _MACHINE = "TaskControlOperation/TaskControlStateMachine"
+_A = ua.AttributeIds
+# Server-defined ParameterSet variables (uacell's namespace): BrowseName -> Description.
+PROGRAM_POSITION = {
+    "CurrentLine": "uacell: the source line of the program instruction being executed (0: none is executing)",
+    "ProgramPointer": "uacell: the step of the loaded program being executed, or the step Start resumes from"
+    " (0: the program start)",
+}
 
 
 class TaskControls:
@@ -30,6 +42,7 @@ class TaskControls:
     def __init__(self, binding: RoboticsBinding) -> None:
         self.binding = binding
         self.module_nodes: dict[str, dict[str, ua.NodeId]] = {name: {} for name in binding.task_parts}
+        self._position_pending: set[str] = set()  # tasks with a position write submitted, not yet run
 
     def machine_node(self, task: str) -> ua.NodeId:
         b = self.binding
@@ -48,7 +61,10 @@ class TaskControls:
                     executable(task, machine, method), task.machine, b.task_parts[name].node,
                 )  # fmt: skip
             await self._setup_parameters(name, task)
+            await self._add_program_position(name)
             await b.publish_stop_modes(node, task.possible_stop_modes, task.default_stop_mode)
+            # The model notifies its listeners on every step of a run (and on every other change).
+            task.listeners.append(functools.partial(self._position_changed, name))
 
     async def _setup_parameters(self, name: str, task: TaskControl) -> None:
         b = self.binding
@@ -63,6 +79,36 @@ class TaskControls:
             mode_node = b.child(part.node, "ParameterSet/ExecutionMode")
             await b.values.set_access(mode_node, ua.AccessLevel.CurrentRead.mask | ua.AccessLevel.CurrentWrite.mask)
             b.app.writes.route(mode_node, self._execution_mode_writer(task), Role.OPERATOR)
+
+    async def _add_program_position(self, name: str) -> None:
+        """``ParameterSet/CurrentLine`` and ``ParameterSet/ProgramPointer``: UInt32, read-only, uacell's."""
+        b = self.binding
+        part = b.task_parts[name]
+        params = b.app.server.get_node(b.child(part.node, "ParameterSet"))
+        for browse_name, text in PROGRAM_POSITION.items():
+            var = await params.add_variable(
+                ua.NodeId(f"{part.path}.ParameterSet.{browse_name}", b.ns),
+                ua.QualifiedName(browse_name, b.ns),
+                ua.Variant(0, ua.VariantType.UInt32),
+                datatype=ua.NodeId(ua.ObjectIds.UInt32),
+            )
+            description = ua.Variant(ua.LocalizedText(text), ua.VariantType.LocalizedText)
+            await var.write_attribute(_A.Description, ua.DataValue(description))
+
+    def _position_changed(self, name: str) -> None:
+        # Called on every step of a run: one pending write per task, reading the latest position.
+        if name not in self._position_pending:
+            self._position_pending.add(name)
+            self.binding.app.publisher.submit(functools.partial(self._publish_position, name))
+
+    async def _publish_position(self, name: str) -> None:
+        self._position_pending.discard(name)
+        b = self.binding
+        task = b.cell.tasks[name]
+        node = b.task_parts[name].node
+        # ValueWriter skips a value equal to the last one written: only changes reach subscribers.
+        await b.values.write(b.child(node, "ParameterSet/CurrentLine"), task.current_line, ua.VariantType.UInt32)
+        await b.values.write(b.child(node, "ParameterSet/ProgramPointer"), task.pointer, ua.VariantType.UInt32)
 
     def controls_reference(self) -> ua.NodeId | None:
         """Robotics' ``Controls`` ReferenceType (found by BrowseName, not by a hard-coded id)."""
@@ -147,6 +193,7 @@ class TaskControls:
             for path, (value, vtype) in params.items():
                 with contextlib.suppress(KeyError):
                     await b.values.write(b.child(node, path), value, vtype)
+            await self._publish_position(name)
             await self._sync_modules(name, task)
 
     async def _sync_modules(self, name: str, task: TaskControl) -> None:

@@ -99,6 +99,7 @@ function handle(m) {
       S.events.length = Math.min(S.events.length, 30);
       renderEvents();
       break;
+    case "events": S.events = m.events; renderEvents(); break;
     case "files": S.files = m.files; renderFiles(); break;
     case "modules": S.modules = m.modules; update(); break;
     case "status": setConn(m.status, m.problem); break;
@@ -410,6 +411,13 @@ function stateLine(label, cls) {
   return el("div", {class: "state-line"}, el("span", {class: "label", text: label}), el("strong", {class: cls, text: "–"}));
 }
 
+// The loaded program and, while an instruction executes, its source line (where the server says it).
+function programLine() {
+  const line = stateLine("Program", "v-program");
+  line.append(el("span", {class: "v-line", hidden: true}));
+  return line;
+}
+
 function renderRobot(r) {
   const card = el("section", {class: "card robot", id: `robot-${r.name}`, "data-robot": r.name}, el("h2", {text: `${r.name}: robot`}));
   for (const c of r.controllers) card.append(renderController(r, c));
@@ -467,7 +475,7 @@ function renderTask(r, c, t) {
   const m = t.methods;
   const box = el("div", {class: "task", id: `task-${r.name}-${t.name}`, "data-task": t.name},
     el("h4", {text: `Task control ${t.name}`}),
-    stateLine("State", "v-task"), stateLine("Program", "v-program"), stateLine("Modules", "v-modules"),
+    stateLine("State", "v-task"), programLine(), stateLine("Modules", "v-modules"),
     lockBox(t.lock, [t.lock, c.lock]),
     el("div", {class: "commands"}, select,
       button("Load", m.LoadByName, {locks, args: () => [select.value.replace(/\.robot$/, "")]}),
@@ -594,6 +602,10 @@ function updateRobots() {
     if (S.values[t.ready.state]) text += ` / ${S.values[t.ready.state]}`;
     $(".v-task", box).textContent = text;
     $(".v-program", box).textContent = S.values[t.variables.TaskProgramName] || "none";
+    const line = t.variables.CurrentLine ? S.values[t.variables.CurrentLine] : null;
+    const lineBox = $(".v-line", box);
+    lineBox.textContent = line ? `line ${line}` : "";
+    lineBox.hidden = !line;
     $(".v-modules", box).textContent = (S.modules[t.modules] || []).join(", ") || "none";
   }
   for (const lock of $$(".v-lock")) {
@@ -612,10 +624,16 @@ function renderEvents() {
   const list = $("#event-list");
   if (!list) return;
   list.textContent = "";
+  // Who: the user the server's AuditUpdateStateEvent names; "automatic" when the server audits and
+  // sent none (the transition followed by itself); "—" when the server does not say.
+  const auditing = !!(S.layout && S.layout.auditing);
   for (const e of S.events.slice(0, 15)) {
     const t = e.time ? new Date(e.time).toLocaleTimeString() : "";
     const reason = e.reason !== null && e.reason !== undefined ? ` (reason: ${e.reason})` : "";
-    list.append(el("li", {}, el("time", {text: t}), ` ${e.machine}: ${e.from} → ${e.to}${reason}`));
+    const who = e.user ? e.user : (auditing ? "automatic" : "—");
+    list.append(el("li", {"data-user": e.user || ""}, el("time", {text: t}), ` ${e.machine}: ${e.from} → ${e.to} `,
+      el("span", {class: e.user ? "ev-user" : "ev-user auto", title: e.method ? `called ${e.method}` : null, text: who}),
+      reason));
   }
 }
 
