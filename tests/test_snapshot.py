@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 import stat
+import threading
 from pathlib import Path
 
 import pytest
@@ -220,6 +221,24 @@ def test_a_write_that_fails_leaves_the_old_snapshot_whole(tmp_path: Path, monkey
     assert found is not None and found.nodes.stored == 3
 
 
+def test_a_cancelled_write_writes_nothing(tmp_path: Path) -> None:
+    cancel = threading.Event()
+    cancel.set()
+    with pytest.raises(snapshot.WriteCancelled):
+        write_snapshot(tmp_path / NAME, KEY, [], stripped_copy(_nodes()), cancel=cancel)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_writer_beside_a_server_sleeps_after_each_chunk(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    slept: list[float] = []
+    monkeypatch.setattr(snapshot.time, "sleep", slept.append)
+    write_snapshot(tmp_path / NAME, KEY, [], stripped_copy(_nodes(snapshot.CHUNK * 3)), share=0.5)
+    assert len(slept) == 3 and all(s >= 0 for s in slept)
+    slept.clear()
+    write_snapshot(tmp_path / NAME, KEY, [], stripped_copy(_nodes(snapshot.CHUNK * 3)))  # share 1: no pause
+    assert slept == []
+
+
 def test_discard_removes_the_snapshot_and_leftovers_of_a_crash(tmp_path: Path) -> None:
     path = tmp_path / NAME
     _write(path)
@@ -336,6 +355,17 @@ def _pinned() -> dict[str, str]:
     from uacell.models.source import MODELS
 
     return {m.filename: m.sha256 for m in MODELS}
+
+
+async def test_a_stop_does_not_wait_for_the_snapshot_and_leaves_no_half_file(tmp_path: Path) -> None:
+    cache = tmp_path / "cache"
+    app = await _start(tmp_path, cache)
+    assert app.address_space_source == "nodesets"
+    await app.stop()  # at once: the snapshot is still being written
+    assert not list(cache.glob(".*.tmp"))
+    key = snapshot.snapshot_key(_pinned(), cell_digest(None))
+    for path in _snapshots(cache):  # whole, if the write won the race
+        assert read_snapshot(path, key) is not None
 
 
 async def test_with_the_cache_off_nothing_is_read_or_written(tmp_path: Path) -> None:

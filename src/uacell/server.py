@@ -5,9 +5,9 @@ from __future__ import annotations
 import asyncio
 import functools
 import logging
+import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from asyncua import Server, ua
 
@@ -26,8 +26,9 @@ from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.file_store import HandlePool
 from uacell.ua.limits import install_limits, publish_operation_limits
-from uacell.ua.nodesets import init_address_space
+from uacell.ua.nodesets import SnapshotJob, init_address_space
 from uacell.ua.observers import install_audit
+from uacell.ua.snapshot import WriteCancelled
 from uacell.ua.state_machine import NodeRefs, Publisher
 from uacell.ua.writes import WriteRouter
 from uacell.users import UserStore
@@ -85,7 +86,8 @@ class UacellServer:
         self.metrics: Metrics | None = None
         self.diagnostics: Diagnostics | None = None
         self.address_space_source = ""  # "snapshot" or "nodesets", once set up
-        self._snapshot_job: Callable[[dict[str, Any]], None] | None = None
+        self._snapshot_job: SnapshotJob | None = None
+        self._snapshot_cancel = threading.Event()
         self._snapshot_task: asyncio.Task[None] | None = None
 
     @property
@@ -160,7 +162,7 @@ class UacellServer:
         await self.server.start()
         if self._snapshot_job is not None:  # first start: write the snapshot for the next ones
             # The cell's bookkeeping as the binders left it (types they looked up included).
-            write = functools.partial(self._snapshot_job, self.cell.extras())
+            write = functools.partial(self._snapshot_job, self.cell.extras(), self._snapshot_cancel)
             self._snapshot_task = asyncio.get_running_loop().create_task(self._write_snapshot(write))
             self._snapshot_job = None
         await self.dispatcher.refresh_executable()
@@ -173,11 +175,13 @@ class UacellServer:
     async def _write_snapshot(self, job: Callable[[], None]) -> None:
         try:
             await asyncio.to_thread(job)
+        except WriteCancelled:
+            log.info("the address-space snapshot was not written: the server stopped first")
         except Exception as e:  # a cache: the server runs on without it
             log.warning("could not write the address-space snapshot: %s", e)
 
     async def snapshot_written(self) -> None:
-        """Wait until the snapshot this start writes (if any) is on disk."""
+        """Wait until the snapshot this start writes (if any) is on disk, or given up."""
         if self._snapshot_task is not None:
             await asyncio.shield(self._snapshot_task)
 
@@ -198,6 +202,7 @@ class UacellServer:
         if self.diagnostics is not None:
             await self.diagnostics.stop()
         await self.server.stop()
+        self._snapshot_cancel.set()  # a stop is never held up by a cache
         await self.snapshot_written()
         if self.metrics is not None:
             await self.metrics.stop()

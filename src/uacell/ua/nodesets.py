@@ -8,6 +8,7 @@ them: the loader leaves them, everything below them and every reference to them 
 from __future__ import annotations
 
 import logging
+import threading
 import xml.etree.ElementTree as ET
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
@@ -102,6 +103,14 @@ async def load_models(server: Server, models_dir: str | None = None) -> dict[str
     return indexes
 
 
+SnapshotJob = Callable[[dict[str, Any], threading.Event], None]
+"""Writes the snapshot with the given extras; stops early when the event is set."""
+
+# The writing thread's share of the interpreter while the server runs beside it (the rest is the
+# event loop's): the first start serves at once, the snapshot takes a little longer.
+WRITE_SHARE = 0.5
+
+
 @dataclass
 class PreparedSpace:
     """What ``init_address_space`` did: the models' namespace indexes and where the nodes came from.
@@ -115,7 +124,7 @@ class PreparedSpace:
     indexes: dict[str, int]
     source: str  # "snapshot" or "nodesets"
     extras: dict[str, Any] | None = None
-    capture: Callable[[], Awaitable[Callable[[dict[str, Any]], None]]] | None = None
+    capture: Callable[[], Awaitable[SnapshotJob]] | None = None
 
 
 async def init_address_space(
@@ -168,13 +177,13 @@ async def init_address_space(
         return PreparedSpace(indexes, "nodesets")
     target = path
 
-    async def capture() -> Callable[[dict[str, Any]], None]:
+    async def capture() -> SnapshotJob:
         # On the event loop, before anything else changes the nodes; the writing can wait.
         copy = snapshot.stripped_copy(server.iserver.aspace._nodes)
         namespaces = list((await server.get_namespace_array())[2:])
 
-        def write(extras: dict[str, Any]) -> None:
-            snapshot.write_snapshot(target, key, namespaces, copy, extras)
+        def write(extras: dict[str, Any], cancel: threading.Event) -> None:
+            snapshot.write_snapshot(target, key, namespaces, copy, extras, cancel, WRITE_SHARE)
             snapshot.prune(target.parent)
             log.info("wrote the address-space snapshot %s (%d nodes)", target, len(copy))
 

@@ -38,6 +38,8 @@ import pickle
 import platform
 import struct
 import tempfile
+import threading
+import time
 from collections.abc import Iterator, Mapping, MutableMapping
 from dataclasses import dataclass
 from importlib.metadata import version
@@ -211,22 +213,36 @@ def _chunks(nodes: list[tuple[ua.NodeId, NodeData]]) -> Iterator[list[tuple[ua.N
         yield group
 
 
+class WriteCancelled(Exception):
+    """``write_snapshot`` was asked to stop; nothing was written."""
+
+
 def write_snapshot(
     path: Path,
     key: Mapping[str, Any],
     namespaces: list[str],
     nodes: list[tuple[ua.NodeId, NodeData]],
     extras: Mapping[str, Any] | None = None,
+    cancel: threading.Event | None = None,
+    share: float = 1.0,
 ) -> None:
     """Write ``nodes`` (from ``stripped_copy``) as the snapshot at ``path``, atomically, owner-only.
 
-    ``extras``: picklable data kept beside the nodes (``Snapshot.extras``)."""
+    ``extras``: picklable data kept beside the nodes (``Snapshot.extras``). Run in a thread beside
+    a serving event loop, ``share`` (0 to 1) is the part of the time it keeps the interpreter busy:
+    after each chunk it sleeps so that the loop gets the rest. ``cancel`` set: it stops before the
+    file is created (``WriteCancelled``)."""
     where: dict[ua.NodeId, int] = {}
     spans: list[tuple[int, int]] = []
     blobs: list[bytes] = []
     offset = 0
     for group in _chunks(nodes):
+        if cancel is not None and cancel.is_set():
+            raise WriteCancelled
+        started = time.perf_counter()
         blob = pickle.dumps([data for _nodeid, data in group], protocol=pickle.HIGHEST_PROTOCOL)
+        if share < 1.0:
+            time.sleep((time.perf_counter() - started) * (1.0 - share) / share)
         for nodeid, _data in group:
             where[nodeid] = len(spans)
         spans.append((offset, len(blob)))
