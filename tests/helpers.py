@@ -152,3 +152,34 @@ async def delivered(app: UacellServer, sink: EventSink, *sources: ua.NodeId) -> 
 
     await sink.wait_for(lambda _e: sum(1 for e in sink.events if is_marker(e)) >= len(sources))
     sink.events[:] = [e for e in sink.events if not is_marker(e)]
+
+
+class Collector:
+    """Collects what one subscription delivers (events, and data changes as (node, value));
+    ``wait_for`` returns the first item that matches, waiting for more as they arrive."""
+
+    timeout = 30.0
+
+    def __init__(self) -> None:
+        self.events: list[Any] = []
+        self.changed = asyncio.Event()
+
+    def event_notification(self, event: Any) -> None:
+        self.events.append(event)
+        self.changed.set()
+
+    def datachange_notification(self, node: Any, value: Any, data: Any) -> None:
+        self.events.append((node, value))
+        self.changed.set()
+
+    async def wait_for(self, match: Callable[[Any], bool], timeout: float | None = None) -> Any:
+        async with asyncio.timeout(self.timeout if timeout is None else timeout):
+            while True:
+                for e in self.events:
+                    if match(e):
+                        return e
+                self.changed.clear()
+                await self.changed.wait()
+
+    def clear(self) -> None:
+        self.events.clear()

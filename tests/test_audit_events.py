@@ -7,7 +7,6 @@ by itself (an acting state completing, a program ending, the robot powered up) f
 
 from __future__ import annotations
 
-import asyncio
 import contextvars
 from datetime import datetime
 
@@ -15,7 +14,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import delivered, raw_call, wait_until
+from helpers import Collector, delivered, raw_call, wait_until
 
 from uacell.background import Background
 from uacell.packml.binding import UNITS
@@ -36,24 +35,7 @@ AUDIT = ua.NodeId(ua.ObjectIds.AuditUpdateStateEventType)
 TRANSITION = ua.NodeId(ua.ObjectIds.TransitionEventType)
 
 
-class Events:
-    def __init__(self) -> None:
-        self.events: list = []
-        self.changed = asyncio.Event()
-
-    def event_notification(self, event) -> None:
-        self.events.append(event)
-        self.changed.set()
-
-    async def wait_for(self, match, timeout: float = 30.0):
-        async with asyncio.timeout(timeout):
-            while True:
-                for e in self.events:
-                    if match(e):
-                        return e
-                self.changed.clear()
-                await self.changed.wait()
-
+class Events(Collector):
     def transitions(self) -> list:  # markers (helpers.delivered) are dropped already
         return [e for e in self.events if e.EventType == TRANSITION]
 

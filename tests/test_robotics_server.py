@@ -16,7 +16,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import delivered, raw_call, robot_binding, robot_cell, server_value, wait_until
+from helpers import Collector, delivered, raw_call, robot_binding, robot_cell, server_value, wait_until
 
 from uacell.robotics.equipment import ExecutionMode, StopMode
 from uacell.roles import Role
@@ -44,20 +44,10 @@ LONG = "program Long version 1\nmove 10 0 0 0 0 0\nwait 100\n"
 SWEEP = "program Sweep version 3\nspeed 2\nmove 60 0 0 0 0 0\n"
 
 
-class Events:
+class Events(Collector):
     """Collects events of one subscription; ``wait_for`` returns the first matching one."""
 
-    def __init__(self) -> None:
-        self.events: list = []
-        self.changed = asyncio.Event()
-
-    def event_notification(self, event) -> None:
-        self.events.append(event)
-        self.changed.set()
-
-    def datachange_notification(self, node, value, data) -> None:
-        self.events.append((node, value))
-        self.changed.set()
+    timeout = TIMEOUT
 
     def transitions(self, source: ua.NodeId | None = None) -> list[str]:
         return [
@@ -65,18 +55,6 @@ class Events:
             for e in self.events
             if hasattr(e, "Transition") and (source is None or e.SourceNode == source)
         ]
-
-    async def wait_for(self, match: Callable[[object], bool], timeout: float = TIMEOUT):
-        async with asyncio.timeout(timeout):
-            while True:
-                for e in self.events:
-                    if match(e):
-                        return e
-                self.changed.clear()
-                await self.changed.wait()
-
-    def clear(self) -> None:
-        self.events.clear()
 
 
 class Rig:

@@ -236,16 +236,9 @@ class StateMachineBinding:
             "ToState": (self._display[t.to_state], ua.VariantType.LocalizedText),
             "ToState/Id": (self.refs(table.states[t.to_state].node), ua.VariantType.NodeId),
         }
+        message = f"{self.machine.name}: {t.name} ({t.from_state} to {t.to_state})"
         await self._event.fire(
-            (self.node, ua.NodeId(ua.ObjectIds.Server)),
-            fields,
-            EventId=ua.Variant(uuid.uuid4().hex.encode(), ua.VariantType.ByteString),
-            Time=change.time,
-            ReceiveTime=datetime.now(UTC),
-            Severity=100,
-            SourceNode=self.node,
-            SourceName=self.machine.name,
-            Message=ua.LocalizedText(f"{self.machine.name}: {t.name} ({t.from_state} to {t.to_state})"),
+            (self.node, ua.NodeId(ua.ObjectIds.Server)), fields, **self._base_fields(change, self.machine.name, message)
         )
         if call is not None:
             await self.audit(change, call)
@@ -271,20 +264,26 @@ class StateMachineBinding:
             "OldStateId": (self.refs(states[t.from_state].node), ua.VariantType.NodeId),
             "NewStateId": (self.refs(states[t.to_state].node), ua.VariantType.NodeId),
         }
-        await self._audit.fire(
-            (self.node, ua.NodeId(ua.ObjectIds.Server)),
-            fields,
-            EventId=ua.Variant(uuid.uuid4().hex.encode(), ua.VariantType.ByteString),
-            Time=change.time,
-            ReceiveTime=datetime.now(UTC),
-            Severity=100,
-            SourceNode=self.node,
-            SourceName=f"Method/{call.name}",  # OPC 10000-16 4.4.18
-            Message=ua.LocalizedText(
-                f"{self.machine.name}: {t.name} ({t.from_state} to {t.to_state}) by {user or 'anonymous'}"
-                f" calling {call.name}"
-            ),
+        message = (
+            f"{self.machine.name}: {t.name} ({t.from_state} to {t.to_state}) by {user or 'anonymous'}"
+            f" calling {call.name}"
         )
+        source = f"Method/{call.name}"  # OPC 10000-16 4.4.18
+        await self._audit.fire(
+            (self.node, ua.NodeId(ua.ObjectIds.Server)), fields, **self._base_fields(change, source, message)
+        )
+
+    def _base_fields(self, change: Change, source_name: str, message: str) -> dict[str, Any]:
+        """The BaseEventType fields both events of a transition carry."""
+        return {
+            "EventId": ua.Variant(uuid.uuid4().hex.encode(), ua.VariantType.ByteString),
+            "Time": change.time,
+            "ReceiveTime": datetime.now(UTC),
+            "Severity": 100,
+            "SourceNode": self.node,
+            "SourceName": source_name,
+            "Message": ua.LocalizedText(message),
+        }
 
 
 async def bind_tree(
