@@ -394,6 +394,17 @@ WAVE = (
 )
 
 
+def test_what_the_user_is_typing_survives_a_new_snapshot(page, serve):
+    login(page, "erin")
+    page.click(".upload-box summary")
+    page.fill(".upload-name", "draft.robot")
+    page.fill(".upload-text", "program Draft\n")
+    page.evaluate("render()")  # what a reconnect's new snapshot does
+    assert page.eval_on_selector(".upload-box", "d => d.open") is True
+    assert page.input_value(".upload-name") == "draft.robot"
+    assert page.input_value(".upload-text") == "program Draft\n"
+
+
 def test_a_program_uploaded_in_the_page_is_loaded_and_run(page, serve, ua_thread):
     login(page, "erin")
     page.click(".upload-box summary")

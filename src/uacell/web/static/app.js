@@ -208,8 +208,33 @@ function updateButtons() {
 
 // --- rendering ---------------------------------------------------------------------------------
 
+// What the user is in the middle of (open sections, typed text) survives a re-render (a new
+// snapshot after a reconnect or a login): keyed by the nearest card's id and the element's class.
+function uiKey(node) {
+  const owner = node.parentElement ? node.parentElement.closest("[id]") : null;
+  return `${owner ? owner.id : ""}|${node.tagName}|${node.className}`;
+}
+
+function saveUi(root) {
+  const saved = new Map(), seen = new Map();
+  const fields = $$("input, textarea, select", root).filter((n) => !n.closest(".param-rows"));
+  for (const n of fields) seen.set(uiKey(n), (seen.get(uiKey(n)) || 0) + 1);
+  for (const n of $$("details", root)) saved.set(uiKey(n), n.open);
+  for (const n of fields) if (seen.get(uiKey(n)) === 1 && n.value) saved.set(`${uiKey(n)}|value`, n.value);
+  return saved;
+}
+
+function restoreUi(root, saved) {
+  for (const n of $$("details", root)) if (saved.has(uiKey(n))) n.open = saved.get(uiKey(n));
+  for (const n of $$("input, textarea, select", root)) {
+    const value = saved.get(`${uiKey(n)}|value`);
+    if (value !== undefined && !n.closest(".param-rows")) n.value = value;
+  }
+}
+
 function render() {
   const main = $("#cell");
+  const kept = saveUi(main);
   main.textContent = "";
   const tree = $("#tree");
   tree.textContent = "";
@@ -236,6 +261,7 @@ function render() {
   renderEvents();
   renderFiles();
   update();
+  restoreUi(main, kept);
 }
 
 // PackML: the ISA-TR88 state model in its familiar layout. Acting states (ending by themselves) are
