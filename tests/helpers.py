@@ -183,3 +183,28 @@ class Collector:
 
     def clear(self) -> None:
         self.events.clear()
+
+
+class CellClient:
+    """An asyncua client session that names the cell's instances by their NodeId paths (tests may;
+    the HMI may not): ``async with CellClient(endpoint) as c: await c.node("Filler1...").read_value()``."""
+
+    def __init__(
+        self, endpoint: str, uri: str, user: str | None = None, password: str | None = None, **options: Any
+    ) -> None:
+        self.client = Client(endpoint, timeout=30, **options)
+        self.client.application_uri = uri
+        if user:
+            self.client.set_user(user)
+            self.client.set_password(password or "")
+
+    async def __aenter__(self) -> Any:
+        await self.client.connect()
+        self.ns = await self.client.get_namespace_index("urn:uacell:cell")
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.client.disconnect()
+
+    def node(self, path: str) -> Any:
+        return self.client.get_node(ua.NodeId(path, self.ns))

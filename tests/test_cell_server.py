@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 import pytest_asyncio
-from asyncua import Client, ua
+from asyncua import ua
 from conftest import fast_config, start_app
-from helpers import raw_call
+from helpers import CellClient, raw_call
 
 from uacell.cellconfig import builtin_cell_path
 from uacell.config import Config, load_cell
@@ -52,21 +52,9 @@ async def app(tmp_path_factory):
         await server.stop()
 
 
-class Session:
+class Session(CellClient):
     def __init__(self, app: UacellServer, uri: str = "urn:test:cell") -> None:
-        self.client = Client(app.endpoint, timeout=30, watchdog_intervall=30.0)  # loaded machines: no 1 s probe
-        self.client.application_uri = uri
-
-    async def __aenter__(self) -> Session:
-        await self.client.connect()
-        self.ns = await self.client.get_namespace_index("urn:uacell:cell")
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.client.disconnect()
-
-    def node(self, path: str):
-        return self.client.get_node(ua.NodeId(path, self.ns))
+        super().__init__(app.endpoint, uri, watchdog_intervall=30.0)  # loaded machines: no 1 s probe
 
     async def read(self, path: str):
         return await self.node(path).read_value()

@@ -18,9 +18,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from asyncua import Client, ua
+from asyncua import ua
 from conftest import ROOT, ServeProcess, start_serve
-from helpers import raw_call
+from helpers import CellClient, raw_call
 
 from uacell.users import UserStore
 
@@ -118,26 +118,11 @@ def page(browser, serve):
     assert not errors, errors
 
 
-class Ua:
+class Ua(CellClient):
     """An OPC UA client session of the tests (by NodeId: tests may, the HMI may not)."""
 
     def __init__(self, endpoint: str, user: str | None = None) -> None:
-        self.client = Client(endpoint, timeout=30)
-        self.client.application_uri = "urn:uacell:test:browser-peer"
-        if user:
-            self.client.set_user(user)
-            self.client.set_password(PASSWORD)
-
-    async def __aenter__(self) -> Ua:
-        await self.client.connect()
-        self.ns = await self.client.get_namespace_index("urn:uacell:cell")
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.client.disconnect()
-
-    def node(self, path: str):
-        return self.client.get_node(ua.NodeId(path, self.ns))
+        super().__init__(endpoint, "urn:uacell:test:browser-peer", user, PASSWORD)
 
     async def state(self, machine: str) -> str | None:
         dv = await self.node(f"{machine}.CurrentState").read_data_value(raise_on_bad_status=False)
