@@ -39,8 +39,9 @@ async function resolve(session, ns, startNodeId, path) {
   return result.targets[0].targetId.toString();
 }
 
+// Resolves once the line is written: await it before exiting when the output is large (a pipe).
 function done(obj) {
-  process.stdout.write(JSON.stringify(obj) + "\n");
+  return new Promise((resolve) => process.stdout.write(JSON.stringify(obj) + "\n", resolve));
 }
 
 async function main(fn) {

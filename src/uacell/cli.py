@@ -121,6 +121,12 @@ def _parser() -> argparse.ArgumentParser:
     path = leaf(msub, "path", "print the directory uacell reads them from")
     path.add_argument("--models-dir", help="check this directory instead")
 
+    nodeset = leaf(sub, "nodeset", "the served cell as a NodeSet2 file")
+    nsub = nodeset.add_subparsers(dest="action", required=True)
+    export = leaf(nsub, "export", "write the configured cell's instances as NodeSet2 XML, without serving")
+    export.add_argument("-o", "--output", type=Path, help="file to write (default: standard output)")
+    export.add_argument("--models-dir", help="directory holding the official NodeSet files")
+
     conf = sub.add_parser("config", help="the configuration file")
     confsub = conf.add_subparsers(dest="action", required=True)
     check = confsub.add_parser("check", help="validate a configuration and print the cell it would serve")
@@ -200,6 +206,10 @@ def main(argv: list[str] | None = None) -> int:
         config = resolve_config(args)
         if args.command == "serve":
             return _serve(args, config)
+        if args.command == "nodeset":
+            from uacell.nodeset_export import run_export
+
+            return run_export(args, config)
         logs.configure(config)
         if args.command == "web":
             return _web(args, config)

@@ -184,7 +184,17 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         async def unused(parent: Any, *args: Any) -> list[ua.StatusCode]:  # never called: the dispatcher answers
             return [ua.StatusCode(ua.StatusCodes.BadInternalError)]
 
-        method = await self.server.get_node(object_id).add_method(nodeid, name, unused, arguments, [])
+        method = await self.server.get_node(object_id).add_method(nodeid, name, unused)
+        if arguments:  # with a NodeId derived from the method's, as served and exported (not a counter's)
+            prop = await method.add_property(
+                ua.NodeId(f"{nodeid.Identifier}.InputArguments", nodeid.NamespaceIndex),
+                ua.QualifiedName("InputArguments", 0),
+                arguments,
+                varianttype=ua.VariantType.ExtensionObject,
+                datatype=ua.ObjectIds.Argument,
+            )
+            await prop.write_value_rank(ua.ValueRank.OneDimension)  # as OPC 10000-3 declares InputArguments
+            await prop.set_modelling_rule(True)
         return self.bind(object_id, method.nodeid, family, handler, **options)
 
     def unbind(self, method_id: ua.NodeId) -> None:
