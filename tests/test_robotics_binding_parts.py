@@ -65,6 +65,15 @@ def test_samples_are_installed_only_when_the_directory_does_not_exist(tmp_path):
     assert not (root / "palletize.robot").exists()
 
 
+def test_a_controller_without_a_motion_device_gets_a_program_without_move(tmp_path):
+    from uacell.robotics.program import parse
+
+    root = tmp_path / "programs"
+    assert install_samples(root, moves=False) is True
+    assert [p.name for p in root.iterdir()] == ["idle.robot"]
+    assert parse((root / "idle.robot").read_text(), []).name == "Idle"  # empty limits: no motion device
+
+
 def test_an_arm_with_other_than_six_axes_gets_a_generated_program_that_fits_it(tmp_path):
     from uacell.robotics.program import parse
 

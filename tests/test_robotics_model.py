@@ -924,3 +924,31 @@ async def test_executable_follows_the_nodeset_causes_plus_the_declared_stays(cel
     assert {(machine, m) for machine, m in cell.system.methods() if cell.system.executable(machine, m)} == {
         ("SystemOperationStateMachine", "GetReady")
     }
+
+
+async def test_a_controller_without_a_motion_device_refuses_move_and_runs_the_rest(tmp_path: Path) -> None:
+    """motion_device = "": nothing to move, so a program or module with a `move` is invalid content (−2)."""
+    from uacell.robotics.binding.programs import IDLE_PROGRAM
+
+    (tmp_path / "idle.robot").write_text(IDLE_PROGRAM)
+    cell = RobotCell(
+        SimulatedRobot(time_scale=SCALE, power_up_time=0.1),
+        make_library(tmp_path),
+        tables=robotics_tables(),
+        motion_devices=(),
+    )
+    try:
+        tc = tc_of(cell)
+        await system_ready(cell)
+        for name in ("short", "gripper"):  # a program's move, a module routine's move
+            assert await tc.load_by_name(name) == Status.INVALID_CONTENT
+            assert "'move' needs a motion device, and this controller moves none" in tc.last_error
+        assert tc.state == "Idle"
+        assert await tc.load_by_name("idle") == Status.OK
+        log = Log(tc.machine)
+        assert await tc.start() == Status.OK
+        await wait_until(lambda: len(log.transitions()) == 2)  # the program ran to its end
+        assert [t for _, t, _ in log.transitions()] == ["ReadyToExecuting", "ExecutingToReady"]
+        assert tc.ready.current == "AtProgramStart"
+    finally:
+        await cell.close()

@@ -161,3 +161,13 @@ def test_samples_parse_within_the_simulated_arm_limits() -> None:
         assert program.uses == ("Gripper",)
         steps = expand(program, modules)
         assert len(steps) > 5 and any(s.origin == "Gripper" for s in steps)
+
+
+def test_without_axes_a_move_is_refused_and_everything_else_parses():
+    """Empty limits: the controller moves no motion device (configuration motion_device = "")."""
+    with pytest.raises(ProgramError) as caught:
+        parse("program P\nwait 1\nmove 0 0 0 0 0 0\n", [])
+    assert caught.value.line == 3
+    assert caught.value.reason == "'move' needs a motion device, and this controller moves none"
+    program = parse("program P\nspeed 50\nrepeat 2\n  wait 0.5\nend\n", [])
+    assert [type(i).__name__ for i in program.instructions] == ["Speed", "Repeat"]

@@ -11,8 +11,9 @@ from conftest import free_port, run_node, start_serve
 
 
 def test_serve_prints_listening_line_and_exits_cleanly_on_sigint(tmp_path):
-    sp = start_serve(tmp_path / "data")
+    sp = start_serve(tmp_path / "data")  # a fresh data directory, logging at WARNING
     assert sp.endpoint.startswith("opc.tcp://127.0.0.1:")
+    assert [line for line in sp.output if "WARNING" in line] == []  # a normal first start warns of nothing
     rc = sp.stop(signal.SIGINT)
     assert rc == 0
     assert "Traceback" not in "".join(sp.output)

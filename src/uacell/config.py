@@ -295,7 +295,11 @@ class Config:
         raise AttributeError(name)
 
 
-def _section_types() -> dict[str, type[Any]]:
+def section_types() -> dict[str, type[Any]]:
+    """Every settings section (``[server]``, ..., each companion's): its name and its dataclass.
+
+    docs/configuration.md documents each field (tests/test_config_reference.py holds them together).
+    """
     types: dict[str, type[Any]] = dict(_OWN)
     for c in companions():
         if c.section is not None and c.settings is not None:
@@ -399,7 +403,7 @@ def _load_file(path: str | Path | None) -> Config:
     for section, values in data.items():
         if section in _cell_sections():
             continue
-        cls = _section_types().get(section)
+        cls = section_types().get(section)
         if cls is None or not isinstance(values, dict):
             raise ConfigError(f"configuration {path}: unknown section [{section}]")
         target = getattr(config, section) if section in _OWN else config.sections[section]

@@ -39,11 +39,12 @@ class AdminStore:
         self.writer = writer
 
     def load(self) -> dict[str, Any] | None:
-        """The stored data, or None (with a logged warning) if the file is absent or unreadable."""
+        """The stored data, or None if the file is absent (a first start: logged at INFO) or damaged
+        (unreadable, corrupt, an unknown format: a WARNING)."""
         try:
             raw = self.path.read_bytes()
         except FileNotFoundError:
-            log.warning("no PackML admin data at %s yet; starting from defaults", self.path)
+            log.info("no PackML admin data at %s yet (a first start); starting from defaults", self.path)
             return None
         except OSError as exc:
             log.warning("cannot read PackML admin data %s (%s); starting from defaults", self.path, exc)

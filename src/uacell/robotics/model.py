@@ -366,7 +366,9 @@ class TaskControl(_Guarded):
         except OSError as e:
             raise _Failure(Status.E_UNEXPECTED_ERROR, f"cannot read {relpath!r}: {e}") from e
         try:
-            program = parse(text, [a.limits for a in self.equipment.axes], bounds=self.bounds)
+            # No motion device (motion_device = ""): nothing to move, a 'move' is refused (decision 33).
+            limits = [a.limits for a in self.equipment.axes] if self.motion_devices else []
+            program = parse(text, limits, bounds=self.bounds)
             # What can be known before Start: the file alone (and the modules loaded now) is within bounds.
             measure(program, modules, self.bounds, partial=True)
         except ProgramError as e:

@@ -180,11 +180,10 @@ def parse(
     """Parse a program or module. ``limits`` are the (min, max) degrees of each axis, if known;
     ``bounds`` the size, line and nesting limits (``ProgramTooLarge`` beyond them).
 
-    A ``move`` gives one position per axis: as many as ``limits`` has, else ``AXIS_COUNT``.
+    A ``move`` gives one position per axis: as many as ``limits`` has, else ``AXIS_COUNT``. Empty
+    ``limits`` mean there is nothing to move (a controller without a motion device): ``move`` is refused.
     """
     axis_count = len(limits) if limits is not None else AXIS_COUNT
-    if axis_count < 1:
-        raise ValueError("limits must give at least one axis")
     if len(text) > bounds.max_file_bytes or len(text.encode("utf-8", "surrogatepass")) > bounds.max_file_bytes:
         raise ProgramTooLarge(0, f"the file is larger than {bounds.max_file_bytes} bytes")
     lines = text.splitlines()
@@ -239,6 +238,8 @@ def parse(
             if args[0] not in uses:
                 uses.append(args[0])
         elif keyword == "move":
+            if not axis_count:
+                raise ProgramError(number, "'move' needs a motion device, and this controller moves none")
             if len(args) != axis_count:
                 raise ProgramError(number, f"'move' takes {axis_count} joint positions in degrees")
             joints = tuple(_number(a, number, f"axis {i + 1}") for i, a in enumerate(args))

@@ -238,7 +238,7 @@ async def bind_controller(app: UacellServer, controller: BuiltPart, tables: Robo
     robots = sorted({c.path.partition(".Controllers.")[0] for c in app.cell.by_role(CONTROLLER)})
     if controller is app.cell.by_role(CONTROLLER)[0]:
         adopt_legacy_programs(root.parent.parent, root, robots)
-    install_samples(root, equipment.axes)
+    install_samples(root, equipment.axes, moves=arm is not None)
     store = FileStore(root, max_bytes=app.config.programs.max_folder_bytes, handles=app.file_handles)
     library = StoreLibrary(store)
     library.max_bytes = bounds.max_file_bytes

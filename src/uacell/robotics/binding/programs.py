@@ -23,20 +23,35 @@ log = logging.getLogger(__name__)
 _A = ua.AttributeIds
 
 
-def install_samples(root: Path, axes: Sequence[AxisInfo] = ()) -> bool:
+def install_samples(root: Path, axes: Sequence[AxisInfo] = (), *, moves: bool = True) -> bool:
     """Write sample programs into ``root`` if it does not exist yet (first start).
 
     A six-axis arm gets the shipped samples (docs/programs.md); an arm with another number of axes a
-    generated ``Wave`` program that moves each axis within its limits.
+    generated ``Wave`` program that moves each axis within its limits; a controller that moves no
+    motion device (``moves`` false) a program without ``move``.
     """
     if root.exists():
         return False
     root.mkdir(parents=True)
-    files = samples() if len(axes) in (0, AXIS_COUNT) else {"wave.robot": wave_program(axes)}
+    if not moves:
+        files = {"idle.robot": IDLE_PROGRAM}
+    elif len(axes) in (0, AXIS_COUNT):
+        files = samples()
+    else:
+        files = {"wave.robot": wave_program(axes)}
     for name, text in files.items():
         (root / name).write_text(text, encoding="utf-8")
     log.info("installed %d sample programs in %s", len(files), root)
     return True
+
+
+IDLE_PROGRAM = """\
+# Idle: this controller moves no motion device, so its programs may wait, repeat and call, not move.
+program Idle version 1.0
+repeat 3
+  wait 1
+end
+"""
 
 
 def adopt_legacy_programs(programs_dir: Path, root: Path, keep: Sequence[str]) -> int:
