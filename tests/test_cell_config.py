@@ -158,16 +158,19 @@ ERRORS = [
         ('name = "T1"', 'name = "T1"\n    [[robots.controllers.task_controls]]\n    name = "T1"'),
         "[robots.R.controllers.C1.task_controls.T1] name: a task control named 'T1' is declared twice",
     ),
-    (('name = "U"', 'name = "R"'), "[packml_units.R] name: a part named 'R' is declared twice"),
+    (
+        ('name = "U"', 'name = "R"'),
+        "[packml_units.R] name: 'R' is declared twice: the [[robots]] entry [robots.R] has that name already",
+    ),
     (
         ('name = "U"', 'name = "U"\n[[packml_units]]\nname = "U"'),
-        "[packml_units.U] name: a part named 'U' is declared twice",
+        "[packml_units.U] name: 'U' is declared twice: the [[packml_units]] entry [packml_units.U] has that name",
     ),
-    (('name = "Arm"', 'name = "Arm.1"'), "[robots.R.motion_devices[0]] name: 'Arm.1' cannot be a BrowseName here"),
-    (('name = "C1"', 'name = "C 1"'), "[robots.R.controllers[0]] name: 'C 1' cannot be a BrowseName here"),
-    (('name = "U"', 'name = ""'), "[packml_units[0]] name: '' cannot be a BrowseName here"),
-    (('name = "U"', 'name = "1U"'), "[packml_units[0]] name: '1U' cannot be a BrowseName here"),
-    (('name = "U"', 'title = "U"'), "[packml_units[0]] name: is missing"),
+    (('name = "Arm"', 'name = "Arm.1"'), "[robots.R.motion_devices[1]] name: 'Arm.1' cannot be a BrowseName here"),
+    (('name = "C1"', 'name = "C 1"'), "[robots.R.controllers[1]] name: 'C 1' cannot be a BrowseName here"),
+    (('name = "U"', 'name = ""'), "[packml_units[1]] name: '' cannot be a BrowseName here"),
+    (('name = "U"', 'name = "1U"'), "[packml_units[1]] name: '1U' cannot be a BrowseName here"),
+    (('name = "U"', 'title = "U"'), "[packml_units[1]] name: is missing"),
     (("axes = 6", "axes = 0"), "[robots.R.motion_devices.Arm] axes: a motion device needs at least one axis"),
     (("axes = 6", "axes = []"), "[robots.R.motion_devices.Arm] axes: a motion device needs at least one axis"),
     (("axes = 6", 'axes = ["J1", "J1"]'), "[robots.R.motion_devices.Arm] axes: an axis named 'J1' is declared twice"),
@@ -216,12 +219,29 @@ ERRORS = [
     (('name = "U"', 'name = "U"\nequipment = 3'), "[packml_units.U] equipment: must be a string"),
     (
         ("[[packml_units]]", '[server]\nanonymous_role = "guest"\n[[packml_units]]'),
-        "[server] anonymous_role must be one of observer, operator, engineer, admin",
+        "[server] anonymous_role: must be one of observer, operator, engineer, admin",
     ),
-    (("[[packml_units]]", "[cell]\n[[packml_units]]"), "unknown section [cell]"),
+    (("[[packml_units]]", "[cell]\n[[packml_units]]"), "[cell]: unknown section"),
+    (("[[packml_units]]", "[serve]\n[[packml_units]]"), "[serve]: unknown section; did you mean 'server'?"),
+    (("[[packml_units]]", "[server]\nprot = 1\n[[packml_units]]"), "[server] prot: unknown key; did you mean 'port'?"),
+    (("[[packml_units]]", "[server]\nport = 'x'\n[[packml_units]]"), "[server] port: must be an integer"),
+    (("[[packml_units]]", "[robot]\nmotion_devices = 1\n[[packml_units]]"), "[robot] motion_devices: unknown key"),
+    (
+        ('name = "U"', 'name = "U"\nmach_speed_ragne = [0.0, 10.0]'),
+        "[packml_units.U] mach_speed_ragne: unknown key; did you mean 'mach_speed_range'?",
+    ),
+    (
+        ('name = "U"', 'name = "Füller"'),
+        "[packml_units[1]] name: 'Füller' cannot be a BrowseName here: use an ASCII letter or '_' followed by up to 63"
+        " ASCII letters, digits, '_' or '-' ('ü' is not ASCII)",
+    ),
+    (
+        ("axes = 6", 'axes = ["J1", "J 2"]'),
+        "[robots.R.motion_devices.Arm] axes[2]: 'J 2' cannot be a BrowseName here",
+    ),
     (
         ("[[packml_units]]", '[server]\napplication_uri = ""\n[[packml_units]]'),
-        "[server] application_uri must not be empty",
+        "[server] application_uri: must not be empty",
     ),
 ]
 
@@ -295,6 +315,22 @@ def test_config_check_prints_the_tree_it_would_serve_without_serving(tmp_path):
     assert any(line.startswith("  PackMLObjects/Labeler  PackMLBaseObjectType") for line in out)
 
 
+def test_config_check_prints_the_values_in_effect_where_a_part_takes_a_section_default(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[robot]\ntime_scale = 4.0\n[packml]\nacting_time = 0.5\nmach_speed = 30.0\n")
+    proc = _uacell("config", "check", str(path))
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout.splitlines()
+    assert "    Controllers/Controller1  ControllerType  equipment: simulator (time_scale 4 from [robot])" in out
+    assert (
+        "  PackMLObjects/Filler1  PackMLBaseObjectType  equipment: simulator (acting states 0.5 s from [packml])" in out
+    )
+    assert "      MachSpeed 30 (from [packml]) in 0..600, design 120 packages/min; unit mode Produce" in out
+    path.write_text('[packml]\nequipment = "uacell.packml.sim:simulator"\n')
+    proc = _uacell("config", "check", str(path))
+    assert "equipment: uacell.packml.sim:simulator (from [packml] equipment)" in proc.stdout, proc.stderr
+
+
 def test_config_check_without_a_file_shows_the_demo_and_names_a_remote_listening_policy(tmp_path):
     path = tmp_path / "c.toml"
     path.write_text('[server]\nhost = "0.0.0.0"\n')
@@ -324,8 +360,13 @@ def test_config_check_names_an_equipment_factory_that_cannot_be_loaded(tmp_path)
     proc = _uacell("config", "check", str(path))
     assert proc.returncode == 2
     assert proc.stderr.strip() == (
-        "uacell: [U] equipment 'surely_missing_module_x:make' cannot be loaded:"
+        f"uacell: configuration {path}: [packml_units.U] equipment: 'surely_missing_module_x:make' cannot be loaded:"
         " No module named 'surely_missing_module_x'"
+    )
+    path.write_text(BASE.replace('name = "C1"', 'name = "C1"\n  equipment = "surely_missing_module_x:make"'))
+    proc = _uacell("config", "check", str(path))
+    assert proc.stderr.strip().startswith(
+        f"uacell: configuration {path}: [robots.R.controllers.C1] equipment: 'surely_missing_module_x:make' cannot"
     )
 
 

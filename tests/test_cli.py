@@ -82,14 +82,14 @@ def test_a_log_file_that_is_a_directory_is_refused_before_the_data_directory_is_
 @pytest.mark.parametrize(
     ("content", "expected"),
     [
-        ("[server]\nport = 70000", "[server] port must be a TCP port 1..65535, not 70000"),
-        ("[server]\nhost = 'a b'", "[server] host must be an IP address or host name"),
-        ("[metrics]\nport = 0", "[metrics] port must be a TCP port 1..65535, not 0"),
-        ("[logging]\nlevel = 'LOUD'", "[logging] level must be one of"),
-        ("[logging]\nformat = 'xml'", "[logging] format must be one of text, json"),
-        ("[logging]\nlevels = { asyncua = 'LOUD' }", "[logging] levels must map logger names"),
-        ("[users]\nmin_password_length = 0", "[users] min_password_length must be 1..1024"),
-        ("[logging]\nnonsense = 1", "unknown key 'nonsense' in [logging]"),
+        ("[server]\nport = 70000", "[server] port: must be a TCP port 1..65535, not 70000"),
+        ("[server]\nhost = 'a b'", "[server] host: must be an IP address or host name"),
+        ("[metrics]\nport = 0", "[metrics] port: must be a TCP port 1..65535, not 0"),
+        ("[logging]\nlevel = 'LOUD'", "[logging] level: must be one of"),
+        ("[logging]\nformat = 'xml'", "[logging] format: must be one of text, json"),
+        ("[logging]\nlevels = { asyncua = 'LOUD' }", "[logging] levels: must map logger names"),
+        ("[users]\nmin_password_length = 0", "[users] min_password_length: must be 1..1024"),
+        ("[logging]\nnonsense = 1", "[logging] nonsense: unknown key"),
     ],
 )
 def test_bad_configuration_values_are_one_line_for_every_command(tmp_path, content, expected):

@@ -235,4 +235,4 @@ def test_serve_with_unloadable_equipment_is_one_clear_line(tmp_path):
     )
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "[packml] equipment 'surely_missing_module_x:make' cannot be loaded" in lines[0]
+    assert len(lines) == 1 and "[packml] equipment: 'surely_missing_module_x:make' cannot be loaded" in lines[0]

@@ -52,7 +52,7 @@ async def test_equipment_factory_is_called_with_the_part_and_its_settings(monkey
     robot = await make_equipment("fake_robot_driver:make", spec, RobotEquipment)
     assert isinstance(robot, SimulatedRobot)
     assert made == [spec]
-    with pytest.raises(ConfigError, match=r"Robot1.Controllers.Controller1\] equipment .* cannot be loaded"):
+    with pytest.raises(ConfigError, match=r"Robot1.Controllers.Controller1\] equipment: .* cannot be loaded"):
         await make_equipment("fake_robot_driver:missing", spec, RobotEquipment)
 
 

@@ -40,8 +40,8 @@ def test_port_in_use_is_one_clear_line(serve_process, tmp_path):
     [
         (None, "cannot read configuration"),
         ("[server\nport = 1", "is not valid TOML"),
-        ("[server]\nport = 'x'", "[server] port must be an integer"),
-        ("[nonsense]\na = 1", "unknown section [nonsense]"),
+        ("[server]\nport = 'x'", "[server] port: must be an integer"),
+        ("[nonsense]\na = 1", "[nonsense]: unknown section"),
     ],
 )
 def test_unreadable_configuration_is_one_clear_line(tmp_path, content, expected):

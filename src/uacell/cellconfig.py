@@ -13,6 +13,7 @@ name must not contain the separator ``.`` nor characters a relative browse path 
 
 from __future__ import annotations
 
+import difflib
 import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -22,8 +23,10 @@ from typing import Any, Protocol
 
 from uacell.errors import ConfigError
 
+# ASCII only (decision 34): names become NodeIds, file names (programs/<robot>/<controller>,
+# packml/<unit>.json), metric labels and parts of the HMI's pages.
 NAME_PATTERN = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]{0,63}$")
-NAME_RULE = "a letter or '_' followed by up to 63 letters, digits, '_' or '-'"
+NAME_RULE = "an ASCII letter or '_' followed by up to 63 ASCII letters, digits, '_' or '-'"
 
 # DI identification (ComponentType's optional members, on every DI device and component): key -> BrowseName.
 IDENTIFICATION = {
@@ -92,6 +95,11 @@ class Table:
 
     def child(self, data: object, where: str) -> Table:
         return Table(data, f"{self.where}.{where}" if self.where else where, self.source)
+
+    def entries(self, key: str, default: Sequence[dict[str, Any]] = ()) -> list[Table]:
+        """The tables of the array ``key`` (``[[where.key]]``), each named ``key[N]`` by its position
+        counted from 1, as a reader counts them in the file, until its ``name`` is read."""
+        return [self.child(d, f"{key}[{i}]") for i, d in enumerate(self.tables(key, default), start=1)]
 
     def has(self, key: str) -> bool:
         return key in self.data
@@ -187,12 +195,20 @@ class Table:
     def finish(self) -> None:
         for key in self.data:
             if key not in self.seen:
-                raise self.error(key, "unknown key")
+                raise self.error(key, "unknown key" + did_you_mean(key, sorted(self.seen)))
+
+
+def did_you_mean(word: str, known: Sequence[str]) -> str:
+    """``"; did you mean 'x'?"`` for the nearest of ``known`` (a typo), else ``""``."""
+    close = difflib.get_close_matches(word, known, n=1, cutoff=0.75)
+    return f"; did you mean {close[0]!r}?" if close else ""
 
 
 def check_name(name: str, fail: Callable[[str], ConfigError]) -> None:
     if not NAME_PATTERN.match(name):
-        raise fail(f"{name!r} cannot be a BrowseName here: use {NAME_RULE} (NodeIds join names with '.')")
+        other = next((c for c in name if not c.isascii()), None)
+        why = f" ({other!r} is not ASCII)" if other is not None else " (NodeIds join names with '.')"
+        raise fail(f"{name!r} cannot be a BrowseName here: use {NAME_RULE}{why}")
 
 
 def unique(names: Sequence[tuple[str, Table]], what: str, key: str = "name") -> None:
@@ -227,8 +243,9 @@ class CellSection(Protocol):
         """The names directly below a root (they start NodeIds, so they must be unique cell-wide)."""
         ...
 
-    def describe(self) -> list[str]:
-        """Lines of the tree, indented by two spaces per level."""
+    def describe(self, settings: Mapping[str, Any]) -> list[str]:
+        """Lines of the tree, indented by two spaces per level, with the values in effect: ``settings``
+        are the configuration's sections by name (the defaults a part does not override)."""
         ...
 
 
@@ -245,9 +262,9 @@ class CellConfig:
     def parts(self) -> list[tuple[str, Any]]:
         return [p for s in self.sections.values() for p in s.parts()]
 
-    def describe(self) -> Iterator[str]:
+    def describe(self, settings: Mapping[str, Any]) -> Iterator[str]:
         for section in self.sections.values():
-            yield from section.describe()
+            yield from section.describe(settings)
 
 
 def parse_cell(data: Mapping[str, Any], source: str, parsers: Mapping[str, SectionParser]) -> CellConfig:
@@ -257,7 +274,17 @@ def parse_cell(data: Mapping[str, Any], source: str, parsers: Mapping[str, Secti
     for key in data:  # in the order the file gives them
         if key in parsers:
             cell.sections[key] = parsers[key](root, key)
-    unique([n for s in cell.sections.values() for n in s.top_names()], "a part named")
+    # Robots and units start NodeIds alike: one name may not be used twice across the sections.
+    first: dict[str, Table] = {}
+    for name, table in (n for s in cell.sections.values() for n in s.top_names()):
+        other = first.setdefault(name, table)
+        if other is not table:
+            kind = other.where.split(".", 1)[0]
+            raise table.error(
+                "name",
+                f"{name!r} is declared twice: the [[{kind}]] entry [{other.where}] has that name already"
+                " (the parts at the top of the cell share one set of names: they start NodeIds)",
+            )
     return cell
 
 

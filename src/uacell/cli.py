@@ -29,7 +29,6 @@ from uacell.config import (
     check_host,
     check_port,
     load_config,
-    load_factory,
     validate,
 )
 from uacell.errors import ConfigError
@@ -269,10 +268,9 @@ def _prepare_and_run(config: Config) -> int:
     from uacell import logs
 
     locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
-    from uacell.config_check import equipment_specs
+    from uacell.config_check import check_factories
 
-    for where, spec in equipment_specs(config):
-        load_factory(spec, where)  # importable and callable, before any other work
+    check_factories(config)  # importable and callable, before any other work
     check_directory(config.server.data_dir, "data directory")
     if config.logging.file is not None:
         check_file(config.logging.file, "log file")

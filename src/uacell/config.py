@@ -111,7 +111,7 @@ from typing import Any, TypeVar
 
 import platformdirs
 
-from uacell.cellconfig import CellConfig, SectionParser, builtin_cell_path, parse_cell
+from uacell.cellconfig import CellConfig, SectionParser, builtin_cell_path, did_you_mean, parse_cell
 from uacell.companion import companions
 from uacell.discovery_registration import DiscoveryConfig
 from uacell.errors import ConfigError
@@ -311,7 +311,7 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
     name = f"[{section}] {key}"
     if key in _PATHS:
         if not isinstance(value, str):
-            raise ConfigError(f"{name} must be a path string")
+            raise ConfigError(f"{name}: must be a path string")
         return Path(value).expanduser() if value else None
     if key == "capabilities":
         if not isinstance(value, list) or not all(isinstance(v, str) and v.strip() for v in value):
@@ -321,30 +321,30 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
         if not isinstance(value, dict) or not all(
             isinstance(k, str) and isinstance(v, str) and v.upper() in LOG_LEVELS for k, v in value.items()
         ):
-            raise ConfigError(f"{name} must map logger names to one of {', '.join(LOG_LEVELS)}")
+            raise ConfigError(f"{name}: must map logger names to one of {', '.join(LOG_LEVELS)}")
         return {k: v.upper() for k, v in value.items()}
     if isinstance(default, bool) or key in ("allow_none_security",):
         if not isinstance(value, bool):
-            raise ConfigError(f"{name} must be true or false")
+            raise ConfigError(f"{name}: must be true or false")
         return value
     if isinstance(default, int):
         if not isinstance(value, int) or isinstance(value, bool):
-            raise ConfigError(f"{name} must be an integer")
+            raise ConfigError(f"{name}: must be an integer")
         if section in _POSITIVE and value < 1:
-            raise ConfigError(f"{name} must be a positive integer")
+            raise ConfigError(f"{name}: must be a positive integer")
         return value
     if isinstance(default, float):
         if not isinstance(value, int | float) or isinstance(value, bool) or value <= 0:
-            raise ConfigError(f"{name} must be a positive number")
+            raise ConfigError(f"{name}: must be a positive number")
         return float(value)
     if not isinstance(value, str):
-        raise ConfigError(f"{name} must be a string")
+        raise ConfigError(f"{name}: must be a string")
     if key == "anonymous_role" and value not in ROLES:
-        raise ConfigError(f"{name} must be one of {', '.join(ROLES)}")
+        raise ConfigError(f"{name}: must be one of {', '.join(ROLES)}")
     if key == "level" and value.upper() not in LOG_LEVELS:
-        raise ConfigError(f"{name} must be one of {', '.join(LOG_LEVELS)}")
+        raise ConfigError(f"{name}: must be one of {', '.join(LOG_LEVELS)}")
     if key == "format" and value not in LOG_FORMATS:
-        raise ConfigError(f"{name} must be one of {', '.join(LOG_FORMATS)}")
+        raise ConfigError(f"{name}: must be one of {', '.join(LOG_FORMATS)}")
     return value.upper() if key == "level" else value
 
 
@@ -405,26 +405,29 @@ def _load_file(path: str | Path | None) -> Config:
             continue
         cls = section_types().get(section)
         if cls is None or not isinstance(values, dict):
-            raise ConfigError(f"configuration {path}: unknown section [{section}]")
+            known_sections = [*section_types(), *(f"[{s}]" for s in _cell_sections())]
+            raise ConfigError(
+                f"configuration {path}: [{section}]: unknown section{did_you_mean(section, known_sections)}"
+            )
         target = getattr(config, section) if section in _OWN else config.sections[section]
-        known = {f.name for f in fields(cls)}
+        known = [f.name for f in fields(cls)]
         for key, value in values.items():
             if key not in known:
-                raise ConfigError(f"configuration {path}: unknown key {key!r} in [{section}]")
+                raise ConfigError(f"configuration {path}: [{section}] {key}: unknown key{did_you_mean(key, known)}")
             try:
                 setattr(target, key, _coerce(section, key, value, getattr(target, key)))
             except ConfigError as exc:
                 raise ConfigError(f"configuration {path}: {exc}") from exc
     if not 0 <= config.web.port <= 65535:
-        raise ConfigError(f"configuration {path}: [web] port must be 0..65535")
+        raise ConfigError(f"configuration {path}: [web] port: must be 0..65535")
     for key in ("application_uri", "application_name"):
         if not getattr(config.server, key).strip():
-            raise ConfigError(f"configuration {path}: [server] {key} must not be empty")
+            raise ConfigError(f"configuration {path}: [server] {key}: must not be empty")
     limits = config.limits
     if not 8192 <= limits.max_chunk_size <= limits.max_message_size:
-        raise ConfigError(f"configuration {path}: [limits] max_chunk_size must be 8192..max_message_size")
+        raise ConfigError(f"configuration {path}: [limits] max_chunk_size: must be 8192..max_message_size")
     if limits.login_base_delay > limits.login_max_delay:
-        raise ConfigError(f"configuration {path}: [limits] login_base_delay must not exceed login_max_delay")
+        raise ConfigError(f"configuration {path}: [limits] login_base_delay: must not exceed login_max_delay")
     return config
 
 
@@ -435,7 +438,7 @@ _HOST_LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
 
 def check_port(value: int, name: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 65535:
-        raise ConfigError(f"{name} must be a TCP port 1..65535, not {value!r}")
+        raise ConfigError(f"{name}: must be a TCP port 1..65535, not {value!r}")
     return value
 
 
@@ -450,7 +453,7 @@ def check_host(value: str, name: str) -> str:
         pass
     labels = bare.rstrip(".").split(".")
     if not bare or len(bare) > 253 or not all(_HOST_LABEL.fullmatch(label) for label in labels):
-        raise ConfigError(f"{name} must be an IP address or host name, not {value!r}")
+        raise ConfigError(f"{name}: must be an IP address or host name, not {value!r}")
     return h
 
 
@@ -482,7 +485,7 @@ def validate(config: Config) -> None:
     check_host(config.server.host, "[server] host")
     check_host(config.web.host, "[web] host")
     if config.server.rejected_max_files < 1:
-        raise ConfigError("[server] rejected_max_files must be 1 or more")
+        raise ConfigError("[server] rejected_max_files: must be 1 or more")
     check_directory(config.server.data_dir, "data directory")
     log = config.logging
     if log.file is not None:
@@ -490,28 +493,28 @@ def validate(config: Config) -> None:
     if log.audit_file is not None:
         check_file(log.audit_file, "audit file")
     if log.max_bytes < 1024:
-        raise ConfigError(f"[logging] max_bytes must be at least 1024, not {log.max_bytes}")
+        raise ConfigError(f"[logging] max_bytes: must be at least 1024, not {log.max_bytes}")
     if log.backups < 0:
-        raise ConfigError(f"[logging] backups must be 0 or more, not {log.backups}")
+        raise ConfigError(f"[logging] backups: must be 0 or more, not {log.backups}")
     check_port(config.metrics.port, "[metrics] port")
     check_host(config.metrics.host, "[metrics] host")
     url = config.discovery.url
     if url and not re.fullmatch(r"opc\.tcp://[^/\s]+(/\S*)?", url):
         raise ConfigError(f"[discovery] url must look like opc.tcp://host:4840/, not {url!r}")
     if not 1 <= config.users.min_password_length <= 1024:
-        raise ConfigError("[users] min_password_length must be 1..1024")
+        raise ConfigError("[users] min_password_length: must be 1..1024")
 
 
 def load_factory(spec: str, section: str) -> Callable[..., object]:
     """Import ``"package.module:name"`` named by ``[section] equipment``; ConfigError says what failed."""
     module_name, _, attr = spec.partition(":")
     if not module_name or not attr:
-        raise ConfigError(f"[{section}] equipment must look like 'package.module:factory', not {spec!r}")
+        raise ConfigError(f"[{section}] equipment: must look like 'package.module:factory', not {spec!r}")
     try:
         factory = getattr(importlib.import_module(module_name), attr)
     except (ImportError, AttributeError) as exc:
-        raise ConfigError(f"[{section}] equipment {spec!r} cannot be loaded: {exc}") from exc
+        raise ConfigError(f"[{section}] equipment: {spec!r} cannot be loaded: {exc}") from exc
     if not callable(factory):
-        raise ConfigError(f"[{section}] equipment {spec!r} is not callable")
+        raise ConfigError(f"[{section}] equipment: {spec!r} is not callable")
     loaded: Callable[..., object] = factory
     return loaded

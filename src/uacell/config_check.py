@@ -2,33 +2,50 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from uacell.config import Config, load_config, load_factory
+from uacell.errors import ConfigError
 from uacell.roles import Role, listening_policy
 
 
 def equipment_specs(config: Config) -> list[tuple[str, str]]:
-    """(where, "package.module:factory") of every factory the configuration names."""
+    """(table, "package.module:factory") of every factory the configuration names; the table as
+    errors name it (``robot``, ``robots.Robot1.controllers.Controller1``)."""
     specs = [(name, getattr(settings, "equipment", "")) for name, settings in config.sections.items()]
-    for section in config.cell.sections.values():
+    for key, section in config.cell.sections.items():
         for _, part in section.parts():
-            stack = [(part.name, part)]
+            stack = [(f"{key}.{part.name}", part)]
             while stack:
                 path, p = stack.pop()
                 spec = getattr(p.spec, "equipment", "")
                 if spec:
                     specs.append((path, spec))
-                # The browse path, as NodeIds spell it: Robot1.Controllers.Controller1
-                stack.extend((".".join(x for x in (path, *c.folder.split("/"), c.name) if x), c) for c in p.children)
+                # The folder is the key of the array of tables: Controllers -> controllers.
+                stack.extend(
+                    (".".join(x for x in (path, *map(_key, c.folder.split("/")), c.name) if x), c) for c in p.children
+                )
     return [(where, spec) for where, spec in specs if spec]
+
+
+def _key(folder: str) -> str:
+    return re.sub(r"(?<=[a-z])(?=[A-Z])", "_", folder).lower()
+
+
+def check_factories(config: Config) -> None:
+    """Every factory the configuration names is importable and callable (it is called only when serving)."""
+    for where, spec in equipment_specs(config):
+        try:
+            load_factory(spec, where)
+        except ConfigError as exc:
+            raise ConfigError(f"configuration {config.source}: {exc}" if config.source else str(exc)) from exc
 
 
 def check_lines(config: Config) -> list[str]:
     """The report: where it came from, how it listens, which factories it loads, the parts."""
     cfg = config.server
-    for where, spec in equipment_specs(config):
-        load_factory(spec, where)  # importable and callable; it is called only when serving
+    check_factories(config)
     anonymous = Role.parse(cfg.anonymous_role) if cfg.anonymous_role else None
     policy = listening_policy([cfg.host], anonymous, cfg.allow_none_security)
     lines = [
@@ -42,7 +59,7 @@ def check_lines(config: Config) -> list[str]:
         f"models: {cfg.models_dir or '(the per-user cache)'}",
         *(f"warning: {w}" for w in policy.warnings),
         "parts:",
-        *(f"  {line}" for line in config.cell.describe()),
+        *(f"  {line}" for line in config.cell.describe(config.sections)),
     ]
     return lines
 

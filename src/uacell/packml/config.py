@@ -6,6 +6,7 @@ Pure: reads and checks the tables (``uacell.cellconfig.Table``) and turns them i
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -102,12 +103,13 @@ class UnitsSection:
     def top_names(self) -> list[tuple[str, Table]]:
         return [(u.name, t) for u, t in zip(self.units, self.tables, strict=True)]
 
-    def describe(self) -> list[str]:
+    def describe(self, settings: Mapping[str, Any]) -> list[str]:
+        defaults = settings.get("packml", PackMLConfig())
         modes = {v: k for k, v in UNIT_MODES.items()}
         lines = []
         for u in self.units:
-            lines.append(f"PackMLObjects/{u.name}  PackMLBaseObjectType  equipment: {describe_equipment(u)}")
-            speed = "[packml] mach_speed" if u.mach_speed is None else f"{u.mach_speed:g}"
+            lines.append(f"PackMLObjects/{u.name}  PackMLBaseObjectType  equipment: {describe_equipment(u, defaults)}")
+            speed = f"{defaults.mach_speed:g} (from [packml])" if u.mach_speed is None else f"{u.mach_speed:g}"
             low, high = u.mach_speed_range
             lines.append(
                 f"    MachSpeed {speed} in {low:g}..{high:g}, design {u.design_speed:g} packages/min;"
@@ -116,17 +118,20 @@ class UnitsSection:
         return lines
 
 
-def describe_equipment(u: UnitSpec) -> str:
+def describe_equipment(u: UnitSpec, defaults: PackMLConfig) -> str:
+    """What the unit runs on, with the values in effect (``defaults``: the ``[packml]`` section)."""
     extra = f" settings {u.settings}" if u.settings else ""
     if u.equipment:
         return u.equipment + extra
-    acting = "[packml] acting_time" if u.acting_time is None else f"{u.acting_time:g} s"
+    if defaults.equipment:
+        return f"{defaults.equipment} (from [packml] equipment){extra}"
+    acting = f"{defaults.acting_time:g} s from [packml]" if u.acting_time is None else f"{u.acting_time:g} s"
     per_state = "".join(f", {k} {v:g} s" for k, v in u.acting_times.items())
     return f"simulator (acting states {acting}{per_state}){extra}"
 
 
 def parse_units(root: Table, key: str) -> UnitsSection:
-    tables = [root.child(data, f"{key}[{i}]") for i, data in enumerate(root.tables(key))]
+    tables = root.entries(key)
     units = [_unit(t) for t in tables]
     return UnitsSection(units, tables)
 

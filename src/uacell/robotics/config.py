@@ -7,6 +7,7 @@ Pure: reads and checks the tables (``uacell.cellconfig.Table``) and turns them i
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -85,7 +86,7 @@ class RobotSpec:
 
 # --- reading --------------------------------------------------------------------------------------
 def _axis_error(table: Table, index: int, message: str) -> ConfigError:
-    return table.error(f"axes[{index}]", message)
+    return table.error(f"axes[{index + 1}]", message)  # positions count from 1, as a reader counts
 
 
 def _axes(table: Table) -> tuple[AxisInfo, ...]:
@@ -111,7 +112,7 @@ def _axes(table: Table) -> tuple[AxisInfo, ...]:
             axes.append(AxisInfo(item, low, high, speed))
             tables.append(table)
             continue
-        axis = table.child(item, f"axes[{i}]")
+        axis = table.child(item, f"axes[{i + 1}]")
         name = axis.name()
         low = axis.number("min_position", low, minimum=None)
         high = axis.number("max_position", high, minimum=None)
@@ -156,7 +157,7 @@ def _task_control(table: Table) -> TaskControlSpec:
 
 def _controller(table: Table, index: int, robot_devices: list[str]) -> ControllerSpec:
     name = table.name()
-    tables = [table.child(d, f"task_controls[{i}]") for i, d in enumerate(table.tables("task_controls", _ONE_TASK))]
+    tables = table.entries("task_controls", _ONE_TASK)
     tasks = [_task_control(t) for t in tables]
     if not tasks:
         raise table.error("task_controls", "a controller needs at least one task control")
@@ -193,13 +194,13 @@ def _motion_device(table: Table) -> MotionDeviceSpec:
 
 def _robot(table: Table) -> RobotSpec:
     name = table.name()
-    tables = [table.child(d, f"motion_devices[{i}]") for i, d in enumerate(table.tables("motion_devices", _ONE_ARM))]
+    tables = table.entries("motion_devices", _ONE_ARM)
     devices = [_motion_device(t) for t in tables]
     if not devices:
         raise table.error("motion_devices", "a robot needs at least one motion device")
     unique([(d.name, t) for d, t in zip(devices, tables, strict=True)], "a motion device named")
     device_names = [d.name for d in devices]
-    tables = [table.child(d, f"controllers[{i}]") for i, d in enumerate(table.tables("controllers", _ONE_CONTROLLER))]
+    tables = table.entries("controllers", _ONE_CONTROLLER)
     controllers = [_controller(t, i, device_names) for i, t in enumerate(tables)]
     if not controllers:
         raise table.error("controllers", "a robot needs at least one controller")
@@ -234,14 +235,15 @@ class RobotsSection:
     def top_names(self) -> list[tuple[str, Table]]:
         return [(r.name, t) for r, t in zip(self.robots, self.tables, strict=True)]
 
-    def describe(self) -> list[str]:
+    def describe(self, settings: Mapping[str, Any]) -> list[str]:
+        defaults = settings.get("robot", RobotConfig())
         lines = []
         for robot in self.robots:
             lines.append(f"DeviceSet/{robot.name}  MotionDeviceSystemType")
             lines += [f"    {x}" for x in identification_lines(robot.identification)]
             for c in robot.controllers:
                 stops = ", ".join(STOP_MODE_NAMES[m] for m in c.possible_stop_modes)
-                lines.append(f"  Controllers/{c.name}  ControllerType  equipment: {describe_equipment(c)}")
+                lines.append(f"  Controllers/{c.name}  ControllerType  equipment: {describe_equipment(c, defaults)}")
                 lines.append(f"    stop modes: {stops} (default {STOP_MODE_NAMES[c.default_stop_mode]})")
                 lines.append(f"    motion device: {c.motion_device or '(none)'}")
                 lines += [f"    {x}" for x in identification_lines(c.identification)]
@@ -256,17 +258,21 @@ class RobotsSection:
         return lines
 
 
-def describe_equipment(c: ControllerSpec) -> str:
+def describe_equipment(c: ControllerSpec, defaults: RobotConfig) -> str:
+    """What the controller runs on, with the values in effect (``defaults``: the ``[robot]`` section)."""
+    extra = f" settings {c.settings}" if c.settings else ""
     if c.equipment:
-        return c.equipment + (f" settings {c.settings}" if c.settings else "")
-    scale = "[robot] time_scale" if c.time_scale is None else f"time_scale {c.time_scale:g}"
-    return f"simulator ({scale})" + (f" settings {c.settings}" if c.settings else "")
+        return c.equipment + extra
+    if defaults.equipment:
+        return f"{defaults.equipment} (from [robot] equipment){extra}"
+    if c.time_scale is None:
+        return f"simulator (time_scale {defaults.time_scale:g} from [robot]){extra}"
+    return f"simulator (time_scale {c.time_scale:g}){extra}"
 
 
 def parse_robots(root: Table, key: str) -> RobotsSection:
     robots, tables = [], []
-    for i, data in enumerate(root.tables(key)):
-        table = root.child(data, f"{key}[{i}]")
+    for table in root.entries(key):
         robots.append(_robot(table))
         tables.append(table)
     return RobotsSection(robots, tables)
