@@ -171,10 +171,10 @@ async def test_each_failed_attempt_is_one_log_line_and_the_loop_goes_on(tmp_path
 def test_the_discovery_section_is_checked(tmp_path):
     config = tmp_path / "c.toml"
     config.write_text('[discovery]\nurl = "http://lds:4840/"\n', encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"\[discovery\] url must look like opc.tcp://"):
+    with pytest.raises(ConfigError, match=r"\[discovery\] url: must look like opc.tcp://"):
         load_config(config)
     config.write_text('[discovery]\nurl = "opc.tcp://lds:4840/"\ninterval = 0\n', encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"\[discovery\] interval must be a positive number"):
+    with pytest.raises(ConfigError, match=r"\[discovery\] interval: must be a positive number"):
         load_config(config)
     config.write_text('[discovery]\nurl = "opc.tcp://lds:4840/"\ncapabilities = ["DA"]\n', encoding="utf-8")
     loaded = load_config(config)

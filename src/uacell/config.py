@@ -315,7 +315,7 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
         return Path(value).expanduser() if value else None
     if key == "capabilities":
         if not isinstance(value, list) or not all(isinstance(v, str) and v.strip() for v in value):
-            raise ConfigError(f"{name} must be a list of capability identifiers (strings)")
+            raise ConfigError(f"{name}: must be a list of capability identifiers (strings)")
         return list(value)
     if key == "levels":
         if not isinstance(value, dict) or not all(
@@ -500,7 +500,7 @@ def validate(config: Config) -> None:
     check_host(config.metrics.host, "[metrics] host")
     url = config.discovery.url
     if url and not re.fullmatch(r"opc\.tcp://[^/\s]+(/\S*)?", url):
-        raise ConfigError(f"[discovery] url must look like opc.tcp://host:4840/, not {url!r}")
+        raise ConfigError(f"[discovery] url: must look like opc.tcp://host:4840/, not {url!r}")
     if not 1 <= config.users.min_password_length <= 1024:
         raise ConfigError("[users] min_password_length: must be 1..1024")
 
