@@ -1,99 +1,14 @@
 """uacell's configuration: a TOML file, overridden by command-line options.
 
-``[server]``, ``[programs]`` and ``[limits]`` are uacell's own; every other section belongs to a
-companion, which declares it (``uacell.companion.Companion.section``/``settings``) in its package.
+``[server]``, ``[programs]``, ``[limits]``, ``[web]``, ``[logging]``, ``[metrics]``, ``[users]`` and
+``[discovery]`` are uacell's own; every other section belongs to a companion, which declares it
+(``uacell.companion.Companion.section``/``settings``) in its package. Each section is a dataclass whose
+fields are its keys, typed and defaulted; docs/configuration.md documents every one (type, default,
+meaning), and tests/test_config_reference.py fails, naming the key, when the page and the dataclasses
+disagree: a new key needs its row there.
 
-Every key is optional; without a file uacell serves the demo cell on 127.0.0.1:4840.
-
-```toml
-[server]
-host = "127.0.0.1"
-port = 4840
-data_dir = "/var/lib/uacell"      # default: the per-user data directory
-models_dir = "/opt/UA-Nodeset"    # default: the cache filled by 'uacell models fetch'
-anonymous_role = "operator"       # default: operator on loopback, observer otherwise
-allow_none_security = true        # default: only on loopback
-trust_on_first_use = false
-application_uri = "urn:HOST:uacell"  # default: per host
-application_name = "uacell@HOST"     # default: per host
-rejected_max_files = 100          # refused client certificates kept in pki/rejected/ (oldest dropped)
-rejected_max_age_days = 30.0      # ... and for how long
-address_space_cache = true        # keep a snapshot of the prepared address space (docs/performance.md)
-cache_dir = ""                    # where; default: <data_dir>/cache (or $UACELL_CACHE_DIR)
-
-[robot]                           # defaults for every controller that does not set its own
-time_scale = 1.0                  # simulated robot: >1 runs faster than real time
-equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
-
-[packml]                          # defaults for every PackML unit that does not set its own
-acting_time = 1.0                 # seconds each acting state of the simulated unit takes
-mach_speed = 60.0                 # initial MachSpeed, packages/min
-equipment = ""                    # "package.module:factory" for real equipment (docs/equipment.md)
-
-[programs]                        # what one robot program may cost (docs/programs.md)
-max_file_bytes = 131072
-max_lines = 10000
-max_nesting = 16
-max_steps = 20000
-max_call_depth = 16
-max_work = 200000
-max_folder_bytes = 67108864       # the whole Programs folder
-
-[limits]                          # what clients may hold and send (docs/security.md, "Limits")
-connections = 256
-sessions = 200
-subscriptions_per_session = 20
-subscriptions = 500
-monitored_items_per_subscription = 1000
-monitored_items = 20000
-file_handles_per_session = 16
-file_handles = 128
-max_chunk_size = 65535
-max_message_size = 262144
-pending_chunks_per_connection = 500
-pending_bytes_per_connection = 1048576
-operations_per_request = 1000
-login_base_delay = 1.0
-login_max_delay = 30.0
-login_free_failures = 2
-login_free_failures_per_user = 10
-password_checks = 2
-
-[web]                             # the browser HMI (docs/web.md)
-enabled = true                    # 'uacell serve' runs it beside the server
-host = "127.0.0.1"                # any non-loopback address is served over HTTPS only
-port = 8080                       # 0: any free port (the listening line says which)
-certificate = ""                  # PEM certificate for HTTPS (default: the server's certificate)
-private_key = ""                  # its PEM private key (default: the server's key)
-
-[[robots]] ...                    # the cell (docs/configuration.md); without [[robots]] and
-[[packml_units]] ...              # [[packml_units]] the shipped demo cell
-
-[logging]                         # docs/operations.md
-level = "INFO"                    # DEBUG, INFO, WARNING, ERROR
-format = "text"                   # "text" or "json" (one JSON object a line)
-file = ""                         # also log to this file (rotated); default: standard error only
-max_bytes = 10485760              # rotate the log file (and the audit file) at this size
-backups = 5                       # rotated files kept
-audit = true                      # the audit trail (JSON lines)
-audit_file = ""                   # default: <data_dir>/audit.log
-levels = { "uacell.robotics" = "DEBUG" }   # per-logger levels
-
-[metrics]
-enabled = false                   # a Prometheus endpoint at http://host:port/metrics
-host = "127.0.0.1"
-port = 9840
-
-[discovery]                       # register with a Local Discovery Server (docs/operations.md)
-url = ""                          # e.g. "opc.tcp://lds-host:4840/"; "" = register nowhere
-interval = 30.0                   # seconds between registrations (RegisterServer2)
-capabilities = ["DA", "AC", "DI"] # the MdnsDiscoveryConfiguration's ServerCapabilities
-
-[users]
-min_password_length = 10          # for 'uacell user add' and 'uacell user passwd'
-```
-
-Every key of ``[programs]`` and ``[limits]`` is a positive number.
+Every key is optional; without a file uacell serves the demo cell on 127.0.0.1:4840. Every error is
+one line, ``configuration FILE: [TABLE] KEY: message``.
 """
 
 from __future__ import annotations
