@@ -3,8 +3,8 @@
 The settings sections are dataclasses (``uacell.config.section_types()``): each field must have a row
 in the table under the heading ``## `[section]` `` with a matching type and, where the default is a
 plain value, that default. The cell's tables are read by ``uacell.cellconfig.Table``: the keys their
-parsers ask for (recorded while a probe cell is read) must be the rows under ``## `[[robots]]` ``,
-``### `[[robots.controllers]]` `` and so on.
+parsers ask for (recorded while a probe cell is read, with the getter that read each) must be the rows
+under ``## `[[robots]]` ``, ``### `[[robots.controllers]]` `` and so on, their types matching the getter.
 
 Adding a key or a section? This test names what the page lacks; add a row
 ``| `key` | type | default | meaning |`` to the section's table (or a heading with a table).
@@ -121,17 +121,46 @@ def test_every_settings_section_and_key_is_documented_with_its_type_and_default(
     assert not problems, "docs/configuration.md and the code disagree:\n" + "\n".join(problems)
 
 
-def asked_keys(monkeypatch: pytest.MonkeyPatch) -> dict[str, set[str]]:
-    """{table path without names: keys its parser asked for} while the probe cell is read."""
-    asked: dict[str, set[str]] = {}
+# What the Type column says for each Table getter (keys read raw, e.g. axes, are not checked).
+GETTER_WORDS = {
+    "string": ("string", '"'),
+    "choice": ('"', "name"),
+    "name": ("name",),
+    "number": ("number",),
+    "integer": ("integer",),
+    "boolean": ("boolean",),
+    "tables": ("array of tables",),
+    "table": ("table",),
+    "free_table": ("table",),
+}
+
+
+def asked_keys(monkeypatch: pytest.MonkeyPatch) -> dict[str, dict[str, str]]:
+    """{table path without names: {key: the getter that first asked for it}} while the probe is read."""
+    kinds: dict[int, dict[str, str]] = {}
+    asked: dict[str, dict[str, str]] = {}
     finish = Table.finish
 
     def recording(self: Table) -> None:
         path = ".".join(p for p in re.sub(r"\[\d+\]", "", self.where).split(".") if p not in PROBE_NAMES)
-        asked.setdefault(path, set()).update(self.seen)
+        seen = asked.setdefault(path, {})
+        for key in self.seen:
+            seen.setdefault(key, kinds.get(id(self), {}).get(key, "raw"))
         finish(self)
 
+    def getter(name: str, kind: str) -> Any:
+        original = getattr(Table, name)
+
+        def record(self: Table, key: str = "name", *args: Any, **kwargs: Any) -> Any:
+            kinds.setdefault(id(self), {}).setdefault(key, kind)
+            return original(self, key, *args, **kwargs)
+
+        return record
+
     monkeypatch.setattr(Table, "finish", recording)
+    for name in GETTER_WORDS:
+        monkeypatch.setattr(Table, name, getter(name, name))
+    monkeypatch.setattr(Table, "optional_number", getter("optional_number", "number"))
     parsers = {c.cell_section: c.cell_parser for c in companions() if c.cell_section and c.cell_parser}
     data: dict[str, Any] = tomllib.loads(PROBE)
     parse_cell(data, "probe.toml", parsers)
@@ -139,7 +168,7 @@ def asked_keys(monkeypatch: pytest.MonkeyPatch) -> dict[str, set[str]]:
     return asked
 
 
-def test_every_cell_table_and_key_is_documented(monkeypatch):
+def test_every_cell_table_and_key_is_documented_with_its_type(monkeypatch):
     documented = documented_tables()
     problems = []
     asked = asked_keys(monkeypatch)
@@ -151,8 +180,12 @@ def test_every_cell_table_and_key_is_documented(monkeypatch):
         if rows is None:
             problems.append(f"no heading with `[[{table}]]` and a table of its keys in docs/configuration.md")
             continue
-        problems += [f"[[{table}]] {key} is not documented" for key in sorted(keys - rows.keys())]
-        problems += [f"[[{table}]] {key} is documented but not read" for key in sorted(rows.keys() - keys)]
+        for key, getter in sorted(keys.items()):
+            if key not in rows:
+                problems.append(f"[[{table}]] {key} is not documented: add `| `{key}` | type | default | meaning |`")
+            elif getter in GETTER_WORDS and not any(w in rows[key][0] for w in GETTER_WORDS[getter]):
+                problems.append(f"[[{table}]] {key}: the type {rows[key][0]!r} does not say {GETTER_WORDS[getter]}")
+        problems += [f"[[{table}]] {key} is documented but not read" for key in sorted(rows.keys() - keys.keys())]
     assert not problems, "docs/configuration.md and the code disagree:\n" + "\n".join(problems)
 
 
