@@ -308,7 +308,7 @@ def nodeset_xml(
         nodes[top] = parent
     file_namespaces = [CELL_NAMESPACE, *(m.uri for m in models if m.uri != BASE_NAMESPACE)]
     w = _Writer(aspace, server_namespaces, file_namespaces)
-    root = ET.Element(_X + "UANodeSet", {"LastModified": "1601-01-01T00:00:00Z"})
+    root = ET.Element(_X + "UANodeSet")  # no LastModified: the same cell gives the same bytes
     uris = ET.SubElement(root, _X + "NamespaceUris")
     for uri in file_namespaces:
         ET.SubElement(uris, _X + "Uri").text = uri
