@@ -173,3 +173,29 @@ def run_node(script: str, endpoint: str, *args: str, timeout: float = 120.0) -> 
     if proc.returncode != 0 or not lines:
         raise AssertionError(f"{script} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return json.loads(lines[-1])
+
+
+class NodeServer:
+    """A server script of interop/ (node-opcua), running once it printed "listening"; stderr goes to ``log``."""
+
+    def __init__(self, script: str, args: list[str], log: Path) -> None:
+        with log.open("w") as errors:
+            self.proc = subprocess.Popen(
+                ["node", str(INTEROP / script), *args], cwd=INTEROP, stdout=subprocess.PIPE, stderr=errors, text=True
+            )
+        assert self.proc.stdout is not None
+        output = []
+        for line in self.proc.stdout:  # until "listening", or the end when it failed
+            if line.strip() == "listening":
+                return
+            output.append(line)
+        self.stop()
+        raise AssertionError(f"{script} did not start: {''.join(output)}{log.read_text()}")
+
+    def stop(self) -> None:
+        self.proc.terminate()
+        try:
+            self.proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.communicate()

@@ -39,6 +39,7 @@ TYPE_WORDS = {
     "str": ("string", "path", '"'),  # a path given as text, or a choice of quoted values
     "Path": ("path",),
     "dict": ("table",),
+    "list": ("list",),
 }
 
 # A cell that makes every parser ask for every key (names are dropped from the table paths).

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 from asyncua import ua
-from conftest import INTEROP, ServeProcess, fast_config, run_node, start_serve
+from conftest import NodeServer, ServeProcess, fast_config, run_node, start_serve
 from helpers import free_port
 from test_robotics_interop import run_trusted
 
@@ -135,41 +135,9 @@ def run_export(tmp_path: Path, config: Path | None) -> Path:
     return out
 
 
-class BareServer:
-    """interop/bench_server.js: node-opcua's own server loading the official NodeSets and the export."""
-
-    def __init__(self, files: list[Path], log: Path) -> None:
-        self.endpoint = f"opc.tcp://127.0.0.1:{(port := free_port())}/"
-        self.log = log
-        with log.open("w") as errors:
-            self.proc = subprocess.Popen(
-                ["node", str(INTEROP / "bench_server.js"), str(port), *map(str, files)],
-                cwd=INTEROP,
-                stdout=subprocess.PIPE,
-                stderr=errors,
-                text=True,
-            )
-        assert self.proc.stdout is not None
-        output = []
-        for line in self.proc.stdout:  # until "listening", or the end when it failed
-            if line.strip() == "listening":
-                return
-            output.append(line)
-        self.stop()
-        raise AssertionError(f"node-opcua did not load the export: {''.join(output)}{log.read_text()}")
-
-    def stop(self) -> None:
-        self.proc.terminate()
-        try:
-            self.proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.communicate()
-
-
 @pytest.fixture
-def bare_server() -> Iterator[list[BareServer]]:
-    started: list[BareServer] = []
+def bare_server() -> Iterator[list[NodeServer]]:
+    started: list[NodeServer] = []
     yield started
     for server in started:
         server.stop()
@@ -194,13 +162,16 @@ def test_node_opcua_sees_the_same_cell_in_the_export_as_in_uacell(cell, tmp_path
         config.write_text(builtin_cell_path("example").read_text(encoding="utf-8"), encoding="utf-8")
     export = run_export(tmp_path, config)
     models = locate_models()
-    bare_server.append(BareServer([*(models[m.key] for m in MODELS), export], tmp_path / "node-opcua.log"))
+    # node-opcua's own server (interop/bench_server.js) with the official NodeSets and the export.
+    port = free_port()
+    files = [str(p) for p in (*(models[m.key] for m in MODELS), export)]
+    bare_server.append(NodeServer("bench_server.js", [str(port), *files], tmp_path / "node-opcua.log"))
     live: ServeProcess = start_serve(tmp_path / "data", *(["--config", str(config)] if config else []))
     try:
         served = run_trusted(live, "cell_tree.js")["nodes"]
     finally:
         live.stop()
-    loaded = run_node("cell_tree.js", bare_server[0].endpoint)["nodes"]
+    loaded = run_node("cell_tree.js", f"opc.tcp://127.0.0.1:{port}/")["nodes"]
     assert differences(served, loaded) == []
     # What was compared: every part, method arguments included.
     exported = sum(1 for e in ET.parse(export).getroot() if e.tag in NODE_TAGS)

@@ -1,7 +1,7 @@
 """uacell's configuration: a TOML file, overridden by command-line options.
 
-``[server]``, ``[programs]``, ``[limits]``, ``[web]``, ``[logging]``, ``[metrics]`` and ``[users]`` are
-uacell's own; every other section belongs to a companion, which declares it
+``[server]``, ``[programs]``, ``[limits]``, ``[web]``, ``[logging]``, ``[metrics]``, ``[users]`` and
+``[discovery]`` are uacell's own; every other section belongs to a companion, which declares it
 (``uacell.companion.Companion.section``/``settings``) in its package. Each section is a dataclass whose
 fields are its keys, typed and defaulted; docs/configuration.md documents every one (type, default,
 meaning), and tests/test_config_reference.py fails, naming the key, when the page and the dataclasses
@@ -28,6 +28,7 @@ import platformdirs
 
 from uacell.cellconfig import CellConfig, SectionParser, builtin_cell_path, did_you_mean, parse_cell
 from uacell.companion import companions
+from uacell.discovery_registration import DiscoveryConfig
 from uacell.errors import ConfigError
 
 T = TypeVar("T")
@@ -169,13 +170,14 @@ _OWN: dict[str, type[Any]] = {
     "logging": LoggingConfig,
     "metrics": MetricsConfig,
     "users": UsersConfig,
+    "discovery": DiscoveryConfig,
 }
 _PATHS = {"data_dir", "file", "audit_file", "cache_dir"}
 
 
 class Config:
     """uacell's own sections (``server``, ``programs``, ``limits``, ``web``, ``logging``, ``metrics``,
-    ``users``) plus one section per companion that declares one
+    ``users``, ``discovery``) plus one section per companion that declares one
     (``config.robot``, ``config.packml``)."""
 
     def __init__(self) -> None:
@@ -186,6 +188,7 @@ class Config:
         self.logging = LoggingConfig()
         self.metrics = MetricsConfig()
         self.users = UsersConfig()
+        self.discovery = DiscoveryConfig()
         self.source: Path | None = None
         # The cell: the companions' cell sections ([[robots]], [[packml_units]]), else the demo cell.
         self.cell: CellConfig = load_cell(builtin_cell_path("demo"))
@@ -225,6 +228,10 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
         if not isinstance(value, str):
             raise ConfigError(f"{name}: must be a path string")
         return Path(value).expanduser() if value else None
+    if key == "capabilities":
+        if not isinstance(value, list) or not all(isinstance(v, str) and v.strip() for v in value):
+            raise ConfigError(f"{name}: must be a list of capability identifiers (strings)")
+        return list(value)
     if key == "levels":
         if not isinstance(value, dict) or not all(
             isinstance(k, str) and isinstance(v, str) and v.upper() in LOG_LEVELS for k, v in value.items()
@@ -406,6 +413,9 @@ def validate(config: Config) -> None:
         raise ConfigError(f"[logging] backups: must be 0 or more, not {log.backups}")
     check_port(config.metrics.port, "[metrics] port")
     check_host(config.metrics.host, "[metrics] host")
+    url = config.discovery.url
+    if url and not re.fullmatch(r"opc\.tcp://[^/\s]+(/\S*)?", url):
+        raise ConfigError(f"[discovery] url: must look like opc.tcp://host:4840/, not {url!r}")
     if not 1 <= config.users.min_password_length <= 1024:
         raise ConfigError("[users] min_password_length: must be 1..1024")
 

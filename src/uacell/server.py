@@ -16,9 +16,11 @@ from uacell.audit import AuditTrail
 from uacell.cell import CellBuilder, Part, build_cell, cell_digest
 from uacell.companion import Binder, Closer, companions
 from uacell.config import Config, default_application_uri
+from uacell.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
 from uacell.logs import configured_levels
 from uacell.metrics import Metrics
 from uacell.models import StateTables
+from uacell.pki import PkiPaths
 from uacell.registry import Registries, Registry, RegistryKey, T
 from uacell.roles import Role, listening_policy
 from uacell.ua.access import UacellUserManager
@@ -89,6 +91,7 @@ class UacellServer:
         self._snapshot_job: SnapshotJob | None = None
         self._snapshot_cancel = threading.Event()
         self._snapshot_task: asyncio.Task[None] | None = None
+        self.discovery_registration: DiscoveryRegistration | None = None  # with [discovery] url
 
     @property
     def cell(self) -> CellBuilder:
@@ -171,6 +174,19 @@ class UacellServer:
         if self.config.metrics.enabled:
             self.metrics = Metrics(self)
             await self.metrics.start(self.config.metrics.host, self.config.metrics.port)
+        if self.config.discovery.url:
+            cfg, pki = self.config.server, PkiPaths.in_data_dir(self.data_dir)
+            registrant = Registrant(
+                server_uri=cfg.application_uri,  # the URI the certificate carries
+                product_uri=PRODUCT_URI,
+                name=cfg.application_name,
+                discovery_urls=[discovery_url(cfg.host, cfg.port)],
+                capabilities=self.config.discovery.capabilities,
+                certificate=pki.cert,
+                private_key=pki.key,
+            )
+            self.discovery_registration = DiscoveryRegistration(self.config.discovery, registrant)
+            self.discovery_registration.start()
 
     async def _write_snapshot(self, job: Callable[[], None]) -> None:
         try:
@@ -191,6 +207,8 @@ class UacellServer:
         await self.dispatcher.refresh_executable()
 
     async def stop(self) -> None:
+        if self.discovery_registration is not None:  # unregistered while still answering
+            await self.discovery_registration.stop()
         # New calls answer Bad_Shutdown; those under way finish before the equipment goes away.
         await self.dispatcher.close()
         for closer in reversed(self._closers):
