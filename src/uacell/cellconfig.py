@@ -162,7 +162,9 @@ class Table:
             self.seen.add(key)
             return default
         if not self.has(key):
-            raise self.error(key, "is missing (every part needs a name)")
+            typo = difflib.get_close_matches(key, [k for k in self.data if isinstance(k, str)], n=1, cutoff=0.75)
+            hint = f"; is {typo[0]!r} meant to be {key!r}?" if typo else ""
+            raise self.error(key, f"is missing (every part needs a name){hint}")
         value = self.string(key)
         check_name(value, lambda message: self.error(key, message))
         if key == "name" and self.where.endswith("]"):
