@@ -1,7 +1,8 @@
 // Walk the cell's instances below DeviceSet and PackMLObjects (the cell's namespace only) and print
 // each node as namespace-independent data: NodeClass, BrowseName, DisplayName, every reference (both
 // directions, every type, targets as namespace URI + identifier), the variables' DataType, ValueRank,
-// ArrayDimensions and AccessLevel, and the methods' InputArguments/OutputArguments values.
+// ArrayDimensions and AccessLevel, the methods' InputArguments/OutputArguments values and the DI
+// identification texts.
 // The entries of a file directory (what a FileDirectoryType instance organizes) are its contents,
 // not the model: they are neither walked nor listed.
 // Usage: node cell_tree.js <endpoint>
@@ -120,6 +121,17 @@ main(async () => {
       arrayDimensions: a.arrayDimensions ? Array.from(a.arrayDimensions) : [],
       description: a.description ? a.description.text : null,
     }));
+  });
+  // The DI identification values (Manufacturer, Model, SerialNumber, ...): texts the cell configures.
+  const diUri = "http://opcfoundation.org/UA/DI/";
+  const identification = ids.filter((id) => out[key(id)].nodeClass === "Variable"
+    && out[key(id)].browseName.startsWith(`${diUri}:`) && ["i=12", "i=21"].includes(out[key(id)].dataType));
+  const texts = await readAll(identification.map((nodeId) => ({ nodeId, attributeId: AttributeIds.Value })));
+  identification.forEach((nodeId, i) => {
+    // Unset (null) reads as "": a NodeSet has no way to say null but leaving the Value out, and a
+    // loader then gives the variable its own default (node-opcua: the empty string).
+    const v = texts[i].value.value;
+    out[key(nodeId)].value = (v && typeof v === "object" ? v.text : v) || "";
   });
   await session.close();
   await client.disconnect();

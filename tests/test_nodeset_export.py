@@ -172,11 +172,14 @@ def test_node_opcua_sees_the_same_cell_in_the_export_as_in_uacell(cell, tmp_path
     finally:
         live.stop()
     loaded = run_node("cell_tree.js", f"opc.tcp://127.0.0.1:{port}/")["nodes"]
-    assert differences(served, loaded) == []
+    found = differences(served, loaded)
+    assert not found, "\n".join(found)
     # What was compared: every part, method arguments included.
     exported = sum(1 for e in ET.parse(export).getroot() if e.tag in NODE_TAGS)
     assert len(loaded) == exported > 400
     arguments = [n["arguments"] for n in loaded.values() if "arguments" in n]
     assert any(a and a[0]["name"] == "Name" for a in arguments)  # LoadByName's
+    serials = {n["value"] for n in loaded.values() if n["browseName"].endswith("/DI/:SerialNumber")}
+    assert {"DEMO-R1", "DEMO-C1", "DEMO-A1"} <= serials if cell == "demo" else {"EX-W-CB", "EX-H-A1"} <= serials
     types = {r[2] for n in loaded.values() for r in n["references"] if r[0] == "i=40"}
     assert {"http://opcfoundation.org/UA/Robotics/;i=1002", "http://opcfoundation.org/UA/PackML/;i=6"} <= types
