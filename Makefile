@@ -5,9 +5,9 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.uacell-installed
 NODE_STAMP := interop/node_modules/.uacell-installed
 
-.PHONY: setup serve test bench lint clean models soak browser
+.PHONY: setup serve test bench lint clean models soak browser postgresql
 
-setup: $(STAMP) models $(NODE_STAMP) browser
+setup: $(STAMP) models $(NODE_STAMP) browser postgresql
 
 # Chromium for the web HMI's browser tests (Playwright drives it; it never downloads a browser).
 browser:
@@ -18,6 +18,17 @@ browser:
 		|| echo "make setup: could not install chromium, so the web HMI's browser tests will be skipped"; \
 	else \
 		echo "make setup: chromium is missing, so the web HMI's browser tests will be skipped (as root: apt-get install chromium)"; \
+	fi
+
+# Debian's PostgreSQL for the history store's second backend (its tests start their own cluster).
+postgresql:
+	@if command -v initdb >/dev/null 2>&1 || ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+		echo "installing Debian's postgresql for the history tests"; \
+		{ apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq postgresql >/dev/null; } \
+		|| echo "make setup: could not install postgresql, so the PostgreSQL history tests will be skipped"; \
+	else \
+		echo "make setup: postgresql is missing, so the PostgreSQL history tests will be skipped (as root: apt-get install postgresql)"; \
 	fi
 
 $(STAMP): pyproject.toml

@@ -279,8 +279,10 @@ async def check_node(
                 break
         else:
             # Extensions in the server's own namespace are allowed (OPC UA lets instances carry more,
-            # e.g. Filler1's InjectFault); a stray name from a standard namespace is a copying error.
-            if name[0] != space.cell_ns:
+            # e.g. Filler1's InjectFault); a stray name from a standard namespace is a copying error,
+            # except a historized variable's Part 11 "HA Configuration" (HasHistoricalConfiguration).
+            historical = ref.ReferenceTypeId == ua.NodeId(ua.ObjectIds.HasHistoricalConfiguration)
+            if name[0] != space.cell_ns and not (historical and name == (0, "HA Configuration")):
                 problems.append(f"{where}/{rel}: unexpected child {name[0]}:{name[1]}")
     for p in placeholders:
         if p.rule == MANDATORY_PLACEHOLDER and filled[p.decl] == 0:

@@ -37,8 +37,12 @@ async def test_node_opcua_start_parameters_arrive_exactly(serve_process):
     out = run_trusted(serve_process, "packml_start.js")
     assert (out["reset"], out["start"], out["state"], out["readStatus"]) == ("Good", "Good", "Execute", "Good")
     received = [
-        (p["id"], p["name"], (p["unit"]["namespaceUri"], p["unit"]["unitId"], p["unit"]["displayName"],
-                              p["unit"]["description"]), p["value"])
+        (
+            p["id"],
+            p["name"],
+            (p["unit"]["namespaceUri"], p["unit"]["unitId"], p["unit"]["displayName"], p["unit"]["description"]),
+            p["value"],
+        )
         for p in out["received"]
     ]
     assert received == EXPECTED
@@ -51,8 +55,12 @@ async def test_node_opcua_start_parameters_arrive_exactly(serve_process):
         node = client.get_node(ua.NodeId("Filler1.Status.StartParameters", ns))
         values = await node.read_value()
         seen = [
-            (p.ID, p.Name, (p.Unit.NamespaceUri, p.Unit.UnitId, p.Unit.DisplayName.Text, p.Unit.Description.Text),
-             p.Value)
+            (
+                p.ID,
+                p.Name,
+                (p.Unit.NamespaceUri, p.Unit.UnitId, p.Unit.DisplayName.Text, p.Unit.Description.Text),
+                p.Value,
+            )
             for p in values
         ]
         assert seen == EXPECTED

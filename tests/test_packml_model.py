@@ -32,8 +32,9 @@ STOP, MRESET = (MACHINE, "Stop"), (MACHINE, "Reset")
 XRESET, START, HOLD, UNHOLD = (EXECUTE, "Reset"), (EXECUTE, "Start"), (EXECUTE, "Hold"), (EXECUTE, "Unhold")
 SUSPEND, UNSUSPEND, TOCOMPLETE = (EXECUTE, "Suspend"), (EXECUTE, "Unsuspend"), (EXECUTE, "ToComplete")
 MACHINE_METHODS = [ABORT, CLEAR, STOP, MRESET, XRESET, START, HOLD, UNHOLD, SUSPEND, UNSUSPEND, TOCOMPLETE]
-UNIT_METHODS = [(UNIT, m) for m in
-                ("SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "RemoteCommand", "SetInterlock")]
+UNIT_METHODS = [
+    (UNIT, m) for m in ("SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "RemoteCommand", "SetInterlock")
+]
 DONE = "done"  # the running acting state completes
 
 # OPC 30050 v1.01 (ISA-TR88) commands per state, typed here on purpose (the model derives it from the NodeSet tables).
@@ -59,8 +60,17 @@ ALLOWED_PRODUCE: dict[str, set[tuple[Any, str]]] = {
 # Decision 26.
 MODE_DISABLED = {1: set(), 2: {"Suspend"}, 3: {"Start", "Suspend", "Hold", "ToComplete"}}
 SET_UNIT_MODE_STATES = {"Stopped", "Idle", "Aborted"}
-JOB_STATES = {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding",
-              "Suspending", "Suspended", "Unsuspending"}
+JOB_STATES = {
+    "Starting",
+    "Execute",
+    "Completing",
+    "Holding",
+    "Held",
+    "Unholding",
+    "Suspending",
+    "Suspended",
+    "Unsuspending",
+}
 
 _IDLE = [MRESET, DONE]
 _EXECUTE = [*_IDLE, START, DONE]
@@ -208,15 +218,30 @@ def test_full_walk_with_all_three_machines() -> None:
         assert unit.states == states, step
     taken = [(c.machine.name, c.transition.name if c.transition else f"enter {c.to_state}") for c in changes]
     assert taken == [
-        (MACHINE, "StoppedToRunning"), (EXECUTE, "enter Resetting"), (EXECUTE, "ResettingToIdle"),
-        (EXECUTE, "IdleToStarting"), (EXECUTE, "StartingToExecute"), (EXECUTE, "ExecuteToHolding"),
-        (EXECUTE, "HoldingToHeld"), (EXECUTE, "HeldToUnholding"), (EXECUTE, "UnholdingToExecute"),
-        (EXECUTE, "ExecuteToSuspending"), (EXECUTE, "SuspendingToSuspended"),
-        (EXECUTE, "SuspendedToUnsuspending"), (EXECUTE, "UnsuspendingToExecute"),
-        (EXECUTE, "ExecuteToCompleting"), (EXECUTE, "CompletingToComplete"), (EXECUTE, "CompleteToResetting"),
-        (EXECUTE, "ResettingToIdle"), (MACHINE, "RunningToStopping"), (MACHINE, "StoppingToStopped"),
-        (BASE, "ClearedToAborting"), (BASE, "AbortingToAborted"), (BASE, "AbortedToCleared"),
-        (MACHINE, "enter Clearing"), (MACHINE, "ClearingToStopped"),
+        (MACHINE, "StoppedToRunning"),
+        (EXECUTE, "enter Resetting"),
+        (EXECUTE, "ResettingToIdle"),
+        (EXECUTE, "IdleToStarting"),
+        (EXECUTE, "StartingToExecute"),
+        (EXECUTE, "ExecuteToHolding"),
+        (EXECUTE, "HoldingToHeld"),
+        (EXECUTE, "HeldToUnholding"),
+        (EXECUTE, "UnholdingToExecute"),
+        (EXECUTE, "ExecuteToSuspending"),
+        (EXECUTE, "SuspendingToSuspended"),
+        (EXECUTE, "SuspendedToUnsuspending"),
+        (EXECUTE, "UnsuspendingToExecute"),
+        (EXECUTE, "ExecuteToCompleting"),
+        (EXECUTE, "CompletingToComplete"),
+        (EXECUTE, "CompleteToResetting"),
+        (EXECUTE, "ResettingToIdle"),
+        (MACHINE, "RunningToStopping"),
+        (MACHINE, "StoppingToStopped"),
+        (BASE, "ClearedToAborting"),
+        (BASE, "AbortingToAborted"),
+        (BASE, "AbortedToCleared"),
+        (MACHINE, "enter Clearing"),
+        (MACHINE, "ClearingToStopped"),
     ]
     assert unit.status.start_parameters == (D(1, "Length", value=12.5),)
 
@@ -549,31 +574,50 @@ def test_docs_transition_numbers_match_the_tables() -> None:
     doc = (Path(__file__).parent.parent / "docs" / "packml.md").read_text(encoding="utf-8")
     machines = {"Base": BASE, "Machine": MACHINE, "Execute": EXECUTE}
     unit = new_unit()
-    rows = [line.split("|")[1:6] for line in doc.splitlines() if line.split("|")[1:2] in (
-        [" Base "], [" Machine "], [" Execute "])]
+    rows = [
+        line.split("|")[1:6]
+        for line in doc.splitlines()
+        if line.split("|")[1:2] in ([" Base "], [" Machine "], [" Execute "])
+    ]
     documented = {(machines[m.strip()], name.strip()): int(n) for m, n, name, *_ in rows if n.strip().isdigit()}
-    actual = {(name, t): sm.table.transition_number(t) for name, sm in unit.machines.items()
-              for t in sm.table.transitions}
+    actual = {
+        (name, t): sm.table.transition_number(t) for name, sm in unit.machines.items() for t in sm.table.transitions
+    }
     assert documented == actual
 
 
 # The 26 transitions of OPC 30050 v1.01 (from -> to), typed here to check the NodeSet.
 SPEC_TRANSITIONS = {
-    BASE: {"ClearedToAborting": ("Cleared", "Aborting"), "AbortingToAborted": ("Aborting", "Aborted"),
-           "AbortedToCleared": ("Aborted", "Cleared")},
-    MACHINE: {"ClearingToStopped": ("Clearing", "Stopped"), "StoppedToRunning": ("Stopped", "Running"),
-              "RunningToStopping": ("Running", "Stopping"), "StoppingToStopped": ("Stopping", "Stopped")},
+    BASE: {
+        "ClearedToAborting": ("Cleared", "Aborting"),
+        "AbortingToAborted": ("Aborting", "Aborted"),
+        "AbortedToCleared": ("Aborted", "Cleared"),
+    },
+    MACHINE: {
+        "ClearingToStopped": ("Clearing", "Stopped"),
+        "StoppedToRunning": ("Stopped", "Running"),
+        "RunningToStopping": ("Running", "Stopping"),
+        "StoppingToStopped": ("Stopping", "Stopped"),
+    },
     EXECUTE: {
-        "ResettingToIdle": ("Resetting", "Idle"), "IdleToStarting": ("Idle", "Starting"),
-        "StartingToExecute": ("Starting", "Execute"), "ExecuteToSuspending": ("Execute", "Suspending"),
+        "ResettingToIdle": ("Resetting", "Idle"),
+        "IdleToStarting": ("Idle", "Starting"),
+        "StartingToExecute": ("Starting", "Execute"),
+        "ExecuteToSuspending": ("Execute", "Suspending"),
         "SuspendingToSuspended": ("Suspending", "Suspended"),
         "SuspendedToUnsuspending": ("Suspended", "Unsuspending"),
-        "UnsuspendingToExecute": ("Unsuspending", "Execute"), "ExecuteToHolding": ("Execute", "Holding"),
-        "HoldingToHeld": ("Holding", "Held"), "HeldToUnholding": ("Held", "Unholding"),
-        "UnholdingToExecute": ("Unholding", "Execute"), "ExecuteToCompleting": ("Execute", "Completing"),
-        "CompletingToComplete": ("Completing", "Complete"), "CompleteToResetting": ("Complete", "Resetting"),
-        "StartingToHolding": ("Starting", "Holding"), "UnsuspendingToHolding": ("Unsuspending", "Holding"),
-        "SuspendedToHolding": ("Suspended", "Holding"), "SuspendingToHolding": ("Suspending", "Holding"),
+        "UnsuspendingToExecute": ("Unsuspending", "Execute"),
+        "ExecuteToHolding": ("Execute", "Holding"),
+        "HoldingToHeld": ("Holding", "Held"),
+        "HeldToUnholding": ("Held", "Unholding"),
+        "UnholdingToExecute": ("Unholding", "Execute"),
+        "ExecuteToCompleting": ("Execute", "Completing"),
+        "CompletingToComplete": ("Completing", "Complete"),
+        "CompleteToResetting": ("Complete", "Resetting"),
+        "StartingToHolding": ("Starting", "Holding"),
+        "UnsuspendingToHolding": ("Unsuspending", "Holding"),
+        "SuspendedToHolding": ("Suspended", "Holding"),
+        "SuspendingToHolding": ("Suspending", "Holding"),
         "UnholdingToHolding": ("Unholding", "Holding"),
     },
 }
@@ -581,14 +625,26 @@ SPEC_TRANSITIONS = {
 
 def test_all_26_transitions_come_from_the_nodeset_and_are_taken() -> None:
     unit = new_unit()
-    tables = {name: {t.name: (t.from_state, t.to_state) for t in m.table.transitions.values()}
-              for name, m in unit.machines.items()}
+    tables = {
+        name: {t.name: (t.from_state, t.to_state) for t in m.table.transitions.values()}
+        for name, m in unit.machines.items()
+    }
     assert tables == SPEC_TRANSITIONS
     taken: dict[str, set[str]] = {name: set() for name in unit.machines}
     for state, path in PATHS.items():
         for step in [DONE, *sorted(ALLOWED_PRODUCE[state], key=str)]:
-            if step == DONE and state not in {"Aborting", "Clearing", "Resetting", "Starting", "Completing",
-                                              "Holding", "Unholding", "Suspending", "Unsuspending", "Stopping"}:
+            if step == DONE and state not in {
+                "Aborting",
+                "Clearing",
+                "Resetting",
+                "Starting",
+                "Completing",
+                "Holding",
+                "Unholding",
+                "Suspending",
+                "Unsuspending",
+                "Stopping",
+            }:
                 continue
             unit = new_unit()
             walk(unit, path)

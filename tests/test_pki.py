@@ -72,8 +72,13 @@ def test_first_start_creates_a_fitting_certificate(paths: PkiPaths, key: rsa.RSA
     assert set(san.get_values_for_type(x509.DNSName)) == {"localhost", "plc-gw.example"}
     assert san.get_values_for_type(x509.IPAddress) == [ipaddress.ip_address("127.0.0.1")]
     ku = cert.extensions.get_extension_for_class(x509.KeyUsage).value
-    assert (ku.digital_signature, ku.content_commitment, ku.key_encipherment, ku.data_encipherment,
-            ku.key_cert_sign) == (True, True, True, True, True)
+    assert (
+        ku.digital_signature,
+        ku.content_commitment,
+        ku.key_encipherment,
+        ku.data_encipherment,
+        ku.key_cert_sign,
+    ) == (True, True, True, True, True)
     eku = cert.extensions.get_extension_for_class(x509.ExtendedKeyUsage).value
     assert set(eku) == {ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH}
     assert isinstance(cert.signature_hash_algorithm, hashes.SHA256)
@@ -86,9 +91,7 @@ def test_first_start_creates_a_fitting_certificate(paths: PkiPaths, key: rsa.RSA
 def test_wildcard_host_puts_this_machine_in_the_certificate(paths: PkiPaths, key: rsa.RSAPrivateKey) -> None:
     ensure_server_certificate(paths, SERVER_URI, ["0.0.0.0"], key=key)
     cert = x509.load_der_x509_certificate(paths.cert.read_bytes())
-    dns = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value.get_values_for_type(
-        x509.DNSName
-    )
+    dns = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value.get_values_for_type(x509.DNSName)
     assert socket.gethostname() in dns
 
 
@@ -202,8 +205,11 @@ async def test_asyncua_server_uses_the_validator(
         client = Client(url, timeout=5)
         client.application_uri = CLIENT_URI
         await client.set_security(
-            SecurityPolicyBasic256Sha256, str(tmp_path / "client.der"), str(tmp_path / "client.pem"),
-            server_certificate=str(cert_path), mode=ua.MessageSecurityMode.SignAndEncrypt,
+            SecurityPolicyBasic256Sha256,
+            str(tmp_path / "client.der"),
+            str(tmp_path / "client.pem"),
+            server_certificate=str(cert_path),
+            mode=ua.MessageSecurityMode.SignAndEncrypt,
         )
         async with client:
             assert await client.nodes.server_state.read_value() == ua.ServerState.Running

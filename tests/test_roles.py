@@ -77,8 +77,16 @@ def test_service_actions() -> None:
 @pytest.mark.parametrize(
     ("host", "loop"),
     [
-        ("127.0.0.1", True), ("127.1.2.3", True), ("::1", True), ("[::1]", True), ("localhost", True),
-        ("LOCALHOST.", True), ("0.0.0.0", False), ("::", False), ("", False), ("192.168.0.5", False),
+        ("127.0.0.1", True),
+        ("127.1.2.3", True),
+        ("::1", True),
+        ("[::1]", True),
+        ("localhost", True),
+        ("LOCALHOST.", True),
+        ("0.0.0.0", False),
+        ("::", False),
+        ("", False),
+        ("192.168.0.5", False),
         ("plc.example", False),
     ],
 )

@@ -21,13 +21,33 @@ def test_node_opcua_secure_session_with_user_name(tmp_path):
     data = tmp_path / "data"
     # the user comes from the command line, the password from stdin
     add = subprocess.run(
-        [sys.executable, "-m", "uacell", "user", "--data-dir", str(data), "add", "nora", "--role", "operator",
-         "--password-stdin"],
-        input="n0de-secret\n", capture_output=True, text=True, timeout=60, check=False,
+        [
+            sys.executable,
+            "-m",
+            "uacell",
+            "user",
+            "--data-dir",
+            str(data),
+            "add",
+            "nora",
+            "--role",
+            "operator",
+            "--password-stdin",
+        ],
+        input="n0de-secret\n",
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
     )
     assert add.returncode == 0, add.stderr
-    listed = subprocess.run([sys.executable, "-m", "uacell", "user", "--data-dir", str(data), "list"],
-                            capture_output=True, text=True, timeout=60, check=True)
+    listed = subprocess.run(
+        [sys.executable, "-m", "uacell", "user", "--data-dir", str(data), "list"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
     assert listed.stdout.splitlines() == [f"{data / 'users.toml'}: 1 user", "nora\toperator"]
     der, key_pem = make_client_certificate(NODE_URI)
     cert_file, key_file = tmp_path / "node-cert.pem", tmp_path / "node-key.pem"
@@ -39,8 +59,16 @@ def test_node_opcua_secure_session_with_user_name(tmp_path):
     config.write_text("[server]\nallow_none_security = false\n")
     sp = start_serve(data, "--config", str(config))
     try:
-        out = run_node("secure.js", sp.endpoint, str(cert_file), str(key_file), NODE_URI,
-                       str(tmp_path / "node-pki"), "nora", "n0de-secret")
+        out = run_node(
+            "secure.js",
+            sp.endpoint,
+            str(cert_file),
+            str(key_file),
+            NODE_URI,
+            str(tmp_path / "node-pki"),
+            "nora",
+            "n0de-secret",
+        )
     finally:
         sp.stop()
     assert out["securityMode"] == "SignAndEncrypt"
@@ -56,5 +84,3 @@ def test_node_opcua_secure_session_with_user_name(tmp_path):
     assert "BadUserAccessDenied" in out["wrongPassword"] or "UserAccessDenied" in out["wrongPassword"]
     output = "".join(sp.output)
     assert "SecurityPolicy None is not offered while listening on loopback only" in output
-
-

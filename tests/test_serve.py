@@ -28,7 +28,10 @@ def test_port_in_use_is_one_clear_line(serve_process, tmp_path):
     port = serve_process.endpoint.rsplit(":", 1)[1].strip("/")
     proc = subprocess.run(
         [sys.executable, "-m", "uacell", "serve", "--port", port, "--data-dir", str(tmp_path / "other")],
-        capture_output=True, text=True, timeout=180, check=False,
+        capture_output=True,
+        text=True,
+        timeout=180,
+        check=False,
     )
     assert proc.returncode == 2
     assert f"uacell: cannot listen on 127.0.0.1:{port}: address already in use" in proc.stderr
@@ -50,7 +53,10 @@ def test_unreadable_configuration_is_one_clear_line(tmp_path, content, expected)
         cfg.write_text(content)
     proc = subprocess.run(
         [sys.executable, "-m", "uacell", "serve", "--config", str(cfg), "--port", str(free_port())],
-        capture_output=True, text=True, timeout=60, check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
     )
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
@@ -89,9 +95,20 @@ def test_a_stop_request_during_start_up_exits_zero_quietly(tmp_path, sig, delay)
     import time
 
     proc = subprocess.Popen(
-        [sys.executable, "-m", "uacell", "serve", "--port", str(free_port()), "--data-dir", str(tmp_path / "d"),
-         "--no-web"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        [
+            sys.executable,
+            "-m",
+            "uacell",
+            "serve",
+            "--port",
+            str(free_port()),
+            "--data-dir",
+            str(tmp_path / "d"),
+            "--no-web",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
     )
     time.sleep(delay)
     proc.send_signal(sig)
@@ -105,7 +122,10 @@ def test_a_data_directory_that_cannot_be_made_is_one_clear_line(tmp_path):
     blocker.write_text("not a directory")
     proc = subprocess.run(
         [sys.executable, "-m", "uacell", "serve", "--port", str(free_port()), "--data-dir", str(blocker / "data")],
-        capture_output=True, text=True, timeout=60, check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
     )
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()

@@ -30,6 +30,7 @@ from uacell.cellconfig import CellConfig, SectionParser, builtin_cell_path, did_
 from uacell.companion import companions
 from uacell.discovery_registration import DiscoveryConfig
 from uacell.errors import ConfigError
+from uacell.history.config import HistoryConfig
 
 T = TypeVar("T")
 
@@ -171,6 +172,7 @@ _OWN: dict[str, type[Any]] = {
     "metrics": MetricsConfig,
     "users": UsersConfig,
     "discovery": DiscoveryConfig,
+    "history": HistoryConfig,
 }
 _PATHS = {"data_dir", "file", "audit_file", "cache_dir"}
 
@@ -189,6 +191,7 @@ class Config:
         self.metrics = MetricsConfig()
         self.users = UsersConfig()
         self.discovery = DiscoveryConfig()
+        self.history = HistoryConfig()
         self.source: Path | None = None
         # The cell: the companions' cell sections ([[robots]], [[packml_units]]), else the demo cell.
         self.cell: CellConfig = load_cell(builtin_cell_path("demo"))
@@ -418,6 +421,20 @@ def validate(config: Config) -> None:
         raise ConfigError(f"[discovery] url: must look like opc.tcp://host:4840/, not {url!r}")
     if not 1 <= config.users.min_password_length <= 1024:
         raise ConfigError("[users] min_password_length: must be 1..1024")
+    check_history(config.history)
+
+
+def check_history(h: HistoryConfig) -> None:
+    if h.backend not in ("sqlite", "postgresql"):
+        raise ConfigError(f"[history] backend: must be 'sqlite' or 'postgresql', not {h.backend!r}")
+    if h.backend == "postgresql" and not h.postgresql_dsn.strip():
+        raise ConfigError("[history] postgresql_dsn: needed with backend = 'postgresql'")
+    if not 0.01 <= h.flush_interval <= 60:
+        raise ConfigError(f"[history] flush_interval: must be 0.01..60 seconds, not {h.flush_interval}")
+    if h.max_age_days < 0 or h.max_mb < 0:
+        raise ConfigError("[history] max_age_days, max_mb: must be 0 (no bound) or more")
+    if not 1 <= h.max_values_per_request <= 1_000_000:
+        raise ConfigError("[history] max_values_per_request: must be 1..1000000")
 
 
 def load_factory(spec: str, section: str) -> Callable[..., object]:

@@ -109,8 +109,12 @@ class LockManager:
     def _live(self, element: Hashable) -> _Lock | None:
         lock = self._locks.get(element)
         if lock is not None and self._clock() >= lock.deadline:
-            _log.info("lock on %s held by %s expired after %.1f s of inactivity",
-                      element, _describe(lock.owner), self.max_inactive)
+            _log.info(
+                "lock on %s held by %s expired after %.1f s of inactivity",
+                element,
+                _describe(lock.owner),
+                self.max_inactive,
+            )
             self._drop(element)
             return None
         return lock
@@ -183,9 +187,7 @@ class LockManager:
         lock = self._live(element)
         if lock is not None and lock.owner.session != session:
             # DI lets only the lock's initiator call this; E_NotLocked would be untrue here.
-            raise CallError(
-                "BadUserAccessDenied", f"{method}: the lock on {element} is held by another session"
-            )
+            raise CallError("BadUserAccessDenied", f"{method}: the lock on {element} is held by another session")
         return lock
 
     def session_closed(self, session: Hashable) -> list[Hashable]:

@@ -8,7 +8,6 @@ same logger, level and message template through in each ``window`` seconds and d
 first record let through after a drop says how many were dropped.
 """
 
-
 from __future__ import annotations
 
 import datetime as dt

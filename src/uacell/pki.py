@@ -105,10 +105,12 @@ def make_certificate(
     not_before: dt.datetime | None = None,
 ) -> x509.Certificate:
     """A self-signed OPC UA application instance certificate (OPC 10000-6, 6.2.2), SHA-256 signed."""
-    name = x509.Name([
-        x509.NameAttribute(NameOID.COMMON_NAME, common_name),
-        x509.NameAttribute(NameOID.ORGANIZATION_NAME, "uacell"),
-    ])
+    name = x509.Name(
+        [
+            x509.NameAttribute(NameOID.COMMON_NAME, common_name),
+            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "uacell"),
+        ]
+    )
     start = (not_before or dt.datetime.now(dt.UTC)) - dt.timedelta(minutes=5)  # tolerate clock skew
     san: list[x509.GeneralName] = [x509.UniformResourceIdentifier(application_uri)]
     san += [x509.DNSName(d) for d in dict.fromkeys(dns_names)]
@@ -128,9 +130,15 @@ def make_certificate(
         .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)  # self-signed
         .add_extension(
             x509.KeyUsage(
-                digital_signature=True, content_commitment=True, key_encipherment=True,
-                data_encipherment=True, key_agreement=False, key_cert_sign=True, crl_sign=False,
-                encipher_only=False, decipher_only=False,
+                digital_signature=True,
+                content_commitment=True,
+                key_encipherment=True,
+                data_encipherment=True,
+                key_agreement=False,
+                key_cert_sign=True,
+                crl_sign=False,
+                encipher_only=False,
+                decipher_only=False,
             ),
             critical=True,
         )
@@ -162,8 +170,14 @@ def make_client_certificate(
     """A client certificate and key for tests and tools: (certificate DER, private key PEM)."""
     key = key or generate_key()
     cert = make_certificate(
-        key, application_uri, common_name=common_name, dns_names=[socket.gethostname()],
-        server=False, client=True, days=days, not_before=not_before,
+        key,
+        application_uri,
+        common_name=common_name,
+        dns_names=[socket.gethostname()],
+        server=False,
+        client=True,
+        days=days,
+        not_before=not_before,
     )
     return cert_to_der(cert), key_to_pem(key)
 
@@ -270,16 +284,24 @@ def ensure_server_certificate(
         paths.backup.mkdir(exist_ok=True)
         shutil.move(paths.cert, paths.backup / f"cert-{stamp}.der")
         shutil.move(paths.key, paths.backup / f"key-{stamp}.pem")
-        _log.warning("server certificate no longer fits (%s): made a new one, old one kept in %s",
-                     "; ".join(problems), paths.backup)
+        _log.warning(
+            "server certificate no longer fits (%s): made a new one, old one kept in %s",
+            "; ".join(problems),
+            paths.backup,
+        )
     dns, ips = san_for_hosts(hosts)
     key = key or generate_key()
-    cert = make_certificate(key, application_uri, common_name=f"uacell@{socket.gethostname()}",
-                            dns_names=dns, ip_addresses=ips)
+    cert = make_certificate(
+        key, application_uri, common_name=f"uacell@{socket.gethostname()}", dns_names=dns, ip_addresses=ips
+    )
     atomic_write(paths.key, key_to_pem(key), mode=0o600)
     atomic_write(paths.cert, cert_to_der(cert), mode=0o644)
-    _log.info("created server certificate %s (thumbprint %s) for %s", paths.cert,
-              thumbprint(cert_to_der(cert)), ", ".join([application_uri, *dns, *map(str, ips)]))
+    _log.info(
+        "created server certificate %s (thumbprint %s) for %s",
+        paths.cert,
+        thumbprint(cert_to_der(cert)),
+        ", ".join([application_uri, *dns, *map(str, ips)]),
+    )
     return paths.cert, paths.key
 
 
@@ -363,7 +385,10 @@ class TrustList:
             _log.warning(
                 "%s keeps at most %d refused certificates for %.0f days: dropped the oldest (%s); "
                 "further drops are not logged",
-                self.paths.rejected, limit.max_files, limit.max_age / 86400, ", ".join(f.name for f in dropped),
+                self.paths.rejected,
+                limit.max_files,
+                limit.max_age / 86400,
+                ", ".join(f.name for f in dropped),
             )
         return dropped
 

@@ -113,7 +113,11 @@ def _type_hints() -> dict[str, Family]:
 
 # Services other than Call. Attribute writes change configuration, hence engineer.
 ACTION_ROLES: dict[str, Role] = {
-    "read": Role.OBSERVER, "browse": Role.OBSERVER, "subscribe": Role.OBSERVER, "write": EN,
+    "read": Role.OBSERVER,
+    "browse": Role.OBSERVER,
+    "subscribe": Role.OBSERVER,
+    "history_read": Role.OBSERVER,  # like read (decision 36)
+    "write": EN,
 }
 
 # FileType Open mode bits (OPC 10000-5 FileType): Read=1, Write=2, EraseExisting=4, Append=8.
@@ -147,15 +151,14 @@ def required_role(method: str, object_type_hint: str | Family, *, file_mode: int
     return method_roles().get((family, name), Role.ADMIN)
 
 
-def may_call(
-    role: Role, method: str, object_type_hint: str | Family, *, file_mode: int | None = None
-) -> bool:
+def may_call(role: Role, method: str, object_type_hint: str | Family, *, file_mode: int | None = None) -> bool:
     """True when ``role`` may call ``method`` on an object of the hinted family."""
     return role >= required_role(method, object_type_hint, file_mode=file_mode)
 
 
 def may(role: Role, action: str) -> bool:
-    """True when ``role`` may perform a non-Call service action (read, browse, subscribe, write)."""
+    """True when ``role`` may perform a non-Call service action (read, browse, subscribe, history_read,
+    write)."""
     return role >= ACTION_ROLES.get(action, Role.ADMIN)
 
 

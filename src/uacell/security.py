@@ -236,8 +236,10 @@ class Security:
             report_refusal=self._report_certificate_refusal,
         )
         if cfg.trust_on_first_use:
-            log.warning("trust_on_first_use is on: every new client certificate is trusted and kept in %s",
-                        self.trust_list.paths.trusted)
+            log.warning(
+                "trust_on_first_use is on: every new client certificate is trusted and kept in %s",
+                self.trust_list.paths.trusted,
+            )
         self.server.set_certificate_validator(CertificateValidator(self.trust_list))
         self.policies = list(SECURE_POLICIES) + ([_P.NoSecurity] if policy.none_security else [])
         self.server.set_security_policy(self.policies)
@@ -248,8 +250,11 @@ class Security:
         _install_processor_hook()
         logging.getLogger("asyncua.server.uaprocessor").addFilter(_drop_fault_echo)  # added once
         context.add_read_hook(_read_hook)
-        log.info("security: endpoints %s; anonymous clients are %s", ", ".join(p.name for p in self.policies),
-                 policy.anonymous_role.label)
+        log.info(
+            "security: endpoints %s; anonymous clients are %s",
+            ", ".join(p.name for p in self.policies),
+            policy.anonymous_role.label,
+        )
 
     def _report_certificate_refusal(self, message: str) -> None:
         address = _address(_processor.get())
@@ -261,8 +266,9 @@ class Security:
         iserver = self.server.iserver
         if user is None:
             return UacellSession(self, iserver, iserver.aspace, iserver.subscription_service, name, external=external)
-        return UacellSession(self, iserver, iserver.aspace, iserver.subscription_service, name, user=user,
-                             external=external)
+        return UacellSession(
+            self, iserver, iserver.aspace, iserver.subscription_service, name, user=user, external=external
+        )
 
     def session_closed(self, session: InternalSession) -> None:
         for hook in self.on_session_closed:
@@ -299,9 +305,11 @@ class Security:
         if code is None:
             return
         what = f"security policy {uri}" if code == _S.BadSecurityPolicyRejected else f"security mode {mode}"
-        self.refusals.warning(_address(processor), f"channel:{code}",
-                              f"refused secure channel from {_address(processor)}: {what} is not offered "
-                              f"({ua.StatusCode(code).name})")
+        self.refusals.warning(
+            _address(processor),
+            f"channel:{code}",
+            f"refused secure channel from {_address(processor)}: {what} is not offered ({ua.StatusCode(code).name})",
+        )
         raise _ChannelRefused(code, f"{what} is not offered by this server")
 
     def endpoint_of(self, processor: UaProcessor | None) -> ua.EndpointDescription | None:
@@ -319,9 +327,12 @@ class Security:
             return
         address = _address(processor)
         uri, mode = _channel_policy(processor)
-        self.refusals.warning(address, "service",
-                              f"refused request from {address} on a {uri.rsplit('#', 1)[-1]}/{mode.name} channel: "
-                              "no such endpoint is offered, only discovery is served (Bad_SecurityPolicyRejected)")
+        self.refusals.warning(
+            address,
+            "service",
+            f"refused request from {address} on a {uri.rsplit('#', 1)[-1]}/{mode.name} channel: "
+            "no such endpoint is offered, only discovery is served (Bad_SecurityPolicyRejected)",
+        )
         raise ServiceError(_S.BadSecurityPolicyRejected)
 
     def check_session(self, processor: UaProcessor | None, params: ua.CreateSessionParameters) -> None:
@@ -331,14 +342,18 @@ class Security:
         uri, mode = _channel_policy(processor)
         code = self.channel_refusal(uri, mode)
         if code is not None:
-            self.refusals.warning(address, f"session:{code}",
-                                  f"refused session from {address}: its channel ({uri}, {mode.name}) is not an "
-                                  f"offered endpoint ({ua.StatusCode(code).name})")
+            self.refusals.warning(
+                address,
+                f"session:{code}",
+                f"refused session from {address}: its channel ({uri}, {mode.name}) is not an "
+                f"offered endpoint ({ua.StatusCode(code).name})",
+            )
             raise ServiceError(code)
         url = params.EndpointUrl
         if url and urlparse(url).scheme.lower() != "opc.tcp":
-            self.refusals.warning(address, "session:url",
-                                  f"refused session from {address}: EndpointUrl {url!r} is not an opc.tcp URL")
+            self.refusals.warning(
+                address, "session:url", f"refused session from {address}: EndpointUrl {url!r} is not an opc.tcp URL"
+            )
             raise ServiceError(_S.BadTcpEndpointUrlInvalid)
 
     def check_reassociation(self, processor: UaProcessor, auth_token: ua.NodeId, body: Buffer) -> None:
@@ -360,9 +375,11 @@ class Security:
                 code, why = _S.BadIdentityChangeNotSupported, "the identity differs from the session's"
             else:
                 return
-        self.refusals.warning(address, f"reassociation:{code}",
-                              f"refused to move a session to a new channel from {address}: {why} "
-                              f"({ua.StatusCode(code).name})")
+        self.refusals.warning(
+            address,
+            f"reassociation:{code}",
+            f"refused to move a session to a new channel from {address}: {why} ({ua.StatusCode(code).name})",
+        )
         raise ServiceError(code)
 
     def refuse_channel(self, processor: UaProcessor, refused: _ChannelRefused) -> None:
@@ -378,15 +395,20 @@ class Security:
         processor = _processor.get()
         if token.EncryptionAlgorithm or _channel_mode(processor) == ua.MessageSecurityMode.SignAndEncrypt:
             return
-        log.info("refused login of user %r from %s: clear-text password on an unencrypted channel",
-                    token.UserName, _address(processor))
+        log.info(
+            "refused login of user %r from %s: clear-text password on an unencrypted channel",
+            token.UserName,
+            _address(processor),
+        )
         raise ServiceError(ua.StatusCodes.BadIdentityTokenRejected)
 
     def _invalid_token(self, token: ua.UserNameIdentityToken, reason: str, why: str) -> ServiceError:
         address = _address(_processor.get())
-        self.refusals.warning(address, f"token:{reason}",
-                              f"refused login of user {token.UserName!r} from {address}: {why} "
-                              "(Bad_IdentityTokenInvalid)")
+        self.refusals.warning(
+            address,
+            f"token:{reason}",
+            f"refused login of user {token.UserName!r} from {address}: {why} (Bad_IdentityTokenInvalid)",
+        )
         return ServiceError(_S.BadIdentityTokenInvalid)
 
     def decrypt_user_token(self, isession: InternalSession, token: ua.UserNameIdentityToken) -> tuple[str, str]:
@@ -396,8 +418,11 @@ class Security:
         use that policy's algorithm and end with the server nonce last sent to this session."""
         self.refuse_plaintext(token)
         endpoint = self.endpoint_of(_processor.get())
-        policies = [p for p in (endpoint.UserIdentityTokens if endpoint else [])
-                    if p.TokenType == ua.UserTokenType.UserName and p.PolicyId == token.PolicyId]
+        policies = [
+            p
+            for p in (endpoint.UserIdentityTokens if endpoint else [])
+            if p.TokenType == ua.UserTokenType.UserName and p.PolicyId == token.PolicyId
+        ]
         if not policies:
             raise self._invalid_token(token, "policy", f"no user-name token policy {token.PolicyId!r} on this endpoint")
         policy_uri = policies[0].SecurityPolicyUri or (endpoint.SecurityPolicyUri if endpoint else "")
@@ -549,9 +574,7 @@ class UacellSession(LimitedSession):
             self.auth_token = ua.NodeId(ua.ByteString(os.urandom(32)), ua.Int16(0), ua.NodeIdType.ByteString)
             self.iserver.register_external_session(self)
 
-    async def create_session(
-        self, params: ua.CreateSessionParameters, sockname: Any = None
-    ) -> ua.CreateSessionResult:
+    async def create_session(self, params: ua.CreateSessionParameters, sockname: Any = None) -> ua.CreateSessionResult:
         self._client_description = params.ClientDescription  # Caller.client: LockingClient shows it
         processor = _processor.get()
         self.client_address = _address(processor)

@@ -17,12 +17,14 @@ from uacell.cell import CellBuilder, Part, build_cell, cell_digest
 from uacell.companion import Binder, Closer, companions
 from uacell.config import Config, default_application_uri
 from uacell.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
+from uacell.history.service import HistoryService
+from uacell.history.setup import install_history
 from uacell.logs import configured_levels
 from uacell.metrics import Metrics
 from uacell.models import StateTables
 from uacell.pki import PkiPaths
 from uacell.registry import Registries, Registry, RegistryKey, T
-from uacell.roles import Role, listening_policy
+from uacell.roles import Role, listening_policy, may
 from uacell.ua.access import UacellUserManager
 from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
 from uacell.ua.dispatch import MethodDispatcher
@@ -92,6 +94,7 @@ class UacellServer:
         self._snapshot_cancel = threading.Event()
         self._snapshot_task: asyncio.Task[None] | None = None
         self.discovery_registration: DiscoveryRegistration | None = None  # with [discovery] url
+        self.history: HistoryService | None = None  # HistoryRead ([history], docs/history.md)
 
     @property
     def cell(self) -> CellBuilder:
@@ -159,6 +162,10 @@ class UacellServer:
             closer = await binder(self)
             if closer is not None:
                 self._closers.append(closer)
+        kept = [(b.part.role, b.node) for b in self.cell.built]
+        self.history = await install_history(
+            self.server, self.config.history, self.data_dir, kept, lambda role: may(Role.parse(role), "history_read")
+        )
 
     async def start(self) -> None:
         await publish_operation_limits(self.server, self.limits)

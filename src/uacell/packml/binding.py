@@ -17,6 +17,7 @@ import inspect
 import logging
 from collections.abc import Awaitable, Callable, Sequence
 from datetime import datetime
+from datetime import time as dt_time
 from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
@@ -31,6 +32,7 @@ from uacell.packml.companion import PACKML, UNIT_PART
 from uacell.packml.config import PackMLConfig, UnitSpec
 from uacell.packml.equipment import PackMLEquipment
 from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLTables, PackMLUnit, run_units
+from uacell.packml.oee import parse_shifts
 from uacell.packml.sim import SimulatedUnit
 from uacell.packml.types import (
     EUInformation,
@@ -219,6 +221,19 @@ class UnitBinding:
             ),
         )
 
+    async def add_oee(self) -> None:
+        """``OEE`` under the unit (uacell's namespace): the figures of ``uacell.packml.oee``, read-only."""
+        unit = self.app.server.get_node(self.node)
+        folder = await unit.add_object(ua.NodeId(f"{self.built.path}.OEE", self.ns), ua.QualifiedName("OEE", self.ns))
+        for key, value in self.unit.oee_values().items():
+            name = key.split("/")[1]
+            vtype = ua.VariantType.Double if isinstance(value, float) else ua.VariantType.UInt32
+            await folder.add_variable(
+                ua.NodeId(f"{self.built.path}.OEE.{name}", self.ns),
+                ua.QualifiedName(name, self.ns),
+                ua.Variant(value, vtype),
+            )
+
     async def add_inject_fault(self) -> None:
         """``InjectFault(Int32 Id, String Message)`` under the unit (engineer and above)."""
         await self.app.dispatcher.add_method(
@@ -324,6 +339,13 @@ class UnitBinding:
             await closed
 
 
+def _shifts(text: str) -> tuple[dt_time, ...]:
+    try:
+        return parse_shifts([s.strip() for s in text.split(",") if s.strip()])
+    except ValueError as e:
+        raise ConfigError(f"[packml] oee_shifts: {e}") from None
+
+
 def _as_given(*values: Any) -> tuple[Any, ...]:
     return values
 
@@ -392,6 +414,8 @@ async def bind_unit(app: UacellServer, built: BuiltPart, writer: AdminWriter) ->
         mach_design_speed=spec.design_speed,
         initial_mode=spec.unit_mode,
         tables=PackMLTables.load(app.tables),
+        oee_window_hours=app.config.packml.oee_window_hours,
+        oee_shifts=_shifts(app.config.packml.oee_shifts),
     )
     b = UnitBinding(app, built, unit)
     base = b.child("BaseStateMachine")
@@ -401,6 +425,7 @@ async def bind_unit(app: UacellServer, built: BuiltPart, writer: AdminWriter) ->
     await b.add_start_parameters()
     b.bind_methods({BASE: base, MACHINE: machine, EXECUTE: execute, UNIT: b.node})
     await b.add_inject_fault()
+    await b.add_oee()
     await b.publish_constants()
     values = unit.values()
     values.pop("Executable")

@@ -38,6 +38,8 @@ class PackMLConfig:
     acting_time: float = 1.0  # seconds each acting state of the simulated unit takes
     mach_speed: float = 60.0  # initial MachSpeed, packages/min
     equipment: str = ""  # "package.module:factory" for real equipment (docs/equipment.md)
+    oee_window_hours: float = 8.0  # OEE over the last this many hours (docs/packml.md, "OEE")
+    oee_shifts: str = ""  # "06:00,14:00,22:00": OEE since the current shift's start (UTC) instead
 
 
 @dataclass

@@ -51,9 +51,7 @@ class UnitPort(Protocol):
         """The acting state ``state`` (default: whichever runs) is done; False if it no longer runs."""
         ...
 
-    def report_production(
-        self, processed: int = 0, defective: int = 0, consumed: int | Mapping[int, int] = 0
-    ) -> None:
+    def report_production(self, processed: int = 0, defective: int = 0, consumed: int | Mapping[int, int] = 0) -> None:
         """Add to ProdProcessedCount[0] / ProdDefectiveCount[0] / ProdConsumedCount (by ID or [0])."""
         ...
 

@@ -16,7 +16,8 @@ import logging
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
+from datetime import time as dt_time
 from typing import Any
 
 from uacell.errors import CallError
@@ -24,6 +25,7 @@ from uacell.fsm import Reason, StateMachine
 from uacell.models.tables import FsmTable, TableLoader, TransitionInfo
 from uacell.packml.admin_store import AdminStore
 from uacell.packml.equipment import EquipmentBase, PackMLEquipment
+from uacell.packml.oee import OEE, Figures
 from uacell.packml.types import (
     EUInformation,
     PackMLAlarmDataType,
@@ -185,6 +187,8 @@ class PackMLUnit:
         save_interval: float = 10.0,
         clock: Callable[[], float] = time.monotonic,
         wall_clock: Callable[[], datetime] = lambda: datetime.now(UTC),
+        oee_window_hours: float = 8.0,
+        oee_shifts: tuple[dt_time, ...] = (),
     ) -> None:
         self.name = name
         self.store = store
@@ -239,6 +243,9 @@ class PackMLUnit:
             prod_consumed_count=list(consumed_counts or [PackMLCountDataType(100, "Material", PACKAGES)]),
             mach_design_speed=float(mach_design_speed),
         )
+
+        # OEE over its window, from every span _account hands it and every production report (oee.py)
+        self.oee = OEE(self.admin.mach_design_speed, oee_window_hours, oee_shifts)
 
         self.listeners: list[Listener] = []
         self._depth = 0
@@ -369,8 +376,18 @@ class PackMLUnit:
             "Admin/StateCurrentTime": [list(r) for r in a.state_current_time],
             "Admin/MachDesignSpeed": a.mach_design_speed,
             **self._durable(),
+            **self.oee_values(),
             "Executable": dict(self._executable_now()),
         }
+
+    def oee_figures(self) -> Figures:
+        """OEE over its window up to the last accounting (a transition, a count or a tick)."""
+        wall = self._wall() - timedelta(seconds=max(0.0, self._clock() - self._last_account))
+        return self.oee.figures(self._last_account, wall)
+
+    def oee_values(self) -> dict[str, float | int]:
+        """The OEE variables under the unit (uacell's namespace), figures rounded to 4 decimals."""
+        return {k: round(v, 4) if isinstance(v, float) else v for k, v in self.oee_figures().values().items()}
 
     # --- state-machine commands (decisions 22-25) ---------------------------------------------
 
@@ -518,6 +535,9 @@ class PackMLUnit:
     def report_production(self, processed: int = 0, defective: int = 0, consumed: int | Mapping[int, int] = 0) -> None:
         with self._operation():
             a = self.admin
+            if processed or defective:
+                self._account()  # the spans up to now, before the counts
+                self.oee.count(self._clock(), processed, defective)
             if processed:
                 a.prod_processed_count[0] = _counted(a.prod_processed_count[0], processed)
             if defective:
@@ -832,6 +852,7 @@ class PackMLUnit:
         dt = max(0.0, now - self._last_account)
         self._last_account = now
         mode, state = self.status.unit_mode_current, self.state_number
+        self.oee.span(now - dt, now, mode, self.state)
         self._mode_cum[mode] += dt
         self._state_cum[mode][state] += dt
         self._mode_cur += dt

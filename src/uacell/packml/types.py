@@ -198,14 +198,21 @@ def _eu_from_json(d: dict[str, Any]) -> EUInformation:
 
 def count_to_json(c: PackMLCountDataType) -> dict[str, Any]:
     return {
-        "id": c.id, "name": c.name, "unit": _eu_to_json(c.unit), "count": c.count, "acc_count": c.acc_count,
+        "id": c.id,
+        "name": c.name,
+        "unit": _eu_to_json(c.unit),
+        "count": c.count,
+        "acc_count": c.acc_count,
     }
 
 
 def count_from_json(d: dict[str, Any]) -> PackMLCountDataType:
     return PackMLCountDataType(
-        int(d["id"]), str(d.get("name", "")), _eu_from_json(d.get("unit", {})),
-        int(d.get("count", 0)), int(d.get("acc_count", 0)),
+        int(d["id"]),
+        str(d.get("name", "")),
+        _eu_from_json(d.get("unit", {})),
+        int(d.get("count", 0)),
+        int(d.get("acc_count", 0)),
     )
 
 
@@ -219,14 +226,23 @@ def _time_from_json(s: object) -> datetime | None:
 
 def alarm_to_json(a: PackMLAlarmDataType) -> dict[str, Any]:
     return {
-        "id": a.id, "value": a.value, "message": a.message, "category": a.category,
-        "date_time": _time_to_json(a.date_time), "ack_date_time": _time_to_json(a.ack_date_time),
+        "id": a.id,
+        "value": a.value,
+        "message": a.message,
+        "category": a.category,
+        "date_time": _time_to_json(a.date_time),
+        "ack_date_time": _time_to_json(a.ack_date_time),
         "trigger": a.trigger,
     }
 
 
 def alarm_from_json(d: dict[str, Any]) -> PackMLAlarmDataType:
     return PackMLAlarmDataType(
-        int(d["id"]), int(d.get("value", 0)), str(d.get("message", "")), int(d.get("category", 0)),
-        _time_from_json(d.get("date_time")), _time_from_json(d.get("ack_date_time")), bool(d.get("trigger")),
+        int(d["id"]),
+        int(d.get("value", 0)),
+        str(d.get("message", "")),
+        int(d.get("category", 0)),
+        _time_from_json(d.get("date_time")),
+        _time_from_json(d.get("ack_date_time")),
+        bool(d.get("trigger")),
     )

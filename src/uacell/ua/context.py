@@ -142,20 +142,25 @@ def add_read_hook(hook: ReadHook) -> None:
         _read_hooks.append(hook)
 
 
-def install() -> None:
-    """Wrap InternalSession.call/read once so the session is known while a request runs."""
-    if getattr(InternalSession, "_uacell_installed", False):
-        return
-    original_call = InternalSession.call
-    original_read = InternalSession.read
+def _with_session(original: Callable[[InternalSession, Any], Any]) -> Callable[[InternalSession, Any], Any]:
+    """``original`` (a session's service) with the session known (``current_session``) while it runs."""
 
-    @functools.wraps(original_call)
-    async def call(self: InternalSession, params: Any) -> Any:
+    @functools.wraps(original)
+    async def service(self: InternalSession, params: Any) -> Any:
         token = _session.set(self)
         try:
-            return await original_call(self, params)
+            return await original(self, params)
         finally:
             _session.reset(token)
+
+    return service
+
+
+def install() -> None:
+    """Wrap InternalSession.call/read/history_read once so the session is known while a request runs."""
+    if getattr(InternalSession, "_uacell_installed", False):
+        return
+    original_read = InternalSession.read
 
     @functools.wraps(original_read)
     async def read(self: InternalSession, params: Any) -> Any:
@@ -165,6 +170,7 @@ def install() -> None:
                 hook(self, params, results)
         return results
 
-    InternalSession.call = call
+    InternalSession.call = _with_session(InternalSession.call)
     InternalSession.read = read
+    InternalSession.history_read = _with_session(InternalSession.history_read)
     InternalSession._uacell_installed = True

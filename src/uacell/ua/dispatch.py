@@ -506,7 +506,6 @@ class TypeChecker:
         self.aspace = server.iserver.aspace
         self._builtin: dict[ua.NodeId, ua.VariantType | None] = {}
 
-
     def builtin_of(self, datatype: ua.NodeId) -> ua.VariantType | None:
         """The VariantType a DataType is encoded as (enumerations -> Int32, structures -> ExtensionObject)."""
         if datatype in self._builtin:

@@ -57,8 +57,12 @@ LOCKS: RegistryKey[ua.NodeId] = RegistryKey("lock")
 # Child references followed upwards from a written node to the lockable element above it.
 _CHILD_REFS = {
     ua.NodeId(i)
-    for i in (ua.ObjectIds.HasComponent, ua.ObjectIds.HasProperty, ua.ObjectIds.HasOrderedComponent,
-              ua.ObjectIds.Organizes)
+    for i in (
+        ua.ObjectIds.HasComponent,
+        ua.ObjectIds.HasProperty,
+        ua.ObjectIds.HasOrderedComponent,
+        ua.ObjectIds.Organizes,
+    )
 }
 _MAX_DEPTH = 32
 

@@ -1,0 +1,474 @@
+"""HistoryRead (OPC 10000-11) over the history store, in place of asyncua's HistoryManager.
+
+What is kept: values of the variables ``historize_value`` names (taken from the address space's
+data-change callbacks, so every written value counts, none is sampled) and the events fired through
+the notifiers ``historize_events`` names (taken where asyncua hands events to subscriptions).
+docs/history.md says what each request answers.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Awaitable, Callable
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+from asyncua import ua
+from asyncua.common.events import Event
+from asyncua.common.utils import Buffer
+from asyncua.server.internal_server import InternalServer
+from asyncua.ua.ua_binary import Primitives, variant_from_binary, variant_to_binary
+
+from uacell.history.backends import EVENT, VALUE, Query, Sample
+from uacell.history.processed import AGGREGATES, Interval, aggregate
+from uacell.history.store import ContinuationPointInvalid, HistoryStore
+from uacell.ua.context import current_caller
+from uacell.ua.toolkit import supertype
+
+log = logging.getLogger(__name__)
+
+_SC = ua.StatusCodes
+_A = ua.AttributeIds
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+_US = timedelta(microseconds=1)
+
+
+def to_micros(t: datetime) -> int:
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=UTC)
+    return (t - _EPOCH) // _US
+
+
+def from_micros(us: int) -> datetime:
+    return _EPOCH + us * _US
+
+
+def _unspecified(t: datetime | None) -> bool:
+    return t is None or t.year <= 1601
+
+
+def node_key(node: ua.NodeId) -> str:
+    return str(node.to_string())
+
+
+def event_fields(event: Any) -> dict[str, ua.Variant]:
+    """An event's fields that have a value (asyncua's own helper fails on a None)."""
+    fields: dict[str, ua.Variant] = {}
+    types = getattr(event, "data_types", {})
+    skip = getattr(event, "internal_properties", ())
+    for name, value in vars(event).items():
+        if name.startswith("__") or name in skip or value is None or name not in types:
+            continue
+        fields[name] = ua.Variant(value, types[name], is_array=isinstance(value, list))
+    return fields
+
+
+def encode_fields(fields: dict[str, ua.Variant]) -> bytes:
+    out = bytearray()
+    for name, v in fields.items():
+        out += Primitives.String.pack(name)
+        out += variant_to_binary(v)
+    return bytes(out)
+
+
+def decode_fields(data: bytes) -> dict[str, ua.Variant]:
+    buf = Buffer(data)
+    fields: dict[str, ua.Variant] = {}
+    while len(buf) > 0:
+        name = Primitives.String.unpack(buf)
+        fields[name] = variant_from_binary(buf)
+    return fields
+
+
+class HistoryError(Exception):
+    def __init__(self, code: int) -> None:
+        super().__init__(ua.StatusCode(code).name)
+        self.code = code
+
+
+class HistoryService:
+    """Installed as ``iserver.history_manager``: asyncua's sessions hand it every HistoryRead."""
+
+    def __init__(
+        self,
+        iserver: InternalServer,
+        store: HistoryStore,
+        allows: Callable[[str], bool],
+        max_per_request: int = 10_000,
+    ) -> None:
+        self.iserver = iserver
+        self.allows = allows  # may a caller of this role HistoryRead (uacell.roles: "history_read")
+        self.store = store
+        self.max_per_request = max_per_request
+        self.values: dict[ua.NodeId, str] = {}
+        self.notifiers: dict[ua.NodeId, str] = {}
+        self._handles: list[int] = []
+        self._supertypes: dict[str, frozenset[str]] = {}
+        self._trigger: Callable[..., Awaitable[None]] | None = None
+
+    # -- what is kept -----------------------------------------------------------------------------
+
+    async def install(self) -> None:
+        self.iserver.history_manager = self
+        service = self.iserver.isession.subscription_service
+        original = service.trigger_event
+        self._trigger = original
+
+        async def trigger_event(event: Any, subscription_id: int | None = None) -> None:
+            if subscription_id is None:
+                key = self.notifiers.get(getattr(event, "emitting_node", None))
+                if key is not None:
+                    self._record_event(key, event)
+            await original(event, subscription_id)
+
+        service.trigger_event = trigger_event
+        self.store.start()
+
+    async def historize_value(self, node: ua.NodeId) -> None:
+        """Keep every value ``node`` takes from now on; set Historizing and AccessLevel's HistoryRead."""
+        if node in self.values:
+            return
+        aspace = self.iserver.aspace
+        key = node_key(node)
+        self.values[node] = key
+
+        async def changed(_handle: int, dv: ua.DataValue) -> None:
+            self._record_value(key, dv)
+
+        status, handle = aspace.add_datachange_callback(node, _A.Value, changed)
+        if not status.is_good():
+            del self.values[node]
+            raise HistoryError(status.value)
+        self._handles.append(handle)
+        bit = ua.AccessLevel.HistoryRead.mask
+        for attr in (_A.AccessLevel, _A.UserAccessLevel):
+            level = aspace.read_attribute_value(node, attr).Value.Value or 0
+            await aspace.write_attribute_value(node, attr, ua.DataValue(ua.Variant(level | bit, ua.VariantType.Byte)))
+        await aspace.write_attribute_value(node, _A.Historizing, ua.DataValue(ua.Variant(True, ua.VariantType.Boolean)))
+        # the value it has now is the first one kept
+        self._record_value(key, aspace.read_attribute_value(node, _A.Value))
+
+    async def historize_events(self, notifier: ua.NodeId) -> None:
+        """Keep every event fired through ``notifier``; set EventNotifier's HistoryRead bit."""
+        if notifier in self.notifiers:
+            return
+        self.notifiers[notifier] = node_key(notifier)
+        aspace = self.iserver.aspace
+        dv = aspace.read_attribute_value(notifier, _A.EventNotifier)
+        level = (dv.Value.Value if dv.Value is not None else 0) or 0
+        bits = ua.EventNotifier.SubscribeToEvents.mask | ua.EventNotifier.HistoryRead.mask
+        await aspace.write_attribute_value(
+            notifier, _A.EventNotifier, ua.DataValue(ua.Variant(level | bits, ua.VariantType.Byte))
+        )
+
+    def _record_value(self, key: str, dv: ua.DataValue) -> None:
+        t = dv.SourceTimestamp or dv.ServerTimestamp or datetime.now(UTC)
+        status = dv.StatusCode.value if dv.StatusCode is not None else 0
+        variant = dv.Value if dv.Value is not None else ua.Variant()
+        self.store.record(key, to_micros(t), VALUE, status, "", variant_to_binary(variant))
+
+    def _record_event(self, key: str, event: Any) -> None:
+        try:
+            fields = event_fields(event)
+            t = getattr(event, "Time", None) or datetime.now(UTC)
+            etype = getattr(event, "EventType", None)
+            self.store.record(key, to_micros(t), EVENT, 0, etype.to_string() if etype else "", encode_fields(fields))
+        except Exception:
+            log.exception("history: could not keep an event")
+
+    # -- asyncua's HistoryManager interface --------------------------------------------------------
+
+    async def init(self) -> None:
+        return None
+
+    def update_history(self, params: ua.HistoryUpdateParameters) -> list[ua.HistoryUpdateResult]:
+        # History is what happened: nobody rewrites it (Part 11: not supported).
+        return [
+            ua.HistoryUpdateResult(StatusCode=ua.StatusCode(_SC.BadHistoryOperationUnsupported))
+            for _ in params.HistoryUpdateDetails
+        ]
+
+    async def stop(self) -> None:
+        for handle in self._handles:
+            self.iserver.aspace.delete_datachange_callback(handle)
+        self._handles.clear()
+        await self.store.close()
+
+    async def read_history(self, params: ua.HistoryReadParameters) -> list[ua.HistoryReadResult]:
+        caller = current_caller()
+        try:
+            allowed = self.allows(caller.role)
+        except ValueError:  # not a role uacell knows
+            allowed = False
+        results = []
+        for rv in params.NodesToRead:
+            if not allowed:
+                results.append(_fail(_SC.BadUserAccessDenied))
+                continue
+            try:
+                results.append(await self._read_one(params, rv))
+            except HistoryError as e:
+                results.append(_fail(e.code))
+        return results
+
+    async def _read_one(self, params: ua.HistoryReadParameters, rv: ua.HistoryReadValueId) -> ua.HistoryReadResult:
+        details = params.HistoryReadDetails
+        node = rv.NodeId
+        if node not in self.iserver.aspace:
+            raise HistoryError(_SC.BadNodeIdUnknown)
+        if params.TimestampsToReturn == ua.TimestampsToReturn.Neither and not isinstance(details, ua.ReadEventDetails):
+            raise HistoryError(_SC.BadTimestampsToReturnInvalid)
+        if isinstance(details, ua.ReadRawModifiedDetails):
+            key = self._value_key(node)
+            if details.IsReadModified:
+                raise HistoryError(_SC.BadHistoryOperationUnsupported)  # values are never modified
+            if params.ReleaseContinuationPoints:
+                return ua.HistoryReadResult(HistoryData=ua.HistoryData())
+            samples, cp = await self._page(key, VALUE, details.StartTime, details.EndTime, details.NumValuesPerNode, rv)
+            data = ua.HistoryData(DataValues=[_datavalue(s, params.TimestampsToReturn) for s in samples])
+            return _ok(data, cp, bool(samples) or bool(rv.ContinuationPoint))
+        if isinstance(details, ua.ReadEventDetails):
+            notifier = self.notifiers.get(node)
+            if notifier is None:
+                raise HistoryError(_SC.BadHistoryOperationUnsupported)
+            key = notifier
+            if params.ReleaseContinuationPoints:
+                return ua.HistoryReadResult(HistoryData=ua.HistoryEvent())
+            flt = details.Filter or ua.EventFilter()
+            check_filter(flt)
+            events, cp = await self._events(key, details, rv, flt)
+            return _ok(ua.HistoryEvent(Events=events), cp, bool(events) or bool(rv.ContinuationPoint))
+        if isinstance(details, ua.ReadProcessedDetails):
+            key = self._value_key(node)
+            if params.ReleaseContinuationPoints:
+                return ua.HistoryReadResult(HistoryData=ua.HistoryData())
+            return await self._processed(key, details, rv)
+        raise HistoryError(_SC.BadHistoryOperationUnsupported)  # ReadAtTime, annotations
+
+    def _value_key(self, node: ua.NodeId) -> str:
+        key = self.values.get(node)
+        if key is None:
+            raise HistoryError(_SC.BadHistoryOperationUnsupported)
+        return key
+
+    def _plan(
+        self, start: datetime | None, end: datetime | None, count: int
+    ) -> tuple[int | None, int | None, bool, bool]:
+        """(lo, hi, reverse, lo_inclusive) of Part 11's StartTime/EndTime/NumValuesPerNode rules."""
+        s, e = _unspecified(start), _unspecified(end)
+        if s and e:
+            raise HistoryError(_SC.BadInvalidTimestampArgument)
+        if not s and not e:
+            assert start is not None and end is not None
+            a, b = to_micros(start), to_micros(end)
+            if a <= b:
+                return a, b, False, True
+            return b, a + 1, True, False  # StartTime >= t > EndTime, newest first
+        if not s:
+            assert start is not None
+            return to_micros(start), None, False, True
+        if count <= 0:
+            raise HistoryError(_SC.BadHistoryOperationInvalid)  # EndTime alone needs NumValuesPerNode
+        assert end is not None
+        return None, to_micros(end) + 1, True, True
+
+    async def _page(
+        self, key: str, kind: int, start: datetime | None, end: datetime | None, count: int, rv: ua.HistoryReadValueId
+    ) -> tuple[list[Sample], bytes | None]:
+        lo, hi, reverse, lo_inc = self._plan(start, end, count)
+        after = self._after(key, rv)
+        limit = min(count, self.max_per_request) if count > 0 else self.max_per_request
+        rows = await self.store.read(Query(key, kind, lo, hi, reverse, limit + 1, after, lo_inc))
+        if len(rows) > limit:
+            rows = rows[:limit]
+            last = rows[-1]
+            return rows, self.store.cursor.encode(key, last.time, last.seq)
+        return rows, None
+
+    def _after(self, key: str, rv: ua.HistoryReadValueId) -> tuple[int, int] | None:
+        if not rv.ContinuationPoint:
+            return None
+        try:
+            return self.store.cursor.decode(key, rv.ContinuationPoint)
+        except ContinuationPointInvalid:
+            raise HistoryError(_SC.BadContinuationPointInvalid) from None
+
+    async def _events(
+        self, key: str, details: ua.ReadEventDetails, rv: ua.HistoryReadValueId, flt: ua.EventFilter
+    ) -> tuple[list[ua.HistoryEventFieldList], bytes | None]:
+        count = details.NumValuesPerNode
+        lo, hi, reverse, lo_inc = self._plan(details.StartTime, details.EndTime, count)
+        after = self._after(key, rv)
+        limit = min(count, self.max_per_request) if count > 0 else self.max_per_request
+        out: list[ua.HistoryEventFieldList] = []
+        while True:
+            rows = await self.store.read(Query(key, EVENT, lo, hi, reverse, limit, after, lo_inc))
+            for row in rows:
+                fields = decode_fields(row.data)
+                if self.matches(flt.WhereClause, fields, row.etype):
+                    event = Event.from_field_dict(fields)
+                    out.append(ua.HistoryEventFieldList(EventFields=event.to_event_fields(flt.SelectClauses or [])))
+                    if len(out) == limit:
+                        return out, self.store.cursor.encode(key, row.time, row.seq)
+            if len(rows) < limit:
+                return out, None
+            after = (rows[-1].time, rows[-1].seq)
+
+    # -- event filters (the WhereClause of ReadEventDetails) -----------------------------------------
+
+    def _is_subtype(self, etype: str, of: ua.NodeId) -> bool:
+        types = self._supertypes.get(etype)
+        if types is None:
+            seen: set[str] = set()
+            t: ua.NodeId | None = ua.NodeId.from_string(etype) if etype else None
+            while t is not None and t.to_string() not in seen:
+                seen.add(t.to_string())
+                t = supertype(self.iserver.aspace, t)
+            types = frozenset(seen)
+            self._supertypes[etype] = types
+        return of.to_string() in types
+
+    def matches(self, where: ua.ContentFilter | None, fields: dict[str, ua.Variant], etype: str) -> bool:
+        if where is None or not where.Elements:
+            return True
+        return bool(self._eval(where.Elements, 0, fields, etype))
+
+    def _operand(self, op: Any, elements: list[Any], fields: dict[str, ua.Variant], etype: str) -> Any:
+        if isinstance(op, ua.LiteralOperand):
+            return op.Value.Value
+        if isinstance(op, ua.ElementOperand):
+            return self._eval(elements, op.Index, fields, etype)
+        if isinstance(op, ua.SimpleAttributeOperand):
+            if not op.BrowsePath:
+                return ua.NodeId.from_string(etype) if op.AttributeId == _A.NodeId and etype else None
+            name = Event.browse_path_to_attribute_name(op.BrowsePath)
+            v = fields.get(name)
+            return v.Value if v is not None else None
+        raise HistoryError(_SC.BadFilterOperandInvalid)
+
+    def _eval(self, elements: list[Any], index: int, fields: dict[str, ua.Variant], etype: str) -> Any:
+        if not 0 <= index < len(elements):
+            raise HistoryError(_SC.BadFilterOperandInvalid)
+        el = elements[index]
+        op = el.FilterOperator
+        args = el.FilterOperands
+        F = ua.FilterOperator
+        if op == F.OfType:
+            target = self._operand(args[0], elements, fields, etype)
+            return isinstance(target, ua.NodeId) and self._is_subtype(etype, target)
+        vals = [self._operand(a, elements, fields, etype) for a in args]
+        if op == F.And:
+            return bool(vals[0]) and bool(vals[1])
+        if op == F.Or:
+            return bool(vals[0]) or bool(vals[1])
+        if op == F.Not:
+            return not vals[0]
+        if op == F.Equals:
+            return _same(vals[0], vals[1])
+        if op == F.InList:
+            return any(_same(vals[0], v) for v in vals[1:])
+        if op in (F.GreaterThan, F.LessThan, F.GreaterThanOrEqual, F.LessThanOrEqual):
+            try:
+                a, b = vals
+                return {
+                    F.GreaterThan: a > b,
+                    F.LessThan: a < b,
+                    F.GreaterThanOrEqual: a >= b,
+                    F.LessThanOrEqual: a <= b,
+                }[op]
+            except TypeError:
+                return False
+        raise HistoryError(_SC.BadFilterOperatorUnsupported)
+
+    # -- processed values ------------------------------------------------------------------------
+
+    async def _processed(
+        self, key: str, details: ua.ReadProcessedDetails, rv: ua.HistoryReadValueId
+    ) -> ua.HistoryReadResult:
+        if _unspecified(details.StartTime) or _unspecified(details.EndTime):
+            raise HistoryError(_SC.BadInvalidTimestampArgument)
+        start, end = to_micros(details.StartTime), to_micros(details.EndTime)
+        if start > end:
+            raise HistoryError(_SC.BadHistoryOperationUnsupported)  # reverse processed reads: not kept
+        funcs = list(details.AggregateType or [])
+        if len(funcs) != 1:
+            raise HistoryError(_SC.BadAggregateListMismatch)
+        name = AGGREGATES.get(funcs[0].Identifier) if funcs[0].NamespaceIndex == 0 else None
+        if name is None:
+            raise HistoryError(_SC.BadAggregateNotSupported)
+        interval = int(details.ProcessingInterval * 1000) or (end - start)
+        if math.ceil((end - start) / max(interval, 1)) > self.max_per_request:
+            raise HistoryError(_SC.BadTooManyOperations)
+        # the value before the start (for TimeAverage's first interval) and every one inside
+        before = await self.store.read(Query(key, VALUE, None, start, True, 1))
+        points: list[tuple[int, float | None, int]] = []
+        for s in before:
+            points.append(_point(s))
+        after: tuple[int, int] | None = None
+        while True:
+            rows = await self.store.read(Query(key, VALUE, start, end, False, 50_000, after))
+            points += [_point(s) for s in rows]
+            if len(rows) < 50_000:
+                break
+            after = (rows[-1].time, rows[-1].seq)
+        dvs = []
+        for iv in aggregate(name, points, start, end, interval):
+            dvs.append(_processed_value(iv))
+        return ua.HistoryReadResult(HistoryData=ua.HistoryData(DataValues=dvs))
+
+    async def close(self) -> None:
+        if self._trigger is not None:
+            self.iserver.isession.subscription_service.trigger_event = self._trigger
+
+
+def _point(s: Sample) -> tuple[int, float | None, int]:
+    v = variant_from_binary(Buffer(s.data)).Value
+    try:
+        num = float(v) if v is not None and not isinstance(v, (str, bytes)) else None
+    except (TypeError, ValueError):
+        num = None
+    return s.time, num, s.status
+
+
+def _processed_value(iv: Interval) -> ua.DataValue:
+    t = from_micros(iv.start)
+    if iv.value is None:
+        return ua.DataValue(StatusCode=ua.StatusCode(_SC.BadNoData), SourceTimestamp=t, ServerTimestamp=t)
+    variant = ua.Variant(iv.value, ua.VariantType.UInt32 if iv.integer else ua.VariantType.Double)
+    status = ua.StatusCode(iv.status)
+    return ua.DataValue(variant, StatusCode=status, SourceTimestamp=t, ServerTimestamp=t)
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, ua.LocalizedText):
+        a = a.Text
+    if isinstance(b, ua.LocalizedText):
+        b = b.Text
+    return bool(a == b)
+
+
+def check_filter(flt: ua.EventFilter) -> None:
+    if not flt.SelectClauses:
+        raise HistoryError(_SC.BadEventFilterInvalid)
+
+
+def _datavalue(s: Sample, which: ua.TimestampsToReturn) -> ua.DataValue:
+    t = from_micros(s.time)
+    src = t if which in (ua.TimestampsToReturn.Source, ua.TimestampsToReturn.Both) else None
+    srv = t if which in (ua.TimestampsToReturn.Server, ua.TimestampsToReturn.Both) else None
+    return ua.DataValue(
+        variant_from_binary(Buffer(s.data)),
+        StatusCode=ua.StatusCode(s.status),
+        SourceTimestamp=src,
+        ServerTimestamp=srv,
+    )
+
+
+def _ok(data: Any, cp: bytes | None, found: bool) -> ua.HistoryReadResult:
+    code = _SC.Good if found else _SC.GoodNoData
+    return ua.HistoryReadResult(StatusCode=ua.StatusCode(code), ContinuationPoint=cp, HistoryData=data)
+
+
+def _fail(code: int) -> ua.HistoryReadResult:
+    return ua.HistoryReadResult(StatusCode=ua.StatusCode(code))

@@ -1,0 +1,151 @@
+"""Turn history on for a server: the store, the HistoryRead service, what is kept, the capabilities.
+
+What is kept is ``uacell.datasets``' declaration for every built part, plus every event fired through
+the Server object. Each kept variable gets Historizing, AccessLevel's HistoryRead bit and a
+``HA Configuration`` (HistoricalDataConfigurationType, Stepped) by HasHistoricalConfiguration.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+from asyncua import Node, Server, ua
+from asyncua.common.instantiate_util import instantiate
+
+from uacell.datasets import dataset_of, resolve
+from uacell.history.backends import Backend, SqliteBackend
+from uacell.history.config import HistoryConfig
+from uacell.history.processed import AGGREGATES
+from uacell.history.service import HistoryService
+from uacell.history.store import HistoryStore, StoreSettings
+
+log = logging.getLogger(__name__)
+
+_A = ua.AttributeIds
+_HIERARCHICAL = {
+    ua.ObjectIds.HasComponent,
+    ua.ObjectIds.HasProperty,
+    ua.ObjectIds.Organizes,
+    ua.ObjectIds.HasOrderedComponent,
+}
+SQLITE_FILE = "history.sqlite"
+
+
+def make_backend(cfg: HistoryConfig, data_dir: Path) -> Backend:
+    if cfg.backend == "postgresql":
+        from uacell.history.postgres import PostgresBackend
+
+        return PostgresBackend(cfg.postgresql_dsn)
+    return SqliteBackend(data_dir / SQLITE_FILE)
+
+
+def settings_of(cfg: HistoryConfig) -> StoreSettings:
+    return StoreSettings(flush_interval=cfg.flush_interval, max_age_days=cfg.max_age_days, max_mb=cfg.max_mb)
+
+
+async def install_history(
+    server: Server,
+    cfg: HistoryConfig,
+    data_dir: Path,
+    parts: Iterable[tuple[str, ua.NodeId]],
+    allows: Callable[[str], bool],
+) -> HistoryService | None:
+    """Keep what ``uacell.datasets`` declares for ``parts`` (role, node) and answer HistoryRead for
+    callers whose role ``allows``; None when ``[history]`` is off."""
+    if not cfg.enabled:
+        return None
+    store = HistoryStore(make_backend(cfg, data_dir), settings_of(cfg))
+    service = HistoryService(server.iserver, store, allows, cfg.max_values_per_request)
+    await service.install()
+    aspace = server.iserver.aspace
+
+    def children(node: ua.NodeId) -> list[tuple[str, ua.NodeId]]:
+        data = aspace.get(node)
+        if data is None:
+            return []
+        return [
+            (r.BrowseName.Name, r.NodeId)
+            for r in data.references
+            if r.IsForward and r.ReferenceTypeId.Identifier in _HIERARCHICAL and r.ReferenceTypeId.NamespaceIndex == 0
+        ]
+
+    for role, root in parts:
+        dataset = dataset_of(role)
+        if dataset is None:
+            continue
+        for item in dataset.values:
+            if item.optional and not cfg.axis_positions:
+                continue
+            for _path, node in resolve(item.path, children, root):
+                await service.historize_value(node)
+                await _configuration(server, node)
+        for path in dataset.notifiers:
+            for _path, node in resolve(path, children, root):
+                await service.historize_events(node)
+    await service.historize_events(ua.NodeId(ua.ObjectIds.Server))
+    await publish_capabilities(server, cfg)
+    return service
+
+
+async def _configuration(server: Server, node: ua.NodeId) -> None:
+    """The variable's HA Configuration (OPC 10000-11 5.2.2): Stepped, the aggregate defaults."""
+    if not isinstance(node.Identifier, str):
+        return
+    config_id = ua.NodeId(f"{node.Identifier}.HAConfiguration", node.NamespaceIndex)
+    if config_id in server.iserver.aspace:
+        return
+    parent = server.get_node(node)
+    await instantiate(
+        parent,
+        server.get_node(ua.ObjectIds.HistoricalDataConfigurationType),
+        nodeid=config_id,
+        bname=ua.QualifiedName("HA Configuration", 0),
+    )
+    # instantiate links it by HasComponent; Part 11 names the reference HasHistoricalConfiguration
+    await parent.delete_reference(config_id, ua.ObjectIds.HasComponent, forward=True, bidirectional=True)
+    await parent.add_reference(config_id, ua.ObjectIds.HasHistoricalConfiguration, forward=True, bidirectional=True)
+    config = server.get_node(config_id)
+    stepped = await config.get_child("Stepped")
+    await stepped.write_value(ua.Variant(True, ua.VariantType.Boolean))
+
+
+async def publish_capabilities(server: Server, cfg: HistoryConfig) -> None:
+    """Server.ServerCapabilities.HistoryServerCapabilities: what HistoryRead does here."""
+    ids = ua.ObjectIds
+    values = {
+        ids.HistoryServerCapabilities_AccessHistoryDataCapability: True,
+        ids.HistoryServerCapabilities_AccessHistoryEventsCapability: True,
+        ids.HistoryServerCapabilities_MaxReturnDataValues: ua.Variant(
+            cfg.max_values_per_request, ua.VariantType.UInt32
+        ),
+        ids.HistoryServerCapabilities_MaxReturnEventValues: ua.Variant(
+            cfg.max_values_per_request, ua.VariantType.UInt32
+        ),
+        ids.HistoryServerCapabilities_InsertDataCapability: False,
+        ids.HistoryServerCapabilities_ReplaceDataCapability: False,
+        ids.HistoryServerCapabilities_UpdateDataCapability: False,
+        ids.HistoryServerCapabilities_DeleteRawCapability: False,
+        ids.HistoryServerCapabilities_DeleteAtTimeCapability: False,
+        ids.HistoryServerCapabilities_InsertAnnotationCapability: False,
+        ids.HistoryServerCapabilities_InsertEventCapability: False,
+        ids.HistoryServerCapabilities_ReplaceEventCapability: False,
+        ids.HistoryServerCapabilities_UpdateEventCapability: False,
+        ids.HistoryServerCapabilities_DeleteEventCapability: False,
+        ids.HistoryServerCapabilities_ServerTimestampSupported: True,
+    }
+    aspace = server.iserver.aspace
+    for nid, value in values.items():
+        node = ua.NodeId(nid)
+        if node not in aspace:
+            continue
+        variant = value if isinstance(value, ua.Variant) else ua.Variant(value, ua.VariantType.Boolean)
+        await aspace.write_attribute_value(node, _A.Value, ua.DataValue(variant))
+    folder = ua.NodeId(ids.HistoryServerCapabilities_AggregateFunctions)
+    if folder in aspace:
+        f = Node(server.iserver.isession, folder)
+        present = {r.NodeId for r in await f.get_references(ua.ObjectIds.Organizes)}
+        for agg in AGGREGATES:
+            if ua.NodeId(agg) not in present:
+                await f.add_reference(ua.NodeId(agg), ua.ObjectIds.Organizes, forward=True, bidirectional=False)

@@ -1,0 +1,222 @@
+"""The history store's conformance tests, run on both backends (SQLite, PostgreSQL), plus kill -9.
+
+PostgreSQL: the test starts its own cluster (initdb/pg_ctl, as the ``postgres`` user when run as root)
+on a free loopback port in a temporary directory and stops it; without Debian's postgresql these skip.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import textwrap
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from helpers import free_port
+
+from uacell.history.backends import EVENT, VALUE, Backend, Query, SqliteBackend
+from uacell.history.store import ContinuationPointInvalid, Cursor, HistoryStore, StoreSettings
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _pg_bin(name: str) -> str | None:
+    found = shutil.which(name)
+    if found:
+        return found
+    for d in sorted(Path("/usr/lib/postgresql").glob("*/bin"), reverse=True):
+        if (d / name).exists():
+            return str(d / name)
+    return None
+
+
+@pytest.fixture(scope="module")
+def postgres_dsn() -> Iterator[str]:
+    initdb, pg_ctl = _pg_bin("initdb"), _pg_bin("pg_ctl")
+    if initdb is None or pg_ctl is None:
+        pytest.skip("PostgreSQL is not installed (make setup installs Debian's postgresql)")
+    pytest.importorskip("psycopg")
+    prefix: list[str] = []
+    tmp = Path(tempfile.mkdtemp(prefix="uacell-pg-"))
+    if os.geteuid() == 0:
+        runuser = shutil.which("runuser")
+        if runuser is None:
+            pytest.skip("running as root without runuser: cannot start PostgreSQL as its own user")
+        prefix = [runuser, "-u", "postgres", "--"]
+        shutil.chown(tmp, "postgres")
+    data, port = tmp / "data", free_port()
+    try:
+        subprocess.run([*prefix, initdb, "-D", str(data), "-A", "trust", "-U", "postgres"], check=True,
+                       capture_output=True, timeout=120)  # fmt: skip
+        subprocess.run(
+            [*prefix, pg_ctl, "-D", str(data), "-w", "-t", "60", "-l", str(tmp / "log"),
+             "-o", f"-h 127.0.0.1 -p {port} -k {tmp}", "start"],
+            check=True, capture_output=True, timeout=120,
+        )  # fmt: skip
+    except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as e:
+        shutil.rmtree(tmp, ignore_errors=True)
+        pytest.skip(f"could not start PostgreSQL: {e}")
+    try:
+        yield f"host=127.0.0.1 port={port} user=postgres dbname=postgres"
+    finally:
+        subprocess.run([*prefix, pg_ctl, "-D", str(data), "-m", "immediate", "-w", "stop"], capture_output=True,
+                       timeout=120, check=False)  # fmt: skip
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+_tables = iter(range(10**6))
+KEEP = StoreSettings(max_age_days=0, max_mb=0)  # the samples below are from 1970: no retention
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def backend(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Backend]:
+    if request.param == "sqlite":
+        b: Backend = SqliteBackend(tmp_path / "history.sqlite")
+    else:
+        from uacell.history.postgres import PostgresBackend
+
+        b = PostgresBackend(request.getfixturevalue("postgres_dsn"), table=f"t{os.getpid()}_{next(_tables)}")
+    yield b
+    b.close()
+
+
+async def fill(store: HistoryStore, node: str, n: int, per_time: int, t0: int = 1_000_000, kind: int = VALUE) -> None:
+    for i in range(n):
+        store.record(node, t0 + (i // per_time), kind, 0, "", i.to_bytes(4, "big"))
+    await store.flush()
+
+
+def numbers(samples: list) -> list[int]:
+    return [int.from_bytes(s.data, "big") for s in samples]
+
+
+async def page_all(store: HistoryStore, q: Query, page: int) -> list[int]:
+    out: list[int] = []
+    after = None
+    while True:
+        rows = await store.read(Query(q.node, q.kind, q.lo, q.hi, q.reverse, page, after, q.lo_inclusive))
+        out += numbers(rows)
+        if len(rows) < page:
+            return out
+        after = (rows[-1].time, rows[-1].seq)
+
+
+async def test_pages_neither_repeat_nor_skip_equal_timestamps(backend: Backend) -> None:
+    store = HistoryStore(backend, KEEP)
+    store.start()
+    await fill(store, "a", 5_000, per_time=250)
+    await fill(store, "b", 10, per_time=1)  # another node, not read
+    forward = await page_all(store, Query("a", VALUE, None, None, False, 0), page=333)
+    assert forward == list(range(5_000))
+    backward = await page_all(store, Query("a", VALUE, None, None, True, 0), page=97)
+    assert backward == list(range(4_999, -1, -1))
+    # bounds: lo inclusive, hi exclusive
+    inside = await page_all(store, Query("a", VALUE, 1_000_001, 1_000_003, False, 0), page=100)
+    assert inside == list(range(250, 750))
+    assert await store.read(Query("a", EVENT, None, None, False, 10)) == []
+    await store.close()
+
+
+async def test_restart_keeps_samples_and_numbers_on(backend: Backend, tmp_path: Path) -> None:
+    store = HistoryStore(backend, KEEP)
+    store.start()
+    await fill(store, "a", 100, per_time=10)
+    top = backend.max_seq()
+    assert top >= 100
+    store2 = HistoryStore(backend, KEEP)  # as after a restart: numbering continues above what is stored
+    store2.record("a", 1_000_009, VALUE, 0, "", (100).to_bytes(4, "big"))
+    await store2.flush()
+    assert numbers(await store2.read(Query("a", VALUE, None, None, False, 1000))) == list(range(101))
+    assert backend.max_seq() == top + 1
+
+
+async def test_retention_by_age_and_size(backend: Backend) -> None:
+    now = [2_000.0]
+    store = HistoryStore(backend, StoreSettings(max_age_days=1.0, max_mb=0), now=lambda: now[0])
+    day = 86_400 * 1_000_000
+    for i in range(10):
+        store.record("a", i * day // 4, VALUE, 0, "", i.to_bytes(4, "big"))  # every 6 hours from the epoch
+    await store.flush()
+    now[0] = 2 * 86_400.0  # two days after the epoch: keep the last day only
+    store.prune()
+    assert numbers(await store.read(Query("a", VALUE, None, None, False, 100))) == [4, 5, 6, 7, 8, 9]
+    for i in range(20_000):
+        store.record("b", 3 * day + i, VALUE, 0, "", b"x" * 100)
+    await store.flush()
+    big = HistoryStore(backend, StoreSettings(max_age_days=0, max_mb=0.5))
+    big.prune()
+    left = await store.read(Query("b", VALUE, None, None, False, 100_000))
+    assert 0 < len(left) < 20_000
+    assert left[-1].time == 3 * day + 19_999  # the newest stay
+    assert left[0].time == 3 * day + 20_000 - len(left)  # what is gone is the oldest
+
+
+def test_continuation_points_are_opaque_and_checked() -> None:
+    cursor = Cursor()
+    point = cursor.encode("ns=1;s=x", 123, 456)
+    assert cursor.decode("ns=1;s=x", point) == (123, 456)
+    for bad in (point[:-1], point[:-1] + bytes([point[-1] ^ 1]), b"", b"x" * len(point)):
+        with pytest.raises(ContinuationPointInvalid):
+            cursor.decode("ns=1;s=x", bad)
+    with pytest.raises(ContinuationPointInvalid):
+        cursor.decode("ns=1;s=y", point)  # another node's
+    with pytest.raises(ContinuationPointInvalid):
+        Cursor().decode("ns=1;s=x", point)  # another server start's
+
+
+_WRITER = textwrap.dedent(
+    """
+    import asyncio, sys, time
+    from pathlib import Path
+    from uacell.history.backends import SqliteBackend, VALUE
+    from uacell.history.store import HistoryStore, StoreSettings
+
+    async def main():
+        settings = StoreSettings(flush_interval=0.2, max_age_days=0, max_mb=0)
+        store = HistoryStore(SqliteBackend(Path(sys.argv[1])), settings)
+        store.start()
+        i = 0
+        while True:
+            for _ in range(50):
+                store.record("a", 1_000_000 + i, VALUE, 0, "", i.to_bytes(4, "big"))
+                i += 1
+            print("committed", store.written, "recorded", i, flush=True)
+            await asyncio.sleep(0.005)
+
+    asyncio.run(main())
+    """
+)
+
+
+def test_kill_9_during_a_batch_loses_at_most_the_last_interval(tmp_path: Path) -> None:
+    db = tmp_path / "history.sqlite"
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(db)], stdout=subprocess.PIPE, text=True, env=env)
+    committed = 0
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            committed = int(line.split()[1])
+            if committed >= 3_000:
+                break
+        proc.send_signal(signal.SIGKILL)  # while the writer keeps recording and committing
+        proc.wait(30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
+    con = sqlite3.connect(db)
+    assert con.execute("PRAGMA integrity_check").fetchone() == ("ok",)
+    kept = [int.from_bytes(r[0], "big") for r in con.execute("SELECT data FROM samples ORDER BY seq")]
+    con.close()
+    assert committed >= 3_000
+    assert kept == list(range(len(kept)))  # whole batches: a prefix, no gap
+    assert len(kept) >= committed  # everything reported committed survived
