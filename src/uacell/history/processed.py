@@ -74,6 +74,8 @@ def _one(name: str, a: int, b: int, inside: Sequence[Point], prior: Point | None
     uncertain = len(good) != len(inside)
     status = (_UNCERTAIN if uncertain else _GOOD) | _CALCULATED | partial
     if name == "Count":
+        if not inside:  # no raw value at all: Bad_NoData (as node-opcua-aggregates answers)
+            return Interval(a, None, ua.StatusCodes.BadNoData)
         return Interval(a, len(good), status, integer=True)
     if name == "TimeAverage":
         return _time_average(a, b, inside, prior, partial)

@@ -1,0 +1,100 @@
+"""HistoryRead from node-opcua: raw values through continuation points, events with a filter, and
+ReadProcessedDetails compared with node-opcua-aggregates on the same raw values (docs/history.md)."""
+
+from __future__ import annotations
+
+import asyncio
+from datetime import UTC, datetime, timedelta
+
+import pytest
+from asyncua import Client, ua
+from asyncua.ua.ua_binary import variant_to_binary
+from conftest import run_node
+
+from uacell.history.backends import VALUE
+from uacell.history.service import to_micros
+from uacell.server import UacellServer
+
+pytestmark = pytest.mark.interop
+
+CELL = "urn:uacell:cell"
+F = "Filler1"
+BAD = ua.StatusCodes.BadSensorFailure
+
+
+def samples(base: datetime) -> list[tuple[datetime, float, int]]:
+    """10 minutes of a speed: a value every 0.25 s in steps, two values sharing each 30th timestamp,
+    a Bad value in minute 3, nothing in minute 7."""
+    out: list[tuple[datetime, float, int]] = []
+    for i in range(2400):
+        t = base + timedelta(milliseconds=250 * i)
+        if 420 <= i * 0.25 < 480:
+            continue
+        status = BAD if i == 800 else 0
+        out.append((t, float((i * 37) % 101), status))
+        if i % 30 == 0:
+            out.append((t, float(i % 7), 0))
+    return out
+
+
+def stepped_time_average(points: list[tuple[datetime, float, int]], a: datetime, b: datetime) -> float | None:
+    before = [p for p in points if p[0] < a]
+    inside = [p for p in points if a <= p[0] < b]
+    steps = before[-1:] + inside
+    total = covered = 0.0
+    for k, (t, v, s) in enumerate(steps):
+        t0 = max(t, a)
+        t1 = min(steps[k + 1][0] if k + 1 < len(steps) else b, b)
+        if t1 <= t0 or s != 0:
+            continue
+        total += v * (t1 - t0).total_seconds()
+        covered += (t1 - t0).total_seconds()
+    return total / covered if covered else None
+
+
+async def test_node_opcua_reads_raw_processed_and_events(app: UacellServer, client: Client) -> None:
+    ns = await client.get_namespace_index(CELL)
+    speed = ua.NodeId(f"{F}.Status.CurMachSpeed", ns)
+    assert app.history is not None
+    base = datetime.now(UTC).replace(microsecond=0) - timedelta(days=2)
+    data = samples(base)
+    key = app.history.values[speed]
+    for t, v, s in data:
+        app.history.store.record(
+            key, to_micros(t), VALUE, s, "", variant_to_binary(ua.Variant(v, ua.VariantType.Double))
+        )
+    machine = client.get_node(ua.NodeId(f"{F}.BaseStateMachine.MachineState", ns))
+    await machine.call_method(ua.NodeId(f"{F}.BaseStateMachine.MachineState.Reset", ns))
+    await app.history.store.flush()
+    end = base + timedelta(minutes=10)
+    out = await asyncio.to_thread(
+        run_node, "history.js", app.endpoint, speed.to_string(), base.isoformat(), end.isoformat(), "60000"
+    )
+
+    # raw: every value, in order, through continuation points
+    assert [r["value"] for r in out["raw"]] == [v for _, v, _ in data]
+    assert out["pages"] == len(data) // 1000 + 1
+    assert out["raw"][800 + 800 // 30 + 1]["status"] == BAD
+
+    # processed: uacell against node-opcua-aggregates, interval by interval
+    for name in ("Average", "Minimum", "Maximum", "Count"):
+        ours, ref = out["processed"][name]["values"], out["reference"][name]
+        assert out["processed"][name]["status"] == "Good"
+        assert len(ours) == len(ref) == 10
+        for k, (o, r) in enumerate(zip(ours, ref, strict=True)):
+            where = f"{name} interval {k}: uacell {o}, node-opcua {r}"
+            assert (o["status"] >> 30) == (r["status"] >> 30), where  # Good / Uncertain / Bad alike
+            if r["value"] is None or r["status"] >> 31:
+                assert o["value"] is None or o["status"] >> 31, where
+            else:
+                assert o["value"] == pytest.approx(r["value"]), where
+    # TimeAverage is not in node-opcua-aggregates: against the stepped definition (Part 13)
+    for k, o in enumerate(out["processed"]["TimeAverage"]["values"]):
+        a = base + timedelta(minutes=k)
+        want = stepped_time_average(data, a, a + timedelta(minutes=1))
+        assert want is not None and o["value"] == pytest.approx(want), (k, o, want)
+
+    # events: the transitions the Reset caused, through the Server object, filtered by type
+    assert out["eventStatus"] == "Good"
+    assert {e["type"] for e in out["events"]} == {"ns=0;i=2311"}
+    assert {"Running", "Idle"} <= {e["toState"] for e in out["events"]}
