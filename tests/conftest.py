@@ -109,6 +109,15 @@ def start_serve(
     raise AssertionError("uacell serve did not start:\n" + "".join(lines) + rest)
 
 
+def wait_for_web(sp: ServeProcess) -> str:
+    """The HMI's URL once ``sp`` (started with ``web=True``) printed its "uacell web on" line."""
+    while not any(line.startswith("uacell web on ") for line in sp.output):
+        line = sp.proc.stdout.readline() if sp.proc.stdout else ""
+        assert line, "".join(sp.output)
+        sp.output.append(line)
+    return next(line.split(" on ", 1)[1].strip() for line in sp.output if line.startswith("uacell web on "))
+
+
 @pytest.fixture
 def serve_process(tmp_path: Path) -> Iterator[ServeProcess]:
     """A real `uacell serve` subprocess on a free loopback port; stopped (SIGTERM) afterwards."""

@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 from asyncua import ua
-from conftest import ROOT, ServeProcess, start_serve
+from conftest import ROOT, ServeProcess, start_serve, wait_for_web
 from helpers import CellClient, raw_call
 
 from uacell.users import UserStore
@@ -78,11 +78,7 @@ def serve(tmp_path_factory) -> Iterator[ServeProcess]:
     config = data.parent / "uacell.toml"
     config.write_text("[packml]\nacting_time = 0.5\nmach_speed = 120.0\n[robot]\ntime_scale = 4.0\n")
     sp = start_serve(data, "--config", str(config), web=True)
-    while not any(line.startswith("uacell web on ") for line in sp.output):
-        line = sp.proc.stdout.readline() if sp.proc.stdout else ""
-        assert line, "".join(sp.output)
-        sp.output.append(line)
-    sp.web = next(line.split(" on ", 1)[1].strip() for line in sp.output if line.startswith("uacell web on "))
+    sp.web = wait_for_web(sp)
     yield sp
     assert sp.stop() == 0
 

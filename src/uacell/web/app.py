@@ -24,6 +24,7 @@ from starlette.responses import FileResponse, JSONResponse, Response, StreamingR
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
+from uacell.web.history import MAX_HOURS as MAX_HISTORY_HOURS
 from uacell.web.uasession import CallFailed, CellCache, Credentials, UaSession, UnknownKey
 
 log = logging.getLogger(__name__)
@@ -85,6 +86,7 @@ class WebApp:
                 Route("/api/file", self.file, methods=["POST"]),
                 Route("/api/upload", self.upload, methods=["POST"]),
                 Route("/api/delete", self.delete, methods=["POST"]),
+                Route("/api/history", self.history),
                 Mount("/static", StaticFiles(directory=static), name="static"),
             ]
         )
@@ -307,6 +309,24 @@ class WebApp:
 
     async def call(self, request: Request) -> Response:
         return await self._act(request, "call")
+
+    async def history(self, request: Request) -> Response:
+        """GET ?hours=N: the history view's data (uacell.web.history), read as this session's user."""
+        s = self._session(request)
+        if s is None:
+            return JSONResponse({"error": "session expired", "expired": True}, status_code=401)
+        try:
+            hours = float(request.query_params.get("hours", "8"))
+        except ValueError:
+            hours = -1.0
+        if not 0 < hours <= MAX_HISTORY_HOURS:
+            return JSONResponse({"error": f"hours must be more than 0 and at most {MAX_HISTORY_HOURS:g}"}, 400)
+        try:
+            return JSONResponse(await (await self._ua(s)).history(hours))
+        except CallFailed as exc:
+            return JSONResponse({"error": f"{exc.name}: {exc.doc}", "code": exc.name}, status_code=409)
+        except (OSError, TimeoutError, ConnectionError) as exc:
+            return JSONResponse({"error": f"the OPC UA server cannot be reached ({type(exc).__name__})"}, 503)
 
     async def file(self, request: Request) -> Response:
         return await self._act(request, "file")

@@ -27,6 +27,7 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from asyncua.ua.uaerrors import UaStatusCodeError
 
 from uacell.web.discovery import Cell, discover, list_files
+from uacell.web.history import cell_history
 
 log = logging.getLogger(__name__)
 
@@ -371,6 +372,10 @@ class UaSession:
         if self.client is None or self.status != "connected":
             raise CallFailed(ua.StatusCodes.BadServerNotConnected, "not connected")
         return self.client
+
+    async def history(self, hours: float) -> dict[str, Any]:
+        """The history view of the last ``hours`` (uacell.web.history), through this session."""
+        return await cell_history(self._require(), self.cell, hours)
 
     # what the page sees ----------------------------------------------------------------------
 

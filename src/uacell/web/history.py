@@ -1,0 +1,186 @@
+"""The HMI's history view: per PackML unit a state timeline, trends of speed and counts and the OEE
+figures; per robot the timeline of its program runs. Read with HistoryRead through the web user's own
+OPC UA session (so its role applies), from the nodes the HMI's discovery found (docs/web.md).
+
+``timeline`` and ``program_runs`` are pure: they turn value changes into segments.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+from asyncua import Client, ua
+
+from uacell.web.discovery import Cell
+
+Change = tuple[float, Any]  # (seconds since the epoch, value or None when the status was bad)
+MAX_HOURS = 168.0
+_UNIT_MACHINES = ("BaseStateMachine", "MachineState", "ExecuteState")
+_OEE = ("Availability", "Performance", "Quality", "OEE", "ProcessedCount", "GoodCount")
+
+
+@dataclass(frozen=True)
+class Segment:
+    label: str
+    start: float
+    end: float
+
+    def json(self) -> dict[str, Any]:
+        return {"label": self.label, "start": self.start, "end": self.end, "seconds": self.end - self.start}
+
+
+def _value_at(changes: Sequence[Change], t: float) -> Any:
+    value = None
+    for when, v in changes:
+        if when > t:
+            break
+        value = v
+    return value
+
+
+def timeline(machines: Sequence[Sequence[Change]], start: float, end: float) -> list[Segment]:
+    """The innermost active state over time: ``machines`` outermost first, each a list of changes
+    (a machine that is not active has None). Adjacent equal states merge."""
+    times = sorted({start, *(t for m in machines for t, _ in m if start < t < end)})
+    out: list[Segment] = []
+    for k, t in enumerate(times):
+        t_end = times[k + 1] if k + 1 < len(times) else end
+        label = None
+        for m in machines:
+            v = _value_at(m, t)
+            if v is not None:
+                label = str(v)
+        if label is None:
+            continue
+        if out and out[-1].label == label and out[-1].end == t:
+            out[-1] = Segment(label, out[-1].start, t_end)
+        else:
+            out.append(Segment(label, t, t_end))
+    return out
+
+
+def program_runs(states: Sequence[Change], programs: Sequence[Change], start: float, end: float) -> list[Segment]:
+    """The spans a task control was Executing, each labelled with the program loaded when it started."""
+    runs = [s for s in timeline([states], start, end) if s.label == "Executing"]
+    return [Segment(str(_value_at(programs, r.start) or "(no program)"), r.start, r.end) for r in runs]
+
+
+def _text(value: Any) -> Any:
+    if isinstance(value, ua.LocalizedText):
+        return value.Text
+    if isinstance(value, list):  # PackMLCountDataType[]: the sum of the counts
+        return sum(int(getattr(c, "Count", 0) or 0) for c in value)
+    return value
+
+
+def _seconds(t: datetime) -> float:
+    return (t if t.tzinfo else t.replace(tzinfo=UTC)).timestamp()
+
+
+async def _history(client: Client, node: ua.NodeId, start: datetime, end: datetime) -> list[Change]:
+    """Every value of ``node`` from ``start`` to ``end``, led by the last one before ``start``."""
+    out: list[Change] = []
+
+    async def read(details: ua.ReadRawModifiedDetails, cp: bytes | None) -> ua.HistoryReadResult:
+        params = ua.HistoryReadParameters()
+        params.HistoryReadDetails = details
+        params.TimestampsToReturn = ua.TimestampsToReturn.Source
+        params.ReleaseContinuationPoints = False
+        params.NodesToRead = [ua.HistoryReadValueId(NodeId=node, ContinuationPoint=cp)]
+        (result,) = await client.uaclient.history_read(params)
+        return result
+
+    def raw(s: datetime | None, e: datetime | None, count: int) -> ua.ReadRawModifiedDetails:
+        d = ua.ReadRawModifiedDetails()
+        d.IsReadModified = False
+        d.StartTime = s or ua.get_win_epoch()
+        d.EndTime = e or ua.get_win_epoch()
+        d.NumValuesPerNode = count
+        d.ReturnBounds = False
+        return d
+
+    before = await read(raw(None, start, 1), None)
+    values = list(before.HistoryData.DataValues or []) if before.StatusCode.is_good() else []
+    cp: bytes | None = None
+    while True:
+        res = await read(raw(start, end, 0), cp)
+        if not res.StatusCode.is_good():
+            break
+        values += res.HistoryData.DataValues or []
+        cp = res.ContinuationPoint
+        if not cp:
+            break
+    for dv in values:
+        t = dv.SourceTimestamp or dv.ServerTimestamp
+        if t is None:
+            continue
+        good = dv.StatusCode is None or dv.StatusCode.is_good()
+        out.append((max(_seconds(t), _seconds(start)), _text(dv.Value.Value) if good and dv.Value else None))
+    return out
+
+
+def _trend(changes: Sequence[Change]) -> list[list[float]]:
+    return [[t, float(v)] for t, v in changes if isinstance(v, (int, float)) and not isinstance(v, bool)]
+
+
+async def unit_history(client: Client, cell: Cell, name: str, start: datetime, end: datetime) -> dict[str, Any]:
+    s, e = _seconds(start), _seconds(end)
+    machines = []
+    for m in _UNIT_MACHINES:
+        node = cell.variables.get(f"{name}/{m}/CurrentState")
+        machines.append(await _history(client, node, start, end) if node is not None else [])
+    trends = {}
+    for key in ("Status/MachSpeed", "Status/CurMachSpeed", "Admin/ProdProcessedCount", "Admin/ProdDefectiveCount"):
+        node = cell.variables.get(f"{name}/{key}")
+        if node is not None:
+            trends[key.split("/")[1]] = _trend(await _history(client, node, start, end))
+    oee: dict[str, Any] = {}
+    base = next((ua.NodeId.from_string(n) for n, k in cell.machines.items() if k == f"{name}/BaseStateMachine"), None)
+    if base is not None:
+        unit = await client.get_node(base).get_parent()
+        if unit is not None:
+            try:
+                folder = await unit.get_child(f"{base.NamespaceIndex}:OEE")
+                for figure in _OEE:
+                    node = await folder.get_child(f"{base.NamespaceIndex}:{figure}")
+                    oee[figure] = await node.read_value()
+                oee["trend"] = _trend(
+                    await _history(client, (await folder.get_child(f"{base.NamespaceIndex}:OEE")).nodeid, start, end)
+                )
+            except ua.UaError:
+                oee = {}
+    return {
+        "name": name,
+        "timeline": [seg.json() for seg in timeline(machines, s, e)],
+        "trends": trends,
+        "oee": oee,
+    }
+
+
+async def robot_history(client: Client, cell: Cell, name: str, start: datetime, end: datetime) -> dict[str, Any]:
+    s, e = _seconds(start), _seconds(end)
+    tasks = []
+    for node_text, key in sorted(cell.machines.items(), key=lambda kv: kv[1]):
+        if not (key.startswith(f"{name}/") and node_text.endswith(".TaskControlStateMachine")):
+            continue
+        state = cell.variables.get(f"{key}/CurrentState")
+        program = cell.variables.get(f"{key}/TaskProgramName")
+        states = await _history(client, state, start, end) if state is not None else []
+        programs = await _history(client, program, start, end) if program is not None else []
+        tasks.append({"task": key, "runs": [r.json() for r in program_runs(states, programs, s, e)]})
+    return {"name": name, "tasks": tasks}
+
+
+async def cell_history(client: Client, cell: Cell, hours: float, now: datetime | None = None) -> dict[str, Any]:
+    end = now or datetime.now(UTC)
+    start = end - timedelta(hours=hours)
+    units = [await unit_history(client, cell, u["name"], start, end) for u in cell.layout.get("units", [])]
+    robots = [await robot_history(client, cell, r["name"], start, end) for r in cell.layout.get("robots", [])]
+    # The view starts where history does (a server kept for less than ``hours`` fills the width).
+    known = [seg["start"] for u in units for seg in u["timeline"]]
+    known += [points[0][0] for u in units for points in u["trends"].values() if points]
+    first = max(start.timestamp(), min(known, default=start.timestamp()))
+    return {"start": first, "end": end.timestamp(), "hours": hours, "units": units, "robots": robots}

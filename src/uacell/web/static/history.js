@@ -1,0 +1,175 @@
+// The history view (docs/web.md, "History"): per PackML unit a state timeline, speed and count
+// trends and the OEE figures; per robot the program runs. Plain SVG, data from GET /api/history.
+"use strict";
+(() => {
+  const SVGNS = "http://www.w3.org/2000/svg";
+  const W = 1000;
+  const COLORS = {
+    Execute: "#2e7d32", Executing: "#2e7d32",
+    Stopped: "#c62828", Aborted: "#c62828", Aborting: "#e57373", Stopping: "#e57373", Clearing: "#ef9a9a",
+    Held: "#f9a825", Holding: "#fbc02d", Unholding: "#fdd835",
+    Suspended: "#ef6c00", Suspending: "#fb8c00", Unsuspending: "#ffa726",
+    Idle: "#1565c0", Resetting: "#42a5f5", Starting: "#64b5f6", Complete: "#5c6bc0", Completing: "#7986cb",
+  };
+  const $ = (id) => document.getElementById(id);
+
+  function el(tag, attrs = {}, text) {
+    const e = document.createElement(tag);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+    if (text !== undefined) e.textContent = text;
+    return e;
+  }
+  function svg(tag, attrs = {}) {
+    const e = document.createElementNS(SVGNS, tag);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, String(v));
+    return e;
+  }
+  const clock = (t) => new Date(t * 1000).toLocaleTimeString([], { hour: "2-digit", minute: "2-digit", second: "2-digit" });
+  function span(seconds) {
+    const s = Math.round(seconds);
+    if (s < 60) return `${s} s`;
+    if (s < 3600) return `${Math.floor(s / 60)} min ${s % 60} s`;
+    return `${Math.floor(s / 3600)} h ${Math.floor((s % 3600) / 60)} min`;
+  }
+  const pct = (x) => (typeof x === "number" ? `${(x * 100).toFixed(1)} %` : "–");
+
+  function bar(segments, range, label) {
+    const box = svg("svg", { viewBox: `0 0 ${W} 34`, class: "hist-bar", role: "img", "aria-label": label, preserveAspectRatio: "none" });
+    const x = (t) => ((t - range.start) / (range.end - range.start)) * W;
+    for (const seg of segments) {
+      const r = svg("rect", {
+        x: x(seg.start).toFixed(2), y: 2, height: 30,
+        width: Math.max(0.5, x(seg.end) - x(seg.start)).toFixed(2),
+        fill: COLORS[seg.label] || "#78909c", "data-state": seg.label,
+      });
+      const title = svg("title");
+      title.textContent = `${seg.label}: ${clock(seg.start)} to ${clock(seg.end)} (${span(seg.seconds)})`;
+      r.appendChild(title);
+      box.appendChild(r);
+    }
+    return box;
+  }
+
+  function axis(range) {
+    const row = el("div", { class: "hist-axis" });
+    row.append(el("span", {}, clock(range.start)), el("span", {}, clock(range.end)));
+    return row;
+  }
+
+  function trend(series, range, label, stepped) {
+    const box = svg("svg", { viewBox: `0 0 ${W} 120`, class: "hist-trend", role: "img", "aria-label": label, preserveAspectRatio: "none" });
+    const all = Object.values(series).flat();
+    if (!all.length) return el("p", { class: "muted" }, `${label}: no values in this range`);
+    let lo = Math.min(...all.map((p) => p[1]));
+    let hi = Math.max(...all.map((p) => p[1]));
+    if (hi === lo) { hi += 1; lo -= lo > 0 ? 1 : 0; }
+    const x = (t) => ((t - range.start) / (range.end - range.start)) * W;
+    const y = (v) => 115 - ((v - lo) / (hi - lo)) * 110;
+    const palette = ["#1565c0", "#2e7d32", "#c62828", "#6a1b9a"];
+    const legend = el("div", { class: "hist-legend" });
+    Object.entries(series).forEach(([name, points], i) => {
+      if (!points.length) return;
+      const pts = [];
+      points.forEach(([t, v], k) => {
+        if (stepped && k > 0) pts.push(`${x(t).toFixed(1)},${y(points[k - 1][1]).toFixed(1)}`);
+        pts.push(`${x(t).toFixed(1)},${y(v).toFixed(1)}`);
+      });
+      pts.push(`${W},${y(points[points.length - 1][1]).toFixed(1)}`);
+      box.appendChild(svg("polyline", { points: pts.join(" "), fill: "none", stroke: palette[i % palette.length], "stroke-width": 2, "vector-effect": "non-scaling-stroke", "data-series": name }));
+      const key = el("span", { "data-series": name }, `■ ${name} (now ${points[points.length - 1][1]})`);
+      key.style.color = palette[i % palette.length];
+      legend.appendChild(key);
+    });
+    const wrap = el("figure", { class: "hist-chart" });
+    wrap.append(el("figcaption", {}, `${label} (${lo.toFixed(0)} to ${hi.toFixed(0)})`), box, legend);
+    return wrap;
+  }
+
+  function stateTable(segments) {
+    const table = el("table", { class: "hist-states" });
+    table.appendChild(el("caption", {}, "States, newest first"));
+    const head = el("tr");
+    for (const h of ["State", "From", "To", "How long"]) head.appendChild(el("th", { scope: "col" }, h));
+    table.appendChild(head);
+    for (const seg of segments.slice().reverse().slice(0, 30)) {
+      const tr = el("tr", { "data-state": seg.label });
+      tr.append(el("td", {}, seg.label), el("td", {}, clock(seg.start)), el("td", {}, clock(seg.end)), el("td", {}, span(seg.seconds)));
+      table.appendChild(tr);
+    }
+    return table;
+  }
+
+  function unitView(u, range) {
+    const art = el("article", { class: "hist-unit", "data-unit": u.name });
+    art.appendChild(el("h3", {}, `${u.name}`));
+    const oee = el("dl", { class: "oee" });
+    for (const name of ["Availability", "Performance", "Quality", "OEE"]) {
+      const item = el("div", { "data-figure": name });
+      item.append(el("dt", {}, name), el("dd", {}, pct(u.oee[name])));
+      oee.appendChild(item);
+    }
+    art.appendChild(oee);
+    art.appendChild(el("h4", {}, "State timeline"));
+    art.append(bar(u.timeline, range, `${u.name} states`), axis(range));
+    art.appendChild(trend({ MachSpeed: u.trends.MachSpeed || [], CurMachSpeed: u.trends.CurMachSpeed || [] }, range, "Speed (packages/min)", true));
+    art.appendChild(trend({ Processed: u.trends.ProdProcessedCount || [], Defective: u.trends.ProdDefectiveCount || [] }, range, "Counts", true));
+    art.appendChild(stateTable(u.timeline));
+    return art;
+  }
+
+  function robotView(r, range) {
+    const art = el("article", { class: "hist-robot", "data-robot": r.name });
+    art.appendChild(el("h3", {}, r.name));
+    for (const t of r.tasks) {
+      art.appendChild(el("h4", {}, `${t.task}: program runs`));
+      art.append(bar(t.runs, range, `${t.task} program runs`), axis(range));
+      const list = el("ul", { class: "hist-runs" });
+      if (!t.runs.length) list.appendChild(el("li", { class: "muted" }, "no program ran in this range"));
+      for (const run of t.runs.slice().reverse().slice(0, 20)) {
+        list.appendChild(el("li", { "data-program": run.label }, `${run.label}: ${clock(run.start)} to ${clock(run.end)} (${span(run.seconds)})`));
+      }
+      art.appendChild(list);
+    }
+    return art;
+  }
+
+  async function load() {
+    const body = $("history-body");
+    if (!body) return;
+    const hours = $("history-hours").value;
+    let data;
+    try {
+      const res = await fetch(`/api/history?hours=${encodeURIComponent(hours)}`, { credentials: "same-origin" });
+      data = await res.json();
+      if (!res.ok) throw new Error(data.error || res.statusText);
+    } catch (err) {
+      body.replaceChildren(el("p", { class: "error" }, `History: ${err.message}`));
+      return;
+    }
+    const range = { start: data.start, end: data.end };
+    const parts = [...data.units.map((u) => unitView(u, range)), ...data.robots.map((r) => robotView(r, range))];
+    body.replaceChildren(...parts);
+    body.dataset.loaded = String(Date.now());
+  }
+
+  // The first load waits until the page's own OPC UA session is up (app.js opens it; a request of
+  // ours must not be the one that opens it).
+  function whenConnected(fn) {
+    const conn = $("conn");
+    if (!conn || conn.dataset.status === "connected") { fn(); return; }
+    const obs = new MutationObserver(() => {
+      if (conn.dataset.status === "connected") { obs.disconnect(); fn(); }
+    });
+    obs.observe(conn, { attributes: true, attributeFilter: ["data-status"] });
+  }
+
+  document.addEventListener("DOMContentLoaded", () => {
+    if (!$("history-body")) return;
+    $("history-hours").addEventListener("change", load);
+    $("history-refresh").addEventListener("click", load);
+    whenConnected(() => {
+      load();
+      setInterval(load, 15000);
+    });
+  });
+})();
