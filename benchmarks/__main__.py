@@ -30,6 +30,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from benchmarks.history import history_section
 from benchmarks.web import web_section
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -133,7 +134,7 @@ class Peers:
         paths = locate_models()
         self.nodeset_files = [str(paths[m.key]) for m in MODELS]
 
-    def uacell(self, cell: str = "demo", snapshot: bool = True) -> Peer:
+    def uacell(self, cell: str = "demo", snapshot: bool = True, history: bool = True) -> Peer:
         """A uacell peer; ``snapshot``: a restart, with the cell's data directory and the shared cache
         directory of address-space snapshots (the first peer of each cell writes its snapshot,
         untimed, here); else a first start, with empty directories of its own."""
@@ -145,9 +146,13 @@ class Peers:
         # A restart keeps its data directory (its certificate: no new key to generate); a first
         # start has an empty one. Peers of one cell never run at the same time.
         data = self.tmp / (f"uacell-{cell}" if snapshot else f"uacell-{cell}-{self.count}")
+        if not history:  # it runs beside a peer of the same cell with history on
+            data = data.with_name(data.name + "-no-history")
         cache = self.cache if snapshot else data / "cache"
         cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", cell]
-        return Peer(f"uacell {cell} cell", [*cmd, "--data-dir", str(data), "--cache-dir", str(cache)], port=port)
+        cmd += [] if history else ["--no-history"]
+        name = f"uacell {cell} cell" + ("" if history else " (history off)")
+        return Peer(name, [*cmd, "--data-dir", str(data), "--cache-dir", str(cache)], port=port)
 
     @property
     def cache(self) -> Path:
@@ -534,6 +539,7 @@ SECTIONS = {
     "startup": startup_section,
     "sessions": sessions_section,
     "web": web_section,
+    "history": history_section,
 }
 
 

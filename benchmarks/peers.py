@@ -55,7 +55,7 @@ async def bare_asyncua(port: int, nodesets: bool) -> None:
     await server.stop()
 
 
-async def uacell(port: int, cell: str, data_dir: str, cache_dir: str) -> None:
+async def uacell(port: int, cell: str, data_dir: str, cache_dir: str, history: bool = True) -> None:
     from pathlib import Path
 
     from benchmarks.cells import bench_cell
@@ -69,6 +69,7 @@ async def uacell(port: int, cell: str, data_dir: str, cache_dir: str) -> None:
     config.server.data_dir = Path(data_dir)
     config.server.cache_dir = Path(cache_dir) if cache_dir else None
     config.packml.acting_time = 0.0
+    config.history.enabled = history
     app = UacellServer(config, parts=bench_cell(cell))
     await app.setup()
     _entry.resume_gc()  # as `uacell serve` does
@@ -86,6 +87,7 @@ def main() -> int:
     parser.add_argument("--cell", default="demo")
     parser.add_argument("--data-dir", default="")
     parser.add_argument("--cache-dir", default="")
+    parser.add_argument("--no-history", action="store_true", help="[history] enabled = false")
     args = parser.parse_args()
     if args.kind == "asyncua":
         asyncio.run(bare_asyncua(args.port, args.nodesets))
@@ -93,7 +95,7 @@ def main() -> int:
         from uacell import _entry
 
         _entry.pause_gc()  # as `uacell serve` does, from its first line
-        asyncio.run(uacell(args.port, args.cell, args.data_dir, args.cache_dir))
+        asyncio.run(uacell(args.port, args.cell, args.data_dir, args.cache_dir, not args.no_history))
     return 0
 
 

@@ -71,7 +71,7 @@ def test_oee_over_the_last_hour_only() -> None:
     assert (f.processed, f.good) == (50, 49)
     assert f.performance == pytest.approx(50 / (2.0 * 2040 / 60))
     values = unit.values()
-    assert values["OEE/Availability"] == round(2040 / 2340, 4)
+    assert values["OEE/Availability"] == round(2040 / 2340, 3)
     assert values["OEE/ProcessedCount"] == 50
 
 

@@ -29,6 +29,10 @@ class Sample:
     data: bytes  # the encoded Variant (values) or fields (events)
 
 
+# A sample as queued and written: (node, time, seq, kind, status, etype, data).
+Row = tuple[str, int, int, int, int, str, bytes]
+
+
 @dataclass(frozen=True)
 class Query:
     node: str
@@ -42,7 +46,7 @@ class Query:
 
 
 class Backend(Protocol):
-    def write(self, samples: Sequence[Sample]) -> None: ...
+    def write(self, rows: Sequence[Row]) -> None: ...
     def read(self, q: Query) -> list[Sample]: ...
     def max_seq(self) -> int: ...
     def prune(self, before: int, max_bytes: int) -> int: ...
@@ -103,14 +107,11 @@ class SqliteBackend:
             getattr(self, "_all", []).append(con)
         return con
 
-    def write(self, samples: Sequence[Sample]) -> None:
+    def write(self, rows: Sequence[Row]) -> None:
         con = self._con()
         con.execute("BEGIN")
         try:
-            con.executemany(
-                f"INSERT INTO samples ({_COLUMNS}) VALUES (?, ?, ?, ?, ?, ?, ?)",
-                [(s.node, s.time, s.seq, s.kind, s.status, s.etype, s.data) for s in samples],
-            )
+            con.executemany(f"INSERT INTO samples ({_COLUMNS}) VALUES (?, ?, ?, ?, ?, ?, ?)", rows)
         except BaseException:
             con.execute("ROLLBACK")
             raise

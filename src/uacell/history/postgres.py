@@ -11,7 +11,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-from uacell.history.backends import _COLUMNS, Query, Sample, _where
+from uacell.history.backends import _COLUMNS, Query, Row, Sample, _where
 
 
 class PostgresBackend:
@@ -45,13 +45,10 @@ class PostgresBackend:
                 self._all.append(con)
         return con
 
-    def write(self, samples: Sequence[Sample]) -> None:
+    def write(self, rows: Sequence[Row]) -> None:
         con = self._con()
         with con.transaction(), con.cursor() as cur:
-            cur.executemany(
-                f"INSERT INTO {self.table} ({_COLUMNS}) VALUES (%s, %s, %s, %s, %s, %s, %s)",
-                [(s.node, s.time, s.seq, s.kind, s.status, s.etype, s.data) for s in samples],
-            )
+            cur.executemany(f"INSERT INTO {self.table} ({_COLUMNS}) VALUES (%s, %s, %s, %s, %s, %s, %s)", rows)
 
     def read(self, q: Query) -> list[Sample]:
         where, args = _where(q, "%s")

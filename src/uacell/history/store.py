@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from uacell.history.backends import Backend, Query, Sample
+from uacell.history.backends import Backend, Query, Row, Sample
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +100,7 @@ class HistoryStore:
 
     def record(self, node: str, t: int, kind: int, status: int, etype: str, data: bytes) -> None:
         self._seq += 1
-        self._queue.put(Sample(node, t, self._seq, kind, status, etype, data))
+        self._queue.put((node, t, self._seq, kind, status, etype, data))  # a Row: no object per sample
 
     def start(self) -> None:
         if self._thread is None:
@@ -125,17 +125,17 @@ class HistoryStore:
             self._write(self._drain_now())
         self.backend.close()
 
-    def _drain_now(self) -> list[Sample]:
-        out: list[Sample] = []
+    def _drain_now(self) -> list[Row]:
+        out: list[Row] = []
         while True:
             try:
                 item = self._queue.get_nowait()
             except queue.Empty:
                 return out
-            if isinstance(item, Sample):
+            if isinstance(item, tuple) and len(item) == 7:
                 out.append(item)
 
-    def _write(self, batch: Sequence[Sample]) -> None:
+    def _write(self, batch: Sequence[Row]) -> None:
         if not batch:
             return
         try:
@@ -156,17 +156,17 @@ class HistoryStore:
         next_prune = time.monotonic()
         stopping = False
         while not stopping:
-            batch: list[Sample] = []
+            batch: list[Row] = []
             waiters: list[threading.Event] = []
             item = self._queue.get()
             deadline = time.monotonic() + interval
             while True:
                 if item is _STOP:
                     stopping = True
-                elif isinstance(item, tuple) and item and item[0] is _FLUSH:
+                elif isinstance(item, tuple) and len(item) == 2 and item[0] is _FLUSH:
                     waiters.append(item[1])
                     deadline = 0.0  # commit what is queued now
-                elif isinstance(item, Sample):
+                elif isinstance(item, tuple):
                     batch.append(item)
                 left = deadline - time.monotonic()
                 if stopping or left <= 0:

@@ -386,8 +386,8 @@ class PackMLUnit:
         return self.oee.figures(self._last_account, wall)
 
     def oee_values(self) -> dict[str, float | int]:
-        """The OEE variables under the unit (uacell's namespace), figures rounded to 4 decimals."""
-        return {k: round(v, 4) if isinstance(v, float) else v for k, v in self.oee_figures().values().items()}
+        """The OEE variables under the unit (uacell's namespace), figures rounded to 3 decimals (0.1 %)."""
+        return {k: round(v, 3) if isinstance(v, float) else v for k, v in self.oee_figures().values().items()}
 
     # --- state-machine commands (decisions 22-25) ---------------------------------------------
 

@@ -87,7 +87,9 @@ class OEE:
         self.window = window_hours * 3600.0
         self.shifts = shifts
         self._spans: deque[list[float]] = deque()  # [start, end, category], merged when adjacent
-        self._counts: deque[tuple[float, int, int]] = deque()
+        self._counts: deque[tuple[float, int, int]] = deque()  # the reports at or after the window's start
+        self._processed = 0  # sums of the reports in _counts (figures() runs on every publish: O(1))
+        self._defective = 0
 
     def span(self, start: float, end: float, mode: int, state: str) -> None:
         """The unit was in ``mode``/``state`` from ``start`` to ``end`` (seconds, the model's clock)."""
@@ -102,6 +104,8 @@ class OEE:
 
     def count(self, at: float, processed: int, defective: int) -> None:
         self._counts.append((at, processed, defective))
+        self._processed += processed
+        self._defective += defective
 
     def window_start(self, now: float, wall: datetime | None = None) -> float:
         if self.shifts and wall is not None:
@@ -109,12 +113,13 @@ class OEE:
         return now - self.window
 
     def figures(self, now: float, wall: datetime | None = None) -> Figures:
-        lo = self.window_start(now, wall)
-        keep_from = min(lo, now - self.window)
-        while self._spans and self._spans[0][1] <= keep_from:
+        lo = self.window_start(now, wall)  # only ever moves forward: what falls out of it is dropped
+        while self._spans and self._spans[0][1] <= lo:
             self._spans.popleft()
-        while self._counts and self._counts[0][0] < keep_from:
-            self._counts.popleft()
+        while self._counts and self._counts[0][0] < lo:
+            _, p, d = self._counts.popleft()
+            self._processed -= p
+            self._defective -= d
         planned = execute = 0.0
         for start, end, cat in self._spans:
             a, b = max(start, lo), min(end, now)
@@ -124,8 +129,7 @@ class OEE:
                 planned += b - a
             if cat == RUN:
                 execute += b - a
-        processed = sum(p for t, p, _ in self._counts if lo <= t <= now)
-        defective = sum(d for t, _, d in self._counts if lo <= t <= now)
+        processed, defective = self._processed, self._defective
         good = max(0, processed - defective)
         availability = execute / planned if planned > 0 else 0.0
         expected = self.design_speed * execute / 60.0

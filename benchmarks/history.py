@@ -1,0 +1,278 @@
+"""The history section of ``make bench`` (docs/performance.md, "History").
+
+- SetMachSpeed calls/s with history on vs off (the same demo cell, side by side, rotated rounds);
+- 5,000 values/s recorded through the history service (encoding, queue, writer thread, SQLite): the
+  process's CPU time over the wall time, as a fraction of one core;
+- a raw read of 1,000,000 values through continuation points over OPC UA (asyncua client): none
+  repeated, none missing;
+- store growth per PackML unit per day: the demo Filler1 producing (Execute) for a while, the bytes
+  and rows history.sqlite gained, scaled to a day.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import tempfile
+import time
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from benchmarks.__main__ import Peers, Report
+
+READ_VALUES = 1_000_000
+INGEST_RATE = 5_000
+
+
+def history_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
+    from benchmarks.__main__ import SET_SPEED, client, median, rotated, running
+
+    print("== history (SetMachSpeed with history on vs off, ingest CPU, 1,000,000 values, growth)", flush=True)
+    raw: dict[str, Any] = {}
+    report.raw["history"] = raw
+    on, off = peers.uacell(), peers.uacell(history=False)
+    with running(on, off):
+        for r in range(args.rounds):
+            for p in rotated([on, off], r):
+                spec = {"mode": "calls", "sessions": 8, "seconds": args.seconds, "steps": SET_SPEED}
+                raw.setdefault(p.name, []).append(client(p.endpoint, spec))
+    ratio = median([a["rate"] / b["rate"] for a, b in zip(raw[on.name], raw[off.name], strict=True)])
+    report.add(
+        "SetMachSpeed calls/s, 8 sessions, history on",
+        f"{median([x['rate'] for x in raw[on.name]]):.0f}/s",
+        f"history off {median([x['rate'] for x in raw[off.name]]):.0f}/s",
+        ratio,
+        ">= 0.95x",
+        lambda x: x >= 0.95,
+    )
+    seconds = 3.0 if args.quick else 10.0
+    cpu = asyncio.run(ingest_cpu(INGEST_RATE, seconds))
+    raw["ingest"] = cpu
+    report.add(
+        f"history ingest {INGEST_RATE} values/s, CPU of one core",
+        f"{cpu['core_fraction'] * 100:.1f} % ({cpu['values']} values in {cpu['seconds']:.1f} s)",
+        f"20 % of one core (idle server {cpu['idle_core_fraction'] * 100:.1f} % besides)",
+        cpu["core_fraction"] / 0.20,
+        "<= 1.00x",
+        lambda x: x <= 1.0,
+    )
+    read = asyncio.run(read_million(READ_VALUES))
+    raw["read"] = read
+    report.add(
+        f"raw HistoryRead of {READ_VALUES:,} values through continuation points",
+        f"{read['values']:,} values, {read['pages']} pages, {read['rate']:.0f} values/s,"
+        f" {read['duplicates']} duplicates, {read['gaps']} gaps",
+        "every value once, in order",
+        1.0 if read["exact"] else 0.0,
+        "== 1.00x",
+        lambda x: x == 1.0,
+    )
+    growth = asyncio.run(store_growth(20.0 if args.quick else 60.0))
+    raw["growth"] = growth
+    report.add(
+        "history store growth, one PackML unit producing",
+        f"{growth['mb_per_day']:.1f} MB/day ({growth['rows_per_day']:,.0f} rows/day)",
+        f"measured over {growth['seconds']:.0f} s",
+        None,
+    )
+
+
+async def _server(data: Path, **history: Any) -> Any:
+    from benchmarks.__main__ import free_port
+    from uacell.config import Config
+    from uacell.server import UacellServer
+
+    config = Config()
+    config.server.port = free_port()
+    config.server.data_dir = data
+    config.packml.acting_time = 0.05
+    for key, value in history.items():
+        setattr(config.history, key, value)
+    app = UacellServer(config)
+    await app.setup()
+    await app.start()
+    await app.snapshot_written()  # its CPU (a thread, after a first start) is not history's
+    return app
+
+
+async def ingest_cpu(rate: int, seconds: float) -> dict[str, Any]:
+    """Values recorded through the service's own path (the DataValue the address space hands its
+    change callback: encoded, queued, committed by the writer thread). The figure is the process's CPU
+    time while ingesting minus its CPU time over as long a time idle (the served demo cell's own work),
+    over the wall time."""
+    from asyncua import ua
+
+    with tempfile.TemporaryDirectory(prefix="uacell-bench-history-") as tmp:
+        app = await _server(Path(tmp) / "data")
+        try:
+            service = app.history
+            assert service is not None
+            await service.store.flush()
+            keys = [f"ns=9;s=bench.{i}" for i in range(50)]
+            now = datetime.now(UTC)
+            values = [
+                ua.DataValue(ua.Variant(float(i), ua.VariantType.Double), SourceTimestamp=now) for i in range(rate)
+            ]
+            batch = rate // 100
+
+            async def paced(ingest: bool) -> tuple[float, float, int]:
+                t0, c0 = time.perf_counter(), time.process_time()
+                sent = tick = 0
+                while time.perf_counter() - t0 < seconds:
+                    if ingest:
+                        for k in range(batch):
+                            service._record_value(keys[k % len(keys)], values[(sent + k) % rate])
+                        sent += batch
+                    tick += 1
+                    # 100 batches a second, paced against the clock (not by sleeping a fixed time)
+                    await asyncio.sleep(max(0.0, t0 + tick / 100 - time.perf_counter()))
+                await service.store.flush()
+                return time.perf_counter() - t0, time.process_time() - c0, sent
+
+            idle_wall, idle_cpu, _ = await paced(False)
+            wall, cpu, sent = await paced(True)
+            idle_wall2, idle_cpu2, _ = await paced(False)  # before and after: the mean idle rate
+        finally:
+            await app.stop()
+    idle_wall, idle_cpu = idle_wall + idle_wall2, idle_cpu + idle_cpu2
+    extra = cpu - idle_cpu * wall / idle_wall
+    return {
+        "values": sent,
+        "seconds": wall,
+        "cpu_seconds": cpu,
+        "idle_cpu_seconds": idle_cpu,
+        "idle_core_fraction": idle_cpu / idle_wall,
+        "core_fraction": max(0.0, extra) / wall,
+        "rate": sent / wall,
+    }
+
+
+async def read_million(count: int) -> dict[str, Any]:
+    from asyncua import Client, ua
+    from asyncua.ua.ua_binary import variant_to_binary
+
+    from uacell.history.backends import VALUE
+    from uacell.history.service import to_micros
+
+    with tempfile.TemporaryDirectory(prefix="uacell-bench-history-") as tmp:
+        app = await _server(Path(tmp) / "data", max_values_per_request=10_000)
+        try:
+            service = app.history
+            assert service is not None
+            node = next(n for n in service.values if str(n.Identifier).endswith("Status.CurMachSpeed"))
+            key = service.values[node]
+            base = datetime.now(UTC) - timedelta(days=3)
+            for i in range(count):  # 10 values per millisecond: many share a timestamp
+                t = to_micros(base) + (i // 10) * 1000
+                service.store.record(
+                    key, t, VALUE, 0, "", variant_to_binary(ua.Variant(float(i), ua.VariantType.Double))
+                )
+                if i % 100_000 == 0:
+                    await asyncio.sleep(0)
+            await service.store.flush()
+            seen: list[float] = []
+            pages = 0
+            t0 = time.perf_counter()
+            async with Client(app.endpoint, timeout=120) as client:
+                cp: bytes | None = None
+                while True:
+                    params = ua.HistoryReadParameters()
+                    details = ua.ReadRawModifiedDetails()
+                    details.IsReadModified = False
+                    details.StartTime = base - timedelta(seconds=1)
+                    details.EndTime = base + timedelta(days=1)
+                    details.NumValuesPerNode = 0
+                    params.HistoryReadDetails = details
+                    params.TimestampsToReturn = ua.TimestampsToReturn.Source
+                    params.ReleaseContinuationPoints = False
+                    params.NodesToRead = [ua.HistoryReadValueId(NodeId=node, ContinuationPoint=cp)]
+                    (res,) = await client.uaclient.history_read(params)
+                    pages += 1
+                    seen += [dv.Value.Value for dv in res.HistoryData.DataValues]
+                    cp = res.ContinuationPoint
+                    if not cp:
+                        break
+            elapsed = time.perf_counter() - t0
+        finally:
+            await app.stop()
+    numbers = [int(v) for v in seen]
+    duplicates = len(numbers) - len(set(numbers))
+    gaps = len(set(range(count)) - set(numbers))
+    return {
+        "values": len(seen),
+        "pages": pages,
+        "seconds": elapsed,
+        "rate": len(seen) / elapsed,
+        "duplicates": duplicates,
+        "gaps": gaps,
+        "exact": numbers == list(range(count)),
+    }
+
+
+async def store_growth(seconds: float) -> dict[str, Any]:
+    """Filler1 in Execute (producing, its speed changed once a minute), the demo robot idle."""
+    from uacell.packml import EXECUTE, MACHINE
+    from uacell.packml.binding import UNITS
+
+    with tempfile.TemporaryDirectory(prefix="uacell-bench-history-") as tmp:
+        data = Path(tmp) / "data"
+        app = await _server(data)
+        try:
+            service = app.history
+            assert service is not None
+            unit = app.registry(UNITS)["Filler1"].unit
+            unit.command(MACHINE, "Reset")
+            deadline = time.monotonic() + 30
+            while unit.state != "Idle" and time.monotonic() < deadline:
+                await asyncio.sleep(0.05)
+            unit.command(EXECUTE, "Start", [])
+            while unit.state != "Execute" and time.monotonic() < deadline:
+                await asyncio.sleep(0.05)
+            await service.store.flush()
+            db = data / "history.sqlite"
+            rows0, size0 = service.store.written, _size(db)
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < seconds:
+                await asyncio.sleep(1.0)
+            await service.store.flush()
+            rows, size, elapsed = service.store.written - rows0, _size(db) - size0, time.monotonic() - t0
+            state = unit.state
+            by_node = _rows_by_node(db)
+        finally:
+            await app.stop()
+    day = 86_400 / elapsed
+    return {
+        "seconds": elapsed,
+        "rows": rows,
+        "bytes": size,
+        "rows_per_day": rows * day,
+        "mb_per_day": size * day / 1e6,
+        "state_at_end": state,
+        "rows_by_node": by_node,
+    }
+
+
+def _rows_by_node(db: Path) -> dict[str, int]:
+    import sqlite3
+
+    con = sqlite3.connect(db)
+    try:
+        rows = con.execute("SELECT node, COUNT(*) FROM samples GROUP BY node ORDER BY 2 DESC").fetchall()
+    finally:
+        con.close()
+    return {str(n): int(c) for n, c in rows}
+
+
+def _size(db: Path) -> int:
+    import sqlite3
+
+    con = sqlite3.connect(db)
+    try:
+        pages = con.execute("PRAGMA page_count").fetchall()[0][0]
+        free = con.execute("PRAGMA freelist_count").fetchall()[0][0]
+        size = con.execute("PRAGMA page_size").fetchall()[0][0]
+    finally:
+        con.close()
+    return int((pages - free) * size)
