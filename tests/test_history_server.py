@@ -6,6 +6,7 @@ from __future__ import annotations
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
 
@@ -255,3 +256,87 @@ async def test_history_read_follows_the_callers_role(app: UacellServer, client: 
     assert asked == ["operator"]
     (res,) = await history(client, raw(now() - HOUR, now() + HOUR), speed)
     assert res.StatusCode.is_good()
+
+
+async def test_alarm_events_are_kept_with_the_server_object(app: UacellServer) -> None:
+    """SimulateAlarm (engineer and above) raises EmergencyStop: its AlarmConditionType events are in the
+    Server object's history, found with an OfType filter."""
+    import dataclasses
+
+    from helpers import raw_call
+
+    from uacell.roles import Role
+
+    manager = app.server.iserver.user_manager
+    policy = manager.policy
+    manager.policy = dataclasses.replace(policy, anonymous_role=Role.ENGINEER)
+    t0 = now()
+    try:
+        async with Client(app.endpoint, timeout=30) as engineer:
+            ns = await engineer.get_namespace_index(CELL)
+            ctrl = "Robot1.Controllers.Controller1"
+            simulate = ua.NodeId(ctrl, ns), ua.NodeId(f"{ctrl}.SimulateAlarm", ns)
+            name = ua.Variant("EmergencyStop", ua.VariantType.String)
+            res = await raw_call(engineer, *simulate, name, ua.Variant(True, ua.VariantType.Boolean))
+            assert res.StatusCode.is_good(), res.StatusCode
+            assert app.history is not None
+            select = [
+                ua.SimpleAttributeOperand(BrowsePath=[ua.QualifiedName(n)])
+                for n in ("EventType", "SourceName", "ConditionName")
+            ]
+            select.append(
+                ua.SimpleAttributeOperand(BrowsePath=[ua.QualifiedName("ActiveState"), ua.QualifiedName("Id")])
+            )
+            where = ua.ContentFilter()
+            where.Elements = [
+                ua.ContentFilterElement(
+                    FilterOperator=ua.FilterOperator.OfType,
+                    FilterOperands=[ua.LiteralOperand(Value=ua.Variant(ua.NodeId(ua.ObjectIds.AlarmConditionType)))],
+                )
+            ]
+            details = ua.ReadEventDetails(StartTime=t0 - HOUR, EndTime=now() + HOUR)
+            details.Filter = ua.EventFilter(SelectClauses=select, WhereClause=where)
+            alarms: list = []
+            for _ in range(100):
+                await app.history.store.flush()
+                (res,) = await history(engineer, details, ua.NodeId(ua.ObjectIds.Server))
+                assert res.StatusCode.is_good()
+                alarms = res.HistoryData.Events
+                if alarms:
+                    break
+            assert alarms, "no alarm event kept"
+            fields = [[v.Value for v in f.EventFields] for f in alarms]
+            assert all(
+                f[:3] == [ua.NodeId(ua.ObjectIds.AlarmConditionType), "Controller1", "EmergencyStop"] for f in fields
+            )
+            assert any(f[3] is True for f in fields), fields  # raised
+            await raw_call(engineer, *simulate, name, ua.Variant(False, ua.VariantType.Boolean))
+    finally:
+        manager.policy = policy
+
+
+async def test_processed_read_codes(app: UacellServer, client: Client) -> None:
+    ns = await client.get_namespace_index(CELL)
+    speed = ua.NodeId(f"{F}.Status.MachSpeed", ns)
+
+    def processed(*aggregates: int, start: datetime | None = None) -> ua.ReadProcessedDetails:
+        d = ua.ReadProcessedDetails()
+        d.EndTime = now()
+        d.StartTime = start or d.EndTime - HOUR  # six intervals of ten minutes
+        d.ProcessingInterval = 600_000.0
+        d.AggregateType = [ua.NodeId(a) for a in aggregates]
+        return d
+
+    ids = ua.ObjectIds
+    assert app.history is not None
+    await app.history.store.flush()  # HistoryRead sees what is committed (at most flush_interval late)
+    (good,) = await history(client, processed(ids.AggregateFunction_TimeAverage), speed)
+    assert good.StatusCode.is_good() and len(good.HistoryData.DataValues) == 6
+    last = good.HistoryData.DataValues[-1]
+    assert last.Value.Value == pytest.approx(await client.get_node(speed).read_value())  # the value held since start
+    (two,) = await history(client, processed(ids.AggregateFunction_Average, ids.AggregateFunction_Count), speed)
+    assert two.StatusCode.value == ua.StatusCodes.BadAggregateListMismatch
+    (other,) = await history(client, processed(ids.AggregateFunction_Range), speed)
+    assert other.StatusCode.value == ua.StatusCodes.BadAggregateNotSupported
+    (reverse,) = await history(client, processed(ids.AggregateFunction_Average, start=now() + HOUR), speed)
+    assert reverse.StatusCode.value == ua.StatusCodes.BadHistoryOperationUnsupported

@@ -12,6 +12,9 @@ from test_web_browser import CHROMIUM, DOCS, MACHINE, TIMEOUT, Ua, UaThread, bro
 
 pytestmark = pytest.mark.skipif(not __import__("pathlib").Path(CHROMIUM).exists(), reason="Chromium is not installed")
 EXEC = f"{MACHINE}.ExecuteState"
+CTRL = "Robot1.Controllers.Controller1"
+SO = f"{CTRL}.SystemOperation.SystemOperationStateMachine"
+TC = f"{CTRL}.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
 UNIT = 'article.hist-unit[data-unit="Filler1"]'
 
 
@@ -19,7 +22,11 @@ UNIT = 'article.hist-unit[data-unit="Filler1"]'
 def serve(tmp_path_factory) -> Iterator[ServeProcess]:
     data = tmp_path_factory.mktemp("web-history") / "data"
     config = data.parent / "uacell.toml"
-    config.write_text("[packml]\nacting_time = 0.2\nmach_speed = 120.0\n[history]\nflush_interval = 0.05\n")
+    config.write_text(
+        "[packml]\nacting_time = 0.2\nmach_speed = 120.0\n"
+        "[robot]\ntime_scale = 50.0\n"
+        "[history]\nflush_interval = 0.05\n"
+    )
     sp = start_serve(data, "--config", str(config), web=True)
     sp.web = wait_for_web(sp)
     yield sp
@@ -45,8 +52,28 @@ def run_the_filler(serve: ServeProcess, thread: UaThread) -> None:
     thread.run(go())
 
 
+def run_a_program(serve: ServeProcess, thread: UaThread) -> None:
+    """Robot1 runs pick_and_place (PickAndPlace) once (CYCLE) to its end: one program run for the history."""
+
+    def ok(res: ua.CallMethodResult) -> None:
+        assert res.StatusCode.is_good() and res.OutputArguments[0].Value == 0, res
+
+    async def go() -> None:
+        async with Ua(serve.endpoint) as c:
+            ok(await c.call(SO, "GetReady"))
+            await c.wait_state(SO, "Ready")
+            for name in ("gripper", "pick_and_place"):  # the module it calls, then the program
+                ok(await c.call(TC, "LoadByName", ua.Variant(name, ua.VariantType.String)))
+            ok(await c.call(TC, "Start"))
+            await c.wait_state(TC, "Executing")
+            await c.wait_state(TC, "Ready", timeout=60.0)  # the end of the program
+
+    thread.run(go(), timeout=120.0)
+
+
 def test_history_view_shows_timeline_trends_oee_and_program_runs(browser, serve, ua_thread):  # noqa: F811
     run_the_filler(serve, ua_thread)
+    run_a_program(serve, ua_thread)
     context = browser.new_context(viewport={"width": 1280, "height": 800})
     page = context.new_page()
     errors: list[str] = []
@@ -70,7 +97,10 @@ def test_history_view_shows_timeline_trends_oee_and_program_runs(browser, serve,
         for name in ("Availability", "Performance", "Quality", "OEE")
     }
     assert all(v.endswith("%") for v in figures.values()), figures
-    assert page.locator('article.hist-robot[data-robot="Robot1"] svg.hist-bar').count() >= 1
+    robot = 'article.hist-robot[data-robot="Robot1"]'
+    page.wait_for_selector(f'{robot} li[data-program="PickAndPlace"]', timeout=TIMEOUT)
+    assert page.locator(f'{robot} svg.hist-bar rect[data-state="PickAndPlace"]').count() == 1
+    assert "PickAndPlace: " in page.inner_text(f"{robot} ul.hist-runs")
     page.locator("#history").screenshot(path=str(DOCS / "web-history.png"))
     # a phone: nothing wider than the screen
     page.set_viewport_size({"width": 390, "height": 844})

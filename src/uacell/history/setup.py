@@ -24,12 +24,7 @@ from uacell.history.store import HistoryStore, StoreSettings
 log = logging.getLogger(__name__)
 
 _A = ua.AttributeIds
-_HIERARCHICAL = {
-    ua.ObjectIds.HasComponent,
-    ua.ObjectIds.HasProperty,
-    ua.ObjectIds.Organizes,
-    ua.ObjectIds.HasOrderedComponent,
-}
+_HAS_TYPE_DEFINITION = ua.NodeId(ua.ObjectIds.HasTypeDefinition)
 SQLITE_FILE = "history.sqlite"
 
 
@@ -65,10 +60,11 @@ async def install_history(
         data = aspace.get(node)
         if data is None:
             return []
+        # as uacell.ua.toolkit.find_child: any forward reference but HasTypeDefinition (AddIns too)
         return [
             (r.BrowseName.Name, r.NodeId)
             for r in data.references
-            if r.IsForward and r.ReferenceTypeId.Identifier in _HIERARCHICAL and r.ReferenceTypeId.NamespaceIndex == 0
+            if r.IsForward and r.ReferenceTypeId != _HAS_TYPE_DEFINITION
         ]
 
     for role, root in parts:
