@@ -175,6 +175,7 @@ _OWN: dict[str, type[Any]] = {
     "history": HistoryConfig,
 }
 _PATHS = {"data_dir", "file", "audit_file", "cache_dir"}
+_ZERO_MEANS_NO_BOUND = {"max_age_days", "max_mb"}  # [history]: 0 keeps history forever / unbounded
 
 
 class Config:
@@ -252,6 +253,10 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
             raise ConfigError(f"{name}: must be a positive integer")
         return value
     if isinstance(default, float):
+        if key in _ZERO_MEANS_NO_BOUND and isinstance(value, int | float) and not isinstance(value, bool):
+            if value < 0:
+                raise ConfigError(f"{name}: must be 0 (no bound) or more")
+            return float(value)
         if not isinstance(value, int | float) or isinstance(value, bool) or value <= 0:
             raise ConfigError(f"{name}: must be a positive number")
         return float(value)
