@@ -29,6 +29,7 @@ from uacell.errors import ConfigError
 from uacell.packml.binding import UNITS
 from uacell.pki import PkiPaths
 from uacell.web.discovery import discover
+from uacell.web.hosts import HostGuard, host_name
 from uacell.web.server import start_web, trust_hmi
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
@@ -247,6 +248,7 @@ async def test_https_only_on_a_non_loopback_address(stack, tmp_path):
         status, _ = await b.get("/")
         assert status == 200
         assert "secure" in b.last_headers.get_all("set-cookie")[0].lower()
+        assert b.last_headers["strict-transport-security"] == "max-age=31536000"
         # The server listens on loopback only (anonymous: operator, meant for the local machine), the
         # HMI on the network: it takes logged-in users only.
         await b.start()
@@ -407,3 +409,52 @@ async def test_json_arguments_become_the_variants_the_method_declares():
         "01",
         None,
     ]
+
+
+async def _raw_http(port: int, request: bytes) -> tuple[int, str]:
+    """Send one hand-built HTTP/1.1 request; the status and the whole answer (headers and body)."""
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    try:
+        writer.write(request)
+        await writer.drain()
+        answer = (await asyncio.wait_for(reader.read(), 30)).decode(errors="replace")
+    finally:
+        writer.close()
+    return int(answer.split(" ", 2)[1]), answer
+
+
+async def test_a_page_under_a_rebound_host_name_gets_421_and_drives_nothing(stack):
+    """DNS rebinding: an attacker's name resolving to 127.0.0.1 reaches the port with its own Host."""
+    app, web = stack
+    port = int(web.url.rsplit(":", 1)[1].strip("/"))
+    state = await _state(app, FILLER)
+    status, answer = await _raw_http(
+        port, f"GET /api/session HTTP/1.1\r\nHost: rebind.attacker.example:{port}\r\nConnection: close\r\n\r\n".encode()
+    )
+    assert status == 421
+    assert "set-cookie" not in answer.lower() and "csrf" not in answer
+    body = b'{"key": "Filler1/MachineState/Abort", "args": []}'
+    status, _ = await _raw_http(
+        port,
+        b"POST /api/call HTTP/1.1\r\nHost: rebind.attacker.example\r\nContent-Type: application/json\r\n"
+        + f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n".encode()
+        + body,
+    )
+    assert status == 421
+    assert await _state(app, FILLER) == state
+    for name in (f"127.0.0.1:{port}", f"localhost:{port}", f"[::1]:{port}", "LOCALHOST."):
+        status, answer = await _raw_http(
+            port, f"GET /api/session HTTP/1.1\r\nHost: {name}\r\nConnection: close\r\n\r\n".encode()
+        )
+        assert status == 200, name
+        assert "uacell_session" in answer
+    status, _ = await _raw_http(port, b"GET / HTTP/1.0\r\n\r\n")
+    assert status == 421  # no Host at all: no name the HMI is served under
+
+
+async def test_host_names_are_compared_without_port_case_or_brackets():
+    guard = HostGuard(lambda *a: None, names=["hmi.plant.example"])  # type: ignore[arg-type, return-value]
+    assert host_name("HMI.Plant.Example:8443") == "hmi.plant.example"
+    assert host_name("[::1]:8080") == "::1"
+    assert guard.allows("hmi.plant.example:8080") and guard.allows("10.1.2.3:80") and guard.allows("localhost")
+    assert not guard.allows("hmi.plant.example.attacker.example") and not guard.allows("") and not guard.allows("[x")

@@ -13,7 +13,7 @@ import json
 import logging
 import secrets
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterable
 from dataclasses import dataclass, field
 from importlib import resources
 from typing import Any
@@ -25,6 +25,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from uacell.web.history import MAX_HOURS as MAX_HISTORY_HOURS
+from uacell.web.hosts import HostGuard
 from uacell.web.uasession import CallFailed, CellCache, Credentials, UaSession, UnknownKey
 
 log = logging.getLogger(__name__)
@@ -61,6 +62,7 @@ class WebApp:
         https: bool = False,
         idle_timeout: float = IDLE_TIMEOUT,
         anonymous: bool = True,
+        hosts: Iterable[str] = (),
     ) -> None:
         self.url = url
         self.credentials = credentials
@@ -75,7 +77,7 @@ class WebApp:
         self._reaper: asyncio.Task[None] | None = None
         self._ending: set[asyncio.Task[None]] = set()
         static = _static_dir()
-        self.app = Starlette(
+        routes = Starlette(
             routes=[
                 Route("/", self.index),
                 Route("/api/session", self.session_info),
@@ -90,6 +92,8 @@ class WebApp:
                 Mount("/static", StaticFiles(directory=static), name="static"),
             ]
         )
+        # Only the names the HMI is served under (loopback names, IP addresses, ``hosts``): DNS rebinding.
+        self.app = HostGuard(routes, names=hosts, https=https)
         self._index = f"{static}/index.html"
 
     # sessions --------------------------------------------------------------------------------

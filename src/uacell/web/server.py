@@ -45,6 +45,7 @@ from uacell.pki import (
 from uacell.roles import is_loopback
 from uacell.users import atomic_write
 from uacell.web.app import WebApp
+from uacell.web.hosts import machine_names
 from uacell.web.uasession import APPLICATION_URI, Credentials
 
 log = logging.getLogger(__name__)
@@ -191,7 +192,7 @@ async def start_web(
     # Anonymous visitors get the server's anonymous role, which on a loopback-only server is meant for
     # the local machine: an HMI on the network then takes logged-in users only.
     anonymous = not https or not is_loopback(urlparse(server_url).hostname or "")
-    web = WebApp(server_url, credentials, https=https, anonymous=anonymous)
+    web = WebApp(server_url, credentials, https=https, anonymous=anonymous, hosts=(host, *machine_names()))
     sock = _bind(host, port)
     config = uvicorn.Config(
         web.app,
