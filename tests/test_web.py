@@ -29,7 +29,7 @@ from uacell.errors import ConfigError
 from uacell.packml.binding import UNITS
 from uacell.pki import PkiPaths
 from uacell.web.discovery import discover
-from uacell.web.hosts import HostGuard, host_name
+from uacell.web.guards import MAX_BODY, HostGuard, host_name
 from uacell.web.server import start_web, trust_hmi
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
@@ -458,3 +458,31 @@ async def test_host_names_are_compared_without_port_case_or_brackets():
     assert host_name("[::1]:8080") == "::1"
     assert guard.allows("hmi.plant.example:8080") and guard.allows("10.1.2.3:80") and guard.allows("localhost")
     assert not guard.allows("hmi.plant.example.attacker.example") and not guard.allows("") and not guard.allows("[x")
+
+
+async def test_a_body_over_the_cap_is_refused_before_it_is_read_or_parsed(stack):
+    _app, web = stack
+    port = int(web.url.rsplit(":", 1)[1].strip("/"))
+    b = Browser(web.url)
+    await b.start()
+    head = (
+        f"POST /api/call HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nCookie: uacell_session={b.cookie()}\r\n"
+        f"X-CSRF-Token: {b.csrf}\r\nContent-Type: application/json\r\nConnection: close\r\n"
+    )
+    # 200 MB announced, a few bytes sent: the answer comes at once, from the header alone.
+    status, answer = await _raw_http(port, (head + "Content-Length: 200000000\r\n\r\n{").encode())
+    assert status == 413 and f"larger than {MAX_BODY} bytes" in answer
+    # No length announced: the chunks are counted as they arrive and refused past the cap.
+    # (MAX_BODY + 1 bytes in all: the server has read everything when it answers, so no reset.)
+    sizes = [1_000_000] * (MAX_BODY // 1_000_000) + [MAX_BODY % 1_000_000 + 1]
+    chunks = b"".join(b"%x\r\n%s\r\n" % (n, b"x" * n) for n in sizes) + b"0\r\n\r\n"
+    status, answer = await _raw_http(port, (head + "Transfer-Encoding: chunked\r\n\r\n").encode() + chunks)
+    assert status == 413
+    # Under the cap, chunked or not, the request reaches the route (here: refused as not JSON).
+    small = b'{"key": "Filler1/MachineState/Reset", "args": [1'
+    status, answer = await _raw_http(port, (head + f"Content-Length: {len(small)}\r\n\r\n").encode() + small)
+    assert status == 400 and "must be JSON" in answer
+    status, answer = await _raw_http(
+        port, (head + "Transfer-Encoding: chunked\r\n\r\n").encode() + b"%x\r\n%s\r\n0\r\n\r\n" % (len(small), small)
+    )
+    assert status == 400 and "must be JSON" in answer

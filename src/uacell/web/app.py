@@ -24,8 +24,8 @@ from starlette.responses import FileResponse, JSONResponse, Response, StreamingR
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
+from uacell.web.guards import HostGuard
 from uacell.web.history import MAX_HOURS as MAX_HISTORY_HOURS
-from uacell.web.hosts import HostGuard
 from uacell.web.uasession import CallFailed, CellCache, Credentials, UaSession, UnknownKey
 
 log = logging.getLogger(__name__)

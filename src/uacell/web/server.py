@@ -45,7 +45,7 @@ from uacell.pki import (
 from uacell.roles import is_loopback
 from uacell.users import atomic_write
 from uacell.web.app import WebApp
-from uacell.web.hosts import machine_names
+from uacell.web.guards import machine_names
 from uacell.web.uasession import APPLICATION_URI, Credentials
 
 log = logging.getLogger(__name__)
