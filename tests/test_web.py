@@ -400,6 +400,11 @@ async def test_json_arguments_become_the_variants_the_method_declares():
         (arg("Mode", ua.ObjectIds.Int32), 1.5),
         (arg("Active", ua.ObjectIds.Boolean), "yes"),
         (arg("Modes", ua.ObjectIds.Int32, 1), 3),
+        (arg("Mode", ua.ObjectIds.Int32), 1e30),
+        (arg("Mode", ua.ObjectIds.Int32), 2**31),
+        (arg("Count", ua.ObjectIds.UInt32), -1),
+        (arg("Mode", ua.ObjectIds.Int64), float("inf")),
+        (arg("Speed", ua.ObjectIds.Float), 1e39),
     ):
         with pytest.raises(ValueError, match=bad[0].Name):
             to_variant(*bad)
@@ -486,3 +491,30 @@ async def test_a_body_over_the_cap_is_refused_before_it_is_read_or_parsed(stack)
         port, (head + "Transfer-Encoding: chunked\r\n\r\n").encode() + b"%x\r\n%s\r\n0\r\n\r\n" % (len(small), small)
     )
     assert status == 400 and "must be JSON" in answer
+
+
+async def test_malformed_inputs_get_a_plain_4xx_and_change_nothing(stack):
+    app, web = stack
+    b = Browser(web.url)
+    await b.start()
+    state = await _state(app, FILLER)
+    status, answer = await b.post("/api/call", {"key": "Filler1/SetUnitMode", "args": [1e30]})
+    assert status == 400 and "outside -2147483648..2147483647 (Int32)" in answer["error"]
+    deep = (
+        json.dumps({"key": "Filler1/SetMachSpeed", "args": [60.0]})[:-1]
+        + ', "x": '
+        + "[" * 100_000
+        + "]" * 100_000
+        + "}"
+    )
+    port = int(web.url.rsplit(":", 1)[1].strip("/"))
+    status, text = await _raw_http(
+        port,
+        (
+            f"POST /api/call HTTP/1.1\r\nHost: 127.0.0.1\r\nCookie: uacell_session={b.cookie()}\r\n"
+            f"X-CSRF-Token: {b.csrf}\r\nContent-Type: application/json\r\nConnection: close\r\n"
+            f"Content-Length: {len(deep)}\r\n\r\n{deep}"
+        ).encode(),
+    )
+    assert status == 400 and "nested too deeply" in text
+    assert await _state(app, FILLER) == state

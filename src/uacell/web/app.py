@@ -178,6 +178,8 @@ class WebApp:
             body = await request.json()
         except (ValueError, UnicodeDecodeError):
             return JSONResponse({"error": "the request body must be JSON"}, status_code=400)
+        except RecursionError:
+            return JSONResponse({"error": "the request body is nested too deeply"}, status_code=400)
         if not isinstance(body, dict):
             return JSONResponse({"error": "the request body must be a JSON object"}, status_code=400)
         return s, body

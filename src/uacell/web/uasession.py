@@ -139,12 +139,15 @@ def _scalar(argument: ua.Argument, value: Any) -> Any:
             if not isinstance(value, bool):
                 raise ValueError
             return value
-        if vt in (ua.VariantType.Float, ua.VariantType.Double):
-            return float(value)
-        if vt.name.startswith(("Int", "UInt", "SByte", "Byte")) and vt != ua.VariantType.ByteString:
-            if isinstance(value, bool) or float(value) != int(float(value)):
+        if vt == ua.VariantType.Float:
+            single = float(value)
+            if not abs(single) <= FLOAT_MAX:  # also NaN: what a Float cannot hold is refused here
                 raise ValueError
-            return int(float(value))
+            return single
+        if vt == ua.VariantType.Double:
+            return float(value)
+        if vt.name in _INT_RANGES:
+            return _whole(vt.name, value)
         if vt == ua.VariantType.String:
             return str(value)
         if vt == ua.VariantType.LocalizedText:
@@ -158,10 +161,40 @@ def _scalar(argument: ua.Argument, value: Any) -> Any:
             raise ValueError
         return _structure(cls, value)
     except (ValueError, TypeError, ua.UaError) as exc:
-        raise ValueError(f"{name}: {value!r} is not a valid {vt.name}") from exc
+        reason = str(exc) if isinstance(exc, ValueError) and str(exc) else f"{value!r} is not a valid {vt.name}"
+        raise ValueError(f"{name}: {reason}") from exc
 
 
-_INTS = {"SByte", "Byte", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64"}
+FLOAT_MAX = 3.4028234663852886e38  # the largest finite single-precision number
+
+_INT_RANGES = {
+    name: (-(2 ** (bits - 1)), 2 ** (bits - 1) - 1) if signed else (0, 2**bits - 1)
+    for name, bits, signed in (
+        ("SByte", 8, True),
+        ("Byte", 8, False),
+        ("Int16", 16, True),
+        ("UInt16", 16, False),
+        ("Int32", 32, True),
+        ("UInt32", 32, False),
+        ("Int64", 64, True),
+        ("UInt64", 64, False),
+    )
+}
+
+
+def _whole(type_name: str, item: Any) -> int:
+    """A JSON number as a whole number that fits ``type_name`` (ValueError names the range)."""
+    low, high = _INT_RANGES[type_name]
+    try:
+        whole = int(item) if isinstance(item, int) else int(float(item))
+        fits = not isinstance(item, bool) and float(item) == whole
+    except (ValueError, TypeError, OverflowError):
+        fits = False
+    if not fits:
+        raise ValueError(f"{item!r} is not a whole number")
+    if not low <= whole <= high:
+        raise ValueError(f"{item!r} is outside {low}..{high} ({type_name})")
+    return whole
 
 
 def _structure(cls: type, value: dict[str, Any]) -> Any:
@@ -178,10 +211,8 @@ def _structure(cls: type, value: dict[str, Any]) -> Any:
 
 def _field(type_name: str, item: Any) -> Any:
     base = type_name.rsplit(".", 1)[-1].strip("'\"")
-    if base in _INTS:
-        if isinstance(item, bool) or float(item) != int(float(item)):
-            raise ValueError(f"{item!r} is not a whole number")
-        return int(float(item))
+    if base in _INT_RANGES:
+        return _whole(base, item)
     if base in ("Float", "Double"):
         return float(item)
     if base == "Boolean":
