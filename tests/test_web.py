@@ -101,7 +101,7 @@ class Browser:
         return status, answer
 
     def cookie(self) -> str:
-        return next(c.value for c in self.jar if c.name == "uacell_session")
+        return next(c.value for c in self.jar if c.name.startswith(("uacell_", "__Host-uacell_")))
 
 
 async def _state(app, machine: str) -> str:
@@ -179,7 +179,7 @@ async def test_login_rotates_the_session_and_keeps_the_password_out_of_logs(stac
     assert "web login of otto" in caplog.text
     # The anonymous session is gone: its cookie is refused as expired.
     stale = Browser(web.url)
-    stale.opener.addheaders = [("Cookie", f"uacell_session={anonymous}")]
+    stale.opener.addheaders = [("Cookie", f"{web.web.cookie}={anonymous}")]
     status, answer = await stale.post("/api/call", {"key": "Filler1/MachineState/Reset", "args": []}, csrf="")
     assert status == 401 and answer["expired"]
 
@@ -248,6 +248,7 @@ async def test_https_only_on_a_non_loopback_address(stack, tmp_path):
         status, _ = await b.get("/")
         assert status == 200
         assert "secure" in b.last_headers.get_all("set-cookie")[0].lower()
+        assert b.last_headers.get_all("set-cookie")[0].startswith(f"__Host-uacell_{port}=")
         assert b.last_headers["strict-transport-security"] == "max-age=31536000"
         # The server listens on loopback only (anonymous: operator, meant for the local machine), the
         # HMI on the network: it takes logged-in users only.
@@ -452,7 +453,7 @@ async def test_a_page_under_a_rebound_host_name_gets_421_and_drives_nothing(stac
             port, f"GET /api/session HTTP/1.1\r\nHost: {name}\r\nConnection: close\r\n\r\n".encode()
         )
         assert status == 200, name
-        assert "uacell_session" in answer
+        assert f"uacell_{port}=" in answer
     status, _ = await _raw_http(port, b"GET / HTTP/1.0\r\n\r\n")
     assert status == 421  # no Host at all: no name the HMI is served under
 
@@ -471,7 +472,7 @@ async def test_a_body_over_the_cap_is_refused_before_it_is_read_or_parsed(stack)
     b = Browser(web.url)
     await b.start()
     head = (
-        f"POST /api/call HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nCookie: uacell_session={b.cookie()}\r\n"
+        f"POST /api/call HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nCookie: uacell_{port}={b.cookie()}\r\n"
         f"X-CSRF-Token: {b.csrf}\r\nContent-Type: application/json\r\nConnection: close\r\n"
     )
     # 200 MB announced, a few bytes sent: the answer comes at once, from the header alone.
@@ -511,10 +512,40 @@ async def test_malformed_inputs_get_a_plain_4xx_and_change_nothing(stack):
     status, text = await _raw_http(
         port,
         (
-            f"POST /api/call HTTP/1.1\r\nHost: 127.0.0.1\r\nCookie: uacell_session={b.cookie()}\r\n"
+            f"POST /api/call HTTP/1.1\r\nHost: 127.0.0.1\r\nCookie: uacell_{port}={b.cookie()}\r\n"
             f"X-CSRF-Token: {b.csrf}\r\nContent-Type: application/json\r\nConnection: close\r\n"
             f"Content-Length: {len(deep)}\r\n\r\n{deep}"
         ).encode(),
     )
     assert status == 400 and "nested too deeply" in text
     assert await _state(app, FILLER) == state
+
+
+async def test_two_hmis_on_one_host_keep_their_own_sessions_in_one_browser(stack):
+    """Browsers send a host's cookies to all its ports: each HMI's cookie has a name of its own."""
+    app, web = stack
+    other = await start_web(
+        app.endpoint, app.data_dir, port=0, server_certificate=PkiPaths.in_data_dir(app.data_dir).cert
+    )
+    try:
+        jar = CookieJar()
+        first, second = Browser(web.url), Browser(other.url)
+        second.jar = jar
+        second.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(jar))
+        first.jar = jar
+        first.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(jar))
+        await first.start()
+        assert (await first.login("otto"))[0] == 200
+        await second.start()  # the other HMI's session: a cookie of its own name, in the same jar
+        names = sorted(c.name for c in jar)
+        assert names == sorted({web.web.cookie, other.web.cookie}) and web.web.cookie != other.web.cookie
+        first_session = next(c.value for c in jar if c.name == web.web.cookie)
+        status, info = await first.get("/api/session")
+        assert status == 200 and info["user"] == "otto" and not info["fresh"]
+        # The first HMI's cookie replayed to the second under the second's name is nobody's session there.
+        replay = Browser(other.url)
+        replay.opener.addheaders = [("Cookie", f"{other.web.cookie}={first_session}")]
+        status, info = await replay.get("/api/session")
+        assert status == 200 and info["fresh"] and info["user"] is None
+    finally:
+        await other.stop()

@@ -30,7 +30,7 @@ from uacell.web.uasession import CallFailed, CellCache, Credentials, UaSession, 
 
 log = logging.getLogger(__name__)
 
-COOKIE = "uacell_session"
+COOKIE = "uacell_session"  # until the HMI knows its port (cookie_name)
 IDLE_TIMEOUT = 30 * 60.0  # a web session nobody has used for this long ends (its OPC UA session too)
 HEARTBEAT = 15.0
 MAX_SESSIONS = 200  # beyond this, the longest unused web session (without a page open) ends
@@ -45,6 +45,13 @@ class WebSession:
     user: str | None = None
     last_seen: float = field(default_factory=time.monotonic)
     streams: int = 0
+
+
+def cookie_name(port: int, https: bool) -> str:
+    """The session cookie's name for the HMI on ``port``: browsers send a host's cookies to every port
+    of it, so each HMI has its own name (two HMIs on one host never clobber each other's session),
+    and over HTTPS the ``__Host-`` prefix keeps it to this exact host, Secure and path ``/``."""
+    return f"__Host-uacell_{port}" if https else f"uacell_{port}"
 
 
 def _static_dir() -> str:
@@ -70,6 +77,7 @@ class WebApp:
         # the server would grant anonymous clients the rights it means for the local machine only).
         self.anonymous = anonymous
         self.https = https
+        self.cookie = COOKIE
         self.idle_timeout = idle_timeout
         self.sessions: dict[str, WebSession] = {}
         self.cells = CellCache()
@@ -113,13 +121,13 @@ class WebApp:
         return s
 
     def _session(self, request: Request) -> WebSession | None:
-        s = self.sessions.get(request.cookies.get(COOKIE, ""))
+        s = self.sessions.get(request.cookies.get(self.cookie, ""))
         if s is not None:
             s.last_seen = time.monotonic()
         return s
 
     def _set_cookie(self, response: Response, s: WebSession) -> Response:
-        response.set_cookie(COOKIE, s.id, httponly=True, samesite="strict", secure=self.https, path="/")
+        response.set_cookie(self.cookie, s.id, httponly=True, samesite="strict", secure=self.https, path="/")
         return response
 
     async def _end(self, s: WebSession) -> None:

@@ -44,7 +44,7 @@ from uacell.pki import (
 )
 from uacell.roles import is_loopback
 from uacell.users import atomic_write
-from uacell.web.app import WebApp
+from uacell.web.app import WebApp, cookie_name
 from uacell.web.guards import machine_names
 from uacell.web.uasession import APPLICATION_URI, Credentials
 
@@ -209,6 +209,7 @@ async def start_web(
     await server.startup(sockets=[sock])
     task = asyncio.get_running_loop().create_task(server.main_loop())
     bound_host, bound_port = sock.getsockname()[:2]
+    web.cookie = cookie_name(bound_port, https)
     shown = f"[{bound_host}]" if ":" in bound_host else bound_host
     url = f"{'https' if https else 'http'}://{shown}:{bound_port}/"
     return RunningWeb(url, web, server, sock, task)
