@@ -386,6 +386,9 @@ async def _start_web_beside(config: Config, app: UacellServer) -> RunningWeb:
         server_certificate=pki.cert,
         https_certificate=cert,
         https_key=key,
+        ua_sessions=config.web.ua_sessions,
+        release_after=config.web.release_after,
+        header_timeout=config.web.header_timeout,
     )
 
 
@@ -408,7 +411,15 @@ async def _run_web(server: str, data_dir: Path, config: Config) -> int:
     cert, key = _https_files(config)
     try:
         web = await start_web(
-            server, data_dir, host=config.web.host, port=config.web.port, https_certificate=cert, https_key=key
+            server,
+            data_dir,
+            host=config.web.host,
+            port=config.web.port,
+            https_certificate=cert,
+            https_key=key,
+            ua_sessions=config.web.ua_sessions,
+            release_after=config.web.release_after,
+            header_timeout=config.web.header_timeout,
         )
     except ConfigError as exc:
         print(f"uacell: {exc}", file=sys.stderr)

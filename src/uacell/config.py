@@ -133,6 +133,9 @@ class WebConfig:
     port: int = 8080
     certificate: str = ""
     private_key: str = ""
+    ua_sessions: int = 50
+    release_after: float = 30.0
+    header_timeout: float = 10.0
 
 
 _POSITIVE = ("programs", "limits")  # sections whose every value must be above zero
@@ -343,6 +346,12 @@ def _load_file(path: str | Path | None) -> Config:
                 raise ConfigError(f"configuration {path}: {exc}") from exc
     if not 0 <= config.web.port <= 65535:
         raise ConfigError(f"configuration {path}: [web] port: must be 0..65535")
+    most = max(1, config.limits.sessions // 2)
+    if not 1 <= config.web.ua_sessions <= most:
+        raise ConfigError(
+            f"configuration {path}: [web] ua_sessions: must be 1..{most} (at most half of [limits] sessions), "
+            f"not {config.web.ua_sessions}"
+        )
     for key in ("application_uri", "application_name"):
         if not getattr(config.server, key).strip():
             raise ConfigError(f"configuration {path}: [server] {key}: must not be empty")

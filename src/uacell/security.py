@@ -44,6 +44,7 @@ import os
 import struct
 import time
 from collections.abc import Awaitable, Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 from urllib.parse import urlparse
@@ -216,6 +217,9 @@ class Security:
             free_per_user=limits.login_free_failures_per_user,
         )
         self.password_checks = asyncio.Semaphore(limits.password_checks)
+        # Threads of their own: a login never waits for other work in the loop's default executor
+        # (history reads, program files), however much of it there is.
+        self._password_threads = ThreadPoolExecutor(limits.password_checks, thread_name_prefix="uacell-password")
         self.on_session_closed: list[Callable[[InternalSession], None]] = []
         self._user_locks: dict[str, asyncio.Lock] = {}
         self.trust_list: TrustList | None = None
@@ -496,7 +500,8 @@ class Security:
         except Exception:
             return None  # the activation refuses the token itself
         async with self.password_checks:
-            role = await asyncio.to_thread(self.app.users.verify, name, password or "")
+            loop = asyncio.get_running_loop()
+            role = await loop.run_in_executor(self._password_threads, self.app.users.verify, name, password or "")
         return verified_login.set((name, password or "", role))
 
     async def _audited(self, processor: UaProcessor, address: str, user: str | None, call: Callable[[], Any]) -> Any:

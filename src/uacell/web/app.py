@@ -13,7 +13,7 @@ import json
 import logging
 import secrets
 import time
-from collections.abc import AsyncIterator, Iterable
+from collections.abc import AsyncIterator, Coroutine, Iterable
 from dataclasses import dataclass, field
 from importlib import resources
 from typing import Any
@@ -32,6 +32,8 @@ log = logging.getLogger(__name__)
 
 COOKIE = "uacell_session"  # until the HMI knows its port (cookie_name)
 IDLE_TIMEOUT = 30 * 60.0  # a web session nobody has used for this long ends (its OPC UA session too)
+UA_SESSIONS = 50  # OPC UA sessions the HMI holds at once ([web] ua_sessions)
+RELEASE_AFTER = 30.0  # seconds after its last page closed, a web session's OPC UA session is released
 HEARTBEAT = 15.0
 MAX_SESSIONS = 200  # beyond this, the longest unused web session (without a page open) ends
 MAX_UPLOAD = 1_000_000
@@ -45,6 +47,7 @@ class WebSession:
     user: str | None = None
     last_seen: float = field(default_factory=time.monotonic)
     streams: int = 0
+    ended_because: str = ""  # said to the page when the HMI ended the session itself
 
 
 def cookie_name(port: int, https: bool) -> str:
@@ -70,6 +73,8 @@ class WebApp:
         idle_timeout: float = IDLE_TIMEOUT,
         anonymous: bool = True,
         hosts: Iterable[str] = (),
+        ua_sessions: int = UA_SESSIONS,
+        release_after: float = RELEASE_AFTER,
     ) -> None:
         self.url = url
         self.credentials = credentials
@@ -79,6 +84,8 @@ class WebApp:
         self.https = https
         self.cookie = COOKIE
         self.idle_timeout = idle_timeout
+        self.ua_sessions = ua_sessions
+        self.release_after = release_after
         self.sessions: dict[str, WebSession] = {}
         self.cells = CellCache()
         self.closing = asyncio.Event()
@@ -111,9 +118,7 @@ class WebApp:
         while len(self.sessions) >= MAX_SESSIONS and idle:
             oldest = idle.pop(0)
             self.sessions.pop(oldest.id, None)
-            task = asyncio.get_running_loop().create_task(self._end(oldest))
-            self._ending.add(task)
-            task.add_done_callback(self._ending.discard)
+            self._later(self._end(oldest))
         s = WebSession(secrets.token_urlsafe(32), secrets.token_urlsafe(32))
         self.sessions[s.id] = s
         if self._reaper is None or self._reaper.done():
@@ -136,14 +141,45 @@ class WebApp:
             await s.ua.close()
             s.ua = None
 
+    def _later(self, coro: Coroutine[Any, Any, None]) -> None:
+        task = asyncio.get_running_loop().create_task(coro)
+        self._ending.add(task)
+        task.add_done_callback(self._ending.discard)
+
     async def _reap(self) -> None:
         while self.sessions and not self.closing.is_set():
-            await asyncio.sleep(min(60.0, self.idle_timeout / 2))
+            await asyncio.sleep(min(60.0, self.idle_timeout / 2, self.release_after / 2))
             now = time.monotonic()
             for s in list(self.sessions.values()):
-                if s.streams == 0 and now - s.last_seen > self.idle_timeout:
+                if s.streams:
+                    if s.ua is not None and s.ua.status == "busy":  # an open page waits: a place may be free
+                        await self._ua(s)
+                    continue
+                if now - s.last_seen > self.idle_timeout:
                     log.info("web session of %s ended after %.0f s unused", s.user or "anonymous", now - s.last_seen)
                     await self._end(s)
+                elif s.ua is not None and s.ua.holding and now - s.last_seen > self.release_after:
+                    log.info("web session of %s: no page open, its OPC UA session released", s.user or "anonymous")
+                    await s.ua.release()
+
+    async def _make_room(self, s: WebSession) -> bool:
+        """Whether ``s`` may hold an OPC UA session: below ``ua_sessions``, or after releasing the one
+        of the longest-unused web session without an open page. Pages that are open keep theirs."""
+        held = [x for x in self.sessions.values() if x is not s and x.ua is not None and x.ua.holding]
+        if len(held) < self.ua_sessions:
+            return True
+        idle = sorted((x for x in held if x.streams == 0), key=lambda x: x.last_seen)
+        if not idle:
+            return False
+        assert idle[0].ua is not None
+        log.info("web: %d OPC UA sessions held; releasing the longest unused one", len(held))
+        await idle[0].ua.release()
+        return True
+
+    def _refused(self, s: WebSession, problem: str) -> None:
+        """The server no longer takes the password of ``s``: end it, the page asks for a login."""
+        s.ended_because = problem
+        self._later(self._end(s))
 
     async def close(self) -> None:
         self.closing.set()
@@ -152,24 +188,30 @@ class WebApp:
         if self._reaper is not None:
             self._reaper.cancel()
 
+    def _watch(self, s: WebSession, ua: UaSession) -> UaSession:
+        ua.on_identity_refused = lambda exc: self._refused(s, ua.problem)
+        return ua
+
     async def _ua(self, s: WebSession) -> UaSession:
-        """The session's OPC UA session, made anonymously on first use."""
+        """The session's OPC UA session: made anonymously on first use, made again after it was
+        released, and "busy" (with the reason) while the HMI holds ``ua_sessions`` for open pages."""
         if s.ua is None:
-            ua = UaSession(self.url, self.credentials, cache=self.cells)
+            ua = self._watch(s, UaSession(self.url, self.credentials, cache=self.cells))
             s.ua = ua
             if s.user is None and not self.anonymous:
                 ua.status = "login-required"
                 ua.problem = "Log in to use this HMI: it takes no anonymous users on this address"
                 return ua
-            try:
-                await ua.connect()
-            except CallFailed as exc:
-                log.warning("web: the server %s refused the HMI's session: %s", self.url, exc.name)
-                ua.fail(f"the server refused the HMI's session: {exc.name} ({exc.doc})")
-            except Exception as exc:
-                log.info("web: cannot reach %s: %s", self.url, exc)
-                ua.fail(f"the OPC UA server {self.url} cannot be reached")
-        return s.ua
+            ua.status = "released"
+        ua = s.ua
+        if ua.status in ("released", "busy"):
+            if not await self._make_room(s):
+                ua.status = "busy"
+                ua.problem = f"this HMI already serves {self.ua_sessions} users with open pages; try again in a minute"
+                ua.announce()
+                return ua
+            await ua.resume()
+        return ua
 
     # requests --------------------------------------------------------------------------------
 
@@ -214,19 +256,26 @@ class WebApp:
         user, password = body.get("user"), body.get("password")
         if not isinstance(user, str) or not user or not isinstance(password, str):
             return JSONResponse({"error": "user name and password are required"}, status_code=400)
+        if not await self._make_room(s):
+            problem = f"this HMI already serves {self.ua_sessions} users with open pages; try again in a minute"
+            return JSONResponse({"error": problem, "code": "BadTooManySessions"}, status_code=503)
         ua = UaSession(self.url, self.credentials, user=user, password=password, cache=self.cells)
         try:
             await ua.connect()
         except CallFailed as exc:
             log.info("web login of %s refused: %s", user, exc.name)
             return JSONResponse({"error": f"{exc.name}: {exc.doc}", "code": exc.name}, status_code=401)
+        except TimeoutError:
+            log.info("web login of %s: no answer from the server in time", user)
+            problem = "the server did not check the login in time (it slows logins down after failed attempts)"
+            return JSONResponse({"error": f"{problem}; try again in a minute", "code": "BadTimeout"}, status_code=503)
         except Exception as exc:
             log.info("web login of %s failed: server unreachable (%s)", user, type(exc).__name__)
             return JSONResponse({"error": f"the OPC UA server {self.url} cannot be reached"}, status_code=503)
         log.info("web login of %s", user)
         await self._end(s)
         fresh = self._new_session()  # a new id and CSRF token after every login
-        fresh.ua, fresh.user = ua, user
+        fresh.ua, fresh.user = self._watch(fresh, ua), user
         return self._set_cookie(JSONResponse({"user": user, "csrf": fresh.csrf}), fresh)
 
     async def logout(self, request: Request) -> Response:
@@ -270,7 +319,7 @@ class WebApp:
                         else:
                             getter.cancel()
                             yield ": keep-alive\n\n"
-                    yield _sse({"type": "expired"})
+                    yield _sse({"type": "expired", "reason": s.ended_because})
                 finally:
                     closing.cancel()
                     if getter is not None:

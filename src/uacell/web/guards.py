@@ -1,4 +1,4 @@
-"""What every HTTP request passes before the HMI's routes: its Host, its size, HSTS.
+"""What every HTTP request passes before the HMI's routes: a header deadline, its Host, its size, HSTS.
 
 The HMI answers only for the names it is served under (DNS rebinding), reads at most ``max_body``
 bytes of any request body (before anything parses it), and asks browsers to stay on HTTPS.
@@ -15,11 +15,17 @@ carries ``Strict-Transport-Security``.
 
 from __future__ import annotations
 
+import asyncio
 import ipaddress
+import logging
 import socket
 from collections.abc import Iterable
 
+import h11
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from uvicorn.protocols.http.h11_impl import H11Protocol
+
+log = logging.getLogger(__name__)
 
 LOOPBACK_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost", "ip6-loopback"})
 HSTS = b"max-age=31536000"
@@ -134,3 +140,58 @@ class HostGuard:
 
     def _extra(self) -> list[tuple[bytes, bytes]]:
         return [(b"strict-transport-security", HSTS)] if self.https else []
+
+
+HEADER_TIMEOUT = 10.0  # seconds a connection may take to send a request's headers ([web] header_timeout)
+
+
+def timed_headers(header_timeout: float) -> type[H11Protocol]:
+    """uvicorn's HTTP/1.1 protocol with a deadline on each request's headers.
+
+    uvicorn closes a connection idle between requests, but a client that keeps sending a header a byte
+    at a time holds it (and a file descriptor) forever. Here the clock runs from the connection's
+    start, and again from each answer, until a request's headers are complete; past ``header_timeout``
+    the connection gets ``408`` and is closed. Bodies are not timed here (the body cap bounds them)."""
+
+    class TimedHeaders(H11Protocol):
+        _timer: asyncio.TimerHandle | None = None
+
+        def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+            super().connection_made(transport)
+            self._arm()
+
+        def connection_lost(self, exc: Exception | None) -> None:
+            self._disarm()
+            super().connection_lost(exc)
+
+        def data_received(self, data: bytes) -> None:
+            super().data_received(data)
+            if self.conn.their_state is not h11.IDLE:
+                self._disarm()  # the headers are in
+
+        def on_response_complete(self) -> None:
+            super().on_response_complete()
+            if not self.transport.is_closing() and self.conn.their_state is h11.IDLE:
+                self._arm()
+
+        def _arm(self) -> None:
+            self._disarm()
+            self._timer = self.loop.call_later(header_timeout, self._late)
+
+        def _disarm(self) -> None:
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
+
+        def _late(self) -> None:
+            self._timer = None
+            if self.transport.is_closing() or self.conn.their_state is not h11.IDLE:
+                return
+            client = self.client[0] if self.client else "?"
+            log.info(
+                "web: closed a connection from %s that sent no complete request within %g s", client, header_timeout
+            )
+            self.transport.write(b"HTTP/1.1 408 Request Timeout\r\ncontent-length: 0\r\nconnection: close\r\n\r\n")
+            self.transport.close()
+
+    return TimedHeaders
