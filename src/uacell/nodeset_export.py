@@ -450,7 +450,7 @@ def run_export(args: argparse.Namespace, config: Config) -> int:
     """``uacell nodeset export [-o FILE]``: the file, or the XML on standard output."""
     import asyncio
 
-    from uacell.users import atomic_write
+    from uacell.files import atomic_write
 
     own = logging.getLogger("uacell")
     saved = own.level

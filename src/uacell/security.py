@@ -58,7 +58,8 @@ from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary, uatcp_to_binary
 
 from uacell.pki import CertificateValidator, PkiPaths, RejectedLimit, TrustList, ensure_server_certificate
-from uacell.roles import Family, Role, may, may_call
+from uacell.rights import may_call
+from uacell.roles import Family, Role, may
 from uacell.ua import context
 from uacell.ua.access import user_access_level, verified_login
 from uacell.ua.context import caller_of
@@ -67,7 +68,7 @@ from uacell.ua.limits import LimitedSession
 from uacell.users import LoginThrottle
 
 if TYPE_CHECKING:
-    from uacell.server import UacellServer
+    from uacell.host import Host
 
 log = logging.getLogger(__name__)
 
@@ -206,7 +207,7 @@ async def prepare_certificate(server: Server, data_dir: Path, application_uri: s
 class Security:
     """The security setup of one server (reachable from asyncua objects as ``iserver._uacell_security``)."""
 
-    def __init__(self, app: UacellServer) -> None:
+    def __init__(self, app: Host) -> None:
         self.app = app
         self.server: Server = app.server
         limits = app.config.limits
@@ -712,7 +713,7 @@ def _identity_token(body: Any) -> Any:
         return None
 
 
-async def install_security(app: UacellServer) -> Security:
+async def install_security(app: Host) -> Security:
     """Set up certificates, endpoints, trust list, login rules and per-session rights for ``app``."""
     security = Security(app)
     await security.install()

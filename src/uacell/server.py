@@ -13,8 +13,9 @@ from asyncua import Server, ua
 
 from uacell import __version__
 from uacell.audit import AuditTrail
+from uacell.catalog import companions
 from uacell.cell import CellBuilder, Part, build_cell, cell_digest
-from uacell.companion import Binder, Closer, companions
+from uacell.companion import Binder, Closer
 from uacell.config import Config, default_application_uri
 from uacell.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
 from uacell.history.service import HistoryService
@@ -235,5 +236,5 @@ class UacellServer:
 
 
 def default_binders() -> list[Binder]:
-    """The binders of every companion (``uacell.companion.companions``), in their order."""
+    """The binders of every companion (``uacell.catalog.companions``), in their order."""
     return [c.binder for c in companions() if c.binder is not None]

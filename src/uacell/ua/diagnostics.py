@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from asyncua.server.internal_session import InternalSession
     from asyncua.server.uaprocessor import UaProcessor
 
-    from uacell.server import UacellServer
+    from uacell.host import Host
 
 log = logging.getLogger(__name__)
 
@@ -143,7 +143,7 @@ class SessionRecord:
 class Diagnostics:
     """The ServerDiagnostics of one server."""
 
-    def __init__(self, app: UacellServer, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, app: Host, clock: Callable[[], float] = time.monotonic) -> None:
         self.app = app
         self.summary = ua.ServerDiagnosticsSummaryDataType()
         self.sessions: dict[str, SessionRecord] = {}
@@ -334,7 +334,7 @@ class Diagnostics:
         await self.iserver.aspace.write_attribute_value(node, ua.AttributeIds.Value, ua.DataValue(value))
 
 
-def bind_get_monitored_items(app: UacellServer) -> None:
+def bind_get_monitored_items(app: Host) -> None:
     """``Server.GetMonitoredItems(SubscriptionId) -> ServerHandles, ClientHandles`` (OPC 10000-5, 9.1)."""
     from uacell.errors import CallError
     from uacell.roles import Family

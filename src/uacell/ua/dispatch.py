@@ -33,7 +33,8 @@ from asyncua import Server, ua
 from asyncua.server.address_space import MethodService
 
 from uacell.errors import CallError
-from uacell.roles import Family, Role, may_call
+from uacell.rights import may_call
+from uacell.roles import Family, Role
 from uacell.ua import context, toolkit
 from uacell.ua.context import Caller
 

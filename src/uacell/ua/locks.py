@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 from asyncua import ua
 
 from uacell.background import Background
-from uacell.companion import companions
+from uacell.catalog import companions
 from uacell.di.companion import LOCKING
 from uacell.errors import CallError
 from uacell.locking import LockManager, LockOwner

@@ -32,6 +32,7 @@ from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 
 from uacell.errors import ConfigError
+from uacell.files import atomic_write
 from uacell.pki import (
     PkiPaths,
     TrustList,
@@ -43,7 +44,6 @@ from uacell.pki import (
     thumbprint,
 )
 from uacell.roles import is_loopback
-from uacell.users import atomic_write
 from uacell.web.app import RELEASE_AFTER, UA_SESSIONS, WebApp, cookie_name
 from uacell.web.guards import HEADER_TIMEOUT, machine_names, timed_headers
 from uacell.web.uasession import APPLICATION_URI, Credentials
