@@ -31,10 +31,11 @@ from uacell.cellconfig import CellConfig, SectionParser, builtin_cell_path, did_
 from uacell.discovery_registration import DiscoveryConfig
 from uacell.errors import ConfigError
 from uacell.history.config import HistoryConfig
+from uacell.roles import Role
 
 T = TypeVar("T")
 
-ROLES = ("observer", "operator", "engineer", "admin")
+ROLES = tuple(role.label for role in Role)  # the role names, lowest first
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 LOG_FORMATS = ("text", "json")
 CONFIG_ENV = "UACELL_CONFIG"

@@ -49,7 +49,7 @@ class _AddressSpaceCollector:
         """Find the cell's CurrentState and Admin counter variables once (their NodeIds follow the path)."""
         states: list[tuple[str, ua.NodeId]] = []
         counters: list[tuple[str, str, ua.NodeId]] = []
-        ns = self.app.cell.instantiator.ns if self.app.cell is not None else -1
+        ns = self.app.cell.instantiator.ns
         for node in list(self.app.server.iserver.aspace.keys()):
             if node.NamespaceIndex != ns or not isinstance(node.Identifier, str):
                 continue

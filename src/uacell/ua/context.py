@@ -89,10 +89,6 @@ def caller_of(session: InternalSession | None, default_role: str = "observer") -
     return Caller(str(session.session_id), session.name, getattr(user, "name", None), role, client)
 
 
-def current_session() -> InternalSession | None:
-    return _session.get()
-
-
 def set_return_diagnostics(mask: int) -> contextvars.Token[int]:
     return _diagnostics.set(mask)
 
@@ -143,7 +139,7 @@ def add_read_hook(hook: ReadHook) -> None:
 
 
 def _with_session(original: Callable[[InternalSession, Any], Any]) -> Callable[[InternalSession, Any], Any]:
-    """``original`` (a session's service) with the session known (``current_session``) while it runs."""
+    """``original`` (a session's service) with the session known while it runs."""
 
     @functools.wraps(original)
     async def service(self: InternalSession, params: Any) -> Any:

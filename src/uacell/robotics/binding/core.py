@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from uacell.cell import BuiltPart
 from uacell.companion import Closer
-from uacell.equipment import EquipmentSpec, close_equipment, make_equipment
+from uacell.equipment import EquipmentSpec, choose_equipment, close_equipment, make_equipment
 from uacell.errors import ConfigError
 from uacell.registry import RegistryKey
 from uacell.robotics.binding.arm import Arm
@@ -41,16 +41,7 @@ TASK_CONTROLS: RegistryKey[TaskControl] = RegistryKey("task control")
 class RoboticsBinding(ControllerBinding):
     """One controller (with its task controls and motion device) on its instance nodes."""
 
-    def __init__(
-        self,
-        app: UacellServer,
-        controller: BuiltPart,
-        tasks: list[BuiltPart],
-        arm: BuiltPart | None,
-        cell: RobotCell,
-        store: FileStore,
-    ) -> None:
-        super().__init__(app, controller, tasks, arm, cell, store)
+    def compose(self) -> None:
         self._pending = False
         self.programs = Programs(self)
         self.task_controls = TaskControls(self, self.programs)
@@ -105,12 +96,14 @@ async def make_controller_equipment(
     """The controller's own factory and settings, else ``[robot] equipment``, else the simulator."""
     spec = controller.part.spec if isinstance(controller.part.spec, ControllerSpec) else None
     defaults = app.config.section("robot", RobotConfig)
-    factory = (spec.equipment if spec else "") or defaults.equipment or SIMULATOR
-    settings = dict(spec.settings) if spec else {}
-    if factory == SIMULATOR:
-        if spec is not None and spec.time_scale is not None:
-            settings["time_scale"] = spec.time_scale
-        settings.setdefault("time_scale", defaults.time_scale)
+    factory, settings = choose_equipment(
+        spec.equipment if spec else "",
+        spec.settings if spec else {},
+        default=defaults.equipment,
+        simulator=SIMULATOR,
+        simulator_settings={"time_scale": spec.time_scale if spec else None},
+        simulator_defaults={"time_scale": defaults.time_scale},
+    )
     equipment: RobotEquipment = await make_equipment(
         factory, EquipmentSpec(controller.path, settings, axes), RobotEquipment
     )

@@ -58,6 +58,10 @@ class ControllerBinding:
         self.store = store
         self.ns: int = app.cell.instantiator.ns
         self.values = ValueWriter(app.server.iserver.aspace, app.dispatcher.types.builtin_of)
+        self.compose()
+
+    def compose(self) -> None:
+        """Make the concerns (``core.RoboticsBinding``); none here."""
 
     # --- helpers every concern uses -----------------------------------------------------------
     def child(self, node: ua.NodeId, path: str) -> ua.NodeId:
