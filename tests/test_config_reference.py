@@ -128,7 +128,6 @@ GETTER_WORDS = {
     "name": ("name",),
     "number": ("number",),
     "integer": ("integer",),
-    "boolean": ("boolean",),
     "tables": ("array of tables",),
     "table": ("table",),
     "free_table": ("table",),

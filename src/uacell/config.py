@@ -348,6 +348,9 @@ def _load_file(path: str | Path | None) -> Config:
     if not 0 <= config.web.port <= 65535:
         raise ConfigError(f"configuration {path}: [web] port: must be 0..65535")
     most = max(1, config.limits.sessions // 2)
+    web = data.get("web")
+    if not (isinstance(web, dict) and "ua_sessions" in web):  # the default follows [limits] sessions
+        config.web.ua_sessions = min(config.web.ua_sessions, most)
     if not 1 <= config.web.ua_sessions <= most:
         raise ConfigError(
             f"configuration {path}: [web] ua_sessions: must be 1..{most} (at most half of [limits] sessions), "

@@ -8,7 +8,6 @@ router, users, the audit trail, the listening policy and the diagnostics hooks. 
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -29,8 +28,6 @@ class SessionHooks(Protocol):
     def session_created(self, session: Any, params: ua.CreateSessionParameters, processor: Any) -> None: ...
 
     def session_closed(self, session: Any) -> None: ...
-
-    async def request(self, processor: Any, typeid: ua.NodeId, call: Callable[[], Awaitable[Any]]) -> Any: ...
 
 
 class Host(Protocol):

@@ -17,12 +17,14 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
 from asyncua.common.utils import ServiceError
+
+from uacell.ua.pipeline import Next, Request
 
 if TYPE_CHECKING:
     from asyncua.server.internal_session import InternalSession
@@ -159,7 +161,6 @@ class Diagnostics:
     # life cycle -------------------------------------------------------------------------------------
 
     async def start(self) -> None:
-        self.iserver._uacell_diagnostics = self
         await self._write(ENABLED_FLAG, ua.Variant(True, ua.VariantType.Boolean))
         await self.refresh()
         self._task = asyncio.get_running_loop().create_task(self._run())
@@ -183,13 +184,15 @@ class Diagnostics:
 
     # what happens ----------------------------------------------------------------------------------
 
-    async def request(self, processor: UaProcessor, typeid: ua.NodeId, call: Callable[[], Awaitable[Any]]) -> Any:
-        """Run one service request, counting it for its session and the summary."""
+    async def __call__(self, request: Request, call_next: Next) -> Any:
+        """The diagnostics stage (``ua/pipeline.py``): one service request, counted for its session
+        and the summary."""
+        processor, typeid = request.processor, request.typeid
         session = getattr(processor, "session", None)
         if typeid == _CLOSE_SESSION and session is not None:
             self.record(session).close_requested = True
         try:
-            result = await call()
+            result = await call_next(request)
         except (ServiceError, ua.UaStatusCodeError) as exc:
             self._count(processor, typeid, ok=False, code=exc.code)
             raise
