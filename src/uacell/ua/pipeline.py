@@ -182,20 +182,21 @@ def _data_received(self: OPCUAProtocol, data: bytes) -> None:
     pipeline.bytes_guard(self, data, _ORIGINAL_DATA_RECEIVED)
 
 
-async def _call(self: InternalSession, params: Any) -> Any:
-    token = context.set_session(self)
-    try:
-        return await _ORIGINAL_CALL(self, params)
-    finally:
-        context.reset_session(token)
+def _with_session(original: Callable[[InternalSession, Any], Awaitable[Any]]) -> Callable[..., Awaitable[Any]]:
+    """A session's service with the session known (``context.current_caller``) while it runs."""
+
+    async def service(self: InternalSession, params: Any) -> Any:
+        token = context.set_session(self)
+        try:
+            return await original(self, params)
+        finally:
+            context.reset_session(token)
+
+    return service
 
 
-async def _history_read(self: InternalSession, params: Any) -> Any:
-    token = context.set_session(self)
-    try:
-        return await _ORIGINAL_HISTORY_READ(self, params)
-    finally:
-        context.reset_session(token)
+_call = _with_session(_ORIGINAL_CALL)
+_history_read = _with_session(_ORIGINAL_HISTORY_READ)
 
 
 async def _read(self: InternalSession, params: Any) -> Any:
