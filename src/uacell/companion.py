@@ -9,7 +9,7 @@ line each. The shared code reads everything companion-specific from there:
   the parts it adds to the cell (``cell_section``, read by ``cell_parser``);
 - ``uacell.cell``: where instances live (``roots``);
 - ``uacell.server``: the binder that ties the companion's models to their nodes (``binder``);
-- ``uacell.ua.locks``: which parts carry a DI Lock and which families it guards (``locks``).
+- ``uacell.di.locks``: which parts carry a DI Lock and which families it guards (``locks``).
 """
 
 from __future__ import annotations
