@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.uacell-installed
 NODE_STAMP := interop/node_modules/.uacell-installed
 
-.PHONY: setup serve test bench lint clean models soak browser postgresql
+.PHONY: setup serve test bench lint clean models soak browser postgresql screenshots
 
 setup: $(STAMP) models $(NODE_STAMP) browser postgresql
 
@@ -52,6 +52,10 @@ test: setup
 
 bench: setup
 	$(BIN)/python -m benchmarks $(ARGS)
+
+# Renew the pictures in docs/ from the headless-browser tests.
+screenshots: setup
+	UACELL_SCREENSHOTS=docs $(BIN)/python -m pytest -q tests/test_web_browser.py
 
 # Not part of `make test`: 200 sessions with subscriptions for 10 minutes while the cell cycles;
 # reports the server's RSS growth and lost notifications (SOAK_ARGS="--sessions 50 --minutes 2").

@@ -14,13 +14,13 @@ from typing import Any, Protocol
 
 from asyncua import Client, ua
 
-from uacell.locking import LockManager
+from uacell.di.locking import LockManager
+from uacell.di.locks import LOCK_SERVICE
 from uacell.models import StateTables
 from uacell.packml import PackMLTables
 from uacell.robotics import RobotCell, RoboticsTables
 from uacell.robotics.binding import CONTROLLERS, RoboticsBinding
 from uacell.server import UacellServer
-from uacell.ua.locks import LOCK_SERVICE
 from uacell.ua.toolkit import EventEmitter
 
 

@@ -20,8 +20,8 @@ from typing import Any
 
 import pytest
 
+from uacell.catalog import companions
 from uacell.cellconfig import IDENTIFICATION, Table, parse_cell
-from uacell.companion import companions
 from uacell.config import section_types
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -128,7 +128,6 @@ GETTER_WORDS = {
     "name": ("name",),
     "number": ("number",),
     "integer": ("integer",),
-    "boolean": ("boolean",),
     "tables": ("array of tables",),
     "table": ("table",),
     "free_table": ("table",),

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from helpers import FakeClock
 
+from uacell.di.locking import E_ALREADY_LOCKED, E_INVALID, E_NOT_LOCKED, OK, LockManager, LockOwner
 from uacell.errors import CallError
-from uacell.locking import E_ALREADY_LOCKED, E_INVALID, E_NOT_LOCKED, OK, LockManager, LockOwner
 
 A = LockOwner("session-a", "urn:client:a", "alice")
 B = LockOwner("session-b", "urn:client:b", "bob")

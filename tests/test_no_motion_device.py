@@ -10,8 +10,8 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from helpers import wait_until
 
+from uacell.catalog import companions
 from uacell.cellconfig import parse_cell
-from uacell.companion import companions
 from uacell.robotics.binding import CONTROLLERS
 
 CELL = """

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from uacell.rights import may_call, method_roles, required_role
 from uacell.robotics.companion import SYSTEM_OPERATION
 from uacell.roles import (
     Role,
@@ -11,10 +12,7 @@ from uacell.roles import (
     is_loopback,
     listening_policy,
     may,
-    may_call,
-    method_roles,
     none_security_allowed,
-    required_role,
 )
 
 

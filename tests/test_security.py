@@ -23,8 +23,9 @@ from helpers import raw_call
 from uacell.di.companion import LOCKING
 from uacell.errors import CallError
 from uacell.pki import PkiPaths, TrustList, make_client_certificate
+from uacell.rights import may_call
 from uacell.robotics.companion import SYSTEM_OPERATION, TASK_CONTROL
-from uacell.roles import Role, may_call
+from uacell.roles import Role
 from uacell.security import prepare_certificate
 from uacell.server import APPLICATION_URI, UacellServer
 from uacell.users import LoginThrottle

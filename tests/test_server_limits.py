@@ -429,3 +429,7 @@ async def test_limits_configuration_is_validated(tmp_path: Path) -> None:
     path.write_text("[limits]\nsessions = 7\n[programs]\nmax_steps = 500\n")
     config = load_config(path)
     assert (config.limits.sessions, config.programs.max_steps) == (7, 500)
+    assert config.web.ua_sessions == 3  # the HMI's default share follows: half of the sessions
+    path.write_text("[limits]\nsessions = 7\n[web]\nua_sessions = 4\n")
+    with pytest.raises(ConfigError, match=r"\[web\] ua_sessions: must be 1..3"):
+        load_config(path)

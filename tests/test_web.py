@@ -29,6 +29,7 @@ from uacell.errors import ConfigError
 from uacell.packml.binding import UNITS
 from uacell.pki import PkiPaths
 from uacell.web.discovery import discover
+from uacell.web.guards import MAX_BODY, HostGuard, host_name
 from uacell.web.server import start_web, trust_hmi
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
@@ -100,7 +101,7 @@ class Browser:
         return status, answer
 
     def cookie(self) -> str:
-        return next(c.value for c in self.jar if c.name == "uacell_session")
+        return next(c.value for c in self.jar if c.name.startswith(("uacell_", "__Host-uacell_")))
 
 
 async def _state(app, machine: str) -> str:
@@ -178,7 +179,7 @@ async def test_login_rotates_the_session_and_keeps_the_password_out_of_logs(stac
     assert "web login of otto" in caplog.text
     # The anonymous session is gone: its cookie is refused as expired.
     stale = Browser(web.url)
-    stale.opener.addheaders = [("Cookie", f"uacell_session={anonymous}")]
+    stale.opener.addheaders = [("Cookie", f"{web.web.cookie}={anonymous}")]
     status, answer = await stale.post("/api/call", {"key": "Filler1/MachineState/Reset", "args": []}, csrf="")
     assert status == 401 and answer["expired"]
 
@@ -247,6 +248,8 @@ async def test_https_only_on_a_non_loopback_address(stack, tmp_path):
         status, _ = await b.get("/")
         assert status == 200
         assert "secure" in b.last_headers.get_all("set-cookie")[0].lower()
+        assert b.last_headers.get_all("set-cookie")[0].startswith(f"__Host-uacell_{port}=")
+        assert b.last_headers["strict-transport-security"] == "max-age=31536000"
         # The server listens on loopback only (anonymous: operator, meant for the local machine), the
         # HMI on the network: it takes logged-in users only.
         await b.start()
@@ -398,6 +401,11 @@ async def test_json_arguments_become_the_variants_the_method_declares():
         (arg("Mode", ua.ObjectIds.Int32), 1.5),
         (arg("Active", ua.ObjectIds.Boolean), "yes"),
         (arg("Modes", ua.ObjectIds.Int32, 1), 3),
+        (arg("Mode", ua.ObjectIds.Int32), 1e30),
+        (arg("Mode", ua.ObjectIds.Int32), 2**31),
+        (arg("Count", ua.ObjectIds.UInt32), -1),
+        (arg("Mode", ua.ObjectIds.Int64), float("inf")),
+        (arg("Speed", ua.ObjectIds.Float), 1e39),
     ):
         with pytest.raises(ValueError, match=bad[0].Name):
             to_variant(*bad)
@@ -407,3 +415,137 @@ async def test_json_arguments_become_the_variants_the_method_declares():
         "01",
         None,
     ]
+
+
+async def _raw_http(port: int, request: bytes) -> tuple[int, str]:
+    """Send one hand-built HTTP/1.1 request; the status and the whole answer (headers and body)."""
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    try:
+        writer.write(request)
+        await writer.drain()
+        answer = (await asyncio.wait_for(reader.read(), 30)).decode(errors="replace")
+    finally:
+        writer.close()
+    return int(answer.split(" ", 2)[1]), answer
+
+
+async def test_a_page_under_a_rebound_host_name_gets_421_and_drives_nothing(stack):
+    """DNS rebinding: an attacker's name resolving to 127.0.0.1 reaches the port with its own Host."""
+    app, web = stack
+    port = int(web.url.rsplit(":", 1)[1].strip("/"))
+    state = await _state(app, FILLER)
+    status, answer = await _raw_http(
+        port, f"GET /api/session HTTP/1.1\r\nHost: rebind.attacker.example:{port}\r\nConnection: close\r\n\r\n".encode()
+    )
+    assert status == 421
+    assert "set-cookie" not in answer.lower() and "csrf" not in answer
+    body = b'{"key": "Filler1/MachineState/Abort", "args": []}'
+    status, _ = await _raw_http(
+        port,
+        b"POST /api/call HTTP/1.1\r\nHost: rebind.attacker.example\r\nContent-Type: application/json\r\n"
+        + f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n".encode()
+        + body,
+    )
+    assert status == 421
+    assert await _state(app, FILLER) == state
+    for name in (f"127.0.0.1:{port}", f"localhost:{port}", f"[::1]:{port}", "LOCALHOST."):
+        status, answer = await _raw_http(
+            port, f"GET /api/session HTTP/1.1\r\nHost: {name}\r\nConnection: close\r\n\r\n".encode()
+        )
+        assert status == 200, name
+        assert f"uacell_{port}=" in answer
+    status, _ = await _raw_http(port, b"GET / HTTP/1.0\r\n\r\n")
+    assert status == 421  # no Host at all: no name the HMI is served under
+
+
+async def test_host_names_are_compared_without_port_case_or_brackets():
+    guard = HostGuard(lambda *a: None, names=["hmi.plant.example"])  # type: ignore[arg-type, return-value]
+    assert host_name("HMI.Plant.Example:8443") == "hmi.plant.example"
+    assert host_name("[::1]:8080") == "::1"
+    assert guard.allows("hmi.plant.example:8080") and guard.allows("10.1.2.3:80") and guard.allows("localhost")
+    assert not guard.allows("hmi.plant.example.attacker.example") and not guard.allows("") and not guard.allows("[x")
+
+
+async def test_a_body_over_the_cap_is_refused_before_it_is_read_or_parsed(stack):
+    _app, web = stack
+    port = int(web.url.rsplit(":", 1)[1].strip("/"))
+    b = Browser(web.url)
+    await b.start()
+    head = (
+        f"POST /api/call HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nCookie: uacell_{port}={b.cookie()}\r\n"
+        f"X-CSRF-Token: {b.csrf}\r\nContent-Type: application/json\r\nConnection: close\r\n"
+    )
+    # 200 MB announced, a few bytes sent: the answer comes at once, from the header alone.
+    status, answer = await _raw_http(port, (head + "Content-Length: 200000000\r\n\r\n{").encode())
+    assert status == 413 and f"larger than {MAX_BODY} bytes" in answer
+    # No length announced: the chunks are counted as they arrive and refused past the cap.
+    # (MAX_BODY + 1 bytes in all: the server has read everything when it answers, so no reset.)
+    sizes = [1_000_000] * (MAX_BODY // 1_000_000) + [MAX_BODY % 1_000_000 + 1]
+    chunks = b"".join(b"%x\r\n%s\r\n" % (n, b"x" * n) for n in sizes) + b"0\r\n\r\n"
+    status, answer = await _raw_http(port, (head + "Transfer-Encoding: chunked\r\n\r\n").encode() + chunks)
+    assert status == 413
+    # Under the cap, chunked or not, the request reaches the route (here: refused as not JSON).
+    small = b'{"key": "Filler1/MachineState/Reset", "args": [1'
+    status, answer = await _raw_http(port, (head + f"Content-Length: {len(small)}\r\n\r\n").encode() + small)
+    assert status == 400 and "must be JSON" in answer
+    status, answer = await _raw_http(
+        port, (head + "Transfer-Encoding: chunked\r\n\r\n").encode() + b"%x\r\n%s\r\n0\r\n\r\n" % (len(small), small)
+    )
+    assert status == 400 and "must be JSON" in answer
+
+
+async def test_malformed_inputs_get_a_plain_4xx_and_change_nothing(stack):
+    app, web = stack
+    b = Browser(web.url)
+    await b.start()
+    state = await _state(app, FILLER)
+    status, answer = await b.post("/api/call", {"key": "Filler1/SetUnitMode", "args": [1e30]})
+    assert status == 400 and "outside -2147483648..2147483647 (Int32)" in answer["error"]
+    deep = (
+        json.dumps({"key": "Filler1/SetMachSpeed", "args": [60.0]})[:-1]
+        + ', "x": '
+        + "[" * 100_000
+        + "]" * 100_000
+        + "}"
+    )
+    port = int(web.url.rsplit(":", 1)[1].strip("/"))
+    status, text = await _raw_http(
+        port,
+        (
+            f"POST /api/call HTTP/1.1\r\nHost: 127.0.0.1\r\nCookie: uacell_{port}={b.cookie()}\r\n"
+            f"X-CSRF-Token: {b.csrf}\r\nContent-Type: application/json\r\nConnection: close\r\n"
+            f"Content-Length: {len(deep)}\r\n\r\n{deep}"
+        ).encode(),
+    )
+    assert status == 400 and "nested too deeply" in text
+    assert await _state(app, FILLER) == state
+
+
+async def test_two_hmis_on_one_host_keep_their_own_sessions_in_one_browser(stack):
+    """Browsers send a host's cookies to all its ports: each HMI's cookie has a name of its own."""
+    app, web = stack
+    other = await start_web(
+        app.endpoint, app.data_dir, port=0, server_certificate=PkiPaths.in_data_dir(app.data_dir).cert
+    )
+    try:
+        jar = CookieJar()
+        first, second = Browser(web.url), Browser(other.url)
+        second.jar = jar
+        second.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(jar))
+        first.jar = jar
+        first.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(jar))
+        await first.start()
+        assert (await first.login("otto"))[0] == 200
+        await second.start()  # the other HMI's session: a cookie of its own name, in the same jar
+        names = sorted(c.name for c in jar)
+        assert names == sorted({web.web.cookie, other.web.cookie}) and web.web.cookie != other.web.cookie
+        first_session = next(c.value for c in jar if c.name == web.web.cookie)
+        status, info = await first.get("/api/session")
+        assert status == 200 and info["user"] == "otto" and not info["fresh"]
+        # The first HMI's cookie replayed to the second under the second's name is nobody's session there.
+        replay = Browser(other.url)
+        replay.opener.addheaders = [("Cookie", f"{other.web.cookie}={first_session}")]
+        status, info = await replay.get("/api/session")
+        assert status == 200 and info["fresh"] and info["user"] is None
+    finally:
+        await other.stop()

@@ -3,14 +3,17 @@
 One `uacell serve` (with the HMI beside it, as a user runs it) serves the demo cell for the module;
 each test opens a fresh browser context (its own cookies, so its own web and OPC UA session). The
 page is driven like a person would; what arrived is checked in the page and, through an OPC UA
-client, in the server. Screenshots land in docs/ (docs/web.md shows them).
+client, in the server. Screenshots land in a temporary folder; `make screenshots` (UACELL_SCREENSHOTS=docs)
+writes them into docs/, where docs/web.md shows them.
 """
 
 from __future__ import annotations
 
 import asyncio
+import os
 import re
 import shutil
+import tempfile
 import threading
 import time
 from collections.abc import Coroutine, Iterator
@@ -39,7 +42,10 @@ ARGS = [
     "--no-first-run",
 ]
 PASSWORD = "pw-browser-1"
-DOCS = ROOT / "docs"
+# A clean checkout stays clean: the docs' pictures are renewed only on request.
+DOCS = Path(os.environ.get("UACELL_SCREENSHOTS") or tempfile.mkdtemp(prefix="uacell-shots-"))
+if not DOCS.is_absolute():
+    DOCS = ROOT / DOCS
 MACHINE = "Filler1.BaseStateMachine.MachineState"
 CTRL = "Robot1.Controllers.Controller1"
 TIMEOUT = 30_000  # ms, for conditions that take the simulators' time

@@ -1,59 +1,23 @@
-"""The `uacell` command's entry point, kept tiny so that a stop request is caught from the start.
-
-Until the server's event loop takes over, SIGINT/SIGTERM end start-up quietly (exit 0, no
-traceback): the handler is installed here, before the heavy imports (asyncua and friends).
-"""
+"""The `uacell` command's entry point, kept tiny so that a stop request is caught from the start
+(``uacell.early`` holds the handler and the flag it sets)."""
 
 from __future__ import annotations
 
-import gc
-import signal
-
-stop_requested = False
-
-
-class Stopped(Exception):
-    """Raised by the early stop handler into whatever start-up was doing."""
-
-
-def _stop_early(signum: int, frame: object) -> None:
-    global stop_requested
-    stop_requested = True
-    raise Stopped
-
-
-def install_early_stop() -> None:
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _stop_early)
-
-
-def pause_gc() -> None:
-    """No cyclic garbage collection while the server starts.
-
-    Start-up creates several hundred thousand long-lived objects (the address space); every few
-    thousand allocations the collector would walk them all again, for nothing. ``resume_gc`` moves
-    them out of its sight for good and turns it back on.
-    """
-    gc.disable()
-
-
-def resume_gc() -> None:
-    gc.freeze()
-    gc.enable()
+from uacell import early
 
 
 def run() -> int:
     import sys
 
     if "serve" in sys.argv[1:]:  # other commands keep Ctrl-C's usual meaning
-        install_early_stop()
-        pause_gc()
+        early.install_early_stop()
+        early.pause_gc()
     try:
         from uacell.cli import main
 
         return main()
     except BaseException:
         # The stop may land anywhere, even inside an import that then fails with an error of its own.
-        if stop_requested:
+        if early.stop_requested:
             return 0
         raise

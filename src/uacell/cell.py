@@ -16,8 +16,8 @@ from typing import Any
 from asyncua import Server, ua
 from asyncua.server.address_space import AddressSpace
 
+from uacell.catalog import companions
 from uacell.cellconfig import STATE_MACHINE, Part
-from uacell.companion import companions
 from uacell.ua import toolkit
 from uacell.ua.instantiate import Instantiator, Selection
 

@@ -44,10 +44,7 @@ IDENTIFICATION = {
     "asset_id": "AssetId",
     "component_name": "ComponentName",
 }
-# Members whose DataType is LocalizedText (the rest are String).
-LOCALIZED = frozenset({"Manufacturer", "Model", "ComponentName"})
 
-BUILTIN_CELLS = ("demo", "example")
 # What every state machine publishes (decision 1).
 STATE_MACHINE = ("**/CurrentState/Number", "**/LastTransition/Number", "**/LastTransition/TransitionTime")
 
@@ -141,14 +138,6 @@ class Table:
             return default
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.error(key, "must be an integer")
-        return value
-
-    def boolean(self, key: str, default: bool) -> bool:
-        value = self.raw(key)
-        if value is None:
-            return default
-        if not isinstance(value, bool):
-            raise self.error(key, "must be true or false")
         return value
 
     def choice(self, key: str, options: Mapping[str, Any], default: str) -> Any:

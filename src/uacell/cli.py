@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from uacell import __version__, _entry
+from uacell import __version__, early
 from uacell.config import (
     LOG_FORMATS,
     LOG_LEVELS,
@@ -252,14 +252,14 @@ def _health(args: argparse.Namespace, config: Config) -> int:
 
 def _serve(args: argparse.Namespace, config: Config) -> int:
     # Until the event loop takes over, a stop request ends start-up quietly (exit 0, no traceback);
-    # `uacell` and `python -m uacell` install the handler first thing (uacell._entry), main() here
+    # `uacell` and `python -m uacell` install the handler first thing (uacell._entry, uacell.early), main() here
     # for callers that enter through it.
-    _entry.install_early_stop()
-    _entry.pause_gc()
+    early.install_early_stop()
+    early.pause_gc()
     try:
         return _prepare_and_run(config)
     except BaseException:
-        if _entry.stop_requested:
+        if early.stop_requested:
             return 0
         raise
 
@@ -294,7 +294,7 @@ async def _run(config: Config) -> int:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
-    if _entry.stop_requested:  # a stop whose exception some library code caught (e.g. a logging handler)
+    if early.stop_requested:  # a stop whose exception some library code caught (e.g. a logging handler)
         stop.set()
     try:
         await app.setup()
@@ -303,7 +303,7 @@ async def _run(config: Config) -> int:
         with contextlib.suppress(Exception):
             await app.stop()
         raise
-    _entry.resume_gc()  # what start-up built lives as long as the server: out of the collector's way
+    early.resume_gc()  # what start-up built lives as long as the server: out of the collector's way
     if stop.is_set():  # asked to stop while setting up: never start listening
         log.info("shutting down")
         with contextlib.suppress(Exception):
@@ -386,6 +386,9 @@ async def _start_web_beside(config: Config, app: UacellServer) -> RunningWeb:
         server_certificate=pki.cert,
         https_certificate=cert,
         https_key=key,
+        ua_sessions=config.web.ua_sessions,
+        release_after=config.web.release_after,
+        header_timeout=config.web.header_timeout,
     )
 
 
@@ -408,7 +411,15 @@ async def _run_web(server: str, data_dir: Path, config: Config) -> int:
     cert, key = _https_files(config)
     try:
         web = await start_web(
-            server, data_dir, host=config.web.host, port=config.web.port, https_certificate=cert, https_key=key
+            server,
+            data_dir,
+            host=config.web.host,
+            port=config.web.port,
+            https_certificate=cert,
+            https_key=key,
+            ua_sessions=config.web.ua_sessions,
+            release_after=config.web.release_after,
+            header_timeout=config.web.header_timeout,
         )
     except ConfigError as exc:
         print(f"uacell: {exc}", file=sys.stderr)

@@ -1,40 +1,38 @@
 """What a companion specification brings to uacell, declared in one place in its own package.
 
 A companion (OPC 40010-1 Robotics, OPC 30050 PackML, DI LockingServices, ...) is a ``Companion``
-value in its package's ``companion.py``; ``companions()`` lists them, one line each. The shared code
-reads everything companion-specific from there:
+value in its package's ``companion.py``; ``uacell.catalog`` lists the ones this build serves, one
+line each. The shared code reads everything companion-specific from there:
 
 - ``uacell.roles``: the method families (``type_hints``) and the rows of the role table (``roles``);
 - ``uacell.config``: the configuration section (``section`` with its dataclass ``settings``) and
   the parts it adds to the cell (``cell_section``, read by ``cell_parser``);
 - ``uacell.cell``: where instances live (``roots``);
 - ``uacell.server``: the binder that ties the companion's models to their nodes (``binder``);
-- ``uacell.ua.locks``: which parts carry a DI Lock and which families it guards (``locks``).
+- ``uacell.di.locks``: which parts carry a DI Lock and which families it guards (``locks``).
 """
 
 from __future__ import annotations
 
-import functools
 import importlib
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from uacell.cellconfig import SectionParser
 from uacell.roles import Family, Role
 
-if TYPE_CHECKING:
-    from uacell.server import UacellServer
-
 Closer = Callable[[], Awaitable[None]]
-# Called once the cell exists, before the server listens; returns what to run at shutdown (or None).
-Binder = Callable[["UacellServer"], Awaitable[Closer | None]]
+# Called once the cell exists, before the server listens, with the server (``uacell.server.UacellServer``,
+# typed at each binder's definition: naming it here would tie every companion to the server's
+# imports); returns what to run at shutdown (or None).
+Binder = Callable[[Any], Awaitable[Closer | None]]
 
 
 def lazy_binder(module: str, name: str) -> Binder:
     """The binder ``module.name``, imported when the server binds (configuration loading stays light)."""
 
-    async def bind(app: UacellServer) -> Closer | None:
+    async def bind(app: Any) -> Closer | None:
         binder: Binder = getattr(importlib.import_module(module), name)
         return await binder(app)
 
@@ -77,13 +75,3 @@ class Companion:
     type_hints: Mapping[str, Family] = field(default_factory=dict)  # ObjectType/instance name -> family
     locks: tuple[LockRule, ...] = ()
     lock_guarded: frozenset[Family] = frozenset()  # families a foreign lock refuses (docs/decisions.md 20)
-
-
-@functools.cache
-def companions() -> tuple[Companion, ...]:
-    """Every companion this build of uacell serves: one line each."""
-    from uacell.di.companion import DI_LOCKING
-    from uacell.packml.companion import PACKML_COMPANION
-    from uacell.robotics.companion import ROBOTICS
-
-    return (PACKML_COMPANION, ROBOTICS, DI_LOCKING)

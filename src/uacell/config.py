@@ -26,15 +26,16 @@ from typing import Any, TypeVar
 
 import platformdirs
 
+from uacell.catalog import companions
 from uacell.cellconfig import CellConfig, SectionParser, builtin_cell_path, did_you_mean, parse_cell
-from uacell.companion import companions
 from uacell.discovery_registration import DiscoveryConfig
 from uacell.errors import ConfigError
 from uacell.history.config import HistoryConfig
+from uacell.roles import Role
 
 T = TypeVar("T")
 
-ROLES = ("observer", "operator", "engineer", "admin")
+ROLES = tuple(role.label for role in Role)  # the role names, lowest first
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 LOG_FORMATS = ("text", "json")
 CONFIG_ENV = "UACELL_CONFIG"
@@ -133,6 +134,9 @@ class WebConfig:
     port: int = 8080
     certificate: str = ""
     private_key: str = ""
+    ua_sessions: int = 50
+    release_after: float = 30.0
+    header_timeout: float = 10.0
 
 
 _POSITIVE = ("programs", "limits")  # sections whose every value must be above zero
@@ -343,6 +347,15 @@ def _load_file(path: str | Path | None) -> Config:
                 raise ConfigError(f"configuration {path}: {exc}") from exc
     if not 0 <= config.web.port <= 65535:
         raise ConfigError(f"configuration {path}: [web] port: must be 0..65535")
+    most = max(1, config.limits.sessions // 2)
+    web = data.get("web")
+    if not (isinstance(web, dict) and "ua_sessions" in web):  # the default follows [limits] sessions
+        config.web.ua_sessions = min(config.web.ua_sessions, most)
+    if not 1 <= config.web.ua_sessions <= most:
+        raise ConfigError(
+            f"configuration {path}: [web] ua_sessions: must be 1..{most} (at most half of [limits] sessions), "
+            f"not {config.web.ua_sessions}"
+        )
     for key in ("application_uri", "application_name"):
         if not getattr(config.server, key).strip():
             raise ConfigError(f"configuration {path}: [server] {key}: must not be empty")

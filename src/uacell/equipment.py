@@ -31,6 +31,27 @@ class EquipmentSpec:
     axes: tuple[AxisInfo, ...] = ()  # a controller: the configured axes of the motion device it moves
 
 
+def choose_equipment(
+    factory: str,
+    settings: Mapping[str, Any],
+    *,
+    default: str,
+    simulator: str,
+    simulator_settings: Mapping[str, Any],
+    simulator_defaults: Mapping[str, Any],
+) -> tuple[str, dict[str, Any]]:
+    """A part's factory and settings: its own factory, else its section's ``default``, else the
+    ``simulator``; for the simulator, the part's own simulator keys (``simulator_settings``, those
+    not None) win over its settings table, which wins over the section's ``simulator_defaults``."""
+    chosen = factory or default or simulator
+    merged = dict(settings)
+    if chosen == simulator:
+        merged.update({k: v for k, v in simulator_settings.items() if v is not None})
+        for key, value in simulator_defaults.items():
+            merged.setdefault(key, value)
+    return chosen, merged
+
+
 def protocol_members(protocol: type) -> list[str]:
     """The members a ``typing.Protocol`` declares (its own and its bases'), in declaration order."""
     names: list[str] = []

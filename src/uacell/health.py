@@ -16,7 +16,9 @@ from asyncua import Client, ua
 
 async def check(endpoint: str, timeout: float = 10.0) -> tuple[bool, str]:
     """(True, what was seen) when the server at ``endpoint`` is healthy; otherwise (False, why)."""
-    logging.getLogger("asyncua").setLevel(logging.CRITICAL)  # one line of our own says what failed
+    stack_log = logging.getLogger("asyncua")
+    saved = stack_log.level
+    stack_log.setLevel(logging.CRITICAL)  # one line of our own says what failed
     try:
         async with asyncio.timeout(timeout):
             endpoints = await Client(endpoint, timeout=timeout).connect_and_get_server_endpoints()
@@ -33,4 +35,6 @@ async def check(endpoint: str, timeout: float = 10.0) -> tuple[bool, str]:
         return False, f"no answer within {timeout:g} s"
     except (OSError, ua.UaError) as exc:
         return False, f"not reachable: {exc}"
+    finally:
+        stack_log.setLevel(saved)
     return state == ua.ServerState.Running, state.name

@@ -29,7 +29,7 @@ from uacell.errors import ConfigError
 from uacell.ua.context import Caller
 
 if TYPE_CHECKING:
-    from uacell.server import UacellServer
+    from uacell.host import Host
 
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds
@@ -40,7 +40,7 @@ _MAX_REQUEST = 8192
 class _AddressSpaceCollector:
     """Sessions, current states and PackML counters, read at scrape time."""
 
-    def __init__(self, app: UacellServer) -> None:
+    def __init__(self, app: Host) -> None:
         self.app = app
         self._states: list[tuple[str, ua.NodeId]] | None = None
         self._counters: list[tuple[str, str, ua.NodeId]] | None = None
@@ -49,7 +49,7 @@ class _AddressSpaceCollector:
         """Find the cell's CurrentState and Admin counter variables once (their NodeIds follow the path)."""
         states: list[tuple[str, ua.NodeId]] = []
         counters: list[tuple[str, str, ua.NodeId]] = []
-        ns = self.app.cell.instantiator.ns if self.app.cell is not None else -1
+        ns = self.app.cell.instantiator.ns
         for node in list(self.app.server.iserver.aspace.keys()):
             if node.NamespaceIndex != ns or not isinstance(node.Identifier, str):
                 continue
@@ -100,7 +100,7 @@ class _AddressSpaceCollector:
 class Metrics:
     """The metrics of one server and, once started, the endpoint that serves them."""
 
-    def __init__(self, app: UacellServer) -> None:
+    def __init__(self, app: Host) -> None:
         self.registry = CollectorRegistry()
         self.calls = Counter(
             "uacell_calls", "Method calls by method and result", ["method", "result"], registry=self.registry

@@ -450,12 +450,17 @@ def run_export(args: argparse.Namespace, config: Config) -> int:
     """``uacell nodeset export [-o FILE]``: the file, or the XML on standard output."""
     import asyncio
 
-    from uacell.users import atomic_write
+    from uacell.files import atomic_write
 
+    own = logging.getLogger("uacell")
+    saved = own.level
     if getattr(args, "log_level", None) is None:
         # Set-up talks about its temporary data directory and simulators: not the export's business.
-        logging.getLogger("uacell").setLevel(logging.ERROR)
-    data = asyncio.run(export_cell(config))
+        own.setLevel(logging.ERROR)
+    try:
+        data = asyncio.run(export_cell(config))
+    finally:
+        own.setLevel(saved)
     if args.output is None:
         sys.stdout.buffer.write(data)
         sys.stdout.flush()

@@ -33,7 +33,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from uacell.users import atomic_write
+from uacell.files import atomic_write
 
 _log = logging.getLogger(__name__)
 

@@ -1,14 +1,13 @@
-"""Roles, the one table of who may call what, and the listening policy for anonymous clients.
+"""Roles, method families, the rows of base OPC UA objects, and the listening policy for anonymous clients.
 
 Roles are ordered: ``observer < operator < engineer < admin``; a role may do everything the roles below
-it may. The table ``method_roles()`` maps (method family, method BrowseName) to the least role that may
-call it (``method_roles()``: the rows of base OPC UA objects here, each companion's in its package).
-Anything not in the table needs ``admin`` (deny by default). Pure: no OPC UA stack here.
+it may. ``BASE_ROLES`` holds the rows of the role table for base OPC UA objects; ``uacell.rights``
+joins them with each companion's rows into the one table. Pure and a leaf: no OPC UA stack, nothing
+of uacell imported.
 """
 
 from __future__ import annotations
 
-import functools
 import ipaddress
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -64,7 +63,7 @@ Family.CONDITION = Family("Condition")
 Family.SERVER = Family("Server")
 
 # ObjectType BrowseNames (and a few instance names) a dispatcher may pass as the hint; companions add theirs.
-_TYPE_HINTS: dict[str, Family] = {
+TYPE_HINTS: dict[str, Family] = {
     "FileType": Family.FILE,
     "FileDirectoryType": Family.DIRECTORY,
     "ConditionType": Family.CONDITION,
@@ -77,7 +76,7 @@ OP, EN = Role.OPERATOR, Role.ENGINEER
 
 # The rows for base OPC UA objects; ``method_roles()`` adds every companion's rows. FileType Open is
 # listed for reading; opening for writing needs ENGINEER (see required_role's file_mode).
-_BASE_ROLES: dict[tuple[Family, str], Role] = {
+BASE_ROLES: dict[tuple[Family, str], Role] = {
     **{(Family.FILE, m): OP for m in ("Open", "Read", "GetPosition", "SetPosition", "Close")},
     (Family.FILE, "Write"): EN,
     **{(Family.DIRECTORY, m): EN for m in ("CreateFile", "CreateDirectory", "Delete", "MoveOrCopy")},
@@ -90,27 +89,6 @@ _BASE_ROLES: dict[tuple[Family, str], Role] = {
 }
 
 
-@functools.cache
-def method_roles() -> dict[tuple[Family, str], Role]:
-    """THE table: (method family, method BrowseName) -> the least role that may call it."""
-    from uacell.companion import companions
-
-    table = dict(_BASE_ROLES)
-    for companion in companions():
-        table.update(companion.roles)
-    return table
-
-
-@functools.cache
-def _type_hints() -> dict[str, Family]:
-    from uacell.companion import companions
-
-    hints = dict(_TYPE_HINTS)
-    for companion in companions():
-        hints.update(companion.type_hints)
-    return hints
-
-
 # Services other than Call. Attribute writes change configuration, hence engineer.
 ACTION_ROLES: dict[str, Role] = {
     "read": Role.OBSERVER,
@@ -119,41 +97,6 @@ ACTION_ROLES: dict[str, Role] = {
     "history_read": Role.OBSERVER,  # like read (decision 36)
     "write": EN,
 }
-
-# FileType Open mode bits (OPC 10000-5 FileType): Read=1, Write=2, EraseExisting=4, Append=8.
-_FILE_WRITE_BITS = 0x2 | 0x4 | 0x8
-
-
-def family_of(hint: str | Family) -> Family | None:
-    """The method family for an ObjectType BrowseName or family name; None when unknown."""
-    if isinstance(hint, Family):
-        return hint
-    name = hint.split(":", 1)[1] if ":" in hint else hint  # accept "3:TaskControlStateMachineType"
-    hints = _type_hints()
-    if name in hints:
-        return hints[name]
-    known = {family for family, _ in method_roles()}
-    return Family(name) if name in known else None
-
-
-def required_role(method: str, object_type_hint: str | Family, *, file_mode: int | None = None) -> Role:
-    """The least role that may call ``method`` (BrowseName) on an object of the hinted family.
-
-    Unknown methods need ADMIN. FileType ``Open`` needs ENGINEER unless ``file_mode`` is given and
-    opens for reading only.
-    """
-    name = method.split(":", 1)[1] if ":" in method else method
-    family = family_of(object_type_hint)
-    if family is None:
-        return Role.ADMIN
-    if family is Family.FILE and name == "Open" and (file_mode is None or file_mode & _FILE_WRITE_BITS):
-        return Role.ENGINEER
-    return method_roles().get((family, name), Role.ADMIN)
-
-
-def may_call(role: Role, method: str, object_type_hint: str | Family, *, file_mode: int | None = None) -> bool:
-    """True when ``role`` may call ``method`` on an object of the hinted family."""
-    return role >= required_role(method, object_type_hint, file_mode=file_mode)
 
 
 def may(role: Role, action: str) -> bool:

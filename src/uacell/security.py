@@ -35,15 +35,14 @@ processor is published in a context variable while it handles a request.
 from __future__ import annotations
 
 import asyncio
-import contextvars
 import dataclasses
-import functools
 import hmac
 import logging
 import os
 import struct
 import time
 from collections.abc import Awaitable, Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 from urllib.parse import urlparse
@@ -57,16 +56,18 @@ from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary, uatcp_to_binary
 
 from uacell.pki import CertificateValidator, PkiPaths, RejectedLimit, TrustList, ensure_server_certificate
-from uacell.roles import Family, Role, may, may_call
+from uacell.rights import may_call
+from uacell.roles import Family, Role, may
 from uacell.ua import context
 from uacell.ua.access import user_access_level, verified_login
 from uacell.ua.context import caller_of
 from uacell.ua.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua.limits import LimitedSession
+from uacell.ua.pipeline import Next, Request
 from uacell.users import LoginThrottle
 
 if TYPE_CHECKING:
-    from uacell.server import UacellServer
+    from uacell.host import Host
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +108,6 @@ _USER_WRITABLE = ua.QualifiedName("UserWritable", 0)
 _A = ua.AttributeIds
 
 # The UaProcessor (one per TCP connection) handling the current request.
-_processor: contextvars.ContextVar[UaProcessor | None] = contextvars.ContextVar("uacell_processor", default=None)
 # The user name an ActivateSession under way presents (for the audit trail of a refused login).
 
 
@@ -205,7 +205,7 @@ async def prepare_certificate(server: Server, data_dir: Path, application_uri: s
 class Security:
     """The security setup of one server (reachable from asyncua objects as ``iserver._uacell_security``)."""
 
-    def __init__(self, app: UacellServer) -> None:
+    def __init__(self, app: Host) -> None:
         self.app = app
         self.server: Server = app.server
         limits = app.config.limits
@@ -216,6 +216,9 @@ class Security:
             free_per_user=limits.login_free_failures_per_user,
         )
         self.password_checks = asyncio.Semaphore(limits.password_checks)
+        # Threads of their own: a login never waits for other work in the loop's default executor
+        # (history reads, program files), however much of it there is.
+        self._password_threads = ThreadPoolExecutor(limits.password_checks, thread_name_prefix="uacell-password")
         self.on_session_closed: list[Callable[[InternalSession], None]] = []
         self._user_locks: dict[str, asyncio.Lock] = {}
         self.trust_list: TrustList | None = None
@@ -247,7 +250,6 @@ class Security:
         self.server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
         iserver.create_session = self._create_session
         iserver.decrypt_user_token = self.decrypt_user_token
-        _install_processor_hook()
         logging.getLogger("asyncua.server.uaprocessor").addFilter(_drop_fault_echo)  # added once
         context.add_read_hook(_read_hook)
         log.info(
@@ -257,7 +259,7 @@ class Security:
         )
 
     def _report_certificate_refusal(self, message: str) -> None:
-        address = _address(_processor.get())
+        address = _address(context.current_processor())
         self.refusals.warning(address, "certificate", f"{message} (client address {address})")
 
     # sessions ------------------------------------------------------------------------------------
@@ -392,7 +394,7 @@ class Security:
 
     def refuse_plaintext(self, token: ua.UserNameIdentityToken) -> None:
         """A password travels in clear text unless the token or the channel is encrypted: refuse that."""
-        processor = _processor.get()
+        processor = context.current_processor()
         if token.EncryptionAlgorithm or _channel_mode(processor) == ua.MessageSecurityMode.SignAndEncrypt:
             return
         log.info(
@@ -403,7 +405,7 @@ class Security:
         raise ServiceError(ua.StatusCodes.BadIdentityTokenRejected)
 
     def _invalid_token(self, token: ua.UserNameIdentityToken, reason: str, why: str) -> ServiceError:
-        address = _address(_processor.get())
+        address = _address(context.current_processor())
         self.refusals.warning(
             address,
             f"token:{reason}",
@@ -417,7 +419,7 @@ class Security:
         The token must name a user token policy of the session's endpoint; an encrypted password must
         use that policy's algorithm and end with the server nonce last sent to this session."""
         self.refuse_plaintext(token)
-        endpoint = self.endpoint_of(_processor.get())
+        endpoint = self.endpoint_of(context.current_processor())
         policies = [
             p
             for p in (endpoint.UserIdentityTokens if endpoint else [])
@@ -442,6 +444,24 @@ class Security:
             return token.UserName, secret.decode("utf-8")
         except ValueError as exc:  # includes cryptography's decryption errors and UnicodeDecodeError
             raise self._invalid_token(token, "secret", str(exc) or "the password cannot be decrypted") from None
+
+    # the channel guard (ua/pipeline.py) ------------------------------------------------------------
+    async def opening(
+        self, processor: UaProcessor, header: ua.Header, body: Buffer, proceed: Callable[[], Awaitable[Any]]
+    ) -> Any:
+        """An OpenSecureChannel message: refused unless an offered endpoint allows its policy (asyncua
+        would fall back to its initial None policy when no offered policy matches)."""
+        try:
+            self.check_channel(processor, _peek_policy_uri(header, body), None)
+            return await proceed()
+        except _ChannelRefused as refused:
+            self.refuse_channel(processor, refused)
+            return False  # the connection is closed
+
+    def open(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None:
+        """The channel's requested security mode, checked before asyncua opens it."""
+        request = struct_from_binary(ua.OpenSecureChannelRequest, body.copy())
+        self.check_channel(processor, algohdr.SecurityPolicyURI, request.Parameters.SecurityMode)
 
     async def activate(self, processor: UaProcessor, requesthdr: Any, body: Any, call: Callable[[], Any]) -> Any:
         """Run one ActivateSession: throttled per user name (never for anonymous logins), the password
@@ -496,7 +516,8 @@ class Security:
         except Exception:
             return None  # the activation refuses the token itself
         async with self.password_checks:
-            role = await asyncio.to_thread(self.app.users.verify, name, password or "")
+            loop = asyncio.get_running_loop()
+            role = await loop.run_in_executor(self._password_threads, self.app.users.verify, name, password or "")
         return verified_login.set((name, password or "", role))
 
     async def _audited(self, processor: UaProcessor, address: str, user: str | None, call: Callable[[], Any]) -> Any:
@@ -551,7 +572,7 @@ def _with_value(dv: ua.DataValue, value: Any, vtype: ua.VariantType) -> ua.DataV
 
 
 def _read_hook(session: InternalSession, params: Any, results: list[Any]) -> None:
-    security = getattr(session.iserver, "_uacell_security", None)
+    security: Security | None = getattr(session.iserver, "_uacell_security", None)
     if security is not None:
         security.adjust_read(session, params, results)
 
@@ -576,7 +597,7 @@ class UacellSession(LimitedSession):
 
     async def create_session(self, params: ua.CreateSessionParameters, sockname: Any = None) -> ua.CreateSessionResult:
         self._client_description = params.ClientDescription  # Caller.client: LockingClient shows it
-        processor = _processor.get()
+        processor = context.current_processor()
         self.client_address = _address(processor)
         if processor is not None:
             self.channel_certificate = processor._connection.security_policy.peer_certificate
@@ -635,68 +656,21 @@ def _peek_policy_uri(header: ua.Header, body: Buffer) -> str | None:
         return None
 
 
-def _install_processor_hook() -> None:
-    """Wrap UaProcessor once: refuse secure channels no offered endpoint allows; publish the processor and
-    the request's ReturnDiagnostics; throttle ActivateSession."""
-    if getattr(UaProcessor, "_uacell_installed", False):
-        return
-    original = UaProcessor._process_message
-    original_process: Callable[..., Awaitable[Any]] = UaProcessor.process
-    original_open: Callable[..., Any] = UaProcessor.open_secure_channel
+class SecurityStage:
+    """The request stage of security (``ua/pipeline.py``): the service allowed on this channel and for
+    this session; ActivateSession re-associated, throttled, checked off the loop and audited."""
 
-    @functools.wraps(original_process)
-    async def process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
-        security = getattr(self.iserver, "_uacell_security", None)
-        if security is None or header.MessageType != ua.MessageType.SecureOpen or self._connection.is_open():
-            return await original_process(self, header, body)
-        try:
-            # asyncua would fall back to its initial None policy when no offered policy matches.
-            security.check_channel(self, _peek_policy_uri(header, body), None)
-            return await original_process(self, header, body)
-        except _ChannelRefused as refused:
-            security.refuse_channel(self, refused)
-            return False  # the connection is closed
+    def __init__(self, security: Security) -> None:
+        self.security = security
 
-    @functools.wraps(original_open)
-    def open_secure_channel(self: UaProcessor, algohdr: Any, seqhdr: Any, body: Buffer) -> Any:
-        security = getattr(self.iserver, "_uacell_security", None)
-        if security is not None and not self._connection.is_open():
-            request = struct_from_binary(ua.OpenSecureChannelRequest, body.copy())
-            security.check_channel(self, algohdr.SecurityPolicyURI, request.Parameters.SecurityMode)
-        return original_open(self, algohdr, seqhdr, body)
-
-    @functools.wraps(original)
-    async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any, seqhdr: Any, body: Buffer) -> Any:
-        token = _processor.set(self)
-        diagnostics = context.set_return_diagnostics(int(getattr(requesthdr, "ReturnDiagnostics", 0) or 0))
-        audit_entry = context.set_audit_entry_id(str(getattr(requesthdr, "AuditEntryId", "") or ""))
-        try:
-            security = getattr(self.iserver, "_uacell_security", None)
-            server_diagnostics = getattr(self.iserver, "_uacell_diagnostics", None)
-
-            async def serve() -> Any:
-                if security is not None:
-                    security.check_service(self, typeid)
-                if security is not None and typeid == _ACTIVATE:
-                    if self.session is None:  # a session created on another channel
-                        security.check_reassociation(self, requesthdr.AuthenticationToken, body)
-                    return await security.activate(
-                        self, requesthdr, body, lambda: original(self, typeid, requesthdr, seqhdr, body)
-                    )
-                return await original(self, typeid, requesthdr, seqhdr, body)
-
-            if server_diagnostics is not None:
-                return await server_diagnostics.request(self, typeid, serve)
-            return await serve()
-        finally:
-            context.reset_audit_entry_id(audit_entry)
-            context.reset_return_diagnostics(diagnostics)
-            _processor.reset(token)
-
-    UaProcessor._process_message = _process_message
-    UaProcessor.process = process
-    UaProcessor.open_secure_channel = open_secure_channel
-    UaProcessor._uacell_installed = True
+    async def __call__(self, request: Request, call_next: Next) -> Any:
+        security, processor = self.security, request.processor
+        security.check_service(processor, request.typeid)
+        if request.typeid != _ACTIVATE:
+            return await call_next(request)
+        if processor.session is None:  # a session created on another channel
+            security.check_reassociation(processor, request.header.AuthenticationToken, request.body)
+        return await security.activate(processor, request.header, request.body, lambda: call_next(request))
 
 
 def _identity_token(body: Any) -> Any:
@@ -707,7 +681,7 @@ def _identity_token(body: Any) -> Any:
         return None
 
 
-async def install_security(app: UacellServer) -> Security:
+async def install_security(app: Host) -> Security:
     """Set up certificates, endpoints, trust list, login rules and per-session rights for ``app``."""
     security = Security(app)
     await security.install()

@@ -13,8 +13,9 @@ from asyncua import Server, ua
 
 from uacell import __version__
 from uacell.audit import AuditTrail
+from uacell.catalog import companions
 from uacell.cell import CellBuilder, Part, build_cell, cell_digest
-from uacell.companion import Binder, Closer, companions
+from uacell.companion import Binder, Closer
 from uacell.config import Config, default_application_uri
 from uacell.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
 from uacell.history.service import HistoryService
@@ -25,13 +26,15 @@ from uacell.models import StateTables
 from uacell.pki import PkiPaths
 from uacell.registry import Registries, Registry, RegistryKey, T
 from uacell.roles import Role, listening_policy, may
+from uacell.security import SecurityStage, install_security
 from uacell.ua.access import UacellUserManager
 from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.file_store import HandlePool
-from uacell.ua.limits import install_limits, publish_operation_limits
+from uacell.ua.limits import DecodingStage, guard_bytes, install_limits, publish_operation_limits
 from uacell.ua.nodesets import SnapshotJob, init_address_space
 from uacell.ua.observers import install_audit
+from uacell.ua.pipeline import ContextStage, Pipeline
 from uacell.ua.snapshot import WriteCancelled
 from uacell.ua.state_machine import NodeRefs, Publisher
 from uacell.ua.writes import WriteRouter
@@ -150,9 +153,15 @@ class UacellServer:
         await self.server.set_application_uri(cfg.application_uri)
         # State machines fire AuditUpdateStateEvents for the transitions calls cause (ua/state_machine.py).
         await self.server.get_node(ua.ObjectIds.Server_Auditing).write_value(True)
-        from uacell.security import install_security
-
         self.security = await install_security(self)
+        self.diagnostics = Diagnostics(self)
+        # What every request passes, outermost first (ua/pipeline.py says what each stage does).
+        self.pipeline = Pipeline(
+            [ContextStage(), self.diagnostics, SecurityStage(self.security), DecodingStage()],
+            bytes_guard=guard_bytes,
+            channel_guard=self.security,
+        )
+        self.pipeline.install(self.server.iserver)
         self.server.product_uri = PRODUCT_URI
         await self.server.set_build_info(PRODUCT_URI, "uacell", "uacell", __version__, "0", ua.DateTime.now())
         self._refs = NodeRefs(await self.server.get_namespace_array())
@@ -176,8 +185,8 @@ class UacellServer:
             self._snapshot_task = asyncio.get_running_loop().create_task(self._write_snapshot(write))
             self._snapshot_job = None
         await self.dispatcher.refresh_executable()
-        self.diagnostics = Diagnostics(self)
-        await self.diagnostics.start()
+        if self.diagnostics is not None:
+            await self.diagnostics.start()
         if self.config.metrics.enabled:
             self.metrics = Metrics(self)
             await self.metrics.start(self.config.metrics.host, self.config.metrics.port)
@@ -235,5 +244,5 @@ class UacellServer:
 
 
 def default_binders() -> list[Binder]:
-    """The binders of every companion (``uacell.companion.companions``), in their order."""
+    """The binders of every companion (``uacell.catalog.companions``), in their order."""
     return [c.binder for c in companions() if c.binder is not None]

@@ -1,7 +1,7 @@
 """DI (OPC 10000-100) as a uacell companion: DeviceSet and the LockingServices binder.
 
 Which parts carry a Lock and which families a lock guards are the other companions' to say
-(``Companion.locks``, ``Companion.lock_guarded``); ``uacell.ua.locks`` binds what they declare.
+(``Companion.locks``, ``Companion.lock_guarded``); ``uacell.di.locks`` binds what they declare.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ LOCKING = Family("Locking")
 
 DI_LOCKING = Companion(
     name="DI",
-    binder=lazy_binder("uacell.ua.locks", "bind_locks"),
+    binder=lazy_binder("uacell.di.locks", "bind_locks"),
     # Devices are components of DeviceSet (ns=DI;i=5001).
     roots=(Root("DeviceSet", "DI", 5001, 47),),
     roles={

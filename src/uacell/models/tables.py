@@ -87,10 +87,6 @@ class FsmTable:
     def methods(self) -> frozenset[str]:
         return frozenset(m for t in self.transitions.values() for m in t.causes)
 
-    @property
-    def initial_state(self) -> str | None:
-        return next((s.name for s in self.states.values() if s.initial), None)
-
     def check_names(self, states: Iterable[str] = (), methods: Iterable[str] = ()) -> None:
         """Raise ``LookupError`` unless the type declares every state and method named in code."""
         missing = [s for s in states if s not in self.states] + [m for m in methods if m not in self.methods]

@@ -25,7 +25,7 @@ from asyncua import ua
 from uacell.background import Background
 from uacell.cell import BuiltPart
 from uacell.companion import Closer
-from uacell.equipment import EquipmentSpec, make_equipment
+from uacell.equipment import EquipmentSpec, choose_equipment, make_equipment
 from uacell.errors import ConfigError
 from uacell.packml.admin_store import AdminStore, AdminWriter
 from uacell.packml.companion import PACKML, UNIT_PART
@@ -382,16 +382,18 @@ SIMULATOR = "uacell.packml.sim:simulator"
 
 async def make_unit_equipment(app: UacellServer, built: BuiltPart) -> PackMLEquipment:
     """The unit's own factory and settings, else ``[packml] equipment``, else the simulator."""
-    spec = built.part.spec if isinstance(built.part.spec, UnitSpec) else None
+    spec = built.part.spec if isinstance(built.part.spec, UnitSpec) else UnitSpec(built.part.name)
     cfg = app.config.section("packml", PackMLConfig)
-    factory = (spec.equipment if spec else "") or cfg.equipment or SIMULATOR
-    settings = dict(spec.settings) if spec else {}
-    if factory == SIMULATOR:
-        if spec is not None and spec.acting_time is not None:
-            settings["acting_time"] = spec.acting_time
-        settings.setdefault("acting_time", cfg.acting_time)
-        if spec is not None and spec.acting_times:
-            settings["acting_times"] = {**spec.acting_times, **settings.get("acting_times", {})}
+    factory, settings = choose_equipment(
+        spec.equipment,
+        spec.settings,
+        default=cfg.equipment,
+        simulator=SIMULATOR,
+        simulator_settings={"acting_time": spec.acting_time},
+        simulator_defaults={"acting_time": cfg.acting_time},
+    )
+    if factory == SIMULATOR and spec.acting_times:
+        settings["acting_times"] = {**spec.acting_times, **settings.get("acting_times", {})}
     equipment: PackMLEquipment = await make_equipment(factory, EquipmentSpec(built.path, settings), PackMLEquipment)
     return equipment
 

@@ -13,7 +13,6 @@ from typing import Any
 from uacell.cellconfig import Part, Table
 from uacell.packml.types import ProductionMaintenanceModeEnum
 
-SECTION = "packml_units"
 # ProductionMaintenanceModeEnum's names, as the NodeSet spells them.
 UNIT_MODES = {m.name.capitalize(): int(m) for m in ProductionMaintenanceModeEnum if m.value != 0}
 # The TR88 acting states (the simulator spends ``acting_time`` in each unless ``acting_times`` says).

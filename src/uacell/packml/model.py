@@ -426,10 +426,6 @@ class PackMLUnit:
         """MachineState.Reset: Stopped -> Running (Execute entered at Resetting)."""
         self._machine_command(MACHINE, "Reset")
 
-    def reset_execute(self) -> None:
-        """ExecuteState.Reset: Complete -> Resetting."""
-        self._machine_command(EXECUTE, "Reset")
-
     def start(self, parameters: Sequence[PackMLDescriptorDataType] = ()) -> None:
         """ExecuteState.Start(Parameter): Idle -> Starting; the parameters go to the equipment."""
         if parameters is None:
@@ -445,12 +441,6 @@ class PackMLUnit:
 
     def suspend(self) -> None:
         self._machine_command(EXECUTE, "Suspend")
-
-    def unsuspend(self) -> None:
-        self._machine_command(EXECUTE, "Unsuspend")
-
-    def to_complete(self) -> None:
-        self._machine_command(EXECUTE, "ToComplete")
 
     def _refusal(self, machine_name: str | None, method: str) -> str | None:
         """Why ``method`` cannot succeed now, or None if it can."""

@@ -16,7 +16,6 @@ from uacell.errors import ConfigError
 from uacell.robotics.equipment import AxisInfo, ExecutionMode, StopMode
 from uacell.robotics.sim import DEFAULT_AXES
 
-SECTION = "robots"
 STOP_MODES: dict[str, StopMode] = {
     "OnPath": StopMode.ON_PATH,
     "EndOfCycle": StopMode.END_OF_CYCLE,

@@ -29,10 +29,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from importlib import resources
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from uacell.robotics.equipment import AxisInfo
+from typing import Protocol
 
 AXIS_COUNT = 6
 MAX_SPEED_PERCENT = 100.0
@@ -470,7 +467,17 @@ def samples() -> dict[str, str]:
     return {f.name: f.read_text(encoding="utf-8") for f in folder.iterdir() if f.name.endswith(".robot")}
 
 
-def wave_program(axes: Sequence[AxisInfo]) -> str:
+class AxisRange(Protocol):
+    """What a generated program needs of an axis (``robotics.equipment.AxisInfo`` has it)."""
+
+    @property
+    def min_position(self) -> float: ...
+
+    @property
+    def max_position(self) -> float: ...
+
+
+def wave_program(axes: Sequence[AxisRange]) -> str:
     """A program for any arm: home, each axis a little way out and back, home."""
     home = [0.0 if a.min_position <= 0.0 <= a.max_position else a.min_position for a in axes]
     lines = [f"# Wave: generated for a {len(axes)}-axis arm", "program Wave version 1.0", "speed 50"]

@@ -11,7 +11,6 @@ context (``uacell.background``), so nothing they do is taken for a call's.
 from __future__ import annotations
 
 import contextvars
-import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
@@ -26,6 +25,7 @@ _session: contextvars.ContextVar[InternalSession | None] = contextvars.ContextVa
 _diagnostics: contextvars.ContextVar[int] = contextvars.ContextVar("uacell_diagnostics", default=0)
 # The AuditEntryId of the request being served (OPC 10000-4 RequestHeader), "" when none.
 _audit_entry: contextvars.ContextVar[str] = contextvars.ContextVar("uacell_audit_entry", default="")
+_processor: contextvars.ContextVar[Any] = contextvars.ContextVar("uacell_processor", default=None)
 
 
 class UacellUser(User):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
@@ -89,10 +89,6 @@ def caller_of(session: InternalSession | None, default_role: str = "observer") -
     return Caller(str(session.session_id), session.name, getattr(user, "name", None), role, client)
 
 
-def current_session() -> InternalSession | None:
-    return _session.get()
-
-
 def set_return_diagnostics(mask: int) -> contextvars.Token[int]:
     return _diagnostics.set(mask)
 
@@ -142,35 +138,30 @@ def add_read_hook(hook: ReadHook) -> None:
         _read_hooks.append(hook)
 
 
-def _with_session(original: Callable[[InternalSession, Any], Any]) -> Callable[[InternalSession, Any], Any]:
-    """``original`` (a session's service) with the session known (``current_session``) while it runs."""
-
-    @functools.wraps(original)
-    async def service(self: InternalSession, params: Any) -> Any:
-        token = _session.set(self)
-        try:
-            return await original(self, params)
-        finally:
-            _session.reset(token)
-
-    return service
+def run_read_hooks(session: InternalSession, params: Any, results: Any) -> None:
+    """After a client's Read (``ua/pipeline.py``): each hook sees what was read."""
+    for hook in _read_hooks:
+        hook(session, params, results)
 
 
-def install() -> None:
-    """Wrap InternalSession.call/read/history_read once so the session is known while a request runs."""
-    if getattr(InternalSession, "_uacell_installed", False):
-        return
-    original_read = InternalSession.read
+def set_session(session: InternalSession) -> contextvars.Token[InternalSession | None]:
+    """The session whose Call, Read or HistoryRead runs from here (``ua/pipeline.py``)."""
+    return _session.set(session)
 
-    @functools.wraps(original_read)
-    async def read(self: InternalSession, params: Any) -> Any:
-        results = await original_read(self, params)
-        if self.external:
-            for hook in _read_hooks:
-                hook(self, params, results)
-        return results
 
-    InternalSession.call = _with_session(InternalSession.call)
-    InternalSession.read = read
-    InternalSession.history_read = _with_session(InternalSession.history_read)
-    InternalSession._uacell_installed = True
+def reset_session(token: contextvars.Token[InternalSession | None]) -> None:
+    _session.reset(token)
+
+
+def set_processor(processor: Any) -> contextvars.Token[Any]:
+    """The connection's processor (asyncua ``UaProcessor``) of the request under way."""
+    return _processor.set(processor)
+
+
+def reset_processor(token: contextvars.Token[Any]) -> None:
+    _processor.reset(token)
+
+
+def current_processor() -> Any:
+    """The asyncua ``UaProcessor`` of the request under way (None outside requests)."""
+    return _processor.get()

@@ -17,18 +17,20 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
 from asyncua.common.utils import ServiceError
 
+from uacell.ua.pipeline import Next, Request
+
 if TYPE_CHECKING:
     from asyncua.server.internal_session import InternalSession
     from asyncua.server.uaprocessor import UaProcessor
 
-    from uacell.server import UacellServer
+    from uacell.host import Host
 
 log = logging.getLogger(__name__)
 
@@ -143,7 +145,7 @@ class SessionRecord:
 class Diagnostics:
     """The ServerDiagnostics of one server."""
 
-    def __init__(self, app: UacellServer, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, app: Host, clock: Callable[[], float] = time.monotonic) -> None:
         self.app = app
         self.summary = ua.ServerDiagnosticsSummaryDataType()
         self.sessions: dict[str, SessionRecord] = {}
@@ -159,7 +161,6 @@ class Diagnostics:
     # life cycle -------------------------------------------------------------------------------------
 
     async def start(self) -> None:
-        self.iserver._uacell_diagnostics = self
         await self._write(ENABLED_FLAG, ua.Variant(True, ua.VariantType.Boolean))
         await self.refresh()
         self._task = asyncio.get_running_loop().create_task(self._run())
@@ -183,13 +184,15 @@ class Diagnostics:
 
     # what happens ----------------------------------------------------------------------------------
 
-    async def request(self, processor: UaProcessor, typeid: ua.NodeId, call: Callable[[], Awaitable[Any]]) -> Any:
-        """Run one service request, counting it for its session and the summary."""
+    async def __call__(self, request: Request, call_next: Next) -> Any:
+        """The diagnostics stage (``ua/pipeline.py``): one service request, counted for its session
+        and the summary."""
+        processor, typeid = request.processor, request.typeid
         session = getattr(processor, "session", None)
         if typeid == _CLOSE_SESSION and session is not None:
             self.record(session).close_requested = True
         try:
-            result = await call()
+            result = await call_next(request)
         except (ServiceError, ua.UaStatusCodeError) as exc:
             self._count(processor, typeid, ok=False, code=exc.code)
             raise
@@ -334,7 +337,7 @@ class Diagnostics:
         await self.iserver.aspace.write_attribute_value(node, ua.AttributeIds.Value, ua.DataValue(value))
 
 
-def bind_get_monitored_items(app: UacellServer) -> None:
+def bind_get_monitored_items(app: Host) -> None:
     """``Server.GetMonitoredItems(SubscriptionId) -> ServerHandles, ClientHandles`` (OPC 10000-5, 9.1)."""
     from uacell.errors import CallError
     from uacell.roles import Family

@@ -33,8 +33,9 @@ from asyncua import Server, ua
 from asyncua.server.address_space import MethodService
 
 from uacell.errors import CallError
-from uacell.roles import Family, Role, may_call
-from uacell.ua import context, toolkit
+from uacell.rights import may_call
+from uacell.roles import Family, Role
+from uacell.ua import context, pipeline, toolkit
 from uacell.ua.context import Caller
 
 log = logging.getLogger(__name__)
@@ -106,7 +107,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
 
     @classmethod
     def install(cls, server: Server) -> MethodDispatcher:
-        context.install()
+        pipeline.attach()  # the session known while its calls run
         dispatcher = cls(server)
         server.iserver.method_service = dispatcher
         return dispatcher

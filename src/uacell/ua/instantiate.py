@@ -22,7 +22,6 @@ from __future__ import annotations
 import functools
 import logging
 import re
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -367,10 +366,3 @@ def _mask(*names: str) -> int:
     for n in names:
         out |= getattr(ua.NodeAttributesMask, n)
     return out
-
-
-def browse_children(aspace: AddressSpace, node: ua.NodeId) -> Iterable[ua.ReferenceDescription]:
-    """Forward hierarchical children of an instance node."""
-    for ref in aspace[node].references:
-        if ref.IsForward and ref.ReferenceTypeId != ua.NodeId(_HAS_TYPE_DEFINITION):
-            yield ref

@@ -33,6 +33,7 @@ import logging
 import math
 import resource
 import struct
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, cast
 
 from asyncua import ua
@@ -40,8 +41,9 @@ from asyncua.common.connection import TransportLimits
 from asyncua.common.utils import Buffer, ServiceError
 from asyncua.server.binary_server_asyncio import OPCUAProtocol
 from asyncua.server.internal_session import InternalSession
-from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary
+
+from uacell.ua.pipeline import Next, Request
 
 if TYPE_CHECKING:
     from uacell.config import LimitsConfig
@@ -127,8 +129,6 @@ def install_limits(app: Any) -> ServerLimits:
         max_chunk_count=limits.max_chunk_count,
         max_message_size=limits.max_message_size,
     )
-    _install_protocol_guard()
-    _install_decoding_guard()
     _demote_expected_refusals()
     log.info(
         "limits: %d connections, %d sessions, %d subscriptions, %d monitored items, requests up to %d bytes "
@@ -179,55 +179,48 @@ def _refuse_chunk(protocol: OPCUAProtocol, reason: str) -> None:
         protocol.transport.abort()
 
 
-def _install_protocol_guard() -> None:
-    """Check each chunk's declared size before asyncua buffers it (asyncua buffers whatever is declared)."""
-    if getattr(OPCUAProtocol, "_uacell_guarded", False):
+def guard_bytes(self: OPCUAProtocol, data: bytes, original: Callable[[OPCUAProtocol, bytes], None]) -> None:
+    """The bytes guard (``ua/pipeline.py``): each chunk's declared size checked before asyncua buffers
+    it (asyncua buffers whatever is declared); complete chunks go on to ``original``."""
+    limits = _limits_of(self.iserver)
+    if limits is None:
+        original(self, data)
         return
-    original = OPCUAProtocol.data_received
-
-    def data_received(self: OPCUAProtocol, data: bytes) -> None:
-        limits = _limits_of(self.iserver)
-        if limits is None or self.processor is None:
-            original(self, data)
+    pending = self._buffer + data
+    self._buffer = b""
+    while pending:
+        if len(pending) < _HEADER.size:
+            self._buffer = pending
             return
-        pending = self._buffer + data
-        self._buffer = b""
-        while pending:
-            if len(pending) < _HEADER.size:
-                self._buffer = pending
+        kind, _, size = _HEADER.unpack_from(pending)
+        hello_seen = getattr(self, "_uacell_hello", False)
+        if not hello_seen:
+            if kind != b"HEL":
+                _refuse_chunk(self, f"first message is {kind!r}, not a Hello")
                 return
-            kind, _, size = _HEADER.unpack_from(pending)
-            hello_seen = getattr(self, "_uacell_hello", False)
-            if not hello_seen:
-                if kind != b"HEL":
-                    _refuse_chunk(self, f"first message is {kind!r}, not a Hello")
-                    return
-                allowed = PRE_HELLO_BYTES
-            else:
-                # The negotiated receive buffer (the configured one until the Hello is processed).
-                allowed = min(self.processor._limits.max_recv_buffer, limits.max_chunk_size)
-            if size > allowed or size < _HEADER.size:
-                _refuse_chunk(self, f"a {kind!r} chunk declares {size} bytes (at most {allowed} accepted)")
-                return
-            if len(pending) < size:
-                self._buffer = pending
-                return
-            if kind == b"HEL":
-                self._uacell_hello = True
-            queued = sum(len(item[1]) for item in self.messages._queue if item[1] is not None)
-            if queued + size > limits.pending_bytes_per_connection:
-                _refuse_chunk(self, f"{queued} bytes wait unprocessed (at most {limits.pending_bytes_per_connection})")
-                return
-            # One complete chunk: asyncua parses and queues it (and closes on a full queue).
-            original(self, pending[:size])
-            if self.transport is None or self.transport.is_closing():
-                self._buffer = b""
-                return
+            allowed = PRE_HELLO_BYTES
+        else:
+            # The negotiated receive buffer (the configured one until the Hello is processed).
+            allowed = min(self.processor._limits.max_recv_buffer, limits.max_chunk_size)
+        if size > allowed or size < _HEADER.size:
+            _refuse_chunk(self, f"a {kind!r} chunk declares {size} bytes (at most {allowed} accepted)")
+            return
+        if len(pending) < size:
+            self._buffer = pending
+            return
+        if kind == b"HEL":
+            self._uacell_hello = True
+        queued = sum(len(item[1]) for item in self.messages._queue if item[1] is not None)
+        if queued + size > limits.pending_bytes_per_connection:
+            _refuse_chunk(self, f"{queued} bytes wait unprocessed (at most {limits.pending_bytes_per_connection})")
+            return
+        # One complete chunk: asyncua parses and queues it (and closes on a full queue).
+        original(self, pending[:size])
+        if self.transport is None or self.transport.is_closing():
             self._buffer = b""
-            pending = pending[size:]
-
-    OPCUAProtocol.data_received = data_received
-    OPCUAProtocol._uacell_guarded = True
+            return
+        self._buffer = b""
+        pending = pending[size:]
 
 
 class _ExpectedRefusals(logging.Filter):
@@ -249,25 +242,20 @@ def _demote_expected_refusals() -> None:
         logger.addFilter(_ExpectedRefusals())
 
 
-def _install_decoding_guard() -> None:
-    """Answer a request asyncua cannot decode with Bad_DecodingError (asyncua: Bad_InternalError)."""
-    if getattr(UaProcessor, "_uacell_decoding_guarded", False):
-        return
-    original = UaProcessor._process_message
+class DecodingStage:
+    """The decoding stage (``ua/pipeline.py``): a request asyncua cannot decode answers
+    Bad_DecodingError (asyncua: Bad_InternalError)."""
 
-    async def _process_message(self: UaProcessor, typeid: Any, requesthdr: Any, seqhdr: Any, body: Buffer) -> Any:
+    async def __call__(self, request: Request, call_next: Next) -> Any:
         try:
-            return await original(self, typeid, requesthdr, seqhdr, body)
+            return await call_next(request)
         except (ServiceError, ua.UaStatusCodeError):
             raise
         except Exception as exc:
-            if _decodes(typeid, body):
+            if _decodes(request.typeid, request.body):
                 raise  # not the request's fault: asyncua answers Bad_InternalError and logs it
-            log.info("a request from %s cannot be decoded (%s): Bad_DecodingError", self.name, exc)
+            log.info("a request from %s cannot be decoded (%s): Bad_DecodingError", request.processor.name, exc)
             raise ServiceError(ua.StatusCodes.BadDecodingError) from None
-
-    UaProcessor._process_message = _process_message
-    UaProcessor._uacell_decoding_guarded = True
 
 
 def _decodes(typeid: Any, body: Buffer) -> bool:

@@ -13,7 +13,7 @@ from uacell.audit import AuditTrail
 from uacell.ua.context import Caller
 
 if TYPE_CHECKING:
-    from uacell.server import UacellServer
+    from uacell.host import Host
 
 
 def _status_name(code: ua.StatusCode) -> str:
@@ -32,7 +32,7 @@ def _plain(value: Any) -> Any:
     return text if len(text) <= 200 else text[:200] + "..."
 
 
-def install_audit(app: UacellServer, trail: AuditTrail) -> None:
+def install_audit(app: Host, trail: AuditTrail) -> None:
     dispatcher = app.dispatcher
 
     def call(

@@ -3,7 +3,7 @@
 By default writing needs the ``write`` action of ``uacell.roles`` (engineer). A binding can route a
 node: its writes then need the role it names and go to its hook, which applies them through the
 model and answers the status code (asyncua itself cannot refuse a write per node). Guards (the DI
-lock guard of ``uacell.ua.locks``) may refuse any item a role allows, with the status code they name.
+lock guard of ``uacell.di.locks``) may refuse any item a role allows, with the status code they name.
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ import json
 import logging
 import secrets
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Coroutine, Iterable
 from dataclasses import dataclass, field
 from importlib import resources
 from typing import Any
@@ -24,13 +24,16 @@ from starlette.responses import FileResponse, JSONResponse, Response, StreamingR
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
+from uacell.web.guards import HostGuard
 from uacell.web.history import MAX_HOURS as MAX_HISTORY_HOURS
 from uacell.web.uasession import CallFailed, CellCache, Credentials, UaSession, UnknownKey
 
 log = logging.getLogger(__name__)
 
-COOKIE = "uacell_session"
+COOKIE = "uacell_session"  # until the HMI knows its port (cookie_name)
 IDLE_TIMEOUT = 30 * 60.0  # a web session nobody has used for this long ends (its OPC UA session too)
+UA_SESSIONS = 50  # OPC UA sessions the HMI holds at once ([web] ua_sessions)
+RELEASE_AFTER = 30.0  # seconds after its last page closed, a web session's OPC UA session is released
 HEARTBEAT = 15.0
 MAX_SESSIONS = 200  # beyond this, the longest unused web session (without a page open) ends
 MAX_UPLOAD = 1_000_000
@@ -44,6 +47,14 @@ class WebSession:
     user: str | None = None
     last_seen: float = field(default_factory=time.monotonic)
     streams: int = 0
+    ended_because: str = ""  # said to the page when the HMI ended the session itself
+
+
+def cookie_name(port: int, https: bool) -> str:
+    """The session cookie's name for the HMI on ``port``: browsers send a host's cookies to every port
+    of it, so each HMI has its own name (two HMIs on one host never clobber each other's session),
+    and over HTTPS the ``__Host-`` prefix keeps it to this exact host, Secure and path ``/``."""
+    return f"__Host-uacell_{port}" if https else f"uacell_{port}"
 
 
 def _static_dir() -> str:
@@ -61,6 +72,9 @@ class WebApp:
         https: bool = False,
         idle_timeout: float = IDLE_TIMEOUT,
         anonymous: bool = True,
+        hosts: Iterable[str] = (),
+        ua_sessions: int = UA_SESSIONS,
+        release_after: float = RELEASE_AFTER,
     ) -> None:
         self.url = url
         self.credentials = credentials
@@ -68,14 +82,17 @@ class WebApp:
         # the server would grant anonymous clients the rights it means for the local machine only).
         self.anonymous = anonymous
         self.https = https
+        self.cookie = COOKIE
         self.idle_timeout = idle_timeout
+        self.ua_sessions = ua_sessions
+        self.release_after = release_after
         self.sessions: dict[str, WebSession] = {}
         self.cells = CellCache()
         self.closing = asyncio.Event()
         self._reaper: asyncio.Task[None] | None = None
         self._ending: set[asyncio.Task[None]] = set()
         static = _static_dir()
-        self.app = Starlette(
+        routes = Starlette(
             routes=[
                 Route("/", self.index),
                 Route("/api/session", self.session_info),
@@ -90,6 +107,8 @@ class WebApp:
                 Mount("/static", StaticFiles(directory=static), name="static"),
             ]
         )
+        # Only the names the HMI is served under (loopback names, IP addresses, ``hosts``): DNS rebinding.
+        self.app = HostGuard(routes, names=hosts, https=https)
         self._index = f"{static}/index.html"
 
     # sessions --------------------------------------------------------------------------------
@@ -99,9 +118,7 @@ class WebApp:
         while len(self.sessions) >= MAX_SESSIONS and idle:
             oldest = idle.pop(0)
             self.sessions.pop(oldest.id, None)
-            task = asyncio.get_running_loop().create_task(self._end(oldest))
-            self._ending.add(task)
-            task.add_done_callback(self._ending.discard)
+            self._later(self._end(oldest))
         s = WebSession(secrets.token_urlsafe(32), secrets.token_urlsafe(32))
         self.sessions[s.id] = s
         if self._reaper is None or self._reaper.done():
@@ -109,13 +126,13 @@ class WebApp:
         return s
 
     def _session(self, request: Request) -> WebSession | None:
-        s = self.sessions.get(request.cookies.get(COOKIE, ""))
+        s = self.sessions.get(request.cookies.get(self.cookie, ""))
         if s is not None:
             s.last_seen = time.monotonic()
         return s
 
     def _set_cookie(self, response: Response, s: WebSession) -> Response:
-        response.set_cookie(COOKIE, s.id, httponly=True, samesite="strict", secure=self.https, path="/")
+        response.set_cookie(self.cookie, s.id, httponly=True, samesite="strict", secure=self.https, path="/")
         return response
 
     async def _end(self, s: WebSession) -> None:
@@ -124,14 +141,45 @@ class WebApp:
             await s.ua.close()
             s.ua = None
 
+    def _later(self, coro: Coroutine[Any, Any, None]) -> None:
+        task = asyncio.get_running_loop().create_task(coro)
+        self._ending.add(task)
+        task.add_done_callback(self._ending.discard)
+
     async def _reap(self) -> None:
         while self.sessions and not self.closing.is_set():
-            await asyncio.sleep(min(60.0, self.idle_timeout / 2))
+            await asyncio.sleep(min(60.0, self.idle_timeout / 2, self.release_after / 2))
             now = time.monotonic()
             for s in list(self.sessions.values()):
-                if s.streams == 0 and now - s.last_seen > self.idle_timeout:
+                if s.streams:
+                    if s.ua is not None and s.ua.status == "busy":  # an open page waits: a place may be free
+                        await self._ua(s)
+                    continue
+                if now - s.last_seen > self.idle_timeout:
                     log.info("web session of %s ended after %.0f s unused", s.user or "anonymous", now - s.last_seen)
                     await self._end(s)
+                elif s.ua is not None and s.ua.holding and now - s.last_seen > self.release_after:
+                    log.info("web session of %s: no page open, its OPC UA session released", s.user or "anonymous")
+                    await s.ua.release()
+
+    async def _make_room(self, s: WebSession) -> bool:
+        """Whether ``s`` may hold an OPC UA session: below ``ua_sessions``, or after releasing the one
+        of the longest-unused web session without an open page. Pages that are open keep theirs."""
+        held = [x for x in self.sessions.values() if x is not s and x.ua is not None and x.ua.holding]
+        if len(held) < self.ua_sessions:
+            return True
+        idle = sorted((x for x in held if x.streams == 0), key=lambda x: x.last_seen)
+        if not idle:
+            return False
+        assert idle[0].ua is not None
+        log.info("web: %d OPC UA sessions held; releasing the longest unused one", len(held))
+        await idle[0].ua.release()
+        return True
+
+    def _refused(self, s: WebSession, problem: str) -> None:
+        """The server no longer takes the password of ``s``: end it, the page asks for a login."""
+        s.ended_because = problem
+        self._later(self._end(s))
 
     async def close(self) -> None:
         self.closing.set()
@@ -140,24 +188,30 @@ class WebApp:
         if self._reaper is not None:
             self._reaper.cancel()
 
+    def _watch(self, s: WebSession, ua: UaSession) -> UaSession:
+        ua.on_identity_refused = lambda exc: self._refused(s, ua.problem)
+        return ua
+
     async def _ua(self, s: WebSession) -> UaSession:
-        """The session's OPC UA session, made anonymously on first use."""
+        """The session's OPC UA session: made anonymously on first use, made again after it was
+        released, and "busy" (with the reason) while the HMI holds ``ua_sessions`` for open pages."""
         if s.ua is None:
-            ua = UaSession(self.url, self.credentials, cache=self.cells)
+            ua = self._watch(s, UaSession(self.url, self.credentials, cache=self.cells))
             s.ua = ua
             if s.user is None and not self.anonymous:
                 ua.status = "login-required"
                 ua.problem = "Log in to use this HMI: it takes no anonymous users on this address"
                 return ua
-            try:
-                await ua.connect()
-            except CallFailed as exc:
-                log.warning("web: the server %s refused the HMI's session: %s", self.url, exc.name)
-                ua.fail(f"the server refused the HMI's session: {exc.name} ({exc.doc})")
-            except Exception as exc:
-                log.info("web: cannot reach %s: %s", self.url, exc)
-                ua.fail(f"the OPC UA server {self.url} cannot be reached")
-        return s.ua
+            ua.status = "released"
+        ua = s.ua
+        if ua.status in ("released", "busy"):
+            if not await self._make_room(s):
+                ua.status = "busy"
+                ua.problem = f"this HMI already serves {self.ua_sessions} users with open pages; try again in a minute"
+                ua.announce()
+                return ua
+            await ua.resume()
+        return ua
 
     # requests --------------------------------------------------------------------------------
 
@@ -174,6 +228,8 @@ class WebApp:
             body = await request.json()
         except (ValueError, UnicodeDecodeError):
             return JSONResponse({"error": "the request body must be JSON"}, status_code=400)
+        except RecursionError:
+            return JSONResponse({"error": "the request body is nested too deeply"}, status_code=400)
         if not isinstance(body, dict):
             return JSONResponse({"error": "the request body must be a JSON object"}, status_code=400)
         return s, body
@@ -200,19 +256,26 @@ class WebApp:
         user, password = body.get("user"), body.get("password")
         if not isinstance(user, str) or not user or not isinstance(password, str):
             return JSONResponse({"error": "user name and password are required"}, status_code=400)
+        if not await self._make_room(s):
+            problem = f"this HMI already serves {self.ua_sessions} users with open pages; try again in a minute"
+            return JSONResponse({"error": problem, "code": "BadTooManySessions"}, status_code=503)
         ua = UaSession(self.url, self.credentials, user=user, password=password, cache=self.cells)
         try:
             await ua.connect()
         except CallFailed as exc:
             log.info("web login of %s refused: %s", user, exc.name)
             return JSONResponse({"error": f"{exc.name}: {exc.doc}", "code": exc.name}, status_code=401)
+        except TimeoutError:
+            log.info("web login of %s: no answer from the server in time", user)
+            problem = "the server did not check the login in time (it slows logins down after failed attempts)"
+            return JSONResponse({"error": f"{problem}; try again in a minute", "code": "BadTimeout"}, status_code=503)
         except Exception as exc:
             log.info("web login of %s failed: server unreachable (%s)", user, type(exc).__name__)
             return JSONResponse({"error": f"the OPC UA server {self.url} cannot be reached"}, status_code=503)
         log.info("web login of %s", user)
         await self._end(s)
         fresh = self._new_session()  # a new id and CSRF token after every login
-        fresh.ua, fresh.user = ua, user
+        fresh.ua, fresh.user = self._watch(fresh, ua), user
         return self._set_cookie(JSONResponse({"user": user, "csrf": fresh.csrf}), fresh)
 
     async def logout(self, request: Request) -> Response:
@@ -256,7 +319,7 @@ class WebApp:
                         else:
                             getter.cancel()
                             yield ": keep-alive\n\n"
-                    yield _sse({"type": "expired"})
+                    yield _sse({"type": "expired", "reason": s.ended_because})
                 finally:
                     closing.cancel()
                     if getter is not None:

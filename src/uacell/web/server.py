@@ -32,6 +32,7 @@ from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 
 from uacell.errors import ConfigError
+from uacell.files import atomic_write
 from uacell.pki import (
     PkiPaths,
     TrustList,
@@ -43,8 +44,8 @@ from uacell.pki import (
     thumbprint,
 )
 from uacell.roles import is_loopback
-from uacell.users import atomic_write
-from uacell.web.app import WebApp
+from uacell.web.app import RELEASE_AFTER, UA_SESSIONS, WebApp, cookie_name
+from uacell.web.guards import HEADER_TIMEOUT, machine_names, timed_headers
 from uacell.web.uasession import APPLICATION_URI, Credentials
 
 log = logging.getLogger(__name__)
@@ -162,12 +163,16 @@ async def start_web(
     server_certificate: Path | None = None,
     https_certificate: Path | None = None,
     https_key: Path | None = None,
+    ua_sessions: int = UA_SESSIONS,
+    release_after: float = RELEASE_AFTER,
+    header_timeout: float = HEADER_TIMEOUT,
 ) -> RunningWeb:
     """Serve the HMI for the OPC UA server ``server_url``; HTTPS on every non-loopback address.
 
     ``server_certificate`` (DER) is the OPC UA server's certificate when known (beside the server);
     otherwise it is pinned on first connection. HTTPS needs ``https_certificate`` and ``https_key``
-    (PEM, or a DER certificate) unless ``host`` is loopback.
+    (PEM, or a DER certificate) unless ``host`` is loopback. ``ua_sessions``, ``release_after`` and
+    ``header_timeout`` are the ``[web]`` settings of the same names (docs/configuration.md).
     """
     cert, key = hmi_certificate(data_dir)
     https = not is_loopback(host)
@@ -191,7 +196,15 @@ async def start_web(
     # Anonymous visitors get the server's anonymous role, which on a loopback-only server is meant for
     # the local machine: an HMI on the network then takes logged-in users only.
     anonymous = not https or not is_loopback(urlparse(server_url).hostname or "")
-    web = WebApp(server_url, credentials, https=https, anonymous=anonymous)
+    web = WebApp(
+        server_url,
+        credentials,
+        https=https,
+        anonymous=anonymous,
+        hosts=(host, *machine_names()),
+        ua_sessions=ua_sessions,
+        release_after=release_after,
+    )
     sock = _bind(host, port)
     config = uvicorn.Config(
         web.app,
@@ -201,6 +214,7 @@ async def start_web(
         ssl_certfile=ssl_cert,
         ssl_keyfile=ssl_key,
         timeout_graceful_shutdown=3,
+        http=timed_headers(header_timeout),
     )
     config.load()
     server = uvicorn.Server(config)
@@ -208,6 +222,7 @@ async def start_web(
     await server.startup(sockets=[sock])
     task = asyncio.get_running_loop().create_task(server.main_loop())
     bound_host, bound_port = sock.getsockname()[:2]
+    web.cookie = cookie_name(bound_port, https)
     shown = f"[{bound_host}]" if ":" in bound_host else bound_host
     url = f"{'https' if https else 'http'}://{shown}:{bound_port}/"
     return RunningWeb(url, web, server, sock, task)

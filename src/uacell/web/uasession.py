@@ -33,6 +33,7 @@ log = logging.getLogger(__name__)
 
 APPLICATION_URI = "urn:uacell:web"
 RETRY_SECONDS = 2.0
+LOGIN_TIMEOUT = 45.0  # seconds a server may take to check a login (and a dead connection may go unnoticed)
 EVENTS_KEPT = 30
 _AUDIT_UPDATE_STATE = ua.NodeId(ua.ObjectIds.AuditUpdateStateEventType)
 _FILE_CHUNK = 60000
@@ -48,6 +49,17 @@ ROBOTICS_STATUS = {
     -3: "unresolved reference",
     -4: "module in use",
 }
+
+
+# The server refused who the session claims to be: retrying the same password cannot help (and each
+# attempt is a failed login in the server's log and throttle).
+IDENTITY_REFUSED = frozenset(
+    {
+        ua.StatusCodes.BadUserAccessDenied,
+        ua.StatusCodes.BadIdentityTokenRejected,
+        ua.StatusCodes.BadIdentityTokenInvalid,
+    }
+)
 
 
 class UnknownKey(LookupError):
@@ -139,12 +151,15 @@ def _scalar(argument: ua.Argument, value: Any) -> Any:
             if not isinstance(value, bool):
                 raise ValueError
             return value
-        if vt in (ua.VariantType.Float, ua.VariantType.Double):
-            return float(value)
-        if vt.name.startswith(("Int", "UInt", "SByte", "Byte")) and vt != ua.VariantType.ByteString:
-            if isinstance(value, bool) or float(value) != int(float(value)):
+        if vt == ua.VariantType.Float:
+            single = float(value)
+            if not abs(single) <= FLOAT_MAX:  # also NaN: what a Float cannot hold is refused here
                 raise ValueError
-            return int(float(value))
+            return single
+        if vt == ua.VariantType.Double:
+            return float(value)
+        if vt.name in _INT_RANGES:
+            return _whole(vt.name, value)
         if vt == ua.VariantType.String:
             return str(value)
         if vt == ua.VariantType.LocalizedText:
@@ -158,10 +173,40 @@ def _scalar(argument: ua.Argument, value: Any) -> Any:
             raise ValueError
         return _structure(cls, value)
     except (ValueError, TypeError, ua.UaError) as exc:
-        raise ValueError(f"{name}: {value!r} is not a valid {vt.name}") from exc
+        reason = str(exc) if isinstance(exc, ValueError) and str(exc) else f"{value!r} is not a valid {vt.name}"
+        raise ValueError(f"{name}: {reason}") from exc
 
 
-_INTS = {"SByte", "Byte", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64"}
+FLOAT_MAX = 3.4028234663852886e38  # the largest finite single-precision number
+
+_INT_RANGES = {
+    name: (-(2 ** (bits - 1)), 2 ** (bits - 1) - 1) if signed else (0, 2**bits - 1)
+    for name, bits, signed in (
+        ("SByte", 8, True),
+        ("Byte", 8, False),
+        ("Int16", 16, True),
+        ("UInt16", 16, False),
+        ("Int32", 32, True),
+        ("UInt32", 32, False),
+        ("Int64", 64, True),
+        ("UInt64", 64, False),
+    )
+}
+
+
+def _whole(type_name: str, item: Any) -> int:
+    """A JSON number as a whole number that fits ``type_name`` (ValueError names the range)."""
+    low, high = _INT_RANGES[type_name]
+    try:
+        whole = int(item) if isinstance(item, int) else int(float(item))
+        fits = not isinstance(item, bool) and float(item) == whole
+    except (ValueError, TypeError, OverflowError):
+        fits = False
+    if not fits:
+        raise ValueError(f"{item!r} is not a whole number")
+    if not low <= whole <= high:
+        raise ValueError(f"{item!r} is outside {low}..{high} ({type_name})")
+    return whole
 
 
 def _structure(cls: type, value: dict[str, Any]) -> Any:
@@ -178,10 +223,8 @@ def _structure(cls: type, value: dict[str, Any]) -> Any:
 
 def _field(type_name: str, item: Any) -> Any:
     base = type_name.rsplit(".", 1)[-1].strip("'\"")
-    if base in _INTS:
-        if isinstance(item, bool) or float(item) != int(float(item)):
-            raise ValueError(f"{item!r} is not a whole number")
-        return int(float(item))
+    if base in _INT_RANGES:
+        return _whole(base, item)
     if base in ("Float", "Double"):
         return float(item)
     if base == "Boolean":
@@ -259,11 +302,17 @@ class UaSession:
         self._reconnect_task: asyncio.Task[None] | None = None
         self._closed = False
         self._by_node: dict[ua.NodeId, str] = {}
+        # Called once when the server stops accepting this user's password (changed or removed while
+        # the web session lived): the HMI ends the web session and asks for a new login.
+        self.on_identity_refused: Callable[[CallFailed], None] | None = None
 
     # connection ------------------------------------------------------------------------------
 
     async def _new_client(self) -> Client:
-        client = Client(self.url, timeout=30, watchdog_intervall=1.0)
+        # The client's health probe starts with CreateSession, before the login is checked; a server
+        # that slows down logins after failed attempts (uacell: up to 30 s) must not look dead meanwhile.
+        # A server that goes away closes the TCP connection, which is noticed at once anyway.
+        client = Client(self.url, timeout=LOGIN_TIMEOUT, watchdog_intervall=LOGIN_TIMEOUT)
         client.application_uri = APPLICATION_URI
         client.name = client.description = "uacell web HMI"
         client.session_timeout = 60000
@@ -323,6 +372,8 @@ class UaSession:
         await self.refresh_modules()
 
     async def _lost(self, exc: Exception) -> None:
+        if self.status == "released":
+            return
         log.info("web session of %s lost the server: %s", self.user or "anonymous", exc)
         self.cache.forget()
         self.fail(f"the OPC UA server {self.url} cannot be reached")
@@ -333,9 +384,51 @@ class UaSession:
             return
         self.status = "unreachable"
         self.problem = problem
-        self._emit({"type": "status", "status": self.status, "problem": self.problem})
+        self.announce()
         if self._reconnect_task is None or self._reconnect_task.done():
             self._reconnect_task = asyncio.get_running_loop().create_task(self._reconnect())
+
+    def identity_refused(self, exc: CallFailed) -> bool:
+        """True (and the page told, retries stopped) when ``exc`` refuses this session's user."""
+        if self.user is None or exc.code not in IDENTITY_REFUSED:
+            return False
+        log.info("web session of %s: the server no longer accepts its password (%s)", self.user, exc.name)
+        self._closed = True
+        self.status = "login-required"
+        self.problem = f"The server no longer accepts the password of {self.user} ({exc.name}): log in again"
+        self.announce()
+        if self.on_identity_refused is not None:
+            self.on_identity_refused(exc)
+        return True
+
+    @property
+    def holding(self) -> bool:
+        """Whether this web session holds (or is trying to hold) an OPC UA session on the server."""
+        return not self._closed and self.status not in ("released", "busy", "login-required")
+
+    async def release(self) -> None:
+        """Give the server its session back while no page is open; ``resume()`` makes a new one."""
+        for task in (self._reconnect_task, self._methods_task, self._modules_task):
+            if task is not None and not task.done():
+                task.cancel()
+        client, self.client = self.client, None
+        self.status, self.problem = "released", ""
+        if client is not None:
+            with contextlib.suppress(Exception):
+                await client.disconnect()
+
+    async def resume(self) -> None:
+        """Connect again after ``release()`` (or after the HMI was busy); failures as in ``connect()``."""
+        self.status = "connecting"
+        try:
+            await self.connect()
+        except CallFailed as exc:
+            if not self.identity_refused(exc):
+                log.warning("web: the server %s refused the HMI's session: %s", self.url, exc.name)
+                self.fail(f"the server refused the HMI's session: {exc.name} ({exc.doc})")
+        except Exception as exc:
+            log.info("web: cannot reach %s: %s", self.url, exc)
+            self.fail(f"the OPC UA server {self.url} cannot be reached")
 
     async def _reconnect(self) -> None:
         old, self.client = self.client, None
@@ -347,8 +440,10 @@ class UaSession:
             try:
                 await self.connect()
             except CallFailed as exc:
+                if self.identity_refused(exc):
+                    return
                 self.problem = f"the server refused the session: {exc.name}"
-                self._emit({"type": "status", "status": self.status, "problem": self.problem})
+                self.announce()
                 continue
             except Exception as exc:  # the server is still away (or went away again while we set up)
                 log.debug("reconnecting to %s failed: %r", self.url, exc)
@@ -369,6 +464,8 @@ class UaSession:
     def _require(self) -> Client:
         if self.status == "login-required":
             raise CallFailed(ua.StatusCodes.BadUserAccessDenied, "log in first")
+        if self.status == "busy":
+            raise CallFailed(ua.StatusCodes.BadTooManySessions, self.problem)
         if self.client is None or self.status != "connected":
             raise CallFailed(ua.StatusCodes.BadServerNotConnected, "not connected")
         return self.client
@@ -391,6 +488,10 @@ class UaSession:
             "files": self.files,
             "modules": self.modules,
         }
+
+    def announce(self) -> None:
+        """Tell open pages the session's status and problem as they are now."""
+        self._emit({"type": "status", "status": self.status, "problem": self.problem})
 
     def _emit(self, message: dict[str, Any]) -> None:
         for listener in list(self.listeners):

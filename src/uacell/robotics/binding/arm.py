@@ -6,15 +6,12 @@ import asyncio
 import contextlib
 import functools
 import logging
-from typing import TYPE_CHECKING
 
 from asyncua import ua
 
 from uacell.background import Background
+from uacell.robotics.binding.shared import ControllerBinding
 from uacell.robotics.model import EXECUTING, READY
-
-if TYPE_CHECKING:
-    from uacell.robotics.binding.core import RoboticsBinding
 
 log = logging.getLogger(__name__)
 
@@ -26,7 +23,7 @@ _AXIS_VALUES = ("ActualPosition", "ActualSpeed", "ActualAcceleration")
 class Arm:
     """The motion device of one controller (if it has one)."""
 
-    def __init__(self, binding: RoboticsBinding) -> None:
+    def __init__(self, binding: ControllerBinding) -> None:
         self.binding = binding
         self.axis_nodes: list[dict[str, ua.NodeId]] = []
         self._last_axes: list[tuple[float, float]] | None = None

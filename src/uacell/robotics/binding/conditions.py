@@ -9,19 +9,17 @@ import uuid
 from collections import deque
 from collections.abc import Sequence
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 from asyncua import ua
 
 from uacell.errors import CallError
+from uacell.robotics.binding.shared import ControllerBinding, Handler
 from uacell.robotics.model import Condition
 from uacell.roles import Family
 from uacell.ua.context import Caller
 from uacell.ua.instantiate import Selection
 from uacell.ua.toolkit import EventEmitter
-
-if TYPE_CHECKING:
-    from uacell.robotics.binding.core import Handler, RoboticsBinding
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +54,7 @@ def _disabled(condition: Condition) -> bool:
 class ConditionNode:
     """One AlarmConditionType instance mirroring a model ``Condition``."""
 
-    def __init__(self, binding: RoboticsBinding, name: str, node: ua.NodeId, source: ua.NodeId) -> None:
+    def __init__(self, binding: ControllerBinding, name: str, node: ua.NodeId, source: ua.NodeId) -> None:
         self.binding = binding
         self.name = name
         self.node = node
@@ -72,7 +70,7 @@ class ConditionNode:
 class Conditions:
     """The conditions of one controller's SystemOperation."""
 
-    def __init__(self, binding: RoboticsBinding) -> None:
+    def __init__(self, binding: ControllerBinding) -> None:
         self.binding = binding
         self.nodes: dict[str, ConditionNode] = {}
 

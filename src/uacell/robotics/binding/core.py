@@ -4,28 +4,27 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
-
-from asyncua import ua
+from typing import TYPE_CHECKING, Any
 
 from uacell.cell import BuiltPart
 from uacell.companion import Closer
-from uacell.equipment import EquipmentSpec, close_equipment, make_equipment
+from uacell.equipment import EquipmentSpec, choose_equipment, close_equipment, make_equipment
 from uacell.errors import ConfigError
-from uacell.fsm import StateMachine
 from uacell.registry import RegistryKey
+from uacell.robotics.binding.arm import Arm
+from uacell.robotics.binding.conditions import Conditions
+from uacell.robotics.binding.programs import Programs, StoreLibrary, adopt_legacy_programs, install_samples
+from uacell.robotics.binding.shared import Concern, ControllerBinding
+from uacell.robotics.binding.system_operation import SystemOperationNodes
+from uacell.robotics.binding.task_control import TaskControls
 from uacell.robotics.companion import CONTROLLER, MOTION_DEVICE, TASK_CONTROL_PART
 from uacell.robotics.config import ControllerSpec, MotionDeviceSpec, RobotConfig, TaskControlSpec
 from uacell.robotics.equipment import AxisInfo, RobotEquipment, StopMode
 from uacell.robotics.model import RobotCell, RoboticsTables, TaskControl
 from uacell.robotics.program import ProgramLimits
 from uacell.robotics.sim import SimulatedRobot
-from uacell.roles import Family
 from uacell.ua.file_store import FileStore
-from uacell.ua.state_machine import bind_tree
-from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
     from uacell.server import UacellServer
@@ -37,108 +36,21 @@ PROGRAMS_DIR = "programs"
 CONTROLLERS: RegistryKey[RoboticsBinding] = RegistryKey("controller")
 # Every task control model, keyed by its browse path ("Robot1.Controllers.Controller1.TaskControls.TaskControl1").
 TASK_CONTROLS: RegistryKey[TaskControl] = RegistryKey("task control")
-_STOP_MODE_NAMES = {
-    StopMode.ON_PATH: "OnPath",
-    StopMode.END_OF_CYCLE: "EndOfCycle",
-    StopMode.PROCESS_STOP: "ProcessStop",
-    StopMode.QUICK_STOP: "QuickStop",
-    StopMode.END_OF_INSTRUCTION: "EndOfInstruction",
-}
-
-Handler = Callable[..., Awaitable[list[Any]]]
 
 
-class Concern(Protocol):
-    """One concern of a controller's binding (programs, task controls, ...)."""
-
-    async def setup(self) -> None: ...
-
-    async def publish(self) -> None: ...
-
-    async def close(self) -> None: ...
-
-
-class RoboticsBinding:
+class RoboticsBinding(ControllerBinding):
     """One controller (with its task controls and motion device) on its instance nodes."""
 
-    def __init__(
-        self,
-        app: UacellServer,
-        controller: BuiltPart,
-        tasks: list[BuiltPart],
-        arm: BuiltPart | None,
-        cell: RobotCell,
-        store: FileStore,
-    ) -> None:
-        from uacell.robotics.binding.arm import Arm
-        from uacell.robotics.binding.conditions import Conditions
-        from uacell.robotics.binding.programs import Programs
-        from uacell.robotics.binding.system_operation import SystemOperationNodes
-        from uacell.robotics.binding.task_control import TaskControls
-
-        self.app = app
-        self.controller = controller
-        self.task_parts = {t.part.name: t for t in tasks}
-        self.arm = arm
-        self.cell = cell
-        self.store = store
-        self.ns: int = app.cell.instantiator.ns
-        self.values = ValueWriter(app.server.iserver.aspace, app.dispatcher.types.builtin_of)
+    def compose(self) -> None:
         self._pending = False
         self.programs = Programs(self)
-        self.task_controls = TaskControls(self)
+        self.task_controls = TaskControls(self, self.programs)
         self.system_operation = SystemOperationNodes(self)
         self.conditions = Conditions(self)
         self.axes = Arm(self)
         self.concerns: list[Concern] = [
             self.programs, self.task_controls, self.system_operation, self.conditions, self.axes,
         ]  # fmt: skip
-
-    # --- helpers every concern uses -----------------------------------------------------------
-    def child(self, node: ua.NodeId, path: str) -> ua.NodeId:
-        return self.app.cell.child(node, path)
-
-    async def bind_machine(self, node: ua.NodeId, machine: StateMachine) -> None:
-        await bind_tree(self.app.server, node, machine, self.app.publisher, self.app.refs)
-
-    def bind_method(
-        self,
-        obj: ua.NodeId,
-        name: str,
-        family: Family,
-        handler: Handler,
-        executable: Callable[[], bool] | None,
-        serialize_on: object,
-        element: ua.NodeId,
-    ) -> None:
-        d = self.app.dispatcher
-        d.bind(
-            obj, d.method_of(obj, name), family, handler,
-            executable=executable, serialize_on=serialize_on, element=element, scope=self.cell,
-        )  # fmt: skip
-
-    async def publish_stop_modes(
-        self, machine_node: ua.NodeId, possible: tuple[StopMode, ...], default: StopMode
-    ) -> None:
-        values = [
-            ua.EnumValueType(
-                Value=int(m),
-                DisplayName=ua.LocalizedText(_STOP_MODE_NAMES.get(m, m.name), "en"),
-                Description=ua.LocalizedText(),
-            )
-            for m in possible
-        ]
-        for child, value, vtype in (
-            ("PossibleStopModes", values, ua.VariantType.ExtensionObject),
-            ("ConfiguredDefaultStopMode", int(default), ua.VariantType.Int16),
-        ):
-            try:
-                target = self.child(machine_node, child)
-            except KeyError:
-                continue
-            await self.values.write(target, value, vtype, force=True)
-            # Fixed by configuration: a client write would not change the behaviour.
-            await self.values.set_access(target, ua.AccessLevel.CurrentRead.mask)
 
     # --- life -----------------------------------------------------------------------------------
     async def setup(self) -> None:
@@ -169,10 +81,6 @@ class RoboticsBinding:
                 await concern.close()
 
 
-def executable(model: Any, machine: str, method: str) -> Callable[[], bool]:
-    return lambda: bool(model.executable(machine, method))
-
-
 # --- the binder ------------------------------------------------------------------------------------
 def program_limits(cfg: Any) -> ProgramLimits:
     """The ``[programs]`` section as ``ProgramLimits``."""
@@ -188,12 +96,14 @@ async def make_controller_equipment(
     """The controller's own factory and settings, else ``[robot] equipment``, else the simulator."""
     spec = controller.part.spec if isinstance(controller.part.spec, ControllerSpec) else None
     defaults = app.config.section("robot", RobotConfig)
-    factory = (spec.equipment if spec else "") or defaults.equipment or SIMULATOR
-    settings = dict(spec.settings) if spec else {}
-    if factory == SIMULATOR:
-        if spec is not None and spec.time_scale is not None:
-            settings["time_scale"] = spec.time_scale
-        settings.setdefault("time_scale", defaults.time_scale)
+    factory, settings = choose_equipment(
+        spec.equipment if spec else "",
+        spec.settings if spec else {},
+        default=defaults.equipment,
+        simulator=SIMULATOR,
+        simulator_settings={"time_scale": spec.time_scale if spec else None},
+        simulator_defaults={"time_scale": defaults.time_scale},
+    )
     equipment: RobotEquipment = await make_equipment(
         factory, EquipmentSpec(controller.path, settings, axes), RobotEquipment
     )
@@ -224,7 +134,6 @@ def programs_root(data_dir: Path, controller_path: str) -> Path:
 
 async def bind_controller(app: UacellServer, controller: BuiltPart, tables: RoboticsTables) -> RoboticsBinding:
     """One controller with its task controls and motion device, on its own equipment and Programs."""
-    from uacell.robotics.binding.programs import StoreLibrary, adopt_legacy_programs, install_samples
 
     tasks = [t for t in app.cell.by_role(TASK_CONTROL_PART) if t.path.startswith(controller.path + ".")]
     arm = _arm_of(app, controller)

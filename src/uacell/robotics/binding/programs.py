@@ -5,19 +5,17 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from asyncua import ua
 
 from uacell.errors import CallError
+from uacell.robotics.binding.shared import ControllerBinding
 from uacell.robotics.equipment import AxisInfo
 from uacell.robotics.model import PROGRAM_SUFFIX, DirectoryLibrary
 from uacell.robotics.program import AXIS_COUNT, samples, wave_program
 from uacell.ua.file_directory import FileDirectoryBinding
 from uacell.ua.file_store import FileStore
-
-if TYPE_CHECKING:
-    from uacell.robotics.binding.core import RoboticsBinding
 
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds
@@ -87,7 +85,7 @@ class StoreLibrary(DirectoryLibrary):
 class Programs:
     """The Programs directory of one controller, and the NodeIds clients name files and modules by."""
 
-    def __init__(self, binding: RoboticsBinding) -> None:
+    def __init__(self, binding: ControllerBinding) -> None:
         self.binding = binding
         self.directory: FileDirectoryBinding | None = None
         self._protected: set[str] = set()

@@ -2,22 +2,17 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from asyncua import ua
 
-from uacell.robotics.binding.core import Handler, executable
+from uacell.robotics.binding.shared import ControllerBinding, Handler, executable
 from uacell.robotics.companion import SYSTEM_OPERATION
 from uacell.ua.context import Caller
-
-if TYPE_CHECKING:
-    from uacell.robotics.binding.core import RoboticsBinding
 
 
 class SystemOperationNodes:
     """The SystemOperation of one controller."""
 
-    def __init__(self, binding: RoboticsBinding) -> None:
+    def __init__(self, binding: ControllerBinding) -> None:
         self.binding = binding
 
     @property

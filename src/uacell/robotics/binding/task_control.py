@@ -9,21 +9,18 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
-from typing import TYPE_CHECKING
 
 from asyncua import ua
 
 from uacell.errors import CallError
-from uacell.robotics.binding.core import Handler, executable
+from uacell.robotics.binding.programs import Programs
+from uacell.robotics.binding.shared import ControllerBinding, Handler, executable
 from uacell.robotics.companion import TASK_CONTROL
 from uacell.robotics.model import Status, TaskControl
 from uacell.roles import Role
 from uacell.ua.context import Caller
 from uacell.ua.instantiate import Selection
 from uacell.ua.writes import WriteHook
-
-if TYPE_CHECKING:
-    from uacell.robotics.binding.core import RoboticsBinding
 
 log = logging.getLogger(__name__)
 _MACHINE = "TaskControlOperation/TaskControlStateMachine"
@@ -39,8 +36,9 @@ PROGRAM_POSITION = {
 class TaskControls:
     """Every TaskControl of one controller."""
 
-    def __init__(self, binding: RoboticsBinding) -> None:
+    def __init__(self, binding: ControllerBinding, programs: Programs) -> None:
         self.binding = binding
+        self.programs = programs
         self.module_nodes: dict[str, dict[str, ua.NodeId]] = {name: {} for name in binding.task_parts}
         self._position_pending: set[str] = set()  # tasks with a position write submitted, not yet run
 
@@ -119,7 +117,7 @@ class TaskControls:
             return None
 
     def _handler(self, task: TaskControl, method: str) -> Handler:
-        programs = self.binding.programs
+        programs = self.programs
 
         async def load_by_node_id(caller: Caller, id_: ua.ExpandedNodeId) -> list[int]:
             return [await task.load_file(programs.file_of(id_))]

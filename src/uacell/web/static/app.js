@@ -46,13 +46,13 @@ async function loadSession() {
   return data;
 }
 
-function sessionExpired() {
+function sessionExpired(reason) {
   if (S.es) { S.es.close(); S.es = null; }
   const wasUser = S.user;
   S.user = null;
   showUser();
   loadSession().then(() => {
-    openLogin(wasUser ? `Your session has expired. Log in again, ${wasUser}.` : "Your session has expired.");
+    openLogin(reason ? `${reason}.` : wasUser ? `Your session has expired. Log in again, ${wasUser}.` : "Your session has expired.");
     connect();
   });
 }
@@ -103,7 +103,7 @@ function handle(m) {
     case "files": S.files = m.files; renderFiles(); break;
     case "modules": S.modules = m.modules; update(); break;
     case "status": setConn(m.status, m.problem); break;
-    case "expired": sessionExpired(); break;
+    case "expired": sessionExpired(m.reason); break;
   }
 }
 
@@ -112,10 +112,12 @@ function setConn(status, problem) {
   const b = $("#conn");
   b.dataset.status = status;
   b.textContent = {connected: "live", unreachable: "server unreachable", "web-lost": "HMI unreachable",
-                   connecting: "connecting…", "login-required": "log in"}[status] || status;
+                   connecting: "connecting…", "login-required": "log in", busy: "HMI busy",
+                   released: "connecting…"}[status] || status;
   const n = $("#notice");
   if (status === "connected") { n.hidden = true; n.textContent = ""; }
   else if (status === "login-required") { n.hidden = false; n.textContent = `${problem}.`; openLogin(`${problem}.`); }
+  else if (status === "busy") { n.hidden = false; n.textContent = `${problem}.`; }
   else if (problem) { n.hidden = false; n.textContent = `${problem}. Reconnecting…`; }
   updateButtons();
 }

@@ -2,7 +2,7 @@
 
 Each companion says which parts carry a Lock (``Companion.locks``: a part role, the role of the
 part above it, non-lockable members guarded with it) and which method families a lock guards
-(``Companion.lock_guarded``). Those parts form the tree of ``uacell.locking``, keyed by their object
+(``Companion.lock_guarded``). Those parts form the tree of ``uacell.di.locking``, keyed by their object
 NodeIds (``BuiltPart.node``). A binder passes ``element=<part NodeId>`` to ``dispatcher.bind``; the
 guard refuses guarded methods there with Bad_ResourceUnavailable while another session holds a lock
 on the element or a part above it. For Robotics: Controllers, the TaskControls below them, and each
@@ -23,10 +23,10 @@ from typing import TYPE_CHECKING
 from asyncua import ua
 
 from uacell.background import Background
-from uacell.companion import companions
+from uacell.catalog import companions
 from uacell.di.companion import LOCKING
+from uacell.di.locking import LockManager, LockOwner
 from uacell.errors import CallError
-from uacell.locking import LockManager, LockOwner
 from uacell.registry import RegistryKey
 from uacell.roles import Family
 from uacell.ua import toolkit

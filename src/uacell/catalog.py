@@ -1,0 +1,33 @@
+"""The companions this build of uacell serves: one line each, named here and nowhere else.
+
+Each entry is the ``Companion`` value's import path; the shared code (configuration, roles, cell,
+server) asks ``companions()`` and reads everything companion-specific from the values
+(``uacell.companion``). A third companion is one package with its ``companion.py`` and one line here.
+Named by path, imported on first use: the companions' packages import the shared modules, never the
+other way round.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+
+from uacell.companion import Companion
+
+COMPANIONS = (
+    "uacell.packml.companion:PACKML_COMPANION",
+    "uacell.robotics.companion:ROBOTICS",
+    "uacell.di.companion:DI_LOCKING",
+)
+
+
+@functools.cache
+def companions() -> tuple[Companion, ...]:
+    """Every companion of ``COMPANIONS``, in that order."""
+    found = []
+    for entry in COMPANIONS:
+        module, _, name = entry.partition(":")
+        companion = getattr(importlib.import_module(module), name)
+        assert isinstance(companion, Companion), entry
+        found.append(companion)
+    return tuple(found)

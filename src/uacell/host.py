@@ -1,0 +1,64 @@
+"""What the server's cross-cutting parts receive: a narrow, read-only view of the server.
+
+Security, diagnostics, metrics and the audit observers are wired by ``uacell.server`` and see it
+only as a ``Host``: the asyncua server, the configuration, the cell, the method dispatcher and write
+router, users, the audit trail, the listening policy and the diagnostics hooks. They never import
+``uacell.server`` (which imports them), so the server's assembly stays at the top of the imports.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Protocol
+
+from asyncua import Server, ua
+
+from uacell.audit import AuditTrail
+from uacell.cell import CellBuilder
+from uacell.config import Config
+from uacell.roles import ListeningPolicy
+from uacell.ua.dispatch import MethodDispatcher
+from uacell.ua.writes import WriteRouter
+from uacell.users import UserStore
+
+
+class SessionHooks(Protocol):
+    """What session handling tells the server's diagnostics (``uacell.ua.diagnostics.Diagnostics``)."""
+
+    def session_created(self, session: Any, params: ua.CreateSessionParameters, processor: Any) -> None: ...
+
+    def session_closed(self, session: Any) -> None: ...
+
+
+class Host(Protocol):
+    """The server as its parts see it (``uacell.server.UacellServer`` is one)."""
+
+    @property
+    def server(self) -> Server: ...
+
+    @property
+    def config(self) -> Config: ...
+
+    @property
+    def data_dir(self) -> Path: ...
+
+    @property
+    def cell(self) -> CellBuilder: ...
+
+    @property
+    def dispatcher(self) -> MethodDispatcher: ...
+
+    @property
+    def writes(self) -> WriteRouter: ...
+
+    @property
+    def users(self) -> UserStore: ...
+
+    @property
+    def audit(self) -> AuditTrail: ...
+
+    @property
+    def policy(self) -> ListeningPolicy: ...
+
+    @property
+    def diagnostics(self) -> SessionHooks | None: ...

@@ -1,0 +1,114 @@
+"""What every concern of a controller's binding shares: its nodes, models and helpers.
+
+``core.RoboticsBinding`` composes the concerns (programs, task controls, SystemOperation, conditions,
+arm) on top of ``ControllerBinding``; each concern receives the ``ControllerBinding`` and never
+imports ``core`` back.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable
+from typing import TYPE_CHECKING, Any, Protocol
+
+from asyncua import ua
+
+from uacell.cell import BuiltPart
+from uacell.fsm import StateMachine
+from uacell.robotics.config import STOP_MODE_NAMES
+from uacell.robotics.equipment import StopMode
+from uacell.robotics.model import RobotCell
+from uacell.roles import Family
+from uacell.ua.file_store import FileStore
+from uacell.ua.state_machine import bind_tree
+from uacell.ua.toolkit import ValueWriter
+
+if TYPE_CHECKING:
+    from uacell.server import UacellServer
+
+Handler = Callable[..., Awaitable[list[Any]]]
+
+
+class Concern(Protocol):
+    """One concern of a controller's binding (programs, task controls, ...)."""
+
+    async def setup(self) -> None: ...
+
+    async def publish(self) -> None: ...
+
+    async def close(self) -> None: ...
+
+
+class ControllerBinding:
+    """One controller's part, models and nodes, and the helpers its concerns bind them with."""
+
+    def __init__(
+        self,
+        app: UacellServer,
+        controller: BuiltPart,
+        tasks: list[BuiltPart],
+        arm: BuiltPart | None,
+        cell: RobotCell,
+        store: FileStore,
+    ) -> None:
+        self.app = app
+        self.controller = controller
+        self.task_parts = {t.part.name: t for t in tasks}
+        self.arm = arm
+        self.cell = cell
+        self.store = store
+        self.ns: int = app.cell.instantiator.ns
+        self.values = ValueWriter(app.server.iserver.aspace, app.dispatcher.types.builtin_of)
+        self.compose()
+
+    def compose(self) -> None:
+        """Make the concerns (``core.RoboticsBinding``); none here."""
+
+    # --- helpers every concern uses -----------------------------------------------------------
+    def child(self, node: ua.NodeId, path: str) -> ua.NodeId:
+        return self.app.cell.child(node, path)
+
+    async def bind_machine(self, node: ua.NodeId, machine: StateMachine) -> None:
+        await bind_tree(self.app.server, node, machine, self.app.publisher, self.app.refs)
+
+    def bind_method(
+        self,
+        obj: ua.NodeId,
+        name: str,
+        family: Family,
+        handler: Handler,
+        executable: Callable[[], bool] | None,
+        serialize_on: object,
+        element: ua.NodeId,
+    ) -> None:
+        d = self.app.dispatcher
+        d.bind(
+            obj, d.method_of(obj, name), family, handler,
+            executable=executable, serialize_on=serialize_on, element=element, scope=self.cell,
+        )  # fmt: skip
+
+    async def publish_stop_modes(
+        self, machine_node: ua.NodeId, possible: tuple[StopMode, ...], default: StopMode
+    ) -> None:
+        values = [
+            ua.EnumValueType(
+                Value=int(m),
+                DisplayName=ua.LocalizedText(STOP_MODE_NAMES.get(m, m.name), "en"),
+                Description=ua.LocalizedText(),
+            )
+            for m in possible
+        ]
+        for child, value, vtype in (
+            ("PossibleStopModes", values, ua.VariantType.ExtensionObject),
+            ("ConfiguredDefaultStopMode", int(default), ua.VariantType.Int16),
+        ):
+            try:
+                target = self.child(machine_node, child)
+            except KeyError:
+                continue
+            await self.values.write(target, value, vtype, force=True)
+            # Fixed by configuration: a client write would not change the behaviour.
+            await self.values.set_access(target, ua.AccessLevel.CurrentRead.mask)
+
+
+def executable(model: Any, machine: str, method: str) -> Callable[[], bool]:
+    return lambda: bool(model.executable(machine, method))

@@ -1,0 +1,219 @@
+"""The one place uacell attaches to asyncua's processing, and the declared stages each request passes.
+
+asyncua offers no middleware, so uacell wraps its entry points once, here, process-wide:
+
+- a connection's bytes (``OPCUAProtocol.data_received``): the server's ``bytes_guard``
+  (``ua/limits.py``: chunk sizes and buffers checked before asyncua buffers them);
+- the opening of a secure channel (``UaProcessor.process`` for an OpenSecureChannel message, and
+  ``UaProcessor.open_secure_channel``): the server's ``channel_guard`` (``security.py``: only the
+  policies and modes the endpoints offer);
+- each service request (``UaProcessor._process_message``): the server's ``stages``, in order;
+- a session's Call, Read and HistoryRead (``InternalSession``): the session known while they run, and
+  the read hooks (``ua/context.py``).
+
+What runs belongs to the server a connection reached (``Pipeline.of(iserver)``), so servers in one
+process keep their own stages; an asyncua server without a pipeline runs asyncua's processing alone.
+``uacell.server`` declares the stages, outermost first:
+
+    context      the request's processor, ReturnDiagnostics and AuditEntryId for the code below
+    diagnostics  ServerDiagnostics counters (ua/diagnostics.py)
+    security     the service allowed on this channel and for this session; ActivateSession throttled,
+                 checked off the event loop and audited (security.py)
+    decoding     a request asyncua cannot decode answers Bad_DecodingError (ua/limits.py)
+    (asyncua)    the service itself; a Call goes on to the one method dispatcher (ua/dispatch.py)
+
+A stage is any object with ``async __call__(request, call_next)``: it may answer itself, raise a
+``ServiceError``, or ``await call_next(request)`` and look at the answer. Adding a cross-cutting
+stage is one entry in that list.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from asyncua import ua
+from asyncua.common.utils import Buffer
+from asyncua.server.binary_server_asyncio import OPCUAProtocol
+from asyncua.server.internal_session import InternalSession
+from asyncua.server.uaprocessor import UaProcessor
+
+from uacell.ua import context
+
+
+@dataclass(slots=True)
+class Request:
+    """One service request as asyncua decoded its header (the body is still encoded)."""
+
+    processor: UaProcessor
+    typeid: ua.NodeId
+    header: Any  # ua.RequestHeader
+    seqhdr: Any
+    body: Buffer
+
+
+Next = Callable[[Request], Awaitable[Any]]
+
+
+class Stage(Protocol):
+    """One job done around every service request."""
+
+    async def __call__(self, request: Request, call_next: Next) -> Any: ...
+
+
+class ChannelGuard(Protocol):
+    """Checks a secure channel's opening (``security.Security``)."""
+
+    async def opening(self, processor: UaProcessor, header: ua.Header, body: Buffer, proceed: Next0) -> Any: ...
+
+    def open(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None: ...
+
+
+Next0 = Callable[[], Awaitable[Any]]
+BytesGuard = Callable[[OPCUAProtocol, bytes, Callable[[OPCUAProtocol, bytes], None]], None]
+
+
+class ContextStage:
+    """The request's processor, ReturnDiagnostics and AuditEntryId, known to everything below."""
+
+    async def __call__(self, request: Request, call_next: Next) -> Any:
+        header = request.header
+        processor = context.set_processor(request.processor)
+        diagnostics = context.set_return_diagnostics(int(getattr(header, "ReturnDiagnostics", 0) or 0))
+        audit_entry = context.set_audit_entry_id(str(getattr(header, "AuditEntryId", "") or ""))
+        try:
+            return await call_next(request)
+        finally:
+            context.reset_audit_entry_id(audit_entry)
+            context.reset_return_diagnostics(diagnostics)
+            context.reset_processor(processor)
+
+
+class Pipeline:
+    """One server's stages and guards (``attach()`` runs them)."""
+
+    def __init__(
+        self,
+        stages: Sequence[Stage],
+        *,
+        bytes_guard: BytesGuard | None = None,
+        channel_guard: ChannelGuard | None = None,
+    ) -> None:
+        self.stages = tuple(stages)
+        self.bytes_guard = bytes_guard
+        self.channel_guard = channel_guard
+        self._entry = _compose(self.stages, _asyncua_request)
+
+    @staticmethod
+    def of(iserver: Any) -> Pipeline | None:
+        pipeline: Pipeline | None = getattr(iserver, "_uacell_pipeline", None)
+        return pipeline
+
+    def install(self, iserver: Any) -> None:
+        """Run this pipeline for every connection to ``iserver`` (an asyncua InternalServer)."""
+        attach()
+        iserver._uacell_pipeline = self
+
+    def names(self) -> list[str]:
+        """The stages in order, by class name (for logs and tests)."""
+        return [type(s).__name__ for s in self.stages]
+
+    async def request(self, request: Request) -> Any:
+        return await self._entry(request)
+
+
+def _compose(stages: Sequence[Stage], endpoint: Next) -> Next:
+    handler = endpoint
+    for stage in reversed(stages):
+        handler = functools.partial(_run_stage, stage, handler)
+    return handler
+
+
+async def _run_stage(stage: Stage, call_next: Next, request: Request) -> Any:
+    return await stage(request, call_next)
+
+
+# asyncua's own entry points, as they were before ``attach()``.
+_ORIGINAL_PROCESS_MESSAGE = UaProcessor._process_message
+_ORIGINAL_PROCESS = UaProcessor.process
+_ORIGINAL_OPEN = UaProcessor.open_secure_channel
+_ORIGINAL_DATA_RECEIVED = OPCUAProtocol.data_received
+_ORIGINAL_CALL = InternalSession.call
+_ORIGINAL_READ = InternalSession.read
+_ORIGINAL_HISTORY_READ = InternalSession.history_read
+
+
+async def _asyncua_request(request: Request) -> Any:
+    return await _ORIGINAL_PROCESS_MESSAGE(
+        request.processor, request.typeid, request.header, request.seqhdr, request.body
+    )
+
+
+async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any, seqhdr: Any, body: Buffer) -> Any:
+    pipeline = Pipeline.of(self.iserver)
+    if pipeline is None:
+        return await _ORIGINAL_PROCESS_MESSAGE(self, typeid, requesthdr, seqhdr, body)
+    return await pipeline.request(Request(self, typeid, requesthdr, seqhdr, body))
+
+
+async def _process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
+    pipeline = Pipeline.of(self.iserver)
+    guard = pipeline.channel_guard if pipeline is not None else None
+    if guard is None or header.MessageType != ua.MessageType.SecureOpen or self._connection.is_open():
+        return await _ORIGINAL_PROCESS(self, header, body)
+    return await guard.opening(self, header, body, lambda: _ORIGINAL_PROCESS(self, header, body))
+
+
+def _open_secure_channel(self: UaProcessor, algohdr: Any, seqhdr: Any, body: Buffer) -> Any:
+    pipeline = Pipeline.of(self.iserver)
+    guard = pipeline.channel_guard if pipeline is not None else None
+    if guard is not None and not self._connection.is_open():
+        guard.open(self, algohdr, body)
+    return _ORIGINAL_OPEN(self, algohdr, seqhdr, body)
+
+
+def _data_received(self: OPCUAProtocol, data: bytes) -> None:
+    pipeline = Pipeline.of(self.iserver)
+    if pipeline is None or pipeline.bytes_guard is None or self.processor is None:
+        _ORIGINAL_DATA_RECEIVED(self, data)
+        return
+    pipeline.bytes_guard(self, data, _ORIGINAL_DATA_RECEIVED)
+
+
+def _with_session(original: Callable[[InternalSession, Any], Awaitable[Any]]) -> Callable[..., Awaitable[Any]]:
+    """A session's service with the session known (``context.current_caller``) while it runs."""
+
+    async def service(self: InternalSession, params: Any) -> Any:
+        token = context.set_session(self)
+        try:
+            return await original(self, params)
+        finally:
+            context.reset_session(token)
+
+    return service
+
+
+_call = _with_session(_ORIGINAL_CALL)
+_history_read = _with_session(_ORIGINAL_HISTORY_READ)
+
+
+async def _read(self: InternalSession, params: Any) -> Any:
+    results = await _ORIGINAL_READ(self, params)
+    if self.external:
+        context.run_read_hooks(self, params, results)
+    return results
+
+
+def attach() -> None:
+    """Wrap asyncua's entry points (once per process; each looks up its server's pipeline)."""
+    if UaProcessor._process_message is _process_message:
+        return
+    UaProcessor._process_message = _process_message
+    UaProcessor.process = _process
+    UaProcessor.open_secure_channel = _open_secure_channel
+    OPCUAProtocol.data_received = _data_received
+    InternalSession.call = _call
+    InternalSession.read = _read
+    InternalSession.history_read = _history_read

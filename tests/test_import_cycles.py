@@ -1,0 +1,114 @@
+"""No import cycles among uacell's modules (docs/architecture.md, "Which way imports go").
+
+Every import counts: top-level, function-level and those under ``TYPE_CHECKING``. A cycle means two
+modules cannot be understood, tested or replaced apart; the fix is a narrower dependency (a Protocol
+in a leaf module, a parameter, a name looked up at the composition root), never a local import.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+SRC = Path(__file__).resolve().parent.parent / "src"
+PACKAGE = "uacell"
+
+
+def module_graph(src: Path = SRC, package: str = PACKAGE) -> dict[str, set[str]]:
+    """Module -> the package's modules it imports (a package's own ``__init__`` and parents excluded)."""
+    files = {}
+    for f in (src / package).rglob("*.py"):
+        files[".".join(f.relative_to(src).with_suffix("").parts).removesuffix(".__init__")] = f
+
+    def resolve(name: str) -> str | None:
+        while name and name not in files:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph: dict[str, set[str]] = {m: set() for m in files}
+    for module, f in files.items():
+        base = module if f.name == "__init__.py" else module.rpartition(".")[0]
+        for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                name = node.module or ""
+                if node.level:
+                    parts = base.split(".")[: len(base.split(".")) - node.level + 1]
+                    name = ".".join([*parts, name] if name else parts)
+                targets = [f"{name}.{a.name}" for a in node.names] + [name]
+            else:
+                continue
+            for target in targets:
+                found = resolve(target) if target.startswith(package) else None
+                if found and found not in (module, package) and not module.startswith(found + "."):
+                    graph[module].add(found)
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+    counter = 0
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            v, children = work[-1]
+            for w in children:
+                if w not in index:
+                    index[w] = low[w] = counter
+                    counter += 1
+                    stack.append(w)
+                    on_stack.add(w)
+                    work.append((w, iter(sorted(graph[w]))))
+                    break
+                if w in on_stack:
+                    low[v] = min(low[v], index[w])
+            else:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[v])
+                if low[v] == index[v]:
+                    component = []
+                    while True:
+                        w = stack.pop()
+                        on_stack.discard(w)
+                        component.append(w)
+                        if w == v:
+                            break
+                    if len(component) > 1:
+                        found.append(sorted(component))
+    return found
+
+
+def test_uacell_has_no_import_cycles() -> None:
+    found = cycles(module_graph())
+    assert found == [], "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
+
+
+def test_the_walk_counts_function_level_and_type_checking_imports(tmp_path: Path) -> None:
+    pkg = tmp_path / "demo"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from demo.b import B\n")
+    (pkg / "b.py").write_text("def f():\n    from .sub import c\n")
+    (pkg / "sub" / "c.py").write_text("from ..a import x\n")
+    (pkg / "d.py").write_text("import demo.a\n")
+    graph = module_graph(tmp_path, "demo")
+    assert (
+        graph["demo.a"] == {"demo.b"}
+        and graph["demo.b"] == {"demo.sub", "demo.sub.c"}
+        and graph["demo.sub.c"] == {"demo.a"}
+    )
+    assert cycles(graph) == [["demo.a", "demo.b", "demo.sub.c"]]
