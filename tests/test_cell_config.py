@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from uacell.cell import Part, demo_cell
-from uacell.cellconfig import STATE_MACHINE, builtin_cell_path
+from uacell.cell_file import STATE_MACHINE, builtin_cell_path
 from uacell.config import load_cell, load_config
 from uacell.errors import ConfigError
 from uacell.robotics.equipment import ExecutionMode, StopMode

@@ -16,7 +16,7 @@ from asyncua import ua
 from conftest import fast_config, start_app
 from helpers import CellClient, raw_call
 
-from uacell.cellconfig import builtin_cell_path
+from uacell.cell_file import builtin_cell_path
 from uacell.config import Config, load_cell
 from uacell.server import UacellServer
 

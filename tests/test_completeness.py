@@ -19,7 +19,7 @@ from conftest import fast_config, start_app
 from helpers import free_port
 
 from uacell.cell import _NOISE, Part, demo_cell
-from uacell.cellconfig import builtin_cell_path
+from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
 from uacell.ua.instantiate import Selection
 

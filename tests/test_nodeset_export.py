@@ -20,7 +20,7 @@ from helpers import free_port
 from test_robotics_interop import run_trusted
 
 from uacell.cell import CELL_NAMESPACE
-from uacell.cellconfig import builtin_cell_path
+from uacell.cell_file import builtin_cell_path
 from uacell.cli import main
 from uacell.models.source import MODELS, locate_models
 from uacell.nodeset_export import export_cell

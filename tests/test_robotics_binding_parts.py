@@ -7,7 +7,7 @@ import types
 
 import pytest
 
-from uacell.equipment import EquipmentSpec, make_equipment
+from uacell.equipment_factory import EquipmentSpec, make_equipment
 from uacell.errors import ConfigError
 from uacell.robotics.binding import StoreLibrary, install_samples
 from uacell.robotics.binding.programs import adopt_legacy_programs

@@ -295,7 +295,7 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(t
 
 
 async def test_another_cell_gets_its_own_snapshot(tmp_path: Path) -> None:
-    from uacell.cellconfig import builtin_cell_path
+    from uacell.cell_file import builtin_cell_path
     from uacell.config import load_cell
 
     cache = tmp_path / "cache"

@@ -21,7 +21,7 @@ from uacell.models import fsm_table
 from uacell.robotics.companion import TASK_CONTROL
 from uacell.roles import Family, Role
 from uacell.server import UacellServer
-from uacell.ua.state_machine import bind_tree
+from uacell.ua.machine_binding import bind_tree
 
 ROB = "http://opcfoundation.org/UA/Robotics/"
 TC_PATH = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"

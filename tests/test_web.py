@@ -30,7 +30,7 @@ from uacell.packml.binding import UNITS
 from uacell.pki import PkiPaths
 from uacell.web.discovery import discover
 from uacell.web.guards import MAX_BODY, HostGuard, host_name
-from uacell.web.server import start_web, trust_hmi
+from uacell.web.hosting import start_web, trust_hmi
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 

@@ -489,7 +489,7 @@ def test_the_page_says_when_the_server_is_unreachable_and_comes_back(browser, ua
     from conftest import fast_config, start_app
 
     from uacell.pki import PkiPaths
-    from uacell.web.server import start_web, trust_hmi
+    from uacell.web.hosting import start_web, trust_hmi
 
     data = tmp_path / "data"
     config = fast_config(data)

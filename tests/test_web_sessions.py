@@ -19,7 +19,7 @@ from helpers import wait_until
 from test_web import PASSWORD, Browser
 
 from uacell.pki import PkiPaths
-from uacell.web.server import start_web, trust_hmi
+from uacell.web.hosting import start_web, trust_hmi
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 

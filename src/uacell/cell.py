@@ -1,7 +1,7 @@
 """The cell uacell serves: which standard instances exist, where, and with which optional members.
 
 A cell is declared as data (``Part`` trees) and built by the deep instantiation of ``uacell.ua``.
-The cell comes from the configuration (``uacell.cellconfig``); the default is the shipped demo cell,
+The cell comes from the configuration (``uacell.cell_file``); the default is the shipped demo cell,
 ``demo_cell()``. Where parts go (``DeviceSet``, ``PackMLObjects``) is each companion's declaration
 (``uacell.companion.Root``).
 """
@@ -17,7 +17,7 @@ from asyncua import Server, ua
 from asyncua.server.address_space import AddressSpace
 
 from uacell.catalog import companions
-from uacell.cellconfig import STATE_MACHINE, Part
+from uacell.cell_file import STATE_MACHINE, Part
 from uacell.ua import toolkit
 from uacell.ua.instantiate import Instantiator, Selection
 
@@ -37,7 +37,7 @@ _NOISE = (
 
 def demo_cell() -> list[tuple[str, Part]]:
     """The default cell (the shipped ``cells/demo.toml``): a robot in DeviceSet and a filler in PackMLObjects."""
-    from uacell.cellconfig import builtin_cell_path
+    from uacell.cell_file import builtin_cell_path
     from uacell.config import load_cell
 
     return load_cell(builtin_cell_path("demo")).parts()

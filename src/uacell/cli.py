@@ -36,7 +36,7 @@ from uacell.models import ModelError, fetch_models, locate_models, models_dir
 
 if TYPE_CHECKING:
     from uacell.server import UacellServer
-    from uacell.web.server import RunningWeb
+    from uacell.web.hosting import RunningWeb
 
 log = logging.getLogger("uacell")
 STOP_GRACE = 3.0  # seconds a stop request waits for the server to close in order (SIGTERM: gone within 5 s)
@@ -199,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "models":
             return _models(args)
         if args.command == "config":
-            from uacell.config_check import run_check
+            from uacell.config_preview import run_check
 
             return run_check(args.file)
         config = resolve_config(args)
@@ -268,7 +268,7 @@ def _prepare_and_run(config: Config) -> int:
     from uacell import logs
 
     locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
-    from uacell.config_check import check_factories
+    from uacell.config_preview import check_factories
 
     check_factories(config)  # importable and callable, before any other work
     check_directory(config.server.data_dir, "data directory")
@@ -366,7 +366,7 @@ async def _start_web_beside(config: Config, app: UacellServer) -> RunningWeb:
     """The web HMI beside the server: its certificate trusted here, HTTPS with the server's by default."""
     from uacell.pki import PkiPaths
     from uacell.roles import is_loopback
-    from uacell.web.server import start_web, trust_hmi
+    from uacell.web.hosting import start_web, trust_hmi
 
     data_dir = config.server.data_dir
     trust_hmi(data_dir)
@@ -402,7 +402,7 @@ def _web(args: argparse.Namespace, config: Config) -> int:
 
 
 async def _run_web(server: str, data_dir: Path, config: Config) -> int:
-    from uacell.web.server import start_web
+    from uacell.web.hosting import start_web
 
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()

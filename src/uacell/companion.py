@@ -19,7 +19,7 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from uacell.cellconfig import SectionParser
+from uacell.cell_file import SectionParser
 from uacell.roles import Family, Role
 
 Closer = Callable[[], Awaitable[None]]
@@ -69,7 +69,7 @@ class Companion:
     section: str | None = None  # configuration section, e.g. "robot"
     settings: type[Any] | None = None  # its dataclass: every field optional, typed by its default
     cell_section: str | None = None  # its parts in the cell configuration, e.g. "robots" ([[robots]])
-    cell_parser: SectionParser | None = None  # reads and checks them (uacell.cellconfig.CellSection)
+    cell_parser: SectionParser | None = None  # reads and checks them (uacell.cell_file.CellSection)
     roots: tuple[Root, ...] = ()
     roles: Mapping[tuple[Family, str], Role] = field(default_factory=dict)  # (family, method) -> least role
     type_hints: Mapping[str, Family] = field(default_factory=dict)  # ObjectType/instance name -> family

@@ -27,7 +27,7 @@ from typing import Any, TypeVar
 import platformdirs
 
 from uacell.catalog import companions
-from uacell.cellconfig import CellConfig, SectionParser, builtin_cell_path, did_you_mean, parse_cell
+from uacell.cell_file import CellConfig, SectionParser, builtin_cell_path, did_you_mean, parse_cell
 from uacell.discovery_registration import DiscoveryConfig
 from uacell.errors import ConfigError
 from uacell.history.config import HistoryConfig

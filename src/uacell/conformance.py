@@ -27,7 +27,7 @@ from typing import Any, TypeVar
 
 import pytest
 
-from uacell.equipment import EquipmentSpec, close_equipment, make_equipment
+from uacell.equipment_factory import EquipmentSpec, close_equipment, make_equipment
 from uacell.robotics.equipment import AxisInfo, AxisState, ExecutionMode, RobotEquipment, RunOutcome, StopMode
 from uacell.robotics.program import Kind, parse, wave_program
 

@@ -2,7 +2,7 @@
 
 It knows states, transitions and sub-state machines (a sub-machine is active only while its parent
 is in the hosting state), and tells listeners about every change. It knows nothing of OPC UA: the
-binding in ``uacell.ua.state_machine`` listens and publishes. Domain rules (which command is allowed
+binding in ``uacell.ua.machine_binding`` listens and publishes. Domain rules (which command is allowed
 when) live in ``robotics.model`` and ``packml.model``, which drive these machines.
 """
 

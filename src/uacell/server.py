@@ -32,11 +32,11 @@ from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.file_store import HandlePool
 from uacell.ua.limits import DecodingStage, guard_bytes, install_limits, publish_operation_limits
+from uacell.ua.machine_binding import NodeRefs, Publisher
 from uacell.ua.nodesets import SnapshotJob, init_address_space
 from uacell.ua.observers import install_audit
 from uacell.ua.pipeline import ContextStage, Pipeline
 from uacell.ua.snapshot import WriteCancelled
-from uacell.ua.state_machine import NodeRefs, Publisher
 from uacell.ua.writes import WriteRouter
 from uacell.users import UserStore
 
@@ -151,7 +151,7 @@ class UacellServer:
         self.server.set_endpoint(self.endpoint)
         self.server.set_server_name(cfg.application_name)
         await self.server.set_application_uri(cfg.application_uri)
-        # State machines fire AuditUpdateStateEvents for the transitions calls cause (ua/state_machine.py).
+        # State machines fire AuditUpdateStateEvents for the transitions calls cause (ua/machine_binding.py).
         await self.server.get_node(ua.ObjectIds.Server_Auditing).write_value(True)
         self.security = await install_security(self)
         self.diagnostics = Diagnostics(self)

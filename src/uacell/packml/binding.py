@@ -25,7 +25,7 @@ from asyncua import ua
 from uacell.background import Background
 from uacell.cell import BuiltPart
 from uacell.companion import Closer
-from uacell.equipment import EquipmentSpec, choose_equipment, make_equipment
+from uacell.equipment_factory import EquipmentSpec, choose_equipment, make_equipment
 from uacell.errors import ConfigError
 from uacell.packml.admin_store import AdminStore, AdminWriter
 from uacell.packml.companion import PACKML, UNIT_PART
@@ -45,7 +45,7 @@ from uacell.packml.types import (
 )
 from uacell.registry import RegistryKey
 from uacell.ua.context import Caller
-from uacell.ua.state_machine import bind_tree
+from uacell.ua.machine_binding import bind_tree
 from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:

@@ -1,6 +1,6 @@
 """The ``[packml]`` section and the ``[[packml_units]]`` of a cell: one PackMLBaseObjectType per entry.
 
-Pure: reads and checks the tables (``uacell.cellconfig.Table``) and turns them into ``Part`` trees
+Pure: reads and checks the tables (``uacell.cell_file.Table``) and turns them into ``Part`` trees
 (``uacell.cell``). docs/configuration.md documents every key.
 """
 
@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from uacell.cellconfig import Part, Table
+from uacell.cell_file import Part, Table
 from uacell.packml.types import ProductionMaintenanceModeEnum
 
 # ProductionMaintenanceModeEnum's names, as the NodeSet spells them.
@@ -93,7 +93,7 @@ def _unit(table: Table) -> UnitSpec:
 
 @dataclass
 class UnitsSection:
-    """Every ``[[packml_units]]`` entry (a ``uacell.cellconfig.CellSection``)."""
+    """Every ``[[packml_units]]`` entry (a ``uacell.cell_file.CellSection``)."""
 
     units: list[UnitSpec]
     tables: list[Table]

@@ -1,6 +1,6 @@
 """The ``[robot]`` section and the ``[[robots]]`` of a cell: robots, controllers, task controls, motion devices.
 
-Pure: reads and checks the tables (``uacell.cellconfig.Table``) and turns them into ``Part`` trees
+Pure: reads and checks the tables (``uacell.cell_file.Table``) and turns them into ``Part`` trees
 (``uacell.cell``). docs/configuration.md documents every key.
 """
 
@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from uacell.cellconfig import STATE_MACHINE, Part, Table, check_name, identification_lines, read_identification, unique
+from uacell.cell_file import STATE_MACHINE, Part, Table, check_name, identification_lines, read_identification, unique
 from uacell.errors import ConfigError
 from uacell.robotics.equipment import AxisInfo, ExecutionMode, StopMode
 from uacell.robotics.sim import DEFAULT_AXES
@@ -223,7 +223,7 @@ def _robot(table: Table) -> RobotSpec:
 
 @dataclass
 class RobotsSection:
-    """Every ``[[robots]]`` entry (a ``uacell.cellconfig.CellSection``)."""
+    """Every ``[[robots]]`` entry (a ``uacell.cell_file.CellSection``)."""
 
     robots: list[RobotSpec]
     tables: list[Table]

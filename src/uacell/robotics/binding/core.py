@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from uacell.cell import BuiltPart
 from uacell.companion import Closer
-from uacell.equipment import EquipmentSpec, choose_equipment, close_equipment, make_equipment
+from uacell.equipment_factory import EquipmentSpec, choose_equipment, close_equipment, make_equipment
 from uacell.errors import ConfigError
 from uacell.registry import RegistryKey
 from uacell.robotics.binding.arm import Arm

@@ -19,7 +19,7 @@ from uacell.robotics.equipment import StopMode
 from uacell.robotics.model import RobotCell
 from uacell.roles import Family
 from uacell.ua.file_store import FileStore
-from uacell.ua.state_machine import bind_tree
+from uacell.ua.machine_binding import bind_tree
 from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
