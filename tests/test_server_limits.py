@@ -7,6 +7,7 @@ One server with tight limits serves the module; every test closes what it opened
 from __future__ import annotations
 
 import asyncio
+import logging
 import contextlib
 import dataclasses
 import resource
@@ -23,6 +24,7 @@ from conftest import fast_config, start_app
 from helpers import raw_call, robot_binding
 
 from uacell.roles import Role
+from uacell.security import RefusalLog
 from uacell.server import UacellServer
 from uacell.ua.file_store import FileStore
 from uacell.ua.limits import FD_RESERVE, PRE_HELLO_BYTES, ServerLimits, fit_descriptors, raise_descriptor_limit
@@ -433,3 +435,31 @@ async def test_limits_configuration_is_validated(tmp_path: Path) -> None:
     path.write_text("[limits]\nsessions = 7\n[web]\nua_sessions = 4\n")
     with pytest.raises(ConfigError, match=r"\[web\] ua_sessions: must be 1..3"):
         load_config(path)
+
+
+@pytest.mark.parametrize(
+    "chunk",
+    [
+        pytest.param(b"MSGF" + struct.pack("<I", 68) + b"\x07" * 60, id="message-on-an-unknown-channel"),
+        pytest.param(b"OPNF" + struct.pack("<I", 20) + b"\xff" * 12, id="undecodable-open"),
+    ],
+)
+async def test_a_message_asyncua_refuses_gets_an_error_one_info_line_and_no_traceback(
+    app: UacellServer, chunk: bytes, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO)
+    app.security.refusals = RefusalLog()  # what earlier tests refused from this address is forgotten
+    for _ in range(3):  # a client repeating it: still one line per address and interval
+        reader, writer = await connect_raw(app)
+        writer.write(hello(app.endpoint))
+        await read_ack(reader)
+        writer.write(chunk)
+        await writer.drain()
+        answer = await asyncio.wait_for(reader.read(8), 10)
+        assert answer[:4] == b"ERRF"  # an Error message, then the connection is closed
+        assert await closed_by_server(reader, writer)
+    loud = [r for r in caplog.records if r.levelno >= logging.WARNING or r.exc_info]
+    assert loud == [], [r.getMessage() for r in loud]
+    told = [r for r in caplog.records if r.name == "uacell.security" and "refused" in r.getMessage()]
+    assert len(told) == 1, [r.getMessage() for r in told]
+    await still_serving(app)

@@ -35,6 +35,7 @@ processor is published in a context variable while it handles a request.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import hmac
 import logging
@@ -149,8 +150,9 @@ def open_token_secret(plain: bytes, nonce: bytes | None) -> bytes:
 
 
 class RefusalLog:
-    """Logs a refusal at most once per client address, reason and ``interval`` seconds, so a flood of
-    attempts cannot flood the log; the next report says how many were left out."""
+    """Logs a refusal at INFO (a client's doing, not the server's fault) at most once per client address,
+    reason and ``interval`` seconds, so a flood of attempts cannot flood the log; the next report says
+    how many were left out."""
 
     MAX_KEYS = 4096
 
@@ -160,7 +162,7 @@ class RefusalLog:
         self._last: dict[tuple[str, str], float] = {}
         self._left_out: dict[tuple[str, str], int] = {}
 
-    def warning(self, address: str, reason: str, message: str) -> bool:
+    def report(self, address: str, reason: str, message: str) -> bool:
         """Log ``message`` unless this address and reason were logged less than ``interval`` ago."""
         now = self._clock()
         key = (address, reason)
@@ -173,7 +175,7 @@ class RefusalLog:
         left_out = self._left_out.pop(key, 0)
         self._last[key] = now
         more = f" ({left_out} more such refusals from {address} not logged)" if left_out else ""
-        log.warning("%s%s", message, more)
+        log.info("%s%s", message, more)
         return True
 
     def _forget(self, now: float) -> None:
@@ -260,7 +262,7 @@ class Security:
 
     def _report_certificate_refusal(self, message: str) -> None:
         address = _address(context.current_processor())
-        self.refusals.warning(address, "certificate", f"{message} (client address {address})")
+        self.refusals.report(address, "certificate", f"{message} (client address {address})")
 
     # sessions ------------------------------------------------------------------------------------
 
@@ -307,7 +309,7 @@ class Security:
         if code is None:
             return
         what = f"security policy {uri}" if code == _S.BadSecurityPolicyRejected else f"security mode {mode}"
-        self.refusals.warning(
+        self.refusals.report(
             _address(processor),
             f"channel:{code}",
             f"refused secure channel from {_address(processor)}: {what} is not offered ({ua.StatusCode(code).name})",
@@ -329,7 +331,7 @@ class Security:
             return
         address = _address(processor)
         uri, mode = _channel_policy(processor)
-        self.refusals.warning(
+        self.refusals.report(
             address,
             "service",
             f"refused request from {address} on a {uri.rsplit('#', 1)[-1]}/{mode.name} channel: "
@@ -344,7 +346,7 @@ class Security:
         uri, mode = _channel_policy(processor)
         code = self.channel_refusal(uri, mode)
         if code is not None:
-            self.refusals.warning(
+            self.refusals.report(
                 address,
                 f"session:{code}",
                 f"refused session from {address}: its channel ({uri}, {mode.name}) is not an "
@@ -353,7 +355,7 @@ class Security:
             raise ServiceError(code)
         url = params.EndpointUrl
         if url and urlparse(url).scheme.lower() != "opc.tcp":
-            self.refusals.warning(
+            self.refusals.report(
                 address, "session:url", f"refused session from {address}: EndpointUrl {url!r} is not an opc.tcp URL"
             )
             raise ServiceError(_S.BadTcpEndpointUrlInvalid)
@@ -377,7 +379,7 @@ class Security:
                 code, why = _S.BadIdentityChangeNotSupported, "the identity differs from the session's"
             else:
                 return
-        self.refusals.warning(
+        self.refusals.report(
             address,
             f"reassociation:{code}",
             f"refused to move a session to a new channel from {address}: {why} ({ua.StatusCode(code).name})",
@@ -389,6 +391,18 @@ class Security:
         then closes the connection."""
         message = ua.ErrorMessage(ua.StatusCode(refused.code), refused.reason)
         processor._transport.write(uatcp_to_binary(ua.MessageType.Error, message))
+
+    def message_refused(self, processor: UaProcessor, exc: Exception) -> None:
+        """A message asyncua refused below the request stages (a chunk of a channel it does not know,
+        a bad signature, an unexpected message type): one INFO line per address and interval, an
+        Error message to the client; the pipeline then closes the connection."""
+        code = getattr(exc, "code", None) or ua.StatusCodes.BadSecurityChecksFailed
+        address = _address(processor)
+        name = ua.StatusCode(code).name
+        self.refusals.report(address, f"message {name}", f"refused a message from {address}: {exc} ({name})")
+        with contextlib.suppress(Exception):
+            message = ua.ErrorMessage(ua.StatusCode(code), str(exc)[:200])
+            processor._transport.write(uatcp_to_binary(ua.MessageType.Error, message))
 
     # logins --------------------------------------------------------------------------------------
 
@@ -406,7 +420,7 @@ class Security:
 
     def _invalid_token(self, token: ua.UserNameIdentityToken, reason: str, why: str) -> ServiceError:
         address = _address(context.current_processor())
-        self.refusals.warning(
+        self.refusals.report(
             address,
             f"token:{reason}",
             f"refused login of user {token.UserName!r} from {address}: {why} (Bad_IdentityTokenInvalid)",

@@ -160,6 +160,7 @@ class UacellServer:
             [ContextStage(), self.diagnostics, SecurityStage(self.security), DecodingStage()],
             bytes_guard=guard_bytes,
             channel_guard=self.security,
+            refused=self.security.message_refused,
         )
         self.pipeline.install(self.server.iserver)
         self.server.product_uri = PRODUCT_URI

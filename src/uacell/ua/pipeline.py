@@ -6,7 +6,8 @@ asyncua offers no middleware, so uacell wraps its entry points once, here, proce
   (``ua/limits.py``: chunk sizes and buffers checked before asyncua buffers them);
 - the opening of a secure channel (``UaProcessor.process`` for an OpenSecureChannel message, and
   ``UaProcessor.open_secure_channel``): the server's ``channel_guard`` (``security.py``: only the
-  policies and modes the endpoints offer);
+  policies and modes the endpoints offer); a message asyncua refuses there or in its chunk handling
+  goes to the server's ``refused`` (one INFO line, an Error message) and closes the connection;
 - each service request (``UaProcessor._process_message``): the server's ``stages``, in order;
 - a session's Call, Read and HistoryRead (``InternalSession``): the session known while they run, and
   the read hooks (``ua/context.py``).
@@ -35,7 +36,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from asyncua import ua
-from asyncua.common.utils import Buffer
+from asyncua.common.utils import Buffer, ServiceError
 from asyncua.server.binary_server_asyncio import OPCUAProtocol
 from asyncua.server.internal_session import InternalSession
 from asyncua.server.uaprocessor import UaProcessor
@@ -73,6 +74,8 @@ class ChannelGuard(Protocol):
 
 Next0 = Callable[[], Awaitable[Any]]
 BytesGuard = Callable[[OPCUAProtocol, bytes, Callable[[OPCUAProtocol, bytes], None]], None]
+# Told about a message asyncua refused below the request stages (it answers and logs; the connection closes).
+Refused = Callable[[UaProcessor, Exception], None]
 
 
 class ContextStage:
@@ -100,10 +103,12 @@ class Pipeline:
         *,
         bytes_guard: BytesGuard | None = None,
         channel_guard: ChannelGuard | None = None,
+        refused: Refused | None = None,
     ) -> None:
         self.stages = tuple(stages)
         self.bytes_guard = bytes_guard
         self.channel_guard = channel_guard
+        self.refused = refused
         self._entry = _compose(self.stages, _asyncua_request)
 
     @staticmethod
@@ -160,10 +165,19 @@ async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any
 
 async def _process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
     pipeline = Pipeline.of(self.iserver)
-    guard = pipeline.channel_guard if pipeline is not None else None
-    if guard is None or header.MessageType != ua.MessageType.SecureOpen or self._connection.is_open():
+    if pipeline is None:
         return await _ORIGINAL_PROCESS(self, header, body)
-    return await guard.opening(self, header, body, lambda: _ORIGINAL_PROCESS(self, header, body))
+    guard = pipeline.channel_guard
+    try:
+        if guard is None or header.MessageType != ua.MessageType.SecureOpen or self._connection.is_open():
+            return await _ORIGINAL_PROCESS(self, header, body)
+        return await guard.opening(self, header, body, lambda: _ORIGINAL_PROCESS(self, header, body))
+    except (ua.UaError, ServiceError) as exc:
+        # What a client's message provoked below the request stages (asyncua would log a traceback
+        # at ERROR and keep the connection): refused in one line, and the connection closed.
+        if pipeline.refused is not None:
+            pipeline.refused(self, exc)
+        return False
 
 
 def _open_secure_channel(self: UaProcessor, algohdr: Any, seqhdr: Any, body: Buffer) -> Any:
