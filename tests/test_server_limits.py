@@ -7,9 +7,9 @@ One server with tight limits serves the module; every test closes what it opened
 from __future__ import annotations
 
 import asyncio
-import logging
 import contextlib
 import dataclasses
+import logging
 import resource
 import struct
 import time
