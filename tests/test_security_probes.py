@@ -115,7 +115,7 @@ def fresh_refusal_log(request):
     # Refusals are logged once per address and interval; each test looks at its own.
     for name in ("env", "wide"):
         if name in request.fixturenames:
-            from uacell.security import RefusalLog
+            from uacell.logs import RefusalLog
 
             request.getfixturevalue(name).security.refusals = RefusalLog()
 

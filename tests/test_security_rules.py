@@ -7,7 +7,8 @@ import struct
 
 import pytest
 
-from uacell.security import RefusalLog, open_token_secret
+from uacell.logs import RefusalLog
+from uacell.security import open_token_secret
 
 NONCE = bytes(range(32))
 

@@ -23,8 +23,8 @@ from asyncua.ua.ua_binary import struct_to_binary
 from conftest import fast_config, start_app
 from helpers import raw_call, robot_binding
 
+from uacell.logs import RefusalLog
 from uacell.roles import Role
-from uacell.security import RefusalLog
 from uacell.server import UacellServer
 from uacell.ua.file_store import FileStore
 from uacell.ua.limits import FD_RESERVE, PRE_HELLO_BYTES, ServerLimits, fit_descriptors, raise_descriptor_limit
@@ -241,20 +241,25 @@ async def test_the_largest_request_stalls_other_sessions_only_briefly(app: Uacel
     assert worst < STALL_BOUND, f"another session waited {worst:.2f} s"
 
 
-async def test_connections_beyond_the_limit_are_closed_and_room_comes_back(app: UacellServer) -> None:
-    await asyncio.sleep(0)  # earlier tests' connections are gone once their close ran
-    open_now = len(app.server.bserver.clients)
-    held = []
-    for _ in range(CONNECTIONS - open_now):
-        held.append(await connect_raw(app))
-    deadline = time.monotonic() + 10
-    while len(app.server.bserver.clients) < CONNECTIONS:
+async def test_at_the_connection_limit_the_oldest_without_a_session_makes_room(app: UacellServer) -> None:
+    deadline = time.monotonic() + 20
+    while app.server.bserver.clients:  # earlier tests' connections are gone once their close ran
         assert time.monotonic() < deadline
         await asyncio.sleep(0.01)
-    reader, writer = await connect_raw(app)
-    assert await closed_by_server(reader, writer)
-    for _, w in held:
-        w.close()
+    async with session(app) as kept:  # a connection with an activated session is never the one closed
+        held = [await connect_raw(app) for _ in range(CONNECTIONS - 1)]
+        while len(app.server.bserver.clients) < CONNECTIONS:
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.01)
+        reader, writer = await connect_raw(app)  # one more: the oldest idle connection goes instead
+        assert await closed_by_server(*held[0])
+        writer.write(hello(app.endpoint))
+        await read_ack(reader)  # the newcomer is served
+        assert await kept.nodes.server_state.read_value() == ua.ServerState.Running
+        assert len(app.server.bserver.clients) == CONNECTIONS
+        writer.close()
+        for _, w in held[1:]:
+            w.close()
     while app.server.bserver.clients:
         assert time.monotonic() < deadline
         await asyncio.sleep(0.01)

@@ -41,7 +41,6 @@ import hmac
 import logging
 import os
 import struct
-import time
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -56,6 +55,7 @@ from asyncua.server.internal_session import InternalSession, SessionState
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary, uatcp_to_binary
 
+from uacell.logs import RefusalLog
 from uacell.pki import CertificateValidator, PkiPaths, RejectedLimit, TrustList, ensure_server_certificate
 from uacell.rights import may_call
 from uacell.roles import Family, Role, may
@@ -147,41 +147,6 @@ def open_token_secret(plain: bytes, nonce: bytes | None) -> bytes:
     if not hmac.compare_digest(secret[len(secret) - len(nonce) :], nonce):
         raise ValueError("the server nonce in the token is not the one this session was sent")
     return secret[: len(secret) - len(nonce)]
-
-
-class RefusalLog:
-    """Logs a refusal at INFO (a client's doing, not the server's fault) at most once per client address,
-    reason and ``interval`` seconds, so a flood of attempts cannot flood the log; the next report says
-    how many were left out."""
-
-    MAX_KEYS = 4096
-
-    def __init__(self, interval: float = 60.0, clock: Callable[[], float] = time.monotonic) -> None:
-        self.interval = interval
-        self._clock = clock
-        self._last: dict[tuple[str, str], float] = {}
-        self._left_out: dict[tuple[str, str], int] = {}
-
-    def report(self, address: str, reason: str, message: str) -> bool:
-        """Log ``message`` unless this address and reason were logged less than ``interval`` ago."""
-        now = self._clock()
-        key = (address, reason)
-        last = self._last.get(key)
-        if last is not None and now - last < self.interval:
-            self._left_out[key] = self._left_out.get(key, 0) + 1
-            return False
-        if len(self._last) >= self.MAX_KEYS:
-            self._forget(now)
-        left_out = self._left_out.pop(key, 0)
-        self._last[key] = now
-        more = f" ({left_out} more such refusals from {address} not logged)" if left_out else ""
-        log.info("%s%s", message, more)
-        return True
-
-    def _forget(self, now: float) -> None:
-        for key in [k for k, t in self._last.items() if now - t >= self.interval]:
-            del self._last[key]
-            self._left_out.pop(key, None)
 
 
 def _drop_fault_echo(record: logging.LogRecord) -> bool:

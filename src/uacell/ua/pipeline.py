@@ -2,6 +2,8 @@
 
 asyncua offers no middleware, so uacell wraps its entry points once, here, process-wide:
 
+- a new connection (``OPCUAProtocol.connection_made``): the server's ``admission`` (``ua/limits.py``:
+  room made by closing the oldest connection without a session, a deadline for the handshake);
 - a connection's bytes (``OPCUAProtocol.data_received``): the server's ``bytes_guard``
   (``ua/limits.py``: chunk sizes and buffers checked before asyncua buffers them);
 - the opening of a secure channel (``UaProcessor.process`` for an OpenSecureChannel message, and
@@ -74,6 +76,8 @@ class ChannelGuard(Protocol):
 
 Next0 = Callable[[], Awaitable[Any]]
 BytesGuard = Callable[[OPCUAProtocol, bytes, Callable[[OPCUAProtocol, bytes], None]], None]
+# Runs when a connection is accepted, in place of asyncua's connection_made (which it calls).
+Admission = Callable[[OPCUAProtocol, Any, Callable[[OPCUAProtocol, Any], None]], None]
 # Told about a message asyncua refused below the request stages (it answers and logs; the connection closes).
 Refused = Callable[[UaProcessor, Exception], None]
 
@@ -104,8 +108,10 @@ class Pipeline:
         bytes_guard: BytesGuard | None = None,
         channel_guard: ChannelGuard | None = None,
         refused: Refused | None = None,
+        admission: Admission | None = None,
     ) -> None:
         self.stages = tuple(stages)
+        self.admission = admission
         self.bytes_guard = bytes_guard
         self.channel_guard = channel_guard
         self.refused = refused
@@ -145,6 +151,7 @@ _ORIGINAL_PROCESS_MESSAGE = UaProcessor._process_message
 _ORIGINAL_PROCESS = UaProcessor.process
 _ORIGINAL_OPEN = UaProcessor.open_secure_channel
 _ORIGINAL_DATA_RECEIVED = OPCUAProtocol.data_received
+_ORIGINAL_CONNECTION_MADE = OPCUAProtocol.connection_made
 _ORIGINAL_CALL = InternalSession.call
 _ORIGINAL_READ = InternalSession.read
 _ORIGINAL_HISTORY_READ = InternalSession.history_read
@@ -188,6 +195,14 @@ def _open_secure_channel(self: UaProcessor, algohdr: Any, seqhdr: Any, body: Buf
     return _ORIGINAL_OPEN(self, algohdr, seqhdr, body)
 
 
+def _connection_made(self: OPCUAProtocol, transport: Any) -> None:
+    pipeline = Pipeline.of(self.iserver)
+    if pipeline is None or pipeline.admission is None:
+        _ORIGINAL_CONNECTION_MADE(self, transport)
+        return
+    pipeline.admission(self, transport, _ORIGINAL_CONNECTION_MADE)
+
+
 def _data_received(self: OPCUAProtocol, data: bytes) -> None:
     pipeline = Pipeline.of(self.iserver)
     if pipeline is None or pipeline.bytes_guard is None or self.processor is None:
@@ -228,6 +243,7 @@ def attach() -> None:
     UaProcessor.process = _process
     UaProcessor.open_secure_channel = _open_secure_channel
     OPCUAProtocol.data_received = _data_received
+    OPCUAProtocol.connection_made = _connection_made
     InternalSession.call = _call
     InternalSession.read = _read
     InternalSession.history_read = _history_read
