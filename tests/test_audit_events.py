@@ -1,8 +1,10 @@
 """Who caused a transition: AuditUpdateStateEvents through a real asyncua client over TCP.
 
 A transition a client's method call causes fires, right after its TransitionEvent, an
-``AuditUpdateStateEventType`` event naming the user (OPC 10000-16 4.4.18); a transition that follows
-by itself (an acting state completing, a program ending, the robot powered up) fires none.
+``AuditUpdateStateEventType`` event naming the user (OPC 10000-16 4.4.18); so does a transition that
+completes what the call asked for after the call returned (an acting state completing, the robot
+powered up or down, a stopped program's run ending: decision 38). One that follows by itself (a
+program ending, production completing) fires none.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ CTRL = "Robot1.Controllers.Controller1"
 SO = f"{CTRL}.SystemOperation.SystemOperationStateMachine"
 TC = f"{CTRL}.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
 SHORT = "program Short version 1\nmove 10 0 0 0 0 0\nwait 4\nmove 0 0 0 0 0 0\n"
+LONG = "program Long version 1\nmove 10 0 0 0 0 0\nwait 600\nmove 0 0 0 0 0 0\n"
 ANONYMOUS = "<anonymous>"  # what ``pairs`` says for an audit event whose ClientUserId is null
 AUDIT = ua.NodeId(ua.ObjectIds.AuditUpdateStateEventType)
 TRANSITION = ua.NodeId(ua.ObjectIds.TransitionEventType)
@@ -50,6 +53,7 @@ async def app(tmp_path_factory):
     programs = data / "programs" / "Robot1" / "Controller1"
     programs.mkdir(parents=True)
     (programs / "short.robot").write_text(SHORT)
+    (programs / "long.robot").write_text(LONG)
     server = await start_app(fast_config(data))
     yield server
     await server.stop()
@@ -98,7 +102,7 @@ def pairs(events: Events) -> list[tuple[str, str | None]]:
     return out
 
 
-async def test_a_users_packml_command_is_audited_and_the_acting_state_that_follows_is_not(app) -> None:
+async def test_a_users_packml_command_is_audited_and_so_is_the_acting_state_it_entered_completing(app) -> None:
     client, ns = await connect(app, "otto")
     try:
         machine = await watch(client, ua.NodeId(MACHINE, ns))
@@ -110,8 +114,10 @@ async def test_a_users_packml_command_is_audited_and_the_acting_state_that_follo
         await delivered(app, machine, ua.NodeId(MACHINE, ns))
         await delivered(app, execute, ua.NodeId(EXECUTE, ns))
         assert pairs(machine) == [("StoppedToRunning", "otto")]
-        assert pairs(execute) == [("ResettingToIdle", None)]  # the acting state completed by itself
-        assert execute.audits() == []
+        # Resetting completed after the call returned: still otto's Reset (decision 38).
+        assert pairs(execute) == [("ResettingToIdle", "otto")]
+        (completed,) = execute.audits()
+        assert (completed.SourceName, completed.MethodId) == ("Method/Reset", ua.NodeId(f"{MACHINE}.Reset", ns))
         (audit,) = machine.audits()
         (caused,) = machine.transitions()
         assert audit.SourceNode == ua.NodeId(MACHINE, ns)
@@ -146,8 +152,9 @@ async def test_a_start_with_parameters_carries_them_in_its_audit_event(app) -> N
         await call(client, ns, EXECUTE, "Start", ua.Variant([parameter], ua.VariantType.ExtensionObject))
         await execute.wait_for(lambda e: e.EventType == TRANSITION and e.Transition.Text == "StartingToExecute")
         await delivered(app, execute, ua.NodeId(EXECUTE, ns))
-        assert pairs(execute) == [("IdleToStarting", "otto"), ("StartingToExecute", None)]
-        (audit,) = execute.audits()
+        assert pairs(execute) == [("IdleToStarting", "otto"), ("StartingToExecute", "otto")]
+        audit, completed = execute.audits()
+        assert completed.MethodId == audit.MethodId == ua.NodeId(f"{EXECUTE}.Start", ns)
         (argument,) = audit.InputArguments
         assert [(d.ID, d.Name, d.Value) for d in argument.Value] == [(7, "FillVolume", 250.5)]
         await call(client, ns, MACHINE, "Stop")
@@ -156,13 +163,13 @@ async def test_a_start_with_parameters_carries_them_in_its_audit_event(app) -> N
         await client.disconnect()
 
 
-async def test_robot_calls_are_audited_for_their_caller_and_what_follows_by_itself_is_not(app) -> None:
+async def test_robot_calls_are_audited_for_their_caller_and_a_program_ending_by_itself_is_not(app) -> None:
     anonymous, ns = await connect(app)
     otto, _ = await connect(app, "otto")
     try:
         so, idle, tc = [await watch(otto, ua.NodeId(path, ns)) for path in (SO, f"{SO}.IdleSubstateMachine", TC)]
-        # GetReady (anonymous): StandBy -> GettingReady is the call's; Idle -> Ready follows once the
-        # drives are on, in a task the call started: nobody's.
+        # GetReady (anonymous): StandBy -> GettingReady is the call's, and so is Idle -> Ready once the
+        # drives are on (decision 38).
         await call(anonymous, ns, SO, "GetReady")
         await so.wait_for(lambda e: e.EventType == TRANSITION)
         load = await call(otto, ns, TC, "LoadByName", ua.Variant("short", ua.VariantType.String))
@@ -173,7 +180,7 @@ async def test_robot_calls_are_audited_for_their_caller_and_what_follows_by_itse
             await delivered(app, events, ua.NodeId(path, ns))
         assert pairs(idle)[0] == ("StandByToGettingReady", ANONYMOUS)
         assert pairs(so) == [
-            ("IdleToReady", None),  # the drives came on
+            ("IdleToReady", ANONYMOUS),  # the drives came on: GetReady completed
             ("ReadyToExecuting", "otto"),  # the task control's Start started the system (decision 19)
             ("ExecutingToReady", None),  # the program ended
         ]
@@ -184,13 +191,50 @@ async def test_robot_calls_are_audited_for_their_caller_and_what_follows_by_itse
         loaded, started = tc.audits()
         assert (loaded.SourceName, [v.Value for v in loaded.InputArguments]) == ("Method/LoadByName", ["short"])
         assert (started.SourceName, started.InputArguments) == ("Method/Start", [])
-        (system_started,) = so.audits()
+        powered_up, system_started = so.audits()
+        assert (powered_up.ClientUserId, powered_up.MethodId) == (None, ua.NodeId(f"{SO}.GetReady", ns))
         assert system_started.MethodId == ua.NodeId(f"{TC}.Start", ns)
         await call(otto, ns, TC, "UnloadProgram")
         await call(otto, ns, SO, "StandDown")
     finally:
         await otto.disconnect()
         await anonymous.disconnect()
+
+
+async def test_a_stop_and_a_stand_down_that_finish_after_the_call_are_the_callers(app) -> None:
+    """TaskControl Stop answers at once and the run ends when the robot has stopped; StandDown answers
+    at once and ReadyToIdle follows once the drives are off: both AuditUpdateStateEvents name the
+    caller and the method (decision 38)."""
+    otto, ns = await connect(app, "otto")
+    try:
+        so, tc = [await watch(otto, ua.NodeId(path, ns)) for path in (SO, TC)]
+        await call(otto, ns, SO, "GetReady")
+        await so.wait_for(lambda e: e.EventType == TRANSITION and e.Transition.Text == "IdleToReady")
+        await call(otto, ns, TC, "LoadByName", ua.Variant("long", ua.VariantType.String))
+        await call(otto, ns, TC, "Start")
+        await tc.wait_for(lambda e: e.EventType == TRANSITION and e.Transition.Text == "ReadyToExecuting")
+        await call(otto, ns, TC, "Stop", ua.Variant(4, ua.VariantType.Int64))  # QuickStop
+        await tc.wait_for(lambda e: e.EventType == TRANSITION and e.Transition.Text == "ExecutingToReady")
+        await call(otto, ns, TC, "UnloadProgram")
+        await call(otto, ns, SO, "StandDown")
+        await so.wait_for(lambda e: e.EventType == TRANSITION and e.Transition.Text == "ReadyToIdle")
+        for events, path in ((so, SO), (tc, TC)):
+            await delivered(app, events, ua.NodeId(path, ns))
+        assert pairs(tc) == [
+            ("IdleToReady", "otto"),
+            ("ReadyToExecuting", "otto"),
+            ("ExecutingToReady", "otto"),  # the robot stopped after Stop returned
+            ("ReadyToIdle", "otto"),
+        ]
+        stopped = tc.audits()[2]
+        assert (stopped.SourceName, stopped.MethodId) == ("Method/Stop", ua.NodeId(f"{TC}.Stop", ns))
+        assert [v.Value for v in stopped.InputArguments] == [4]
+        assert pairs(so)[-2:] == [("ExecutingToReady", "otto"), ("ReadyToIdle", "otto")]
+        stood_down = so.audits()[-1]
+        assert (stood_down.SourceName, stood_down.MethodId) == ("Method/StandDown", ua.NodeId(f"{SO}.StandDown", ns))
+        assert stood_down.ActionTimeStamp <= stood_down.Time
+    finally:
+        await otto.disconnect()
 
 
 async def test_background_tasks_do_not_inherit_the_spawners_context() -> None:

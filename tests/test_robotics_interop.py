@@ -72,3 +72,24 @@ def test_node_opcua_runs_a_program_and_sees_every_transition(fast_robot):
     # Transition/Id is the Transition node of the type (Robotics namespace), not a copy
     assert all(e["transitionId"] and ";i=" in e["transitionId"] for e in out["events"])
     assert (out["finalState"], out["reason"], out["readySubstate"]) == ("Ready", 5, "AtProgramStart")
+
+
+def test_node_opcua_sees_the_caller_on_transitions_that_complete_after_the_call(tmp_path: Path):
+    """GetReady, Stop and StandDown answer at once; the transition each asked for follows later and its
+    AuditUpdateStateEvent names the call (decision 38)."""
+    sp = start_serve(tmp_path / "data")
+    try:
+        out = run_trusted(sp, "audit_completion.js")
+    finally:
+        sp.stop()
+    assert out["stop"] == 0
+    methods = out["methods"]
+    audits = {(a["machine"], a["sourceName"], a["method"]): a for a in out["audits"]}
+    assert ("so", "Method/GetReady", methods["GetReady"]) in audits  # IdleToReady once the drives were on
+    # ExecutingToReady once the robot had stopped, the task control's and the system's.
+    stopped = audits[("tc", "Method/Stop", methods["Stop"])]
+    assert ("so", "Method/Stop", methods["Stop"]) in audits
+    assert stopped["inputs"] in ([4], [[0, 4]]), stopped  # StopMode QuickStop (Int64)
+    assert ("so", "Method/StandDown", methods["StandDown"]) in audits  # ReadyToIdle once the drives were off
+    assert all(a["user"] is None for a in out["audits"])  # an anonymous session: ClientUserId null
+    assert all(a["oldId"] != a["newId"] for a in out["audits"])

@@ -3,7 +3,9 @@ them (models, bindings and the server alike). Pure asyncio.
 
 Each task runs in a fresh ``contextvars.Context``: a task spawned while a client's request runs (a
 program run started by a method call, a robot powering up) does not inherit that request's context,
-so what it does later is never taken for the caller's (``uacell.ua.context.current_call``)."""
+so what it does later is never taken for the caller's (``uacell.ua.context.current_call``), unless
+the spawner passes ``context``: a task that completes what a call asked for (drives powering down
+after StandDown) runs in a copy of the call's context and so is the caller's (decision 38)."""
 
 from __future__ import annotations
 
@@ -22,9 +24,12 @@ class Background:
     def __init__(self) -> None:
         self.tasks: set[asyncio.Task[Any]] = set()
 
-    def spawn(self, coro: Coroutine[Any, Any, Any], name: str | None = None) -> asyncio.Task[Any]:
+    def spawn(
+        self, coro: Coroutine[Any, Any, Any], name: str | None = None, context: contextvars.Context | None = None
+    ) -> asyncio.Task[Any]:
         loop = asyncio.get_running_loop()
-        task: asyncio.Task[Any] = loop.create_task(coro, name=name, context=contextvars.Context())
+        ctx = context if context is not None else contextvars.Context()
+        task: asyncio.Task[Any] = loop.create_task(coro, name=name, context=ctx)
         self.tasks.add(task)
         task.add_done_callback(self.tasks.discard)
         return task

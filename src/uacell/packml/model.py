@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import dataclasses
 import functools
 import logging
@@ -254,6 +255,9 @@ class PackMLUnit:
         self._changes = 0
         self._published_changes = -1
         self._pending: list[str | None] = []
+        # The acting state a command entered and that command's context: the state's completion runs
+        # in it, so its AuditUpdateStateEvent names the caller (decision 38).
+        self._cause: tuple[str, contextvars.Context] | None = None
         self._stop_armed = True  # the next stop event becomes StopReason (first out)
         self._last_account = clock()
         self._last_save = self._last_account
@@ -499,6 +503,8 @@ class PackMLUnit:
             if method == "Clear":
                 self._acknowledge_alarms()
             self._take(sm, t, reason)
+            acting = self.acting_state
+            self._cause = (acting, contextvars.copy_context()) if acting is not None else None
 
     # --- equipment side (UnitPort) -------------------------------------------------------------
 
@@ -766,7 +772,11 @@ class PackMLUnit:
         t = self._sc.get((sm.name, sm.current))
         if t is None or (state is not None and state != sm.current):
             return False
-        self._take(sm, t, Reason.SYSTEM)
+        cause, self._cause = self._cause, None
+        if cause is not None and cause[0] == sm.current:
+            cause[1].run(self._take, sm, t, Reason.SYSTEM)  # the command that entered it completes here
+        else:
+            self._take(sm, t, Reason.SYSTEM)
         return True
 
     def _take(self, sm: StateMachine, t: TransitionInfo, reason: Reason) -> None:

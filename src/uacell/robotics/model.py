@@ -9,6 +9,7 @@ Operations return the Int32 ``Status`` of the Robotics methods, or raise ``CallE
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import logging
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
@@ -288,6 +289,7 @@ class TaskControl(_Guarded):
         self.current_line = 0  # source line of the instruction being executed (0: none)
         self.last_error = ""  # why the last operation failed, for logs and diagnostics
         self.stopping = False
+        self._stop_context: contextvars.Context | None = None  # the Stop call that is stopping the run
         self.listeners: list[Listener] = []
         self._lock = asyncio.Lock()
         self._bg = Background()
@@ -541,6 +543,7 @@ class TaskControl(_Guarded):
                 return self._fail(problem, str(self._unresolved()))
             return self._fail(problem, f"cannot start in {self.machine.current}")
         self.stopping = False
+        self._stop_context = None
         self.machine.move(EXECUTING, reason)
         mode = self.execution_mode
         log.info("%s: started %s at step %d (%s)", self.name, self.program_name, self.pointer, mode.name)
@@ -569,7 +572,11 @@ class TaskControl(_Guarded):
                 reason = Reason.APPLICATION
             else:
                 reason = Reason.SYSTEM  # a STEP done, or the controller stopped by itself
-        self._finish(outcome, reason)
+        stop, self._stop_context = self._stop_context, None
+        if stop is not None and self.stopping:
+            stop.run(self._finish, outcome, reason)  # in the Stop call's context: its audit event
+        else:
+            self._finish(outcome, reason)
 
     def _progress(self, pointer: int, line: int) -> None:
         self.pointer, self.current_line = pointer, line
@@ -603,6 +610,8 @@ class TaskControl(_Guarded):
             self.stopping = False
             return self._fail(Status.E_UNEXPECTED_ERROR, f"controller could not stop: {e}")
         log.info("%s: stopping (%s)", self.name, mode.name)
+        # ExecutingToReady follows once the robot has stopped: the caller's (decision 38).
+        self._stop_context = contextvars.copy_context()
         if self.system is not None and self.executing:  # the run may have ended while the stop was asked
             self.system._task_stopping(system_reason)
         self._changed()
@@ -804,7 +813,8 @@ class SystemOperation(_Guarded):
         if (problem := self._refusal(SYSTEM_OPERATION, "GetReady")) is not None:
             return problem
         self.idle.move(GETTING_READY, Reason.EXTERNAL)
-        self._getting_ready = self._bg.spawn(self._power_up())
+        # Ready follows once the drives are on: the call's completion, the caller's (decision 38).
+        self._getting_ready = self._bg.spawn(self._power_up(), context=contextvars.copy_context())
         self._changed()
         return Status.OK
 
@@ -843,7 +853,8 @@ class SystemOperation(_Guarded):
             self._changed()
             return Status.OK
         self.powering_down = True
-        self._bg.spawn(self._power_down(transition=True))
+        # ReadyToIdle follows once the drives are off: the call's completion, the caller's (decision 38).
+        self._bg.spawn(self._power_down(transition=True), context=contextvars.copy_context())
         self._changed()
         return Status.OK
 

@@ -8,7 +8,9 @@ it; answers ``Bad_StateNotActive`` for an inactive sub-machine; and fires a ``Tr
 event for every transition to subscribers of the machine and of the Server object. A transition
 that happens while a client's method call runs (``uacell.ua.context.current_call``) is that
 client's: right after its TransitionEvent the machine also fires an ``AuditUpdateStateEventType``
-event (OPC 10000-16) naming the user, the method and the old and new state.
+event (OPC 10000-16) naming the user, the method and the old and new state. A transition that
+completes a call after it returned runs in a copy of the call's context (decision 38) and is found
+the same way.
 
 Changes reach the address space through one ordered ``Publisher`` so that events and values keep
 the order in which the model produced them; the method dispatcher flushes it before answering.

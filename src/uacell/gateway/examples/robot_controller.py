@@ -1,0 +1,113 @@
+"""A robot controller behind Modbus/TCP: pymodbus's server holding the default signal map
+(``uacell.gateway.signals.DEFAULT_MAP``) and a small scan-cycle controller program.
+
+    python -m uacell.gateway.examples.robot_controller --port 5020 --cycle 2.0
+
+The program: remote ready is always on; drives follow the drives_on coil; a rising program strobe
+copies program_number to the echo; a rising start with drives on, a program selected and no fault
+runs the program for ``--cycle`` seconds, then sets program end and at start; a rising stop ends the
+run at once (no program end); a program number of 99 faults on start (code 99) until reset.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import time
+
+from pymodbus.server import ModbusTcpServer
+from pymodbus.simulator import SimData, SimDevice
+from pymodbus.simulator.simutils import DataType
+
+from uacell.gateway.signals import DEFAULT_MAP
+
+FC = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
+UNIT = 1
+FAULT_PROGRAM = 99
+
+
+class Controller:
+    """The controller program; reads and writes the server's own data store each scan."""
+
+    def __init__(self, server: ModbusTcpServer, cycle: float) -> None:
+        self.store, self.cycle = server.context, cycle
+        self.values: dict[str, int] = {}
+        self.last: dict[str, bool] = {}
+        self.run_until = 0.0
+
+    async def get(self, signal: str) -> int:
+        table, address, _ = DEFAULT_MAP[signal]
+        got = await self.store.async_getValues(UNIT, FC[table], address, 1)
+        assert isinstance(got, list), got
+        return int(got[0])
+
+    async def set(self, signal: str, value: int) -> None:
+        table, address, _ = DEFAULT_MAP[signal]
+        values: list[int] | list[bool] = [bool(value)] if table in ("coil", "discrete") else [value]
+        await self.store.async_setValues(UNIT, FC[table], address, values)
+
+    async def scan(self, now: float) -> None:
+        read = {name: await self.get(name) for name in DEFAULT_MAP}
+        v = dict(read)  # updated as the program decides, so later rules see this scan's outputs
+        rising = {n for n in ("program_strobe", "reset", "start", "stop") if v[n] and not self.last.get(n)}
+        self.last = {n: bool(v[n]) for n in ("program_strobe", "reset", "start", "stop")}
+        out: dict[str, int] = {"remote_ready": 1, "drives_are_on": v["drives_on"]}
+        if "program_strobe" in rising:
+            out["program_echo"] = v["program_number"]
+            v["program_echo"] = v["program_number"]
+        if "reset" in rising:
+            out["fault"] = v["fault"] = 0
+            out["fault_code"] = 0
+        if "start" in rising and v["drives_on"] and v["program_echo"] and not v["fault"] and not v["running"]:
+            if v["program_echo"] == FAULT_PROGRAM:
+                out["fault"] = 1
+                out["fault_code"] = FAULT_PROGRAM
+            else:
+                out.update(running=1, program_end=0, at_start=0)
+                v["running"] = 1
+                self.run_until = now + self.cycle
+        if v["running"] and ("stop" in rising or not v["drives_on"]):
+            out["running"] = v["running"] = 0
+        if v["running"] and now >= self.run_until:
+            out.update(running=0, program_end=1, at_start=1)
+        for name, value in out.items():
+            if read[name] != value:
+                await self.set(name, value)
+
+
+def device() -> SimDevice:
+    """Four distinct blocks of 32 entries from address 0 (coils, discrete inputs, holding, input)."""
+
+    def block(bits: bool) -> list[SimData]:
+        kind = DataType.BITS if bits else DataType.REGISTERS
+        return [SimData(0, values=([False] if bits else [0]) * 32, datatype=kind)]
+
+    return SimDevice(id=UNIT, simdata=(block(True), block(True), block(False), block(False)))
+
+
+async def main(port: int, cycle: float, scan: float) -> None:
+    server = ModbusTcpServer(device(), address=("127.0.0.1", port))
+    controller = Controller(server, cycle)
+
+    async def run() -> None:
+        while True:
+            await controller.scan(time.monotonic())
+            await asyncio.sleep(scan)
+
+    # the program and the server live and die together: a failing scan ends the process
+    serve = asyncio.create_task(server.serve_forever())
+    program = asyncio.create_task(run())
+    done, pending = await asyncio.wait({serve, program}, return_when=asyncio.FIRST_COMPLETED)
+    for task in pending:
+        task.cancel()
+    for task in done:
+        task.result()
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser.add_argument("--port", type=int, default=5020)
+    parser.add_argument("--cycle", type=float, default=2.0, help="seconds a program runs")
+    parser.add_argument("--scan", type=float, default=0.005, help="scan cycle in seconds")
+    args = parser.parse_args()
+    asyncio.run(main(args.port, args.cycle, args.scan))

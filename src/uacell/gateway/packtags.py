@@ -1,0 +1,70 @@
+"""The default PackTags map (ISA-TR88.00.02 tag names) under a prefix, every tag overridable.
+
+Pure: it resolves tag names to NodeId strings; nothing here talks to a PLC. A tag is either
+resolved from the prefix (``<prefix>.<path>``, the string-NodeId convention PLC PackML libraries
+use) or given in full by an override (any NodeId string, e.g. ``ns=3;i=1042``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+# tag key -> (path under the prefix, value type as the PLC keeps it)
+DEFAULT_MAP: dict[str, tuple[str, str]] = {
+    "Command.CntrlCmd": ("Command.CntrlCmd", "Int32"),
+    "Command.CmdChangeRequest": ("Command.CmdChangeRequest", "Boolean"),
+    "Command.UnitMode": ("Command.UnitMode", "Int32"),
+    "Command.UnitModeChangeRequest": ("Command.UnitModeChangeRequest", "Boolean"),
+    "Command.MachSpeed": ("Command.MachSpeed", "Float"),
+    "Status.StateCurrent": ("Status.StateCurrent", "Int32"),
+    "Status.UnitModeCurrent": ("Status.UnitModeCurrent", "Int32"),
+    "Status.CurMachSpeed": ("Status.CurMachSpeed", "Float"),
+    "Status.MachSpeed": ("Status.MachSpeed", "Float"),
+    "Admin.ProdProcessedCount": ("Admin.ProdProcessedCount", "Int32"),
+    "Admin.ProdDefectiveCount": ("Admin.ProdDefectiveCount", "Int32"),
+    "Admin.StopReason": ("Admin.StopReason.ID", "Int32"),
+}
+
+
+class PackTagsMapError(ValueError):
+    """A map that cannot be resolved; the message is one line naming part and tag."""
+
+
+@dataclass(frozen=True)
+class ResolvedTag:
+    key: str
+    node_id: str
+    type_name: str
+
+
+def resolve(
+    part: str,
+    prefix: str,
+    overrides: Mapping[str, str] | None = None,
+    parameters: int = 0,
+    alarms: int = 0,
+) -> dict[str, ResolvedTag]:
+    """Every tag of the map as a NodeId string: the defaults under ``prefix``, then ``overrides``.
+
+    ``parameters`` and ``alarms`` add ``Command.Parameter[i].Value`` and ``Admin.Alarm[i].ID``
+    (0-based, as the PLC arrays are). An override key that is not a tag of the map is refused.
+    """
+    if not prefix and not overrides:
+        raise PackTagsMapError(f"{part}: prefix: empty, and no tag is given in full")
+    entries = dict(DEFAULT_MAP)
+    for i in range(parameters):
+        entries[f"Command.Parameter[{i}].Value"] = (f"Command.Parameter[{i}].Value", "Float")
+    for i in range(alarms):
+        entries[f"Admin.Alarm[{i}].ID"] = (f"Admin.Alarm[{i}].ID", "Int32")
+    out = {k: ResolvedTag(k, f"{prefix}.{path}" if prefix else "", t) for k, (path, t) in entries.items()}
+    for key, node_id in (overrides or {}).items():
+        if key not in out:
+            raise PackTagsMapError(f"{part}: {key}: not a PackTags tag of the map")
+        if not node_id.strip():
+            raise PackTagsMapError(f"{part}: {key}: empty NodeId")
+        out[key] = ResolvedTag(key, node_id, out[key].type_name)
+    for key, tag in out.items():
+        if not tag.node_id:
+            raise PackTagsMapError(f"{part}: {key}: no prefix and no override")
+    return out

@@ -1,0 +1,182 @@
+"""Robot remote-operation signals: the default Modbus map and each operation's handshake (pure).
+
+An operation is a set of writes, then (for a pulse) the writes that end the pulse, confirmed by a
+status bit within a timeout. Pulse ends are written when the pulse width has passed or the
+operation ended, whichever comes first, also on a timeout, so no signal is left set. The caller
+feeds ``observe`` only status read after the writes completed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from uacell.errors import CallError
+from uacell.gateway.handshake import Write
+
+# signal -> (Modbus table, address, type); every entry overridable from the cell file
+DEFAULT_MAP: dict[str, tuple[str, int, str]] = {
+    # to the robot
+    "start": ("coil", 0, "bool"),
+    "stop": ("coil", 1, "bool"),
+    "reset": ("coil", 2, "bool"),
+    "drives_on": ("coil", 3, "bool"),
+    "program_strobe": ("coil", 4, "bool"),
+    "program_number": ("holding", 0, "uint16"),
+    # from the robot
+    "remote_ready": ("discrete", 0, "bool"),
+    "drives_are_on": ("discrete", 1, "bool"),
+    "running": ("discrete", 2, "bool"),
+    "program_end": ("discrete", 3, "bool"),
+    "at_start": ("discrete", 4, "bool"),
+    "fault": ("discrete", 5, "bool"),
+    "program_echo": ("input", 0, "uint16"),
+    "fault_code": ("input", 1, "uint16"),
+}
+
+
+@dataclass(frozen=True)
+class RobotStatus:
+    remote_ready: bool = False
+    drives_are_on: bool = False
+    running: bool = False
+    program_end: bool = False
+    at_start: bool = False
+    fault: bool = False
+    program_echo: int = 0
+    fault_code: int = 0
+    connected: bool = True
+
+
+class SignalOp:
+    """One operation in flight; build with the class methods, then ``observe`` and ``pulse_end``."""
+
+    def __init__(
+        self,
+        name: str,
+        writes: tuple[Write, ...],
+        pulse_off: tuple[Write, ...],
+        confirmed: Callable[[RobotStatus], bool],
+        now: float,
+        timeout: float,
+        pulse_width: float,
+        fault_ends: bool = True,
+    ) -> None:
+        self.name = name
+        self.writes = writes
+        self._pulse_off = pulse_off
+        self._confirmed = confirmed
+        self._deadline = now + timeout
+        self._pulse_until = now + pulse_width
+        self._fault_ends = fault_ends
+        self.done = False
+
+    def pulse_end(self, now: float) -> tuple[Write, ...]:
+        """The writes that end the pulse, once: when its width has passed or the operation ended."""
+        if self._pulse_off and (self.done or now >= self._pulse_until):
+            out, self._pulse_off = self._pulse_off, ()
+            return out
+        return ()
+
+    def observe(self, status: RobotStatus, now: float) -> bool:
+        """True once the controller confirmed; False while waiting; CallError when it will not."""
+        if self.done:
+            return True
+        if not status.connected:
+            self.done = True
+            raise CallError("BadCommunicationError", f"{self.name}: the robot controller connection was lost")
+        if self._confirmed(status):
+            self.done = True
+            return True
+        if status.fault and self._fault_ends:
+            self.done = True
+            raise CallError("BadInvalidState", f"{self.name}: the controller reports fault {status.fault_code}")
+        if now >= self._deadline:
+            self.done = True
+            raise CallError("BadTimeout", f"{self.name}: the controller did not confirm in time")
+        return False
+
+    @classmethod
+    def load(cls, number: int, status: RobotStatus, now: float, timeout: float, pulse_width: float) -> SignalOp:
+        """Select program ``number``: number, then strobe; confirmed by the echo."""
+        _reachable(status)
+        if not 0 < number <= 0xFFFF:
+            raise CallError("BadInvalidArgument", f"program number {number} is not 1..65535", argument=0)
+        if status.running:
+            raise CallError("BadInvalidState", "a program is running")
+        return cls(
+            "load",
+            (Write("program_number", number), Write("program_strobe", True)),
+            (Write("program_strobe", False),),
+            lambda s: s.program_echo == number,
+            now,
+            timeout,
+            pulse_width,
+        )
+
+    @classmethod
+    def start(cls, status: RobotStatus, now: float, timeout: float, pulse_width: float) -> SignalOp:
+        """Start pulse; needs remote ready, drives on, a selected program, no fault; confirmed by running."""
+        _reachable(status)
+        missing = [
+            what
+            for what, ok in (
+                ("remote ready", status.remote_ready),
+                ("drives on", status.drives_are_on),
+                ("a selected program", status.program_echo != 0),
+                ("no fault", not status.fault),
+                ("not running", not status.running),
+            )
+            if not ok
+        ]
+        if missing:
+            raise CallError("BadInvalidState", "start needs " + ", ".join(missing))
+        return cls(
+            "start", (Write("start", True),), (Write("start", False),), lambda s: s.running, now, timeout, pulse_width
+        )
+
+    @classmethod
+    def stop(cls, status: RobotStatus, now: float, timeout: float, pulse_width: float) -> SignalOp:
+        """Stop pulse; confirmed by not running."""
+        _reachable(status)
+        if not status.running:
+            raise CallError("BadInvalidState", "no program is running")
+        return cls(
+            "stop", (Write("stop", True),), (Write("stop", False),), lambda s: not s.running, now, timeout, pulse_width
+        )
+
+    @classmethod
+    def reset(cls, status: RobotStatus, now: float, timeout: float, pulse_width: float) -> SignalOp:
+        """Acknowledge pulse; confirmed by the fault bit falling."""
+        _reachable(status)
+        if not status.fault:
+            raise CallError("BadInvalidState", "no fault to acknowledge")
+        return cls(
+            "reset",
+            (Write("reset", True),),
+            (Write("reset", False),),
+            lambda s: not s.fault,
+            now,
+            timeout,
+            pulse_width,
+            fault_ends=False,
+        )
+
+    @classmethod
+    def drives(cls, on: bool, status: RobotStatus, now: float, timeout: float) -> SignalOp:
+        """Drives on (held) for GetReady, off for StandDown; confirmed by the drives-on bit."""
+        _reachable(status)
+        return cls(
+            "drives on" if on else "drives off",
+            (Write("drives_on", on),),
+            (),
+            lambda s: s.drives_are_on == on,
+            now,
+            timeout,
+            0.0,
+        )
+
+
+def _reachable(status: RobotStatus) -> None:
+    if not status.connected:
+        raise CallError("BadCommunicationError", "no connection to the robot controller")

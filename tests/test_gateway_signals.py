@@ -1,0 +1,90 @@
+"""Robot remote-operation signals (pure): preconditions, writes, pulse ends and confirmations."""
+
+from __future__ import annotations
+
+import pytest
+
+from uacell.errors import CallError
+from uacell.gateway.handshake import Write
+from uacell.gateway.signals import DEFAULT_MAP, RobotStatus, SignalOp
+
+READY = RobotStatus(remote_ready=True, drives_are_on=True, program_echo=3, at_start=True)
+
+
+def test_default_map_has_no_address_twice_in_a_table() -> None:
+    seen = [(table, address) for table, address, _ in DEFAULT_MAP.values()]
+    assert len(seen) == len(set(seen))
+
+
+def test_load_writes_number_then_strobe_confirmed_by_echo() -> None:
+    op = SignalOp.load(7, READY, now=0.0, timeout=1.0, pulse_width=0.2)
+    assert op.writes == (Write("program_number", 7), Write("program_strobe", True))
+    assert op.pulse_end(0.1) == ()
+    assert op.observe(READY, 0.1) is False  # echo still 3
+    assert op.pulse_end(0.2) == (Write("program_strobe", False),)
+    assert op.pulse_end(0.3) == ()  # only once
+    assert op.observe(RobotStatus(remote_ready=True, drives_are_on=True, program_echo=7), 0.3) is True
+
+
+def test_start_stop_and_the_pulse_ended_on_confirmation() -> None:
+    op = SignalOp.start(READY, now=0.0, timeout=1.0, pulse_width=0.5)
+    assert op.writes == (Write("start", True),)
+    running = RobotStatus(remote_ready=True, drives_are_on=True, program_echo=3, running=True)
+    assert op.observe(running, 0.05) is True
+    assert op.pulse_end(0.05) == (Write("start", False),)  # ended early: confirmed
+    stop = SignalOp.stop(running, now=1.0, timeout=1.0, pulse_width=0.1)
+    assert stop.observe(running, 1.5) is False
+    assert stop.observe(READY, 1.6) is True
+
+
+@pytest.mark.parametrize(
+    ("status", "needs"),
+    [
+        (RobotStatus(drives_are_on=True, program_echo=3), "remote ready"),
+        (RobotStatus(remote_ready=True, program_echo=3), "drives on"),
+        (RobotStatus(remote_ready=True, drives_are_on=True), "a selected program"),
+        (RobotStatus(remote_ready=True, drives_are_on=True, program_echo=3, fault=True), "no fault"),
+    ],
+)
+def test_start_refused_names_what_is_missing(status: RobotStatus, needs: str) -> None:
+    with pytest.raises(CallError, match=needs) as err:
+        SignalOp.start(status, now=0.0, timeout=1.0, pulse_width=0.1)
+    assert err.value.status == "BadInvalidState"
+
+
+def test_timeout_fault_and_lost_connection_end_the_operation() -> None:
+    op = SignalOp.start(READY, now=0.0, timeout=1.0, pulse_width=5.0)
+    with pytest.raises(CallError) as late:
+        op.observe(READY, 1.0)
+    assert late.value.status == "BadTimeout"
+    assert op.pulse_end(1.0) == (Write("start", False),)  # nothing left set after a timeout
+    op = SignalOp.start(READY, now=0.0, timeout=1.0, pulse_width=0.1)
+    with pytest.raises(CallError, match="fault 42") as fault:
+        op.observe(RobotStatus(remote_ready=True, drives_are_on=True, fault=True, fault_code=42), 0.1)
+    assert fault.value.status == "BadInvalidState"
+    op = SignalOp.load(2, READY, now=0.0, timeout=1.0, pulse_width=0.1)
+    with pytest.raises(CallError) as lost:
+        op.observe(RobotStatus(connected=False), 0.1)
+    assert lost.value.status == "BadCommunicationError"
+    with pytest.raises(CallError) as no_conn:
+        SignalOp.stop(RobotStatus(connected=False), now=0.0, timeout=1.0, pulse_width=0.1)
+    assert no_conn.value.status == "BadCommunicationError"
+
+
+def test_reset_waits_while_the_fault_is_still_set() -> None:
+    faulted = RobotStatus(remote_ready=True, fault=True, fault_code=9)
+    op = SignalOp.reset(faulted, now=0.0, timeout=1.0, pulse_width=0.1)
+    assert op.observe(faulted, 0.05) is False
+    assert op.observe(RobotStatus(remote_ready=True), 0.2) is True
+    with pytest.raises(CallError) as err:
+        SignalOp.reset(READY, now=0.0, timeout=1.0, pulse_width=0.1)
+    assert err.value.status == "BadInvalidState"
+
+
+def test_drives_held_not_pulsed() -> None:
+    op = SignalOp.drives(True, RobotStatus(remote_ready=True), now=0.0, timeout=1.0)
+    assert op.writes == (Write("drives_on", True),)
+    assert op.pulse_end(10.0) == ()
+    assert op.observe(RobotStatus(remote_ready=True, drives_are_on=True), 0.1) is True
+    with pytest.raises(CallError, match="program number 0"):
+        SignalOp.load(0, READY, now=0.0, timeout=1.0, pulse_width=0.1)
