@@ -28,7 +28,7 @@ FLOOD = 1000
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def app(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[UacellServer]:
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    _soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     if hard != resource.RLIM_INFINITY and hard < 3 * FLOOD:
         pytest.skip(f"the open-file limit ({hard}) leaves no room for {FLOOD} client sockets beside the server")
     config = fast_config(tmp_path_factory.mktemp("flood") / "data")
