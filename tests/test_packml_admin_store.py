@@ -29,6 +29,23 @@ def test_round_trip_and_no_temporary_files_left(tmp_path: Path) -> None:
     assert [p.name for p in store.path.parent.iterdir()] == ["Filler1.json"]
 
 
+def test_leftover_temporaries_of_a_crashed_save_are_removed_at_start(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    store = AdminStore(tmp_path / "packml" / "Filler1.json")
+    store.save({"a": [1]})
+    folder = store.path.parent
+    (folder / "Filler1.json.k3j_x9.tmp").write_text('{"version": 1, "a"')  # a save killed before its rename
+    (folder / "Filler1.json.q81.tmp").write_text("")
+    (folder / "Capper.json.z7.tmp").write_text("")  # another unit's: its own store cleans it
+    with caplog.at_level(logging.INFO):
+        assert store.load() == {"a": [1], "version": 1}
+    assert sorted(p.name for p in folder.iterdir()) == ["Capper.json.z7.tmp", "Filler1.json"]
+    assert [(r.levelno, r.getMessage()) for r in caplog.records] == [
+        (logging.WARNING, f"removed 2 leftover temporary file(s) of {store.path} (a save interrupted by a crash)")
+    ]
+
+
 def test_absent_corrupt_or_foreign_file_gives_defaults(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     store = AdminStore(tmp_path / "admin.json")
     with caplog.at_level(logging.INFO):

@@ -207,7 +207,7 @@ async def test_secure_session_with_each_policy_and_mode(env, policy, mode):
 
 async def test_untrusted_client_certificate_refused_with_hint(env, tmp_path, caplog):
     stranger = ClientCert(tmp_path, "urn:uacell:test:stranger")
-    caplog.set_level(logging.WARNING, logger="uacell.pki")
+    caplog.set_level(logging.INFO, logger="uacell.security")
     with pytest.raises(ua.UaStatusCodeError) as err:
         await secure_client(env, stranger)
     assert err.value.code == ua.StatusCodes.BadCertificateUntrusted

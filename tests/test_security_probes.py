@@ -64,7 +64,10 @@ async def _get_endpoints(raw: RawClient) -> list[ua.EndpointDescription]:
 
 
 def _warnings(caplog: pytest.LogCaptureFixture, text: str) -> list[str]:
-    return [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING and text in r.getMessage()]
+    """The refusals logged with ``text``: INFO lines (a client's doing), never a traceback."""
+    found = [r for r in caplog.records if r.levelno >= logging.INFO and text in r.getMessage()]
+    assert not [r for r in found if r.exc_info or r.levelno >= logging.ERROR]
+    return [r.getMessage() for r in found]
 
 
 # fixtures ---------------------------------------------------------------------------------------------
@@ -112,7 +115,7 @@ def fresh_refusal_log(request):
     # Refusals are logged once per address and interval; each test looks at its own.
     for name in ("env", "wide"):
         if name in request.fixturenames:
-            from uacell.security import RefusalLog
+            from uacell.logs import RefusalLog
 
             request.getfixturevalue(name).security.refusals = RefusalLog()
 
@@ -122,7 +125,7 @@ def fresh_refusal_log(request):
 
 async def test_none_channel_on_every_interface_serves_discovery_only(wide, caplog):
     port = wide.config.server.port
-    caplog.set_level(logging.WARNING, logger="uacell.security")
+    caplog.set_level(logging.INFO, logger="uacell.security")
     for attempt in range(2):
         async with await RawClient.connect("127.0.0.1", port) as raw:
             await raw.hello()
@@ -383,7 +386,7 @@ async def test_session_moves_to_a_new_channel_only_activated_and_with_the_same_i
 
 
 async def test_flood_of_untrusted_certificates_keeps_rejected_capped(env, caplog):
-    caplog.set_level(logging.WARNING, logger="uacell")
+    caplog.set_level(logging.INFO, logger="uacell")
     rejected = PkiPaths.in_data_dir(env.data_dir).rejected
     key = generate_key()  # one key, a fresh self-signed certificate per attempt (as a flood would)
     thumbprints = []

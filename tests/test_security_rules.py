@@ -7,7 +7,8 @@ import struct
 
 import pytest
 
-from uacell.security import RefusalLog, open_token_secret
+from uacell.logs import RefusalLog
+from uacell.security import open_token_secret
 
 NONCE = bytes(range(32))
 
@@ -33,14 +34,15 @@ def test_token_secret_gives_the_password_only_with_this_sessions_nonce() -> None
 def test_refusal_log_reports_once_per_address_reason_and_interval(caplog: pytest.LogCaptureFixture) -> None:
     now = [0.0]
     refusals = RefusalLog(interval=60.0, clock=lambda: now[0])
-    caplog.set_level(logging.WARNING, logger="uacell.security")
-    assert refusals.warning("10.0.0.9", "channel", "refused A")
-    assert not refusals.warning("10.0.0.9", "channel", "refused A")
-    assert not refusals.warning("10.0.0.9", "channel", "refused A")
-    assert refusals.warning("10.0.0.8", "channel", "refused B")  # another address
-    assert refusals.warning("10.0.0.9", "token", "refused C")  # another reason
+    caplog.set_level(logging.INFO, logger="uacell.security")
+    assert refusals.report("10.0.0.9", "channel", "refused A")
+    assert not refusals.report("10.0.0.9", "channel", "refused A")
+    assert not refusals.report("10.0.0.9", "channel", "refused A")
+    assert refusals.report("10.0.0.8", "channel", "refused B")  # another address
+    assert refusals.report("10.0.0.9", "token", "refused C")  # another reason
     now[0] = 61.0
-    assert refusals.warning("10.0.0.9", "channel", "refused A")
+    assert refusals.report("10.0.0.9", "channel", "refused A")
+    assert {r.levelno for r in caplog.records} == {logging.INFO}  # a client's doing, not the server's
     messages = [r.getMessage() for r in caplog.records]
     assert messages == [
         "refused A",

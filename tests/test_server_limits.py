@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import logging
 import resource
 import struct
 import time
@@ -22,6 +23,7 @@ from asyncua.ua.ua_binary import struct_to_binary
 from conftest import fast_config, start_app
 from helpers import raw_call, robot_binding
 
+from uacell.logs import RefusalLog
 from uacell.roles import Role
 from uacell.server import UacellServer
 from uacell.ua.file_store import FileStore
@@ -239,20 +241,25 @@ async def test_the_largest_request_stalls_other_sessions_only_briefly(app: Uacel
     assert worst < STALL_BOUND, f"another session waited {worst:.2f} s"
 
 
-async def test_connections_beyond_the_limit_are_closed_and_room_comes_back(app: UacellServer) -> None:
-    await asyncio.sleep(0)  # earlier tests' connections are gone once their close ran
-    open_now = len(app.server.bserver.clients)
-    held = []
-    for _ in range(CONNECTIONS - open_now):
-        held.append(await connect_raw(app))
-    deadline = time.monotonic() + 10
-    while len(app.server.bserver.clients) < CONNECTIONS:
+async def test_at_the_connection_limit_the_oldest_without_a_session_makes_room(app: UacellServer) -> None:
+    deadline = time.monotonic() + 20
+    while app.server.bserver.clients:  # earlier tests' connections are gone once their close ran
         assert time.monotonic() < deadline
         await asyncio.sleep(0.01)
-    reader, writer = await connect_raw(app)
-    assert await closed_by_server(reader, writer)
-    for _, w in held:
-        w.close()
+    async with session(app) as kept:  # a connection with an activated session is never the one closed
+        held = [await connect_raw(app) for _ in range(CONNECTIONS - 1)]
+        while len(app.server.bserver.clients) < CONNECTIONS:
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.01)
+        reader, writer = await connect_raw(app)  # one more: the oldest idle connection goes instead
+        assert await closed_by_server(*held[0])
+        writer.write(hello(app.endpoint))
+        await read_ack(reader)  # the newcomer is served
+        assert await kept.nodes.server_state.read_value() == ua.ServerState.Running
+        assert len(app.server.bserver.clients) == CONNECTIONS
+        writer.close()
+        for _, w in held[1:]:
+            w.close()
     while app.server.bserver.clients:
         assert time.monotonic() < deadline
         await asyncio.sleep(0.01)
@@ -433,3 +440,31 @@ async def test_limits_configuration_is_validated(tmp_path: Path) -> None:
     path.write_text("[limits]\nsessions = 7\n[web]\nua_sessions = 4\n")
     with pytest.raises(ConfigError, match=r"\[web\] ua_sessions: must be 1..3"):
         load_config(path)
+
+
+@pytest.mark.parametrize(
+    "chunk",
+    [
+        pytest.param(b"MSGF" + struct.pack("<I", 68) + b"\x07" * 60, id="message-on-an-unknown-channel"),
+        pytest.param(b"OPNF" + struct.pack("<I", 20) + b"\xff" * 12, id="undecodable-open"),
+    ],
+)
+async def test_a_message_asyncua_refuses_gets_an_error_one_info_line_and_no_traceback(
+    app: UacellServer, chunk: bytes, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO)
+    app.security.refusals = RefusalLog()  # what earlier tests refused from this address is forgotten
+    for _ in range(3):  # a client repeating it: still one line per address and interval
+        reader, writer = await connect_raw(app)
+        writer.write(hello(app.endpoint))
+        await read_ack(reader)
+        writer.write(chunk)
+        await writer.drain()
+        answer = await asyncio.wait_for(reader.read(8), 10)
+        assert answer[:4] == b"ERRF"  # an Error message, then the connection is closed
+        assert await closed_by_server(reader, writer)
+    loud = [r for r in caplog.records if r.levelno >= logging.WARNING or r.exc_info]
+    assert loud == [], [r.getMessage() for r in loud]
+    told = [r for r in caplog.records if r.name == "uacell.security" and "refused" in r.getMessage()]
+    assert len(told) == 1, [r.getMessage() for r in told]
+    await still_serving(app)

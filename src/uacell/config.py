@@ -125,6 +125,8 @@ class LimitsConfig:
     login_free_failures: int = 2  # failures in a row of one user name at one address without delay
     login_free_failures_per_user: int = 10  # the same over all addresses
     password_checks: int = 2  # password hashes verified at once, server-wide
+    handshake_timeout: float = 5.0  # seconds from connecting to an open secure channel (Hello, OpenSecureChannel)
+    pending_per_address: int = 32  # connections of one address without an activated session
 
 
 @dataclass

@@ -142,3 +142,44 @@ def configure(config: Config) -> None:
     for name, level in cfg.levels.items():
         logging.getLogger(name).setLevel(level)
         configured_levels.add(name)
+
+
+class RefusalLog:
+    """Logs a refusal at INFO (a client's doing, not the server's fault) at most once per client address,
+    reason and ``interval`` seconds, so a flood of attempts cannot flood the log; the next report says
+    how many were left out."""
+
+    MAX_KEYS = 4096
+
+    def __init__(
+        self,
+        interval: float = 60.0,
+        clock: Callable[[], float] = time.monotonic,
+        logger: logging.Logger | None = None,
+    ) -> None:
+        self.log = logger or logging.getLogger("uacell.security")
+        self.interval = interval
+        self._clock = clock
+        self._last: dict[tuple[str, str], float] = {}
+        self._left_out: dict[tuple[str, str], int] = {}
+
+    def report(self, address: str, reason: str, message: str) -> bool:
+        """Log ``message`` unless this address and reason were logged less than ``interval`` ago."""
+        now = self._clock()
+        key = (address, reason)
+        last = self._last.get(key)
+        if last is not None and now - last < self.interval:
+            self._left_out[key] = self._left_out.get(key, 0) + 1
+            return False
+        if len(self._last) >= self.MAX_KEYS:
+            self._forget(now)
+        left_out = self._left_out.pop(key, 0)
+        self._last[key] = now
+        more = f" ({left_out} more such refusals from {address} not logged)" if left_out else ""
+        self.log.info("%s%s", message, more)
+        return True
+
+    def _forget(self, now: float) -> None:
+        for key in [k for k, t in self._last.items() if now - t >= self.interval]:
+            del self._last[key]
+            self._left_out.pop(key, None)

@@ -35,12 +35,12 @@ processor is published in a context variable while it handles a request.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import hmac
 import logging
 import os
 import struct
-import time
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -55,6 +55,7 @@ from asyncua.server.internal_session import InternalSession, SessionState
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary, uatcp_to_binary
 
+from uacell.logs import RefusalLog
 from uacell.pki import CertificateValidator, PkiPaths, RejectedLimit, TrustList, ensure_server_certificate
 from uacell.rights import may_call
 from uacell.roles import Family, Role, may
@@ -148,40 +149,6 @@ def open_token_secret(plain: bytes, nonce: bytes | None) -> bytes:
     return secret[: len(secret) - len(nonce)]
 
 
-class RefusalLog:
-    """Logs a refusal at most once per client address, reason and ``interval`` seconds, so a flood of
-    attempts cannot flood the log; the next report says how many were left out."""
-
-    MAX_KEYS = 4096
-
-    def __init__(self, interval: float = 60.0, clock: Callable[[], float] = time.monotonic) -> None:
-        self.interval = interval
-        self._clock = clock
-        self._last: dict[tuple[str, str], float] = {}
-        self._left_out: dict[tuple[str, str], int] = {}
-
-    def warning(self, address: str, reason: str, message: str) -> bool:
-        """Log ``message`` unless this address and reason were logged less than ``interval`` ago."""
-        now = self._clock()
-        key = (address, reason)
-        last = self._last.get(key)
-        if last is not None and now - last < self.interval:
-            self._left_out[key] = self._left_out.get(key, 0) + 1
-            return False
-        if len(self._last) >= self.MAX_KEYS:
-            self._forget(now)
-        left_out = self._left_out.pop(key, 0)
-        self._last[key] = now
-        more = f" ({left_out} more such refusals from {address} not logged)" if left_out else ""
-        log.warning("%s%s", message, more)
-        return True
-
-    def _forget(self, now: float) -> None:
-        for key in [k for k, t in self._last.items() if now - t >= self.interval]:
-            del self._last[key]
-            self._left_out.pop(key, None)
-
-
 def _drop_fault_echo(record: logging.LogRecord) -> bool:
     """asyncua logs every ServiceFault it sends at ERROR; uacell logs its refusals itself (rate-limited)."""
     return not str(record.msg).startswith("sending service fault response")
@@ -260,7 +227,7 @@ class Security:
 
     def _report_certificate_refusal(self, message: str) -> None:
         address = _address(context.current_processor())
-        self.refusals.warning(address, "certificate", f"{message} (client address {address})")
+        self.refusals.report(address, "certificate", f"{message} (client address {address})")
 
     # sessions ------------------------------------------------------------------------------------
 
@@ -307,7 +274,7 @@ class Security:
         if code is None:
             return
         what = f"security policy {uri}" if code == _S.BadSecurityPolicyRejected else f"security mode {mode}"
-        self.refusals.warning(
+        self.refusals.report(
             _address(processor),
             f"channel:{code}",
             f"refused secure channel from {_address(processor)}: {what} is not offered ({ua.StatusCode(code).name})",
@@ -329,7 +296,7 @@ class Security:
             return
         address = _address(processor)
         uri, mode = _channel_policy(processor)
-        self.refusals.warning(
+        self.refusals.report(
             address,
             "service",
             f"refused request from {address} on a {uri.rsplit('#', 1)[-1]}/{mode.name} channel: "
@@ -344,7 +311,7 @@ class Security:
         uri, mode = _channel_policy(processor)
         code = self.channel_refusal(uri, mode)
         if code is not None:
-            self.refusals.warning(
+            self.refusals.report(
                 address,
                 f"session:{code}",
                 f"refused session from {address}: its channel ({uri}, {mode.name}) is not an "
@@ -353,7 +320,7 @@ class Security:
             raise ServiceError(code)
         url = params.EndpointUrl
         if url and urlparse(url).scheme.lower() != "opc.tcp":
-            self.refusals.warning(
+            self.refusals.report(
                 address, "session:url", f"refused session from {address}: EndpointUrl {url!r} is not an opc.tcp URL"
             )
             raise ServiceError(_S.BadTcpEndpointUrlInvalid)
@@ -377,7 +344,7 @@ class Security:
                 code, why = _S.BadIdentityChangeNotSupported, "the identity differs from the session's"
             else:
                 return
-        self.refusals.warning(
+        self.refusals.report(
             address,
             f"reassociation:{code}",
             f"refused to move a session to a new channel from {address}: {why} ({ua.StatusCode(code).name})",
@@ -389,6 +356,18 @@ class Security:
         then closes the connection."""
         message = ua.ErrorMessage(ua.StatusCode(refused.code), refused.reason)
         processor._transport.write(uatcp_to_binary(ua.MessageType.Error, message))
+
+    def message_refused(self, processor: UaProcessor, exc: Exception) -> None:
+        """A message asyncua refused below the request stages (a chunk of a channel it does not know,
+        a bad signature, an unexpected message type): one INFO line per address and interval, an
+        Error message to the client; the pipeline then closes the connection."""
+        code = getattr(exc, "code", None) or ua.StatusCodes.BadSecurityChecksFailed
+        address = _address(processor)
+        name = ua.StatusCode(code).name
+        self.refusals.report(address, f"message {name}", f"refused a message from {address}: {exc} ({name})")
+        with contextlib.suppress(Exception):
+            message = ua.ErrorMessage(ua.StatusCode(code), str(exc)[:200])
+            processor._transport.write(uatcp_to_binary(ua.MessageType.Error, message))
 
     # logins --------------------------------------------------------------------------------------
 
@@ -406,7 +385,7 @@ class Security:
 
     def _invalid_token(self, token: ua.UserNameIdentityToken, reason: str, why: str) -> ServiceError:
         address = _address(context.current_processor())
-        self.refusals.warning(
+        self.refusals.report(
             address,
             f"token:{reason}",
             f"refused login of user {token.UserName!r} from {address}: {why} (Bad_IdentityTokenInvalid)",

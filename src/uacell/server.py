@@ -31,7 +31,7 @@ from uacell.ua.access import UacellUserManager
 from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.file_store import HandlePool
-from uacell.ua.limits import DecodingStage, guard_bytes, install_limits, publish_operation_limits
+from uacell.ua.limits import DecodingStage, admit, guard_bytes, install_limits, publish_operation_limits
 from uacell.ua.machine_binding import NodeRefs, Publisher
 from uacell.ua.nodesets import SnapshotJob, init_address_space
 from uacell.ua.observers import install_audit
@@ -158,8 +158,10 @@ class UacellServer:
         # What every request passes, outermost first (ua/pipeline.py says what each stage does).
         self.pipeline = Pipeline(
             [ContextStage(), self.diagnostics, SecurityStage(self.security), DecodingStage()],
+            admission=admit,
             bytes_guard=guard_bytes,
             channel_guard=self.security,
+            refused=self.security.message_refused,
         )
         self.pipeline.install(self.server.iserver)
         self.server.product_uri = PRODUCT_URI

@@ -40,7 +40,9 @@ class AdminStore:
 
     def load(self) -> dict[str, Any] | None:
         """The stored data, or None if the file is absent (a first start: logged at INFO) or damaged
-        (unreadable, corrupt, an unknown format: a WARNING)."""
+        (unreadable, corrupt, an unknown format: a WARNING). Temporaries a crash left beside the file
+        (``<name>.json.<random>.tmp``, from a save that never reached its rename) are removed first."""
+        self._clean_temporaries()
         try:
             raw = self.path.read_bytes()
         except FileNotFoundError:
@@ -58,6 +60,24 @@ class AdminStore:
             log.warning("PackML admin data %s has an unknown format; starting from defaults", self.path)
             return None
         return data
+
+    def _clean_temporaries(self) -> None:
+        prefix = self.path.name + "."
+        try:
+            found = [p for p in self.path.parent.iterdir() if p.name.startswith(prefix) and p.name.endswith(".tmp")]
+        except OSError:
+            return  # no directory yet (a first start), or unreadable: the load says so
+        removed = 0
+        for leftover in found:
+            try:
+                leftover.unlink()
+                removed += 1
+            except OSError as exc:
+                log.warning("cannot remove the leftover temporary %s (%s)", leftover, exc)
+        if removed:
+            log.warning(
+                "removed %d leftover temporary file(s) of %s (a save interrupted by a crash)", removed, self.path
+            )
 
     def save(self, data: dict[str, Any]) -> None:
         """Store ``data`` atomically and durably, now, in the calling thread."""

@@ -28,6 +28,7 @@ asyncua server before it listens:
 
 from __future__ import annotations
 
+import asyncio
 import dataclasses
 import logging
 import math
@@ -43,6 +44,7 @@ from asyncua.server.binary_server_asyncio import OPCUAProtocol
 from asyncua.server.internal_session import InternalSession
 from asyncua.ua.ua_binary import struct_from_binary
 
+from uacell.logs import RefusalLog
 from uacell.ua.pipeline import Next, Request
 
 if TYPE_CHECKING:
@@ -72,11 +74,15 @@ class ServerLimits:
     pending_chunks_per_connection: int
     pending_bytes_per_connection: int
     operations_per_request: int
+    handshake_timeout: float
+    pending_per_address: int
     live_sessions: set[int] = dataclasses.field(default_factory=set)
+    # One line per address and kind a minute: a flood of connections must not flood the log.
+    refusals: RefusalLog = dataclasses.field(default_factory=lambda: RefusalLog(logger=log))
 
     @classmethod
     def from_config(cls, cfg: LimitsConfig) -> ServerLimits:
-        names = {f.name for f in dataclasses.fields(cls)} - {"live_sessions"}
+        names = {f.name for f in dataclasses.fields(cls)} - {"live_sessions", "refusals"}
         return cls(**{n: getattr(cfg, n) for n in names})
 
     @property
@@ -221,6 +227,71 @@ def guard_bytes(self: OPCUAProtocol, data: bytes, original: Callable[[OPCUAProto
             return
         self._buffer = b""
         pending = pending[size:]
+
+
+def _activated(protocol: OPCUAProtocol) -> bool:
+    session = getattr(protocol.processor, "session", None)
+    return session is not None and bool(session.is_activated())
+
+
+def _peer(protocol: OPCUAProtocol) -> str:
+    peer = getattr(protocol, "peer_name", None)
+    return str(peer[0]) if isinstance(peer, tuple) and peer else "?"
+
+
+def admit(protocol: OPCUAProtocol, transport: Any, original: Callable[[OPCUAProtocol, Any], None]) -> None:
+    """The admission guard (``ua/pipeline.py``), when a connection is accepted: room is made for it.
+
+    Connections that have not activated a session are the cheap ones to hold open (no Hello, a Hello
+    dribbled in, a channel never used). A new connection closes the oldest of them from its own
+    address once that address holds ``pending_per_address``, or the oldest of anyone's once all
+    ``connections`` are taken; connections with an activated session are never closed for this.
+    A connection must open its secure channel within ``handshake_timeout`` seconds."""
+    limits = _limits_of(protocol.iserver)
+    if limits is None:
+        original(protocol, transport)
+        return
+    peername = transport.get_extra_info("peername")
+    address = str(peername[0]) if isinstance(peername, tuple) and peername else "?"
+    clients: list[OPCUAProtocol] = protocol.clients
+    pending = [c for c in clients if not _activated(c)]
+    mine = [c for c in pending if _peer(c) == address]
+    victim = None
+    if len(mine) >= limits.pending_per_address:
+        victim = mine[0]
+    elif len(clients) >= limits.connections and pending:
+        victim = pending[0]
+    if victim is not None:
+        clients.remove(victim)  # its place is free now; connection_lost follows
+        if victim.transport is not None:
+            victim.transport.abort()
+        limits.refusals.report(
+            _peer(victim),
+            "evicted",
+            f"closed the oldest connection without a session from {_peer(victim)} to admit one from {address}",
+        )
+    original(protocol, transport)
+    if protocol.transport is not None:  # admitted: it has handshake_timeout to open its channel
+        protocol._uacell_handshake = asyncio.get_running_loop().call_later(
+            limits.handshake_timeout, _handshake_late, protocol
+        )
+
+
+def _handshake_late(protocol: OPCUAProtocol) -> None:
+    processor = protocol.processor
+    transport = protocol.transport
+    if processor is None or transport is None or transport.is_closing():
+        return
+    if processor._connection.is_open():
+        return
+    limits = _limits_of(protocol.iserver)
+    if limits is not None:
+        address = _peer(protocol)
+        message = (
+            f"closed a connection from {address} that opened no secure channel within {limits.handshake_timeout:g} s"
+        )
+        limits.refusals.report(address, "handshake", message)
+    transport.abort()
 
 
 class _ExpectedRefusals(logging.Filter):

@@ -2,11 +2,14 @@
 
 asyncua offers no middleware, so uacell wraps its entry points once, here, process-wide:
 
+- a new connection (``OPCUAProtocol.connection_made``): the server's ``admission`` (``ua/limits.py``:
+  room made by closing the oldest connection without a session, a deadline for the handshake);
 - a connection's bytes (``OPCUAProtocol.data_received``): the server's ``bytes_guard``
   (``ua/limits.py``: chunk sizes and buffers checked before asyncua buffers them);
 - the opening of a secure channel (``UaProcessor.process`` for an OpenSecureChannel message, and
   ``UaProcessor.open_secure_channel``): the server's ``channel_guard`` (``security.py``: only the
-  policies and modes the endpoints offer);
+  policies and modes the endpoints offer); a message asyncua refuses there or in its chunk handling
+  goes to the server's ``refused`` (one INFO line, an Error message) and closes the connection;
 - each service request (``UaProcessor._process_message``): the server's ``stages``, in order;
 - a session's Call, Read and HistoryRead (``InternalSession``): the session known while they run, and
   the read hooks (``ua/context.py``).
@@ -35,7 +38,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from asyncua import ua
-from asyncua.common.utils import Buffer
+from asyncua.common.utils import Buffer, ServiceError
 from asyncua.server.binary_server_asyncio import OPCUAProtocol
 from asyncua.server.internal_session import InternalSession
 from asyncua.server.uaprocessor import UaProcessor
@@ -73,6 +76,10 @@ class ChannelGuard(Protocol):
 
 Next0 = Callable[[], Awaitable[Any]]
 BytesGuard = Callable[[OPCUAProtocol, bytes, Callable[[OPCUAProtocol, bytes], None]], None]
+# Runs when a connection is accepted, in place of asyncua's connection_made (which it calls).
+Admission = Callable[[OPCUAProtocol, Any, Callable[[OPCUAProtocol, Any], None]], None]
+# Told about a message asyncua refused below the request stages (it answers and logs; the connection closes).
+Refused = Callable[[UaProcessor, Exception], None]
 
 
 class ContextStage:
@@ -100,10 +107,14 @@ class Pipeline:
         *,
         bytes_guard: BytesGuard | None = None,
         channel_guard: ChannelGuard | None = None,
+        refused: Refused | None = None,
+        admission: Admission | None = None,
     ) -> None:
         self.stages = tuple(stages)
+        self.admission = admission
         self.bytes_guard = bytes_guard
         self.channel_guard = channel_guard
+        self.refused = refused
         self._entry = _compose(self.stages, _asyncua_request)
 
     @staticmethod
@@ -140,6 +151,7 @@ _ORIGINAL_PROCESS_MESSAGE = UaProcessor._process_message
 _ORIGINAL_PROCESS = UaProcessor.process
 _ORIGINAL_OPEN = UaProcessor.open_secure_channel
 _ORIGINAL_DATA_RECEIVED = OPCUAProtocol.data_received
+_ORIGINAL_CONNECTION_MADE = OPCUAProtocol.connection_made
 _ORIGINAL_CALL = InternalSession.call
 _ORIGINAL_READ = InternalSession.read
 _ORIGINAL_HISTORY_READ = InternalSession.history_read
@@ -160,10 +172,19 @@ async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any
 
 async def _process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
     pipeline = Pipeline.of(self.iserver)
-    guard = pipeline.channel_guard if pipeline is not None else None
-    if guard is None or header.MessageType != ua.MessageType.SecureOpen or self._connection.is_open():
+    if pipeline is None:
         return await _ORIGINAL_PROCESS(self, header, body)
-    return await guard.opening(self, header, body, lambda: _ORIGINAL_PROCESS(self, header, body))
+    guard = pipeline.channel_guard
+    try:
+        if guard is None or header.MessageType != ua.MessageType.SecureOpen or self._connection.is_open():
+            return await _ORIGINAL_PROCESS(self, header, body)
+        return await guard.opening(self, header, body, lambda: _ORIGINAL_PROCESS(self, header, body))
+    except (ua.UaError, ServiceError) as exc:
+        # What a client's message provoked below the request stages (asyncua would log a traceback
+        # at ERROR and keep the connection): refused in one line, and the connection closed.
+        if pipeline.refused is not None:
+            pipeline.refused(self, exc)
+        return False
 
 
 def _open_secure_channel(self: UaProcessor, algohdr: Any, seqhdr: Any, body: Buffer) -> Any:
@@ -172,6 +193,14 @@ def _open_secure_channel(self: UaProcessor, algohdr: Any, seqhdr: Any, body: Buf
     if guard is not None and not self._connection.is_open():
         guard.open(self, algohdr, body)
     return _ORIGINAL_OPEN(self, algohdr, seqhdr, body)
+
+
+def _connection_made(self: OPCUAProtocol, transport: Any) -> None:
+    pipeline = Pipeline.of(self.iserver)
+    if pipeline is None or pipeline.admission is None:
+        _ORIGINAL_CONNECTION_MADE(self, transport)
+        return
+    pipeline.admission(self, transport, _ORIGINAL_CONNECTION_MADE)
 
 
 def _data_received(self: OPCUAProtocol, data: bytes) -> None:
@@ -214,6 +243,7 @@ def attach() -> None:
     UaProcessor.process = _process
     UaProcessor.open_secure_channel = _open_secure_channel
     OPCUAProtocol.data_received = _data_received
+    OPCUAProtocol.connection_made = _connection_made
     InternalSession.call = _call
     InternalSession.read = _read
     InternalSession.history_read = _history_read
