@@ -191,11 +191,14 @@ def result(page, what: str, code: str) -> str:
     """The answer bar's text once it shows the answer to ``what`` (a button's label) with ``code``."""
     page.wait_for_function(
         """([what, code]) => { const r = document.querySelector('#result');
-             return r.dataset.code === code && r.textContent.startsWith(what + ': '); }""",
+             const t = r.querySelector('.r-text');
+             return r.dataset.code === code && t && t.textContent.startsWith(what + ': '); }""",
         arg=[what, code],
         timeout=TIMEOUT,
     )
-    return page.inner_text("#result")
+    # The answer's time of day comes first, then what was done and how it went.
+    assert re.fullmatch(r"\d{1,2}:\d{2}:\d{2}( [AP]M)?", page.inner_text("#result .r-time")), page.inner_text("#result")
+    return page.inner_text("#result .r-text")
 
 
 # --- the tests -----------------------------------------------------------------------------------
@@ -255,7 +258,7 @@ def test_reset_then_start_with_two_parameters(page, serve, ua_thread):
     shows_state(page, "Execute")
     seen = page.evaluate("window.__seen")
     assert seen == ["Stopped", "Resetting", "Idle", "Starting", "Execute"], seen
-    assert result(page, "Start", "Good").startswith("Start: Good")
+    assert result(page, "Start", "Good") == "Start: done"
     processed = page.locator('section.unit[data-unit="Filler1"] .v-processed')
     page.wait_for_function("el => Number(el.textContent) > 0", arg=processed.element_handle(), timeout=TIMEOUT)
     first = int(processed.inner_text())
@@ -329,7 +332,7 @@ def test_an_observer_sees_every_command_disabled_and_a_forced_call_refused(page,
     # Forced: the button made clickable in the page; the server refuses the observer's call.
     unit_button(page, "Reset").evaluate("b => { b.disabled = false; b.click(); }")
     text = result(page, "Reset", "BadUserAccessDenied")
-    assert "Reset: BadUserAccessDenied (User does not have permission to perform the requested operation" in text
+    assert text == "Reset: your role may not do this (log in as a user who may) (BadUserAccessDenied)"
 
     async def state() -> str | None:
         async with Ua(serve.endpoint) as c:
@@ -352,11 +355,13 @@ def test_a_lock_held_by_another_session_disables_the_robots_commands(page, serve
         assert load.is_disabled() and robot_button(page, "Start", ".task").is_disabled()
         assert page.inner_text(".controller > .lock .v-lock") == "locked"
         assert "locked by otto" in page.inner_text(".task .lock-note")
-        assert get_ready.get_attribute("title") == "locked by otto"
+        assert get_ready.get_attribute("title") == "Get ready: locked by otto"
         shot(page.locator("section.robot"), "web-lock.png")
         # Forced anyway: the server answers Bad_ResourceUnavailable.
         get_ready.evaluate("b => { b.disabled = false; b.click(); }")  # in one go: updates re-disable it
-        assert "Get ready: BadResourceUnavailable" in result(page, "Get ready", "BadResourceUnavailable")
+        assert result(page, "Get ready", "BadResourceUnavailable") == (
+            "Get ready: another client holds the lock or the resource is busy (BadResourceUnavailable)"
+        )
 
         async def sysop() -> str | None:
             async with Ua(serve.endpoint) as c:
@@ -399,7 +404,7 @@ def test_a_program_uploaded_in_the_page_is_loaded_and_run(page, serve, ua_thread
     page.fill(".upload-name", "wave.robot")
     page.fill(".upload-text", WAVE)
     page.click("button.upload")
-    assert "Upload wave.robot: Good" in result(page, "Upload wave.robot", "Good")
+    assert result(page, "Upload wave.robot", "Good") == "Upload wave.robot: done"
     page.wait_for_selector('.file-list li[data-file="wave.robot"]', timeout=TIMEOUT)
     (stored,) = (serve.data_dir / "programs").rglob("wave.robot")  # the controller's program directory
     assert stored.read_text() == WAVE
@@ -469,7 +474,7 @@ def test_an_alarm_is_shown_and_acknowledged_in_the_page(page, serve, ua_thread):
     ack = row.locator('button[data-label="Acknowledge"]')
     page.wait_for_function("b => !b.disabled", arg=ack.element_handle(), timeout=TIMEOUT)
     ack.click()
-    assert "Acknowledge: Good" in result(page, "Acknowledge", "Good")
+    assert result(page, "Acknowledge", "Good") == "Acknowledge: done"
     page.wait_for_function(
         "el => el.textContent === 'ok'", arg=row.locator(".c-state").element_handle(), timeout=TIMEOUT
     )
@@ -512,7 +517,7 @@ def test_the_page_says_when_the_server_is_unreachable_and_comes_back(browser, ua
         assert page.locator("#notice").is_hidden()
         page.fill('section.unit[data-unit="Filler1"] .speed-input', "42")
         page.click('section.unit[data-unit="Filler1"] button[data-label="Set speed"]')
-        assert "Set speed: Good" in result(page, "Set speed", "Good")
+        assert result(page, "Set speed", "Good") == "Set speed: done"
         page.wait_for_function(
             """() => document.querySelector('section.unit[data-unit="Filler1"] .v-machspeed').textContent === '42.0'""",
             timeout=TIMEOUT,
@@ -521,3 +526,94 @@ def test_the_page_says_when_the_server_is_unreachable_and_comes_back(browser, ua
         context.close()
         ua_thread.run(web.stop())
         ua_thread.run(app.stop())
+
+
+# --- an operator's shift ----------------------------------------------------------------------------
+
+
+def test_disabled_commands_say_why_on_hover_and_in_the_page(page, serve, ua_thread):
+    filler_stopped(serve, ua_thread)
+    shows_state(page, "Stopped")
+    login(page, "otto")
+    start = unit_button(page, "Start")
+    page.wait_for_function("b => b.disabled && b.dataset.why", arg=start.element_handle(), timeout=TIMEOUT)
+    assert start.get_attribute("title") == "Start: not possible in state Stopped"
+    why = page.locator('section.unit[data-unit="Filler1"] .commands + .why-line').first
+    assert "Start: not possible in state Stopped" in why.inner_text()
+    assert "Reset:" not in why.inner_text()  # Reset can be used: it is not listed
+    # An observer: the role is the reason.
+    page.click("#logout")
+    login(page, "olga")
+    reset = unit_button(page, "Reset")
+    page.wait_for_function(
+        "b => b.title === 'Reset: your role may not do this (olga)'", arg=reset.element_handle(), timeout=TIMEOUT
+    )
+    assert "Reset: your role may not do this (olga)" in why.inner_text()
+
+
+def test_a_speed_out_of_range_is_refused_in_plain_words_with_its_code(page, serve, ua_thread):
+    login(page, "otto")
+    speed = page.locator('section.unit[data-unit="Filler1"] .speed-input')
+    label = page.locator(f'label[for="{speed.get_attribute("id")}"]')
+    assert label.inner_text() == "Speed (MachSpeed)"  # a visible label, and the unit beside the field
+    assert page.locator('section.unit[data-unit="Filler1"] .unit-text').inner_text() == "packages/min"
+    speed.fill("5000")
+    unit_button_speed = page.locator('section.unit[data-unit="Filler1"] button[data-label="Set speed"]')
+    page.wait_for_function("b => !b.disabled", arg=unit_button_speed.element_handle(), timeout=TIMEOUT)
+    unit_button_speed.click()
+    text = result(page, "Set speed", "BadInvalidArgument")
+    assert text == "Set speed: speed must be within 0..600 packages/min (BadInvalidArgument)"
+
+    async def mach_speed() -> float:
+        async with Ua(serve.endpoint) as c:
+            return float(await c.node("Filler1.Status.MachSpeed").read_value())
+
+    assert ua_thread.run(mach_speed()) <= 600  # nothing changed
+
+
+def test_abort_asks_first_and_does_nothing_when_declined(page, serve, ua_thread):
+    filler_stopped(serve, ua_thread)
+    shows_state(page, "Stopped")
+    login(page, "otto")
+    asked: list[str] = []
+
+    def decline(dialog) -> None:
+        asked.append(dialog.message)
+        dialog.dismiss()
+
+    page.on("dialog", decline)
+    abort = unit_button(page, "Abort")
+    page.wait_for_function("b => !b.disabled", arg=abort.element_handle(), timeout=TIMEOUT)
+    abort.click()
+    page.wait_for_function("() => true")  # the dialog ran synchronously inside the click
+    assert asked == ["Abort Filler1? It stops at once, mid-cycle."]
+
+    async def state() -> str | None:
+        async with Ua(serve.endpoint) as c:
+            return await c.state(MACHINE)
+
+    assert ua_thread.run(state()) == "Stopped"  # declined: no call was made
+    page.remove_listener("dialog", decline)
+    page.once("dialog", lambda dialog: dialog.accept())
+    abort.click()
+    result(page, "Abort", "Good")
+    shows_state(page, "Aborted")
+
+
+def test_an_active_alarm_shows_a_banner_over_the_page(page, serve, ua_thread):
+    login(page, "erin")
+    banner = page.locator("#alarm")
+    assert banner.is_hidden()
+    page.click('button[data-label="Simulate emergency stop"]')
+    page.wait_for_function("() => !document.querySelector('#alarm').hidden", timeout=TIMEOUT)
+    assert banner.inner_text().startswith("Alarm — Robot1/Controller1: EmergencyStop active")
+    page.click('button[data-label="Release emergency stop"]')
+    page.wait_for_function(
+        "() => document.querySelector('#alarm').textContent.includes('EmergencyStop to acknowledge')",
+        timeout=TIMEOUT,
+    )
+    row = page.locator('.condition[data-condition="EmergencyStop"]')
+    ack = row.locator('button[data-label="Acknowledge"]')
+    page.wait_for_function("b => !b.disabled", arg=ack.element_handle(), timeout=TIMEOUT)
+    ack.click()
+    page.wait_for_function("() => document.querySelector('#alarm').hidden", timeout=TIMEOUT)

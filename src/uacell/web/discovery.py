@@ -231,6 +231,10 @@ class Discoverer:
         admin = await self.child(unit.node, "Admin")
         variables = {n: await self.variable(f"{name}/Status/{n}", status, n) for n in UNIT_STATUS}
         variables |= {n: await self.variable(f"{name}/Admin/{n}", admin, n) for n in UNIT_ADMIN}
+        # The speeds the unit accepts, for a refusal in words ("speed must be within 0..600").
+        variables["MachSpeedRange"] = await self.variable(
+            f"{name}/Status/MachSpeed/EURange", status, "MachSpeed", "EURange"
+        )
         return {
             "name": name,
             "machines": machines,

@@ -130,27 +130,66 @@ function showUser() {
 
 // --- calls -------------------------------------------------------------------------------------
 
-function showResult(what, r) {
+// Refusals in plain words; the status code's name stays beside them for whoever looks it up.
+const PLAIN = {
+  BadUserAccessDenied: "your role may not do this (log in as a user who may)",
+  BadInvalidState: "not possible in the current state",
+  BadInvalidArgument: "a value is outside what the machine accepts",
+  BadOutOfRange: "a value is outside what the machine accepts",
+  BadTypeMismatch: "a value has the wrong type",
+  BadArgumentsMissing: "a value is missing",
+  BadLocked: "someone else holds the lock",
+  BadResourceUnavailable: "another client holds the lock or the resource is busy",
+  BadNodeIdUnknown: "no such program or node",
+  BadNotFound: "not found",
+  BadTooManySessions: "the HMI or the server serves too many users right now",
+  BadServerNotConnected: "the server is not connected",
+  BadCommunicationError: "the server cannot be reached",
+  BadTimeout: "the machine did not answer in time",
+  BadIdentityTokenRejected: "wrong user name or password",
+  BadMethodInvalid: "this server does not offer it",
+};
+const STATUS_PLAIN = {
+  E_SystemState: "the robot is not in a state that allows it", E_UnexpectedError: "the robot reported an error",
+  E_ActiveAlarm: "an alarm is active", E_AcknowledgeRequired: "an alarm must be acknowledged first",
+  "not found": "no program of that name", "invalid content": "the program is not valid",
+  "unresolved reference": "the program calls a module that is not loaded: load the module first",
+  "module in use": "a loaded program still uses this module",
+};
+
+function clock() {
+  return new Date().toLocaleTimeString([], {hour: "2-digit", minute: "2-digit", second: "2-digit"});
+}
+
+function showResult(what, r, explain) {
   const box = $("#result");
   box.hidden = false;
   box.className = r.good ? "good" : "bad";
   box.dataset.code = r.code || "";
-  let text = `${what}: ${r.code}`;
-  if (!r.good && r.meaning) text += ` (${r.meaning})`;
+  let text = `${what}: `;
+  if (r.good) text += "done";
+  let specific = "";
+  if (!r.good) {
+    specific = explain && ["BadInvalidArgument", "BadOutOfRange"].includes(r.code) ? explain() : "";
+    text += `${specific || PLAIN[r.code] || r.meaning || "refused"} (${r.code})`;
+  }
+  if (r.good && r.code && r.code !== "Good") text += ` (${r.code})`;
   if (r.status_name !== undefined && r.outputs && r.outputs.length) {
-    text += `, Status ${r.outputs[0]}${r.status_name ? " " + r.status_name : ""}`;
+    const plain = r.outputs[0] !== 0 ? STATUS_PLAIN[r.status_name] : "";
+    text += `, Status ${r.outputs[0]}${r.status_name ? " " + r.status_name : ""}${plain ? `: ${plain}` : ""}`;
   } else if (r.good && r.outputs && r.outputs.length) {
     text += ` → ${JSON.stringify(r.outputs)}`;
   }
-  if (r.argument_results) text += ` [arguments: ${r.argument_results.join(", ")}]`;
-  box.textContent = text;
+  if (r.argument_results && !specific) text += ` [arguments: ${r.argument_results.join(", ")}]`;
+  box.textContent = "";
+  box.append(el("time", {class: "r-time", text: clock()}), " ", el("span", {class: "r-text", text}));
 }
 
-async function call(key, args, label) {
+async function call(key, args, label, explain) {
   try {
     const {status, data} = await api("/api/call", {key, args: args || []});
     if (status !== 200) showResult(label || key, {good: false, code: data.error || `HTTP ${status}`});
-    else showResult(label || key, data);
+    else showResult(label || key, data, explain);
     return data;
   } catch (e) {
     if (e.message !== "session expired") showResult(label || key, {good: false, code: "BadCommunicationError", meaning: String(e)});
@@ -183,12 +222,28 @@ function button(label, key, opts = {}) {
   b.addEventListener("click", async () => {
     const k = b._keys.find(methodUsable) || b._keys[0];
     if (!k) return;
+    if (opts.confirm && !window.confirm(opts.confirm)) return;
     const args = opts.args ? opts.args() : [];
     if (args === null) return;
-    const r = await call(k, args, label);
+    const r = await call(k, args, label, opts.explain);
     if (r && opts.after) opts.after(r);
   });
   return b;
+}
+
+// Why a command cannot be used now, in words; "" when it can.
+function whyDisabled(b, live, holder) {
+  if (!b._keys.length) return "this server does not offer it";
+  if (!live) return "the server is not connected";
+  if (holder) return `locked by ${holder}`;
+  if (b._keys.some(methodUsable)) return "";
+  const known = b._keys.map((k) => [k, S.methods[k]]).filter(([, m]) => m);
+  if (known.some(([, m]) => m.executable && !m.user_executable)) {
+    return S.user ? `your role may not do this (${S.user})` : "your role may not do this: log in";
+  }
+  const state = b._state ? b._state()
+    : known.map(([k]) => S.values[`${k.split("/").slice(0, -1).join("/")}/CurrentState`]).find(Boolean);
+  return state ? `not possible in state ${state}` : "not possible now";
 }
 
 function updateButtons() {
@@ -196,10 +251,22 @@ function updateButtons() {
   for (const b of $$("button[data-method]")) {
     if (!b._keys) continue;
     const holder = lockHolder(b._locks);
-    const usable = live && !holder && b._keys.some(methodUsable);
-    b.disabled = !usable;
+    const why = whyDisabled(b, live, holder);
+    b.disabled = !!why;
     b.classList.toggle("locked", !!holder);
-    b.title = holder ? `locked by ${holder}` : (b._keys[0] || "");
+    b.title = why ? `${b.dataset.label}: ${why}` : b.dataset.label;
+    b.dataset.why = why;
+  }
+  // Under each row of commands, in the page: why those that cannot be used now cannot.
+  for (const row of $$(".commands")) {
+    let line = row.nextElementSibling;
+    if (!line || !line.classList.contains("why-line")) {
+      line = el("p", {class: "why-line", "aria-live": "polite"});
+      row.after(line);
+    }
+    const reasons = $$("button[data-method]", row).filter((b) => b.dataset.why)
+      .map((b) => `${b.dataset.label}: ${b.dataset.why}`);
+    line.textContent = reasons.length ? `Not available now — ${reasons.join("; ")}` : "";
   }
   for (const span of $$("[data-lock-note]")) {
     const holder = lockHolder(span._locks);
@@ -362,7 +429,9 @@ function renderUnit(u) {
     button("Start", exec.Start, {args: () => [startParameters(u)]}),
     button("Stop", machine.Stop), button("Hold", exec.Hold), button("Unhold", exec.Unhold),
     button("Suspend", exec.Suspend), button("Unsuspend", exec.Unsuspend), button("Complete", exec.ToComplete),
-    button("Abort", base.Abort, {cls: "danger"}), button("Clear", base.Clear));
+    button("Abort", base.Abort, {cls: "danger", confirm: `Abort ${u.name}? It stops at once, mid-cycle.`}),
+    button("Clear", base.Clear));
+  for (const b of $$("button", commands)) b._state = () => unitState(u);
   const paramRows = el("tbody", {class: "param-rows"});
   const addRow = (id = "", name = "", unit = "", value = "") => {
     paramRows.append(el("tr", {},
@@ -375,12 +444,18 @@ function renderUnit(u) {
   const params = el("details", {class: "params"}, el("summary", {text: "Start parameters"}),
     el("table", {}, el("thead", {}, el("tr", {}, ...["ID", "Name", "Unit", "Value", ""].map((t) => el("th", {text: t})))), paramRows),
     el("button", {type: "button", class: "small add-param", onclick: () => addRow(), text: "+ parameter"}));
-  const speed = el("input", {type: "number", step: "any", class: "speed-input", "aria-label": "MachSpeed"});
+  const speed = el("input", {type: "number", step: "any", class: "speed-input", id: `speed-${u.name}`});
   const mode = el("select", {class: "mode-input", "aria-label": "unit mode"},
     ...[1, 2, 3].map((v) => el("option", {value: v, text: MODES[v]})));
   const unitControls = el("div", {class: "commands"},
-    speed, button("Set speed", u.methods.SetMachSpeed, {args: () => [Number(speed.value)]}),
+    el("label", {for: `speed-${u.name}`, class: "speed-label", text: "Speed (MachSpeed)"}), speed,
+    el("span", {class: "unit-text", text: "packages/min"}),
+    button("Set speed", u.methods.SetMachSpeed, {args: () => [Number(speed.value)], explain: () => {
+      const range = S.values[u.variables.MachSpeedRange];
+      return range ? `speed must be within ${range.Low}..${range.High} packages/min` : "";
+    }}),
     mode, button("Set mode", u.methods.SetUnitMode, {args: () => [Number(mode.value)]}));
+  for (const b of $$("button", unitControls)) b._state = () => unitState(u);
   const facts = el("dl", {class: "facts"});
   const fact = (label, cls) => facts.append(el("dt", {text: label}), el("dd", {class: cls, text: "–"}));
   fact("State", "v-state"); fact("Unit mode", "v-mode"); fact("MachSpeed", "v-machspeed");
@@ -462,7 +537,8 @@ function lockBox(lock, scopes) {
   return el("div", {class: "lock"}, el("span", {class: "label", text: "Lock"}), el("strong", {class: "v-lock", "data-key": lock.variables.Locked, text: "–"}),
     button("Lock", lock.methods.InitLock, {args: () => ["uacell web HMI"], after: mine}),
     button("Unlock", lock.methods.ExitLock, {after: freed}),
-    button("Break lock", lock.methods.BreakLock, {cls: "danger", after: freed}), note);
+    button("Break lock", lock.methods.BreakLock, {cls: "danger", after: freed,
+      confirm: "Break the lock another client holds? Its work on this part may be cut short."}), note);
 }
 
 function renderController(r, c) {
@@ -551,6 +627,7 @@ function renderFiles() {
       });
       const del = fileButton("Delete", box._deleteKey, "small danger");
       del.addEventListener("click", async () => {
+        if (!window.confirm(`Delete ${f.path}? This cannot be undone.`)) return;
         const {status, data} = await api("/api/delete", {directory: dir, path: f.path});
         showResult(`Delete ${f.path}`, status === 200 ? data : {good: false, code: data.error});
       });
@@ -665,10 +742,39 @@ function renderEvents() {
   }
 }
 
+// Active alarms of the whole cell, in one banner above everything: robot conditions that are active
+// (or wait for an acknowledgement) and PackML units' Admin.Alarm entries.
+function activeAlarms() {
+  const found = [];
+  for (const r of S.layout.robots) {
+    for (const c of r.controllers) {
+      for (const cond of c.conditions) {
+        const v = cond.variables;
+        const active = S.values[v["ActiveState/Id"]], acked = S.values[v["AckedState/Id"]];
+        if (active) found.push(`${r.name}/${c.name}: ${cond.name} active${S.values[v.Message] ? ` (${S.values[v.Message]})` : ""}`);
+        else if (acked === false) found.push(`${r.name}/${c.name}: ${cond.name} to acknowledge`);
+      }
+    }
+  }
+  for (const u of S.layout.units) {
+    const alarms = S.values[u.variables.Alarm] || [];
+    for (const a of alarms) found.push(`${u.name}: ${a.Message || a.ID}`);
+  }
+  return found;
+}
+
+function updateAlarmBanner() {
+  const banner = $("#alarm");
+  const alarms = activeAlarms();
+  banner.hidden = !alarms.length;
+  banner.textContent = alarms.length ? `Alarm — ${alarms.join("; ")}` : "";
+}
+
 function update() {
   if (!S.layout) return;
   for (const u of S.layout.units) updateUnit(u);
   updateRobots();
+  updateAlarmBanner();
   updateButtons();
 }
 
