@@ -617,3 +617,118 @@ def test_an_active_alarm_shows_a_banner_over_the_page(page, serve, ua_thread):
     page.wait_for_function("b => !b.disabled", arg=ack.element_handle(), timeout=TIMEOUT)
     ack.click()
     page.wait_for_function("() => document.querySelector('#alarm').hidden", timeout=TIMEOUT)
+
+
+def test_a_sample_program_runs_by_following_the_page(page, serve, ua_thread):
+    """The hint's steps with the shipped pick_and_place, which uses the module gripper: Start says why
+    it waits, the Modules line shows the module once loaded, then the program runs."""
+    login(page, "otto")
+    hint = page.locator(".controller .hint").inner_text()
+    assert "pick_and_place and palletize use gripper" in hint
+    robot_button(page, "Get ready").click()
+    page.wait_for_function(
+        "() => document.querySelector('.controller .v-sysop').textContent === 'Ready'", timeout=TIMEOUT
+    )
+    page.select_option("select.program-select", "pick_and_place.robot")
+    robot_button(page, "Load", ".task").click()
+    page.wait_for_function(
+        "() => document.querySelector('.task .v-task').textContent.startsWith('Ready')", timeout=TIMEOUT
+    )
+    start = robot_button(page, "Start", ".task")
+    page.wait_for_function("b => b.disabled && b.dataset.why", arg=start.element_handle(), timeout=TIMEOUT)
+    assert start.get_attribute("title") == (
+        "Start: the program uses a module that is not loaded: load it first (see the hint above)"
+    )
+    assert page.inner_text(".task .v-modules") == "none"
+    page.select_option("select.program-select", "gripper.robot")
+    robot_button(page, "Load", ".task").click()
+    # The Modules line follows the load (no state or program name changed).
+    page.wait_for_function(
+        "() => document.querySelector('.task .v-modules').textContent === 'Gripper'", timeout=TIMEOUT
+    )
+    page.wait_for_function("b => !b.disabled", arg=start.element_handle(), timeout=TIMEOUT)
+    start.click()
+    page.wait_for_function(
+        "() => document.querySelector('.task .v-task').textContent.startsWith('Executing')", timeout=TIMEOUT
+    )
+    robot_button(page, "Stop", ".task").click()
+    page.wait_for_function(
+        "() => document.querySelector('.task .v-task').textContent.startsWith('Ready')", timeout=TIMEOUT
+    )
+    robot_button(page, "Unload", ".task").click()
+    page.wait_for_function("() => document.querySelector('.task .v-modules').textContent === 'none'", timeout=TIMEOUT)
+    robot_button(page, "Stand down").click()
+    page.wait_for_function(
+        "() => document.querySelector('.controller .v-sysop').textContent.startsWith('Idle')", timeout=TIMEOUT
+    )
+
+
+def test_an_observer_cannot_view_program_files_and_is_told_why(page, serve):
+    login(page, "olga")
+    # The list is drawn again whenever it changes: wait on what the page shows, not on one element.
+    page.wait_for_selector(
+        '.file-list li[data-file="pick_and_place.robot"] button:disabled:text("View")', timeout=TIMEOUT
+    )
+    view = page.locator('.file-list li[data-file="pick_and_place.robot"] button:text("View")')
+    assert view.get_attribute("title") == "View: your role may not read program files (olga)"
+    page.click("#logout")
+    login(page, "otto")  # an operator may read them
+    page.wait_for_selector(
+        '.file-list li[data-file="pick_and_place.robot"] button:enabled:text("View")', timeout=TIMEOUT
+    )
+    view.click()
+    page.wait_for_function("() => document.querySelector('#viewer').open", timeout=TIMEOUT)
+    assert "program PickAndPlace" in page.inner_text("#viewer-text")
+
+
+def _open(browser, serve, width: int, height: int):
+    context = browser.new_context(viewport={"width": width, "height": height})
+    page = context.new_page()
+    page.goto(serve.web)
+    page.wait_for_selector("#conn[data-status=connected]", timeout=TIMEOUT)
+    page.wait_for_selector(
+        'section.unit[data-unit="Filler1"] .state-list li.current', state="attached", timeout=TIMEOUT
+    )
+    return context, page
+
+
+def test_the_state_diagram_reads_at_1280x800_and_becomes_a_list_on_a_phone(browser, serve):
+    context, page = _open(browser, serve, 1280, 800)
+    try:
+        geometry = page.evaluate(
+            """() => {
+              const svg = document.querySelector('svg.tr88[data-unit="Filler1"]');
+              const scale = svg.getBoundingClientRect().width / svg.viewBox.baseVal.width;
+              const r = (e) => { const b = e.getBoundingClientRect(); return [b.left, b.top, b.right, b.bottom]; };
+              const ends = [...svg.querySelectorAll('polyline.edge')].map((p) => {
+                const pts = p.getAttribute('points').trim().split(' '); return pts[pts.length - 1]; });
+              return {
+                font: parseFloat(getComputedStyle(svg.querySelector(".edge-label")).fontSize) * scale,
+                labels: [...svg.querySelectorAll('.edge-label')].map((t) => [t.textContent, r(t)]),
+                boxes: [...svg.querySelectorAll('g.state rect')].map(r),
+                ends,
+              };
+            }"""
+        )
+        assert geometry["font"] >= 11, geometry["font"]  # edge labels at least 11 px on screen
+
+        def overlaps(a, b) -> bool:
+            return a[0] < b[2] - 1 and b[0] < a[2] - 1 and a[1] < b[3] - 1 and b[1] < a[3] - 1
+
+        for text, label in geometry["labels"]:
+            assert not any(overlaps(label, box) for box in geometry["boxes"]), f"{text} is cut by a state box"
+        assert len(set(geometry["ends"])) == len(geometry["ends"])  # every arrow has its own arrowhead
+        shot(page.locator('section.unit[data-unit="Filler1"]'), "web-packml-1280.png")
+    finally:
+        context.close()
+    context, page = _open(browser, serve, 390, 844)
+    try:
+        assert not page.locator('svg.tr88[data-unit="Filler1"]').is_visible()
+        states = page.locator('section.unit[data-unit="Filler1"] .state-list')
+        assert states.is_visible()
+        current = states.locator("li.current")
+        assert current.count() == 1 and current.get_attribute("aria-current") == "step"
+        assert current.inner_text() == page.inner_text('section.unit[data-unit="Filler1"] .v-state')
+        shot(page, "web-phone.png")
+    finally:
+        context.close()

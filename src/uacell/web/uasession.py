@@ -299,6 +299,7 @@ class UaSession:
         self._methods_task: asyncio.Task[None] | None = None
         self._methods_again = False
         self._modules_task: asyncio.Task[None] | None = None
+        self._modules_again = False
         self._reconnect_task: asyncio.Task[None] | None = None
         self._closed = False
         self._by_node: dict[ua.NodeId, str] = {}
@@ -601,12 +602,36 @@ class UaSession:
             return
         for key, directory in self.cell.directories.items():
             files = await list_files(client, directory)
-            self.files[key] = [{"name": f["name"], "path": f["path"]} for f in files]
+            viewable = await self._may_read(client, files[0]["node"]) if files else True
+            self.files[key] = [{"name": f["name"], "path": f["path"], "viewable": viewable} for f in files]
         self._emit({"type": "files", "files": self.files})
 
+    async def _may_read(self, client: Client, file_node: ua.NodeId) -> bool:
+        """Whether this user may read the directory's files: the server's UserExecutable of FileType's
+        Read (every file of a directory is read under the same role)."""
+        try:
+            read = await Node(client.uaclient, file_node).get_child("0:Read")
+            value = await read.read_attribute(ua.AttributeIds.UserExecutable)
+            return bool(value.Value.Value)
+        except Exception:  # no answer: let the server decide when the user tries
+            return True
+
     def _schedule_modules(self) -> None:
-        if self.cell.folders and (self._modules_task is None or self._modules_task.done()):
-            self._modules_task = asyncio.get_running_loop().create_task(self.refresh_modules())
+        """Browse the TaskModules folders again soon; a request while a browse runs is kept, so a
+        module loaded meanwhile is never missed."""
+        if not self.cell.folders:
+            return
+        if self._modules_task is not None and not self._modules_task.done():
+            self._modules_again = True
+            return
+        self._modules_task = asyncio.get_running_loop().create_task(self._modules_loop())
+
+    async def _modules_loop(self) -> None:
+        while True:
+            self._modules_again = False
+            await self.refresh_modules()
+            if not self._modules_again:
+                return
 
     async def refresh_modules(self) -> None:
         client = self.client
@@ -631,8 +656,11 @@ class UaSession:
         inputs = [to_variant(a, v) for a, v in zip(ref.arguments, args, strict=False)]
         answer = await self._call(ref.object, ref.method, inputs, key)
         outputs = answer["outputs"]
-        if ref.robotics and outputs and isinstance(outputs[0], int):
-            answer["status_name"] = ROBOTICS_STATUS.get(outputs[0], "")
+        if ref.robotics:
+            # Loading or unloading a module changes no state or program name: browse the modules again.
+            self._schedule_modules()
+            if outputs and isinstance(outputs[0], int):
+                answer["status_name"] = ROBOTICS_STATUS.get(outputs[0], "")
         return answer
 
     async def _call(self, obj: ua.NodeId, method: ua.NodeId, inputs: list[ua.Variant], what: str) -> dict[str, Any]:

@@ -219,6 +219,7 @@ function button(label, key, opts = {}) {
                           title: key || "not offered by this server"}, label);
   b._locks = opts.locks || [];
   b._keys = opts.keys || (key ? [key] : []);
+  b._why = opts.why || null;
   b.addEventListener("click", async () => {
     const k = b._keys.find(methodUsable) || b._keys[0];
     if (!k) return;
@@ -241,6 +242,9 @@ function whyDisabled(b, live, holder) {
   if (known.some(([, m]) => m.executable && !m.user_executable)) {
     return S.user ? `your role may not do this (${S.user})` : "your role may not do this: log in";
   }
+  if (S.alarmActive && b.closest(".controller")) return "an alarm is active (see the banner)";
+  const special = b._why ? b._why() : "";
+  if (special && !S.alarmActive) return special;
   const state = b._state ? b._state()
     : known.map(([k]) => S.values[`${k.split("/").slice(0, -1).join("/")}/CurrentState`]).find(Boolean);
   return state ? `not possible in state ${state}` : "not possible now";
@@ -342,7 +346,7 @@ const TR88 = {
   Stopped: [0, 3, "wait"], Stopping: [4, 3, "acting"],
   Clearing: [0, 4, "acting"], Aborted: [2, 4, "wait"], Aborting: [4, 4, "acting"],
 };
-const W = 120, H = 44, GX = 150, GY = 78, PAD = 16;
+const W = 120, H = 44, GX = 176, GY = 84, PAD = 16;  // room between boxes for a whole label
 const box = (s) => [PAD + TR88[s][0] * GX, PAD + TR88[s][1] * GY];
 const center = (s) => { const [x, y] = box(s); return [x + W / 2, y + H / 2]; };
 const LANE = PAD + 2 * GY + H + (GY - H) / 2;  // between the suspend row and the stopped row
@@ -377,6 +381,7 @@ function diagram(unit) {
   marker.append(el("svg:path", {d: "M 0 0 L 10 5 L 0 10 z", class: "arrowhead"}));
   defs.append(marker);
   svg.append(defs);
+  const labels = [];
   for (const [a, b, label, route] of ARROWS) {
     let points;
     if (route) points = route();
@@ -389,8 +394,14 @@ function diagram(unit) {
     if (label) {
       const i = Math.floor((points.length - 1) / 2);
       const [x1, y1] = points[i], [x2, y2] = points[i + 1];
-      svg.append(el("svg:text", {x: (x1 + x2) / 2 + (x1 === x2 ? 6 : 0), y: (y1 + y2) / 2 - 4,
-                                 class: `edge-label${x1 === x2 ? " side" : ""}`, text: label}));
+      let y = (y1 + y2) / 2 - 5;
+      if (y1 === y2 && Math.abs(x2 - x1) < label.length * 10) {
+        // A short horizontal edge between two boxes has no room for its word: it goes in the gap
+        // between this row and the Execute row instead, clear of every box.
+        y = y1 < center("Execute")[1] ? y1 + H / 2 + 20 : y1 - H / 2 - 8;
+      }
+      labels.push(el("svg:text", {x: (x1 + x2) / 2 + (x1 === x2 ? 6 : 0), y,
+                                  class: `edge-label${x1 === x2 ? " side" : ""}`, text: label}));
     }
   }
   for (const [name, [, , kind]] of Object.entries(TR88)) {
@@ -400,12 +411,19 @@ function diagram(unit) {
     g.append(el("svg:text", {x: x + W / 2, y: y + H / 2 + 5, text: name}));
     svg.append(g);
   }
+  svg.append(...labels);  // over the boxes and lines, never hidden by them
   const note = (y, text) => svg.append(el("svg:text", {x: PAD + GX + W / 2, y, class: "legend", text}));
   note(PAD + 3 * GY + H + 12, "Stop (from any state but Aborting/Aborted/Clearing) → Stopping");
   note(PAD + 3 * GY + H + 26, "Abort (from any state but Aborting/Aborted) → Aborting");
   svg.append(el("svg:text", {x: PAD, y: PAD * 2 + 4 * GY + H + 14, class: "legend",
                              text: "rounded: acting state (ends by itself)   square: wait state (needs a command)"}));
   return svg;
+}
+
+// On a narrow screen the diagram gives way to this list: every TR88 state, the current one marked.
+function stateList(unit) {
+  return el("ol", {class: "state-list", "data-unit": unit.name, "aria-label": `${unit.name} PackML states`},
+    ...Object.keys(TR88).map((name) => el("li", {"data-state": name, text: name})));
 }
 
 function unitState(unit) {
@@ -465,7 +483,7 @@ function renderUnit(u) {
     el("h2", {text: `${u.name}: PackML unit`}),
     el("p", {class: "hint", text: "To produce: Reset, then Start (the counts grow in Execute). Complete ends the "
       + "batch, Reset again for the next; Hold/Suspend pause it; Stop or Abort at any time, Clear after an Abort."}),
-    el("div", {class: "unit-grid"}, diagram(u), el("div", {}, facts)),
+    el("div", {class: "unit-grid"}, diagram(u), stateList(u), el("div", {}, facts)),
     commands, params, unitControls);
 }
 
@@ -489,6 +507,10 @@ function updateUnit(u) {
   if (!card) return;
   const state = unitState(u);
   for (const g of $$("g.state", card)) g.classList.toggle("current", g.dataset.state === state);
+  for (const li of $$(".state-list li", card)) {
+    li.classList.toggle("current", li.dataset.state === state);
+    if (li.dataset.state === state) li.setAttribute("aria-current", "step"); else li.removeAttribute("aria-current");
+  }
   const v = (name) => S.values[u.variables[name]];
   const set = (cls, text) => { const e = $(`.${cls}`, card); if (e) e.textContent = text; };
   set("v-state", state || "–");
@@ -546,8 +568,9 @@ function renderController(r, c) {
   const ctrlLocks = [c.lock];
   const box = el("div", {class: "controller", id: `ctrl-${r.name}-${c.name}`, "data-controller": c.name},
     el("h3", {text: c.name}),
-    el("p", {class: "hint", text: "To run a program: Get ready (drives on), choose a program below and Load it, "
-      + "then Start; Stop pauses, Stand down switches the drives off."}),
+    el("p", {class: "hint", text: "To run a program: Get ready (drives on), choose a program below and Load it; "
+      + "a program that uses a module (pick_and_place and palletize use gripper) needs the module loaded too: "
+      + "choose gripper and Load it; then Start. Stop pauses, Stand down switches the drives off."}),
     stateLine("SystemOperation", "v-sysop"),
     lockBox(c.lock, [c.lock]),
     el("div", {class: "commands"},
@@ -583,7 +606,11 @@ function renderTask(r, c, t) {
     lockBox(t.lock, [t.lock, c.lock]),
     el("div", {class: "commands"}, select,
       button("Load", m.LoadByName, {locks, args: () => [select.value.replace(/\.robot$/, "")]}),
-      button("Unload", m.UnloadProgram, {locks}), button("Start", m.Start, {locks}),
+      button("Unload", m.UnloadProgram, {locks}), button("Start", m.Start, {locks, why: () => {
+        // Ready with a program and still no Start: what the program uses is missing (Status -3 on a call).
+        const ready = S.values[t.state] === "Ready" && S.values[t.variables.TaskProgramName];
+        return ready ? "the program uses a module that is not loaded: load it first (see the hint above)" : "";
+      }}),
       button("Stop", m.Stop, {locks, args: () => [0]}), button("To program start", m.ResetToProgramStart, {locks})));
   box._task = t;
   return box;
@@ -619,6 +646,10 @@ function renderFiles() {
     list.textContent = "";
     for (const f of S.files[dir] || []) {
       const view = el("button", {type: "button", class: "small", text: "View"});
+      if (f.viewable === false) {
+        view.disabled = true;
+        view.title = `View: your role may not read program files (${S.user || "anonymous"})`;
+      }
       view.addEventListener("click", async () => {
         const {status, data} = await api("/api/file", {directory: dir, path: f.path});
         if (status === 200 && data.content !== undefined) {
@@ -766,6 +797,7 @@ function activeAlarms() {
 function updateAlarmBanner() {
   const banner = $("#alarm");
   const alarms = activeAlarms();
+  S.alarmActive = alarms.length > 0;
   banner.hidden = !alarms.length;
   banner.textContent = alarms.length ? `Alarm — ${alarms.join("; ")}` : "";
 }
