@@ -47,6 +47,10 @@ $(NODE_STAMP): interop/package.json interop/package-lock.json
 serve: $(STAMP) models
 	$(BIN)/uacell serve $(ARGS)
 
+# Two workers, each taking whole test files (their module fixtures start servers once): the suite
+# waits on servers and browsers more than it computes. PYTEST_ARGS="-n 0" runs it in one process.
+PYTEST_ARGS ?= -n 2 --dist loadfile
+
 test: setup
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
 

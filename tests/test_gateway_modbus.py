@@ -65,7 +65,8 @@ async def test_program_selected_started_stopped_and_finished(robot: ModbusRobotI
     assert (s.running, s.program_end) == (False, False)  # stopped, not finished
     await robot.perform(SignalOp.start(s, robot.clock(), 2.0, 0.05))
     deadline = robot.clock() + 10.0
-    while not s.program_end and robot.clock() < deadline:
+    # The PLC sets program end and clears running in one scan; a poll may fall between the two writes.
+    while not (s.program_end and not s.running) and robot.clock() < deadline:
         await asyncio.sleep(0.005)
         s = await robot.status()
     assert (s.running, s.program_end, s.at_start) == (False, True, True)
