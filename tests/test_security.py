@@ -336,6 +336,22 @@ async def test_user_attributes_differ_per_role(env, sessions):
         assert writable is (role >= Role.ENGINEER), role
 
 
+async def test_each_session_reads_its_own_role_in_server_current_role(env, sessions):
+    """uacell's Server/CurrentRole (decision 39): one node, each session reads the role it has."""
+    for role, client in sessions.items():
+        server = client.get_node(ua.NodeId(ua.ObjectIds.Server))
+        node = await server.get_child(f"{await client.get_namespace_index('urn:uacell:cell')}:CurrentRole")
+        assert await node.read_value() == role.label, role
+        assert (await node.read_data_type_as_variant_type()) == ua.VariantType.String
+    anonymous = await secure_client(env, env.client_cert)
+    try:
+        ns = await anonymous.get_namespace_index("urn:uacell:cell")
+        node = anonymous.get_node(ua.NodeId("Server.CurrentRole", ns))
+        assert await node.read_value() == "operator"  # the anonymous role on a loopback-only server
+    finally:
+        await anonymous.disconnect()
+
+
 async def test_writes_checked_against_the_role_table(env, sessions):
     node_id = env.test_nodes["value"]
     for role, client in sessions.items():

@@ -535,6 +535,8 @@ def test_disabled_commands_say_why_on_hover_and_in_the_page(page, serve, ua_thre
     filler_stopped(serve, ua_thread)
     shows_state(page, "Stopped")
     login(page, "otto")
+    page.wait_for_function("() => document.querySelector('#role').textContent === 'operator'", timeout=TIMEOUT)
+    assert page.locator("#role").is_visible()  # the role beside the user, as the server says it
     start = unit_button(page, "Start")
     page.wait_for_function("b => b.disabled && b.dataset.why", arg=start.element_handle(), timeout=TIMEOUT)
     assert start.get_attribute("title") == "Start: not possible in state Stopped"
@@ -544,6 +546,7 @@ def test_disabled_commands_say_why_on_hover_and_in_the_page(page, serve, ua_thre
     # An observer: the role is the reason.
     page.click("#logout")
     login(page, "olga")
+    page.wait_for_function("() => document.querySelector('#role').textContent === 'observer'", timeout=TIMEOUT)
     reset = unit_button(page, "Reset")
     page.wait_for_function(
         "b => b.title === 'Reset: your role may not do this (olga)'", arg=reset.element_handle(), timeout=TIMEOUT

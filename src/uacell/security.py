@@ -191,6 +191,7 @@ class Security:
         self.trust_list: TrustList | None = None
         self.policies: list[ua.SecurityPolicyType] = []
         self.refusals = RefusalLog()
+        self.role_node = ua.NodeId()  # Server/CurrentRole, made by install()
 
     async def install(self) -> None:
         cfg = self.app.config.server
@@ -217,6 +218,7 @@ class Security:
         self.server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
         iserver.create_session = self._create_session
         iserver.decrypt_user_token = self.decrypt_user_token
+        await self._add_current_role()
         logging.getLogger("asyncua.server.uaprocessor").addFilter(_drop_fault_echo)  # added once
         context.add_read_hook(_read_hook)
         log.info(
@@ -518,6 +520,20 @@ class Security:
 
     # per-session attributes ------------------------------------------------------------------------
 
+    async def _add_current_role(self) -> None:
+        """``Server/CurrentRole`` (decision 39): read by a session, the role that session has."""
+        ns = self.app.cell.instantiator.ns
+        self.role_node = ua.NodeId("Server.CurrentRole", ns)
+        if self.role_node in self.server.iserver.aspace:  # restored from the address-space snapshot
+            return
+        node = await self.server.get_node(ua.ObjectIds.Server).add_variable(
+            self.role_node, ua.QualifiedName("CurrentRole", ns), "", varianttype=ua.VariantType.String
+        )
+        await node.write_attribute(
+            ua.AttributeIds.Description,
+            ua.DataValue(ua.Variant(ua.LocalizedText(CURRENT_ROLE_DESCRIPTION, "en"), ua.VariantType.LocalizedText)),
+        )
+
     def adjust_read(self, session: InternalSession, params: ua.ReadParameters, results: list[ua.DataValue]) -> None:
         role = caller_of(session).role
         aspace = self.server.iserver.aspace
@@ -525,6 +541,9 @@ class Security:
             if dv.StatusCode is not None and not dv.StatusCode.is_good():
                 continue
             attr = rv.AttributeId
+            if attr == _A.Value and rv.NodeId == self.role_node:
+                results[i] = _with_value(dv, Role.parse(role).label, ua.VariantType.String)
+                continue
             if attr == _A.Value and not diagnostics_readable_by(rv.NodeId, role):
                 results[i] = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadUserAccessDenied))
                 continue
@@ -633,6 +652,12 @@ def _peek_policy_uri(header: ua.Header, body: Buffer) -> str | None:
         return uri
     except Exception:  # malformed: asyncua's own parsing refuses it
         return None
+
+
+CURRENT_ROLE_DESCRIPTION = (
+    "uacell: the role of the session that reads this value (observer, operator, engineer or admin); "
+    "each session reads its own"
+)
 
 
 class SecurityStage:

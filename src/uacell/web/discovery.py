@@ -86,6 +86,8 @@ class Cell:
     folders: dict[str, ua.NodeId] = field(default_factory=dict)
     # Nodes whose TransitionEvents the page lists, by NodeId string -> key of the machine.
     machines: dict[str, str] = field(default_factory=dict)
+    # uacell's Server/CurrentRole (decision 39): read once per session, each session its own role.
+    role: ua.NodeId | None = None
 
 
 class Discoverer:
@@ -201,6 +203,7 @@ class Discoverer:
             for unit in await self.of_type(top.get("PackMLObjects"), ua.NodeId(6, index[PACKML])):
                 units.append(await self.unit(unit))
         self.cell.layout = {"robots": robots, "units": units, "auditing": await self.auditing()}
+        self.cell.role = await self.child(ua.NodeId(ua.ObjectIds.Server), "CurrentRole")
         log.debug("found %d robots and %d PackML units", len(robots), len(units))
         return self.cell
 

@@ -293,6 +293,7 @@ class UaSession:
         self.events: deque[dict[str, Any]] = deque(maxlen=EVENTS_KEPT)
         self.files: dict[str, list[dict[str, Any]]] = {}
         self.modules: dict[str, list[str]] = {}
+        self.role: str | None = None
         self.listeners: set[Listener] = set()
         self._pending: dict[str, Any] = {}
         self._flush_scheduled = False
@@ -371,6 +372,16 @@ class UaSession:
         await self.refresh_methods()
         await self.refresh_files()
         await self.refresh_modules()
+        self.role = await self._read_role(client)
+
+    async def _read_role(self, client: Client) -> str | None:
+        """This session's role, as the server says it (None against a server without CurrentRole)."""
+        if self.cell.role is None:
+            return None
+        with contextlib.suppress(Exception):
+            value = await Node(client.uaclient, self.cell.role).read_value()
+            return str(value) if value else None
+        return None
 
     async def _lost(self, exc: Exception) -> None:
         if self.status == "released":
@@ -482,6 +493,7 @@ class UaSession:
             "status": self.status,
             "problem": self.problem,
             "user": self.user,
+            "role": self.role,
             "layout": self.cell.layout,
             "values": self.values,
             "methods": self.methods,

@@ -81,7 +81,7 @@ function handle(m) {
   switch (m.type) {
     case "snapshot":
       S.layout = m.layout; S.values = m.values; S.methods = m.methods; S.events = m.events;
-      S.files = m.files; S.modules = m.modules; S.user = m.user;
+      S.files = m.files; S.modules = m.modules; S.user = m.user; S.role = m.role;
       setConn(m.status, m.problem);
       showUser();
       render();
@@ -124,6 +124,8 @@ function setConn(status, problem) {
 
 function showUser() {
   $("#who").textContent = S.user ? S.user : "anonymous";
+  $("#role").textContent = S.role || "";  // as the server says (its Server/CurrentRole)
+  $("#role").hidden = !S.role;
   $("#login-open").hidden = !!S.user;
   $("#logout").hidden = !S.user;
 }
