@@ -158,7 +158,12 @@ class WebApp:
                 if now - s.last_seen > self.idle_timeout:
                     log.info("web session of %s ended after %.0f s unused", s.user or "anonymous", now - s.last_seen)
                     await self._end(s)
-                elif s.ua is not None and s.ua.holding and now - s.last_seen > self.release_after:
+                elif (
+                    s.ua is not None
+                    and s.ua.holding
+                    and s.ua.status != "connecting"
+                    and now - s.last_seen > self.release_after
+                ):
                     log.info("web session of %s: no page open, its OPC UA session released", s.user or "anonymous")
                     await s.ua.release()
 
@@ -211,6 +216,7 @@ class WebApp:
                 ua.announce()
                 return ua
             await ua.resume()
+            s.last_seen = time.monotonic()  # connecting took time: the page is about to use it
         return ua
 
     # requests --------------------------------------------------------------------------------
