@@ -1,25 +1,33 @@
 """What the server's cross-cutting parts receive: a narrow, read-only view of the server.
 
 Security, diagnostics, metrics and the audit observers are wired by ``uacell.server`` and see it
-only as a ``Host``: the asyncua server, the configuration, the cell, the method dispatcher and write
+only as a ``Host``; a companion's binder sees it as a ``BinderHost`` (a little more: registries,
+the publisher, tables): the asyncua server, the configuration, the cell, the method dispatcher and write
 router, users, the audit trail, the listening policy and the diagnostics hooks. They never import
 ``uacell.server`` (which imports them), so the server's assembly stays at the top of the imports.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 from asyncua import Server, ua
 
 from uacell.audit import AuditTrail
 from uacell.cell import CellBuilder
 from uacell.config import Config
+from uacell.models.tables import StateTables
+from uacell.registry import Registry, RegistryKey
 from uacell.roles import ListeningPolicy
 from uacell.ua.dispatch import MethodDispatcher
+from uacell.ua.file_store import HandlePool
+from uacell.ua.machine_binding import NodeRefs, Publisher
 from uacell.ua.writes import WriteRouter
 from uacell.users import UserStore
+
+T = TypeVar("T")
 
 
 class SessionHooks(Protocol):
@@ -62,3 +70,37 @@ class Host(Protocol):
 
     @property
     def diagnostics(self) -> SessionHooks | None: ...
+
+
+class SessionEvents(Protocol):
+    """Who is told when a client session ends (``security.Security``)."""
+
+    @property
+    def on_session_closed(self) -> list[Callable[[Any], None]]: ...
+
+
+class BinderHost(Host, Protocol):
+    """All a companion's binder receives (``Companion.binder``): the host, the registries its parts go
+    in, the ordered publisher, the state tables and namespaces, file handles and session ends."""
+
+    @property
+    def publisher(self) -> Publisher: ...
+
+    @property
+    def refs(self) -> NodeRefs: ...
+
+    @property
+    def tables(self) -> StateTables: ...
+
+    @property
+    def model_indexes(self) -> dict[str, int]: ...
+
+    @property
+    def file_handles(self) -> HandlePool: ...
+
+    @property
+    def security(self) -> SessionEvents: ...
+
+    def registry(self, key: RegistryKey[T]) -> Registry[T]: ...
+
+    async def settle(self) -> None: ...

@@ -8,6 +8,7 @@ import logging
 import threading
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from asyncua import Server, ua
 
@@ -248,3 +249,10 @@ class UacellServer:
 def default_binders() -> list[Binder]:
     """The binders of every companion (``uacell.catalog.companions``), in their order."""
     return [c.binder for c in companions() if c.binder is not None]
+
+
+if TYPE_CHECKING:  # the server is the host its parts and binders are typed against
+    from uacell.host import BinderHost
+
+    def _is_a_host(app: UacellServer) -> BinderHost:
+        return app

@@ -37,7 +37,7 @@ from uacell.ua.toolkit import ValueWriter
 if TYPE_CHECKING:
     from asyncua.server.internal_session import InternalSession
 
-    from uacell.server import UacellServer
+    from uacell.host import BinderHost
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +70,7 @@ _MAX_DEPTH = 32
 class LockBinding:
     """The LockManager of one server and the Lock objects that show it."""
 
-    def __init__(self, app: UacellServer, manager: LockManager | None = None) -> None:
+    def __init__(self, app: BinderHost, manager: LockManager | None = None) -> None:
         self.app = app
         self.manager = manager or LockManager(on_change=self._changed)
         if manager is not None:
@@ -216,7 +216,7 @@ class LockBinding:
         await self._background.close()
 
 
-async def bind_locks(app: UacellServer) -> Callable[[], Awaitable[None]]:
+async def bind_locks(app: BinderHost) -> Callable[[], Awaitable[None]]:
     """Binder: LockingServices on every part a companion's lock rules name."""
     binding = LockBinding(app)
     app.registry(LOCK_SERVICE).add("", binding)

@@ -49,7 +49,7 @@ from uacell.ua.machine_binding import bind_tree
 from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
-    from uacell.server import UacellServer
+    from uacell.host import BinderHost
 
 log = logging.getLogger(__name__)
 
@@ -168,7 +168,7 @@ def _utc(t: datetime | None) -> datetime:
 class UnitBinding:
     """One PackML unit on its instance node."""
 
-    def __init__(self, app: UacellServer, built: BuiltPart, unit: PackMLUnit) -> None:
+    def __init__(self, app: BinderHost, built: BuiltPart, unit: PackMLUnit) -> None:
         self.app = app
         self.built = built
         self.unit = unit
@@ -380,7 +380,7 @@ _INPUTS: dict[str, Callable[..., tuple[Any, ...]]] = {
 SIMULATOR = "uacell.packml.sim:simulator"
 
 
-async def make_unit_equipment(app: UacellServer, built: BuiltPart) -> PackMLEquipment:
+async def make_unit_equipment(app: BinderHost, built: BuiltPart) -> PackMLEquipment:
     """The unit's own factory and settings, else ``[packml] equipment``, else the simulator."""
     spec = built.part.spec if isinstance(built.part.spec, UnitSpec) else UnitSpec(built.part.name)
     cfg = app.config.section("packml", PackMLConfig)
@@ -398,7 +398,7 @@ async def make_unit_equipment(app: UacellServer, built: BuiltPart) -> PackMLEqui
     return equipment
 
 
-async def bind_unit(app: UacellServer, built: BuiltPart, writer: AdminWriter) -> UnitBinding:
+async def bind_unit(app: BinderHost, built: BuiltPart, writer: AdminWriter) -> UnitBinding:
     name = built.part.name
     spec = built.part.spec if isinstance(built.part.spec, UnitSpec) else UnitSpec(name)
     defaults = app.config.section("packml", PackMLConfig)
@@ -437,7 +437,7 @@ async def bind_unit(app: UacellServer, built: BuiltPart, writer: AdminWriter) ->
     return b
 
 
-async def bind_packml(app: UacellServer) -> Closer | None:
+async def bind_packml(app: BinderHost) -> Closer | None:
     """The PackML binder: every part with role ``packml_unit``. One task ticks every unit, and one
     writer thread stores every unit's Admin data."""
     bindings: list[UnitBinding] = []

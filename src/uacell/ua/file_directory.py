@@ -37,7 +37,7 @@ from uacell.ua.instantiate import Selection
 from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
-    from uacell.server import UacellServer
+    from uacell.host import BinderHost
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +67,7 @@ class FileDirectoryBinding:
 
     def __init__(
         self,
-        app: UacellServer,
+        app: BinderHost,
         directory_node: ua.NodeId,
         store: FileStore,
         family_dir: Family,
@@ -97,7 +97,7 @@ class FileDirectoryBinding:
     @classmethod
     async def create(
         cls,
-        app: UacellServer,
+        app: BinderHost,
         directory_node: ua.NodeId,
         store: FileStore,
         *,

@@ -27,7 +27,7 @@ from uacell.robotics.sim import SimulatedRobot
 from uacell.ua.file_store import FileStore
 
 if TYPE_CHECKING:
-    from uacell.server import UacellServer
+    from uacell.host import BinderHost
 
 log = logging.getLogger(__name__)
 
@@ -91,7 +91,7 @@ SIMULATOR = "uacell.robotics.sim:simulator"
 
 
 async def make_controller_equipment(
-    app: UacellServer, controller: BuiltPart, axes: tuple[AxisInfo, ...]
+    app: BinderHost, controller: BuiltPart, axes: tuple[AxisInfo, ...]
 ) -> RobotEquipment:
     """The controller's own factory and settings, else ``[robot] equipment``, else the simulator."""
     spec = controller.part.spec if isinstance(controller.part.spec, ControllerSpec) else None
@@ -116,7 +116,7 @@ async def make_controller_equipment(
     return equipment
 
 
-def _arm_of(app: UacellServer, controller: BuiltPart) -> BuiltPart | None:
+def _arm_of(app: BinderHost, controller: BuiltPart) -> BuiltPart | None:
     """The motion device the controller moves: the configured one, else the robot's first."""
     system_path = controller.path.split(".Controllers.")[0]
     arms = [m for m in app.cell.by_role(MOTION_DEVICE) if m.path.startswith(system_path + ".")]
@@ -132,7 +132,7 @@ def programs_root(data_dir: Path, controller_path: str) -> Path:
     return Path(data_dir) / PROGRAMS_DIR / robot / name
 
 
-async def bind_controller(app: UacellServer, controller: BuiltPart, tables: RoboticsTables) -> RoboticsBinding:
+async def bind_controller(app: BinderHost, controller: BuiltPart, tables: RoboticsTables) -> RoboticsBinding:
     """One controller with its task controls and motion device, on its own equipment and Programs."""
 
     tasks = [t for t in app.cell.by_role(TASK_CONTROL_PART) if t.path.startswith(controller.path + ".")]
@@ -169,7 +169,7 @@ async def bind_controller(app: UacellServer, controller: BuiltPart, tables: Robo
     return binding
 
 
-async def bind_robotics(app: UacellServer) -> Closer | None:
+async def bind_robotics(app: BinderHost) -> Closer | None:
     """Bind every controller of the cell (role ``controller``) with its task controls and arm."""
     controllers = app.cell.by_role(CONTROLLER)
     if not controllers:

@@ -23,7 +23,7 @@ from uacell.ua.machine_binding import bind_tree
 from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
-    from uacell.server import UacellServer
+    from uacell.host import BinderHost
 
 Handler = Callable[..., Awaitable[list[Any]]]
 
@@ -43,7 +43,7 @@ class ControllerBinding:
 
     def __init__(
         self,
-        app: UacellServer,
+        app: BinderHost,
         controller: BuiltPart,
         tasks: list[BuiltPart],
         arm: BuiltPart | None,
