@@ -172,6 +172,9 @@ def login(page, user: str) -> None:
     page.fill("#login-password", PASSWORD)
     page.click("#login-submit")
     page.wait_for_function(f"() => document.querySelector('#who').textContent === '{user}'", timeout=TIMEOUT)
+    # The user's own session has sent the page its snapshot (drawn anew): only now is what a test
+    # types or clicks not redrawn away.
+    page.wait_for_function(f"() => document.body.dataset.session === '{user}'", timeout=TIMEOUT)
     page.wait_for_selector("#conn[data-status=connected]", timeout=TIMEOUT)
 
 
@@ -560,9 +563,10 @@ def test_a_speed_out_of_range_is_refused_in_plain_words_with_its_code(page, serv
     label = page.locator(f'label[for="{speed.get_attribute("id")}"]')
     assert label.inner_text() == "Speed (MachSpeed)"  # a visible label, and the unit beside the field
     assert page.locator('section.unit[data-unit="Filler1"] .unit-text').inner_text() == "packages/min"
-    speed.fill("5000")
     unit_button_speed = page.locator('section.unit[data-unit="Filler1"] button[data-label="Set speed"]')
-    page.wait_for_function("b => !b.disabled", arg=unit_button_speed.element_handle(), timeout=TIMEOUT)
+    page.wait_for_selector('section.unit[data-unit="Filler1"] button[data-label="Set speed"]:enabled', timeout=TIMEOUT)
+    speed.fill("5000")
+    assert speed.input_value() == "5000"
     unit_button_speed.click()
     text = result(page, "Set speed", "BadInvalidArgument")
     assert text == "Set speed: speed must be within 0..600 packages/min (BadInvalidArgument)"

@@ -82,6 +82,7 @@ function handle(m) {
     case "snapshot":
       S.layout = m.layout; S.values = m.values; S.methods = m.methods; S.events = m.events;
       S.files = m.files; S.modules = m.modules; S.user = m.user; S.role = m.role;
+      document.body.dataset.session = m.user || "anonymous";  // whose session the page now shows
       setConn(m.status, m.problem);
       showUser();
       render();
