@@ -5,9 +5,9 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.uacell-installed
 NODE_STAMP := interop/node_modules/.uacell-installed
 
-.PHONY: setup serve test bench lint clean models soak browser postgresql screenshots
+.PHONY: setup serve test bench lint clean models soak browser postgresql mosquitto screenshots
 
-setup: $(STAMP) models $(NODE_STAMP) browser postgresql
+setup: $(STAMP) models $(NODE_STAMP) browser postgresql mosquitto
 
 # Chromium for the web HMI's browser tests (Playwright drives it; it never downloads a browser).
 browser:
@@ -29,6 +29,18 @@ postgresql:
 		|| echo "make setup: could not install postgresql, so the PostgreSQL history tests will be skipped"; \
 	else \
 		echo "make setup: postgresql is missing, so the PostgreSQL history tests will be skipped (as root: apt-get install postgresql)"; \
+	fi
+
+# Debian's mosquitto for the PubSub tests and benchmarks (they start their own brokers on free ports).
+mosquitto:
+	@if command -v mosquitto >/dev/null 2>&1 || [ -x /usr/sbin/mosquitto ]; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+		echo "installing Debian's mosquitto for the PubSub tests"; \
+		{ apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mosquitto mosquitto-clients >/dev/null \
+		  && { systemctl disable --now mosquitto >/dev/null 2>&1 || service mosquitto stop >/dev/null 2>&1 || true; }; } \
+		|| echo "make setup: could not install mosquitto, so the PubSub tests will be skipped"; \
+	else \
+		echo "make setup: mosquitto is missing, so the PubSub tests will be skipped (as root: apt-get install mosquitto mosquitto-clients)"; \
 	fi
 
 $(STAMP): pyproject.toml

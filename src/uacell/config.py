@@ -31,6 +31,7 @@ from uacell.cell_file import CellConfig, SectionParser, builtin_cell_path, did_y
 from uacell.discovery_registration import DiscoveryConfig
 from uacell.errors import ConfigError
 from uacell.history.config import HistoryConfig
+from uacell.pubsub.config import PubSubConfig, check_pubsub
 from uacell.roles import Role
 
 T = TypeVar("T")
@@ -179,8 +180,9 @@ _OWN: dict[str, type[Any]] = {
     "users": UsersConfig,
     "discovery": DiscoveryConfig,
     "history": HistoryConfig,
+    "pubsub": PubSubConfig,
 }
-_PATHS = {"data_dir", "file", "audit_file", "cache_dir"}
+_PATHS = {"data_dir", "file", "audit_file", "cache_dir", "ca_file", "cert_file", "key_file", "password_file"}
 _ZERO_MEANS_NO_BOUND = {"max_age_days", "max_mb"}  # [history]: 0 keeps history forever / unbounded
 
 
@@ -199,6 +201,7 @@ class Config:
         self.users = UsersConfig()
         self.discovery = DiscoveryConfig()
         self.history = HistoryConfig()
+        self.pubsub = PubSubConfig()
         self.source: Path | None = None
         # The cell: the companions' cell sections ([[robots]], [[packml_units]]), else the demo cell.
         self.cell: CellConfig = load_cell(builtin_cell_path("demo"))
@@ -238,6 +241,10 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
         if not isinstance(value, str):
             raise ConfigError(f"{name}: must be a path string")
         return Path(value).expanduser() if value else None
+    if key == "extra_values":
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            raise ConfigError(f"{name}: must be a list of 'role:Browse/Path' strings")
+        return list(value)
     if key == "capabilities":
         if not isinstance(value, list) or not all(isinstance(v, str) and v.strip() for v in value):
             raise ConfigError(f"{name}: must be a list of capability identifiers (strings)")
@@ -442,6 +449,7 @@ def validate(config: Config) -> None:
     if not 1 <= config.users.min_password_length <= 1024:
         raise ConfigError("[users] min_password_length: must be 1..1024")
     check_history(config.history)
+    check_pubsub(config.pubsub)
 
 
 def check_history(h: HistoryConfig) -> None:

@@ -2,8 +2,9 @@
 
 Per part role (``uacell.cell.Part.role``), the variables below the part (BrowseName paths, "/"
 separated, ``*`` one child of any name) with what they are, and the notifiers below the part whose
-events matter (state machines: their TransitionEvents and AuditUpdateStateEvents; alarms are fired
-through the Server object, which history keeps as a whole). Pure: resolving a path to a node is the
+events matter (state machines: their TransitionEvents and AuditUpdateStateEvents; a robot
+controller's alarms, fired through the controller; history also keeps the Server object's events as
+a whole). Pure: resolving a path to a node is the
 reader's (``resolve`` takes a child lookup).
 """
 
@@ -24,6 +25,7 @@ class Kind(Enum):
     POSITION = "position"  # axis positions: many changes; only with [history] axis_positions
     PROGRAM = "program"  # which program runs, where it is
     OEE = "oee"  # OEE figures (uacell's namespace, docs/packml.md)
+    ALARM = "alarm"  # a unit's stop reason and alarm list
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,8 @@ PACKML_UNIT = PartDataSet(
         Item("Admin/ProdProcessedCount", Kind.COUNTER),
         Item("Admin/ProdDefectiveCount", Kind.COUNTER),
         Item("Admin/ProdConsumedCount", Kind.COUNTER),
+        Item("Admin/StopReason", Kind.ALARM),
+        Item("Admin/Alarm", Kind.ALARM),
         Item("OEE/Availability", Kind.OEE),
         Item("OEE/Performance", Kind.OEE),
         Item("OEE/Quality", Kind.OEE),
@@ -75,7 +79,8 @@ PACKML_UNIT = PartDataSet(
 ROBOT_CONTROLLER = PartDataSet(
     role="controller",
     values=(Item("SystemOperation/SystemOperationStateMachine/CurrentState", Kind.STATE),),
-    notifiers=("SystemOperation/SystemOperationStateMachine",),
+    # "": the controller itself, which its alarms (Conditions) are fired through
+    notifiers=("", "SystemOperation/SystemOperationStateMachine"),
 )
 
 ROBOT_TASK_CONTROL = PartDataSet(
@@ -108,8 +113,12 @@ def dataset_of(role: str) -> PartDataSet | None:
 def resolve(path: str, children: Callable[[N], list[tuple[str, N]]], root: N) -> Iterator[tuple[str, N]]:
     """Every node ``path`` names below ``root``: (the path with ``*`` filled in, the node's key).
 
-    ``children(node)`` lists a node's children as (BrowseName, node); a missing name yields nothing.
+    ``children(node)`` lists a node's children as (BrowseName, node); a missing name yields nothing;
+    ``""`` is ``root`` itself.
     """
+    if not path:
+        yield "", root
+        return
 
     def walk(node: N, names: list[str], done: list[str]) -> Iterator[tuple[str, N]]:
         if not names:

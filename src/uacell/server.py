@@ -25,12 +25,14 @@ from uacell.logs import configured_levels
 from uacell.metrics import Metrics
 from uacell.models import StateTables
 from uacell.pki import PkiPaths
+from uacell.pubsub.service import PartRef, PubSubService, install_pubsub
 from uacell.registry import Registries, Registry, RegistryKey, T
 from uacell.roles import Role, listening_policy, may
 from uacell.security import SecurityStage, install_security
 from uacell.ua.access import UacellUserManager
 from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
 from uacell.ua.dispatch import MethodDispatcher
+from uacell.ua.event_tap import EventTap
 from uacell.ua.file_store import HandlePool
 from uacell.ua.limits import DecodingStage, admit, guard_bytes, install_limits, publish_operation_limits
 from uacell.ua.machine_binding import NodeRefs, Publisher
@@ -99,6 +101,8 @@ class UacellServer:
         self._snapshot_task: asyncio.Task[None] | None = None
         self.discovery_registration: DiscoveryRegistration | None = None  # with [discovery] url
         self.history: HistoryService | None = None  # HistoryRead ([history], docs/history.md)
+        self.pubsub: PubSubService | None = None  # PubSub JSON over MQTT ([pubsub], docs/pubsub.md)
+        self.event_tap = EventTap(self.server.iserver)  # every event fired, for history and PubSub
 
     @property
     def cell(self) -> CellBuilder:
@@ -174,9 +178,24 @@ class UacellServer:
             closer = await binder(self)
             if closer is not None:
                 self._closers.append(closer)
+        self.event_tap.install()
         kept = [(b.part.role, b.node) for b in self.cell.built]
         self.history = await install_history(
-            self.server, self.config.history, self.data_dir, kept, lambda role: may(Role.parse(role), "history_read")
+            self.server,
+            self.config.history,
+            self.data_dir,
+            kept,
+            lambda role: may(Role.parse(role), "history_read"),
+            self.event_tap,
+        )
+        aspace = self.server.iserver.aspace
+        namespace_array = ua.NodeId(ua.ObjectIds.Server_NamespaceArray)
+        self.pubsub = install_pubsub(
+            self.config.pubsub,
+            aspace,
+            lambda: aspace.read_attribute_value(namespace_array, ua.AttributeIds.Value).Value.Value or [],
+            [PartRef(b.part.role, b.node, b.path) for b in self.cell.built],
+            self.config.server.port,
         )
 
     async def start(self) -> None:
@@ -188,6 +207,8 @@ class UacellServer:
             self._snapshot_task = asyncio.get_running_loop().create_task(self._write_snapshot(write))
             self._snapshot_job = None
         await self.dispatcher.refresh_executable()
+        if self.pubsub is not None:
+            self.pubsub.start(self.event_tap)
         if self.diagnostics is not None:
             await self.diagnostics.start()
         if self.config.metrics.enabled:
@@ -236,6 +257,8 @@ class UacellServer:
             except Exception:
                 log.exception("error while shutting down")
         await self.publisher.close()
+        if self.pubsub is not None:  # the last values out, then the status Disabled
+            await self.pubsub.stop()
         if self.diagnostics is not None:
             await self.diagnostics.stop()
         await self.server.stop()

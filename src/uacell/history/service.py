@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
@@ -24,6 +24,7 @@ from uacell.history.backends import EVENT, VALUE, Query, Sample
 from uacell.history.processed import AGGREGATES, Interval, aggregate
 from uacell.history.store import ContinuationPointInvalid, HistoryStore
 from uacell.ua.context import current_caller
+from uacell.ua.event_tap import EventTap
 from uacell.ua.toolkit import supertype
 
 log = logging.getLogger(__name__)
@@ -105,25 +106,20 @@ class HistoryService:
         self.notifiers: dict[ua.NodeId, str] = {}
         self._handles: list[int] = []
         self._supertypes: dict[str, frozenset[str]] = {}
-        self._trigger: Callable[..., Awaitable[None]] | None = None
+        self._tap: EventTap | None = None
 
     # -- what is kept -----------------------------------------------------------------------------
 
-    async def install(self) -> None:
+    async def install(self, tap: EventTap) -> None:
         self.iserver.history_manager = self
-        service = self.iserver.isession.subscription_service
-        original = service.trigger_event
-        self._trigger = original
-
-        async def trigger_event(event: Any, subscription_id: int | None = None) -> None:
-            if subscription_id is None:
-                key = self.notifiers.get(getattr(event, "emitting_node", None))
-                if key is not None:
-                    self._record_event(key, event)
-            await original(event, subscription_id)
-
-        service.trigger_event = trigger_event
+        self._tap = tap
+        tap.listeners.append(self._on_event)
         self.store.start()
+
+    def _on_event(self, event: Any) -> None:
+        key = self.notifiers.get(getattr(event, "emitting_node", None))
+        if key is not None:
+            self._record_event(key, event)
 
     async def historize_value(self, node: ua.NodeId) -> None:
         """Keep every value ``node`` takes from now on; set Historizing and AccessLevel's HistoryRead."""
@@ -418,8 +414,8 @@ class HistoryService:
         return ua.HistoryReadResult(HistoryData=ua.HistoryData(DataValues=dvs))
 
     async def close(self) -> None:
-        if self._trigger is not None:
-            self.iserver.isession.subscription_service.trigger_event = self._trigger
+        if self._tap is not None and self._on_event in self._tap.listeners:
+            self._tap.listeners.remove(self._on_event)
 
 
 def _point(s: Sample) -> tuple[int, float | None, int]:

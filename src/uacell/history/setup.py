@@ -20,11 +20,12 @@ from uacell.history.config import HistoryConfig
 from uacell.history.processed import AGGREGATES
 from uacell.history.service import HistoryService
 from uacell.history.store import HistoryStore, StoreSettings
+from uacell.ua import toolkit
+from uacell.ua.event_tap import EventTap
 
 log = logging.getLogger(__name__)
 
 _A = ua.AttributeIds
-_HAS_TYPE_DEFINITION = ua.NodeId(ua.ObjectIds.HasTypeDefinition)
 SQLITE_FILE = "history.sqlite"
 
 
@@ -46,6 +47,7 @@ async def install_history(
     data_dir: Path,
     parts: Iterable[tuple[str, ua.NodeId]],
     allows: Callable[[str], bool],
+    tap: EventTap,
 ) -> HistoryService | None:
     """Keep what ``uacell.datasets`` declares for ``parts`` (role, node) and answer HistoryRead for
     callers whose role ``allows``; None when ``[history]`` is off."""
@@ -53,19 +55,11 @@ async def install_history(
         return None
     store = HistoryStore(make_backend(cfg, data_dir), settings_of(cfg))
     service = HistoryService(server.iserver, store, allows, cfg.max_values_per_request)
-    await service.install()
+    await service.install(tap)
     aspace = server.iserver.aspace
 
     def children(node: ua.NodeId) -> list[tuple[str, ua.NodeId]]:
-        data = aspace.get(node)
-        if data is None:
-            return []
-        # as uacell.ua.toolkit.find_child: any forward reference but HasTypeDefinition (AddIns too)
-        return [
-            (r.BrowseName.Name, r.NodeId)
-            for r in data.references
-            if r.IsForward and r.ReferenceTypeId != _HAS_TYPE_DEFINITION
-        ]
+        return toolkit.children(aspace, node)
 
     for role, root in parts:
         dataset = dataset_of(role)

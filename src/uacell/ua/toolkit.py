@@ -35,6 +35,19 @@ def find_child(aspace: AddressSpace, node: ua.NodeId, name: str) -> ua.NodeId | 
     return None
 
 
+def children(aspace: AddressSpace, node: ua.NodeId) -> list[tuple[str, ua.NodeId]]:
+    """``node``'s children as (BrowseName, NodeId): every forward reference but HasTypeDefinition
+    (AddIns too), as ``find_child`` follows them; for ``uacell.datasets.resolve``."""
+    data = aspace.get(node)
+    if data is None:
+        return []
+    return [
+        (r.BrowseName.Name, r.NodeId)
+        for r in data.references
+        if r.IsForward and r.ReferenceTypeId != _HAS_TYPE_DEFINITION
+    ]
+
+
 def child(aspace: AddressSpace, node: ua.NodeId, path: str) -> ua.NodeId:
     """Follow a BrowseName path (``"A/B"``, names without namespace) down from ``node``; KeyError if absent."""
     for name in (p for p in path.split("/") if p):

@@ -1,0 +1,102 @@
+"""The ``[pubsub]`` section (docs/configuration.md, docs/pubsub.md)."""
+
+from __future__ import annotations
+
+import os
+import re
+import stat
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib.parse import urlsplit
+
+from uacell.errors import ConfigError
+
+PASSWORD_ENV = "UACELL_MQTT_PASSWORD"
+_TOPIC_LEVEL = re.compile(r"[^/+#\s]+")
+
+
+@dataclass
+class PubSubConfig:
+    """[pubsub]: the cell's values and events as OPC UA PubSub JSON over MQTT (docs/pubsub.md)."""
+
+    enabled: bool = False
+    broker: str = "mqtt://127.0.0.1:1883"  # mqtt://host:port or mqtts://host:port (TLS)
+    client_id: str = ""  # "": the PublisherId
+    publisher_id: str = ""  # "": uacell-<host name>-<[server] port>
+    topic_prefix: str = "opcua"  # e.g. "umati/v3" (levels separated by "/")
+    writer_group: str = "Cell"
+    qos: int = 1  # 0, 1 or 2
+    publishing_interval: float = 0.5  # seconds between DataSetMessages of a writer with changes
+    positions_interval: float = 2.0  # seconds, for the robot axis positions writer
+    axis_positions: bool = True  # publish each motion device's axis positions
+    keyframe_count: int = 10  # every n-th message of a writer is a key frame (all fields)
+    keep_alive: int = 10  # seconds: MQTT keep-alive, and a writer's ua-keepalive when nothing changed
+    buffer: int = 10_000  # messages held while the broker is away; the oldest are dropped beyond it
+    ca_file: Path | None = None  # mqtts: the CA that signed the broker's certificate ("": the system's)
+    cert_file: Path | None = None  # mqtts: this client's certificate, when the broker asks for one
+    key_file: Path | None = None  # ... and its private key
+    username: str = ""
+    password_file: Path | None = None  # a file only uacell's user may read; else $UACELL_MQTT_PASSWORD
+    extra_values: list[str] = field(default_factory=list)  # "role:Browse/Path" added to a part's DataSet
+
+
+@dataclass(frozen=True)
+class Broker:
+    host: str
+    port: int
+    tls: bool
+
+
+def broker_of(cfg: PubSubConfig) -> Broker:
+    url = urlsplit(cfg.broker)
+    if url.scheme not in ("mqtt", "mqtts") or not url.hostname:
+        raise ConfigError(f"[pubsub] broker: must look like mqtt://host:1883 or mqtts://host:8883, not {cfg.broker!r}")
+    try:
+        port = url.port
+    except ValueError as exc:
+        raise ConfigError(f"[pubsub] broker: {exc}") from exc
+    if url.username or url.password:
+        raise ConfigError("[pubsub] broker: no user or password in the URL (username, password_file)")
+    tls = url.scheme == "mqtts"
+    return Broker(url.hostname, port or (8883 if tls else 1883), tls)
+
+
+def check_pubsub(cfg: PubSubConfig) -> None:
+    """Every [pubsub] key that can be checked without the broker; ConfigError names the key."""
+    broker_of(cfg)
+    for key in ("publisher_id", "writer_group", "client_id"):
+        value = getattr(cfg, key)
+        if value and not _TOPIC_LEVEL.fullmatch(value):
+            raise ConfigError(f"[pubsub] {key}: must be one MQTT topic level (no '/', '+', '#' or space): {value!r}")
+    levels = cfg.topic_prefix.split("/")
+    if not all(_TOPIC_LEVEL.fullmatch(level) for level in levels):
+        raise ConfigError(f"[pubsub] topic_prefix: topic levels without '+', '#' or space, not {cfg.topic_prefix!r}")
+    if cfg.qos not in (0, 1, 2):
+        raise ConfigError(f"[pubsub] qos: must be 0, 1 or 2, not {cfg.qos}")
+    if not 0.01 <= cfg.publishing_interval <= 3600:
+        raise ConfigError(f"[pubsub] publishing_interval: must be 0.01..3600 seconds, not {cfg.publishing_interval}")
+    if not cfg.publishing_interval <= cfg.positions_interval <= 3600:
+        raise ConfigError("[pubsub] positions_interval: must be publishing_interval..3600 seconds")
+    if not 5 <= cfg.keep_alive <= 3600:
+        raise ConfigError(f"[pubsub] keep_alive: must be 5..3600 seconds, not {cfg.keep_alive}")
+    if cfg.key_file is not None and cfg.cert_file is None:
+        raise ConfigError("[pubsub] key_file: needs cert_file")
+    for entry in cfg.extra_values:
+        role, _, path = entry.partition(":")
+        if not role or not path:
+            raise ConfigError(f"[pubsub] extra_values: each entry is 'role:Browse/Path', not {entry!r}")
+
+
+def password_of(cfg: PubSubConfig) -> str | None:
+    """The broker password: from ``password_file`` (which only its owner may read), else the
+    environment variable ``UACELL_MQTT_PASSWORD``, else none."""
+    if cfg.password_file is not None:
+        path = cfg.password_file
+        try:
+            mode = path.stat().st_mode
+            if mode & (stat.S_IRWXG | stat.S_IRWXO):
+                raise ConfigError(f"[pubsub] password_file: {path} may be read by others (chmod 600 {path})")
+            return path.read_text(encoding="utf-8").strip()
+        except OSError as exc:
+            raise ConfigError(f"[pubsub] password_file: cannot read {path}: {exc.strerror or exc}") from exc
+    return os.environ.get(PASSWORD_ENV) or None

@@ -1,0 +1,204 @@
+"""One MQTT connection to the plant's broker, kept up by uacell: aiomqtt (on paho-mqtt) underneath.
+
+``MqttLink.send`` never blocks and never fails: a message goes into a bounded buffer, and when the
+buffer is full the oldest message is dropped and counted (the sequence numbers already in the
+messages let a subscriber see the gap). A task connects, registers the Will (the Status message with
+PubSubState Error, retained, OPC 10000-14 7.3.4.7.7), publishes the retained messages ``on_connect``
+returns (status Operational, every writer's metadata), then drains the buffer in order. aiomqtt does
+not reconnect by itself: when the connection fails or drops, the task waits (0.5 s, doubling to 10 s)
+and tries again; each new reason is logged once, not each retry.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import ssl
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import aiomqtt
+
+from uacell.pubsub.config import Broker
+
+log = logging.getLogger(__name__)
+
+FIRST_RETRY = 0.5
+LAST_RETRY = 10.0
+PUBLISH_TIMEOUT = 10.0
+
+
+@dataclass(frozen=True)
+class Outgoing:
+    topic: str
+    payload: bytes
+    retain: bool = False
+
+
+@dataclass(frozen=True)
+class LinkSettings:
+    broker: Broker
+    client_id: str
+    qos: int
+    keep_alive: int
+    buffer: int
+    username: str | None = None
+    password: str | None = None
+    ca_file: str | None = None
+    cert_file: str | None = None
+    key_file: str | None = None
+
+    @property
+    def url(self) -> str:
+        return f"{'mqtts' if self.broker.tls else 'mqtt'}://{self.broker.host}:{self.broker.port}"
+
+
+class MqttLink:
+    def __init__(self, settings: LinkSettings, will: Outgoing, on_connect: Callable[[], list[Outgoing]]) -> None:
+        self.settings = settings
+        self.will = will
+        self.on_connect = on_connect
+        self.buffer: deque[Outgoing] = deque()
+        self.sent = 0  # messages the broker took
+        self.dropped = 0  # messages dropped from a full buffer
+        self.connects = 0  # successful connections (the first and each reconnect)
+        self.failures = 0  # connections that failed or dropped
+        self.connected = asyncio.Event()
+        self.last_error = ""
+        self._wake = asyncio.Event()
+        self._closing = False
+        self._task: asyncio.Task[None] | None = None
+        self._last_words: Outgoing | None = None
+
+    # -- what the publisher uses -----------------------------------------------------------------
+
+    def send(self, message: Outgoing) -> None:
+        if len(self.buffer) >= self.settings.buffer:
+            self.buffer.popleft()
+            self.dropped += 1
+        self.buffer.append(message)
+        self._wake.set()
+
+    def start(self) -> None:
+        self._task = asyncio.get_running_loop().create_task(self._run(), name="uacell-mqtt")
+
+    async def close(self, last_words: Outgoing | None = None, timeout: float = 3.0) -> None:
+        """Send what is buffered and ``last_words`` (retained) if connected, then disconnect cleanly
+        (the broker then does not send the Will); give up after ``timeout`` seconds."""
+        self._closing = True
+        self._last_words = last_words
+        self._wake.set()
+        if self._task is None:
+            return
+        if not self.connected.is_set():
+            self._task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, TimeoutError):
+            await asyncio.wait_for(asyncio.shield(self._task), timeout)
+        if not self._task.done():
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+
+    # -- the connection ---------------------------------------------------------------------------
+
+    def _client(self) -> aiomqtt.Client:
+        s = self.settings
+        tls_context = None
+        if s.broker.tls:
+            tls_context = ssl.create_default_context(cafile=s.ca_file)
+            if s.cert_file:
+                tls_context.load_cert_chain(s.cert_file, s.key_file)
+        return aiomqtt.Client(
+            s.broker.host,
+            s.broker.port,
+            identifier=s.client_id,
+            username=s.username,
+            password=s.password,
+            will=aiomqtt.Will(self.will.topic, self.will.payload, qos=1, retain=True),
+            keepalive=s.keep_alive,
+            tls_context=tls_context,
+            timeout=PUBLISH_TIMEOUT,
+            clean_session=True,
+        )
+
+    async def _run(self) -> None:
+        delay = FIRST_RETRY
+        while not self._closing:
+            try:
+                async with self._client() as client:
+                    self.connects += 1
+                    delay = FIRST_RETRY
+                    if self.last_error:
+                        log.info("pubsub: connected to %s again", self.settings.url)
+                    else:
+                        log.info("pubsub: connected to %s", self.settings.url)
+                    self.last_error = ""
+                    for retained in self.on_connect():
+                        await client.publish(retained.topic, retained.payload, qos=1, retain=True)
+                    self.connected.set()
+                    try:
+                        await self._serve(client)
+                    finally:
+                        self.connected.clear()
+            except aiomqtt.MqttError as exc:
+                self._failed(str(exc))
+            except (OSError, ssl.SSLError, ValueError) as exc:  # certificate files, TLS set-up
+                self._failed(str(exc) or type(exc).__name__)
+            if self._closing:
+                return
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._closed(), delay)
+            delay = min(delay * 2, LAST_RETRY)
+
+    async def _closed(self) -> None:
+        while not self._closing:
+            self._wake.clear()
+            await self._wake.wait()
+
+    def _failed(self, reason: str) -> None:
+        self.failures += 1
+        if reason != self.last_error:
+            log.warning(
+                "pubsub: the broker %s: %s (uacell keeps serving and retries; [pubsub] in docs/pubsub.md)",
+                self.settings.url,
+                reason,
+            )
+        self.last_error = reason
+
+    async def _serve(self, client: aiomqtt.Client) -> None:
+        """Drain the buffer until the connection drops (MqttError) or uacell closes."""
+        watcher = asyncio.ensure_future(self._watch(client))
+        try:
+            while True:
+                while self.buffer:
+                    if watcher.done():
+                        watcher.result()
+                    message = self.buffer[0]
+                    await client.publish(message.topic, message.payload, qos=self.settings.qos, retain=message.retain)
+                    if self.buffer and self.buffer[0] is message:
+                        self.buffer.popleft()
+                    self.sent += 1
+                if self._closing:
+                    if self._last_words is not None:
+                        w = self._last_words
+                        await client.publish(w.topic, w.payload, qos=1, retain=True)
+                    return
+                self._wake.clear()
+                wake = asyncio.ensure_future(self._wake.wait())
+                await asyncio.wait({wake, watcher}, return_when=asyncio.FIRST_COMPLETED)
+                wake.cancel()
+                if watcher.done():
+                    watcher.result()
+                    raise aiomqtt.MqttError("disconnected")
+        finally:
+            watcher.cancel()
+            with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+                await watcher
+
+    @staticmethod
+    async def _watch(client: aiomqtt.Client) -> None:
+        """Returns (raising MqttError) when the connection drops: aiomqtt ends message iteration then."""
+        async for _ in client.messages:
+            pass

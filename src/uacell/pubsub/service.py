@@ -1,0 +1,280 @@
+"""PubSub for a running server: the writers of every built part, fed by the address space and the
+event tap, published through one MQTT link (docs/pubsub.md).
+
+Per part whose role ``uacell.datasets`` declares: a writer of its values (named by the part's path,
+e.g. ``Robot1.Controllers.Controller1``), a writer of its events (``<path>.Events``) when it has
+notifiers, and for a motion device a writer of its axis positions (``<path>.Axes``) at
+``positions_interval``. Writer ids follow the cell's order, so the same cell file gives the same ids.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import socket
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+from asyncua import ua
+from asyncua.server.address_space import AddressSpace
+
+from uacell.datasets import Item, Kind, dataset_of, resolve
+from uacell.pubsub.config import PubSubConfig, broker_of, password_of
+from uacell.pubsub.encoding import JsonEncoder
+from uacell.pubsub.messages import DISABLED, ERROR, OPERATIONAL, Field, Publisher, Topics, Writer, encode
+from uacell.pubsub.mqtt import LinkSettings, MqttLink, Outgoing
+from uacell.ua import toolkit
+from uacell.ua.event_tap import EventTap
+
+log = logging.getLogger(__name__)
+_A = ua.AttributeIds
+
+# The fields an event DataSetMessage carries, when the event has them (BaseEventType's, a
+# TransitionEvent's, an AuditUpdateStateEvent's, a Condition's).
+EVENT_FIELDS: tuple[tuple[str, ua.VariantType], ...] = (
+    ("EventId", ua.VariantType.ByteString),
+    ("EventType", ua.VariantType.NodeId),
+    ("SourceNode", ua.VariantType.NodeId),
+    ("SourceName", ua.VariantType.String),
+    ("Time", ua.VariantType.DateTime),
+    ("Message", ua.VariantType.LocalizedText),
+    ("Severity", ua.VariantType.UInt16),
+    ("Transition", ua.VariantType.LocalizedText),
+    ("FromState", ua.VariantType.LocalizedText),
+    ("ToState", ua.VariantType.LocalizedText),
+    ("ClientUserId", ua.VariantType.String),
+    ("MethodId", ua.VariantType.NodeId),
+    ("ConditionName", ua.VariantType.String),
+    ("ActiveState", ua.VariantType.LocalizedText),
+    ("AckedState", ua.VariantType.LocalizedText),
+    ("Retain", ua.VariantType.Boolean),
+)
+
+
+@dataclass(frozen=True)
+class PartRef:
+    role: str
+    node: ua.NodeId
+    path: str  # the part's NodeId path, e.g. "Robot1.Controllers.Controller1"
+
+
+def default_publisher_id(port: int) -> str:
+    host = "".join(c if c.isalnum() or c in "-_." else "-" for c in socket.gethostname()) or "localhost"
+    return f"uacell-{host}-{port}"
+
+
+class PubSubService:
+    def __init__(self, cfg: PubSubConfig, aspace: AddressSpace, encoder: JsonEncoder, publisher_id: str) -> None:
+        self.cfg = cfg
+        self.aspace = aspace
+        self.encoder = encoder
+        self.publisher = Publisher(publisher_id, cfg.writer_group)
+        self.topics = Topics(cfg.topic_prefix, publisher_id, cfg.writer_group)
+        self.writers: list[Writer] = []
+        self._by_notifier: dict[ua.NodeId, Writer] = {}
+        self._handles: list[int] = []
+        self._tap: EventTap | None = None
+        self._task: asyncio.Task[None] | None = None
+        broker = broker_of(cfg)
+        settings = LinkSettings(
+            broker=broker,
+            client_id=cfg.client_id or publisher_id,
+            qos=cfg.qos,
+            keep_alive=cfg.keep_alive,
+            buffer=cfg.buffer,
+            username=cfg.username or None,
+            password=password_of(cfg),
+            ca_file=str(cfg.ca_file) if cfg.ca_file else None,
+            cert_file=str(cfg.cert_file) if cfg.cert_file else None,
+            key_file=str(cfg.key_file) if cfg.key_file else None,
+        )
+        self.link = MqttLink(settings, self._status(ERROR), self._retained)
+        self._dropped_reported = 0
+
+    # -- what is published -----------------------------------------------------------------------
+
+    def add_parts(self, parts: Iterable[PartRef], extra: Sequence[str] = ()) -> None:
+        added: dict[str, list[Item]] = {}
+        for entry in extra:
+            role, _, path = entry.partition(":")
+            added.setdefault(role, []).append(Item(path, Kind.STATE))
+        ticks = max(1, round(self.cfg.positions_interval / self.cfg.publishing_interval))
+        for part in parts:
+            dataset = dataset_of(part.role)
+            items = [*(dataset.values if dataset else ()), *added.get(part.role, [])]
+            plain = [i for i in items if i.kind is not Kind.POSITION]
+            positions = [i for i in items if i.kind is Kind.POSITION] if self.cfg.axis_positions else []
+            if plain:
+                self._value_writer(part.path, part.node, plain, 1)
+            if positions:
+                self._value_writer(f"{part.path}.Axes", part.node, positions, ticks)
+            notifiers = [n for p in (dataset.notifiers if dataset else ()) for _, n in self._resolve(p, part.node)]
+            if notifiers:
+                fields = tuple(Field(name, vtype.value, f"i={vtype.value}") for name, vtype in EVENT_FIELDS)
+                writer = self._writer(f"{part.path}.Events", fields, events=True)
+                for node in notifiers:
+                    self._by_notifier[node] = writer
+
+    def _resolve(self, path: str, root: ua.NodeId) -> list[tuple[str, ua.NodeId]]:
+        return list(resolve(path, lambda n: toolkit.children(self.aspace, n), root))
+
+    def _writer(self, name: str, fields: tuple[Field, ...], *, events: bool = False, ticks: int = 1) -> Writer:
+        writer = Writer(
+            writer_id=len(self.writers) + 1,
+            name=name,
+            fields=fields,
+            events=events,
+            interval_ticks=ticks,
+            keyframe_count=self.cfg.keyframe_count,
+            keep_alive=float(self.cfg.keep_alive),
+        )
+        self.writers.append(writer)
+        return writer
+
+    def _value_writer(self, name: str, root: ua.NodeId, items: list[Item], ticks: int) -> None:
+        nodes = [(path, node) for item in items for path, node in self._resolve(item.path, root)]
+        if not nodes:
+            return
+        fields = tuple(self._field(path, node) for path, node in nodes)
+        writer = self._writer(name, fields, ticks=ticks)
+        for (path, node), _field in zip(nodes, fields, strict=True):
+            writer.update(path, self.encoder.data_value(self.aspace.read_attribute_value(node, _A.Value)))
+            self._watch(writer, path, node)
+
+    def _field(self, path: str, node: ua.NodeId) -> Field:
+        dv = self.aspace.read_attribute_value(node, _A.Value)
+        data_type = self.aspace.read_attribute_value(node, _A.DataType).Value
+        rank = self.aspace.read_attribute_value(node, _A.ValueRank).Value
+        dt = data_type.Value if data_type is not None else None
+        builtin = dv.Value.VariantType.value if dv.Value is not None and dv.Value.Value is not None else 0
+        if not builtin and isinstance(dt, ua.NodeId) and dt.NamespaceIndex == 0 and isinstance(dt.Identifier, int):
+            builtin = dt.Identifier if dt.Identifier <= 25 else 0
+        return Field(
+            name=path,
+            builtin=builtin,
+            data_type=self.encoder.node_id(dt) if isinstance(dt, ua.NodeId) else "i=24",
+            value_rank=int(rank.Value) if rank is not None and rank.Value is not None else -1,
+        )
+
+    def _watch(self, writer: Writer, name: str, node: ua.NodeId) -> None:
+        encoder = self.encoder
+
+        async def changed(_handle: int, dv: ua.DataValue) -> None:
+            writer.update(name, encoder.data_value(dv))
+
+        status, handle = self.aspace.add_datachange_callback(node, _A.Value, changed)
+        if status.is_good():
+            self._handles.append(handle)
+
+    def _on_event(self, event: Any) -> None:
+        writer = self._by_notifier.get(getattr(event, "emitting_node", None))
+        if writer is None:
+            return
+        payload: dict[str, Any] = {}
+        for name, vtype in EVENT_FIELDS:
+            if hasattr(event, name):
+                payload[name] = self.encoder.value(_plain(getattr(event, name)), vtype)
+        writer.event(payload)
+
+    # -- the retained messages and the status --------------------------------------------------
+
+    def _status(self, state: int) -> Outgoing:
+        return Outgoing(self.topics.status(), encode(self.publisher.status_message(state)), retain=True)
+
+    def _retained(self) -> list[Outgoing]:
+        now = datetime.now(UTC)
+        metadata = [
+            Outgoing(self.topics.metadata(w.name), encode(self.publisher.metadata_message(w, now)), retain=True)
+            for w in self.writers
+        ]
+        return [self._status(OPERATIONAL), *metadata]
+
+    # -- running ---------------------------------------------------------------------------------
+
+    def start(self, tap: EventTap) -> None:
+        self._tap = tap
+        tap.listeners.append(self._on_event)
+        self.link.start()
+        self._task = asyncio.get_running_loop().create_task(self._publish(), name="uacell-pubsub")
+
+    def tick(self, number: int, now: float, timestamp: datetime) -> None:
+        """One publishing interval: each due writer's messages into the link's buffer."""
+        for w in self.writers:
+            if w.events or number % w.interval_ticks == 0:
+                for message in w.due(now, timestamp):
+                    payload = encode(self.publisher.network_message(message))
+                    self.link.send(Outgoing(self.topics.data(w.name), payload))
+
+    async def _publish(self) -> None:
+        interval = self.cfg.publishing_interval
+        number = 0
+        next_at = time.monotonic()
+        report_at = next_at + max(10.0, interval)
+        while True:
+            next_at += interval
+            await asyncio.sleep(max(0.0, next_at - time.monotonic()))
+            now = time.monotonic()
+            if now - next_at > interval:  # fell behind (a stalled loop): skip, do not burst
+                next_at = now
+            try:
+                self.tick(number, now, datetime.now(UTC))
+            except Exception:
+                log.exception("pubsub: a publishing interval failed")
+            number += 1
+            if now >= report_at:
+                report_at = now + max(10.0, interval)
+                self._report_drops()
+
+    def _report_drops(self) -> None:
+        dropped = self.link.dropped - self._dropped_reported
+        if dropped:
+            self._dropped_reported = self.link.dropped
+            log.warning(
+                "pubsub: dropped %d message(s) the broker could not take in time (buffer of %d full; %d in all)",
+                dropped,
+                self.cfg.buffer,
+                self.link.dropped,
+            )
+
+    async def stop(self) -> None:
+        if self._tap is not None and self._on_event in self._tap.listeners:
+            self._tap.listeners.remove(self._on_event)
+        for handle in self._handles:
+            self.aspace.delete_datachange_callback(handle)
+        self._handles.clear()
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self.tick(-1, time.monotonic(), datetime.now(UTC))  # what changed last goes out too
+        await self.link.close(self._status(DISABLED))
+        self._report_drops()
+
+
+def _plain(value: Any) -> Any:
+    return value.Value if isinstance(value, ua.Variant) else value
+
+
+def install_pubsub(
+    cfg: PubSubConfig,
+    aspace: AddressSpace,
+    namespaces: Callable[[], Sequence[str]],
+    parts: Iterable[PartRef],
+    port: int,
+) -> PubSubService | None:
+    """The PubSub service for ``parts``, not yet started; None when ``[pubsub]`` is off."""
+    if not cfg.enabled:
+        return None
+    service = PubSubService(cfg, aspace, JsonEncoder(namespaces), cfg.publisher_id or default_publisher_id(port))
+    service.add_parts(parts, cfg.extra_values)
+    log.info(
+        "pubsub: %d DataSetWriters publish to %s under %s",
+        len(service.writers),
+        service.link.settings.url,
+        service.topics.status().rsplit("/status/", 1)[0],
+    )
+    return service

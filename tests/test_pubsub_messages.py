@@ -1,0 +1,168 @@
+"""The pure half of PubSub: DataSetWriters' key, delta and keep-alive frames and sequence numbers, the
+JSON encoding of values, the topic tree, and the [pubsub] checks (docs/pubsub.md)."""
+
+from __future__ import annotations
+
+import os
+import uuid
+from datetime import UTC, datetime
+from pathlib import Path
+
+import pytest
+from asyncua import ua
+
+from uacell.errors import ConfigError
+from uacell.pubsub.config import PubSubConfig, broker_of, check_pubsub, password_of
+from uacell.pubsub.encoding import JsonEncoder
+from uacell.pubsub.messages import DELTA, KEEPALIVE, KEY, Field, Publisher, Topics, Writer
+
+T = datetime(2026, 11, 25, 18, 0, 0, 123000, tzinfo=UTC)
+FIELDS = (Field("A", 6, "i=6"), Field("B", 12, "i=12"))
+
+
+def writer(**kw: object) -> Writer:
+    w = Writer(writer_id=7, name="Filler1", fields=FIELDS, keyframe_count=3, keep_alive=5.0, **kw)  # type: ignore[arg-type]
+    w.update("A", {"Value": 1})
+    w.update("B", {"Value": "x"})
+    return w
+
+
+def test_first_message_is_a_key_frame_then_deltas_then_a_key_frame_every_keyframe_count():
+    w = writer()
+    (m1,) = w.due(0.0, T)
+    assert m1["MessageType"] == KEY and m1["Payload"] == {"A": {"Value": 1}, "B": {"Value": "x"}}
+    assert m1["SequenceNumber"] == 1 and m1["DataSetWriterId"] == 7 and m1["DataSetWriterName"] == "Filler1"
+    assert m1["Timestamp"] == "2026-11-25T18:00:00.123000Z"
+    assert list(w.due(0.1, T)) == []  # nothing changed, keep-alive not due
+    w.update("A", {"Value": 2})
+    (m2,) = w.due(0.2, T)
+    assert m2["MessageType"] == DELTA and m2["Payload"] == {"A": {"Value": 2}} and m2["SequenceNumber"] == 2
+    w.update("B", {"Value": "y"})
+    (m3,) = w.due(0.3, T)
+    assert m3["MessageType"] == DELTA and m3["SequenceNumber"] == 3
+    w.update("B", {"Value": "z"})
+    (m4,) = w.due(0.4, T)  # the third after the key frame: a key frame again, with every field
+    assert m4["MessageType"] == KEY and m4["Payload"] == {"A": {"Value": 2}, "B": {"Value": "z"}}
+
+
+def test_a_silent_writer_sends_keep_alives_with_the_next_sequence_number():
+    w = writer()
+    list(w.due(0.0, T))
+    assert list(w.due(4.9, T)) == []
+    (k,) = w.due(5.0, T)
+    assert k["MessageType"] == KEEPALIVE and k["SequenceNumber"] == 2 and "Payload" not in k
+    w.update("A", {"Value": 3})
+    (m,) = w.due(5.1, T)
+    assert m["SequenceNumber"] == 2  # the keep-alive announced it; it was not used up
+
+
+def test_sequence_numbers_wrap_at_uint32():
+    w = writer(sequence=2**32 - 1)
+    (m,) = w.due(0.0, T)
+    assert m["SequenceNumber"] == 0
+
+
+def test_an_event_writer_sends_one_event_message_per_event_in_order():
+    w = Writer(writer_id=2, name="Filler1.Events", fields=(Field("Message", 21, "i=21"),), events=True)
+    w.event({"Message": {"Text": "one"}})
+    w.event({"Message": {"Text": "two"}})
+    got = list(w.due(0.0, T))
+    assert [m["MessageType"] for m in got] == ["ua-event", "ua-event"]
+    assert [m["SequenceNumber"] for m in got] == [1, 2]
+    assert [m["Payload"]["Message"]["Text"] for m in got] == ["one", "two"]
+    assert list(w.due(0.1, T)) == []
+
+
+def test_metadata_describes_the_fields_and_its_version_follows_them():
+    w = writer()
+    meta = w.metadata()
+    assert [f["Name"] for f in meta["Fields"]] == ["A", "B"]
+    assert [f["BuiltInType"] for f in meta["Fields"]] == [6, 12]
+    uuid.UUID(meta["Fields"][0]["DataSetFieldId"])
+    assert meta["ConfigurationVersion"]["MajorVersion"] == w.version
+    other = Writer(writer_id=7, name="Filler1", fields=(Field("A", 6, "i=6"),))
+    assert other.version != w.version
+    (m,) = w.due(0.0, T)
+    assert m["MetaDataVersion"] == {"MajorVersion": w.version, "MinorVersion": w.version}
+
+
+def test_network_metadata_and_status_messages_and_topics():
+    p = Publisher("cell-7", "Cell")
+    w = writer()
+    (dsm,) = w.due(0.0, T)
+    nm = p.network_message(dsm)
+    assert nm["MessageType"] == "ua-data" and nm["PublisherId"] == "cell-7" and nm["Messages"] == [dsm]
+    uuid.UUID(nm["MessageId"])
+    md = p.metadata_message(w, T)
+    assert md["MessageType"] == "ua-metadata" and md["DataSetWriterId"] == 7 and md["MetaData"]["Name"] == "Filler1"
+    st = p.status_message(2)
+    assert st == {
+        "MessageId": st["MessageId"],
+        "MessageType": "ua-status",
+        "PublisherId": "cell-7",
+        "IsCyclic": False,
+        "Status": 2,
+    }
+    t = Topics("umati/v3", "cell-7", "Cell")
+    assert t.data("Filler1") == "umati/v3/json/data/cell-7/Cell/Filler1"
+    assert t.metadata("Filler1") == "umati/v3/json/metadata/cell-7/Cell/Filler1"
+    assert t.status() == "umati/v3/json/status/cell-7"
+
+
+def test_values_encode_as_part6_json():
+    e = JsonEncoder(["http://opcfoundation.org/UA/", "urn:uacell:cell"])
+    assert e.variant(ua.Variant(ua.LocalizedText("Idle", "en"), ua.VariantType.LocalizedText)) == {
+        "Locale": "en",
+        "Text": "Idle",
+    }
+    assert e.variant(ua.Variant(2**40, ua.VariantType.Int64)) == str(2**40)
+    assert e.variant(ua.Variant(float("nan"), ua.VariantType.Double)) == "NaN"
+    assert e.variant(ua.Variant(b"\x01\x02", ua.VariantType.ByteString)) == "AQI="
+    assert e.node_id(ua.NodeId("Filler1", 1)) == "nsu=urn:uacell:cell;s=Filler1"
+    assert e.node_id(ua.NodeId(2253, 0)) == "i=2253"
+    assert e.value(T) == "2026-11-25T18:00:00.123000Z"
+    dv = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadStateNotActive), SourceTimestamp=T)
+    assert e.data_value(dv) == {
+        "Value": None,
+        "StatusCode": {"Code": ua.StatusCodes.BadStateNotActive, "Symbol": "BadStateNotActive"},
+        "SourceTimestamp": "2026-11-25T18:00:00.123000Z",
+    }
+    # structures are encoded field by field
+    assert e.value(ua.Argument(Name="Speed", DataType=ua.NodeId(10), ValueRank=-1))["Name"] == "Speed"
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "words"),
+    [
+        ("broker", "http://x", "mqtt://host"),
+        ("broker", "mqtt://u:p@host", "no user or password"),
+        ("publisher_id", "a/b", "one MQTT topic level"),
+        ("topic_prefix", "a/#", "topic levels"),
+        ("qos", 3, "0, 1 or 2"),
+        ("publishing_interval", 0.001, "0.01..3600"),
+        ("keep_alive", 1, "5..3600"),
+        ("extra_values", ["Status/X"], "role:Browse/Path"),
+    ],
+)
+def test_bad_pubsub_settings_are_refused_naming_the_key(key: str, value: object, words: str):
+    cfg = PubSubConfig()
+    setattr(cfg, key, value)
+    with pytest.raises(ConfigError) as e:
+        check_pubsub(cfg)
+    assert f"[pubsub] {key}" in str(e.value) and words in str(e.value)
+
+
+def test_broker_urls_and_the_password_sources(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    assert broker_of(PubSubConfig(broker="mqtts://plant-broker")).port == 8883
+    assert broker_of(PubSubConfig(broker="mqtt://10.0.0.9")).port == 1883
+    monkeypatch.setenv("UACELL_MQTT_PASSWORD", "from-env")
+    assert password_of(PubSubConfig()) == "from-env"
+    secret = tmp_path / "mqtt-password"
+    secret.write_text("from-file\n")
+    os.chmod(secret, 0o644)
+    with pytest.raises(ConfigError, match="may be read by others"):
+        password_of(PubSubConfig(password_file=secret))
+    os.chmod(secret, 0o600)
+    assert password_of(PubSubConfig(password_file=secret)) == "from-file"
+    with pytest.raises(ConfigError, match="cannot read"):
+        password_of(PubSubConfig(password_file=tmp_path / "missing"))
