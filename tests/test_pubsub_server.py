@@ -4,6 +4,7 @@ subscriber, the Will after kill -9, the broker killed and back, TLS and password
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import ssl
@@ -21,6 +22,7 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from helpers import free_port, raw_call, wait_until
 from mqtt_broker import Broker, Received, Subscriber, make_tls, needs_mosquitto, subscribed
+from test_operations import sample, scrape
 
 from uacell.config import Config
 from uacell.pubsub.messages import DISABLED, ERROR, OPERATIONAL
@@ -327,7 +329,10 @@ keep_alive = 5
 async def test_the_broker_killed_and_back_uacell_serves_on_reconnects_and_counts_the_gap(
     tmp_path: Path, broker: Broker
 ) -> None:
-    app = await start_app(pubsub_config(tmp_path / "data", broker, buffer=5))
+    config = pubsub_config(tmp_path / "data", broker, buffer=5)
+    config.metrics.enabled = True
+    config.metrics.port = free_port()
+    app = await start_app(config)
     try:
         assert app.pubsub is not None
         link = app.pubsub.link
@@ -342,6 +347,9 @@ async def test_the_broker_killed_and_back_uacell_serves_on_reconnects_and_counts
                 assert (await call(client, F, "SetMachSpeed", speed)).StatusCode.is_good()
                 await wait_until(lambda: not filler.changed)
             assert link.dropped > 0
+            _, body = await scrape(app)  # counted in /metrics too
+            assert sample(body, "uacell_pubsub_messages_dropped_total") == link.dropped
+            assert sample(body, "uacell_pubsub_connected") == 0
             broker.start()  # the same port
             async with subscribed(broker, f"{PREFIX}/{F}") as sub:
                 await wait_until(lambda: link.connects >= 2, timeout=30)
@@ -420,3 +428,49 @@ async def test_a_wrong_password_gives_one_clear_line(
             await app.stop()
     finally:
         guarded.stop()
+
+
+async def test_the_pubsub_configuration_is_readable_below_publish_subscribe_and_not_writable(served) -> None:
+    app, client = served
+    assert app.pubsub is not None
+    await wait_until(app.pubsub.link.connected.is_set)
+    ps = client.get_node(ua.ObjectIds.PublishSubscribe)
+    conns = await ps.get_referenced_nodes(ua.ObjectIds.HasPubSubConnection)
+    (conn,) = conns
+    assert (await conn.read_browse_name()).Name == "MQTT"
+    assert await (await conn.get_child("0:PublisherId")).read_value() == PUBLISHER
+    profile = await (await conn.get_child("0:TransportProfileUri")).read_value()
+    assert profile == "http://opcfoundation.org/UA-Profile/Transport/pubsub-mqtt-json"
+    (group,) = await conn.get_referenced_nodes(ua.ObjectIds.HasWriterGroup)
+    assert await (await group.get_child("0:PublishingInterval")).read_value() == 50.0
+    state = await group.get_child(["0:Status", "0:State"])
+    await wait_until_async(lambda: state.read_value(), ua.PubSubState.Operational)
+    writers = await group.get_referenced_nodes(ua.ObjectIds.HasDataSetWriter)
+    assert len(writers) == len(app.pubsub.writers)
+    by_name = {w.name: w for w in app.pubsub.writers}
+    for node in writers:
+        name = (await node.read_browse_name()).Name
+        assert await (await node.get_child("0:DataSetWriterId")).read_value() == by_name[name].writer_id
+    datasets = await client.get_node(ua.ObjectIds.PublishSubscribe_PublishedDataSets).get_children()
+    names = [(await d.read_browse_name()).Name for d in datasets]
+    filler = datasets[names.index(F)]
+    meta = await (await filler.get_child("0:DataSetMetaData")).read_value()
+    assert [f.Name for f in meta.Fields] == [f.name for f in by_name[F].fields]
+    published = await (await filler.get_child("0:PublishedData")).read_value()
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    assert ua.NodeId(f"{F}.Status.MachSpeed", ns) in [p.PublishedVariable for p in published]
+    (target,) = await filler.get_referenced_nodes(ua.ObjectIds.DataSetToWriter)
+    assert (await target.read_browse_name()).Name == F
+    # read-only: a write is refused, the value stays
+    interval = await group.get_child("0:PublishingInterval")
+    with pytest.raises(ua.UaStatusCodeError) as e:
+        await interval.write_value(ua.Variant(1.0, ua.VariantType.Double))
+    assert e.value.code in (ua.StatusCodes.BadNotWritable, ua.StatusCodes.BadUserAccessDenied)
+    assert await interval.read_value() == 50.0
+
+
+async def wait_until_async(read: Any, expected: Any, timeout: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout
+    while (got := await read()) != expected:
+        assert time.monotonic() < deadline, f"{got} != {expected}"
+        await asyncio.sleep(0.02)

@@ -25,6 +25,7 @@ from uacell.logs import configured_levels
 from uacell.metrics import Metrics
 from uacell.models import StateTables
 from uacell.pki import PkiPaths
+from uacell.pubsub.metrics import PubSubCollector
 from uacell.pubsub.service import PartRef, PubSubService, install_pubsub
 from uacell.registry import Registries, Registry, RegistryKey, T
 from uacell.roles import Role, listening_policy, may
@@ -190,9 +191,10 @@ class UacellServer:
         )
         aspace = self.server.iserver.aspace
         namespace_array = ua.NodeId(ua.ObjectIds.Server_NamespaceArray)
-        self.pubsub = install_pubsub(
+        self.pubsub = await install_pubsub(
             self.config.pubsub,
             aspace,
+            self.cell.instantiator,
             lambda: aspace.read_attribute_value(namespace_array, ua.AttributeIds.Value).Value.Value or [],
             [PartRef(b.part.role, b.node, b.path) for b in self.cell.built],
             self.config.server.port,
@@ -213,6 +215,8 @@ class UacellServer:
             await self.diagnostics.start()
         if self.config.metrics.enabled:
             self.metrics = Metrics(self)
+            if self.pubsub is not None:
+                self.metrics.registry.register(PubSubCollector(self.pubsub.link))
             await self.metrics.start(self.config.metrics.host, self.config.metrics.port)
         if self.config.discovery.url:
             cfg, pki = self.config.server, PkiPaths.in_data_dir(self.data_dir)

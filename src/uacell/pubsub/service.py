@@ -23,12 +23,14 @@ from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 
 from uacell.datasets import Item, Kind, dataset_of, resolve
+from uacell.pubsub.address_space import PubSubNodes
 from uacell.pubsub.config import PubSubConfig, broker_of, password_of
 from uacell.pubsub.encoding import JsonEncoder
 from uacell.pubsub.messages import DISABLED, ERROR, OPERATIONAL, Field, Publisher, Topics, Writer, encode
 from uacell.pubsub.mqtt import LinkSettings, MqttLink, Outgoing
 from uacell.ua import toolkit
 from uacell.ua.event_tap import EventTap
+from uacell.ua.instantiate import Instantiator
 
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds
@@ -76,6 +78,8 @@ class PubSubService:
         self.topics = Topics(cfg.topic_prefix, publisher_id, cfg.writer_group)
         self.writers: list[Writer] = []
         self._by_notifier: dict[ua.NodeId, Writer] = {}
+        self.sources: dict[int, list[ua.NodeId]] = {}  # writer id -> the variables of its fields
+        self.nodes: PubSubNodes | None = None  # the configuration in the address space
         self._handles: list[int] = []
         self._tap: EventTap | None = None
         self._task: asyncio.Task[None] | None = None
@@ -141,6 +145,7 @@ class PubSubService:
             return
         fields = tuple(self._field(path, node) for path, node in nodes)
         writer = self._writer(name, fields, ticks=ticks)
+        self.sources[writer.writer_id] = [node for _path, node in nodes]
         for (path, node), _field in zip(nodes, fields, strict=True):
             writer.update(path, self.encoder.data_value(self.aspace.read_attribute_value(node, _A.Value)))
             self._watch(writer, path, node)
@@ -222,6 +227,8 @@ class PubSubService:
                 next_at = now
             try:
                 self.tick(number, now, datetime.now(UTC))
+                if self.nodes is not None:
+                    await self.nodes.show(self.link.connected.is_set())
             except Exception:
                 log.exception("pubsub: a publishing interval failed")
             number += 1
@@ -259,18 +266,30 @@ def _plain(value: Any) -> Any:
     return value.Value if isinstance(value, ua.Variant) else value
 
 
-def install_pubsub(
+async def install_pubsub(
     cfg: PubSubConfig,
     aspace: AddressSpace,
+    instantiator: Instantiator,
     namespaces: Callable[[], Sequence[str]],
     parts: Iterable[PartRef],
     port: int,
 ) -> PubSubService | None:
-    """The PubSub service for ``parts``, not yet started; None when ``[pubsub]`` is off."""
+    """The PubSub service for ``parts``, not yet started, its configuration shown below
+    Server/PublishSubscribe; None when ``[pubsub]`` is off."""
     if not cfg.enabled:
         return None
     service = PubSubService(cfg, aspace, JsonEncoder(namespaces), cfg.publisher_id or default_publisher_id(port))
     service.add_parts(parts, cfg.extra_values)
+    service.nodes = PubSubNodes(aspace, instantiator)
+    await service.nodes.build(
+        service.publisher.publisher_id,
+        service.link.settings.url,
+        cfg.writer_group,
+        cfg.publishing_interval,
+        float(cfg.keep_alive),
+        service.writers,
+        service.sources,
+    )
     log.info(
         "pubsub: %d DataSetWriters publish to %s under %s",
         len(service.writers),

@@ -356,6 +356,21 @@ class Instantiator:
         if not result.StatusCode.is_good():
             raise RuntimeError(f"cannot create {nodeid} ({qname.Name}): {result.StatusCode}")
 
+    def reference(
+        self, source: ua.NodeId, target: ua.NodeId, kind: ua.NodeId | int, target_class: ua.NodeClass
+    ) -> None:
+        """A forward reference of type ``kind`` from ``source`` to ``target`` (and its inverse)."""
+        item = ua.AddReferencesItem(
+            SourceNodeId=source,
+            TargetNodeId=target,
+            ReferenceTypeId=_as_nodeid(kind),
+            IsForward=True,
+            TargetNodeClass=target_class,
+        )
+        (status,) = self._svc.add_references([item])
+        if not status.is_good():
+            raise RuntimeError(f"cannot reference {target} from {source}: {status}")
+
 
 def _as_nodeid(ref: ua.NodeId | int) -> ua.NodeId:
     return ref if isinstance(ref, ua.NodeId) else ua.NodeId(ref)

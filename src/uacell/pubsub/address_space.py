@@ -1,0 +1,135 @@
+"""The PubSub configuration where OPC 10000-14 9.1 puts it, read-only: below Server/PublishSubscribe
+one PubSubConnection (``MQTT``: PublisherId, the transport profile, the broker URL), its WriterGroup
+and a DataSetWriter per writer, and per writer a PublishedDataItems in PublishedDataSets (its fields'
+metadata, version and source variables) linked to the writer by DataSetToWriter. The Status/State of
+connection, group and writers follows the broker connection (Operational or Error).
+"""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Sequence
+from typing import Any
+
+from asyncua import ua
+from asyncua.server.address_space import AddressSpace
+
+from uacell.pubsub.messages import Writer
+from uacell.ua import toolkit
+from uacell.ua.instantiate import Instantiator
+
+MQTT_JSON_PROFILE = "http://opcfoundation.org/UA-Profile/Transport/pubsub-mqtt-json"
+JSON_LAYOUT = "http://opcfoundation.org/UA/PubSub-Layouts/JSON-DataSetMessage"
+_A = ua.AttributeIds
+_V = ua.VariantType
+# DataSetFieldContentMask: StatusCode | SourceTimestamp (each field is a DataValue with these)
+FIELD_CONTENT_MASK = 0x1 | 0x2
+
+
+class PubSubNodes:
+    def __init__(self, aspace: AddressSpace, instantiator: Instantiator) -> None:
+        self.aspace = aspace
+        self.inst = instantiator
+        self.states: list[ua.NodeId] = []  # every Status/State, written together
+        self.connected: bool | None = None
+
+    async def build(
+        self,
+        publisher_id: str,
+        broker_url: str,
+        group: str,
+        publishing_interval: float,
+        keep_alive: float,
+        writers: Sequence[Writer],
+        sources: dict[int, list[ua.NodeId]],
+    ) -> ua.NodeId:
+        ids = ua.ObjectIds
+        conn = self.inst.create(
+            ua.NodeId(ids.PublishSubscribe),
+            ua.NodeId(ids.PubSubConnectionType),
+            "MQTT",
+            reference_type=ids.HasPubSubConnection,
+            path="PubSub.MQTT",
+        )
+        await self._set(conn, "PublisherId", publisher_id, _V.String)
+        await self._set(conn, "TransportProfileUri", MQTT_JSON_PROFILE, _V.String)
+        await self._set(conn, "Address/NetworkInterface", "", _V.String)
+        properties = [ua.KeyValuePair(Key=ua.QualifiedName("BrokerUrl"), Value=ua.Variant(broker_url, _V.String))]
+        await self._set(conn, "ConnectionProperties", properties, _V.ExtensionObject)
+        wg = self.inst.create(
+            conn, ua.NodeId(ids.WriterGroupType), group, reference_type=ids.HasWriterGroup, path="PubSub.MQTT.Group"
+        )
+        await self._set(wg, "WriterGroupId", 1, _V.UInt16)
+        await self._set(wg, "PublishingInterval", publishing_interval * 1000.0, _V.Double)
+        await self._set(wg, "KeepAliveTime", keep_alive * 1000.0, _V.Double)
+        await self._set(wg, "Priority", 0, _V.Byte)
+        await self._set(wg, "LocaleIds", [], _V.String)
+        await self._set(wg, "HeaderLayoutUri", JSON_LAYOUT, _V.String)
+        await self._set(wg, "SecurityMode", ua.MessageSecurityMode.None_, _V.Int32)
+        await self._set(wg, "MaxNetworkMessageSize", 0, _V.UInt32)
+        folder = ua.NodeId(ids.PublishSubscribe_PublishedDataSets)
+        for w in writers:
+            dw = self.inst.create(
+                wg,
+                ua.NodeId(ids.DataSetWriterType),
+                w.name,
+                reference_type=ids.HasDataSetWriter,
+                path=f"PubSub.MQTT.Group.{w.writer_id}",
+            )
+            await self._set(dw, "DataSetWriterId", w.writer_id, _V.UInt16)
+            await self._set(dw, "DataSetFieldContentMask", FIELD_CONTENT_MASK, _V.UInt32)
+            await self._set(dw, "DataSetWriterProperties", [], _V.ExtensionObject)
+            pds = self.inst.create(
+                folder, ua.NodeId(ids.PublishedDataItemsType), w.name, path=f"PubSub.DataSets.{w.writer_id}"
+            )
+            version = ua.ConfigurationVersionDataType(MajorVersion=w.version, MinorVersion=w.version)
+            await self._set(pds, "ConfigurationVersion", version, _V.ExtensionObject)
+            await self._set(pds, "DataSetMetaData", _metadata(w, version), _V.ExtensionObject)
+            published = [
+                ua.PublishedVariableDataType(PublishedVariable=node, AttributeId=_A.Value)
+                for node in sources.get(w.writer_id, [])
+            ]
+            await self._set(pds, "PublishedData", published, _V.ExtensionObject)
+            self.inst.reference(pds, dw, ids.DataSetToWriter, ua.NodeClass.Object)
+            self.states.append(toolkit.child(self.aspace, dw, "Status/State"))
+        self.states += [toolkit.child(self.aspace, n, "Status/State") for n in (conn, wg)]
+        await self.show(False)
+        return conn
+
+    async def show(self, connected: bool) -> None:
+        """Status/State of every PubSub node: Operational while connected to the broker, else Error."""
+        if connected == self.connected:
+            return
+        self.connected = connected
+        state = ua.PubSubState.Operational if connected else ua.PubSubState.Error
+        for node in self.states:
+            await self.aspace.write_attribute_value(node, _A.Value, ua.DataValue(ua.Variant(state, _V.Int32)))
+
+    async def _set(self, root: ua.NodeId, path: str, value: Any, vtype: ua.VariantType) -> None:
+        node = toolkit.child(self.aspace, root, path)
+        await self.aspace.write_attribute_value(node, _A.Value, ua.DataValue(ua.Variant(value, vtype)))
+        read_only = ua.Variant(ua.AccessLevel.CurrentRead.mask, _V.Byte)
+        for attr in (_A.AccessLevel, _A.UserAccessLevel):
+            await self.aspace.write_attribute_value(node, attr, ua.DataValue(read_only))
+
+
+def _metadata(w: Writer, version: ua.ConfigurationVersionDataType) -> ua.DataSetMetaDataType:
+    meta = w.metadata()
+    fields = [
+        ua.FieldMetaData(
+            Name=f["Name"],
+            FieldFlags=ua.DataSetFieldFlags(0),
+            BuiltInType=f["BuiltInType"],
+            DataType=_node_id(f["DataType"]),
+            ValueRank=f["ValueRank"],
+            DataSetFieldId=uuid.UUID(f["DataSetFieldId"]),
+        )
+        for f in meta["Fields"]
+    ]
+    return ua.DataSetMetaDataType(Name=w.name, Fields=fields, ConfigurationVersion=version)
+
+
+def _node_id(text: str) -> ua.NodeId:
+    if text.startswith("nsu="):  # the JSON form names the namespace by URI; the metadata variable by index
+        return ua.NodeId(ua.ObjectIds.BaseDataType)
+    return ua.NodeId.from_string(text)
