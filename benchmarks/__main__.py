@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.history import history_section
+from benchmarks.plant import plant_section
 from benchmarks.web import web_section
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -134,7 +135,9 @@ class Peers:
         paths = locate_models()
         self.nodeset_files = [str(paths[m.key]) for m in MODELS]
 
-    def uacell(self, cell: str = "demo", snapshot: bool = True, history: bool = True) -> Peer:
+    def uacell(
+        self, cell: str = "demo", snapshot: bool = True, history: bool = True, pubsub: str = "", publisher: str = ""
+    ) -> Peer:
         """A uacell peer; ``snapshot``: a restart, with the cell's data directory and the shared cache
         directory of address-space snapshots (the first peer of each cell writes its snapshot,
         untimed, here); else a first start, with empty directories of its own."""
@@ -148,10 +151,13 @@ class Peers:
         data = self.tmp / (f"uacell-{cell}" if snapshot else f"uacell-{cell}-{self.count}")
         if not history:  # it runs beside a peer of the same cell with history on
             data = data.with_name(data.name + "-no-history")
+        if publisher:  # one of many cells publishing side by side
+            data = data.with_name(f"{data.name}-{publisher}")
         cache = self.cache if snapshot else data / "cache"
         cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", cell]
         cmd += [] if history else ["--no-history"]
-        name = f"uacell {cell} cell" + ("" if history else " (history off)")
+        cmd += ["--pubsub", pubsub, "--publisher-id", publisher] if pubsub else []
+        name = f"uacell {cell} cell" + ("" if history else " (history off)") + (f" {publisher}" if publisher else "")
         return Peer(name, [*cmd, "--data-dir", str(data), "--cache-dir", str(cache)], port=port)
 
     @property
@@ -540,6 +546,7 @@ SECTIONS = {
     "sessions": sessions_section,
     "web": web_section,
     "history": history_section,
+    "plant": plant_section,
 }
 
 
@@ -549,12 +556,14 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, help="interleaved rounds (default 2, quick 1)")
     parser.add_argument("--seconds", type=float, help="length of each load run (default 2.5, quick 1.5)")
     parser.add_argument("--sessions-total", type=int, dest="many_sessions", help="concurrent sessions (1000/100)")
+    parser.add_argument("--cells", type=int, help="publishing uacell processes of the plant section (20/5)")
     parser.add_argument("--only", choices=sorted(SECTIONS), action="append", help="run only these sections")
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "last-run.json", help="raw figures")
     args = parser.parse_args()
     args.rounds = args.rounds or (1 if args.quick else 2)
     args.seconds = args.seconds or (1.5 if args.quick else 2.0)
     args.many_sessions = args.many_sessions or (100 if args.quick else 1000)
+    args.cells = args.cells or (5 if args.quick else 20)
     args.startup_rounds = max(1, args.rounds - 1)  # the large cell alone takes a minute to start here
     args.sessions = (1, 8, 32)
     args.size_sessions = (1, 8)

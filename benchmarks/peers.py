@@ -3,7 +3,7 @@
 - ``asyncua [--nodesets]``: a bare asyncua server with one echo method (``Objects/Bench/Echo``), optionally
   importing the same four NodeSets as uacell (asyncua's ``import_xml``);
 - ``uacell --cell demo|large|units``: uacell with the cell ``benchmarks.cells.bench_cell`` names,
-  acting times zero.
+  acting times zero (``--pubsub URL --publisher-id ID``: publishing to that broker).
 
 Each prints ``listening`` once clients can connect and runs until SIGTERM.
 """
@@ -55,11 +55,13 @@ async def bare_asyncua(port: int, nodesets: bool) -> None:
     await server.stop()
 
 
-async def uacell(port: int, cell: str, data_dir: str, cache_dir: str, history: bool = True) -> None:
+async def uacell(
+    port: int, cell: str, data_dir: str, cache_dir: str, history: bool = True, pubsub: str = "", publisher_id: str = ""
+) -> None:
     from pathlib import Path
 
     from benchmarks.cells import bench_cell
-    from uacell import _entry
+    from uacell import early
     from uacell.config import Config
     from uacell.server import UacellServer
 
@@ -70,9 +72,13 @@ async def uacell(port: int, cell: str, data_dir: str, cache_dir: str, history: b
     config.server.cache_dir = Path(cache_dir) if cache_dir else None
     config.packml.acting_time = 0.0
     config.history.enabled = history
+    if pubsub:  # publish to this broker as publisher_id
+        config.pubsub.enabled = True
+        config.pubsub.broker = pubsub
+        config.pubsub.publisher_id = publisher_id
     app = UacellServer(config, parts=bench_cell(cell))
     await app.setup()
-    _entry.resume_gc()  # as `uacell serve` does
+    early.resume_gc()  # as `uacell serve` does
     await app.start()
     print("listening", flush=True)
     await _until_stopped()
@@ -88,14 +94,19 @@ def main() -> int:
     parser.add_argument("--data-dir", default="")
     parser.add_argument("--cache-dir", default="")
     parser.add_argument("--no-history", action="store_true", help="[history] enabled = false")
+    parser.add_argument("--pubsub", default="", help="[pubsub] broker (enables PubSub)")
+    parser.add_argument("--publisher-id", default="", help="[pubsub] publisher_id")
     args = parser.parse_args()
     if args.kind == "asyncua":
         asyncio.run(bare_asyncua(args.port, args.nodesets))
     else:
-        from uacell import _entry
+        from uacell import early
 
-        _entry.pause_gc()  # as `uacell serve` does, from its first line
-        asyncio.run(uacell(args.port, args.cell, args.data_dir, args.cache_dir, not args.no_history))
+        early.pause_gc()  # as `uacell serve` does, from its first line
+        history = not args.no_history
+        asyncio.run(
+            uacell(args.port, args.cell, args.data_dir, args.cache_dir, history, args.pubsub, args.publisher_id)
+        )
     return 0
 
 

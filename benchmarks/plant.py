@@ -1,0 +1,234 @@
+"""The plant section of ``make bench`` (docs/performance.md, "Plant: PubSub"): ``--cells`` uacell
+processes (20; 5 with ``--quick``), each serving the demo cell and publishing to one mosquitto, and
+one subscriber taking everything.
+
+Each cell's Filler1 gets a new MachSpeed every second (an asyncua client per cell); the subscriber
+times each new value from its SourceTimestamp to its arrival (the same clock: one machine). Reported:
+messages per second delivered, that latency's p50/p99 (target: p99 <= publishing interval + 50 ms),
+every value set seen and no SequenceNumber skipped (nothing lost while the broker is up), CPU (share
+of one core) and RSS per publishing cell, and the broker's CPU per 1,000 messages/s, from which
+docs/performance.md projects a 500-cell plant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import itertools
+import json
+import os
+import shutil
+import subprocess
+import time
+from collections import defaultdict
+from datetime import datetime
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from benchmarks.__main__ import Peer, Peers, Report
+
+PUBLISHING_INTERVAL = 0.5  # [pubsub] publishing_interval's default
+SET_EVERY = 1.0
+TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def cpu_seconds(pid: int) -> float:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / TICKS
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
+def percentile(values: list[float], q: float) -> float | None:
+    if not values:
+        return None
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+class Mosquitto:
+    def __init__(self, tmp: Path, port: int) -> None:
+        self.port = port
+        self.conf = tmp / "mosquitto.conf"
+        self.conf.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\nuser root\n")
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> None:
+        exe = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+        self.proc = subprocess.Popen([exe, "-c", str(self.conf)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        import socket
+
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline:
+            with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", self.port), 0.2):
+                return
+            time.sleep(0.05)
+        raise RuntimeError("mosquitto did not listen")
+
+    def stop(self) -> None:
+        if self.proc is not None:
+            self.proc.terminate()
+            self.proc.wait(10)
+
+
+def plant_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
+    from benchmarks.__main__ import free_port
+
+    if not (shutil.which("mosquitto") or Path("/usr/sbin/mosquitto").exists()):
+        print("== plant: skipped, mosquitto is not installed (make setup installs it)", flush=True)
+        return
+    cells = args.cells
+    seconds = 8.0 if args.quick else 20.0
+    print(f"== plant ({cells} publishing cells, one mosquitto, one subscriber, {seconds:.0f} s)", flush=True)
+    broker = Mosquitto(peers.tmp, free_port())
+    broker.start()
+    started: list[Peer] = []
+    try:
+        url = f"mqtt://127.0.0.1:{broker.port}"
+        for i in range(cells):
+            started.append(peers.uacell(pubsub=url, publisher=f"cell{i + 1:03d}").start())
+        raw = asyncio.run(_measure(broker, started, seconds))
+    finally:
+        for p in started:
+            p.stop()
+        broker.stop()
+    report.raw["plant"] = raw
+    latency = raw["latency_ms"]
+    p99 = percentile(latency, 0.99)
+    target = PUBLISHING_INTERVAL * 1000 + 50
+    report.add(
+        f"plant: state change -> subscriber, {cells} cells, p50 / p99",
+        f"{percentile(latency, 0.5) or 0:.0f} / {p99 or 0:.0f} ms",
+        f"publishing interval {PUBLISHING_INTERVAL * 1000:.0f} ms",
+        None if p99 is None else p99 / target,
+        f"p99 <= {target:.0f} ms (<= 1.0x)",
+        lambda x: x <= 1.0,
+    )
+    report.add(
+        "plant: messages delivered to one subscriber",
+        f"{raw['messages_per_second']:.0f}/s",
+        f"{cells} cells",
+        None,
+        "",
+        None,
+    )
+    lost = raw["values_missing"] + raw["sequence_gaps"]
+    report.add(
+        "plant: values lost (missing values + skipped SequenceNumbers)",
+        f"{lost}",
+        f"{raw['values_set']} values set",
+        lost / raw["values_set"] if raw["values_set"] else None,
+        "none lost (0x)",
+        lambda x: x == 0,
+    )
+    report.add(
+        "plant: per publishing cell, CPU / RSS",
+        f"{raw['cpu_per_cell'] * 100:.1f} % / {raw['rss_mib_per_cell']:.0f} MiB",
+        "of one core",
+        None,
+        "",
+        None,
+    )
+    report.add(
+        "plant: mosquitto CPU per 1,000 messages/s",
+        f"{raw['broker_cpu_per_1000_msgs'] * 100:.1f} %",
+        "of one core",
+        None,
+        "",
+        None,
+    )
+
+
+async def _measure(broker: Mosquitto, cells: list[Peer], seconds: float) -> dict[str, Any]:
+    import logging
+
+    import aiomqtt
+    from asyncua import Client, ua
+
+    logging.getLogger("asyncua").setLevel(logging.ERROR)
+
+    received: list[tuple[float, str, dict[str, Any]]] = []
+    ready = asyncio.Event()
+
+    async def subscribe() -> None:
+        async with aiomqtt.Client("127.0.0.1", broker.port, max_queued_incoming_messages=0) as c:
+            await c.subscribe("opcua/json/data/#", qos=1)
+            ready.set()
+            async for m in c.messages:
+                received.append((time.time(), str(m.topic), json.loads(m.payload)))  # type: ignore[arg-type]
+
+    sub = asyncio.ensure_future(subscribe())
+    await asyncio.wait_for(ready.wait(), 15)
+    clients = [Client(p.endpoint, timeout=30) for p in cells]
+    for c in clients:
+        await c.connect()
+    ns = await clients[0].get_namespace_index("urn:uacell:cell")
+    unit, method = ua.NodeId("Filler1", ns), ua.NodeId("Filler1.SetMachSpeed", ns)
+    values: dict[int, list[float]] = defaultdict(list)
+    pids = [p.proc.pid for p in cells if p.proc is not None]
+    cpu0 = [cpu_seconds(pid) for pid in pids]
+    broker0 = cpu_seconds(broker.proc.pid) if broker.proc else 0.0
+    first = len(received)
+    t0 = time.monotonic()
+    step = 0
+    while time.monotonic() - t0 < seconds:
+        step += 1
+        for i, c in enumerate(clients):
+            value = float(step * 10 + i % 10) + 0.5
+            await c.get_node(unit).call_method(method, ua.Variant(value, ua.VariantType.Float))
+            values[i].append(value)
+        await asyncio.sleep(max(0.0, t0 + step * SET_EVERY - time.monotonic()))
+    await asyncio.sleep(PUBLISHING_INTERVAL * 2 + 0.2)  # the last values' interval, and the way
+    wall = time.monotonic() - t0
+    cpu = [(cpu_seconds(pid) - c0) / wall for pid, c0 in zip(pids, cpu0, strict=True)]
+    broker_cpu = ((cpu_seconds(broker.proc.pid) if broker.proc else 0.0) - broker0) / wall
+    rss = [_rss_mib(pid) for pid in pids]
+    for c in clients:
+        await c.disconnect()
+    sub.cancel()
+    with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
+        await sub
+    window = received[first:]
+    latency: list[float] = []
+    seen: dict[int, set[float]] = defaultdict(set)
+    sequences: dict[str, list[int]] = defaultdict(list)
+    for arrived, topic, body in received:
+        for m in body.get("Messages", []):
+            if m.get("MessageType") != "ua-keepalive":
+                sequences[topic].append(m["SequenceNumber"])
+            field = m.get("Payload", {}).get("Status/MachSpeed")
+            if not field or not topic.endswith("/Filler1"):
+                continue
+            cell = int(topic.split("/")[3].removeprefix("cell")) - 1
+            value = field["Value"]
+            if value in values[cell] and value not in seen[cell]:
+                seen[cell].add(value)
+                changed = datetime.fromisoformat(field["SourceTimestamp"].replace("Z", "+00:00")).timestamp()
+                latency.append((arrived - changed) * 1000)
+    gaps = sum(sum(1 for a, b in itertools.pairwise(nums) if b != a + 1) for nums in sequences.values())
+    set_count = sum(len(v) for v in values.values())
+    missing = sum(len(set(values[i]) - seen[i]) for i in values)
+    msgs_per_s = len(window) / wall
+    return {
+        "cells": len(cells),
+        "seconds": wall,
+        "messages": len(window),
+        "messages_per_second": msgs_per_s,
+        "latency_ms": latency,
+        "values_set": set_count,
+        "values_missing": missing,
+        "sequence_gaps": gaps,
+        "cpu_per_cell": sum(cpu) / len(cpu),
+        "rss_mib_per_cell": sum(rss) / len(rss),
+        "broker_cpu": broker_cpu,
+        "broker_cpu_per_1000_msgs": broker_cpu / max(msgs_per_s / 1000, 1e-9),
+    }
+
+
+def _rss_mib(pid: int) -> float:
+    from benchmarks.__main__ import rss_kib
+
+    return rss_kib(pid) / 1024
