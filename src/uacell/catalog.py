@@ -14,10 +14,12 @@ import importlib
 
 from uacell.companion import Companion
 
+# Foundations first: a companion follows those it builds on (DI under Robotics), which also gives
+# the official models their load order (``uacell.models.official_models``).
 COMPANIONS = (
-    "uacell.packml.companion:PACKML_COMPANION",
-    "uacell.robotics.companion:ROBOTICS",
     "uacell.di.companion:DI_LOCKING",
+    "uacell.robotics.companion:ROBOTICS",
+    "uacell.packml.companion:PACKML_COMPANION",
 )
 
 

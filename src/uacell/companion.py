@@ -8,6 +8,7 @@ line each. The shared code reads everything companion-specific from there:
 - ``uacell.config``: the configuration section (``section`` with its dataclass ``settings``) and
   the parts it adds to the cell (``cell_section``, read by ``cell_parser``);
 - ``uacell.cell``: where instances live (``roots``);
+- ``uacell.models``: the official NodeSet files to fetch, verify and load (``models``);
 - ``uacell.server``: the binder that ties the companion's models to their nodes (``binder``);
 - ``uacell.di.locks``: which parts carry a DI Lock and which families it guards (``locks``).
 """
@@ -20,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from uacell.cell_file import SectionParser
+from uacell.models.model_file import ModelFile
 from uacell.roles import Family, Role
 
 Closer = Callable[[], Awaitable[None]]
@@ -65,6 +67,7 @@ class LockRule:
 @dataclass(frozen=True)
 class Companion:
     name: str
+    models: tuple[ModelFile, ...] = ()  # the official NodeSet files it needs (uacell models fetch)
     binder: Binder | None = None
     section: str | None = None  # configuration section, e.g. "robot"
     settings: type[Any] | None = None  # its dataclass: every field optional, typed by its default

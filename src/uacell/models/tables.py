@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from uacell.models.source import MODELS_BY_KEY, locate_models
+from uacell.models.source import locate_models, model_by_key
 
 UA_NS = "http://opcfoundation.org/UA/"
 _X = "{http://opcfoundation.org/UA/2011/03/UANodeSet.xsd}"
@@ -245,7 +245,7 @@ def _cached_table(model_key: str, type_name: str, models_dir: str | None) -> Fsm
 
 def fsm_table(model_key: str, type_name: str, models_dir: str | None = None) -> FsmTable:
     """The table of ``type_name`` (e.g. ``"TaskControlStateMachineType"``) from model ``model_key``."""
-    if model_key not in MODELS_BY_KEY:
+    if model_by_key(model_key) is None:
         raise KeyError(f"unknown model {model_key!r}")
     return _cached_table(model_key, type_name, models_dir)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from uacell.companion import Companion, Root, lazy_binder
+from uacell.models.model_file import ModelFile
 from uacell.packml.config import PackMLConfig, parse_units
 from uacell.roles import Family, Role
 
@@ -15,8 +16,18 @@ _OPERATOR_METHODS = (
 )  # fmt: skip
 
 
+# OPC 30050 needs only the base namespace.
+PACKML_MODEL = ModelFile(
+    "PackML",
+    "http://opcfoundation.org/UA/PackML/",
+    "Opc.Ua.PackML.NodeSet2.xml",
+    "79016b1468d3288da36fca3604ad5439ebae7fdfca87e4f8def2aa1999e49adf",
+    "package/nodesets/Opc.Ua.PackML.NodeSet2.xml",
+)
+
 PACKML_COMPANION = Companion(
     name="PackML",
+    models=(PACKML_MODEL,),
     binder=lazy_binder("uacell.packml.binding", "bind_packml"),
     section="packml",
     settings=PackMLConfig,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from uacell.companion import Companion, LockRule, lazy_binder
+from uacell.models.model_file import ModelFile
 from uacell.robotics.config import RobotConfig, parse_robots
 from uacell.roles import Family, Role
 
@@ -18,8 +19,29 @@ _TASK_CONTROL_METHODS = (
 )  # fmt: skip
 
 
+# OPC 40010-1 builds on DI and on OPC 30001 Industrial Automation (IA).
+MODELS = (
+    ModelFile(
+        "IA",
+        "http://opcfoundation.org/UA/IA/",
+        "Opc.Ua.IA.NodeSet2.xml",
+        "8ac55e581540258ee8de67617c2d3ef26e9d828dfceabb10f6ba5704c476357d",
+        "package/nodesets/Opc.Ua.IA.NodeSet2.xml",
+        requires=("DI",),
+    ),
+    ModelFile(
+        "Robotics",
+        "http://opcfoundation.org/UA/Robotics/",
+        "Opc.Ua.Robotics.NodeSet2.xml",
+        "487243c1ec85e0b747c087ed96c0e1d824629789055e74854f07d19099c08803",
+        "package/nodesets/Opc.Ua.Robotics.NodeSet2.xml",
+        requires=("DI", "IA"),
+    ),
+)
+
 ROBOTICS = Companion(
     name="Robotics",
+    models=MODELS,
     binder=lazy_binder("uacell.robotics.binding", "bind_robotics"),
     section="robot",
     settings=RobotConfig,

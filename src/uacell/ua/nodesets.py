@@ -18,7 +18,7 @@ from typing import Any
 from asyncua import Server, ua
 from asyncua.common.xmlimporter import XmlImporter
 
-from uacell.models.source import MODELS, locate_models
+from uacell.models.source import locate_models, official_models
 from uacell.ua import snapshot
 
 log = logging.getLogger(__name__)
@@ -94,7 +94,7 @@ async def load_models(server: Server, models_dir: str | None = None) -> dict[str
     """Import every official model; returns each model's namespace index in this server."""
     paths = locate_models(models_dir)
     indexes: dict[str, int] = {}
-    for model in MODELS:
+    for model in official_models():
         xml, dropped = without_design_tool_only(paths[model.key])
         if dropped:
             log.debug("%s: left out %d DesignToolOnly nodes", model.filename, dropped)
@@ -138,7 +138,7 @@ async def init_address_space(
     both cases the address space is built as usual.
     """
     locate_models(models_dir)  # every file there and verified, even when the snapshot will do
-    key = snapshot.snapshot_key({m.filename: m.sha256 for m in MODELS}, cell) if cache is not None else {}
+    key = snapshot.snapshot_key({m.filename: m.sha256 for m in official_models()}, cell) if cache is not None else {}
     path = snapshot.snapshot_path(cache, key) if cache is not None else None
     found: snapshot.Snapshot | None = None
     if path is not None:
@@ -168,7 +168,7 @@ async def init_address_space(
         # The importer registers the models' structure classes (asyncua.ua) as it goes; here they are
         # made from the DataTypeDefinitions, before any value of theirs is read from the snapshot.
         await server.load_data_type_definitions()
-        indexes = {m.key: await server.get_namespace_index(m.namespace_uri) for m in MODELS}
+        indexes = {m.key: await server.get_namespace_index(m.namespace_uri) for m in official_models()}
         log.info("address space from the snapshot %s (%d nodes stored)", path, nodes.stored)
         return PreparedSpace(indexes, "snapshot", found.extras)
     await server.init()
