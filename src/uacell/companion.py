@@ -8,6 +8,8 @@ line each. The shared code reads everything companion-specific from there:
 - ``uacell.config``: the configuration section (``section`` with its dataclass ``settings``) and
   the parts it adds to the cell (``cell_section``, read by ``cell_parser``);
 - ``uacell.cell``: where instances live (``roots``);
+- ``uacell.web.discovery``: what the web HMI shows of its parts (``web_view``);
+- ``uacell.metrics``: its figures in ``/metrics`` (``metrics``);
 - ``uacell.models``: the official NodeSet files to fetch, verify and load (``models``);
 - ``uacell.server``: the binder that ties the companion's models to their nodes (``binder``);
 - ``uacell.di.locks``: which parts carry a DI Lock and which families it guards (``locks``).
@@ -41,6 +43,16 @@ def lazy_binder(module: str, name: str) -> Binder:
     return bind
 
 
+def lazy_metrics(module: str, name: str) -> Callable[[Any], Any]:
+    """The metrics factory ``module.name``, imported when metrics start (prometheus-client stays unloaded
+    otherwise)."""
+
+    def make(app: Any) -> Any:
+        return getattr(importlib.import_module(module), name)(app)
+
+    return make
+
+
 @dataclass(frozen=True)
 class Root:
     """A standard object instances are placed in (``"DeviceSet"``: DI's ns=DI;i=5001, HasComponent)."""
@@ -65,9 +77,32 @@ class LockRule:
 
 
 @dataclass(frozen=True)
+class WebView:
+    """What the web HMI shows of a companion's parts: the instances of type ``type_id`` (numeric, in the
+    companion's ``namespace``) in the folder ``root`` of Objects, each described for the page by
+    ``describe`` (``"module:function"``, an async function of the discoverer, the instance and the
+    namespace index), listed under ``layout_key`` in the page's layout."""
+
+    layout_key: str
+    namespace: str
+    root: str
+    type_id: int
+    describe: str
+
+    def describer(self) -> Callable[..., Awaitable[dict[str, Any]]]:
+        module, _, name = self.describe.partition(":")
+        found: Callable[..., Awaitable[dict[str, Any]]] = getattr(importlib.import_module(module), name)
+        return found
+
+
+@dataclass(frozen=True)
 class Companion:
     name: str
     models: tuple[ModelFile, ...] = ()  # the official NodeSet files it needs (uacell models fetch)
+    # Its figures for /metrics: called with the server (uacell.host.Host) when metrics start, returns
+    # a prometheus-client collector (an object with ``collect()``).
+    metrics: Callable[[Any], Any] | None = None
+    web_view: WebView | None = None  # what the web HMI shows of its parts (uacell.web.discovery)
     binder: Binder | None = None
     section: str | None = None  # configuration section, e.g. "robot"
     settings: type[Any] | None = None  # its dataclass: every field optional, typed by its default

@@ -1,6 +1,7 @@
 """Making each part's equipment: the factory the configuration names, called with the part's settings.
 
-A factory is ``"package.module:name"``, a callable that takes one ``EquipmentSpec`` and returns the
+A factory is ``"package.module:name"``, a callable that takes one ``EquipmentSpec`` (a robot
+controller's: ``uacell.robotics.equipment.RobotSpec``, with its axes) and returns the
 equipment (``RobotEquipment`` for a controller, ``PackMLEquipment`` for a PackML unit), or a coroutine
 that does (a driver that connects at start-up). Whatever goes wrong (the import, the call, a result
 that lacks a member of the Protocol) stops start-up with one ``ConfigError`` line naming the part.
@@ -12,23 +13,15 @@ from __future__ import annotations
 import inspect
 import logging
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from typing import Any
 
 from uacell.config import load_factory
+from uacell.equipment_spec import EquipmentSpec
 from uacell.errors import ConfigError
-from uacell.robotics.equipment import AxisInfo
 
 log = logging.getLogger(__name__)
 
-
-@dataclass(frozen=True)
-class EquipmentSpec:
-    """What a factory gets: which part it drives and that part's ``settings`` table."""
-
-    part: str  # the part's browse path, e.g. "Robot1.Controllers.Controller1" or "Filler1"
-    settings: Mapping[str, Any] = field(default_factory=dict)
-    axes: tuple[AxisInfo, ...] = ()  # a controller: the configured axes of the motion device it moves
+__all__ = ["EquipmentSpec", "choose_equipment", "close_equipment", "make_equipment"]
 
 
 def choose_equipment(

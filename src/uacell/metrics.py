@@ -6,8 +6,8 @@ HTTP responder on the server's own event loop. Per server, in its own registry:
 - ``uacell_sessions``: open client sessions;
 - ``uacell_calls_total{method, result}`` and ``uacell_call_duration_seconds{method}`` (histogram);
 - ``uacell_state_machine_state{machine, state}``: 1 for each state machine's current state;
-- ``uacell_packml_count{unit, counter, id, name}`` and ``uacell_packml_acc_count{...}``: the PackML Admin
-  counters (ProdProcessedCount, ProdDefectiveCount, ProdConsumedCount).
+- each companion's own (``Companion.metrics``), e.g. PackML's ``uacell_packml_count{unit, counter, id,
+  name}`` and ``uacell_packml_acc_count{...}`` (``uacell.packml.metrics``).
 
 States and counters are read from the address space when scraped, so they are exactly what clients see.
 """
@@ -25,6 +25,7 @@ from prometheus_client import CollectorRegistry, Counter, Histogram, generate_la
 from prometheus_client.core import GaugeMetricFamily, Metric
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
+from uacell.catalog import companions
 from uacell.errors import ConfigError
 from uacell.ua.channel import session_count
 from uacell.ua.context import Caller
@@ -34,68 +35,50 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds
-_COUNTERS = ("ProdProcessedCount", "ProdDefectiveCount", "ProdConsumedCount")
 _MAX_REQUEST = 8192
 
 
+def variable_value(app: Host, node: ua.NodeId) -> Any:
+    """A variable's value as clients read it now (None when it has none)."""
+    data = app.server.iserver.aspace.get(node)
+    if data is None:
+        return None
+    dv = data.attributes[_A.Value].value
+    return None if dv is None or dv.Value is None else dv.Value.Value
+
+
+def cell_variables(app: Host) -> Iterator[tuple[str, ua.NodeId]]:
+    """Every variable of the cell namespace with a string NodeId: (its path, its NodeId)."""
+    ns = app.cell.instantiator.ns
+    for node in list(app.server.iserver.aspace.keys()):
+        if node.NamespaceIndex == ns and isinstance(node.Identifier, str):
+            yield node.Identifier, node
+
+
 class _AddressSpaceCollector:
-    """Sessions, current states and PackML counters, read at scrape time."""
+    """Sessions and current states, read at scrape time."""
 
     def __init__(self, app: Host) -> None:
         self.app = app
         self._states: list[tuple[str, ua.NodeId]] | None = None
-        self._counters: list[tuple[str, str, ua.NodeId]] | None = None
-
-    def _scan(self) -> None:
-        """Find the cell's CurrentState and Admin counter variables once (their NodeIds follow the path)."""
-        states: list[tuple[str, ua.NodeId]] = []
-        counters: list[tuple[str, str, ua.NodeId]] = []
-        ns = self.app.cell.instantiator.ns
-        for node in list(self.app.server.iserver.aspace.keys()):
-            if node.NamespaceIndex != ns or not isinstance(node.Identifier, str):
-                continue
-            path = node.Identifier
-            if path.endswith(".CurrentState"):
-                states.append((path.removesuffix(".CurrentState"), node))
-            for counter in _COUNTERS:
-                if path.endswith(f".Admin.{counter}"):
-                    counters.append((path.removesuffix(f".Admin.{counter}"), counter, node))
-        self._states, self._counters = sorted(states, key=lambda s: s[0]), counters
-
-    def _value(self, node: ua.NodeId) -> Any:
-        data = self.app.server.iserver.aspace.get(node)
-        if data is None:
-            return None
-        dv = data.attributes[_A.Value].value
-        return None if dv is None or dv.Value is None else dv.Value.Value
 
     def collect(self) -> Iterator[Metric]:
-        if self._states is None:
-            self._scan()
+        if self._states is None:  # every CurrentState, found once (their NodeIds follow the path)
+            found = [
+                (p.removesuffix(".CurrentState"), n) for p, n in cell_variables(self.app) if p.endswith(".CurrentState")
+            ]
+            self._states = sorted(found, key=lambda s: s[0])
         sessions = GaugeMetricFamily("uacell_sessions", "Open client sessions")
         sessions.add_metric([], session_count(self.app.server.iserver))
         yield sessions
         states = GaugeMetricFamily(
             "uacell_state_machine_state", "1 for the current state of each state machine", labels=["machine", "state"]
         )
-        for machine, node in self._states or []:
-            value = self._value(node)
+        for machine, node in self._states:
+            value = variable_value(self.app, node)
             if isinstance(value, ua.LocalizedText) and value.Text:
                 states.add_metric([machine, value.Text], 1)
         yield states
-        count = GaugeMetricFamily(
-            "uacell_packml_count", "PackML Admin counters: Count", labels=["unit", "counter", "id", "name"]
-        )
-        acc = GaugeMetricFamily(
-            "uacell_packml_acc_count", "PackML Admin counters: AccCount", labels=["unit", "counter", "id", "name"]
-        )
-        for unit, counter, node in self._counters or []:
-            for item in self._value(node) or []:
-                labels = [unit, counter, str(getattr(item, "ID", "")), str(getattr(item, "Name", ""))]
-                count.add_metric(labels, float(getattr(item, "Count", 0)))
-                acc.add_metric(labels, float(getattr(item, "AccCount", 0)))
-        yield count
-        yield acc
 
 
 class Metrics:
@@ -114,6 +97,9 @@ class Metrics:
             buckets=(0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0),
         )
         self.registry.register(_AddressSpaceCollector(app))
+        for companion in companions():  # each companion's own figures (Companion.metrics)
+            if companion.metrics is not None:
+                self.registry.register(companion.metrics(app))
         app.dispatcher.observers.append(self._on_call)
         self._server: asyncio.Server | None = None
         self.port = 0

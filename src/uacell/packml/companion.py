@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from uacell.companion import Companion, Root, lazy_binder
+from uacell.companion import Companion, Root, WebView, lazy_binder, lazy_metrics
 from uacell.models.model_file import ModelFile
 from uacell.packml.config import PackMLConfig, parse_units
 from uacell.roles import Family, Role
@@ -28,6 +28,9 @@ PACKML_MODEL = ModelFile(
 PACKML_COMPANION = Companion(
     name="PackML",
     models=(PACKML_MODEL,),
+    # Units: PackMLBaseObjectType (i=6) instances in PackMLObjects.
+    web_view=WebView("units", PACKML_MODEL.namespace_uri, "PackMLObjects", 6, "uacell.packml.web_view:describe_unit"),
+    metrics=lazy_metrics("uacell.packml.metrics", "packml_metrics"),
     binder=lazy_binder("uacell.packml.binding", "bind_packml"),
     section="packml",
     settings=PackMLConfig,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from uacell.companion import Companion, LockRule, lazy_binder
+from uacell.companion import Companion, LockRule, WebView, lazy_binder
 from uacell.models.model_file import ModelFile
 from uacell.robotics.config import RobotConfig, parse_robots
 from uacell.roles import Family, Role
@@ -18,6 +18,8 @@ _TASK_CONTROL_METHODS = (
     "Start", "Stop", "ResetToProgramStart",
 )  # fmt: skip
 
+
+ROBOTICS_URI = "http://opcfoundation.org/UA/Robotics/"
 
 # OPC 40010-1 builds on DI and on OPC 30001 Industrial Automation (IA).
 MODELS = (
@@ -42,6 +44,8 @@ MODELS = (
 ROBOTICS = Companion(
     name="Robotics",
     models=MODELS,
+    # Robots: MotionDeviceSystemType (i=1002) instances in DeviceSet.
+    web_view=WebView("robots", ROBOTICS_URI, "DeviceSet", 1002, "uacell.robotics.web_view:describe_robot"),
     binder=lazy_binder("uacell.robotics.binding", "bind_robotics"),
     section="robot",
     settings=RobotConfig,

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Protocol, runtime_checkable
 
+from uacell.equipment_spec import EquipmentSpec
 from uacell.robotics.program import Program
 
 
@@ -50,6 +51,14 @@ class AxisInfo:
     @property
     def limits(self) -> tuple[float, float]:
         return (self.min_position, self.max_position)
+
+
+@dataclass(frozen=True)
+class RobotSpec(EquipmentSpec):
+    """What a robot controller's factory gets: the part and its settings, and the configured axes of
+    the motion device it moves (empty: the equipment's own)."""
+
+    axes: tuple[AxisInfo, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -372,7 +372,7 @@ SIMULATOR_SETTINGS = ("time_scale", "power_up_time", "power_down_time", "alarms"
 def simulator(spec: Any) -> SimulatedRobot:
     """The equipment factory of a simulated controller (``uacell.robotics.sim:simulator``).
 
-    ``spec`` is a ``uacell.equipment_factory.EquipmentSpec``: its ``axes`` are the configured axes of the
+    ``spec`` is a ``uacell.robotics.equipment.RobotSpec``: its ``axes`` are the configured axes of the
     motion device (the six default ones if empty), its ``settings`` may set ``time_scale`` (> 1 runs
     faster than real time), ``power_up_time``/``power_down_time`` (simulated seconds) and ``alarms``
     (the alarm names).
@@ -391,6 +391,6 @@ def simulator(spec: Any) -> SimulatedRobot:
         time_scale=1.0 / scale,  # SimulatedRobot counts real seconds per simulated second
         power_up_time=float(settings.get("power_up_time", 2.0)),
         power_down_time=float(settings.get("power_down_time", 0.5)),
-        axes=tuple(spec.axes) or DEFAULT_AXES,
+        axes=tuple(getattr(spec, "axes", ())) or DEFAULT_AXES,
         alarms=tuple(alarms),
     )

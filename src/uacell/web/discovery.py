@@ -1,8 +1,9 @@
 """Find the cell in any server's address space: by type and BrowseName, never by NodeId.
 
-Robots are the ``MotionDeviceSystemType`` instances (or subtypes) in ``Objects/DeviceSet``, with their
-``Controllers``, each controller's ``TaskControls`` and the robot's ``MotionDevices``; PackML units
-are the ``PackMLBaseObjectType`` instances in ``Objects/PackMLObjects``. Namespaces are resolved by URI.
+Each companion says what the page shows of its parts (``Companion.web_view``): which type's instances,
+in which folder of ``Objects``, and the function that describes one (robots:
+``uacell.robotics.web_view``, PackML units: ``uacell.packml.web_view``); the helpers here browse,
+register the keys and read locks and state machines for all of them. Namespaces are resolved by URI.
 
 The result, ``Cell``, holds a JSON description for the page (``layout``) in which every value and
 method is named by a *key* (its BrowseName path, e.g. ``Filler1/Status/MachSpeed``), and the maps
@@ -17,41 +18,14 @@ from typing import Any
 
 from asyncua import Client, Node, ua
 
-log = logging.getLogger(__name__)
+from uacell.catalog import companions
 
-DI = "http://opcfoundation.org/UA/DI/"
-ROBOTICS = "http://opcfoundation.org/UA/Robotics/"
-PACKML = "http://opcfoundation.org/UA/PackML/"
+log = logging.getLogger(__name__)
 
 _HIERARCHICAL = ua.NodeId(ua.ObjectIds.HierarchicalReferences)
 _HAS_SUBTYPE = ua.NodeId(ua.ObjectIds.HasSubtype)
-_CONDITION_TYPE = ua.NodeId(ua.ObjectIds.ConditionType)
 _FILE_TYPE = ua.NodeId(ua.ObjectIds.FileType)
 
-# What the page shows of a PackML unit's Status and Admin objects (those present are used).
-UNIT_STATUS = (
-    "UnitModeCurrent",
-    "UnitSupportedModes",
-    "MachSpeed",
-    "CurMachSpeed",
-    "StateRequested",
-    "StateChangeInProcess",
-    "MaterialInterlocked",
-    "EquipmentBlocked",
-    "EquipmentStarved",
-    "StartParameters",
-)
-UNIT_ADMIN = ("ProdProcessedCount", "ProdDefectiveCount", "ProdConsumedCount", "StopReason", "Alarm", "Warning")
-UNIT_METHODS = ("SetUnitMode", "SetMachSpeed")
-PACKML_MACHINES = (
-    ("BaseStateMachine", ("Abort", "Clear")),
-    ("MachineState", ("Reset", "Stop")),
-    ("ExecuteState", ("Reset", "Start", "Hold", "Unhold", "Suspend", "Unsuspend", "ToComplete")),
-)
-SYSOP_METHODS = ("GetReady", "StandDown", "Start", "Stop")
-# CurrentLine and ProgramPointer are uacell's own (docs/robotics.md): absent on other servers.
-TASK_VARIABLES = ("TaskProgramName", "TaskProgramLoaded", "ExecutionMode", "CurrentLine", "ProgramPointer")
-TASK_METHODS = ("LoadByName", "UnloadProgram", "UnloadByName", "Start", "Stop")
 LOCK_VARIABLES = ("Locked", "LockingUser", "LockingClient", "RemainingLockTime")
 LOCK_METHODS = ("InitLock", "RenewLock", "ExitLock", "BreakLock")
 CONDITION_VARIABLES = ("ActiveState/Id", "AckedState/Id", "Message", "EventId", "Severity", "Time", "Retain")
@@ -189,22 +163,27 @@ class Discoverer:
     # the cell ---------------------------------------------------------------------------------
 
     async def discover(self) -> Cell:
+        """Each companion's parts (``Companion.web_view``): its type's instances in its root folder."""
         ns = await self.client.get_namespace_array()
         index = {uri: i for i, uri in enumerate(ns)}
         objects = ua.NodeId(ua.ObjectIds.ObjectsFolder)
         top = {c.name: c.node for c in await self.children(objects)}
-        robots: list[dict[str, Any]] = []
-        units: list[dict[str, Any]] = []
-        if ROBOTICS in index:
-            r = index[ROBOTICS]
-            for robot in await self.of_type(top.get("DeviceSet"), ua.NodeId(1002, r)):
-                robots.append(await self.robot(robot, r))
-        if PACKML in index:
-            for unit in await self.of_type(top.get("PackMLObjects"), ua.NodeId(6, index[PACKML])):
-                units.append(await self.unit(unit))
-        self.cell.layout = {"robots": robots, "units": units, "auditing": await self.auditing()}
+        layout: dict[str, Any] = {}
+        for companion in companions():
+            view = companion.web_view
+            if view is None:
+                continue
+            found = layout.setdefault(view.layout_key, [])
+            if view.namespace not in index:
+                continue
+            describe = view.describer()
+            i = index[view.namespace]
+            for part in await self.of_type(top.get(view.root), ua.NodeId(view.type_id, i)):
+                found.append(await describe(self, part, i))
+        layout["auditing"] = await self.auditing()
+        self.cell.layout = layout
         self.cell.role = await self.child(ua.NodeId(ua.ObjectIds.Server), "CurrentRole")
-        log.debug("found %d robots and %d PackML units", len(robots), len(units))
+        log.debug("found %s", ", ".join(f"{len(v)} {k}" for k, v in layout.items() if isinstance(v, list)))
         return self.cell
 
     async def auditing(self) -> bool:
@@ -213,122 +192,6 @@ class Discoverer:
         node = Node(self.client.uaclient, ua.NodeId(ua.ObjectIds.Server_Auditing))
         dv = await node.read_data_value(raise_on_bad_status=False)
         return bool(dv.StatusCode.is_good() and dv.Value is not None and dv.Value.Value)
-
-    async def unit(self, unit: Child) -> dict[str, Any]:
-        name = unit.name
-        machines: list[dict[str, Any]] = []
-        node: ua.NodeId | None = unit.node
-        for machine_name, method_names in PACKML_MACHINES:
-            node = await self.child(node, machine_name)
-            if node is None:
-                break
-            prefix = f"{name}/{machine_name}"
-            machines.append(
-                {
-                    "name": machine_name,
-                    **await self.machine(prefix, node),
-                    "methods": await self.methods(prefix, node, method_names),
-                }
-            )
-        status = await self.child(unit.node, "Status")
-        admin = await self.child(unit.node, "Admin")
-        variables = {n: await self.variable(f"{name}/Status/{n}", status, n) for n in UNIT_STATUS}
-        variables |= {n: await self.variable(f"{name}/Admin/{n}", admin, n) for n in UNIT_ADMIN}
-        # The speeds the unit accepts, for a refusal in words ("speed must be within 0..600").
-        variables["MachSpeedRange"] = await self.variable(
-            f"{name}/Status/MachSpeed/EURange", status, "MachSpeed", "EURange"
-        )
-        return {
-            "name": name,
-            "machines": machines,
-            "variables": {k: v for k, v in variables.items() if v},
-            "methods": await self.methods(name, unit.node, UNIT_METHODS),
-        }
-
-    async def robot(self, robot: Child, r: int) -> dict[str, Any]:
-        controllers = [
-            await self.controller(f"{robot.name}/{c.name}", c, r)
-            for c in await self.of_type(await self.child(robot.node, "Controllers"), ua.NodeId(1003, r))
-        ]
-        devices = []
-        for device in await self.of_type(await self.child(robot.node, "MotionDevices"), ua.NodeId(1004, r)):
-            prefix = f"{robot.name}/{device.name}"
-            axes = []
-            for axis in await self.of_type(await self.child(device.node, "Axes"), ua.NodeId(16601, r)):
-                key = await self.variable(
-                    f"{prefix}/{axis.name}/ActualPosition", axis.node, "ParameterSet", "ActualPosition"
-                )
-                if key:
-                    axes.append({"name": axis.name, "position": key})
-            devices.append(
-                {
-                    "name": device.name,
-                    "axes": axes,
-                    "in_control": await self.variable(f"{prefix}/InControl", device.node, "ParameterSet", "InControl"),
-                }
-            )
-        return {"name": robot.name, "controllers": controllers, "motion_devices": devices}
-
-    async def controller(self, prefix: str, controller: Child, r: int) -> dict[str, Any]:
-        sysop = await self.child(controller.node, "SystemOperation")
-        machine = await self.child(sysop, "SystemOperationStateMachine")
-        conditions = []
-        for cond in await self.of_type(await self.child(sysop, "Conditions"), _CONDITION_TYPE):
-            key = f"{prefix}/Conditions/{cond.name}"
-            conditions.append(
-                {
-                    "name": cond.name,
-                    "variables": {
-                        v: await self.variable(f"{key}/{v}", cond.node, *v.split("/")) for v in CONDITION_VARIABLES
-                    },
-                    "methods": await self.methods(key, cond.node, ("Acknowledge",)),
-                }
-            )
-        programs = await self.child(controller.node, "Programs")
-        program_methods: dict[str, str] = {}
-        if programs is not None:
-            self.cell.directories[f"{prefix}/Programs"] = programs
-            program_methods = await self.methods(f"{prefix}/Programs", programs, ("CreateFile", "Delete"))
-        tasks = []
-        for task in await self.of_type(await self.child(controller.node, "TaskControls"), ua.NodeId(1011, r)):
-            tasks.append(await self.task_control(f"{prefix}/{task.name}", task))
-        sysop_prefix = f"{prefix}/SystemOperation"
-        return {
-            "name": controller.name,
-            "system_operation": {
-                **await self.machine(sysop_prefix, machine),
-                "substates": [
-                    await self.machine(f"{sysop_prefix}/{sub}", await self.child(machine, sub))
-                    for sub in ("IdleSubstateMachine", "ExecutingSubstateMachine")
-                ],
-                "methods": await self.methods(sysop_prefix, machine, SYSOP_METHODS, robotics=True),
-            },
-            "conditions": conditions,
-            "lock": await self.lock(prefix, controller.node),
-            "programs": f"{prefix}/Programs" if programs is not None else None,
-            "program_methods": program_methods,
-            "task_controls": tasks,
-            "simulate_alarm": await self.method(f"{prefix}/SimulateAlarm", controller.node, "SimulateAlarm"),
-        }
-
-    async def task_control(self, prefix: str, task: Child) -> dict[str, Any]:
-        machine = await self.child(task.node, "TaskControlOperation", "TaskControlStateMachine")
-        ready = await self.child(machine, "ReadySubstateMachine")
-        params = await self.child(task.node, "ParameterSet")
-        modules = await self.child(task.node, "TaskModules")
-        if modules is not None:
-            self.cell.folders[f"{prefix}/TaskModules"] = modules
-        methods = await self.methods(prefix, machine, TASK_METHODS, robotics=True)
-        methods |= await self.methods(f"{prefix}/ReadySubstateMachine", ready, ("ResetToProgramStart",), True)
-        return {
-            "name": task.name,
-            **await self.machine(prefix, machine),
-            "ready": await self.machine(f"{prefix}/ReadySubstateMachine", ready),
-            "variables": {n: await self.variable(f"{prefix}/{n}", params, n) for n in TASK_VARIABLES},
-            "modules": f"{prefix}/TaskModules" if modules is not None else None,
-            "lock": await self.lock(prefix, task.node),
-            "methods": methods,
-        }
 
 
 async def discover(client: Client) -> Cell:
