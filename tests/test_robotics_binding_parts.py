@@ -11,7 +11,7 @@ from uacell.equipment_factory import EquipmentSpec, make_equipment
 from uacell.errors import ConfigError
 from uacell.robotics.binding import StoreLibrary, install_samples
 from uacell.robotics.binding.programs import adopt_legacy_programs
-from uacell.robotics.equipment import AxisInfo, RobotEquipment, RobotSpec
+from uacell.robotics.equipment import AxisInfo, ControllerEquipmentSpec, RobotEquipment
 from uacell.robotics.model import DirectoryLibrary
 from uacell.robotics.program import wave_program
 from uacell.robotics.sim import SimulatedRobot
@@ -28,7 +28,7 @@ async def test_time_scale_above_one_makes_the_simulator_faster():
 
 async def test_the_simulator_moves_the_configured_axes_and_refuses_unknown_settings():
     axes = tuple(AxisInfo(f"J{i}", -90.0, 90.0, 100.0) for i in range(1, 8))
-    spec = RobotSpec("R.Controllers.C", {"power_up_time": 0.5, "alarms": ["Fence"]}, axes)
+    spec = ControllerEquipmentSpec("R.Controllers.C", {"power_up_time": 0.5, "alarms": ["Fence"]}, axes)
     robot = await make_equipment("uacell.robotics.sim:simulator", spec, RobotEquipment)
     assert [a.name for a in robot.axes] == [f"J{i}" for i in range(1, 8)]
     assert robot.alarm_names == ("Fence",) and robot.power_up_time == 0.5

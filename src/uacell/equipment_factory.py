@@ -1,7 +1,7 @@
 """Making each part's equipment: the factory the configuration names, called with the part's settings.
 
 A factory is ``"package.module:name"``, a callable that takes one ``EquipmentSpec`` (a robot
-controller's: ``uacell.robotics.equipment.RobotSpec``, with its axes) and returns the
+controller's: ``uacell.robotics.equipment.ControllerEquipmentSpec``, with its axes) and returns the
 equipment (``RobotEquipment`` for a controller, ``PackMLEquipment`` for a PackML unit), or a coroutine
 that does (a driver that connects at start-up). Whatever goes wrong (the import, the call, a result
 that lacks a member of the Protocol) stops start-up with one ``ConfigError`` line naming the part.

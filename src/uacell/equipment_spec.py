@@ -10,7 +10,7 @@ from typing import Any
 @dataclass(frozen=True)
 class EquipmentSpec:
     """Which part the equipment drives and that part's ``settings`` table. A companion passes a
-    subclass with what its parts add (a robot controller: ``uacell.robotics.equipment.RobotSpec``)."""
+    subclass with what its parts add (a robot controller: ``uacell.robotics.equipment.ControllerEquipmentSpec``)."""
 
     part: str  # the part's browse path, e.g. "Robot1.Controllers.Controller1" or "Filler1"
     settings: Mapping[str, Any] = field(default_factory=dict)

@@ -20,9 +20,9 @@ from uacell.equipment_factory import close_equipment, make_equipment
 from uacell.robotics.equipment import (
     AxisInfo,
     AxisState,
+    ControllerEquipmentSpec,
     ExecutionMode,
     RobotEquipment,
-    RobotSpec,
     RunOutcome,
     StopMode,
 )
@@ -42,7 +42,7 @@ def _axes() -> tuple[AxisInfo, ...]:
 
 
 async def _robot() -> Any:
-    spec = RobotSpec("Conformance.Controllers.Controller1", settings(), _axes())
+    spec = ControllerEquipmentSpec("Conformance.Controllers.Controller1", settings(), _axes())
     return await make_equipment(factory("UACELL_ROBOT_FACTORY"), spec, RobotEquipment)
 
 

@@ -54,7 +54,7 @@ class AxisInfo:
 
 
 @dataclass(frozen=True)
-class RobotSpec(EquipmentSpec):
+class ControllerEquipmentSpec(EquipmentSpec):
     """What a robot controller's factory gets: the part and its settings, and the configured axes of
     the motion device it moves (empty: the equipment's own)."""
 

@@ -372,7 +372,7 @@ SIMULATOR_SETTINGS = ("time_scale", "power_up_time", "power_down_time", "alarms"
 def simulator(spec: Any) -> SimulatedRobot:
     """The equipment factory of a simulated controller (``uacell.robotics.sim:simulator``).
 
-    ``spec`` is a ``uacell.robotics.equipment.RobotSpec``: its ``axes`` are the configured axes of the
+    ``spec`` is a ``uacell.robotics.equipment.ControllerEquipmentSpec``: its ``axes`` are the configured axes of the
     motion device (the six default ones if empty), its ``settings`` may set ``time_scale`` (> 1 runs
     faster than real time), ``power_up_time``/``power_down_time`` (simulated seconds) and ``alarms``
     (the alarm names).

@@ -20,7 +20,7 @@ from uacell.robotics.binding.system_operation import SystemOperationNodes
 from uacell.robotics.binding.task_control import TaskControls
 from uacell.robotics.companion import CONTROLLER, MOTION_DEVICE, TASK_CONTROL_PART
 from uacell.robotics.config import ControllerSpec, MotionDeviceSpec, RobotConfig, TaskControlSpec
-from uacell.robotics.equipment import AxisInfo, RobotEquipment, RobotSpec, StopMode
+from uacell.robotics.equipment import AxisInfo, ControllerEquipmentSpec, RobotEquipment, StopMode
 from uacell.robotics.model import RobotCell, RoboticsTables, TaskControl
 from uacell.robotics.program import ProgramLimits
 from uacell.robotics.sim import SimulatedRobot
@@ -105,7 +105,7 @@ async def make_controller_equipment(
         simulator_defaults={"time_scale": defaults.time_scale},
     )
     equipment: RobotEquipment = await make_equipment(
-        factory, RobotSpec(controller.path, settings, axes), RobotEquipment
+        factory, ControllerEquipmentSpec(controller.path, settings, axes), RobotEquipment
     )
     if axes and len(equipment.axes) != len(axes):
         await close_equipment(equipment, controller.path)
