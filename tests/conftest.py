@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import atexit
+import contextlib
 import json
 import os
 import shutil
@@ -14,6 +15,7 @@ import time
 from collections.abc import AsyncIterator, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 from helpers import free_port
@@ -142,6 +144,19 @@ async def start_app(config: Config, binders: list | None = None) -> UacellServer
     await server.setup()
     await server.start()
     return server
+
+
+@contextlib.asynccontextmanager
+async def serving(config: Config) -> AsyncIterator[tuple[UacellServer, Any]]:
+    """``config`` served in-process with an asyncua client connected to it; both stopped after."""
+    from asyncua import Client
+
+    server = await start_app(config)
+    try:
+        async with Client(server.endpoint, timeout=30) as client:
+            yield server, client
+    finally:
+        await server.stop()
 
 
 @pytest.fixture

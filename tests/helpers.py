@@ -109,6 +109,12 @@ async def raw_call(client: Client, obj: ua.NodeId, method: ua.NodeId, *args: ua.
     return res
 
 
+async def call_path(client: Client, obj: str, method: str, *args: ua.Variant) -> ua.CallMethodResult:
+    """``raw_call`` of ``obj.method`` named by their cell-namespace paths (``"Filler1"``, ``"SetMachSpeed"``)."""
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    return await raw_call(client, ua.NodeId(obj, ns), ua.NodeId(f"{obj}.{method}", ns), *args)
+
+
 def server_value(app: UacellServer, nodeid: ua.NodeId) -> Any:
     """The Value of ``nodeid`` as the server holds it (no client round trip)."""
     return app.server.iserver.aspace.read_attribute_value(nodeid, ua.AttributeIds.Value).Value.Value

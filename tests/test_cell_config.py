@@ -217,7 +217,18 @@ ERRORS = [
         "[packml_units.U.acting_times] Sleeping: unknown key",
     ),
     (('name = "U"', 'name = "U"\nsettings = 3'), "[packml_units.U] settings: must be a table"),
-    (('name = "U"', 'name = "U"\nequipment = 3'), "[packml_units.U] equipment: must be a string"),
+    (
+        ('name = "U"', 'name = "U"\nequipment = 3'),
+        "[packml_units.U] equipment: must be 'package.module:factory' or a table with a driver",
+    ),
+    (
+        ('name = "U"', 'name = "U"\nequipment = { host = "x" }'),
+        "[packml_units.U] equipment: needs a driver (none is shipped for this part yet)",
+    ),
+    (
+        ('name = "U"', 'name = "U"\nequipment = { driver = "modbus-signals", host = "a" }'),
+        "[packml_units.U] equipment: driver 'modbus-signals' is not one of: none is shipped for this part yet",
+    ),
     (
         ("[[packml_units]]", '[server]\nanonymous_role = "guest"\n[[packml_units]]'),
         "[server] anonymous_role: must be one of observer, operator, engineer, admin",

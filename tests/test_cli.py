@@ -324,3 +324,14 @@ def test_a_thumbprint_prefix_naming_two_certificates_is_refused(tmp_path, monkey
         certs.trust(paths, thumbprint(der)[0])
     assert list(paths.trusted.iterdir()) == []
     assert certs.trust(paths, thumbprint(der)).name == f"{thumbprint(der)}.der"
+
+
+def test_config_check_takes_the_global_config_option_too() -> None:
+    from uacell.cell_file import builtin_cell_path
+
+    path = str(builtin_cell_path("modbus-robot"))
+    for args in (("config", "check", path), ("--config", path, "config", "check")):
+        proc = uacell(*args)
+        assert proc.returncode == 0, proc.stderr
+        assert f"configuration: {path}" in proc.stdout
+        assert "Controllers/Cabinet  ControllerType  equipment: uacell.gateway.robot:modbus_signals" in proc.stdout

@@ -19,8 +19,8 @@ from typing import Any
 
 import pytest
 from asyncua import Client, ua
-from conftest import fast_config, start_app
-from helpers import free_port, raw_call, wait_until
+from conftest import fast_config, serving, start_app
+from helpers import call_path, free_port, wait_until
 from mqtt_broker import Broker, Received, Subscriber, make_tls, needs_mosquitto, subscribed
 from test_operations import sample, scrape
 
@@ -68,17 +68,11 @@ def broker(tmp_path: Path) -> Any:
 
 @pytest.fixture
 async def served(tmp_path: Path, broker: Broker) -> AsyncIterator[tuple[UacellServer, Client]]:
-    app = await start_app(pubsub_config(tmp_path / "data", broker))
-    try:
-        async with Client(app.endpoint, timeout=30) as client:
-            yield app, client
-    finally:
-        await app.stop()
+    async with serving(pubsub_config(tmp_path / "data", broker)) as served:
+        yield served
 
 
-async def call(client: Client, obj: str, method: str, *args: ua.Variant) -> ua.CallMethodResult:
-    ns = await client.get_namespace_index("urn:uacell:cell")
-    return await raw_call(client, ua.NodeId(obj, ns), ua.NodeId(f"{obj}.{method}", ns), *args)
+call = call_path
 
 
 def states(sub: Subscriber, writer: str, field: str) -> list[str]:

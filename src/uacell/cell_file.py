@@ -174,6 +174,28 @@ class Table:
             raise self.error(key, "must be a table")
         return dict(value)
 
+    def equipment(self, drivers: Mapping[str, str]) -> tuple[str, dict[str, Any]]:
+        """The part's equipment: ``equipment = "package.module:factory"`` with its ``settings`` table, or
+        ``equipment = { driver = "modbus-signals", host = ..., ... }``: one of the ``drivers`` shipped for
+        this kind of part (name -> factory), the other keys its settings (``settings`` may add more,
+        not repeat them)."""
+        value = self.raw("equipment")
+        settings = self.free_table("settings")
+        if value is None or isinstance(value, str):
+            return value or "", settings
+        if not isinstance(value, dict):
+            raise self.error("equipment", "must be 'package.module:factory' or a table with a driver")
+        options = dict(value)
+        driver = options.pop("driver", None)
+        if driver not in drivers:
+            known = ", ".join(sorted(drivers)) or "none is shipped for this part yet"
+            message = f"driver {driver!r} is not one of: {known}" if driver else f"needs a driver ({known})"
+            raise self.error("equipment", message)
+        twice = sorted(set(options) & set(settings))
+        if twice:
+            raise self.error("settings", f"{twice[0]!r} is given in equipment already")
+        return drivers[driver], {**options, **settings}
+
     def tables(self, key: str, default: Sequence[dict[str, Any]] = ()) -> list[dict[str, Any]]:
         """An array of tables (``[[where.key]]``)."""
         value = self.raw(key)
@@ -280,5 +302,6 @@ def parse_cell(data: Mapping[str, Any], source: str, parsers: Mapping[str, Secti
 
 
 def builtin_cell_path(name: str) -> Path:
-    """The shipped cell ``demo`` (the default) or ``example`` (a larger cell)."""
+    """The shipped cell ``demo`` (the default), ``example`` (a larger cell) or ``modbus-robot`` (a
+    robot behind Modbus/TCP signals, docs/equipment.md)."""
     return Path(str(resources.files("uacell") / "cells" / f"{name}.toml"))

@@ -201,7 +201,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "config":
             from uacell.config_preview import run_check
 
-            return run_check(args.file)
+            # the file named after `check`, else the global --config (or $UACELL_CONFIG), else none
+            return run_check(args.file or getattr(args, "config", None))
         config = resolve_config(args)
         if args.command == "serve":
             return _serve(args, config)

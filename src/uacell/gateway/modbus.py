@@ -62,6 +62,7 @@ class ModbusConnection:
         """Try once; True when connected."""
         if not self._client.connected:
             await self._client.connect()
+            _cancelled()
         return bool(self._client.connected)
 
     def close(self) -> None:
@@ -80,6 +81,7 @@ class ModbusConnection:
                 else:
                     rr = await self._client.read_input_registers(tag.address, count=count, device_id=unit)
             except (TimeoutError, ModbusException, OSError) as exc:
+                _cancelled()
                 raise CommunicationError(f"{self.name}: {exc}") from None
         if rr.isError():
             raise CommunicationError(f"{self.name}: {tag.table} {tag.address}: {rr}")
@@ -98,9 +100,18 @@ class ModbusConnection:
                 else:
                     rr = await self._client.write_registers(tag.address, registers, device_id=unit)
             except (TimeoutError, ModbusException, OSError) as exc:
+                _cancelled()
                 raise CommunicationError(f"{self.name}: {exc}") from None
         if rr.isError():
             raise CommunicationError(f"{self.name}: {tag.table} {tag.address}: {rr}")
+
+
+def _cancelled() -> None:
+    """pymodbus turns a cancellation into its own error (or a failed connect): raise it again, so a
+    task being cancelled ends instead of reporting a lost connection and going on."""
+    task = asyncio.current_task()
+    if task is not None and task.cancelling():
+        raise asyncio.CancelledError
 
 
 class ModbusPool:
@@ -115,6 +126,13 @@ class ModbusPool:
             conn = self._connections[(host, port)] = ModbusConnection(host, port, timeout)
         conn.users += 1
         return conn
+
+    def release(self, conn: ModbusConnection) -> None:
+        """One user less; the last one closes the connection."""
+        conn.users -= 1
+        if conn.users <= 0:
+            conn.close()
+            self._connections.pop((conn.host, conn.port), None)
 
     def close(self) -> None:
         for conn in self._connections.values():

@@ -30,6 +30,10 @@ ACTING_STATES = (
 )
 
 
+# The drivers shipped for PackML units (docs/equipment.md, "Gateway"): none yet.
+DRIVERS: dict[str, str] = {}
+
+
 @dataclass
 class PackMLConfig:
     """The ``[packml]`` section: defaults for every unit that does not set its own."""
@@ -76,10 +80,11 @@ def _unit(table: Table) -> UnitSpec:
     times = table.table("acting_times")
     acting_times = {s: times.number(s, 0.0) for s in ACTING_STATES if times.has(s)}
     times.finish()
+    equipment, settings = table.equipment(DRIVERS)
     spec = UnitSpec(
         name,
-        equipment=table.string("equipment"),
-        settings=table.free_table("settings"),
+        equipment=equipment,
+        settings=settings,
         acting_time=table.optional_number("acting_time"),
         acting_times=acting_times,
         mach_speed=mach_speed,

@@ -34,6 +34,10 @@ _ONE_ARM = [{"name": "Arm1"}]
 _ONE_CONTROLLER = [{"name": "Controller1"}]
 
 
+# The drivers shipped for robot controllers (docs/equipment.md, "Gateway"): equipment = { driver = ... }.
+DRIVERS = {"modbus-signals": "uacell.gateway.robot:modbus_signals"}
+
+
 @dataclass
 class RobotConfig:
     """The ``[robot]`` section: defaults for every controller that does not set its own."""
@@ -169,12 +173,19 @@ def _controller(table: Table, index: int, robot_devices: list[str]) -> Controlle
         table.seen.add("motion_device")
         device = robot_devices[index] if index < len(robot_devices) else None
     possible, default = _stop_modes(table)
+    equipment, settings = table.equipment(DRIVERS)
+    programs = table.free_table("programs")  # LoadByName's names -> a signals robot's program numbers
+    if programs:
+        bad = next((k for k, v in programs.items() if isinstance(v, bool) or not isinstance(v, int)), None)
+        if bad is not None:
+            raise table.error("programs", f"{bad}: must be a program number (an integer)")
+        settings["programs"] = programs
     spec = ControllerSpec(
         name,
         tasks,
         device,
-        equipment=table.string("equipment"),
-        settings=table.free_table("settings"),
+        equipment=equipment,
+        settings=settings,
         time_scale=table.optional_number("time_scale", positive=True),
         possible_stop_modes=possible,
         default_stop_mode=default,

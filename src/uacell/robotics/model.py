@@ -229,8 +229,16 @@ class _Guarded:
     _machines: dict[str, StateMachine]
     _conditions: dict[str, Callable[[], Status | None]]
 
+    equipment: RobotEquipment
+
     def _refusal(self, machine_name: str, method: str) -> Status | None:
-        """Why ``method`` of machine ``machine_name`` cannot act now (a Status), or None if it can."""
+        """Why ``method`` of machine ``machine_name`` cannot act now (a Status), or None if it can.
+
+        Equipment that says it cannot reach its controller (``reachable`` false, e.g. the gateway's
+        drivers) refuses every method with Bad_CommunicationError (a CallError): nothing is tried.
+        """
+        if not getattr(self.equipment, "reachable", True):
+            raise CallError("BadCommunicationError", "the robot controller cannot be reached")
         machine = self._machines.get(machine_name)
         if machine is None or method not in machine.table.methods or not machine.allows(method, STAYS):
             return Status.E_SYSTEM_STATE
@@ -238,7 +246,10 @@ class _Guarded:
         return condition() if condition is not None else None
 
     def executable(self, machine_name: str, method: str) -> bool:
-        return self._refusal(machine_name, method) is None
+        try:
+            return self._refusal(machine_name, method) is None
+        except CallError:
+            return False
 
     def methods(self) -> list[tuple[str, str]]:
         """Every (machine name, method) the NodeSet gives this object's machines."""
@@ -393,6 +404,8 @@ class TaskControl(_Guarded):
                 raise _Failure(Status.E_UNEXPECTED_ERROR, f"controller could not load {relpath}: {e}") from e
         except _Failure as f:
             return self._load_failed(f.status, str(f))
+        except CallError:  # the controller answered with a code (Bad_Timeout, Bad_CommunicationError): nothing changed
+            raise
         except Exception as e:  # a bug in a library or equipment must not leave the machine half-done
             log.exception("%s: loading %s failed", self.name, relpath)
             return self._load_failed(Status.E_UNEXPECTED_ERROR, f"internal error: {e}")

@@ -1,0 +1,261 @@
+"""A robot behind a remote-operation signal interface on Modbus/TCP, as a ``RobotEquipment``: the
+``modbus-signals`` driver (docs/equipment.md, "Gateway").
+
+    [[robots.controllers]]
+    name = "Cabinet"
+    equipment = { driver = "modbus-signals", host = "10.0.0.7", port = 502, unit = 1 }
+    programs = { pick_and_place = 3, palletize = 7 }
+
+The Robotics model keeps every rule (states, roles, locks, Status values); this driver only turns
+its requests into the signal handshakes of ``uacell.gateway.signals`` and reports what the
+controller does:
+
+- GetReady / StandDown: the ``drives_on`` output, confirmed by ``drives_are_on``;
+- LoadByName / LoadByNodeId of a program: its number from ``programs`` (by the name LoadByName
+  takes, ``pick_and_place``, or the program's own, ``PickAndPlace``), written with a strobe and
+  confirmed by the echo; modules need no selection on such a controller and load as a no-op;
+- Start: a pulse, confirmed by ``running``; the run ends when ``running`` falls: completed when
+  ``program_end`` is set, stopped otherwise, an ``AlarmStop`` when ``fault`` rose;
+- Stop: a pulse, confirmed by ``running`` falling;
+- the controller's ``fault`` bit (with ``fault_code``) is the condition ``ControllerFault``, a lost
+  connection the condition ``CommunicationLost``; while it is lost ``reachable`` is false and every
+  method answers Bad_CommunicationError (Executable false). A poll reconnects, backing off to 2 s.
+
+A handshake the controller does not confirm in ``confirm_timeout`` answers Bad_Timeout, one it
+refuses (a fault) Bad_InvalidState; nothing is queued or replayed. Axis positions are not part of
+the signals: the axes read 0.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import re
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from uacell.errors import CallError
+from uacell.gateway.modbus import ModbusConnection, ModbusPool
+from uacell.gateway.modbus_robot import ModbusRobotIO, signal_tags
+from uacell.gateway.signals import RobotStatus, SignalOp
+from uacell.robotics.equipment import (
+    AlarmListener,
+    AlarmStop,
+    AxisInfo,
+    AxisState,
+    EquipmentError,
+    ExecutionMode,
+    NotPowered,
+    ProgramRejected,
+    Progress,
+    RunOutcome,
+    StopMode,
+)
+from uacell.robotics.program import Kind, Program
+from uacell.robotics.sim import DEFAULT_AXES
+
+log = logging.getLogger(__name__)
+
+FAULT, COMMUNICATION = "ControllerFault", "CommunicationLost"
+SETTINGS = ("host", "port", "unit", "timeout", "poll", "confirm_timeout", "pulse_width", "programs", "map")
+POOL = ModbusPool()  # connections shared by every controller of the process, per host and port
+MAX_BACKOFF = 2.0
+
+
+def program_key(name: str) -> str:
+    """``pick_and_place``, ``PickAndPlace`` and ``pick-and-place`` name the same program."""
+    return re.sub(r"[^a-z0-9]", "", name.lower())
+
+
+@dataclass(frozen=True)
+class Timing:
+    poll: float = 0.05  # seconds between status reads
+    confirm_timeout: float = 5.0  # seconds a handshake may take
+    pulse_width: float = 0.2  # seconds a pulse stays set (at most; it ends once confirmed)
+
+
+class ModbusSignalsRobot:
+    def __init__(
+        self,
+        part: str,
+        io: ModbusRobotIO,
+        conn: ModbusConnection,
+        programs: Mapping[str, int],
+        axes: Sequence[AxisInfo],
+        timing: Timing,
+    ) -> None:
+        self.part, self.io, self.conn, self.timing = part, io, conn, timing
+        self.programs = {program_key(k): v for k, v in programs.items()}
+        self._axes = tuple(axes)
+        self._listeners: list[AlarmListener] = []
+        self.status = RobotStatus(connected=False)
+        self.reachable = False
+        self._poller: asyncio.Task[None] | None = None
+        self._stop_requested = False
+        self._phase: str | None = None  # of the run under way: "starting", "running"
+        self._closed = False
+
+    # -- what the model reads ---------------------------------------------------------------------
+
+    @property
+    def axes(self) -> Sequence[AxisInfo]:
+        return self._axes
+
+    @property
+    def alarm_names(self) -> Sequence[str]:
+        return (FAULT, COMMUNICATION)
+
+    def add_alarm_listener(self, listener: AlarmListener) -> None:
+        self._listeners.append(listener)
+
+    def axis_states(self) -> Sequence[AxisState]:
+        return [AxisState(0.0, 0.0) for _ in self._axes]
+
+    # -- the status poll ----------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Read the controller once (so the first calls know it), then keep polling."""
+        self._observe(await self.io.status())
+        self._poller = asyncio.get_running_loop().create_task(self._poll(), name=f"{self.part} signals")
+
+    async def _poll(self) -> None:
+        delay = self.timing.poll
+        while not self._closed:
+            await asyncio.sleep(delay)
+            status = await self.io.status()
+            self._observe(status)
+            delay = self.timing.poll if status.connected else min(MAX_BACKOFF, max(delay * 2, 0.1))
+
+    def _observe(self, status: RobotStatus) -> None:
+        before, self.status = self.status, status
+        if status.connected != self.reachable:
+            self.reachable = status.connected
+            if status.connected:
+                log.info("%s: the controller at %s answers", self.part, self.conn.name)
+            else:
+                log.warning("%s: lost the controller at %s (retrying)", self.part, self.conn.name)
+            self._tell(COMMUNICATION, not status.connected, f"no answer from {self.conn.name}")
+        if status.connected and (status.fault != before.fault or status.fault_code != before.fault_code):
+            self._tell(FAULT, status.fault, f"controller fault {status.fault_code}" if status.fault else "")
+
+    def _tell(self, name: str, active: bool, message: str) -> None:
+        for listener in list(self._listeners):
+            listener(name, active, message)
+
+    # -- operations -------------------------------------------------------------------------------
+
+    async def _perform(self, make: Any) -> None:
+        """Build an operation from the status now (``make(status, now)``) and run its handshake."""
+        status = await self.io.status()
+        self._observe(status)
+        op: SignalOp = make(status, time.monotonic())
+        try:
+            await self.io.perform(op)
+        finally:
+            self._observe(await self.io.status())
+
+    async def power_up(self) -> None:
+        try:
+            await self._perform(lambda s, now: SignalOp.drives(True, s, now, self.timing.confirm_timeout))
+        except CallError as e:
+            raise NotPowered(f"drives did not come on: {e}") from None
+
+    async def power_down(self) -> None:
+        try:
+            await self._perform(lambda s, now: SignalOp.drives(False, s, now, self.timing.confirm_timeout))
+        except CallError as e:
+            raise EquipmentError(f"drives did not go off: {e}") from None
+
+    async def load(self, task: str, program: Program) -> None:
+        if program.kind is Kind.MODULE:
+            return  # the controller holds its modules; nothing to select
+        number = self.programs.get(program_key(program.name))
+        if number is None:
+            known = ", ".join(sorted(self.programs)) or "none"
+            raise ProgramRejected(f"no program number for {program.name} in programs (known: {known})")
+        t = self.timing
+        await self._perform(lambda s, now: SignalOp.load(number, s, now, t.confirm_timeout, t.pulse_width))
+
+    async def unload(self, task: str, name: str) -> None:
+        return  # the selection stays on the controller until the next one
+
+    async def run(self, task: str, pointer: int, mode: ExecutionMode, progress: Progress) -> RunOutcome:
+        t = self.timing
+        try:
+            self._phase = "starting"
+            try:
+                await self._perform(lambda s, now: SignalOp.start(s, now, t.confirm_timeout, t.pulse_width))
+            except CallError as e:
+                raise EquipmentError(f"the controller did not start: {e}") from None
+            self._phase = "running"
+            if self._stop_requested:  # asked while the start was being confirmed: it applies to this run
+                await self._send_stop()
+            while True:
+                if self._closed:
+                    raise EquipmentError("the driver was closed while the program ran")
+                status = await self.io.status()
+                self._observe(status)
+                if not status.connected:
+                    raise EquipmentError(f"lost the controller at {self.conn.name} while it ran")
+                if status.fault:
+                    raise AlarmStop(f"controller fault {status.fault_code}")
+                if not status.running:
+                    if status.program_end and not self._stop_requested:
+                        return RunOutcome(0, completed=True)
+                    return RunOutcome(pointer, completed=False)
+                await asyncio.sleep(t.poll)
+        finally:
+            self._phase = None
+            self._stop_requested = False
+
+    async def stop(self, task: str, mode: StopMode) -> None:
+        """Every stop mode is the controller's stop signal; a stop asked before the start was
+        confirmed is sent once it is (``run`` sends it)."""
+        self._stop_requested = True
+        if self._phase == "running":
+            await self._send_stop()
+
+    async def _send_stop(self) -> None:
+        t = self.timing
+        try:
+            await self._perform(lambda s, now: SignalOp.stop(s, now, t.confirm_timeout, t.pulse_width))
+        except CallError as e:
+            if e.status == "BadInvalidState" and not self.status.running:
+                return  # it ended by itself meanwhile: the run reports how
+            raise EquipmentError(f"the controller did not stop: {e}") from None
+
+    async def close(self) -> None:
+        self._closed = True
+        if self._poller is not None:
+            self._poller.cancel()
+            await asyncio.wait({self._poller}, timeout=5.0)  # never held up by the transport
+        POOL.release(self.conn)
+
+
+async def modbus_signals(spec: Any) -> ModbusSignalsRobot:
+    """The equipment factory of the ``modbus-signals`` driver (``spec``: a ControllerEquipmentSpec)."""
+    settings = dict(spec.settings)
+    unknown = sorted(set(settings) - set(SETTINGS))
+    if unknown:
+        raise ValueError(f"the modbus-signals driver has no setting {unknown[0]!r} (it knows {', '.join(SETTINGS)})")
+    host = settings.get("host")
+    if not isinstance(host, str) or not host:
+        raise ValueError('the modbus-signals driver needs host = "<address of the controller or PLC>"')
+    port, unit = int(settings.get("port", 502)), int(settings.get("unit", 1))
+    programs = settings.get("programs", {})
+    if not isinstance(programs, Mapping):
+        raise ValueError("programs must map program names to numbers")
+    overrides = {k: (str(v[0]), int(v[1]), str(v[2])) for k, v in dict(settings.get("map", {})).items()}
+    tags = signal_tags(overrides)
+    timing = Timing(
+        poll=float(settings.get("poll", Timing.poll)),
+        confirm_timeout=float(settings.get("confirm_timeout", Timing.confirm_timeout)),
+        pulse_width=float(settings.get("pulse_width", Timing.pulse_width)),
+    )
+    conn = POOL.get(host, port, float(settings.get("timeout", 1.0)))
+    io = ModbusRobotIO(conn, unit, tags, poll=min(timing.poll, 0.01))
+    robot = ModbusSignalsRobot(spec.part, io, conn, programs, tuple(getattr(spec, "axes", ())) or DEFAULT_AXES, timing)
+    await robot.start()  # unreachable at start: uacell serves anyway, the part reports it
+    return robot
