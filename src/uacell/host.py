@@ -1,9 +1,10 @@
 """What the server's cross-cutting parts receive: a narrow, read-only view of the server.
 
 Security, diagnostics, metrics and the audit observers are wired by ``uacell.server`` and see it
-only as a ``Host``; a companion's binder sees it as a ``BinderHost`` (a little more: registries,
-the publisher, tables): the asyncua server, the configuration, the cell, the method dispatcher and write
-router, users, the audit trail, the listening policy and the diagnostics hooks. They never import
+only as a ``Host``: the asyncua server, the configuration, the cell, the method dispatcher and write
+router, users, the audit trail, the listening policy and the diagnostics hooks. A companion's binder
+sees a ``BinderHost``: not the asyncua server but the address-space operations of
+``uacell.ua.space.Space``, plus registries, the publisher and the state tables. Neither imports
 ``uacell.server`` (which imports them), so the server's assembly stays at the top of the imports.
 """
 
@@ -24,6 +25,7 @@ from uacell.roles import ListeningPolicy
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.file_store import HandlePool
 from uacell.ua.machine_binding import NodeRefs, Publisher
+from uacell.ua.space import Space
 from uacell.ua.writes import WriteRouter
 from uacell.users import UserStore
 
@@ -79,9 +81,32 @@ class SessionEvents(Protocol):
     def on_session_closed(self) -> list[Callable[[Any], None]]: ...
 
 
-class BinderHost(Host, Protocol):
-    """All a companion's binder receives (``Companion.binder``): the host, the registries its parts go
-    in, the ordered publisher, the state tables and namespaces, file handles and session ends."""
+class BinderHost(Protocol):
+    """All a companion's binder receives (``Companion.binder``): the address-space operations it needs
+    (``space``; never the asyncua server itself), the configuration and the built cell, the method
+    dispatcher and write router, the audit trail, the registries its parts go in, the ordered
+    publisher, the state tables and namespaces, file handles and session ends."""
+
+    @property
+    def space(self) -> Space: ...
+
+    @property
+    def config(self) -> Config: ...
+
+    @property
+    def data_dir(self) -> Path: ...
+
+    @property
+    def cell(self) -> CellBuilder: ...
+
+    @property
+    def dispatcher(self) -> MethodDispatcher: ...
+
+    @property
+    def writes(self) -> WriteRouter: ...
+
+    @property
+    def audit(self) -> AuditTrail: ...
 
     @property
     def publisher(self) -> Publisher: ...

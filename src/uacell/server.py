@@ -41,6 +41,7 @@ from uacell.ua.nodesets import SnapshotJob, init_address_space
 from uacell.ua.observers import install_audit
 from uacell.ua.pipeline import ContextStage, Pipeline
 from uacell.ua.snapshot import WriteCancelled
+from uacell.ua.space import Space
 from uacell.ua.writes import WriteRouter
 from uacell.users import UserStore
 
@@ -90,6 +91,7 @@ class UacellServer:
         self.publisher.touch_hooks.append(self.dispatcher.touch)
         self._refs: NodeRefs | None = None
         self.writes = WriteRouter()
+        self.space = Space(self.server)  # what binders may do to the address space (uacell.host.BinderHost)
         limits = config.limits
         # Every file handle any client holds, over all FileType trees (docs/security.md, "Limits").
         self.file_handles = HandlePool(limits.file_handles_per_session, limits.file_handles)

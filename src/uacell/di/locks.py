@@ -77,7 +77,7 @@ class LockBinding:
             manager._on_change = self._changed
         self.lock_nodes: dict[Hashable, ua.NodeId] = {}  # element -> its Lock object
         self.guarded: frozenset[Family] = frozenset().union(*(c.lock_guarded for c in companions()))
-        self.values = ValueWriter(app.server.iserver.aspace, app.dispatcher.types.builtin_of)
+        self.values = ValueWriter(app.space.aspace, app.dispatcher.types.builtin_of)
         self._background = Background()
 
     # tree -------------------------------------------------------------------------------------------
@@ -97,7 +97,7 @@ class LockBinding:
                         self.manager.add(cell.child(part.node, member), part.node, lockable=False)
 
     def _add(self, node: ua.NodeId, path: str, parent: ua.NodeId | None) -> None:
-        lock = toolkit.find_child(self.app.server.iserver.aspace, node, "Lock")
+        lock = toolkit.find_child(self.app.space.aspace, node, "Lock")
         self.manager.add(node, parent, lockable=lock is not None)
         if lock is not None:
             self.lock_nodes[node] = lock
@@ -137,7 +137,7 @@ class LockBinding:
 
     def element_of(self, node: ua.NodeId) -> Hashable | None:
         """The nearest lockable-tree element at or above ``node`` (through child references), if any."""
-        aspace = self.app.server.iserver.aspace
+        aspace = self.app.space.aspace
         level: list[ua.NodeId] = [node]
         seen = {node}
         for _ in range(_MAX_DEPTH):
@@ -190,11 +190,11 @@ class LockBinding:
         for element in self.lock_nodes:
             await self.publish(element)
         try:
-            di = await self.app.server.get_namespace_index(DI)
+            di = await self.app.space.namespace_index(DI)
         except ValueError:
             return
         node = ua.NodeId(_MAX_INACTIVE_LOCK_TIME, di)
-        if node in self.app.server.iserver.aspace:
+        if node in self.app.space.aspace:
             await self.values.write(node, self.manager.max_inactive_ms, ua.VariantType.Double, force=True)
 
     async def _tick(self) -> None:

@@ -45,7 +45,6 @@ from uacell.packml.types import (
 )
 from uacell.registry import RegistryKey
 from uacell.ua.context import Caller
-from uacell.ua.machine_binding import bind_tree
 from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
@@ -174,7 +173,7 @@ class UnitBinding:
         self.unit = unit
         self.node: ua.NodeId = built.node
         self.ns: int = app.cell.instantiator.ns
-        self.aspace = app.server.iserver.aspace
+        self.aspace = app.space.aspace
         self.structures = Structures(app.model_indexes["PackML"])
         self.variables: dict[str, tuple[ua.NodeId, ua.VariantType, int]] = {}  # key -> node, type, rank
         self.values = ValueWriter(self.aspace, app.dispatcher.types.builtin_of)
@@ -199,7 +198,7 @@ class UnitBinding:
 
     async def add_start_parameters(self) -> None:
         """The server-defined read-only ``Status/StartParameters`` (PackMLDescriptorDataType[])."""
-        status = self.app.server.get_node(self.child("Status"))
+        status = self.app.space.node(self.child("Status"))
         nodeid = ua.NodeId(f"{self.built.path}.Status.StartParameters", self.ns)
         datatype = ua.NodeId(DESCRIPTOR_TYPE, self.structures.ns)
         var = await status.add_variable(
@@ -223,7 +222,7 @@ class UnitBinding:
 
     async def add_oee(self) -> None:
         """``OEE`` under the unit (uacell's namespace): the figures of ``uacell.packml.oee``, read-only."""
-        unit = self.app.server.get_node(self.node)
+        unit = self.app.space.node(self.node)
         folder = await unit.add_object(ua.NodeId(f"{self.built.path}.OEE", self.ns), ua.QualifiedName("OEE", self.ns))
         for key, value in self.unit.oee_values().items():
             name = key.split("/")[1]
@@ -423,7 +422,7 @@ async def bind_unit(app: BinderHost, built: BuiltPart, writer: AdminWriter) -> U
     base = b.child("BaseStateMachine")
     machine = app.cell.child(base, MACHINE)
     execute = app.cell.child(machine, EXECUTE)
-    await bind_tree(app.server, base, unit.base, app.publisher, app.refs)
+    await app.space.bind_machine(base, unit.base, app.publisher, app.refs)
     await b.add_start_parameters()
     b.bind_methods({BASE: base, MACHINE: machine, EXECUTE: execute, UNIT: b.node})
     await b.add_inject_fault()

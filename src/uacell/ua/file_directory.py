@@ -79,7 +79,7 @@ class FileDirectoryBinding:
         self.family_dir = family_dir
         self.family_file = family_file
         self._instantiator = app.cell.instantiator
-        self._aspace = app.server.iserver.aspace
+        self._aspace = app.space.aspace
         self._base = str(directory_node.Identifier)
         # relpath -> node and back, for the entries that exist in the address space
         self._nodes: dict[str, ua.NodeId] = {}
@@ -279,7 +279,7 @@ class FileDirectoryBinding:
             refs = self._aspace[parent].references
             refs[:] = [r for r in refs if r.NodeId != node]
         items = [ua.DeleteNodesItem(NodeId=n, DeleteTargetReferences=False) for n in doomed]
-        self.app.server.iserver.node_mgt_service.delete_nodes(ua.DeleteNodesParameters(NodesToDelete=items))
+        self.app.space.delete_items(items)
         log.debug("removed %d node(s) for %s", len(doomed), relpath)
 
     def _subtree(self, node: ua.NodeId) -> list[ua.NodeId]:

@@ -86,7 +86,7 @@ class Conditions:
                 folder, type_node, ua.QualifiedName(name, b.ns), Selection(()),
                 reference_type=ua.ObjectIds.Organizes, path=path,
             )  # fmt: skip
-            await b.app.server.get_node(so_node).add_reference(node, ua.ObjectIds.HasCondition, True, True)
+            await b.app.space.node(so_node).add_reference(node, ua.ObjectIds.HasCondition, True, True)
             cond = ConditionNode(b, name, node, b.controller.node)
             self.nodes[name] = cond
             static = {
@@ -110,7 +110,7 @@ class Conditions:
             for child, (value, vtype) in static.items():
                 with contextlib.suppress(KeyError):
                     await b.values.write(b.child(node, child), value, vtype, force=True)
-            cond.emitter = await EventEmitter.create(b.app.server, type_node, node)
+            cond.emitter = await b.app.space.emitter(type_node, node)
             model = system.conditions[name]
             await self.publish_condition(cond, model, fire=False)
             b.bind_method(

@@ -132,7 +132,7 @@ class Programs:
         index = id_.NamespaceIndex
         uri = getattr(id_, "NamespaceUri", None)
         if uri:
-            array = self.binding.app.server.iserver.aspace.read_attribute_value(
+            array = self.binding.app.space.aspace.read_attribute_value(
                 ua.NodeId(ua.ObjectIds.Server_NamespaceArray), _A.Value
             ).Value.Value
             if uri not in array:

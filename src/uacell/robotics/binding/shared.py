@@ -19,7 +19,6 @@ from uacell.robotics.equipment import StopMode
 from uacell.robotics.model import RobotCell
 from uacell.roles import Family
 from uacell.ua.file_store import FileStore
-from uacell.ua.machine_binding import bind_tree
 from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
@@ -57,7 +56,7 @@ class ControllerBinding:
         self.cell = cell
         self.store = store
         self.ns: int = app.cell.instantiator.ns
-        self.values = ValueWriter(app.server.iserver.aspace, app.dispatcher.types.builtin_of)
+        self.values = ValueWriter(app.space.aspace, app.dispatcher.types.builtin_of)
         self.compose()
 
     def compose(self) -> None:
@@ -68,7 +67,7 @@ class ControllerBinding:
         return self.app.cell.child(node, path)
 
     async def bind_machine(self, node: ua.NodeId, machine: StateMachine) -> None:
-        await bind_tree(self.app.server, node, machine, self.app.publisher, self.app.refs)
+        await self.app.space.bind_machine(node, machine, self.app.publisher, self.app.refs)
 
     def bind_method(
         self,

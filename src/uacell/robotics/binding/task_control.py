@@ -72,7 +72,7 @@ class TaskControls:
             await b.values.write(b.child(op, "MotionDevicesUnderControl"), [b.arm.node], ua.VariantType.NodeId)
             controls = self.controls_reference()
             if controls is not None:
-                await b.app.server.get_node(part.node).add_reference(b.arm.node, controls, True, True)
+                await b.app.space.node(part.node).add_reference(b.arm.node, controls, True, True)
         with contextlib.suppress(KeyError):
             mode_node = b.child(part.node, "ParameterSet/ExecutionMode")
             await b.values.set_access(mode_node, ua.AccessLevel.CurrentRead.mask | ua.AccessLevel.CurrentWrite.mask)
@@ -82,7 +82,7 @@ class TaskControls:
         """``ParameterSet/CurrentLine`` and ``ParameterSet/ProgramPointer``: UInt32, read-only, uacell's."""
         b = self.binding
         part = b.task_parts[name]
-        params = b.app.server.get_node(b.child(part.node, "ParameterSet"))
+        params = b.app.space.node(b.child(part.node, "ParameterSet"))
         for browse_name, text in PROGRAM_POSITION.items():
             var = await params.add_variable(
                 ua.NodeId(f"{part.path}.ParameterSet.{browse_name}", b.ns),
@@ -201,7 +201,7 @@ class TaskControls:
         loaded = {m.name: m for m in task.modules}
         for gone in [m for m in nodes if m not in loaded]:
             node = nodes.pop(gone)
-            await b.app.server.delete_nodes([b.app.server.get_node(node)], recursive=True)
+            await b.app.space.delete([node])
             b.values.forget_below(node)
         type_node = b.app.cell.type_node("Robotics", "TaskModuleType")
         for module in loaded.values():
