@@ -40,11 +40,8 @@ class SessionHooks(Protocol):
     def session_closed(self, session: Any) -> None: ...
 
 
-class Host(Protocol):
-    """The server as its parts see it (``uacell.server.UacellServer`` is one)."""
-
-    @property
-    def server(self) -> Server: ...
+class _Shared(Protocol):
+    """What the server's parts and the binders both see."""
 
     @property
     def config(self) -> Config: ...
@@ -62,10 +59,17 @@ class Host(Protocol):
     def writes(self) -> WriteRouter: ...
 
     @property
-    def users(self) -> UserStore: ...
+    def audit(self) -> AuditTrail: ...
+
+
+class Host(_Shared, Protocol):
+    """The server as its parts see it (``uacell.server.UacellServer`` is one)."""
 
     @property
-    def audit(self) -> AuditTrail: ...
+    def server(self) -> Server: ...
+
+    @property
+    def users(self) -> UserStore: ...
 
     @property
     def policy(self) -> ListeningPolicy: ...
@@ -81,7 +85,7 @@ class SessionEvents(Protocol):
     def on_session_closed(self) -> list[Callable[[Any], None]]: ...
 
 
-class BinderHost(Protocol):
+class BinderHost(_Shared, Protocol):
     """All a companion's binder receives (``Companion.binder``): the address-space operations it needs
     (``space``; never the asyncua server itself), the configuration and the built cell, the method
     dispatcher and write router, the audit trail, the registries its parts go in, the ordered
@@ -89,24 +93,6 @@ class BinderHost(Protocol):
 
     @property
     def space(self) -> Space: ...
-
-    @property
-    def config(self) -> Config: ...
-
-    @property
-    def data_dir(self) -> Path: ...
-
-    @property
-    def cell(self) -> CellBuilder: ...
-
-    @property
-    def dispatcher(self) -> MethodDispatcher: ...
-
-    @property
-    def writes(self) -> WriteRouter: ...
-
-    @property
-    def audit(self) -> AuditTrail: ...
 
     @property
     def publisher(self) -> Publisher: ...
