@@ -223,11 +223,11 @@ ERRORS = [
     ),
     (
         ('name = "U"', 'name = "U"\nequipment = { host = "x" }'),
-        "[packml_units.U] equipment: needs a driver (none is shipped for this part yet)",
+        "[packml_units.U] equipment: needs a driver (opcua-packtags)",
     ),
     (
         ('name = "U"', 'name = "U"\nequipment = { driver = "modbus-signals", host = "a" }'),
-        "[packml_units.U] equipment: driver 'modbus-signals' is not one of: none is shipped for this part yet",
+        "[packml_units.U] equipment: driver 'modbus-signals' is not one of: opcua-packtags",
     ),
     (
         ("[[packml_units]]", '[server]\nanonymous_role = "guest"\n[[packml_units]]'),

@@ -302,6 +302,6 @@ def parse_cell(data: Mapping[str, Any], source: str, parsers: Mapping[str, Secti
 
 
 def builtin_cell_path(name: str) -> Path:
-    """The shipped cell ``demo`` (the default), ``example`` (a larger cell) or ``modbus-robot`` (a
-    robot behind Modbus/TCP signals, docs/equipment.md)."""
+    """The shipped cell ``demo`` (the default), ``example`` (a larger cell), ``modbus-robot`` (a
+    robot behind Modbus/TCP signals) or ``packtags-unit`` (a PackML unit in a PLC; docs/equipment.md)."""
     return Path(str(resources.files("uacell") / "cells" / f"{name}.toml"))

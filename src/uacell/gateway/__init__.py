@@ -1,6 +1,24 @@
-"""Gateway to real equipment behind a PLC (issue 21, in progress).
+"""Gateway to real equipment behind a PLC: drivers a cell file names with
+``equipment = { driver = "...", ... }`` (docs/equipment.md, "Gateway").
 
-Only the pure pieces exist so far: ``codec`` (Modbus register values with type, byte and word
-order) and ``packtags`` (the default PackTags map under a prefix, every tag overridable). No
-transport, driver or configuration hook uses them yet.
+- ``robot`` (``modbus-signals``): a robot controller's remote-operation signals over Modbus/TCP
+  (``modbus``, ``modbus_robot``, ``signals``; ``codec`` for register values);
+- ``packml_opcua`` (``opcua-packtags``): a PackML unit whose state machine runs in a PLC, over its
+  PackTags on OPC UA (``opcua_link``, ``packtags``, ``handshake``).
+
+``examples/robot_controller.py`` is a Modbus robot controller to try the first with;
+``interop/plc_packtags.js`` a PackTags PLC for the second.
 """
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+
+def driver_settings(driver: str, settings: Mapping[str, Any], known: Sequence[str]) -> dict[str, Any]:
+    """``settings`` as a dict; ValueError naming the first key ``driver`` does not know."""
+    unknown = sorted(set(settings) - set(known))
+    if unknown:
+        raise ValueError(f"the {driver} driver has no setting {unknown[0]!r} (it knows {', '.join(known)})")
+    return dict(settings)

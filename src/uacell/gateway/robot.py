@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from uacell.errors import CallError
+from uacell.gateway import driver_settings
 from uacell.gateway.modbus import ModbusConnection, ModbusPool
 from uacell.gateway.modbus_robot import ModbusRobotIO, signal_tags
 from uacell.gateway.signals import RobotStatus, SignalOp
@@ -236,10 +237,7 @@ class ModbusSignalsRobot:
 
 async def modbus_signals(spec: Any) -> ModbusSignalsRobot:
     """The equipment factory of the ``modbus-signals`` driver (``spec``: a ControllerEquipmentSpec)."""
-    settings = dict(spec.settings)
-    unknown = sorted(set(settings) - set(SETTINGS))
-    if unknown:
-        raise ValueError(f"the modbus-signals driver has no setting {unknown[0]!r} (it knows {', '.join(SETTINGS)})")
+    settings = driver_settings("modbus-signals", spec.settings, SETTINGS)
     host = settings.get("host")
     if not isinstance(host, str) or not host:
         raise ValueError('the modbus-signals driver needs host = "<address of the controller or PLC>"')

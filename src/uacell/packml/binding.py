@@ -308,7 +308,14 @@ class UnitBinding:
 
         async def handler(caller: Caller, *values: Any) -> list[Any]:
             log.info("%s: %s.%s by %s", self.unit.name, machine_name or "unit", method, caller.display_user)
-            self.unit.command(machine_name, method, *convert(*values))
+            args = convert(*values)
+            send = getattr(self.unit.equipment, "send_command", None)
+            if send is not None and machine_name is not None:
+                # A PLC that owns the state (a gateway driver): uacell's rules first, then the PLC must
+                # accept the command before uacell's machines take it (docs/equipment.md, "Gateway").
+                self.unit.check_command(machine_name, method)
+                await send(machine_name, method, args)
+            self.unit.command(machine_name, method, *args)
             await self.stored()
             return []
 

@@ -30,8 +30,8 @@ ACTING_STATES = (
 )
 
 
-# The drivers shipped for PackML units (docs/equipment.md, "Gateway"): none yet.
-DRIVERS: dict[str, str] = {}
+# The drivers shipped for PackML units (docs/equipment.md, "Gateway"): equipment = { driver = ... }.
+DRIVERS = {"opcua-packtags": "uacell.gateway.packml_opcua:opcua_packtags"}
 
 
 @dataclass

@@ -189,8 +189,8 @@ class EquipmentBase:
     def on_interlock(self, interlock_id: int, interlocked: bool) -> None:
         pass
 
-    def close(self) -> None:
-        pass
+    def close(self) -> Awaitable[None] | None:
+        return None
 
 
 class InstantEquipment(EquipmentBase):

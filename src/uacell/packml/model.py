@@ -321,8 +321,31 @@ class PackMLUnit:
     def unit_mode(self) -> int:
         return self.status.unit_mode_current
 
+    @property
+    def reachable(self) -> bool:
+        """False while equipment that says so (a gateway driver's ``reachable``) cannot reach its PLC."""
+        return bool(getattr(getattr(self, "equipment", None), "reachable", True))
+
+    def check_reachable(self) -> None:
+        """Bad_CommunicationError while the equipment cannot reach its PLC: nothing is tried."""
+        if not self.reachable:
+            raise CallError("BadCommunicationError", f"{self.name}: the PLC cannot be reached")
+
+    def check_command(self, machine_name: str | None, method: str) -> None:
+        """Would ``method`` of ``machine_name`` be accepted now (CallError if not)? Nothing changes."""
+        self.check_reachable()
+        why = self._refusal(machine_name, method)
+        if why is not None:
+            if machine_name is not UNIT and (
+                machine_name not in self.machines or method not in self.machines[machine_name].table.methods
+            ):
+                raise CallError("BadMethodInvalid", why)
+            raise CallError("BadInvalidState", why)
+
     def executable(self, machine_name: str | None, method: str) -> bool:
         """True exactly when calling ``method`` now could succeed (decision 4)."""
+        if not self.reachable:
+            return False
         known = self._executable_now().get((machine_name, method))
         return known if known is not None else self._refusal(machine_name, method) is None
 
@@ -381,7 +404,8 @@ class PackMLUnit:
             "Admin/MachDesignSpeed": a.mach_design_speed,
             **self._durable(),
             **self.oee_values(),
-            "Executable": dict(self._executable_now()),
+            # unreachable equipment (a gateway's PLC away): nothing is Executable
+            "Executable": dict(self._executable_now()) if self.reachable else dict.fromkeys(self.methods(), False),
         }
 
     def oee_figures(self) -> Figures:
@@ -397,6 +421,7 @@ class PackMLUnit:
 
     def command(self, machine_name: str | None, method: str, *args: Any) -> None:
         """Call ``method`` of ``machine_name`` (None: a unit method) with the method's input arguments."""
+        self.check_reachable()
         if machine_name is UNIT:
             handlers: dict[str, Callable[..., Any]] = {
                 "SetUnitMode": self.set_unit_mode,

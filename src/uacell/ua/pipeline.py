@@ -10,7 +10,9 @@ asyncua offers no middleware, so uacell wraps its entry points once, here, proce
   ``UaProcessor.open_secure_channel``): the server's ``channel_guard`` (``security.py``: only the
   policies and modes the endpoints offer); a message asyncua refuses there or in its chunk handling
   goes to the server's ``refused`` (one INFO line, an Error message) and closes the connection;
-- each service request (``UaProcessor._process_message``): the server's ``stages``, in order;
+- each service request (``UaProcessor._process_message``): the server's ``stages``, in order; a
+  Call runs in a task of its own (up to ``CALLS_APART`` per connection), so one that waits for
+  equipment does not hold up the connection's other requests;
 - a session's Call, Read and HistoryRead (``InternalSession``): the session known while they run, and
   the read hooks (``ua/context.py``).
 
@@ -32,7 +34,9 @@ stage is one entry in that list.
 
 from __future__ import annotations
 
+import asyncio
 import functools
+import logging
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -44,6 +48,8 @@ from asyncua.server.internal_session import InternalSession
 from asyncua.server.uaprocessor import UaProcessor
 
 from uacell.ua import context
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(slots=True)
@@ -167,7 +173,41 @@ async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any
     pipeline = Pipeline.of(self.iserver)
     if pipeline is None:
         return await _ORIGINAL_PROCESS_MESSAGE(self, typeid, requesthdr, seqhdr, body)
-    return await pipeline.request(Request(self, typeid, requesthdr, seqhdr, body))
+    request = Request(self, typeid, requesthdr, seqhdr, body)
+    if typeid == _CALL:
+        # A call may wait for equipment (a PLC confirming a command): it runs apart, so the
+        # connection keeps answering its other requests (a client's keep-alive Read) meanwhile;
+        # its response goes out when it is done (OPC UA matches responses by RequestHandle).
+        running: set[asyncio.Task[None]] = self.__dict__.setdefault("_uacell_calls", set())
+        if len(running) < CALLS_APART:
+            task = asyncio.get_running_loop().create_task(_call_apart(pipeline, request))
+            running.add(task)
+            task.add_done_callback(running.discard)
+            return True
+    return await pipeline.request(request)
+
+
+_CALL = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
+CALLS_APART = 16  # calls of one connection under way at once; more wait their turn
+
+
+async def _call_apart(pipeline: Pipeline, request: Request) -> None:
+    """One Call request, as asyncua's ``process_message`` would run it, in a task of its own."""
+    processor = request.processor
+    try:
+        if await pipeline.request(request) is False:
+            processor._transport.close()
+    except (ServiceError, ua.UaStatusCodeError) as exc:
+        _fault(processor, request, exc.code)
+    except Exception:
+        log.exception("a Call request failed")
+        _fault(processor, request, ua.StatusCodes.BadInternalError)
+
+
+def _fault(processor: UaProcessor, request: Request, code: int) -> None:
+    response = ua.ServiceFault()
+    response.ResponseHeader.ServiceResult = ua.StatusCode(code)
+    processor.send_response(request.header.RequestHandle, request.seqhdr, response)
 
 
 async def _process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:

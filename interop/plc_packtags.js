@@ -1,0 +1,177 @@
+// A PLC for uacell's gateway: node-opcua's server holding ISA-TR88 PackTags for one or more units,
+// and a scan-cycle program running each unit's TR88 state machine (the PLC owns the state).
+//
+//   node interop/plc_packtags.js PORT [UNIT,UNIT,...] [ACTING_MS]
+//
+// Tags, per unit U (namespace urn:uacell:plc, string NodeIds "U.PackTags.<path>"):
+//   Command.CntrlCmd (Int32), Command.CmdChangeRequest (Boolean), Command.UnitMode (Int32),
+//   Command.UnitModeChangeRequest (Boolean), Command.MachSpeed (Float), Command.Parameter[i].Value (Float, 5),
+//   Status.StateCurrent (Int32, TR88 numbers), Status.UnitModeCurrent (Int32), Status.CurMachSpeed (Float),
+//   Status.MachSpeed (Float), Admin.ProdProcessedCount (Int32), Admin.ProdDefectiveCount (Int32),
+//   Admin.StopReason.ID (Int32);
+//   and for tests: Sim.Refuse (Boolean: requests are taken and ignored), Sim.Frozen (Boolean: no scan),
+//   Sim.Fault (Boolean: a rising edge aborts the unit with StopReason 42), Sim.Parameters (Float[]: the
+//   Command.Parameter values the last Start took).
+// The program, every 5 ms: take a change request (clear it; act on it when TR88 allows the command in the
+// state), end an acting state after ACTING_MS, produce in Execute at MachSpeed packages/min.
+// Prints "listening" once clients can connect; stops on SIGTERM.
+"use strict";
+const { OPCUAServer } = require("node-opcua-server");
+const { DataType, Variant, StatusCodes } = require("node-opcua-client");
+
+const S = {
+  Clearing: 1, Stopped: 2, Starting: 3, Idle: 4, Suspended: 5, Execute: 6, Stopping: 7, Aborting: 8,
+  Aborted: 9, Holding: 10, Held: 11, Unholding: 12, Suspending: 13, Unsuspending: 14, Resetting: 15,
+  Completing: 16, Complete: 17,
+};
+const ACTING_NEXT = {
+  [S.Clearing]: S.Stopped, [S.Starting]: S.Execute, [S.Stopping]: S.Stopped, [S.Aborting]: S.Aborted,
+  [S.Holding]: S.Held, [S.Unholding]: S.Execute, [S.Suspending]: S.Suspended, [S.Unsuspending]: S.Execute,
+  [S.Resetting]: S.Idle, [S.Completing]: S.Complete,
+};
+const STOPPABLE = [S.Idle, S.Starting, S.Execute, S.Holding, S.Held, S.Unholding, S.Suspending, S.Suspended,
+  S.Unsuspending, S.Completing, S.Complete, S.Resetting];
+// CntrlCmd -> (from states -> to state)
+const COMMANDS = {
+  1: [[S.Stopped, S.Complete], S.Resetting],
+  2: [[S.Idle], S.Starting],
+  3: [STOPPABLE, S.Stopping],
+  4: [[S.Execute], S.Holding],
+  5: [[S.Held], S.Unholding],
+  6: [[S.Execute], S.Suspending],
+  7: [[S.Suspended], S.Unsuspending],
+  8: [Object.values(S).filter((s) => s !== S.Aborting && s !== S.Aborted), S.Aborting],
+  9: [[S.Aborted], S.Clearing],
+  10: [[S.Execute], S.Completing],
+};
+const PARAMETERS = 5;
+
+function tagsOf() {
+  const t = {
+    "Command.CntrlCmd": [DataType.Int32, 0], "Command.CmdChangeRequest": [DataType.Boolean, false],
+    "Command.UnitMode": [DataType.Int32, 1], "Command.UnitModeChangeRequest": [DataType.Boolean, false],
+    "Command.MachSpeed": [DataType.Float, 60.0],
+    "Status.StateCurrent": [DataType.Int32, S.Stopped], "Status.UnitModeCurrent": [DataType.Int32, 1],
+    "Status.CurMachSpeed": [DataType.Float, 0.0], "Status.MachSpeed": [DataType.Float, 60.0],
+    "Admin.ProdProcessedCount": [DataType.Int32, 0], "Admin.ProdDefectiveCount": [DataType.Int32, 0],
+    "Admin.StopReason.ID": [DataType.Int32, 0],
+    "Sim.Refuse": [DataType.Boolean, false], "Sim.Frozen": [DataType.Boolean, false],
+    "Sim.Fault": [DataType.Boolean, false],
+  };
+  for (let i = 0; i < PARAMETERS; i++) t[`Command.Parameter[${i}].Value`] = [DataType.Float, 0.0];
+  return t;
+}
+
+class Unit {
+  constructor(name, actingMs) {
+    this.name = name;
+    this.actingMs = actingMs;
+    this.v = {};
+    this.types = {};
+    for (const [k, [type, value]] of Object.entries(tagsOf())) {
+      this.v[k] = value;
+      this.types[k] = type;
+    }
+    this.v["Sim.Parameters"] = [];
+    this.enteredAt = Date.now();
+    this.produced = 0;
+    this.lastFault = false;
+  }
+  enter(state) {
+    this.v["Status.StateCurrent"] = state;
+    this.enteredAt = Date.now();
+  }
+  scan(now) {
+    const v = this.v;
+    if (v["Sim.Frozen"]) return;
+    const state = v["Status.StateCurrent"];
+    if (v["Sim.Fault"] && !this.lastFault && COMMANDS[8][0].includes(state)) {
+      v["Admin.StopReason.ID"] = 42;
+      this.enter(S.Aborting);
+    }
+    this.lastFault = v["Sim.Fault"];
+    if (v["Command.CmdChangeRequest"]) {
+      v["Command.CmdChangeRequest"] = false;
+      const rule = COMMANDS[v["Command.CntrlCmd"]];
+      if (!v["Sim.Refuse"] && rule && rule[0].includes(v["Status.StateCurrent"])) {
+        if (v["Command.CntrlCmd"] === 2) {
+          this.v["Sim.Parameters"] = [...Array(PARAMETERS).keys()].map((i) => v[`Command.Parameter[${i}].Value`]);
+        }
+        this.enter(rule[1]);
+      }
+    }
+    if (v["Command.UnitModeChangeRequest"]) {
+      v["Command.UnitModeChangeRequest"] = false;
+      const s = v["Status.StateCurrent"];
+      if (!v["Sim.Refuse"] && [S.Stopped, S.Idle, S.Aborted].includes(s)) v["Status.UnitModeCurrent"] = v["Command.UnitMode"];
+    }
+    if (v["Command.MachSpeed"] > 0) v["Status.MachSpeed"] = v["Command.MachSpeed"];
+    const current = v["Status.StateCurrent"];
+    if (ACTING_NEXT[current] !== undefined && now - this.enteredAt >= this.actingMs) this.enter(ACTING_NEXT[current]);
+    if (v["Status.StateCurrent"] === S.Execute) {
+      v["Status.CurMachSpeed"] = v["Status.MachSpeed"];
+      this.produced += (v["Status.MachSpeed"] / 60000) * (now - (this.lastScan || now));
+      const whole = Math.floor(this.produced);
+      if (whole > 0) {
+        this.produced -= whole;
+        v["Admin.ProdProcessedCount"] += whole;
+      }
+    } else {
+      v["Status.CurMachSpeed"] = 0.0;
+    }
+    this.lastScan = now;
+  }
+}
+
+async function main() {
+  const port = Number(process.argv[2]);
+  const names = (process.argv[3] || "Capper").split(",").filter((n) => n);
+  const actingMs = Number(process.argv[4] || 100);
+  const server = new OPCUAServer({ port, hostname: "127.0.0.1", serverInfo: { applicationUri: "urn:uacell:plc" } });
+  await server.initialize();
+  const space = server.engine.addressSpace;
+  const ns = space.registerNamespace("urn:uacell:plc");
+  const units = names.map((n) => new Unit(n, actingMs));
+  for (const unit of units) {
+    const folder = ns.addObject({ browseName: unit.name, nodeId: `s=${unit.name}`, organizedBy: space.rootFolder.objects });
+    const keys = [...Object.keys(unit.types), "Sim.Parameters"];
+    for (const key of keys) {
+      const array = key === "Sim.Parameters";
+      ns.addVariable({
+        componentOf: folder,
+        browseName: `PackTags.${key}`,
+        nodeId: `s=${unit.name}.PackTags.${key}`,
+        dataType: array ? DataType.Float : unit.types[key],
+        valueRank: array ? 1 : -1,
+        accessLevel: "CurrentRead | CurrentWrite",
+        userAccessLevel: "CurrentRead | CurrentWrite",
+        minimumSamplingInterval: 10,
+        value: {
+          get: () => new Variant({ dataType: array ? DataType.Float : unit.types[key],
+            arrayType: array ? 1 : undefined, value: unit.v[key] }),
+          set: (variant) => {
+            if (array) return StatusCodes.BadNotWritable;
+            if (variant.dataType !== unit.types[key]) return StatusCodes.BadTypeMismatch;
+            unit.v[key] = variant.value;
+            return StatusCodes.Good;
+          },
+        },
+      });
+    }
+  }
+  setInterval(() => {
+    const now = Date.now();
+    for (const unit of units) unit.scan(now);
+  }, 5);
+  await server.start();
+  process.stdout.write("listening\n");
+  process.on("SIGTERM", async () => {
+    await server.shutdown(0);
+    process.exit(0);
+  });
+}
+
+main().catch((err) => {
+  console.error(err && err.stack ? err.stack : String(err));
+  process.exit(1);
+});

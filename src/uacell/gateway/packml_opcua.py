@@ -1,0 +1,294 @@
+"""A PackML unit whose state machine runs in a PLC, over the PLC's PackTags on OPC UA: the
+``opcua-packtags`` driver (docs/equipment.md, "Gateway").
+
+    [[packml_units]]
+    name = "Capper"
+    equipment = { driver = "opcua-packtags", endpoint = "opc.tcp://10.0.0.5:4840/", prefix = "ns=3;s=Capper.PackTags" }
+
+The PLC owns the state. A command a client calls is first checked by uacell's own rules (roles,
+Executable, locks, the TR88 table), then written as PackTags (Start's parameters to
+``Command.Parameter[i].Value``, then ``Command.CntrlCmd``, then ``Command.CmdChangeRequest``); the call
+answers Good once the PLC accepted it (its state moved), Bad_InvalidState when the PLC took the
+request and did nothing, Bad_Timeout when it did not take it in ``confirm_timeout`` (the request is
+cleared again), Bad_CommunicationError without a connection. uacell's three state machines then
+follow ``Status.StateCurrent``: an acting state the PLC leaves is completed, a transition the PLC
+takes on its own (Complete, Hold, Abort on a fault with ``Admin.StopReason``) is taken as the
+machine's own; production counts follow ``Admin.ProdProcessedCount`` / ``ProdDefectiveCount``;
+SetMachSpeed writes ``Command.MachSpeed``. While the PLC cannot be reached every command answers
+Bad_CommunicationError and is not Executable, and the unit shows warning 9001 ("communication
+lost"); it resumes from the PLC's state when the PLC answers again. Nothing is queued or replayed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Awaitable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from asyncua import ua
+
+from uacell.errors import CallError
+from uacell.gateway import driver_settings
+from uacell.gateway.handshake import COMMANDS, Handshake, PlcStatus
+from uacell.gateway.modbus import CommunicationError
+from uacell.gateway.opcua_link import LinkPool, PlcLink
+from uacell.gateway.packtags import PackTagsMapError, ResolvedTag, resolve
+from uacell.packml.equipment import EquipmentBase
+from uacell.packml.types import PackMLDescriptorDataType
+
+log = logging.getLogger(__name__)
+
+SETTINGS = ("endpoint", "prefix", "map", "parameters", "confirm_timeout", "publishing_interval")
+POOL = LinkPool()
+COMMUNICATION_WARNING = 9001
+# TR88 state numbers (Status.StateCurrent)
+STATES = {
+    1: "Clearing", 2: "Stopped", 3: "Starting", 4: "Idle", 5: "Suspended", 6: "Execute", 7: "Stopping",
+    8: "Aborting", 9: "Aborted", 10: "Holding", 11: "Held", 12: "Unholding", 13: "Suspending",
+    14: "Unsuspending", 15: "Resetting", 16: "Completing", 17: "Complete",
+}  # fmt: skip
+# The command each state is entered by (the machine's own transitions, for a PLC that moved by itself)
+ENTERED_BY = {
+    "Starting": "Start", "Resetting": "Reset", "Stopping": "Stop", "Aborting": "Abort", "Clearing": "Clear",
+    "Holding": "Hold", "Unholding": "Unhold", "Suspending": "Suspend", "Unsuspending": "Unsuspend",
+    "Completing": "ToComplete",
+}  # fmt: skip
+# uacell's method -> the PackTags command
+PACKTAGS_COMMAND = {"ToComplete": "Complete"}
+_TYPES = {"Int32": ua.VariantType.Int32, "Boolean": ua.VariantType.Boolean, "Float": ua.VariantType.Float}
+
+
+@dataclass(frozen=True)
+class Timing:
+    confirm_timeout: float = 3.0
+    poll: float = 0.01
+
+
+class OpcUaPackTagsUnit(EquipmentBase):
+    def __init__(self, part: str, link: PlcLink, tags: Mapping[str, ResolvedTag], timing: Timing) -> None:
+        self.part, self.link, self.tags, self.timing = part, link, dict(tags), timing
+        self.plc: dict[str, Any] = {}  # tag key -> last value
+        self._by_node = {t.node_id: k for k, t in self.tags.items()}
+        self.reachable = False
+        self._inflight = False
+        self._counted: dict[str, int] = {}
+        self._attached = False
+        self._aborting = False
+
+    # -- the PLC's values -------------------------------------------------------------------------
+
+    def _tag(self, key: str) -> str:
+        return self.tags[key].node_id
+
+    def on_value(self, node_id: str, value: Any) -> None:
+        key = self._by_node.get(node_id)
+        if key is None:
+            return
+        expected = self.tags[key].type_name
+        if value is not None and not _is(value, expected):
+            log.error("%s: %s (%s) holds %r, not a %s", self.part, key, node_id, value, expected)
+            return
+        self.plc[key] = value
+        if key in ("Admin.ProdProcessedCount", "Admin.ProdDefectiveCount"):
+            self._count(key, int(value))
+        elif key == "Status.StateCurrent" and not self._inflight:
+            self.follow()
+
+    def on_connection(self, connected: bool) -> None:
+        self.reachable = connected
+        if not self._attached:
+            return
+        self.unit.warning(COMMUNICATION_WARNING, f"communication lost: {self.link.endpoint}", active=not connected)
+        if connected:
+            self.follow()
+
+    def _count(self, key: str, value: int) -> None:
+        before = self._counted.get(key)
+        self._counted[key] = value
+        if before is None or value <= before or not self._attached:
+            return  # the first value is where the PLC's count stands; a reset of the PLC's count is not production
+        delta = value - before
+        if key == "Admin.ProdProcessedCount":
+            self.unit.report_production(processed=delta)
+        else:
+            self.unit.report_production(defective=delta)
+
+    # -- the model follows the PLC ----------------------------------------------------------------
+
+    def attach(self, unit: Any) -> None:
+        super().attach(unit)
+        self._attached = True
+        if not self.reachable:
+            unit.warning(COMMUNICATION_WARNING, f"communication lost: {self.link.endpoint}", active=True)
+        asyncio.get_running_loop().call_soon(self.follow)
+
+    def follow(self) -> None:
+        """Bring uacell's machines to the PLC's state, one TR88 step at a time."""
+        if not self._attached or self._inflight:
+            return
+        target = STATES.get(self.plc.get("Status.StateCurrent", 0))
+        if target is None:
+            return
+        for _ in range(8):
+            current = self.unit.state
+            if current == target:
+                return
+            try:
+                if self.unit.acting_state == current:  # the PLC left the acting state: it is done
+                    self.unit.state_complete(current)
+                    continue
+                method = ENTERED_BY.get(target if target != "Aborted" else "Aborting")
+                if method == "Abort":  # the PLC aborted: with its StopReason, read now (it may come after the state)
+                    if not self._aborting:
+                        self._aborting = True
+                        asyncio.get_running_loop().create_task(self._abort_with_reason())
+                    return
+                if method is None:
+                    break
+                self.unit.equipment_command(method)
+            except CallError:
+                break
+        if self.unit.state != target:
+            log.warning(
+                "%s: the PLC is in %s, uacell's machines in %s (no TR88 step leads there)",
+                self.part,
+                target,
+                self.unit.state,
+            )
+
+    async def _abort_with_reason(self) -> None:
+        try:
+            reason = int(await self.link.read(self._tag("Admin.StopReason")) or 0)
+        except CommunicationError:
+            reason = 0
+        finally:
+            self._aborting = False
+        if self.unit.state in ("Aborting", "Aborted"):
+            self.follow()
+            return
+        try:
+            if reason:
+                self.unit.fault(reason, f"the PLC stopped the unit (StopReason {reason})")
+            else:
+                self.unit.equipment_command("Abort")
+        except CallError:
+            pass
+        self.follow()
+
+    # -- commands ---------------------------------------------------------------------------------
+
+    async def send_command(self, machine: str | None, method: str, args: Sequence[Any]) -> None:
+        """Write a machine command as PackTags and wait until the PLC accepted it (module doc)."""
+        if machine is None:
+            return  # unit methods: SetMachSpeed writes Command.MachSpeed (on_mach_speed), others stay uacell's
+        name = PACKTAGS_COMMAND.get(method, method)
+        if name not in COMMANDS:
+            return
+        parameters: list[float] = []
+        if method == "Start" and args:
+            given: Sequence[PackMLDescriptorDataType] = args[0] or ()
+            parameters = [float(p.value) for p in given]
+            room = sum(1 for k in self.tags if k.startswith("Command.Parameter["))
+            if len(parameters) > room:
+                raise CallError(
+                    "BadInvalidArgument", f"the PLC takes {room} parameters, not {len(parameters)}", argument=0
+                )
+        self._inflight = True
+        try:
+            status = await self._status()
+            try:
+                shake = Handshake.command(name, status, time.monotonic(), self.timing.confirm_timeout, parameters)
+            except CallError as e:
+                log.info("%s: %s not sent to the PLC: %s (%s)", self.part, method, e.message, e.status)
+                raise
+            try:
+                for w in shake.writes:
+                    await self.link.write(self._tag(w.tag), w.value, _TYPES[self.tags[w.tag].type_name])
+                while not shake.observe(await self._status(), time.monotonic()):
+                    await asyncio.sleep(self.timing.poll)
+            except CallError as e:
+                log.info("%s: %s was not accepted by the PLC: %s (%s)", self.part, method, e.message, e.status)
+                if e.status != "BadCommunicationError":
+                    for w in shake.undo:
+                        await self.link.write(self._tag(w.tag), w.value, ua.VariantType.Boolean)
+                raise
+        except CommunicationError as e:
+            raise CallError("BadCommunicationError", str(e)) from None
+        finally:
+            self._inflight = False
+            asyncio.get_running_loop().call_soon(self.follow)  # after the model took the command
+
+    async def _status(self) -> PlcStatus:
+        try:  # in one Read: a cleared request and the state it led to come from the same scan
+            state, request = await self.link.read_many(
+                [self._tag("Status.StateCurrent"), self._tag("Command.CmdChangeRequest")]
+            )
+            mode = self.plc.get("Status.UnitModeCurrent", 0)
+        except CommunicationError:
+            return PlcStatus(0, 0, False, connected=False)
+        self.plc["Status.StateCurrent"] = state
+        return PlcStatus(int(state), int(mode or 0), bool(request))
+
+    def on_mach_speed(self, speed: float) -> None:
+        if not self.reachable:
+            raise CallError("BadCommunicationError", f"no connection to the PLC at {self.link.endpoint}")
+        task = asyncio.get_running_loop().create_task(
+            self.link.write(self._tag("Command.MachSpeed"), float(speed), ua.VariantType.Float)
+        )
+        task.add_done_callback(_log_failure(self.part, "Command.MachSpeed"))
+
+    def close(self) -> Awaitable[None]:
+        return POOL.release(self.link)
+
+
+def _log_failure(part: str, what: str) -> Any:
+    def done(task: asyncio.Task[None]) -> None:
+        if not task.cancelled() and task.exception() is not None:
+            log.warning("%s: writing %s failed: %s", part, what, task.exception())
+
+    return done
+
+
+def _is(value: Any, type_name: str) -> bool:
+    if type_name == "Boolean":
+        return isinstance(value, bool)
+    if type_name == "Int32":
+        return isinstance(value, int) and not isinstance(value, bool)
+    return isinstance(value, float | int) and not isinstance(value, bool)
+
+
+async def opcua_packtags(spec: Any) -> OpcUaPackTagsUnit:
+    """The equipment factory of the ``opcua-packtags`` driver."""
+    settings = driver_settings("opcua-packtags", spec.settings, SETTINGS)
+    endpoint = settings.get("endpoint")
+    if not isinstance(endpoint, str) or not endpoint.startswith("opc.tcp://"):
+        raise ValueError('the opcua-packtags driver needs endpoint = "opc.tcp://<plc>:4840/"')
+    try:
+        tags = resolve(
+            spec.part,
+            str(settings.get("prefix", "")),
+            {str(k): str(v) for k, v in dict(settings.get("map", {})).items()},
+            parameters=int(settings.get("parameters", 5)),
+        )
+    except PackTagsMapError as e:
+        raise ValueError(str(e)) from None
+    timing = Timing(confirm_timeout=float(settings.get("confirm_timeout", Timing.confirm_timeout)))
+    link = POOL.get(endpoint, float(settings.get("publishing_interval", 0.02)))
+    unit = OpcUaPackTagsUnit(spec.part, link, tags, timing)
+    watched = [
+        tags[k].node_id
+        for k in (
+            "Status.StateCurrent",
+            "Status.UnitModeCurrent",
+            "Admin.ProdProcessedCount",
+            "Admin.ProdDefectiveCount",
+            "Admin.StopReason",
+        )
+    ]
+    link.start()
+    await link.watch(watched, unit.on_value, unit.on_connection)
+    await link.wait_connected(3.0)  # unreachable at start: uacell serves anyway, the unit reports it
+    return unit

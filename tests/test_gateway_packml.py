@@ -1,0 +1,233 @@
+"""PackML units whose state machine runs in a PLC, served by uacell from the cell file alone (the
+opcua-packtags driver): node-opcua's server holds the PackTags and runs a TR88 scan-cycle program
+(interop/plc_packtags.js) on a free port; an asyncua client drives uacell, which drives the PLC."""
+
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from asyncua import Client, ua
+from conftest import fast_config, serving
+from helpers import call_path, free_port
+
+from uacell.cell_file import builtin_cell_path
+from uacell.config import load_cell
+from uacell.server import UacellServer
+
+pytestmark = pytest.mark.interop
+INTEROP = Path(__file__).resolve().parents[1] / "interop"
+F = "Capper"
+BASE = f"{F}.BaseStateMachine"
+MACH = f"{BASE}.MachineState"
+EXEC = f"{MACH}.ExecuteState"
+
+
+class PLC:
+    def __init__(self, units: list[str], acting_ms: int = 100) -> None:
+        self.port, self.units, self.acting_ms = free_port(), units, acting_ms
+        self.proc: subprocess.Popen[str] | None = None
+        self.client: Client | None = None
+
+    @property
+    def endpoint(self) -> str:
+        return f"opc.tcp://127.0.0.1:{self.port}/"
+
+    def start(self) -> None:
+        cmd = ["node", str(INTEROP / "plc_packtags.js"), str(self.port), ",".join(self.units), str(self.acting_ms)]
+        self.proc = subprocess.Popen(cmd, cwd=INTEROP, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        assert self.proc.stdout is not None
+        deadline = time.monotonic() + 60
+        for line in self.proc.stdout:
+            if line.strip() == "listening":
+                return
+            assert time.monotonic() < deadline
+        raise RuntimeError("the PLC did not start")
+
+    def kill(self) -> None:
+        if self.proc is not None:
+            self.proc.kill()
+            self.proc.wait(10)
+            if self.proc.stdout is not None:
+                self.proc.stdout.close()
+            self.proc = None
+
+    async def tag(self, unit: str, path: str) -> Any:
+        assert self.client is not None
+        return await self.client.get_node(ua.NodeId(f"{unit}.PackTags.{path}", 1)).read_value()
+
+    async def set(self, unit: str, path: str, value: Any, vtype: ua.VariantType) -> None:
+        assert self.client is not None
+        await self.client.get_node(ua.NodeId(f"{unit}.PackTags.{path}", 1)).write_value(ua.Variant(value, vtype))
+
+
+def cell(plc: PLC, units: list[str]) -> str:
+    return "".join(
+        f"""
+[[packml_units]]
+name = "{u}"
+equipment = {{ driver = "opcua-packtags", endpoint = "{plc.endpoint}", prefix = "ns=1;s={u}.PackTags" }}
+"""
+        for u in units
+    )
+
+
+@pytest.fixture
+async def plc() -> AsyncIterator[PLC]:
+    p = PLC([F])
+    p.start()
+    try:
+        async with Client(p.endpoint, timeout=10) as client:
+            p.client = client
+            yield p
+            p.client = None
+    finally:
+        p.kill()
+
+
+@pytest.fixture
+async def served(tmp_path: Path, plc: PLC) -> AsyncIterator[tuple[UacellServer, Client]]:
+    path = tmp_path / "cell.toml"  # the shipped example, nothing changed but the PLC's port
+    path.write_text(builtin_cell_path("packtags-unit").read_text().replace(":4841/", f":{plc.port}/"))
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(path)
+    async with serving(config) as s:
+        await s[1].load_data_type_definitions()
+        yield s
+
+
+async def state(client: Client, machine: str) -> str | None:
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    dv = await client.get_node(ua.NodeId(f"{machine}.CurrentState", ns)).read_data_value(raise_on_bad_status=False)
+    return dv.Value.Value.Text if dv.StatusCode.is_good() else None
+
+
+async def until(read: Any, expected: Any, timeout: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout
+    while (got := await read()) != expected:
+        assert time.monotonic() < deadline, f"{got!r}, waited for {expected!r}"
+        await asyncio.sleep(0.02)
+
+
+async def read(client: Client, path: str) -> Any:
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    return await client.get_node(ua.NodeId(path, ns)).read_value()
+
+
+def params(*pairs: tuple[int, float]) -> ua.Variant:
+    return ua.Variant(
+        [ua.PackMLDescriptorDataType(ID=i, Name=f"P{i}", Unit=ua.EUInformation(), Value=v) for i, v in pairs],
+        ua.VariantType.ExtensionObject,
+        is_array=True,
+    )
+
+
+async def test_a_full_cycle_goes_to_the_plc_and_comes_back(served, plc: PLC) -> None:
+    _app, client = served
+    assert await plc.tag(F, "Status.StateCurrent") == 2  # Stopped
+    assert await state(client, MACH) == "Stopped"
+    res = await call_path(client, MACH, "Reset")
+    assert res.StatusCode.is_good(), res.StatusCode
+    assert await plc.tag(F, "Status.StateCurrent") in (15, 4)  # the PLC took it before the call answered
+    await until(lambda: state(client, EXEC), "Idle")
+    assert (await call_path(client, F, "SetMachSpeed", ua.Variant(120.0, ua.VariantType.Float))).StatusCode.is_good()
+    await until(lambda: plc.tag(F, "Command.MachSpeed"), 120.0)
+    res = await call_path(client, EXEC, "Start", params((1, 180.5), (2, 0.25)))
+    assert res.StatusCode.is_good(), res.StatusCode
+    assert await plc.tag(F, "Sim.Parameters") == pytest.approx([180.5, 0.25, 0.0, 0.0, 0.0])
+    await until(lambda: state(client, EXEC), "Execute")
+    # production: the PLC's count, mirrored into Admin.ProdProcessedCount
+    await until(lambda: plc_count_positive(client), True)
+    assert (await call_path(client, MACH, "Stop")).StatusCode.is_good()
+    await until(lambda: state(client, MACH), "Stopped")
+    assert await plc.tag(F, "Status.StateCurrent") == 2
+    # uacell's own rules before the PLC's: Start is not allowed in Stopped, nothing is written
+    res = await call_path(client, EXEC, "Start", params())
+    assert res.StatusCode.value in (ua.StatusCodes.BadInvalidState, ua.StatusCodes.BadMethodInvalid)
+    assert await plc.tag(F, "Command.CntrlCmd") == 3  # still the Stop
+
+
+async def plc_count_positive(client: Client) -> bool:
+    (count,) = await read(client, f"{F}.Admin.ProdProcessedCount")
+    return bool(count.Count > 0)
+
+
+async def test_a_command_the_plc_refuses_or_never_takes(served, plc: PLC) -> None:
+    _app, client = served
+    await plc.set(F, "Sim.Refuse", True, ua.VariantType.Boolean)
+    res = await call_path(client, MACH, "Reset")
+    assert res.StatusCode.value == ua.StatusCodes.BadInvalidState
+    assert await state(client, MACH) == "Stopped" and await plc.tag(F, "Status.StateCurrent") == 2
+    await plc.set(F, "Sim.Refuse", False, ua.VariantType.Boolean)
+    await plc.set(F, "Sim.Frozen", True, ua.VariantType.Boolean)
+    started = time.monotonic()
+    res = await call_path(client, MACH, "Reset")
+    assert res.StatusCode.value == ua.StatusCodes.BadTimeout
+    assert time.monotonic() - started >= 2.5  # confirm_timeout 3 s
+    assert await plc.tag(F, "Command.CmdChangeRequest") is False  # nothing left half-written
+    assert await state(client, MACH) == "Stopped"
+
+
+async def test_the_plc_faults_and_uacell_aborts_with_its_stop_reason(served, plc: PLC) -> None:
+    _app, client = served
+    assert (await call_path(client, MACH, "Reset")).StatusCode.is_good()
+    await until(lambda: state(client, EXEC), "Idle")
+    await plc.set(F, "Sim.Fault", True, ua.VariantType.Boolean)
+    await until(lambda: state(client, BASE), "Aborted")
+    reason = await read(client, f"{F}.Admin.StopReason")
+    assert reason.ID == 42
+
+
+async def test_the_plc_killed_and_back(served, plc: PLC) -> None:
+    app, client = served
+    plc.client = None
+    plc.kill()
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    reset = client.get_node(ua.NodeId(f"{MACH}.Reset", ns))
+
+    async def executable() -> bool:
+        return bool((await reset.read_attribute(ua.AttributeIds.Executable)).Value.Value)
+
+    await until(executable, False)
+    res = await call_path(client, MACH, "Reset")
+    assert res.StatusCode.value == ua.StatusCodes.BadCommunicationError
+    warnings = await read(client, f"{F}.Admin.Warning")
+    assert any(w.ID == 9001 for w in warnings)
+    plc.port = plc.port  # the same port
+    plc.start()
+    back = time.monotonic()
+    await until(executable, True)
+    assert time.monotonic() - back <= 5.0
+    res = await call_path(client, MACH, "Reset")
+    assert res.StatusCode.is_good(), res.StatusCode
+    assert app is not None
+
+
+async def test_ten_units_on_one_plc_connection(tmp_path: Path) -> None:
+    units = [f"U{i}" for i in range(1, 11)]
+    p = PLC(units)
+    p.start()
+    try:
+        path = tmp_path / "cell.toml"
+        path.write_text(cell(p, units))
+        config = fast_config(tmp_path / "data")
+        config.cell = load_cell(path)
+        async with serving(config) as (_app, client):
+            from uacell.gateway.packml_opcua import POOL
+
+            assert len(POOL._links) == 1  # one connection to the PLC
+            results = {}
+            for u in units:
+                res = await call_path(client, f"{u}.BaseStateMachine.MachineState", "Reset")
+                results[u] = (res.StatusCode.name, await state(client, f"{u}.BaseStateMachine.MachineState"))
+            bad = {u: r for u, r in results.items() if r[0] != "Good"}
+            assert not bad, bad
+            for u in units:
+                await until(lambda u=u: state(client, f"{u}.BaseStateMachine.MachineState.ExecuteState"), "Idle")
+    finally:
+        p.kill()
