@@ -231,3 +231,25 @@ async def test_ten_units_on_one_plc_connection(tmp_path: Path) -> None:
                 await until(lambda u=u: state(client, f"{u}.BaseStateMachine.MachineState.ExecuteState"), "Idle")
     finally:
         p.kill()
+
+
+async def test_node_opcua_runs_a_cycle_through_uacell_to_the_plc(tmp_path: Path) -> None:
+    """The independent client: node-opcua resets and starts (with two parameters) a unit the PLC owns."""
+    from conftest import run_node
+
+    p = PLC(["Filler1"])
+    p.start()
+    try:
+        path = tmp_path / "cell.toml"
+        path.write_text(cell(p, ["Filler1"]))
+        config = fast_config(tmp_path / "data")
+        config.cell = load_cell(path)
+        async with serving(config) as (app, _client), Client(p.endpoint, timeout=10) as plc_client:
+            p.client = plc_client
+            out = await asyncio.to_thread(run_node, "packml_start.js", app.endpoint)
+            assert (out["reset"], out["start"], out["state"]) == ("Good", "Good", "Execute")
+            assert await p.tag("Filler1", "Status.StateCurrent") == 6  # the PLC is in Execute
+            assert await p.tag("Filler1", "Sim.Parameters") == pytest.approx([250.5, -12.25, 0.0, 0.0, 0.0])
+            p.client = None
+    finally:
+        p.kill()
