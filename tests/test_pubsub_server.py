@@ -213,7 +213,13 @@ async def test_a_robot_program_run_arrives_with_its_program_line_and_axis_positi
             for m in sub.data(f"/{TASK}")
             if "ParameterSet/ProgramPointer" in m.get("Payload", {})
         ]
-        assert len(pointers) >= 2  # the line moved while the program ran
+        assert len(pointers) >= 2  # the pointer moved while the program ran
+        lines = [
+            m["Payload"]["ParameterSet/CurrentLine"]["Value"]
+            for m in sub.data(f"/{TASK}")
+            if "ParameterSet/CurrentLine" in m.get("Payload", {})
+        ]
+        assert any(line > 0 for line in lines)  # the source line the robot was at
         so = states(sub, CTRL, so_field)
         assert "Executing" in so
         assert transitions_of(sub, f"{TASK}.Events")[-2:] == ["ReadyToExecuting", "ExecutingToReady"]

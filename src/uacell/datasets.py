@@ -89,6 +89,7 @@ ROBOT_TASK_CONTROL = PartDataSet(
         Item("TaskControlOperation/TaskControlStateMachine/CurrentState", Kind.STATE),
         Item("ParameterSet/TaskProgramName", Kind.PROGRAM),
         Item("ParameterSet/ProgramPointer", Kind.PROGRAM),
+        Item("ParameterSet/CurrentLine", Kind.PROGRAM),  # uacell's own: the program's source line
         Item("ParameterSet/TaskProgramLoaded", Kind.PROGRAM),
     ),
     notifiers=("TaskControlOperation/TaskControlStateMachine",),
