@@ -253,3 +253,46 @@ async def test_node_opcua_runs_a_cycle_through_uacell_to_the_plc(tmp_path: Path)
             p.client = None
     finally:
         p.kill()
+
+
+async def test_config_check_connect_and_a_tag_of_the_wrong_type(
+    tmp_path: Path, plc: PLC, caplog: pytest.LogCaptureFixture
+) -> None:
+    """`uacell config check --connect` tries every tag and names what it found; served anyway, the
+    tag of the wrong type is one log line naming the unit and the tag."""
+    import os
+    import sys
+
+    wrong = f"ns=1;s={F}.PackTags.Sim.Fault"  # a Boolean where StateCurrent (Int32) belongs
+    text = builtin_cell_path("packtags-unit").read_text().replace(":4841/", f":{plc.port}/")
+    overrides = f'"Status.StateCurrent" = "{wrong}", "Admin.StopReason" = "ns=1;s=Nope"'
+    text = text.replace(
+        'prefix = "ns=1;s=Capper.PackTags" }', f'prefix = "ns=1;s=Capper.PackTags", map = {{ {overrides} }} }}'
+    )
+
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    proc = await asyncio.to_thread(
+        subprocess.run,
+        [sys.executable, "-m", "uacell", "config", "check", "--connect", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": src},
+    )
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    lines = proc.stdout.splitlines()
+    assert any("Status.StateCurrent" in ln and "PROBLEM: Boolean = False, expected Int32" in ln for ln in lines), lines
+    assert any("Admin.StopReason" in ln and "PROBLEM: ns=1;s=Nope: BadNodeIdUnknown" in ln for ln in lines), lines
+    assert any("Command.CntrlCmd" in ln and "Int32 = 0" in ln and "PROBLEM" not in ln for ln in lines), lines
+    assert "connect: 15 of 17 as configured" in proc.stdout
+    # served anyway: one log line names the unit, the tag and what it holds; the state is not followed
+    served = tmp_path / "served.toml"
+    served.write_text(text.replace(', "Admin.StopReason" = "ns=1;s=Nope"', ""))
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(served)
+    async with serving(config) as (_app, client):
+        assert await state(client, MACH) == "Stopped"
+        found = [r.getMessage() for r in caplog.records if "Status.StateCurrent" in r.getMessage()]
+        assert found and f"{F}: Status.StateCurrent ({wrong}) holds False, not a Int32" in found[0]

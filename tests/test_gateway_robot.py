@@ -248,3 +248,26 @@ async def test_a_program_without_a_number_is_rejected_before_anything_is_written
         await robot.load("Main", program)
     assert program_key("pick_and_place") == program_key("PickAndPlace") == program_key("pick-and-place")
     conn.close()
+
+
+async def test_config_check_connect_reads_every_signal(tmp_path: Path, plc: PLC) -> None:
+    await plc.io()  # listening
+    good, bad = tmp_path / "good.toml", tmp_path / "bad.toml"
+    good.write_text(cell_text(plc.port))
+    bad.write_text(cell_text(free_port()))  # nobody there
+    env = {**os.environ, "PYTHONPATH": SRC}
+    for path, code in ((good, 0), (bad, 1)):
+        proc = await asyncio.to_thread(
+            subprocess.run,
+            [sys.executable, "-m", "uacell", "config", "check", "--connect", str(path)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            env=env,
+        )
+        assert proc.returncode == code, proc.stdout + proc.stderr
+        if code == 0:
+            assert "connect: 14 of 14 as configured" in proc.stdout
+            assert any("remote_ready" in ln and "discrete 0 = True" in ln for ln in proc.stdout.splitlines())
+        else:
+            assert "(endpoint)  PROBLEM: unreachable" in proc.stdout

@@ -446,9 +446,8 @@ async def test_current_line_and_program_pointer_follow_the_run_and_return_to_zer
         assert await node.read_data_type() == ua.NodeId(ua.ObjectIds.UInt32)
         assert (await node.read_browse_name()).NamespaceIndex == r.ns
         assert (await node.read_description()).Text.startswith("uacell: ")
-        # ProgramPointer is historized (uacell.datasets): it may be read, and history-read, not written
-        history = {ua.AccessLevel.HistoryRead} if node is pointer else set()
-        assert await node.get_access_level() == {ua.AccessLevel.CurrentRead, *history}
+        # both are historized (uacell.datasets): they may be read, and history-read, not written
+        assert await node.get_access_level() == {ua.AccessLevel.CurrentRead, ua.AccessLevel.HistoryRead}
         with pytest.raises(ua.UaStatusCodeError):
             await node.write_value(ua.Variant(7, ua.VariantType.UInt32))
     assert (await line.read_value(), await pointer.read_value()) == (0, 0)

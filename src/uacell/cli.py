@@ -130,6 +130,9 @@ def _parser() -> argparse.ArgumentParser:
     confsub = conf.add_subparsers(dest="action", required=True)
     check = confsub.add_parser("check", help="validate a configuration and print the cell it would serve")
     check.add_argument("file", nargs="?", type=Path, help="TOML configuration file (default: none, the demo cell)")
+    check.add_argument(
+        "--connect", action="store_true", help="also try every PLC endpoint and tag the gateway drivers name"
+    )
 
     user = leaf(sub, "user", "manage the users who may log in")
     usub = user.add_subparsers(dest="action", required=True)
@@ -202,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
             from uacell.config_preview import run_check
 
             # the file named after `check`, else the global --config (or $UACELL_CONFIG), else none
-            return run_check(args.file or getattr(args, "config", None))
+            return run_check(args.file or getattr(args, "config", None), connect=args.connect)
         config = resolve_config(args)
         if args.command == "serve":
             return _serve(args, config)

@@ -64,8 +64,26 @@ def check_lines(config: Config) -> list[str]:
     return lines
 
 
-def run_check(path: Path | None) -> int:
-    for line in check_lines(load_config(path)):
+def run_check(path: Path | None, connect: bool = False) -> int:
+    """Print what ``path`` would serve; ``connect``: also try every endpoint and tag of the gateway
+    drivers the cell names (a table; exit status 1 when one is not as configured)."""
+    config = load_config(path)
+    for line in check_lines(config):
         print(line)
     print("configuration OK")
-    return 0
+    if not connect:
+        return 0
+    import asyncio
+    import logging
+
+    from uacell.gateway.probe import probe, table
+
+    for noisy in ("asyncua", "pymodbus"):  # the table says what they found
+        logging.getLogger(noisy).setLevel(logging.ERROR)
+
+    rows = asyncio.run(probe(config.cell.parts()))
+    for line in table(rows):
+        print(line)
+    problems = sum(not r.ok for r in rows)
+    print(f"connect: {len(rows) - problems} of {len(rows)} as configured" if rows else "")
+    return 1 if problems else 0

@@ -1,0 +1,124 @@
+"""``uacell config check --connect``: try every endpoint and tag the gateway drivers of a cell name,
+and say for each what was found (docs/equipment.md, "Gateway")."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from asyncua import Client, ua
+
+from uacell.cell_file import Part
+from uacell.gateway.modbus import CommunicationError, ModbusConnection
+from uacell.gateway.modbus_robot import signal_tags
+from uacell.gateway.packtags import PackTagsMapError, resolve
+
+MODBUS = "uacell.gateway.robot:modbus_signals"
+PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
+_BUILTIN = {ua.VariantType.Int32: "Int32", ua.VariantType.Boolean: "Boolean", ua.VariantType.Float: "Float"}
+
+
+@dataclass(frozen=True)
+class Row:
+    part: str
+    endpoint: str
+    tag: str
+    result: str
+    ok: bool
+
+
+def gateway_parts(parts: list[tuple[str, Part]]) -> Iterator[tuple[str, str, Mapping[str, Any]]]:
+    """(part path, driver factory, settings) of every part whose equipment is a shipped driver."""
+
+    def walk(part: Part, path: str) -> Iterator[tuple[str, str, Mapping[str, Any]]]:
+        here = f"{path}.{part.name}" if path else part.name
+        equipment = getattr(part.spec, "equipment", "")
+        if equipment in (MODBUS, PACKTAGS):
+            yield here, equipment, getattr(part.spec, "settings", {})
+        for child in part.children:
+            yield from walk(child, here)
+
+    for _root, part in parts:
+        yield from walk(part, "")
+
+
+async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    endpoint = str(settings.get("endpoint", ""))
+    try:
+        tags = resolve(
+            part,
+            str(settings.get("prefix", "")),
+            {str(k): str(v) for k, v in dict(settings.get("map", {})).items()},
+            parameters=int(settings.get("parameters", 5)),
+        )
+    except PackTagsMapError as e:
+        return [Row(part, endpoint, "(map)", str(e), False)]
+    client = Client(endpoint, timeout=timeout)
+    try:
+        await asyncio.wait_for(client.connect(), timeout)
+    except Exception as e:
+        return [Row(part, endpoint, "(endpoint)", f"unreachable: {e or type(e).__name__}", False)]
+    rows = []
+    try:
+        for key, tag in tags.items():
+            try:
+                dv = await client.get_node(ua.NodeId.from_string(tag.node_id)).read_data_value(
+                    raise_on_bad_status=False
+                )
+            except Exception as e:
+                rows.append(Row(part, endpoint, key, f"{tag.node_id}: {e}", False))
+                continue
+            if not dv.StatusCode.is_good():
+                rows.append(Row(part, endpoint, key, f"{tag.node_id}: {dv.StatusCode.name}", False))
+                continue
+            found = _BUILTIN.get(dv.Value.VariantType, dv.Value.VariantType.name) if dv.Value else "null"
+            ok = found == tag.type_name
+            value = dv.Value.Value if dv.Value else None
+            text = f"{found} = {value!r}" if ok else f"{found} = {value!r}, expected {tag.type_name}"
+            rows.append(Row(part, endpoint, key, text, ok))
+    finally:
+        await client.disconnect()
+    return rows
+
+
+async def probe_modbus(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    host, port, unit = str(settings.get("host", "")), int(settings.get("port", 502)), int(settings.get("unit", 1))
+    endpoint = f"modbus://{host}:{port} unit {unit}"
+    try:
+        overrides = {k: (str(v[0]), int(v[1]), str(v[2])) for k, v in dict(settings.get("map", {})).items()}
+        tags = signal_tags(overrides)
+    except (ValueError, TypeError, IndexError) as e:
+        return [Row(part, endpoint, "(map)", str(e), False)]
+    conn = ModbusConnection(host, port, timeout=timeout)
+    try:
+        if not await conn.connect():
+            return [Row(part, endpoint, "(endpoint)", "unreachable", False)]
+        rows = []
+        for name, tag in tags.items():
+            where = f"{tag.table} {tag.address}"
+            try:
+                rows.append(Row(part, endpoint, name, f"{where} = {await conn.read(tag, unit)!r}", True))
+            except CommunicationError as e:
+                rows.append(Row(part, endpoint, name, f"{where}: {e}", False))
+        return rows
+    finally:
+        conn.close()
+
+
+async def probe(parts: list[tuple[str, Part]]) -> list[Row]:
+    rows: list[Row] = []
+    for path, driver, settings in gateway_parts(parts):
+        rows += await (probe_modbus if driver == MODBUS else probe_packtags)(path, settings)
+    return rows
+
+
+def table(rows: list[Row]) -> list[str]:
+    """The rows as aligned text lines (part, endpoint, tag, what was found)."""
+    if not rows:
+        return ["connect: no part uses a gateway driver"]
+    head = ("part", "endpoint", "tag", "found")
+    cells = [head, *((r.part, r.endpoint, r.tag, r.result if r.ok else f"PROBLEM: {r.result}") for r in rows)]
+    widths = [max(len(c[i]) for c in cells) for i in range(3)]
+    return ["  ".join([*(c[i].ljust(widths[i]) for i in range(3)), c[3]]).rstrip() for c in cells]
