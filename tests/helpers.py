@@ -7,9 +7,13 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import os
 import socket
+import subprocess
+import sys
 import uuid
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, Protocol
 
 from asyncua import Client, ua
@@ -214,3 +218,16 @@ class CellClient:
 
     def node(self, path: str) -> Any:
         return self.client.get_node(ua.NodeId(path, self.ns))
+
+
+async def config_check_connect(path: Path) -> subprocess.CompletedProcess[str]:
+    """``uacell config check --connect PATH`` with this checkout's source, off the event loop."""
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    return await asyncio.to_thread(
+        subprocess.run,
+        [sys.executable, "-m", "uacell", "config", "check", "--connect", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": src},
+    )

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving
-from helpers import call_path, free_port
+from helpers import call_path, config_check_connect, free_port
 
 from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
@@ -260,8 +260,6 @@ async def test_config_check_connect_and_a_tag_of_the_wrong_type(
 ) -> None:
     """`uacell config check --connect` tries every tag and names what it found; served anyway, the
     tag of the wrong type is one log line naming the unit and the tag."""
-    import os
-    import sys
 
     wrong = f"ns=1;s={F}.PackTags.Sim.Fault"  # a Boolean where StateCurrent (Int32) belongs
     text = builtin_cell_path("packtags-unit").read_text().replace(":4841/", f":{plc.port}/")
@@ -272,15 +270,7 @@ async def test_config_check_connect_and_a_tag_of_the_wrong_type(
 
     path = tmp_path / "cell.toml"
     path.write_text(text)
-    src = str(Path(__file__).resolve().parents[1] / "src")
-    proc = await asyncio.to_thread(
-        subprocess.run,
-        [sys.executable, "-m", "uacell", "config", "check", "--connect", str(path)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={**os.environ, "PYTHONPATH": src},
-    )
+    proc = await config_check_connect(path)
     assert proc.returncode == 1, proc.stdout + proc.stderr
     lines = proc.stdout.splitlines()
     assert any("Status.StateCurrent" in ln and "PROBLEM: Boolean = False, expected Int32" in ln for ln in lines), lines

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving
-from helpers import call_path, free_port
+from helpers import call_path, config_check_connect, free_port
 
 from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
@@ -255,16 +255,8 @@ async def test_config_check_connect_reads_every_signal(tmp_path: Path, plc: PLC)
     good, bad = tmp_path / "good.toml", tmp_path / "bad.toml"
     good.write_text(cell_text(plc.port))
     bad.write_text(cell_text(free_port()))  # nobody there
-    env = {**os.environ, "PYTHONPATH": SRC}
     for path, code in ((good, 0), (bad, 1)):
-        proc = await asyncio.to_thread(
-            subprocess.run,
-            [sys.executable, "-m", "uacell", "config", "check", "--connect", str(path)],
-            capture_output=True,
-            text=True,
-            timeout=120,
-            env=env,
-        )
+        proc = await config_check_connect(path)
         assert proc.returncode == code, proc.stdout + proc.stderr
         if code == 0:
             assert "connect: 14 of 14 as configured" in proc.stdout
