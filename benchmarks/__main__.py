@@ -30,6 +30,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from benchmarks.gateway import gateway_section
 from benchmarks.history import history_section
 from benchmarks.plant import plant_section
 from benchmarks.web import web_section
@@ -547,6 +548,7 @@ SECTIONS = {
     "web": web_section,
     "history": history_section,
     "plant": plant_section,
+    "gateway": gateway_section,
 }
 
 

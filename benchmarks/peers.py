@@ -2,7 +2,8 @@
 
 - ``asyncua [--nodesets]``: a bare asyncua server with one echo method (``Objects/Bench/Echo``), optionally
   importing the same four NodeSets as uacell (asyncua's ``import_xml``);
-- ``uacell --cell demo|large|units``: uacell with the cell ``benchmarks.cells.bench_cell`` names,
+- ``uacell --cell demo|large|units|FILE.toml``: uacell with the cell ``benchmarks.cells.bench_cell`` names
+  (or a cell file),
   acting times zero (``--pubsub URL --publisher-id ID``: publishing to that broker).
 
 Each prints ``listening`` once clients can connect and runs until SIGTERM.
@@ -76,7 +77,13 @@ async def uacell(
         config.pubsub.enabled = True
         config.pubsub.broker = pubsub
         config.pubsub.publisher_id = publisher_id
-    app = UacellServer(config, parts=bench_cell(cell))
+    if cell.endswith(".toml"):  # a cell file (the gateway section's)
+        from uacell.config import load_cell
+
+        parts = load_cell(cell).parts()
+    else:
+        parts = bench_cell(cell)
+    app = UacellServer(config, parts=parts)
     await app.setup()
     early.resume_gc()  # as `uacell serve` does
     await app.start()

@@ -1,0 +1,263 @@
+"""The gateway section of ``make bench`` (docs/performance.md, "Gateway"): PackML units whose state
+machine runs in a PLC (``interop/plc_packtags.js``, node-opcua's server with a TR88 scan-cycle
+program, 50 units) served by one uacell process through the ``opcua-packtags`` driver (one PLC
+connection, its subscription at 20 ms).
+
+- command round trip: an asyncua client's Reset on U1 until the PLC's StateCurrent left Stopped
+  (read by a second client polling the PLC every 2 ms), p50/p99;
+- mirror latency: a command taken at the PLC's own panel (its CntrlCmd and CmdChangeRequest written
+  straight to the PLC) until uacell's CurrentState reports it to a subscribed client, p50/p99;
+  target for both: p99 <= the subscription interval + 20 ms;
+- U2 walked through all 17 TR88 states with every command's handshake;
+- all 50 units reset at once: every one reaches Idle (nothing lost).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import shutil
+import subprocess
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from benchmarks.__main__ import Peers, Report
+
+ROOT = Path(__file__).resolve().parent.parent
+UNITS = 50
+INTERVAL = 0.02  # the driver's subscription interval ([the driver's] publishing_interval default)
+WALK = [  # (machine, method, the state it ends in)
+    ("MachineState", "Reset", "Idle"),
+    ("ExecuteState", "Start", "Execute"),
+    ("ExecuteState", "Hold", "Held"),
+    ("ExecuteState", "Unhold", "Execute"),
+    ("ExecuteState", "Suspend", "Suspended"),
+    ("ExecuteState", "Unsuspend", "Execute"),
+    ("ExecuteState", "ToComplete", "Complete"),
+    ("ExecuteState", "Reset", "Idle"),
+    ("MachineState", "Stop", "Stopped"),
+    ("BaseStateMachine", "Abort", "Aborted"),
+    ("BaseStateMachine", "Clear", "Stopped"),
+]
+PATHS = {
+    "BaseStateMachine": "BaseStateMachine",
+    "MachineState": "BaseStateMachine.MachineState",
+    "ExecuteState": "BaseStateMachine.MachineState.ExecuteState",
+}
+
+
+def percentile(values: list[float], q: float) -> float | None:
+    if not values:
+        return None
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
+    from benchmarks.__main__ import Peer, free_port
+
+    if shutil.which("node") is None:
+        print("== gateway: skipped, node is not installed", flush=True)
+        return
+    rounds = 10 if args.quick else 40
+    print(f"== gateway ({UNITS} PackML units in a node-opcua PLC, {rounds} round trips each way)", flush=True)
+    plc_port = free_port()
+    units = [f"U{i}" for i in range(1, UNITS + 1)]
+    plc = subprocess.Popen(
+        ["node", str(ROOT / "interop" / "plc_packtags.js"), str(plc_port), ",".join(units), "200"],
+        cwd=ROOT / "interop",
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert plc.stdout is not None
+        for line in plc.stdout:
+            if line.strip() == "listening":
+                break
+        cell = peers.tmp / "gateway.toml"
+        endpoint = f"opc.tcp://127.0.0.1:{plc_port}/"
+        cell.write_text(
+            "".join(
+                f'[[packml_units]]\nname = "{u}"\nequipment = {{ driver = "opcua-packtags", '
+                f'endpoint = "{endpoint}", prefix = "ns=1;s={u}.PackTags" }}\n\n'
+                for u in units
+            )
+        )
+        port = free_port()
+        cmd = ["python", "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", str(cell)]
+        cmd += ["--data-dir", str(peers.tmp / "gateway-data"), "--cache-dir", str(peers.tmp / "gateway-cache")]
+        import sys
+
+        cmd[0] = sys.executable
+        server = Peer("uacell gateway cell", cmd, port=port).start()
+        try:
+            raw = asyncio.run(_measure(server.endpoint, endpoint, rounds))
+        finally:
+            server.stop()
+    finally:
+        plc.terminate()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            plc.wait(10)
+        if plc.poll() is None:
+            plc.kill()
+    report.raw["gateway"] = raw
+    target = (INTERVAL + 0.020) * 1000
+    for name, key in (
+        ("command round trip (call -> the PLC sees it)", "command_ms"),
+        ("mirror latency (PLC -> client)", "mirror_ms"),
+    ):
+        values = raw[key]
+        p99 = percentile(values, 0.99)
+        report.add(
+            f"gateway: {name}, p50 / p99",
+            f"{percentile(values, 0.5) or 0:.1f} / {p99 or 0:.1f} ms",
+            f"subscription {INTERVAL * 1000:.0f} ms",
+            None if p99 is None else p99 / target,
+            f"p99 <= {target:.0f} ms (<= 1.0x)",
+            lambda x: x <= 1.0,
+        )
+    report.add(
+        "gateway: TR88 states walked through the PLC (of 17)",
+        str(len(raw["states_seen"])),
+        ", ".join(sorted(raw["states_seen"])),
+        len(raw["states_seen"]) / 17,
+        "all 17 (1.0x)",
+        lambda x: x >= 1.0,
+    )
+    report.add(
+        f"gateway: {UNITS} units reset at once on one connection, reached Idle",
+        str(raw["units_idle"]),
+        f"{UNITS} units",
+        raw["units_idle"] / UNITS,
+        "all (1.0x)",
+        lambda x: x >= 1.0,
+    )
+
+
+async def _measure(uacell_endpoint: str, plc_endpoint: str, rounds: int) -> dict[str, Any]:
+    import logging
+
+    from asyncua import Client, ua
+
+    logging.getLogger("asyncua").setLevel(logging.ERROR)
+    raw: dict[str, Any] = {"command_ms": [], "mirror_ms": [], "states_seen": [], "units_idle": 0}
+    async with Client(uacell_endpoint, timeout=30) as ua_client, Client(plc_endpoint, timeout=30) as plc_client:
+        ns = await ua_client.get_namespace_index("urn:uacell:cell")
+
+        def node(unit: str, machine: str) -> Any:
+            return ua_client.get_node(ua.NodeId(f"{unit}.{PATHS[machine]}", ns))
+
+        async def call(unit: str, machine: str, method: str, *args: Any) -> ua.StatusCode:
+            req = ua.CallMethodRequest(
+                ObjectId=ua.NodeId(f"{unit}.{PATHS[machine]}", ns),
+                MethodId=ua.NodeId(f"{unit}.{PATHS[machine]}.{method}", ns),
+                InputArguments=list(args),
+            )
+            (res,) = await ua_client.uaclient.call([req])
+            return res.StatusCode
+
+        def tag(unit: str, path: str) -> Any:
+            return plc_client.get_node(ua.NodeId(f"{unit}.PackTags.{path}", 1))
+
+        async def plc_state(unit: str) -> int:
+            return int(await tag(unit, "Status.StateCurrent").read_value())
+
+        async def until_plc(unit: str, state: int, timeout: float = 10.0, leaves: bool = False) -> float:
+            """When the PLC's state is ``state`` (``leaves``: is no longer ``state``)."""
+            deadline = time.perf_counter() + timeout
+            while ((await plc_state(unit)) == state) == leaves:
+                if time.perf_counter() > deadline:
+                    raise TimeoutError(f"{unit}: the PLC did not reach {state}")
+                await asyncio.sleep(0.002)
+            return time.perf_counter()
+
+        async def text(unit: str, machine: str) -> str | None:
+            dv = await node(unit, machine).get_child("0:CurrentState")
+            value = await dv.read_data_value(raise_on_bad_status=False)
+            return value.Value.Value.Text if value.StatusCode.is_good() else None
+
+        async def until_text(unit: str, machine: str, wanted: str, timeout: float = 10.0) -> None:
+            deadline = time.perf_counter() + timeout
+            while await text(unit, machine) != wanted:
+                if time.perf_counter() > deadline:
+                    raise TimeoutError(f"{unit}.{machine} did not reach {wanted}")
+                await asyncio.sleep(0.005)
+
+        # command round trip: Reset on U1 until the PLC left Stopped (the call answers once it has), then Stop back
+        for _ in range(rounds):
+            t0 = time.perf_counter()
+            assert (await call("U1", "MachineState", "Reset")).is_good()
+            raw["command_ms"].append((await until_plc("U1", 2, leaves=True) - t0) * 1000)
+            await until_text("U1", "ExecuteState", "Idle")
+            assert (await call("U1", "MachineState", "Stop")).is_good()
+            await until_text("U1", "MachineState", "Stopped")
+
+        # mirror latency: the PLC's own panel resets U3; uacell's client sees Resetting
+        arrived: list[tuple[float, str]] = []
+
+        class Handler:
+            def datachange_notification(self, n: Any, val: Any, data: Any) -> None:
+                if isinstance(val, ua.LocalizedText):
+                    arrived.append((time.perf_counter(), val.Text or ""))
+
+        sub = await ua_client.create_subscription(0, Handler())
+        await sub.subscribe_data_change(await node("U3", "ExecuteState").get_child("0:CurrentState"))
+        for _ in range(rounds):
+            arrived.clear()
+            await tag("U3", "Command.CntrlCmd").write_value(ua.Variant(1, ua.VariantType.Int32))
+            await tag("U3", "Command.CmdChangeRequest").write_value(ua.Variant(True, ua.VariantType.Boolean))
+            changed = await until_plc("U3", 15)
+            deadline = time.perf_counter() + 5
+            while not any(t == "Resetting" for _, t in arrived) and time.perf_counter() < deadline:
+                await asyncio.sleep(0.001)
+            seen = next((at for at, t in arrived if t == "Resetting"), None)
+            if seen is not None:
+                raw["mirror_ms"].append(max(0.0, seen - changed) * 1000)
+            await until_text("U3", "ExecuteState", "Idle")
+            assert (await call("U3", "MachineState", "Stop")).is_good()
+            await until_text("U3", "MachineState", "Stopped")
+        await sub.delete()
+
+        # every TR88 state, every command, on U2
+        states: set[str] = set()
+        seen_states: list[str] = []
+
+        class Walk:
+            def datachange_notification(self, n: Any, val: Any, data: Any) -> None:
+                if isinstance(val, ua.LocalizedText) and val.Text:
+                    seen_states.append(val.Text)
+
+        walk = await ua_client.create_subscription(0, Walk())
+        for machine in PATHS:
+            await walk.subscribe_data_change(await node("U2", machine).get_child("0:CurrentState"))
+        for machine, method, end in WALK:
+            args = [ua.Variant([], ua.VariantType.ExtensionObject, is_array=True)] if method == "Start" else []
+            code = await call("U2", machine, method, *args)
+            assert code.is_good(), (method, code)
+            target = "ExecuteState" if end in ("Idle", "Execute", "Held", "Suspended", "Complete") else "MachineState"
+            if end == "Aborted":
+                target = "BaseStateMachine"
+            await until_text("U2", target, end)
+        await asyncio.sleep(0.2)
+        states.update(seen_states)
+        await walk.delete()
+        tr88 = {
+            "Clearing", "Stopped", "Starting", "Idle", "Suspended", "Execute", "Stopping", "Aborting", "Aborted",
+            "Holding", "Held", "Unholding", "Suspending", "Unsuspending", "Resetting", "Completing", "Complete",
+        }  # fmt: skip
+        raw["states_seen"] = sorted(states & tr88)
+
+        # all units at once
+        units = [f"U{i}" for i in range(4, UNITS + 1)] + ["U1", "U2", "U3"]
+        await asyncio.gather(*(call(u, "MachineState", "Reset") for u in units))
+        idle = 0
+        for u in units:
+            with contextlib.suppress(TimeoutError):
+                await until_text(u, "ExecuteState", "Idle", timeout=15)
+                idle += 1
+        raw["units_idle"] = idle
+    return raw
