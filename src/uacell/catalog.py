@@ -13,6 +13,7 @@ import functools
 import importlib
 
 from uacell.companion import Companion
+from uacell.datasets import PartDataSet
 
 # Foundations first: a companion follows those it builds on (DI under Robotics), which also gives
 # the official models their load order (``uacell.models.official_models``).
@@ -33,3 +34,8 @@ def companions() -> tuple[Companion, ...]:
         assert isinstance(companion, Companion), entry
         found.append(companion)
     return tuple(found)
+
+
+def dataset_of(role: str) -> PartDataSet | None:
+    """What history keeps and PubSub publishes of parts of ``role`` (their companion's ``datasets``)."""
+    return next((d for c in companions() for d in c.datasets if d.role == role), None)

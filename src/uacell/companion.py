@@ -8,6 +8,7 @@ line each. The shared code reads everything companion-specific from there:
 - ``uacell.config``: the configuration section (``section`` with its dataclass ``settings``) and
   the parts it adds to the cell (``cell_section``, read by ``cell_parser``);
 - ``uacell.cell``: where instances live (``roots``);
+- ``uacell.history`` and ``uacell.pubsub``: what is kept and published of its parts (``datasets``);
 - ``uacell.web.discovery``: what the web HMI shows of its parts (``web_view``);
 - ``uacell.metrics``: its figures in ``/metrics`` (``metrics``);
 - ``uacell.models``: the official NodeSet files to fetch, verify and load (``models``);
@@ -23,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from uacell.cell_file import SectionParser
+from uacell.datasets import PartDataSet
 from uacell.models.model_file import ModelFile
 from uacell.roles import Family, Role
 
@@ -103,6 +105,7 @@ class Companion:
     # a prometheus-client collector (an object with ``collect()``).
     metrics: Callable[[Any], Any] | None = None
     web_view: WebView | None = None  # what the web HMI shows of its parts (uacell.web.discovery)
+    datasets: tuple[PartDataSet, ...] = ()  # what history keeps and PubSub publishes of its parts
     binder: Binder | None = None
     section: str | None = None  # configuration section, e.g. "robot"
     settings: type[Any] | None = None  # its dataclass: every field optional, typed by its default

@@ -14,7 +14,8 @@ from pathlib import Path
 from asyncua import Node, Server, ua
 from asyncua.common.instantiate_util import instantiate
 
-from uacell.datasets import dataset_of, resolve
+from uacell.catalog import dataset_of
+from uacell.datasets import resolve
 from uacell.history.backends import Backend, SqliteBackend
 from uacell.history.config import HistoryConfig
 from uacell.history.processed import AGGREGATES

@@ -5,6 +5,7 @@ from __future__ import annotations
 from uacell.companion import Companion, Root, WebView, lazy_binder, lazy_metrics
 from uacell.models.model_file import ModelFile
 from uacell.packml.config import PackMLConfig, parse_units
+from uacell.packml.datasets import PACKML_UNIT
 from uacell.roles import Family, Role
 
 PACKML = Family("PackML")
@@ -28,6 +29,7 @@ PACKML_MODEL = ModelFile(
 PACKML_COMPANION = Companion(
     name="PackML",
     models=(PACKML_MODEL,),
+    datasets=(PACKML_UNIT,),
     # Units: PackMLBaseObjectType (i=6) instances in PackMLObjects.
     web_view=WebView("units", PACKML_MODEL.namespace_uri, "PackMLObjects", 6, "uacell.packml.web_view:describe_unit"),
     metrics=lazy_metrics("uacell.packml.metrics", "packml_metrics"),

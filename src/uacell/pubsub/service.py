@@ -22,7 +22,8 @@ from typing import Any
 from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 
-from uacell.datasets import Item, Kind, dataset_of, resolve
+from uacell.catalog import dataset_of
+from uacell.datasets import Item, Kind, resolve
 from uacell.pubsub.address_space import PubSubNodes
 from uacell.pubsub.config import PubSubConfig, broker_of, password_of
 from uacell.pubsub.encoding import JsonEncoder

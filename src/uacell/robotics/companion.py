@@ -5,6 +5,7 @@ from __future__ import annotations
 from uacell.companion import Companion, LockRule, WebView, lazy_binder
 from uacell.models.model_file import ModelFile
 from uacell.robotics.config import RobotConfig, parse_robots
+from uacell.robotics.datasets import DATASETS
 from uacell.roles import Family, Role
 
 TASK_CONTROL = Family("TaskControl")
@@ -44,6 +45,7 @@ MODELS = (
 ROBOTICS = Companion(
     name="Robotics",
     models=MODELS,
+    datasets=DATASETS,
     # Robots: MotionDeviceSystemType (i=1002) instances in DeviceSet.
     web_view=WebView("robots", ROBOTICS_URI, "DeviceSet", 1002, "uacell.robotics.web_view:describe_robot"),
     binder=lazy_binder("uacell.robotics.binding", "bind_robotics"),
