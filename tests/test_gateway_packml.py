@@ -286,3 +286,22 @@ async def test_config_check_connect_and_a_tag_of_the_wrong_type(
         assert await state(client, MACH) == "Stopped"
         found = [r.getMessage() for r in caplog.records if "Status.StateCurrent" in r.getMessage()]
         assert found and f"{F}: Status.StateCurrent ({wrong}) holds False, not a Int32" in found[0]
+
+
+async def test_unit_mode_changes_go_through_the_plc(served, plc: PLC) -> None:
+    _app, client = served
+    mode = ua.Variant(2, ua.VariantType.Int32)  # Maintenance
+    res = await call_path(client, F, "SetUnitMode", mode)
+    assert res.StatusCode.is_good(), res.StatusCode
+    assert await plc.tag(F, "Status.UnitModeCurrent") == 2 and await plc.tag(F, "Command.UnitMode") == 2
+    assert await read(client, f"{F}.Status.UnitModeCurrent") == 2
+    # not a supported mode: refused by uacell, nothing written to the PLC
+    res = await call_path(client, F, "SetUnitMode", ua.Variant(17, ua.VariantType.Int32))
+    assert res.StatusCode.value == ua.StatusCodes.BadInvalidArgument
+    assert await plc.tag(F, "Command.UnitMode") == 2
+    # the PLC refuses: Bad_InvalidState, the mode stays
+    await plc.set(F, "Sim.Refuse", True, ua.VariantType.Boolean)
+    res = await call_path(client, F, "SetUnitMode", ua.Variant(1, ua.VariantType.Int32))
+    assert res.StatusCode.value == ua.StatusCodes.BadInvalidState
+    assert await read(client, f"{F}.Status.UnitModeCurrent") == 2
+    assert await plc.tag(F, "Command.UnitModeChangeRequest") is False

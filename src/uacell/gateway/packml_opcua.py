@@ -182,8 +182,13 @@ class OpcUaPackTagsUnit(EquipmentBase):
 
     async def send_command(self, machine: str | None, method: str, args: Sequence[Any]) -> None:
         """Write a machine command as PackTags and wait until the PLC accepted it (module doc)."""
+        if machine is None and method == "SetUnitMode":
+            await self._handshake(
+                method, lambda st, now: Handshake.unit_mode(int(args[0]), st, now, self.timing.confirm_timeout)
+            )
+            return
         if machine is None:
-            return  # unit methods: SetMachSpeed writes Command.MachSpeed (on_mach_speed), others stay uacell's
+            return  # SetMachSpeed writes Command.MachSpeed (on_mach_speed); the other unit methods stay uacell's
         name = PACKTAGS_COMMAND.get(method, method)
         if name not in COMMANDS:
             return
@@ -196,11 +201,17 @@ class OpcUaPackTagsUnit(EquipmentBase):
                 raise CallError(
                     "BadInvalidArgument", f"the PLC takes {room} parameters, not {len(parameters)}", argument=0
                 )
+        await self._handshake(
+            method, lambda st, now: Handshake.command(name, st, now, self.timing.confirm_timeout, parameters)
+        )
+
+    async def _handshake(self, method: str, make: Any) -> None:
+        """Write the handshake ``make(status, now)`` builds and wait until the PLC accepted it."""
         self._inflight = True
         try:
             status = await self._status()
             try:
-                shake = Handshake.command(name, status, time.monotonic(), self.timing.confirm_timeout, parameters)
+                shake: Handshake = make(status, time.monotonic())
             except CallError as e:
                 log.info("%s: %s not sent to the PLC: %s (%s)", self.part, method, e.message, e.status)
                 raise
@@ -223,14 +234,18 @@ class OpcUaPackTagsUnit(EquipmentBase):
 
     async def _status(self) -> PlcStatus:
         try:  # in one Read: a cleared request and the state it led to come from the same scan
-            state, request = await self.link.read_many(
-                [self._tag("Status.StateCurrent"), self._tag("Command.CmdChangeRequest")]
+            state, request, mode, mode_request = await self.link.read_many(
+                [
+                    self._tag("Status.StateCurrent"),
+                    self._tag("Command.CmdChangeRequest"),
+                    self._tag("Status.UnitModeCurrent"),
+                    self._tag("Command.UnitModeChangeRequest"),
+                ]
             )
-            mode = self.plc.get("Status.UnitModeCurrent", 0)
         except CommunicationError:
             return PlcStatus(0, 0, False, connected=False)
         self.plc["Status.StateCurrent"] = state
-        return PlcStatus(int(state), int(mode or 0), bool(request))
+        return PlcStatus(int(state), int(mode or 0), bool(request), bool(mode_request))
 
     def on_mach_speed(self, speed: float) -> None:
         if not self.reachable:

@@ -310,10 +310,13 @@ class UnitBinding:
             log.info("%s: %s.%s by %s", self.unit.name, machine_name or "unit", method, caller.display_user)
             args = convert(*values)
             send = getattr(self.unit.equipment, "send_command", None)
-            if send is not None and machine_name is not None:
+            if send is not None and (machine_name is not None or method == "SetUnitMode"):
                 # A PLC that owns the state (a gateway driver): uacell's rules first, then the PLC must
                 # accept the command before uacell's machines take it (docs/equipment.md, "Gateway").
-                self.unit.check_command(machine_name, method)
+                if method == "SetUnitMode":
+                    self.unit.check_unit_mode(*args)
+                else:
+                    self.unit.check_command(machine_name, method)
                 await send(machine_name, method, args)
             self.unit.command(machine_name, method, *args)
             await self.stored()

@@ -606,7 +606,8 @@ class PackMLUnit:
 
     # --- unit methods (decisions 26, 27) -------------------------------------------------------
 
-    def set_unit_mode(self, mode: int) -> None:
+    def check_unit_mode(self, mode: int) -> None:
+        """Would SetUnitMode(``mode``) be accepted now (CallError if not)? Nothing changes."""
         if isinstance(mode, bool) or not isinstance(mode, int) or mode not in self.supported_modes:
             raise CallError(
                 "BadInvalidArgument",
@@ -614,6 +615,9 @@ class PackMLUnit:
                 argument=0,
             )
         self._check(UNIT, "SetUnitMode")
+
+    def set_unit_mode(self, mode: int) -> None:
+        self.check_unit_mode(mode)
         with self._operation():
             s = self.status
             s.unit_mode_requested = s.unit_mode_change_in_process = True
