@@ -103,6 +103,18 @@ class PlcLink:
         except (OSError, TimeoutError, ua.UaError, ConnectionError) as exc:
             raise self._failed(exc) from None
 
+    async def write_many(self, writes: list[tuple[str, Any, ua.VariantType]]) -> None:
+        """Several values in one Write request, in order (the PLC takes them between two scans)."""
+        client = self._usable()
+        nodes = [client.get_node(ua.NodeId.from_string(n)) for n, _, _ in writes]
+        values = [ua.DataValue(ua.Variant(v, t)) for _, v, t in writes]
+        try:
+            await client.write_values(nodes, values)
+        except ua.UaStatusCodeError as exc:
+            raise CommunicationError(f"{self.endpoint}: writing {[n for n, _, _ in writes]}: {exc}") from None
+        except (OSError, TimeoutError, ua.UaError, ConnectionError) as exc:
+            raise self._failed(exc) from None
+
     async def close(self) -> None:
         if self._task is not None:
             self._task.cancel()

@@ -216,8 +216,10 @@ class OpcUaPackTagsUnit(EquipmentBase):
                 log.info("%s: %s not sent to the PLC: %s (%s)", self.part, method, e.message, e.status)
                 raise
             try:
-                for w in shake.writes:
-                    await self.link.write(self._tag(w.tag), w.value, _TYPES[self.tags[w.tag].type_name])
+                # one Write request: the PLC sees the parameters, the command and its request together
+                await self.link.write_many(
+                    [(self._tag(w.tag), w.value, _TYPES[self.tags[w.tag].type_name]) for w in shake.writes]
+                )
                 while not shake.observe(await self._status(), time.monotonic()):
                     await asyncio.sleep(self.timing.poll)
             except CallError as e:
