@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import errno
 import json
 import os
 import shutil
@@ -139,11 +140,21 @@ def fast_config(data_dir: Path) -> Config:
 
 
 async def start_app(config: Config, binders: list | None = None) -> UacellServer:
-    """An in-process uacell server, set up and listening."""
-    server = UacellServer(config, binders=binders)
-    await server.setup()
-    await server.start()
-    return server
+    """An in-process uacell server, set up and listening (on another free port if another test's
+    listener took the chosen one meanwhile)."""
+    for attempt in range(3):
+        server = UacellServer(config, binders=binders)
+        await server.setup()
+        try:
+            await server.start()
+            return server
+        except OSError as exc:
+            with contextlib.suppress(Exception):
+                await server.stop()
+            if exc.errno != errno.EADDRINUSE or attempt == 2:
+                raise
+            config.server.port = free_port()
+    raise AssertionError("unreachable")
 
 
 @contextlib.asynccontextmanager

@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import functools
 import os
+import random
 import socket
 import subprocess
 import sys
@@ -39,12 +40,35 @@ def packml_tables() -> PackMLTables:
     return PackMLTables.load(StateTables())
 
 
+def _ephemeral_ports() -> range:
+    """The range the kernel gives outgoing connections their local port from."""
+    try:
+        low, high = (int(x) for x in open("/proc/sys/net/ipv4/ip_local_port_range").read().split())
+    except (OSError, ValueError):
+        low, high = 32768, 60999
+    return range(low, high + 1)
+
+
+_EPHEMERAL = _ephemeral_ports()
+_RANDOM = random.Random()
+
+
 def free_port() -> int:
-    """A TCP port nobody listens on at 127.0.0.1 right now."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+    """A TCP port nobody listens on at 127.0.0.1 right now, outside the ephemeral range: a port the
+    kernel hands out (bind to 0) can be taken by any outgoing connection of a parallel test before
+    the server binds it; one below that range can only be taken by another test's listener."""
+    for _ in range(200):
+        port = _RANDOM.randrange(10000, min(_EPHEMERAL.start, 32768))
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:  # the range is crowded: any free one
         s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
+        found: int = s.getsockname()[1]
+        return found
 
 
 class FakeClock:
