@@ -23,6 +23,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from benchmarks.plant import percentile
+
 if TYPE_CHECKING:
     from benchmarks.__main__ import Peers, Report
 
@@ -47,13 +49,6 @@ PATHS = {
     "MachineState": "BaseStateMachine.MachineState",
     "ExecuteState": "BaseStateMachine.MachineState.ExecuteState",
 }
-
-
-def percentile(values: list[float], q: float) -> float | None:
-    if not values:
-        return None
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
 def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:

@@ -44,13 +44,8 @@ log = logging.getLogger(__name__)
 SETTINGS = ("endpoint", "prefix", "map", "parameters", "confirm_timeout", "publishing_interval")
 POOL = LinkPool()
 COMMUNICATION_WARNING = 9001
-# TR88 state numbers (Status.StateCurrent)
-STATES = {
-    1: "Clearing", 2: "Stopped", 3: "Starting", 4: "Idle", 5: "Suspended", 6: "Execute", 7: "Stopping",
-    8: "Aborting", 9: "Aborted", 10: "Holding", 11: "Held", 12: "Unholding", 13: "Suspending",
-    14: "Unsuspending", 15: "Resetting", 16: "Completing", 17: "Complete",
-}  # fmt: skip
-# The command each state is entered by (the machine's own transitions, for a PLC that moved by itself)
+# The command each acting state is entered by, for a PLC that moved by itself. Typed here: the
+# NodeSet's HasCause leads MachineState.Reset to Running, not to the Resetting inside it.
 ENTERED_BY = {
     "Starting": "Start", "Resetting": "Reset", "Stopping": "Stop", "Aborting": "Abort", "Clearing": "Clear",
     "Holding": "Hold", "Unholding": "Unhold", "Suspending": "Suspend", "Unsuspending": "Unsuspend",
@@ -129,7 +124,7 @@ class OpcUaPackTagsUnit(EquipmentBase):
         """Bring uacell's machines to the PLC's state, one TR88 step at a time."""
         if not self._attached or self._inflight:
             return
-        target = STATES.get(self.plc.get("Status.StateCurrent", 0))
+        target = self.unit.state_numbered(int(self.plc.get("Status.StateCurrent", 0) or 0))
         if target is None:
             return
         for _ in range(8):

@@ -67,6 +67,10 @@ class UnitPort(Protocol):
 
     def set_starved(self, starved: bool) -> None: ...
 
+    def state_numbered(self, number: int) -> str | None:
+        """The TR88 state with StateNumber ``number`` (as the NodeSet numbers them), if any."""
+        ...
+
     def equipment_command(self, method: str) -> None:
         """Take a transition the machine itself decides (Hold, Suspend, Unhold, Unsuspend, ToComplete,
         Stop, Abort); the same state rules as for clients apply."""

@@ -545,6 +545,14 @@ class PackMLUnit:
         with self._operation():
             return self._complete_now(acting)
 
+    def state_numbered(self, number: int) -> str | None:
+        """The TR88 state with StateNumber ``number`` (the NodeSet's numbers), if any."""
+        for sm in self.machines.values():
+            for name, info in sm.table.states.items():
+                if info.number == number:
+                    return name
+        return None
+
     def equipment_command(self, method: str) -> None:
         """A transition the machine itself takes (same rules as for clients); innermost machine first."""
         for sm in reversed(self.base.walk()):
