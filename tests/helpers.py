@@ -43,7 +43,7 @@ def packml_tables() -> PackMLTables:
 def _ephemeral_ports() -> range:
     """The range the kernel gives outgoing connections their local port from."""
     try:
-        low, high = (int(x) for x in open("/proc/sys/net/ipv4/ip_local_port_range").read().split())
+        low, high = (int(x) for x in Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split())
     except (OSError, ValueError):
         low, high = 32768, 60999
     return range(low, high + 1)

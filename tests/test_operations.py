@@ -171,6 +171,8 @@ async def test_audit_records_a_program_upload_and_writes(app):
             app, lambda e: e["event"] == "program_file" and e["path"] == "audited.robot" and e["operation"] == "added"
         )
         assert created["user"] == "eve"
+        # the trail is written every FLUSH_INTERVAL: wait for the last of the three calls
+        await wait_for_audit(app, lambda e: e["event"] == "call" and e["user"] == "eve" and e["method"] == "Close")
         calls = [e for e in audit_lines(app) if e["event"] == "call" and e["user"] == "eve"]
         assert [e["method"] for e in calls][-3:] == ["CreateFile", "Write", "Close"]
         assert all(e["result"] == "Good" for e in calls[-3:])
@@ -447,6 +449,57 @@ def test_log_file_rotates_and_per_logger_levels_apply(tmp_path):
     assert lines and all(e["logger"] == "uacell.test.loud" and e["level"] == "INFO" for e in lines)
     assert lines[-1]["message"] == "line 199 of the rotation test"
     assert "never written" not in "".join(p.read_text() for p in (tmp_path / "logs").iterdir())
+
+
+def test_audit_trail_writes_in_batches_rotates_and_loses_nothing_on_close(tmp_path):
+    from uacell.audit import AuditTrail
+
+    path = tmp_path / "audit" / "audit.log"
+    trail = AuditTrail(path, max_bytes=2048, backups=3, flush_interval=60.0)  # the thread never wakes here
+    for i in range(60):
+        trail.record("call", user="alice", n=i, method="LoadByName")
+    assert not path.exists() or path.read_text() == ""  # held in memory until the interval or close
+    trail.close()
+    files = sorted(p.name for p in path.parent.iterdir())
+    assert files == ["audit.log", "audit.log.1", "audit.log.2", "audit.log.3"]
+    assert all(p.stat().st_size <= 2048 for p in path.parent.iterdir())
+    kept = []
+    for name in ("audit.log.3", "audit.log.2", "audit.log.1", "audit.log"):  # oldest first
+        kept += [json.loads(ln) for ln in (path.parent / name).read_text().splitlines()]
+    numbers = [e["n"] for e in kept]
+    assert numbers == list(range(60 - len(numbers), 60))  # in order, the newest kept, none twice
+    assert kept[-1]["event"] == "call" and kept[-1]["user"] == "alice" and kept[-1]["time"].endswith("+00:00")
+
+
+async def test_audit_trail_reaches_the_file_within_its_interval_while_running(tmp_path):
+    from uacell.audit import AuditTrail
+
+    path = tmp_path / "audit.log"
+    trail = AuditTrail(path, flush_interval=0.05)
+    try:
+        trail.record("write", user="bob", node="ns=1;s=X")
+        deadline = time.monotonic() + TIMEOUT
+        while not path.read_text() and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
+        (line,) = path.read_text().splitlines()
+        assert json.loads(line)["node"] == "ns=1;s=X"
+    finally:
+        trail.close()
+
+
+async def test_serve_stopped_by_sigterm_has_written_every_call_record(tmp_path):
+    sp = start_serve(tmp_path / "data")
+    try:
+        async with Client(sp.endpoint, timeout=20) as client:
+            ns = await client.get_namespace_index("urn:uacell:cell")
+            filler = client.get_node(ua.NodeId("Filler1", ns))
+            speed = client.get_node(ua.NodeId("Filler1.SetMachSpeed", ns))
+            for value in range(1, 21):
+                await filler.call_method(speed, ua.Variant(float(value), ua.VariantType.Float))
+    finally:
+        assert sp.stop(signal.SIGTERM) == 0
+    audit = [json.loads(ln) for ln in (tmp_path / "data" / "audit.log").read_text().splitlines()]
+    assert [e["result"] for e in audit if e["event"] == "call" and e["method"] == "SetMachSpeed"] == ["Good"] * 20
 
 
 async def test_serve_logs_json_and_a_refused_login_is_one_info_line(tmp_path):

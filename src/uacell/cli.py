@@ -286,7 +286,7 @@ def _prepare_and_run(config: Config) -> int:
         logs.configure(config)
     except OSError as exc:
         raise ConfigError(f"cannot open log file: {exc}") from exc
-    return asyncio.run(_run(config))
+    return early.run(_run(config))
 
 
 async def _run(config: Config) -> int:

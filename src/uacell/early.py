@@ -1,4 +1,4 @@
-"""Start-up before the event loop: the early stop handler and the paused garbage collector.
+"""Start-up before the event loop: the early stop handler, the paused garbage collector, the loop.
 
 Until the server's event loop takes over, SIGINT/SIGTERM end start-up quietly (exit 0, no
 traceback): ``uacell._entry`` installs the handler before the heavy imports (asyncua and friends),
@@ -7,8 +7,14 @@ and ``uacell.cli`` reads ``stop_requested``. A leaf module: it imports nothing o
 
 from __future__ import annotations
 
+import asyncio
 import gc
+import os
 import signal
+from collections.abc import Coroutine
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 stop_requested = False
 
@@ -41,3 +47,26 @@ def pause_gc() -> None:
 def resume_gc() -> None:
     gc.freeze()
     gc.enable()
+
+
+def event_loop_name() -> str:
+    """The event loop ``run`` uses: ``uvloop`` where it is installed (Linux and macOS: a dependency
+    there), else asyncio's own; ``UACELL_EVENT_LOOP=asyncio`` chooses asyncio's anyway."""
+    if os.environ.get("UACELL_EVENT_LOOP", "").strip().lower() == "asyncio":
+        return "asyncio"
+    try:
+        import uvloop  # noqa: F401
+    except ImportError:
+        return "asyncio"
+    return "uvloop"
+
+
+def run(main: Coroutine[Any, Any, T]) -> T:
+    """``asyncio.run`` on the loop ``event_loop_name`` names (uvloop's: about a quarter more requests
+    a second through asyncua's TCP server here, docs/performance.md)."""
+    if event_loop_name() == "uvloop":
+        import uvloop
+
+        with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
+            return runner.run(main)
+    return asyncio.run(main)

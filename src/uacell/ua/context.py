@@ -83,11 +83,18 @@ def caller_of(session: InternalSession | None, default_role: str = "observer") -
         return INTERNAL
     user = session.user
     role = getattr(user, "uacell_role", default_role)
+    # Kept on the session while its user and role stay (ActivateSession may change both).
+    cached: tuple[Any, str, Caller] | None = getattr(session, "_uacell_caller", None)
+    if cached is not None and cached[0] is user and cached[1] == role:
+        return cached[2]
     client = ""
     with_desc = getattr(session, "_client_description", None)
     if with_desc is not None:
         client = getattr(with_desc, "ApplicationUri", "") or ""
-    return Caller(str(session.session_id), session.name, getattr(user, "name", None), role, client)
+    caller = Caller(str(session.session_id), session.name, getattr(user, "name", None), role, client)
+    if with_desc is not None:  # the description is set at CreateSession, before any call
+        session._uacell_caller = (user, role, caller)
+    return caller
 
 
 def set_return_diagnostics(mask: int) -> contextvars.Token[int]:

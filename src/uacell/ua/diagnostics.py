@@ -105,6 +105,15 @@ class SessionSecurityDiagnosticsDataType:
     ClientCertificate: ua.ByteString = None
 
 
+def _key(session: Any) -> str:
+    """A session's key in ``Diagnostics.sessions`` (its SessionId as text, made once per session)."""
+    key: str | None = getattr(session, "_uacell_key", None)
+    if key is None:
+        key = str(session.session_id)
+        session._uacell_key = key
+    return key
+
+
 def _register_corrected_types() -> None:
     uatypes_log = logging.getLogger("asyncua.ua.uatypes")
     disabled = uatypes_log.disabled
@@ -212,8 +221,8 @@ class Diagnostics:
         elif typeid == _CREATE_SUBSCRIPTION:
             s.CumulatedSubscriptionCount += 1
         session = getattr(processor, "session", None)
-        if session is not None and str(session.session_id) in self.sessions:
-            record = self.sessions[str(session.session_id)]
+        record = self.sessions.get(_key(session)) if session is not None else None
+        if record is not None:
             record.last_contact = ua.DateTime.now()
             for name in ("TotalRequestCount", _BY_TYPEID.get(typeid)):
                 if name is None:
@@ -232,7 +241,7 @@ class Diagnostics:
             self._dirty.set()
 
     def record(self, session: InternalSession) -> SessionRecord:
-        return self.sessions.setdefault(str(session.session_id), SessionRecord())
+        return self.sessions.setdefault(_key(session), SessionRecord())
 
     def session_created(
         self, session: InternalSession, params: ua.CreateSessionParameters, processor: UaProcessor | None
@@ -252,7 +261,7 @@ class Diagnostics:
         self._dirty.set()
 
     def session_closed(self, session: InternalSession) -> None:
-        record = self.sessions.pop(str(session.session_id), None)
+        record = self.sessions.pop(_key(session), None)
         if record is not None and not record.close_requested:
             timeout = float(getattr(session, "session_timeout", 0) or 0)
             idle = time.monotonic() - float(getattr(session, "_last_activity", time.monotonic()))

@@ -284,6 +284,11 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
     async def dispatch(self, request: ua.CallMethodRequest, caller: Caller | None = None) -> ua.CallMethodResult:
         if self._closing:
             return _result(ua.StatusCodes.BadShutdown)
+        try:
+            caller = caller or context.current_caller()
+        except Exception:
+            log.exception("resolving the caller of %s failed unexpectedly", request.MethodId)
+            return _result(ua.StatusCodes.BadInternalError)
         self._running += 1
         self._idle.clear()
         started = time.perf_counter()
@@ -305,13 +310,10 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         name = data.attributes.get(_A.BrowseName) if data is not None else None
         return str(name.value.Value.Value.Name) if name is not None else ""
 
-    def _observe(
-        self, caller: Caller | None, request: ua.CallMethodRequest, result: ua.CallMethodResult, seconds: float
-    ) -> None:
+    def _observe(self, who: Caller, request: ua.CallMethodRequest, result: ua.CallMethodResult, seconds: float) -> None:
         if not self.observers:
             return
         try:
-            who = caller or context.current_caller()
             name = self.method_name(request.MethodId)
         except Exception:
             log.exception("describing a call of %s failed", request.MethodId)
@@ -322,9 +324,8 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
             except Exception:
                 log.exception("call observer failed")
 
-    async def _answer(self, request: ua.CallMethodRequest, caller: Caller | None) -> ua.CallMethodResult:
+    async def _answer(self, request: ua.CallMethodRequest, caller: Caller) -> ua.CallMethodResult:
         try:
-            caller = caller or context.current_caller()
             bound = self.methods.get(request.MethodId) or self._by_declaration(request.ObjectId, request.MethodId)
         except Exception:
             log.exception("resolving a call of %s failed unexpectedly", request.MethodId)

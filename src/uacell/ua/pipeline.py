@@ -142,14 +142,16 @@ class Pipeline:
 
 
 def _compose(stages: Sequence[Stage], endpoint: Next) -> Next:
+    """The stages as one chain: each link hands the request to its stage with the next link (no
+    coroutine of its own: a request passes one coroutine per stage, not two)."""
     handler = endpoint
     for stage in reversed(stages):
-        handler = functools.partial(_run_stage, stage, handler)
+        handler = functools.partial(_link, stage, handler)
     return handler
 
 
-async def _run_stage(stage: Stage, call_next: Next, request: Request) -> Any:
-    return await stage(request, call_next)
+def _link(stage: Stage, call_next: Next, request: Request) -> Awaitable[Any]:
+    return stage(request, call_next)
 
 
 # asyncua's own entry points, as they were before ``attach()``.
