@@ -131,6 +131,31 @@ def test_temporaries_and_symlinks_are_not_listed(store: FileStore, root: Path, t
     store.close(S1, h)
 
 
+def test_a_files_listing_is_kept_until_a_directory_changes_on_disk(store: FileStore, root: Path) -> None:
+    import os
+    import time
+
+    def age(path: Path) -> None:  # as if the directory had last changed a minute ago
+        old = time.time() - 60
+        os.utime(path, (old, old))
+
+    for d in (root, root / "sub", root / "sub" / "deep"):
+        age(d)
+    first = store.files(".robot")
+    assert first == ["a.robot", "sub/b.robot", "sub/deep/c.robot"]
+    assert store.files(".robot") == first  # from the kept listing
+    (root / "sub" / "deep" / "d.robot").write_bytes(b"added behind the server's back")
+    assert store.files(".robot") == [*first, "sub/deep/d.robot"]  # a directory's time moved: read again
+    (root / "a.robot").unlink()
+    assert store.files(".robot") == ["sub/b.robot", "sub/deep/c.robot", "sub/deep/d.robot"]
+    age(root)
+    age(root / "sub" / "deep")
+    store.files(".robot")
+    (root / "sub" / "new").mkdir()
+    (root / "sub" / "new" / "e.robot").write_bytes(b"x")  # a new subdirectory: its parent changed
+    assert "sub/new/e.robot" in store.files(".robot")
+
+
 def test_missing_root_is_created(tmp_path: Path) -> None:
     store = FileStore(tmp_path / "new" / "programs")
     assert store.entries() == []

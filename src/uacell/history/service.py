@@ -8,6 +8,7 @@ docs/history.md says what each request answers.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections.abc import Callable
@@ -162,14 +163,15 @@ class HistoryService:
         t = dv.SourceTimestamp or dv.ServerTimestamp or datetime.now(UTC)
         status = dv.StatusCode.value if dv.StatusCode is not None else 0
         variant = dv.Value if dv.Value is not None else ua.Variant()
-        self.store.record(key, to_micros(t), VALUE, status, "", variant_to_binary(variant))
+        self.store.record(key, to_micros(t), VALUE, status, "", functools.partial(variant_to_binary, variant))
 
     def _record_event(self, key: str, event: Any) -> None:
         try:
             fields = event_fields(event)
             t = getattr(event, "Time", None) or datetime.now(UTC)
             etype = getattr(event, "EventType", None)
-            self.store.record(key, to_micros(t), EVENT, 0, etype.to_string() if etype else "", encode_fields(fields))
+            etype_text = etype.to_string() if etype else ""
+            self.store.record(key, to_micros(t), EVENT, 0, etype_text, functools.partial(encode_fields, fields))
         except Exception:
             log.exception("history: could not keep an event")
 

@@ -22,6 +22,9 @@ from dataclasses import dataclass
 
 from uacell.history.backends import Backend, Query, Row, Sample
 
+Encode = Callable[[], bytes]  # encodes a sample's data when the writer thread commits it
+Queued = tuple[str, int, int, int, int, str, "bytes | Encode"]  # a Row whose data may be still to encode
+
 log = logging.getLogger(__name__)
 
 _CP_FORMAT = ">4sqq"  # magic, time, seq
@@ -76,6 +79,17 @@ _FLUSH = object()
 _STOP = object()
 
 
+def _encoded(row: Queued) -> Row | None:
+    node, t, seq, kind, status, etype, data = row
+    if isinstance(data, bytes):
+        return (node, t, seq, kind, status, etype, data)
+    try:
+        return (node, t, seq, kind, status, etype, data())
+    except Exception:
+        log.exception("history: could not encode a sample of %s", node)
+        return None
+
+
 class HistoryStore:
     """Batched writes to a backend from one thread; reads in worker threads."""
 
@@ -91,6 +105,7 @@ class HistoryStore:
         self.cursor = Cursor()
         self._seq = backend.max_seq()
         self._queue: queue.SimpleQueue[object] = queue.SimpleQueue()
+        self._wake = threading.Event()  # a flush or the stop asked for: commit now
         self._thread: threading.Thread | None = None
         self.written = 0  # samples committed since start
         self.batches = 0
@@ -98,7 +113,9 @@ class HistoryStore:
 
     # -- writing (event loop side: never blocks) -------------------------------------------------
 
-    def record(self, node: str, t: int, kind: int, status: int, etype: str, data: bytes) -> None:
+    def record(self, node: str, t: int, kind: int, status: int, etype: str, data: bytes | Encode) -> None:
+        """Queue one sample; ``data`` may be a function that encodes it, called in the writer thread
+        (the event loop only queues: no encoding, no wake-up of the writer per sample)."""
         self._seq += 1
         self._queue.put((node, t, self._seq, kind, status, etype, data))  # a Row: no object per sample
 
@@ -114,19 +131,21 @@ class HistoryStore:
             return
         done = threading.Event()
         self._queue.put((_FLUSH, done))
+        self._wake.set()
         await asyncio.to_thread(done.wait)
 
     async def close(self) -> None:
         if self._thread is not None:
             self._queue.put(_STOP)
+            self._wake.set()
             await asyncio.to_thread(self._thread.join)
             self._thread = None
         else:
             self._write(self._drain_now())
         self.backend.close()
 
-    def _drain_now(self) -> list[Row]:
-        out: list[Row] = []
+    def _drain_now(self) -> list[Queued]:
+        out: list[Queued] = []
         while True:
             try:
                 item = self._queue.get_nowait()
@@ -135,9 +154,10 @@ class HistoryStore:
             if isinstance(item, tuple) and len(item) == 7:
                 out.append(item)
 
-    def _write(self, batch: Sequence[Row]) -> None:
-        if not batch:
+    def _write(self, queued: Sequence[Queued]) -> None:
+        if not queued:
             return
+        batch = [row for row in map(_encoded, queued) if row is not None]
         try:
             self.backend.write(batch)
             self.written += len(batch)
@@ -152,30 +172,24 @@ class HistoryStore:
         return self.backend.prune(before, int(s.max_mb * 1024 * 1024))
 
     def _run(self) -> None:
+        # Wakes once per batch: at the first sample after a quiet spell, then commits what came in
+        # the next ``flush_interval`` seconds (or at once for a flush or the stop).
         interval = self.settings.flush_interval
         next_prune = time.monotonic()
         stopping = False
         while not stopping:
-            batch: list[Row] = []
+            first = self._queue.get()
+            self._wake.wait(interval)
+            self._wake.clear()
+            batch: list[Queued] = []
             waiters: list[threading.Event] = []
-            item = self._queue.get()
-            deadline = time.monotonic() + interval
-            while True:
+            for item in [first, *self._drain_items()]:
                 if item is _STOP:
                     stopping = True
                 elif isinstance(item, tuple) and len(item) == 2 and item[0] is _FLUSH:
                     waiters.append(item[1])
-                    deadline = 0.0  # commit what is queued now
                 elif isinstance(item, tuple):
                     batch.append(item)
-                left = deadline - time.monotonic()
-                if stopping or left <= 0:
-                    batch += self._drain_now() if stopping else []
-                    break
-                try:
-                    item = self._queue.get(timeout=left)
-                except queue.Empty:
-                    break
             self._write(batch)
             for w in waiters:
                 w.set()
@@ -185,6 +199,14 @@ class HistoryStore:
                     self.prune()
                 except Exception:
                     log.exception("history: pruning failed")
+
+    def _drain_items(self) -> list[object]:
+        out: list[object] = []
+        while True:
+            try:
+                out.append(self._queue.get_nowait())
+            except queue.Empty:
+                return out
 
     # -- reading (worker threads) ----------------------------------------------------------------
 

@@ -24,6 +24,7 @@ import os
 import shutil
 import tempfile
 import threading
+import time
 from collections.abc import Callable, Hashable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -154,6 +155,31 @@ def _remove(path: Path) -> None:
             path.unlink()
 
 
+_SETTLE = 2.0  # seconds: a directory changed more recently than this is not trusted to a listing cache
+
+
+def _signature(dirs: list[Path]) -> tuple[tuple[Path, int], ...] | None:
+    """The directories' modification times, or None when one is too recent (or gone) to rely on."""
+    out = []
+    settled = time.time_ns() - int(_SETTLE * 1e9)
+    for d in dirs:
+        try:
+            mtime = os.stat(d).st_mtime_ns
+        except OSError:
+            return None
+        if mtime > settled:
+            return None
+        out.append((d, mtime))
+    return tuple(out)
+
+
+def _unchanged(signature: tuple[tuple[Path, int], ...]) -> bool:
+    try:
+        return all(os.stat(d).st_mtime_ns == mtime for d, mtime in signature)
+    except OSError:
+        return False
+
+
 class FileStore:
     """Files and directories below ``root`` with OPC UA FileType/FileDirectoryType semantics.
 
@@ -179,6 +205,7 @@ class FileStore:
         self.max_bytes = max_bytes
         self.handles = handles if handles is not None else HandlePool()
         self._usage: int | None = None  # committed bytes (see ENTRY_BYTES), None: walk to know
+        self._listings: dict[str, tuple[tuple[tuple[Path, int], ...], tuple[str, ...]]] = {}  # files()
         self._handles: dict[int, _Handle] = {}
         self._next_handle = 1
         self._lock = threading.RLock()
@@ -194,9 +221,23 @@ class FileStore:
 
     def files(self, suffix: str = "") -> list[str]:
         """The relative paths of every visible file whose name ends in ``suffix``, sorted: a listing that,
-        unlike ``entries``, asks the disk for nothing but the directories."""
+        unlike ``entries``, asks the disk for nothing but the directories, and is kept while none of
+        them changed (their modification times; a directory changed in the last ``_SETTLE`` seconds is
+        read again, whatever the file system's clock resolution)."""
         with self._lock:
-            return sorted(self._rel(p) for p in self._walk(self.root, files_only=True) if p.name.endswith(suffix))
+            cached = self._listings.get(suffix)
+            if cached is not None and _unchanged(cached[0]):
+                return list(cached[1])
+            found: list[str] = []
+            dirs: list[Path] = []
+            for p in self._walk(self.root, files_only=True, dirs=dirs):
+                if p.name.endswith(suffix):
+                    found.append(self._rel(p))
+            found.sort()
+            signature = _signature(dirs)
+            if signature is not None:
+                self._listings[suffix] = (signature, tuple(found))
+            return found
 
     def entry(self, relpath: str) -> Entry:
         """The entry at ``relpath``; Bad_NotFound if there is none."""
@@ -573,12 +614,15 @@ class FileStore:
         writable = os.access(path, os.W_OK) and os.access(path.parent, os.W_OK)
         return Entry(self._rel(path), False, path.stat().st_size, writable)
 
-    def _walk(self, base: Path, *, files_only: bool = False) -> Iterator[Path]:
-        """Visible entries (or only files) below ``base``, top-down and sorted: no temporaries, no symlinks."""
+    def _walk(self, base: Path, *, files_only: bool = False, dirs: list[Path] | None = None) -> Iterator[Path]:
+        """Visible entries (or only files) below ``base``, top-down and sorted: no temporaries, no symlinks;
+        ``dirs`` receives every directory read."""
         if not base.is_dir():
             return
         for dirpath, dirnames, filenames in os.walk(base):
             here = Path(dirpath)
+            if dirs is not None:
+                dirs.append(here)
             dirnames[:] = sorted(d for d in dirnames if not d.startswith(TEMP_PREFIX) and not (here / d).is_symlink())
             files = [f for f in filenames if not f.startswith(TEMP_PREFIX) and not (here / f).is_symlink()]
             for name in sorted(files if files_only else [*dirnames, *files]):

@@ -21,7 +21,6 @@ from __future__ import annotations
 import asyncio
 import contextvars
 import logging
-import uuid
 from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime
 from typing import Any
@@ -136,6 +135,7 @@ class StateMachineBinding:
         self._event: EventEmitter | None = None
         self._audit: EventEmitter | None = None  # made on the first transition a call causes
         self._written: dict[ua.NodeId, tuple[Any, ...]] = {}  # node -> what was last written there
+        self._tree_queued = False  # a publish_tree is submitted and has not started yet
         self._display = {name: self._display_name(info.node) for name, info in machine.table.states.items()} | {
             name: self._display_name(info.node) for name, info in machine.table.transitions.items()
         }
@@ -168,14 +168,21 @@ class StateMachineBinding:
         await self.publish()
 
     def _on_change(self, change: Change) -> None:
-        # The parent's state decides whether sub-machines are active: republish the whole subtree.
+        # The parent's state decides whether sub-machines are active: republish the whole subtree,
+        # once for the changes made before the publisher gets to it (it reads the states then).
         self.publisher.touch(self.root)
-        self.publisher.submit(self.publish_tree)
+        if not self._tree_queued:
+            self._tree_queued = True
+            self.publisher.submit(self._publish_queued_tree)
         if change.transition is not None:
             # The model moves its machines synchronously inside the call that causes a transition: the
             # call is known here, not later in the publisher's task.
             call = current_call()
             self.publisher.submit(lambda: self.fire(change, call))
+
+    async def _publish_queued_tree(self) -> None:
+        self._tree_queued = False
+        await self.publish_tree()
 
     async def publish_tree(self) -> None:
         await self.publish()
@@ -278,7 +285,7 @@ class StateMachineBinding:
     def _base_fields(self, change: Change, source_name: str, message: str) -> dict[str, Any]:
         """The BaseEventType fields both events of a transition carry."""
         return {
-            "EventId": ua.Variant(uuid.uuid4().hex.encode(), ua.VariantType.ByteString),
+            "EventId": ua.Variant(toolkit.new_event_id(), ua.VariantType.ByteString),
             "Time": change.time,
             "ReceiveTime": datetime.now(UTC),
             "Severity": 100,
