@@ -111,9 +111,7 @@ def main() -> int:
 
         early.pause_gc()  # as `uacell serve` does, from its first line
         history = not args.no_history
-        early.run(
-            uacell(args.port, args.cell, args.data_dir, args.cache_dir, history, args.pubsub, args.publisher_id)
-        )
+        early.run(uacell(args.port, args.cell, args.data_dir, args.cache_dir, history, args.pubsub, args.publisher_id))
     return 0
 
 
