@@ -73,6 +73,10 @@ async def uacell(
     config.server.cache_dir = Path(cache_dir) if cache_dir else None
     config.packml.acting_time = 0.0
     config.history.enabled = history
+    # room for the sessions section's thousand subscribed sessions (as an operator would raise [limits])
+    limits = config.limits
+    limits.connections, limits.sessions, limits.subscriptions = 1100, 1050, 2100
+    limits.pending_per_address = 1100  # they all come from 127.0.0.1, many at once
     if pubsub:  # publish to this broker as publisher_id
         config.pubsub.enabled = True
         config.pubsub.broker = pubsub

@@ -15,9 +15,14 @@
 // The program, every 5 ms: take a change request (clear it; act on it when TR88 allows the command in the
 // state), end an acting state after ACTING_MS, produce in Execute at MachSpeed packages/min.
 // Prints "listening" once clients can connect; stops on SIGTERM.
+// A locked-down PLC, for the gateway's security tests: PLC_PKI=<dir> offers Basic256Sha256 Sign and
+// SignAndEncrypt only (client certificates accepted and trusted on first contact, the PKI in <dir>);
+// PLC_USER=<name>:<password> admits that user only (no anonymous sessions).
 "use strict";
+const path = require("path");
+const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
 const { OPCUAServer } = require("node-opcua-server");
-const { DataType, Variant, StatusCodes } = require("node-opcua-client");
+const { DataType, Variant, StatusCodes, SecurityPolicy, MessageSecurityMode } = require("node-opcua-client");
 
 const S = {
   Clearing: 1, Stopped: 2, Starting: 3, Idle: 4, Suspended: 5, Execute: 6, Stopping: 7, Aborting: 8,
@@ -127,7 +132,22 @@ async function main() {
   const port = Number(process.argv[2]);
   const names = (process.argv[3] || "Capper").split(",").filter((n) => n);
   const actingMs = Number(process.argv[4] || 100);
-  const server = new OPCUAServer({ port, hostname: "127.0.0.1", serverInfo: { applicationUri: "urn:uacell:plc" } });
+  const options = { port, hostname: "127.0.0.1", serverInfo: { applicationUri: "urn:uacell:plc" } };
+  if (process.env.PLC_PKI) {
+    const pki = process.env.PLC_PKI;
+    options.serverCertificateManager = new OPCUACertificateManager({ rootFolder: pki, automaticallyAcceptUnknownCertificate: true });
+    await options.serverCertificateManager.initialize();
+    options.certificateFile = path.join(pki, "own", "certs", "plc.pem");
+    options.privateKeyFile = path.join(pki, "own", "private", "private_key.pem");
+    options.securityPolicies = [SecurityPolicy.Basic256Sha256];
+    options.securityModes = [MessageSecurityMode.Sign, MessageSecurityMode.SignAndEncrypt];
+  }
+  if (process.env.PLC_USER) {
+    const [user, password] = process.env.PLC_USER.split(":");
+    options.allowAnonymous = false;
+    options.userManager = { isValidUser: (u, p) => u === user && p === password };
+  }
+  const server = new OPCUAServer(options);
   await server.initialize();
   const space = server.engine.addressSpace;
   const ns = space.registerNamespace("urn:uacell:plc");

@@ -5,6 +5,7 @@ opcua-packtags driver): node-opcua's server holds the PackTags and runs a TR88 s
 from __future__ import annotations
 
 import asyncio
+import os
 import subprocess
 import time
 from collections.abc import AsyncIterator
@@ -29,8 +30,9 @@ EXEC = f"{MACH}.ExecuteState"
 
 
 class PLC:
-    def __init__(self, units: list[str], acting_ms: int = 100) -> None:
+    def __init__(self, units: list[str], acting_ms: int = 100, env: dict[str, str] | None = None) -> None:
         self.port, self.units, self.acting_ms = free_port(), units, acting_ms
+        self.env = env or {}
         self.proc: subprocess.Popen[str] | None = None
         self.client: Client | None = None
 
@@ -40,7 +42,9 @@ class PLC:
 
     def start(self) -> None:
         cmd = ["node", str(INTEROP / "plc_packtags.js"), str(self.port), ",".join(self.units), str(self.acting_ms)]
-        self.proc = subprocess.Popen(cmd, cwd=INTEROP, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        self.proc = subprocess.Popen(
+            cmd, cwd=INTEROP, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=os.environ | self.env
+        )
         assert self.proc.stdout is not None
         deadline = time.monotonic() + 60
         for line in self.proc.stdout:
@@ -66,12 +70,12 @@ class PLC:
         await self.client.get_node(ua.NodeId(f"{unit}.PackTags.{path}", 1)).write_value(ua.Variant(value, vtype))
 
 
-def cell(plc: PLC, units: list[str]) -> str:
+def cell(plc: PLC, units: list[str], extra: str = "") -> str:
     return "".join(
         f"""
 [[packml_units]]
 name = "{u}"
-equipment = {{ driver = "opcua-packtags", endpoint = "{plc.endpoint}", prefix = "ns=1;s={u}.PackTags" }}
+equipment = {{ driver = "opcua-packtags", endpoint = "{plc.endpoint}", prefix = "ns=1;s={u}.PackTags"{extra} }}
 """
         for u in units
     )
@@ -196,13 +200,23 @@ async def test_the_plc_killed_and_back(served, plc: PLC) -> None:
     await until(executable, False)
     res = await call_path(client, MACH, "Reset")
     assert res.StatusCode.value == ua.StatusCodes.BadCommunicationError
-    warnings = await read(client, f"{F}.Admin.Warning")
-    assert any(w.ID == 9001 for w in warnings)
+    speed = client.get_node(ua.NodeId(f"{F}.Status.MachSpeed", ns))
+
+    async def speed_status() -> str:
+        return (await speed.read_data_value(raise_on_bad_status=False)).StatusCode.name
+
+    await until(speed_status, "BadNoCommunication")  # the PLC's values are not current any more
+    counts = client.get_node(ua.NodeId(f"{F}.Admin.ProdProcessedCount", ns))
+    assert (await counts.read_data_value(raise_on_bad_status=False)).StatusCode.name == "BadNoCommunication"
+    warnings = client.get_node(ua.NodeId(f"{F}.Admin.Warning", ns))
+    assert any(w.ID == 9001 for w in await warnings.read_value())  # uacell's own: readable, says why
     plc.port = plc.port  # the same port
     plc.start()
     back = time.monotonic()
     await until(executable, True)
     assert time.monotonic() - back <= 5.0
+    await until(speed_status, "Good")
+    assert not any(w.ID == 9001 for w in await warnings.read_value())  # the warning went with the loss
     res = await call_path(client, MACH, "Reset")
     assert res.StatusCode.is_good(), res.StatusCode
     assert app is not None
@@ -305,3 +319,93 @@ async def test_unit_mode_changes_go_through_the_plc(served, plc: PLC) -> None:
     assert res.StatusCode.value == ua.StatusCodes.BadInvalidState
     assert await read(client, f"{F}.Status.UnitModeCurrent") == 2
     assert await plc.tag(F, "Command.UnitModeChangeRequest") is False
+
+
+async def test_a_plc_away_at_start_is_served_and_picked_up_when_it_comes(tmp_path: Path) -> None:
+    p = PLC([F])  # not started yet: nothing listens on its port
+    try:
+        path = tmp_path / "cell.toml"
+        path.write_text(cell(p, [F]))
+        config = fast_config(tmp_path / "data")
+        config.cell = load_cell(path)
+        async with serving(config) as (_app, client):
+            ns = await client.get_namespace_index("urn:uacell:cell")
+            speed = client.get_node(ua.NodeId(f"{F}.Status.MachSpeed", ns))
+
+            async def speed_status() -> str:
+                return (await speed.read_data_value(raise_on_bad_status=False)).StatusCode.name
+
+            await until(speed_status, "BadNoCommunication")
+            res = await call_path(client, MACH, "Reset")
+            assert res.StatusCode.value == ua.StatusCodes.BadCommunicationError
+            p.start()
+            back = time.monotonic()
+            await until(speed_status, "Good")
+            assert time.monotonic() - back <= 5.0
+            assert await read(client, f"{F}.Status.MachSpeed") == pytest.approx(60.0)  # the PLC's value
+            res = await call_path(client, MACH, "Reset")
+            assert res.StatusCode.is_good(), res.StatusCode
+            await until(lambda: state(client, EXEC), "Idle")
+    finally:
+        p.kill()
+
+
+async def test_a_secure_plc_with_a_user_polled(tmp_path: Path) -> None:
+    """A PLC that offers Basic256Sha256 only and admits one user: uacell signs and encrypts with its
+    client certificate, logs in with the password from an owner-only file, and polls the tags."""
+    from uacell.pki import make_client_certificate
+
+    der, key = make_client_certificate("urn:uacell:test:gateway", common_name="uacell gateway")
+    (tmp_path / "gateway.der").write_bytes(der)
+    (tmp_path / "gateway-key.pem").write_bytes(key)
+    secret = tmp_path / "plc.password"
+    secret.write_text("s3cret\n")
+    secret.chmod(0o600)
+    p = PLC([F], env={"PLC_PKI": str(tmp_path / "plc-pki"), "PLC_USER": "gateway:s3cret"})
+    p.start()
+    try:
+        extra = (
+            f', security = "Basic256Sha256,SignAndEncrypt", certificate = "{tmp_path / "gateway.der"}"'
+            f', private_key = "{tmp_path / "gateway-key.pem"}", username = "gateway", password_file = "{secret}"'
+            ', mode = "poll", interval = 0.05'
+        )
+        path = tmp_path / "cell.toml"
+        path.write_text(cell(p, [F], extra))
+        config = fast_config(tmp_path / "data")
+        config.cell = load_cell(path)
+        async with serving(config) as (_app, client):
+            res = await call_path(client, MACH, "Reset")
+            assert res.StatusCode.is_good(), res.StatusCode
+            await until(lambda: state(client, EXEC), "Idle")
+            res = await call_path(client, EXEC, "Start", params((1, 7.5)))
+            assert res.StatusCode.is_good(), res.StatusCode
+            await until(lambda: state(client, EXEC), "Execute")
+        # the same PLC refuses an anonymous client on a channel without security
+        with pytest.raises(Exception):  # noqa: B017 (asyncua raises what the PLC's refusal became)
+            async with Client(p.endpoint, timeout=5) as anonymous:
+                await anonymous.get_node(ua.NodeId(f"{F}.PackTags.Status.StateCurrent", 1)).read_value()
+    finally:
+        p.kill()
+
+
+def test_link_options_refuse_what_cannot_work(tmp_path: Path) -> None:
+    from uacell.gateway.opcua_link import link_options
+
+    ok = {"endpoint": "opc.tcp://plc:4840/"}
+    assert link_options("Capper", ok).mode == "subscribe"
+    readable = tmp_path / "pw"
+    readable.write_text("x")
+    readable.chmod(0o644)
+    cases = {
+        "endpoint": ({"endpoint": "http://plc"}, "Capper: endpoint"),
+        "security": (ok | {"security": "Basic128,Sign"}, "Capper: security: 'Basic128,Sign' is not None"),
+        "certificate": (ok | {"security": "Basic256Sha256,Sign"}, "Capper: certificate: a secure channel needs"),
+        "password": (ok | {"username": "u", "password_env": "UACELL_TEST_NO_SUCH_VARIABLE"}, "no password"),
+        "readable": (ok | {"username": "u", "password_file": str(readable)}, "may be read by others"),
+        "mode": (ok | {"mode": "push"}, 'Capper: mode: "subscribe" or "poll"'),
+        "interval": (ok | {"interval": 0}, "Capper: interval"),
+    }
+    for name, (settings, message) in cases.items():
+        with pytest.raises(ValueError, match=None) as info:
+            link_options("Capper", settings)
+        assert message in str(info.value), (name, str(info.value))

@@ -86,6 +86,10 @@ async def test_values_attributes_and_capabilities(app: UacellServer, client: Cli
     assert len(configs) == 1
     assert (await configs[0].read_type_definition()) == ua.NodeId(ua.ObjectIds.HistoricalDataConfigurationType)
     assert await (await configs[0].get_child("0:Stepped")).read_value() is True
+    aggregate = await configs[0].get_child("0:AggregateConfiguration")
+    assert await aggregate.read_type_definition() == ua.NodeId(ua.ObjectIds.AggregateConfigurationType)
+    assert await (await aggregate.get_child("0:PercentDataGood")).read_value() == 100
+    assert await (await aggregate.get_child("0:TreatUncertainAsBad")).read_value() is True
     # a variable nobody historizes has neither
     other = client.get_node(ua.NodeId(f"{F}.Status.StateChangeInProcess", ns))
     assert not (await other.read_attribute(ua.AttributeIds.AccessLevel)).Value.Value & ua.AccessLevel.HistoryRead.mask

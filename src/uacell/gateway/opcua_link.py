@@ -1,11 +1,15 @@
-"""One OPC UA client connection to a PLC, shared by every part on that endpoint (asyncua ``Client``).
+"""One OPC UA client connection to a PLC, shared by every part on that endpoint with the same
+options (asyncua ``Client``).
 
 The link connects in the background and reconnects with backoff (0.5 s doubling to 2 s) whenever
 the connection is lost, so uacell serves whether or not the PLC is there. Parts register the tags
-they watch; on every (re)connection the link reads them once and subscribes to them (one
-subscription per link, ``publishing_interval``), and calls each part's listener with every new
-value and with the connection state. Reads and writes go straight to the PLC (no queue, no replay):
-a lost connection raises ``CommunicationError``.
+they watch; on every (re)connection the link reads them once and then either subscribes to them
+(one subscription per link at ``interval``) or, in ``poll`` mode, reads them all in one Read request
+every ``interval``; it calls each part's listener with every new value and with the connection
+state. Reads and writes go straight to the PLC (no queue, no replay): a lost connection raises
+``CommunicationError``. The channel may be signed and encrypted (``security``, with uacell's client
+certificate and key as files) and the session may log in as a user whose password comes from an
+owner-only file or the environment (``uacell.secret_file``), never from the cell file.
 """
 
 from __future__ import annotations
@@ -13,25 +17,95 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from asyncua import Client, ua
 
 from uacell.gateway.modbus import CommunicationError
+from uacell.secret_file import SecretError, read_secret
 
 log = logging.getLogger(__name__)
 
 FIRST_RETRY, LAST_RETRY = 0.5, 2.0
+PASSWORD_ENV = "UACELL_PLC_PASSWORD"  # the default environment variable of a PLC user's password
+POLICIES = ("Basic256Sha256", "Aes128Sha256RsaOaep", "Aes256Sha256RsaPss")
+MODES = ("Sign", "SignAndEncrypt")
+# the driver settings ``link_options`` reads
+LINK_SETTINGS = (
+    "endpoint", "security", "certificate", "private_key", "username", "password_file", "password_env",
+    "mode", "interval", "publishing_interval",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class LinkOptions:
+    """How to reach one PLC: links are shared by parts whose options are equal."""
+
+    endpoint: str
+    security: str = "None"  # "None", or "<policy>,<mode>" (POLICIES, MODES)
+    certificate: str = ""  # uacell's client certificate for this PLC (PEM or DER), with security
+    private_key: str = ""  # ... and its private key
+    username: str = ""  # "" : an anonymous session
+    password: str = field(default="", repr=False)
+    mode: str = "subscribe"  # or "poll"
+    interval: float = 0.02  # seconds: the subscription's publishing interval, or the poll period
+
+
+def link_options(part: str, settings: Mapping[str, Any]) -> LinkOptions:
+    """The link options of a driver's settings, checked; a ValueError names the part and the setting."""
+    endpoint = settings.get("endpoint")
+    if not isinstance(endpoint, str) or not endpoint.startswith("opc.tcp://"):
+        raise ValueError(f'{part}: endpoint: needs "opc.tcp://<plc>:4840/", not {endpoint!r}')
+    security = str(settings.get("security", "None")).replace(" ", "")
+    certificate, private_key = str(settings.get("certificate", "")), str(settings.get("private_key", ""))
+    if security != "None":
+        policy, _, mode = security.partition(",")
+        if policy not in POLICIES or mode not in MODES:
+            raise ValueError(
+                f"{part}: security: {security!r} is not None or <policy>,<mode> "
+                f"(policies {', '.join(POLICIES)}; modes {', '.join(MODES)})"
+            )
+        for key, value in (("certificate", certificate), ("private_key", private_key)):
+            if not value:
+                raise ValueError(f"{part}: {key}: a secure channel needs uacell's client {key.replace('_', ' ')} file")
+            if not Path(value).is_file():
+                raise ValueError(f"{part}: {key}: no file {value}")
+            if Path(value).suffix.lower() not in (".pem", ".der"):
+                raise ValueError(f"{part}: {key}: {value} must be a .pem or a .der file (the name says which)")
+    username = str(settings.get("username", ""))
+    password = ""
+    if username:
+        file = settings.get("password_file")
+        env = str(settings.get("password_env", PASSWORD_ENV))
+        try:
+            password = read_secret(Path(file) if file else None, env, f"{part}: password_file") or ""
+        except SecretError as exc:
+            raise ValueError(str(exc)) from None
+        if not password:
+            raise ValueError(f"{part}: username {username!r}: no password (password_file, or ${env})")
+    elif settings.get("password_file"):
+        raise ValueError(f"{part}: password_file: needs username")
+    mode = str(settings.get("mode", "subscribe"))
+    if mode not in ("subscribe", "poll"):
+        raise ValueError(f'{part}: mode: "subscribe" or "poll", not {mode!r}')
+    default = 0.02 if mode == "subscribe" else 0.1
+    interval = settings.get("interval", settings.get("publishing_interval", default))
+    if not isinstance(interval, int | float) or isinstance(interval, bool) or not 0.005 <= interval <= 60:
+        raise ValueError(f"{part}: interval: seconds between 0.005 and 60, not {interval!r}")
+    return LinkOptions(endpoint, security, certificate, private_key, username, password, mode, float(interval))
+
 
 ValueListener = Callable[[str, Any], None]  # (NodeId string, value)
 StateListener = Callable[[bool], None]  # connected
 
 
 class PlcLink:
-    def __init__(self, endpoint: str, publishing_interval: float = 0.02, timeout: float = 2.0) -> None:
-        self.endpoint = endpoint
-        self.publishing_interval = publishing_interval
+    def __init__(self, options: LinkOptions | str, timeout: float = 2.0) -> None:
+        self.options = options if isinstance(options, LinkOptions) else LinkOptions(options)
+        self.endpoint = self.options.endpoint
         self.timeout = timeout
         self.users = 0
         self.connected = False
@@ -41,6 +115,7 @@ class PlcLink:
         self._client: Client | None = None
         self._subscription: Any = None
         self._watchdog: asyncio.Task[None] | None = None
+        self._last: dict[str, Any] = {}  # poll mode: the value each tag had at the last poll
         self._task: asyncio.Task[None] | None = None
         self._lost = asyncio.Event()
         self._ready = asyncio.Event()
@@ -52,15 +127,18 @@ class PlcLink:
         for nid in node_ids:
             self._watched.setdefault(nid, []).append(listener)
         self._state_listeners.append(on_state)
-        if self.connected and self._client is not None and self._subscription is not None:
+        if self.connected and self._client is not None:
             try:  # connected already (another part on this PLC): read and subscribe these too
                 nodes = [self._client.get_node(ua.NodeId.from_string(n)) for n in node_ids]
                 for nid, node in zip(node_ids, nodes, strict=True):
                     dv = await node.read_data_value(raise_on_bad_status=False)
                     if not dv.StatusCode.is_good():
                         raise CommunicationError(f"{self.endpoint}: {nid}: {dv.StatusCode.name}")
-                    listener(nid, dv.Value.Value if dv.Value is not None else None)
-                await self._subscription.subscribe_data_change(nodes, queuesize=100)
+                    value = dv.Value.Value if dv.Value is not None else None
+                    self._last[nid] = value
+                    listener(nid, value)
+                if self._subscription is not None:
+                    await self._subscription.subscribe_data_change(nodes, queuesize=100)
                 on_state(True)
             except CommunicationError as exc:
                 log.warning("the PLC at %s: %s", self.endpoint, exc)
@@ -153,9 +231,8 @@ class PlcLink:
 
     async def _connect(self) -> None:
         self._lost.clear()
-        client = Client(self.endpoint, timeout=self.timeout)
-        client.session_timeout = 30_000
-        self._client = client
+        o = self.options
+        self._client = client = await new_client(o, self.timeout)
         await client.connect()
         nodes = {nid: client.get_node(ua.NodeId.from_string(nid)) for nid in self._watched}
         # a first read of everything (a missing tag or a wrong type is named here, once)
@@ -163,7 +240,13 @@ class PlcLink:
             dv = await node.read_data_value(raise_on_bad_status=False)
             if not dv.StatusCode.is_good():
                 raise CommunicationError(f"{self.endpoint}: {nid}: {dv.StatusCode.name}")
-            self._deliver(nid, dv.Value.Value if dv.Value is not None else None)
+            value = dv.Value.Value if dv.Value is not None else None
+            self._last[nid] = value
+            self._deliver(nid, value)
+        if o.mode == "poll":
+            self._announce_connected()
+            self._watchdog = asyncio.get_running_loop().create_task(self._poll(client))
+            return
         link = self
 
         class Handler:
@@ -173,15 +256,35 @@ class PlcLink:
             def status_change_notification(self, status: Any) -> None:
                 link._lost.set()
 
-        subscription = await client.create_subscription(self.publishing_interval * 1000, Handler())
+        subscription = await client.create_subscription(o.interval * 1000, Handler())
         if nodes:
             await subscription.subscribe_data_change(list(nodes.values()), queuesize=100)
         self._subscription = subscription
+        self._announce_connected()
+        self._watchdog = asyncio.get_running_loop().create_task(self._keepalive(client))
+
+    def _announce_connected(self) -> None:
         if self.last_error:
             log.info("the PLC at %s answers again", self.endpoint)
         self.last_error = ""
         self._set_connected(True)
-        self._watchdog = asyncio.get_running_loop().create_task(self._keepalive(client))
+
+    async def _poll(self, client: Client) -> None:
+        """Poll mode: every watched tag in one Read request each ``interval``; changes delivered."""
+        interval = self.options.interval
+        while not self._lost.is_set():
+            await asyncio.sleep(interval)
+            ids = list(self._watched)
+            try:
+                values = await client.read_values([client.get_node(ua.NodeId.from_string(n)) for n in ids])
+            except Exception as exc:
+                log.info("the PLC at %s: a poll failed (%s)", self.endpoint, exc or type(exc).__name__)
+                self._lost.set()
+                return
+            for nid, value in zip(ids, values, strict=True):
+                if nid not in self._last or self._last[nid] != value:
+                    self._last[nid] = value
+                    self._deliver(nid, value)
 
     async def _keepalive(self, client: Client) -> None:
         """asyncua notices a dead server only when a request fails: ask every second."""
@@ -223,21 +326,49 @@ class PlcLink:
                 await asyncio.wait_for(client.disconnect(), 2.0)
 
 
+async def new_client(o: LinkOptions, timeout: float) -> Client:
+    """An asyncua client for the PLC, its channel security and user set (not yet connected)."""
+    client = Client(o.endpoint, timeout=timeout)
+    client.session_timeout = 30_000
+    if o.security != "None":
+        client.application_uri = _application_uri(o.certificate) or client.application_uri
+        await client.set_security_string(f"{o.security},{o.certificate},{o.private_key}")
+    if o.username:
+        client.set_user(o.username)
+        client.set_password(o.password)
+    return client
+
+
+def _application_uri(certificate: str) -> str | None:
+    """The URI in a certificate's subjectAltName: the ApplicationUri a client using it must send."""
+    from cryptography import x509
+
+    data = Path(certificate).read_bytes()
+    try:
+        cert = x509.load_pem_x509_certificate(data) if b"-----BEGIN" in data else x509.load_der_x509_certificate(data)
+        names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except (ValueError, x509.ExtensionNotFound):
+        return None
+    uris = names.get_values_for_type(x509.UniformResourceIdentifier)
+    return uris[0] if uris else None
+
+
 class LinkPool:
-    """Links shared per endpoint: fifty units on one PLC use one connection."""
+    """Links shared per endpoint and options: fifty units on one PLC use one connection."""
 
     def __init__(self) -> None:
-        self._links: dict[str, PlcLink] = {}
+        self._links: dict[LinkOptions, PlcLink] = {}
 
-    def get(self, endpoint: str, publishing_interval: float = 0.02) -> PlcLink:
-        link = self._links.get(endpoint)
+    def get(self, options: LinkOptions | str) -> PlcLink:
+        key = options if isinstance(options, LinkOptions) else LinkOptions(options)
+        link = self._links.get(key)
         if link is None:
-            link = self._links[endpoint] = PlcLink(endpoint, publishing_interval)
+            link = self._links[key] = PlcLink(key)
         link.users += 1
         return link
 
     async def release(self, link: PlcLink) -> None:
         link.users -= 1
         if link.users <= 0:
-            self._links.pop(link.endpoint, None)
+            self._links.pop(link.options, None)
             await link.close()

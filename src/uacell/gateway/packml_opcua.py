@@ -34,14 +34,14 @@ from uacell.errors import CallError
 from uacell.gateway import driver_settings
 from uacell.gateway.handshake import COMMANDS, Handshake, PlcStatus
 from uacell.gateway.modbus import CommunicationError
-from uacell.gateway.opcua_link import LinkPool, PlcLink
+from uacell.gateway.opcua_link import LINK_SETTINGS, LinkPool, PlcLink, link_options
 from uacell.gateway.packtags import PackTagsMapError, ResolvedTag, resolve
 from uacell.packml.equipment import EquipmentBase
 from uacell.packml.types import PackMLDescriptorDataType
 
 log = logging.getLogger(__name__)
 
-SETTINGS = ("endpoint", "prefix", "map", "parameters", "confirm_timeout", "publishing_interval")
+SETTINGS = (*LINK_SETTINGS, "prefix", "map", "parameters", "confirm_timeout")
 POOL = LinkPool()
 COMMUNICATION_WARNING = 9001
 # The command each acting state is entered by, for a PLC that moved by itself. Typed here: the
@@ -275,9 +275,7 @@ def _is(value: Any, type_name: str) -> bool:
 async def opcua_packtags(spec: Any) -> OpcUaPackTagsUnit:
     """The equipment factory of the ``opcua-packtags`` driver."""
     settings = driver_settings("opcua-packtags", spec.settings, SETTINGS)
-    endpoint = settings.get("endpoint")
-    if not isinstance(endpoint, str) or not endpoint.startswith("opc.tcp://"):
-        raise ValueError('the opcua-packtags driver needs endpoint = "opc.tcp://<plc>:4840/"')
+    options = link_options(spec.part, settings)
     try:
         tags = resolve(
             spec.part,
@@ -288,7 +286,7 @@ async def opcua_packtags(spec: Any) -> OpcUaPackTagsUnit:
     except PackTagsMapError as e:
         raise ValueError(str(e)) from None
     timing = Timing(confirm_timeout=float(settings.get("confirm_timeout", Timing.confirm_timeout)))
-    link = POOL.get(endpoint, float(settings.get("publishing_interval", 0.02)))
+    link = POOL.get(options)
     unit = OpcUaPackTagsUnit(spec.part, link, tags, timing)
     watched = [
         tags[k].node_id

@@ -8,11 +8,12 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from asyncua import Client, ua
+from asyncua import ua
 
 from uacell.cell_file import Part
 from uacell.gateway.modbus import CommunicationError, ModbusConnection
 from uacell.gateway.modbus_robot import signal_tags
+from uacell.gateway.opcua_link import link_options, new_client
 from uacell.gateway.packtags import PackTagsMapError, resolve
 
 MODBUS = "uacell.gateway.robot:modbus_signals"
@@ -47,6 +48,10 @@ def gateway_parts(parts: list[tuple[str, Part]]) -> Iterator[tuple[str, str, Map
 async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
     endpoint = str(settings.get("endpoint", ""))
     try:
+        options = link_options(part, settings)
+    except ValueError as e:
+        return [Row(part, endpoint, "(settings)", str(e), False)]
+    try:
         tags = resolve(
             part,
             str(settings.get("prefix", "")),
@@ -55,8 +60,8 @@ async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float 
         )
     except PackTagsMapError as e:
         return [Row(part, endpoint, "(map)", str(e), False)]
-    client = Client(endpoint, timeout=timeout)
     try:
+        client = await new_client(options, timeout)
         await asyncio.wait_for(client.connect(), timeout)
     except Exception as e:
         return [Row(part, endpoint, "(endpoint)", f"unreachable: {e or type(e).__name__}", False)]

@@ -164,6 +164,10 @@ def _utc(t: datetime | None) -> datetime:
 # --- the binding ----------------------------------------------------------------------------------
 
 
+# Values uacell keeps itself, readable while the PLC is away: the warnings (communication lost is one).
+_UACELLS_OWN = frozenset({"Admin/Warning", "Admin/WarningExtent"})
+
+
 class UnitBinding:
     """One PackML unit on its instance node."""
 
@@ -176,6 +180,7 @@ class UnitBinding:
         self.aspace = app.space.aspace
         self.structures = Structures(app.model_indexes["PackML"])
         self.variables: dict[str, tuple[ua.NodeId, ua.VariantType, int]] = {}  # key -> node, type, rank
+        self._reachable = True  # what the values last said about the equipment's PLC
         self.values = ValueWriter(self.aspace, app.dispatcher.types.builtin_of)
 
     # nodes ------------------------------------------------------------------------------------
@@ -248,6 +253,17 @@ class UnitBinding:
     # publishing ---------------------------------------------------------------------------------
     def on_change(self, changed: dict[str, Any]) -> None:
         values = {k: v for k, v in changed.items() if k != "Executable"}
+        reachable = self.unit.reachable
+        if reachable != self._reachable:
+            # Equipment that cannot reach its PLC: every Status and Admin value says so (its last
+            # value is not the PLC's any more); once it answers again, each is written afresh.
+            self._reachable = reachable
+            if not reachable:
+                self.app.publisher.submit(self._unreachable)
+            else:
+                values = {k: v for k, v in self.unit.values().items() if k != "Executable"}
+        if not reachable:
+            values = {k: v for k, v in values.items() if k in _UACELLS_OWN}
         if values:
             self.app.publisher.submit(functools.partial(self.write, values))
         if "Executable" in changed:
@@ -271,6 +287,12 @@ class UnitBinding:
                 return ua.Variant(flat, vtype, Dimensions=dims, is_array=True)
             return ua.Variant(converted, vtype, is_array=True)
         return ua.Variant(converted, vtype)
+
+    async def _unreachable(self) -> None:
+        bad = ua.StatusCode(ua.StatusCodes.BadNoCommunication)
+        for key, (node, _, _) in list(self.variables.items()):
+            if key.startswith(("Status/", "Admin/")) and key not in _UACELLS_OWN:
+                await self.values.write_status(node, bad)
 
     async def write(self, values: dict[str, Any]) -> None:
         for key, value in values.items():

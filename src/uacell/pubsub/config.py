@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import os
 import re
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import urlsplit
 
 from uacell.errors import ConfigError
+from uacell.secret_file import SecretError, read_secret
 
 PASSWORD_ENV = "UACELL_MQTT_PASSWORD"
 _TOPIC_LEVEL = re.compile(r"[^/+#\s]+")
@@ -90,13 +89,7 @@ def check_pubsub(cfg: PubSubConfig) -> None:
 def password_of(cfg: PubSubConfig) -> str | None:
     """The broker password: from ``password_file`` (which only its owner may read), else the
     environment variable ``UACELL_MQTT_PASSWORD``, else none."""
-    if cfg.password_file is not None:
-        path = cfg.password_file
-        try:
-            mode = path.stat().st_mode
-            if mode & (stat.S_IRWXG | stat.S_IRWXO):
-                raise ConfigError(f"[pubsub] password_file: {path} may be read by others (chmod 600 {path})")
-            return path.read_text(encoding="utf-8").strip()
-        except OSError as exc:
-            raise ConfigError(f"[pubsub] password_file: cannot read {path}: {exc.strerror or exc}") from exc
-    return os.environ.get(PASSWORD_ENV) or None
+    try:
+        return read_secret(cfg.password_file, PASSWORD_ENV, "[pubsub] password_file")
+    except SecretError as exc:
+        raise ConfigError(str(exc)) from None
