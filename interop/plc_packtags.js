@@ -8,7 +8,7 @@
 //   Command.UnitModeChangeRequest (Boolean), Command.MachSpeed (Float), Command.Parameter[i].Value (Float, 5),
 //   Status.StateCurrent (Int32, TR88 numbers), Status.UnitModeCurrent (Int32), Status.CurMachSpeed (Float),
 //   Status.MachSpeed (Float), Admin.ProdProcessedCount (Int32), Admin.ProdDefectiveCount (Int32),
-//   Admin.StopReason.ID (Int32);
+//   Admin.StopReason.ID (Int32), Admin.Alarm[i].ID (Int32, 4; written by tests: the PLC's active alarms);
 //   and for tests: Sim.Refuse (Boolean: requests are taken and ignored), Sim.Frozen (Boolean: no scan),
 //   Sim.Fault (Boolean: a rising edge aborts the unit with StopReason 42), Sim.Parameters (Float[]: the
 //   Command.Parameter values the last Start took).
@@ -50,6 +50,7 @@ const COMMANDS = {
   10: [[S.Execute], S.Completing],
 };
 const PARAMETERS = 5;
+const ALARMS = 4;
 
 function tagsOf() {
   const t = {
@@ -64,6 +65,7 @@ function tagsOf() {
     "Sim.Fault": [DataType.Boolean, false],
   };
   for (let i = 0; i < PARAMETERS; i++) t[`Command.Parameter[${i}].Value`] = [DataType.Float, 0.0];
+  for (let i = 0; i < ALARMS; i++) t[`Admin.Alarm[${i}].ID`] = [DataType.Int32, 0];
   return t;
 }
 

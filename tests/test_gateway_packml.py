@@ -222,8 +222,8 @@ async def test_the_plc_killed_and_back(served, plc: PLC) -> None:
     assert app is not None
 
 
-async def test_ten_units_on_one_plc_connection(tmp_path: Path) -> None:
-    units = [f"U{i}" for i in range(1, 11)]
+async def test_fifty_units_on_one_plc_connection(tmp_path: Path) -> None:
+    units = [f"U{i}" for i in range(1, 51)]
     p = PLC(units)
     p.start()
     try:
@@ -231,18 +231,23 @@ async def test_ten_units_on_one_plc_connection(tmp_path: Path) -> None:
         path.write_text(cell(p, units))
         config = fast_config(tmp_path / "data")
         config.cell = load_cell(path)
-        async with serving(config) as (_app, client):
+        async with serving(config) as (_app, client), Client(p.endpoint, timeout=10) as plc_client:
+            p.client = plc_client
             from uacell.gateway.packml_opcua import POOL
 
             assert len(POOL._links) == 1  # one connection to the PLC
-            results = {}
-            for u in units:
-                res = await call_path(client, f"{u}.BaseStateMachine.MachineState", "Reset")
-                results[u] = (res.StatusCode.name, await state(client, f"{u}.BaseStateMachine.MachineState"))
-            bad = {u: r for u, r in results.items() if r[0] != "Good"}
+
+            async def reset(u: str) -> str:
+                return str((await call_path(client, f"{u}.BaseStateMachine.MachineState", "Reset")).StatusCode.name)
+
+            results = dict(zip(units, await asyncio.gather(*(reset(u) for u in units)), strict=True))  # all at once
+            bad = {u: r for u, r in results.items() if r != "Good"}
             assert not bad, bad
             for u in units:
                 await until(lambda u=u: state(client, f"{u}.BaseStateMachine.MachineState.ExecuteState"), "Idle")
+            # nothing lost: every unit is in Idle in the PLC too
+            for u in units:
+                assert await p.tag(u, "Status.StateCurrent") == 4
     finally:
         p.kill()
 
@@ -409,3 +414,38 @@ def test_link_options_refuse_what_cannot_work(tmp_path: Path) -> None:
         with pytest.raises(ValueError, match=None) as info:
             link_options("Capper", settings)
         assert message in str(info.value), (name, str(info.value))
+
+
+async def test_the_plc_changes_its_unit_mode_and_alarms_by_itself(tmp_path: Path) -> None:
+    p = PLC([F])
+    p.start()
+    try:
+        path = tmp_path / "cell.toml"
+        path.write_text(cell(p, [F], ", alarms = 2"))
+        config = fast_config(tmp_path / "data")
+        config.cell = load_cell(path)
+        async with serving(config) as (_app, client), Client(p.endpoint, timeout=10) as plc_client:
+            await client.load_data_type_definitions()
+            p.client = plc_client
+            assert await read(client, f"{F}.Status.UnitModeCurrent") == 1
+            await p.set(F, "Status.UnitModeCurrent", 2, ua.VariantType.Int32)  # the key switch on its panel
+            await until(lambda: read(client, f"{F}.Status.UnitModeCurrent"), 2)
+
+            async def alarms() -> list[int]:
+                return [a.ID for a in await read(client, f"{F}.Admin.Alarm")]
+
+            await p.set(F, "Admin.Alarm[1].ID", 77, ua.VariantType.Int32)
+            await until(alarms, [77])
+            await p.set(F, "Admin.Alarm[0].ID", 12, ua.VariantType.Int32)
+            await until(alarms, [77, 12])
+            await p.set(F, "Admin.Alarm[1].ID", 0, ua.VariantType.Int32)  # cleared in the PLC
+            await until(alarms, [12])
+
+            async def history() -> list[tuple[int, bool]]:  # durable: published once stored
+                return [(h.ID, h.Trigger) for h in await read(client, f"{F}.Admin.AlarmHistory") if h.ID in (12, 77)]
+
+            await until(history, [(77, False), (12, True)])  # 77 acknowledged when the PLC cleared it
+            assert await state(client, f"{MACH}") is not None
+            p.client = None
+    finally:
+        p.kill()

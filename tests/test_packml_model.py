@@ -652,3 +652,27 @@ def test_all_26_transitions_come_from_the_nodeset_and_are_taken() -> None:
                 m.listeners.append(lambda c: c.transition and taken[c.machine.name].add(c.transition.name))
             walk(unit, [step])
     assert taken == {name: set(ts) for name, ts in SPEC_TRANSITIONS.items()}
+
+
+def test_equipment_changes_the_unit_mode_and_the_active_alarms_by_itself() -> None:
+    unit = new_unit()
+    walk(unit, _EXECUTE)
+    seen: list[dict[str, Any]] = []
+    unit.listeners.append(seen.append)
+    assert unit.equipment_unit_mode(2) is True  # Maintenance, from the PLC's panel: no uacell rule asked
+    assert unit.status.unit_mode_current == 2 and any(c.get("Status/UnitModeCurrent") == 2 for c in seen)
+    assert unit.equipment_unit_mode(99) is False and unit.status.unit_mode_current == 2  # not a supported mode
+    assert unit.equipment_unit_mode(True) is False
+    unit.equipment_alarms({31: "PLC alarm 31", 32: "PLC alarm 32"})
+    assert [(a.id, a.message, a.trigger) for a in unit.admin.alarm] == [
+        (31, "PLC alarm 31", True),
+        (32, "PLC alarm 32", True),
+    ]
+    assert [h.id for h in unit.admin.alarm_history][-2:] == [31, 32]
+    unit.equipment_alarms({32: "PLC alarm 32"})  # 31 went: acknowledged in the history, gone from Alarm
+    assert [a.id for a in unit.admin.alarm] == [32]
+    (h31,) = [h for h in unit.admin.alarm_history if h.id == 31]
+    assert h31.ack_date_time is not None and h31.trigger is False
+    history = list(unit.admin.alarm_history)
+    unit.equipment_alarms({32: "PLC alarm 32"})  # the same set: nothing changes
+    assert unit.admin.alarm_history == history and unit.state == "Execute"  # alarms alone do not stop it

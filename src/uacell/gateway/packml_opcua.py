@@ -41,7 +41,7 @@ from uacell.packml.types import PackMLDescriptorDataType
 
 log = logging.getLogger(__name__)
 
-SETTINGS = (*LINK_SETTINGS, "prefix", "map", "parameters", "confirm_timeout")
+SETTINGS = (*LINK_SETTINGS, "prefix", "map", "parameters", "alarms", "confirm_timeout")
 POOL = LinkPool()
 COMMUNICATION_WARNING = 9001
 # The command each acting state is entered by, for a PLC that moved by itself. Typed here: the
@@ -91,6 +91,15 @@ class OpcUaPackTagsUnit(EquipmentBase):
             self._count(key, int(value))
         elif key == "Status.StateCurrent" and not self._inflight:
             self.follow()
+        elif key == "Status.UnitModeCurrent" and not self._inflight and self._attached and value:
+            self.unit.equipment_unit_mode(int(value))  # a mode the PLC changed by itself
+        elif key.startswith("Admin.Alarm[") and self._attached:
+            self._alarms()
+
+    def _alarms(self) -> None:
+        """Admin.Alarm follows the PLC's Admin.Alarm[i].ID tags (0: an empty entry)."""
+        ids = [int(v) for k, v in self.plc.items() if k.startswith("Admin.Alarm[") and v]
+        self.unit.equipment_alarms({i: f"PLC alarm {i}" for i in ids})
 
     def on_connection(self, connected: bool) -> None:
         self.reachable = connected
@@ -98,7 +107,7 @@ class OpcUaPackTagsUnit(EquipmentBase):
             return
         self.unit.warning(COMMUNICATION_WARNING, f"communication lost: {self.link.endpoint}", active=not connected)
         if connected:
-            self.follow()
+            self._catch_up()
 
     def _count(self, key: str, value: int) -> None:
         before = self._counted.get(key)
@@ -118,7 +127,16 @@ class OpcUaPackTagsUnit(EquipmentBase):
         self._attached = True
         if not self.reachable:
             unit.warning(COMMUNICATION_WARNING, f"communication lost: {self.link.endpoint}", active=True)
-        asyncio.get_running_loop().call_soon(self.follow)
+        asyncio.get_running_loop().call_soon(self._catch_up)
+
+    def _catch_up(self) -> None:
+        """What the PLC holds now, taken over: its state, its unit mode, its alarms."""
+        mode = self.plc.get("Status.UnitModeCurrent")
+        if mode and not self._inflight:
+            self.unit.equipment_unit_mode(int(mode))
+        if any(k.startswith("Admin.Alarm[") for k in self.tags):
+            self._alarms()
+        self.follow()
 
     def follow(self) -> None:
         """Bring uacell's machines to the PLC's state, one TR88 step at a time."""
@@ -282,6 +300,7 @@ async def opcua_packtags(spec: Any) -> OpcUaPackTagsUnit:
             str(settings.get("prefix", "")),
             {str(k): str(v) for k, v in dict(settings.get("map", {})).items()},
             parameters=int(settings.get("parameters", 5)),
+            alarms=int(settings.get("alarms", 0)),
         )
     except PackTagsMapError as e:
         raise ValueError(str(e)) from None
@@ -297,7 +316,7 @@ async def opcua_packtags(spec: Any) -> OpcUaPackTagsUnit:
             "Admin.ProdDefectiveCount",
             "Admin.StopReason",
         )
-    ]
+    ] + [t.node_id for k, t in tags.items() if k.startswith("Admin.Alarm[")]
     link.start()
     await link.watch(watched, unit.on_value, unit.on_connection)
     await link.wait_connected(3.0)  # unreachable at start: uacell serves anyway, the unit reports it

@@ -76,6 +76,14 @@ class UnitPort(Protocol):
         Stop, Abort); the same state rules as for clients apply."""
         ...
 
+    def equipment_unit_mode(self, mode: int) -> bool:
+        """The machine changed its unit mode by itself; False (nothing changes) for an unsupported mode."""
+        ...
+
+    def equipment_alarms(self, alarms: Mapping[int, str]) -> None:
+        """The alarms the machine has active now (ID -> message) become Admin.Alarm."""
+        ...
+
 
 @runtime_checkable
 class PackMLEquipment(Protocol):

@@ -604,6 +604,42 @@ class PackMLUnit:
                     self.admin.warning_extent,
                 )
 
+    def equipment_unit_mode(self, mode: int) -> bool:
+        """The equipment changed the unit mode by itself (a PLC's panel): take it as the current mode.
+        A mode the unit does not support is refused (False, logged), nothing changes."""
+        if isinstance(mode, bool) or not isinstance(mode, int) or mode not in self.supported_modes:
+            log.warning("%s: the equipment reports unit mode %r, not a supported mode", self.name, mode)
+            return False
+        if mode == self.status.unit_mode_current:
+            return True
+        with self._operation():
+            self._account()
+            self.status.unit_mode_current = mode
+            self._mode_cur = self._state_cur = 0.0
+            self.save()
+        return True
+
+    def equipment_alarms(self, alarms: Mapping[int, str]) -> None:
+        """The alarms the equipment has active now (ID -> message): Admin.Alarm becomes that list;
+        an alarm that is new is also added to AlarmHistory, one that went is acknowledged there."""
+        with self._operation():
+            a = self.admin
+            active = {x.id: x for x in a.alarm}
+            if set(active) == set(alarms):
+                return
+            now = self._wall()
+            gone = {(x.id, x.date_time) for x in a.alarm if x.id not in alarms}
+            a.alarm_history[:] = [
+                dataclasses.replace(h, ack_date_time=now, trigger=False) if (h.id, h.date_time) in gone else h
+                for h in a.alarm_history
+            ]
+            a.alarm[:] = [x for x in a.alarm if x.id in alarms]
+            for alarm_id, message in alarms.items():
+                if alarm_id not in active:
+                    alarm = PackMLAlarmDataType(alarm_id, 0, message, 1, now, None, True)
+                    _push(a.alarm, alarm, a.alarm_extent)
+                    _push(a.alarm_history, alarm, a.alarm_history_extent)
+
     def set_blocked(self, blocked: bool) -> None:
         with self._operation():
             self.status.equipment_blocked = bool(blocked)
