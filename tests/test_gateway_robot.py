@@ -224,8 +224,11 @@ def test_cell_file_errors_name_the_part_and_key(tmp_path: Path) -> None:
     bad.write_text(cell_text(502).replace('driver = "modbus-signals"', 'driver = "modbus-sigs"'))
     with pytest.raises(ConfigError, match=r"equipment: driver 'modbus-sigs' is not one of: modbus-signals"):
         load_cell(bad)
-    bad.write_text(cell_text(502).replace("pick_and_place = 3", 'pick_and_place = "three"'))
-    with pytest.raises(ConfigError, match=r"programs: pick_and_place: must be a program number"):
+    bad.write_text(cell_text(502).replace("pick_and_place = 3", "pick_and_place = 2.5"))
+    with pytest.raises(ConfigError, match=r"programs: pick_and_place: must be a program number \(1..65535\) or a name"):
+        load_cell(bad)
+    bad.write_text(cell_text(502).replace("pick_and_place = 3", 'pick_and_place = ""'))
+    with pytest.raises(ConfigError, match=r"programs: pick_and_place: must be"):
         load_cell(bad)
     bad.write_text(
         cell_text(502)
@@ -244,7 +247,7 @@ async def test_a_program_without_a_number_is_rejected_before_anything_is_written
     conn = ModbusConnection("127.0.0.1", free_port())  # nobody listens: nothing may be sent
     robot = ModbusSignalsRobot("R.Controllers.C", ModbusRobotIO(conn, 1, signal_tags()), conn, {"a": 1}, (), Timing())
     program = parse("program Sweep version 1\nwait 1\n", [])
-    with pytest.raises(ProgramRejected, match="no program number for Sweep in programs"):
+    with pytest.raises(ProgramRejected, match="no program number or name for Sweep in programs"):
         await robot.load("Main", program)
     assert program_key("pick_and_place") == program_key("PickAndPlace") == program_key("pick-and-place")
     conn.close()
@@ -263,3 +266,28 @@ async def test_config_check_connect_reads_every_signal(tmp_path: Path, plc: PLC)
             assert any("remote_ready" in ln and "discrete 0 = True" in ln for ln in proc.stdout.splitlines())
         else:
             assert "(endpoint)  PROBLEM: unreachable" in proc.stdout
+
+
+async def test_a_program_selected_by_name_through_a_string_tag(tmp_path: Path, plc: PLC) -> None:
+    """programs = { pick_and_place = "PICK01" }: LoadByName writes the controller's name for it into
+    the program_name registers (16 ASCII characters) and waits for the name's echo."""
+    io = await plc.io()
+    cell = tmp_path / "cell.toml"
+    cell.write_text(cell_text(plc.port).replace("pick_and_place = 3", 'pick_and_place = "PICK01"'))
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(cell)
+    async with serving(config) as (_app, client):
+        named = ModbusRobotIO(io.conn, 1, signal_tags(), by_name=True)
+        assert await status(client, SO, "GetReady") == 0
+        await until_state(client, SO, "Ready")
+        assert await status(client, TC, "LoadByName", s("gripper")) == 0  # the module it uses
+        assert await status(client, TC, "LoadByName", s("pick_and_place")) == 0
+        assert (await named.status()).program_name_echo == "PICK01"  # the controller took the name
+        assert await state(client, TC) == "Ready"
+        assert await status(client, TC, "Start") == 0
+        await wait_controller(io, lambda c: c.running)
+        await until_state(client, TC, "Ready")
+        assert await state(client, READY) == "AtProgramStart"
+        assert await status(client, TC, "UnloadProgram") == 0
+        assert await status(client, TC, "LoadByName", s("palletize")) == 0  # by number, beside the name
+        assert (await io.status()).program_echo == 7

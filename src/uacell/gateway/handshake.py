@@ -50,8 +50,8 @@ class PlcStatus:
 
 @dataclass(frozen=True)
 class Write:
-    tag: str  # a key of the PackTags map (uacell.gateway.packtags)
-    value: bool | int | float
+    tag: str  # a key of the tag map (uacell.gateway.packtags, uacell.gateway.signals)
+    value: bool | int | float | str
 
 
 class Handshake:

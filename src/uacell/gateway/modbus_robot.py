@@ -3,7 +3,6 @@
 This is the I/O half of the modbus-signals driver: read the status bits into a ``RobotStatus``,
 perform an operation (writes, then status reads until confirmed, pulse ends written on the way).
 A transport failure becomes ``CallError("BadCommunicationError")``; nothing is retried or queued.
-Not yet behind the RobotEquipment Protocol (issue 21 continues).
 """
 
 from __future__ import annotations
@@ -31,13 +30,24 @@ STATUS_SIGNALS = (
 
 
 def signal_tags(overrides: Mapping[str, tuple[str, int, str]] | None = None) -> dict[str, ModbusTag]:
-    """The default map with ``overrides`` (signal -> (table, address, type)); unknown signals refused."""
+    """The default map with ``overrides`` (signal -> (table, address, type)); unknown signals refused.
+    A string's type names its length in registers: ``"string:8"`` (16 ASCII characters)."""
     entries = dict(DEFAULT_MAP)
     for name, entry in (overrides or {}).items():
         if name not in entries:
             raise ValueError(f"{name}: not a signal of the map ({', '.join(DEFAULT_MAP)})")
         entries[name] = entry
-    return {name: ModbusTag(table, address, RegisterType(kind)) for name, (table, address, kind) in entries.items()}
+    return {name: ModbusTag(table, address, register_type(kind)) for name, (table, address, kind) in entries.items()}
+
+
+def register_type(kind: str) -> RegisterType:
+    """``"uint16"``, ``"bool"``, ... or ``"string:<registers>"``."""
+    name, _, length = kind.partition(":")
+    if name == "string":
+        if not length.isdigit():
+            raise ValueError(f"type {kind!r}: a string needs its length in registers, e.g. 'string:8'")
+        return RegisterType("string", length=int(length))
+    return RegisterType(kind)
 
 
 class ModbusRobotIO:
@@ -48,15 +58,19 @@ class ModbusRobotIO:
         tags: Mapping[str, ModbusTag],
         poll: float = 0.01,
         clock: Callable[[], float] = time.monotonic,
+        by_name: bool = False,
     ) -> None:
         self.conn, self.unit, self.tags, self.poll, self.clock = conn, unit, tags, poll, clock
+        # the name's echo is read only when some program is selected by name (a controller without
+        # those registers would answer every status read with an error otherwise)
+        self.signals = (*STATUS_SIGNALS, "program_name_echo") if by_name else STATUS_SIGNALS
 
     async def status(self) -> RobotStatus:
         """The controller's status now; ``connected=False`` when it cannot be read."""
         try:
             if not self.conn.connected and not await self.conn.connect():
                 return RobotStatus(connected=False)
-            values = {name: await self.conn.read(self.tags[name], self.unit) for name in STATUS_SIGNALS}
+            values = {name: await self.conn.read(self.tags[name], self.unit) for name in self.signals}
         except CommunicationError:
             return RobotStatus(connected=False)
         return RobotStatus(**values)  # type: ignore[arg-type]

@@ -15,6 +15,7 @@ from uacell.gateway.modbus import CommunicationError, ModbusConnection
 from uacell.gateway.modbus_robot import signal_tags
 from uacell.gateway.opcua_link import link_options, new_client
 from uacell.gateway.packtags import PackTagsMapError, resolve
+from uacell.gateway.signals import NAME_SIGNALS
 
 MODBUS = "uacell.gateway.robot:modbus_signals"
 PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
@@ -96,6 +97,8 @@ async def probe_modbus(part: str, settings: Mapping[str, Any], timeout: float = 
         tags = signal_tags(overrides)
     except (ValueError, TypeError, IndexError) as e:
         return [Row(part, endpoint, "(map)", str(e), False)]
+    if not any(isinstance(v, str) for v in dict(settings.get("programs", {})).values()):
+        tags = {k: t for k, t in tags.items() if k not in NAME_SIGNALS}  # not used: not asked for
     conn = ModbusConnection(host, port, timeout=timeout)
     try:
         if not await conn.connect():

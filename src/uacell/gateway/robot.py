@@ -83,7 +83,7 @@ class ModbusSignalsRobot:
         part: str,
         io: ModbusRobotIO,
         conn: ModbusConnection,
-        programs: Mapping[str, int],
+        programs: Mapping[str, int | str],
         axes: Sequence[AxisInfo],
         timing: Timing,
     ) -> None:
@@ -172,11 +172,16 @@ class ModbusSignalsRobot:
     async def load(self, task: str, program: Program) -> None:
         if program.kind is Kind.MODULE:
             return  # the controller holds its modules; nothing to select
-        number = self.programs.get(program_key(program.name))
-        if number is None:
+        selection = self.programs.get(program_key(program.name))
+        if selection is None:
             known = ", ".join(sorted(self.programs)) or "none"
-            raise ProgramRejected(f"no program number for {program.name} in programs (known: {known})")
+            raise ProgramRejected(f"no program number or name for {program.name} in programs (known: {known})")
         t = self.timing
+        if isinstance(selection, str):  # selected by name, through the string tag
+            name = selection
+            await self._perform(lambda s, now: SignalOp.load_name(name, s, now, t.confirm_timeout, t.pulse_width))
+            return
+        number = selection
         await self._perform(lambda s, now: SignalOp.load(number, s, now, t.confirm_timeout, t.pulse_width))
 
     async def unload(self, task: str, name: str) -> None:
@@ -244,7 +249,10 @@ async def modbus_signals(spec: Any) -> ModbusSignalsRobot:
     port, unit = int(settings.get("port", 502)), int(settings.get("unit", 1))
     programs = settings.get("programs", {})
     if not isinstance(programs, Mapping):
-        raise ValueError("programs must map program names to numbers")
+        raise ValueError("programs must map program names to numbers (or to the names the controller knows)")
+    for key, value in programs.items():
+        if isinstance(value, bool) or not isinstance(value, int | str) or value in ("", 0):
+            raise ValueError(f"programs: {key} = {value!r}: a program number (1..65535) or a name (a string)")
     overrides = {k: (str(v[0]), int(v[1]), str(v[2])) for k, v in dict(settings.get("map", {})).items()}
     tags = signal_tags(overrides)
     timing = Timing(
@@ -253,7 +261,8 @@ async def modbus_signals(spec: Any) -> ModbusSignalsRobot:
         pulse_width=float(settings.get("pulse_width", Timing.pulse_width)),
     )
     conn = POOL.get(host, port, float(settings.get("timeout", 1.0)))
-    io = ModbusRobotIO(conn, unit, tags, poll=min(timing.poll, 0.01))
+    by_name = any(isinstance(v, str) for v in programs.values())
+    io = ModbusRobotIO(conn, unit, tags, poll=min(timing.poll, 0.01), by_name=by_name)
     robot = ModbusSignalsRobot(spec.part, io, conn, programs, tuple(getattr(spec, "axes", ())) or DEFAULT_AXES, timing)
     await robot.start()  # unreachable at start: uacell serves anyway, the part reports it
     return robot

@@ -23,6 +23,7 @@ DEFAULT_MAP: dict[str, tuple[str, int, str]] = {
     "drives_on": ("coil", 3, "bool"),
     "program_strobe": ("coil", 4, "bool"),
     "program_number": ("holding", 0, "uint16"),
+    "program_name": ("holding", 10, "string:8"),  # selection by name: read only when a program uses it
     # from the robot
     "remote_ready": ("discrete", 0, "bool"),
     "drives_are_on": ("discrete", 1, "bool"),
@@ -32,7 +33,9 @@ DEFAULT_MAP: dict[str, tuple[str, int, str]] = {
     "fault": ("discrete", 5, "bool"),
     "program_echo": ("input", 0, "uint16"),
     "fault_code": ("input", 1, "uint16"),
+    "program_name_echo": ("input", 10, "string:8"),
 }
+NAME_SIGNALS = ("program_name", "program_name_echo")  # in use only for a programs entry that is a name
 
 
 @dataclass(frozen=True)
@@ -45,6 +48,7 @@ class RobotStatus:
     fault: bool = False
     program_echo: int = 0
     fault_code: int = 0
+    program_name_echo: str = ""
     connected: bool = True
 
 
@@ -115,6 +119,24 @@ class SignalOp:
         )
 
     @classmethod
+    def load_name(cls, name: str, status: RobotStatus, now: float, timeout: float, pulse_width: float) -> SignalOp:
+        """Select program ``name`` (a string tag): name, then strobe; confirmed by the name's echo."""
+        _reachable(status)
+        if not name or not name.isascii():
+            raise CallError("BadInvalidArgument", f"program name {name!r} is not ASCII text", argument=0)
+        if status.running:
+            raise CallError("BadInvalidState", "a program is running")
+        return cls(
+            "load",
+            (Write("program_name", name), Write("program_strobe", True)),
+            (Write("program_strobe", False),),
+            lambda s: s.program_name_echo == name,
+            now,
+            timeout,
+            pulse_width,
+        )
+
+    @classmethod
     def start(cls, status: RobotStatus, now: float, timeout: float, pulse_width: float) -> SignalOp:
         """Start pulse; needs remote ready, drives on, a selected program, no fault; confirmed by running."""
         _reachable(status)
@@ -123,7 +145,7 @@ class SignalOp:
             for what, ok in (
                 ("remote ready", status.remote_ready),
                 ("drives on", status.drives_are_on),
-                ("a selected program", status.program_echo != 0),
+                ("a selected program", status.program_echo != 0 or status.program_name_echo != ""),
                 ("no fault", not status.fault),
                 ("not running", not status.running),
             )

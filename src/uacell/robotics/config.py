@@ -174,11 +174,15 @@ def _controller(table: Table, index: int, robot_devices: list[str]) -> Controlle
         device = robot_devices[index] if index < len(robot_devices) else None
     possible, default = _stop_modes(table)
     equipment, settings = table.equipment(DRIVERS)
-    programs = table.free_table("programs")  # LoadByName's names -> a signals robot's program numbers
+    # LoadByName's names -> a signals robot's program numbers, or the names its controller knows them by
+    programs = table.free_table("programs")
     if programs:
-        bad = next((k for k, v in programs.items() if isinstance(v, bool) or not isinstance(v, int)), None)
+        bad = next(
+            (k for k, v in programs.items() if isinstance(v, bool) or not isinstance(v, int | str) or v in ("", 0)),
+            None,
+        )
         if bad is not None:
-            raise table.error("programs", f"{bad}: must be a program number (an integer)")
+            raise table.error("programs", f"{bad}: must be a program number (1..65535) or a name (a string)")
         settings["programs"] = programs
     spec = ControllerSpec(
         name,

@@ -4,9 +4,10 @@
     python -m uacell.gateway.examples.robot_controller --port 5020 --cycle 2.0
 
 The program: remote ready is always on; drives follow the drives_on coil; a rising program strobe
-copies program_number to the echo; a rising start with drives on, a program selected and no fault
-runs the program for ``--cycle`` seconds, then sets program end and at start; a rising stop ends the
-run at once (no program end); a program number of 99 faults on start (code 99) until reset.
+copies program_number and program_name (a string of 8 registers) to their echoes; a rising start
+with drives on, a program selected and no fault runs the program for ``--cycle`` seconds, then sets
+program end and at start; a rising stop ends the run at once (no program end); a program number of
+99 faults on start (code 99) until reset.
 """
 
 from __future__ import annotations
@@ -35,15 +36,19 @@ class Controller:
         self.last: dict[str, bool] = {}
         self.run_until = 0.0
 
-    async def get(self, signal: str) -> int:
-        table, address, _ = DEFAULT_MAP[signal]
-        got = await self.store.async_getValues(UNIT, FC[table], address, 1)
+    async def get(self, signal: str) -> int | tuple[int, ...]:
+        table, address, kind = DEFAULT_MAP[signal]
+        count = int(kind.partition(":")[2] or 1)  # a string's registers, as they are
+        got = await self.store.async_getValues(UNIT, FC[table], address, count)
         assert isinstance(got, list), got
-        return int(got[0])
+        return tuple(int(x) for x in got) if count > 1 else int(got[0])
 
-    async def set(self, signal: str, value: int) -> None:
+    async def set(self, signal: str, value: int | tuple[int, ...]) -> None:
         table, address, _ = DEFAULT_MAP[signal]
-        values: list[int] | list[bool] = [bool(value)] if table in ("coil", "discrete") else [value]
+        if isinstance(value, tuple):
+            values: list[int] | list[bool] = list(value)
+        else:
+            values = [bool(value)] if table in ("coil", "discrete") else [value]
         await self.store.async_setValues(UNIT, FC[table], address, values)
 
     async def scan(self, now: float) -> None:
@@ -51,14 +56,15 @@ class Controller:
         v = dict(read)  # updated as the program decides, so later rules see this scan's outputs
         rising = {n for n in ("program_strobe", "reset", "start", "stop") if v[n] and not self.last.get(n)}
         self.last = {n: bool(v[n]) for n in ("program_strobe", "reset", "start", "stop")}
-        out: dict[str, int] = {"remote_ready": 1, "drives_are_on": v["drives_on"]}
+        out: dict[str, int | tuple[int, ...]] = {"remote_ready": 1, "drives_are_on": v["drives_on"]}
         if "program_strobe" in rising:
-            out["program_echo"] = v["program_number"]
-            v["program_echo"] = v["program_number"]
+            out["program_echo"] = v["program_echo"] = v["program_number"]
+            out["program_name_echo"] = v["program_name_echo"] = v["program_name"]
         if "reset" in rising:
             out["fault"] = v["fault"] = 0
             out["fault_code"] = 0
-        if "start" in rising and v["drives_on"] and v["program_echo"] and not v["fault"] and not v["running"]:
+        selected = v["program_echo"] or any(v["program_name_echo"])  # type: ignore[arg-type]
+        if "start" in rising and v["drives_on"] and selected and not v["fault"] and not v["running"]:
             if v["program_echo"] == FAULT_PROGRAM:
                 out["fault"] = 1
                 out["fault_code"] = FAULT_PROGRAM
