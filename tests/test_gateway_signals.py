@@ -26,6 +26,20 @@ def test_load_writes_number_then_strobe_confirmed_by_echo() -> None:
     assert op.observe(RobotStatus(remote_ready=True, drives_are_on=True, program_echo=7), 0.3) is True
 
 
+def test_load_by_name_writes_the_string_tag_confirmed_by_the_names_echo() -> None:
+    op = SignalOp.load("PICK01", READY, now=0.0, timeout=1.0, pulse_width=0.2)
+    assert op.writes == (Write("program_name", "PICK01"), Write("program_strobe", True))
+    assert op.observe(RobotStatus(remote_ready=True, program_echo=3, program_name_echo="PICK0"), 0.1) is False
+    assert op.observe(RobotStatus(remote_ready=True, program_name_echo="PICK01"), 0.2) is True
+    for bad in ("", "Größe"):
+        with pytest.raises(CallError) as err:
+            SignalOp.load(bad, READY, now=0.0, timeout=1.0, pulse_width=0.2)
+        assert err.value.status == "BadInvalidArgument"
+    # a program selected by name only counts as selected for Start
+    named = RobotStatus(remote_ready=True, drives_are_on=True, program_name_echo="PICK01")
+    assert SignalOp.start(named, now=0.0, timeout=1.0, pulse_width=0.2).writes == (Write("start", True),)
+
+
 def test_start_stop_and_the_pulse_ended_on_confirmation() -> None:
     op = SignalOp.start(READY, now=0.0, timeout=1.0, pulse_width=0.5)
     assert op.writes == (Write("start", True),)

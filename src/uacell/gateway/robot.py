@@ -177,12 +177,7 @@ class ModbusSignalsRobot:
             known = ", ".join(sorted(self.programs)) or "none"
             raise ProgramRejected(f"no program number or name for {program.name} in programs (known: {known})")
         t = self.timing
-        if isinstance(selection, str):  # selected by name, through the string tag
-            name = selection
-            await self._perform(lambda s, now: SignalOp.load_name(name, s, now, t.confirm_timeout, t.pulse_width))
-            return
-        number = selection
-        await self._perform(lambda s, now: SignalOp.load(number, s, now, t.confirm_timeout, t.pulse_width))
+        await self._perform(lambda s, now: SignalOp.load(selection, s, now, t.confirm_timeout, t.pulse_width))
 
     async def unload(self, task: str, name: str) -> None:
         return  # the selection stays on the controller until the next one

@@ -101,36 +101,27 @@ class SignalOp:
         return False
 
     @classmethod
-    def load(cls, number: int, status: RobotStatus, now: float, timeout: float, pulse_width: float) -> SignalOp:
-        """Select program ``number``: number, then strobe; confirmed by the echo."""
+    def load(
+        cls, selection: int | str, status: RobotStatus, now: float, timeout: float, pulse_width: float
+    ) -> SignalOp:
+        """Select a program by number (``program_number``, confirmed by ``program_echo``) or by name
+        (the string tag ``program_name``, confirmed by ``program_name_echo``), then the strobe."""
         _reachable(status)
-        if not 0 < number <= 0xFFFF:
-            raise CallError("BadInvalidArgument", f"program number {number} is not 1..65535", argument=0)
+        if isinstance(selection, str):
+            if not selection or not selection.isascii():
+                raise CallError("BadInvalidArgument", f"program name {selection!r} is not ASCII text", argument=0)
+            tag, echo = "program_name", "program_name_echo"
+        else:
+            if not 0 < selection <= 0xFFFF:
+                raise CallError("BadInvalidArgument", f"program number {selection} is not 1..65535", argument=0)
+            tag, echo = "program_number", "program_echo"
         if status.running:
             raise CallError("BadInvalidState", "a program is running")
         return cls(
             "load",
-            (Write("program_number", number), Write("program_strobe", True)),
+            (Write(tag, selection), Write("program_strobe", True)),
             (Write("program_strobe", False),),
-            lambda s: s.program_echo == number,
-            now,
-            timeout,
-            pulse_width,
-        )
-
-    @classmethod
-    def load_name(cls, name: str, status: RobotStatus, now: float, timeout: float, pulse_width: float) -> SignalOp:
-        """Select program ``name`` (a string tag): name, then strobe; confirmed by the name's echo."""
-        _reachable(status)
-        if not name or not name.isascii():
-            raise CallError("BadInvalidArgument", f"program name {name!r} is not ASCII text", argument=0)
-        if status.running:
-            raise CallError("BadInvalidState", "a program is running")
-        return cls(
-            "load",
-            (Write("program_name", name), Write("program_strobe", True)),
-            (Write("program_strobe", False),),
-            lambda s: s.program_name_echo == name,
+            lambda s: getattr(s, echo) == selection,
             now,
             timeout,
             pulse_width,
