@@ -18,7 +18,6 @@ from asyncua import Client, ua
 from asyncua.server.address_space import AttributeValue, NodeData
 from conftest import fast_config, start_app
 
-from uacell.cell import cell_digest
 from uacell.ua import snapshot
 from uacell.ua.snapshot import LazyNodes, SnapshotInvalid, read_snapshot, stripped_copy, write_snapshot
 
@@ -172,6 +171,12 @@ def test_the_cell_digest_follows_the_cells_shape_only() -> None:
     respecified = demo_cell()
     respecified[1][1].spec = object()  # equipment settings are the binders' business
     assert cell_digest(respecified) == cell_digest(demo)
+    # history's HA Configuration nodes are in the snapshot: [history] on or off is another snapshot
+    from uacell.history.config import HistoryConfig
+    from uacell.history.setup import history_shape
+
+    on, off = HistoryConfig(), HistoryConfig(enabled=False)
+    assert cell_digest(demo, history_shape(on)) != cell_digest(demo, history_shape(off))
 
 
 def test_only_the_most_recent_snapshots_are_kept(tmp_path: Path) -> None:
@@ -288,6 +293,11 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(t
     try:
         assert second.address_space_source == "snapshot"
         assert await _mach_speed(second) == speed
+        # a kept variable's HA Configuration came with the snapshot, its history is on as before
+        aspace = second.server.iserver.aspace
+        ns = second.cell.instantiator.ns
+        assert ua.NodeId("Filler1.Status.MachSpeed.HAConfiguration.Stepped", ns) in aspace
+        assert second.history is not None
         await second.snapshot_written()  # nothing to write
     finally:
         await second.stop()
@@ -347,7 +357,7 @@ async def test_a_damaged_or_stale_snapshot_is_rebuilt_silently(
     expected = "is damaged" if spoil == "damage" else "no address-space snapshot for this cell"
     assert any(expected in m for m in said), said
     assert not [r for r in caplog.records if r.levelno >= logging.WARNING and "snapshot" in r.getMessage()]
-    key = snapshot.snapshot_key(_pinned(), cell_digest(None))
+    key = snapshot.snapshot_key(_pinned(), again.snapshot_digest)
     assert read_snapshot(snapshot.snapshot_path(cache, key), key) is not None  # a good one again
 
 
@@ -363,7 +373,7 @@ async def test_a_stop_does_not_wait_for_the_snapshot_and_leaves_no_half_file(tmp
     assert app.address_space_source == "nodesets"
     await app.stop()  # at once: the snapshot is still being written
     assert not list(cache.glob(".*.tmp"))
-    key = snapshot.snapshot_key(_pinned(), cell_digest(None))
+    key = snapshot.snapshot_key(_pinned(), app.snapshot_digest)
     for path in _snapshots(cache):  # whole, if the write won the race
         assert read_snapshot(path, key) is not None
 

@@ -170,12 +170,13 @@ def _shape(part: Part) -> tuple[Any, ...]:
     )
 
 
-def cell_digest(parts: list[tuple[str, Part]] | None) -> str:
+def cell_digest(parts: list[tuple[str, Part]] | None, extra: str = "") -> str:
     """SHA-256 of everything that shapes the cell's instances: the parts (not their equipment
-    settings, which the binders apply), where the companions place them, and the cell namespace."""
+    settings, which the binders apply), where the companions place them, the cell namespace, and
+    ``extra`` (what else adds nodes before the snapshot: history's HA Configurations)."""
     roots = sorted(repr(root) for c in companions() for root in c.roots)
     shape = [(name, _shape(part)) for name, part in parts or demo_cell()]
-    return hashlib.sha256(repr((CELL_NAMESPACE, roots, shape)).encode()).hexdigest()
+    return hashlib.sha256(repr((CELL_NAMESPACE, roots, shape, extra)).encode()).hexdigest()
 
 
 def sized_cell(units: int, robots: int, task_controls: int = 1) -> list[tuple[str, Part]]:

@@ -20,7 +20,7 @@ from uacell.companion import Binder, Closer
 from uacell.config import Config, default_application_uri
 from uacell.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
 from uacell.history.service import HistoryService
-from uacell.history.setup import install_history
+from uacell.history.setup import add_configurations, history_shape, install_history
 from uacell.logs import configured_levels
 from uacell.metrics import Metrics
 from uacell.models import StateTables
@@ -99,6 +99,7 @@ class UacellServer:
         self.metrics: Metrics | None = None
         self.diagnostics: Diagnostics | None = None
         self.address_space_source = ""  # "snapshot" or "nodesets", once set up
+        self.snapshot_digest = ""
         self._snapshot_job: SnapshotJob | None = None
         self._snapshot_cancel = threading.Event()
         self._snapshot_task: asyncio.Task[None] | None = None
@@ -149,11 +150,16 @@ class UacellServer:
         # asyncua's init(), the official models and the cell's instances: from the address-space
         # snapshot when there is one for this cell, else built (and a snapshot written once listening).
         parts = self.parts if self.parts is not None else self.config.cell.parts()
-        prepared = await init_address_space(self.server, cfg.models_dir, cfg.snapshot_dir, cell_digest(parts))
+        # what the snapshot of the address space is keyed by, beside the models and the code
+        self.snapshot_digest = digest = cell_digest(parts, history_shape(self.config.history))
+        prepared = await init_address_space(self.server, cfg.models_dir, cfg.snapshot_dir, digest)
         self.model_indexes = prepared.indexes
         self.address_space_source = prepared.source
         self._cell = await build_cell(self.server, self.model_indexes, parts, restored=prepared.extras)
         if prepared.capture is not None:
+            # the HA Configuration nodes of kept variables are part of the cell's shape: in the snapshot
+            kept = [(b.part.role, b.node) for b in self._cell.built]
+            await add_configurations(self.server, self.config.history, kept)
             self._snapshot_job = await prepared.capture()
         self.limits = install_limits(self)
         self.server.set_endpoint(self.endpoint)

@@ -61,22 +61,51 @@ async def install_history(
     def children(node: ua.NodeId) -> list[tuple[str, ua.NodeId]]:
         return toolkit.children(aspace, node)
 
+    parts = list(parts)
+    for node in kept_values(server, cfg, parts):
+        await service.historize_value(node)
+    await add_configurations(server, cfg, parts)  # those the snapshot did not hold (added by binders)
     for role, root in parts:
         dataset = dataset_of(role)
-        if dataset is None:
-            continue
-        for item in dataset.values:
-            if item.optional and not cfg.axis_positions:
-                continue
-            for _path, node in resolve(item.path, children, root):
-                await service.historize_value(node)
-                await _configuration(server, node)
-        for path in dataset.notifiers:
+        for path in dataset.notifiers if dataset is not None else ():
             for _path, node in resolve(path, children, root):
                 await service.historize_events(node)
     await service.historize_events(ua.NodeId(ua.ObjectIds.Server))
     await publish_capabilities(server, cfg)
     return service
+
+
+def kept_values(server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, ua.NodeId]]) -> list[ua.NodeId]:
+    """The variables whose values are kept: each part's DataSet values (found in the address space
+    as it is now), axis positions only with ``axis_positions``."""
+    aspace = server.iserver.aspace
+
+    def children(node: ua.NodeId) -> list[tuple[str, ua.NodeId]]:
+        return toolkit.children(aspace, node)
+
+    out: list[ua.NodeId] = []
+    for role, root in parts:
+        dataset = dataset_of(role)
+        for item in dataset.values if dataset is not None else ():
+            if item.optional and not cfg.axis_positions:
+                continue
+            out.extend(node for _path, node in resolve(item.path, children, root))
+    return out
+
+
+async def add_configurations(server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, ua.NodeId]]) -> None:
+    """The HA Configuration of every kept variable that has none yet. ``uacell.server`` calls it once
+    before the address-space snapshot is taken, so that restarts find them in it (the snapshot's key
+    includes ``history_shape``), and again once the binders added their variables."""
+    if not cfg.enabled:
+        return
+    for node in kept_values(server, cfg, parts):
+        await _configuration(server, node)
+
+
+def history_shape(cfg: HistoryConfig) -> str:
+    """What of ``[history]`` shapes the address space (the HA Configuration nodes): for the snapshot key."""
+    return f"history={cfg.enabled},axes={cfg.axis_positions}"
 
 
 # The HA Configuration of a kept variable (OPC 10000-11 5.2.2) with the aggregate configuration
