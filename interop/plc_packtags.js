@@ -11,7 +11,8 @@
 //   Admin.StopReason.ID (Int32), Admin.Alarm[i].ID (Int32, 4; written by tests: the PLC's active alarms);
 //   and for tests: Sim.Refuse (Boolean: requests are taken and ignored), Sim.Frozen (Boolean: no scan),
 //   Sim.Fault (Boolean: a rising edge aborts the unit with StopReason 42), Sim.Parameters (Float[]: the
-//   Command.Parameter values the last Start took).
+//   Command.Parameter values the last Start took). Each tag is also a node of a tree, for browse paths:
+//   Objects/U/PackTags/Command/CntrlCmd (NodeId "U.Tree.Command.CntrlCmd").
 // The program, every 5 ms: take a change request (clear it; act on it when TR88 allows the command in the
 // state), end an acting state after ACTING_MS, produce in Execute at MachSpeed packages/min.
 // Prints "listening" once clients can connect; stops on SIGTERM.
@@ -157,12 +158,25 @@ async function main() {
   for (const unit of units) {
     const folder = ns.addObject({ browseName: unit.name, nodeId: `s=${unit.name}`, organizedBy: space.rootFolder.objects });
     const keys = [...Object.keys(unit.types), "Sim.Parameters"];
+    // The same tags once more as a tree, for clients that address them by browse path:
+    // Objects/<unit>/PackTags/Command/CntrlCmd, .../Command/Parameter[0]/Value (NodeIds "<unit>.Tree.<path>").
+    const tree = ns.addObject({ browseName: "PackTags", nodeId: `s=${unit.name}.Tree`, componentOf: folder });
+    const branches = { "": tree };
+    const branch = (path) => {
+      if (!(path in branches)) {
+        const cut = path.lastIndexOf(".");
+        const parent = branch(cut < 0 ? "" : path.slice(0, cut));
+        branches[path] = ns.addObject({ browseName: path.slice(cut + 1), nodeId: `s=${unit.name}.Tree.${path}`, componentOf: parent });
+      }
+      return branches[path];
+    };
     for (const key of keys) {
       const array = key === "Sim.Parameters";
-      ns.addVariable({
-        componentOf: folder,
-        browseName: `PackTags.${key}`,
-        nodeId: `s=${unit.name}.PackTags.${key}`,
+      const cut = key.lastIndexOf(".");
+      const leaf = (parent, browseName, nodeId) => ns.addVariable({
+        componentOf: parent,
+        browseName,
+        nodeId,
         dataType: array ? DataType.Float : unit.types[key],
         valueRank: array ? 1 : -1,
         accessLevel: "CurrentRead | CurrentWrite",
@@ -179,6 +193,8 @@ async function main() {
           },
         },
       });
+      leaf(folder, `PackTags.${key}`, `s=${unit.name}.PackTags.${key}`);
+      leaf(branch(key.slice(0, cut)), key.slice(cut + 1), `s=${unit.name}.Tree.${key}`);
     }
   }
   setInterval(() => {

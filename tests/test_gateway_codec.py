@@ -80,6 +80,15 @@ def test_packtags_defaults_under_prefix_and_overrides() -> None:
     assert tags["Admin.Alarm[0].ID"].node_id == "ns=3;s=Capper.PackTags.Admin.Alarm[0].ID"
 
 
+def test_packtags_under_a_browse_path_prefix() -> None:
+    tags = resolve("Capper", "/3:Line1/3:Capper/3:PackTags/", parameters=1)
+    assert tags["Command.CntrlCmd"].node_id == "/3:Line1/3:Capper/3:PackTags/3:Command/3:CntrlCmd"
+    assert tags["Command.Parameter[0].Value"].node_id == "/3:Line1/3:Capper/3:PackTags/3:Command/3:Parameter[0]/3:Value"
+    assert tags["Admin.StopReason"].node_id == "/3:Line1/3:Capper/3:PackTags/3:Admin/3:StopReason/3:ID"
+    with pytest.raises(PackTagsMapError, match=r"^Capper: prefix: '/Capper/PackTags': each browse name is"):
+        resolve("Capper", "/Capper/PackTags")
+
+
 def test_packtags_map_errors_name_part_and_tag() -> None:
     with pytest.raises(PackTagsMapError, match=r"^Capper: Status\.Bogus: not a PackTags tag of the map$"):
         resolve("Capper", "ns=3;s=P", {"Status.Bogus": "ns=3;i=1"})

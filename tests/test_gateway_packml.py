@@ -123,6 +123,16 @@ async def read(client: Client, path: str) -> Any:
     return await client.get_node(ua.NodeId(path, ns)).read_value()
 
 
+async def reset_and_start(client: Client, parameters: ua.Variant) -> None:
+    """Reset, then Start with ``parameters``, each answered Good and the PLC's state followed."""
+    res = await call_path(client, MACH, "Reset")
+    assert res.StatusCode.is_good(), res.StatusCode
+    await until(lambda: state(client, EXEC), "Idle")
+    res = await call_path(client, EXEC, "Start", parameters)
+    assert res.StatusCode.is_good(), res.StatusCode
+    await until(lambda: state(client, EXEC), "Execute")
+
+
 def params(*pairs: tuple[int, float]) -> ua.Variant:
     return ua.Variant(
         [ua.PackMLDescriptorDataType(ID=i, Name=f"P{i}", Unit=ua.EUInformation(), Value=v) for i, v in pairs],
@@ -379,12 +389,7 @@ async def test_a_secure_plc_with_a_user_polled(tmp_path: Path) -> None:
         config = fast_config(tmp_path / "data")
         config.cell = load_cell(path)
         async with serving(config) as (_app, client):
-            res = await call_path(client, MACH, "Reset")
-            assert res.StatusCode.is_good(), res.StatusCode
-            await until(lambda: state(client, EXEC), "Idle")
-            res = await call_path(client, EXEC, "Start", params((1, 7.5)))
-            assert res.StatusCode.is_good(), res.StatusCode
-            await until(lambda: state(client, EXEC), "Execute")
+            await reset_and_start(client, params((1, 7.5)))
         # the same PLC refuses an anonymous client on a channel without security
         with pytest.raises(Exception):  # noqa: B017 (asyncua raises what the PLC's refusal became)
             async with Client(p.endpoint, timeout=5) as anonymous:
@@ -447,5 +452,33 @@ async def test_the_plc_changes_its_unit_mode_and_alarms_by_itself(tmp_path: Path
             await until(history, [(77, False), (12, True)])  # 77 acknowledged when the PLC cleared it
             assert await state(client, f"{MACH}") is not None
             p.client = None
+    finally:
+        p.kill()
+
+
+async def test_tags_by_browse_path(tmp_path: Path) -> None:
+    """prefix = "/1:Capper/1:PackTags": each tag is found below it by browse names (Command/CntrlCmd,
+    Command/Parameter[0]/Value ...), translated when uacell connects; an override may be a path too."""
+    p = PLC([F])
+    p.start()
+    try:
+        text = cell(p, [F]).replace('prefix = "ns=1;s=Capper.PackTags"', 'prefix = "/1:Capper/1:PackTags"')
+        text = text.replace(
+            " }\n", ', map = { "Admin.StopReason" = "/1:Capper/1:PackTags/1:Admin/1:StopReason/1:ID" } }\n'
+        )
+        path = tmp_path / "cell.toml"
+        path.write_text(text)
+        config = fast_config(tmp_path / "data")
+        config.cell = load_cell(path)
+        async with serving(config) as (_app, client), Client(p.endpoint, timeout=10) as plc_client:
+            p.client = plc_client
+            await reset_and_start(client, params((1, 2.5)))
+            assert await p.tag(F, "Sim.Parameters") == pytest.approx([2.5, 0.0, 0.0, 0.0, 0.0])
+            p.client = None
+        # a path the PLC does not have is named by config check --connect
+        bad = tmp_path / "bad.toml"
+        bad.write_text(text.replace("/1:Admin/1:StopReason/1:ID", "/1:Admin/1:NoSuchTag"))
+        proc = await config_check_connect(bad)
+        assert proc.returncode == 1 and "Admin.StopReason" in proc.stdout and "BadNoMatch" in proc.stdout, proc.stdout
     finally:
         p.kill()

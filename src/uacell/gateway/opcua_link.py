@@ -116,6 +116,9 @@ class PlcLink:
         self._subscription: Any = None
         self._watchdog: asyncio.Task[None] | None = None
         self._last: dict[str, Any] = {}  # poll mode: the value each tag had at the last poll
+        # a tag's address (a NodeId string, or a browse path from Objects) -> its NodeId on this connection
+        self._resolved: dict[str, ua.NodeId] = {}
+        self._address_of: dict[ua.NodeId, str] = {}
         self._task: asyncio.Task[None] | None = None
         self._lost = asyncio.Event()
         self._ready = asyncio.Event()
@@ -129,7 +132,8 @@ class PlcLink:
         self._state_listeners.append(on_state)
         if self.connected and self._client is not None:
             try:  # connected already (another part on this PLC): read and subscribe these too
-                nodes = [self._client.get_node(ua.NodeId.from_string(n)) for n in node_ids]
+                await self._resolve(self._client, node_ids)
+                nodes = [self._node(self._client, n) for n in node_ids]
                 for nid, node in zip(node_ids, nodes, strict=True):
                     dv = await node.read_data_value(raise_on_bad_status=False)
                     if not dv.StatusCode.is_good():
@@ -159,7 +163,8 @@ class PlcLink:
     async def read(self, node_id: str) -> Any:
         client = self._usable()
         try:
-            return await client.get_node(ua.NodeId.from_string(node_id)).read_value()
+            await self._resolve(client, [node_id])
+            return await self._node(client, node_id).read_value()
         except (OSError, TimeoutError, ua.UaError, ConnectionError) as exc:
             raise self._failed(exc) from None
 
@@ -167,7 +172,8 @@ class PlcLink:
         """Several values in one Read request (the PLC answers them from one scan)."""
         client = self._usable()
         try:
-            values: list[Any] = await client.read_values([client.get_node(ua.NodeId.from_string(n)) for n in node_ids])
+            await self._resolve(client, node_ids)
+            values: list[Any] = await client.read_values([self._node(client, n) for n in node_ids])
             return values
         except (OSError, TimeoutError, ua.UaError, ConnectionError) as exc:
             raise self._failed(exc) from None
@@ -175,7 +181,8 @@ class PlcLink:
     async def write(self, node_id: str, value: Any, vtype: ua.VariantType) -> None:
         client = self._usable()
         try:
-            await client.get_node(ua.NodeId.from_string(node_id)).write_value(ua.DataValue(ua.Variant(value, vtype)))
+            await self._resolve(client, [node_id])
+            await self._node(client, node_id).write_value(ua.DataValue(ua.Variant(value, vtype)))
         except ua.UaStatusCodeError as exc:
             raise CommunicationError(f"{self.endpoint}: writing {node_id}: {exc}") from None
         except (OSError, TimeoutError, ua.UaError, ConnectionError) as exc:
@@ -184,9 +191,10 @@ class PlcLink:
     async def write_many(self, writes: list[tuple[str, Any, ua.VariantType]]) -> None:
         """Several values in one Write request, in order (the PLC takes them between two scans)."""
         client = self._usable()
-        nodes = [client.get_node(ua.NodeId.from_string(n)) for n, _, _ in writes]
         values = [ua.DataValue(ua.Variant(v, t)) for _, v, t in writes]
         try:
+            await self._resolve(client, [n for n, _, _ in writes])
+            nodes = [self._node(client, n) for n, _, _ in writes]
             await client.write_values(nodes, values)
         except ua.UaStatusCodeError as exc:
             raise CommunicationError(f"{self.endpoint}: writing {[n for n, _, _ in writes]}: {exc}") from None
@@ -234,7 +242,10 @@ class PlcLink:
         o = self.options
         self._client = client = await new_client(o, self.timeout)
         await client.connect()
-        nodes = {nid: client.get_node(ua.NodeId.from_string(nid)) for nid in self._watched}
+        self._resolved.clear()
+        self._address_of.clear()
+        await self._resolve(client, list(self._watched))
+        nodes = {nid: self._node(client, nid) for nid in self._watched}
         # a first read of everything (a missing tag or a wrong type is named here, once)
         for nid, node in nodes.items():
             dv = await node.read_data_value(raise_on_bad_status=False)
@@ -251,7 +262,7 @@ class PlcLink:
 
         class Handler:
             def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
-                link._deliver(node.nodeid.to_string(), val)
+                link._deliver(link._address_of.get(node.nodeid, node.nodeid.to_string()), val)
 
             def status_change_notification(self, status: Any) -> None:
                 link._lost.set()
@@ -276,7 +287,7 @@ class PlcLink:
             await asyncio.sleep(interval)
             ids = list(self._watched)
             try:
-                values = await client.read_values([client.get_node(ua.NodeId.from_string(n)) for n in ids])
+                values = await client.read_values([self._node(client, n) for n in ids])
             except Exception as exc:
                 log.info("the PLC at %s: a poll failed (%s)", self.endpoint, exc or type(exc).__name__)
                 self._lost.set()
@@ -294,6 +305,24 @@ class PlcLink:
                 await asyncio.wait_for(client.get_node(ua.ObjectIds.Server_ServerStatus_State).read_value(), 2.0)
             except Exception:
                 self._lost.set()
+
+    async def _resolve(self, client: Client, addresses: list[str]) -> None:
+        """Find the NodeIds of the addresses that are browse paths (one TranslateBrowsePaths request
+        each; a path the PLC does not have is named)."""
+        for address in addresses:
+            if address in self._resolved:
+                continue
+            nodeid = await resolve_address(client, address, self.endpoint)
+            self._resolved[address] = nodeid
+            self._address_of[nodeid] = address
+
+    def _node(self, client: Client, address: str) -> Any:
+        nodeid = self._resolved.get(address)
+        if nodeid is None:
+            if address.startswith("/"):
+                raise KeyError(address)
+            nodeid = ua.NodeId.from_string(address)
+        return client.get_node(nodeid)
 
     def _deliver(self, nid: str, value: Any) -> None:
         for listener in self._watched.get(nid, []):
@@ -337,6 +366,20 @@ async def new_client(o: LinkOptions, timeout: float) -> Client:
         client.set_user(o.username)
         client.set_password(o.password)
     return client
+
+
+async def resolve_address(client: Client, address: str, endpoint: str = "") -> ua.NodeId:
+    """A tag's NodeId: ``address`` is a NodeId string (``ns=3;s=Capper.PackTags.Status.StateCurrent``)
+    or a browse path from the Objects folder (``/3:Capper/3:PackTags/3:Status/3:StateCurrent``)."""
+    if not address.startswith("/"):
+        return ua.NodeId.from_string(address)
+    segments = [p for p in address.split("/") if p]
+    try:
+        node = await client.nodes.objects.get_child(segments)
+    except ua.UaStatusCodeError as exc:
+        raise CommunicationError(f"{endpoint}: {address}: {ua.StatusCode(exc.code).name}") from None
+    nodeid: ua.NodeId = node.nodeid
+    return nodeid
 
 
 def _application_uri(certificate: str) -> str | None:

@@ -1,8 +1,12 @@
 """The default PackTags map (ISA-TR88.00.02 tag names) under a prefix, every tag overridable.
 
-Pure: it resolves tag names to NodeId strings; nothing here talks to a PLC. A tag is either
-resolved from the prefix (``<prefix>.<path>``, the string-NodeId convention PLC PackML libraries
-use) or given in full by an override (any NodeId string, e.g. ``ns=3;i=1042``).
+Pure: it resolves tag names to addresses; nothing here talks to a PLC. A tag is either resolved
+from the prefix or given in full by an override (any NodeId string, e.g. ``ns=3;i=1042``, or a
+browse path). A prefix that is a NodeId string gives ``<prefix>.<path>`` (the string-NodeId
+convention PLC PackML libraries use); a prefix that is a browse path from the Objects folder
+(``/3:Capper/3:PackTags``) gives the tag's path below it, one browse name per dotted part, in the
+namespace of the prefix's last element (``/3:Capper/3:PackTags/3:Command/3:CntrlCmd``); the gateway
+translates browse paths into NodeIds when it connects.
 """
 
 from __future__ import annotations
@@ -57,7 +61,7 @@ def resolve(
         entries[f"Command.Parameter[{i}].Value"] = (f"Command.Parameter[{i}].Value", "Float")
     for i in range(alarms):
         entries[f"Admin.Alarm[{i}].ID"] = (f"Admin.Alarm[{i}].ID", "Int32")
-    out = {k: ResolvedTag(k, f"{prefix}.{path}" if prefix else "", t) for k, (path, t) in entries.items()}
+    out = {k: ResolvedTag(k, _under(part, prefix, path) if prefix else "", t) for k, (path, t) in entries.items()}
     for key, node_id in (overrides or {}).items():
         if key not in out:
             raise PackTagsMapError(f"{part}: {key}: not a PackTags tag of the map")
@@ -68,3 +72,14 @@ def resolve(
         if not tag.node_id:
             raise PackTagsMapError(f"{part}: {key}: no prefix and no override")
     return out
+
+
+def _under(part: str, prefix: str, path: str) -> str:
+    """The address of ``path`` below ``prefix`` (module doc)."""
+    if not prefix.startswith("/"):
+        return f"{prefix}.{path}"
+    last = prefix.rstrip("/").rsplit("/", 1)[-1]
+    ns, colon, _name = last.partition(":")
+    if not colon or not ns.isdigit():
+        raise PackTagsMapError(f"{part}: prefix: {prefix!r}: each browse name is <namespace index>:<name>")
+    return prefix.rstrip("/") + "".join(f"/{ns}:{name}" for name in path.split("."))

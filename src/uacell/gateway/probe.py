@@ -13,7 +13,7 @@ from asyncua import ua
 from uacell.cell_file import Part
 from uacell.gateway.modbus import CommunicationError, ModbusConnection
 from uacell.gateway.modbus_robot import signal_tags
-from uacell.gateway.opcua_link import link_options, new_client
+from uacell.gateway.opcua_link import link_options, new_client, resolve_address
 from uacell.gateway.packtags import PackTagsMapError, resolve
 from uacell.gateway.signals import NAME_SIGNALS
 
@@ -70,9 +70,8 @@ async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float 
     try:
         for key, tag in tags.items():
             try:
-                dv = await client.get_node(ua.NodeId.from_string(tag.node_id)).read_data_value(
-                    raise_on_bad_status=False
-                )
+                node = client.get_node(await resolve_address(client, tag.node_id))
+                dv = await node.read_data_value(raise_on_bad_status=False)
             except Exception as e:
                 rows.append(Row(part, endpoint, key, f"{tag.node_id}: {e}", False))
                 continue
