@@ -9,7 +9,12 @@ connection, its subscription at 20 ms).
   straight to the PLC) until uacell's CurrentState reports it to a subscribed client, p50/p99;
   target for both: p99 <= the subscription interval + 20 ms;
 - U2 walked through all 17 TR88 states with every command's handshake;
-- all 50 units reset at once: every one reaches Idle (nothing lost).
+- all 50 units reset at once: every one reaches Idle (nothing lost);
+- a robot over Modbus signals (the example controller, ``uacell.gateway.examples.robot_controller``,
+  served from the shipped ``modbus-robot`` cell with a 20 ms poll): a Start's round trip until the
+  controller's ``running`` bit rose, and the controller's program end (``running`` fell) until the
+  TaskControl's CurrentState change (Ready) reaches a subscribed client; both read from the
+  controller by a second Modbus client every 2 ms; target p99 <= the poll + 20 ms.
 """
 
 from __future__ import annotations
@@ -131,6 +136,146 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
         "all (1.0x)",
         lambda x: x >= 1.0,
     )
+    robot_section(report, peers, rounds // 2)
+
+
+ROBOT_POLL = 0.02  # the modbus-signals driver's poll in the robot part
+TASK_CONTROL = "Palletizer.Controllers.Cabinet.TaskControls.Main.TaskControlOperation.TaskControlStateMachine"
+SYSTEM = "Palletizer.Controllers.Cabinet.SystemOperation.SystemOperationStateMachine"
+
+
+def robot_section(report: Report, peers: Peers, rounds: int) -> None:
+    """The robot part (module doc): the example controller and the shipped cell, nothing else."""
+    import sys
+
+    from benchmarks.__main__ import Peer, free_port
+    from uacell.cell_file import builtin_cell_path
+
+    ctrl_port = free_port()
+    ctrl = subprocess.Popen(
+        [sys.executable, "-m", "uacell.gateway.examples.robot_controller", "--port", str(ctrl_port), "--cycle", "0.3"],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        cell = peers.tmp / "robot-gateway.toml"
+        text = builtin_cell_path("modbus-robot").read_text().replace("port = 5020", f"port = {ctrl_port}")
+        cell.write_text(text.replace("unit = 1 }", f"unit = 1, poll = {ROBOT_POLL} }}"))
+        port = free_port()
+        cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", str(cell)]
+        cmd += ["--data-dir", str(peers.tmp / "robot-data"), "--cache-dir", str(peers.tmp / "robot-cache")]
+        server = Peer("uacell robot gateway cell", cmd, port=port).start()
+        try:
+            raw = asyncio.run(_measure_robot(server.endpoint, ctrl_port, rounds))
+        finally:
+            server.stop()
+    finally:
+        ctrl.terminate()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            ctrl.wait(10)
+        if ctrl.poll() is None:
+            ctrl.kill()
+    report.raw["gateway_robot"] = raw
+    target = (ROBOT_POLL + 0.020) * 1000
+    for name, key in (
+        ("robot Start round trip (call -> running)", "start_ms"),
+        ("robot program end -> client (TaskControl Ready)", "end_ms"),
+    ):
+        values = raw[key]
+        p99 = percentile(values, 0.99)
+        report.add(
+            f"gateway: {name}, p50 / p99",
+            f"{percentile(values, 0.5) or 0:.1f} / {p99 or 0:.1f} ms ({len(values)} of {rounds})",
+            f"Modbus poll {ROBOT_POLL * 1000:.0f} ms",
+            None if p99 is None or len(values) < rounds else p99 / target,
+            f"p99 <= {target:.0f} ms (<= 1.0x)",
+            lambda x: x <= 1.0,
+        )
+
+
+async def _measure_robot(uacell_endpoint: str, ctrl_port: int, rounds: int) -> dict[str, Any]:
+    import logging
+
+    from asyncua import Client, ua
+
+    from uacell.gateway.modbus import ModbusConnection
+    from uacell.gateway.modbus_robot import ModbusRobotIO, signal_tags
+
+    logging.getLogger("asyncua").setLevel(logging.ERROR)
+    raw: dict[str, Any] = {"start_ms": [], "end_ms": []}
+    conn = ModbusConnection("127.0.0.1", ctrl_port, timeout=0.5)
+    deadline = time.perf_counter() + 15
+    while not await conn.connect():
+        if time.perf_counter() > deadline:
+            raise TimeoutError("the example controller did not listen")
+        await asyncio.sleep(0.05)
+    io = ModbusRobotIO(conn, 1, signal_tags())
+
+    async def until_running(running: bool, timeout: float = 5.0) -> float:
+        """When the controller's running bit is ``running`` (polled every 2 ms)."""
+        limit = time.perf_counter() + timeout
+        while (await io.status()).running != running:
+            if time.perf_counter() > limit:
+                raise TimeoutError(f"the controller's running did not become {running}")
+            await asyncio.sleep(0.002)
+        return time.perf_counter()
+
+    try:
+        async with Client(uacell_endpoint, timeout=30) as client:
+            ns = await client.get_namespace_index("urn:uacell:cell")
+
+            async def call(obj: str, method: str, *args: ua.Variant) -> Any:
+                node = client.get_node(ua.NodeId(obj, ns))
+                return await node.call_method(ua.NodeId(f"{obj}.{method}", ns), *args)
+
+            arrived: list[tuple[float, str]] = []
+
+            class Handler:
+                def datachange_notification(self, n: Any, val: Any, data: Any) -> None:
+                    if isinstance(val, ua.LocalizedText):
+                        arrived.append((time.perf_counter(), val.Text or ""))
+
+            assert await call(SYSTEM, "GetReady") == 0
+            await _until(lambda: _text(client, ns, SYSTEM), "Ready")
+            assert await call(TASK_CONTROL, "LoadByName", ua.Variant("gripper", ua.VariantType.String)) == 0
+            assert await call(TASK_CONTROL, "LoadByName", ua.Variant("pick_and_place", ua.VariantType.String)) == 0
+            sub = await client.create_subscription(0, Handler())
+            await sub.subscribe_data_change(client.get_node(ua.NodeId(f"{TASK_CONTROL}.CurrentState", ns)))
+            await asyncio.sleep(0.2)  # the subscription's first notification (the current state) is not a round's
+            for _ in range(rounds):
+                await _until(lambda: _text(client, ns, TASK_CONTROL), "Ready")
+                arrived.clear()
+                t0 = time.perf_counter()
+                start = asyncio.ensure_future(call(TASK_CONTROL, "Start"))
+                raw["start_ms"].append((await until_running(True) - t0) * 1000)
+                assert await start == 0
+                ended = await until_running(False)
+                limit = time.perf_counter() + 5
+                while not any(t == "Ready" and at >= t0 for at, t in arrived) and time.perf_counter() < limit:
+                    await asyncio.sleep(0.001)
+                seen = next((at for at, t in arrived if t == "Ready" and at >= t0), None)
+                if seen is not None:
+                    raw["end_ms"].append(max(0.0, seen - ended) * 1000)
+            await sub.delete()
+    finally:
+        conn.close()
+    return raw
+
+
+async def _text(client: Any, ns: int, machine: str) -> str:
+    from asyncua import ua
+
+    value = await client.get_node(ua.NodeId(f"{machine}.CurrentState", ns)).read_value()
+    return str(value.Text)
+
+
+async def _until(read: Any, wanted: str, timeout: float = 10.0) -> None:
+    limit = time.perf_counter() + timeout
+    while await read() != wanted:
+        if time.perf_counter() > limit:
+            raise TimeoutError(f"waited for {wanted}")
+        await asyncio.sleep(0.005)
 
 
 async def _measure(uacell_endpoint: str, plc_endpoint: str, rounds: int) -> dict[str, Any]:

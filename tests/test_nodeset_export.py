@@ -25,6 +25,7 @@ from uacell.cli import main
 from uacell.models.source import locate_models, official_models
 from uacell.nodeset_export import export_cell
 from uacell.robotics.binding.core import programs_root
+from uacell.ua.snapshot import every_node_id
 from uacell.users import UserStore
 
 X = "{http://opcfoundation.org/UA/2011/03/UANodeSet.xsd}"
@@ -80,9 +81,10 @@ async def test_the_export_holds_every_served_node_of_the_cell_with_its_nodeid(ap
             assert nodeid.NamespaceIndex == 1
             exported[ua.NodeId(nodeid.Identifier, ns)] = element
     # Server/CurrentRole (decision 39) is the server's, per session, not the cell's: not exported.
+    # (Every node: a server started from a snapshot has not loaded those nobody asked for yet.)
     served = {
         n
-        for n in aspace.keys()
+        for n in every_node_id(aspace)
         if n.NamespaceIndex == ns and "/" not in str(n.Identifier) and not str(n.Identifier).startswith("Server.")
     }
     assert set(exported) == served

@@ -197,6 +197,16 @@ class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
         """How many nodes the snapshot holds."""
         return len(self._where)
 
+    def node_ids(self) -> set[ua.NodeId]:
+        """Every node of the table, loaded or not (iteration covers the loaded ones only)."""
+        return (set(self._where) - self._deleted) | set(self.cache)
+
+
+def every_node_id(aspace: Any) -> set[ua.NodeId]:
+    """Every node of an asyncua address space, also those of a snapshot not loaded yet."""
+    nodes = aspace._nodes
+    return nodes.node_ids() if isinstance(nodes, LazyNodes) else set(nodes.keys())
+
 
 def _chunks(nodes: list[tuple[ua.NodeId, NodeData]]) -> Iterator[list[tuple[ua.NodeId, NodeData]]]:
     """Consecutive nodes of one kind (instance or not), at most that kind's chunk size at a time."""
