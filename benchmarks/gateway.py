@@ -25,13 +25,14 @@ import contextlib
 import shutil
 import subprocess
 import time
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from benchmarks.plant import percentile
 
 if TYPE_CHECKING:
-    from benchmarks.__main__ import Peers, Report
+    from benchmarks.__main__ import Peer, Peers, Report
 
 ROOT = Path(__file__).resolve().parent.parent
 UNITS = 50
@@ -57,7 +58,7 @@ PATHS = {
 
 
 def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
-    from benchmarks.__main__ import Peer, free_port
+    from benchmarks.__main__ import free_port
 
     if shutil.which("node") is None:
         print("== gateway: skipped, node is not installed", flush=True)
@@ -66,60 +67,28 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
     print(f"== gateway ({UNITS} PackML units in a node-opcua PLC, {rounds} round trips each way)", flush=True)
     plc_port = free_port()
     units = [f"U{i}" for i in range(1, UNITS + 1)]
-    plc = subprocess.Popen(
-        ["node", str(ROOT / "interop" / "plc_packtags.js"), str(plc_port), ",".join(units), "200"],
-        cwd=ROOT / "interop",
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    try:
-        assert plc.stdout is not None
-        for line in plc.stdout:
-            if line.strip() == "listening":
-                break
-        cell = peers.tmp / "gateway.toml"
+    plc_cmd = ["node", str(ROOT / "interop" / "plc_packtags.js"), str(plc_port), ",".join(units), "200"]
+    with _process(plc_cmd, ROOT / "interop", ready="listening"):
         endpoint = f"opc.tcp://127.0.0.1:{plc_port}/"
-        cell.write_text(
-            "".join(
-                f'[[packml_units]]\nname = "{u}"\nequipment = {{ driver = "opcua-packtags", '
-                f'endpoint = "{endpoint}", prefix = "ns=1;s={u}.PackTags" }}\n\n'
-                for u in units
-            )
+        text = "".join(
+            f'[[packml_units]]\nname = "{u}"\nequipment = {{ driver = "opcua-packtags", '
+            f'endpoint = "{endpoint}", prefix = "ns=1;s={u}.PackTags" }}\n\n'
+            for u in units
         )
-        port = free_port()
-        cmd = ["python", "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", str(cell)]
-        cmd += ["--data-dir", str(peers.tmp / "gateway-data"), "--cache-dir", str(peers.tmp / "gateway-cache")]
-        import sys
-
-        cmd[0] = sys.executable
-        server = Peer("uacell gateway cell", cmd, port=port).start()
-        try:
+        with _served(peers, "gateway", text) as server:
             raw = asyncio.run(_measure(server.endpoint, endpoint, rounds))
-        finally:
-            server.stop()
-    finally:
-        plc.terminate()
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            plc.wait(10)
-        if plc.poll() is None:
-            plc.kill()
     report.raw["gateway"] = raw
-    target = (INTERVAL + 0.020) * 1000
-    for name, key in (
-        ("command round trip (call -> the PLC sees it)", "command_ms"),
-        ("mirror latency (PLC -> client)", "mirror_ms"),
-    ):
-        values = raw[key]
-        p99 = percentile(values, 0.99)
-        report.add(
-            f"gateway: {name}, p50 / p99",
-            f"{percentile(values, 0.5) or 0:.1f} / {p99 or 0:.1f} ms",
-            f"subscription {INTERVAL * 1000:.0f} ms",
-            None if p99 is None else p99 / target,
-            f"p99 <= {target:.0f} ms (<= 1.0x)",
-            lambda x: x <= 1.0,
-        )
+    _latency_rows(
+        report,
+        raw,
+        (
+            ("command round trip (call -> the PLC sees it)", "command_ms"),
+            ("mirror latency (PLC -> client)", "mirror_ms"),
+        ),
+        f"subscription {INTERVAL * 1000:.0f} ms",
+        (INTERVAL + 0.020) * 1000,
+        rounds,
+    )
     report.add(
         "gateway: TR88 states walked through the PLC (of 17)",
         str(len(raw["states_seen"])),
@@ -148,46 +117,82 @@ def robot_section(report: Report, peers: Peers, rounds: int) -> None:
     """The robot part (module doc): the example controller and the shipped cell, nothing else."""
     import sys
 
-    from benchmarks.__main__ import Peer, free_port
+    from benchmarks.__main__ import free_port
     from uacell.cell_file import builtin_cell_path
 
     ctrl_port = free_port()
-    ctrl = subprocess.Popen(
-        [sys.executable, "-m", "uacell.gateway.examples.robot_controller", "--port", str(ctrl_port), "--cycle", "0.3"],
-        cwd=ROOT,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
+    ctrl_cmd = [sys.executable, "-m", "uacell.gateway.examples.robot_controller", "--port", str(ctrl_port)]
+    with _process([*ctrl_cmd, "--cycle", "0.3"], ROOT):
+        text = builtin_cell_path("modbus-robot").read_text().replace("port = 5020", f"port = {ctrl_port}")
+        with _served(peers, "robot-gateway", text.replace("unit = 1 }", f"unit = 1, poll = {ROBOT_POLL} }}")) as server:
+            raw = asyncio.run(_measure_robot(server.endpoint, ctrl_port, rounds))
+    report.raw["gateway_robot"] = raw
+    _latency_rows(
+        report,
+        raw,
+        (
+            ("robot Start round trip (call -> running)", "start_ms"),
+            ("robot program end -> client (TaskControl Ready)", "end_ms"),
+        ),
+        f"Modbus poll {ROBOT_POLL * 1000:.0f} ms",
+        (ROBOT_POLL + 0.020) * 1000,
+        rounds,
+    )
+
+
+@contextlib.contextmanager
+def _process(cmd: list[str], cwd: Path, ready: str = "") -> Iterator[subprocess.Popen[str]]:
+    """A helper process (a PLC, a controller), stopped on the way out; ``ready``: the line it prints
+    once it serves."""
+    proc = subprocess.Popen(
+        cmd, cwd=cwd, stdout=subprocess.PIPE if ready else subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True
     )
     try:
-        cell = peers.tmp / "robot-gateway.toml"
-        text = builtin_cell_path("modbus-robot").read_text().replace("port = 5020", f"port = {ctrl_port}")
-        cell.write_text(text.replace("unit = 1 }", f"unit = 1, poll = {ROBOT_POLL} }}"))
-        port = free_port()
-        cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", str(cell)]
-        cmd += ["--data-dir", str(peers.tmp / "robot-data"), "--cache-dir", str(peers.tmp / "robot-cache")]
-        server = Peer("uacell robot gateway cell", cmd, port=port).start()
-        try:
-            raw = asyncio.run(_measure_robot(server.endpoint, ctrl_port, rounds))
-        finally:
-            server.stop()
+        if ready:
+            assert proc.stdout is not None
+            for line in proc.stdout:
+                if line.strip() == ready:
+                    break
+        yield proc
     finally:
-        ctrl.terminate()
+        proc.terminate()
         with contextlib.suppress(subprocess.TimeoutExpired):
-            ctrl.wait(10)
-        if ctrl.poll() is None:
-            ctrl.kill()
-    report.raw["gateway_robot"] = raw
-    target = (ROBOT_POLL + 0.020) * 1000
-    for name, key in (
-        ("robot Start round trip (call -> running)", "start_ms"),
-        ("robot program end -> client (TaskControl Ready)", "end_ms"),
-    ):
+            proc.wait(10)
+        if proc.poll() is None:
+            proc.kill()
+
+
+@contextlib.contextmanager
+def _served(peers: Peers, name: str, cell_text: str) -> Iterator[Peer]:
+    """A uacell peer serving ``cell_text`` (a cell file's content), stopped on the way out."""
+    import sys
+
+    from benchmarks.__main__ import Peer, free_port
+
+    cell = peers.tmp / f"{name}.toml"
+    cell.write_text(cell_text)
+    port = free_port()
+    cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", str(cell)]
+    cmd += ["--data-dir", str(peers.tmp / f"{name}-data"), "--cache-dir", str(peers.tmp / f"{name}-cache")]
+    server = Peer(f"uacell {name} cell", cmd, port=port).start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+def _latency_rows(
+    report: Report, raw: dict[str, Any], rows: Iterable[tuple[str, str]], reference: str, target: float, rounds: int
+) -> None:
+    """One report row per latency (p50/p99 of ``raw[key]``, ms), against ``target`` ms; a row with
+    fewer samples than ``rounds`` has no ratio (something did not arrive)."""
+    for name, key in rows:
         values = raw[key]
         p99 = percentile(values, 0.99)
         report.add(
             f"gateway: {name}, p50 / p99",
             f"{percentile(values, 0.5) or 0:.1f} / {p99 or 0:.1f} ms ({len(values)} of {rounds})",
-            f"Modbus poll {ROBOT_POLL * 1000:.0f} ms",
+            reference,
             None if p99 is None or len(values) < rounds else p99 / target,
             f"p99 <= {target:.0f} ms (<= 1.0x)",
             lambda x: x <= 1.0,
