@@ -22,11 +22,12 @@
 "use strict";
 const path = require("path");
 const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
-const { OPCUAServer, Subscription } = require("node-opcua-server");
+const { OPCUAServer, Subscription, MonitoredItem } = require("node-opcua-server");
 
-// Publish as fast as a client asks, down to 10 ms, as a PLC's OPC UA server does (node-opcua's own
-// floor is 50 ms); the tags are sampled every 10 ms (their MinimumSamplingInterval).
+// Publish and sample as fast as a client asks, down to 10 ms, as a PLC's OPC UA server does
+// (node-opcua's own floors are 50 ms); the tags are sampled every 10 ms (their MinimumSamplingInterval).
 Subscription.minimumPublishingInterval = 10;
+MonitoredItem.minimumSamplingInterval = 10;
 const { DataType, Variant, StatusCodes, SecurityPolicy, MessageSecurityMode } = require("node-opcua-client");
 
 const S = {
