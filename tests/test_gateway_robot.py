@@ -189,10 +189,17 @@ async def test_the_controller_killed_and_back_methods_refuse_then_resume(served,
     method = client.get_node(ua.NodeId(f"{TC}.LoadByName", ns))
     await wait_until_async(lambda: method.read_attribute(ua.AttributeIds.Executable), False, value=True)
     assert await state(client, TC) == "Idle"  # nothing changed, nothing queued
+    axis = client.get_node(ua.NodeId("Palletizer.MotionDevices.Arm1.Axes.Axis1.ParameterSet.ActualPosition", ns))
+
+    async def axis_status() -> str:
+        return str((await axis.read_data_value(raise_on_bad_status=False)).StatusCode.name)
+
+    await wait_until_async(axis_status, "BadNoCommunication")  # not the position it last had
     plc.start()  # the same port
     back = time.monotonic()
     await wait_until_async(lambda: read(client, f"{COND}.CommunicationLost.ActiveState.Id"), False)
     assert time.monotonic() - back < 10  # backoff at most 2 s, plus the process start
+    await wait_until_async(axis_status, "Good")
     assert await status(client, TC, "LoadByName", s("pick_and_place")) == 0
     assert (await (await plc.io()).status()).program_echo == 3
     assert app.dispatcher is not None

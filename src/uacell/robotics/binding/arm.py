@@ -27,6 +27,7 @@ class Arm:
         self.binding = binding
         self.axis_nodes: list[dict[str, ua.NodeId]] = []
         self._last_axes: list[tuple[float, float]] | None = None
+        self._reachable = True  # what the axis values last said about the equipment
         self._background = Background()
 
     async def setup(self) -> None:
@@ -57,6 +58,15 @@ class Arm:
             await asyncio.sleep(AXIS_PERIOD)
             now = loop.time()
             dt, last = now - last, now
+            reachable = bool(getattr(equipment, "reachable", True))  # a gateway's controller may be away
+            if reachable != self._reachable:
+                self._reachable = reachable
+                self._last_axes = None  # written afresh once it is back
+                if not reachable:
+                    self.binding.app.publisher.submit(self._unreachable)
+                    continue
+            if not reachable:
+                continue
             try:
                 states = [(round(a.position, 4), round(a.speed, 4)) for a in equipment.axis_states()]
             except Exception:
@@ -64,6 +74,13 @@ class Arm:
                 continue
             if states != self._last_axes:
                 self.binding.app.publisher.submit(functools.partial(self.publish_axes, dt))
+
+    async def _unreachable(self) -> None:
+        """The axis values while the controller cannot be reached: Bad_NoCommunication (not its last values)."""
+        bad = ua.StatusCode(ua.StatusCodes.BadNoCommunication)
+        for nodes in self.axis_nodes:
+            for node in nodes.values():
+                await self.binding.values.write_status(node, bad)
 
     async def publish_axes(self, dt: float) -> None:
         b = self.binding
