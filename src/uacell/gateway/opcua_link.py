@@ -103,9 +103,9 @@ StateListener = Callable[[bool], None]  # connected
 
 
 class PlcLink:
-    def __init__(self, options: LinkOptions | str, timeout: float = 2.0) -> None:
-        self.options = options if isinstance(options, LinkOptions) else LinkOptions(options)
-        self.endpoint = self.options.endpoint
+    def __init__(self, options: LinkOptions, timeout: float = 2.0) -> None:
+        self.options = options
+        self.endpoint = options.endpoint
         self.timeout = timeout
         self.users = 0
         self.connected = False
@@ -402,11 +402,10 @@ class LinkPool:
     def __init__(self) -> None:
         self._links: dict[LinkOptions, PlcLink] = {}
 
-    def get(self, options: LinkOptions | str) -> PlcLink:
-        key = options if isinstance(options, LinkOptions) else LinkOptions(options)
-        link = self._links.get(key)
+    def get(self, options: LinkOptions) -> PlcLink:
+        link = self._links.get(options)
         if link is None:
-            link = self._links[key] = PlcLink(key)
+            link = self._links[options] = PlcLink(options)
         link.users += 1
         return link
 

@@ -64,7 +64,7 @@ async def install_history(
     parts = list(parts)
     for node in kept_values(server, cfg, parts):
         await service.historize_value(node)
-    await add_configurations(server, cfg, parts)  # those the snapshot did not hold (added by binders)
+        await _configuration(server, node)  # when the snapshot did not hold it (a variable a binder added)
     for role, root in parts:
         dataset = dataset_of(role)
         for path in dataset.notifiers if dataset is not None else ():
@@ -94,9 +94,9 @@ def kept_values(server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, u
 
 
 async def add_configurations(server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, ua.NodeId]]) -> None:
-    """The HA Configuration of every kept variable that has none yet. ``uacell.server`` calls it once
+    """The HA Configuration of every kept variable that has none yet. ``uacell.server`` calls it
     before the address-space snapshot is taken, so that restarts find them in it (the snapshot's key
-    includes ``history_shape``), and again once the binders added their variables."""
+    includes ``history_shape``); ``install_history`` adds those of the variables binders add later."""
     if not cfg.enabled:
         return
     for node in kept_values(server, cfg, parts):
