@@ -12,6 +12,7 @@ import random
 import socket
 import subprocess
 import sys
+import time
 import uuid
 from collections.abc import Callable
 from pathlib import Path
@@ -254,4 +255,46 @@ async def config_check_connect(path: Path) -> subprocess.CompletedProcess[str]:
         text=True,
         timeout=120,
         env={**os.environ, "PYTHONPATH": src},
+    )
+
+
+# -- PackML units in a PLC (the gateway tests) ---------------------------------------------------
+
+
+async def cell_state(client: Client, machine: str) -> str | None:
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    dv = await client.get_node(ua.NodeId(f"{machine}.CurrentState", ns)).read_data_value(raise_on_bad_status=False)
+    return dv.Value.Value.Text if dv.StatusCode.is_good() else None
+
+
+async def until(read: Any, expected: Any, timeout: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout
+    while (got := await read()) != expected:
+        assert time.monotonic() < deadline, f"{got!r}, waited for {expected!r}"
+        await asyncio.sleep(0.02)
+
+
+async def cell_read(client: Client, path: str) -> Any:
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    return await client.get_node(ua.NodeId(path, ns)).read_value()
+
+
+async def cell_executable(client: Client, method: str) -> bool:
+    """The Executable attribute of the cell's method ``method`` (a path such as ``Capper....Reset``)."""
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    dv = await client.get_node(ua.NodeId(method, ns)).read_attribute(ua.AttributeIds.Executable)
+    return bool(dv.Value.Value)
+
+
+async def cell_status(client: Client, path: str) -> str:
+    """The status code's name a Read of the cell's variable ``path`` answers."""
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    return str((await client.get_node(ua.NodeId(path, ns)).read_data_value(raise_on_bad_status=False)).StatusCode.name)
+
+
+def packml_params(*pairs: tuple[int, float]) -> ua.Variant:
+    return ua.Variant(
+        [ua.PackMLDescriptorDataType(ID=i, Name=f"P{i}", Unit=ua.EUInformation(), Value=v) for i, v in pairs],
+        ua.VariantType.ExtensionObject,
+        is_array=True,
     )

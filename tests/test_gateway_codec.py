@@ -72,19 +72,19 @@ def test_bad_declaration(kwargs: dict[str, object], message: str) -> None:
 
 def test_packtags_defaults_under_prefix_and_overrides() -> None:
     tags = resolve("Capper", "ns=3;s=Capper.PackTags", {"Status.StateCurrent": "ns=3;i=77"}, parameters=2, alarms=1)
-    assert tags["Command.CntrlCmd"].node_id == "ns=3;s=Capper.PackTags.Command.CntrlCmd"
+    assert tags["Command.CntrlCmd"].address == "ns=3;s=Capper.PackTags.Command.CntrlCmd"
     assert tags["Command.CntrlCmd"].type_name == "Int32"
-    assert tags["Status.StateCurrent"].node_id == "ns=3;i=77"
-    assert tags["Command.Parameter[1].Value"].node_id == "ns=3;s=Capper.PackTags.Command.Parameter[1].Value"
+    assert tags["Status.StateCurrent"].address == "ns=3;i=77"
+    assert tags["Command.Parameter[1].Value"].address == "ns=3;s=Capper.PackTags.Command.Parameter[1].Value"
     assert "Command.Parameter[2].Value" not in tags
-    assert tags["Admin.Alarm[0].ID"].node_id == "ns=3;s=Capper.PackTags.Admin.Alarm[0].ID"
+    assert tags["Admin.Alarm[0].ID"].address == "ns=3;s=Capper.PackTags.Admin.Alarm[0].ID"
 
 
 def test_packtags_under_a_browse_path_prefix() -> None:
     tags = resolve("Capper", "/3:Line1/3:Capper/3:PackTags/", parameters=1)
-    assert tags["Command.CntrlCmd"].node_id == "/3:Line1/3:Capper/3:PackTags/3:Command/3:CntrlCmd"
-    assert tags["Command.Parameter[0].Value"].node_id == "/3:Line1/3:Capper/3:PackTags/3:Command/3:Parameter[0]/3:Value"
-    assert tags["Admin.StopReason"].node_id == "/3:Line1/3:Capper/3:PackTags/3:Admin/3:StopReason/3:ID"
+    assert tags["Command.CntrlCmd"].address == "/3:Line1/3:Capper/3:PackTags/3:Command/3:CntrlCmd"
+    assert tags["Command.Parameter[0].Value"].address == "/3:Line1/3:Capper/3:PackTags/3:Command/3:Parameter[0]/3:Value"
+    assert tags["Admin.StopReason"].address == "/3:Line1/3:Capper/3:PackTags/3:Admin/3:StopReason/3:ID"
     with pytest.raises(PackTagsMapError, match=r"^Capper: prefix: '/Capper/PackTags': each browse name is"):
         resolve("Capper", "/Capper/PackTags")
 

@@ -15,7 +15,10 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving
-from helpers import call_path, config_check_connect, free_port
+from helpers import call_path, cell_executable, cell_status, config_check_connect, free_port, until
+from helpers import cell_read as read
+from helpers import cell_state as state
+from helpers import packml_params as params
 
 from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
@@ -105,24 +108,6 @@ async def served(tmp_path: Path, plc: PLC) -> AsyncIterator[tuple[UacellServer, 
         yield s
 
 
-async def state(client: Client, machine: str) -> str | None:
-    ns = await client.get_namespace_index("urn:uacell:cell")
-    dv = await client.get_node(ua.NodeId(f"{machine}.CurrentState", ns)).read_data_value(raise_on_bad_status=False)
-    return dv.Value.Value.Text if dv.StatusCode.is_good() else None
-
-
-async def until(read: Any, expected: Any, timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while (got := await read()) != expected:
-        assert time.monotonic() < deadline, f"{got!r}, waited for {expected!r}"
-        await asyncio.sleep(0.02)
-
-
-async def read(client: Client, path: str) -> Any:
-    ns = await client.get_namespace_index("urn:uacell:cell")
-    return await client.get_node(ua.NodeId(path, ns)).read_value()
-
-
 async def reset_and_start(client: Client, parameters: ua.Variant) -> None:
     """Reset, then Start with ``parameters``, each answered Good and the PLC's state followed."""
     res = await call_path(client, MACH, "Reset")
@@ -131,14 +116,6 @@ async def reset_and_start(client: Client, parameters: ua.Variant) -> None:
     res = await call_path(client, EXEC, "Start", parameters)
     assert res.StatusCode.is_good(), res.StatusCode
     await until(lambda: state(client, EXEC), "Execute")
-
-
-def params(*pairs: tuple[int, float]) -> ua.Variant:
-    return ua.Variant(
-        [ua.PackMLDescriptorDataType(ID=i, Name=f"P{i}", Unit=ua.EUInformation(), Value=v) for i, v in pairs],
-        ua.VariantType.ExtensionObject,
-        is_array=True,
-    )
 
 
 async def test_a_full_cycle_goes_to_the_plc_and_comes_back(served, plc: PLC) -> None:
@@ -202,18 +179,16 @@ async def test_the_plc_killed_and_back(served, plc: PLC) -> None:
     plc.client = None
     plc.kill()
     ns = await client.get_namespace_index("urn:uacell:cell")
-    reset = client.get_node(ua.NodeId(f"{MACH}.Reset", ns))
 
-    async def executable() -> bool:
-        return bool((await reset.read_attribute(ua.AttributeIds.Executable)).Value.Value)
+    def executable() -> Any:
+        return cell_executable(client, f"{MACH}.Reset")
 
     await until(executable, False)
     res = await call_path(client, MACH, "Reset")
     assert res.StatusCode.value == ua.StatusCodes.BadCommunicationError
-    speed = client.get_node(ua.NodeId(f"{F}.Status.MachSpeed", ns))
 
-    async def speed_status() -> str:
-        return (await speed.read_data_value(raise_on_bad_status=False)).StatusCode.name
+    def speed_status() -> Any:
+        return cell_status(client, f"{F}.Status.MachSpeed")
 
     await until(speed_status, "BadNoCommunication")  # the PLC's values are not current any more
     counts = client.get_node(ua.NodeId(f"{F}.Admin.ProdProcessedCount", ns))

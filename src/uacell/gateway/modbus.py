@@ -40,6 +40,48 @@ class ModbusTag:
     def writable(self) -> bool:
         return self.table in ("coil", "holding")
 
+    @property
+    def count(self) -> int:
+        """Registers (or bits) the tag takes."""
+        return 1 if self.table in ("coil", "discrete") else self.rtype.count
+
+    def value_in(self, block: list[int] | list[bool], start: int) -> bool | int | float | str:
+        """The tag's value in ``block``, a read of its table from ``start``."""
+        words = block[self.address - start : self.address - start + self.count]
+        if self.table in ("coil", "discrete"):
+            return bool(words[0])
+        return self.rtype.decode([int(w) for w in words])
+
+
+@dataclass(frozen=True)
+class Span:
+    """A block of one table read in one request."""
+
+    table: str
+    start: int
+    count: int
+
+
+MAX_SPAN = {"coil": 2000, "discrete": 2000, "holding": 125, "input": 125}  # what one Modbus request may read
+
+
+def spans(tags: list[ModbusTag], gap: int = 16) -> list[Span]:
+    """The fewest blocks that read every tag: tags of one table closer than ``gap`` registers are read
+    together, no block larger than one request may read."""
+    out: list[Span] = []
+    for table in TABLES:
+        current: Span | None = None
+        for tag in sorted((t for t in tags if t.table == table), key=lambda t: t.address):
+            end = tag.address + tag.count
+            if current is not None and tag.address - (current.start + current.count) <= gap:
+                if end - current.start <= MAX_SPAN[table]:
+                    current = Span(table, current.start, max(current.start + current.count, end) - current.start)
+                    out[-1] = current
+                    continue
+            current = Span(table, tag.address, tag.count)
+            out.append(current)
+    return out
+
 
 class ModbusConnection:
     """One Modbus/TCP endpoint; requests are serialised (one transaction at a time)."""
@@ -69,41 +111,58 @@ class ModbusConnection:
         self._client.close()
 
     async def read(self, tag: ModbusTag, unit: int) -> bool | int | float | str:
-        count = tag.rtype.count
+        return tag.value_in(await self.read_block(tag.table, tag.address, tag.count, unit), tag.address)
+
+    async def read_block(self, table: str, start: int, count: int, unit: int) -> list[int] | list[bool]:
+        """``count`` registers (or bits) of ``table`` from ``start``, in one request."""
         async with self._lock:
             try:
-                if tag.table == "coil":
-                    rr = await self._client.read_coils(tag.address, count=1, device_id=unit)
-                elif tag.table == "discrete":
-                    rr = await self._client.read_discrete_inputs(tag.address, count=1, device_id=unit)
-                elif tag.table == "holding":
-                    rr = await self._client.read_holding_registers(tag.address, count=count, device_id=unit)
+                if table == "coil":
+                    rr = await self._client.read_coils(start, count=count, device_id=unit)
+                elif table == "discrete":
+                    rr = await self._client.read_discrete_inputs(start, count=count, device_id=unit)
+                elif table == "holding":
+                    rr = await self._client.read_holding_registers(start, count=count, device_id=unit)
                 else:
-                    rr = await self._client.read_input_registers(tag.address, count=count, device_id=unit)
+                    rr = await self._client.read_input_registers(start, count=count, device_id=unit)
             except (TimeoutError, ModbusException, OSError) as exc:
                 _cancelled()
                 raise CommunicationError(f"{self.name}: {exc}") from None
         if rr.isError():
-            raise CommunicationError(f"{self.name}: {tag.table} {tag.address}: {rr}")
-        if tag.table in ("coil", "discrete"):
-            return bool(rr.bits[0])
-        return tag.rtype.decode(list(rr.registers))
+            raise CommunicationError(f"{self.name}: unit {unit} {table} {start}..{start + count - 1}: {_refusal(rr)}")
+        if table in ("coil", "discrete"):
+            return [bool(b) for b in rr.bits[:count]]
+        return list(rr.registers)
 
     async def write(self, tag: ModbusTag, value: object, unit: int) -> None:
         if not tag.writable:
             raise ValueError(f"{tag.table} {tag.address} cannot be written")
-        registers = tag.rtype.encode(value)
+        await self.write_block(
+            tag.table, tag.address, [bool(value)] if tag.table == "coil" else tag.rtype.encode(value), unit
+        )
+
+    async def write_block(self, table: str, start: int, values: list[int] | list[bool], unit: int) -> None:
+        """Registers (or one coil) from ``start``, in one request."""
         async with self._lock:
             try:
-                if tag.table == "coil":
-                    rr = await self._client.write_coil(tag.address, bool(value), device_id=unit)
+                if table == "coil":
+                    rr = await self._client.write_coil(start, bool(values[0]), device_id=unit)
                 else:
-                    rr = await self._client.write_registers(tag.address, registers, device_id=unit)
+                    rr = await self._client.write_registers(start, [int(v) for v in values], device_id=unit)
             except (TimeoutError, ModbusException, OSError) as exc:
                 _cancelled()
                 raise CommunicationError(f"{self.name}: {exc}") from None
         if rr.isError():
-            raise CommunicationError(f"{self.name}: {tag.table} {tag.address}: {rr}")
+            raise CommunicationError(f"{self.name}: unit {unit} {table} {start}: {_refusal(rr)}")
+
+
+EXCEPTIONS = {1: "illegal function", 2: "illegal data address", 3: "illegal data value", 4: "device failure"}
+
+
+def _refusal(response: object) -> str:
+    """What a Modbus exception response says, in words (``illegal data address (exception 2)``)."""
+    code = getattr(response, "exception_code", None)
+    return f"{EXCEPTIONS.get(code, 'refused')} (exception {code})" if isinstance(code, int) else str(response)
 
 
 def _cancelled() -> None:
@@ -138,3 +197,6 @@ class ModbusPool:
         for conn in self._connections.values():
             conn.close()
         self._connections.clear()
+
+
+SHARED = ModbusPool()  # the process's connections: every driver on one host and port uses one

@@ -17,19 +17,19 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from asyncua import Client, ua
 
+from uacell.gateway.link import FIRST_RETRY, LAST_RETRY, Listeners, StateListener, ValueListener
 from uacell.gateway.modbus import CommunicationError
 from uacell.secret_file import SecretError, read_secret
 
 log = logging.getLogger(__name__)
 
-FIRST_RETRY, LAST_RETRY = 0.5, 2.0
 PASSWORD_ENV = "UACELL_PLC_PASSWORD"  # the default environment variable of a PLC user's password
 POLICIES = ("Basic256Sha256", "Aes128Sha256RsaOaep", "Aes256Sha256RsaPss")
 MODES = ("Sign", "SignAndEncrypt")
@@ -98,20 +98,13 @@ def link_options(part: str, settings: Mapping[str, Any]) -> LinkOptions:
     return LinkOptions(endpoint, security, certificate, private_key, username, password, mode, float(interval))
 
 
-ValueListener = Callable[[str, Any], None]  # (NodeId string, value)
-StateListener = Callable[[bool], None]  # connected
-
-
-class PlcLink:
+class PlcLink(Listeners):
     def __init__(self, options: LinkOptions, timeout: float = 2.0) -> None:
+        super().__init__()
         self.options = options
         self.endpoint = options.endpoint
         self.timeout = timeout
         self.users = 0
-        self.connected = False
-        self.last_error = ""
-        self._watched: dict[str, list[ValueListener]] = {}
-        self._state_listeners: list[StateListener] = []
         self._client: Client | None = None
         self._subscription: Any = None
         self._watchdog: asyncio.Task[None] | None = None
@@ -121,15 +114,12 @@ class PlcLink:
         self._address_of: dict[ua.NodeId, str] = {}
         self._task: asyncio.Task[None] | None = None
         self._lost = asyncio.Event()
-        self._ready = asyncio.Event()
 
     # -- what parts use ---------------------------------------------------------------------------
 
     async def watch(self, node_ids: list[str], listener: ValueListener, on_state: StateListener) -> None:
         """Call ``listener`` with each value of ``node_ids`` (on every connection, then on change)."""
-        for nid in node_ids:
-            self._watched.setdefault(nid, []).append(listener)
-        self._state_listeners.append(on_state)
+        self._listen(node_ids, listener, on_state)
         if self.connected and self._client is not None:
             try:  # connected already (another part on this PLC): read and subscribe these too
                 await self._resolve(self._client, node_ids)
@@ -155,11 +145,6 @@ class PlcLink:
         if self._task is None:
             self._task = asyncio.get_running_loop().create_task(self._run(), name=f"plc {self.endpoint}")
 
-    async def wait_connected(self, timeout: float) -> bool:
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self._ready.wait(), timeout)
-        return self.connected
-
     async def read(self, node_id: str) -> Any:
         client = self._usable()
         try:
@@ -178,20 +163,21 @@ class PlcLink:
         except (OSError, TimeoutError, ua.UaError, ConnectionError) as exc:
             raise self._failed(exc) from None
 
-    async def write(self, node_id: str, value: Any, vtype: ua.VariantType) -> None:
+    async def write(self, node_id: str, value: Any, type_name: str) -> None:
+        """Write ``value`` as the built-in type ``type_name`` ("Int32", "Boolean", "Float", ...)."""
         client = self._usable()
         try:
             await self._resolve(client, [node_id])
-            await self._node(client, node_id).write_value(ua.DataValue(ua.Variant(value, vtype)))
+            await self._node(client, node_id).write_value(ua.DataValue(ua.Variant(value, ua.VariantType[type_name])))
         except ua.UaStatusCodeError as exc:
             raise CommunicationError(f"{self.endpoint}: writing {node_id}: {exc}") from None
         except (OSError, TimeoutError, ua.UaError, ConnectionError) as exc:
             raise self._failed(exc) from None
 
-    async def write_many(self, writes: list[tuple[str, Any, ua.VariantType]]) -> None:
+    async def write_many(self, writes: list[tuple[str, Any, str]]) -> None:
         """Several values in one Write request, in order (the PLC takes them between two scans)."""
         client = self._usable()
-        values = [ua.DataValue(ua.Variant(v, t)) for _, v, t in writes]
+        values = [ua.DataValue(ua.Variant(v, ua.VariantType[t])) for _, v, t in writes]
         try:
             await self._resolve(client, [n for n, _, _ in writes])
             nodes = [self._node(client, n) for n, _, _ in writes]
@@ -255,7 +241,7 @@ class PlcLink:
             self._last[nid] = value
             self._deliver(nid, value)
         if o.mode == "poll":
-            self._announce_connected()
+            self._announce()
             self._watchdog = asyncio.get_running_loop().create_task(self._poll(client))
             return
         link = self
@@ -271,14 +257,8 @@ class PlcLink:
         if nodes:
             await subscription.subscribe_data_change(list(nodes.values()), queuesize=100)
         self._subscription = subscription
-        self._announce_connected()
+        self._announce()
         self._watchdog = asyncio.get_running_loop().create_task(self._keepalive(client))
-
-    def _announce_connected(self) -> None:
-        if self.last_error:
-            log.info("the PLC at %s answers again", self.endpoint)
-        self.last_error = ""
-        self._set_connected(True)
 
     async def _poll(self, client: Client) -> None:
         """Poll mode: every watched tag in one Read request each ``interval``; changes delivered."""
@@ -323,27 +303,6 @@ class PlcLink:
                 raise KeyError(address)
             nodeid = ua.NodeId.from_string(address)
         return client.get_node(nodeid)
-
-    def _deliver(self, nid: str, value: Any) -> None:
-        for listener in self._watched.get(nid, []):
-            try:
-                listener(nid, value)
-            except Exception:
-                log.exception("a PLC tag listener failed")
-
-    def _set_connected(self, connected: bool) -> None:
-        if connected == self.connected:
-            if connected:
-                self._ready.set()
-            return
-        self.connected = connected
-        if connected:
-            self._ready.set()
-        for listener in self._state_listeners:
-            try:
-                listener(connected)
-            except Exception:
-                log.exception("a PLC state listener failed")
 
     async def _disconnect(self) -> None:
         if self._watchdog is not None:

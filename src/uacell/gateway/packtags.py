@@ -38,7 +38,7 @@ class PackTagsMapError(ValueError):
 @dataclass(frozen=True)
 class ResolvedTag:
     key: str
-    node_id: str
+    address: str  # a NodeId string or browse path (OPC UA); a Modbus point (packml_modbus.Point)
     type_name: str
 
 
@@ -69,7 +69,7 @@ def resolve(
             raise PackTagsMapError(f"{part}: {key}: empty NodeId")
         out[key] = ResolvedTag(key, node_id, out[key].type_name)
     for key, tag in out.items():
-        if not tag.node_id:
+        if not tag.address:
             raise PackTagsMapError(f"{part}: {key}: no prefix and no override")
     return out
 

@@ -14,11 +14,13 @@ from uacell.cell_file import Part
 from uacell.gateway.modbus import CommunicationError, ModbusConnection
 from uacell.gateway.modbus_robot import signal_tags
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
+from uacell.gateway.packml_modbus import Point, where
 from uacell.gateway.packtags import PackTagsMapError, resolve
 from uacell.gateway.signals import NAME_SIGNALS
 
 MODBUS = "uacell.gateway.robot:modbus_signals"
 PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
+MODBUS_PACKTAGS = "uacell.gateway.packml_modbus:modbus_packtags"
 _BUILTIN = {ua.VariantType.Int32: "Int32", ua.VariantType.Boolean: "Boolean", ua.VariantType.Float: "Float"}
 
 
@@ -37,7 +39,7 @@ def gateway_parts(parts: list[tuple[str, Part]]) -> Iterator[tuple[str, str, Map
     def walk(part: Part, path: str) -> Iterator[tuple[str, str, Mapping[str, Any]]]:
         here = f"{path}.{part.name}" if path else part.name
         equipment = getattr(part.spec, "equipment", "")
-        if equipment in (MODBUS, PACKTAGS):
+        if equipment in (MODBUS, PACKTAGS, MODBUS_PACKTAGS):
             yield here, equipment, getattr(part.spec, "settings", {})
         for child in part.children:
             yield from walk(child, here)
@@ -70,13 +72,13 @@ async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float 
     try:
         for key, tag in tags.items():
             try:
-                node = client.get_node(await resolve_address(client, tag.node_id))
+                node = client.get_node(await resolve_address(client, tag.address))
                 dv = await node.read_data_value(raise_on_bad_status=False)
             except Exception as e:
-                rows.append(Row(part, endpoint, key, f"{tag.node_id}: {e}", False))
+                rows.append(Row(part, endpoint, key, f"{tag.address}: {e}", False))
                 continue
             if not dv.StatusCode.is_good():
-                rows.append(Row(part, endpoint, key, f"{tag.node_id}: {dv.StatusCode.name}", False))
+                rows.append(Row(part, endpoint, key, f"{tag.address}: {dv.StatusCode.name}", False))
                 continue
             found = _BUILTIN.get(dv.Value.VariantType, dv.Value.VariantType.name) if dv.Value else "null"
             ok = found == tag.type_name
@@ -114,10 +116,35 @@ async def probe_modbus(part: str, settings: Mapping[str, Any], timeout: float = 
         conn.close()
 
 
+async def probe_modbus_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    try:
+        w = where(part, settings)
+    except ValueError as e:
+        return [Row(part, f"modbus://{settings.get('host', '')}", "(settings)", str(e), False)]
+    conn = ModbusConnection(w.host, w.port, timeout=timeout)
+    try:
+        if not await conn.connect():
+            return [Row(part, w.endpoint, "(endpoint)", "unreachable", False)]
+        rows = []
+        for key, tag in w.tags.items():
+            point = Point.parse(tag.address)
+            try:
+                value = await conn.read(point.tag, point.device)
+                rows.append(Row(part, w.endpoint, key, f"{point} = {value!r}", True))
+            except CommunicationError as e:
+                rows.append(Row(part, w.endpoint, key, f"{point}: {str(e).rpartition(': ')[2]}", False))
+        return rows
+    finally:
+        conn.close()
+
+
+PROBES = {MODBUS: probe_modbus, PACKTAGS: probe_packtags, MODBUS_PACKTAGS: probe_modbus_packtags}
+
+
 async def probe(parts: list[tuple[str, Part]]) -> list[Row]:
     rows: list[Row] = []
     for path, driver, settings in gateway_parts(parts):
-        rows += await (probe_modbus if driver == MODBUS else probe_packtags)(path, settings)
+        rows += await PROBES[driver](path, settings)
     return rows
 
 

@@ -38,7 +38,7 @@ from typing import Any
 
 from uacell.errors import CallError
 from uacell.gateway import driver_settings
-from uacell.gateway.modbus import ModbusConnection, ModbusPool
+from uacell.gateway.modbus import SHARED, ModbusConnection
 from uacell.gateway.modbus_robot import ModbusRobotIO, signal_tags
 from uacell.gateway.signals import RobotStatus, SignalOp
 from uacell.robotics.equipment import (
@@ -61,7 +61,7 @@ log = logging.getLogger(__name__)
 
 FAULT, COMMUNICATION = "ControllerFault", "CommunicationLost"
 SETTINGS = ("host", "port", "unit", "timeout", "poll", "confirm_timeout", "pulse_width", "programs", "map")
-POOL = ModbusPool()  # connections shared by every controller of the process, per host and port
+POOL = SHARED  # connections shared by every part of the process, per host and port
 MAX_BACKOFF = 2.0
 
 

@@ -31,7 +31,10 @@ ACTING_STATES = (
 
 
 # The drivers shipped for PackML units (docs/equipment.md, "Gateway"): equipment = { driver = ... }.
-DRIVERS = {"opcua-packtags": "uacell.gateway.packml_opcua:opcua_packtags"}
+DRIVERS = {
+    "opcua-packtags": "uacell.gateway.packml_opcua:opcua_packtags",
+    "modbus-packtags": "uacell.gateway.packml_modbus:modbus_packtags",
+}
 
 
 @dataclass

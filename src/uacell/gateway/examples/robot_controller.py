@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import time
 
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import SimData, SimDevice
 from pymodbus.simulator.simutils import DataType
 
+from uacell.gateway.examples import run_plc
 from uacell.gateway.signals import DEFAULT_MAP
 
 FC = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
@@ -95,19 +95,7 @@ async def main(port: int, cycle: float, scan: float) -> None:
     server = ModbusTcpServer(device(), address=("127.0.0.1", port))
     controller = Controller(server, cycle)
 
-    async def run() -> None:
-        while True:
-            await controller.scan(time.monotonic())
-            await asyncio.sleep(scan)
-
-    # the program and the server live and die together: a failing scan ends the process
-    serve = asyncio.create_task(server.serve_forever())
-    program = asyncio.create_task(run())
-    done, pending = await asyncio.wait({serve, program}, return_when=asyncio.FIRST_COMPLETED)
-    for task in pending:
-        task.cancel()
-    for task in done:
-        task.result()
+    await run_plc(server, controller.scan, scan)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,87 @@
+"""What a PackTags unit needs of a transport to a PLC (``TagLink``), and the listeners a link calls.
+Implemented by ``opcua_link.PlcLink`` (OPC UA client) and ``packml_modbus.ModbusTagLink`` (Modbus/TCP)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Callable
+from typing import Any, Protocol
+
+log = logging.getLogger(__name__)
+
+FIRST_RETRY, LAST_RETRY = 0.5, 2.0  # seconds between reconnection attempts: doubling, at most LAST_RETRY
+
+ValueListener = Callable[[str, Any], None]  # (address, value)
+StateListener = Callable[[bool], None]  # connected
+
+
+class TagLink(Protocol):
+    """A connection to a PLC's tags by address (shared by the units on it); a lost connection makes
+    every read and write raise ``CommunicationError``. Values are Python ``int``/``float``/``bool``;
+    a write names the PackTags type of its tag ("Int32", "Boolean", "Float")."""
+
+    endpoint: str
+
+    def start(self) -> None: ...
+
+    async def watch(self, addresses: list[str], listener: ValueListener, on_state: StateListener) -> None: ...
+
+    async def wait_connected(self, timeout: float) -> bool: ...
+
+    async def read(self, address: str) -> Any: ...
+
+    async def read_many(self, addresses: list[str]) -> list[Any]: ...
+
+    async def write(self, address: str, value: Any, type_name: str) -> None: ...
+
+    async def write_many(self, writes: list[tuple[str, Any, str]]) -> None: ...
+
+
+class Listeners:
+    """What both links keep alike: the listeners of each watched address and of the connection."""
+
+    def __init__(self) -> None:
+        self.endpoint = ""
+        self.connected = False
+        self.last_error = ""  # why the last attempt to connect failed, said once
+        self._watched: dict[str, list[ValueListener]] = {}
+        self._state_listeners: list[StateListener] = []
+        self._ready = asyncio.Event()  # set once the first connection was made
+
+    def _listen(self, addresses: list[str], listener: ValueListener, on_state: StateListener) -> None:
+        for address in addresses:
+            self._watched.setdefault(address, []).append(listener)
+        self._state_listeners.append(on_state)
+
+    async def wait_connected(self, timeout: float) -> bool:
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self._ready.wait(), timeout)
+        return self.connected
+
+    def _deliver(self, address: str, value: Any) -> None:
+        for listener in self._watched.get(address, []):
+            try:
+                listener(address, value)
+            except Exception:
+                log.exception("a PLC tag listener failed")
+
+    def _announce(self) -> None:
+        """Connected (again)."""
+        if self.last_error:
+            log.info("the PLC at %s answers again", self.endpoint)
+        self.last_error = ""
+        self._set_connected(True)
+
+    def _set_connected(self, connected: bool) -> None:
+        if connected:
+            self._ready.set()
+        if connected == self.connected:
+            return
+        self.connected = connected
+        for listener in self._state_listeners:
+            try:
+                listener(connected)
+            except Exception:
+                log.exception("a PLC state listener failed")

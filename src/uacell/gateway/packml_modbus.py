@@ -1,0 +1,356 @@
+"""The ``modbus-packtags`` driver: a PackML unit in a PLC whose PackTags the PLC keeps in Modbus/TCP
+registers (docs/equipment.md, "Gateway"; the unit itself is ``packml_plc.PackTagsUnit``).
+
+    [[packml_units]]
+    name = "Capper"
+    equipment = { driver = "modbus-packtags", host = "10.0.0.5", unit = 1, base = 0 }
+
+Each unit's PackTags sit in holding registers from ``base`` (``LAYOUT``, 100 registers a unit), every
+tag overridable with ``map = { "Status.StateCurrent" = ["input", 7, "int32"] }``; ``byte_order`` and
+``word_order`` say how the PLC lays out 32-bit values. The link polls what the units watch every
+``interval`` (one request per block of nearby registers, ``modbus.spans``), one connection per host
+and port shared with every other part on it (robots included); a command's tags are written in
+order, neighbouring registers in one request (``Command.CntrlCmd`` and ``Command.CmdChangeRequest``
+reach the PLC together).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from uacell.gateway import driver_settings
+from uacell.gateway.codec import CodecError, RegisterType
+from uacell.gateway.link import FIRST_RETRY, LAST_RETRY, Listeners, StateListener, ValueListener
+from uacell.gateway.modbus import SHARED, CommunicationError, ModbusConnection, ModbusTag, spans
+from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
+from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag
+
+log = logging.getLogger(__name__)
+
+SETTINGS = ("host", "port", "unit", "base", "interval", "timeout", "byte_order", "word_order", *UNIT_SETTINGS)
+UNIT_REGISTERS = 100  # a unit's block of holding registers in the default layout
+# tag -> (table, register offset from base, type): the default layout of one unit
+LAYOUT: dict[str, tuple[str, int, str]] = {
+    "Status.StateCurrent": ("holding", 0, "int32"),
+    "Status.UnitModeCurrent": ("holding", 2, "int32"),
+    "Status.CurMachSpeed": ("holding", 4, "float32"),
+    "Status.MachSpeed": ("holding", 6, "float32"),
+    "Admin.ProdProcessedCount": ("holding", 8, "int32"),
+    "Admin.ProdDefectiveCount": ("holding", 10, "int32"),
+    "Admin.StopReason": ("holding", 12, "int32"),
+    "Command.CntrlCmd": ("holding", 14, "int32"),
+    "Command.CmdChangeRequest": ("holding", 16, "bool"),
+    "Command.UnitMode": ("holding", 18, "int32"),
+    "Command.UnitModeChangeRequest": ("holding", 20, "bool"),
+    "Command.MachSpeed": ("holding", 22, "float32"),
+}
+ALARMS_AT, ALARM_ROOM = 24, 8  # Admin.Alarm[i].ID: int32 at base + 24 + 2i
+PARAMETERS_AT, PARAMETER_ROOM = 40, 20  # Command.Parameter[i].Value: float32 at base + 40 + 2i
+# registers base + 80 .. base + 99 are the PLC's own (the example PLC keeps its test switches there)
+# the Modbus types a PackTags type may be kept in
+FITS = {
+    "Int32": ("int16", "uint16", "int32", "uint32"),
+    "Float": ("float32", "float64", "int16", "uint16", "int32", "uint32"),
+    "Boolean": ("bool",),
+}
+WRITTEN = {k for k in DEFAULT_MAP if k.startswith("Command.")}
+
+
+@dataclass(frozen=True)
+class Point:
+    """A tag of one device (Modbus unit id); its string form is the address a ``ResolvedTag`` holds."""
+
+    device: int
+    tag: ModbusTag
+
+    def __str__(self) -> str:
+        t = self.tag
+        return f"unit {self.device} {t.table} {t.address} {t.rtype.name} {t.rtype.byte_order}/{t.rtype.word_order}"
+
+    @classmethod
+    def parse(cls, text: str) -> Point:
+        _, device, table, address, name, orders = text.split(" ")
+        byte_order, word_order = orders.split("/")
+        rtype = RegisterType(name, byte_order=byte_order, word_order=word_order)  # type: ignore[arg-type]
+        return cls(int(device), ModbusTag(table, int(address), rtype))
+
+
+def resolve_modbus(
+    part: str,
+    device: int,
+    base: int = 0,
+    overrides: Mapping[str, Any] | None = None,
+    parameters: int = 5,
+    alarms: int = 0,
+    byte_order: str = "big",
+    word_order: str = "big",
+) -> dict[str, ResolvedTag]:
+    """Every tag of the map as a Modbus point: ``LAYOUT`` from ``base``, then ``overrides``
+    (tag -> [table, address, type]). A ValueError names the part, the tag and what is wrong."""
+    if not 0 <= parameters <= PARAMETER_ROOM or not 0 <= alarms <= ALARM_ROOM:
+        raise ValueError(
+            f"{part}: the layout has room for {PARAMETER_ROOM} parameters and {ALARM_ROOM} alarms, "
+            f"not {parameters} and {alarms}"
+        )
+    entries = {k: (table, base + offset, kind) for k, (table, offset, kind) in LAYOUT.items()}
+    for i in range(parameters):
+        entries[f"Command.Parameter[{i}].Value"] = ("holding", base + PARAMETERS_AT + 2 * i, "float32")
+    for i in range(alarms):
+        entries[f"Admin.Alarm[{i}].ID"] = ("holding", base + ALARMS_AT + 2 * i, "int32")
+    for key, entry in (overrides or {}).items():
+        if key not in entries:
+            raise ValueError(f"{part}: map: {key}: not a PackTags tag of the map")
+        if not isinstance(entry, list | tuple) or len(entry) != 3 or not isinstance(entry[1], int):
+            example = '["holding", 7, "int32"]'
+            raise ValueError(f"{part}: map: {key} = {entry!r}: needs [table, address, type], e.g. {example}")
+        entries[key] = (str(entry[0]), entry[1], str(entry[2]))
+    types = {k: t for k, (_, t) in DEFAULT_MAP.items()}
+    out = {}
+    for key, (table, address, kind) in entries.items():
+        type_name = types.get(key, "Float" if key.startswith("Command.Parameter[") else "Int32")
+        if kind not in FITS[type_name]:
+            raise ValueError(f"{part}: map: {key}: a {kind} cannot hold the {type_name} the tag is")
+        try:
+            tag = ModbusTag(table, address, RegisterType(kind, byte_order, word_order))  # type: ignore[arg-type]
+        except (CodecError, ValueError) as e:
+            raise ValueError(f"{part}: map: {key}: {e}") from None
+        if (key in WRITTEN or key.startswith("Command.Parameter[")) and not tag.writable:
+            raise ValueError(f"{part}: map: {key}: uacell writes this tag; {_article(table)} {table} cannot be written")
+        out[key] = ResolvedTag(key, str(Point(device, tag)), type_name)
+    return out
+
+
+class ModbusTagLink(Listeners):
+    """The ``TagLink`` of one Modbus/TCP endpoint: polls the watched points, reconnects with backoff."""
+
+    def __init__(self, conn: ModbusConnection, interval: float) -> None:
+        super().__init__()
+        self.conn, self.interval = conn, interval
+        self.endpoint = conn.name
+        self.users = 0
+        self._points: dict[str, Point] = {}
+        self._last: dict[str, Any] = {}
+        self._task: asyncio.Task[None] | None = None
+
+    def point(self, address: str) -> Point:
+        p = self._points.get(address)
+        if p is None:
+            p = self._points[address] = Point.parse(address)
+        return p
+
+    # -- TagLink ----------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        if self._task is None:
+            self._task = asyncio.get_running_loop().create_task(self._run(), name=f"plc {self.endpoint}")
+
+    async def watch(self, addresses: list[str], listener: ValueListener, on_state: StateListener) -> None:
+        for address in addresses:
+            self.point(address)
+        self._listen(addresses, listener, on_state)
+        if self.connected:  # another unit on this PLC connected it already: these values now
+            try:
+                for address, value in zip(addresses, await self.read_many(addresses), strict=True):
+                    self._last[address] = value
+                    listener(address, value)
+                on_state(True)
+            except CommunicationError as exc:
+                log.warning("the PLC at %s: %s", self.endpoint, exc)
+
+    async def read(self, address: str) -> Any:
+        (value,) = await self.read_many([address])
+        return value
+
+    async def read_many(self, addresses: list[str]) -> list[Any]:
+        """The values of ``addresses``, one request per block of nearby registers."""
+        if not self.connected:
+            raise CommunicationError(f"no connection to the PLC at {self.endpoint}")
+        return await self._read(addresses)
+
+    async def _read(self, addresses: list[str]) -> list[Any]:
+        points = [self.point(a) for a in addresses]
+        values: dict[Point, Any] = {}
+        for device in sorted({p.device for p in points}):
+            mine = [p for p in points if p.device == device]
+            for span in spans([p.tag for p in mine]):
+                block = await self._io(self.conn.read_block(span.table, span.start, span.count, device))
+                for p in mine:
+                    if p.tag.table == span.table and span.start <= p.tag.address < span.start + span.count:
+                        values[p] = p.tag.value_in(block, span.start)
+        return [values[p] for p in points]
+
+    async def write(self, address: str, value: Any, type_name: str) -> None:
+        await self.write_many([(address, value, type_name)])
+
+    async def write_many(self, writes: list[tuple[str, Any, str]]) -> None:
+        """The values in order; neighbouring holding registers of one device in one request."""
+        if not self.connected:
+            raise CommunicationError(f"no connection to the PLC at {self.endpoint}")
+        blocks: list[tuple[int, str, int, list[Any]]] = []  # (device, table, start, values)
+        for address, value, _ in writes:
+            p = self.point(address)
+            t = p.tag
+            try:
+                words: list[Any] = [bool(value)] if t.table == "coil" else t.rtype.encode(value)
+            except CodecError as e:
+                raise CommunicationError(f"{self.endpoint}: {p}: {e}") from None
+            last = blocks[-1] if blocks else None
+            if last and t.table == "holding" == last[1] and last[0] == p.device and last[2] + len(last[3]) == t.address:
+                last[3].extend(words)
+            else:
+                blocks.append((p.device, t.table, t.address, words))
+        for device, table, start, values in blocks:
+            await self._io(self.conn.write_block(table, start, values, device))
+
+    async def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            await asyncio.wait({self._task}, timeout=5.0)
+        SHARED.release(self.conn)
+
+    # -- the connection ---------------------------------------------------------------------------
+
+    async def _io(self, request: Any) -> Any:
+        try:
+            return await request
+        except CommunicationError:
+            if not self.conn.connected:
+                self._set_connected(False)
+            raise
+
+    async def _run(self) -> None:
+        delay = FIRST_RETRY
+        while True:
+            try:
+                if not self.conn.connected and not await self.conn.connect():
+                    raise CommunicationError(f"{self.endpoint}: no answer")
+                await self._first_read()
+                self._announce()
+                delay = FIRST_RETRY
+                while self.conn.connected:
+                    await asyncio.sleep(self.interval)
+                    await self._poll()
+            except CommunicationError as exc:
+                if str(exc) != self.last_error:
+                    log.warning("the PLC at %s: %s (retrying)", self.endpoint, exc)
+                self.last_error = str(exc)
+            self._set_connected(False)
+            await asyncio.sleep(delay)
+            delay = min(delay * 2, LAST_RETRY)
+
+    async def _first_read(self) -> None:
+        """Every watched tag once; a tag the PLC does not have is named (one request each, once)."""
+        addresses = list(self._watched)
+        try:
+            values = await self._read(addresses)
+        except CommunicationError:
+            if not self.conn.connected:
+                raise
+            for address in addresses:
+                try:
+                    await self._read([address])
+                except CommunicationError as exc:
+                    raise CommunicationError(f"{self.point(address)}: {exc}") from None
+            raise
+        for address, value in zip(addresses, values, strict=True):
+            self._last[address] = value
+            self._deliver(address, value)
+
+    async def _poll(self) -> None:
+        addresses = list(self._watched)
+        for address, value in zip(addresses, await self._read(addresses), strict=True):
+            if self._last.get(address, _UNSET) != value:
+                self._last[address] = value
+                self._deliver(address, value)
+
+
+_UNSET = object()
+
+
+def _article(word: str) -> str:
+    return "an" if word[0] in "aeiou" else "a"
+
+
+class ModbusLinkPool:
+    """One link per host, port and poll interval, on the process's shared connection to that PLC."""
+
+    def __init__(self) -> None:
+        self._links: dict[tuple[str, int, float], ModbusTagLink] = {}
+
+    def get(self, host: str, port: int, interval: float, timeout: float = 1.0) -> ModbusTagLink:
+        key = (host, port, interval)
+        link = self._links.get(key)
+        if link is None:
+            link = self._links[key] = ModbusTagLink(SHARED.get(host, port, timeout), interval)
+        link.users += 1
+        return link
+
+    async def release(self, link: ModbusTagLink) -> None:
+        link.users -= 1
+        if link.users <= 0:
+            self._links = {k: v for k, v in self._links.items() if v is not link}
+            await link.close()
+
+
+POOL = ModbusLinkPool()
+
+
+def _number(part: str, settings: Mapping[str, Any], key: str, default: float, low: float, high: float) -> float:
+    value = settings.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
+        raise ValueError(f"{part}: {key}: a number from {low:g} to {high:g}, not {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class Where:
+    """Where a unit's PackTags are: the PLC's host and port, and every tag as a Modbus point."""
+
+    host: str
+    port: int
+    interval: float
+    timeout: float
+    tags: dict[str, ResolvedTag]
+
+    @property
+    def endpoint(self) -> str:
+        return f"modbus://{self.host}:{self.port}"
+
+
+def where(part: str, settings: Mapping[str, Any]) -> Where:
+    """The driver's settings, checked (a ValueError names the part and the setting)."""
+    settings = driver_settings("modbus-packtags", settings, SETTINGS)
+    host = settings.get("host")
+    if not isinstance(host, str) or not host:
+        raise ValueError(f'{part}: host: needs "<address of the PLC>"')
+    map_ = settings.get("map", {})
+    if not isinstance(map_, Mapping):
+        raise ValueError(f"{part}: map: a table of tag = [table, address, type], not {map_!r}")
+    tags = resolve_modbus(
+        part,
+        int(_number(part, settings, "unit", 1, 0, 255)),
+        int(_number(part, settings, "base", 0, 0, 65535 - UNIT_REGISTERS)),
+        map_,
+        parameters=int(_number(part, settings, "parameters", 5, 0, PARAMETER_ROOM)),
+        alarms=int(_number(part, settings, "alarms", 0, 0, ALARM_ROOM)),
+        byte_order=str(settings.get("byte_order", "big")),
+        word_order=str(settings.get("word_order", "big")),
+    )
+    return Where(
+        host,
+        int(_number(part, settings, "port", 502, 1, 65535)),
+        _number(part, settings, "interval", 0.05, 0.005, 60),
+        _number(part, settings, "timeout", 1.0, 0.05, 60),
+        tags,
+    )
+
+
+async def modbus_packtags(spec: Any) -> PackTagsUnit:
+    """The equipment factory of the ``modbus-packtags`` driver."""
+    w = where(spec.part, spec.settings)
+    link = POOL.get(w.host, w.port, w.interval, w.timeout)
+    return await start_unit(spec.part, link, w.tags, spec.settings, POOL.release)

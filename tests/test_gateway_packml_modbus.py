@@ -1,0 +1,309 @@
+"""PackML units whose state machine runs in a PLC that speaks Modbus/TCP only, served by uacell from
+the cell file alone (the modbus-packtags driver): pymodbus's server holds the PackTags registers and
+runs a TR88 scan-cycle program (uacell.gateway.examples.packtags_plc) on a free port; an asyncua
+client (and node-opcua once) drives uacell, which drives the PLC."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import subprocess
+import sys
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from asyncua import Client, ua
+from conftest import fast_config, serving
+from helpers import (
+    call_path,
+    cell_executable,
+    cell_read,
+    cell_state,
+    cell_status,
+    config_check_connect,
+    free_port,
+    packml_params,
+    until,
+)
+
+from uacell.cell_file import builtin_cell_path
+from uacell.config import load_cell
+from uacell.gateway.codec import RegisterType
+from uacell.gateway.modbus import MAX_SPAN, ModbusConnection, ModbusTag, Span, spans
+from uacell.gateway.packml_modbus import Point, resolve_modbus, where
+from uacell.server import UacellServer
+
+SRC = str(Path(__file__).resolve().parents[1] / "src")
+F, L = "Capper", "Labeler"  # the shipped cell's units: registers from 0 and from 100
+
+
+def machines(unit: str) -> tuple[str, str, str]:
+    base = f"{unit}.BaseStateMachine"
+    return base, f"{base}.MachineState", f"{base}.MachineState.ExecuteState"
+
+
+BASE, MACH, EXEC = machines(F)
+
+
+class ModbusPLC:
+    """The example PLC in its own process, and a Modbus client of the test's to look into it."""
+
+    def __init__(self, units: int = 2, acting: float = 0.1) -> None:
+        self.port, self.units, self.acting = free_port(), units, acting
+        self.proc: subprocess.Popen[str] | None = None
+        self.conn: ModbusConnection | None = None
+
+    def start(self) -> None:
+        cmd = [sys.executable, "-m", "uacell.gateway.examples.packtags_plc", "--port", str(self.port)]
+        cmd += ["--units", str(self.units), "--acting", str(self.acting)]
+        self.proc = subprocess.Popen(
+            cmd, env={**os.environ, "PYTHONPATH": SRC}, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+        )
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()  # the PLC prints it once it serves (or ends: "")
+        assert line.strip() == "listening", line
+
+    def kill(self) -> None:
+        if self.proc is not None:
+            self.proc.kill()
+            self.proc.wait(10)
+            if self.proc.stdout is not None:
+                self.proc.stdout.close()
+            self.proc = None
+
+    async def open(self) -> None:
+        self.conn = ModbusConnection("127.0.0.1", self.port, timeout=2.0)
+        assert await self.conn.connect()
+
+    def close(self) -> None:
+        if self.conn is not None:
+            self.conn.close()
+            self.conn = None
+
+    async def tag(self, base: int, key: str) -> Any:
+        assert self.conn is not None
+        point = Point.parse(resolve_modbus("test", 1, base)[key].address)
+        return await self.conn.read(point.tag, 1)
+
+    async def switch(self, base: int, offset: int, on: bool) -> None:
+        """One of the example PLC's test switches (80 refuse, 81 frozen, 82 fault)."""
+        assert self.conn is not None
+        await self.conn.write(ModbusTag("holding", base + offset, RegisterType("bool")), on, 1)
+
+    async def taken(self, base: int = 0) -> list[float]:
+        """The parameters the last Start took (the example PLC copies them to base + 84..)."""
+        assert self.conn is not None
+        f = RegisterType("float32")
+        return [float(await self.conn.read(ModbusTag("holding", base + 84 + 2 * i, f), 1)) for i in range(5)]
+
+
+@pytest.fixture
+async def plc() -> AsyncIterator[ModbusPLC]:
+    p = ModbusPLC()
+    p.start()
+    try:
+        await p.open()
+        yield p
+    finally:
+        p.close()
+        p.kill()
+
+
+def shipped_cell(plc: ModbusPLC) -> str:
+    return builtin_cell_path("modbus-packtags").read_text().replace("port = 5021", f"port = {plc.port}")
+
+
+@pytest.fixture
+async def served(tmp_path: Path, plc: ModbusPLC) -> AsyncIterator[tuple[UacellServer, Client]]:
+    path = tmp_path / "cell.toml"  # the shipped example, nothing changed but the PLC's port
+    path.write_text(shipped_cell(plc))
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(path)
+    async with serving(config) as s:
+        await s[1].load_data_type_definitions()
+        yield s
+
+
+# -- the map, pure ----------------------------------------------------------------------------------
+
+
+def test_the_default_layout_from_a_base_and_overrides() -> None:
+    tags = resolve_modbus("Capper", 3, base=100, parameters=2, alarms=1)
+    assert tags["Status.StateCurrent"].address == "unit 3 holding 100 int32 big/big"
+    assert tags["Command.CmdChangeRequest"].address == "unit 3 holding 116 bool big/big"
+    assert tags["Command.Parameter[1].Value"].address == "unit 3 holding 142 float32 big/big"
+    assert tags["Admin.Alarm[0].ID"].address == "unit 3 holding 124 int32 big/big"
+    assert "Command.Parameter[2].Value" not in tags
+    assert (tags["Command.MachSpeed"].type_name, tags["Command.CmdChangeRequest"].type_name) == ("Float", "Boolean")
+    moved = resolve_modbus("Capper", 1, overrides={"Status.StateCurrent": ["input", 7, "uint16"]}, word_order="little")
+    point = Point.parse(moved["Status.StateCurrent"].address)
+    assert (point.tag.table, point.tag.address, point.tag.rtype.name, point.tag.rtype.word_order) == (
+        "input", 7, "uint16", "little"
+    )  # fmt: skip
+    assert Point.parse(str(point)) == point
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"map": {"Status.StateCurrent": ["holding", 0, "bool"]}}, "Status.StateCurrent: a bool cannot hold the Int32"),
+        ({"map": {"Command.CntrlCmd": ["input", 0, "int32"]}}, "Command.CntrlCmd: uacell writes this tag; an input"),
+        ({"map": {"Status.Nope": ["holding", 0, "int32"]}}, "Capper: map: Status.Nope: not a PackTags tag of the map"),
+        ({"map": {"Status.StateCurrent": ["holding", "x", "int32"]}}, "needs [table, address, type]"),
+        ({"map": {"Status.StateCurrent": ["register", 0, "int32"]}}, "Status.StateCurrent: table 'register'"),
+        ({"parameters": 21}, "Capper: parameters: a number from 0 to 20"),
+        ({"word_order": "middle"}, "Capper: map: Status.StateCurrent: word_order 'middle'"),
+        ({"interval": 0}, "Capper: interval"),
+        ({"bogus": 1}, "the modbus-packtags driver has no setting 'bogus'"),
+        ({"host": ""}, "Capper: host"),
+    ],
+)  # fmt: skip
+def test_settings_that_cannot_work_are_one_line(settings: dict[str, Any], message: str) -> None:
+    with pytest.raises(ValueError) as info:
+        where("Capper", {"host": "plc"} | settings)
+    assert message in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_nearby_tags_are_read_in_one_request() -> None:
+    tags = [Point.parse(t.address).tag for t in resolve_modbus("U", 1, 0, alarms=2).values()]
+    watched = [t for t in tags if t.address in (0, 2, 8, 10, 12, 24, 26)]
+    assert spans(watched) == [Span("holding", 0, 28)]
+    far = [ModbusTag("holding", 0, RegisterType("int32")), ModbusTag("holding", 100, RegisterType("int32"))]
+    assert spans(far) == [Span("holding", 0, 2), Span("holding", 100, 2)]
+    wide = [ModbusTag("holding", a, RegisterType("uint16")) for a in range(0, 200, 10)]
+    assert all(s.count <= MAX_SPAN["holding"] for s in spans(wide)) and len(spans(wide)) == 2
+    mixed = [ModbusTag("coil", 3, RegisterType("bool")), ModbusTag("holding", 3, RegisterType("bool"))]
+    assert spans(mixed) == [Span("coil", 3, 1), Span("holding", 3, 1)]
+
+
+# -- against the Modbus PLC -------------------------------------------------------------------------
+
+
+async def test_a_full_cycle_goes_to_the_plc_and_comes_back(served, plc: ModbusPLC) -> None:
+    _app, client = served
+    from uacell.gateway.modbus import SHARED
+    from uacell.gateway.packml_modbus import POOL
+
+    assert len(POOL._links) == 1 and len(SHARED._connections) == 1  # both units on one connection
+    assert await plc.tag(0, "Status.StateCurrent") == 2  # Stopped
+    assert await cell_state(client, MACH) == "Stopped"
+    res = await call_path(client, MACH, "Reset")
+    assert res.StatusCode.is_good(), res.StatusCode
+    assert await plc.tag(0, "Status.StateCurrent") in (15, 4)  # the PLC took it before the call answered
+    await until(lambda: cell_state(client, EXEC), "Idle")
+    assert (await call_path(client, F, "SetMachSpeed", ua.Variant(120.0, ua.VariantType.Float))).StatusCode.is_good()
+    await until(lambda: plc.tag(0, "Command.MachSpeed"), 120.0)
+    res = await call_path(client, EXEC, "Start", packml_params((1, 180.5), (2, 0.25)))
+    assert res.StatusCode.is_good(), res.StatusCode
+    assert await plc.taken() == pytest.approx([180.5, 0.25, 0.0, 0.0, 0.0])
+    await until(lambda: cell_state(client, EXEC), "Execute")
+    assert await cell_read(client, f"{F}.Status.MachSpeed") == pytest.approx(120.0)  # the PLC's Status.MachSpeed
+
+    async def produced() -> bool:  # the PLC's count, mirrored into Admin.ProdProcessedCount
+        (count,) = await cell_read(client, f"{F}.Admin.ProdProcessedCount")
+        return bool(count.Count > 0)
+
+    await until(produced, True)
+    assert (await call_path(client, MACH, "Stop")).StatusCode.is_good()
+    await until(lambda: cell_state(client, MACH), "Stopped")
+    assert await plc.tag(0, "Status.StateCurrent") == 2
+    # uacell's own rules before the PLC's: Start is not allowed in Stopped, nothing is written
+    res = await call_path(client, EXEC, "Start", packml_params())
+    assert res.StatusCode.value in (ua.StatusCodes.BadInvalidState, ua.StatusCodes.BadMethodInvalid)
+    assert await plc.tag(0, "Command.CntrlCmd") == 3  # still the Stop
+    # the other unit on the same connection, registers from 100, was not touched
+    assert await cell_state(client, machines(L)[1]) == "Stopped" and await plc.tag(100, "Status.StateCurrent") == 2
+    res = await call_path(client, machines(L)[1], "Reset")
+    assert res.StatusCode.is_good(), res.StatusCode
+    await until(lambda: plc.tag(100, "Status.StateCurrent"), 4)
+    assert await plc.tag(0, "Status.StateCurrent") == 2
+
+
+async def test_a_command_the_plc_refuses_or_never_takes(served, plc: ModbusPLC) -> None:
+    _app, client = served
+    await plc.switch(0, 80, True)  # refuse
+    res = await call_path(client, MACH, "Reset")
+    assert res.StatusCode.value == ua.StatusCodes.BadInvalidState
+    assert await cell_state(client, MACH) == "Stopped" and await plc.tag(0, "Status.StateCurrent") == 2
+    await plc.switch(0, 80, False)
+    await plc.switch(0, 81, True)  # frozen: no scan takes the request
+    started = time.monotonic()
+    res = await call_path(client, MACH, "Reset")
+    assert res.StatusCode.value == ua.StatusCodes.BadTimeout
+    assert time.monotonic() - started >= 2.5  # confirm_timeout 3 s
+    assert await plc.tag(0, "Command.CmdChangeRequest") is False  # nothing left half-written
+    assert await cell_state(client, MACH) == "Stopped"
+
+
+async def test_the_plc_faults_and_uacell_aborts_with_its_stop_reason(served, plc: ModbusPLC) -> None:
+    _app, client = served
+    assert (await call_path(client, MACH, "Reset")).StatusCode.is_good()
+    await until(lambda: cell_state(client, EXEC), "Idle")
+    await plc.switch(0, 82, True)
+    await until(lambda: cell_state(client, BASE), "Aborted")
+    assert (await cell_read(client, f"{F}.Admin.StopReason")).ID == 42
+
+
+async def test_the_plc_killed_and_back(served, plc: ModbusPLC) -> None:
+    _app, client = served
+    plc.close()
+    plc.kill()
+    ns = await client.get_namespace_index("urn:uacell:cell")
+
+    def executable() -> Any:
+        return cell_executable(client, f"{MACH}.Reset")
+
+    await until(executable, False)
+    assert (await call_path(client, MACH, "Reset")).StatusCode.value == ua.StatusCodes.BadCommunicationError
+
+    def speed_status() -> Any:
+        return cell_status(client, f"{F}.Status.MachSpeed")
+
+    await until(speed_status, "BadNoCommunication")  # the PLC's values are not current any more
+    warnings = client.get_node(ua.NodeId(f"{F}.Admin.Warning", ns))
+    assert any(w.ID == 9001 for w in await warnings.read_value())  # uacell's own: readable, says why
+    plc.start()  # the same port
+    back = time.monotonic()
+    await until(executable, True)
+    assert time.monotonic() - back <= 5.0
+    await until(speed_status, "Good")
+    assert not any(w.ID == 9001 for w in await warnings.read_value())
+    res = await call_path(client, MACH, "Reset")
+    assert res.StatusCode.is_good(), res.StatusCode
+    await plc.open()
+    await until(lambda: plc.tag(0, "Status.StateCurrent"), 4)
+
+
+async def test_node_opcua_runs_a_cycle_through_uacell_to_the_modbus_plc(tmp_path: Path, plc: ModbusPLC) -> None:
+    """The independent client: node-opcua resets and starts (with two parameters) a unit the PLC owns."""
+    from conftest import run_node
+
+    path = tmp_path / "cell.toml"
+    path.write_text(shipped_cell(plc).replace(f'name = "{F}"', 'name = "Filler1"'))
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(path)
+    async with serving(config) as (app, _client):
+        out = await asyncio.to_thread(run_node, "packml_start.js", app.endpoint)
+        assert (out["reset"], out["start"], out["state"]) == ("Good", "Good", "Execute")
+        assert await plc.tag(0, "Status.StateCurrent") == 6  # the PLC is in Execute
+        assert await plc.taken() == pytest.approx([250.5, -12.25, 0.0, 0.0, 0.0])
+
+
+async def test_config_check_connect_names_a_register_the_plc_does_not_have(tmp_path: Path, plc: ModbusPLC) -> None:
+    text = shipped_cell(plc).replace(
+        "base = 100 }", 'base = 100, map = { "Admin.StopReason" = ["holding", 9000, "int32"] } }'
+    )
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    proc = await config_check_connect(path)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    lines = proc.stdout.splitlines()
+    bad = [ln for ln in lines if "PROBLEM" in ln]
+    assert len(bad) == 1 and bad[0].startswith("Labeler") and "Admin.StopReason" in bad[0], lines
+    assert "PROBLEM: unit 1 holding 9000 int32 big/big: illegal data address (exception 2)" in bad[0], lines
+    assert any(ln.startswith("Capper") and "Status.StateCurrent" in ln and "= 2" in ln for ln in lines), lines
+    assert "connect: 33 of 34 as configured" in proc.stdout, proc.stdout
