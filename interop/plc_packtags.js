@@ -24,11 +24,11 @@ const path = require("path");
 const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
 const { OPCUAServer, Subscription, MonitoredItem } = require("node-opcua-server");
 
-// Publish and sample as fast as a client asks, down to 10 ms, as a PLC's OPC UA server does
-// (node-opcua's own floors are 50 ms); the tags are sampled every 10 ms (their MinimumSamplingInterval).
+// Publish as fast as a client asks, down to 10 ms, as a PLC's OPC UA server does (node-opcua's own
+// floor is 50 ms); the tags are exception-based (MinimumSamplingInterval 0: see leaf() below).
 Subscription.minimumPublishingInterval = 10;
 MonitoredItem.minimumSamplingInterval = 10;
-const { DataType, Variant, StatusCodes, SecurityPolicy, MessageSecurityMode } = require("node-opcua-client");
+const { DataType, Variant, SecurityPolicy, MessageSecurityMode } = require("node-opcua-client");
 
 const S = {
   Clearing: 1, Stopped: 2, Starting: 3, Idle: 4, Suspended: 5, Execute: 6, Stopping: 7, Aborting: 8,
@@ -86,6 +86,8 @@ class Unit {
       this.types[k] = type;
     }
     this.v["Sim.Parameters"] = [];
+    this.nodes = {}; // tag -> its variables (flat and in the tree)
+    this.published = {}; // tag -> the value its variables hold
     this.enteredAt = Date.now();
     this.produced = 0;
     this.lastFault = false;
@@ -133,6 +135,19 @@ class Unit {
       v["Status.CurMachSpeed"] = 0.0;
     }
     this.lastScan = now;
+    this.publish();
+  }
+  publish() {
+    for (const [key, variables] of Object.entries(this.nodes)) {
+      const value = this.v[key];
+      if (this.published[key] === value) continue;
+      this.published[key] = value;
+      const array = key === "Sim.Parameters";
+      const dataType = array ? DataType.Float : this.types[key];
+      for (const variable of variables) {
+        variable.setValueFromSource(new Variant({ dataType, arrayType: array ? 1 : undefined, value }));
+      }
+    }
   }
 }
 
@@ -178,26 +193,32 @@ async function main() {
     for (const key of keys) {
       const array = key === "Sim.Parameters";
       const cut = key.lastIndexOf(".");
-      const leaf = (parent, browseName, nodeId) => ns.addVariable({
-        componentOf: parent,
-        browseName,
-        nodeId,
-        dataType: array ? DataType.Float : unit.types[key],
-        valueRank: array ? 1 : -1,
-        accessLevel: "CurrentRead | CurrentWrite",
-        userAccessLevel: "CurrentRead | CurrentWrite",
-        minimumSamplingInterval: 10,
-        value: {
-          get: () => new Variant({ dataType: array ? DataType.Float : unit.types[key],
-            arrayType: array ? 1 : undefined, value: unit.v[key] }),
-          set: (variant) => {
-            if (array) return StatusCodes.BadNotWritable;
-            if (variant.dataType !== unit.types[key]) return StatusCodes.BadTypeMismatch;
-            unit.v[key] = variant.value;
-            return StatusCodes.Good;
-          },
-        },
-      });
+      // The program's values are the truth (unit.v): a client's write lands there at once, and the
+      // end of each scan publishes what changed (setValueFromSource), so subscriptions are served
+      // exception-based (MinimumSamplingInterval 0): a change goes out with the next publish, as
+      // from a PLC whose OPC UA server is told of changes rather than sampling its tags.
+      const leaf = (parent, browseName, nodeId) => {
+        const dataType = array ? DataType.Float : unit.types[key];
+        const variable = ns.addVariable({
+          componentOf: parent,
+          browseName,
+          nodeId,
+          dataType,
+          valueRank: array ? 1 : -1,
+          accessLevel: array ? "CurrentRead" : "CurrentRead | CurrentWrite",
+          userAccessLevel: array ? "CurrentRead" : "CurrentRead | CurrentWrite",
+          minimumSamplingInterval: 0,
+          value: new Variant({ dataType, arrayType: array ? 1 : undefined, value: unit.v[key] }),
+        });
+        variable.on("value_changed", (dv) => {
+          if (!array && dv.value.value !== unit.v[key]) {
+            unit.v[key] = dv.value.value;
+            unit.published[key] = dv.value.value;
+            for (const other of unit.nodes[key]) if (other !== variable) other.setValueFromSource(dv.value);
+          }
+        });
+        (unit.nodes[key] = unit.nodes[key] || []).push(variable);
+      };
       leaf(folder, `PackTags.${key}`, `s=${unit.name}.PackTags.${key}`);
       leaf(branch(key.slice(0, cut)), key.slice(cut + 1), `s=${unit.name}.Tree.${key}`);
     }

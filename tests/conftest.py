@@ -195,7 +195,8 @@ async def client(app) -> AsyncIterator:
 
 
 def run_node(script: str, endpoint: str, *args: str, timeout: float = 120.0) -> dict:
-    """Run interop/<script> with node-opcua-client; it prints one JSON object as its last line."""
+    """Run interop/<script> with node-opcua-client; it prints one JSON object as its last JSON line
+    (node-opcua may print a log line of its own after it, e.g. a warning about RSA PKCS#1 v1.5)."""
     proc = subprocess.run(
         ["node", str(INTEROP / script), endpoint, *args],
         capture_output=True,
@@ -204,7 +205,7 @@ def run_node(script: str, endpoint: str, *args: str, timeout: float = 120.0) -> 
         cwd=INTEROP,
         check=False,
     )
-    lines = [ln for ln in proc.stdout.splitlines() if ln.strip()]
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
     if proc.returncode != 0 or not lines:
         raise AssertionError(f"{script} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return json.loads(lines[-1])

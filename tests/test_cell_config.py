@@ -223,11 +223,11 @@ ERRORS = [
     ),
     (
         ('name = "U"', 'name = "U"\nequipment = { host = "x" }'),
-        "[packml_units.U] equipment: needs a driver (opcua-packtags)",
+        "[packml_units.U] equipment: needs a driver (modbus-packtags, opcua-packtags)",
     ),
     (
         ('name = "U"', 'name = "U"\nequipment = { driver = "modbus-signals", host = "a" }'),
-        "[packml_units.U] equipment: driver 'modbus-signals' is not one of: opcua-packtags",
+        "[packml_units.U] equipment: driver 'modbus-signals' is not one of: modbus-packtags, opcua-packtags",
     ),
     (
         ("[[packml_units]]", '[server]\nanonymous_role = "guest"\n[[packml_units]]'),
