@@ -10,6 +10,10 @@ connection, its subscription at 20 ms).
   target for both: p99 <= the subscription interval + 20 ms;
 - U2 walked through all 17 TR88 states with every command's handshake;
 - all 50 units reset at once: every one reaches Idle (nothing lost);
+- PackML units in a Modbus-only PLC (the example, ``uacell.gateway.examples.packtags_plc``, 10
+  units in the default register layout, the ``modbus-packtags`` driver polling every 20 ms): command
+  round trip and mirror latency as above, the PLC read by a second Modbus client every 2 ms; target
+  p99 <= the poll + 20 ms;
 - a robot over Modbus signals (the example controller, ``uacell.gateway.examples.robot_controller``,
   served from the shipped ``modbus-robot`` cell with a 20 ms poll): a Start's round trip until the
   controller's ``running`` bit rose, and the controller's program end (``running`` fell) until the
@@ -78,6 +82,12 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
         with _served(peers, "gateway", text) as server:
             raw = asyncio.run(_measure(server.endpoint, endpoint, rounds))
     report.raw["gateway"] = raw
+    bare = raw["bare_mirror_ms"]
+    print(
+        f"  (the floor: a bare asyncua client subscribed to the PLC at {INTERVAL * 1000:.0f} ms sees its change after "
+        f"p50 / p99 {percentile(bare, 0.5) or 0:.1f} / {percentile(bare, 0.99) or 0:.1f} ms)",
+        flush=True,
+    )
     _latency_rows(
         report,
         raw,
@@ -105,7 +115,42 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
         "all (1.0x)",
         lambda x: x >= 1.0,
     )
+    modbus_packtags_section(report, peers, rounds // 2)
     robot_section(report, peers, rounds // 2)
+
+
+MODBUS_POLL = 0.02  # the modbus-packtags driver's poll in the Modbus PackML part
+MODBUS_UNITS = 10
+
+
+def modbus_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
+    """The Modbus PackML part (module doc): the example Modbus PLC, units in the default layout."""
+    import sys
+
+    from benchmarks.__main__ import free_port
+
+    plc_port = free_port()
+    cmd = [sys.executable, "-m", "uacell.gateway.examples.packtags_plc", "--port", str(plc_port)]
+    with _process([*cmd, "--units", str(MODBUS_UNITS), "--acting", "0.2"], ROOT, ready="listening"):
+        text = "".join(
+            f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "modbus-packtags", host = "127.0.0.1", '
+            f"port = {plc_port}, base = {100 * i}, interval = {MODBUS_POLL} }}\n\n"
+            for i in range(MODBUS_UNITS)
+        )
+        with _served(peers, "modbus-gateway", text) as server:
+            raw = asyncio.run(_measure_modbus(server.endpoint, plc_port, rounds))
+    report.raw["gateway_modbus"] = raw
+    _latency_rows(
+        report,
+        raw,
+        (
+            ("Modbus PackML command round trip (call -> the PLC sees it)", "command_ms"),
+            ("Modbus PackML mirror latency (PLC -> client)", "mirror_ms"),
+        ),
+        f"Modbus poll {MODBUS_POLL * 1000:.0f} ms, {MODBUS_UNITS} units",
+        (MODBUS_POLL + 0.020) * 1000,
+        rounds,
+    )
 
 
 ROBOT_POLL = 0.02  # the modbus-signals driver's poll in the robot part
@@ -268,6 +313,85 @@ async def _measure_robot(uacell_endpoint: str, ctrl_port: int, rounds: int) -> d
     return raw
 
 
+async def _measure_modbus(uacell_endpoint: str, plc_port: int, rounds: int) -> dict[str, Any]:
+    """Command round trip on M1 and mirror latency on M3 (its command written straight to the PLC)."""
+    import logging
+
+    from asyncua import Client, ua
+
+    from uacell.gateway.modbus import ModbusConnection
+    from uacell.gateway.packml_modbus import Point, resolve_modbus
+
+    logging.getLogger("asyncua").setLevel(logging.ERROR)
+    raw: dict[str, Any] = {"command_ms": [], "mirror_ms": []}
+    conn = ModbusConnection("127.0.0.1", plc_port, timeout=1.0)
+    assert await conn.connect()
+
+    def point(unit: int, key: str) -> Point:
+        return Point.parse(resolve_modbus("bench", 1, 100 * unit)[key].address)
+
+    async def until_plc(unit: int, state: int, leaves: bool = False, timeout: float = 10.0) -> float:
+        """When the PLC's state is ``state`` (``leaves``: no longer), read every 2 ms."""
+        p = point(unit, "Status.StateCurrent")
+        limit = time.perf_counter() + timeout
+        while ((await conn.read(p.tag, 1)) == state) == leaves:
+            if time.perf_counter() > limit:
+                raise TimeoutError(f"M{unit}: the PLC did not reach {state}")
+            await asyncio.sleep(0.002)
+        return time.perf_counter()
+
+    def machine(unit: int, name: str) -> str:
+        return f"M{unit}.{PATHS[name]}"
+
+    try:
+        async with Client(uacell_endpoint, timeout=30) as client:
+            ns = await client.get_namespace_index("urn:uacell:cell")
+
+            async def call(unit: int, name: str, method: str) -> ua.StatusCode:
+                obj = machine(unit, name)
+                req = ua.CallMethodRequest(ObjectId=ua.NodeId(obj, ns), MethodId=ua.NodeId(f"{obj}.{method}", ns))
+                (res,) = await client.uaclient.call([req])
+                return res.StatusCode
+
+            for _ in range(rounds):
+                t0 = time.perf_counter()
+                assert (await call(1, "MachineState", "Reset")).is_good()
+                raw["command_ms"].append((await until_plc(1, 2, leaves=True) - t0) * 1000)
+                await _until(lambda: _text(client, ns, machine(1, "ExecuteState")), "Idle")
+                assert (await call(1, "MachineState", "Stop")).is_good()
+                await _until(lambda: _text(client, ns, machine(1, "MachineState")), "Stopped")
+
+            arrived: list[tuple[float, str]] = []
+
+            class Handler:
+                def datachange_notification(self, n: Any, val: Any, data: Any) -> None:
+                    if isinstance(val, ua.LocalizedText):
+                        arrived.append((time.perf_counter(), val.Text or ""))
+
+            sub = await client.create_subscription(0, Handler())
+            state = client.get_node(ua.NodeId(f"{machine(3, 'ExecuteState')}.CurrentState", ns))
+            await sub.subscribe_data_change(state)
+            command, request = point(3, "Command.CntrlCmd"), point(3, "Command.CmdChangeRequest")
+            for _ in range(rounds):
+                arrived.clear()
+                await conn.write(command.tag, 1, 1)  # the PLC's own panel: Reset
+                await conn.write(request.tag, True, 1)
+                changed = await until_plc(3, 15)
+                limit = time.perf_counter() + 5
+                while not any(t == "Resetting" for _, t in arrived) and time.perf_counter() < limit:
+                    await asyncio.sleep(0.001)
+                seen = next((at for at, t in arrived if t == "Resetting"), None)
+                if seen is not None:
+                    raw["mirror_ms"].append(max(0.0, seen - changed) * 1000)
+                await _until(lambda: _text(client, ns, machine(3, "ExecuteState")), "Idle")
+                assert (await call(3, "MachineState", "Stop")).is_good()
+                await _until(lambda: _text(client, ns, machine(3, "MachineState")), "Stopped")
+            await sub.delete()
+    finally:
+        conn.close()
+    return raw
+
+
 async def _text(client: Any, ns: int, machine: str) -> str:
     from asyncua import ua
 
@@ -289,7 +413,7 @@ async def _measure(uacell_endpoint: str, plc_endpoint: str, rounds: int) -> dict
     from asyncua import Client, ua
 
     logging.getLogger("asyncua").setLevel(logging.ERROR)
-    raw: dict[str, Any] = {"command_ms": [], "mirror_ms": [], "states_seen": [], "units_idle": 0}
+    raw: dict[str, Any] = {"command_ms": [], "mirror_ms": [], "bare_mirror_ms": [], "states_seen": [], "units_idle": 0}
     async with Client(uacell_endpoint, timeout=30) as ua_client, Client(plc_endpoint, timeout=30) as plc_client:
         ns = await ua_client.get_namespace_index("urn:uacell:cell")
 
@@ -349,10 +473,20 @@ async def _measure(uacell_endpoint: str, plc_endpoint: str, rounds: int) -> dict
                 if isinstance(val, ua.LocalizedText):
                     arrived.append((time.perf_counter(), val.Text or ""))
 
+        # beside it, the floor: a bare asyncua client subscribed to the PLC's StateCurrent like uacell
+        bare: list[tuple[float, int]] = []
+
+        class Bare:
+            def datachange_notification(self, n: Any, val: Any, data: Any) -> None:
+                bare.append((time.perf_counter(), int(val)))
+
         sub = await ua_client.create_subscription(0, Handler())
         await sub.subscribe_data_change(await node("U3", "ExecuteState").get_child("0:CurrentState"))
+        bare_sub = await plc_client.create_subscription(INTERVAL * 1000, Bare())
+        await bare_sub.subscribe_data_change(tag("U3", "Status.StateCurrent"))
         for _ in range(rounds):
             arrived.clear()
+            bare.clear()
             await tag("U3", "Command.CntrlCmd").write_value(ua.Variant(1, ua.VariantType.Int32))
             await tag("U3", "Command.CmdChangeRequest").write_value(ua.Variant(True, ua.VariantType.Boolean))
             changed = await until_plc("U3", 15)
@@ -362,10 +496,14 @@ async def _measure(uacell_endpoint: str, plc_endpoint: str, rounds: int) -> dict
             seen = next((at for at, t in arrived if t == "Resetting"), None)
             if seen is not None:
                 raw["mirror_ms"].append(max(0.0, seen - changed) * 1000)
+            floor = next((at for at, v in bare if v == 15), None)
+            if floor is not None:
+                raw["bare_mirror_ms"].append(max(0.0, floor - changed) * 1000)
             await until_text("U3", "ExecuteState", "Idle")
             assert (await call("U3", "MachineState", "Stop")).is_good()
             await until_text("U3", "MachineState", "Stopped")
         await sub.delete()
+        await bare_sub.delete()
 
         # every TR88 state, every command, on U2
         states: set[str] = set()
