@@ -307,3 +307,38 @@ async def test_config_check_connect_names_a_register_the_plc_does_not_have(tmp_p
     assert "PROBLEM: unit 1 holding 9000 int32 big/big: illegal data address (exception 2)" in bad[0], lines
     assert any(ln.startswith("Capper") and "Status.StateCurrent" in ln and "= 2" in ln for ln in lines), lines
     assert "connect: 33 of 34 as configured" in proc.stdout, proc.stdout
+
+
+async def test_fifty_units_on_one_modbus_connection(tmp_path: Path) -> None:
+    """50 units of one PLC, registers 100 apart, reset at once: one connection, every one in Idle."""
+    from uacell.gateway.modbus import SHARED
+    from uacell.gateway.packml_modbus import POOL
+
+    p = ModbusPLC(units=50)
+    p.start()
+    try:
+        await p.open()
+        path = tmp_path / "cell.toml"
+        path.write_text(
+            "".join(
+                f'[[packml_units]]\nname = "U{i}"\nequipment = {{ driver = "modbus-packtags", host = "127.0.0.1", '
+                f"port = {p.port}, base = {100 * i} }}\n\n"
+                for i in range(50)
+            )
+        )
+        config = fast_config(tmp_path / "data")
+        config.cell = load_cell(path)
+        async with serving(config) as (_app, client):
+            assert len(POOL._links) == 1 and len(SHARED._connections) == 1
+
+            async def reset(i: int) -> str:
+                return str((await call_path(client, machines(f"U{i}")[1], "Reset")).StatusCode.name)
+
+            results = await asyncio.gather(*(reset(i) for i in range(50)))
+            assert results == ["Good"] * 50
+            for i in range(50):
+                await until(lambda i=i: cell_state(client, machines(f"U{i}")[2]), "Idle")
+                assert await p.tag(100 * i, "Status.StateCurrent") == 4  # nothing lost: Idle in the PLC too
+    finally:
+        p.close()
+        p.kill()
