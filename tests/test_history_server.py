@@ -82,14 +82,22 @@ async def test_values_attributes_and_capabilities(app: UacellServer, client: Cli
     assert level & ua.AccessLevel.HistoryRead.mask
     user_level = (await node.read_attribute(ua.AttributeIds.UserAccessLevel)).Value.Value
     assert user_level & ua.AccessLevel.HistoryRead.mask
-    configs = await node.get_referenced_nodes(ua.ObjectIds.HasHistoricalConfiguration)
-    assert len(configs) == 1
-    assert (await configs[0].read_type_definition()) == ua.NodeId(ua.ObjectIds.HistoricalDataConfigurationType)
-    assert await (await configs[0].get_child("0:Stepped")).read_value() is True
-    aggregate = await configs[0].get_child("0:AggregateConfiguration")
-    assert await aggregate.read_type_definition() == ua.NodeId(ua.ObjectIds.AggregateConfigurationType)
-    assert await (await aggregate.get_child("0:PercentDataGood")).read_value() == 100
-    assert await (await aggregate.get_child("0:TreatUncertainAsBad")).read_value() is True
+    # every kept variable's, the first one made through asyncua, the others copies of it with their own NodeIds
+    for kept in (speed, ua.NodeId(f"{F}.OEE.Availability", ns), ua.NodeId(f"{F}.Admin.ProdProcessedCount", ns)):
+        configs = await client.get_node(kept).get_referenced_nodes(ua.ObjectIds.HasHistoricalConfiguration)
+        assert len(configs) == 1 and configs[0].nodeid.Identifier == f"{kept.Identifier}.HAConfiguration"
+        assert (await configs[0].read_type_definition()) == ua.NodeId(ua.ObjectIds.HistoricalDataConfigurationType)
+        assert (await configs[0].read_browse_name()) == ua.QualifiedName("HA Configuration", 0)
+        back = await configs[0].get_referenced_nodes(
+            ua.ObjectIds.HasHistoricalConfiguration, ua.BrowseDirection.Inverse
+        )
+        assert [n.nodeid for n in back] == [kept]
+        assert await (await configs[0].get_child("0:Stepped")).read_value() is True
+        aggregate = await configs[0].get_child("0:AggregateConfiguration")
+        assert aggregate.nodeid.Identifier == f"{kept.Identifier}.HAConfiguration.AggregateConfiguration"
+        assert await aggregate.read_type_definition() == ua.NodeId(ua.ObjectIds.AggregateConfigurationType)
+        assert await (await aggregate.get_child("0:PercentDataGood")).read_value() == 100
+        assert await (await aggregate.get_child("0:TreatUncertainAsBad")).read_value() is True
     # a variable nobody historizes has neither
     other = client.get_node(ua.NodeId(f"{F}.Status.StateChangeInProcess", ns))
     assert not (await other.read_attribute(ua.AttributeIds.AccessLevel)).Value.Value & ua.AccessLevel.HistoryRead.mask

@@ -7,11 +7,14 @@ the Server object. Each kept variable gets Historizing, AccessLevel's HistoryRea
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 from asyncua import Node, Server, ua
+from asyncua.server.address_space import AttributeValue, NodeData
 
 from uacell.catalog import dataset_of
 from uacell.datasets import resolve
@@ -62,9 +65,10 @@ async def install_history(
         return toolkit.children(aspace, node)
 
     parts = list(parts)
+    configurations = _Configurations(server)
     for node in kept_values(server, cfg, parts):
         await service.historize_value(node)
-        await _configuration(server, node)  # when the snapshot did not hold it (a variable a binder added)
+        await configurations.add(node)  # when the snapshot did not hold it (a variable a binder added)
     for role, root in parts:
         dataset = dataset_of(role)
         for path in dataset.notifiers if dataset is not None else ():
@@ -99,8 +103,9 @@ async def add_configurations(server: Server, cfg: HistoryConfig, parts: Iterable
     includes ``history_shape``); ``install_history`` adds those of the variables binders add later."""
     if not cfg.enabled:
         return
+    configurations = _Configurations(server)
     for node in kept_values(server, cfg, parts):
-        await _configuration(server, node)
+        await configurations.add(node)
 
 
 def history_shape(cfg: HistoryConfig) -> str:
@@ -118,29 +123,73 @@ _AGGREGATE_CONFIGURATION = (
 )
 
 
-async def _configuration(server: Server, node: ua.NodeId) -> None:
-    """The variable's HA Configuration (OPC 10000-11 5.2.2): Stepped, the aggregate configuration.
+class _Configurations:
+    """Makes the HA Configuration (OPC 10000-11 5.2.2) of kept variables: Stepped, the aggregate
+    configuration.
 
-    Built as nodes directly (mandatory children only): asyncua's generic instantiation browses the
-    type for every one of them, a quarter of a restart's time with history on."""
-    if not isinstance(node.Identifier, str):
-        return
-    config_id = ua.NodeId(f"{node.Identifier}.HAConfiguration", node.NamespaceIndex)
-    if config_id in server.iserver.aspace:
-        return
-    ids = ua.ObjectIds
-    config_type, aggregate_type = ids.HistoricalDataConfigurationType, ids.AggregateConfigurationType
-    aggregate_id = ua.NodeId(f"{config_id.Identifier}.AggregateConfiguration", node.NamespaceIndex)
-    items = [
-        _object(config_id, node, ids.HasHistoricalConfiguration, "HA Configuration", config_type),
-        _object(aggregate_id, config_id, ids.HasComponent, "AggregateConfiguration", aggregate_type),
-        _property(config_id, "Stepped", True, ua.VariantType.Boolean),
-        *(_property(aggregate_id, name, value, vtype) for name, value, vtype in _AGGREGATE_CONFIGURATION),
-    ]
-    results = await server.iserver.isession.add_nodes(items)
-    bad = [r.StatusCode for r in results if not r.StatusCode.is_good()]
-    if bad:
-        raise RuntimeError(f"cannot add the HA Configuration of {node.to_string()}: {bad[0].name}")
+    The first one is added through asyncua (mandatory children only, built as nodes directly: its
+    generic instantiation browses the type for every one of them); the next ones are copies of it
+    with their own NodeIds, made as node data (a large cell has hundreds: a quarter of its restart
+    went into adding them one request each)."""
+
+    def __init__(self, server: Server) -> None:
+        self.server = server
+        self._template: tuple[ua.NodeId, list[ua.NodeId]] | None = None  # (its variable, its nodes)
+
+    async def add(self, node: ua.NodeId) -> None:
+        if not isinstance(node.Identifier, str):
+            return
+        ids = _configuration_ids(node)
+        aspace = self.server.iserver.aspace
+        if ids[0] in aspace:
+            return
+        if self._template is not None:
+            _copy(aspace, *self._template, node, ids)
+            return
+        o = ua.ObjectIds
+        config_id, aggregate_id = ids[0], ids[1]
+        items = [
+            _object(
+                config_id, node, o.HasHistoricalConfiguration, "HA Configuration", o.HistoricalDataConfigurationType
+            ),
+            _object(aggregate_id, config_id, o.HasComponent, "AggregateConfiguration", o.AggregateConfigurationType),
+            _property(config_id, "Stepped", True, ua.VariantType.Boolean),
+            *(_property(aggregate_id, name, value, vtype) for name, value, vtype in _AGGREGATE_CONFIGURATION),
+        ]
+        results = await self.server.iserver.isession.add_nodes(items)
+        bad = [r.StatusCode for r in results if not r.StatusCode.is_good()]
+        if bad:
+            raise RuntimeError(f"cannot add the HA Configuration of {node.to_string()}: {bad[0].name}")
+        self._template = (node, ids)
+
+
+def _configuration_ids(node: ua.NodeId) -> list[ua.NodeId]:
+    """The NodeIds of a variable's HA Configuration: the object, its AggregateConfiguration, Stepped,
+    then the aggregate configuration's properties."""
+    config = f"{node.Identifier}.HAConfiguration"
+    aggregate = f"{config}.AggregateConfiguration"
+    names = [config, aggregate, f"{config}.Stepped", *(f"{aggregate}.{n}" for n, _v, _t in _AGGREGATE_CONFIGURATION)]
+    return [ua.NodeId(name, node.NamespaceIndex) for name in names]
+
+
+def _copy(
+    aspace: Any, template_var: ua.NodeId, template: list[ua.NodeId], var: ua.NodeId, ids: list[ua.NodeId]
+) -> None:
+    """The template's nodes once more for ``var``: same attributes and references, but each NodeId of
+    the template (and its variable) replaced by the new one; ``var`` refers to its configuration."""
+    mapping = dict(zip(template, ids, strict=True)) | {template_var: var}
+    for old, new in zip(template, ids, strict=True):
+        source = aspace[old]
+        data = NodeData(new)
+        data.attributes = {attr: AttributeValue(value.value) for attr, value in source.attributes.items()}
+        data.attributes[ua.AttributeIds.NodeId] = AttributeValue(ua.DataValue(ua.Variant(new, ua.VariantType.NodeId)))
+        data.references = [
+            dataclasses.replace(ref, NodeId=mapping[ref.NodeId]) if ref.NodeId in mapping else ref
+            for ref in source.references
+        ]
+        aspace[new] = data
+    forward = next(r for r in aspace[template_var].references if r.NodeId == template[0] and r.IsForward)
+    aspace[var].references.append(dataclasses.replace(forward, NodeId=ids[0]))
 
 
 def _object(nodeid: ua.NodeId, parent: ua.NodeId, reference: int, name: str, typedef: int) -> ua.AddNodesItem:
