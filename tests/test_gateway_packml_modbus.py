@@ -342,3 +342,47 @@ async def test_fifty_units_on_one_modbus_connection(tmp_path: Path) -> None:
     finally:
         p.close()
         p.kill()
+
+
+async def test_communication_lost_is_an_alarm_condition(served, plc: ModbusPLC) -> None:
+    """While the PLC is away the unit's CommunicationLost condition (AlarmConditionType, in
+    <unit>/Conditions) is active and its events reach alarm clients; an operator acknowledges it with
+    the EventId it carries; it clears when the PLC answers again."""
+    app, client = served
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    cond = ua.NodeId(f"{F}.Conditions.CommunicationLost", ns)
+
+    def read(path: str) -> Any:
+        return client.get_node(ua.NodeId(f"{F}.Conditions.CommunicationLost.{path}", ns)).read_value()
+
+    assert await read("ActiveState.Id") is False and await read("AckedState.Id") is True
+    assert await read("SourceName") == F
+    arrived: list[Any] = []
+
+    class Events:
+        def event_notification(self, event: Any) -> None:
+            arrived.append(event)
+
+    sub = await client.create_subscription(20, Events())
+    await sub.subscribe_events(client.get_node(ua.ObjectIds.Server), client.get_node(ua.ObjectIds.AlarmConditionType))
+    plc.close()
+    plc.kill()
+    await until(lambda: read("ActiveState.Id"), True)
+    assert await read("AckedState.Id") is False and "communication lost" in (await read("Message")).Text
+
+    async def lost_event() -> bool:
+        return any(e.SourceName == F and e.ActiveState.Text == "Active" for e in arrived)
+
+    await until(lost_event, True)
+    acknowledge = app.dispatcher.method_of(cond, "Acknowledge")
+    event_id = ua.Variant(await read("EventId"), ua.VariantType.ByteString)
+    comment = ua.Variant(ua.LocalizedText("cable checked"), ua.VariantType.LocalizedText)
+    (res,) = await client.uaclient.call([ua.CallMethodRequest(cond, acknowledge, [event_id, comment])])
+    assert res.StatusCode.is_good(), res.StatusCode
+    await until(lambda: read("AckedState.Id"), True)
+    (again,) = await client.uaclient.call([ua.CallMethodRequest(cond, acknowledge, [event_id, comment])])
+    assert again.StatusCode.value == ua.StatusCodes.BadConditionBranchAlreadyAcked
+    plc.start()
+    await until(lambda: read("ActiveState.Id"), False)
+    assert await read("Retain") is False  # inactive and acknowledged: nothing left for an alarm list
+    await sub.delete()

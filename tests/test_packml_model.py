@@ -676,3 +676,34 @@ def test_equipment_changes_the_unit_mode_and_the_active_alarms_by_itself() -> No
     history = list(unit.admin.alarm_history)
     unit.equipment_alarms({32: "PLC alarm 32"})  # the same set: nothing changes
     assert unit.admin.alarm_history == history and unit.state == "Execute"  # alarms alone do not stop it
+
+
+def test_conditions_the_equipment_declares() -> None:
+    """An equipment's ``condition_names`` become the unit's alarm conditions (decision 45): raised and
+    cleared by the equipment, acknowledged once per raise, with OPC 10000-9's status codes."""
+
+    class Linked(EquipmentBase):
+        condition_names = ("CommunicationLost",)
+
+    unit = PackMLUnit(Linked(), tables=packml_tables())
+    heard: list[tuple[str, bool, bool]] = []
+    unit.conditions.condition_listeners.append(lambda c: heard.append((c.name, c.active, c.acked)))
+    cond = unit.conditions.conditions["CommunicationLost"]
+    assert (cond.active, cond.acked, cond.enabled) == (False, True, True)
+    unit.equipment_condition("CommunicationLost", True, "no answer from the PLC")
+    assert (cond.active, cond.acked, cond.message) == (True, False, "no answer from the PLC")
+    unit.conditions.acknowledge("CommunicationLost", "cable checked")
+    assert (cond.acked, cond.comment) == (True, "cable checked")
+    with pytest.raises(CallError) as again:
+        unit.conditions.acknowledge("CommunicationLost")
+    assert again.value.status == "BadConditionBranchAlreadyAcked"
+    with pytest.raises(CallError) as unknown:
+        unit.conditions.acknowledge("Nope")
+    assert unknown.value.status == "BadNodeIdUnknown"
+    unit.equipment_condition("CommunicationLost", False, "the PLC answers")
+    assert heard == [
+        ("CommunicationLost", True, False),
+        ("CommunicationLost", True, True),
+        ("CommunicationLost", False, True),
+    ]
+    assert new_unit().conditions.conditions == {}  # a unit whose equipment declares none has none

@@ -38,6 +38,7 @@ log = logging.getLogger(__name__)
 
 UNIT_SETTINGS = ("map", "parameters", "alarms", "confirm_timeout")  # what both PackTags drivers take
 COMMUNICATION_WARNING = 9001
+COMMUNICATION = "CommunicationLost"  # the unit's alarm condition while the PLC cannot be reached
 # The command each acting state is entered by, for a PLC that moved by itself. Typed here: the
 # NodeSet's HasCause leads MachineState.Reset to Running, not to the Resetting inside it.
 ENTERED_BY = {
@@ -65,6 +66,8 @@ def timing_of(settings: Mapping[str, Any]) -> Timing:
 
 
 class PackTagsUnit(EquipmentBase):
+    condition_names = (COMMUNICATION,)
+
     def __init__(
         self,
         part: str,
@@ -82,6 +85,7 @@ class PackTagsUnit(EquipmentBase):
         self._counted: dict[str, int] = {}
         self._attached = False
         self._aborting = False
+        self._lost = False  # what the CommunicationLost condition says
 
     # -- the PLC's values -------------------------------------------------------------------------
 
@@ -115,9 +119,18 @@ class PackTagsUnit(EquipmentBase):
         self.reachable = connected
         if not self._attached:
             return
-        self.unit.warning(COMMUNICATION_WARNING, f"communication lost: {self.link.endpoint}", active=not connected)
+        self._tell_lost(not connected)
         if connected:
             self._catch_up()
+
+    def _tell_lost(self, lost: bool) -> None:
+        """Warning 9001 in Admin.Warning (PackML's view) and the CommunicationLost condition (alarm
+        clients' view) while the PLC cannot be reached."""
+        message = f"communication lost: {self.link.endpoint}"
+        self.unit.warning(COMMUNICATION_WARNING, message, active=lost)
+        if self._lost != lost:
+            self._lost = lost
+            self.unit.equipment_condition(COMMUNICATION, lost, message if lost else f"{self.link.endpoint} answers")
 
     def _count(self, key: str, value: int) -> None:
         before = self._counted.get(key)
@@ -136,7 +149,7 @@ class PackTagsUnit(EquipmentBase):
         super().attach(unit)
         self._attached = True
         if not self.reachable:
-            unit.warning(COMMUNICATION_WARNING, f"communication lost: {self.link.endpoint}", active=True)
+            self._tell_lost(True)
         asyncio.get_running_loop().call_soon(self._catch_up)
 
     def _catch_up(self) -> None:

@@ -44,6 +44,8 @@ from uacell.packml.types import (
     PackMLRemoteInterfaceDataType,
 )
 from uacell.registry import RegistryKey
+from uacell.roles import Family
+from uacell.ua.conditions import ConditionNodes, ConditionPlace
 from uacell.ua.context import Caller
 from uacell.ua.toolkit import ValueWriter
 
@@ -182,6 +184,7 @@ class UnitBinding:
         self.variables: dict[str, tuple[ua.NodeId, ua.VariantType, int]] = {}  # key -> node, type, rank
         self._reachable = True  # what the values last said about the equipment's PLC
         self.values = ValueWriter(self.aspace, app.dispatcher.types.builtin_of)
+        self.conditions: ConditionNodes | None = None  # when the equipment declares conditions
 
     # nodes ------------------------------------------------------------------------------------
     def child(self, path: str) -> ua.NodeId:
@@ -237,6 +240,33 @@ class UnitBinding:
                 ua.QualifiedName(name, self.ns),
                 ua.Variant(value, vtype),
             )
+
+    async def add_conditions(self) -> None:
+        """``Conditions`` under the unit (uacell's namespace): the alarm conditions its equipment
+        declares (a gateway's CommunicationLost; decision 45), bound as every part's are."""
+        if not self.unit.conditions.conditions:
+            return
+        path = f"{self.built.path}.Conditions"
+        unit = self.app.space.node(self.node)
+        folder = await unit.add_folder(ua.NodeId(path, self.ns), ua.QualifiedName("Conditions", self.ns))
+        # the unit is the conditions' source and notifier: its events reach clients subscribed to it
+        notifier = await unit.read_event_notifier()
+        await unit.set_event_notifier([*notifier, ua.EventNotifier.SubscribeToEvents])
+        place = ConditionPlace(folder.nodeid, self.node, self.node, self.unit.name, path)
+        d = self.app.dispatcher
+
+        def bind(node: ua.NodeId, method: str, handler: Any, executable: Callable[[], bool]) -> None:
+            d.bind(
+                node,
+                d.method_of(node, method),
+                Family.CONDITION,
+                handler,
+                executable=executable,
+                serialize_on=self.unit,
+            )
+
+        self.conditions = ConditionNodes(self.app, self.unit.conditions, place, bind)
+        await self.conditions.setup()
 
     async def add_inject_fault(self) -> None:
         """``InjectFault(Int32 Id, String Message)`` under the unit (engineer and above)."""
@@ -459,6 +489,7 @@ async def bind_unit(app: BinderHost, built: BuiltPart, writer: AdminWriter) -> U
     b.bind_methods({BASE: base, MACHINE: machine, EXECUTE: execute, UNIT: b.node})
     await b.add_inject_fault()
     await b.add_oee()
+    await b.add_conditions()
     await b.publish_constants()
     values = unit.values()
     values.pop("Executable")

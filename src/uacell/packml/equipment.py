@@ -84,6 +84,11 @@ class UnitPort(Protocol):
         """The alarms the machine has active now (ID -> message) become Admin.Alarm."""
         ...
 
+    def equipment_condition(self, name: str, active: bool, message: str) -> None:
+        """Raise (``active``) or clear the alarm condition ``name``, one the equipment declares in an
+        optional ``condition_names`` attribute (OPC 10000-9 conditions in ``<unit>/Conditions``)."""
+        ...
+
 
 @runtime_checkable
 class PackMLEquipment(Protocol):

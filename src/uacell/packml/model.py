@@ -21,6 +21,7 @@ from datetime import UTC, datetime, timedelta
 from datetime import time as dt_time
 from typing import Any
 
+from uacell.conditions import ConditionSet
 from uacell.errors import CallError
 from uacell.fsm import Reason, StateMachine
 from uacell.models.tables import FsmTable, TableLoader, TransitionInfo
@@ -249,6 +250,9 @@ class PackMLUnit:
         self.oee = OEE(self.admin.mach_design_speed, oee_window_hours, oee_shifts)
 
         self.listeners: list[Listener] = []
+        # OPC 10000-9 alarm conditions the equipment declares (a gateway's CommunicationLost), in
+        # <unit>/Conditions (decision 45); PackML's own alarms stay Admin.Alarm and Admin.Warning
+        self.conditions = ConditionSet(getattr(equipment, "condition_names", ()))
         self._depth = 0
         # Changes that may have altered a published value, counted; an operation publishes only if the
         # count moved since the last publish (a tick that changes no whole second publishes nothing).
@@ -639,6 +643,11 @@ class PackMLUnit:
                     alarm = PackMLAlarmDataType(alarm_id, 0, message, 1, now, None, True)
                     _push(a.alarm, alarm, a.alarm_extent)
                     _push(a.alarm_history, alarm, a.alarm_history_extent)
+
+    def equipment_condition(self, name: str, active: bool, message: str) -> None:
+        """The equipment raises (``active``) or clears its condition ``name`` (one of its
+        ``condition_names``)."""
+        self.conditions.alarm(name, active, message)
 
     def set_blocked(self, blocked: bool) -> None:
         with self._operation():

@@ -3,6 +3,7 @@
 Nothing here imports the OPC UA stack; ``uacell.robotics.binding`` ties it to nodes.
 """
 
+from uacell.conditions import Condition
 from uacell.robotics.equipment import (
     AlarmStop,
     AxisInfo,
@@ -16,7 +17,6 @@ from uacell.robotics.equipment import (
     StopMode,
 )
 from uacell.robotics.model import (
-    Condition,
     DirectoryLibrary,
     ProgramLibrary,
     RobotCell,

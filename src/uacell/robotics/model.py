@@ -18,6 +18,7 @@ from pathlib import Path, PurePosixPath
 from typing import Protocol
 
 from uacell.background import Background
+from uacell.conditions import ConditionSet
 from uacell.errors import CallError
 from uacell.fsm import Reason, StateMachine
 from uacell.models import FsmTable, TableLoader
@@ -199,18 +200,6 @@ class TaskModule:
     version: str
     is_referenced: bool
     relpath: str | None
-
-
-@dataclass
-class Condition:
-    """An acknowledgeable alarm condition in SystemOperation/Conditions."""
-
-    name: str
-    message: str = ""
-    active: bool = False
-    acked: bool = True
-    enabled: bool = True  # OPC 10000-9 Enable/Disable: a disabled condition is not reported nor evaluated
-    comment: str = ""
 
 
 Listener = Callable[[], None]
@@ -684,8 +673,9 @@ class TaskControl(_Guarded):
 
 
 # --- SystemOperation -------------------------------------------------------------------------------
-class SystemOperation(_Guarded):
-    """The robot system's power state and alarms (SystemOperationStateMachine), coupled to task controls."""
+class SystemOperation(_Guarded, ConditionSet):
+    """The robot system's power state and alarms (SystemOperationStateMachine), coupled to task controls;
+    its conditions are SystemOperation/Conditions (decision 18)."""
 
     def __init__(
         self,
@@ -712,9 +702,8 @@ class SystemOperation(_Guarded):
             "Stop": lambda: None if self.executing.is_in(RUNNING) else Status.E_SYSTEM_STATE,
         }
         self.tasks: list[TaskControl] = []
-        self.conditions: dict[str, Condition] = {n: Condition(n) for n in equipment.alarm_names}
+        ConditionSet.__init__(self, equipment.alarm_names)
         self.listeners: list[Listener] = []
-        self.condition_listeners: list[Callable[[Condition], None]] = []
         self.powering_down = False
         self.last_error = ""
         self._stop_requested = False
@@ -751,58 +740,10 @@ class SystemOperation(_Guarded):
         return None
 
     def _on_alarm(self, name: str, active: bool, message: str) -> None:
-        cond = self.conditions.setdefault(name, Condition(name))
-        cond.message = message
-        cond.active = active
-        if active:
-            cond.acked = False
-        log.info("condition %s %s: %s", name, "active" if active else "inactive", message)
-        for listener in list(self.condition_listeners):
-            listener(cond)
+        self.alarm(name, active, message)
+
+    def conditions_changed(self) -> None:
         self._changed()
-
-    def _condition(self, name: str) -> Condition:
-        cond = self.conditions.get(name)
-        if cond is None:
-            raise CallError("BadNodeIdUnknown", f"no condition {name!r}")
-        return cond
-
-    def _condition_changed(self, cond: Condition) -> None:
-        for listener in list(self.condition_listeners):
-            listener(cond)
-        self._changed()
-
-    def acknowledge(self, name: str, comment: str = "") -> None:
-        """The condition's Acknowledge method."""
-        cond = self._condition(name)
-        if not cond.enabled:
-            raise CallError("BadConditionDisabled", f"{name} is disabled")
-        if cond.acked:
-            raise CallError("BadConditionBranchAlreadyAcked", f"{name} is already acknowledged")
-        cond.acked = True
-        if comment:
-            cond.comment = comment
-        log.info("condition %s acknowledged%s", name, f": {comment}" if comment else "")
-        self._condition_changed(cond)
-
-    def add_comment(self, name: str, comment: str) -> None:
-        """The condition's AddComment method (OPC 10000-9, 5.5.5)."""
-        cond = self._condition(name)
-        if not cond.enabled:
-            raise CallError("BadConditionDisabled", f"{name} is disabled")
-        cond.comment = comment
-        log.info("condition %s comment: %s", name, comment)
-        self._condition_changed(cond)
-
-    def set_enabled(self, name: str, enabled: bool) -> None:
-        """The condition's Enable / Disable methods (OPC 10000-9, 5.5.4)."""
-        cond = self._condition(name)
-        if cond.enabled == enabled:
-            status = "BadConditionAlreadyEnabled" if enabled else "BadConditionAlreadyDisabled"
-            raise CallError(status, f"{name} is already {'enabled' if enabled else 'disabled'}")
-        cond.enabled = enabled
-        log.info("condition %s %s", name, "enabled" if enabled else "disabled")
-        self._condition_changed(cond)
 
     # coupling with task controls (decision 19)
     def allows_task_start(self) -> bool:
