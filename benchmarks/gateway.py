@@ -41,6 +41,7 @@ if TYPE_CHECKING:
 ROOT = Path(__file__).resolve().parent.parent
 UNITS = 50
 INTERVAL = 0.02  # the driver's subscription interval ([the driver's] publishing_interval default)
+POLL_INTERVAL = 0.02  # the same PLC polled (mode = "poll")
 WALK = [  # (machine, method, the state it ends in)
     ("MachineState", "Reset", "Idle"),
     ("ExecuteState", "Start", "Execute"),
@@ -81,6 +82,10 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
         )
         with _served(peers, "gateway", text) as server:
             raw = asyncio.run(_measure(server.endpoint, endpoint, rounds))
+        # the same PLC polled instead: one Read of every watched tag each POLL_INTERVAL
+        poll_text = text.replace('PackTags" }', f'PackTags", mode = "poll", interval = {POLL_INTERVAL} }}')
+        with _served(peers, "gateway-poll", poll_text) as server:
+            raw["poll_mirror_ms"] = asyncio.run(_measure_poll_mirror(server.endpoint, endpoint, rounds))
     report.raw["gateway"] = raw
     bare = raw["bare_mirror_ms"]
     print(
@@ -116,6 +121,14 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
         lambda x: x >= 1.0,
     )
     modbus_packtags_section(report, peers, rounds // 2)
+    _latency_rows(
+        report,
+        raw,
+        (("mirror latency, the PLC polled (PLC -> client)", "poll_mirror_ms"),),
+        f"poll {POLL_INTERVAL * 1000:.0f} ms, {UNITS} units",
+        (POLL_INTERVAL + 0.020) * 1000,
+        rounds,
+    )
     robot_section(report, peers, rounds // 2)
 
 
@@ -407,6 +420,118 @@ async def _until(read: Any, wanted: str, timeout: float = 10.0) -> None:
         await asyncio.sleep(0.005)
 
 
+class _Rig:
+    """An asyncua client of uacell and one of the PLC, with what the measurements do with them."""
+
+    def __init__(self, ua_client: Any, plc_client: Any, ns: int) -> None:
+        self.ua_client, self.plc_client, self.ns = ua_client, plc_client, ns
+
+    def node(self, unit: str, machine: str) -> Any:
+        from asyncua import ua
+
+        return self.ua_client.get_node(ua.NodeId(f"{unit}.{PATHS[machine]}", self.ns))
+
+    async def call(self, unit: str, machine: str, method: str, *args: Any) -> Any:
+        from asyncua import ua
+
+        req = ua.CallMethodRequest(
+            ObjectId=ua.NodeId(f"{unit}.{PATHS[machine]}", self.ns),
+            MethodId=ua.NodeId(f"{unit}.{PATHS[machine]}.{method}", self.ns),
+            InputArguments=list(args),
+        )
+        (res,) = await self.ua_client.uaclient.call([req])
+        return res.StatusCode
+
+    def tag(self, unit: str, path: str) -> Any:
+        from asyncua import ua
+
+        return self.plc_client.get_node(ua.NodeId(f"{unit}.PackTags.{path}", 1))
+
+    async def until_plc(self, unit: str, state: int, timeout: float = 10.0, leaves: bool = False) -> float:
+        """When the PLC's state is ``state`` (``leaves``: is no longer ``state``), read every 2 ms."""
+        deadline = time.perf_counter() + timeout
+        while (int(await self.tag(unit, "Status.StateCurrent").read_value()) == state) == leaves:
+            if time.perf_counter() > deadline:
+                raise TimeoutError(f"{unit}: the PLC did not reach {state}")
+            await asyncio.sleep(0.002)
+        return time.perf_counter()
+
+    async def text(self, unit: str, machine: str) -> str | None:
+        dv = await self.node(unit, machine).get_child("0:CurrentState")
+        value = await dv.read_data_value(raise_on_bad_status=False)
+        return value.Value.Value.Text if value.StatusCode.is_good() else None
+
+    async def until_text(self, unit: str, machine: str, wanted: str, timeout: float = 10.0) -> None:
+        deadline = time.perf_counter() + timeout
+        while await self.text(unit, machine) != wanted:
+            if time.perf_counter() > deadline:
+                raise TimeoutError(f"{unit}.{machine} did not reach {wanted}")
+            await asyncio.sleep(0.005)
+
+    async def mirror(self, unit: str, rounds: int, bare_interval: float = 0.0) -> tuple[list[float], list[float]]:
+        """The PLC's own panel resets ``unit``: ms until uacell's client sees Resetting, and (with
+        ``bare_interval``) until a bare asyncua client subscribed to the PLC's StateCurrent sees it."""
+        from asyncua import ua
+
+        seen_ms: list[float] = []
+        bare_ms: list[float] = []
+        arrived: list[tuple[float, str]] = []
+        bare: list[tuple[float, int]] = []
+
+        class Handler:
+            def datachange_notification(self, n: Any, val: Any, data: Any) -> None:
+                if isinstance(val, ua.LocalizedText):
+                    arrived.append((time.perf_counter(), val.Text or ""))
+
+        class Bare:
+            def datachange_notification(self, n: Any, val: Any, data: Any) -> None:
+                bare.append((time.perf_counter(), int(val)))
+
+        sub = await self.ua_client.create_subscription(0, Handler())
+        await sub.subscribe_data_change(await self.node(unit, "ExecuteState").get_child("0:CurrentState"))
+        bare_sub = None
+        if bare_interval:
+            bare_sub = await self.plc_client.create_subscription(bare_interval * 1000, Bare())
+            await bare_sub.subscribe_data_change(self.tag(unit, "Status.StateCurrent"))
+        for _ in range(rounds):
+            arrived.clear()
+            bare.clear()
+            await self.tag(unit, "Command.CntrlCmd").write_value(ua.Variant(1, ua.VariantType.Int32))
+            await self.tag(unit, "Command.CmdChangeRequest").write_value(ua.Variant(True, ua.VariantType.Boolean))
+            changed = await self.until_plc(unit, 15)
+            deadline = time.perf_counter() + 5
+            while not any(t == "Resetting" for _, t in arrived) and time.perf_counter() < deadline:
+                await asyncio.sleep(0.001)
+            seen = next((at for at, t in arrived if t == "Resetting"), None)
+            if seen is not None:
+                seen_ms.append(max(0.0, seen - changed) * 1000)
+            floor = next((at for at, v in bare if v == 15), None)
+            if floor is not None:
+                bare_ms.append(max(0.0, floor - changed) * 1000)
+            await self.until_text(unit, "ExecuteState", "Idle")
+            assert (await self.call(unit, "MachineState", "Stop")).is_good()
+            await self.until_text(unit, "MachineState", "Stopped")
+        await sub.delete()
+        if bare_sub is not None:
+            await bare_sub.delete()
+        return seen_ms, bare_ms
+
+
+async def _measure_poll_mirror(uacell_endpoint: str, plc_endpoint: str, rounds: int) -> list[float]:
+    import logging
+
+    from asyncua import Client
+
+    logging.getLogger("asyncua").setLevel(logging.ERROR)
+    async with Client(uacell_endpoint, timeout=30) as ua_client, Client(plc_endpoint, timeout=30) as plc_client:
+        rig = _Rig(ua_client, plc_client, await ua_client.get_namespace_index("urn:uacell:cell"))
+        await rig.until_text("U3", "ExecuteState", "Idle")  # where the first uacell left every unit
+        assert (await rig.call("U3", "MachineState", "Stop")).is_good()
+        await rig.until_text("U3", "MachineState", "Stopped")
+        seen, _ = await rig.mirror("U3", rounds)
+    return seen
+
+
 async def _measure(uacell_endpoint: str, plc_endpoint: str, rounds: int) -> dict[str, Any]:
     import logging
 
@@ -415,46 +540,8 @@ async def _measure(uacell_endpoint: str, plc_endpoint: str, rounds: int) -> dict
     logging.getLogger("asyncua").setLevel(logging.ERROR)
     raw: dict[str, Any] = {"command_ms": [], "mirror_ms": [], "bare_mirror_ms": [], "states_seen": [], "units_idle": 0}
     async with Client(uacell_endpoint, timeout=30) as ua_client, Client(plc_endpoint, timeout=30) as plc_client:
-        ns = await ua_client.get_namespace_index("urn:uacell:cell")
-
-        def node(unit: str, machine: str) -> Any:
-            return ua_client.get_node(ua.NodeId(f"{unit}.{PATHS[machine]}", ns))
-
-        async def call(unit: str, machine: str, method: str, *args: Any) -> ua.StatusCode:
-            req = ua.CallMethodRequest(
-                ObjectId=ua.NodeId(f"{unit}.{PATHS[machine]}", ns),
-                MethodId=ua.NodeId(f"{unit}.{PATHS[machine]}.{method}", ns),
-                InputArguments=list(args),
-            )
-            (res,) = await ua_client.uaclient.call([req])
-            return res.StatusCode
-
-        def tag(unit: str, path: str) -> Any:
-            return plc_client.get_node(ua.NodeId(f"{unit}.PackTags.{path}", 1))
-
-        async def plc_state(unit: str) -> int:
-            return int(await tag(unit, "Status.StateCurrent").read_value())
-
-        async def until_plc(unit: str, state: int, timeout: float = 10.0, leaves: bool = False) -> float:
-            """When the PLC's state is ``state`` (``leaves``: is no longer ``state``)."""
-            deadline = time.perf_counter() + timeout
-            while ((await plc_state(unit)) == state) == leaves:
-                if time.perf_counter() > deadline:
-                    raise TimeoutError(f"{unit}: the PLC did not reach {state}")
-                await asyncio.sleep(0.002)
-            return time.perf_counter()
-
-        async def text(unit: str, machine: str) -> str | None:
-            dv = await node(unit, machine).get_child("0:CurrentState")
-            value = await dv.read_data_value(raise_on_bad_status=False)
-            return value.Value.Value.Text if value.StatusCode.is_good() else None
-
-        async def until_text(unit: str, machine: str, wanted: str, timeout: float = 10.0) -> None:
-            deadline = time.perf_counter() + timeout
-            while await text(unit, machine) != wanted:
-                if time.perf_counter() > deadline:
-                    raise TimeoutError(f"{unit}.{machine} did not reach {wanted}")
-                await asyncio.sleep(0.005)
+        rig = _Rig(ua_client, plc_client, await ua_client.get_namespace_index("urn:uacell:cell"))
+        node, call, until_plc, until_text = rig.node, rig.call, rig.until_plc, rig.until_text
 
         # command round trip: Reset on U1 until the PLC left Stopped (the call answers once it has), then Stop back
         for _ in range(rounds):
@@ -465,45 +552,9 @@ async def _measure(uacell_endpoint: str, plc_endpoint: str, rounds: int) -> dict
             assert (await call("U1", "MachineState", "Stop")).is_good()
             await until_text("U1", "MachineState", "Stopped")
 
-        # mirror latency: the PLC's own panel resets U3; uacell's client sees Resetting
-        arrived: list[tuple[float, str]] = []
-
-        class Handler:
-            def datachange_notification(self, n: Any, val: Any, data: Any) -> None:
-                if isinstance(val, ua.LocalizedText):
-                    arrived.append((time.perf_counter(), val.Text or ""))
-
-        # beside it, the floor: a bare asyncua client subscribed to the PLC's StateCurrent like uacell
-        bare: list[tuple[float, int]] = []
-
-        class Bare:
-            def datachange_notification(self, n: Any, val: Any, data: Any) -> None:
-                bare.append((time.perf_counter(), int(val)))
-
-        sub = await ua_client.create_subscription(0, Handler())
-        await sub.subscribe_data_change(await node("U3", "ExecuteState").get_child("0:CurrentState"))
-        bare_sub = await plc_client.create_subscription(INTERVAL * 1000, Bare())
-        await bare_sub.subscribe_data_change(tag("U3", "Status.StateCurrent"))
-        for _ in range(rounds):
-            arrived.clear()
-            bare.clear()
-            await tag("U3", "Command.CntrlCmd").write_value(ua.Variant(1, ua.VariantType.Int32))
-            await tag("U3", "Command.CmdChangeRequest").write_value(ua.Variant(True, ua.VariantType.Boolean))
-            changed = await until_plc("U3", 15)
-            deadline = time.perf_counter() + 5
-            while not any(t == "Resetting" for _, t in arrived) and time.perf_counter() < deadline:
-                await asyncio.sleep(0.001)
-            seen = next((at for at, t in arrived if t == "Resetting"), None)
-            if seen is not None:
-                raw["mirror_ms"].append(max(0.0, seen - changed) * 1000)
-            floor = next((at for at, v in bare if v == 15), None)
-            if floor is not None:
-                raw["bare_mirror_ms"].append(max(0.0, floor - changed) * 1000)
-            await until_text("U3", "ExecuteState", "Idle")
-            assert (await call("U3", "MachineState", "Stop")).is_good()
-            await until_text("U3", "MachineState", "Stopped")
-        await sub.delete()
-        await bare_sub.delete()
+        # mirror latency: the PLC's own panel resets U3; uacell's client sees Resetting; beside it, the
+        # floor: a bare asyncua client subscribed to the PLC's StateCurrent as uacell is
+        raw["mirror_ms"], raw["bare_mirror_ms"] = await rig.mirror("U3", rounds, bare_interval=INTERVAL)
 
         # every TR88 state, every command, on U2
         states: set[str] = set()

@@ -386,3 +386,26 @@ async def test_communication_lost_is_an_alarm_condition(served, plc: ModbusPLC) 
     await until(lambda: read("ActiveState.Id"), False)
     assert await read("Retain") is False  # inactive and acknowledged: nothing left for an alarm list
     await sub.delete()
+
+
+async def test_uacell_started_while_the_plc_runs_follows_it_there(tmp_path: Path, plc: ModbusPLC) -> None:
+    """The PLC is in Execute (started from its own panel) before uacell starts: uacell's three
+    machines reach Execute by TR88's steps, and a Stop from a client then goes to the PLC."""
+    state, command, request = (Point.parse(resolve_modbus("t", 1, 0)[k].address).tag for k in (
+        "Status.StateCurrent", "Command.CntrlCmd", "Command.CmdChangeRequest"))  # fmt: skip
+    assert plc.conn is not None
+    for cmd, reached in ((1, 4), (2, 6)):  # Reset -> Idle, Start -> Execute, at the PLC's panel
+        await plc.conn.write_block("holding", command.address, [*command.rtype.encode(cmd), 1], 1)
+        await until(lambda: plc.conn.read(state, 1), reached)  # type: ignore[union-attr]
+    assert request.address == command.address + 2  # written together above
+    path = tmp_path / "cell.toml"
+    path.write_text(shipped_cell(plc))
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(path)
+    async with serving(config) as (_app, client):
+        await until(lambda: cell_state(client, EXEC), "Execute", timeout=5.0)
+        assert (await cell_state(client, MACH), await cell_state(client, BASE)) == ("Running", "Cleared")
+        res = await call_path(client, MACH, "Stop")
+        assert res.StatusCode.is_good(), res.StatusCode
+        await until(lambda: plc.tag(0, "Status.StateCurrent"), 2)
+        await until(lambda: cell_state(client, MACH), "Stopped")

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from uacell.errors import CallError
+from uacell.gateway import tr88
 from uacell.gateway.handshake import COMMANDS, Handshake, PlcStatus
 from uacell.gateway.link import TagLink
 from uacell.gateway.modbus import CommunicationError
@@ -39,13 +40,6 @@ log = logging.getLogger(__name__)
 UNIT_SETTINGS = ("map", "parameters", "alarms", "confirm_timeout")  # what both PackTags drivers take
 COMMUNICATION_WARNING = 9001
 COMMUNICATION = "CommunicationLost"  # the unit's alarm condition while the PLC cannot be reached
-# The command each acting state is entered by, for a PLC that moved by itself. Typed here: the
-# NodeSet's HasCause leads MachineState.Reset to Running, not to the Resetting inside it.
-ENTERED_BY = {
-    "Starting": "Start", "Resetting": "Reset", "Stopping": "Stop", "Aborting": "Abort", "Clearing": "Clear",
-    "Holding": "Hold", "Unholding": "Unhold", "Suspending": "Suspend", "Unsuspending": "Unsuspend",
-    "Completing": "ToComplete",
-}  # fmt: skip
 # uacell's method -> the PackTags command
 PACKTAGS_COMMAND = {"ToComplete": "Complete"}
 # the tags the unit follows (with Admin.Alarm[i].ID when there are alarms)
@@ -162,29 +156,30 @@ class PackTagsUnit(EquipmentBase):
         self.follow()
 
     def follow(self) -> None:
-        """Bring uacell's machines to the PLC's state, one TR88 step at a time."""
+        """Bring uacell's machines to the PLC's state by the fewest TR88 steps (``tr88.path``): an
+        acting state the PLC left is completed, a command it took is taken; an abort is recorded with
+        the PLC's StopReason."""
         if not self._attached or self._inflight:
             return
         target = self.unit.state_numbered(int(self.plc.get("Status.StateCurrent", 0) or 0))
         if target is None:
             return
-        for _ in range(8):
+        for _ in range(12):
             current = self.unit.state
-            if current == target:
-                return
+            steps = tr88.path(current, target)
+            if not steps:
+                break
+            action, _next = steps[0]
             try:
-                if self.unit.acting_state == current:  # the PLC left the acting state: it is done
+                if action == tr88.COMPLETE:
                     self.unit.state_complete(current)
-                    continue
-                method = ENTERED_BY.get(target if target != "Aborted" else "Aborting")
-                if method == "Abort":  # the PLC aborted: with its StopReason, read now (it may come after the state)
+                elif action == "Abort":  # the PLC aborted: with its StopReason, read now (it may come after the state)
                     if not self._aborting:
                         self._aborting = True
                         asyncio.get_running_loop().create_task(self._abort_with_reason())
                     return
-                if method is None:
-                    break
-                self.unit.equipment_command(method)
+                else:
+                    self.unit.equipment_command(action)
             except CallError:
                 break
         if self.unit.state != target:
