@@ -234,6 +234,12 @@ def _served(peers: Peers, name: str, cell_text: str) -> Iterator[Peer]:
     cmd += ["--data-dir", str(peers.tmp / f"{name}-data"), "--cache-dir", str(peers.tmp / f"{name}-cache")]
     server = Peer(f"uacell {name} cell", cmd, port=port).start()
     try:
+        # a first start writes its address-space snapshot in a thread beside the loop: measure after it
+        from uacell.ua.snapshot import PREFIX, SUFFIX
+
+        deadline = time.monotonic() + 60
+        while not any((peers.tmp / f"{name}-cache").glob(f"{PREFIX}*{SUFFIX}")) and time.monotonic() < deadline:
+            time.sleep(0.05)
         yield server
     finally:
         server.stop()
