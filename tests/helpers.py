@@ -298,3 +298,21 @@ def packml_params(*pairs: tuple[int, float]) -> ua.Variant:
         ua.VariantType.ExtensionObject,
         is_array=True,
     )
+
+
+def models_copy(where: Path) -> str:
+    """A models directory with links to the official NodeSet files and nothing else (no models'
+    snapshot beside them): a server given it builds the models from the files."""
+    from uacell.models.source import locate_models
+
+    where.mkdir(parents=True, exist_ok=True)
+    for path in locate_models().values():
+        (where / path.name).symlink_to(path.resolve())
+    return str(where)
+
+
+def first_start_source() -> str:
+    """Where a first start with the default models directory takes the models from."""
+    from uacell.ua.nodesets import models_snapshot_path
+
+    return "models snapshot" if models_snapshot_path(None).exists() else "nodesets"

@@ -16,7 +16,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import free_port
+from helpers import first_start_source, free_port
 
 from uacell.cell import _NOISE, Part, demo_cell
 from uacell.cell_file import builtin_cell_path
@@ -305,7 +305,7 @@ async def _serve_cell(base: Path, cell: str, from_snapshot: bool) -> AsyncIterat
         await first.stop()
         config.server.port = free_port()
     app = await start_app(config)
-    assert app.address_space_source == ("snapshot" if from_snapshot else "nodesets")
+    assert app.address_space_source == ("snapshot" if from_snapshot else first_start_source())
     # The health probe (a ServerStatus read) gets 30 s, not 1 s: a loaded machine must not drop the session.
     client = Client(app.endpoint, timeout=60, watchdog_intervall=30.0)
     try:

@@ -17,6 +17,7 @@ import pytest
 from asyncua import Client, ua
 from asyncua.server.address_space import AttributeValue, NodeData
 from conftest import fast_config, start_app
+from helpers import free_port, models_copy
 
 from uacell.ua import snapshot
 from uacell.ua.snapshot import LazyNodes, SnapshotInvalid, read_snapshot, stripped_copy, write_snapshot
@@ -257,9 +258,12 @@ def test_discard_removes_the_snapshot_and_leftovers_of_a_crash(tmp_path: Path) -
 
 
 async def _start(tmp_path: Path, cache: Path | None, enabled: bool = True):
+    """The demo cell with the models from the NodeSet files (a models directory without their snapshot)."""
     config = fast_config(tmp_path / "data")
     config.server.cache_dir = cache
     config.server.address_space_cache = enabled
+    models = tmp_path / "models"
+    config.server.models_dir = str(models) if models.exists() else models_copy(models)
     return await start_app(config)
 
 
@@ -315,6 +319,7 @@ async def test_another_cell_gets_its_own_snapshot(tmp_path: Path) -> None:
     config = fast_config(tmp_path / "data")
     config.server.cache_dir = cache
     config.cell = load_cell(builtin_cell_path("example"))
+    config.server.models_dir = str(tmp_path / "models")
     example = await start_app(config)
     try:
         assert example.address_space_source == "nodesets"
@@ -395,3 +400,67 @@ async def test_the_default_cache_is_in_the_data_directory(tmp_path: Path, monkey
     assert config.server.snapshot_dir == tmp_path / "data" / "cache"
     monkeypatch.setenv("UACELL_CACHE_DIR", os.fspath(tmp_path / "elsewhere"))
     assert fast_config(tmp_path / "data").server.snapshot_dir == tmp_path / "elsewhere"
+
+
+# --- the models' snapshot (decision 46) ----------------------------------------------------------
+
+
+async def test_a_first_start_takes_the_models_from_their_snapshot_and_writes_the_whole_cell(tmp_path: Path) -> None:
+    """With the models' snapshot beside the NodeSet files, a first start reads the models from it,
+    builds the cell and writes the cell's snapshot: every node of it, also those of the models'
+    snapshot it never loaded; a restart from that has exactly the nodes a build from the files has."""
+    from uacell.ua.nodesets import models_snapshot_path, write_models_snapshot
+
+    models = models_copy(tmp_path / "models")
+    written = await write_models_snapshot(models)
+    assert written == models_snapshot_path(models) and written.parent == Path(models)
+    config = fast_config(tmp_path / "data")
+    config.server.cache_dir = tmp_path / "cache"
+    config.server.models_dir = models
+    first = await start_app(config)
+    try:
+        assert first.address_space_source == "models snapshot"
+        speed = await _mach_speed(first)
+        await first.snapshot_written()
+    finally:
+        await first.stop()
+    config.server.port = free_port()
+    second = await start_app(config)
+    try:
+        assert second.address_space_source == "snapshot"
+        assert await _mach_speed(second) == speed
+        restored = snapshot.every_node_id(second.server.iserver.aspace)
+    finally:
+        await second.stop()
+    plain = fast_config(tmp_path / "plain")
+    plain.server.address_space_cache = False
+    built = await start_app(plain)
+    try:
+        assert built.address_space_source == "nodesets"
+        assert restored == snapshot.every_node_id(built.server.iserver.aspace)
+    finally:
+        await built.stop()
+
+
+async def test_a_damaged_models_snapshot_is_removed_and_the_files_are_read(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from uacell.ua.nodesets import write_models_snapshot
+
+    models = models_copy(tmp_path / "models")
+    path = await write_models_snapshot(models)
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    config = fast_config(tmp_path / "data")
+    config.server.cache_dir = tmp_path / "cache"
+    config.server.models_dir = models
+    with caplog.at_level(logging.INFO, logger="uacell.ua.nodesets"):
+        app = await start_app(config)
+    try:
+        assert app.address_space_source == "nodesets"
+        assert await _mach_speed(app) > 0
+    finally:
+        await app.stop()
+    assert not path.exists()
+    assert any("snapshot of the models" in r.getMessage() and "is damaged" in r.getMessage() for r in caplog.records)

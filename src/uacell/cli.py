@@ -237,6 +237,11 @@ def main(argv: list[str] | None = None) -> int:
 def _models(args: argparse.Namespace) -> int:
     if args.action == "fetch":
         print(fetch_models(force=args.force))
+        # the models built once into a snapshot beside them: first starts read it (decision 46)
+        from uacell.ua.nodesets import models_snapshot_path, write_models_snapshot
+
+        if args.force or not models_snapshot_path(None).exists():
+            print(asyncio.run(write_models_snapshot()))
         return 0
     locate_models(args.models_dir)
     print(models_dir(args.models_dir))

@@ -19,6 +19,7 @@ from asyncua import Server, ua
 from asyncua.common.xmlimporter import XmlImporter
 
 from uacell.models.source import locate_models, official_models
+from uacell.models.source import models_dir as models_directory
 from uacell.ua import snapshot
 
 log = logging.getLogger(__name__)
@@ -122,9 +123,78 @@ class PreparedSpace:
     """
 
     indexes: dict[str, int]
-    source: str  # "snapshot" or "nodesets"
+    source: str  # "snapshot" (the cell's), "models snapshot" (the models' only) or "nodesets"
     extras: dict[str, Any] | None = None
     capture: Callable[[], Awaitable[SnapshotJob]] | None = None
+
+
+def models_snapshot_key() -> dict[str, Any]:
+    """The key of the models' own snapshot: the standard address space and the official NodeSets,
+    no cell (``cell`` empty)."""
+    return snapshot.snapshot_key({m.filename: m.sha256 for m in official_models()}, "")
+
+
+def models_snapshot_path(models_dir: str | None) -> Path:
+    """Where the models' snapshot lives: beside the NodeSet files it is made of."""
+    return snapshot.snapshot_path(models_directory(models_dir), models_snapshot_key())
+
+
+async def write_models_snapshot(models_dir: str | None = None) -> Path:
+    """Build the standard address space and the official models once, in a server that never listens,
+    and write them as the models' snapshot (``uacell models fetch`` does, after fetching): a first
+    start then reads them instead of importing the NodeSets (decision 46)."""
+    path = models_snapshot_path(models_dir)
+    quiet = logging.getLogger("asyncua")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)  # asyncua says every node it imports, and what it makes of some
+    try:
+        server = Server()
+        await server.init()
+        await load_models(server, models_dir)
+        nodes = snapshot.stripped_copy(server.iserver.aspace._nodes)
+        namespaces = list((await server.get_namespace_array())[2:])
+    finally:
+        quiet.setLevel(level)
+    snapshot.write_snapshot(path, models_snapshot_key(), namespaces, nodes)
+    snapshot.prune(path.parent, keep=2)  # one for this uacell, one for another beside it
+    return path
+
+
+async def _restore(server: Server, found: snapshot.Snapshot) -> dict[str, int]:
+    """asyncua's ``init()`` with the snapshot's nodes instead of the standard ones; the models'
+    namespace indexes."""
+    nodes = found.nodes
+
+    async def from_snapshot(_shelf_file: object) -> None:
+        server.iserver.aspace._nodes = nodes
+
+    # asyncua's init() fills the standard nodes here; everything else it does stays as it is.
+    server.iserver.load_standard_address_space = from_snapshot
+    try:
+        await server.init()
+    finally:
+        del server.iserver.load_standard_address_space
+    for position, uri in enumerate(found.namespaces, start=2):
+        index = await server.register_namespace(uri)
+        if index != position:
+            raise RuntimeError(f"namespace {uri} got index {index}, the snapshot has it at {position}")
+    # The importer registers the models' structure classes (asyncua.ua) as it goes; here they are
+    # made from the DataTypeDefinitions, before any value of theirs is read from the snapshot.
+    await server.load_data_type_definitions()
+    return {m.key: await server.get_namespace_index(m.namespace_uri) for m in official_models()}
+
+
+def _read(path: Path, key: dict[str, Any], what: str) -> snapshot.Snapshot | None:
+    """The snapshot at ``path`` if it is there and sound; a damaged one is said and removed."""
+    try:
+        found = snapshot.read_snapshot(path, key)
+        if found is None:
+            log.info("no %s yet: building the address space", what)
+        return found
+    except snapshot.SnapshotInvalid as e:
+        log.info("the %s %s %s: building the address space", what, path, e)
+        snapshot.discard(path)
+        return None
 
 
 async def init_address_space(
@@ -133,60 +203,48 @@ async def init_address_space(
     """``server.init()`` and the official models, from the snapshot in ``cache`` when there is one.
 
     ``cell`` is the digest of the cell that will be built (``uacell.cell.cell_digest``): a snapshot
-    holds its instances too. ``cache`` None: no snapshot is read or written. A stale snapshot has
-    another key, so another file: it is not found. A damaged one is logged at INFO and removed. In
-    both cases the address space is built as usual.
+    holds its instances too. Without one, the models come from the models' snapshot beside the
+    NodeSet files (``write_models_snapshot``) when there is one, else from the NodeSet files.
+    ``cache`` None: no snapshot is read or written. A stale snapshot has another key, so another
+    file: it is not found. A damaged one is logged at INFO and removed. In both cases the address
+    space is built as usual.
     """
     locate_models(models_dir)  # every file there and verified, even when the snapshot will do
-    key = snapshot.snapshot_key({m.filename: m.sha256 for m in official_models()}, cell) if cache is not None else {}
-    path = snapshot.snapshot_path(cache, key) if cache is not None else None
-    found: snapshot.Snapshot | None = None
-    if path is not None:
-        try:
-            found = snapshot.read_snapshot(path, key)
-            if found is None:
-                log.info("no address-space snapshot for this cell and these models yet: building the address space")
-        except snapshot.SnapshotInvalid as e:
-            log.info("the address-space snapshot %s %s: building the address space", path, e)
-            snapshot.discard(path)
+    if cache is None:
+        await server.init()
+        return PreparedSpace(await load_models(server, models_dir), "nodesets")
+    key = snapshot.snapshot_key({m.filename: m.sha256 for m in official_models()}, cell)
+    target = snapshot.snapshot_path(cache, key)
+    found = _read(target, key, "address-space snapshot for this cell and these models")
     if found is not None:
-        nodes = found.nodes
-
-        async def from_snapshot(_shelf_file: object) -> None:
-            server.iserver.aspace._nodes = nodes
-
-        # asyncua's init() fills the standard nodes here; everything else it does stays as it is.
-        server.iserver.load_standard_address_space = from_snapshot
-        try:
-            await server.init()
-        finally:
-            del server.iserver.load_standard_address_space
-        for position, uri in enumerate(found.namespaces, start=2):
-            index = await server.register_namespace(uri)
-            if index != position:
-                raise RuntimeError(f"namespace {uri} got index {index}, the snapshot has it at {position}")
-        # The importer registers the models' structure classes (asyncua.ua) as it goes; here they are
-        # made from the DataTypeDefinitions, before any value of theirs is read from the snapshot.
-        await server.load_data_type_definitions()
-        indexes = {m.key: await server.get_namespace_index(m.namespace_uri) for m in official_models()}
-        log.info("address space from the snapshot %s (%d nodes stored)", path, nodes.stored)
+        indexes = await _restore(server, found)
+        log.info("address space from the snapshot %s (%d nodes stored)", target, found.nodes.stored)
         return PreparedSpace(indexes, "snapshot", found.extras)
-    await server.init()
-    indexes = await load_models(server, models_dir)
-    if path is None:
-        return PreparedSpace(indexes, "nodesets")
-    target = path
+    base_path = models_snapshot_path(models_dir)
+    base = _read(base_path, models_snapshot_key(), "snapshot of the models") if base_path.exists() else None
+    if base is not None:
+        indexes = await _restore(server, base)
+        source = "models snapshot"
+        log.info("the models from their snapshot %s", base_path)
+    else:
+        await server.init()
+        indexes = await load_models(server, models_dir)
+        source = "nodesets"
 
     async def capture() -> SnapshotJob:
-        # On the event loop, before anything else changes the nodes; the writing can wait.
-        copy = snapshot.stripped_copy(server.iserver.aspace._nodes)
+        # On the event loop, before anything else changes the nodes; the writing can wait. Nodes of
+        # the models' snapshot that were never loaded are unchanged: the writer reads them from it.
+        nodes = server.iserver.aspace._nodes
+        copy = snapshot.stripped_copy(nodes)
+        rest = nodes.rest() if isinstance(nodes, snapshot.LazyNodes) else None
         namespaces = list((await server.get_namespace_array())[2:])
 
         def write(extras: dict[str, Any], cancel: threading.Event) -> None:
-            snapshot.write_snapshot(target, key, namespaces, copy, extras, cancel, WRITE_SHARE)
+            every = copy + rest() if rest is not None else copy
+            snapshot.write_snapshot(target, key, namespaces, every, extras, cancel, WRITE_SHARE)
             snapshot.prune(target.parent)
-            log.info("wrote the address-space snapshot %s (%d nodes)", target, len(copy))
+            log.info("wrote the address-space snapshot %s (%d nodes)", target, len(every))
 
         return write
 
-    return PreparedSpace(indexes, "nodesets", capture=capture)
+    return PreparedSpace(indexes, source, capture=capture)

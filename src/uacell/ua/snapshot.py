@@ -40,7 +40,7 @@ import struct
 import tempfile
 import threading
 import time
-from collections.abc import Iterator, Mapping, MutableMapping
+from collections.abc import Callable, Iterator, Mapping, MutableMapping
 from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
@@ -191,6 +191,27 @@ class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
 
     def __len__(self) -> int:
         return len(self.cache)
+
+    def rest(self) -> Callable[[], list[tuple[ua.NodeId, NodeData]]]:
+        """The nodes not loaded now, as they are stored: a function another thread may call later.
+
+        Nodes that were never loaded have not changed, so what the file holds is what they are now;
+        with the loaded ones (``stripped_copy`` of this table: its cache) it is every node. The
+        file's bytes never change under a mapping (writers replace files), so the function may run
+        while the event loop goes on loading and changing nodes."""
+        pending = [i for i in range(len(self._spans)) if i not in self._loaded]
+        skip = set(self.cache) | set(self._deleted)
+        chunks, spans = self._chunks, self._spans
+
+        def load() -> list[tuple[ua.NodeId, NodeData]]:
+            out: list[tuple[ua.NodeId, NodeData]] = []
+            for chunk in pending:
+                offset, length = spans[chunk]
+                nodes: list[NodeData] = pickle.loads(chunks[offset : offset + length])
+                out.extend((node.nodeid, node) for node in nodes if node.nodeid not in skip)
+            return out
+
+        return load
 
     @property
     def stored(self) -> int:
