@@ -6,6 +6,7 @@ client (and node-opcua once) drives uacell, which drives the PLC."""
 from __future__ import annotations
 
 import asyncio
+import logging
 import os
 import subprocess
 import sys
@@ -293,7 +294,9 @@ async def test_node_opcua_runs_a_cycle_through_uacell_to_the_modbus_plc(tmp_path
         assert await plc.taken() == pytest.approx([250.5, -12.25, 0.0, 0.0, 0.0])
 
 
-async def test_config_check_connect_names_a_register_the_plc_does_not_have(tmp_path: Path, plc: ModbusPLC) -> None:
+async def test_config_check_connect_names_a_register_the_plc_does_not_have(
+    tmp_path: Path, plc: ModbusPLC, caplog: pytest.LogCaptureFixture
+) -> None:
     text = shipped_cell(plc).replace(
         "base = 100 }", 'base = 100, map = { "Admin.StopReason" = ["holding", 9000, "int32"] } }'
     )
@@ -307,6 +310,24 @@ async def test_config_check_connect_names_a_register_the_plc_does_not_have(tmp_p
     assert "PROBLEM: unit 1 holding 9000 int32 big/big: illegal data address (exception 2)" in bad[0], lines
     assert any(ln.startswith("Capper") and "Status.StateCurrent" in ln and "= 2" in ln for ln in lines), lines
     assert "connect: 33 of 34 as configured" in proc.stdout, proc.stdout
+    # served anyway: one log line names the unit, the tag, where it was looked for and what the PLC said
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(path)
+    with caplog.at_level(logging.WARNING, logger="uacell.gateway.packml_modbus"):
+        async with serving(config) as (_app, client):
+
+            def lines() -> Any:
+                async def found() -> bool:
+                    return any(
+                        "Labeler: Admin.StopReason (unit 1 holding 9000" in r.getMessage() for r in caplog.records
+                    )
+
+                return found()
+
+            await until(lines, True)
+            assert await cell_status(client, f"{F}.Status.MachSpeed") == "BadNoCommunication"
+    said = [r.getMessage() for r in caplog.records if "Admin.StopReason" in r.getMessage()]
+    assert "illegal data address (exception 2)" in said[0] and len(said) == 1, said  # once, not every retry
 
 
 async def test_fifty_units_on_one_modbus_connection(tmp_path: Path) -> None:

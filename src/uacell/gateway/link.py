@@ -6,7 +6,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 log = logging.getLogger(__name__)
@@ -26,7 +26,15 @@ class TagLink(Protocol):
 
     def start(self) -> None: ...
 
-    async def watch(self, addresses: list[str], listener: ValueListener, on_state: StateListener) -> None: ...
+    async def watch(
+        self,
+        addresses: list[str],
+        listener: ValueListener,
+        on_state: StateListener,
+        labels: Mapping[str, str] | None = None,
+    ) -> None:
+        """``labels``: what each address is ("Capper: Status.StateCurrent"), for messages."""
+        ...
 
     async def wait_connected(self, timeout: float) -> bool: ...
 
@@ -49,11 +57,24 @@ class Listeners:
         self._watched: dict[str, list[ValueListener]] = {}
         self._state_listeners: list[StateListener] = []
         self._ready = asyncio.Event()  # set once the first connection was made
+        self._labels: dict[str, str] = {}
 
-    def _listen(self, addresses: list[str], listener: ValueListener, on_state: StateListener) -> None:
+    def _listen(
+        self,
+        addresses: list[str],
+        listener: ValueListener,
+        on_state: StateListener,
+        labels: Mapping[str, str] | None,
+    ) -> None:
         for address in addresses:
             self._watched.setdefault(address, []).append(listener)
         self._state_listeners.append(on_state)
+        self._labels.update(labels or {})
+
+    def named(self, address: str) -> str:
+        """The address with what it is, for messages: ``Capper: Admin.StopReason (ns=1;s=Nope)``."""
+        label = self._labels.get(address)
+        return f"{label} ({address})" if label else address
 
     async def wait_connected(self, timeout: float) -> bool:
         with contextlib.suppress(TimeoutError):

@@ -117,9 +117,15 @@ class PlcLink(Listeners):
 
     # -- what parts use ---------------------------------------------------------------------------
 
-    async def watch(self, node_ids: list[str], listener: ValueListener, on_state: StateListener) -> None:
+    async def watch(
+        self,
+        node_ids: list[str],
+        listener: ValueListener,
+        on_state: StateListener,
+        labels: Mapping[str, str] | None = None,
+    ) -> None:
         """Call ``listener`` with each value of ``node_ids`` (on every connection, then on change)."""
-        self._listen(node_ids, listener, on_state)
+        self._listen(node_ids, listener, on_state, labels)
         if self.connected and self._client is not None:
             try:  # connected already (another part on this PLC): read and subscribe these too
                 await self._resolve(self._client, node_ids)
@@ -127,7 +133,7 @@ class PlcLink(Listeners):
                 for nid, node in zip(node_ids, nodes, strict=True):
                     dv = await node.read_data_value(raise_on_bad_status=False)
                     if not dv.StatusCode.is_good():
-                        raise CommunicationError(f"{self.endpoint}: {nid}: {dv.StatusCode.name}")
+                        raise CommunicationError(f"{self.endpoint}: {self.named(nid)}: {dv.StatusCode.name}")
                     value = dv.Value.Value if dv.Value is not None else None
                     self._last[nid] = value
                     listener(nid, value)
@@ -236,7 +242,7 @@ class PlcLink(Listeners):
         for nid, node in nodes.items():
             dv = await node.read_data_value(raise_on_bad_status=False)
             if not dv.StatusCode.is_good():
-                raise CommunicationError(f"{self.endpoint}: {nid}: {dv.StatusCode.name}")
+                raise CommunicationError(f"{self.endpoint}: {self.named(nid)}: {dv.StatusCode.name}")
             value = dv.Value.Value if dv.Value is not None else None
             self._last[nid] = value
             self._deliver(nid, value)
@@ -292,7 +298,10 @@ class PlcLink(Listeners):
         for address in addresses:
             if address in self._resolved:
                 continue
-            nodeid = await resolve_address(client, address, self.endpoint)
+            try:
+                nodeid = await resolve_address(client, address, self.endpoint)
+            except CommunicationError as exc:
+                raise CommunicationError(str(exc).replace(address, self.named(address), 1)) from None
             self._resolved[address] = nodeid
             self._address_of[nodeid] = address
 

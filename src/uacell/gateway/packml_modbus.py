@@ -148,10 +148,16 @@ class ModbusTagLink(Listeners):
         if self._task is None:
             self._task = asyncio.get_running_loop().create_task(self._run(), name=f"plc {self.endpoint}")
 
-    async def watch(self, addresses: list[str], listener: ValueListener, on_state: StateListener) -> None:
+    async def watch(
+        self,
+        addresses: list[str],
+        listener: ValueListener,
+        on_state: StateListener,
+        labels: Mapping[str, str] | None = None,
+    ) -> None:
         for address in addresses:
             self.point(address)
-        self._listen(addresses, listener, on_state)
+        self._listen(addresses, listener, on_state, labels)
         if self.connected:  # another unit on this PLC connected it already: these values now
             try:
                 for address, value in zip(addresses, await self.read_many(addresses), strict=True):
@@ -254,7 +260,7 @@ class ModbusTagLink(Listeners):
                 try:
                     await self._read([address])
                 except CommunicationError as exc:
-                    raise CommunicationError(f"{self.point(address)}: {exc}") from None
+                    raise CommunicationError(f"{self.named(address)}: {str(exc).rpartition(': ')[2]}") from None
             raise
         for address, value in zip(addresses, values, strict=True):
             self._last[address] = value

@@ -315,7 +315,8 @@ async def start_unit(
     uacell serves anyway, the unit reports it)."""
     unit = PackTagsUnit(part, link, tags, timing_of(settings), release)
     watched = [tags[k].address for k in WATCHED] + [t.address for k, t in tags.items() if k.startswith("Admin.Alarm[")]
+    labels = {t.address: f"{part}: {k}" for k, t in tags.items()}
     link.start()
-    await link.watch(watched, unit.on_value, unit.on_connection)
+    await link.watch(watched, unit.on_value, unit.on_connection, labels)
     await link.wait_connected(3.0)
     return unit
