@@ -312,6 +312,13 @@ def _number(part: str, settings: Mapping[str, Any], key: str, default: float, lo
     return float(value)
 
 
+def _integer(part: str, settings: Mapping[str, Any], key: str, default: int, low: int, high: int) -> int:
+    value = settings.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise ValueError(f"{part}: {key}: a whole number from {low} to {high}, not {value!r}")
+    return value
+
+
 @dataclass(frozen=True)
 class Where:
     """Where a unit's PackTags are: the PLC's host and port, and every tag as a Modbus point."""
@@ -338,17 +345,17 @@ def where(part: str, settings: Mapping[str, Any]) -> Where:
         raise ValueError(f"{part}: map: a table of tag = [table, address, type], not {map_!r}")
     tags = resolve_modbus(
         part,
-        int(_number(part, settings, "unit", 1, 0, 255)),
-        int(_number(part, settings, "base", 0, 0, 65535 - UNIT_REGISTERS)),
+        _integer(part, settings, "unit", 1, 0, 255),
+        _integer(part, settings, "base", 0, 0, 65535 - UNIT_REGISTERS),
         map_,
-        parameters=int(_number(part, settings, "parameters", 5, 0, PARAMETER_ROOM)),
-        alarms=int(_number(part, settings, "alarms", 0, 0, ALARM_ROOM)),
+        parameters=_integer(part, settings, "parameters", 5, 0, PARAMETER_ROOM),
+        alarms=_integer(part, settings, "alarms", 0, 0, ALARM_ROOM),
         byte_order=str(settings.get("byte_order", "big")),
         word_order=str(settings.get("word_order", "big")),
     )
     return Where(
         host,
-        int(_number(part, settings, "port", 502, 1, 65535)),
+        _integer(part, settings, "port", 502, 1, 65535),
         _number(part, settings, "interval", 0.05, 0.005, 60),
         _number(part, settings, "timeout", 1.0, 0.05, 60),
         tags,
