@@ -195,6 +195,8 @@ async def test_the_plc_killed_and_back(served, plc: PLC) -> None:
     assert (await counts.read_data_value(raise_on_bad_status=False)).StatusCode.name == "BadNoCommunication"
     warnings = client.get_node(ua.NodeId(f"{F}.Admin.Warning", ns))
     assert any(w.ID == 9001 for w in await warnings.read_value())  # uacell's own: readable, says why
+    lost = client.get_node(ua.NodeId(f"{F}.Conditions.CommunicationLost.ActiveState.Id", ns))
+    assert await lost.read_value() is True  # and the alarm condition alarm clients see
     plc.port = plc.port  # the same port
     plc.start()
     back = time.monotonic()
@@ -202,6 +204,7 @@ async def test_the_plc_killed_and_back(served, plc: PLC) -> None:
     assert time.monotonic() - back <= 5.0
     await until(speed_status, "Good")
     assert not any(w.ID == 9001 for w in await warnings.read_value())  # the warning went with the loss
+    await until(lost.read_value, False)
     res = await call_path(client, MACH, "Reset")
     assert res.StatusCode.is_good(), res.StatusCode
     assert app is not None
