@@ -397,11 +397,18 @@ async def test_communication_lost_is_an_alarm_condition(served, plc: ModbusPLC) 
 
     await until(lost_event, True)
     acknowledge = app.dispatcher.method_of(cond, "Acknowledge")
+
+    async def acknowledgeable() -> bool:
+        dv = await client.get_node(acknowledge).read_attribute(ua.AttributeIds.Executable)
+        return bool(dv.Value.Value)
+
+    await until(acknowledgeable, True)  # raised by the equipment, outside any call
     event_id = ua.Variant(await read("EventId"), ua.VariantType.ByteString)
     comment = ua.Variant(ua.LocalizedText("cable checked"), ua.VariantType.LocalizedText)
     (res,) = await client.uaclient.call([ua.CallMethodRequest(cond, acknowledge, [event_id, comment])])
     assert res.StatusCode.is_good(), res.StatusCode
     await until(lambda: read("AckedState.Id"), True)
+    await until(acknowledgeable, False)
     (again,) = await client.uaclient.call([ua.CallMethodRequest(cond, acknowledge, [event_id, comment])])
     assert again.StatusCode.value == ua.StatusCodes.BadConditionBranchAlreadyAcked
     plc.start()

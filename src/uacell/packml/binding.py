@@ -255,6 +255,10 @@ class UnitBinding:
         place = ConditionPlace(folder.nodeid, self.node, self.node, self.unit.name, path)
         d = self.app.dispatcher
 
+        # Their Executable depends on the conditions, not on what the unit's methods depend on: a scope of
+        # their own, refreshed after their calls and whenever a condition changes.
+        scope = self.unit.conditions
+
         def bind(node: ua.NodeId, method: str, handler: Any, executable: Callable[[], bool]) -> None:
             d.bind(
                 node,
@@ -263,7 +267,10 @@ class UnitBinding:
                 handler,
                 executable=executable,
                 serialize_on=self.unit,
+                scope=scope,
             )
+
+        scope.condition_listeners.append(lambda _condition: d.touch(scope))
 
         self.conditions = ConditionNodes(self.app, self.unit.conditions, place, bind)
         await self.conditions.setup()

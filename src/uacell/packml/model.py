@@ -353,15 +353,21 @@ class PackMLUnit:
         known = self._executable_now().get((machine_name, method))
         return known if known is not None else self._refusal(machine_name, method) is None
 
-    def _executable_now(self) -> dict[tuple[str | None, str], bool]:
-        """Executable of every method, recomputed only when an input of ``_refusal`` changed: the three
-        machines' states, the unit mode and the material interlocks."""
+    @property
+    def executable_inputs(self) -> tuple[Any, ...]:
+        """Everything Executable of the unit's methods depends on: the three machines' states, the
+        unit mode, the material interlocks and whether the equipment is reachable. The dispatcher
+        re-evaluates the methods only when it changed."""
         s = self.status
         # The three machines' own current states decide which are active, hence the unit's state.
-        key = (
+        return (
             self.base.current, self.machine.current, self.execute.current,
-            s.unit_mode_current, bool(s.material_interlock), s.material_interlocked,
+            s.unit_mode_current, bool(s.material_interlock), s.material_interlocked, self.reachable,
         )  # fmt: skip
+
+    def _executable_now(self) -> dict[tuple[str | None, str], bool]:
+        """Executable of every method, recomputed only when ``executable_inputs`` changed."""
+        key = self.executable_inputs
         if key != self._executable_key:
             self._executable_memo = {k: self._refusal(*k) is None for k in self.methods()}
             self._executable_key = key

@@ -41,6 +41,7 @@ from uacell.ua.context import Caller
 log = logging.getLogger(__name__)
 
 Handler = Callable[..., Awaitable[Sequence[Any] | None]]
+_UNKNOWN = object()  # no executable_inputs
 _UNSCOPED = object()  # the scope of methods bound with neither ``scope`` nor ``serialize_on``
 Guard = Callable[[Caller, "BoundMethod"], None]
 # Told of every answered call (audit trail, metrics): caller, request, method name, result, seconds taken.
@@ -91,6 +92,8 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         self._scoped: dict[int, list[BoundMethod]] = {}
         self._touched: dict[int, None] = {}
         self._alias: dict[int, object] = {}  # id(serialize_on) -> its methods' scope
+        self._scope_of: dict[int, object] = {}  # id(scope) -> the scope
+        self._inputs: dict[int, Any] = {}  # id(scope) -> its executable_inputs at its last refresh
         self._closing = False
         self._running = 0  # calls whose behaviour is under way
         self._idle = asyncio.Event()
@@ -156,6 +159,8 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         self.methods[method_id] = bound
         if executable is not None:
             self._scoped.setdefault(id(bound.scope), []).append(bound)
+            self._scope_of[id(bound.scope)] = bound.scope
+            self._inputs.pop(id(bound.scope), None)  # a new method: evaluate the scope's next time
             if serialize_on is not None:
                 self._alias.setdefault(id(serialize_on), bound.scope)
         self._by_decl = None
@@ -226,12 +231,20 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         self._touched[id(self._alias.get(key, scope))] = None
 
     async def refresh_touched(self) -> None:
-        """Re-evaluate Executable of the scopes touched since the last time (the publisher's idle hook)."""
+        """Re-evaluate Executable of the scopes touched since the last time (the publisher's idle hook).
+        A scope whose model says what its methods' Executable depends on (an ``executable_inputs``
+        attribute) is skipped while that is what it was at its last refresh."""
         self._touched[id(_UNSCOPED)] = None  # nothing says what they depend on: always
         while self._touched:
             key = next(iter(self._touched))
             del self._touched[key]
-            await self._refresh(self._scoped.get(key, ()))
+            group = self._scoped.get(key, ())
+            inputs = getattr(self._scope_of.get(key), "executable_inputs", _UNKNOWN)
+            if inputs is not _UNKNOWN and self._inputs.get(key, _UNKNOWN) == inputs:
+                continue
+            await self._refresh(group)
+            if inputs is not _UNKNOWN:
+                self._inputs[key] = inputs
 
     async def refresh_executable(self, scope: object | None = None) -> None:
         """Write Executable wherever it changed (decision 4): of the methods of ``scope``, or of every
