@@ -164,7 +164,9 @@ async def serving(config: Config) -> AsyncIterator[tuple[UacellServer, Any]]:
 
     server = await start_app(config)
     try:
-        async with Client(server.endpoint, timeout=30) as client:
+        # The client shares the event loop with the server it probes: its health probe gets 30 s, not
+        # 1 s, so that a burst of work on a loaded machine (50 units resetting at once) does not drop it.
+        async with Client(server.endpoint, timeout=30, watchdog_intervall=30.0) as client:
             yield server, client
     finally:
         await server.stop()

@@ -90,8 +90,9 @@ async def test_a_packml_call_evaluates_only_its_own_unit(cell):
     app, client, counts = cell
     await quiet(app, counts)
     await call(app, client, "Filler1", "SetMachSpeed", ua.Variant(90.0, ua.VariantType.Float))
-    assert counts["Filler1"] > 0
-    assert counts["Filler2"] == 0
+    # nothing a unit's Executable depends on moved: not even Filler1's methods are evaluated (a call
+    # that moves its machines evaluates them: test_a_unit_is_re_evaluated_only_when_...)
+    assert counts["Filler1"] == counts["Filler2"] == 0
     assert counts["Robot1"] == counts["Robot2"] == 0
     speed = await client.get_node(node(app, "Filler1.Status.MachSpeed")).read_value()
     assert speed == pytest.approx(90.0)
@@ -148,8 +149,27 @@ async def test_a_call_naming_the_declaration_reaches_the_named_object(cell):
     f2 = await client.get_node(node(app, "Filler2.Status.MachSpeed")).read_value()
     assert f2 == pytest.approx(77.0)
     assert f1 != pytest.approx(77.0)
-    assert counts["Filler2"] > 0 and counts["Filler1"] == 0
+    # nothing Filler2's Executable depends on changed (executable_inputs): not even its methods are
+    # re-evaluated; Filler1's never are
+    assert counts["Filler2"] == counts["Filler1"] == 0
     # the declaration on an object that does not have the method is refused
     with pytest.raises(ua.UaStatusCodeError) as err:
         await client.get_node(node(app, "Robot1")).call_method(declaration, ua.Variant(1.0, ua.VariantType.Float))
     assert err.value.code in (ua.StatusCodes.BadMethodInvalid, ua.StatusCodes.BadNotImplemented)
+
+
+async def test_a_unit_is_re_evaluated_only_when_what_executable_depends_on_changed(cell):
+    """SetMachSpeed changes nothing a unit's Executable depends on: no evaluation; Reset moves the
+    machines: the unit's methods (only) are evaluated again."""
+    app, client, counts = cell
+    await quiet(app, counts)
+    await call(app, client, "Filler1", "SetMachSpeed", ua.Variant(90.0, ua.VariantType.Float))
+    await app.publisher.flush()  # what the call published, and the idle hook (not settle: it evaluates all)
+    assert await client.get_node(node(app, "Filler1.Status.MachSpeed")).read_value() == pytest.approx(90.0)
+    assert counts["Filler1"] == counts["Filler2"] == 0
+    machine = "Filler1.BaseStateMachine.MachineState"
+    assert await executable(client, app, machine, "Reset") is True  # Filler1 is in Stopped
+    await call(app, client, machine, "Reset")
+    await app.publisher.flush()
+    assert counts["Filler1"] > 0 and counts["Filler2"] == counts["Robot1"] == counts["Robot2"] == 0
+    assert await executable(client, app, machine, "Reset") is False  # refreshed: not in Resetting or Idle

@@ -233,29 +233,31 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
     async def refresh_touched(self) -> None:
         """Re-evaluate Executable of the scopes touched since the last time (the publisher's idle hook).
         A scope whose model says what its methods' Executable depends on (an ``executable_inputs``
-        attribute) is skipped while that is what it was at its last refresh."""
+        attribute) is skipped while that is what it was at its last evaluation."""
         self._touched[id(_UNSCOPED)] = None  # nothing says what they depend on: always
         while self._touched:
             key = next(iter(self._touched))
             del self._touched[key]
-            group = self._scoped.get(key, ())
-            inputs = getattr(self._scope_of.get(key), "executable_inputs", _UNKNOWN)
-            if inputs is not _UNKNOWN and self._inputs.get(key, _UNKNOWN) == inputs:
-                continue
-            await self._refresh(group)
-            if inputs is not _UNKNOWN:
-                self._inputs[key] = inputs
+            await self._refresh_scope(key, skip_unchanged=True)
 
     async def refresh_executable(self, scope: object | None = None) -> None:
         """Write Executable wherever it changed (decision 4): of the methods of ``scope``, or of every
         bound method when no scope is given (start-up, tests)."""
         if scope is not None:
             self._touched.pop(id(scope), None)
-            await self._refresh(self._scoped.get(id(scope), ()))
+            await self._refresh_scope(id(scope))
             return
         self._touched.clear()
-        for group in list(self._scoped.values()):
-            await self._refresh(group)
+        for key in list(self._scoped):
+            await self._refresh_scope(key)
+
+    async def _refresh_scope(self, key: int, skip_unchanged: bool = False) -> None:
+        inputs = getattr(self._scope_of.get(key), "executable_inputs", _UNKNOWN)
+        if skip_unchanged and inputs is not _UNKNOWN and self._inputs.get(key, _UNKNOWN) == inputs:
+            return
+        await self._refresh(self._scoped.get(key, ()))
+        if inputs is not _UNKNOWN:
+            self._inputs[key] = inputs
 
     async def _refresh(self, group: Sequence[BoundMethod]) -> None:
         for bound in list(group):
