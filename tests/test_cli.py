@@ -335,3 +335,28 @@ def test_config_check_takes_the_global_config_option_too() -> None:
         assert proc.returncode == 0, proc.stderr
         assert f"configuration: {path}" in proc.stdout
         assert "Controllers/Cabinet  ControllerType  equipment: uacell.gateway.robot:modbus_signals" in proc.stdout
+
+
+def test_models_fetch_writes_the_models_snapshot_beside_the_files(tmp_path: Path) -> None:
+    """With the NodeSet files already in the cache, `uacell models fetch` fetches nothing and builds
+    the models' snapshot beside them (decision 46), once; not into a directory UACELL_MODELS_DIR names."""
+    from uacell.models.source import NPM_PACKAGE, NPM_VERSION, locate_models
+    from uacell.ua.snapshot import PREFIX, SUFFIX
+
+    cache = tmp_path / "xdg" / "uacell" / "nodesets" / f"{NPM_PACKAGE}-{NPM_VERSION}"
+    cache.mkdir(parents=True)
+    for path in locate_models().values():
+        (cache / path.name).symlink_to(path.resolve())
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "xdg"), "UACELL_MODELS_DIR": str(elsewhere)}
+    env["PYTHONPATH"] = src
+    cmd = [sys.executable, "-m", "uacell", "models", "fetch"]
+    first = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=120, check=False)
+    assert first.returncode == 0, first.stderr
+    [snapshot] = cache.glob(f"{PREFIX}*{SUFFIX}")
+    assert first.stdout.split() == [str(cache), str(snapshot)]
+    assert list(elsewhere.iterdir()) == []
+    again = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=120, check=False)
+    assert again.returncode == 0 and again.stdout.split() == [str(cache)]  # there already: not rebuilt

@@ -236,12 +236,14 @@ def main(argv: list[str] | None = None) -> int:
 
 def _models(args: argparse.Namespace) -> int:
     if args.action == "fetch":
-        print(fetch_models(force=args.force))
-        # the models built once into a snapshot beside them: first starts read it (decision 46)
+        target = fetch_models(force=args.force)
+        print(target)
+        # the models built once into a snapshot beside them, in the cache just filled (not in a
+        # directory UACELL_MODELS_DIR names): first starts read it (decision 46)
         from uacell.ua.nodesets import models_snapshot_path, write_models_snapshot
 
-        if args.force or not models_snapshot_path(None).exists():
-            print(asyncio.run(write_models_snapshot()))
+        if args.force or not models_snapshot_path(str(target)).exists():
+            print(asyncio.run(write_models_snapshot(str(target))))
         return 0
     locate_models(args.models_dir)
     print(models_dir(args.models_dir))
