@@ -22,11 +22,8 @@ from uacell.discovery_registration import DiscoveryRegistration, Registrant, dis
 from uacell.history.service import HistoryService
 from uacell.history.setup import add_configurations, history_shape, install_history
 from uacell.logs import configured_levels
-from uacell.metrics import Metrics
 from uacell.models import StateTables
 from uacell.pki import PkiPaths
-from uacell.pubsub.metrics import PubSubCollector
-from uacell.pubsub.service import PartRef, PubSubService, install_pubsub
 from uacell.registry import Registries, Registry, RegistryKey, T
 from uacell.roles import Role, listening_policy, may
 from uacell.security import SecurityStage, install_security
@@ -44,6 +41,10 @@ from uacell.ua.snapshot import WriteCancelled
 from uacell.ua.space import Space
 from uacell.ua.writes import WriteRouter
 from uacell.users import UserStore
+
+if TYPE_CHECKING:  # imported when [metrics] or [pubsub] is on (prometheus-client, aiomqtt)
+    from uacell.metrics import Metrics
+    from uacell.pubsub.service import PubSubService
 
 log = logging.getLogger(__name__)
 
@@ -197,16 +198,19 @@ class UacellServer:
             lambda role: may(Role.parse(role), "history_read"),
             self.event_tap,
         )
-        aspace = self.server.iserver.aspace
-        namespace_array = ua.NodeId(ua.ObjectIds.Server_NamespaceArray)
-        self.pubsub = await install_pubsub(
-            self.config.pubsub,
-            aspace,
-            self.cell.instantiator,
-            lambda: aspace.read_attribute_value(namespace_array, ua.AttributeIds.Value).Value.Value or [],
-            [PartRef(b.part.role, b.node, b.path) for b in self.cell.built],
-            self.config.server.port,
-        )
+        if self.config.pubsub.enabled:
+            from uacell.pubsub.service import PartRef, install_pubsub
+
+            aspace = self.server.iserver.aspace
+            namespace_array = ua.NodeId(ua.ObjectIds.Server_NamespaceArray)
+            self.pubsub = await install_pubsub(
+                self.config.pubsub,
+                aspace,
+                self.cell.instantiator,
+                lambda: aspace.read_attribute_value(namespace_array, ua.AttributeIds.Value).Value.Value or [],
+                [PartRef(b.part.role, b.node, b.path) for b in self.cell.built],
+                self.config.server.port,
+            )
 
     async def start(self) -> None:
         await publish_operation_limits(self.server, self.limits)
@@ -222,8 +226,12 @@ class UacellServer:
         if self.diagnostics is not None:
             await self.diagnostics.start()
         if self.config.metrics.enabled:
+            from uacell.metrics import Metrics
+
             self.metrics = Metrics(self)
             if self.pubsub is not None:
+                from uacell.pubsub.metrics import PubSubCollector
+
                 self.metrics.registry.register(PubSubCollector(self.pubsub.link))
             await self.metrics.start(self.config.metrics.host, self.config.metrics.port)
         if self.config.discovery.url:
