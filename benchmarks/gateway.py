@@ -498,7 +498,8 @@ class _Rig:
         bare_sub = None
         if bare_interval:
             bare_sub = await self.plc_client.create_subscription(bare_interval * 1000, Bare())
-            await bare_sub.subscribe_data_change(self.tag(unit, "Status.StateCurrent"))
+            # sampled as uacell's link samples the PLC's tags (asyncua's default would be 50 ms)
+            await bare_sub.subscribe_data_change(self.tag(unit, "Status.StateCurrent"), sampling_interval=0.0)
         for _ in range(rounds):
             arrived.clear()
             bare.clear()

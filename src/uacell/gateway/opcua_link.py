@@ -30,6 +30,10 @@ from uacell.secret_file import SecretError, read_secret
 
 log = logging.getLogger(__name__)
 
+# The tags' sampling interval: 0, the fastest the PLC's server supports (exception-based where it can
+# be). asyncua's own default is 50 ms, which a server samples at: 25 ms of delay on average before
+# the publishing interval even starts (docs/performance.md, "Gateway").
+SAMPLING = 0.0
 PASSWORD_ENV = "UACELL_PLC_PASSWORD"  # the default environment variable of a PLC user's password
 POLICIES = ("Basic256Sha256", "Aes128Sha256RsaOaep", "Aes256Sha256RsaPss")
 MODES = ("Sign", "SignAndEncrypt")
@@ -138,7 +142,7 @@ class PlcLink(Listeners):
                     self._last[nid] = value
                     listener(nid, value)
                 if self._subscription is not None:
-                    await self._subscription.subscribe_data_change(nodes, queuesize=100)
+                    await self._subscription.subscribe_data_change(nodes, queuesize=100, sampling_interval=SAMPLING)
                 on_state(True)
             except CommunicationError as exc:
                 log.warning("the PLC at %s: %s", self.endpoint, exc)
@@ -261,7 +265,7 @@ class PlcLink(Listeners):
 
         subscription = await client.create_subscription(o.interval * 1000, Handler())
         if nodes:
-            await subscription.subscribe_data_change(list(nodes.values()), queuesize=100)
+            await subscription.subscribe_data_change(list(nodes.values()), queuesize=100, sampling_interval=SAMPLING)
         self._subscription = subscription
         self._announce()
         self._watchdog = asyncio.get_running_loop().create_task(self._keepalive(client))
