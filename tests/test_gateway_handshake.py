@@ -74,26 +74,3 @@ def test_unit_mode_handshake() -> None:
     with pytest.raises(CallError) as refused:
         hs.observe(IDLE, now=0.1)
     assert refused.value.status == "BadInvalidState"
-
-
-def test_tr88_paths_take_the_fewest_steps() -> None:
-    from uacell.gateway.tr88 import COMPLETE, STEPS, path
-
-    assert path("Stopped", "Execute") == [
-        ("Reset", "Resetting"), (COMPLETE, "Idle"), ("Start", "Starting"), (COMPLETE, "Execute"),
-    ]  # fmt: skip
-    assert path("Resetting", "Stopping") == [("Stop", "Stopping")]  # not through Idle
-    assert path("Execute", "Aborted") == [("Abort", "Aborting"), (COMPLETE, "Aborted")]
-    assert path("Held", "Execute") == [("Unhold", "Unholding"), (COMPLETE, "Execute")]
-    assert path("Complete", "Idle") == [("Reset", "Resetting"), (COMPLETE, "Idle")]
-    assert path("Idle", "Idle") == [] and path("Idle", "Nowhere") == []
-    # every state reaches every other (the PLC may be anywhere when uacell starts)
-    for a in STEPS:
-        for b in STEPS:
-            steps = path(a, b)
-            assert (steps == []) == (a == b), (a, b)
-            state = a
-            for action, following in steps:
-                assert (action, following) in STEPS[state]
-                state = following
-            assert state == b

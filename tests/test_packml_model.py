@@ -707,3 +707,33 @@ def test_conditions_the_equipment_declares() -> None:
         ("CommunicationLost", False, True),
     ]
     assert new_unit().conditions.conditions == {}  # a unit whose equipment declares none has none
+
+
+def test_tr88_paths_from_the_nodeset_take_the_fewest_steps() -> None:
+    """The steps between innermost states come from the NodeSet's transitions (entry states of
+    decision 23); a gateway follows its PLC along the fewest of them."""
+    from uacell.packml.model import COMPLETE, path
+
+    graph = packml_tables().steps()
+    assert len(graph) == 17  # every TR88 state
+    assert set(graph["Clearing"]) == {(COMPLETE, "Stopped"), ("Abort", "Aborting")}  # Cleared's Abort, its end
+    assert set(graph["Stopped"]) == {("Reset", "Resetting"), ("Abort", "Aborting")}  # Running's entry state
+
+    assert path(graph, "Stopped", "Execute") == [
+        ("Reset", "Resetting"), (COMPLETE, "Idle"), ("Start", "Starting"), (COMPLETE, "Execute"),
+    ]  # fmt: skip
+    assert path(graph, "Resetting", "Stopping") == [("Stop", "Stopping")]  # not through Idle
+    assert path(graph, "Execute", "Aborted") == [("Abort", "Aborting"), (COMPLETE, "Aborted")]
+    assert path(graph, "Held", "Execute") == [("Unhold", "Unholding"), (COMPLETE, "Execute")]
+    assert path(graph, "Complete", "Idle") == [("Reset", "Resetting"), (COMPLETE, "Idle")]
+    assert path(graph, "Idle", "Idle") == [] and path(graph, "Idle", "Nowhere") == []
+    # every state reaches every other (the PLC may be anywhere when uacell starts)
+    for a in graph:
+        for b in graph:
+            steps = path(graph, a, b)
+            assert (steps == []) == (a == b), (a, b)
+            state = a
+            for action, following in steps:
+                assert (action, following) in graph[state]
+                state = following
+            assert state == b

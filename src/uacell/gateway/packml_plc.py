@@ -27,12 +27,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from uacell.errors import CallError
-from uacell.gateway import tr88
 from uacell.gateway.handshake import COMMANDS, Handshake, PlcStatus
 from uacell.gateway.link import TagLink
 from uacell.gateway.modbus import CommunicationError
 from uacell.gateway.packtags import ResolvedTag
 from uacell.packml.equipment import EquipmentBase
+from uacell.packml.model import COMPLETE
 from uacell.packml.types import PackMLDescriptorDataType
 
 log = logging.getLogger(__name__)
@@ -156,9 +156,9 @@ class PackTagsUnit(EquipmentBase):
         self.follow()
 
     def follow(self) -> None:
-        """Bring uacell's machines to the PLC's state by the fewest TR88 steps (``tr88.path``): an
-        acting state the PLC left is completed, a command it took is taken; an abort is recorded with
-        the PLC's StopReason."""
+        """Bring uacell's machines to the PLC's state by the fewest TR88 steps (the model's ``path_to``,
+        from the NodeSet's transitions): an acting state the PLC left is completed, a command it took
+        is taken; an abort is recorded with the PLC's StopReason."""
         if not self._attached or self._inflight:
             return
         target = self.unit.state_numbered(int(self.plc.get("Status.StateCurrent", 0) or 0))
@@ -166,12 +166,12 @@ class PackTagsUnit(EquipmentBase):
             return
         for _ in range(12):
             current = self.unit.state
-            steps = tr88.path(current, target)
+            steps = self.unit.path_to(target)
             if not steps:
                 break
             action, _next = steps[0]
             try:
-                if action == tr88.COMPLETE:
+                if action == COMPLETE:
                     self.unit.state_complete(current)
                 elif action == "Abort":  # the PLC aborted: with its StopReason, read now (it may come after the state)
                     if not self._aborting:

@@ -71,6 +71,11 @@ class UnitPort(Protocol):
         """The TR88 state with StateNumber ``number`` (as the NodeSet numbers them), if any."""
         ...
 
+    def path_to(self, state: str) -> list[tuple[str, str]]:
+        """The fewest TR88 steps from the current innermost state to ``state``, each (the method to
+        take, or ``"complete"`` for an acting state's end; the state it leads to)."""
+        ...
+
     def equipment_command(self, method: str) -> None:
         """Take a transition the machine itself decides (Hold, Suspend, Unhold, Unsuspend, ToComplete,
         Stop, Abort); the same state rules as for clients apply."""

@@ -55,6 +55,7 @@ UNIT = None  # machine_name of the unit's own methods (SetUnitMode, ...) in exec
 UNIT_METHODS = ("SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "RemoteCommand", "SetInterlock")
 
 Mode = ProductionMaintenanceModeEnum
+COMPLETE = "complete"  # a step that ends an acting state (PackMLTables.steps, path)
 # Decision 23: the sub-state a machine is entered at when its parent enters the hosting state.
 ENTRY_STATE = {MACHINE: "Clearing", EXECUTE: "Resetting"}
 # Decision 26.
@@ -112,6 +113,32 @@ class PackMLTables:
         loaded.machine.check_names(("Stopped", ENTRY_STATE[MACHINE]))
         loaded.execute.check_names(("Idle", "Execute", ENTRY_STATE[EXECUTE], *JOB_STATES))
         return loaded
+
+    def steps(self) -> dict[str, list[tuple[str, str]]]:
+        """Each innermost state's steps, from the NodeSet's transitions: (the method that causes a
+        transition from it or from a state hosting it, the innermost state that leads to) and, for an
+        acting state, (``COMPLETE``, where it ends). A transition into a state hosting a sub-machine
+        leads to that machine's entry state (decision 23)."""
+        tables = {BASE: self.base, MACHINE: self.machine, EXECUTE: self.execute}
+
+        def entry(table: FsmTable, state: str) -> str:
+            sub = table.states[state].submachine
+            return entry(tables[sub], ENTRY_STATE[sub]) if sub in tables else state
+
+        def leaves(table: FsmTable, state: str) -> list[str]:
+            sub = table.states[state].submachine
+            if sub not in tables:
+                return [state]
+            return [leaf for inner in tables[sub].states for leaf in leaves(tables[sub], inner)]
+
+        out: dict[str, list[tuple[str, str]]] = {
+            name: [] for t in tables.values() for name, info in t.states.items() if info.submachine not in tables
+        }
+        for table in tables.values():
+            for t in table.transitions.values():
+                for leaf in leaves(table, t.from_state):
+                    out[leaf].append((t.causes[0] if t.causes else COMPLETE, entry(table, t.to_state)))
+        return out
 
 
 def _i32(x: float) -> int:
@@ -202,6 +229,7 @@ class PackMLUnit:
             raise ValueError(f"initial mode {initial_mode} is not a supported mode")
 
         base_t, machine_t, execute_t = tables.base, tables.machine, tables.execute
+        self._steps = tables.steps()
         self.base = StateMachine(BASE, base_t, "Cleared")
         self.machine = StateMachine(
             MACHINE, machine_t, "Stopped", parent=self.base, parent_state=_hosting(base_t.states.values(), MACHINE)
@@ -554,6 +582,11 @@ class PackMLUnit:
             return True
         with self._operation():
             return self._complete_now(acting)
+
+    def path_to(self, state: str) -> list[tuple[str, str]]:
+        """The fewest TR88 steps from the unit's innermost state to ``state`` (``path``): for equipment
+        whose PLC moved on by itself (a gateway), to follow it there."""
+        return path(self._steps, self.state, state)
 
     def state_numbered(self, number: int) -> str | None:
         """The TR88 state with StateNumber ``number`` (the NodeSet's numbers), if any."""
@@ -1071,6 +1104,30 @@ async def run_units(units: Sequence[PackMLUnit], period: float = 0.1) -> None:
             except Exception:
                 log.exception("%s: tick failed", unit.name)
         await asyncio.sleep(period)
+
+
+def path(steps: Mapping[str, Sequence[tuple[str, str]]], current: str, target: str) -> list[tuple[str, str]]:
+    """The fewest ``steps`` (``PackMLTables.steps``) from the innermost state ``current`` to
+    ``target``; [] when they are the same or there is no way."""
+    if current == target or current not in steps or target not in steps:
+        return []
+    came: dict[str, tuple[str, tuple[str, str]]] = {}
+    queue = [current]
+    for state in queue:  # breadth first: the queue grows while it is walked
+        for step in steps[state]:
+            following = step[1]
+            if following in came or following == current:
+                continue
+            came[following] = (state, step)
+            if following == target:
+                found = []
+                while following != current:
+                    before, taken = came[following]
+                    found.append(taken)
+                    following = before
+                return found[::-1]
+            queue.append(following)
+    return []
 
 
 def _hosting(states: Iterable[Any], submachine: str) -> str:
