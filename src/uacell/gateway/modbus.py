@@ -18,6 +18,11 @@ from uacell.gateway.codec import RegisterType
 TABLES = ("coil", "discrete", "holding", "input")
 
 
+def endpoint_name(host: str, port: int) -> str:
+    """How messages and tables name a Modbus/TCP endpoint."""
+    return f"modbus://{host}:{port}"
+
+
 class CommunicationError(Exception):
     """The endpoint did not answer or answered with an error (message names the endpoint)."""
 
@@ -94,7 +99,7 @@ class ModbusConnection:
 
     @property
     def name(self) -> str:
-        return f"modbus://{self.host}:{self.port}"
+        return endpoint_name(self.host, self.port)
 
     @property
     def connected(self) -> bool:

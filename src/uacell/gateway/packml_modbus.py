@@ -25,7 +25,7 @@ from typing import Any
 from uacell.gateway import driver_settings
 from uacell.gateway.codec import CodecError, RegisterType
 from uacell.gateway.link import FIRST_RETRY, LAST_RETRY, Listeners, StateListener, ValueListener
-from uacell.gateway.modbus import SHARED, CommunicationError, ModbusConnection, ModbusTag, spans
+from uacell.gateway.modbus import SHARED, CommunicationError, ModbusConnection, ModbusTag, endpoint_name, spans
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
 from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag
 
@@ -331,7 +331,7 @@ class Where:
 
     @property
     def endpoint(self) -> str:
-        return f"modbus://{self.host}:{self.port}"
+        return endpoint_name(self.host, self.port)
 
 
 def where(part: str, settings: Mapping[str, Any]) -> Where:

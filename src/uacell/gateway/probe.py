@@ -11,7 +11,7 @@ from typing import Any
 from asyncua import ua
 
 from uacell.cell_file import Part
-from uacell.gateway.modbus import CommunicationError, ModbusConnection
+from uacell.gateway.modbus import CommunicationError, ModbusConnection, endpoint_name
 from uacell.gateway.modbus_robot import signal_tags
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
 from uacell.gateway.packml_modbus import Point, where
@@ -92,7 +92,7 @@ async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float 
 
 async def probe_modbus(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
     host, port, unit = str(settings.get("host", "")), int(settings.get("port", 502)), int(settings.get("unit", 1))
-    endpoint = f"modbus://{host}:{port} unit {unit}"
+    endpoint = f"{endpoint_name(host, port)} unit {unit}"
     try:
         overrides = {k: (str(v[0]), int(v[1]), str(v[2])) for k, v in dict(settings.get("map", {})).items()}
         tags = signal_tags(overrides)
