@@ -133,8 +133,8 @@ async def test_a_change_outside_calls_refreshes_only_its_unit(cell):
     assert counts["Filler2"] > 0
     assert counts["Filler1"] == counts["Robot1"] == counts["Robot2"] == 0
     unit.clear()
-    async with asyncio.timeout(TIMEOUT):
-        while await executable(client, app, "Filler2.BaseStateMachine", "Abort") is not True:
+    async with asyncio.timeout(TIMEOUT):  # until Clearing is over: no transition left for the next test
+        while unit.state != "Stopped" or await executable(client, app, "Filler2.BaseStateMachine", "Abort") is not True:
             await asyncio.sleep(0.05)
 
 
