@@ -58,8 +58,11 @@ class Controller:
         self.last = {n: bool(v[n]) for n in ("program_strobe", "reset", "start", "stop")}
         out: dict[str, int | tuple[int, ...]] = {"remote_ready": 1, "drives_are_on": v["drives_on"]}
         if "program_strobe" in rising:
-            out["program_echo"] = v["program_echo"] = v["program_number"]
-            out["program_name_echo"] = v["program_name_echo"] = v["program_name"]
+            # read again now: a client's writes may land between this scan's reads, and the number or
+            # name written before the strobe must not be the one read before it
+            selected_number, selected_name = await self.get("program_number"), await self.get("program_name")
+            out["program_echo"] = v["program_echo"] = selected_number
+            out["program_name_echo"] = v["program_name_echo"] = selected_name
         if "reset" in rising:
             out["fault"] = v["fault"] = 0
             out["fault_code"] = 0
