@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 from typing import Any
 
@@ -737,3 +738,119 @@ def test_tr88_paths_from_the_nodeset_take_the_fewest_steps() -> None:
                 assert (action, following) in graph[state]
                 state = following
             assert state == b
+
+
+# --- publishing what an operation touched (decision 47) --------------------------------------------
+
+
+class HeldWriter:
+    """An Admin writer that stores only when told (``flush``): saves become durable later, as on a
+    writer thread."""
+
+    def __init__(self) -> None:
+        self.queue: list[tuple[Any, dict[str, Any], Any]] = []
+
+    def submit(self, store: Any, data: dict[str, Any], done: Any) -> None:
+        self.queue.append((store, data, done))
+
+    def flush(self) -> None:
+        queue, self.queue = self.queue, []
+        for store, data, done in queue:
+            store.save(data)
+            done(None)
+
+
+PUBLISH_ACTIONS = st.one_of(
+    st.sampled_from(MACHINE_METHODS),
+    st.just(DONE),
+    st.tuples(st.just("speed"), st.floats(0.0, 600.0)),
+    st.tuples(st.just("product"), st.integers(1, 3)),
+    st.tuples(st.just("parameter"), st.integers(1, 3)),
+    st.tuples(st.just("remote"), st.integers(1, 3)),
+    st.tuples(st.just("produce"), st.integers(1, 5)),
+    st.tuples(st.just("interlock"), st.integers(0, 3), st.booleans()),
+    st.tuples(st.just("tick"), st.floats(0.0, 2.5)),
+    st.tuples(st.just("mode"), st.integers(1, 3)),
+    st.just("flush"),
+    st.tuples(st.just("fault"), st.integers(1, 5)),
+)
+
+
+def _twin(tmp: Any, clock: Any, everything: bool) -> tuple[PackMLUnit, HeldWriter, dict[str, Any]]:
+    """A unit with a held Admin writer, and what its listeners were told (applied in order); with
+    ``everything`` it publishes as before decision 47: every value rebuilt and compared."""
+    from datetime import UTC, datetime, timedelta
+
+    from uacell.packml.admin_store import AdminStore
+
+    writer = HeldWriter()
+    store = AdminStore(tmp / f"Filler1-{everything}.json", writer=writer)  # type: ignore[arg-type]
+    start = datetime(2026, 11, 26, tzinfo=UTC)
+    unit = new_unit(store=store, clock=clock, wall_clock=lambda: start + timedelta(seconds=clock()))
+    if everything:
+        unit._touch = lambda touched: setattr(unit, "_touched", None)  # type: ignore[method-assign]
+    seen = unit.values()
+    unit.listeners.append(seen.update)
+    return unit, writer, seen
+
+
+def _act(unit: PackMLUnit, writer: HeldWriter, clock: Any, action: Any) -> bool:
+    """Do ``action``; True if it publishes everything it changed (a full operation)."""
+    if action == DONE:
+        unit.state_complete()
+    elif action == "flush":
+        writer.flush()
+        return False
+    elif action[0] == "speed":
+        unit.set_mach_speed(action[1])
+        return False
+    elif action[0] in ("product", "parameter", "remote"):
+        n = action[1]
+        call = {
+            "product": lambda: unit.set_product([PackMLProductDataType(n, (D(n, value=1.0),))]),
+            "parameter": lambda: unit.set_parameter([D(n, value=float(n))]),
+            "remote": lambda: unit.remote_command([PackMLRemoteInterfaceDataType(n, 5, 400, (D(n, value=2.0),))]),
+        }[action[0]]
+        with contextlib.suppress(CallError):  # SetProduct and SetParameter only between jobs
+            call()
+        return False
+    elif action[0] == "produce":
+        unit.report_production(action[1], 1, 2)
+    elif action[0] == "interlock":
+        unit.set_interlock(action[1], action[2])
+    elif action[0] == "mode":
+        with contextlib.suppress(CallError):
+            unit.set_unit_mode(action[1])
+    elif action[0] == "tick":
+        unit.tick()
+        return False
+    elif action[0] == "fault":
+        unit.fault(action[1], "fault")
+    else:
+        with contextlib.suppress(CallError):
+            unit.command(action[0], action[1], *args_for(action[1]))
+    return True
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(PUBLISH_ACTIONS, max_size=40))
+def test_published_changes_add_up_to_the_values(tmp_path_factory: Any, actions: list[Any]) -> None:
+    """Clients see the same values whether an operation publishes only what it touched (SetMachSpeed,
+    SetProduct, SetParameter, RemoteCommand; decision 47) or every value is rebuilt and compared, as
+    before: two units driven alike, one publishing everything. The OEE figures are exempt between
+    whole seconds: they are published with the Admin times, and by every operation that publishes
+    everything. Saves become durable only when the writer is flushed (decision 28 holds for both)."""
+    from helpers import FakeClock
+
+    tmp, clock = tmp_path_factory.mktemp("admin"), FakeClock()
+    unit, writer, seen = _twin(tmp, clock, everything=False)
+    twin, twin_writer, twin_seen = _twin(tmp, clock, everything=True)
+    oee = set(unit.oee_values())
+    for action in actions:
+        if action[0] == "tick":
+            clock.advance(action[1])
+        full = _act(unit, writer, clock, action)
+        _act(twin, twin_writer, clock, action)
+        expected = twin_seen if full else {k: v for k, v in twin_seen.items() if k not in oee}
+        assert {k: seen[k] for k in expected} == expected, action
+    assert unit.values() == twin.values()

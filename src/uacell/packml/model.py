@@ -90,6 +90,11 @@ DURABLE_TIMES = frozenset({"Admin/ModeCumulativeTime", "Admin/StateCumulativeTim
 # A change of the stored times alone (a whole second passed) is stored, and then published, at most this
 # often (seconds): the three times pass their whole seconds at different instants.
 TIMES_SAVE_PERIOD = 1.0
+# Decision 47: an operation that names what it changes (``_operation(touched=...)``) publishes only those
+# values, the derived ones (decision 29) and, when a whole second passed, the times and OEE figures;
+# every other operation rebuilds and compares all values. The values an operation may name: TOUCHABLE.
+TIMES = "times"  # the touched mark of the Admin times and OEE figures (_account)
+DURABLE = "durable"  # the touched mark of the stored values (a save became durable)
 
 Listener = Callable[[dict[str, Any]], None]
 
@@ -286,6 +291,7 @@ class PackMLUnit:
         # count moved since the last publish (a tick that changes no whole second publishes nothing).
         self._changes = 0
         self._published_changes = -1
+        self._touched: set[str] | None = None  # what changed since the last publish (None: anything)
         self._pending: list[str | None] = []
         # The acting state a command entered and that command's context: the state's completion runs
         # in it, so its AuditUpdateStateEvent names the caller (decision 38).
@@ -418,7 +424,6 @@ class PackMLUnit:
             "Status/UnitModeChangeInProcess": s.unit_mode_change_in_process,
             "Status/StateRequested": s.state_requested,
             "Status/StateChangeInProcess": s.state_change_in_process,
-            "Status/MachSpeed": s.mach_speed,
             "Status/MachSpeed/EURange": s.mach_speed_range,
             "Status/CurMachSpeed": s.cur_mach_speed,
             "Status/CurMachSpeed/EURange": s.mach_speed_range,
@@ -426,10 +431,8 @@ class PackMLUnit:
             "Status/EquipmentStarved": s.equipment_starved,
             "Status/MaterialInterlocked": s.material_interlocked,
             "Status/MaterialInterlock": list(s.material_interlock),
-            "Status/Parameter": list(s.parameter),
-            "Status/RemoteParameter": list(s.remote_parameter),
-            "Status/Product": list(s.product),
             "Status/StartParameters": list(s.start_parameters),
+            **{key: value(self) for key, value in TOUCHABLE.items()},
             "Admin/Parameter": list(a.parameter),
             "Admin/Alarm": list(a.alarm),
             "Admin/AlarmExtent": a.alarm_extent,
@@ -437,10 +440,9 @@ class PackMLUnit:
             "Admin/Warning": list(a.warning),
             "Admin/WarningExtent": a.warning_extent,
             "Admin/StopReasonExtent": a.stop_reason_extent,
-            "Admin/ModeCurrentTime": list(a.mode_current_time),
-            "Admin/StateCurrentTime": [list(r) for r in a.state_current_time],
             "Admin/MachDesignSpeed": a.mach_design_speed,
             **self._durable(),
+            **self._times(),
             **self.oee_values(),
             # unreachable equipment (a gateway's PLC away): nothing is Executable
             "Executable": dict(self._executable_now()) if self.reachable else dict.fromkeys(self.methods(), False),
@@ -734,27 +736,27 @@ class PackMLUnit:
                 argument=0,
             )
         self.equipment.on_mach_speed(value)
-        with self._operation():
+        with self._operation(touched=("Status/MachSpeed",)):
             self.status.mach_speed = value
 
     def set_product(self, products: Sequence[PackMLProductDataType]) -> None:
         items = validate_products(list(products), argument=0, where="Product")
         self._check(UNIT, "SetProduct")
         self.equipment.on_product(items)
-        with self._operation():
+        with self._operation(touched=("Status/Product",)):
             self.status.product = items
 
     def set_parameter(self, parameters: Sequence[PackMLDescriptorDataType]) -> None:
         items = validate_descriptors(list(parameters), argument=0, where="Parameter")
         self._check(UNIT, "SetParameter")
         self.equipment.on_parameter(items)
-        with self._operation():
+        with self._operation(touched=("Status/Parameter",)):
             self.status.parameter = items
 
     def remote_command(self, commands: Sequence[PackMLRemoteInterfaceDataType]) -> None:
         items = validate_remote_interfaces(list(commands), argument=0, where="RemoteInterface")
         self.equipment.on_remote_command(items)
-        with self._operation():
+        with self._operation(touched=("Status/RemoteParameter",)):
             self.status.remote_parameter = items
 
     def set_interlock(self, interlock_id: int, state: bool) -> None:
@@ -819,6 +821,7 @@ class PackMLUnit:
         if durable != self._saved:
             self._saved = durable
             self._changes += 1
+            self._touch((DURABLE,))
         if self._depth == 0 and not self._publishing and self._changes != self._published_changes:
             self._publish()  # stored later, outside any change: publish now
 
@@ -864,13 +867,15 @@ class PackMLUnit:
             raise CallError("BadInvalidState", why)
 
     @contextlib.contextmanager
-    def _operation(self, changes: bool = True) -> Iterator[None]:
+    def _operation(self, changes: bool = True, touched: tuple[str, ...] | None = None) -> Iterator[None]:
         """Group changes: completions requested meanwhile run afterwards, then one publish. An operation
         that ``changes`` nothing itself (a tick) publishes only what its nested operations, the time
-        (a whole second) or a save changed."""
+        (a whole second) or a save changed; one that names what it ``touched`` (keys of TOUCHABLE)
+        publishes only those and the derived values (decision 47)."""
         self._depth += 1
         if changes:
             self._changes += 1
+            self._touch(touched)
         try:
             yield
         finally:
@@ -880,6 +885,7 @@ class PackMLUnit:
                     state = self._pending.pop(0)
                     self._depth += 1
                     self._changes += 1
+                    self._touch(None)
                     try:
                         self._complete_now(state)
                     finally:
@@ -989,6 +995,7 @@ class PackMLUnit:
             return
         self._times_shown = shown
         self._changes += 1
+        self._touch((TIMES,))
         a = self.admin
         a.mode_current_time = [0] * len(self._mode_cum)
         a.mode_current_time[mode] = _i32(self._mode_cur)
@@ -1012,26 +1019,66 @@ class PackMLUnit:
             "Admin/AlarmHistory": list(a.alarm_history),
         }
 
+    def _times(self) -> dict[str, Any]:
+        """The Admin times that are not stored (the current mode's and state's)."""
+        a = self.admin
+        return {
+            "Admin/ModeCurrentTime": list(a.mode_current_time),
+            "Admin/StateCurrentTime": [list(r) for r in a.state_current_time],
+        }
+
+    def _touched_values(self, touched: set[str]) -> dict[str, Any]:
+        """The values an operation that named what it changed may have changed (decision 47)."""
+        s = self.status
+        values = {
+            "Status/StateChangeInProcess": s.state_change_in_process,
+            "Status/StateRequested": s.state_requested,
+            "Status/CurMachSpeed": s.cur_mach_speed,
+        }
+        for key in touched:
+            if key in TOUCHABLE:
+                values[key] = TOUCHABLE[key](self)
+        if TIMES in touched:
+            durable = self._durable()
+            values.update({k: durable[k] for k in DURABLE_TIMES})
+            values.update(self._times())
+            values.update(self.oee_values())
+        if DURABLE in touched:
+            values.update(self._durable())
+        return values
+
+    def _touch(self, touched: Iterable[str] | None) -> None:
+        """Mark values changed for the next publish: ``touched`` names them, None means any."""
+        if touched is None:
+            self._touched = None
+        elif self._touched is not None:
+            self._touched.update(touched)
+
     def _publish(self) -> None:
         self._refresh()
-        values = self.values()
+        touched = self._touched
+        if self._depth == 0:  # a publish inside an operation (SetUnitMode's request) leaves the rest due
+            self._touched = set()
+        values = self.values() if touched is None else self._touched_values(touched)
         if self.store is not None:
             # Decision 28: store before publishing, so that a crash never loses a value a client has read.
             submitted = self._submitted
-            moved = [k for k in DURABLE_KEYS if submitted is None or values[k] != submitted[k]]
+            moved = [k for k in DURABLE_KEYS if k in values and (submitted is None or values[k] != submitted[k])]
             if moved and DURABLE_TIMES.issuperset(moved) and self._clock() - self._last_save < TIMES_SAVE_PERIOD:
                 self._times_due = True  # only time passed: stored at a tick, once a second at most
             elif moved:
                 self._publishing = True
                 try:
-                    self._save({k: values[k] for k in DURABLE_KEYS})
+                    self._save(self._durable())
                 finally:
                     self._publishing = False
-            values.update(self._saved)  # clients see the stored values, the newer ones once stored
+            # clients see the stored values, the newer ones once stored
+            values.update({k: v for k, v in self._saved.items() if k in values})
         if self._depth == 0:
             self._published_changes = self._changes
-        changed = {k: v for k, v in values.items() if self._last_values.get(k, _MISSING) != v}
-        self._last_values = values
+        last = self._last_values
+        changed = {k: v for k, v in values.items() if last.get(k, _MISSING) != v}
+        last.update(values)
         if not changed:
             return
         for listener in list(self.listeners):
@@ -1090,6 +1137,15 @@ class PackMLUnit:
 
 
 _MISSING = object()
+
+
+# The values an operation may name as all it changed (decision 47), each read on its own.
+TOUCHABLE: dict[str, Callable[[PackMLUnit], Any]] = {
+    "Status/MachSpeed": lambda u: u.status.mach_speed,
+    "Status/Parameter": lambda u: list(u.status.parameter),
+    "Status/RemoteParameter": lambda u: list(u.status.remote_parameter),
+    "Status/Product": lambda u: list(u.status.product),
+}
 
 
 async def run_units(units: Sequence[PackMLUnit], period: float = 0.1) -> None:
