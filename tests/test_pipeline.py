@@ -1,0 +1,143 @@
+"""The request pipeline (uacell/ua/pipeline.py) on a bare asyncua server: its stages see every request,
+Call and Read are answered as asyncua answers them (the same results and status codes, with the
+pipeline and without), and a Call that waits runs apart while the connection answers other requests."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import AsyncIterator
+from typing import Any
+
+import pytest
+from asyncua import Client, Server, ua
+from helpers import free_port
+from uaraw import Fault, RawClient, anonymous_token
+
+from uacell.ua.pipeline import Next, Pipeline, Request
+
+S = ua.StatusCodes
+NS = "urn:uacell:test:pipeline"
+
+
+class Recording:
+    """A stage that notes each request's type and whether its answer came back."""
+
+    def __init__(self) -> None:
+        self.seen: list[tuple[int, str]] = []
+
+    async def __call__(self, request: Request, call_next: Next) -> Any:
+        kind = request.typeid.Identifier
+        self.seen.append((kind, "in"))
+        try:
+            return await call_next(request)
+        finally:
+            self.seen.append((kind, "out"))
+
+
+class Bench:
+    """A bare asyncua server, with the pipeline or without, a value and three methods."""
+
+    def __init__(self, server: Server, ns: int, stage: Recording | None) -> None:
+        self.server, self.ns, self.stage = server, ns, stage
+        self.release = asyncio.Event()
+        self.endpoint = ""
+
+
+@pytest.fixture(params=["pipeline", "asyncua"])
+async def bench(request: pytest.FixtureRequest) -> AsyncIterator[Bench]:
+    server = Server()
+    await server.init()
+    port = free_port()
+    server.set_endpoint(f"opc.tcp://127.0.0.1:{port}/")
+    ns = await server.register_namespace(NS)
+    stage = Recording() if request.param == "pipeline" else None
+    b = Bench(server, ns, stage)
+    b.endpoint = f"opc.tcp://127.0.0.1:{port}/"
+    obj = await server.nodes.objects.add_object(ua.NodeId("Bench", ns), ua.QualifiedName("Bench", ns))
+    await obj.add_variable(ua.NodeId("Value", ns), ua.QualifiedName("Value", ns), 42)
+
+    def double(parent: Any, x: ua.Variant) -> list[ua.Variant]:
+        return [ua.Variant(x.Value * 2, ua.VariantType.Int32)]
+
+    async def held(parent: Any, x: ua.Variant) -> list[ua.Variant]:
+        await b.release.wait()
+        return [ua.Variant(x.Value + 1, ua.VariantType.Int32)]
+
+    def refuse(parent: Any) -> ua.StatusCode:
+        return ua.StatusCode(S.BadInvalidState)
+
+    i32 = [ua.VariantType.Int32]
+    await obj.add_method(ua.NodeId("Double", ns), ua.QualifiedName("Double", ns), double, i32, i32)
+    await obj.add_method(ua.NodeId("Held", ns), ua.QualifiedName("Held", ns), held, i32, i32)
+    await obj.add_method(ua.NodeId("Refuse", ns), ua.QualifiedName("Refuse", ns), refuse, [], [])
+    if stage is not None:
+        Pipeline([stage]).install(server.iserver)
+    await server.start()
+    try:
+        yield b
+    finally:
+        b.release.set()
+        await server.stop()
+
+
+async def test_calls_and_reads_answer_alike_with_the_pipeline(bench: Bench) -> None:
+    ns = bench.ns
+    async with Client(bench.endpoint, timeout=10) as client:
+        obj = client.get_node(ua.NodeId("Bench", ns))
+        assert await obj.call_method(ua.NodeId("Double", ns), ua.Variant(21, ua.VariantType.Int32)) == 42
+        with pytest.raises(ua.uaerrors.BadInvalidState):
+            await obj.call_method(ua.NodeId("Refuse", ns))
+        with pytest.raises(ua.uaerrors.BadNodeIdInvalid):  # asyncua's code for an unknown object
+            await client.get_node(ua.NodeId("Missing", ns)).call_method(ua.NodeId("Double", ns), 1)
+        assert await client.get_node(ua.NodeId("Value", ns)).read_value() == 42
+        dv = (await client.uaclient.read_attributes([ua.NodeId("Missing", ns)], ua.AttributeIds.Value))[0]
+        assert dv.StatusCode.value == S.BadNodeIdUnknown
+    if bench.stage is not None:  # the stage saw each request in and out (the calls and reads among them)
+        kinds = [k for k, way in bench.stage.seen if way == "in"]
+        assert kinds.count(ua.ObjectIds.CallRequest_Encoding_DefaultBinary) == 3
+        assert kinds.count(ua.ObjectIds.ReadRequest_Encoding_DefaultBinary) >= 2
+        assert bench.stage.seen.count((ua.ObjectIds.CallRequest_Encoding_DefaultBinary, "out")) == 3
+
+
+async def test_a_waiting_call_does_not_hold_up_the_connection(bench: Bench) -> None:
+    ns = bench.ns
+    async with Client(bench.endpoint, timeout=10) as client:
+        obj = client.get_node(ua.NodeId("Bench", ns))
+        held = asyncio.create_task(obj.call_method(ua.NodeId("Held", ns), ua.Variant(1, ua.VariantType.Int32)))
+        if bench.stage is None:  # asyncua alone answers one request of a connection after the other
+            bench.release.set()
+            assert await held == 2
+            return
+        # the same connection reads and calls while the held call waits
+        assert await client.get_node(ua.NodeId("Value", ns)).read_value() == 42
+        assert await obj.call_method(ua.NodeId("Double", ns), ua.Variant(5, ua.VariantType.Int32)) == 10
+        assert not held.done()
+        bench.release.set()
+        assert await asyncio.wait_for(held, 10) == 2
+
+
+async def test_a_session_not_activated_is_refused_alike(bench: Bench) -> None:
+    port = int(bench.endpoint.rsplit(":", 1)[1].rstrip("/"))
+    async with await RawClient.connect("127.0.0.1", port) as raw:
+        await raw.hello()
+        await raw.open_channel()
+        with pytest.raises(Fault) as no_session:
+            await raw.call(
+                ua.NodeId("Bench", bench.ns), ua.NodeId("Double", bench.ns), [ua.Variant(1, ua.VariantType.Int32)]
+            )
+        assert no_session.value.code == S.BadUserAccessDenied  # asyncua's answer for a request without a session
+        await raw.create_session()
+        with pytest.raises(Fault) as not_activated:
+            await raw.call(
+                ua.NodeId("Bench", bench.ns), ua.NodeId("Double", bench.ns), [ua.Variant(1, ua.VariantType.Int32)]
+            )
+        assert not_activated.value.code == S.BadUserAccessDenied  # asyncua: the session has no user yet
+        with pytest.raises(Fault) as not_activated:
+            await raw.read_value(ua.NodeId("Value", bench.ns))
+        assert not_activated.value.code == S.BadUserAccessDenied  # asyncua: the session has no user yet
+        await raw.activate_session(anonymous_token())
+        assert (await raw.read_value(ua.NodeId("Value", bench.ns))).Value.Value == 42
+        result = await raw.call(
+            ua.NodeId("Bench", bench.ns), ua.NodeId("Double", bench.ns), [ua.Variant(4, ua.VariantType.Int32)]
+        )
+        assert result.StatusCode.is_good() and result.OutputArguments[0].Value == 8
