@@ -12,8 +12,11 @@ from __future__ import annotations
 import asyncio
 import contextvars
 import logging
-from collections.abc import Coroutine
-from typing import Any
+import types
+from collections.abc import Coroutine, Generator
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 log = logging.getLogger(__name__)
 
@@ -41,3 +44,34 @@ class Background:
         for result in await asyncio.gather(*tasks, return_exceptions=True):
             if isinstance(result, Exception):
                 log.error("a background task had failed: %r", result)
+
+
+def eager(coro: Coroutine[Any, Any, T], context: contextvars.Context) -> asyncio.Task[T] | None:
+    """Run ``coro`` now, in ``context``, up to its first wait; a task carries it on from there. None:
+    it finished without waiting (what Python 3.12's eager tasks do; a task costs about as much as a
+    short request's own work). Its result is dropped; an exception it raises before waiting is
+    raised here."""
+    try:
+        waiting = context.run(coro.send, None)
+    except StopIteration:
+        return None
+    return asyncio.get_running_loop().create_task(_resumed(coro, waiting), context=context)
+
+
+@types.coroutine
+def _resumed(coro: Coroutine[Any, Any, T], waiting: Any) -> Generator[Any, Any, T]:
+    """``coro`` from where it waits on ``waiting``: what it waits on goes to the task, what the task
+    sends or throws (the result, a cancellation) goes to it."""
+    while True:
+        try:
+            value = yield waiting
+        except BaseException as exc:
+            try:
+                waiting = coro.throw(exc)
+            except StopIteration as stop:
+                return stop.value  # type: ignore[no-any-return]
+        else:
+            try:
+                waiting = coro.send(value)
+            except StopIteration as stop:
+                return stop.value  # type: ignore[no-any-return]

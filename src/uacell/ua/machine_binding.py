@@ -19,6 +19,7 @@ the order in which the model produced them; the method dispatcher flushes it bef
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextvars
 import logging
 from collections.abc import Awaitable, Callable
@@ -27,6 +28,7 @@ from typing import Any
 
 from asyncua import Server, ua
 
+from uacell.background import eager
 from uacell.fsm import Change, StateMachine
 from uacell.models.tables import NodeRef
 from uacell.ua import toolkit
@@ -42,8 +44,10 @@ class Publisher:
     """Runs address-space updates one after another, in submission order."""
 
     def __init__(self) -> None:
-        self._queue: asyncio.Queue[Callable[[], Awaitable[None]]] = asyncio.Queue()
-        self._task: asyncio.Task[None] | None = None
+        self._queue: collections.deque[Callable[[], Awaitable[None]]] = collections.deque()
+        self._task: asyncio.Task[None] | None = None  # the drain under way, from its first wait on
+        self._draining = False
+        self._due: asyncio.Handle | None = None  # the drain scheduled by a submit, not yet started
         # Run whenever the queue has drained: the server refreshes Executable here, so that changes made
         # outside method calls (acting states completing, a program ending) reach it too (decision 4);
         # ``touch(machine)`` tells the touch hooks (the dispatcher) which machine changed, so that only
@@ -56,32 +60,45 @@ class Publisher:
             hook(scope)
 
     def submit(self, job: Callable[[], Awaitable[None]]) -> None:
-        self._queue.put_nowait(job)
-        if self._task is None or self._task.done():
-            # A fresh context: the queue's task must not carry the request that happened to start it.
-            self._task = asyncio.get_running_loop().create_task(self._run(), context=contextvars.Context())
+        self._queue.append(job)
+        if not self._draining and self._due is None:
+            self._due = asyncio.get_running_loop().call_soon(self._drain)
+
+    def _drain(self) -> None:
+        """Run the queue now, in a fresh context (the jobs must not carry the request that happened to
+        submit the first), up to its first wait; a task goes on from there (``background.eager``)."""
+        self._due = None
+        if not self._draining:
+            self._draining = True
+            self._task = eager(self._run(), contextvars.Context())
 
     async def _run(self) -> None:
-        while True:
-            while not self._queue.empty():
-                job = self._queue.get_nowait()
-                try:
-                    await job()
-                except Exception:
-                    log.exception("publishing a change failed")
-                finally:
-                    self._queue.task_done()
-            for hook in self.idle_hooks:
-                try:
-                    await hook()
-                except Exception:
-                    log.exception("publisher idle hook failed")
-            if self._queue.empty():  # jobs submitted while the hooks ran are taken in the next round
-                return
+        try:
+            while True:
+                while self._queue:
+                    job = self._queue.popleft()
+                    try:
+                        await job()
+                    except Exception:
+                        log.exception("publishing a change failed")
+                for hook in self.idle_hooks:
+                    try:
+                        await hook()
+                    except Exception:
+                        log.exception("publisher idle hook failed")
+                if not self._queue:  # jobs submitted while the hooks ran are taken in the next round
+                    return
+        finally:
+            self._draining = False
 
     async def flush(self) -> None:
         """Wait until everything submitted so far is in the address space, and the idle hooks have run
-        after it (so ``Executable`` is current too). Never call it from inside a job."""
+        after it (so ``Executable`` is current too). A drain that is due runs now, in this call (a
+        method call's changes are published without a task of their own). Never call it from inside
+        a job."""
+        if self._due is not None:
+            self._due.cancel()
+            self._drain()
         task = self._task
         if task is not None and not task.done():
             await asyncio.shield(task)

@@ -42,8 +42,7 @@ import contextvars
 import functools
 import logging
 import time
-import types
-from collections.abc import Awaitable, Callable, Coroutine, Generator, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -54,6 +53,7 @@ from asyncua.server.internal_session import InternalSession
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary
 
+from uacell.background import eager
 from uacell.ua import context
 
 log = logging.getLogger(__name__)
@@ -227,43 +227,13 @@ async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any
         if running is None:
             running = self.__dict__["_uacell_calls"] = set()
         if len(running) < CALLS_APART:
-            task = _eager(_call_apart(pipeline, request))
+            # at once, in a context of its own; a task only from its first wait on (most never wait)
+            task = eager(_call_apart(pipeline, request), contextvars.copy_context())
             if task is not None:
                 running.add(task)
                 task.add_done_callback(running.discard)
             return True
     return await pipeline.request(request)
-
-
-def _eager(coro: Coroutine[Any, Any, None]) -> asyncio.Task[None] | None:
-    """Run ``coro`` now, in a context of its own, up to its first wait; a task carries it on from
-    there (None: it finished without waiting, as a call the model answers at once does). Python
-    3.12's eager tasks do this; a task per call was a sixteenth of a SetMachSpeed's server time."""
-    ctx = contextvars.copy_context()
-    try:
-        waiting = ctx.run(coro.send, None)
-    except StopIteration:
-        return None
-    return asyncio.get_running_loop().create_task(_resumed(coro, waiting), context=ctx)
-
-
-@types.coroutine
-def _resumed(coro: Coroutine[Any, Any, None], waiting: Any) -> Generator[Any, Any, None]:
-    """``coro`` from where it waits on ``waiting``: what it waits on goes to the task, what the task
-    sends or throws (the result, a cancellation) goes to it."""
-    while True:
-        try:
-            value = yield waiting
-        except BaseException as exc:
-            try:
-                waiting = coro.throw(exc)
-            except StopIteration:
-                return
-        else:
-            try:
-                waiting = coro.send(value)
-            except StopIteration:
-                return
 
 
 _CALL = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)

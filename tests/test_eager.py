@@ -1,0 +1,126 @@
+"""Running work at once, with a task only from its first wait on (uacell.background.eager), and the
+address-space publisher that uses it (uacell.ua.machine_binding.Publisher). Pure asyncio."""
+
+from __future__ import annotations
+
+import asyncio
+import contextvars
+from collections.abc import Awaitable, Callable
+
+import pytest
+
+from uacell.background import eager
+from uacell.ua.machine_binding import Publisher
+
+WHO: contextvars.ContextVar[str] = contextvars.ContextVar("who", default="nobody")
+
+
+async def test_work_that_never_waits_finishes_at_once_in_its_own_context() -> None:
+    seen: list[str] = []
+
+    async def work() -> None:
+        WHO.set("worker")
+        seen.append(WHO.get())
+
+    WHO.set("caller")
+    assert eager(work(), contextvars.copy_context()) is None
+    assert seen == ["worker"] and WHO.get() == "caller"  # done before eager returned, caller's context kept
+
+
+async def test_work_that_waits_goes_on_in_a_task_with_results_and_cancellation() -> None:
+    gate: asyncio.Future[int] = asyncio.get_running_loop().create_future()
+    seen: list[object] = []
+
+    async def work() -> str:
+        WHO.set("worker")
+        seen.append(await gate)
+        await asyncio.sleep(0)  # a bare yield, then more
+        seen.append(WHO.get())
+        return "done"
+
+    task = eager(work(), contextvars.copy_context())
+    assert task is not None and not task.done() and seen == []
+    gate.set_result(7)
+    assert await asyncio.wait_for(task, 5) == "done"
+    assert seen == [7, "worker"] and WHO.get() == "nobody"
+
+    cancelled: list[bool] = []
+
+    async def waits_forever() -> None:
+        try:
+            await asyncio.Event().wait()
+        except asyncio.CancelledError:
+            cancelled.append(True)
+            raise
+
+    task = eager(waits_forever(), contextvars.copy_context())
+    assert task is not None
+    await asyncio.sleep(0)
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task
+    assert cancelled == [True]
+
+
+async def test_an_error_before_the_first_wait_is_raised_by_eager_after_it_by_the_task() -> None:
+    async def fails_at_once() -> None:
+        raise ValueError("at once")
+
+    with pytest.raises(ValueError, match="at once"):
+        eager(fails_at_once(), contextvars.copy_context())
+
+    async def fails_later() -> None:
+        await asyncio.sleep(0)
+        raise ValueError("later")
+
+    task = eager(fails_later(), contextvars.copy_context())
+    assert task is not None
+    with pytest.raises(ValueError, match="later"):
+        await task
+
+
+async def test_publisher_runs_jobs_in_order_in_a_fresh_context_and_flush_runs_them_now() -> None:
+    publisher = Publisher()
+    done: list[tuple[str, str]] = []
+    idle: list[int] = []
+
+    def job(name: str) -> Callable[[], Awaitable[None]]:
+        async def run() -> None:
+            done.append((name, WHO.get()))
+
+        return run
+
+    async def hook() -> None:
+        idle.append(len(done))
+
+    publisher.idle_hooks.append(hook)
+    WHO.set("a caller")
+    publisher.submit(job("one"))
+    publisher.submit(job("two"))
+    assert done == []  # due, not run: a submit only schedules
+    await publisher.flush()  # runs them here, now, without waiting for the loop
+    assert done == [("one", "nobody"), ("two", "nobody")] and idle == [2]
+
+
+async def test_publisher_flush_waits_for_a_job_that_waits_and_takes_jobs_submitted_meanwhile() -> None:
+    publisher = Publisher()
+    gate = asyncio.Event()
+    done: list[str] = []
+
+    async def slow() -> None:
+        await gate.wait()
+        done.append("slow")
+        publisher.submit(fast)  # submitted by a job: taken by the same drain
+
+    async def fast() -> None:
+        done.append("fast")
+
+    publisher.submit(slow)
+    await asyncio.sleep(0)  # the drain starts on its own and waits in the first job
+    assert done == []
+    flushing = asyncio.ensure_future(publisher.flush())
+    await asyncio.sleep(0)
+    assert not flushing.done()
+    gate.set()
+    await asyncio.wait_for(flushing, 5)
+    assert done == ["slow", "fast"]
