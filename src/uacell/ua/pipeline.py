@@ -51,10 +51,11 @@ from asyncua.common.utils import Buffer, ServiceError
 from asyncua.server.binary_server_asyncio import OPCUAProtocol
 from asyncua.server.internal_session import InternalSession
 from asyncua.server.uaprocessor import UaProcessor
-from asyncua.ua.ua_binary import struct_from_binary
+from asyncua.ua.ua_binary import struct_from_binary, struct_to_binary
 
 from uacell.background import eager
 from uacell.ua import context
+from uacell.ua.codec import encode_call_response
 
 log = logging.getLogger(__name__)
 
@@ -191,10 +192,15 @@ async def _service(request: Request) -> Any:
     session.touch()
     if not session.is_activated():
         raise ServiceError(ua.StatusCodes.BadSessionNotActivated)
-    params_type, response_type, run = service
+    params_type, response_type, run, encode = service
     response = response_type()
     response.Results = await run(session, struct_from_binary(params_type, request.body))
-    processor.send_response(request.header.RequestHandle, request.seqhdr, response)
+    # asyncua's send_response, with the service's encoder
+    response.ResponseHeader.RequestHandle = request.header.RequestHandle
+    data = processor._connection.message_to_binary(
+        encode(response), message_type=ua.MessageType.SecureMessage, request_id=request.seqhdr.RequestId
+    )
+    processor._transport.write(data)
     return True
 
 
@@ -206,12 +212,17 @@ async def _read_service(session: InternalSession, params: Any) -> Any:
     return await session.read(params)
 
 
-Service = tuple[type, type, Callable[[InternalSession, Any], Awaitable[Any]]]
-# The services uacell runs as asyncua does, by request type: (parameters, response, what runs)
+Service = tuple[type, type, Callable[[InternalSession, Any], Awaitable[Any]], Callable[[Any], bytes]]
+# The services uacell runs as asyncua does, by request type: (parameters, response, what runs, the
+# response's encoder: the Call's is written out, ua/codec.py)
 SERVICES: dict[ua.NodeId, Service] = {
-    ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary): (ua.CallParameters, ua.CallResponse, _call_service),
-    ua.NodeId(ua.ObjectIds.ReadRequest_Encoding_DefaultBinary): (ua.ReadParameters, ua.ReadResponse, _read_service),
-}
+    ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary): (
+        ua.CallParameters, ua.CallResponse, _call_service, encode_call_response,
+    ),
+    ua.NodeId(ua.ObjectIds.ReadRequest_Encoding_DefaultBinary): (
+        ua.ReadParameters, ua.ReadResponse, _read_service, struct_to_binary,
+    ),
+}  # fmt: skip
 
 
 async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any, seqhdr: Any, body: Buffer) -> Any:
