@@ -29,6 +29,7 @@ from uacell.pki import (
     TrustList,
     ensure_server_certificate,
     generate_key,
+    load_server_key,
     make_client_certificate,
     prune_rejected,
     thumbprint,
@@ -86,6 +87,34 @@ def test_first_start_creates_a_fitting_certificate(paths: PkiPaths, key: rsa.RSA
     assert cert.not_valid_after_utc - cert.not_valid_before_utc > dt.timedelta(days=3 * 365)
     loaded = serialization.load_pem_private_key(key_path.read_bytes(), None)
     assert loaded.public_key().public_numbers() == cert.public_key().public_numbers()
+
+
+def test_the_server_key_is_checked_once_per_key(
+    paths: PkiPaths, key: rsa.RSAPrivateKey, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """cryptography's RSA consistency check (30 ms) runs for a key file uacell has not seen pass it:
+    not for the key it made, again for a key put there by hand, not for that one the next time."""
+    checks: list[bool] = []
+    real = serialization.load_pem_private_key
+
+    def spy(data: bytes, password: bytes | None, *, unsafe_skip_rsa_key_validation: bool = False) -> object:
+        checks.append(not unsafe_skip_rsa_key_validation)
+        return real(data, password, unsafe_skip_rsa_key_validation=unsafe_skip_rsa_key_validation)
+
+    monkeypatch.setattr(serialization, "load_pem_private_key", spy)
+    ensure_server_certificate(paths, SERVER_URI, ["127.0.0.1"], key=key)
+    loaded = load_server_key(paths)
+    assert loaded.private_numbers() == key.private_numbers() and checks == [False]  # uacell made it
+    other = generate_key()
+    paths.key.write_bytes(other.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+    ))  # fmt: skip
+    assert load_server_key(paths).private_numbers() == other.private_numbers() and checks == [False, True]
+    assert load_server_key(paths).private_numbers() == other.private_numbers() and checks == [False, True, False]
+    paths.key.write_bytes(b"-----BEGIN PRIVATE KEY-----\nbroken\n-----END PRIVATE KEY-----\n")
+    with pytest.raises(ValueError):
+        load_server_key(paths)
+    assert checks[-1] is True  # a changed file is checked (and here refused)
 
 
 def test_wildcard_host_puts_this_machine_in_the_certificate(paths: PkiPaths, key: rsa.RSAPrivateKey) -> None:

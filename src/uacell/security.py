@@ -54,9 +54,17 @@ from asyncua.crypto.security_policies import SECURITY_POLICY_TYPE_MAP, SecurityP
 from asyncua.server.internal_session import InternalSession, SessionState
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary
+from cryptography import x509
 
 from uacell.logs import RefusalLog
-from uacell.pki import CertificateValidator, PkiPaths, RejectedLimit, TrustList, ensure_server_certificate
+from uacell.pki import (
+    CertificateValidator,
+    PkiPaths,
+    RejectedLimit,
+    TrustList,
+    ensure_server_certificate,
+    load_server_key,
+)
 from uacell.rights import may_call
 from uacell.roles import Family, Role, may
 from uacell.ua import channel, context
@@ -150,9 +158,12 @@ class _ChannelRefused(Exception):
 
 async def prepare_certificate(server: Server, data_dir: Path, application_uri: str, hosts: list[str]) -> Path:
     """Make or reuse ``pki/own/cert.der`` + ``key.pem`` and load them into ``server``; returns the cert path."""
-    cert, key = ensure_server_certificate(PkiPaths.in_data_dir(data_dir), application_uri, hosts)
-    await server.load_certificate(str(cert))
-    await server.load_private_key(str(key))
+    paths = PkiPaths.in_data_dir(data_dir)
+    cert, _ = ensure_server_certificate(paths, application_uri, hosts)
+    # what asyncua's load_certificate and load_private_key set, without a thread per file, and the
+    # key's consistency checked once per key (pki.load_server_key)
+    server.iserver.certificate = x509.load_der_x509_certificate(cert.read_bytes())
+    server.iserver.private_key = load_server_key(paths)
     return cert
 
 
