@@ -22,6 +22,7 @@ import contextlib
 import logging
 import os
 import shutil
+import stat
 import tempfile
 import threading
 import time
@@ -198,7 +199,7 @@ class FileStore:
     ) -> None:
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
-        self._real_root = Path(os.path.realpath(self.root))
+        self._root_text = str(self.root)
         self.protect: Protect | None = protect
         self.listeners: list[Listener] = []
         self.max_read = max_read
@@ -586,33 +587,45 @@ class FileStore:
             )
 
     def _existing(self, relpath: str, *, want_dir: bool | None = None, argument: int | None = None) -> Path:
-        """The path of an existing entry, never outside the root and never through a symlink."""
+        """The path of an existing entry, never outside the root and never through a symlink: each
+        component is a valid name (no separator, no '..') and no component is a symlink (one ``lstat``
+        each), so the path stays below the root."""
         if not isinstance(relpath, str):
             _refuse("BadInvalidArgument", f"invalid path {relpath!r}", argument=argument)
-        path = self.root
+        path = self._root_text
+        mode = self._root_mode()
         if relpath:
             for part in relpath.split("/"):
                 self._check_name(part, argument=argument)
-                path = path / part
-                # Symlinks are neither listed nor followed: they could lead out of the root.
-                if path.is_symlink():
+                path = f"{path}/{part}"
+                try:
+                    mode = os.lstat(path).st_mode
+                except OSError:
                     _refuse("BadNotFound", f"{relpath} not found", argument=argument)
-        if not Path(os.path.realpath(path)).is_relative_to(self._real_root):
-            _refuse("BadInvalidArgument", f"{relpath} is outside the directory", argument=argument)
-        if not path.exists():
+                # Symlinks are neither listed nor followed: they could lead out of the root.
+                if stat.S_ISLNK(mode):
+                    _refuse("BadNotFound", f"{relpath} not found", argument=argument)
+        if mode is None:
             _refuse("BadNotFound", f"{relpath} not found", argument=argument)
-        if want_dir is not None and path.is_dir() != want_dir:
+        if want_dir is not None and stat.S_ISDIR(mode) != want_dir:
             _refuse("BadNotFound", f"{relpath} is not a {'directory' if want_dir else 'file'}", argument=argument)
-        return path
+        return Path(path)
+
+    def _root_mode(self) -> int | None:
+        try:
+            return os.stat(self._root_text).st_mode
+        except OSError:
+            return None
 
     def _rel(self, path: Path) -> str:
         return path.relative_to(self.root).as_posix() if path != self.root else ""
 
     def _entry(self, path: Path) -> Entry:
-        if path.is_dir():
+        st = os.stat(path)
+        if stat.S_ISDIR(st.st_mode):
             return Entry(self._rel(path), True, 0, os.access(path, os.W_OK))
         writable = os.access(path, os.W_OK) and os.access(path.parent, os.W_OK)
-        return Entry(self._rel(path), False, path.stat().st_size, writable)
+        return Entry(self._rel(path), False, st.st_size, writable)
 
     def _walk(self, base: Path, *, files_only: bool = False, dirs: list[Path] | None = None) -> Iterator[Path]:
         """Visible entries (or only files) below ``base``, top-down and sorted: no temporaries, no symlinks;
