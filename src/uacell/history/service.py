@@ -54,12 +54,11 @@ def node_key(node: ua.NodeId) -> str:
     return str(node.to_string())
 
 
-def event_fields(event: Any) -> dict[str, ua.Variant]:
-    """An event's fields that have a value (asyncua's own helper fails on a None)."""
+def _fields(values: dict[str, Any], types: dict[str, Any], skip: Any) -> dict[str, ua.Variant]:
+    """An event's fields that have a value, from its attributes and their types (asyncua's own helper
+    fails on a None)."""
     fields: dict[str, ua.Variant] = {}
-    types = getattr(event, "data_types", {})
-    skip = getattr(event, "internal_properties", ())
-    for name, value in vars(event).items():
+    for name, value in values.items():
         if name.startswith("__") or name in skip or value is None or name not in types:
             continue
         fields[name] = ua.Variant(value, types[name], is_array=isinstance(value, list))
@@ -72,6 +71,10 @@ def encode_fields(fields: dict[str, ua.Variant]) -> bytes:
         out += Primitives.String.pack(name)
         out += variant_to_binary(v)
     return bytes(out)
+
+
+def _encode_event(values: dict[str, Any], types: dict[str, Any], skip: Any) -> bytes:
+    return encode_fields(_fields(values, types, skip))
 
 
 def decode_fields(data: bytes) -> dict[str, ua.Variant]:
@@ -167,11 +170,15 @@ class HistoryService:
 
     def _record_event(self, key: str, event: Any) -> None:
         try:
-            fields = event_fields(event)
+            # The event object is filled anew for its next firing: its fields are copied here (two
+            # dictionary copies); the writer thread makes and encodes their Variants.
+            values, types = dict(vars(event)), dict(getattr(event, "data_types", {}))
+            skip = getattr(event, "internal_properties", ())
             t = getattr(event, "Time", None) or datetime.now(UTC)
             etype = getattr(event, "EventType", None)
             etype_text = etype.to_string() if etype else ""
-            self.store.record(key, to_micros(t), EVENT, 0, etype_text, functools.partial(encode_fields, fields))
+            encode = functools.partial(_encode_event, values, types, skip)
+            self.store.record(key, to_micros(t), EVENT, 0, etype_text, encode)
         except Exception:
             log.exception("history: could not keep an event")
 

@@ -57,6 +57,7 @@ class ControllerBinding:
         self.store = store
         self.ns: int = app.cell.instantiator.ns
         self.values = ValueWriter(app.space.aspace, app.dispatcher.types.builtin_of)
+        self._children: dict[tuple[ua.NodeId, str], ua.NodeId] = {}
         self.compose()
 
     def compose(self) -> None:
@@ -64,7 +65,17 @@ class ControllerBinding:
 
     # --- helpers every concern uses -----------------------------------------------------------
     def child(self, node: ua.NodeId, path: str) -> ua.NodeId:
-        return self.app.cell.child(node, path)
+        """The node at BrowseName ``path`` below ``node`` (KeyError if none), looked up once: the
+        publishing concerns ask for the same few after every change (``forget_children`` when nodes
+        are deleted)."""
+        key = (node, path)
+        found = self._children.get(key)
+        if found is None:
+            found = self._children[key] = self.app.cell.child(node, path)
+        return found
+
+    def forget_children(self) -> None:
+        self._children.clear()
 
     async def bind_machine(self, node: ua.NodeId, machine: StateMachine) -> None:
         await self.app.space.bind_machine(node, machine, self.app.publisher, self.app.refs)

@@ -203,6 +203,7 @@ class TaskControls:
             node = nodes.pop(gone)
             await b.app.space.delete([node])
             b.values.forget_below(node)
+            b.forget_children()
         type_node = b.app.cell.type_node("Robotics", "TaskModuleType")
         for module in loaded.values():
             node = nodes.get(module.name)
