@@ -421,6 +421,7 @@ async def test_a_first_start_takes_the_models_from_their_snapshot_and_writes_the
     try:
         assert first.address_space_source == "models snapshot"
         speed = await _mach_speed(first)
+        first_types = first.cell.extras()["types"]  # found in the models' type index
         await first.snapshot_written()
     finally:
         await first.stop()
@@ -438,8 +439,40 @@ async def test_a_first_start_takes_the_models_from_their_snapshot_and_writes_the
     try:
         assert built.address_space_source == "nodesets"
         assert restored == snapshot.every_node_id(built.server.iserver.aspace)
+        assert first_types == built.cell.extras()["types"] and len(first_types) >= 5  # found by walking
     finally:
         await built.stop()
+
+
+def test_the_type_index_has_each_type_once_by_class_namespace_and_name() -> None:
+    """``type_index`` keeps type nodes only, by (NodeClass, namespace URI, name); a name two types of
+    one class share in a namespace is left out, so that a lookup walks the hierarchy instead."""
+    from types import SimpleNamespace
+
+    from asyncua import ua
+
+    from uacell.ua.nodesets import UA_NAMESPACE, type_index
+
+    def node(cls: ua.NodeClass, name: str) -> SimpleNamespace:
+        wrap = lambda v: SimpleNamespace(value=SimpleNamespace(Value=SimpleNamespace(Value=v)))  # noqa: E731
+        A = ua.AttributeIds
+        return SimpleNamespace(attributes={A.NodeClass: wrap(cls), A.BrowseName: wrap(ua.QualifiedName(name))})
+
+    nodes = {
+        ua.NodeId(58, 0): node(ua.NodeClass.ObjectType, "BaseObjectType"),
+        ua.NodeId(1002, 2): node(ua.NodeClass.ObjectType, "ControllerType"),
+        ua.NodeId(3001, 2): node(ua.NodeClass.DataType, "ControllerType"),  # another class: its own entry
+        ua.NodeId(5001, 2): node(ua.NodeClass.Object, "Controller1"),  # an instance: not a type
+        ua.NodeId(1003, 2): node(ua.NodeClass.ObjectType, "Twice"),
+        ua.NodeId(1004, 2): node(ua.NodeClass.ObjectType, "Twice"),
+        ua.NodeId(7, 9): node(ua.NodeClass.ObjectType, "Elsewhere"),  # a namespace not given
+    }
+    index = type_index(nodes, ["urn:a"])
+    assert index == {
+        (int(ua.NodeClass.ObjectType), UA_NAMESPACE, "BaseObjectType"): 58,
+        (int(ua.NodeClass.ObjectType), "urn:a", "ControllerType"): 1002,
+        (int(ua.NodeClass.DataType), "urn:a", "ControllerType"): 3001,
+    }
 
 
 async def test_a_damaged_models_snapshot_is_removed_and_the_files_are_read(

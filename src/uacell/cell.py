@@ -54,12 +54,20 @@ class BuiltPart:
 class CellBuilder:
     """Builds a cell's parts into a server that has the official models loaded."""
 
-    def __init__(self, server: Server, namespace_index: int, model_indexes: dict[str, int]) -> None:
+    def __init__(
+        self,
+        server: Server,
+        namespace_index: int,
+        model_indexes: dict[str, int],
+        type_index: dict[tuple[int, int, str], ua.NodeId] | None = None,
+    ) -> None:
         self.server = server
+        self.type_index = type_index  # every model type by (NodeClass, namespace, name), if known
         self.instantiator = Instantiator(server, namespace_index)
         self.model_indexes = model_indexes
         self.built: list[BuiltPart] = []
         self._types: dict[tuple[str, str, int], ua.NodeId] = {}
+        self._type_names: dict[int, dict[tuple[int, str], ua.NodeId]] = {}
 
     @property
     def aspace(self) -> AddressSpace:
@@ -70,11 +78,28 @@ class CellBuilder:
         """The type called ``type_name`` in model ``model``, below ``root`` (ObjectTypes by default)."""
         key = (model, type_name, root)
         if key not in self._types:
-            found = toolkit.type_named(self.aspace, ua.NodeId(root), self.model_indexes[model], type_name)
+            found = self._indexed(self.model_indexes[model], type_name, root)
+            if found is None:
+                names = self._type_names.get(root)
+                if names is None:  # one walk of the hierarchy for every type below this root
+                    names = self._type_names[root] = toolkit.type_names(self.aspace, ua.NodeId(root))
+                found = names.get((self.model_indexes[model], type_name))
             if found is None:
                 raise KeyError(f"{model} has no type {type_name}")
             self._types[key] = found
         return self._types[key]
+
+    def _indexed(self, namespace: int, type_name: str, root: int) -> ua.NodeId | None:
+        """The type from the models' type index (``nodesets.type_index``), if it has it and it is
+        below ``root``."""
+        if self.type_index is None:
+            return None
+        root_id = ua.NodeId(root)
+        node_class = self.aspace[root_id].attributes[ua.AttributeIds.NodeClass].value.Value.Value
+        found = self.type_index.get((int(node_class), namespace, type_name))
+        if found is None or not self.instantiator.types.is_subtype(found, root_id):
+            return None
+        return found
 
     def child(self, node: ua.NodeId, path: str) -> ua.NodeId:
         """Follow a BrowseName path (names without namespace) down from ``node``."""
@@ -136,14 +161,16 @@ async def build_cell(
     model_indexes: dict[str, int],
     parts: list[tuple[str, Part]] | None = None,
     restored: dict[str, Any] | None = None,
+    type_index: dict[tuple[int, int, str], ua.NodeId] | None = None,
 ) -> CellBuilder:
     """Create the cell's instances; ``parts`` (root name, part) defaults to the demo cell.
 
     ``restored``: the instances came with the address-space snapshot (which was written with
     ``CellBuilder.extras()`` of the same cell): only the builder's records are made.
+    ``type_index``: the models' types by (NodeClass, namespace index, name), from their snapshot.
     """
     ns = await server.register_namespace(CELL_NAMESPACE)
-    builder = CellBuilder(server, ns, model_indexes)
+    builder = CellBuilder(server, ns, model_indexes, type_index)
     if restored is not None:
         builder.instantiator.declarations.update(restored["declarations"])
         builder._types.update(restored["types"])

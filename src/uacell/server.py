@@ -156,7 +156,9 @@ class UacellServer:
         prepared = await init_address_space(self.server, cfg.models_dir, cfg.snapshot_dir, digest)
         self.model_indexes = prepared.indexes
         self.address_space_source = prepared.source
-        self._cell = await build_cell(self.server, self.model_indexes, parts, restored=prepared.extras)
+        self._cell = await build_cell(
+            self.server, self.model_indexes, parts, restored=prepared.extras, type_index=prepared.types
+        )
         if prepared.capture is not None:
             # the HA Configuration nodes of kept variables are part of the cell's shape: in the snapshot
             kept = [(b.part.role, b.node) for b in self._cell.built]

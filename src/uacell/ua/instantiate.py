@@ -37,8 +37,11 @@ OPTIONAL = 80
 OPTIONAL_PLACEHOLDER = 11508
 MANDATORY_PLACEHOLDER = 11510
 HAS_ADDIN = 17604
+_HAS_ADDIN_ID = ua.NodeId(HAS_ADDIN)
 _HAS_MODELLING_RULE = 37
 _HAS_TYPE_DEFINITION = 40
+_REF_IDS = {i: ua.NodeId(i) for i in (_HAS_MODELLING_RULE, _HAS_TYPE_DEFINITION)}
+_STATE_LIKE = (ua.NodeId(2307), ua.NodeId(2310))  # StateType, TransitionType: the type's, not instances'
 _AGGREGATES = 44
 _ORGANIZES = 35
 _DEFAULT_INSTANCE_BROWSE_NAME = "DefaultInstanceBrowseName"
@@ -109,6 +112,7 @@ class TypeIndex:
     def __init__(self, aspace: AddressSpace) -> None:
         self.aspace = aspace
         self._members: dict[ua.NodeId, list[Member]] = {}
+        self._chains: dict[ua.NodeId, tuple[ua.NodeId, ...]] = {}
         self._member_refs = toolkit.subtypes(aspace, ua.NodeId(_AGGREGATES)) | {ua.NodeId(_ORGANIZES)}
 
     def attr(self, node: ua.NodeId, attribute: ua.AttributeIds) -> Any:
@@ -118,20 +122,25 @@ class TypeIndex:
     def supertype(self, type_id: ua.NodeId) -> ua.NodeId | None:
         return toolkit.supertype(self.aspace, type_id)
 
-    def type_chain(self, type_id: ua.NodeId) -> list[ua.NodeId]:
-        chain: list[ua.NodeId] = []
-        current: ua.NodeId | None = type_id
-        while current is not None and current in self.aspace:
-            chain.append(current)
-            current = self.supertype(current)
+    def type_chain(self, type_id: ua.NodeId) -> tuple[ua.NodeId, ...]:
+        """``type_id`` and its supertypes, most derived first."""
+        chain = self._chains.get(type_id)
+        if chain is None:
+            found: list[ua.NodeId] = []
+            current: ua.NodeId | None = type_id
+            while current is not None and current in self.aspace:
+                found.append(current)
+                current = self.supertype(current)
+            chain = self._chains[type_id] = tuple(found)
         return chain
 
     def is_subtype(self, type_id: ua.NodeId, base: ua.NodeId) -> bool:
         return base in self.type_chain(type_id)
 
     def _target(self, node: ua.NodeId, ref_type: int) -> ua.NodeId | None:
+        ref_id = _REF_IDS[ref_type]
         for ref in self.aspace[node].references:
-            if ref.IsForward and ref.ReferenceTypeId == ua.NodeId(ref_type):
+            if ref.IsForward and ref.ReferenceTypeId == ref_id:
                 return ref.NodeId
         return None
 
@@ -249,11 +258,11 @@ class Instantiator:
         selection: Selection,
     ) -> None:
         for member in self.types.members(decl, type_id):
-            state_like = any(self.types.is_subtype(member.type_definition, ua.NodeId(t)) for t in (2307, 2310))
-            if member.is_placeholder or state_like:  # 2307 StateType, 2310 TransitionType
+            state_like = any(self.types.is_subtype(member.type_definition, t) for t in _STATE_LIKE)
+            if member.is_placeholder or state_like:
                 continue
             qname = member.browse_name
-            if member.reference_type == ua.NodeId(HAS_ADDIN):
+            if member.reference_type == _HAS_ADDIN_ID:
                 qname = self.types.addin_name(member)
             rel = f"{rel_path}/{qname.Name}" if rel_path else qname.Name
             if member.rule != MANDATORY and not selection.wants(rel):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import threading
 import xml.etree.ElementTree as ET
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -104,6 +104,8 @@ async def load_models(server: Server, models_dir: str | None = None) -> dict[str
     return indexes
 
 
+UA_NAMESPACE = "http://opcfoundation.org/UA/"
+
 SnapshotJob = Callable[[dict[str, Any], threading.Event], None]
 """Writes the snapshot with the given extras; stops early when the event is set."""
 
@@ -126,6 +128,45 @@ class PreparedSpace:
     source: str  # "snapshot" (the cell's), "models snapshot" (the models' only) or "nodesets"
     extras: dict[str, Any] | None = None
     capture: Callable[[], Awaitable[SnapshotJob]] | None = None
+    # From the models' snapshot: every type by (NodeClass, namespace index, BrowseName name), so that
+    # building the cell finds its types without loading the whole type hierarchy (``type_index``)
+    types: dict[tuple[int, int, str], ua.NodeId] | None = None
+
+
+_TYPE_CLASSES = (ua.NodeClass.ObjectType, ua.NodeClass.VariableType, ua.NodeClass.DataType, ua.NodeClass.ReferenceType)
+
+
+def type_index(nodes: Mapping[ua.NodeId, Any], namespaces: list[str]) -> dict[tuple[int, str, str], Any]:
+    """Every type node of ``nodes`` by (NodeClass, namespace URI, BrowseName name) -> its identifier;
+    ``namespaces`` from index 2 on (the models'; index 0 is OPC UA's own). A name that two types of
+    one class and namespace share is left out (a lookup then walks the hierarchy)."""
+    uris = {0: UA_NAMESPACE, **{i: uri for i, uri in enumerate(namespaces, start=2)}}
+    out: dict[tuple[int, str, str], Any] = {}
+    shared: set[tuple[int, str, str]] = set()
+    for node_id, data in nodes.items():
+        node_class = data.attributes.get(ua.AttributeIds.NodeClass)
+        name = data.attributes.get(ua.AttributeIds.BrowseName)
+        if node_class is None or name is None or node_id.NamespaceIndex not in uris:
+            continue
+        cls = node_class.value.Value.Value
+        if cls not in _TYPE_CLASSES:
+            continue
+        key = (int(cls), uris[node_id.NamespaceIndex], name.value.Value.Value.Name)
+        if key in out:
+            shared.add(key)
+        out[key] = node_id.Identifier
+    for key in shared:
+        del out[key]
+    return out
+
+
+def _types_of(found: snapshot.Snapshot) -> dict[tuple[int, int, str], ua.NodeId] | None:
+    """The models' snapshot's type index with this server's namespace indexes (the snapshot's)."""
+    stored = found.extras.get("types")
+    if not isinstance(stored, dict):
+        return None  # a snapshot from before the index: types are found by walking
+    index = {UA_NAMESPACE: 0, **{uri: i for i, uri in enumerate(found.namespaces, start=2)}}
+    return {(cls, index[uri], name): ua.NodeId(ident, index[uri]) for (cls, uri, name), ident in stored.items()}
 
 
 def models_snapshot_key() -> dict[str, Any]:
@@ -153,9 +194,10 @@ async def write_models_snapshot(models_dir: str | None = None) -> Path:
         await load_models(server, models_dir)
         nodes = snapshot.stripped_copy(server.iserver.aspace._nodes)
         namespaces = list((await server.get_namespace_array())[2:])
+        types = type_index(server.iserver.aspace._nodes, namespaces)
     finally:
         quiet.setLevel(level)
-    snapshot.write_snapshot(path, models_snapshot_key(), namespaces, nodes)
+    snapshot.write_snapshot(path, models_snapshot_key(), namespaces, nodes, {"types": types})
     snapshot.prune(path.parent, keep=2)  # one for this uacell, one for another beside it
     return path
 
@@ -222,9 +264,11 @@ async def init_address_space(
         return PreparedSpace(indexes, "snapshot", found.extras)
     base_path = models_snapshot_path(models_dir)
     base = _read(base_path, models_snapshot_key(), "snapshot of the models") if base_path.exists() else None
+    types = None
     if base is not None:
         indexes = await _restore(server, base)
         source = "models snapshot"
+        types = _types_of(base)
         log.info("the models from their snapshot %s", base_path)
     else:
         await server.init()
@@ -247,4 +291,4 @@ async def init_address_space(
 
         return write
 
-    return PreparedSpace(indexes, source, capture=capture)
+    return PreparedSpace(indexes, source, capture=capture, types=types)
