@@ -220,3 +220,39 @@ def test_kill_9_during_a_batch_loses_at_most_the_last_interval(tmp_path: Path) -
     assert committed >= 3_000
     assert kept == list(range(len(kept)))  # whole batches: a prefix, no gap
     assert len(kept) >= committed  # everything reported committed survived
+
+
+def test_an_event_is_encoded_field_by_field_the_repeating_ones_once() -> None:
+    """encode_event writes each field that has a value as its name and Variant, the same bytes whether
+    a field's encoding is taken from the repeating fields' cache or made anew; decode_fields reads
+    them back."""
+    from datetime import UTC, datetime
+
+    from asyncua import ua
+
+    from uacell.history import service
+
+    V = ua.VariantType
+    types = {
+        "EventType": V.NodeId, "SourceName": V.String, "Severity": V.UInt16, "Message": V.LocalizedText,
+        "Time": V.DateTime, "EventId": V.ByteString, "InputArguments": V.Variant, "Missing": V.String,
+    }  # fmt: skip
+    values = {
+        "EventType": ua.NodeId(2311), "SourceName": "TaskControl1", "Severity": 100,
+        "Message": ua.LocalizedText("Idle to Ready"), "Time": datetime(2026, 11, 26, tzinfo=UTC),
+        "EventId": b"0123456789abcdef", "InputArguments": [ua.Variant("pick", V.String)], "Missing": None,
+        "internal": "not a field", "__private": 1,
+    }  # fmt: skip
+    service._REPEATING.clear()
+    first = service.encode_event(values, types, skip=("internal",))
+    assert service._REPEATING  # the repeating fields were kept
+    again = service.encode_event(values, types, skip=("internal",))
+    assert again == first
+    fields = service.decode_fields(first)
+    assert list(fields) == ["EventType", "SourceName", "Severity", "Message", "Time", "EventId", "InputArguments"]
+    assert fields["SourceName"] == ua.Variant("TaskControl1", V.String)
+    assert fields["Severity"].Value == 100 and fields["Severity"].VariantType == V.UInt16
+    assert fields["Message"].Value == ua.LocalizedText("Idle to Ready")
+    assert fields["InputArguments"].Value == [ua.Variant("pick", V.String)]
+    service._REPEATING.clear()  # made anew, field by field: the same bytes
+    assert service.encode_event(values, types, skip=("internal",)) == first

@@ -54,27 +54,43 @@ def node_key(node: ua.NodeId) -> str:
     return str(node.to_string())
 
 
-def _fields(values: dict[str, Any], types: dict[str, Any], skip: Any) -> dict[str, ua.Variant]:
-    """An event's fields that have a value, from its attributes and their types (asyncua's own helper
-    fails on a None)."""
-    fields: dict[str, ua.Variant] = {}
+# Encoded fields (name, VariantType, value) that repeat from event to event (a source, a state's id, a
+# user): the history writer thread's own, bounded; times, EventIds and arrays are encoded each time.
+_REPEATING: dict[tuple[str, Any, Any], bytes] = {}
+_REPEATING_MAX = 4096
+_VARYING = frozenset({ua.VariantType.DateTime, ua.VariantType.ByteString})
+
+
+def encode_event(values: dict[str, Any], types: dict[str, Any], skip: Any = ()) -> bytes:
+    """An event's fields that have a value (its attributes ``values`` with their ``types``; asyncua's
+    own helper fails on a None), each its name and its Variant (``decode_fields`` reads them). Run on
+    the history writer's thread only (``_REPEATING``)."""
+    out = bytearray()
     for name, value in values.items():
         if name.startswith("__") or name in skip or value is None or name not in types:
             continue
-        fields[name] = ua.Variant(value, types[name], is_array=isinstance(value, list))
-    return fields
-
-
-def encode_fields(fields: dict[str, ua.Variant]) -> bytes:
-    out = bytearray()
-    for name, v in fields.items():
-        out += Primitives.String.pack(name)
-        out += variant_to_binary(v)
+        out += _encoded(name, types[name], value)
     return bytes(out)
 
 
-def _encode_event(values: dict[str, Any], types: dict[str, Any], skip: Any) -> bytes:
-    return encode_fields(_fields(values, types, skip))
+def _encoded(name: str, vtype: Any, value: Any) -> bytes:
+    if isinstance(value, list) or vtype in _VARYING:
+        return _field(name, vtype, value)
+    try:
+        cached = _REPEATING.get((name, vtype, value))
+    except TypeError:  # a value that cannot be a key (an unhashable structure)
+        return _field(name, vtype, value)
+    if cached is None:
+        if len(_REPEATING) >= _REPEATING_MAX:
+            _REPEATING.clear()
+        cached = _REPEATING[(name, vtype, value)] = _field(name, vtype, value)
+    return cached
+
+
+def _field(name: str, vtype: Any, value: Any) -> bytes:
+    variant = ua.Variant(value, vtype, is_array=isinstance(value, list))
+    encoded: bytes = Primitives.String.pack(name) + variant_to_binary(variant)
+    return encoded
 
 
 def decode_fields(data: bytes) -> dict[str, ua.Variant]:
@@ -177,7 +193,7 @@ class HistoryService:
             t = getattr(event, "Time", None) or datetime.now(UTC)
             etype = getattr(event, "EventType", None)
             etype_text = etype.to_string() if etype else ""
-            encode = functools.partial(_encode_event, values, types, skip)
+            encode = functools.partial(encode_event, values, types, skip)
             self.store.record(key, to_micros(t), EVENT, 0, etype_text, encode)
         except Exception:
             log.exception("history: could not keep an event")
