@@ -45,6 +45,20 @@ def send_error(processor: UaProcessor, code: int, reason: str) -> None:
     processor._transport.write(uatcp_to_binary(ua.MessageType.Error, message))
 
 
+def permits(processor: UaProcessor, user: Any, typeid: ua.NodeId, body: Any) -> bool:
+    """Do the channel's security policy's permissions (asyncua's, if any) let ``user`` make this request?"""
+    permissions = processor._connection.security_policy.permissions
+    return permissions is None or permissions.check_validity(user, typeid, body) is not False
+
+
+def send_response(processor: UaProcessor, request_id: int, body: bytes) -> None:
+    """A service response, already encoded, on the processor's secure channel (asyncua's
+    ``send_response`` with uacell's encoder)."""
+    message = ua.MessageType.SecureMessage
+    data = processor._connection.message_to_binary(body, message_type=message, request_id=request_id)
+    processor._transport.write(data)
+
+
 def session_count(iserver: InternalServer) -> int:
     """Client sessions the server holds now (created, activated or not)."""
     return len(iserver._external_sessions)

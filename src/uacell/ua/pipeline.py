@@ -54,7 +54,7 @@ from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary, struct_to_binary
 
 from uacell.background import eager
-from uacell.ua import context
+from uacell.ua import channel, context
 from uacell.ua.codec import encode_call_response
 
 log = logging.getLogger(__name__)
@@ -185,8 +185,7 @@ async def _service(request: Request) -> Any:
     # asyncua's checks for a service of an activated session, in its order and with its status codes
     if session is None:
         raise ua.uaerrors.BadUserAccessDenied
-    permissions = processor._connection.security_policy.permissions
-    if permissions is not None and permissions.check_validity(session.user, request.typeid, request.body) is False:
+    if not channel.permits(processor, session.user, request.typeid, request.body):
         raise ua.uaerrors.BadUserAccessDenied
     processor.session_last_activity = time.monotonic()
     session.touch()
@@ -195,12 +194,8 @@ async def _service(request: Request) -> Any:
     params_type, response_type, run, encode = service
     response = response_type()
     response.Results = await run(session, struct_from_binary(params_type, request.body))
-    # asyncua's send_response, with the service's encoder
     response.ResponseHeader.RequestHandle = request.header.RequestHandle
-    data = processor._connection.message_to_binary(
-        encode(response), message_type=ua.MessageType.SecureMessage, request_id=request.seqhdr.RequestId
-    )
-    processor._transport.write(data)
+    channel.send_response(processor, request.seqhdr.RequestId, encode(response))
     return True
 
 
