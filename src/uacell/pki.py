@@ -331,7 +331,10 @@ def load_server_key(paths: PkiPaths) -> rsa.RSAPrivateKey:
     if not isinstance(key, rsa.RSAPrivateKey):
         raise ValueError(f"{paths.key} is not an RSA private key")
     if not known:
-        atomic_write(paths.key_checked, digest.encode(), mode=0o600)
+        try:
+            atomic_write(paths.key_checked, digest.encode(), mode=0o600)
+        except OSError as exc:  # checked again next time; nothing else depends on the note
+            _log.warning("cannot note that %s was checked (%s): it is checked at every start", paths.key, exc)
     return key
 
 
