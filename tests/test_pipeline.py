@@ -9,6 +9,7 @@ from collections.abc import AsyncIterator
 from typing import Any
 
 import pytest
+import pytest_asyncio
 from asyncua import Client, Server, ua
 from helpers import free_port
 from uaraw import Fault, RawClient, anonymous_token
@@ -43,7 +44,10 @@ class Bench:
         self.endpoint = ""
 
 
-@pytest.fixture(params=["pipeline", "asyncua"])
+pytestmark = pytest.mark.asyncio(loop_scope="module")
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module", params=["pipeline", "asyncua"])
 async def bench(request: pytest.FixtureRequest) -> AsyncIterator[Bench]:
     server = Server()
     await server.init()
