@@ -451,7 +451,8 @@ def test_the_type_index_has_each_type_once_by_class_namespace_and_name() -> None
 
     from asyncua import ua
 
-    from uacell.ua.nodesets import UA_NAMESPACE, type_index
+    from uacell.models.tables import UA_NS
+    from uacell.ua.nodesets import type_index
 
     def node(cls: ua.NodeClass, name: str) -> SimpleNamespace:
         wrap = lambda v: SimpleNamespace(value=SimpleNamespace(Value=SimpleNamespace(Value=v)))  # noqa: E731
@@ -469,7 +470,7 @@ def test_the_type_index_has_each_type_once_by_class_namespace_and_name() -> None
     }
     index = type_index(nodes, ["urn:a"])
     assert index == {
-        (int(ua.NodeClass.ObjectType), UA_NAMESPACE, "BaseObjectType"): 58,
+        (int(ua.NodeClass.ObjectType), UA_NS, "BaseObjectType"): 58,
         (int(ua.NodeClass.ObjectType), "urn:a", "ControllerType"): 1002,
         (int(ua.NodeClass.DataType), "urn:a", "ControllerType"): 3001,
     }

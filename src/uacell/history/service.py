@@ -55,7 +55,9 @@ def node_key(node: ua.NodeId) -> str:
 
 
 # Encoded fields (name, VariantType, value) that repeat from event to event (a source, a state's id, a
-# user): the history writer thread's own, bounded; times, EventIds and arrays are encoded each time.
+# user), bounded; times, EventIds and arrays are encoded each time. Used by the history writer threads
+# of the process (one a server): each use is one dictionary operation, atomic under the interpreter
+# lock, and a miss only encodes the field again.
 _REPEATING: dict[tuple[str, Any, Any], bytes] = {}
 _REPEATING_MAX = 4096
 _VARYING = frozenset({ua.VariantType.DateTime, ua.VariantType.ByteString})
@@ -63,8 +65,8 @@ _VARYING = frozenset({ua.VariantType.DateTime, ua.VariantType.ByteString})
 
 def encode_event(values: dict[str, Any], types: dict[str, Any], skip: Any = ()) -> bytes:
     """An event's fields that have a value (its attributes ``values`` with their ``types``; asyncua's
-    own helper fails on a None), each its name and its Variant (``decode_fields`` reads them). Run on
-    the history writer's thread only (``_REPEATING``)."""
+    own helper fails on a None), each its name and its Variant (``decode_fields`` reads them). Run by
+    the history writer thread, off the event loop."""
     out = bytearray()
     for name, value in values.items():
         if name.startswith("__") or name in skip or value is None or name not in types:

@@ -422,10 +422,8 @@ class PackMLUnit:
             "Status/UnitModeCurrent": s.unit_mode_current,
             "Status/UnitModeRequested": s.unit_mode_requested,
             "Status/UnitModeChangeInProcess": s.unit_mode_change_in_process,
-            "Status/StateRequested": s.state_requested,
-            "Status/StateChangeInProcess": s.state_change_in_process,
+            **self._derived(),
             "Status/MachSpeed/EURange": s.mach_speed_range,
-            "Status/CurMachSpeed": s.cur_mach_speed,
             "Status/CurMachSpeed/EURange": s.mach_speed_range,
             "Status/EquipmentBlocked": s.equipment_blocked,
             "Status/EquipmentStarved": s.equipment_starved,
@@ -1027,14 +1025,18 @@ class PackMLUnit:
             "Admin/StateCurrentTime": [list(r) for r in a.state_current_time],
         }
 
-    def _touched_values(self, touched: set[str]) -> dict[str, Any]:
-        """The values an operation that named what it changed may have changed (decision 47)."""
+    def _derived(self) -> dict[str, Any]:
+        """The Status values ``_refresh`` derives from the states and the speed (decision 29)."""
         s = self.status
-        values = {
-            "Status/StateChangeInProcess": s.state_change_in_process,
+        return {
             "Status/StateRequested": s.state_requested,
+            "Status/StateChangeInProcess": s.state_change_in_process,
             "Status/CurMachSpeed": s.cur_mach_speed,
         }
+
+    def _touched_values(self, touched: set[str]) -> dict[str, Any]:
+        """The values an operation that named what it changed may have changed (decision 47)."""
+        values = self._derived()
         for key in touched:
             if key in TOUCHABLE:
                 values[key] = TOUCHABLE[key](self)

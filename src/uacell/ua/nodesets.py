@@ -20,6 +20,7 @@ from asyncua.common.xmlimporter import XmlImporter
 
 from uacell.models.source import locate_models, official_models
 from uacell.models.source import models_dir as models_directory
+from uacell.models.tables import UA_NS
 from uacell.ua import snapshot
 
 log = logging.getLogger(__name__)
@@ -104,8 +105,6 @@ async def load_models(server: Server, models_dir: str | None = None) -> dict[str
     return indexes
 
 
-UA_NAMESPACE = "http://opcfoundation.org/UA/"
-
 SnapshotJob = Callable[[dict[str, Any], threading.Event], None]
 """Writes the snapshot with the given extras; stops early when the event is set."""
 
@@ -140,7 +139,7 @@ def type_index(nodes: Mapping[ua.NodeId, Any], namespaces: list[str]) -> dict[tu
     """Every type node of ``nodes`` by (NodeClass, namespace URI, BrowseName name) -> its identifier;
     ``namespaces`` from index 2 on (the models'; index 0 is OPC UA's own). A name that two types of
     one class and namespace share is left out (a lookup then walks the hierarchy)."""
-    uris = {0: UA_NAMESPACE, **{i: uri for i, uri in enumerate(namespaces, start=2)}}
+    uris = {0: UA_NS, **{i: uri for i, uri in enumerate(namespaces, start=2)}}
     out: dict[tuple[int, str, str], Any] = {}
     shared: set[tuple[int, str, str]] = set()
     for node_id, data in nodes.items():
@@ -165,7 +164,7 @@ def _types_of(found: snapshot.Snapshot) -> dict[tuple[int, int, str], ua.NodeId]
     stored = found.extras.get("types")
     if not isinstance(stored, dict):
         return None  # a snapshot from before the index: types are found by walking
-    index = {UA_NAMESPACE: 0, **{uri: i for i, uri in enumerate(found.namespaces, start=2)}}
+    index = {UA_NS: 0, **{uri: i for i, uri in enumerate(found.namespaces, start=2)}}
     return {(cls, index[uri], name): ua.NodeId(ident, index[uri]) for (cls, uri, name), ident in stored.items()}
 
 

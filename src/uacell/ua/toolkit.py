@@ -1,7 +1,7 @@
 """The binding toolkit: the few address-space operations every binding needs, written once.
 
 - ``find_child``/``child``: a child (any forward reference but HasTypeDefinition) by BrowseName name;
-- ``supertype``/``subtypes``/``type_names``/``type_named``: walking the type hierarchy;
+- ``supertype``/``subtypes``/``type_names``: walking the type hierarchy;
 - ``ValueWriter``: writes Values typed by the variable's DataType, with timestamps, only when changed;
 - ``EventEmitter``: one event of a type, fired to several notifiers (the source, its parents, Server).
 
@@ -85,18 +85,13 @@ def subtypes(aspace: AddressSpace, root: ua.NodeId) -> set[ua.NodeId]:
 
 def type_names(aspace: AddressSpace, root: ua.NodeId) -> dict[tuple[int, str], ua.NodeId]:
     """``root`` and its subtypes by (namespace index, BrowseName name): one walk answers every
-    ``type_named`` question below ``root``."""
+    question for a type by name below ``root``."""
     out: dict[tuple[int, str], ua.NodeId] = {}
     for ref in subtypes(aspace, root):
         attr = aspace[ref].attributes.get(_A.BrowseName)
         if attr is not None and attr.value is not None and attr.value.Value is not None:
             out.setdefault((ref.NamespaceIndex, attr.value.Value.Value.Name), ref)
     return out
-
-
-def type_named(aspace: AddressSpace, root: ua.NodeId, namespace: int, name: str) -> ua.NodeId | None:
-    """The subtype of ``root`` in ``namespace`` whose BrowseName name is ``name``."""
-    return type_names(aspace, root).get((namespace, name))
 
 
 class ValueWriter:
