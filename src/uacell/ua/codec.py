@@ -1,10 +1,17 @@
-"""The binary encoding of the Call service's response, written out (decision 49).
+"""The binary encodings uacell meets on every call, written out (decisions 49 and 50).
 
-asyncua encodes every structure through per-field closures built from its dataclasses; for the
-response uacell sends most (a Call's) that was about a twentieth of a call's server time.
-``encode_call_response`` produces the same bytes (OPC 10000-6 5.2) with asyncua's own encoders for
-what varies in kind (Variants, DiagnosticInfos with content, extension objects); tests/test_codec.py
-checks it against asyncua's ``struct_to_binary`` on generated responses.
+asyncua encodes and decodes every structure through per-field closures built from its dataclasses;
+for what every call carries that was about a fifth of a call's server time:
+
+- ``encode_call_response``: the Call response, the same bytes as asyncua's ``struct_to_binary``;
+- ``decode_request_header``: a request's TypeId and RequestHeader (every request has them);
+- ``decode_call_parameters``: the Call request's parameters.
+
+Both decoders give objects equal to asyncua's ``nodeid_from_binary``/``struct_from_binary`` and
+leave the buffer where asyncua would; what varies in kind and is rare in a request (Guid or
+expanded NodeIds, arrays, extension objects with a body, Variants of other than the numbers,
+Booleans and Strings) is handed to asyncua's own decoders. tests/test_codec.py checks all three
+against asyncua on generated messages (OPC 10000-6 5.2).
 """
 
 from __future__ import annotations
@@ -13,7 +20,16 @@ import struct
 from typing import Any
 
 from asyncua import ua
-from asyncua.ua.ua_binary import extensionobject_to_binary, nodeid_to_binary, struct_to_binary, variant_to_binary
+from asyncua.common.utils import Buffer, NotEnoughData
+from asyncua.ua.ua_binary import (
+    extensionobject_from_binary,
+    extensionobject_to_binary,
+    nodeid_from_binary,
+    nodeid_to_binary,
+    struct_to_binary,
+    variant_from_binary,
+    variant_to_binary,
+)
 
 _INT32 = struct.Struct("<i")
 _UINT32 = struct.Struct("<I")
@@ -105,3 +121,156 @@ def encode_call_response(response: ua.CallResponse) -> bytes:
             _diagnostics(response.DiagnosticInfos),
         )
     )
+
+
+# --- decoding -------------------------------------------------------------------------------------
+_FOUR_BYTE = struct.Struct("<BH")
+_NUMERIC = struct.Struct("<HI")
+_STRINGLIKE = struct.Struct("<Hi")  # namespace, length
+_REQUEST = struct.Struct("<qII")  # Timestamp, RequestHandle, ReturnDiagnostics
+_NO_EXTENSION = b"\x00\x00\x00"  # a null ExtensionObject: null TypeId, no body
+_KIND = ua.NodeIdType
+_new_node_id = ua.NodeId.__new__
+# Variant encoding byte -> (its reader, VariantType): the scalars a method's arguments mostly are
+_SCALARS: dict[int, tuple[struct.Struct, ua.VariantType]] = {
+    t.value: (struct.Struct("<" + code), t)
+    for t, code in (
+        (ua.VariantType.Boolean, "?"),
+        (ua.VariantType.SByte, "b"),
+        (ua.VariantType.Byte, "B"),
+        (ua.VariantType.Int16, "h"),
+        (ua.VariantType.UInt16, "H"),
+        (ua.VariantType.Int32, "i"),
+        (ua.VariantType.UInt32, "I"),
+        (ua.VariantType.Int64, "q"),
+        (ua.VariantType.UInt64, "Q"),
+        (ua.VariantType.Float, "f"),
+        (ua.VariantType.Double, "d"),
+    )
+}
+_STRING = ua.VariantType.String.value
+
+
+def _node_id(identifier: Any, namespace: int, kind: ua.NodeIdType) -> ua.NodeId:
+    """A NodeId whose identifier is of its kind by construction (asyncua's constructor checks that)."""
+    node: ua.NodeId = _new_node_id(ua.NodeId)
+    node.Identifier, node.NamespaceIndex, node.NodeIdType = identifier, namespace, kind
+    return node
+
+
+def _text(data: bytes, pos: int) -> tuple[str | None, int]:
+    """A String at ``pos`` (null for a length of -1) and the position after it."""
+    (length,) = _INT32.unpack_from(data, pos)
+    pos += 4
+    if length == -1:
+        return None, pos
+    end = pos + length
+    if length < 0 or end > len(data):
+        raise NotEnoughData(f"a String of {length} bytes where {len(data) - pos} are left")
+    return data[pos:end].decode("utf-8", errors="surrogateescape"), end
+
+
+def _with_asyncua(decode: Any, data: bytes, pos: int) -> tuple[Any, int]:
+    """asyncua's ``decode`` of what is at ``pos``, and the position after it."""
+    buffer = Buffer(data, pos)
+    return decode(buffer), buffer.cur_pos
+
+
+def _decoded_node_id(data: bytes, pos: int) -> tuple[ua.NodeId, int]:
+    encoding = data[pos]
+    if encoding == 0:  # TwoByte
+        return _node_id(data[pos + 1], 0, _KIND.TwoByte), pos + 2
+    if encoding == 1:
+        namespace, identifier = _FOUR_BYTE.unpack_from(data, pos + 1)
+        return _node_id(identifier, namespace, _KIND.FourByte), pos + 4
+    if encoding == 2:
+        namespace, identifier = _NUMERIC.unpack_from(data, pos + 1)
+        return _node_id(identifier, namespace, _KIND.Numeric), pos + 7
+    if encoding in (3, 5):
+        namespace, length = _STRINGLIKE.unpack_from(data, pos + 1)
+        start, end = pos + 7, pos + 7 + length
+        if length >= 0 and end <= len(data):
+            raw = data[start:end]
+            if encoding == 3:
+                return _node_id(raw.decode("utf-8", errors="surrogateescape"), namespace, _KIND.String), end
+            return _node_id(raw, namespace, _KIND.ByteString), end
+    # a Guid, an expanded NodeId, a null or cut identifier: asyncua decodes (or refuses) it
+    node: ua.NodeId
+    node, pos = _with_asyncua(nodeid_from_binary, data, pos)
+    return node, pos
+
+
+def _extension_object(data: bytes, pos: int) -> tuple[Any, int]:
+    if data[pos : pos + 3] == _NO_EXTENSION:
+        return ua.ExtensionObject(), pos + 3
+    return _with_asyncua(extensionobject_from_binary, data, pos)
+
+
+def _variant(data: bytes, pos: int) -> tuple[ua.Variant, int]:
+    encoding = data[pos]
+    scalar = _SCALARS.get(encoding)
+    if scalar is not None:
+        reader, vtype = scalar
+        return ua.Variant(reader.unpack_from(data, pos + 1)[0], vtype, None, is_array=False), pos + 1 + reader.size
+    if encoding == _STRING:
+        text, pos = _text(data, pos + 1)
+        return ua.Variant(text, ua.VariantType.String, None, is_array=False), pos
+    variant: ua.Variant
+    variant, pos = _with_asyncua(variant_from_binary, data, pos)
+    return variant, pos
+
+
+def _decoding(decode: Any, body: Buffer) -> Any:
+    """Run ``decode(data, pos)`` at the buffer's position, move the buffer past what it read; a message
+    cut short is asyncua's NotEnoughData."""
+    data = body._data  # asyncua builds a message's body as one Buffer over its bytes
+    if type(data) is not bytes:
+        data = bytes(data)
+    start = body.cur_pos
+    try:
+        value, end = decode(data, start)
+    except (struct.error, IndexError) as e:
+        raise NotEnoughData(f"a request cut short: {e}") from None
+    body.skip(end - start)  # NotEnoughData when that is past the buffer's end
+    return value
+
+
+def _request_header(data: bytes, pos: int) -> tuple[tuple[ua.NodeId, ua.RequestHeader], int]:
+    typeid, pos = _decoded_node_id(data, pos)
+    token, pos = _decoded_node_id(data, pos)
+    epoch, handle, diagnostics = _REQUEST.unpack_from(data, pos)
+    audit_entry, pos = _text(data, pos + _REQUEST.size)
+    (timeout,) = _UINT32.unpack_from(data, pos)
+    extra, pos = _extension_object(data, pos + 4)
+    header = ua.RequestHeader(token, ua.win_epoch_to_datetime(epoch), handle, diagnostics, audit_entry, timeout, extra)
+    return (typeid, header), pos
+
+
+def decode_request_header(body: Buffer) -> tuple[ua.NodeId, ua.RequestHeader]:
+    """A request's TypeId and RequestHeader: asyncua's ``nodeid_from_binary(body)`` then
+    ``struct_from_binary(ua.RequestHeader, body)``."""
+    decoded: tuple[ua.NodeId, ua.RequestHeader] = _decoding(_request_header, body)
+    return decoded
+
+
+def _call_parameters(data: bytes, pos: int) -> tuple[ua.CallParameters, int]:
+    (count,) = _INT32.unpack_from(data, pos)
+    pos += 4
+    methods = []
+    for _ in range(count):
+        obj, pos = _decoded_node_id(data, pos)
+        method, pos = _decoded_node_id(data, pos)
+        (n,) = _INT32.unpack_from(data, pos)
+        pos += 4
+        inputs = []
+        for _ in range(n):
+            variant, pos = _variant(data, pos)
+            inputs.append(variant)
+        methods.append(ua.CallMethodRequest(obj, method, inputs))
+    return ua.CallParameters(methods), pos
+
+
+def decode_call_parameters(body: Buffer) -> ua.CallParameters:
+    """The Call request's parameters: asyncua's ``struct_from_binary(ua.CallParameters, body)``."""
+    params: ua.CallParameters = _decoding(_call_parameters, body)
+    return params

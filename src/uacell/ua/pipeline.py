@@ -10,7 +10,8 @@ asyncua offers no middleware, so uacell wraps its entry points once, here, proce
   ``UaProcessor.open_secure_channel``): the server's ``channel_guard`` (``security.py``: only the
   policies and modes the endpoints offer); a message asyncua refuses there or in its chunk handling
   goes to the server's ``refused`` (one INFO line, an Error message) and closes the connection;
-- each service request (``UaProcessor._process_message``): the server's ``stages``, in order; a
+- each service request (``UaProcessor.process_message``, its TypeId and header decoded by
+  ``ua/codec.py``; ``UaProcessor._process_message``): the server's ``stages``, in order; a
   Call runs apart (up to ``CALLS_APART`` per connection): at once, and in a task of its own from its
   first wait on, so one that waits for equipment does not hold up the connection's other requests;
 - a session's Call, Read and HistoryRead (``InternalSession``): the session known while they run, and
@@ -55,7 +56,7 @@ from asyncua.ua.ua_binary import struct_from_binary, struct_to_binary
 
 from uacell.background import eager
 from uacell.ua import channel, context
-from uacell.ua.codec import encode_call_response
+from uacell.ua.codec import decode_call_parameters, decode_request_header, encode_call_response
 
 log = logging.getLogger(__name__)
 
@@ -164,6 +165,7 @@ def _link(stage: Stage, call_next: Next, request: Request) -> Awaitable[Any]:
 
 # asyncua's own entry points, as they were before ``attach()``.
 _ORIGINAL_PROCESS_MESSAGE = UaProcessor._process_message
+_ORIGINAL_PROCESS_SECURE_MESSAGE = UaProcessor.process_message
 _ORIGINAL_PROCESS = UaProcessor.process
 _ORIGINAL_OPEN = UaProcessor.open_secure_channel
 _ORIGINAL_DATA_RECEIVED = OPCUAProtocol.data_received
@@ -191,9 +193,9 @@ async def _service(request: Request) -> Any:
     session.touch()
     if not session.is_activated():
         raise ServiceError(ua.StatusCodes.BadSessionNotActivated)
-    params_type, response_type, run, encode = service
+    decode, response_type, run, encode = service
     response = response_type()
-    response.Results = await run(session, struct_from_binary(params_type, request.body))
+    response.Results = await run(session, decode(request.body))
     response.ResponseHeader.RequestHandle = request.header.RequestHandle
     channel.send_response(processor, request.seqhdr.RequestId, encode(response))
     return True
@@ -207,17 +209,34 @@ async def _read_service(session: InternalSession, params: Any) -> Any:
     return await session.read(params)
 
 
-Service = tuple[type, type, Callable[[InternalSession, Any], Awaitable[Any]], Callable[[Any], bytes]]
-# The services uacell runs as asyncua does, by request type: (parameters, response, what runs, the
-# response's encoder: the Call's is written out, ua/codec.py)
+Service = tuple[Callable[[Buffer], Any], type, Callable[[InternalSession, Any], Awaitable[Any]], Callable[[Any], bytes]]
+# The services uacell runs as asyncua does, by request type: (the parameters' decoder, the response,
+# what runs, the response's encoder: the Call's are written out, ua/codec.py)
 SERVICES: dict[ua.NodeId, Service] = {
     ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary): (
-        ua.CallParameters, ua.CallResponse, _call_service, encode_call_response,
+        decode_call_parameters, ua.CallResponse, _call_service, encode_call_response,
     ),
     ua.NodeId(ua.ObjectIds.ReadRequest_Encoding_DefaultBinary): (
-        ua.ReadParameters, ua.ReadResponse, _read_service, struct_to_binary,
+        functools.partial(struct_from_binary, ua.ReadParameters), ua.ReadResponse, _read_service, struct_to_binary,
     ),
 }  # fmt: skip
+
+
+async def _process_secure_message(self: UaProcessor, seqhdr: Any, body: Buffer) -> Any:
+    """asyncua's ``process_message`` (a request's TypeId and header decoded, then the request handled,
+    a refusal answered with a ServiceFault), the header decoded by ``ua/codec.py`` (decision 50)."""
+    if Pipeline.of(self.iserver) is None:
+        return await _ORIGINAL_PROCESS_SECURE_MESSAGE(self, seqhdr, body)
+    typeid, header = decode_request_header(body)
+    try:
+        return await self._process_message(typeid, header, seqhdr, body)
+    except (ServiceError, ua.UaStatusCodeError) as exc:
+        code = exc.code
+    except Exception:
+        log.exception("a %s request failed", typeid)
+        code = ua.StatusCodes.BadInternalError
+    _fault(self, header, seqhdr, code)
+    return True
 
 
 async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any, seqhdr: Any, body: Buffer) -> Any:
@@ -253,16 +272,16 @@ async def _call_apart(pipeline: Pipeline, request: Request) -> None:
         if await pipeline.request(request) is False:
             processor._transport.close()
     except (ServiceError, ua.UaStatusCodeError) as exc:
-        _fault(processor, request, exc.code)
+        _fault(processor, request.header, request.seqhdr, exc.code)
     except Exception:
         log.exception("a Call request failed")
-        _fault(processor, request, ua.StatusCodes.BadInternalError)
+        _fault(processor, request.header, request.seqhdr, ua.StatusCodes.BadInternalError)
 
 
-def _fault(processor: UaProcessor, request: Request, code: int) -> None:
+def _fault(processor: UaProcessor, header: Any, seqhdr: Any, code: int) -> None:
     response = ua.ServiceFault()
     response.ResponseHeader.ServiceResult = ua.StatusCode(code)
-    processor.send_response(request.header.RequestHandle, request.seqhdr, response)
+    processor.send_response(header.RequestHandle, seqhdr, response)
 
 
 async def _process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
@@ -335,6 +354,7 @@ def attach() -> None:
     if UaProcessor._process_message is _process_message:
         return
     UaProcessor._process_message = _process_message
+    UaProcessor.process_message = _process_secure_message
     UaProcessor.process = _process
     UaProcessor.open_secure_channel = _open_secure_channel
     OPCUAProtocol.data_received = _data_received
