@@ -256,3 +256,52 @@ def test_an_event_is_encoded_field_by_field_the_repeating_ones_once() -> None:
     assert fields["InputArguments"].Value == [ua.Variant("pick", V.String)]
     service._REPEATING.clear()  # made anew, field by field: the same bytes
     assert service.encode_event(values, types, skip=("internal",)) == first
+    # the times and EventIds, written out, are the bytes asyncua's Variant encoding gives
+    for name, vtype, value in (
+        ("Time", V.DateTime, datetime(2026, 11, 26, 7, 8, 9, 123456, tzinfo=UTC)),
+        ("ReceiveTime", V.DateTime, datetime(1601, 1, 1, tzinfo=UTC)),
+        ("EventId", V.ByteString, b""),
+        ("EventId", V.ByteString, bytes(range(40))),
+    ):
+        assert service._encoded(name, vtype, value) == service._field(name, vtype, value)
+
+
+async def test_an_event_fired_through_two_notifiers_is_kept_for_each_and_encoded_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A firing reaches history once per historized notifier (the machine's node, the Server): a row
+    for each, from one encoding; the next firing (a new EventId) is encoded anew."""
+    from datetime import UTC, datetime
+
+    from asyncua import ua
+    from asyncua.common.event_objects import BaseEvent
+
+    from uacell.history import service
+
+    calls: list[bytes] = []
+    real = service.encode_event
+
+    def counting(*args: object) -> bytes:
+        data = real(*args)  # type: ignore[arg-type]
+        calls.append(data)
+        return data
+
+    monkeypatch.setattr(service, "encode_event", counting)
+    store = HistoryStore(SqliteBackend(tmp_path / "h.sqlite"))
+    history = service.HistoryService(None, store, lambda role: True)  # type: ignore[arg-type]
+    machine, server = ua.NodeId("TC", 2), ua.NodeId(ua.ObjectIds.Server)
+    history.notifiers = {machine: "ns=2;s=TC", server: "i=2253"}
+    event = BaseEvent()
+    for n, when in enumerate((datetime(2026, 11, 26, 1, tzinfo=UTC), datetime(2026, 11, 26, 2, tzinfo=UTC))):
+        event.EventId, event.Time, event.Message = bytes([n]) * 16, when, ua.LocalizedText(f"firing {n}")
+        for notifier in (machine, server):
+            event.emitting_node = notifier
+            history._on_event(event)
+    await store.flush()
+    assert len(calls) == 2  # one encoding a firing
+    for key in ("ns=2;s=TC", "i=2253"):
+        rows = await store.read(Query(key, EVENT, None, None, False, 10))
+        fields = [service.decode_fields(r.data) for r in rows]
+        assert [f["Message"].Value.Text for f in fields] == ["firing 0", "firing 1"]
+        assert [f["EventId"].Value for f in fields] == [bytes([0]) * 16, bytes([1]) * 16]
+    await store.close()
