@@ -25,11 +25,14 @@ class Recording:
 
     def __init__(self) -> None:
         self.seen: list[tuple[int, str]] = []
+        self.hold_reads: asyncio.Event | None = None  # set: a Read waits for it in this stage
 
     async def __call__(self, request: Request, call_next: Next) -> Any:
         kind = request.typeid.Identifier
         self.seen.append((kind, "in"))
         try:
+            if kind == ua.ObjectIds.ReadRequest_Encoding_DefaultBinary and self.hold_reads is not None:
+                await self.hold_reads.wait()
             return await call_next(request)
         finally:
             self.seen.append((kind, "out"))
@@ -145,3 +148,38 @@ async def test_a_session_not_activated_is_refused_alike(bench: Bench) -> None:
             ua.NodeId("Bench", bench.ns), ua.NodeId("Double", bench.ns), [ua.Variant(4, ua.VariantType.Int32)]
         )
         assert result.StatusCode.is_good() and result.OutputArguments[0].Value == 8
+
+
+async def _until(condition: Any, timeout: float = 10.0) -> None:
+    deadline = asyncio.get_running_loop().time() + timeout
+    while not condition():
+        assert asyncio.get_running_loop().time() < deadline, "condition not met in time"
+        await asyncio.sleep(0.005)
+
+
+async def test_a_request_that_waits_holds_back_the_next_of_its_connection(bench: Bench) -> None:
+    """A message runs at once when its connection has nothing under way (no task switch), but one
+    that waits still holds back the next of the same connection, as asyncua's task would: the second
+    Read waits, queued, until the first is answered."""
+    if bench.stage is None:
+        pytest.skip("a waiting stage needs the pipeline")
+    ns, stage = bench.ns, bench.stage
+    read = ua.ObjectIds.ReadRequest_Encoding_DefaultBinary
+    async with Client(bench.endpoint, timeout=10) as client:
+        value = client.get_node(ua.NodeId("Value", ns))
+        assert await value.read_value() == 42  # at once: nothing was under way
+        stage.seen.clear()
+        stage.hold_reads = release = asyncio.Event()
+        try:
+            first = asyncio.create_task(value.read_value())
+            await _until(lambda: stage.seen == [(read, "in")])
+            second = asyncio.create_task(value.read_value())
+            connection = bench.server.bserver.clients[0]
+            await _until(lambda: connection.messages.qsize() == 1)  # arrived, and waits its turn
+            assert stage.seen == [(read, "in")]
+        finally:
+            stage.hold_reads = None
+            release.set()
+        assert await asyncio.wait_for(first, 10) == 42
+        assert await asyncio.wait_for(second, 10) == 42
+    assert stage.seen[:4] == [(read, "in"), (read, "out"), (read, "in"), (read, "out")]

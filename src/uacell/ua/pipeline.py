@@ -5,7 +5,9 @@ asyncua offers no middleware, so uacell wraps its entry points once, here, proce
 - a new connection (``OPCUAProtocol.connection_made``): the server's ``admission`` (``ua/limits.py``:
   room made by closing the oldest connection without a session, a deadline for the handshake);
 - a connection's bytes (``OPCUAProtocol.data_received``): the server's ``bytes_guard``
-  (``ua/limits.py``: chunk sizes and buffers checked before asyncua buffers them);
+  (``ua/limits.py``: chunk sizes and buffers checked before asyncua buffers them); a message asyncua
+  parsed runs at once when its connection has nothing under way, else it waits in the connection's
+  queue for asyncua's task (``OPCUAProtocol._process_one_msg``), one message after the other (decision 51);
 - the opening of a secure channel (``UaProcessor.process`` for an OpenSecureChannel message, and
   ``UaProcessor.open_secure_channel``): the server's ``channel_guard`` (``security.py``: only the
   policies and modes the endpoints offer); a message asyncua refuses there or in its chunk handling
@@ -169,6 +171,7 @@ _ORIGINAL_PROCESS_SECURE_MESSAGE = UaProcessor.process_message
 _ORIGINAL_PROCESS = UaProcessor.process
 _ORIGINAL_OPEN = UaProcessor.open_secure_channel
 _ORIGINAL_DATA_RECEIVED = OPCUAProtocol.data_received
+_ORIGINAL_PROCESS_ONE_MSG = OPCUAProtocol._process_one_msg
 _ORIGINAL_CONNECTION_MADE = OPCUAProtocol.connection_made
 _ORIGINAL_CALL = InternalSession.call
 _ORIGINAL_READ = InternalSession.read
@@ -319,10 +322,78 @@ def _connection_made(self: OPCUAProtocol, transport: Any) -> None:
 
 def _data_received(self: OPCUAProtocol, data: bytes) -> None:
     pipeline = Pipeline.of(self.iserver)
-    if pipeline is None or pipeline.bytes_guard is None or self.processor is None:
+    if pipeline is None or self.processor is None:
         _ORIGINAL_DATA_RECEIVED(self, data)
-        return
-    pipeline.bytes_guard(self, data, _ORIGINAL_DATA_RECEIVED)
+    elif pipeline.bytes_guard is None:
+        _received(self, data)
+    else:
+        pipeline.bytes_guard(self, data, _received)
+
+
+class _Inbox:
+    """Stands in for a connection's message queue while asyncua parses received bytes: collects what
+    asyncua would queue, full where the queue would be."""
+
+    def __init__(self, queue: asyncio.Queue[Any]) -> None:
+        self.queue = queue
+        self.items: list[tuple[Any, Any]] = []
+
+    def put_nowait(self, item: tuple[Any, Any]) -> None:
+        limit = self.queue.maxsize
+        if limit > 0 and self.queue.qsize() + len(self.items) >= limit:
+            raise asyncio.QueueFull
+        self.items.append(item)
+
+
+def _received(protocol: OPCUAProtocol, data: bytes) -> None:
+    """asyncua's ``data_received``; a message it parsed runs at once when the connection has nothing
+    under way or waiting (asyncua would wake the connection's task for it: a task switch and a future
+    a request), else it waits in the connection's queue as before. One message at a time, in order:
+    one that waits (an ActivateSession checked off the loop) holds back the next (``_process_one_msg``)."""
+    queue = protocol.messages
+    inbox = _Inbox(queue)
+    protocol.messages = inbox
+    try:
+        _ORIGINAL_DATA_RECEIVED(protocol, data)
+    finally:
+        protocol.messages = queue
+    state = protocol.__dict__
+    for item in inbox.items:
+        if state.get("_uacell_busy") or not queue.empty():
+            queue.put_nowait(item)  # within the room the inbox checked
+            continue
+        state["_uacell_busy"] = True
+        ctx = state.get("_uacell_context")
+        if ctx is None:  # the connection's own, as its task has one
+            ctx = state["_uacell_context"] = contextvars.copy_context()
+        task = eager(_run_one(protocol, *item), ctx)
+        if task is not None:
+            state["_uacell_waiting"] = task
+
+
+async def _run_one(protocol: OPCUAProtocol, header: Any, buf: Any) -> None:
+    """One message, as the connection's task runs it (``_process_received_message_loop``)."""
+    try:
+        await _ORIGINAL_PROCESS_ONE_MSG(protocol, header, buf)  # False: it closed the connection
+    except Exception:
+        log.exception("a message from %s failed", protocol.peer_name)
+    finally:
+        protocol.__dict__["_uacell_busy"] = False
+
+
+async def _process_one_msg(self: OPCUAProtocol, header: Any, buf: Any) -> bool:
+    """asyncua's, run by the connection's task: after the message run at once before it, if that one
+    waits."""
+    state = self.__dict__
+    waiting = state.pop("_uacell_waiting", None)
+    if waiting is not None and not waiting.done():
+        await asyncio.wait([waiting])
+    state["_uacell_busy"] = True
+    try:
+        result: bool = await _ORIGINAL_PROCESS_ONE_MSG(self, header, buf)
+        return result
+    finally:
+        state["_uacell_busy"] = False
 
 
 def _with_session(original: Callable[[InternalSession, Any], Awaitable[Any]]) -> Callable[..., Awaitable[Any]]:
@@ -358,6 +429,7 @@ def attach() -> None:
     UaProcessor.process = _process
     UaProcessor.open_secure_channel = _open_secure_channel
     OPCUAProtocol.data_received = _data_received
+    OPCUAProtocol._process_one_msg = _process_one_msg
     OPCUAProtocol.connection_made = _connection_made
     InternalSession.call = _call
     InternalSession.read = _read
