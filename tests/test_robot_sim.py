@@ -150,16 +150,21 @@ async def test_quick_stop_stops_at_once() -> None:
 
 async def test_on_path_brakes_along_the_path() -> None:
     # A slower clock, so that event-loop latency is small against the braking distance.
-    robot, run = await start_long(scale=0.1)
+    scale = 0.1
+    robot, run = await start_long(scale=scale)
+    loop = asyncio.get_running_loop()
     speed = robot.axis_states()[5].speed
-    at_request = robot.positions[5]
+    at_request, requested = robot.positions[5], loop.time()
     await robot.stop(TASK, StopMode.ON_PATH)
     await wait_until(lambda: robot.axis_states()[5].speed != speed or run.done())
+    # The run sees the stop at its next step: on a loaded machine that can be a few milliseconds
+    # later, and the axis goes on at ``speed`` until then (never faster).
+    late = abs(speed) * (loop.time() - requested) / scale
     assert run.done() or abs(robot.axis_states()[5].speed) < abs(speed)  # decelerating
     outcome = await run
     assert outcome == RunOutcome(0, False)
     braked = at_request - robot.positions[5]
-    assert 0 < braked <= abs(speed) * BRAKE_TIME / 2 + 2.0  # along the path, within braking distance
+    assert 0 < braked <= abs(speed) * BRAKE_TIME / 2 + late + 2.0  # along the path, within braking distance
     assert not robot.moving
 
 
