@@ -5,9 +5,11 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 
+import pytest
 from asyncua import ua
 from asyncua.common.utils import Buffer, NotEnoughData
 from asyncua.ua.ua_binary import nodeid_from_binary, struct_from_binary, struct_to_binary
+from asyncua.ua.uaerrors import UaError
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -200,3 +202,16 @@ def test_a_request_cut_short_is_refused_as_asyncua_refuses_it(request: ua.CallRe
         decode_call_parameters(buffer)
 
     assert outcome(our_decode) == outcome(asyncua_decode)
+
+
+def test_a_request_of_an_unknown_kind_is_a_refusal_not_a_server_error() -> None:
+    """A NodeId encoding byte no NodeId has: asyncua's decoder raises a ValueError (logged as a server
+    error); uacell's says UaError, which the pipeline answers by closing the connection with one line."""
+    request = _request(ua.NodeId(1, 0), 7, 0, None, 0, ua.ExtensionObject(), [])
+    data = bytearray(struct_to_binary(request))
+    data[0] = 0x3F  # the TypeId's encoding byte
+    with pytest.raises(ValueError):
+        nodeid_from_binary(Buffer(bytes(data)))
+    with pytest.raises(UaError) as refused:
+        decode_request_header(Buffer(bytes(data)))
+    assert not isinstance(refused.value, NotEnoughData)

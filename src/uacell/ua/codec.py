@@ -30,6 +30,7 @@ from asyncua.ua.ua_binary import (
     variant_from_binary,
     variant_to_binary,
 )
+from asyncua.ua.uaerrors import UaError
 
 _INT32 = struct.Struct("<i")
 _UINT32 = struct.Struct("<I")
@@ -222,7 +223,8 @@ def _variant(data: bytes, pos: int) -> tuple[ua.Variant, int]:
 
 def _decoding(decode: Any, body: Buffer) -> Any:
     """Run ``decode(data, pos)`` at the buffer's position, move the buffer past what it read; a message
-    cut short is asyncua's NotEnoughData."""
+    cut short is asyncua's NotEnoughData, one with a value of no known kind a UaError (asyncua's own
+    decoders raise a ValueError there, which asyncua logs as a server error)."""
     data = body._data  # asyncua builds a message's body as one Buffer over its bytes
     if type(data) is not bytes:
         data = bytes(data)
@@ -231,6 +233,8 @@ def _decoding(decode: Any, body: Buffer) -> Any:
         value, end = decode(data, start)
     except (struct.error, IndexError) as e:
         raise NotEnoughData(f"a request cut short: {e}") from None
+    except ValueError as e:  # asyncua's decoders meeting an unknown kind (a NodeId's encoding byte, say)
+        raise UaError(f"a malformed request: {e}") from None
     body.skip(end - start)  # NotEnoughData when that is past the buffer's end
     return value
 
