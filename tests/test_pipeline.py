@@ -183,3 +183,53 @@ async def test_a_request_that_waits_holds_back_the_next_of_its_connection(bench:
         assert await asyncio.wait_for(first, 10) == 42
         assert await asyncio.wait_for(second, 10) == 42
     assert stage.seen[:4] == [(read, "in"), (read, "out"), (read, "in"), (read, "out")]
+
+
+async def test_messages_of_one_connection_start_in_the_order_they_came(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The connection's task and the messages run at once never overtake each other: A runs at once and
+    waits; B arrives, is taken by the task, and waits for A; C arrives in the moment after A is done and
+    before the task resumes B. C must still come after B (the task's claim on B holds it back)."""
+    from uacell.ua import pipeline
+
+    started: list[str] = []
+    release = asyncio.Event()
+    loop = asyncio.get_running_loop()
+
+    class Connection:
+        def __init__(self) -> None:
+            self.messages: asyncio.Queue[Any] = asyncio.Queue(maxsize=10)
+            self.peer_name = ("127.0.0.1", 1)
+
+    def parse(protocol: Any, data: bytes) -> None:  # asyncua's data_received: one message a call
+        protocol.messages.put_nowait((data.decode(), None))
+
+    async def process(protocol: Any, header: str, buf: Any) -> bool:
+        started.append(header)
+        if header == "A":
+            await release.wait()
+            # runs after A's task is done and before the connection's task resumes B
+            loop.call_soon(pipeline._received, protocol, b"C")
+        return True
+
+    monkeypatch.setattr(pipeline, "_ORIGINAL_DATA_RECEIVED", parse)
+    monkeypatch.setattr(pipeline, "_ORIGINAL_PROCESS_ONE_MSG", process)
+    connection = Connection()
+
+    async def connection_task() -> None:  # asyncua's _process_received_message_loop
+        while True:
+            header, buf = await connection.messages.get()
+            await pipeline._process_one_msg(connection, header, buf)  # type: ignore[arg-type]
+
+    task = asyncio.create_task(connection_task())
+    try:
+        pipeline._received(connection, b"A")  # type: ignore[arg-type]
+        assert started == ["A"]  # at once, and waiting
+        pipeline._received(connection, b"B")  # type: ignore[arg-type]
+        await _until(lambda: connection.messages.empty())  # the task took B: it waits for A
+        release.set()
+        await _until(lambda: len(started) == 3)
+        assert started == ["A", "B", "C"]
+        pipeline._received(connection, b"D")  # type: ignore[arg-type]
+        assert started == ["A", "B", "C", "D"]  # idle again: at once
+    finally:
+        task.cancel()

@@ -359,10 +359,10 @@ def _received(protocol: OPCUAProtocol, data: bytes) -> None:
         protocol.messages = queue
     state = protocol.__dict__
     for item in inbox.items:
-        if state.get("_uacell_busy") or not queue.empty():
+        if state.get("_uacell_claimed", 0) or not queue.empty():
             queue.put_nowait(item)  # within the room the inbox checked
             continue
-        state["_uacell_busy"] = True
+        state["_uacell_claimed"] = 1
         ctx = state.get("_uacell_context")
         if ctx is None:  # the connection's own, as its task has one
             ctx = state["_uacell_context"] = contextvars.copy_context()
@@ -378,22 +378,23 @@ async def _run_one(protocol: OPCUAProtocol, header: Any, buf: Any) -> None:
     except Exception:
         log.exception("a message from %s failed", protocol.peer_name)
     finally:
-        protocol.__dict__["_uacell_busy"] = False
+        protocol.__dict__["_uacell_claimed"] -= 1
 
 
 async def _process_one_msg(self: OPCUAProtocol, header: Any, buf: Any) -> bool:
     """asyncua's, run by the connection's task: after the message run at once before it, if that one
-    waits."""
+    waits. ``_uacell_claimed`` counts the messages taken and not done (run at once, or taken from the
+    queue by the task): none may run at once meanwhile, not even while this one waits its turn."""
     state = self.__dict__
-    waiting = state.pop("_uacell_waiting", None)
-    if waiting is not None and not waiting.done():
-        await asyncio.wait([waiting])
-    state["_uacell_busy"] = True
+    state["_uacell_claimed"] = state.get("_uacell_claimed", 0) + 1
     try:
+        waiting = state.pop("_uacell_waiting", None)
+        if waiting is not None and not waiting.done():
+            await asyncio.wait([waiting])
         result: bool = await _ORIGINAL_PROCESS_ONE_MSG(self, header, buf)
         return result
     finally:
-        state["_uacell_busy"] = False
+        state["_uacell_claimed"] -= 1
 
 
 def _with_session(original: Callable[[InternalSession, Any], Awaitable[Any]]) -> Callable[..., Awaitable[Any]]:
