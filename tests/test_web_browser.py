@@ -237,7 +237,8 @@ RECORD = """() => {
     if (s && window.__seen[window.__seen.length - 1] !== s) window.__seen.push(s);
   };
   note();
-  new MutationObserver(note).observe(document.querySelector('svg.tr88'), {subtree: true, attributes: true});
+  // the page's main area, not the diagram: a new snapshot (an HMI reconnect) draws a new diagram
+  new MutationObserver(note).observe(document.querySelector('#cell'), {subtree: true, attributes: true, childList: true});
 }"""
 
 
