@@ -238,7 +238,8 @@ RECORD = """() => {
   };
   note();
   // the page's main area, not the diagram: a new snapshot (an HMI reconnect) draws a new diagram
-  new MutationObserver(note).observe(document.querySelector('#cell'), {subtree: true, attributes: true, childList: true});
+  const all = {subtree: true, attributes: true, childList: true};
+  new MutationObserver(note).observe(document.querySelector('#cell'), all);
 }"""
 
 
