@@ -82,14 +82,19 @@ def _encoded(name: str, vtype: Any, value: Any) -> bytes:
     if vtype in _VARYING:
         return _varying(name, vtype, value)
     try:
-        cached = _REPEATING.get((name, vtype, value))
+        return _kept(_REPEATING, (name, vtype, value), lambda: _field(name, vtype, value))
     except TypeError:  # a value that cannot be a key (an unhashable structure)
         return _field(name, vtype, value)
-    if cached is None:
-        if len(_REPEATING) >= _REPEATING_MAX:
-            _REPEATING.clear()
-        cached = _REPEATING[(name, vtype, value)] = _field(name, vtype, value)
-    return cached
+
+
+def _kept(cache: dict[Any, bytes], key: Any, make: Callable[[], bytes]) -> bytes:
+    """``cache[key]``, made by ``make`` the first time; the cache is emptied when it is full."""
+    found = cache.get(key)
+    if found is None:
+        if len(cache) >= _REPEATING_MAX:
+            cache.clear()
+        found = cache[key] = make()
+    return found
 
 
 _NAMES: dict[str, bytes] = {}  # a field's name, encoded (as _REPEATING: shared, bounded, atomic uses)
@@ -100,11 +105,7 @@ _BYTESTRING = struct.Struct("<Bi")  # the Variant's encoding byte, the length
 def _varying(name: str, vtype: Any, value: Any) -> bytes:
     """A DateTime or ByteString field (new in every event: times, EventIds), written out: the bytes
     ``_field`` makes."""
-    prefix = _NAMES.get(name)
-    if prefix is None:
-        if len(_NAMES) >= _REPEATING_MAX:
-            _NAMES.clear()
-        prefix = _NAMES[name] = Primitives.String.pack(name)
+    prefix = _kept(_NAMES, name, lambda: Primitives.String.pack(name))
     if vtype is ua.VariantType.DateTime and isinstance(value, datetime):
         return prefix + _DATETIME.pack(vtype.value, ua.datetime_to_win_epoch(value))
     if vtype is ua.VariantType.ByteString and isinstance(value, bytes):

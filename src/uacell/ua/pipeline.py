@@ -65,7 +65,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(slots=True)
 class Request:
-    """One service request as asyncua decoded its header (the body is still encoded)."""
+    """One service request, its TypeId and header decoded (``ua/codec.py``; the body is still encoded)."""
 
     processor: UaProcessor
     typeid: ua.NodeId
