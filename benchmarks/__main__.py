@@ -564,7 +564,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="one round, short runs, 100 sessions (a few minutes)")
     parser.add_argument("--rounds", type=int, help="interleaved rounds (default 3, quick 1)")
-    parser.add_argument("--seconds", type=float, help="length of each load run (default 2.5, quick 1.5)")
+    parser.add_argument("--seconds", type=float, help="length of each measured load run (default 2, quick 1.5)")
     parser.add_argument("--sessions-total", type=int, dest="many_sessions", help="concurrent sessions (1000/100)")
     parser.add_argument("--cells", type=int, help="publishing uacell processes of the plant section (20/5)")
     parser.add_argument("--only", choices=sorted(SECTIONS), action="append", help="run only these sections")
