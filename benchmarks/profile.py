@@ -70,11 +70,12 @@ def main() -> int:
     parser.add_argument("--cell", default="demo")
     parser.add_argument("--limit", type=int, default=40)
     parser.add_argument("--filter", default="uacell|asyncua/server", help="regular expression on file names")
+    parser.add_argument("--sort", default="cumulative", choices=("cumulative", "tottime"), help="order of the list")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
     profile = asyncio.run(run(args.method, args.calls, args.cell))
     stats = pstats.Stats(profile, stream=sys.stdout)
-    stats.sort_stats("cumulative").print_stats(args.filter, args.limit)
+    stats.sort_stats(args.sort).print_stats(args.filter, args.limit)
     return 0
 
 

@@ -49,7 +49,10 @@ def audit_line(created: float, event: str, fields: dict[str, Any]) -> str:
         "event": event,
         **fields,
     }
-    return json.dumps(entry, default=str, ensure_ascii=False)
+    return _ENCODER.encode(entry)
+
+
+_ENCODER = json.JSONEncoder(default=str, ensure_ascii=False)  # json.dumps with these makes one per call
 
 
 class _RotatingFile:

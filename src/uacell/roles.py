@@ -28,16 +28,25 @@ class Role(IntEnum):
         """``"operator"`` (any case) -> ``Role.OPERATOR``; ValueError names the valid roles."""
         if isinstance(name, Role):
             return name
+        role = _PARSED.get(name)
+        if role is not None:
+            return role
         try:
-            return cls[name.strip().upper()]
+            role = cls[name.strip().upper()]
         except KeyError:
             valid = ", ".join(r.label for r in cls)
             raise ValueError(f"unknown role {name!r} (valid: {valid})") from None
+        if len(_PARSED) < 64:  # the spellings configurations use; a call parses its caller's role
+            _PARSED[name] = role
+        return role
 
     @property
     def label(self) -> str:
         """The role as written in configuration and on the command line."""
         return self.name.lower()
+
+
+_PARSED: dict[str, Role] = {}
 
 
 class Family(str):

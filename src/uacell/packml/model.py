@@ -87,9 +87,19 @@ DURABLE_KEYS = (
     "Admin/AlarmHistory",
 )
 DURABLE_TIMES = frozenset({"Admin/ModeCumulativeTime", "Admin/StateCumulativeTime", "Admin/AccTimeSinceReset"})
+_DURABLE_NOT_TIMES = tuple(k for k in DURABLE_KEYS if k not in DURABLE_TIMES)
 # A change of the stored times alone (a whole second passed) is stored, and then published, at most this
 # often (seconds): the three times pass their whole seconds at different instants.
 TIMES_SAVE_PERIOD = 1.0
+# The unit's own methods (PackMLBaseObjectType), by the model method that answers each.
+_UNIT_METHODS = {
+    "SetUnitMode": "set_unit_mode",
+    "SetMachSpeed": "set_mach_speed",
+    "SetProduct": "set_product",
+    "SetParameter": "set_parameter",
+    "RemoteCommand": "remote_command",
+    "SetInterlock": "set_interlock",
+}
 # Decision 47: an operation that names what it changes (``_operation(touched=...)``) publishes only those
 # values, the derived ones (decision 29) and, when a whole second passed, the times and OEE figures;
 # every other operation rebuilds and compares all values. The values an operation may name: TOUCHABLE.
@@ -321,11 +331,13 @@ class PackMLUnit:
     def innermost(self) -> StateMachine:
         """The deepest active machine; its current state is the unit's TR88 state."""
         sm = self.base
-        while True:
-            active = [c for c in sm.children if c.active]
-            if not active:
+        while True:  # from the top down, a child is active exactly when its parent is in its state
+            for child in sm.children:
+                if child.parent_state == sm.current:
+                    sm = child
+                    break
+            else:
                 return sm
-            sm = active[0]
 
     @property
     def state(self) -> str:
@@ -461,18 +473,10 @@ class PackMLUnit:
         """Call ``method`` of ``machine_name`` (None: a unit method) with the method's input arguments."""
         self.check_reachable()
         if machine_name is UNIT:
-            handlers: dict[str, Callable[..., Any]] = {
-                "SetUnitMode": self.set_unit_mode,
-                "SetMachSpeed": self.set_mach_speed,
-                "SetProduct": self.set_product,
-                "SetParameter": self.set_parameter,
-                "RemoteCommand": self.remote_command,
-                "SetInterlock": self.set_interlock,
-            }
-            handler = handlers.get(method)
-            if handler is None:
+            attribute = _UNIT_METHODS.get(method)
+            if attribute is None:
                 raise CallError("BadMethodInvalid", f"the unit has no method {method}")
-            handler(*args)
+            getattr(self, attribute)(*args)
         elif method == "Start" and machine_name == EXECUTE:
             self.start(*args)
         else:
@@ -835,7 +839,8 @@ class PackMLUnit:
         submitted = self._submitted
         if self.store is None or submitted is None:
             return False
-        return any(submitted[k] != self._saved[k] for k in DURABLE_KEYS if k not in DURABLE_TIMES)
+        saved = self._saved
+        return any(submitted[k] != saved[k] for k in _DURABLE_NOT_TIMES)
 
     @property
     def store_path(self) -> str:
@@ -976,8 +981,9 @@ class PackMLUnit:
         now = self._clock()
         dt = max(0.0, now - self._last_account)
         self._last_account = now
-        mode, state = self.status.unit_mode_current, self.state_number
-        self.oee.span(now - dt, now, mode, self.state)
+        sm = self.innermost()
+        mode, state = self.status.unit_mode_current, sm.table.states[sm.current].number
+        self.oee.span(now - dt, now, mode, sm.current)
         self._mode_cum[mode] += dt
         self._state_cum[mode][state] += dt
         self._mode_cur += dt

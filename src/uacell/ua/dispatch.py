@@ -450,7 +450,10 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         try:
             for guard in self.guards:
                 guard(caller, bound)
-            lock = self._locks.setdefault(id(bound.serialize_on or bound), asyncio.Lock())
+            key = id(bound.serialize_on or bound)
+            lock = self._locks.get(key)
+            if lock is None:
+                lock = self._locks[key] = asyncio.Lock()
             async with lock:
                 # Transitions the behaviour causes are the caller's (AuditUpdateStateEvents).
                 call = context.MethodCall(

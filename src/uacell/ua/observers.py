@@ -32,8 +32,20 @@ def _plain(value: Any) -> Any:
     return text if len(text) <= 200 else text[:200] + "..."
 
 
+_TEXTS_KEPT = 4096  # NodeId texts kept for the audit records (the objects clients call); then begun anew
+
+
 def install_audit(app: Host, trail: AuditTrail) -> None:
     dispatcher = app.dispatcher
+    texts: dict[ua.NodeId, str] = {}
+
+    def text(node_id: ua.NodeId) -> str:
+        found = texts.get(node_id)
+        if found is None:
+            if len(texts) >= _TEXTS_KEPT:
+                texts.clear()
+            found = texts[node_id] = node_id.to_string()
+        return found
 
     def call(
         caller: Caller, request: ua.CallMethodRequest, method: str, result: ua.CallMethodResult, _s: float
@@ -42,7 +54,7 @@ def install_audit(app: Host, trail: AuditTrail) -> None:
             "user": caller.display_user,
             "role": caller.role,
             "session": caller.session_id,
-            "object": request.ObjectId.to_string(),
+            "object": text(request.ObjectId),
             "method": method,
             "result": _status_name(result.StatusCode),
         }
