@@ -67,11 +67,14 @@ class FsmTable:
     states: dict[str, StateInfo]
     transitions: dict[str, TransitionInfo]
     _by_cause: dict[tuple[str, str], TransitionInfo] = field(default_factory=dict, repr=False)
+    _methods: frozenset[str] = field(default=frozenset(), repr=False)
 
     def __post_init__(self) -> None:
         for t in self.transitions.values():
             for method in t.causes:
                 self._by_cause.setdefault((method, t.from_state), t)
+        # Asked on every Executable evaluation: made once (the table does not change).
+        object.__setattr__(self, "_methods", frozenset(m for t in self.transitions.values() for m in t.causes))
 
     def caused_by(self, method: str, from_state: str) -> TransitionInfo | None:
         """The transition ``method`` causes from ``from_state``, if there is one."""
@@ -85,7 +88,8 @@ class FsmTable:
 
     @property
     def methods(self) -> frozenset[str]:
-        return frozenset(m for t in self.transitions.values() for m in t.causes)
+        """The methods that cause a transition of this type (its HasCause references)."""
+        return self._methods
 
     def check_names(self, states: Iterable[str] = (), methods: Iterable[str] = ()) -> None:
         """Raise ``LookupError`` unless the type declares every state and method named in code."""

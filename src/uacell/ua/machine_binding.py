@@ -37,6 +37,7 @@ from uacell.ua.toolkit import EventEmitter, ValueWriter
 
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds
+_VT = ua.VariantType
 _NOT_ACTIVE = ua.StatusCode(ua.StatusCodes.BadStateNotActive)
 
 
@@ -147,6 +148,7 @@ class StateMachineBinding:
         self.last_number = c("LastTransition", "Number")
         self.last_time = c("LastTransition", "TransitionTime")
         self.reason = c("LastTransitionReason")
+        self.reason_text = c("LastTransitionReason", "ValueAsText")
         self.available_states = c("AvailableStates")
         self.available_transitions = c("AvailableTransitions")
         self._event: EventEmitter | None = None
@@ -174,13 +176,13 @@ class StateMachineBinding:
         table = self.machine.table
         if self.available_states is not None:
             ids = [self.refs(s.node) for s in sorted(table.states.values(), key=lambda s: s.number)]
-            await self._write(self.available_states, ua.Variant(ids, ua.VariantType.NodeId, is_array=True))
+            await self._write(self.available_states, ids, ua.VariantType.NodeId)
         if self.available_transitions is not None:
             ids = [
                 self.refs(t.node)
                 for t in sorted(table.transitions.values(), key=lambda t: table.transition_number(t.name))
             ]
-            await self._write(self.available_transitions, ua.Variant(ids, ua.VariantType.NodeId, is_array=True))
+            await self._write(self.available_transitions, ids, ua.VariantType.NodeId)
         self.machine.listeners.append(self._on_change)
         await self.publish()
 
@@ -207,46 +209,45 @@ class StateMachineBinding:
             await child.publish_tree()
 
     async def _write(
-        self, node: ua.NodeId | None, value: ua.Variant | None, status: ua.StatusCode | None = None
+        self, node: ua.NodeId | None, value: Any, vtype: ua.VariantType, status: ua.StatusCode | None = None
     ) -> None:
+        """Write ``value`` (a list: an array) as ``vtype``, or only ``status`` when one is given."""
         if node is None:
             return
-        # A machine's whole subtree is republished on every change: write only what changed.
-        key = (status.value,) if status is not None else (0, value.VariantType, value.Value) if value else (0,)
+        # A machine's whole subtree is republished on every change: write only what changed (and make
+        # the Variant only then).
+        key = (status.value,) if status is not None else (0, vtype, value)
         if self._written.get(node) == key:
             return
         self._written[node] = key
         if status is not None:
             await self.values.write_status(node, status)
         else:
-            await self.values.write(node, value, force=True)
+            variant = ua.Variant(value, vtype, is_array=isinstance(value, list))
+            await self.values.write(node, variant, force=True)
 
     async def publish(self) -> None:
         m = self.machine
         active = m.active
         bad = None if active else _NOT_ACTIVE
         state = m.table.states[m.current]
-        await self._write(self.current, ua.Variant(self._display[m.current], ua.VariantType.LocalizedText), bad)
-        await self._write(self.current_id, ua.Variant(self.refs(state.node), ua.VariantType.NodeId), bad)
-        await self._write(self.current_number, ua.Variant(state.number, ua.VariantType.UInt32), bad)
+        await self._write(self.current, self._display[m.current], _VT.LocalizedText, bad)
+        await self._write(self.current_id, self.refs(state.node), _VT.NodeId, bad)
+        await self._write(self.current_number, state.number, _VT.UInt32, bad)
         t = m.last_transition
         if t is None:
             # No transition yet: null values (Good for an active machine, as Part 16 allows).
             for node in (self.last, self.last_id, self.last_number, self.last_time):
-                await self._write(node, ua.Variant(), bad)
+                await self._write(node, None, _VT.Null, bad)
         else:
-            await self._write(self.last, ua.Variant(self._display[t.name], ua.VariantType.LocalizedText), bad)
-            await self._write(self.last_id, ua.Variant(self.refs(t.node), ua.VariantType.NodeId), bad)
-            number = m.table.transition_number(t.name)
-            await self._write(self.last_number, ua.Variant(number, ua.VariantType.UInt32), bad)
-            await self._write(self.last_time, ua.Variant(m.last_transition_time, ua.VariantType.DateTime), bad)
+            await self._write(self.last, self._display[t.name], _VT.LocalizedText, bad)
+            await self._write(self.last_id, self.refs(t.node), _VT.NodeId, bad)
+            await self._write(self.last_number, m.table.transition_number(t.name), _VT.UInt32, bad)
+            await self._write(self.last_time, m.last_transition_time, _VT.DateTime, bad)
         if self.reason is not None:
-            await self._write(self.reason, ua.Variant(int(m.last_reason), ua.VariantType.Int16))
-            text = toolkit.find_child(self.aspace, self.reason, "ValueAsText")
-            if text is not None:
-                await self._write(
-                    text, ua.Variant(ua.LocalizedText(m.last_reason.name.title()), ua.VariantType.LocalizedText)
-                )
+            await self._write(self.reason, int(m.last_reason), _VT.Int16)
+            if self.reason_text is not None:
+                await self._write(self.reason_text, ua.LocalizedText(m.last_reason.name.title()), _VT.LocalizedText)
 
     async def fire(self, change: Change, call: MethodCall | None = None) -> None:
         """Fire the TransitionEvent, to the machine's subscribers and to the Server object's; and after
