@@ -29,7 +29,7 @@ from typing import Any
 from asyncua import Server, ua
 
 from uacell.background import eager
-from uacell.fsm import Change, StateMachine
+from uacell.fsm import Change, Reason, StateMachine
 from uacell.models.tables import NodeRef
 from uacell.ua import toolkit
 from uacell.ua.context import MethodCall, current_call
@@ -39,6 +39,7 @@ log = logging.getLogger(__name__)
 _A = ua.AttributeIds
 _VT = ua.VariantType
 _NOT_ACTIVE = ua.StatusCode(ua.StatusCodes.BadStateNotActive)
+_REASON_TEXT = {reason: ua.LocalizedText(reason.name.title()) for reason in Reason}  # ValueAsText
 
 
 class Publisher:
@@ -113,9 +114,13 @@ class NodeRefs:
 
     def __init__(self, namespace_array: list[str]) -> None:
         self._index = {uri: i for i, uri in enumerate(namespace_array)}
+        self._made: dict[NodeRef, ua.NodeId] = {}  # the states and transitions of the types bound: few
 
     def __call__(self, ref: NodeRef) -> ua.NodeId:
-        return ua.NodeId(ref[1], self._index[ref[0]])
+        node = self._made.get(ref)
+        if node is None:
+            node = self._made[ref] = ua.NodeId(ref[1], self._index[ref[0]])
+        return node
 
 
 class StateMachineBinding:
@@ -153,7 +158,7 @@ class StateMachineBinding:
         self.available_transitions = c("AvailableTransitions")
         self._event: EventEmitter | None = None
         self._audit: EventEmitter | None = None  # made on the first transition a call causes
-        self._written: dict[ua.NodeId, tuple[Any, ...]] = {}  # node -> what was last written there
+        self._written: dict[int, tuple[Any, ...]] = {}  # id(node) -> what was last written there
         self._tree_queued = False  # a publish_tree is submitted and has not started yet
         self._display = {name: self._display_name(info.node) for name, info in machine.table.states.items()} | {
             name: self._display_name(info.node) for name, info in machine.table.transitions.items()
@@ -176,13 +181,13 @@ class StateMachineBinding:
         table = self.machine.table
         if self.available_states is not None:
             ids = [self.refs(s.node) for s in sorted(table.states.values(), key=lambda s: s.number)]
-            await self._write(self.available_states, ids, ua.VariantType.NodeId)
+            await self._write([(self.available_states, ids, _VT.NodeId)])
         if self.available_transitions is not None:
             ids = [
                 self.refs(t.node)
                 for t in sorted(table.transitions.values(), key=lambda t: table.transition_number(t.name))
             ]
-            await self._write(self.available_transitions, ids, ua.VariantType.NodeId)
+            await self._write([(self.available_transitions, ids, _VT.NodeId)])
         self.machine.listeners.append(self._on_change)
         await self.publish()
 
@@ -209,45 +214,55 @@ class StateMachineBinding:
             await child.publish_tree()
 
     async def _write(
-        self, node: ua.NodeId | None, value: Any, vtype: ua.VariantType, status: ua.StatusCode | None = None
+        self, values: list[tuple[ua.NodeId | None, Any, ua.VariantType]], status: ua.StatusCode | None = None
     ) -> None:
-        """Write ``value`` (a list: an array) as ``vtype``, or only ``status`` when one is given."""
-        if node is None:
-            return
+        """Write each ``(node, value, vtype)`` (a list value: an array), or only ``status`` to each node
+        when one is given; a node the machine's type does not have (None) is skipped."""
         # A machine's whole subtree is republished on every change: write only what changed (and make
-        # the Variant only then).
-        key = (status.value,) if status is not None else (0, vtype, value)
-        if self._written.get(node) == key:
-            return
-        self._written[node] = key
-        if status is not None:
-            await self.values.write_status(node, status)
-        else:
-            variant = ua.Variant(value, vtype, is_array=isinstance(value, list))
-            await self.values.write(node, variant, force=True)
+        # the Variant only then). Keyed by the node objects of this binding, held for its lifetime.
+        written = self._written
+        for node, value, vtype in values:
+            if node is None:
+                continue
+            key = (status.value,) if status is not None else (0, vtype, value)
+            if written.get(id(node)) == key:
+                continue
+            written[id(node)] = key
+            if status is not None:
+                await self.values.write_status(node, status)
+            else:
+                await self.values.write(node, ua.Variant(value, vtype, is_array=isinstance(value, list)), force=True)
 
     async def publish(self) -> None:
         m = self.machine
         active = m.active
         bad = None if active else _NOT_ACTIVE
         state = m.table.states[m.current]
-        await self._write(self.current, self._display[m.current], _VT.LocalizedText, bad)
-        await self._write(self.current_id, self.refs(state.node), _VT.NodeId, bad)
-        await self._write(self.current_number, state.number, _VT.UInt32, bad)
+        values = [
+            (self.current, self._display[m.current], _VT.LocalizedText),
+            (self.current_id, self.refs(state.node), _VT.NodeId),
+            (self.current_number, state.number, _VT.UInt32),
+        ]
         t = m.last_transition
         if t is None:
             # No transition yet: null values (Good for an active machine, as Part 16 allows).
-            for node in (self.last, self.last_id, self.last_number, self.last_time):
-                await self._write(node, None, _VT.Null, bad)
+            values += [(node, None, _VT.Null) for node in (self.last, self.last_id, self.last_number, self.last_time)]
         else:
-            await self._write(self.last, self._display[t.name], _VT.LocalizedText, bad)
-            await self._write(self.last_id, self.refs(t.node), _VT.NodeId, bad)
-            await self._write(self.last_number, m.table.transition_number(t.name), _VT.UInt32, bad)
-            await self._write(self.last_time, m.last_transition_time, _VT.DateTime, bad)
+            values += [
+                (self.last, self._display[t.name], _VT.LocalizedText),
+                (self.last_id, self.refs(t.node), _VT.NodeId),
+                (self.last_number, m.table.transition_number(t.name), _VT.UInt32),
+                (self.last_time, m.last_transition_time, _VT.DateTime),
+            ]
+        await self._write(values, bad)
         if self.reason is not None:
-            await self._write(self.reason, int(m.last_reason), _VT.Int16)
-            if self.reason_text is not None:
-                await self._write(self.reason_text, ua.LocalizedText(m.last_reason.name.title()), _VT.LocalizedText)
+            reason = m.last_reason
+            await self._write(
+                [
+                    (self.reason, int(reason), _VT.Int16),
+                    (self.reason_text, _REASON_TEXT[reason], _VT.LocalizedText),
+                ]
+            )
 
     async def fire(self, change: Change, call: MethodCall | None = None) -> None:
         """Fire the TransitionEvent, to the machine's subscribers and to the Server object's; and after
