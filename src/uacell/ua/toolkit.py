@@ -94,6 +94,9 @@ def type_names(aspace: AddressSpace, root: ua.NodeId) -> dict[tuple[int, str], u
     return out
 
 
+_NULL = ua.Variant(None, ua.VariantType.Null)  # never changed: shared
+
+
 class ValueWriter:
     """Writes variable Values into the address space (not through the services: no access checks).
 
@@ -130,7 +133,8 @@ class ValueWriter:
         """A Value that is only a status (e.g. Bad_StateNotActive), with timestamps."""
         self._written.pop(nodeid, None)
         now = datetime.now(UTC)
-        dv = ua.DataValue(StatusCode=status, SourceTimestamp=now, ServerTimestamp=now)
+        # A null Value given: DataValue's default makes a Variant through a guessing constructor (3 us).
+        dv = ua.DataValue(_NULL, StatusCode=status, SourceTimestamp=now, ServerTimestamp=now)
         await self.aspace.write_attribute_value(nodeid, _A.Value, dv)
 
     async def set_access(self, nodeid: ua.NodeId, level: int) -> None:
