@@ -266,6 +266,32 @@ def test_an_event_is_encoded_field_by_field_the_repeating_ones_once() -> None:
         assert service._encoded(name, vtype, value) == service._field(name, vtype, value)
 
 
+def test_localized_texts_and_status_codes_are_kept_by_what_they_encode() -> None:
+    """asyncua's LocalizedText and StatusCode are not hashable, yet a state's name, a Message and a
+    StatusCodeId repeat from event to event: they are kept by their locale and text, and by their code,
+    so a text in another locale, or another text, or another code is never taken for a kept one."""
+    from asyncua import ua
+
+    from uacell.history import service
+
+    V = ua.VariantType
+    service._REPEATING.clear()
+    cases = [
+        ("Message", V.LocalizedText, ua.LocalizedText("Idle to Ready")),
+        ("Message", V.LocalizedText, ua.LocalizedText("Idle to Ready", "en")),
+        ("Message", V.LocalizedText, ua.LocalizedText("Ready to Idle")),
+        ("StatusCodeId", V.StatusCode, ua.StatusCode(ua.StatusCodes.Good)),
+        ("StatusCodeId", V.StatusCode, ua.StatusCode(ua.StatusCodes.BadInvalidState)),
+    ]
+    made = [service._encoded(name, vtype, value) for name, vtype, value in cases]
+    assert len(service._REPEATING) == len(cases)  # each kept, none taken for another
+    assert len(set(made)) == len(cases)
+    for (name, vtype, value), encoded in zip(cases, made, strict=True):
+        assert encoded == service._field(name, vtype, value)  # asyncua's bytes
+        assert service._encoded(name, vtype, value) is service._REPEATING[(name, vtype, service._hashable(value))]
+    assert service.decode_fields(made[1])["Message"].Value == ua.LocalizedText("Idle to Ready", "en")
+
+
 async def test_an_event_fired_through_two_notifiers_is_kept_for_each_and_encoded_once(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

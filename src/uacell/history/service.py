@@ -82,9 +82,20 @@ def _encoded(name: str, vtype: Any, value: Any) -> bytes:
     if vtype in _VARYING:
         return _varying(name, vtype, value)
     try:
-        return _kept(_REPEATING, (name, vtype, value), lambda: _field(name, vtype, value))
+        return _kept(_REPEATING, (name, vtype, _hashable(value)), lambda: _field(name, vtype, value))
     except TypeError:  # a value that cannot be a key (an unhashable structure)
         return _field(name, vtype, value)
+
+
+def _hashable(value: Any) -> Any:
+    """A key for ``value`` where asyncua's type is not hashable but repeats in every event (a state's
+    name, a Message, a StatusCode): what its encoding depends on. The field's VariantType is in the
+    key beside it, so a tuple made here never meets a value of another type."""
+    if isinstance(value, ua.LocalizedText):
+        return (value.Locale, value.Text)
+    if isinstance(value, ua.StatusCode):
+        return value.value
+    return value
 
 
 def _kept(cache: dict[Any, bytes], key: Any, make: Callable[[], bytes]) -> bytes:
