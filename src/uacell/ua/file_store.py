@@ -243,7 +243,8 @@ class FileStore:
     def entry(self, relpath: str) -> Entry:
         """The entry at ``relpath``; Bad_NotFound if there is none."""
         with self._lock:
-            return self._entry(self._existing(relpath))
+            # The components were checked (names, no symlinks): the entry's path is ``relpath`` itself.
+            return self._entry(self._existing(relpath), relpath)
 
     def open_count(self, relpath: str) -> int:
         """OpenCount: the number of valid handles on the file, over all sessions."""
@@ -593,7 +594,8 @@ class FileStore:
         if not isinstance(relpath, str):
             _refuse("BadInvalidArgument", f"invalid path {relpath!r}", argument=argument)
         path = self._root_text
-        mode = self._root_mode()
+        # Below the root, the last component's lstat is the mode (and fails when the root is gone).
+        mode = None if relpath else self._root_mode()
         if relpath:
             for part in relpath.split("/"):
                 self._check_name(part, argument=argument)
@@ -620,12 +622,13 @@ class FileStore:
     def _rel(self, path: Path) -> str:
         return path.relative_to(self.root).as_posix() if path != self.root else ""
 
-    def _entry(self, path: Path) -> Entry:
+    def _entry(self, path: Path, rel: str | None = None) -> Entry:
         st = os.stat(path)
+        rel = self._rel(path) if rel is None else rel
         if stat.S_ISDIR(st.st_mode):
-            return Entry(self._rel(path), True, 0, os.access(path, os.W_OK))
+            return Entry(rel, True, 0, os.access(path, os.W_OK))
         writable = os.access(path, os.W_OK) and os.access(path.parent, os.W_OK)
-        return Entry(self._rel(path), False, st.st_size, writable)
+        return Entry(rel, False, st.st_size, writable)
 
     def _walk(self, base: Path, *, files_only: bool = False, dirs: list[Path] | None = None) -> Iterator[Path]:
         """Visible entries (or only files) below ``base``, top-down and sorted: no temporaries, no symlinks;
