@@ -29,6 +29,20 @@ def test_round_trip_and_no_temporary_files_left(tmp_path: Path) -> None:
     assert [p.name for p in store.path.parent.iterdir()] == ["Filler1.json"]
 
 
+def test_a_removed_directory_is_made_again_at_the_next_save(tmp_path: Path) -> None:
+    """The directory is made by the first save, and again by the next save after somebody removed it
+    (it is not made, or looked for, before every save)."""
+    store = AdminStore(tmp_path / "data" / "packml" / "Filler1.json")
+    assert not store.path.parent.exists()
+    store.save({"a": [1]})
+    (store.path).unlink()
+    store.path.parent.rmdir()
+    (tmp_path / "data").rmdir()
+    store.save({"a": [2]})
+    assert store.load() == {"a": [2], "version": 1}
+    assert [p.name for p in store.path.parent.iterdir()] == ["Filler1.json"]
+
+
 def test_leftover_temporaries_of_a_crashed_save_are_removed_at_start(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

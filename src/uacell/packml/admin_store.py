@@ -105,9 +105,13 @@ class AdminStore:
     def _replace(self, data: dict[str, Any]) -> None:
         # Atomic but not yet durable: the caller fsyncs the directory (once for several stores).
         directory = self.path.parent
-        directory.mkdir(parents=True, exist_ok=True)
         payload = json.dumps({**data, "version": FORMAT_VERSION}, sort_keys=True)  # no indent: the C encoder
-        fd, tmp_name = tempfile.mkstemp(prefix=self.path.name + ".", suffix=".tmp", dir=directory)
+        prefix = self.path.name + "."
+        try:
+            fd, tmp_name = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=directory)
+        except FileNotFoundError:  # the first save, or the directory was removed: made (again) only then
+            directory.mkdir(parents=True, exist_ok=True)
+            fd, tmp_name = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=directory)
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as f:
                 f.write(payload)
