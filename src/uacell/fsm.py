@@ -78,6 +78,14 @@ class StateMachine:
         p = self.parent
         return p is None or (p.active and p.current == self.parent_state)
 
+    def hosted(self) -> StateMachine | None:
+        """The sub-machine the current state hosts (the first, if several): of an active machine, the
+        active sub-machine; ``active`` without asking every parent again."""
+        for child in self.children:
+            if child.parent_state == self.current:
+                return child
+        return None
+
     def is_in(self, *states: str) -> bool:
         return self.active and self.current in states
 

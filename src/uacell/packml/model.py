@@ -331,13 +331,9 @@ class PackMLUnit:
     def innermost(self) -> StateMachine:
         """The deepest active machine; its current state is the unit's TR88 state."""
         sm = self.base
-        while True:  # from the top down, a child is active exactly when its parent is in its state
-            for child in sm.children:
-                if child.parent_state == sm.current:
-                    sm = child
-                    break
-            else:
-                return sm
+        while (child := sm.hosted()) is not None:  # from the top down: the base is always active
+            sm = child
+        return sm
 
     @property
     def state(self) -> str:
