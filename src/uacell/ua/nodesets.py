@@ -21,7 +21,7 @@ from asyncua.common.xmlimporter import XmlImporter
 from uacell.models.source import locate_models, official_models
 from uacell.models.source import models_dir as models_directory
 from uacell.models.tables import UA_NS
-from uacell.ua import snapshot
+from uacell.ua import data_types, snapshot
 
 log = logging.getLogger(__name__)
 
@@ -194,9 +194,10 @@ async def write_models_snapshot(models_dir: str | None = None) -> Path:
         nodes = snapshot.stripped_copy(server.iserver.aspace._nodes)
         namespaces = list((await server.get_namespace_array())[2:])
         types = type_index(server.iserver.aspace._nodes, namespaces)
+        made = data_types.registered(server.iserver.aspace._nodes)
     finally:
         quiet.setLevel(level)
-    snapshot.write_snapshot(path, models_snapshot_key(), namespaces, nodes, {"types": types})
+    snapshot.write_snapshot(path, models_snapshot_key(), namespaces, nodes, {"types": types, "data_types": made})
     snapshot.prune(path.parent, keep=2)  # one for this uacell, one for another beside it
     return path
 
@@ -219,10 +220,22 @@ async def _restore(server: Server, found: snapshot.Snapshot) -> dict[str, int]:
         index = await server.register_namespace(uri)
         if index != position:
             raise RuntimeError(f"namespace {uri} got index {index}, the snapshot has it at {position}")
-    # The importer registers the models' structure classes (asyncua.ua) as it goes; here they are
-    # made from the DataTypeDefinitions, before any value of theirs is read from the snapshot.
-    await server.load_data_type_definitions()
+    # The importer registers the models' data type classes (asyncua.ua) as it goes; here they are
+    # made before any value of theirs is read from the snapshot: from what its writer kept, or else
+    # by asyncua walking every DataType for them.
+    await _register_data_types(server, found)
     return {m.key: await server.get_namespace_index(m.namespace_uri) for m in official_models()}
+
+
+async def _register_data_types(server: Server, found: snapshot.Snapshot) -> None:
+    entries = data_types.stored(found.extras)
+    if entries is not None:
+        try:
+            data_types.register(entries)
+            return
+        except Exception as e:  # the snapshot is a cache: asyncua finds them itself
+            log.info("the snapshot's data types could not be made (%s): looking for them in the address space", e)
+    await server.load_data_type_definitions()
 
 
 def _read(path: Path, key: dict[str, Any], what: str) -> snapshot.Snapshot | None:
@@ -281,10 +294,12 @@ async def init_address_space(
         copy = snapshot.stripped_copy(nodes)
         rest = nodes.rest() if isinstance(nodes, snapshot.LazyNodes) else None
         namespaces = list((await server.get_namespace_array())[2:])
+        made = data_types.registered(nodes)
 
         def write(extras: dict[str, Any], cancel: threading.Event) -> None:
             every = copy + rest() if rest is not None else copy
-            snapshot.write_snapshot(target, key, namespaces, every, extras, cancel, WRITE_SHARE)
+            kept = {**extras, "data_types": made}
+            snapshot.write_snapshot(target, key, namespaces, every, kept, cancel, WRITE_SHARE)
             snapshot.prune(target.parent)
             log.info("wrote the address-space snapshot %s (%d nodes)", target, len(every))
 

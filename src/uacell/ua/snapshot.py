@@ -68,7 +68,8 @@ class SnapshotInvalid(Exception):
     """The file is not a usable snapshot for this server (the message says why)."""
 
 
-_CODE = ("ua/snapshot.py", "ua/nodesets.py", "ua/instantiate.py", "cell.py")  # what builds the snapshot
+# what builds the snapshot
+_CODE = ("ua/snapshot.py", "ua/nodesets.py", "ua/data_types.py", "ua/instantiate.py", "cell.py")
 
 
 def snapshot_key(nodesets: Mapping[str, str], cell: str) -> dict[str, Any]:
