@@ -1,4 +1,5 @@
-"""The models' data types kept beside a snapshot (uacell.ua.data_types).
+"""What an address-space snapshot keeps beside its nodes so that a restart reads nothing else: the
+models' data types (uacell.ua.data_types) and the state-machine tables (StateTables.adopt).
 
 asyncua's registry of data type classes lives in its module, for the life of the process: a restart
 is a new process, so the restores here run in fresh interpreters and report what they registered.
@@ -16,7 +17,7 @@ from pathlib import Path
 import pytest
 from asyncua import ua
 from asyncua.server.address_space import AttributeValue, NodeData
-from helpers import models_copy
+from helpers import free_port, models_copy
 
 from uacell.ua import data_types
 from uacell.ua.data_types import Enumeration, Structure
@@ -195,3 +196,55 @@ async def test_entries_that_cannot_be_made_make_asyncua_walk_for_them() -> None:
     await _register_data_types(Server(), SimpleNamespace(extras={"data_types": []}))  # type: ignore[arg-type]
     await _register_data_types(Server(), SimpleNamespace(extras={}))  # type: ignore[arg-type]  # an older snapshot
     assert walked == [True, True]
+
+
+# --- the state-machine tables kept the same way ---------------------------------------------------
+
+
+def test_state_tables_take_tables_made_before_and_read_files_only_for_the_others(tmp_path: Path) -> None:
+    """``StateTables.adopt`` takes an earlier server's tables (a snapshot's ``fsm_tables``): asked
+    for, they are not read again; one it was not given is read from the files (here: none)."""
+    from uacell.models import StateTables
+    from uacell.models.source import ModelError
+
+    made = StateTables()
+    task_control = made("Robotics", "TaskControlStateMachineType")
+    assert list(made.made()) == [("Robotics", "TaskControlStateMachineType")]
+
+    later = StateTables(str(tmp_path / "no-models-here"))
+    junk = {("Robotics", "Nonsense"): task_control, "x": task_control, ("PackML", "PackMLBaseStateMachineType"): 1}
+    assert later.adopt({**made.made(), **junk}) == 1 and later.adopt(None) == 0
+    assert later("Robotics", "TaskControlStateMachineType") is task_control
+    with pytest.raises(ModelError):
+        later("Robotics", "ReadySubstateMachineType")
+
+
+async def test_a_restart_takes_its_state_tables_from_the_snapshot(tmp_path: Path) -> None:
+    from conftest import fast_config, start_app
+
+    from uacell.models import official_models
+    from uacell.ua import snapshot as snap
+
+    config = fast_config(tmp_path / "data")
+    config.server.cache_dir = tmp_path / "cache"
+    first = await start_app(config)
+    try:
+        await first.snapshot_written()
+        tables = first.tables.made()
+        key = snap.snapshot_key({m.filename: m.sha256 for m in official_models()}, first.snapshot_digest)
+    finally:
+        await first.stop()
+    kept = read_snapshot(snap.snapshot_path(config.server.snapshot_dir, key), key)
+    assert kept is not None and kept.extras["fsm_tables"] == tables
+    assert {type_name for _model, type_name in tables} >= {
+        "TaskControlStateMachineType",
+        "PackMLExecuteStateMachineType",
+    }
+    config.server.port = free_port()
+    second = await start_app(config)
+    try:
+        assert second.address_space_source == "snapshot"
+        for key_, table in tables.items():  # the very objects the snapshot held, not read again
+            assert second.tables.made()[key_] == table
+    finally:
+        await second.stop()

@@ -156,6 +156,8 @@ class UacellServer:
         prepared = await init_address_space(self.server, cfg.models_dir, cfg.snapshot_dir, digest)
         self.model_indexes = prepared.indexes
         self.address_space_source = prepared.source
+        if prepared.extras is not None:  # the state-machine tables an earlier start read from the NodeSets
+            self.tables.adopt(prepared.extras.get("fsm_tables"))
         self._cell = await build_cell(
             self.server, self.model_indexes, parts, restored=prepared.extras, type_index=prepared.types
         )
@@ -219,7 +221,8 @@ class UacellServer:
         await self.server.start()
         if self._snapshot_job is not None:  # first start: write the snapshot for the next ones
             # The cell's bookkeeping as the binders left it (types they looked up included).
-            write = functools.partial(self._snapshot_job, self.cell.extras(), self._snapshot_cancel)
+            extras = {**self.cell.extras(), "fsm_tables": self.tables.made()}
+            write = functools.partial(self._snapshot_job, extras, self._snapshot_cancel)
             self._snapshot_task = asyncio.get_running_loop().create_task(self._write_snapshot(write))
             self._snapshot_job = None
         await self.dispatcher.refresh_executable()

@@ -267,6 +267,28 @@ class StateTables:
 
     def __init__(self, models_dir: str | None = None) -> None:
         self.models_dir = models_dir
+        self._made: dict[tuple[str, str], FsmTable] = {}
 
     def __call__(self, model_key: str, type_name: str) -> FsmTable:
-        return fsm_table(model_key, type_name, self.models_dir)
+        table = self._made.get((model_key, type_name))
+        if table is None:
+            table = self._made[(model_key, type_name)] = fsm_table(model_key, type_name, self.models_dir)
+        return table
+
+    def made(self) -> dict[tuple[str, str], FsmTable]:
+        """Every table asked for so far, by (model key, type name)."""
+        return dict(self._made)
+
+    def adopt(self, tables: object) -> int:
+        """Take tables made before from the same NodeSet files (``made`` of an earlier server, kept in
+        the address-space snapshot, which is keyed by the files' digests): asked for, they are not
+        read from the files again. Anything else than such a mapping is ignored; how many were taken."""
+        if not isinstance(tables, dict):
+            return 0
+        taken = 0
+        for key, table in tables.items():
+            if isinstance(key, tuple) and len(key) == 2 and all(isinstance(k, str) for k in key):
+                if isinstance(table, FsmTable) and key[1] == table.type_name:
+                    self._made.setdefault(key, table)
+                    taken += 1
+        return taken

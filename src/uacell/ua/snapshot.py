@@ -69,7 +69,7 @@ class SnapshotInvalid(Exception):
 
 
 # what builds the snapshot
-_CODE = ("ua/snapshot.py", "ua/nodesets.py", "ua/data_types.py", "ua/instantiate.py", "cell.py")
+_CODE = ("ua/snapshot.py", "ua/nodesets.py", "ua/data_types.py", "ua/instantiate.py", "cell.py", "models/tables.py")
 
 
 def snapshot_key(nodesets: Mapping[str, str], cell: str) -> dict[str, Any]:
