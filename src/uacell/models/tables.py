@@ -68,6 +68,7 @@ class FsmTable:
     transitions: dict[str, TransitionInfo]
     _by_cause: dict[tuple[str, str], TransitionInfo] = field(default_factory=dict, repr=False)
     _methods: frozenset[str] = field(default=frozenset(), repr=False)
+    _numbers: dict[str, int] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         for t in self.transitions.values():
@@ -75,6 +76,10 @@ class FsmTable:
                 self._by_cause.setdefault((method, t.from_state), t)
         # Asked on every Executable evaluation: made once (the table does not change).
         object.__setattr__(self, "_methods", frozenset(m for t in self.transitions.values() for m in t.causes))
+        # uacell's numbering where the type gives none (``transition_number``), made once
+        ordered = sorted(self.transitions.values(), key=lambda x: x.node[1])
+        for position, t in enumerate(ordered, start=1):
+            self._numbers[t.name] = t.number if t.number is not None else position
 
     def caused_by(self, method: str, from_state: str) -> TransitionInfo | None:
         """The transition ``method`` causes from ``from_state``, if there is one."""
@@ -102,11 +107,9 @@ class FsmTable:
 
         uacell's numbering: the transitions of the type in ascending NodeId order, counted from 1.
         """
-        t = self.transitions[name]
-        if t.number is not None:
-            return t.number
-        ordered = sorted(self.transitions.values(), key=lambda x: x.node[1])
-        return 1 + ordered.index(t)
+        if name not in self.transitions:
+            raise KeyError(name)
+        return self._numbers[name]
 
 
 @dataclass
