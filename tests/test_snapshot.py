@@ -106,6 +106,50 @@ def test_instances_are_loaded_in_larger_chunks(tmp_path: Path) -> None:
     assert len(nodes) == snapshot.INSTANCE_CHUNK + 1 + min(3, snapshot.CHUNK)
 
 
+def test_equal_values_and_references_of_a_chunk_are_read_as_one_object(tmp_path: Path) -> None:
+    """Instances are full of equal attribute values (AccessLevel, ValueRank, an empty Description)
+    and references (HasTypeDefinition to PropertyType): within a chunk each is stored and read once.
+    Values that are equal to Python but encode otherwise (1 and True, one NodeId in two encodings)
+    stay apart; the attribute values themselves (what asyncua assigns to) are never shared."""
+    A = ua.AttributeIds
+    nodes = {}
+    for i in range(4):
+        node = NodeData(ua.NodeId(f"Cell.Part{i}", 3))
+        node.attributes[A.AccessLevel] = AttributeValue(ua.DataValue(ua.Variant(3, ua.VariantType.Byte)))
+        node.attributes[A.Description] = AttributeValue(ua.DataValue(ua.Variant(ua.LocalizedText(""))))
+        node.attributes[A.Value] = AttributeValue(ua.DataValue(ua.Variant(i, ua.VariantType.Int32)))
+        flag = 1 if i % 2 else True
+        node.attributes[A.Historizing] = AttributeValue(ua.DataValue(ua.Variant(flag)))
+        kind = ua.NodeIdType.Numeric if i % 2 else ua.NodeIdType.FourByte
+        node.attributes[A.DataType] = AttributeValue(ua.DataValue(ua.Variant(ua.NodeId(11, 0, kind))))
+        node.references.append(ua.ReferenceDescription(ReferenceTypeId=ua.NodeId(40), NodeId=ua.NodeId(68)))
+        node.references.append(ua.ReferenceDescription(ReferenceTypeId=ua.NodeId(47), NodeId=node.nodeid))
+        nodes[node.nodeid] = node
+    _write(tmp_path / NAME, nodes)
+    found = read_snapshot(tmp_path / NAME, KEY)
+    assert found is not None
+    read = [found.nodes[ua.NodeId(f"Cell.Part{i}", 3)] for i in range(4)]
+
+    def objects(attribute: ua.AttributeIds) -> set[int]:
+        return {id(n.attributes[attribute].value) for n in read}
+
+    assert len(objects(A.AccessLevel)) == 1 and len(objects(A.Description)) == 1
+    assert len(objects(A.Value)) == 4 and [_value(n) for n in read] == [0, 1, 2, 3]
+    assert len(objects(A.Historizing)) == 2 and [type(n.attributes[A.Historizing].value.Value.Value) for n in read] == [
+        bool,
+        int,
+        bool,
+        int,
+    ]
+    assert len(objects(A.DataType)) == 2
+    assert [n.attributes[A.DataType].value.Value.Value.NodeIdType for n in read] == [
+        ua.NodeIdType.FourByte,
+        ua.NodeIdType.Numeric,
+    ] * 2
+    assert len({id(n.references[0]) for n in read}) == 1 and len({id(n.references[1]) for n in read}) == 4
+    assert len({id(n.attributes[A.AccessLevel]) for n in read}) == 4  # AttributeValues: each its own
+
+
 def test_nodes_added_changed_and_deleted_live_beside_the_snapshot(tmp_path: Path) -> None:
     path = tmp_path / NAME
     _write(path)

