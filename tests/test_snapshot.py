@@ -19,6 +19,7 @@ from asyncua.server.address_space import AttributeValue, NodeData
 from conftest import fast_config, start_app
 from helpers import free_port, models_copy
 
+from uacell.packml.binding import UNITS
 from uacell.ua import snapshot
 from uacell.ua.snapshot import LazyNodes, SnapshotInvalid, read_snapshot, stripped_copy, write_snapshot
 
@@ -354,6 +355,53 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(t
     finally:
         await second.stop()
     assert _snapshots(cache) == [path] and path.stat().st_mtime_ns == written  # read, not rewritten
+
+
+async def test_the_nodes_companions_give_their_parts_come_with_the_snapshot(tmp_path: Path) -> None:
+    """A PackML unit's OEE folder (``Companion.shape``) is made with the cell, before the snapshot is
+    taken: a restart finds it and its HA Configurations stored there, not made again, and the binder
+    writes the unit's figures into it."""
+    cache = tmp_path / "cache"
+    first = await _start(tmp_path, cache)
+    try:
+        await first.snapshot_written()
+    finally:
+        await first.stop()
+    second = await _start(tmp_path, cache)
+    try:
+        assert second.address_space_source == "snapshot"
+        ns = second.cell.instantiator.ns
+        nodes = second.server.iserver.aspace._nodes
+        assert isinstance(nodes, LazyNodes)
+        for name in ("OEE", "OEE.Availability", "OEE.GoodCount", "OEE.OEE.HAConfiguration"):
+            node = ua.NodeId(f"Filler1.{name}", ns)
+            assert (node.NamespaceIndex, node.Identifier) in nodes._where, name  # stored, not made here
+        binding = second.registry(UNITS).get("Filler1")
+        assert binding is not None
+        expected = binding.unit.oee_values()
+        async with Client(second.endpoint, timeout=30) as client:
+            for key, value in expected.items():
+                node = client.get_node(ua.NodeId(f"Filler1.OEE.{key.split('/')[1]}", ns))
+                assert await node.read_value() == value
+                vtype = (await node.read_data_value()).Value.VariantType
+                assert vtype == (ua.VariantType.Double if isinstance(value, float) else ua.VariantType.UInt32)
+    finally:
+        await second.stop()
+
+
+def test_the_code_of_a_shape_function_is_part_of_the_snapshot_key(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from uacell.companion import shapes_digest
+
+    module = tmp_path / "uacell_test_shape.py"
+    module.write_text("async def shape(space, cell):\n    pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    before = shapes_digest(["uacell_test_shape:shape"])
+    assert shapes_digest(["uacell_test_shape:shape"]) == before
+    module.write_text("async def shape(space, cell):\n    return None\n")
+    assert shapes_digest(["uacell_test_shape:shape"]) != before
+    assert shapes_digest([]) != before
 
 
 async def test_another_cell_gets_its_own_snapshot(tmp_path: Path) -> None:

@@ -12,15 +12,19 @@ line each. The shared code reads everything companion-specific from there:
 - ``uacell.web.discovery``: what the web HMI shows of its parts (``web_view``);
 - ``uacell.metrics``: its figures in ``/metrics`` (``metrics``);
 - ``uacell.models``: the official NodeSet files to fetch, verify and load (``models``);
-- ``uacell.server``: the binder that ties the companion's models to their nodes (``binder``);
+- ``uacell.server``: the binder that ties the companion's models to their nodes (``binder``), and the
+  nodes of uacell's own its parts get with the cell, kept in the address-space snapshot (``shape``);
 - ``uacell.di.locks``: which parts carry a DI Lock and which families it guards (``locks``).
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib
-from collections.abc import Awaitable, Callable, Mapping
+import importlib.util
+from collections.abc import Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from uacell.cell_file import SectionParser
@@ -43,6 +47,34 @@ def lazy_binder(module: str, name: str) -> Binder:
         return await binder(app)
 
     return bind
+
+
+# Called once the cell is built, before the address-space snapshot is taken, with the address space
+# (``uacell.ua.space.Space``) and the built cell (``uacell.cell.CellBuilder``): makes the nodes of
+# uacell's own that the companion's parts get whatever their equipment and configuration, so that a
+# restart finds them in the snapshot. It leaves a node that exists alone; the binder makes any that
+# are missing (a server without the snapshot) the same way.
+Shape = Callable[[Any, Any], Awaitable[None]]
+
+
+def shape_function(spec: str) -> Shape:
+    """The shape function ``"module:function"`` (imported when the cell is built)."""
+    module, _, name = spec.partition(":")
+    found: Shape = getattr(importlib.import_module(module), name)
+    return found
+
+
+def shapes_digest(specs: Iterable[str]) -> str:
+    """SHA-256 of the source of the modules of the shape functions ``specs``: what they make is in
+    the snapshot, so their code is part of its key (read without importing them)."""
+    digest = hashlib.sha256()
+    for spec in sorted(specs):
+        module = spec.partition(":")[0]
+        found = importlib.util.find_spec(module)
+        origin = found.origin if found is not None else None
+        digest.update(spec.encode())
+        digest.update(Path(origin).read_bytes() if origin else b"")
+    return digest.hexdigest()
 
 
 def lazy_metrics(module: str, name: str) -> Callable[[Any], Any]:
@@ -107,6 +139,7 @@ class Companion:
     web_view: WebView | None = None  # what the web HMI shows of its parts (uacell.web.discovery)
     datasets: tuple[PartDataSet, ...] = ()  # what history keeps and PubSub publishes of its parts
     binder: Binder | None = None
+    shape: str | None = None  # "module:function", a ``Shape``: nodes of its parts kept in the snapshot
     section: str | None = None  # configuration section, e.g. "robot"
     settings: type[Any] | None = None  # its dataclass: every field optional, typed by its default
     cell_section: str | None = None  # its parts in the cell configuration, e.g. "robots" ([[robots]])

@@ -16,7 +16,7 @@ from uacell import __version__
 from uacell.audit import AuditTrail
 from uacell.catalog import companions
 from uacell.cell import CellBuilder, Part, build_cell, cell_digest
-from uacell.companion import Binder, Closer
+from uacell.companion import Binder, Closer, shape_function, shapes_digest
 from uacell.config import Config, default_application_uri
 from uacell.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
 from uacell.history.service import HistoryService
@@ -152,7 +152,9 @@ class UacellServer:
         # snapshot when there is one for this cell, else built (and a snapshot written once listening).
         parts = self.parts if self.parts is not None else self.config.cell.parts()
         # what the snapshot of the address space is keyed by, beside the models and the code
-        self.snapshot_digest = digest = cell_digest(parts, history_shape(self.config.history))
+        shapes = [c.shape for c in companions() if c.shape is not None]
+        shaped = f"{history_shape(self.config.history)},shapes={shapes_digest(shapes)}"
+        self.snapshot_digest = digest = cell_digest(parts, shaped)
         prepared = await init_address_space(self.server, cfg.models_dir, cfg.snapshot_dir, digest)
         self.model_indexes = prepared.indexes
         self.address_space_source = prepared.source
@@ -162,7 +164,10 @@ class UacellServer:
             self.server, self.model_indexes, parts, restored=prepared.extras, type_index=prepared.types
         )
         if prepared.capture is not None:
-            # the HA Configuration nodes of kept variables are part of the cell's shape: in the snapshot
+            # the nodes of uacell's own the companions give their parts, and the HA Configuration
+            # nodes of kept variables, are part of the cell's shape: in the snapshot
+            for spec in shapes:
+                await shape_function(spec)(self.space, self._cell)
             kept = [(b.part.role, b.node) for b in self._cell.built]
             await add_configurations(self.server, self.config.history, kept)
             self._snapshot_job = await prepared.capture()

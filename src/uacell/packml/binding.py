@@ -33,6 +33,7 @@ from uacell.packml.config import PackMLConfig, UnitSpec
 from uacell.packml.equipment import PackMLEquipment
 from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLTables, PackMLUnit, run_units
 from uacell.packml.oee import parse_shifts
+from uacell.packml.shape import add_oee
 from uacell.packml.sim import SimulatedUnit
 from uacell.packml.types import (
     EUInformation,
@@ -230,16 +231,8 @@ class UnitBinding:
 
     async def add_oee(self) -> None:
         """``OEE`` under the unit (uacell's namespace): the figures of ``uacell.packml.oee``, read-only."""
-        unit = self.app.space.node(self.node)
-        folder = await unit.add_object(ua.NodeId(f"{self.built.path}.OEE", self.ns), ua.QualifiedName("OEE", self.ns))
-        for key, value in self.unit.oee_values().items():
-            name = key.split("/")[1]
-            vtype = ua.VariantType.Double if isinstance(value, float) else ua.VariantType.UInt32
-            await folder.add_variable(
-                ua.NodeId(f"{self.built.path}.OEE.{name}", self.ns),
-                ua.QualifiedName(name, self.ns),
-                ua.Variant(value, vtype),
-            )
+        # made with the cell before the snapshot (uacell.packml.shape); here where they are not
+        await add_oee(self.app.space, self.node, self.built.path, self.ns, self.unit.oee_values())
 
     async def add_conditions(self) -> None:
         """``Conditions`` under the unit (uacell's namespace): the alarm conditions its equipment

@@ -34,6 +34,7 @@ PACKML_COMPANION = Companion(
     web_view=WebView("units", PACKML_MODEL.namespace_uri, "PackMLObjects", 6, "uacell.packml.web_view:describe_unit"),
     metrics=lazy_metrics("uacell.packml.metrics", "packml_metrics"),
     binder=lazy_binder("uacell.packml.binding", "bind_packml"),
+    shape="uacell.packml.shape:shape_units",
     section="packml",
     settings=PackMLConfig,
     cell_section="packml_units",
