@@ -7,8 +7,8 @@ the type's DataTypeDefinition and registered in ``asyncua.ua``; a subtype of a b
 UpdateBehavior, a UInt32) is registered as an alias of its parent's class. Importing a NodeSet makes
 and registers them as it goes. A server restored from a snapshot has not imported anything, so it
 has to make them again; asyncua's ``load_data_type_definitions`` does, but it browses and reads every
-DataType of the address space for it, the 700 of OPC UA's own included, each one loaded from the
-snapshot: about a third of a restart.
+DataType of the address space for it, the 500 of OPC UA's own included, each one loaded from the
+snapshot: about a third of a restart's set-up.
 
 What it would find depends only on the NodeSets (and asyncua's version), as the snapshot does. So
 the writer of a snapshot describes what asyncua has registered for the models (``registered``: a
