@@ -123,6 +123,8 @@ def test_equal_values_and_references_of_a_chunk_are_read_as_one_object(tmp_path:
         node.attributes[A.Historizing] = AttributeValue(ua.DataValue(ua.Variant(flag)))
         kind = ua.NodeIdType.Numeric if i % 2 else ua.NodeIdType.FourByte
         node.attributes[A.DataType] = AttributeValue(ua.DataValue(ua.Variant(ua.NodeId(11, 0, kind))))
+        zero = -0.0 if i % 2 else 0.0  # equal to Python, another sign bit on the wire
+        node.attributes[A.MinimumSamplingInterval] = AttributeValue(ua.DataValue(ua.Variant(zero)))
         node.references.append(ua.ReferenceDescription(ReferenceTypeId=ua.NodeId(40), NodeId=ua.NodeId(68)))
         node.references.append(ua.ReferenceDescription(ReferenceTypeId=ua.NodeId(47), NodeId=node.nodeid))
         nodes[node.nodeid] = node
@@ -143,6 +145,9 @@ def test_equal_values_and_references_of_a_chunk_are_read_as_one_object(tmp_path:
         int,
     ]
     assert len(objects(A.DataType)) == 2
+    assert len(objects(A.MinimumSamplingInterval)) == 2
+    signs = [str(n.attributes[A.MinimumSamplingInterval].value.Value.Value) for n in read]
+    assert signs == ["0.0", "-0.0", "0.0", "-0.0"]
     assert [n.attributes[A.DataType].value.Value.Value.NodeIdType for n in read] == [
         ua.NodeIdType.FourByte,
         ua.NodeIdType.Numeric,

@@ -57,10 +57,15 @@ def lazy_binder(module: str, name: str) -> Binder:
 Shape = Callable[[Any, Any], Awaitable[None]]
 
 
+def _function(spec: str) -> Any:
+    """The function ``"module:function"``, importing its module."""
+    module, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
 def shape_function(spec: str) -> Shape:
     """The shape function ``"module:function"`` (imported when the cell is built)."""
-    module, _, name = spec.partition(":")
-    found: Shape = getattr(importlib.import_module(module), name)
+    found: Shape = _function(spec)
     return found
 
 
@@ -124,8 +129,7 @@ class WebView:
     describe: str
 
     def describer(self) -> Callable[..., Awaitable[dict[str, Any]]]:
-        module, _, name = self.describe.partition(":")
-        found: Callable[..., Awaitable[dict[str, Any]]] = getattr(importlib.import_module(module), name)
+        found: Callable[..., Awaitable[dict[str, Any]]] = _function(self.describe)
         return found
 
 

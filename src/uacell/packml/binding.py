@@ -232,7 +232,7 @@ class UnitBinding:
     async def add_oee(self) -> None:
         """``OEE`` under the unit (uacell's namespace): the figures of ``uacell.packml.oee``, read-only."""
         # made with the cell before the snapshot (uacell.packml.shape); here where they are not
-        await add_oee(self.app.space, self.node, self.built.path, self.ns, self.unit.oee_values())
+        await add_oee(self.app.space, self.node, self.built.path, self.ns)
 
     async def add_conditions(self) -> None:
         """``Conditions`` under the unit (uacell's namespace): the alarm conditions its equipment

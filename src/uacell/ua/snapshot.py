@@ -254,12 +254,14 @@ def _chunks(nodes: list[tuple[ua.NodeId, NodeData]]) -> Iterator[list[tuple[ua.N
         yield group
 
 
-_PLAIN = (int, float, str, bool, bytes, type(None))
+_PLAIN = (int, str, bool, bytes, type(None))
 
 
 def _node_id_key(node: ua.NodeId) -> tuple[Any, ...]:
-    # NodeId's own equality ignores its encoding (NodeIdType): two that differ there are not merged
-    return (type(node), node.Identifier, node.NamespaceIndex, node.NodeIdType)
+    # NodeId's own equality ignores its encoding (NodeIdType) and an ExpandedNodeId's URI and server:
+    # two that differ there are not merged
+    uri, server = getattr(node, "NamespaceUri", None), getattr(node, "ServerIndex", None)
+    return (type(node), node.Identifier, node.NamespaceIndex, node.NodeIdType, uri, server)
 
 
 def _value_key(dv: ua.DataValue) -> tuple[Any, ...] | None:
@@ -269,8 +271,10 @@ def _value_key(dv: ua.DataValue) -> tuple[Any, ...] | None:
     if variant is None or variant.is_array or variant.Dimensions is not None:
         return None
     value = variant.Value
-    if isinstance(value, _PLAIN):
-        key: tuple[Any, ...] = (type(value), value)  # 1, 1.0 and True are equal; their types are not
+    if isinstance(value, float):
+        key: tuple[Any, ...] = (float, value.hex())  # 0.0 == -0.0, their encodings differ
+    elif isinstance(value, _PLAIN):
+        key = (type(value), value)  # 1, 1.0 and True are equal; their types are not
     elif isinstance(value, ua.NodeId):
         key = _node_id_key(value)
     elif isinstance(value, ua.LocalizedText):
@@ -412,8 +416,8 @@ def read_snapshot(path: Path, key: Mapping[str, Any]) -> Snapshot | None:
         raise SnapshotInvalid("is stale (NodeSets or versions changed)")
     content = memoryview(data)[start + meta_length :]
     if zlib.crc32(content) != expected:
-        raise SnapshotInvalid("is damaged (its content does not match its digest)")
-    # Hashing read every page: give them back; the chunks that are loaded come in again from the page
+        raise SnapshotInvalid("is damaged (its content does not match its checksum)")
+    # The check read every page: give them back; the chunks that are loaded come in again from the page
     # cache, the rest never count in the server's memory.
     data.madvise(mmap.MADV_DONTNEED)
     if not isinstance(namespaces, list) or not all(isinstance(n, str) for n in namespaces):
