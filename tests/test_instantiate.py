@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import textwrap
 from collections.abc import AsyncIterator
+from datetime import UTC, datetime
 
 import pytest
 import pytest_asyncio
@@ -362,3 +363,127 @@ async def test_selection_paths_use_the_addin_name(small):
     # "Addy" is the declaration's BrowseName; the selection sees the instance's name only.
     node = small.instantiator.create(OBJECTS, small.type(1010), "ByDeclName", Selection(("Addy",)))
     assert await small.tree(node) == {f"{small.types_ns}:M"}
+
+
+# Templates: a second instance of a type is a copy of what the first one's walk made
+
+
+def _described(aspace, root: ua.NodeId) -> dict[str, object]:
+    """Every node of the instance at ``root`` (NodeIds as suffixes of the root's path; the root's
+    own names as "ROOT", so that two instances of one type compare equal), with the references of its
+    parent to it. Value timestamps as "stamped" or None."""
+    base: str = root.Identifier
+
+    def name(node: ua.NodeId) -> object:
+        ident = node.Identifier
+        if node.NamespaceIndex == root.NamespaceIndex and isinstance(ident, str):
+            if ident == base:
+                return "ROOT"
+            if ident.startswith(base + "."):
+                return ident[len(base) :]
+        return node
+
+    def ref(r: ua.ReferenceDescription) -> tuple[object, ...]:
+        names = tuple("ROOT" if n in names_of_root else n for n in (r.BrowseName, r.DisplayName))
+        return (r.ReferenceTypeId, r.IsForward, name(r.NodeId), r.NodeClass, *names, r.TypeDefinition)
+
+    def value(attr: ua.AttributeIds, dv: ua.DataValue) -> object:
+        if attr == ua.AttributeIds.NodeId:
+            return name(dv.Value.Value)
+        if attr in (ua.AttributeIds.BrowseName, ua.AttributeIds.DisplayName) and dv.Value.Value in names_of_root:
+            return "ROOT"
+        stamped = (dv.SourceTimestamp is not None, dv.ServerTimestamp is not None)
+        return (dv.Value, dv.StatusCode, stamped)
+
+    root_data = aspace[root]
+    names_of_root = [
+        root_data.attributes[a].value.Value.Value for a in (ua.AttributeIds.BrowseName, ua.AttributeIds.DisplayName)
+    ]
+    out: dict[str, object] = {}
+    pending = [root]
+    while pending:
+        node = pending.pop()
+        data = aspace[node]
+        out[str(name(node))] = (
+            {attr: value(attr, av.value) for attr, av in data.attributes.items()},
+            sorted((ref(r) for r in data.references), key=repr),
+        )
+        pending += [r.NodeId for r in data.references if r.IsForward and name(r.NodeId) not in (r.NodeId, "ROOT")]
+    return out
+
+
+@module_loop
+async def test_a_second_instance_is_a_copy_of_what_walking_the_types_made_node_for_node(small):
+    inst = small.instantiator
+    selection = Selection(("**",), ("**/Run",))
+    aspace = small.server.iserver.aspace
+    first = inst.create(OBJECTS, small.type(1011), "Walked1", selection)
+    copied_before = inst.copied
+    before = datetime.now(UTC)
+    copy = inst.create(OBJECTS, small.type(1011), "Copied", selection)
+    assert inst.copied == copied_before + 1
+    # its values are stamped when it was made, like any new node's
+    stamps = [
+        aspace[n].attributes[ua.AttributeIds.Value].value.SourceTimestamp
+        for n in aspace.keys()
+        if n.NamespaceIndex == small.cell_ns
+        and str(n.Identifier).startswith("Copied.")
+        and ua.AttributeIds.Value in aspace[n].attributes
+    ]
+    assert stamps and all(stamp >= before for stamp in stamps)
+    # the same instance made by walking the types again, without the template
+    key = (small.type(1011), selection.include, selection.exclude)
+    template = inst.templates.pop(key)
+    walked = inst.create(OBJECTS, small.type(1011), "Walked2", selection)
+    assert inst.copied == copied_before + 1 and inst.templates[key] is not template  # walked, kept anew
+    described = _described(aspace, walked)
+    assert {".M", ".Sub.SubM", ".Helper", ".Go.InputArguments"} <= set(described)  # nested, AddIn, arguments
+    assert _described(aspace, copy) == described == _described(aspace, first)
+    # the Objects folder references each instance as asyncua's AddNodes made it
+    refs = {r.NodeId: r for r in aspace[OBJECTS].references}
+    assert refs[copy].BrowseName == ua.QualifiedName("Copied", small.cell_ns)
+    assert refs[copy].TypeDefinition == refs[walked].TypeDefinition == small.type(1011)
+    # the copy's members know their declarations (methods find their definitions by them)
+    for suffix in (".M", ".Sub.SubM", ".Go.InputArguments"):
+        member = ua.NodeId(copy.Identifier + suffix, small.cell_ns)
+        assert inst.declarations[member] == inst.declarations[ua.NodeId(walked.Identifier + suffix, small.cell_ns)]
+    # a copy's values are its own: writing one leaves the other instances' as they were
+    m_copy, m_walked = (ua.NodeId(n.Identifier + ".M", small.cell_ns) for n in (copy, walked))
+    await small.server.get_node(m_copy).write_value(ua.Variant(42, ua.VariantType.Int32))
+    assert await small.server.get_node(m_copy).read_value() == 42
+    assert await small.server.get_node(m_walked).read_value() != 42
+
+
+@module_loop
+async def test_an_instance_whose_members_exist_already_is_walked_and_makes_no_template(small):
+    inst = small.instantiator
+    selection = Selection(("Sub",))
+    inst.create(OBJECTS, small.type(1011), "Partly1", selection)
+    key = (small.type(1011), selection.include, selection.exclude)
+    inst.templates.pop(key)
+    # a member of the next instance is there before it: the walk skips it, no template is kept
+    small.instantiator.create(OBJECTS, small.type(1001), "Partly2.Sub")
+    copied = inst.copied
+    node = inst.create(OBJECTS, small.type(1011), "Partly2", selection)
+    assert inst.copied == copied and key not in inst.templates
+    t = small.types_ns
+    assert await small.tree(node) >= {f"{t}:M", f"{t}:D"}
+
+
+@module_loop
+async def test_templates_made_after_keep_templates_are_kept_and_survive_pickling(small):
+    import pickle
+
+    inst = Instantiator(small.server, small.cell_ns)
+    inst.create(OBJECTS, small.type(1011), "BeforeKeeping", Selection(("O",)))
+    inst.keep_templates()
+    inst.create(OBJECTS, small.type(1001), "Kept1")
+    kept = inst.kept_templates()
+    assert list(kept) == [(small.type(1001), (), ())]  # made before keep_templates: not kept
+    # another instantiator (a restart) copies from the kept templates, as pickled in a snapshot
+    restarted = Instantiator(small.server, small.cell_ns)
+    restarted.templates.update(pickle.loads(pickle.dumps(kept)))
+    node = restarted.create(OBJECTS, small.type(1001), "Kept2")
+    assert restarted.copied == 1
+    aspace = small.server.iserver.aspace
+    assert _described(aspace, node) == _described(aspace, ua.NodeId("Kept1", small.cell_ns))

@@ -332,6 +332,19 @@ async def _mach_speed(app) -> float:
         return value
 
 
+def _conditions(app) -> dict[object, object]:
+    """The nodes of the robot's alarm conditions: their attributes but values, and references."""
+    aspace = app.server.iserver.aspace
+    ns = app.cell.instantiator.ns
+    out: dict[object, object] = {}
+    for nodeid in list(aspace.keys()):
+        if nodeid.NamespaceIndex == ns and ".SystemOperation.Conditions." in str(nodeid.Identifier):
+            data = aspace[nodeid]
+            attributes = {a: v.value.Value for a, v in data.attributes.items() if a != ua.AttributeIds.Value}
+            out[nodeid] = (attributes, sorted(map(repr, data.references)))
+    return out
+
+
 def _snapshots(cache: Path) -> list[Path]:
     return sorted(cache.glob(f"{snapshot.PREFIX}*{snapshot.SUFFIX}"))
 
@@ -344,6 +357,7 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(t
         await first.snapshot_written()
         [path] = _snapshots(cache)
         speed = await _mach_speed(first)
+        conditions = _conditions(first)
     finally:
         await first.stop()
     written = path.stat().st_mtime_ns
@@ -351,6 +365,11 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(t
     try:
         assert second.address_space_source == "snapshot"
         assert await _mach_speed(second) == speed
+        # what binders make at every start (the robot's alarm conditions, its programs' file nodes)
+        # is copied from the templates kept in the snapshot: the same nodes as the first start's walk
+        assert second.cell.instantiator.walked == 0 and second.cell.instantiator.copied >= 2
+        assert (ua.NodeId(ua.ObjectIds.AlarmConditionType), (), ()) in second.cell.instantiator.templates
+        assert _conditions(second) == conditions and len(conditions) > 20
         # a kept variable's HA Configuration came with the snapshot, its history is on as before
         aspace = second.server.iserver.aspace
         ns = second.cell.instantiator.ns

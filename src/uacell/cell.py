@@ -135,9 +135,14 @@ class CellBuilder:
 
     def extras(self) -> dict[str, Any]:
         """What a snapshot of the built cell keeps beside its nodes (``build_cell(restored=...)``):
-        which declaration each instance member came from, and the types looked up by name so far
-        (finding one walks a type tree, which would load much of a snapshot)."""
-        return {"declarations": dict(self.instantiator.declarations), "types": dict(self._types)}
+        which declaration each instance member came from, the types looked up by name so far
+        (finding one walks a type tree, which would load much of a snapshot), and the templates of
+        what binders instantiate at every start (``Instantiator.kept_templates``)."""
+        return {
+            "declarations": dict(self.instantiator.declarations),
+            "types": dict(self._types),
+            "templates": self.instantiator.kept_templates(),
+        }
 
     async def write_values(self) -> None:
         """Each part's ``values`` (String or LocalizedText members, e.g. DI identification)."""
@@ -173,6 +178,7 @@ async def build_cell(
     builder = CellBuilder(server, ns, model_indexes, type_index)
     if restored is not None:
         builder.instantiator.declarations.update(restored["declarations"])
+        builder.instantiator.templates.update(restored.get("templates", {}))
         builder._types.update(restored["types"])
     roots = {root.name: root for c in companions() for root in c.roots}
     for name, part in parts or demo_cell():
@@ -181,6 +187,7 @@ async def build_cell(
         builder.build(where, part, reference_type=root.reference, create=restored is None)
     if restored is None:
         await builder.write_values()
+    builder.instantiator.keep_templates()  # what binders make, they make at every start
     return builder
 
 

@@ -14,19 +14,25 @@ builds an instance from the type system instead:
 - State and Transition objects are never copied (most carry no ModellingRule, but PackML's
   ``Cleared`` state is Optional: they are recognised by StateType/TransitionType).
 
-It works directly on asyncua's address space, which keeps start-up fast.
+It works directly on asyncua's address space, which keeps start-up fast. What it makes of a type
+the first time is kept as a ``Template``: a later instance of the same type and selection is a copy
+of it (no type walked, none of the type's nodes loaded from a snapshot), node for node what walking
+the types again would make. The templates of what binders make at every start are kept in the
+address-space snapshot (``Instantiator.kept_templates``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import re
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from typing import Any
 
 from asyncua import Server, ua
-from asyncua.server.address_space import AddressSpace
+from asyncua.server.address_space import AddressSpace, AttributeValue, NodeData
 
 from uacell.ua import toolkit
 
@@ -104,6 +110,32 @@ def _compile(pattern: str) -> re.Pattern[str]:
         if not last:
             out.append("/")
     return re.compile("".join(out))
+
+
+# (type, the Selection's include, its exclude): what a template is made for
+TemplateKey = tuple[ua.NodeId, tuple[str, ...], tuple[str, ...]]
+
+
+@dataclass(frozen=True)
+class TemplateNode:
+    """One member node of a template: its NodeId is the instance's path + ``suffix``.
+
+    ``references`` pair each reference with the suffix of its target where the target is the
+    instance or one of its members ("" the instance itself), None where it is outside (a type)."""
+
+    suffix: str
+    attributes: dict[ua.AttributeIds, ua.DataValue]
+    references: list[tuple[ua.ReferenceDescription, str | None]]
+    declaration: ua.NodeId
+
+
+@dataclass(frozen=True)
+class Template:
+    """The members ``Instantiator.create`` made below an instance of one type and selection, in
+    the order it made them, and the references it added to the instance itself."""
+
+    nodes: tuple[TemplateNode, ...]
+    root_references: tuple[tuple[ua.ReferenceDescription, str], ...]
 
 
 class TypeIndex:
@@ -224,6 +256,19 @@ class Instantiator:
         # instance node -> the instance declaration it was made from (methods use it to find
         # their standard definition)
         self.declarations: dict[ua.NodeId, ua.NodeId] = {}
+        self.templates: dict[TemplateKey, Template] = {}
+        self._keeping = False  # ``keep_templates`` was called
+        self._kept: set[TemplateKey] = set()
+        self.copied = 0  # instances made from a template, and
+        self.walked = 0  # by walking their types (tests)
+
+    def keep_templates(self) -> None:
+        """From now on, what is made is made again at every start (by binders, after the cell was
+        built): ``kept_templates`` has its templates, for the address-space snapshot."""
+        self._keeping = True
+
+    def kept_templates(self) -> dict[TemplateKey, Template]:
+        return {key: self.templates[key] for key in self._kept if key in self.templates}
 
     def nodeid(self, path: str) -> ua.NodeId:
         """The NodeId of the instance at ``path`` (as ``create`` makes it)."""
@@ -244,9 +289,87 @@ class Instantiator:
         qname = name if isinstance(name, ua.QualifiedName) else ua.QualifiedName(name, self.ns)
         base = path or qname.Name
         nodeid = self.nodeid(base)
+        key: TemplateKey = (type_id, selection.include, selection.exclude)
+        if self._keeping:
+            self._kept.add(key)
+        template = self.templates.get(key)
+        aspace = self.types.aspace
         self._add_object(parent, nodeid, qname, type_id, None, _as_nodeid(reference_type))
-        self._fill(nodeid, base, "", None, type_id, selection)
+        if template is not None and not any(self.nodeid(base + n.suffix) in aspace for n in template.nodes):
+            self._copy(template, nodeid, base)
+            return nodeid
+        self.walked += 1
+        before = len(aspace[nodeid].references)
+        made = self._fill(nodeid, base, "", None, type_id, selection, [])
+        if made is not None and template is None:
+            self.templates[key] = self._template(nodeid, base, made, before)
         return nodeid
+
+    def _template(self, root: ua.NodeId, base: str, made: list[tuple[ua.NodeId, ua.NodeId]], before: int) -> Template:
+        """What ``create`` just made below ``root`` (path ``base``) as a template (``made``: the members
+        and their declarations, in the order they were made; ``before``: how many references the
+        instance had before its members)."""
+        aspace = self.types.aspace
+        ns = self.ns
+        prefix = base + "."
+
+        def inside(target: ua.NodeId) -> str | None:
+            if target.NamespaceIndex != ns or not isinstance(target.Identifier, str):
+                return None
+            if target.Identifier == base:
+                return ""
+            return target.Identifier[len(base) :] if target.Identifier.startswith(prefix) else None
+
+        nodes = []
+        for member, decl in made:
+            suffix = member.Identifier[len(base) :]
+            data = aspace[member]
+            attributes = {attr: value.value for attr, value in data.attributes.items() if value.value is not None}
+            references = [(dataclasses.replace(ref), inside(ref.NodeId)) for ref in data.references]
+            nodes.append(TemplateNode(suffix, attributes, references, decl))
+        root_refs = []
+        for ref in aspace[root].references[before:]:
+            suffix = inside(ref.NodeId)
+            assert suffix, "create adds references from the instance to its members only"
+            root_refs.append((dataclasses.replace(ref), suffix))
+        return Template(tuple(nodes), tuple(root_refs))
+
+    def _copy(self, template: Template, root: ua.NodeId, base: str) -> None:
+        """The members of ``template`` below the new instance ``root``, as ``_fill`` makes them:
+        their own NodeIds, Values stamped now, references to the instance with its names."""
+        aspace = self.types.aspace
+        self.copied += 1
+        root_data = aspace[root]
+        names = {a: root_data.attributes[a].value.Value.Value for a in (_A.BrowseName, _A.DisplayName)}
+        ids = {"": root}
+
+        def retarget(ref: ua.ReferenceDescription, suffix: str | None) -> ua.ReferenceDescription:
+            if suffix is None:
+                return ref  # to a type: the same for every instance (asyncua never changes one in place)
+            if suffix:
+                return dataclasses.replace(ref, NodeId=ids[suffix])
+            return dataclasses.replace(
+                ref, NodeId=root, BrowseName=names[_A.BrowseName] or ref.BrowseName,
+                DisplayName=names[_A.DisplayName] or ref.DisplayName,
+            )  # fmt: skip
+
+        now = datetime.now(UTC)
+        server_now = now if aspace.force_server_timestamp else None
+        for node in template.nodes:
+            ids[node.suffix] = self.nodeid(base + node.suffix)
+        for node in template.nodes:
+            nodeid = ids[node.suffix]
+            data = NodeData(nodeid)
+            for attr, value in node.attributes.items():
+                if attr == _A.NodeId:
+                    value = dataclasses.replace(value, Value=ua.Variant(nodeid, ua.VariantType.NodeId))
+                elif attr == _A.Value:
+                    value = dataclasses.replace(value, SourceTimestamp=now, ServerTimestamp=server_now)
+                data.attributes[attr] = AttributeValue(value)
+            data.references = [retarget(ref, suffix) for ref, suffix in node.references]
+            aspace[nodeid] = data
+            self.declarations[nodeid] = node.declaration
+        root_data.references.extend(retarget(ref, suffix) for ref, suffix in template.root_references)
 
     def _fill(
         self,
@@ -256,7 +379,10 @@ class Instantiator:
         decl: ua.NodeId | None,
         type_id: ua.NodeId | None,
         selection: Selection,
-    ) -> None:
+        made: list[tuple[ua.NodeId, ua.NodeId]] | None,
+    ) -> list[tuple[ua.NodeId, ua.NodeId]] | None:
+        """Make the members of ``nodeid``; ``made`` collects each one made and its declaration, and
+        becomes None (no template) when a member was there already."""
         for member in self.types.members(decl, type_id):
             state_like = any(self.types.is_subtype(member.type_definition, t) for t in _STATE_LIKE)
             if member.is_placeholder or state_like:
@@ -269,10 +395,16 @@ class Instantiator:
                 continue
             child = self.nodeid(f"{id_path}.{qname.Name}")
             if child in self.types.aspace:
+                made = None
                 continue
             self._add_member(nodeid, child, qname, member)
             self.declarations[child] = member.decl
-            self._fill(child, f"{id_path}.{qname.Name}", rel, member.decl, member.type_definition, selection)
+            if made is not None:
+                made.append((child, member.decl))
+            made = self._fill(
+                child, f"{id_path}.{qname.Name}", rel, member.decl, member.type_definition, selection, made
+            )
+        return made
 
     def _add_member(self, parent: ua.NodeId, nodeid: ua.NodeId, qname: ua.QualifiedName, m: Member) -> None:
         t = self.types
