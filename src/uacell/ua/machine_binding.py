@@ -30,7 +30,7 @@ from asyncua import Server, ua
 
 from uacell.background import eager
 from uacell.fsm import Change, Reason, StateMachine
-from uacell.models.tables import NodeRef
+from uacell.models.tables import FsmTable, NodeRef
 from uacell.ua import toolkit
 from uacell.ua.context import MethodCall, current_call
 from uacell.ua.toolkit import EventEmitter, ValueWriter
@@ -123,6 +123,25 @@ class NodeRefs:
         return node
 
 
+class _DisplayNames(dict[str, ua.LocalizedText]):
+    """The DisplayNames of a table's states and transitions by name, each read from its node the
+    first time it is asked for (a start reads those of the states its machines are in, not all:
+    from a snapshot, each state node read is loaded)."""
+
+    def __init__(self, aspace: Any, table: FsmTable, refs: NodeRefs) -> None:
+        super().__init__()
+        self._aspace, self._table, self._refs = aspace, table, refs
+
+    def __missing__(self, name: str) -> ua.LocalizedText:
+        info = self._table.states.get(name) or self._table.transitions[name]
+        data = self._aspace.get(self._refs(info.node))
+        text = (
+            ua.LocalizedText(str(info.node[1])) if data is None else data.attributes[_A.DisplayName].value.Value.Value
+        )
+        self[name] = text
+        return text
+
+
 class StateMachineBinding:
     """Publishes one machine (and, through ``bind_tree``, its sub-machines) on its instance node."""
 
@@ -160,21 +179,13 @@ class StateMachineBinding:
         self._audit: EventEmitter | None = None  # made on the first transition a call causes
         self._written: dict[int, tuple[Any, ...]] = {}  # id(node) -> what was last written there
         self._tree_queued = False  # a publish_tree is submitted and has not started yet
-        self._display = {name: self._display_name(info.node) for name, info in machine.table.states.items()} | {
-            name: self._display_name(info.node) for name, info in machine.table.transitions.items()
-        }
+        self._display = _DisplayNames(self.aspace, machine.table, refs)
 
     def _path(self, *names: str) -> ua.NodeId | None:
         node: ua.NodeId | None = self.node
         for name in names:
             node = toolkit.find_child(self.aspace, node, name) if node is not None else None
         return node
-
-    def _display_name(self, ref: NodeRef) -> ua.LocalizedText:
-        data = self.server.iserver.aspace.get(self.refs(ref))
-        if data is None:
-            return ua.LocalizedText(str(ref[1]))
-        return data.attributes[_A.DisplayName].value.Value.Value
 
     async def start(self) -> None:
         self._event = await EventEmitter.create(self.server, ua.ObjectIds.TransitionEventType, self.node)
