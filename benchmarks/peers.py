@@ -111,9 +111,10 @@ def main() -> int:
     if args.kind == "asyncua":
         asyncio.run(bare_asyncua(args.port, args.nodesets))
     else:
-        from uacell import early
+        from uacell import codecache, early
 
         early.pause_gc()  # as `uacell serve` does, from its first line
+        codecache.install()
         history = not args.no_history
         early.run(uacell(args.port, args.cell, args.data_dir, args.cache_dir, history, args.pubsub, args.publisher_id))
     return 0

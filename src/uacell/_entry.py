@@ -1,9 +1,10 @@
 """The `uacell` command's entry point, kept tiny so that a stop request is caught from the start
-(``uacell.early`` holds the handler and the flag it sets)."""
+(``uacell.early`` holds the handler and the flag it sets), and the compiled dataclass methods are
+taken from their cache before anything defines one (``uacell.codecache``)."""
 
 from __future__ import annotations
 
-from uacell import early
+from uacell import codecache, early
 
 
 def run() -> int:
@@ -12,6 +13,7 @@ def run() -> int:
     if "serve" in sys.argv[1:]:  # other commands keep Ctrl-C's usual meaning
         early.install_early_stop()
         early.pause_gc()
+    codecache.install()
     try:
         from uacell.cli import main
 
