@@ -11,7 +11,7 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 
 from uacell.history.backends import VALUE
-from uacell.history.service import to_micros
+from uacell.history.service import mark_historizing, to_micros
 from uacell.server import UacellServer
 
 CELL = "urn:uacell:cell"
@@ -109,6 +109,35 @@ async def test_values_attributes_and_capabilities(app: UacellServer, client: Cli
     assert await client.get_node(caps.HistoryServerCapabilities_MaxReturnDataValues).read_value() == 10_000
     aggregates = await client.get_node(caps.HistoryServerCapabilities_AggregateFunctions).get_children()
     assert ua.NodeId(ua.ObjectIds.AggregateFunction_TimeAverage) in {n.nodeid for n in aggregates}
+
+
+async def test_a_variable_is_marked_historized_by_writes_only_where_it_is_not_yet(app: UacellServer) -> None:
+    """What the snapshot keeps marked (``add_configurations`` marks before it is taken) a restart
+    does not write again."""
+    aspace = app.server.iserver.aspace
+    objects = app.server.get_node(ua.ObjectIds.ObjectsFolder)
+    var = await objects.add_variable(ua.NodeId("MarkedOnce", 1), "MarkedOnce", 1.5)
+    written: list[ua.AttributeIds] = []
+    write = aspace.write_attribute_value
+
+    async def counting(node: ua.NodeId, attr: ua.AttributeIds, dv: ua.DataValue) -> ua.StatusCode:
+        written.append(attr)
+        return await write(node, attr, dv)
+
+    aspace.write_attribute_value = counting  # type: ignore[method-assign]
+    try:
+        await mark_historizing(aspace, var.nodeid)
+        assert sorted(written) == sorted(
+            [ua.AttributeIds.AccessLevel, ua.AttributeIds.UserAccessLevel, ua.AttributeIds.Historizing]
+        )
+        written.clear()
+        await mark_historizing(aspace, var.nodeid)
+        assert written == []
+    finally:
+        del aspace.write_attribute_value
+    assert aspace.read_attribute_value(var.nodeid, ua.AttributeIds.Historizing).Value.Value is True
+    level = aspace.read_attribute_value(var.nodeid, ua.AttributeIds.AccessLevel).Value.Value
+    assert level & ua.AccessLevel.HistoryRead.mask and level & ua.AccessLevel.CurrentRead.mask
 
 
 async def test_part11_codes(app: UacellServer, client: Client) -> None:

@@ -19,6 +19,7 @@ from asyncua.server.address_space import AttributeValue, NodeData
 from conftest import fast_config, start_app
 from helpers import free_port, models_copy
 
+from uacell.models import official_models
 from uacell.packml.binding import UNITS
 from uacell.ua import snapshot
 from uacell.ua.snapshot import LazyNodes, SnapshotInvalid, read_snapshot, stripped_copy, write_snapshot
@@ -375,6 +376,14 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(t
         ns = second.cell.instantiator.ns
         assert ua.NodeId("Filler1.Status.MachSpeed.HAConfiguration.Stepped", ns) in aspace
         assert second.history is not None
+        # ... and it is stored marked as historized (a restart writes no such attribute again)
+        key = snapshot.snapshot_key({m.filename: m.sha256 for m in official_models()}, second.snapshot_digest)
+        stored = read_snapshot(path, key)
+        assert stored is not None
+        kept = stored.nodes[ua.NodeId("Filler1.Status.MachSpeed", ns)].attributes
+        assert kept[ua.AttributeIds.Historizing].value.Value.Value is True
+        for attr in (ua.AttributeIds.AccessLevel, ua.AttributeIds.UserAccessLevel):
+            assert kept[attr].value.Value.Value & ua.AccessLevel.HistoryRead.mask
         await second.snapshot_written()  # nothing to write
     finally:
         await second.stop()

@@ -55,6 +55,20 @@ def node_key(node: ua.NodeId) -> str:
     return str(node.to_string())
 
 
+async def mark_historizing(aspace: Any, node: ua.NodeId) -> None:
+    """Historizing true, and the HistoryRead bit in AccessLevel and UserAccessLevel, each written
+    only where it is not so yet: ``add_configurations`` marks the kept variables before the
+    address-space snapshot is taken, so that a restart finds them marked."""
+    bit = ua.AccessLevel.HistoryRead.mask
+    for attr in (_A.AccessLevel, _A.UserAccessLevel):
+        level = aspace.read_attribute_value(node, attr).Value.Value or 0
+        if not level & bit:
+            await aspace.write_attribute_value(node, attr, ua.DataValue(ua.Variant(level | bit, ua.VariantType.Byte)))
+    historizing = aspace.read_attribute_value(node, _A.Historizing).Value
+    if historizing is None or historizing.Value is not True:
+        await aspace.write_attribute_value(node, _A.Historizing, ua.DataValue(ua.Variant(True, ua.VariantType.Boolean)))
+
+
 # Encoded fields (name, VariantType, value) that repeat from event to event (a source, a state's id, a
 # user), bounded; times, EventIds and arrays are encoded each time. Used by the history writer threads
 # of the process (one a server): each use is one dictionary operation, atomic under the interpreter
@@ -210,11 +224,7 @@ class HistoryService:
             del self.values[node]
             raise HistoryError(status.value)
         self._handles.append(handle)
-        bit = ua.AccessLevel.HistoryRead.mask
-        for attr in (_A.AccessLevel, _A.UserAccessLevel):
-            level = aspace.read_attribute_value(node, attr).Value.Value or 0
-            await aspace.write_attribute_value(node, attr, ua.DataValue(ua.Variant(level | bit, ua.VariantType.Byte)))
-        await aspace.write_attribute_value(node, _A.Historizing, ua.DataValue(ua.Variant(True, ua.VariantType.Boolean)))
+        await mark_historizing(aspace, node)
         # the value it has now is the first one kept
         self._record_value(key, aspace.read_attribute_value(node, _A.Value))
 

@@ -21,7 +21,7 @@ from uacell.datasets import resolve
 from uacell.history.backends import Backend, SqliteBackend
 from uacell.history.config import HistoryConfig
 from uacell.history.processed import AGGREGATES
-from uacell.history.service import HistoryService
+from uacell.history.service import HistoryService, mark_historizing
 from uacell.history.store import HistoryStore, StoreSettings
 from uacell.ua import toolkit
 from uacell.ua.event_tap import EventTap
@@ -98,14 +98,17 @@ def kept_values(server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, u
 
 
 async def add_configurations(server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, ua.NodeId]]) -> None:
-    """The HA Configuration of every kept variable that has none yet. ``uacell.server`` calls it
-    before the address-space snapshot is taken, so that restarts find them in it (the snapshot's key
-    includes ``history_shape``); ``install_history`` adds those of the variables binders add later."""
+    """The HA Configuration of every kept variable that has none yet, and its Historizing and
+    HistoryRead bits (``mark_historizing``). ``uacell.server`` calls it before the address-space
+    snapshot is taken, so that restarts find them in it (the snapshot's key includes
+    ``history_shape``); ``install_history`` adds those of the variables binders add later."""
     if not cfg.enabled:
         return
     configurations = _Configurations(server)
+    aspace = server.iserver.aspace
     for node in kept_values(server, cfg, parts):
         await configurations.add(node)
+        await mark_historizing(aspace, node)
 
 
 def history_shape(cfg: HistoryConfig) -> str:

@@ -66,7 +66,7 @@ KEEP = 3  # snapshots kept per cache directory (one per cell and model set recen
 # bindings) go in large chunks; standard and NodeSet nodes (numeric NodeIds, a few wanted: 319 of
 # 7,400 on a restart of the demo cell) in pairs (unpickling what a restart wants took 30 ms in chunks
 # of 8, 24 ms in 4s, 22 ms in pairs, 20 ms one by one, which makes the file a third larger).
-CHUNK, INSTANCE_CHUNK = 2, 64
+CHUNK, INSTANCE_CHUNK = 2, 256
 _LENGTH = struct.Struct(">I")
 
 
