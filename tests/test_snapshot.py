@@ -391,9 +391,9 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(t
 
 
 async def test_the_nodes_companions_give_their_parts_come_with_the_snapshot(tmp_path: Path) -> None:
-    """A PackML unit's OEE folder (``Companion.shape``) is made with the cell, before the snapshot is
-    taken: a restart finds it and its HA Configurations stored there, not made again, and the binder
-    writes the unit's figures into it."""
+    """A PackML unit's OEE folder, StartParameters and InjectFault (``Companion.shape``) are made with
+    the cell, before the snapshot is taken: a restart finds them and their HA Configurations stored
+    there, not made again, and the binder writes the unit's figures into them."""
     cache = tmp_path / "cache"
     first = await _start(tmp_path, cache)
     try:
@@ -406,7 +406,11 @@ async def test_the_nodes_companions_give_their_parts_come_with_the_snapshot(tmp_
         ns = second.cell.instantiator.ns
         nodes = second.server.iserver.aspace._nodes
         assert isinstance(nodes, LazyNodes)
-        for name in ("OEE", "OEE.Availability", "OEE.GoodCount", "OEE.OEE.HAConfiguration"):
+        made_with_the_cell = (
+            *("OEE", "OEE.Availability", "OEE.GoodCount", "OEE.OEE.HAConfiguration"),
+            *("Status.StartParameters", "InjectFault", "InjectFault.InputArguments"),
+        )
+        for name in made_with_the_cell:
             node = ua.NodeId(f"Filler1.{name}", ns)
             assert (node.NamespaceIndex, node.Identifier) in nodes._where, name  # stored, not made here
         binding = second.registry(UNITS).get("Filler1")

@@ -33,7 +33,13 @@ from uacell.packml.config import PackMLConfig, UnitSpec
 from uacell.packml.equipment import PackMLEquipment
 from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLTables, PackMLUnit, run_units
 from uacell.packml.oee import parse_shifts
-from uacell.packml.shape import add_oee
+from uacell.packml.shape import (
+    DESCRIPTOR_TYPE,
+    INJECT_FAULT,
+    INJECT_FAULT_INPUTS,
+    add_oee,
+    add_start_parameters,
+)
 from uacell.packml.sim import SimulatedUnit
 from uacell.packml.types import (
     EUInformation,
@@ -57,10 +63,10 @@ log = logging.getLogger(__name__)
 
 PACKML_URI = "http://opcfoundation.org/UA/PackML/"
 # DataType ids of the PackML structures (OPC 30050 NodeSet, namespace PACKML_URI).
-COUNT_TYPE, ALARM_TYPE, DESCRIPTOR_TYPE, INGREDIENTS_TYPE, PRODUCT_TYPE, REMOTE_TYPE = 14, 15, 16, 17, 18, 19
+# (PackMLDescriptorDataType's, 16, is uacell.packml.shape's DESCRIPTOR_TYPE)
+COUNT_TYPE, ALARM_TYPE, INGREDIENTS_TYPE, PRODUCT_TYPE, REMOTE_TYPE = 14, 15, 17, 18, 19
 MODE_ENUM = "ProductionMaintenanceModeEnum"
 TICK_PERIOD = 0.1
-INJECT_FAULT = "InjectFault"
 _A = ua.AttributeIds
 _PLAIN = (bool, int, float, str)  # model values that go into a Variant as they are
 # Every bound unit, keyed by its browse path ("Filler1").
@@ -207,27 +213,8 @@ class UnitBinding:
 
     async def add_start_parameters(self) -> None:
         """The server-defined read-only ``Status/StartParameters`` (PackMLDescriptorDataType[])."""
-        status = self.app.space.node(self.child("Status"))
-        nodeid = ua.NodeId(f"{self.built.path}.Status.StartParameters", self.ns)
-        datatype = ua.NodeId(DESCRIPTOR_TYPE, self.structures.ns)
-        var = await status.add_variable(
-            nodeid,
-            ua.QualifiedName("StartParameters", self.ns),
-            ua.Variant([], ua.VariantType.ExtensionObject, is_array=True),
-            datatype=datatype,
-        )
-        await var.write_attribute(_A.ValueRank, ua.DataValue(ua.Variant(1, ua.VariantType.Int32)))
-        await var.write_attribute(
-            _A.ArrayDimensions, ua.DataValue(ua.Variant([0], ua.VariantType.UInt32, is_array=True))
-        )
-        await var.write_attribute(
-            _A.Description,
-            ua.DataValue(
-                ua.Variant(
-                    ua.LocalizedText("uacell: the parameters of the last accepted Start"), ua.VariantType.LocalizedText
-                )
-            ),
-        )
+        # made with the cell before the snapshot (uacell.packml.shape); here where it is not
+        await add_start_parameters(self.app.space, self.child("Status"), self.built.path, self.ns, self.structures.ns)
 
     async def add_oee(self) -> None:
         """``OEE`` under the unit (uacell's namespace): the figures of ``uacell.packml.oee``, read-only."""
@@ -269,12 +256,14 @@ class UnitBinding:
         await self.conditions.setup()
 
     async def add_inject_fault(self) -> None:
-        """``InjectFault(Int32 Id, String Message)`` under the unit (engineer and above)."""
+        """``InjectFault(Int32 Id, String Message)`` under the unit (engineer and above); its node is
+        made with the cell before the snapshot (uacell.packml.shape), here where it is not."""
+        nodeid = ua.NodeId(f"{self.built.path}.{INJECT_FAULT}", self.ns)
         await self.app.dispatcher.add_method(
             self.node,
-            ua.NodeId(f"{self.built.path}.{INJECT_FAULT}", self.ns),
+            nodeid,
             ua.QualifiedName(INJECT_FAULT, self.ns),
-            (("Id", ua.VariantType.Int32, "alarm ID"), ("Message", ua.VariantType.String, "alarm message")),
+            INJECT_FAULT_INPUTS,
             PACKML,
             self._inject_fault,
             serialize_on=self.unit,

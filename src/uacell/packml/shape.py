@@ -1,11 +1,12 @@
 """What every PackML unit gets of uacell's own with the cell (``Companion.shape``): its ``OEE``
 folder with the figures of ``uacell.packml.oee``, read-only variables in uacell's namespace, made
-with the figures of a unit that has not run (the binder writes the unit's own at start).
+with the figures of a unit that has not run (the binder writes the unit's own at start); its
+read-only ``Status/StartParameters``; and its ``InjectFault`` method node (the binder binds it).
 
 They depend on nothing but the unit being there, so they are made before the address-space snapshot
 is taken and a restart finds them in it (with their HA Configurations) instead of making a hundred
 variables again for a hundred units. The binder writes their values; it makes them itself where they
-are missing (a server without the snapshot) through the same function.
+are missing (a server without the snapshot) through the same functions.
 """
 
 from __future__ import annotations
@@ -13,9 +14,17 @@ from __future__ import annotations
 from asyncua import ua
 
 from uacell.cell import CellBuilder
-from uacell.packml.companion import UNIT_PART
+from uacell.packml.companion import PACKML_MODEL, UNIT_PART
 from uacell.packml.oee import Figures
+from uacell.ua.dispatch import add_method_node
 from uacell.ua.space import Space
+
+DESCRIPTOR_TYPE = 16  # PackMLDescriptorDataType's DataType id (OPC 30050 NodeSet)
+INJECT_FAULT = "InjectFault"
+INJECT_FAULT_INPUTS = (
+    ("Id", ua.VariantType.Int32, "alarm ID"),
+    ("Message", ua.VariantType.String, "alarm message"),
+)
 
 # The figures of a unit that has not run (the values the variables are made with).
 _NOTHING_YET = Figures(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0).values()
@@ -37,8 +46,37 @@ async def add_oee(space: Space, unit: ua.NodeId, path: str, ns: int) -> None:
         await folder.add_variable(variable_id, ua.QualifiedName(name, ns), ua.Variant(value, vtype))
 
 
+async def add_start_parameters(space: Space, status: ua.NodeId, path: str, ns: int, packml_ns: int) -> None:
+    """The server-defined read-only ``<path>.Status.StartParameters`` (PackMLDescriptorDataType[])
+    below the unit's ``status``, unless it exists."""
+    nodeid = ua.NodeId(f"{path}.Status.StartParameters", ns)
+    if nodeid in space.aspace:
+        return
+    var = await space.node(status).add_variable(
+        nodeid,
+        ua.QualifiedName("StartParameters", ns),
+        ua.Variant([], ua.VariantType.ExtensionObject, is_array=True),
+        datatype=ua.NodeId(DESCRIPTOR_TYPE, packml_ns),
+    )
+    a = ua.AttributeIds
+    await var.write_attribute(a.ValueRank, ua.DataValue(ua.Variant(1, ua.VariantType.Int32)))
+    await var.write_attribute(a.ArrayDimensions, ua.DataValue(ua.Variant([0], ua.VariantType.UInt32, is_array=True)))
+    text = ua.LocalizedText("uacell: the parameters of the last accepted Start")
+    await var.write_attribute(a.Description, ua.DataValue(ua.Variant(text, ua.VariantType.LocalizedText)))
+
+
+async def add_inject_fault(space: Space, unit: ua.NodeId, path: str, ns: int) -> None:
+    """The ``InjectFault(Int32 Id, String Message)`` method node below ``unit``, unless it exists."""
+    nodeid = ua.NodeId(f"{path}.{INJECT_FAULT}", ns)
+    if nodeid not in space.aspace:
+        await add_method_node(space.node(unit), nodeid, ua.QualifiedName(INJECT_FAULT, ns), INJECT_FAULT_INPUTS)
+
+
 async def shape_units(space: Space, cell: CellBuilder) -> None:
-    """The OEE folder of every unit of the cell."""
+    """The OEE folder, StartParameters and InjectFault of every unit of the cell."""
     ns = cell.instantiator.ns
+    packml_ns = cell.model_indexes[PACKML_MODEL.key]
     for built in cell.by_role(UNIT_PART):
         await add_oee(space, built.node, built.path, ns)
+        await add_start_parameters(space, cell.child(built.node, "Status"), built.path, ns, packml_ns)
+        await add_inject_fault(space, built.node, built.path, ns)

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-from asyncua import Server, ua
+from asyncua import Node, Server, ua
 from asyncua.server.address_space import MethodService
 
 from uacell.errors import CallError
@@ -176,32 +176,11 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         handler: Handler,
         **options: Any,
     ) -> BoundMethod:
-        """Create a server-specific method (scalar inputs: name, type, description) and bind it."""
-        arguments = []
-        for arg_name, vtype, text in inputs:
-            arg = ua.Argument()
-            arg.Name = arg_name
-            arg.DataType = ua.NodeId(vtype.value)
-            arg.ValueRank = -1
-            arg.ArrayDimensions = []
-            arg.Description = ua.LocalizedText(text)
-            arguments.append(arg)
-
-        async def unused(parent: Any, *args: Any) -> list[ua.StatusCode]:  # never called: the dispatcher answers
-            return [ua.StatusCode(ua.StatusCodes.BadInternalError)]
-
-        method = await self.server.get_node(object_id).add_method(nodeid, name, unused)
-        if arguments:  # with a NodeId derived from the method's, as served and exported (not a counter's)
-            prop = await method.add_property(
-                ua.NodeId(f"{nodeid.Identifier}.InputArguments", nodeid.NamespaceIndex),
-                ua.QualifiedName("InputArguments", 0),
-                arguments,
-                varianttype=ua.VariantType.ExtensionObject,
-                datatype=ua.ObjectIds.Argument,
-            )
-            await prop.write_value_rank(ua.ValueRank.OneDimension)  # as OPC 10000-3 declares InputArguments
-            await prop.set_modelling_rule(True)
-        return self.bind(object_id, method.nodeid, family, handler, **options)
+        """Create a server-specific method (scalar inputs: name, type, description) and bind it; a
+        method node made already (``add_method_node``, e.g. kept in the snapshot) is bound as it is."""
+        if nodeid not in self.server.iserver.aspace:
+            await add_method_node(self.server.get_node(object_id), nodeid, name, inputs)
+        return self.bind(object_id, nodeid, family, handler, **options)
 
     def unbind(self, method_id: ua.NodeId) -> None:
         """Forget a method whose node is being deleted."""
@@ -619,3 +598,34 @@ def _datatype_of(value: Any) -> ua.NodeId | None:
         if known is cls:
             return nodeid
     return None
+
+
+async def add_method_node(
+    parent: Node, nodeid: ua.NodeId, name: ua.QualifiedName, inputs: Sequence[tuple[str, ua.VariantType, str]]
+) -> None:
+    """A server-specific method node below ``parent`` with its InputArguments (scalar inputs: name,
+    type, description), unbound: ``Dispatcher.add_method`` (or ``bind``) binds it."""
+    arguments = []
+    for arg_name, vtype, text in inputs:
+        arg = ua.Argument()
+        arg.Name = arg_name
+        arg.DataType = ua.NodeId(vtype.value)
+        arg.ValueRank = -1
+        arg.ArrayDimensions = []
+        arg.Description = ua.LocalizedText(text)
+        arguments.append(arg)
+
+    async def unused(parent: Any, *args: Any) -> list[ua.StatusCode]:  # never called: the dispatcher answers
+        return [ua.StatusCode(ua.StatusCodes.BadInternalError)]
+
+    method = await parent.add_method(nodeid, name, unused)
+    if arguments:  # with a NodeId derived from the method's, as served and exported (not a counter's)
+        prop = await method.add_property(
+            ua.NodeId(f"{nodeid.Identifier}.InputArguments", nodeid.NamespaceIndex),
+            ua.QualifiedName("InputArguments", 0),
+            arguments,
+            varianttype=ua.VariantType.ExtensionObject,
+            datatype=ua.ObjectIds.Argument,
+        )
+        await prop.write_value_rank(ua.ValueRank.OneDimension)  # as OPC 10000-3 declares InputArguments
+        await prop.set_modelling_rule(True)
