@@ -59,16 +59,12 @@ async def install_history(
     store = HistoryStore(make_backend(cfg, data_dir), settings_of(cfg))
     service = HistoryService(server.iserver, store, allows, cfg.max_values_per_request)
     await service.install(tap)
-    aspace = server.iserver.aspace
-
-    def children(node: ua.NodeId) -> list[tuple[str, ua.NodeId]]:
-        return toolkit.children(aspace, node)
-
     parts = list(parts)
     configurations = _Configurations(server)
     for node in kept_values(server, cfg, parts):
         await service.historize_value(node)
         await configurations.add(node)  # when the snapshot did not hold it (a variable a binder added)
+    children = _children(server)  # listed after the configurations were added
     for role, root in parts:
         dataset = dataset_of(role)
         for path in dataset.notifiers if dataset is not None else ():
@@ -79,14 +75,25 @@ async def install_history(
     return service
 
 
+def _children(server: Server) -> Callable[[ua.NodeId], list[tuple[str, ua.NodeId]]]:
+    """A node's children (``toolkit.children``), each node's listed once: the items of a part's
+    DataSet share their parents (a unit's Status holds twenty of them)."""
+    aspace = server.iserver.aspace
+    listed: dict[ua.NodeId, list[tuple[str, ua.NodeId]]] = {}
+
+    def children(node: ua.NodeId) -> list[tuple[str, ua.NodeId]]:
+        found = listed.get(node)
+        if found is None:
+            found = listed[node] = toolkit.children(aspace, node)
+        return found
+
+    return children
+
+
 def kept_values(server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, ua.NodeId]]) -> list[ua.NodeId]:
     """The variables whose values are kept: each part's DataSet values (found in the address space
     as it is now), axis positions only with ``axis_positions``."""
-    aspace = server.iserver.aspace
-
-    def children(node: ua.NodeId) -> list[tuple[str, ua.NodeId]]:
-        return toolkit.children(aspace, node)
-
+    children = _children(server)
     out: list[ua.NodeId] = []
     for role, root in parts:
         dataset = dataset_of(role)

@@ -63,10 +63,11 @@ class AdminStore:
 
     def _clean_temporaries(self) -> None:
         prefix = self.path.name + "."
-        try:
-            found = [p for p in self.path.parent.iterdir() if p.name.startswith(prefix) and p.name.endswith(".tmp")]
+        try:  # names, not Paths: every unit of a cell lists the same directory
+            names = os.listdir(self.path.parent)
         except OSError:
             return  # no directory yet (a first start), or unreadable: the load says so
+        found = [self.path.parent / n for n in names if n.startswith(prefix) and n.endswith(".tmp")]
         removed = 0
         for leftover in found:
             try:
