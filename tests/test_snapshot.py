@@ -522,6 +522,12 @@ async def test_with_the_cache_off_nothing_is_read_or_written(tmp_path: Path) -> 
     try:
         assert app.address_space_source == "nodesets"
         await app.snapshot_written()
+        # what a companion's shape makes with the cell, its binder made (no snapshot was captured)
+        ns = app.cell.instantiator.ns
+        aspace = app.server.iserver.aspace
+        for name in ("OEE.Availability", "Status.StartParameters", "InjectFault.InputArguments"):
+            assert ua.NodeId(f"Filler1.{name}", ns) in aspace, name
+        assert ua.NodeId("Filler1.InjectFault", ns) in app.dispatcher.methods  # and bound
     finally:
         await app.stop()
     assert not cache.exists()

@@ -36,7 +36,7 @@ from uacell.packml.oee import parse_shifts
 from uacell.packml.shape import (
     DESCRIPTOR_TYPE,
     INJECT_FAULT,
-    INJECT_FAULT_INPUTS,
+    add_inject_fault,
     add_oee,
     add_start_parameters,
 )
@@ -256,18 +256,11 @@ class UnitBinding:
         await self.conditions.setup()
 
     async def add_inject_fault(self) -> None:
-        """``InjectFault(Int32 Id, String Message)`` under the unit (engineer and above); its node is
-        made with the cell before the snapshot (uacell.packml.shape), here where it is not."""
+        """``InjectFault(Int32 Id, String Message)`` under the unit (engineer and above)."""
+        # its node is made with the cell before the snapshot (uacell.packml.shape); here where it is not
+        await add_inject_fault(self.app.space, self.node, self.built.path, self.ns)
         nodeid = ua.NodeId(f"{self.built.path}.{INJECT_FAULT}", self.ns)
-        await self.app.dispatcher.add_method(
-            self.node,
-            nodeid,
-            ua.QualifiedName(INJECT_FAULT, self.ns),
-            INJECT_FAULT_INPUTS,
-            PACKML,
-            self._inject_fault,
-            serialize_on=self.unit,
-        )
+        self.app.dispatcher.bind(self.node, nodeid, PACKML, self._inject_fault, serialize_on=self.unit)
 
     # publishing ---------------------------------------------------------------------------------
     def on_change(self, changed: dict[str, Any]) -> None:

@@ -176,10 +176,8 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         handler: Handler,
         **options: Any,
     ) -> BoundMethod:
-        """Create a server-specific method (scalar inputs: name, type, description) and bind it; a
-        method node made already (``add_method_node``, e.g. kept in the snapshot) is bound as it is."""
-        if nodeid not in self.server.iserver.aspace:
-            await add_method_node(self.server.get_node(object_id), nodeid, name, inputs)
+        """Create a server-specific method (scalar inputs: name, type, description) and bind it."""
+        await add_method_node(self.server.get_node(object_id), nodeid, name, inputs)
         return self.bind(object_id, nodeid, family, handler, **options)
 
     def unbind(self, method_id: ua.NodeId) -> None:
