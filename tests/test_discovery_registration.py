@@ -130,13 +130,21 @@ async def test_a_discovery_server_that_does_not_trust_uacell_refuses_it_and_uace
     processes.append(lds)
     uacell = serve_registering(data, tmp_path, url, 0.3)
     processes.append(uacell)
-    await wait_until(lambda: any((lds_pki / "rejected").glob("*")), timeout=30, step=0.05)
-    # What it refused is uacell's own application certificate.
+    # What it refused is uacell's own application certificate (waited for whole: the discovery
+    # server may still be writing the file when it appears).
     from cryptography import x509
 
-    (rejected,) = (lds_pki / "rejected").glob("*")
-    refused = x509.load_pem_x509_certificate(rejected.read_bytes())
-    assert refused == x509.load_der_x509_certificate(cert.read_bytes())
+    def refused_certificate() -> x509.Certificate | None:
+        found = list((lds_pki / "rejected").glob("*"))
+        if len(found) != 1:
+            return None
+        try:
+            return x509.load_pem_x509_certificate(found[0].read_bytes())
+        except ValueError:
+            return None
+
+    await wait_until(lambda: refused_certificate() is not None, timeout=30, step=0.05)
+    assert refused_certificate() == x509.load_der_x509_certificate(cert.read_bytes())
     assert load_config().server.application_uri not in await find_servers(url)
     async with Client(uacell.endpoint, timeout=10) as client:
         state = await client.get_node(ua.ObjectIds.Server_ServerStatus_State).read_value()
