@@ -302,13 +302,17 @@ class Instantiator:
         before = len(aspace[nodeid].references)
         made = self._fill(nodeid, base, "", None, type_id, selection, [])
         if made is not None and template is None:
-            self.templates[key] = self._template(nodeid, base, made, before)
+            made_template = self._template(nodeid, base, made, before)
+            if made_template is not None:
+                self.templates[key] = made_template
         return nodeid
 
-    def _template(self, root: ua.NodeId, base: str, made: list[tuple[ua.NodeId, ua.NodeId]], before: int) -> Template:
+    def _template(
+        self, root: ua.NodeId, base: str, made: list[tuple[ua.NodeId, ua.NodeId]], before: int
+    ) -> Template | None:
         """What ``create`` just made below ``root`` (path ``base``) as a template (``made``: the members
         and their declarations, in the order they were made; ``before``: how many references the
-        instance had before its members)."""
+        instance had before its members); None if the instance gained a reference to anything else."""
         aspace = self.types.aspace
         ns = self.ns
         prefix = base + "."
@@ -330,7 +334,8 @@ class Instantiator:
         root_refs = []
         for ref in aspace[root].references[before:]:
             suffix = inside(ref.NodeId)
-            assert suffix, "create adds references from the instance to its members only"
+            if not suffix:
+                return None  # not what walking the type makes: no copy could make it
             root_refs.append((dataclasses.replace(ref), suffix))
         return Template(tuple(nodes), tuple(root_refs))
 
