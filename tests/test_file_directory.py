@@ -533,6 +533,26 @@ async def test_refusals_arrive_as_call_results(r: Rig):
     assert sorted(p.name for p in r.store.root.iterdir()) == ["lib", "pick.robot"]
 
 
+async def test_a_protection_change_republishes_writable_without_asking_the_disk(r: Rig, monkeypatch):
+    """A program loaded or unloaded changes only what the store's ``protect`` says: Writable and
+    UserWritable follow from the entry published last, no entry is read again."""
+    c = await r.connect()
+    pick = r.node("pick.robot")
+    asked: list[str] = []
+    entry = r.store.entry
+    monkeypatch.setattr(r.store, "entry", lambda relpath: asked.append(relpath) or entry(relpath))
+    r.store.protect = lambda relpath: relpath == "pick.robot"
+    r.binding.protection_changed("pick.robot")
+    await r.app.settle()
+    assert (await value(c, pick, "Writable"), await value(c, pick, "UserWritable")) == (False, False)
+    r.store.protect = None
+    r.binding.protection_changed("pick.robot")
+    await r.app.settle()
+    assert (await value(c, pick, "Writable"), await value(c, pick, "UserWritable")) == (True, True)
+    assert await value(c, pick, "Size") == len(BASELINE["pick.robot"])
+    assert asked == []
+
+
 async def test_protected_entry_answers_bad_invalid_state(r: Rig):
     c = await r.connect()
     programs, pick = ua.NodeId(PROGRAMS, r.ns), r.node("pick.robot")

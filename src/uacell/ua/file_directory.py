@@ -86,6 +86,7 @@ class FileDirectoryBinding:
         self._paths: dict[ua.NodeId, str] = {directory_node: ""}
         self._is_dir: dict[str, bool] = {}
         self._variables: dict[str, dict[str, ua.NodeId]] = {}
+        self._published: dict[str, Entry] = {}  # relpath -> the entry its variables were last published from
         self.values = ValueWriter(self._aspace, app.dispatcher.types.builtin_of)
         # handle -> (session, relpath) for handles opened through this binding
         self._handles: dict[int, tuple[Hashable, str]] = {}
@@ -177,10 +178,23 @@ class FileDirectoryBinding:
     # ------------------------------------------------------------------ keeping the nodes current
 
     def refresh(self, relpath: str | None = None) -> None:
-        """Republish a file's variables (all files if None), e.g. after the store's ``protect`` changed."""
+        """Republish a file's variables (all files if None), as the store has them now."""
         targets = [relpath] if relpath is not None else [p for p, d in self._is_dir.items() if not d]
         for p in targets:
             self._submit(p)
+
+    def protection_changed(self, relpath: str) -> None:
+        """The store's ``protect`` changed for ``relpath``: republish its Writable and UserWritable from
+        what was published last (the disk did not change; a file not published yet is read)."""
+
+        async def republish() -> None:
+            entry = self._published.get(relpath)
+            if entry is None:
+                await self._apply(relpath)
+            else:
+                await self._publish_values(relpath, entry)
+
+        self.app.publisher.submit(republish)
 
     def _watch_sessions(self) -> None:
         hooks = self.app.security.on_session_closed
@@ -267,6 +281,7 @@ class FileDirectoryBinding:
             self._paths.pop(n, None)
             self._is_dir.pop(p, None)
             self._variables.pop(p, None)
+            self._published.pop(p, None)
         for n in doomed:
             self.app.dispatcher.unbind(n)
             self._instantiator.declarations.pop(n, None)
@@ -311,6 +326,7 @@ class FileDirectoryBinding:
                 entry = self.store.entry(relpath)
             except CallError:
                 return
+        self._published[relpath] = entry
         writable = entry.writable and not (self.store.protect is not None and self.store.protect(relpath))
         values = {
             "Size": entry.size,

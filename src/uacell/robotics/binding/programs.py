@@ -101,7 +101,7 @@ class Programs:
         if protected != self._protected and self.directory is not None:
             # Writable/UserWritable of the files that became (un)protected.
             for relpath in protected ^ self._protected:
-                self.directory.refresh(relpath)
+                self.directory.protection_changed(relpath)
         self._protected = protected
 
     async def close(self) -> None:
