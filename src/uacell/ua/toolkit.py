@@ -17,7 +17,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from asyncua import Server, ua
-from asyncua.server.address_space import AddressSpace
+from asyncua.server.address_space import AddressSpace, AttributeValue
 from asyncua.server.event_generator import EventGenerator
 
 _A = ua.AttributeIds
@@ -125,9 +125,16 @@ class ValueWriter:
             else ua.Variant(value, vtype or self.vtype(nodeid), is_array=isinstance(value, list))
         )
         now = datetime.now(UTC)
-        await self.aspace.write_attribute_value(
-            nodeid, _A.Value, ua.DataValue(variant, SourceTimestamp=now, ServerTimestamp=now)
-        )
+        dv = ua.DataValue(variant, SourceTimestamp=now, ServerTimestamp=now)
+        attval = self._unwatched(nodeid)
+        old = attval.value if attval is not None else None
+        if attval is not None and old is not None and old.Value is not None:
+            vtype = old.Value.VariantType
+            if vtype == variant.VariantType and vtype != ua.VariantType.Null:
+                attval.value = dv  # what asyncua's write does here: the same type, nobody to tell
+                attval.value_callback = None
+                return
+        await self.aspace.write_attribute_value(nodeid, _A.Value, dv)
 
     async def write_status(self, nodeid: ua.NodeId, status: ua.StatusCode) -> None:
         """A Value that is only a status (e.g. Bad_StateNotActive), with timestamps."""
@@ -135,7 +142,22 @@ class ValueWriter:
         now = datetime.now(UTC)
         # A null Value given: DataValue's default makes a Variant through a guessing constructor (3 us).
         dv = ua.DataValue(_NULL, StatusCode=status, SourceTimestamp=now, ServerTimestamp=now)
+        attval = self._unwatched(nodeid)
+        if attval is not None and status.is_bad():
+            attval.value = dv  # what asyncua's write does with a Bad status (its Value null), nobody to tell
+            attval.value_callback = None
+            return
         await self.aspace.write_attribute_value(nodeid, _A.Value, dv)
+
+    def _unwatched(self, nodeid: ua.NodeId) -> AttributeValue | None:
+        """The Value of ``nodeid`` when a write of it tells nobody (no data change callback: no
+        subscription, no history; no setter) and may be stored as asyncua's write would store it;
+        else None (asyncua's ``write_attribute_value`` checks and tells)."""
+        data = self.aspace.get(nodeid)
+        attval = data.attributes.get(_A.Value) if data is not None else None
+        if attval is None or attval.datachange_callbacks or attval.value_setter is not None:
+            return None
+        return attval
 
     async def set_access(self, nodeid: ua.NodeId, level: int) -> None:
         """AccessLevel and UserAccessLevel (the security layer narrows the latter per session)."""
