@@ -28,6 +28,7 @@ ENV PATH=/opt/uacell/bin:$PATH \
     UACELL_MODELS_DIR=/opt/uacell/nodesets \
     UACELL_CONFIG=/etc/uacell/uacell.toml \
     UACELL_DATA_DIR=/var/lib/uacell \
+    UACELL_CODE_CACHE=/var/lib/uacell/cache \
     PYTHONUNBUFFERED=1
 # fail the build now, not the first start, if the models are incomplete
 RUN uacell models path

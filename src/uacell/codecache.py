@@ -132,7 +132,3 @@ def install(path: str | None = None) -> CodeCache | None:
     dataclasses.exec = cache.exec  # type: ignore[attr-defined]  # found before the builtin
     atexit.register(cache.save)
     return cache
-
-
-def installed() -> CodeCache | None:
-    return _installed
