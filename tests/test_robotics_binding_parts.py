@@ -151,3 +151,71 @@ async def test_the_demo_controller_serves_programs_stored_by_an_older_uacell(tmp
             assert "legacy.robot" in names
     finally:
         await app.stop()
+
+
+def test_store_library_index_follows_the_listing(tmp_path):
+    root = tmp_path / "programs"
+    install_samples(root)
+    (root / "b").mkdir()
+    (root / "b" / "twin.robot").write_text("program TwinB\nwait 1\n", encoding="utf-8")
+    store = FileStore(root)
+    library = StoreLibrary(store)
+    plain = DirectoryLibrary(root)
+    assert library.resolve("twin") == plain.resolve("twin") == "b/twin.robot"
+    assert library.resolve("later") is None
+    # A file added and a name held twice: the index is made again from the new listing, and the
+    # same file wins as in a plain directory walk (sorted paths: "a/twin.robot" before "b/...").
+    (root / "a").mkdir()
+    (root / "a" / "twin.robot").write_text("program TwinA\nwait 1\n", encoding="utf-8")
+    (root / "later.robot").write_text("program Later\nwait 1\n", encoding="utf-8")
+    assert library.resolve("twin") == plain.resolve("twin") == "a/twin.robot"
+    assert library.resolve("later") == "later.robot"
+    (root / "later.robot").unlink()
+    assert library.resolve("later") is None
+
+
+def test_library_keeps_a_settled_small_file_text_while_its_status_is_unchanged(tmp_path, monkeypatch):
+    import uacell.files
+    import uacell.robotics.model as model
+
+    root = tmp_path / "programs"
+    root.mkdir()
+    path = root / "p.robot"
+    path.write_text("program One\nwait 1\n", encoding="utf-8")
+    library = DirectoryLibrary(root)
+    opened: list[str] = []
+    real_open = open
+
+    def counting_open(file, *args, **kwargs):
+        opened.append(str(file))
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(model, "open", counting_open, raising=False)
+    # Just written: not settled, read from the disk every time.
+    assert library.read("p.robot") == "program One\nwait 1\n"
+    assert library.read("p.robot") == "program One\nwait 1\n"
+    assert len(opened) == 2
+    monkeypatch.setattr(uacell.files, "SETTLE_NS", 0)  # everything counts as settled from here
+    assert library.read("p.robot") == "program One\nwait 1\n"
+    assert library.read("p.robot") == "program One\nwait 1\n"
+    assert len(opened) == 3  # kept after the third read
+    # Replaced (a new inode, the same size): read again.
+    replacement = root / "p.tmp"
+    replacement.write_text("program Two\nwait 1\n", encoding="utf-8")
+    replacement.replace(path)
+    assert library.read("p.robot") == "program Two\nwait 1\n"
+    assert len(opened) == 4
+    # Written in place with another size: read again.
+    path.write_text("program Three\nwait 2\n", encoding="utf-8")
+    assert library.read("p.robot") == "program Three\nwait 2\n"
+    # Gone: the same error as without the cache.
+    path.unlink()
+    with pytest.raises(FileNotFoundError):
+        library.read("p.robot")
+    # A file larger than a program read on the event loop is never kept.
+    big = "program Big\n" + "wait 1\n" * 700
+    (root / "big.robot").write_text(big, encoding="utf-8")
+    opened.clear()
+    assert library.read("big.robot") == big
+    assert library.read("big.robot") == big
+    assert len(opened) == 2

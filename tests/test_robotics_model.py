@@ -952,3 +952,32 @@ async def test_a_controller_without_a_motion_device_refuses_move_and_runs_the_re
         assert tc.ready.current == "AtProgramStart"
     finally:
         await cell.close()
+
+
+async def test_the_same_text_loads_the_same_program_and_a_changed_one_is_parsed_again(
+    cell: RobotCell, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import uacell.files
+
+    monkeypatch.setattr(uacell.files, "SETTLE_NS", 0)  # the library keeps texts at once
+    tc = await tc_in(cell, "Idle")
+    assert await tc.load_by_name("short") == Status.OK
+    first = tc.program
+    assert first is not None and first.name == "Short"
+    assert await tc.unload_program() == Status.OK
+    assert await tc.load_by_name("short") == Status.OK
+    assert tc.program is first  # parsed once: a Program is immutable
+    assert await tc.unload_program() == Status.OK
+    # Another text under the same name (a new file): parsed, and what it says is what runs.
+    replacement = tmp_path / "short.new"
+    replacement.write_text("program Short version 2\nmove 1 0 0 0 0 0\nwait 0.1\n")
+    replacement.replace(tmp_path / "short.robot")
+    assert await tc.load_by_name("short") == Status.OK
+    assert tc.program is not first and tc.program is not None
+    assert (tc.program.version, len(tc.program.instructions)) == ("2", 2)
+    assert await tc.unload_program() == Status.OK
+    # A text that does not parse is refused every time, never answered from a kept program.
+    (tmp_path / "short.robot").write_text("program Short\nmove 0 0 0\n")
+    assert await tc.load_by_name("short") == Status.INVALID_CONTENT
+    assert await tc.load_by_name("short") == Status.INVALID_CONTENT
+    assert tc.program is None and tc.state == "Idle"

@@ -4,7 +4,22 @@ from __future__ import annotations
 
 import os
 import tempfile
+import time
 from pathlib import Path
+
+# A file or directory changed more recently than this is read again rather than trusted to a cache
+# keyed by its status: a change within the file system's timestamp resolution would not show.
+SETTLE_NS = 2_000_000_000
+
+
+def settled(st: os.stat_result) -> bool:
+    """Did the entry last change (content or status) more than ``SETTLE_NS`` ago?"""
+    return max(st.st_mtime_ns, st.st_ctime_ns) <= time.time_ns() - SETTLE_NS
+
+
+def stamp(st: os.stat_result) -> tuple[int, int, int, int]:
+    """What changes whenever a file is replaced or written: inode, size, modification and change times."""
+    return (st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
 
 
 def atomic_write(path: Path, data: bytes, mode: int = 0o600) -> None:

@@ -36,7 +36,7 @@ from uacell.ua.limits import DecodingStage, admit, guard_bytes, install_limits, 
 from uacell.ua.machine_binding import NodeRefs, Publisher
 from uacell.ua.nodesets import SnapshotJob, init_address_space
 from uacell.ua.observers import install_audit
-from uacell.ua.pipeline import ContextStage, Pipeline
+from uacell.ua.pipeline import ContextStage, Pipeline, PublishedStage
 from uacell.ua.snapshot import WriteCancelled
 from uacell.ua.space import Space
 from uacell.ua.writes import WriteRouter
@@ -87,7 +87,7 @@ class UacellServer:
         self.registries = Registries()
         self.dispatcher = MethodDispatcher.install(self.server)
         self.publisher = Publisher()
-        self.dispatcher.after_call.append(self.publisher.flush)
+        self.dispatcher.after_call.append(self.publisher.schedule)
         self.publisher.idle_hooks.append(self.dispatcher.refresh_touched)
         self.publisher.touch_hooks.append(self.dispatcher.touch)
         self._refs: NodeRefs | None = None
@@ -181,7 +181,13 @@ class UacellServer:
         self.diagnostics = Diagnostics(self)
         # What every request passes, outermost first (ua/pipeline.py says what each stage does).
         self.pipeline = Pipeline(
-            [ContextStage(), self.diagnostics, SecurityStage(self.security), DecodingStage()],
+            [
+                PublishedStage(self.publisher),
+                ContextStage(),
+                self.diagnostics,
+                SecurityStage(self.security),
+                DecodingStage(),
+            ],
             admission=admit,
             bytes_guard=guard_bytes,
             channel_guard=self.security,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextvars
 import logging
+import os
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
 from enum import IntEnum
@@ -20,6 +21,7 @@ from typing import Protocol
 from uacell.background import Background
 from uacell.conditions import ConditionSet
 from uacell.errors import CallError
+from uacell.files import settled, stamp
 from uacell.fsm import Reason, StateMachine
 from uacell.models import FsmTable, TableLoader
 from uacell.robotics.equipment import (
@@ -143,6 +145,7 @@ class ProgramLibrary(Protocol):
 # Programs up to this size are read and checked on the event loop (about 70 us a KiB here); larger
 # ones in a worker thread, so that a big file never holds up other clients' requests.
 INLINE_PROGRAM_BYTES = 4096
+KEPT_TEXTS = 64  # the texts of small programs a library keeps (``DirectoryLibrary.read``)
 
 
 class DirectoryLibrary:
@@ -154,6 +157,7 @@ class DirectoryLibrary:
     def __init__(self, root: Path | str, *, max_bytes: int = DEFAULT_LIMITS.max_file_bytes) -> None:
         self.root = Path(root)
         self.max_bytes = max_bytes
+        self._texts: dict[str, tuple[tuple[int, int, int, int], str]] = {}  # relpath -> (stamp, text)
 
     def _files(self) -> list[Path]:
         if not self.root.is_dir():
@@ -170,25 +174,42 @@ class DirectoryLibrary:
                 return p.relative_to(self.root).as_posix()
         return None
 
-    def size(self, relpath: str) -> int | None:
-        """The file's size in bytes (None when it cannot be known: ``read`` then says why)."""
+    def _path(self, relpath: str) -> str:
         rel = PurePosixPath(relpath)
         if rel.is_absolute() or ".." in rel.parts:
-            return None
+            raise FileNotFoundError(relpath)
+        return os.path.join(self.root, relpath)
+
+    def size(self, relpath: str) -> int | None:
+        """The file's size in bytes (None when it cannot be known: ``read`` then says why)."""
         try:
-            return (self.root / rel).stat().st_size
+            return os.stat(self._path(relpath)).st_size
         except OSError:
             return None
 
     def read(self, relpath: str) -> str:
-        rel = PurePosixPath(relpath)
-        if rel.is_absolute() or ".." in rel.parts:
-            raise FileNotFoundError(relpath)
-        with (self.root / rel).open("rb") as f:
+        """The file's text. A small file's text is kept while its status (inode, size, times) is what it
+        was when read, and it had not changed for two seconds then (``files.settled``): loading the
+        same program again costs one ``stat``, not a read and a decode."""
+        path = self._path(relpath)
+        try:
+            st: os.stat_result | None = os.stat(path)
+        except OSError:
+            st = None  # open says why
+        kept = self._texts.get(relpath)
+        if kept is not None and st is not None and kept[0] == stamp(st):
+            return kept[1]
+        with open(path, "rb") as f:
             data = f.read(self.max_bytes + 1)
         if len(data) > self.max_bytes:
             raise ProgramTooLarge(0, f"the file is larger than {self.max_bytes} bytes")
-        return data.decode("utf-8")
+        text = data.decode("utf-8")
+        self._texts.pop(relpath, None)
+        if st is not None and st.st_size == len(data) <= INLINE_PROGRAM_BYTES and settled(st):
+            if len(self._texts) >= KEPT_TEXTS:
+                self._texts.pop(next(iter(self._texts)), None)  # the oldest
+            self._texts[relpath] = (stamp(st), text)
+        return text
 
 
 # --- observable data -------------------------------------------------------------------------------
@@ -285,6 +306,7 @@ class TaskControl(_Guarded):
         self.equipment = equipment
         self.library = library
         self.bounds = bounds
+        self._parsed: dict[tuple[str, tuple[tuple[float, float], ...], ProgramLimits], Program] = {}
         self.system = system
         self.motion_devices = tuple(motion_devices)
         self.possible_stop_modes = tuple(possible_stop_modes)
@@ -387,8 +409,15 @@ class TaskControl(_Guarded):
             raise _Failure(Status.E_UNEXPECTED_ERROR, f"cannot read {relpath!r}: {e}") from e
         try:
             # No motion device (motion_device = ""): nothing to move, a 'move' is refused (decision 33).
-            limits = [a.limits for a in self.equipment.axes] if self.motion_devices else []
-            program = parse(text, limits, bounds=self.bounds)
+            limits = tuple(a.limits for a in self.equipment.axes) if self.motion_devices else ()
+            key = (text, limits, self.bounds)
+            program = self._parsed.get(key)
+            if program is None:
+                program = parse(text, limits, bounds=self.bounds)
+                if len(text) <= INLINE_PROGRAM_BYTES:  # a Program is immutable: the same text, the same one
+                    if len(self._parsed) >= KEPT_TEXTS:
+                        self._parsed.pop(next(iter(self._parsed)), None)
+                    self._parsed[key] = program
             # What can be known before Start: the file alone (and the modules loaded now) is within bounds.
             measure(program, modules, self.bounds, partial=True)
         except ProgramError as e:

@@ -79,7 +79,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         self.server = server
         self.methods: dict[ua.NodeId, BoundMethod] = {}
         self.guards: list[Guard] = []
-        self.after_call: list[Callable[[], Awaitable[None]]] = []
+        self.after_call: list[Callable[[], None]] = []  # run when a call is done (not awaited)
         self.observers: list[CallObserver] = []
         self._locks: dict[int, asyncio.Lock] = {}
         self.types = TypeChecker(server)
@@ -328,7 +328,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
             return await self._dispatch(bound, request, caller)
         except Exception:
             log.exception("%s on %s failed unexpectedly", bound.name, request.ObjectId.to_string())
-            await self._after(bound)
+            self._after(bound)
             return _result(ua.StatusCodes.BadInternalError)
 
     def _belongs(self, object_id: ua.NodeId, method_id: ua.NodeId) -> bool:
@@ -455,21 +455,22 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
                 infos = [ua.DiagnosticInfo() for _ in range(n)]
                 infos[err.argument] = ua.DiagnosticInfo(AdditionalInfo=err.message)
                 result.InputArgumentDiagnosticInfos = infos
-            await self._after(bound)
+            self._after(bound)
             return result
-        await self._after(bound)
+        self._after(bound)
         result = _result(ua.StatusCodes.Good, n=n)
         result.OutputArguments = [self.types.variant(v, a) for v, a in zip(outputs or [], bound.outputs, strict=False)]
         return result
 
-    async def _after(self, bound: BoundMethod) -> None:
-        """Publish what the behaviour changed and refresh Executable of the call's scope; a failure here
-        is logged, never turned into the call's answer (the behaviour has already happened)."""
+    def _after(self, bound: BoundMethod) -> None:
+        """Have what the behaviour changed and Executable of the call's scope published once the call is
+        answered (``after_call``: the server's publisher drains on the loop's next turn, before another
+        request is served, decision 56); a failure here is logged, never turned into the call's answer
+        (the behaviour has already happened)."""
         try:
             self.touch(bound.scope)
             for hook in self.after_call:
-                await hook()
-            await self.refresh_touched()
+                hook()
         except Exception:
             log.exception("publishing after a call failed")
 

@@ -25,13 +25,13 @@ import shutil
 import stat
 import tempfile
 import threading
-import time
 from collections.abc import Callable, Hashable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Literal, NoReturn
 
 from uacell.errors import CallError
+from uacell.files import settled
 
 logger = logging.getLogger(__name__)
 
@@ -156,21 +156,17 @@ def _remove(path: Path) -> None:
             path.unlink()
 
 
-_SETTLE = 2.0  # seconds: a directory changed more recently than this is not trusted to a listing cache
-
-
 def _signature(dirs: list[Path]) -> tuple[tuple[Path, int], ...] | None:
-    """The directories' modification times, or None when one is too recent (or gone) to rely on."""
+    """The directories' modification times, or None when one is too recent (``files.settled``) or gone."""
     out = []
-    settled = time.time_ns() - int(_SETTLE * 1e9)
     for d in dirs:
         try:
-            mtime = os.stat(d).st_mtime_ns
+            st = os.stat(d)
         except OSError:
             return None
-        if mtime > settled:
+        if not settled(st):
             return None
-        out.append((d, mtime))
+        out.append((d, st.st_mtime_ns))
     return tuple(out)
 
 
@@ -223,8 +219,8 @@ class FileStore:
     def files(self, suffix: str = "") -> list[str]:
         """The relative paths of every visible file whose name ends in ``suffix``, sorted: a listing that,
         unlike ``entries``, asks the disk for nothing but the directories, and is kept while none of
-        them changed (their modification times; a directory changed in the last ``_SETTLE`` seconds is
-        read again, whatever the file system's clock resolution)."""
+        them changed (their modification times; a directory changed in the last two seconds is read
+        again, whatever the file system's clock resolution: ``files.settled``)."""
         with self._lock:
             cached = self._listings.get(suffix)
             if cached is not None and _unchanged(cached[0]):

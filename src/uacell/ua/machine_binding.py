@@ -13,7 +13,9 @@ completes a call after it returned runs in a copy of the call's context (decisio
 the same way.
 
 Changes reach the address space through one ordered ``Publisher`` so that events and values keep
-the order in which the model produced them; the method dispatcher flushes it before answering.
+the order in which the model produced them. A method call is answered first and its changes are
+published right after, before the server serves any other request (decision 56: the pipeline's
+``PublishedStage`` flushes the publisher when a drain is due or under way).
 """
 
 from __future__ import annotations
@@ -63,8 +65,18 @@ class Publisher:
 
     def submit(self, job: Callable[[], Awaitable[None]]) -> None:
         self._queue.append(job)
+        self.schedule()
+
+    def schedule(self) -> None:
+        """Drain soon (on the event loop's next turn), also with nothing queued, so that the idle
+        hooks run: a method call touched scopes whose Executable may have changed."""
         if not self._draining and self._due is None:
             self._due = asyncio.get_running_loop().call_soon(self._drain)
+
+    @property
+    def pending(self) -> bool:
+        """Is a drain due or under way (something submitted may not be in the address space yet)?"""
+        return self._due is not None or self._draining
 
     def _drain(self) -> None:
         """Run the queue now, in a fresh context (the jobs must not carry the request that happened to

@@ -23,6 +23,8 @@ What runs belongs to the server a connection reached (``Pipeline.of(iserver)``),
 process keep their own stages; an asyncua server without a pipeline runs asyncua's processing alone.
 ``uacell.server`` declares the stages, outermost first:
 
+    published    what earlier calls changed is in the address space before the request is served
+                 (a call is answered first and published after, decision 56)
     context      the request's processor, ReturnDiagnostics and AuditEntryId for the code below
     diagnostics  ServerDiagnostics counters (ua/diagnostics.py)
     security     the service allowed on this channel and for this session; ActivateSession throttled,
@@ -113,6 +115,29 @@ class ContextStage:
             context.reset_audit_entry_id(audit_entry)
             context.reset_return_diagnostics(diagnostics)
             context.reset_processor(processor)
+
+
+class Settling(Protocol):
+    """What publishes the changes of answered calls (``machine_binding.Publisher``)."""
+
+    @property
+    def pending(self) -> bool: ...
+
+    async def flush(self) -> None: ...
+
+
+class PublishedStage:
+    """A request is served only once what earlier calls changed is in the address space. A call is
+    answered before its changes are published (decision 56); they are published on the event loop's
+    next turn, and a request that comes first (or while publishing waits) waits for them here."""
+
+    def __init__(self, publisher: Settling) -> None:
+        self._publisher = publisher
+
+    async def __call__(self, request: Request, call_next: Next) -> Any:
+        if self._publisher.pending:
+            await self._publisher.flush()
+        return await call_next(request)
 
 
 class Pipeline:

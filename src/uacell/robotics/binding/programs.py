@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 from asyncua import ua
@@ -72,14 +72,27 @@ def adopt_legacy_programs(programs_dir: Path, root: Path, keep: Sequence[str]) -
 
 
 class StoreLibrary(DirectoryLibrary):
-    """The ProgramLibrary over a FileStore: the store's listing hides its temporary files."""
+    """The ProgramLibrary over a FileStore: the store's listing hides its temporary files. Names are
+    looked up in an index of the store's listing, made again when the listing changed."""
 
     def __init__(self, store: FileStore) -> None:
         super().__init__(store.root)
         self.store = store
+        self._listed: list[str] = []
+        self._index: dict[str, str] = {}  # name -> relpath
 
     def _files(self) -> list[Path]:
         return sorted(self.root / relpath for relpath in self.store.files(PROGRAM_SUFFIX))
+
+    def resolve(self, name: str) -> str | None:
+        listed = self.store.files(PROGRAM_SUFFIX)
+        if listed != self._listed:
+            index: dict[str, str] = {}
+            # In the order of DirectoryLibrary's sorted paths: the same file wins a name held twice.
+            for relpath in sorted(listed, key=lambda r: r.split("/")):
+                index.setdefault(PurePosixPath(relpath).stem, relpath)
+            self._listed, self._index = listed, index
+        return self._index.get(name)
 
 
 class Programs:

@@ -1,0 +1,121 @@
+"""A call is answered before its changes are published, and no request is served before they are
+(docs/decisions.md 56): the publisher and the pipeline's PublishedStage, then a real server and
+clients over TCP."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+from typing import Any
+
+from asyncua import Client, ua
+from conftest import fast_config, serving
+from helpers import raw_call, wait_until
+
+from uacell.robotics.binding import CONTROLLERS
+from uacell.ua.machine_binding import Publisher
+from uacell.ua.pipeline import PublishedStage
+
+TC = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
+
+
+async def test_a_request_waits_for_what_is_being_published() -> None:
+    publisher = Publisher()
+    stage = PublishedStage(publisher)
+    published: list[str] = []
+    release, started = asyncio.Event(), asyncio.Event()
+
+    async def held() -> None:
+        started.set()
+        await release.wait()
+        published.append("held")
+
+    async def quick() -> None:
+        published.append("quick")
+
+    seen: list[list[str]] = []
+
+    async def service(request: Any) -> str:
+        seen.append(list(published))
+        return "answer"
+
+    request: Any = None  # the stage looks at the publisher only
+    assert not publisher.pending
+    assert await stage(request, service) == "answer"  # nothing to wait for
+    publisher.submit(held)
+    publisher.submit(quick)
+    assert publisher.pending  # a drain is due: the loop's next turn
+    waiting = asyncio.ensure_future(stage(request, service))
+    await started.wait()  # the drain holds; the request, started after it, is in the stage
+    assert not waiting.done() and len(seen) == 1 and publisher.pending
+    release.set()
+    assert await waiting == "answer"
+    assert seen[-1] == ["held", "quick"]  # served after everything submitted before it
+    assert not publisher.pending
+
+
+async def test_schedule_runs_the_idle_hooks_with_nothing_queued() -> None:
+    publisher = Publisher()
+    ran: list[int] = []
+
+    async def hook() -> None:
+        ran.append(1)
+
+    publisher.idle_hooks.append(hook)
+    publisher.schedule()
+    publisher.schedule()  # one drain for both
+    assert publisher.pending
+    await publisher.flush()
+    assert ran == [1] and not publisher.pending
+
+
+async def test_a_call_is_answered_first_and_a_read_after_it_sees_what_it_changed(tmp_path: Path) -> None:
+    async with serving(fast_config(tmp_path / "data")) as (app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        task = app.registry(CONTROLLERS)["Robot1.Controllers.Controller1"].cell.tasks["TaskControl1"]
+        release = asyncio.Event()
+        holding = False
+
+        async def held() -> None:
+            await release.wait()
+
+        def hold_first(change: Any) -> None:  # ahead of the binding's own jobs for the same change
+            nonlocal holding
+            if not holding:
+                holding = True
+                app.publisher.submit(held)
+
+        flushes: list[int] = []
+        real_flush = app.publisher.flush
+
+        async def counted_flush() -> None:
+            flushes.append(1)
+            await real_flush()
+
+        app.publisher.flush = counted_flush  # type: ignore[method-assign]
+        state = ua.NodeId(f"{TC}.CurrentState", ns)
+        load = ua.NodeId(f"{TC}.LoadByName", ns)
+        async with Client(app.endpoint, timeout=30) as other:  # connected first: its requests pass the stage too
+            task.machine.listeners.insert(0, hold_first)
+            try:
+                # Answered while its changes wait in the publisher (before decision 56 it would not be).
+                result = await asyncio.wait_for(
+                    raw_call(client, ua.NodeId(TC, ns), load, ua.Variant("pick_and_place", ua.VariantType.String)), 10
+                )
+                assert result.StatusCode.is_good() and result.OutputArguments[0].Value == 0
+                assert task.machine.current == "Ready"  # the model moved...
+                server_side = app.server.get_node(state)
+                assert (await server_side.read_value()).Text == "Idle"  # ...the address space not yet
+                # Another client's Read waits in the PublishedStage until the changes are in.
+                reading = asyncio.ensure_future(other.get_node(state).read_value())
+                await wait_until(lambda: flushes != [])
+                assert not reading.done()
+                release.set()
+                assert (await asyncio.wait_for(reading, 10)).Text == "Ready"
+            finally:
+                release.set()  # a failing test must not leave the publisher held: every request would wait
+        assert (await client.get_node(state).read_value()).Text == "Ready"
+        task.machine.listeners.remove(hold_first)
+        unload = ua.NodeId(f"{TC}.UnloadProgram", ns)
+        assert (await raw_call(client, ua.NodeId(TC, ns), unload)).OutputArguments[0].Value == 0
+        assert (await client.get_node(state).read_value()).Text == "Idle"
