@@ -262,14 +262,16 @@ def test_an_event_is_encoded_field_by_field_the_repeating_ones_once() -> None:
         ("ReceiveTime", V.DateTime, datetime(1601, 1, 1, tzinfo=UTC)),
         ("EventId", V.ByteString, b""),
         ("EventId", V.ByteString, bytes(range(40))),
+        ("EventId", V.ByteString, ua.Variant(bytes(range(16)), V.ByteString)),  # as the emitters give it
     ):
         assert service._encoded(name, vtype, value) == service._field(name, vtype, value)
 
 
 def test_localized_texts_and_status_codes_are_kept_by_what_they_encode() -> None:
-    """asyncua's LocalizedText and StatusCode are not hashable, yet a state's name, a Message and a
-    StatusCodeId repeat from event to event: they are kept by their locale and text, and by their code,
-    so a text in another locale, or another text, or another code is never taken for a kept one."""
+    """asyncua's LocalizedText, StatusCode and TimeZoneDataType are not hashable, yet a state's name, a
+    Message, a StatusCodeId and LocalTime repeat from event to event: they are kept by their locale and
+    text, their code, their offset and daylight flag, so a text in another locale, or another text,
+    another code or another zone is never taken for a kept one."""
     from asyncua import ua
 
     from uacell.history import service
@@ -282,6 +284,9 @@ def test_localized_texts_and_status_codes_are_kept_by_what_they_encode() -> None
         ("Message", V.LocalizedText, ua.LocalizedText("Ready to Idle")),
         ("StatusCodeId", V.StatusCode, ua.StatusCode(ua.StatusCodes.Good)),
         ("StatusCodeId", V.StatusCode, ua.StatusCode(ua.StatusCodes.BadInvalidState)),
+        ("LocalTime", V.ExtensionObject, ua.TimeZoneDataType(Offset=60, DaylightSavingInOffset=False)),
+        ("LocalTime", V.ExtensionObject, ua.TimeZoneDataType(Offset=60, DaylightSavingInOffset=True)),
+        ("LocalTime", V.ExtensionObject, ua.TimeZoneDataType(Offset=-60, DaylightSavingInOffset=False)),
     ]
     made = [service._encoded(name, vtype, value) for name, vtype, value in cases]
     assert len(service._REPEATING) == len(cases)  # each kept, none taken for another
@@ -305,14 +310,14 @@ async def test_an_event_fired_through_two_notifiers_is_kept_for_each_and_encoded
     from uacell.history import service
 
     calls: list[bytes] = []
-    real = service.encode_event
+    real = service.encode_fields
 
     def counting(*args: object) -> bytes:
         data = real(*args)  # type: ignore[arg-type]
         calls.append(data)
         return data
 
-    monkeypatch.setattr(service, "encode_event", counting)
+    monkeypatch.setattr(service, "encode_fields", counting)
     store = HistoryStore(SqliteBackend(tmp_path / "h.sqlite"))
     history = service.HistoryService(None, store, lambda role: True)  # type: ignore[arg-type]
     machine, server = ua.NodeId("TC", 2), ua.NodeId(ua.ObjectIds.Server)
@@ -330,4 +335,72 @@ async def test_an_event_fired_through_two_notifiers_is_kept_for_each_and_encoded
         fields = [service.decode_fields(r.data) for r in rows]
         assert [f["Message"].Value.Text for f in fields] == ["firing 0", "firing 1"]
         assert [f["EventId"].Value for f in fields] == [bytes([0]) * 16, bytes([1]) * 16]
+    await store.close()
+
+
+def test_a_kept_value_is_encoded_as_asyncua_does_the_repeating_ones_once() -> None:
+    """encode_value gives asyncua's bytes for every kind of value; a scalar that repeats is encoded
+    once, by its type and value (a value of another type or another value is never taken for it), and
+    a float never is: 0.0 and -0.0 are one key but two encodings."""
+    from asyncua import ua
+    from asyncua.ua.ua_binary import variant_from_binary, variant_to_binary
+
+    from uacell.history import service
+
+    V = ua.VariantType
+    cases = [
+        ua.Variant(ua.LocalizedText("Ready"), V.LocalizedText),
+        ua.Variant(ua.LocalizedText("Ready", "en"), V.LocalizedText),
+        ua.Variant(ua.NodeId(2311), V.NodeId),
+        ua.Variant(True, V.Boolean),
+        ua.Variant(1, V.Int32),
+        ua.Variant(1, V.UInt32),
+        ua.Variant("PickAndPlace", V.String),
+        ua.Variant(0.0, V.Double),
+        ua.Variant(-0.0, V.Double),
+        ua.Variant(-0.0, V.Float),
+        ua.Variant(float("nan"), V.Double),
+        ua.Variant([1, 2], V.Int32, is_array=True),
+        ua.Variant(ua.EUInformation(UnitId=4408652), V.ExtensionObject),
+        ua.Variant(),
+    ]
+    service._VALUES.clear()
+    for _ in range(2):
+        for variant in cases:
+            encoded = service.encode_value(variant)
+            assert encoded == variant_to_binary(variant), variant
+    back = variant_from_binary(ua.utils.Buffer(service.encode_value(ua.Variant(-0.0, V.Double))))
+    assert str(back.Value) == "-0.0"
+    # kept: the two texts, the NodeId, the flag, the two integers (one per type), the string, null
+    assert len(service._VALUES) == 8
+
+
+async def test_an_event_objects_fields_are_planned_once(tmp_path: Path) -> None:
+    """The fields an event is kept with are worked out once for each event object and give the
+    bytes encode_event gives; an object whose types grew gets a new plan."""
+    from asyncua import ua
+
+    from uacell.history import service
+    from uacell.history.service import HistoryService
+
+    V = ua.VariantType
+
+    class FakeEvent:  # what an asyncua Event holds: fields as attributes, their types, internal names
+        def __init__(self) -> None:
+            self.data_types = {"SourceName": V.String, "Severity": V.UInt16, "internal": V.String}
+            self.internal_properties = ("internal",)
+            self.SourceName, self.Severity, self.internal = "TaskControl1", 100, "x"
+
+    store = HistoryStore(SqliteBackend(tmp_path / "h.sqlite"))
+    history = HistoryService(None, store, lambda role: True)  # type: ignore[arg-type]
+    event = FakeEvent()
+    plan = history._event_plan(event)
+    assert plan == (("SourceName", V.String), ("Severity", V.UInt16))
+    assert history._event_plan(event) is plan
+    values = dict(vars(event))
+    assert service.encode_fields(values, plan) == service.encode_event(values, event.data_types, ("internal",))
+    event.data_types["Message"] = V.LocalizedText
+    event.Message = ua.LocalizedText("Idle to Ready")
+    assert history._event_plan(event)[-1] == ("Message", V.LocalizedText)
+    assert history._event_plan(FakeEvent()) == plan  # another object of the same kind: the same fields
     await store.close()

@@ -76,22 +76,51 @@ async def mark_historizing(aspace: Any, node: ua.NodeId) -> None:
 _REPEATING: dict[tuple[str, Any, Any], bytes] = {}
 _REPEATING_MAX = 4096
 _VARYING = frozenset({ua.VariantType.DateTime, ua.VariantType.ByteString})
+# Never kept: 0.0 and -0.0 are one key but two encodings (and a NaN is never found again).
+_UNKEPT = frozenset({ua.VariantType.Float, ua.VariantType.Double})
+_VALUES: dict[tuple[Any, Any], bytes] = {}  # kept values' encodings, as _REPEATING (by VariantType, value)
+
+
+Plan = tuple[tuple[str, Any], ...]  # the (name, VariantType) of an event's fields, in order
+
+
+def event_plan(types: dict[str, Any], skip: Any = ()) -> Plan:
+    """The fields an event of these ``types`` (asyncua's ``data_types``) is kept with: all but the
+    private ones and those in ``skip`` (its ``internal_properties``)."""
+    return tuple((name, vtype) for name, vtype in types.items() if not name.startswith("__") and name not in skip)
 
 
 def encode_event(values: dict[str, Any], types: dict[str, Any], skip: Any = ()) -> bytes:
     """An event's fields that have a value (its attributes ``values`` with their ``types``; asyncua's
-    own helper fails on a None), each its name and its Variant (``decode_fields`` reads them). Run by
+    own helper fails on a None), each its name and its Variant (``decode_fields`` reads them)."""
+    return encode_fields(values, event_plan(types, skip))
+
+
+def encode_fields(values: dict[str, Any], plan: Plan) -> bytes:
+    """``encode_event`` with the plan made already (once an event object: ``HistoryService``). Run by
     the history writer thread, off the event loop."""
     out = bytearray()
-    for name, value in values.items():
-        if name.startswith("__") or name in skip or value is None or name not in types:
-            continue
-        out += _encoded(name, types[name], value)
+    for name, vtype in plan:
+        value = values.get(name)
+        if value is not None:
+            out += _encoded(name, vtype, value)
     return bytes(out)
 
 
+def encode_value(variant: ua.Variant) -> bytes:
+    """A kept value's Variant, encoded (asyncua's bytes); a scalar that repeats (a state's name, an
+    Id, a flag) is taken from a bounded cache by its VariantType and value."""
+    vtype = variant.VariantType
+    if variant.is_array or vtype in _VARYING or vtype in _UNKEPT:
+        return bytes(variant_to_binary(variant))
+    try:
+        return _kept(_VALUES, (vtype, _hashable(variant.Value)), lambda: bytes(variant_to_binary(variant)))
+    except TypeError:  # a value that cannot be a key (a structure)
+        return bytes(variant_to_binary(variant))
+
+
 def _encoded(name: str, vtype: Any, value: Any) -> bytes:
-    if isinstance(value, list):
+    if isinstance(value, list) or vtype in _UNKEPT:
         return _field(name, vtype, value)
     if vtype in _VARYING:
         return _varying(name, vtype, value)
@@ -109,6 +138,8 @@ def _hashable(value: Any) -> Any:
         return (value.Locale, value.Text)
     if isinstance(value, ua.StatusCode):
         return value.value
+    if isinstance(value, ua.TimeZoneDataType):  # LocalTime: the same in every event
+        return (ua.TimeZoneDataType, value.Offset, value.DaylightSavingInOffset)
     return value
 
 
@@ -131,6 +162,8 @@ def _varying(name: str, vtype: Any, value: Any) -> bytes:
     """A DateTime or ByteString field (new in every event: times, EventIds), written out: the bytes
     ``_field`` makes."""
     prefix = _kept(_NAMES, name, lambda: Primitives.String.pack(name))
+    if isinstance(value, ua.Variant) and value.VariantType is vtype:  # an emitter's EventId: the same bytes
+        value = value.Value
     if vtype is ua.VariantType.DateTime and isinstance(value, datetime):
         return prefix + _DATETIME.pack(vtype.value, ua.datetime_to_win_epoch(value))
     if vtype is ua.VariantType.ByteString and isinstance(value, bytes):
@@ -194,6 +227,7 @@ class HistoryService:
         self._supertypes: dict[str, frozenset[str]] = {}
         self._tap: EventTap | None = None
         self._last_event: tuple[Any, int, str, _Once] | None = None  # EventId, time, type, its encoding
+        self._plans: dict[int, tuple[Any, int, Plan]] = {}  # id(event object) -> (it, its type count, plan)
 
     # -- what is kept -----------------------------------------------------------------------------
 
@@ -245,7 +279,7 @@ class HistoryService:
         t = dv.SourceTimestamp or dv.ServerTimestamp or datetime.now(UTC)
         status = dv.StatusCode.value if dv.StatusCode is not None else 0
         variant = dv.Value if dv.Value is not None else ua.Variant()
-        self.store.record(key, to_micros(t), VALUE, status, "", functools.partial(variant_to_binary, variant))
+        self.store.record(key, to_micros(t), VALUE, status, "", functools.partial(encode_value, variant))
 
     def _record_event(self, key: str, event: Any) -> None:
         try:
@@ -258,16 +292,30 @@ class HistoryService:
             else:
                 # The event object is filled anew for its next firing: its fields are copied here (two
                 # dictionary copies); the writer thread makes and encodes their Variants, once.
-                values, types = dict(vars(event)), dict(getattr(event, "data_types", {}))
-                skip = getattr(event, "internal_properties", ())
+                values = dict(vars(event))
                 t = to_micros(getattr(event, "Time", None) or datetime.now(UTC))
                 etype = getattr(event, "EventType", None)
                 etype_text = etype.to_string() if etype else ""
-                encode = _Once(functools.partial(encode_event, values, types, skip))
+                encode = _Once(functools.partial(encode_fields, values, self._event_plan(event)))
                 self._last_event = (event_id, t, etype_text, encode)
             self.store.record(key, t, EVENT, 0, etype_text, encode)
         except Exception:
             log.exception("history: could not keep an event")
+
+    def _event_plan(self, event: Any) -> Plan:
+        """The fields ``event`` is kept with, made once for each event object (an emitter fills its
+        object anew for every firing; its ``data_types`` stay), again if its types changed."""
+        types = getattr(event, "data_types", {})
+        kept = self._plans.get(id(event))
+        if kept is None or kept[0] is not event or kept[1] != len(types):
+            if len(self._plans) >= _REPEATING_MAX:
+                self._plans.clear()
+            kept = self._plans[id(event)] = (
+                event,
+                len(types),
+                event_plan(dict(types), getattr(event, "internal_properties", ())),
+            )
+        return kept[2]
 
     # -- asyncua's HistoryManager interface --------------------------------------------------------
 
