@@ -219,3 +219,11 @@ def test_library_keeps_a_settled_small_file_text_while_its_status_is_unchanged(t
     assert library.read("big.robot") == big
     assert library.read("big.robot") == big
     assert len(opened) == 2
+    # What is read on the event loop: a small file's text (kept as above), nothing of a big or missing one.
+    assert library.read_small("big.robot") is None
+    assert library.read_small("p.robot") is None  # gone: ``read`` (in a worker thread) says why
+    (root / "q.robot").write_text("program Q\nwait 1\n", encoding="utf-8")
+    assert library.read_small("q.robot") == "program Q\nwait 1\n"
+    opened.clear()
+    assert library.read_small("q.robot") == library.read("q.robot") == "program Q\nwait 1\n"
+    assert opened == []

@@ -263,6 +263,7 @@ async def test_library_read_error_is_unexpected(cell: RobotCell, monkeypatch: py
         raise PermissionError(relpath)
 
     monkeypatch.setattr(cell.library, "read", denied)
+    monkeypatch.setattr(cell.library, "read_small", denied)  # the event loop's way to a small file
     assert await tc.load_by_name("short") == Status.E_UNEXPECTED_ERROR
     assert tc.machine.last_reason == ERR
 

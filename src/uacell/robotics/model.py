@@ -138,8 +138,9 @@ class ProgramLibrary(Protocol):
         """The file's text; ``FileNotFoundError`` if there is none, ``OSError`` if it cannot be read."""
         ...
 
-    # Optional: ``size(relpath) -> int | None``, the file's size, lets small files be read on the
-    # event loop (INLINE_PROGRAM_BYTES) instead of in a worker thread.
+    # Optional: ``read_small(relpath) -> str | None``, the text of a file of at most
+    # INLINE_PROGRAM_BYTES and None for a larger one, lets small files be read on the event loop
+    # instead of in a worker thread.
 
 
 # Programs up to this size are read and checked on the event loop (about 70 us a KiB here); larger
@@ -180,22 +181,27 @@ class DirectoryLibrary:
             raise FileNotFoundError(relpath)
         return os.path.join(self.root, relpath)
 
-    def size(self, relpath: str) -> int | None:
-        """The file's size in bytes (None when it cannot be known: ``read`` then says why)."""
-        try:
-            return os.stat(self._path(relpath)).st_size
-        except OSError:
-            return None
+    def read_small(self, relpath: str) -> str | None:
+        """``read`` for a file of at most INLINE_PROGRAM_BYTES; None for a larger one, or one whose
+        size cannot be known (``read`` then says why)."""
+        return self._read(relpath, small=True)
 
     def read(self, relpath: str) -> str:
         """The file's text. A small file's text is kept while its status (inode, size, times) is what it
         was when read, and it had not changed for two seconds then (``files.settled``): loading the
         same program again costs one ``stat``, not a read and a decode."""
+        text = self._read(relpath, small=False)
+        assert text is not None
+        return text
+
+    def _read(self, relpath: str, small: bool) -> str | None:
         path = self._path(relpath)
         try:
             st: os.stat_result | None = os.stat(path)
         except OSError:
             st = None  # open says why
+        if small and (st is None or st.st_size > INLINE_PROGRAM_BYTES):
+            return None
         kept = self._texts.get(relpath)
         if kept is not None and st is not None and kept[0] == stamp(st):
             return kept[1]
@@ -395,10 +401,15 @@ class TaskControl(_Guarded):
                 return problem
             return await self._load(relpath)
 
-    def _read_and_check(self, relpath: str, modules: dict[str, Program]) -> Program:
-        """Read, parse and measure ``relpath`` (in a worker thread: bounded by ``self.bounds``)."""
+    def _read_and_check(
+        self, relpath: str, modules: dict[str, Program], read: Callable[[str], str | None] | None = None
+    ) -> Program | None:
+        """Read, parse and measure ``relpath`` (in a worker thread: bounded by ``self.bounds``), read
+        with ``read`` when given (None from it: not read, nothing checked: None)."""
         try:
-            text = self.library.read(relpath)
+            text = (read or self.library.read)(relpath)
+            if text is None:
+                return None
         except FileNotFoundError:
             raise _Failure(Status.NOT_FOUND, f"no file {relpath!r}") from None
         except ProgramError as e:
@@ -427,13 +438,13 @@ class TaskControl(_Guarded):
     async def _load(self, relpath: str) -> int:
         try:
             modules = {n: m for n, (m, _) in self._modules.items()}
-            # ``size`` is optional for a library (DirectoryLibrary has it): without it, a worker thread.
-            sizer = getattr(self.library, "size", None)
-            size = sizer(relpath) if sizer is not None else None
-            if size is not None and size <= INLINE_PROGRAM_BYTES:
-                program = self._read_and_check(relpath, modules)  # a few hundred microseconds at most
-            else:
+            # ``read_small`` is optional for a library (DirectoryLibrary has it): a small file is read
+            # and checked on the loop (a few hundred microseconds at most), anything else in a thread.
+            small = getattr(self.library, "read_small", None)
+            program = self._read_and_check(relpath, modules, small) if small is not None else None
+            if program is None:
                 program = await asyncio.to_thread(self._read_and_check, relpath, modules)
+            assert program is not None  # read by the library's ``read``: a text or an error
             if program.kind is Kind.MODULE and self.program is not None and program.name == self.program.name:
                 raise _Failure(Status.INVALID_CONTENT, f"module {program.name} has the program's name")
             if program.kind is Kind.PROGRAM and program.name in self._modules:
