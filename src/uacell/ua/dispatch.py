@@ -290,7 +290,8 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
             self._running -= 1
             if self._running == 0:
                 self._idle.set()
-        self._observe(caller, request, result, time.perf_counter() - started)
+        if self.observers:  # told once the answer is out (the event loop's next turn), as publishing is
+            asyncio.get_running_loop().call_soon(self._observe, caller, request, result, time.perf_counter() - started)
         return result
 
     def method_name(self, method_id: ua.NodeId) -> str:
