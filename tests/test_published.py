@@ -5,9 +5,11 @@ clients over TCP."""
 from __future__ import annotations
 
 import asyncio
+import logging
 from pathlib import Path
 from typing import Any
 
+import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving
 from helpers import raw_call, wait_until
@@ -54,6 +56,30 @@ async def test_a_request_waits_for_what_is_being_published() -> None:
     assert not publisher.pending
 
 
+async def test_a_publishing_that_hangs_holds_up_a_request_only_so_long(caplog: pytest.LogCaptureFixture) -> None:
+    publisher = Publisher()
+    stage = PublishedStage(publisher, wait=0.2)
+    release, started = asyncio.Event(), asyncio.Event()
+
+    async def stuck() -> None:
+        started.set()
+        await release.wait()
+
+    async def service(request: Any) -> str:
+        return "answer"
+
+    publisher.submit(stuck)
+    await started.wait()
+    request: Any = None
+    with caplog.at_level(logging.WARNING, logger="uacell.ua.pipeline"):
+        assert await asyncio.wait_for(stage(request, service), 10) == "answer"
+    assert "publishing has waited more than 0.2 s" in caplog.text
+    assert publisher.pending  # the drain goes on
+    release.set()
+    await publisher.flush()
+    assert not publisher.pending
+
+
 async def test_schedule_runs_the_idle_hooks_with_nothing_queued() -> None:
     publisher = Publisher()
     ran: list[int] = []
@@ -88,9 +114,9 @@ async def test_a_call_is_answered_first_and_a_read_after_it_sees_what_it_changed
         flushes: list[int] = []
         real_flush = app.publisher.flush
 
-        async def counted_flush() -> None:
+        async def counted_flush(timeout: float | None = None) -> None:
             flushes.append(1)
-            await real_flush()
+            await real_flush(timeout)
 
         app.publisher.flush = counted_flush  # type: ignore[method-assign]
         state = ua.NodeId(f"{TC}.CurrentState", ns)

@@ -105,17 +105,18 @@ class Publisher:
         finally:
             self._draining = False
 
-    async def flush(self) -> None:
+    async def flush(self, timeout: float | None = None) -> None:
         """Wait until everything submitted so far is in the address space, and the idle hooks have run
         after it (so ``Executable`` is current too). A drain that is due runs now, in this call (a
-        method call's changes are published without a task of their own). Never call it from inside
-        a job."""
+        method call's changes are published without a task of their own); one that waits (a job
+        awaiting something) is waited for up to ``timeout`` seconds (``TimeoutError`` after: the
+        drain goes on). Never call it from inside a job."""
         if self._due is not None:
             self._due.cancel()
             self._drain()
         task = self._task
         if task is not None and not task.done():
-            await asyncio.shield(task)
+            await asyncio.wait_for(asyncio.shield(task), timeout)
 
     async def close(self) -> None:
         await self.flush()

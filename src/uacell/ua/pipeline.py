@@ -123,20 +123,29 @@ class Settling(Protocol):
     @property
     def pending(self) -> bool: ...
 
-    async def flush(self) -> None: ...
+    async def flush(self, timeout: float | None = None) -> None: ...
+
+
+PUBLISHED_WAIT = 5.0  # seconds a request waits for a publishing that itself waits, then is served
 
 
 class PublishedStage:
     """A request is served only once what earlier calls changed is in the address space. A call is
     answered before its changes are published (decision 56); they are published on the event loop's
-    next turn, and a request that comes first (or while publishing waits) waits for them here."""
+    next turn, and a request that comes first (or while publishing waits) waits for them here. A
+    publishing that is still waiting after ``wait`` seconds (a job stuck on something: a bug) holds
+    up no request longer: it is served, and a warning says so."""
 
-    def __init__(self, publisher: Settling) -> None:
+    def __init__(self, publisher: Settling, wait: float = PUBLISHED_WAIT) -> None:
         self._publisher = publisher
+        self._wait = wait
 
     async def __call__(self, request: Request, call_next: Next) -> Any:
         if self._publisher.pending:
-            await self._publisher.flush()
+            try:
+                await self._publisher.flush(self._wait)
+            except TimeoutError:
+                log.warning("publishing has waited more than %.1f s: a request is served before it", self._wait)
         return await call_next(request)
 
 
