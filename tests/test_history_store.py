@@ -223,7 +223,7 @@ def test_kill_9_during_a_batch_loses_at_most_the_last_interval(tmp_path: Path) -
 
 
 def test_an_event_is_encoded_field_by_field_the_repeating_ones_once() -> None:
-    """encode_event writes each field that has a value as its name and Variant, the same bytes whether
+    """encode_fields writes each field that has a value as its name and Variant, the same bytes whether
     a field's encoding is taken from the repeating fields' cache or made anew; decode_fields reads
     them back."""
     from datetime import UTC, datetime
@@ -244,9 +244,9 @@ def test_an_event_is_encoded_field_by_field_the_repeating_ones_once() -> None:
         "internal": "not a field", "__private": 1,
     }  # fmt: skip
     service._REPEATING.clear()
-    first = service.encode_event(values, types, skip=("internal",))
+    first = service.encode_fields(values, service.event_plan(types, skip=("internal",)))
     assert service._REPEATING  # the repeating fields were kept
-    again = service.encode_event(values, types, skip=("internal",))
+    again = service.encode_fields(values, service.event_plan(types, skip=("internal",)))
     assert again == first
     fields = service.decode_fields(first)
     assert list(fields) == ["EventType", "SourceName", "Severity", "Message", "Time", "EventId", "InputArguments"]
@@ -255,7 +255,7 @@ def test_an_event_is_encoded_field_by_field_the_repeating_ones_once() -> None:
     assert fields["Message"].Value == ua.LocalizedText("Idle to Ready")
     assert fields["InputArguments"].Value == [ua.Variant("pick", V.String)]
     service._REPEATING.clear()  # made anew, field by field: the same bytes
-    assert service.encode_event(values, types, skip=("internal",)) == first
+    assert service.encode_fields(values, service.event_plan(types, skip=("internal",))) == first
     # the times and EventIds, written out, are the bytes asyncua's Variant encoding gives
     for name, vtype, value in (
         ("Time", V.DateTime, datetime(2026, 11, 26, 7, 8, 9, 123456, tzinfo=UTC)),
@@ -377,7 +377,7 @@ def test_a_kept_value_is_encoded_as_asyncua_does_the_repeating_ones_once() -> No
 
 async def test_an_event_objects_fields_are_planned_once(tmp_path: Path) -> None:
     """The fields an event is kept with are worked out once for each event object and give the
-    bytes encode_event gives; an object whose types grew gets a new plan."""
+    bytes a plan made anew gives; an object whose types grew gets a new plan."""
     from asyncua import ua
 
     from uacell.history import service
@@ -398,7 +398,8 @@ async def test_an_event_objects_fields_are_planned_once(tmp_path: Path) -> None:
     assert plan == (("SourceName", V.String), ("Severity", V.UInt16))
     assert history._event_plan(event) is plan
     values = dict(vars(event))
-    assert service.encode_fields(values, plan) == service.encode_event(values, event.data_types, ("internal",))
+    fresh = service.event_plan(event.data_types, ("internal",))
+    assert plan == fresh and service.encode_fields(values, plan) == service.encode_fields(values, fresh)
     event.data_types["Message"] = V.LocalizedText
     event.Message = ua.LocalizedText("Idle to Ready")
     assert history._event_plan(event)[-1] == ("Message", V.LocalizedText)

@@ -90,15 +90,11 @@ def event_plan(types: dict[str, Any], skip: Any = ()) -> Plan:
     return tuple((name, vtype) for name, vtype in types.items() if not name.startswith("__") and name not in skip)
 
 
-def encode_event(values: dict[str, Any], types: dict[str, Any], skip: Any = ()) -> bytes:
-    """An event's fields that have a value (its attributes ``values`` with their ``types``; asyncua's
-    own helper fails on a None), each its name and its Variant (``decode_fields`` reads them)."""
-    return encode_fields(values, event_plan(types, skip))
-
-
 def encode_fields(values: dict[str, Any], plan: Plan) -> bytes:
-    """``encode_event`` with the plan made already (once an event object: ``HistoryService``). Run by
-    the history writer thread, off the event loop."""
+    """An event's fields that have a value (its attributes ``values``, the fields of its ``plan``;
+    asyncua's own helper fails on a None), each its name and its Variant (``decode_fields`` reads
+    them). Run by the history writer thread, off the event loop; the plan is made once an event
+    object (``HistoryService``)."""
     out = bytearray()
     for name, vtype in plan:
         value = values.get(name)
