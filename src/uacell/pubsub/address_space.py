@@ -2,7 +2,9 @@
 one PubSubConnection (``MQTT``: PublisherId, the transport profile, the broker URL), its WriterGroup
 and a DataSetWriter per writer, and per writer a PublishedDataItems in PublishedDataSets (its fields'
 metadata, version and source variables) linked to the writer by DataSetToWriter. The Status/State of
-connection, group and writers follows the broker connection (Operational or Error).
+connection, group and writers follows the broker connection (Operational or Error). The content masks
+(the group's and each writer's MessageSettings, each writer's DataSetFieldContentMask) and the
+HeaderLayoutUri are the ones the messages are built with (messages.py, schema.py).
 """
 
 from __future__ import annotations
@@ -14,16 +16,14 @@ from typing import Any
 from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 
-from uacell.pubsub.messages import Writer
+from uacell.pubsub.messages import DATASET_MESSAGE_CONTENT_MASK, NETWORK_MESSAGE_CONTENT_MASK, Writer
+from uacell.pubsub.schema import HEADER_LAYOUT_URI, MQTT_JSON_PROFILE
 from uacell.ua import toolkit
 from uacell.ua.instantiate import Instantiator
 
-MQTT_JSON_PROFILE = "http://opcfoundation.org/UA-Profile/Transport/pubsub-mqtt-json"
-JSON_LAYOUT = "http://opcfoundation.org/UA/PubSub-Layouts/JSON-DataSetMessage"
 _A = ua.AttributeIds
 _V = ua.VariantType
-# DataSetFieldContentMask: StatusCode | SourceTimestamp (each field is a DataValue with these)
-FIELD_CONTENT_MASK = 0x1 | 0x2
+_ZERO = ua.QualifiedName("MessageSettings", 0)
 
 
 class PubSubNodes:
@@ -64,9 +64,13 @@ class PubSubNodes:
         await self._set(wg, "KeepAliveTime", keep_alive * 1000.0, _V.Double)
         await self._set(wg, "Priority", 0, _V.Byte)
         await self._set(wg, "LocaleIds", [], _V.String)
-        await self._set(wg, "HeaderLayoutUri", JSON_LAYOUT, _V.String)
+        await self._set(wg, "HeaderLayoutUri", HEADER_LAYOUT_URI, _V.String)
         await self._set(wg, "SecurityMode", ua.MessageSecurityMode.None_, _V.Int32)
         await self._set(wg, "MaxNetworkMessageSize", 0, _V.UInt32)
+        settings = self.inst.create(
+            wg, ua.NodeId(ids.JsonWriterGroupMessageType), _ZERO, path="PubSub.MQTT.Group.MessageSettings"
+        )
+        await self._set(settings, "NetworkMessageContentMask", NETWORK_MESSAGE_CONTENT_MASK, _V.UInt32)
         folder = ua.NodeId(ids.PublishSubscribe_PublishedDataSets)
         for w in writers:
             dw = self.inst.create(
@@ -77,12 +81,16 @@ class PubSubNodes:
                 path=f"PubSub.MQTT.Group.{w.writer_id}",
             )
             await self._set(dw, "DataSetWriterId", w.writer_id, _V.UInt16)
-            await self._set(dw, "DataSetFieldContentMask", FIELD_CONTENT_MASK, _V.UInt32)
+            await self._set(dw, "DataSetFieldContentMask", w.field_content_mask, _V.UInt32)
             await self._set(dw, "DataSetWriterProperties", [], _V.ExtensionObject)
+            message = self.inst.create(
+                dw, ua.NodeId(ids.JsonDataSetWriterMessageType), _ZERO, path=f"PubSub.MQTT.Group.{w.writer_id}.Message"
+            )
+            await self._set(message, "DataSetMessageContentMask", DATASET_MESSAGE_CONTENT_MASK, _V.UInt32)
             pds = self.inst.create(
                 folder, ua.NodeId(ids.PublishedDataItemsType), w.name, path=f"PubSub.DataSets.{w.writer_id}"
             )
-            version = ua.ConfigurationVersionDataType(MajorVersion=w.version, MinorVersion=w.version)
+            version = ua.ConfigurationVersionDataType(MajorVersion=w.version.major, MinorVersion=w.version.minor)
             await self._set(pds, "ConfigurationVersion", version, _V.ExtensionObject)
             await self._set(pds, "DataSetMetaData", _metadata(w, version), _V.ExtensionObject)
             published = [

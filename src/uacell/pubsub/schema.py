@@ -1,0 +1,127 @@
+"""What a consumer needs besides the fields' names to decode a DataSet, read from the address space:
+the DataTypeSchemaHeader of its DataSetMetaData (OPC 10000-14 v1.05 §6.2.3.2.2: ``Namespaces``, the
+``StructureDataTypes`` and ``EnumDataTypes`` of its fields' DataTypes outside namespace 0, nested ones
+too), and the PubSubConnectionDataType of the ``ua-connection`` message (§7.2.5.5.6, CompactEncoding).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any, Protocol
+
+from asyncua import ua
+from asyncua.server.address_space import AddressSpace
+
+from uacell.pubsub.encoding import JsonEncoder
+from uacell.pubsub.messages import (
+    DATASET_MESSAGE_CONTENT_MASK,
+    NETWORK_MESSAGE_CONTENT_MASK,
+    Publisher,
+    Topics,
+    Writer,
+)
+
+_A = ua.AttributeIds
+MQTT_JSON_PROFILE = "http://opcfoundation.org/UA-Profile/Transport/pubsub-mqtt-json"
+# No header layout of OPC 10000-14 Annex A is selected (§6.2.6.6: "" is none): the masks above say
+# what is sent (one DataSetMessage per NetworkMessage, with the NetworkMessage header).
+HEADER_LAYOUT_URI = ""
+_QOS = {0: 1, 1: 2, 2: 4}  # MQTT QoS -> BrokerTransportQualityOfService (BestEffort, AtLeastOnce, ExactlyOnce)
+
+
+class SchemaCollector:
+    def __init__(self, aspace: AddressSpace, encoder: JsonEncoder) -> None:
+        self.aspace = aspace
+        self.encoder = encoder
+
+    def _read(self, node: ua.NodeId, attribute: int) -> Any:
+        dv = self.aspace.read_attribute_value(node, attribute)
+        if dv.StatusCode is not None and not dv.StatusCode.is_good():
+            return None
+        return dv.Value.Value if dv.Value is not None else None
+
+    def is_abstract(self, data_type: ua.NodeId) -> bool:
+        return bool(self._read(data_type, _A.IsAbstract))
+
+    def header(self, data_types: Iterable[ua.NodeId | None]) -> dict[str, Any]:
+        """``Namespaces``, ``StructureDataTypes`` and ``EnumDataTypes`` for fields of these DataTypes."""
+        structures: dict[ua.NodeId, ua.StructureDescription] = {}
+        enums: dict[ua.NodeId, ua.EnumDescription] = {}
+        namespaces: set[int] = set()
+        todo = [dt for dt in data_types if dt is not None]
+        seen: set[ua.NodeId] = set()
+        while todo:
+            dt = todo.pop()
+            if dt in seen or dt.NamespaceIndex == 0:
+                continue
+            seen.add(dt)
+            namespaces.add(dt.NamespaceIndex)
+            definition = self._read(dt, _A.DataTypeDefinition)
+            name = self._read(dt, _A.BrowseName)
+            if not isinstance(name, ua.QualifiedName):
+                continue
+            if isinstance(definition, ua.StructureDefinition):
+                structures[dt] = ua.StructureDescription(DataTypeId=dt, Name=name, StructureDefinition=definition)
+                todo += [f.DataType for f in definition.Fields or [] if isinstance(f.DataType, ua.NodeId)]
+            elif isinstance(definition, ua.EnumDefinition):
+                enums[dt] = ua.EnumDescription(DataTypeId=dt, Name=name, EnumDefinition=definition, BuiltInType=6)
+        uris = [self.encoder.uri(i) for i in sorted(namespaces)]
+        return {
+            "Namespaces": [u for u in uris if u],
+            "StructureDataTypes": [self.encoder.value(d) for d in structures.values()],
+            "EnumDataTypes": [self.encoder.value(d) for d in enums.values()],
+        }
+
+
+class _Settings(Protocol):
+    publishing_interval: float
+    keep_alive: int
+    qos: int
+    topic_prefix: str
+
+
+def connection_config(publisher: Publisher, cfg: _Settings, writers: Sequence[Writer]) -> dict[str, Any]:
+    """The PubSubConnectionDataType (§6.2.7.5.1) in the CompactEncoding (default values left out), without
+    Address, ReaderGroups and configuration properties (§7.2.5.5.6)."""
+    topics = Topics(cfg.topic_prefix, publisher.publisher_id, publisher.writer_group)
+    qos = _QOS.get(cfg.qos, 0)
+    group: dict[str, Any] = {
+        "Name": publisher.writer_group,
+        "Enabled": True,
+        "SecurityMode": ua.MessageSecurityMode.None_.value,
+        "WriterGroupId": 1,
+        "PublishingInterval": cfg.publishing_interval * 1000.0,
+        "KeepAliveTime": cfg.keep_alive * 1000.0,
+        "MessageSettings": {
+            "UaTypeId": f"i={ua.ObjectIds.JsonWriterGroupMessageDataType}",
+            "NetworkMessageContentMask": NETWORK_MESSAGE_CONTENT_MASK,
+        },
+        "DataSetWriters": [_writer(w, topics, qos) for w in writers],
+    }
+    return {
+        "Name": "MQTT",
+        "Enabled": True,
+        "PublisherId": {"UaType": ua.VariantType.String.value, "Value": publisher.publisher_id},
+        "TransportProfileUri": MQTT_JSON_PROFILE,
+        "WriterGroups": [group],
+    }
+
+
+def _writer(w: Writer, topics: Topics, qos: int) -> dict[str, Any]:
+    out: dict[str, Any] = {"Name": w.name, "Enabled": True, "DataSetWriterId": w.writer_id}
+    if w.field_content_mask:
+        out["DataSetFieldContentMask"] = w.field_content_mask
+    if not w.events:
+        out["KeyFrameCount"] = w.keyframe_count
+    out["DataSetName"] = w.name
+    out["TransportSettings"] = {
+        "UaTypeId": f"i={ua.ObjectIds.BrokerDataSetWriterTransportDataType}",
+        "QueueName": topics.data(w.name),
+        "MetaDataQueueName": topics.metadata(w.name),
+        **({"RequestedDeliveryGuarantee": qos} if qos else {}),
+    }
+    out["MessageSettings"] = {
+        "UaTypeId": f"i={ua.ObjectIds.JsonDataSetWriterMessageDataType}",
+        "DataSetMessageContentMask": DATASET_MESSAGE_CONTENT_MASK,
+    }
+    return out
