@@ -106,6 +106,7 @@ class MqttLink:
         self._task: asyncio.Task[None] | None = None
         self._last_words: Outgoing | None = None
         self._clear: tuple[str, ...] = ()
+        self.session: aiomqtt.Client | None = None  # the client of the current connection, while connected
 
     @property
     def will(self) -> Outgoing:
@@ -171,6 +172,7 @@ class MqttLink:
         while not self._closing:
             try:
                 async with self._client() as client:
+                    self.session = client
                     self.connects += 1
                     delay = FIRST_RETRY
                     if self.last_error:
@@ -185,6 +187,7 @@ class MqttLink:
                         await self._serve(client)
                     finally:
                         self.connected.clear()
+                        self.session = None
             except aiomqtt.MqttError as exc:
                 self._failed(str(exc))
             except (OSError, ssl.SSLError, ValueError) as exc:  # certificate files, TLS set-up
