@@ -273,6 +273,17 @@ class Validator:
             settings = keys_within(group.get("MessageSettings"), {"UaTypeId", "NetworkMessageContentMask"}, gw)
             need(settings.get("UaTypeId") == JSON_WRITER_GROUP_MESSAGE, gw, "JsonWriterGroupMessageDataType")
             network_mask = uint(settings.get("NetworkMessageContentMask", 0), 32, gw)
+            layout = group.get("HeaderLayoutUri", "")
+            if layout == "http://opcfoundation.org/UA/PubSub-Layouts/JSON-NetworkMessage":  # A.3.4.2
+                need(
+                    network_mask & 0x3 == 0x3 and not network_mask & 0x4,
+                    gw,
+                    "JSON-NetworkMessage: both headers, an array",
+                )
+            elif layout == "http://opcfoundation.org/UA/PubSub-Layouts/JSON-DataSetMessage":  # A.3.3.2
+                need(network_mask & 0x7 == 0x6, gw, "JSON-DataSetMessage: one DataSetMessage with its header only")
+            else:
+                need(layout == "", gw, f"an unknown HeaderLayoutUri {layout!r}")
             for w, writer in enumerate(group.get("DataSetWriters", [])):
                 ww = f"{gw}.DataSetWriters[{w}]"
                 keys_within(
@@ -318,8 +329,11 @@ class Validator:
             where,
         )
         writer_id = uint(body.get("DataSetWriterId"), 16, where + ".DataSetWriterId")
-        if "DataSetWriterName" in body:
-            need(body["DataSetWriterName"] == rest[1], where, "DataSetWriterName equals the topic's writer level")
+        for mandatory in ("WriterGroupName", "DataSetWriterName", "Timestamp"):  # Table 188
+            need(mandatory in body, where, f"{mandatory} is mandatory in ua-metadata")
+        need(body["WriterGroupName"] == rest[0], where, "WriterGroupName equals the topic's writer group level")
+        need(body["DataSetWriterName"] == rest[1], where, "DataSetWriterName equals the topic's writer level")
+        need(bool(ISO_UTC.match(string(body["Timestamp"], where))), where, "Timestamp is ISO 8601 UTC")
         meta = keys_within(
             body.get("MetaData"),
             {
@@ -427,11 +441,16 @@ class Validator:
         )
         need(body.get("WriterGroupName", rest[0]) == rest[0], where, "WriterGroupName equals the topic's level")
         messages = body.get("Messages")
+        declared = [d for (p, _w), d in self.declared.items() if p == body["PublisherId"]]
+        need(bool(declared), where, "no ua-connection message declared this Publisher's writers before its data")
+        if declared[0].network_mask & 0x4:  # SingleDataSetMessage: an object, else an array (§7.2.5.3)
+            need(isinstance(messages, dict), where, "Messages is a JSON object when SingleDataSetMessage is declared")
+            messages = [messages]
         need(isinstance(messages, list) and len(messages) >= 1, where, "Messages is an array of DataSetMessages")
         for i, message in enumerate(messages):
-            self._dataset_message(body, message, f"{where}.Messages[{i}]", rest, len(messages))
+            self._dataset_message(body, message, f"{where}.Messages[{i}]", rest)
 
-    def _dataset_message(self, body: dict[str, Any], m: Any, where: str, rest: list[str], count: int) -> None:
+    def _dataset_message(self, body: dict[str, Any], m: Any, where: str, rest: list[str]) -> None:
         keys_within(m, set(DSM_HEADER.values()) | {"Status", "Payload"}, where)
         writer_id = uint(m.get("DataSetWriterId"), 16, where + ".DataSetWriterId")
         need(writer_id != 0, where, "DataSetWriterId 0 is not a writer")
@@ -439,8 +458,6 @@ class Validator:
         declared = self.declared.get(key)
         need(declared is not None, where, f"writer {writer_id} is not declared in the ua-connection message")
         assert declared is not None
-        if declared.network_mask & 0x4:
-            need(count == 1, where, "SingleDataSetMessage is declared")
         for bit, name in DSM_HEADER.items():
             if declared.dataset_mask & bit:
                 need(name in m, where, f"{name} is declared by the DataSetMessageContentMask but missing")

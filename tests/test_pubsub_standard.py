@@ -55,6 +55,25 @@ async def ok(client: Client, obj: str, method: str, *args: ua.Variant) -> None:
     assert res.StatusCode.is_good(), (obj, method, res.StatusCode)
 
 
+async def address_space_masks(client: Client) -> dict[str, Any]:
+    """The content masks and header layout below Server/PublishSubscribe, as a client reads them."""
+    (conn,) = await client.get_node(ua.ObjectIds.PublishSubscribe).get_referenced_nodes(
+        ua.ObjectIds.HasPubSubConnection
+    )
+    (group,) = await conn.get_referenced_nodes(ua.ObjectIds.HasWriterGroup)
+    writers = {}
+    for w in await group.get_referenced_nodes(ua.ObjectIds.HasDataSetWriter):
+        name = (await w.read_browse_name()).Name
+        field_mask = await (await w.get_child("0:DataSetFieldContentMask")).read_value()
+        message_mask = await (await w.get_child(["0:MessageSettings", "0:DataSetMessageContentMask"])).read_value()
+        writers[name] = (field_mask, message_mask)
+    return {
+        "layout": await (await group.get_child("0:HeaderLayoutUri")).read_value(),
+        "network": await (await group.get_child(["0:MessageSettings", "0:NetworkMessageContentMask"])).read_value(),
+        "writers": writers,
+    }
+
+
 async def test_every_message_of_a_served_cell_validates_and_a_clean_stop_clears_the_retained_topics(
     tmp_path: Path, broker: Broker
 ) -> None:
@@ -81,6 +100,7 @@ async def test_every_message_of_a_served_cell_validates_and_a_clean_stop_clears_
                 await wait_until(lambda: "ExecutingToReady" in transitions_of(sub, f"{TASK}.Events"))
                 # a writer with nothing new for keep_alive (5 s) sends a keep-alive
                 await wait_until(lambda: any(m["MessageType"] == "ua-keepalive" for m in sub.data()), timeout=30)
+                shown = await address_space_masks(client)
             versions = {name: w.version for name, w in writers.items()}
         finally:
             await app.stop()
@@ -92,6 +112,19 @@ async def test_every_message_of_a_served_cell_validates_and_a_clean_stop_clears_
 
     v = validate(sub)
     assert {k for k, n in v.checked.items() if n} == {"ua-status", "ua-connection", "ua-metadata", "ua-data"}
+    # the address space declares what is sent: the masks the validator checked every message against
+    conn = next(r.body for r in sub.messages if r.topic.endswith(f"/connection/{PUBLISHER}") and r.raw)
+    (group,) = conn["Connection"]["WriterGroups"]
+    sent = {
+        "layout": group["HeaderLayoutUri"],
+        "network": group["MessageSettings"]["NetworkMessageContentMask"],
+        "writers": {
+            w["Name"]: (w.get("DataSetFieldContentMask", 0), w["MessageSettings"]["DataSetMessageContentMask"])
+            for w in group["DataSetWriters"]
+        },
+    }
+    assert shown == sent
+    assert sent["writers"][f"{F}.Events"][0] == 0 and sent["writers"][F][0] == 3
     assert v.cleared == topics  # metadata and connection cleared; the status stays, Disabled
     data = sub.data()
     kinds = {m["MessageType"] for m in data}

@@ -43,7 +43,8 @@ def connection() -> dict[str, Any]:
                     "Enabled": True,
                     "WriterGroupId": 1,
                     "PublishingInterval": 500.0,
-                    "MessageSettings": {"UaTypeId": "i=15657", "NetworkMessageContentMask": 79},
+                    "HeaderLayoutUri": "http://opcfoundation.org/UA/PubSub-Layouts/JSON-NetworkMessage",
+                    "MessageSettings": {"UaTypeId": "i=15657", "NetworkMessageContentMask": 75},
                     "DataSetWriters": [writer(7, "Filler1", 3), writer(8, "Filler1.Events", 0)],
                 }
             ],
@@ -87,7 +88,9 @@ def metadata(writer_id: int, name: str, fields: list[dict[str, Any]], structures
         "MessageType": "ua-metadata",
         "PublisherId": P,
         "DataSetWriterId": writer_id,
+        "WriterGroupName": "Cell",
         "DataSetWriterName": name,
+        "Timestamp": "2026-11-25T18:00:00Z",
         "MetaData": {
             "Namespaces": [NS] if structures else [],
             "StructureDataTypes": [alarm] if structures else [],
@@ -203,8 +206,10 @@ def payload7(change: Callable[[dict[str, Any]], None]) -> Callable[[list[Any]], 
     return at(4, lambda b: change(b["Messages"][0]["Payload"]))
 
 
-def rename(d: dict[str, Any], old: str, new: str) -> None:
-    d[new] = d.pop(old)
+def single(group: dict[str, Any]) -> None:
+    """SingleDataSetMessage declared (no header layout), the data still sent as an array."""
+    group["MessageSettings"]["NetworkMessageContentMask"] = 79
+    group.pop("HeaderLayoutUri")
 
 
 BAD: dict[str, tuple[Callable[[list[Any]], None], str]] = {
@@ -269,6 +274,20 @@ BAD: dict[str, tuple[Callable[[list[Any]], None], str]] = {
     ),
     "MessageType disagrees with the topic": (at(0, lambda b: b.update(MessageType="ua-data")), "MessageType"),
     "PublisherId disagrees with the topic": (at(4, lambda b: b.update(PublisherId="other")), "PublisherId"),
+    "an array though SingleDataSetMessage is declared": (
+        at(1, lambda b: single(b["Connection"]["WriterGroups"][0])),
+        "JSON object when SingleDataSetMessage",
+    ),
+    "a header layout the masks do not follow": (
+        at(
+            1,
+            lambda b: b["Connection"]["WriterGroups"][0].update(
+                HeaderLayoutUri="http://opcfoundation.org/UA/PubSub-Layouts/JSON-DataSetMessage"
+            ),
+        ),
+        "JSON-DataSetMessage",
+    ),
+    "metadata without its Timestamp": (at(2, lambda b: b.pop("Timestamp")), "Timestamp is mandatory"),
     "a MessageId used twice": (at(5, lambda b: b.update(MessageId="d-1")), "reused"),
     "NodeId with a namespace index in verbose": (
         at(3, lambda b: b["MetaData"]["Fields"][0].update(DataType="ns=1;i=15")),

@@ -31,9 +31,9 @@ _FIELD_IDS = uuid.UUID("5b1a3f0e-7c1d-4c55-9a3e-0d3c7e6b9f21")  # namespace for 
 
 UNSET = Version(0, 0)
 
-# JsonNetworkMessageContentMask (§6.3.2.1.1): NetworkMessageHeader | DataSetMessageHeader |
-# SingleDataSetMessage | PublisherId | WriterGroupName
-NETWORK_MESSAGE_CONTENT_MASK = 0x01 | 0x02 | 0x04 | 0x08 | 0x40
+# JsonNetworkMessageContentMask (§6.3.2.1.1): NetworkMessageHeader | DataSetMessageHeader | PublisherId |
+# WriterGroupName. Not SingleDataSetMessage: ``Messages`` is an array (§7.2.5.3), of one DataSetMessage.
+NETWORK_MESSAGE_CONTENT_MASK = 0x01 | 0x02 | 0x08 | 0x40
 # JsonDataSetMessageContentMask (§6.3.2.3.1): DataSetWriterId | MetaDataVersion | SequenceNumber |
 # Timestamp | Status | MessageType | DataSetWriterName | FieldEncoding2 (FieldEncoding1 clear: the
 # VerboseEncoding, Table 112). Status is left out while Good (OPC 10000-6 §5.4.2.12); MetaDataVersion

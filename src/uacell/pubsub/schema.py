@@ -23,9 +23,9 @@ from uacell.pubsub.messages import (
 
 _A = ua.AttributeIds
 MQTT_JSON_PROFILE = "http://opcfoundation.org/UA-Profile/Transport/pubsub-mqtt-json"
-# No header layout of OPC 10000-14 Annex A is selected (§6.2.6.6: "" is none): the masks above say
-# what is sent (one DataSetMessage per NetworkMessage, with the NetworkMessage header).
-HEADER_LAYOUT_URI = ""
+# The header layout of OPC 10000-14 A.3.4 (JSON-NetworkMessage): NetworkMessage header, an array of
+# DataSetMessages with their headers, header fields and field encoding as the content masks say.
+HEADER_LAYOUT_URI = "http://opcfoundation.org/UA/PubSub-Layouts/JSON-NetworkMessage"
 _QOS = {0: 1, 1: 2, 2: 4}  # MQTT QoS -> BrokerTransportQualityOfService (BestEffort, AtLeastOnce, ExactlyOnce)
 
 
@@ -92,6 +92,7 @@ def connection_config(publisher: Publisher, cfg: _Settings, writers: Sequence[Wr
         "WriterGroupId": 1,
         "PublishingInterval": cfg.publishing_interval * 1000.0,
         "KeepAliveTime": cfg.keep_alive * 1000.0,
+        "HeaderLayoutUri": HEADER_LAYOUT_URI,
         "MessageSettings": {
             "UaTypeId": f"i={ua.ObjectIds.JsonWriterGroupMessageDataType}",
             "NetworkMessageContentMask": NETWORK_MESSAGE_CONTENT_MASK,
