@@ -284,8 +284,9 @@ async def test_a_clean_stop_leaves_status_disabled(tmp_path: Path, broker: Broke
 
 
 async def test_kill_9_the_broker_sends_the_will(tmp_path: Path, broker: Broker) -> None:
-    """uacell run as `uacell serve`, killed with -9: the broker publishes its Will (status Error)
-    within 1.5 keep-alives."""
+    """uacell run as `uacell serve`, killed with -9: the broker publishes its Will (status Error, a
+    MessageId of its own). MQTT gives the broker 1.5 keep-alives; mosquitto 2.0 takes 7 to 13 s for
+    keep_alive 5 (docs/pubsub.md), so the bound is the broker's, not uacell's."""
     port = free_port()
     config = tmp_path / "uacell.toml"
     config.write_text(
@@ -317,9 +318,11 @@ keep_alive = 5
             proc.kill()
             proc.wait(10)
             killed = time.monotonic()
-            will = await sub.wait_for(lambda r: r.body is not None and r.body["Status"] == ERROR, timeout=15)
-            assert time.monotonic() - killed <= 1.5 * 5 + 1.0
+            will = await sub.wait_for(lambda r: r.body is not None and r.body["Status"] == ERROR, timeout=30)
+            assert time.monotonic() - killed <= 3 * 5 + 2.0  # mosquitto: 7-13 s; generous for a loaded machine
             assert will.body["MessageType"] == "ua-status" and will.body["IsCyclic"] is False
+            operational = next(r for r in sub.messages if r.body is not None and r.body["Status"] == OPERATIONAL)
+            assert will.body["MessageId"] != operational.body["MessageId"]
     finally:
         if proc.poll() is None:
             proc.kill()
