@@ -572,6 +572,8 @@ class Validator:
             string(value, where)
         elif builtin == 13:
             need(bool(ISO_UTC.match(string(value, where))), where, f"DateTime ISO 8601 UTC, not {value!r}")
+            # DateTime.MinValue (the binary encoding's 0, 1601-01-01) is written 0001-01-01T00:00:00Z (§5.4.2.6)
+            need(not value.startswith("1601-01-01T00:00:00"), where, "DateTime.MinValue is 0001-01-01T00:00:00Z")
         elif builtin == 14:
             guid(value, where)
         elif builtin == 15:

@@ -169,6 +169,7 @@ def test_values_encode_as_part6_json():
     assert e.node_id(ua.NodeId("Filler1", 1)) == "nsu=urn:uacell:cell;s=Filler1"
     assert e.node_id(ua.NodeId(2253, 0)) == "i=2253"
     assert e.value(T) == "2026-11-25T18:00:00.123000Z"
+    assert e.value(datetime(1601, 1, 1, tzinfo=UTC)) == "0001-01-01T00:00:00Z"  # MinValue (§5.4.2.6)
     dv = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadStateNotActive), SourceTimestamp=T)
     assert e.data_value(dv) == {
         "Value": None,  # the VerboseEncoding writes null, not leaves it out (§5.4.2.1)

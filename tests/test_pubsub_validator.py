@@ -287,6 +287,10 @@ BAD: dict[str, tuple[Callable[[list[Any]], None], str]] = {
         ),
         "JSON-DataSetMessage",
     ),
+    "DateTime.MinValue as 1601": (
+        at(5, lambda b: b["Messages"][0]["Payload"].update(Time="1601-01-01T00:00:00Z")),
+        "MinValue",
+    ),
     "metadata without its Timestamp": (at(2, lambda b: b.pop("Timestamp")), "Timestamp is mandatory"),
     "a MessageId used twice": (at(5, lambda b: b.update(MessageId="d-1")), "reused"),
     "NodeId with a namespace index in verbose": (

@@ -31,10 +31,16 @@ _WIDE = {"Int64": ua.VariantType.Int64, "UInt64": ua.VariantType.UInt64}  # stru
 _INFO_BITS = 0x0000FFFF  # the InfoBits and sub-code: ignored when looking up the symbol (§5.4.2.12)
 
 
+JSON_NULL_TIME = "0001-01-01T00:00:00Z"  # DateTime.MinValue in JSON, a null DateTime (§5.4.2.6)
+
+
 def iso(t: datetime) -> str:
-    """``2026-11-25T18:02:14.123456Z``."""
+    """``2026-11-25T18:02:14.123456Z``; DateTime.MinValue (1601-01-01 and before, §5.1.4) as
+    ``0001-01-01T00:00:00Z``."""
     if t.tzinfo is None:
         t = t.replace(tzinfo=UTC)
+    if t <= MIN_DATE:
+        return JSON_NULL_TIME
     return t.astimezone(UTC).isoformat().replace("+00:00", "Z")
 
 
