@@ -163,6 +163,10 @@ def test_values_encode_as_part6_json():
     assert e.value(ua.QualifiedName("Robot", 1)) == "nsu=urn:uacell:cell;Robot"
     assert e.typed(ua.Variant(3, ua.VariantType.Int32)) == {"UaType": 6, "Value": 3}
     assert e.status(0) == {}
+    # an Enumeration held as its number, with its names from the DataType's EnumDefinition
+    mode = ua.DataValue(ua.Variant(1, ua.VariantType.Int32), SourceTimestamp=T)
+    assert e.data_value(mode, names={0: "CYCLE", 1: "CONTINUOUS"})["Value"] == "CONTINUOUS_1"
+    assert e.enumeration(7, {0: "CYCLE"}) == "7"  # not named: the number as a string (§5.4.4.2)
     assert e.variant(ua.Variant(2**40, ua.VariantType.Int64)) == str(2**40)
     assert e.variant(ua.Variant(float("nan"), ua.VariantType.Double)) == "NaN"
     assert e.variant(ua.Variant(b"\x01\x02", ua.VariantType.ByteString)) == "AQI="

@@ -77,7 +77,9 @@ async def address_space_masks(client: Client) -> dict[str, Any]:
 async def test_every_message_of_a_served_cell_validates_and_a_clean_stop_clears_the_retained_topics(
     tmp_path: Path, broker: Broker
 ) -> None:
-    config = pubsub_config(tmp_path / "data", broker, keep_alive=5)
+    # an enumeration field too (Robotics' ExecutionMode): a verbose Enumeration, described in EnumDataTypes
+    extra = ["task_control:ParameterSet/ExecutionMode"]
+    config = pubsub_config(tmp_path / "data", broker, keep_alive=5, extra_values=extra)
     async with subscribed(broker, "opcua/#") as sub:
         app = await start_app(config)
         try:
@@ -145,6 +147,16 @@ async def test_every_message_of_a_served_cell_validates_and_a_clean_stop_clears_
     described = {s["Name"] for s in meta["MetaData"]["StructureDataTypes"]}
     assert "nsu=http://opcfoundation.org/UA/PackML/;PackMLAlarmDataType" in described
     assert meta["MetaData"]["Namespaces"] == ["http://opcfoundation.org/UA/PackML/"]
+    # the Enumeration field: "<name>_<value>", its names in EnumDataTypes
+    task_meta = next(r.body for r in sub.messages if r.topic.endswith(f"/metadata/{PUBLISHER}/Cell/{TASK}") and r.raw)
+    (enum,) = task_meta["MetaData"]["EnumDataTypes"]
+    names = {f"{f['Name']}_{f['Value']}" for f in enum["EnumDefinition"]["Fields"]}
+    modes = [
+        m["Payload"]["ParameterSet/ExecutionMode"]["Value"]
+        for m in sub.data(f"/{TASK}")
+        if "ParameterSet/ExecutionMode" in m.get("Payload", {})
+    ]
+    assert modes and set(modes) <= names and "CONTINUOUS_1" in names
     # no empty Locale anywhere
     assert all('"Locale":""' not in r.raw.decode() for r in sub.messages)
 
@@ -155,7 +167,7 @@ async def test_every_message_of_a_served_cell_validates_and_a_clean_stop_clears_
         assert [(r.topic, status_of(r)) for r in late.messages] == [(f"opcua/json/status/{PUBLISHER}", DISABLED)]
 
     # a restart with the same cell keeps each DataSet's ConfigurationVersion
-    again = await start_app(pubsub_config(tmp_path / "data", broker, keep_alive=5))
+    again = await start_app(pubsub_config(tmp_path / "data", broker, keep_alive=5, extra_values=extra))
     try:
         assert again.pubsub is not None
         assert {w.name: w.version for w in again.pubsub.writers} == versions

@@ -19,7 +19,7 @@ import dataclasses
 import enum
 import math
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from datetime import UTC, datetime
 from typing import Any
 
@@ -134,6 +134,15 @@ class JsonEncoder:
             }
         return str(value)
 
+    def enumeration(self, value: Any, names: Mapping[int, str]) -> Any:
+        """An Enumeration held as its number: ``<name>_<value>`` (§5.4.4.2), the number alone if unnamed."""
+        if isinstance(value, list | tuple):
+            return [self.enumeration(v, names) for v in value]
+        if isinstance(value, int) and not isinstance(value, bool):
+            number = int(value)
+            return f"{names[number]}_{number}" if number in names else str(number)
+        return self.value(value)
+
     @staticmethod
     def localized_text(text: ua.LocalizedText) -> dict[str, str]:
         out: dict[str, str] = {}
@@ -151,15 +160,20 @@ class JsonEncoder:
         symbol = _SYMBOLS.get(value & ~_INFO_BITS)
         return {"Code": value, "Symbol": symbol} if symbol else {"Code": value}
 
-    def data_value(self, dv: ua.DataValue, *, typed: bool = False) -> dict[str, Any]:
+    def data_value(
+        self, dv: ua.DataValue, *, typed: bool = False, names: Mapping[int, str] | None = None
+    ) -> dict[str, Any]:
         """A DataSet field as a DataValue (DataSetFieldContentMask StatusCode | SourceTimestamp, §5.4.2.18):
         ``Value`` (JSON null when null, VerboseEncoding §5.4.2.1), ``Status`` unless Good, ``SourceTimestamp``
-        unless unknown. ``typed``: the field's DataType is abstract, so the Variant keeps its ``UaType``."""
+        unless unknown. ``typed``: the field's DataType is abstract, so the Variant keeps its ``UaType``;
+        ``names``: the field's DataType is an Enumeration with these names (a verbose ``<name>_<value>``)."""
         variant = dv.Value
         out: dict[str, Any] = {}
         if typed and variant is not None and variant.Value is not None:
             out["UaType"] = variant.VariantType.value
-        out["Value"] = self.variant(variant)
+        out["Value"] = (
+            self.enumeration(variant.Value, names) if names and variant is not None else self.variant(variant)
+        )
         code = dv.StatusCode.value if dv.StatusCode is not None else 0
         if code != 0:
             out["Status"] = self.status(code)

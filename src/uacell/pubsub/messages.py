@@ -54,6 +54,7 @@ class Field:
     data_type: str  # the DataType's NodeId, e.g. "i=21"
     value_rank: int = -1
     abstract: bool = False  # an abstract DataType (BaseDataType, Number...): the value keeps its UaType
+    names: tuple[tuple[int, str], ...] = ()  # an Enumeration DataType's (value, name) pairs
 
     def shape(self) -> list[Any]:
         return [self.name, self.builtin, self.data_type, self.value_rank]

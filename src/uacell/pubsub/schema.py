@@ -43,6 +43,13 @@ class SchemaCollector:
     def is_abstract(self, data_type: ua.NodeId) -> bool:
         return bool(self._read(data_type, _A.IsAbstract))
 
+    def enum_names(self, data_type: ua.NodeId) -> tuple[tuple[int, str], ...]:
+        """An Enumeration's (value, name) pairs; none for any other DataType."""
+        definition = self._read(data_type, _A.DataTypeDefinition)
+        if not isinstance(definition, ua.EnumDefinition):
+            return ()
+        return tuple((int(f.Value), str(f.Name)) for f in definition.Fields or [])
+
     def header(self, data_types: Iterable[ua.NodeId | None]) -> dict[str, Any]:
         """``Namespaces``, ``StructureDataTypes`` and ``EnumDataTypes`` for fields of these DataTypes."""
         structures: dict[ua.NodeId, ua.StructureDescription] = {}

@@ -156,7 +156,7 @@ class PubSubService:
         self.sources[writer.writer_id] = [node for _path, node in nodes]
         for (path, node), f in zip(nodes, fields, strict=True):
             dv = self.aspace.read_attribute_value(node, _A.Value)
-            writer.update(path, self.encoder.data_value(dv, typed=f.abstract))
+            writer.update(path, self.encoder.data_value(dv, typed=f.abstract, names=dict(f.names)))
             self._watch(writer, f, node)
 
     def _data_type(self, node: ua.NodeId) -> ua.NodeId | None:
@@ -178,13 +178,14 @@ class PubSubService:
             data_type=self.encoder.node_id(dt) if isinstance(dt, ua.NodeId) else "i=24",
             value_rank=int(rank.Value) if rank is not None and rank.Value is not None else -1,
             abstract=not isinstance(dt, ua.NodeId) or self.schema.is_abstract(dt),
+            names=self.schema.enum_names(dt) if isinstance(dt, ua.NodeId) else (),
         )
 
     def _watch(self, writer: Writer, f: Field, node: ua.NodeId) -> None:
-        encoder, name, typed = self.encoder, f.name, f.abstract
+        encoder, name, typed, names = self.encoder, f.name, f.abstract, dict(f.names)
 
         async def changed(_handle: int, dv: ua.DataValue) -> None:
-            writer.update(name, encoder.data_value(dv, typed=typed))
+            writer.update(name, encoder.data_value(dv, typed=typed, names=names))
 
         status, handle = self.aspace.add_datachange_callback(node, _A.Value, changed)
         if status.is_good():
