@@ -58,7 +58,7 @@ class LinkSettings:
         return f"{'mqtts' if self.broker.tls else 'mqtt'}://{self.broker.host}:{self.broker.port}"
 
 
-class _Client(aiomqtt.Client):
+class _Client(aiomqtt.Client):  # on aiomqtt 2's internals (pyproject: <3); test_pubsub_standard fails without it
     """aiomqtt's client, except that registering the socket for writing after paho closed it (the broker
     dropped the connection, e.g. on a keep-alive timeout) is a dropped connection, not an "Exception in
     callback Loop.add_writer" traceback: the reader already reports the drop."""
@@ -112,6 +112,10 @@ class MqttLink:
     def will(self) -> Outgoing:
         """The Will to register on the next connect (a new one each time when ``will`` is a function)."""
         return self._will() if callable(self._will) else self._will
+
+    @will.setter
+    def will(self, will: Outgoing | Callable[[], Outgoing]) -> None:
+        self._will = will
 
     # -- what the publisher uses -----------------------------------------------------------------
 
