@@ -14,7 +14,8 @@ from asyncua import ua
 from uacell.errors import ConfigError
 from uacell.pubsub.config import PubSubConfig, broker_of, check_pubsub, password_of
 from uacell.pubsub.encoding import JsonEncoder
-from uacell.pubsub.messages import DELTA, KEEPALIVE, KEY, Field, Publisher, Topics, Writer
+from uacell.pubsub.messages import DELTA, KEEPALIVE, KEY, Field, Publisher, Topics, Writer, encode
+from uacell.pubsub.mqtt import LinkSettings, MqttLink, Outgoing
 from uacell.pubsub.versions import Version, VersionStore, next_version, version_time
 
 T = datetime(2026, 11, 25, 18, 0, 0, 123000, tzinfo=UTC)
@@ -226,3 +227,33 @@ def test_broker_urls_and_the_password_sources(tmp_path: Path, monkeypatch: pytes
     assert password_of(PubSubConfig(password_file=secret)) == "from-file"
     with pytest.raises(ConfigError, match="cannot read"):
         password_of(PubSubConfig(password_file=tmp_path / "missing"))
+
+
+def test_keep_alives_do_not_count_in_keyframe_count():
+    w = writer()  # keyframe_count 3
+    assert [m["MessageType"] for m in w.due(0.0, T)] == [KEY]
+    assert [m["MessageType"] for m in w.due(5.0, T)] == [KEEPALIVE]
+    assert [m["MessageType"] for m in w.due(10.0, T)] == [KEEPALIVE]
+    w.update("A", {"Value": 5})
+    assert [m["MessageType"] for m in w.due(10.1, T)] == [DELTA]
+    w.update("A", {"Value": 6})
+    assert [m["MessageType"] for m in w.due(10.2, T)] == [DELTA]
+    w.update("A", {"Value": 7})
+    assert [m["MessageType"] for m in w.due(10.3, T)] == [KEY]  # the third data message after the key frame
+
+
+async def test_the_link_registers_a_new_will_on_every_connect():
+    made: list[str] = []
+
+    def will() -> Outgoing:
+        message = Publisher("cell-7", "Cell").status_message(3)
+        made.append(message["MessageId"])
+        return Outgoing("opcua/json/status/cell-7", encode(message), retain=True)
+
+    link = MqttLink(LinkSettings(broker_of(PubSubConfig()), "cell-7", 1, 10, 100), will, list)
+    link._client()  # what each connect does
+    link._client()
+    assert len(made) == 2 and made[0] != made[1]
+    fixed = Outgoing("t", b"x", retain=True)
+    link.will = fixed  # still assignable, as before
+    assert link.will is fixed
