@@ -459,6 +459,18 @@ async def test_the_pubsub_configuration_is_readable_below_publish_subscribe_and_
     filler = datasets[names.index(F)]
     meta = await (await filler.get_child("0:DataSetMetaData")).read_value()
     assert [f.Name for f in meta.Fields] == [f.name for f in by_name[F].fields]
+    # the structured PackML fields, described with NodeIds indexed by the metadata's own Namespaces
+    assert meta.Namespaces == ["http://opcfoundation.org/UA/PackML/"]
+    alarm = next(d for d in meta.StructureDataTypes if d.Name.Name == "PackMLAlarmDataType")
+    assert alarm.DataTypeId.NamespaceIndex == 1 and alarm.Name.NamespaceIndex == 1
+    assert [f.Name for f in alarm.StructureDefinition.Fields][:3] == ["ID", "Value", "Message"]
+    alarm_field = next(f for f in meta.Fields if f.Name == "Admin/Alarm")
+    assert alarm_field.DataType == alarm.DataTypeId and alarm_field.ValueRank == 1
+    version = by_name[F].version
+    assert (meta.ConfigurationVersion.MajorVersion, meta.ConfigurationVersion.MinorVersion) == (
+        version.major,
+        version.minor,
+    )
     published = await (await filler.get_child("0:PublishedData")).read_value()
     ns = await client.get_namespace_index("urn:uacell:cell")
     assert ua.NodeId(f"{F}.Status.MachSpeed", ns) in [p.PublishedVariable for p in published]

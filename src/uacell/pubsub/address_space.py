@@ -10,14 +10,14 @@ HeaderLayoutUri are the ones the messages are built with (messages.py, schema.py
 from __future__ import annotations
 
 import uuid
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 
 from uacell.pubsub.messages import DATASET_MESSAGE_CONTENT_MASK, NETWORK_MESSAGE_CONTENT_MASK, Writer
-from uacell.pubsub.schema import HEADER_LAYOUT_URI, MQTT_JSON_PROFILE
+from uacell.pubsub.schema import HEADER_LAYOUT_URI, MQTT_JSON_PROFILE, Schema
 from uacell.ua import toolkit
 from uacell.ua.instantiate import Instantiator
 
@@ -42,6 +42,7 @@ class PubSubNodes:
         keep_alive: float,
         writers: Sequence[Writer],
         sources: dict[int, list[ua.NodeId]],
+        schemas: Mapping[int, Schema] | None = None,
     ) -> ua.NodeId:
         ids = ua.ObjectIds
         conn = self.inst.create(
@@ -92,7 +93,8 @@ class PubSubNodes:
             )
             version = ua.ConfigurationVersionDataType(MajorVersion=w.version.major, MinorVersion=w.version.minor)
             await self._set(pds, "ConfigurationVersion", version, _V.ExtensionObject)
-            await self._set(pds, "DataSetMetaData", _metadata(w, version), _V.ExtensionObject)
+            schema = (schemas or {}).get(w.writer_id)
+            await self._set(pds, "DataSetMetaData", _metadata(w, version, schema), _V.ExtensionObject)
             published = [
                 ua.PublishedVariableDataType(PublishedVariable=node, AttributeId=_A.Value)
                 for node in sources.get(w.writer_id, [])
@@ -121,23 +123,37 @@ class PubSubNodes:
             await self.aspace.write_attribute_value(node, attr, ua.DataValue(read_only))
 
 
-def _metadata(w: Writer, version: ua.ConfigurationVersionDataType) -> ua.DataSetMetaDataType:
+def _metadata(w: Writer, version: ua.ConfigurationVersionDataType, schema: Schema | None) -> ua.DataSetMetaDataType:
+    """The DataSetMetaData of the JSON metadata message, its NodeIds indexed by its own Namespaces
+    (the first entry is NamespaceIndex 1, OPC 10000-5 §12.31)."""
     meta = w.metadata()
-    fields = [
-        ua.FieldMetaData(
-            Name=f["Name"],
-            FieldFlags=ua.DataSetFieldFlags(0),
-            BuiltInType=f["BuiltInType"],
-            DataType=_node_id(f["DataType"]),
-            ValueRank=f["ValueRank"],
-            DataSetFieldId=uuid.UUID(f["DataSetFieldId"]),
+    types = schema.field_types if schema is not None else ()
+    fields = []
+    for i, f in enumerate(meta["Fields"]):
+        dt = types[i] if i < len(types) else None
+        fields.append(
+            ua.FieldMetaData(
+                Name=f["Name"],
+                FieldFlags=ua.DataSetFieldFlags(0),
+                BuiltInType=f["BuiltInType"],
+                DataType=schema.local(dt) if schema is not None and dt is not None else _node_id(f["DataType"]),
+                ValueRank=f["ValueRank"],
+                DataSetFieldId=uuid.UUID(f["DataSetFieldId"]),
+            )
         )
-        for f in meta["Fields"]
-    ]
-    return ua.DataSetMetaDataType(Name=w.name, Fields=fields, ConfigurationVersion=version)
+    if schema is None:
+        return ua.DataSetMetaDataType(Name=w.name, Fields=fields, ConfigurationVersion=version)
+    return ua.DataSetMetaDataType(
+        Namespaces=list(meta["Namespaces"]),
+        StructureDataTypes=schema.local_structures(),
+        EnumDataTypes=schema.local_enums(),
+        Name=w.name,
+        Fields=fields,
+        ConfigurationVersion=version,
+    )
 
 
 def _node_id(text: str) -> ua.NodeId:
-    if text.startswith("nsu="):  # the JSON form names the namespace by URI; the metadata variable by index
+    if text.startswith("nsu="):  # not expected: every field outside namespace 0 has its schema
         return ua.NodeId(ua.ObjectIds.BaseDataType)
     return ua.NodeId.from_string(text)

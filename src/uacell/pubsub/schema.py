@@ -6,7 +6,9 @@ too), and the PubSubConnectionDataType of the ``ua-connection`` message (§7.2.5
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 from asyncua import ua
@@ -50,19 +52,18 @@ class SchemaCollector:
             return ()
         return tuple((int(f.Value), str(f.Name)) for f in definition.Fields or [])
 
-    def header(self, data_types: Iterable[ua.NodeId | None]) -> dict[str, Any]:
-        """``Namespaces``, ``StructureDataTypes`` and ``EnumDataTypes`` for fields of these DataTypes."""
+    def describe(self, data_types: Iterable[ua.NodeId | None]) -> Schema:
+        """The structures and enumerations outside namespace 0 that fields of these DataTypes use."""
+        field_types = tuple(data_types)
         structures: dict[ua.NodeId, ua.StructureDescription] = {}
         enums: dict[ua.NodeId, ua.EnumDescription] = {}
-        namespaces: set[int] = set()
-        todo = [dt for dt in data_types if dt is not None]
+        todo = [dt for dt in field_types if dt is not None]
         seen: set[ua.NodeId] = set()
         while todo:
             dt = todo.pop()
             if dt in seen or dt.NamespaceIndex == 0:
                 continue
             seen.add(dt)
-            namespaces.add(dt.NamespaceIndex)
             definition = self._read(dt, _A.DataTypeDefinition)
             name = self._read(dt, _A.BrowseName)
             if not isinstance(name, ua.QualifiedName):
@@ -72,12 +73,60 @@ class SchemaCollector:
                 todo += [f.DataType for f in definition.Fields or [] if isinstance(f.DataType, ua.NodeId)]
             elif isinstance(definition, ua.EnumDefinition):
                 enums[dt] = ua.EnumDescription(DataTypeId=dt, Name=name, EnumDefinition=definition, BuiltInType=6)
-        uris = [self.encoder.uri(i) for i in sorted(namespaces)]
+        used = {dt.NamespaceIndex for dt in seen}
+        for d in structures.values():
+            definition = d.StructureDefinition
+            used |= {n.NamespaceIndex for n in (definition.DefaultEncodingId, definition.BaseDataType) if n}
+        return Schema(tuple(sorted(used - {0})), tuple(structures.values()), tuple(enums.values()), field_types)
+
+    def header(self, schema: Schema) -> dict[str, Any]:
+        """``Namespaces``, ``StructureDataTypes`` and ``EnumDataTypes`` in JSON (NodeIds name their URI)."""
         return {
-            "Namespaces": [u for u in uris if u],
-            "StructureDataTypes": [self.encoder.value(d) for d in structures.values()],
-            "EnumDataTypes": [self.encoder.value(d) for d in enums.values()],
+            "Namespaces": [u for u in (self.encoder.uri(i) for i in schema.namespaces) if u],
+            "StructureDataTypes": [self.encoder.value(d) for d in schema.structures],
+            "EnumDataTypes": [self.encoder.value(d) for d in schema.enums],
         }
+
+
+@dataclass(frozen=True)
+class Schema:
+    """A DataSet's DataTypeSchemaHeader, with the server's namespace indexes."""
+
+    namespaces: tuple[int, ...]  # the server's namespace indexes; the header's Namespaces in this order
+    structures: tuple[ua.StructureDescription, ...]
+    enums: tuple[ua.EnumDescription, ...]
+    field_types: tuple[ua.NodeId | None, ...] = ()  # each field's DataType
+
+    def local(self, node: ua.NodeId) -> ua.NodeId:
+        """``node`` with the NamespaceIndex the header's Namespaces give it (its first entry is 1)."""
+        if node.NamespaceIndex == 0 or node.NamespaceIndex not in self.namespaces:
+            return node
+        return dataclasses.replace(node, NamespaceIndex=self.namespaces.index(node.NamespaceIndex) + 1)
+
+    def local_name(self, name: ua.QualifiedName) -> ua.QualifiedName:
+        if name.NamespaceIndex == 0 or name.NamespaceIndex not in self.namespaces:
+            return name
+        return ua.QualifiedName(name.Name, self.namespaces.index(name.NamespaceIndex) + 1)
+
+    def local_structures(self) -> list[ua.StructureDescription]:
+        out = []
+        for d in self.structures:
+            definition = d.StructureDefinition
+            fields = [dataclasses.replace(f, DataType=self.local(f.DataType)) for f in definition.Fields or []]
+            local = dataclasses.replace(
+                definition,
+                DefaultEncodingId=self.local(definition.DefaultEncodingId),
+                BaseDataType=self.local(definition.BaseDataType),
+                Fields=fields,
+            )
+            out.append(ua.StructureDescription(self.local(d.DataTypeId), self.local_name(d.Name), local))
+        return out
+
+    def local_enums(self) -> list[ua.EnumDescription]:
+        return [
+            ua.EnumDescription(self.local(d.DataTypeId), self.local_name(d.Name), d.EnumDefinition, d.BuiltInType)
+            for d in self.enums
+        ]
 
 
 class _Settings(Protocol):

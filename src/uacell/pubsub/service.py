@@ -30,7 +30,7 @@ from uacell.pubsub.config import PubSubConfig, broker_of, password_of
 from uacell.pubsub.encoding import JsonEncoder
 from uacell.pubsub.messages import DISABLED, ERROR, OPERATIONAL, Field, Publisher, Topics, Writer, encode
 from uacell.pubsub.mqtt import LinkSettings, MqttLink, Outgoing
-from uacell.pubsub.schema import SchemaCollector, connection_config
+from uacell.pubsub.schema import Schema, SchemaCollector, connection_config
 from uacell.pubsub.versions import VersionStore
 from uacell.ua import toolkit
 from uacell.ua.event_tap import EventTap
@@ -83,6 +83,7 @@ class PubSubService:
         self.writers: list[Writer] = []
         self._by_notifier: dict[ua.NodeId, Writer] = {}
         self.sources: dict[int, list[ua.NodeId]] = {}  # writer id -> the variables of its fields
+        self.schemas: dict[int, Schema] = {}  # writer id -> its fields' DataTypes and their descriptions
         self.nodes: PubSubNodes | None = None  # the configuration in the address space
         self._handles: list[int] = []
         self._tap: EventTap | None = None
@@ -152,7 +153,9 @@ class PubSubService:
             return
         fields = tuple(self._field(path, node) for path, node in nodes)
         writer = self._writer(name, fields, ticks=ticks)
-        writer.schema = self.schema.header([self._data_type(node) for _path, node in nodes])
+        schema = self.schema.describe([self._data_type(node) for _path, node in nodes])
+        writer.schema = self.schema.header(schema)
+        self.schemas[writer.writer_id] = schema
         self.sources[writer.writer_id] = [node for _path, node in nodes]
         for (path, node), f in zip(nodes, fields, strict=True):
             dv = self.aspace.read_attribute_value(node, _A.Value)
@@ -324,6 +327,7 @@ async def install_pubsub(
         float(cfg.keep_alive),
         service.writers,
         service.sources,
+        service.schemas,
     )
     log.info(
         "pubsub: %d DataSetWriters publish to %s under %s",
