@@ -107,6 +107,7 @@ class Received:
     topic: str
     body: Any  # the JSON payload, or None when not JSON (or empty)
     retain: bool
+    raw: bytes = b""  # the payload as it arrived
 
 
 @dataclass
@@ -150,7 +151,8 @@ async def subscribed(
                 if isinstance(payload, bytes | bytearray) and payload:
                     with contextlib.suppress(ValueError):
                         body = json.loads(payload)
-                sub.messages.append(Received(str(message.topic), body, bool(message.retain)))
+                raw = bytes(payload) if isinstance(payload, bytes | bytearray) else b""
+                sub.messages.append(Received(str(message.topic), body, bool(message.retain), raw))
 
     task = asyncio.ensure_future(run())
     try:

@@ -14,7 +14,9 @@ from asyncua import ua
 from uacell.errors import ConfigError
 from uacell.pubsub.config import PubSubConfig, broker_of, check_pubsub, password_of
 from uacell.pubsub.encoding import JsonEncoder
-from uacell.pubsub.messages import DELTA, KEEPALIVE, KEY, Field, Publisher, Topics, Writer
+from uacell.pubsub.messages import DELTA, KEEPALIVE, KEY, Field, Publisher, Topics, Writer, encode
+from uacell.pubsub.mqtt import LinkSettings, MqttLink, Outgoing
+from uacell.pubsub.versions import Version, VersionStore, next_version, version_time
 
 T = datetime(2026, 11, 25, 18, 0, 0, 123000, tzinfo=UTC)
 FIELDS = (Field("A", 6, "i=6"), Field("B", 12, "i=12"))
@@ -73,17 +75,53 @@ def test_an_event_writer_sends_one_event_message_per_event_in_order():
     assert list(w.due(0.1, T)) == []
 
 
-def test_metadata_describes_the_fields_and_its_version_follows_them():
-    w = writer()
+def test_metadata_describes_the_fields_and_carries_the_writers_version():
+    w = writer(version=Version(850_000_000, 850_000_100))
     meta = w.metadata()
     assert [f["Name"] for f in meta["Fields"]] == ["A", "B"]
     assert [f["BuiltInType"] for f in meta["Fields"]] == [6, 12]
     uuid.UUID(meta["Fields"][0]["DataSetFieldId"])
-    assert meta["ConfigurationVersion"]["MajorVersion"] == w.version
-    other = Writer(writer_id=7, name="Filler1", fields=(Field("A", 6, "i=6"),))
-    assert other.version != w.version
+    assert meta["ConfigurationVersion"] == {"MajorVersion": 850_000_000, "MinorVersion": 850_000_100}
     (m,) = w.due(0.0, T)
-    assert m["MetaDataVersion"] == {"MajorVersion": w.version, "MinorVersion": w.version}
+    assert m["MetaDataVersion"] == {"MajorVersion": 850_000_000, "MinorVersion": 850_000_100}
+    assert "Status" not in m  # Good is left out (OPC 10000-6 §5.4.2.12)
+
+
+def test_configuration_version_is_version_time_with_the_major_and_minor_rules_of_part14():
+    """OPC 10000-14 §6.2.3.2.6: seconds since 2000; fields added at the end change only MinorVersion;
+    removed, reordered or retyped fields change both; unchanged fields keep both."""
+    t0 = datetime(2026, 11, 25, tzinfo=UTC)
+    assert version_time(t0) == 9825 * 86400  # 26 years with 7 leap days, and 328 days of 2026
+    a, b, c = ["A", 6, "i=6", -1], ["B", 12, "i=12", -1], ["C", 1, "i=1", -1]
+    first = next_version(None, [a, b], 1000)
+    assert first == Version(1000, 1000)
+    record = {"shape": [a, b], "major": 1000, "minor": 1000}
+    assert next_version(record, [a, b], 5000) == Version(1000, 1000)  # a restart, same fields
+    assert next_version(record, [a, b, c], 5000) == Version(1000, 5000)  # added at the end: minor
+    assert next_version(record, [b, a], 5000) == Version(5000, 5000)  # reordered: major
+    assert next_version(record, [a], 5000) == Version(5000, 5000)  # removed: major
+    assert next_version(record, [a, [*b[:1], 11, "i=11", -1]], 5000) == Version(5000, 5000)  # retyped
+    assert next_version(record, [a, b, c], 900) == Version(1000, 1001)  # never older than the last
+
+
+def test_versions_are_kept_across_restarts(tmp_path: Path):
+    store = VersionStore(tmp_path)
+    v1 = store.version("Filler1", [["A", 6, "i=6", -1]], T)
+    store.save()
+    later = datetime(2027, 1, 1, tzinfo=UTC)
+    again = VersionStore(tmp_path).version("Filler1", [["A", 6, "i=6", -1]], later)
+    assert again == v1 == Version(version_time(T), version_time(T))
+    grown = VersionStore(tmp_path).version("Filler1", [["A", 6, "i=6", -1], ["B", 1, "i=1", -1]], later)
+    assert grown == Version(v1.major, version_time(later))
+
+
+def test_an_event_carries_every_field_null_where_the_event_has_none():
+    fields = (Field("Message", 21, "i=21"), Field("ConditionName", 12, "i=12"), Field("Retain", 1, "i=1"))
+    w = Writer(writer_id=2, name="Robot1.Events", fields=fields, events=True)
+    w.event({"Message": {"Text": "moved"}})
+    (m,) = w.due(0.0, T)
+    assert m["Payload"] == {"Message": {"Text": "moved"}, "ConditionName": None, "Retain": None}
+    assert list(m["Payload"]) == ["Message", "ConditionName", "Retain"]
 
 
 def test_network_metadata_and_status_messages_and_topics():
@@ -103,7 +141,11 @@ def test_network_metadata_and_status_messages_and_topics():
         "IsCyclic": False,
         "Status": 2,
     }
+    conn = p.connection_message({"Name": "MQTT"}, T)
+    assert conn["MessageType"] == "ua-connection" and conn["Timestamp"] == "2026-11-25T18:00:00.123000Z"
+    assert p.status_message(2)["MessageId"] != st["MessageId"]  # every message its own MessageId
     t = Topics("umati/v3", "cell-7", "Cell")
+    assert t.connection() == "umati/v3/json/connection/cell-7"
     assert t.data("Filler1") == "umati/v3/json/data/cell-7/Cell/Filler1"
     assert t.metadata("Filler1") == "umati/v3/json/metadata/cell-7/Cell/Filler1"
     assert t.status() == "umati/v3/json/status/cell-7"
@@ -115,16 +157,35 @@ def test_values_encode_as_part6_json():
         "Locale": "en",
         "Text": "Idle",
     }
+    # empty parts are left out (§5.4.2.15)
+    assert e.variant(ua.Variant(ua.LocalizedText("Idle", ""), ua.VariantType.LocalizedText)) == {"Text": "Idle"}
+    assert e.value(ua.LocalizedText("", "")) == {}
+    assert e.value(ua.PubSubState.Operational) == "Operational_2"  # verbose Enumeration (§5.4.4.2)
+    assert e.value(ua.QualifiedName("Robot", 1)) == "nsu=urn:uacell:cell;Robot"
+    assert e.typed(ua.Variant(3, ua.VariantType.Int32)) == {"UaType": 6, "Value": 3}
+    assert e.status(0) == {}
+    # an Enumeration held as its number, with its names from the DataType's EnumDefinition
+    mode = ua.DataValue(ua.Variant(1, ua.VariantType.Int32), SourceTimestamp=T)
+    assert e.data_value(mode, names={0: "CYCLE", 1: "CONTINUOUS"})["Value"] == "CONTINUOUS_1"
+    assert e.enumeration(7, {0: "CYCLE"}) == "7"  # not named: the number as a string (§5.4.4.2)
     assert e.variant(ua.Variant(2**40, ua.VariantType.Int64)) == str(2**40)
     assert e.variant(ua.Variant(float("nan"), ua.VariantType.Double)) == "NaN"
     assert e.variant(ua.Variant(b"\x01\x02", ua.VariantType.ByteString)) == "AQI="
     assert e.node_id(ua.NodeId("Filler1", 1)) == "nsu=urn:uacell:cell;s=Filler1"
     assert e.node_id(ua.NodeId(2253, 0)) == "i=2253"
     assert e.value(T) == "2026-11-25T18:00:00.123000Z"
+    assert e.value(datetime(1601, 1, 1, tzinfo=UTC)) == "0001-01-01T00:00:00Z"  # MinValue (§5.4.2.6)
     dv = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadStateNotActive), SourceTimestamp=T)
     assert e.data_value(dv) == {
-        "Value": None,
-        "StatusCode": {"Code": ua.StatusCodes.BadStateNotActive, "Symbol": "BadStateNotActive"},
+        "Value": None,  # the VerboseEncoding writes null, not leaves it out (§5.4.2.1)
+        "Status": {"Code": ua.StatusCodes.BadStateNotActive, "Symbol": "BadStateNotActive"},
+        "SourceTimestamp": "2026-11-25T18:00:00.123000Z",
+    }
+    good = ua.DataValue(ua.Variant(2.5, ua.VariantType.Double), SourceTimestamp=T)
+    assert e.data_value(good) == {"Value": 2.5, "SourceTimestamp": "2026-11-25T18:00:00.123000Z"}
+    assert e.data_value(good, typed=True) == {
+        "UaType": 11,
+        "Value": 2.5,
         "SourceTimestamp": "2026-11-25T18:00:00.123000Z",
     }
     # structures are encoded field by field
@@ -166,3 +227,33 @@ def test_broker_urls_and_the_password_sources(tmp_path: Path, monkeypatch: pytes
     assert password_of(PubSubConfig(password_file=secret)) == "from-file"
     with pytest.raises(ConfigError, match="cannot read"):
         password_of(PubSubConfig(password_file=tmp_path / "missing"))
+
+
+def test_keep_alives_do_not_count_in_keyframe_count():
+    w = writer()  # keyframe_count 3
+    assert [m["MessageType"] for m in w.due(0.0, T)] == [KEY]
+    assert [m["MessageType"] for m in w.due(5.0, T)] == [KEEPALIVE]
+    assert [m["MessageType"] for m in w.due(10.0, T)] == [KEEPALIVE]
+    w.update("A", {"Value": 5})
+    assert [m["MessageType"] for m in w.due(10.1, T)] == [DELTA]
+    w.update("A", {"Value": 6})
+    assert [m["MessageType"] for m in w.due(10.2, T)] == [DELTA]
+    w.update("A", {"Value": 7})
+    assert [m["MessageType"] for m in w.due(10.3, T)] == [KEY]  # the third data message after the key frame
+
+
+async def test_the_link_registers_a_new_will_on_every_connect():
+    made: list[str] = []
+
+    def will() -> Outgoing:
+        message = Publisher("cell-7", "Cell").status_message(3)
+        made.append(message["MessageId"])
+        return Outgoing("opcua/json/status/cell-7", encode(message), retain=True)
+
+    link = MqttLink(LinkSettings(broker_of(PubSubConfig()), "cell-7", 1, 10, 100), will, list)
+    link._client()  # what each connect does
+    link._client()
+    assert len(made) == 2 and made[0] != made[1]
+    fixed = Outgoing("t", b"x", retain=True)
+    link.will = fixed  # still assignable, as before
+    assert link.will is fixed

@@ -225,6 +225,7 @@ class UacellServer:
                 lambda: aspace.read_attribute_value(namespace_array, ua.AttributeIds.Value).Value.Value or [],
                 [PartRef(b.part.role, b.node, b.path) for b in self.cell.built],
                 self.config.server.port,
+                self.data_dir,
             )
 
     async def start(self) -> None:

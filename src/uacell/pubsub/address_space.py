@@ -2,28 +2,28 @@
 one PubSubConnection (``MQTT``: PublisherId, the transport profile, the broker URL), its WriterGroup
 and a DataSetWriter per writer, and per writer a PublishedDataItems in PublishedDataSets (its fields'
 metadata, version and source variables) linked to the writer by DataSetToWriter. The Status/State of
-connection, group and writers follows the broker connection (Operational or Error).
+connection, group and writers follows the broker connection (Operational or Error). The content masks
+(the group's and each writer's MessageSettings, each writer's DataSetFieldContentMask) and the
+HeaderLayoutUri are the ones the messages are built with (messages.py, schema.py).
 """
 
 from __future__ import annotations
 
 import uuid
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 
-from uacell.pubsub.messages import Writer
+from uacell.pubsub.messages import DATASET_MESSAGE_CONTENT_MASK, NETWORK_MESSAGE_CONTENT_MASK, Writer
+from uacell.pubsub.schema import HEADER_LAYOUT_URI, MQTT_JSON_PROFILE, Schema
 from uacell.ua import toolkit
 from uacell.ua.instantiate import Instantiator
 
-MQTT_JSON_PROFILE = "http://opcfoundation.org/UA-Profile/Transport/pubsub-mqtt-json"
-JSON_LAYOUT = "http://opcfoundation.org/UA/PubSub-Layouts/JSON-DataSetMessage"
 _A = ua.AttributeIds
 _V = ua.VariantType
-# DataSetFieldContentMask: StatusCode | SourceTimestamp (each field is a DataValue with these)
-FIELD_CONTENT_MASK = 0x1 | 0x2
+_ZERO = ua.QualifiedName("MessageSettings", 0)
 
 
 class PubSubNodes:
@@ -42,6 +42,7 @@ class PubSubNodes:
         keep_alive: float,
         writers: Sequence[Writer],
         sources: dict[int, list[ua.NodeId]],
+        schemas: Mapping[int, Schema] | None = None,
     ) -> ua.NodeId:
         ids = ua.ObjectIds
         conn = self.inst.create(
@@ -64,9 +65,13 @@ class PubSubNodes:
         await self._set(wg, "KeepAliveTime", keep_alive * 1000.0, _V.Double)
         await self._set(wg, "Priority", 0, _V.Byte)
         await self._set(wg, "LocaleIds", [], _V.String)
-        await self._set(wg, "HeaderLayoutUri", JSON_LAYOUT, _V.String)
+        await self._set(wg, "HeaderLayoutUri", HEADER_LAYOUT_URI, _V.String)
         await self._set(wg, "SecurityMode", ua.MessageSecurityMode.None_, _V.Int32)
         await self._set(wg, "MaxNetworkMessageSize", 0, _V.UInt32)
+        settings = self.inst.create(
+            wg, ua.NodeId(ids.JsonWriterGroupMessageType), _ZERO, path="PubSub.MQTT.Group.MessageSettings"
+        )
+        await self._set(settings, "NetworkMessageContentMask", NETWORK_MESSAGE_CONTENT_MASK, _V.UInt32)
         folder = ua.NodeId(ids.PublishSubscribe_PublishedDataSets)
         for w in writers:
             dw = self.inst.create(
@@ -77,14 +82,19 @@ class PubSubNodes:
                 path=f"PubSub.MQTT.Group.{w.writer_id}",
             )
             await self._set(dw, "DataSetWriterId", w.writer_id, _V.UInt16)
-            await self._set(dw, "DataSetFieldContentMask", FIELD_CONTENT_MASK, _V.UInt32)
+            await self._set(dw, "DataSetFieldContentMask", w.field_content_mask, _V.UInt32)
             await self._set(dw, "DataSetWriterProperties", [], _V.ExtensionObject)
+            message = self.inst.create(
+                dw, ua.NodeId(ids.JsonDataSetWriterMessageType), _ZERO, path=f"PubSub.MQTT.Group.{w.writer_id}.Message"
+            )
+            await self._set(message, "DataSetMessageContentMask", DATASET_MESSAGE_CONTENT_MASK, _V.UInt32)
             pds = self.inst.create(
                 folder, ua.NodeId(ids.PublishedDataItemsType), w.name, path=f"PubSub.DataSets.{w.writer_id}"
             )
-            version = ua.ConfigurationVersionDataType(MajorVersion=w.version, MinorVersion=w.version)
+            version = ua.ConfigurationVersionDataType(MajorVersion=w.version.major, MinorVersion=w.version.minor)
             await self._set(pds, "ConfigurationVersion", version, _V.ExtensionObject)
-            await self._set(pds, "DataSetMetaData", _metadata(w, version), _V.ExtensionObject)
+            schema = (schemas or {}).get(w.writer_id)
+            await self._set(pds, "DataSetMetaData", _metadata(w, version, schema), _V.ExtensionObject)
             published = [
                 ua.PublishedVariableDataType(PublishedVariable=node, AttributeId=_A.Value)
                 for node in sources.get(w.writer_id, [])
@@ -113,23 +123,37 @@ class PubSubNodes:
             await self.aspace.write_attribute_value(node, attr, ua.DataValue(read_only))
 
 
-def _metadata(w: Writer, version: ua.ConfigurationVersionDataType) -> ua.DataSetMetaDataType:
+def _metadata(w: Writer, version: ua.ConfigurationVersionDataType, schema: Schema | None) -> ua.DataSetMetaDataType:
+    """The DataSetMetaData of the JSON metadata message, its NodeIds indexed by its own Namespaces
+    (the first entry is NamespaceIndex 1, OPC 10000-5 §12.31)."""
     meta = w.metadata()
-    fields = [
-        ua.FieldMetaData(
-            Name=f["Name"],
-            FieldFlags=ua.DataSetFieldFlags(0),
-            BuiltInType=f["BuiltInType"],
-            DataType=_node_id(f["DataType"]),
-            ValueRank=f["ValueRank"],
-            DataSetFieldId=uuid.UUID(f["DataSetFieldId"]),
+    types = schema.field_types if schema is not None else ()
+    fields = []
+    for i, f in enumerate(meta["Fields"]):
+        dt = types[i] if i < len(types) else None
+        fields.append(
+            ua.FieldMetaData(
+                Name=f["Name"],
+                FieldFlags=ua.DataSetFieldFlags(0),
+                BuiltInType=f["BuiltInType"],
+                DataType=schema.local(dt) if schema is not None and dt is not None else _node_id(f["DataType"]),
+                ValueRank=f["ValueRank"],
+                DataSetFieldId=uuid.UUID(f["DataSetFieldId"]),
+            )
         )
-        for f in meta["Fields"]
-    ]
-    return ua.DataSetMetaDataType(Name=w.name, Fields=fields, ConfigurationVersion=version)
+    if schema is None:
+        return ua.DataSetMetaDataType(Name=w.name, Fields=fields, ConfigurationVersion=version)
+    return ua.DataSetMetaDataType(
+        Namespaces=list(meta["Namespaces"]),
+        StructureDataTypes=schema.local_structures(),
+        EnumDataTypes=schema.local_enums(),
+        Name=w.name,
+        Fields=fields,
+        ConfigurationVersion=version,
+    )
 
 
 def _node_id(text: str) -> ua.NodeId:
-    if text.startswith("nsu="):  # the JSON form names the namespace by URI; the metadata variable by index
+    if text.startswith("nsu="):  # not expected: every field outside namespace 0 has its schema
         return ua.NodeId(ua.ObjectIds.BaseDataType)
     return ua.NodeId.from_string(text)

@@ -4,27 +4,45 @@ A ``Writer`` is one DataSetWriter: its DataSet's fields, its sequence numbers an
 its last message. Every publishing interval it yields at most one DataSetMessage: a key frame (every
 field) on its first message and every ``keyframe_count``-th after, else a delta frame (the fields that
 changed), else, after ``keep_alive`` seconds of silence, a keep-alive carrying the next sequence
-number. An event writer yields one ``ua-event`` message per event instead. Each message travels in a
-NetworkMessage of its own on the writer's topic, so a subscriber picks writers by topic filter.
+number. An event writer yields one ``ua-event`` message per event instead, with every field of its
+DataSet (JSON null where the event has none, §7.2.5.4). Each message travels in a NetworkMessage of its
+own on the writer's topic, so a subscriber picks writers by topic filter.
+
+The header fields sent are the ones the content masks below declare (and the address space shows).
 """
 
 from __future__ import annotations
 
 import json
 import uuid
-import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
 
 from uacell.pubsub.encoding import iso
+from uacell.pubsub.versions import Version
 
 # PubSubState (OPC 10000-14 6.2.1): the Status message's value.
 DISABLED, PAUSED, OPERATIONAL, ERROR = 0, 1, 2, 3
 KEY, DELTA, EVENT, KEEPALIVE = "ua-keyframe", "ua-deltaframe", "ua-event", "ua-keepalive"
 _UINT32 = 1 << 32
 _FIELD_IDS = uuid.UUID("5b1a3f0e-7c1d-4c55-9a3e-0d3c7e6b9f21")  # namespace for DataSetFieldIds
+
+UNSET = Version(0, 0)
+
+# JsonNetworkMessageContentMask (§6.3.2.1.1): NetworkMessageHeader | DataSetMessageHeader | PublisherId |
+# WriterGroupName. Not SingleDataSetMessage: ``Messages`` is an array (§7.2.5.3), of one DataSetMessage.
+NETWORK_MESSAGE_CONTENT_MASK = 0x01 | 0x02 | 0x08 | 0x40
+# JsonDataSetMessageContentMask (§6.3.2.3.1): DataSetWriterId | MetaDataVersion | SequenceNumber |
+# Timestamp | Status | MessageType | DataSetWriterName | FieldEncoding2 (FieldEncoding1 clear: the
+# VerboseEncoding, Table 112). Status is left out while Good (OPC 10000-6 §5.4.2.12); MetaDataVersion
+# carries both MajorVersion and MinorVersion.
+DATASET_MESSAGE_CONTENT_MASK = 0x01 | 0x02 | 0x04 | 0x08 | 0x10 | 0x20 | 0x40 | 0x800
+# DataSetFieldContentMask (§6.2.4.2): value writers send DataValues with StatusCode and SourceTimestamp;
+# event writers send Variants (no bit), collapsed to their value by the VerboseEncoding (§7.2.5.4.2).
+VALUE_FIELD_CONTENT_MASK = 0x1 | 0x2
+EVENT_FIELD_CONTENT_MASK = 0
 
 
 @dataclass(frozen=True)
@@ -35,6 +53,11 @@ class Field:
     builtin: int  # BuiltInType (OPC 10000-6 5.1.2); 0: any (Variant)
     data_type: str  # the DataType's NodeId, e.g. "i=21"
     value_rank: int = -1
+    abstract: bool = False  # an abstract DataType (BaseDataType, Number...): the value keeps its UaType
+    names: tuple[tuple[int, str], ...] = ()  # an Enumeration DataType's (value, name) pairs
+
+    def shape(self) -> list[Any]:
+        return [self.name, self.builtin, self.data_type, self.value_rank]
 
 
 @dataclass(frozen=True)
@@ -54,6 +77,9 @@ class Topics:
     def status(self) -> str:
         return f"{self.prefix}/json/status/{self.publisher_id}"
 
+    def connection(self) -> str:
+        return f"{self.prefix}/json/connection/{self.publisher_id}"
+
 
 @dataclass
 class Writer:
@@ -66,6 +92,8 @@ class Writer:
     interval_ticks: int = 1  # publishes every n-th publishing interval
     keyframe_count: int = 10
     keep_alive: float = 10.0
+    version: Version = UNSET  # ConfigurationVersion: versions.py gives it
+    schema: dict[str, Any] = field(default_factory=dict)  # Namespaces, StructureDataTypes... (DataTypeSchemaHeader)
     sequence: int = 0  # the last sequence number sent
     latest: dict[str, Any] = field(default_factory=dict)  # field name -> its JSON value, for key frames
     changed: dict[str, Any] = field(default_factory=dict)  # since the last message
@@ -74,17 +102,19 @@ class Writer:
     _last_sent: float | None = None
 
     @property
-    def version(self) -> int:
-        """ConfigurationVersion (Major and Minor): a digest of the fields, so it changes with them."""
-        text = json.dumps([(f.name, f.builtin, f.data_type, f.value_rank) for f in self.fields])
-        return zlib.crc32(text.encode()) or 1
+    def field_content_mask(self) -> int:
+        return EVENT_FIELD_CONTENT_MASK if self.events else VALUE_FIELD_CONTENT_MASK
+
+    def shape(self) -> list[Any]:
+        return [f.shape() for f in self.fields]
 
     def update(self, name: str, value: Any) -> None:
         self.latest[name] = value
         self.changed[name] = value
 
     def event(self, payload: dict[str, Any]) -> None:
-        self.queued_events.append(payload)
+        """Queues one event: every field of the DataSet, in order, null where ``payload`` has none."""
+        self.queued_events.append({f.name: payload.get(f.name) for f in self.fields})
 
     def _next(self) -> int:
         self.sequence = (self.sequence + 1) % _UINT32
@@ -113,14 +143,12 @@ class Writer:
             yield self._message(KEEPALIVE, next_number, timestamp, None)
 
     def _message(self, kind: str, sequence: int, timestamp: datetime, payload: dict[str, Any] | None) -> dict[str, Any]:
-        version = self.version
         message: dict[str, Any] = {
             "DataSetWriterId": self.writer_id,
             "DataSetWriterName": self.name,
             "SequenceNumber": sequence,
-            "MetaDataVersion": {"MajorVersion": version, "MinorVersion": version},
+            "MetaDataVersion": self.version.json(),
             "Timestamp": iso(timestamp),
-            "Status": {"Code": 0, "Symbol": "Good"},
             "MessageType": kind,
         }
         if payload is not None:
@@ -129,26 +157,34 @@ class Writer:
 
     def metadata(self) -> dict[str, Any]:
         """DataSetMetaDataType (OPC 10000-14 6.2.3.2) of this writer's DataSet."""
-        version = self.version
         return {
+            "Namespaces": list(self.schema.get("Namespaces", [])),
+            "StructureDataTypes": list(self.schema.get("StructureDataTypes", [])),
+            "EnumDataTypes": list(self.schema.get("EnumDataTypes", [])),
+            "SimpleDataTypes": [],
             "Name": self.name,
+            "Description": {},
             "Fields": [
                 {
                     "Name": f.name,
+                    "Description": {},
                     "FieldFlags": 0,
                     "BuiltInType": f.builtin,
                     "DataType": f.data_type,
                     "ValueRank": f.value_rank,
                     "ArrayDimensions": [],
                     "MaxStringLength": 0,
-                    "DataSetFieldId": str(uuid.uuid5(_FIELD_IDS, f"{self.name}/{f.name}")),
+                    "DataSetFieldId": self.field_id(f),
                     "Properties": [],
                 }
                 for f in self.fields
             ],
             "DataSetClassId": "00000000-0000-0000-0000-000000000000",
-            "ConfigurationVersion": {"MajorVersion": version, "MinorVersion": version},
+            "ConfigurationVersion": self.version.json(),
         }
+
+    def field_id(self, f: Field) -> str:
+        return str(uuid.uuid5(_FIELD_IDS, f"{self.name}/{f.name}"))
 
 
 @dataclass(frozen=True)
@@ -179,8 +215,19 @@ class Publisher:
             "MetaData": writer.metadata(),
         }
 
+    def connection_message(self, connection: dict[str, Any], timestamp: datetime) -> dict[str, Any]:
+        """``ua-connection`` (§7.2.5.5.6): the PubSubConnectionDataType, in the CompactEncoding."""
+        return {
+            "MessageId": str(uuid.uuid4()),
+            "MessageType": "ua-connection",
+            "PublisherId": self.publisher_id,
+            "Timestamp": iso(timestamp),
+            "Connection": connection,
+        }
+
     def status_message(self, state: int) -> dict[str, Any]:
-        """Not cyclic (OPC 10000-14 7.2.5.5.5): sent when the state changes; the broker sends the Will."""
+        """Not cyclic (OPC 10000-14 7.2.5.5.5, Table 191): sent when the state changes, no Timestamp; the
+        broker sends the Will. Every call has a new MessageId."""
         return {
             "MessageId": str(uuid.uuid4()),
             "MessageType": "ua-status",

@@ -3,10 +3,12 @@
 ``MqttLink.send`` never blocks and never fails: a message goes into a bounded buffer, and when the
 buffer is full the oldest message is dropped and counted (the sequence numbers already in the
 messages let a subscriber see the gap). A task connects, registers the Will (the Status message with
-PubSubState Error, retained, OPC 10000-14 7.3.4.7.7), publishes the retained messages ``on_connect``
+PubSubState Error, retained, OPC 10000-14 7.3.4.7.7; when ``will`` is a function it is called on every
+connect, so each Will has a MessageId of its own), publishes the retained messages ``on_connect``
 returns (status Operational, every writer's metadata), then drains the buffer in order. aiomqtt does
 not reconnect by itself: when the connection fails or drops, the task waits (0.5 s, doubling to 10 s)
-and tries again; each new reason is logged once, not each retry.
+and tries again; each new reason is logged once (one WARNING line), not each retry, and never with a
+traceback. ``close`` can clear retained topics (an empty retained message, MQTT 3.1.1 §3.3.1.3).
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ import contextlib
 import logging
 import ssl
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import aiomqtt
 
@@ -55,10 +58,41 @@ class LinkSettings:
         return f"{'mqtts' if self.broker.tls else 'mqtt'}://{self.broker.host}:{self.broker.port}"
 
 
+class _Client(aiomqtt.Client):  # on aiomqtt 2's internals (pyproject: <3); test_pubsub_standard fails without it
+    """aiomqtt's client, except that registering the socket for writing after paho closed it (the broker
+    dropped the connection, e.g. on a keep-alive timeout) is a dropped connection, not an "Exception in
+    callback Loop.add_writer" traceback: the reader already reports the drop."""
+
+    def _on_socket_register_write(self, client: Any, userdata: Any, sock: Any) -> None:
+        loop = self._loop
+
+        def writable() -> None:
+            try:
+                client.loop_write()
+            except Exception as exc:  # a broken connection: the same as aiomqtt does
+                if not self._disconnected.done():
+                    self._disconnected.set_exception(exc)
+
+        def register() -> None:
+            with contextlib.suppress(OSError, ValueError, KeyError):
+                loop.add_writer(sock.fileno(), writable)
+
+        loop.call_soon_threadsafe(register)
+
+    def _on_socket_unregister_write(self, client: Any, userdata: Any, sock: Any) -> None:
+        with contextlib.suppress(OSError, ValueError, KeyError):
+            self._loop.remove_writer(sock.fileno())
+
+
 class MqttLink:
-    def __init__(self, settings: LinkSettings, will: Outgoing, on_connect: Callable[[], list[Outgoing]]) -> None:
+    def __init__(
+        self,
+        settings: LinkSettings,
+        will: Outgoing | Callable[[], Outgoing],
+        on_connect: Callable[[], list[Outgoing]],
+    ) -> None:
         self.settings = settings
-        self.will = will
+        self._will = will
         self.on_connect = on_connect
         self.buffer: deque[Outgoing] = deque()
         self.sent = 0  # messages the broker took
@@ -71,6 +105,17 @@ class MqttLink:
         self._closing = False
         self._task: asyncio.Task[None] | None = None
         self._last_words: Outgoing | None = None
+        self._clear: tuple[str, ...] = ()
+        self.session: aiomqtt.Client | None = None  # the client of the current connection, while connected
+
+    @property
+    def will(self) -> Outgoing:
+        """The Will to register on the next connect (a new one each time when ``will`` is a function)."""
+        return self._will() if callable(self._will) else self._will
+
+    @will.setter
+    def will(self, will: Outgoing | Callable[[], Outgoing]) -> None:
+        self._will = will
 
     # -- what the publisher uses -----------------------------------------------------------------
 
@@ -84,11 +129,13 @@ class MqttLink:
     def start(self) -> None:
         self._task = asyncio.get_running_loop().create_task(self._run(), name="uacell-mqtt")
 
-    async def close(self, last_words: Outgoing | None = None, timeout: float = 3.0) -> None:
-        """Send what is buffered and ``last_words`` (retained) if connected, then disconnect cleanly
-        (the broker then does not send the Will); give up after ``timeout`` seconds."""
+    async def close(self, last_words: Outgoing | None = None, timeout: float = 3.0, clear: Sequence[str] = ()) -> None:
+        """Send what is buffered and ``last_words`` (retained) if connected, clear the retained messages
+        of the topics ``clear`` (an empty retained message each), then disconnect cleanly (the broker
+        then does not send the Will); give up after ``timeout`` seconds."""
         self._closing = True
         self._last_words = last_words
+        self._clear = tuple(clear)
         self._wake.set()
         if self._task is None:
             return
@@ -110,13 +157,14 @@ class MqttLink:
             tls_context = ssl.create_default_context(cafile=s.ca_file)
             if s.cert_file:
                 tls_context.load_cert_chain(s.cert_file, s.key_file)
-        return aiomqtt.Client(
+        will = self.will
+        return _Client(
             s.broker.host,
             s.broker.port,
             identifier=s.client_id,
             username=s.username,
             password=s.password,
-            will=aiomqtt.Will(self.will.topic, self.will.payload, qos=1, retain=True),
+            will=aiomqtt.Will(will.topic, will.payload, qos=1, retain=True),
             keepalive=s.keep_alive,
             tls_context=tls_context,
             timeout=PUBLISH_TIMEOUT,
@@ -128,6 +176,7 @@ class MqttLink:
         while not self._closing:
             try:
                 async with self._client() as client:
+                    self.session = client
                     self.connects += 1
                     delay = FIRST_RETRY
                     if self.last_error:
@@ -142,6 +191,7 @@ class MqttLink:
                         await self._serve(client)
                     finally:
                         self.connected.clear()
+                        self.session = None
             except aiomqtt.MqttError as exc:
                 self._failed(str(exc))
             except (OSError, ssl.SSLError, ValueError) as exc:  # certificate files, TLS set-up
@@ -184,6 +234,8 @@ class MqttLink:
                     if self._last_words is not None:
                         w = self._last_words
                         await client.publish(w.topic, w.payload, qos=1, retain=True)
+                    for topic in self._clear:
+                        await client.publish(topic, b"", qos=1, retain=True)
                     return
                 self._wake.clear()
                 wake = asyncio.ensure_future(self._wake.wait())

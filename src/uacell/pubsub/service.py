@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 from asyncua import ua
@@ -29,6 +30,8 @@ from uacell.pubsub.config import PubSubConfig, broker_of, password_of
 from uacell.pubsub.encoding import JsonEncoder
 from uacell.pubsub.messages import DISABLED, ERROR, OPERATIONAL, Field, Publisher, Topics, Writer, encode
 from uacell.pubsub.mqtt import LinkSettings, MqttLink, Outgoing
+from uacell.pubsub.schema import Schema, SchemaCollector, connection_config
+from uacell.pubsub.versions import VersionStore
 from uacell.ua import toolkit
 from uacell.ua.event_tap import EventTap
 from uacell.ua.instantiate import Instantiator
@@ -36,8 +39,8 @@ from uacell.ua.instantiate import Instantiator
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds
 
-# The fields an event DataSetMessage carries, when the event has them (BaseEventType's, a
-# TransitionEvent's, an AuditUpdateStateEvent's, a Condition's).
+# The fields an event DataSetMessage carries (BaseEventType's, a TransitionEvent's, an
+# AuditUpdateStateEvent's, a Condition's): every one in every message, JSON null where the event has none.
 EVENT_FIELDS: tuple[tuple[str, ua.VariantType], ...] = (
     ("EventId", ua.VariantType.ByteString),
     ("EventType", ua.VariantType.NodeId),
@@ -80,10 +83,12 @@ class PubSubService:
         self.writers: list[Writer] = []
         self._by_notifier: dict[ua.NodeId, Writer] = {}
         self.sources: dict[int, list[ua.NodeId]] = {}  # writer id -> the variables of its fields
+        self.schemas: dict[int, Schema] = {}  # writer id -> its fields' DataTypes and their descriptions
         self.nodes: PubSubNodes | None = None  # the configuration in the address space
         self._handles: list[int] = []
         self._tap: EventTap | None = None
         self._task: asyncio.Task[None] | None = None
+        self.schema = SchemaCollector(aspace, encoder)
         broker = broker_of(cfg)
         settings = LinkSettings(
             broker=broker,
@@ -97,7 +102,7 @@ class PubSubService:
             cert_file=str(cfg.cert_file) if cfg.cert_file else None,
             key_file=str(cfg.key_file) if cfg.key_file else None,
         )
-        self.link = MqttLink(settings, self._status(ERROR), self._retained)
+        self.link = MqttLink(settings, lambda: self._status(ERROR), self._retained)  # a new Will each connect
         self._dropped_reported = 0
 
     # -- what is published -----------------------------------------------------------------------
@@ -119,7 +124,9 @@ class PubSubService:
                 self._value_writer(f"{part.path}.Axes", part.node, positions, ticks)
             notifiers = [n for p in (dataset.notifiers if dataset else ()) for _, n in self._resolve(p, part.node)]
             if notifiers:
-                fields = tuple(Field(name, vtype.value, f"i={vtype.value}") for name, vtype in EVENT_FIELDS)
+                fields = tuple(
+                    Field(name, vtype.value, _EVENT_TYPES.get(name, f"i={vtype.value}")) for name, vtype in EVENT_FIELDS
+                )
                 writer = self._writer(f"{part.path}.Events", fields, events=True)
                 for node in notifiers:
                     self._by_notifier[node] = writer
@@ -146,10 +153,19 @@ class PubSubService:
             return
         fields = tuple(self._field(path, node) for path, node in nodes)
         writer = self._writer(name, fields, ticks=ticks)
+        schema = self.schema.describe([self._data_type(node) for _path, node in nodes])
+        writer.schema = self.schema.header(schema)
+        self.schemas[writer.writer_id] = schema
         self.sources[writer.writer_id] = [node for _path, node in nodes]
-        for (path, node), _field in zip(nodes, fields, strict=True):
-            writer.update(path, self.encoder.data_value(self.aspace.read_attribute_value(node, _A.Value)))
-            self._watch(writer, path, node)
+        for (path, node), f in zip(nodes, fields, strict=True):
+            dv = self.aspace.read_attribute_value(node, _A.Value)
+            writer.update(path, self.encoder.data_value(dv, typed=f.abstract, names=dict(f.names)))
+            self._watch(writer, f, node)
+
+    def _data_type(self, node: ua.NodeId) -> ua.NodeId | None:
+        dt = self.aspace.read_attribute_value(node, _A.DataType).Value
+        value = dt.Value if dt is not None else None
+        return value if isinstance(value, ua.NodeId) else None
 
     def _field(self, path: str, node: ua.NodeId) -> Field:
         dv = self.aspace.read_attribute_value(node, _A.Value)
@@ -164,13 +180,15 @@ class PubSubService:
             builtin=builtin,
             data_type=self.encoder.node_id(dt) if isinstance(dt, ua.NodeId) else "i=24",
             value_rank=int(rank.Value) if rank is not None and rank.Value is not None else -1,
+            abstract=not isinstance(dt, ua.NodeId) or self.schema.is_abstract(dt),
+            names=self.schema.enum_names(dt) if isinstance(dt, ua.NodeId) else (),
         )
 
-    def _watch(self, writer: Writer, name: str, node: ua.NodeId) -> None:
-        encoder = self.encoder
+    def _watch(self, writer: Writer, f: Field, node: ua.NodeId) -> None:
+        encoder, name, typed, names = self.encoder, f.name, f.abstract, dict(f.names)
 
         async def changed(_handle: int, dv: ua.DataValue) -> None:
-            writer.update(name, encoder.data_value(dv))
+            writer.update(name, encoder.data_value(dv, typed=typed, names=names))
 
         status, handle = self.aspace.add_datachange_callback(node, _A.Value, changed)
         if status.is_good():
@@ -180,16 +198,21 @@ class PubSubService:
         writer = self._by_notifier.get(getattr(event, "emitting_node", None))
         if writer is None:
             return
-        payload: dict[str, Any] = {}
-        for name, vtype in EVENT_FIELDS:
-            if hasattr(event, name):
-                payload[name] = self.encoder.value(_plain(getattr(event, name)), vtype)
-        writer.event(payload)
+        payload = {
+            name: self.encoder.value(_plain(getattr(event, name)), vtype)
+            for name, vtype in EVENT_FIELDS
+            if hasattr(event, name)
+        }
+        writer.event(payload)  # the fields the event has not are null
 
     # -- the retained messages and the status --------------------------------------------------
 
     def _status(self, state: int) -> Outgoing:
         return Outgoing(self.topics.status(), encode(self.publisher.status_message(state)), retain=True)
+
+    def _connection(self, now: datetime) -> Outgoing:
+        config = connection_config(self.publisher, self.cfg, self.writers)
+        return Outgoing(self.topics.connection(), encode(self.publisher.connection_message(config, now)), retain=True)
 
     def _retained(self) -> list[Outgoing]:
         now = datetime.now(UTC)
@@ -197,7 +220,11 @@ class PubSubService:
             Outgoing(self.topics.metadata(w.name), encode(self.publisher.metadata_message(w, now)), retain=True)
             for w in self.writers
         ]
-        return [self._status(OPERATIONAL), *metadata]
+        return [self._status(OPERATIONAL), self._connection(now), *metadata]
+
+    def retained_topics(self) -> list[str]:
+        """The topics whose retained messages a clean stop clears (the status stays: Disabled)."""
+        return [self.topics.connection(), *(self.topics.metadata(w.name) for w in self.writers)]
 
     # -- running ---------------------------------------------------------------------------------
 
@@ -259,8 +286,12 @@ class PubSubService:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
             self.tick(-1, time.monotonic(), datetime.now(UTC))  # what changed last goes out too
-        await self.link.close(self._status(DISABLED))
+        await self.link.close(self._status(DISABLED), clear=self.retained_topics())
         self._report_drops()
+
+
+# DataTypes of event fields that are not built-in types themselves (OPC 10000-5 BaseEventType)
+_EVENT_TYPES = {"Time": "i=294"}  # UtcTime
 
 
 def _plain(value: Any) -> Any:
@@ -274,13 +305,19 @@ async def install_pubsub(
     namespaces: Callable[[], Sequence[str]],
     parts: Iterable[PartRef],
     port: int,
+    data_dir: Path | None = None,
 ) -> PubSubService | None:
     """The PubSub service for ``parts``, not yet started, its configuration shown below
-    Server/PublishSubscribe; None when ``[pubsub]`` is off."""
+    Server/PublishSubscribe; None when ``[pubsub]`` is off. ``data_dir`` keeps the DataSets' versions."""
     if not cfg.enabled:
         return None
     service = PubSubService(cfg, aspace, JsonEncoder(namespaces), cfg.publisher_id or default_publisher_id(port))
     service.add_parts(parts, cfg.extra_values)
+    versions = VersionStore(data_dir)
+    now = datetime.now(UTC)
+    for w in service.writers:
+        w.version = versions.version(w.name, w.shape(), now)
+    versions.save()
     service.nodes = PubSubNodes(aspace, instantiator)
     await service.nodes.build(
         service.publisher.publisher_id,
@@ -290,6 +327,7 @@ async def install_pubsub(
         float(cfg.keep_alive),
         service.writers,
         service.sources,
+        service.schemas,
     )
     log.info(
         "pubsub: %d DataSetWriters publish to %s under %s",
