@@ -57,7 +57,7 @@ async def install_history(
     if not cfg.enabled:
         return None
     store = HistoryStore(make_backend(cfg, data_dir), settings_of(cfg))
-    service = HistoryService(server.iserver, store, allows, cfg.max_values_per_request)
+    service = HistoryService(server.iserver, store, allows, cfg.max_values_per_request, cfg.max_events_per_request)
     await service.install(tap)
     parts = list(parts)
     configurations = _Configurations(server)
@@ -245,7 +245,7 @@ async def publish_capabilities(server: Server, cfg: HistoryConfig) -> None:
             cfg.max_values_per_request, ua.VariantType.UInt32
         ),
         ids.HistoryServerCapabilities_MaxReturnEventValues: ua.Variant(
-            cfg.max_values_per_request, ua.VariantType.UInt32
+            cfg.max_events_per_request, ua.VariantType.UInt32
         ),
         ids.HistoryServerCapabilities_InsertDataCapability: False,
         ids.HistoryServerCapabilities_ReplaceDataCapability: False,

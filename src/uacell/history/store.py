@@ -19,6 +19,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 from uacell.history.backends import Backend, Query, Row, Sample
 
@@ -26,6 +27,7 @@ Encode = Callable[[], bytes]  # encodes a sample's data when the writer thread c
 Queued = tuple[str, int, int, int, int, str, "bytes | Encode"]  # a Row whose data may be still to encode
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 _CP_FORMAT = ">4sqq"  # magic, time, seq
 _CP_MAGIC = b"uch1"
@@ -45,29 +47,31 @@ class StoreSettings:
 
 
 class Cursor:
-    """Opaque continuation points: (time, seq) of the last sample returned, signed per node.
+    """Opaque continuation points: (time, seq) of the last sample returned, signed per session and node.
 
     A point names the exact sample a page ended on, so the next page starts strictly after it: no
     sample is repeated or skipped, also when many share one timestamp. The MAC (a key drawn per server
-    start) makes a damaged or forged point, or one given for another node, Bad_ContinuationPointInvalid.
+    start) makes a damaged or forged point, or one given for another node or to another session,
+    Bad_ContinuationPointInvalid (OPC 10000-4 7.9: a point belongs to the session it was given to).
     """
 
     def __init__(self, key: bytes | None = None) -> None:
         self.key = key or os.urandom(16)
 
-    def _mac(self, node: str, body: bytes) -> bytes:
-        return hmac.new(self.key, node.encode() + b"\0" + body, hashlib.sha256).digest()[:_CP_MAC]
+    def _mac(self, node: str, body: bytes, session: str) -> bytes:
+        signed = session.encode() + b"\0" + node.encode() + b"\0" + body
+        return hmac.new(self.key, signed, hashlib.sha256).digest()[:_CP_MAC]
 
-    def encode(self, node: str, t: int, seq: int) -> bytes:
+    def encode(self, node: str, t: int, seq: int, session: str = "") -> bytes:
         body = struct.pack(_CP_FORMAT, _CP_MAGIC, t, seq)
-        return body + self._mac(node, body)
+        return body + self._mac(node, body, session)
 
-    def decode(self, node: str, point: bytes) -> tuple[int, int]:
+    def decode(self, node: str, point: bytes, session: str = "") -> tuple[int, int]:
         size = struct.calcsize(_CP_FORMAT)
         if len(point) != size + _CP_MAC:
             raise ContinuationPointInvalid("length")
         body, mac = point[:size], point[size:]
-        if not hmac.compare_digest(mac, self._mac(node, body)):
+        if not hmac.compare_digest(mac, self._mac(node, body, session)):
             raise ContinuationPointInvalid("signature")
         magic, t, seq = struct.unpack(_CP_FORMAT, body)
         if magic != _CP_MAGIC:
@@ -212,3 +216,7 @@ class HistoryStore:
 
     async def read(self, q: Query) -> list[Sample]:
         return await asyncio.to_thread(self.backend.read, q)
+
+    async def read_mapped(self, q: Query, convert: Callable[[list[Sample]], list[T]]) -> list[T]:
+        """``convert`` (a pure function) of what ``q`` finds, run in the reading thread too."""
+        return await asyncio.to_thread(lambda: convert(self.backend.read(q)))
