@@ -27,7 +27,7 @@ from uacell.history.backends import EVENT, VALUE, Query, Sample
 from uacell.history.processed import AGGREGATES, Interval, aggregate
 from uacell.history.slices import Slices
 from uacell.history.store import ContinuationPointInvalid, HistoryStore
-from uacell.ua.context import current_caller
+from uacell.ua.context import caller_of, current_caller
 from uacell.ua.event_tap import EventTap
 from uacell.ua.toolkit import supertype
 
@@ -410,9 +410,9 @@ class HistoryService:
             released.add(bytes(rv.ContinuationPoint))
         return ua.HistoryReadResult(StatusCode=ua.StatusCode(_SC.Good), HistoryData=empty)
 
-    def session_closed(self, session: str) -> None:
+    def forget_session(self, session: Any) -> None:
         """A closed session's points are invalid anyway (signed for it): its release list goes."""
-        self._released.pop(session, None)
+        self._released.pop(caller_of(session).session_id, None)
 
     def _after(self, key: str, rv: ua.HistoryReadValueId, session: str) -> tuple[int, int] | None:
         if not rv.ContinuationPoint:

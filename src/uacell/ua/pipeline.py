@@ -246,6 +246,11 @@ async def _read_service(session: InternalSession, params: Any) -> Any:
     return await session.read(params)
 
 
+async def _history_update_service(session: InternalSession, params: Any) -> Any:
+    """HistoryUpdate (asyncua has no processing for it): the history manager answers each item."""
+    return await session.history_update(params)
+
+
 Service = tuple[Callable[[Buffer], Any], type, Callable[[InternalSession, Any], Awaitable[Any]], Callable[[Any], bytes]]
 # The services uacell runs as asyncua does, by request type: (the parameters' decoder, the response,
 # what runs, the response's encoder: the Call's are written out, ua/codec.py)
@@ -255,6 +260,10 @@ SERVICES: dict[ua.NodeId, Service] = {
     ),
     ua.NodeId(ua.ObjectIds.ReadRequest_Encoding_DefaultBinary): (
         functools.partial(struct_from_binary, ua.ReadParameters), ua.ReadResponse, _read_service, struct_to_binary,
+    ),
+    ua.NodeId(ua.ObjectIds.HistoryUpdateRequest_Encoding_DefaultBinary): (
+        functools.partial(struct_from_binary, ua.HistoryUpdateParameters), ua.HistoryUpdateResponse,
+        _history_update_service, struct_to_binary,
     ),
 }  # fmt: skip
 
