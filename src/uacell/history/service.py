@@ -26,7 +26,7 @@ from asyncua.ua.ua_binary import Primitives, variant_from_binary, variant_to_bin
 from uacell.history.backends import EVENT, VALUE, Query, Sample
 from uacell.history.processed import AGGREGATES, Interval, aggregate
 from uacell.history.slices import Slices
-from uacell.history.store import ContinuationPointInvalid, HistoryStore
+from uacell.history.store import ContinuationPointInvalid, HistoryStore, first_line
 from uacell.ua.context import caller_of, current_caller
 from uacell.ua.event_tap import EventTap
 from uacell.ua.toolkit import supertype
@@ -224,6 +224,7 @@ class HistoryService:
         self.slice = Slices().budget  # seconds of a request's work between two turns of the event loop
         # continuation points a session released (OPC 10000-4 7.9), by session; dropped when it closes
         self._released: dict[str, set[bytes]] = {}
+        self._store_failing = False  # the last read failed in the store (logged once)
         self.values: dict[ua.NodeId, str] = {}
         self.notifiers: dict[ua.NodeId, str] = {}
         self._handles: list[int] = []
@@ -352,8 +353,14 @@ class HistoryService:
                 continue
             try:
                 results.append(await self._read_one(params, rv, session))
+                self._store_failing = False
             except HistoryError as e:
                 results.append(_fail(e.code))
+            except Exception as exc:  # the store does not answer (a database gone): this node's answer
+                results.append(_fail(_SC.BadNoCommunication))
+                if not self._store_failing and not self.store.down:  # the writer said so already
+                    log.warning("history: a read failed, answered Bad_NoCommunication: %s", first_line(exc))
+                self._store_failing = True
         return results
 
     async def _read_one(

@@ -81,6 +81,13 @@ class Cursor:
 
 _FLUSH = object()
 _STOP = object()
+PENDING_MAX = 200_000  # samples kept in memory while the store does not answer
+RETRY = 1.0  # seconds between attempts to write to a store that did not answer
+
+
+def first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
 
 
 def _encoded(row: Queued) -> Row | None:
@@ -107,13 +114,24 @@ class HistoryStore:
         self.settings = settings
         self.now = now
         self.cursor = Cursor()
-        self._seq = backend.max_seq()
+        try:
+            self._seq = backend.max_seq()
+        except Exception as exc:  # the database is not there yet: numbers that follow any it holds
+            self._seq = int(now() * 1e6)
+            log.warning(
+                "history: the store does not answer (%s); samples are kept in memory until it does", first_line(exc)
+            )
+            self.down = True
+        else:
+            self.down = False  # the last write failed: samples wait in memory (``pending``)
         self._queue: queue.SimpleQueue[object] = queue.SimpleQueue()
         self._wake = threading.Event()  # a flush or the stop asked for: commit now
         self._thread: threading.Thread | None = None
         self.written = 0  # samples committed since start
         self.batches = 0
         self.errors = 0
+        self.pending: list[Row] = []  # encoded samples a failed write left, written first next time
+        self.dropped = 0  # samples given up because more than PENDING_MAX waited
 
     # -- writing (event loop side: never blocks) -------------------------------------------------
 
@@ -146,6 +164,8 @@ class HistoryStore:
             self._thread = None
         else:
             self._write(self._drain_now())
+        if self.pending:
+            log.warning("history: %d samples not written at the stop: the store does not answer", len(self.pending))
         self.backend.close()
 
     def _drain_now(self) -> list[Queued]:
@@ -159,16 +179,36 @@ class HistoryStore:
                 out.append(item)
 
     def _write(self, queued: Sequence[Queued]) -> None:
-        if not queued:
+        """Commit what is pending and ``queued``; when the store does not answer (a database gone, a
+        disk full), keep it all in memory, at most ``PENDING_MAX`` samples (the oldest are given up
+        beyond), and try again at the next batch or after ``RETRY`` seconds: one warning when it
+        stops answering, one line when it answers again (docs/history.md)."""
+        batch = self.pending + [row for row in map(_encoded, queued) if row is not None]
+        if not batch:
             return
-        batch = [row for row in map(_encoded, queued) if row is not None]
         try:
             self.backend.write(batch)
-            self.written += len(batch)
-            self.batches += 1
-        except Exception:
+        except Exception as exc:
             self.errors += 1
-            log.exception("history: could not write %d samples", len(batch))
+            if len(batch) > PENDING_MAX:
+                self.dropped += len(batch) - PENDING_MAX
+                batch = batch[-PENDING_MAX:]
+            self.pending = batch
+            if not self.down:
+                self.down = True
+                log.warning(
+                    "history: the store does not answer (%s); %d samples kept in memory until it does",
+                    first_line(exc),
+                    len(batch),
+                )
+            return
+        self.pending = []
+        self.written += len(batch)
+        self.batches += 1
+        if self.down:
+            self.down = False
+            lost = f", {self.dropped} given up" if self.dropped else ""
+            log.warning("history: the store answers again; %d samples written%s", len(batch), lost)
 
     def prune(self) -> int:
         s = self.settings
@@ -182,7 +222,11 @@ class HistoryStore:
         next_prune = time.monotonic()
         stopping = False
         while not stopping:
-            first = self._queue.get()
+            try:  # while samples wait for a store that did not answer, try again every RETRY seconds
+                first = self._queue.get(timeout=RETRY if self.pending else None)
+            except queue.Empty:
+                self._write([])
+                continue
             self._wake.wait(interval)
             self._wake.clear()
             batch: list[Queued] = []
@@ -197,12 +241,12 @@ class HistoryStore:
             self._write(batch)
             for w in waiters:
                 w.set()
-            if time.monotonic() >= next_prune:
+            if time.monotonic() >= next_prune and not self.down:
                 next_prune = time.monotonic() + self.settings.prune_interval
                 try:
                     self.prune()
-                except Exception:
-                    log.exception("history: pruning failed")
+                except Exception as exc:  # the store went away meanwhile: the next prune tries again
+                    log.warning("history: pruning failed (%s)", first_line(exc))
 
     def _drain_items(self) -> list[object]:
         out: list[object] = []
