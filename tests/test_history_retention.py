@@ -1,5 +1,5 @@
 """Retention under load (issue 39, docs/history.md "Size and retention"): a small size cap, samples
-written fast, HistoryReads and PubSub over a real mosquitto going on, for about 20 s: pruning holds
+written fast, HistoryReads and PubSub over a real mosquitto going on, for about 12 s: pruning holds
 the live data near the cap, the newest samples stay readable, PubSub keeps publishing."""
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from uacell.history.service import encode_fields, event_plan, to_micros
 pytestmark = needs_mosquitto
 
 CAP_MB = 2.0
-RUN = 20.0  # seconds of load
+RUN = 12.0  # seconds of load
 RATE = 1_500  # synthetic samples a second (half values, half events), beside the cell's own
 PRUNE_EVERY = 1.0
 V = ua.VariantType

@@ -19,7 +19,7 @@ from uacell.history.backends import EVENT
 from uacell.history.service import encode_fields, event_plan, to_micros
 from uacell.server import UacellServer
 
-STORED = 30_000
+STORED = 20_000
 V = ua.VariantType
 # the fields of a TransitionEventType event as a state machine fires it
 TYPES = {
@@ -88,7 +88,7 @@ def read_every_event(endpoint: str, base: datetime, pages: list[int], events: li
         errors.append(repr(exc) + traceback.format_exc())
 
 
-async def test_history_reads_of_30000_events_leave_other_clients_served(app: UacellServer) -> None:
+async def test_history_reads_of_20000_events_leave_other_clients_served(app: UacellServer) -> None:
     assert app.history is not None
     cap = app.history.max_events_per_request
     assert cap == 1_000  # the documented default

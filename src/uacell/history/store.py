@@ -219,7 +219,7 @@ class HistoryStore:
         # Wakes once per batch: at the first sample after a quiet spell, then commits what came in
         # the next ``flush_interval`` seconds (or at once for a flush or the stop).
         interval = self.settings.flush_interval
-        next_prune = time.monotonic()
+        pruned = -float("inf")  # when it last pruned (the interval is read each time: settings may change)
         stopping = False
         while not stopping:
             try:  # while samples wait for a store that did not answer, try again every RETRY seconds
@@ -241,8 +241,8 @@ class HistoryStore:
             self._write(batch)
             for w in waiters:
                 w.set()
-            if time.monotonic() >= next_prune and not self.down:
-                next_prune = time.monotonic() + self.settings.prune_interval
+            if time.monotonic() - pruned >= self.settings.prune_interval and not self.down:
+                pruned = time.monotonic()
                 try:
                     self.prune()
                 except Exception as exc:  # the store went away meanwhile: the next prune tries again
