@@ -25,6 +25,8 @@ from uacell.errors import ConfigError
         ("flush_interval = 100", r"\[history\] flush_interval: must be 0.01..60"),
         ("max_age_days = -1", r"\[history\] max_age_days: must be 0 \(no bound\) or more"),
         ("max_values_per_request = 0", r"\[history\] max_values_per_request: must be 1..1000000"),
+        ("max_events_per_request = 0", r"\[history\] max_events_per_request: must be 1..100000"),
+        ("max_events_per_request = 100001", r"\[history\] max_events_per_request: must be 1..100000"),
         ("flush = 1", r"\[history\] flush: unknown key"),
     ],
 )

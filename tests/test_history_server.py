@@ -3,6 +3,7 @@ Part 11 codes, the attributes and capabilities, a restart (docs/history.md)."""
 
 from __future__ import annotations
 
+from collections.abc import AsyncIterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -17,6 +18,14 @@ from uacell.server import UacellServer
 CELL = "urn:uacell:cell"
 F = "Filler1"
 HOUR = timedelta(hours=1)
+
+
+@pytest.fixture
+async def client(app: UacellServer) -> AsyncIterator[Client]:
+    """A plain asyncua client of ``app`` (no data type definitions to load: none is needed here),
+    keep-alives every 5 s: the in-process server and client share one loop on a loaded machine."""
+    async with Client(app.endpoint, timeout=30, watchdog_intervall=5.0) as c:
+        yield c
 
 
 def now() -> datetime:
@@ -107,6 +116,7 @@ async def test_values_attributes_and_capabilities(app: UacellServer, client: Cli
     assert await client.get_node(caps.HistoryServerCapabilities_AccessHistoryEventsCapability).read_value() is True
     assert await client.get_node(caps.HistoryServerCapabilities_InsertDataCapability).read_value() is False
     assert await client.get_node(caps.HistoryServerCapabilities_MaxReturnDataValues).read_value() == 10_000
+    assert await client.get_node(caps.HistoryServerCapabilities_MaxReturnEventValues).read_value() == 1_000
     aggregates = await client.get_node(caps.HistoryServerCapabilities_AggregateFunctions).get_children()
     assert ua.NodeId(ua.ObjectIds.AggregateFunction_TimeAverage) in {n.nodeid for n in aggregates}
 

@@ -7,18 +7,16 @@ on a free loopback port in a temporary directory and stops it; without Debian's 
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import sqlite3
 import subprocess
 import sys
-import tempfile
 import textwrap
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from helpers import free_port
+from pg_cluster import PgCluster
 
 from uacell.history.backends import EVENT, VALUE, Backend, Query, SqliteBackend
 from uacell.history.store import ContinuationPointInvalid, Cursor, HistoryStore, StoreSettings
@@ -26,48 +24,17 @@ from uacell.history.store import ContinuationPointInvalid, Cursor, HistoryStore,
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _pg_bin(name: str) -> str | None:
-    found = shutil.which(name)
-    if found:
-        return found
-    for d in sorted(Path("/usr/lib/postgresql").glob("*/bin"), reverse=True):
-        if (d / name).exists():
-            return str(d / name)
-    return None
-
-
 @pytest.fixture(scope="module")
 def postgres_dsn() -> Iterator[str]:
-    initdb, pg_ctl = _pg_bin("initdb"), _pg_bin("pg_ctl")
-    if initdb is None or pg_ctl is None:
-        pytest.skip("PostgreSQL is not installed (make setup installs Debian's postgresql)")
-    pytest.importorskip("psycopg")
-    prefix: list[str] = []
-    tmp = Path(tempfile.mkdtemp(prefix="uacell-pg-"))
-    if os.geteuid() == 0:
-        runuser = shutil.which("runuser")
-        if runuser is None:
-            pytest.skip("running as root without runuser: cannot start PostgreSQL as its own user")
-        prefix = [runuser, "-u", "postgres", "--"]
-        shutil.chown(tmp, "postgres")
-    data, port = tmp / "data", free_port()
+    cluster = PgCluster()
     try:
-        subprocess.run([*prefix, initdb, "-D", str(data), "-A", "trust", "-U", "postgres"], check=True,
-                       capture_output=True, timeout=120)  # fmt: skip
-        subprocess.run(
-            [*prefix, pg_ctl, "-D", str(data), "-w", "-t", "60", "-l", str(tmp / "log"),
-             "-o", f"-h 127.0.0.1 -p {port} -k {tmp}", "start"],
-            check=True, capture_output=True, timeout=120,
-        )  # fmt: skip
-    except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as e:
-        shutil.rmtree(tmp, ignore_errors=True)
-        pytest.skip(f"could not start PostgreSQL: {e}")
-    try:
-        yield f"host=127.0.0.1 port={port} user=postgres dbname=postgres"
+        try:
+            cluster.start()
+        except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as e:
+            pytest.skip(f"could not start PostgreSQL: {e}")
+        yield cluster.dsn
     finally:
-        subprocess.run([*prefix, pg_ctl, "-D", str(data), "-m", "immediate", "-w", "stop"], capture_output=True,
-                       timeout=120, check=False)  # fmt: skip
-        shutil.rmtree(tmp, ignore_errors=True)
+        cluster.remove()
 
 
 _tables = iter(range(10**6))

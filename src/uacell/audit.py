@@ -52,7 +52,25 @@ def audit_line(created: float, event: str, fields: dict[str, Any]) -> str:
     return _ENCODER.encode(entry)
 
 
-_ENCODER = json.JSONEncoder(default=str, ensure_ascii=False)  # json.dumps with these makes one per call
+def _json_value(value: Any) -> Any:
+    """A field's value that JSON has no type for, as docs/operations.md says: a NodeId (or
+    QualifiedName) in its standard string form (``ns=1;i=11``, ``ns=6;s=Robot1.Controllers``), a
+    status code or enumeration by its name, a tuple as a list, bytes as hex, anything else as text."""
+    to_string = getattr(value, "to_string", None)
+    if callable(to_string):
+        return str(to_string())
+    name = getattr(value, "name", None)
+    if isinstance(name, str) and hasattr(value, "value"):  # ua.StatusCode, an Enum
+        return name
+    if isinstance(value, tuple | set | frozenset):
+        return list(value)
+    if isinstance(value, bytes | bytearray):
+        return bytes(value).hex()
+    return str(value)
+
+
+# json.dumps with these makes one per call
+_ENCODER = json.JSONEncoder(default=_json_value, ensure_ascii=False)
 
 
 class _RotatingFile:

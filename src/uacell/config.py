@@ -463,6 +463,8 @@ def check_history(h: HistoryConfig) -> None:
         raise ConfigError("[history] max_age_days, max_mb: must be 0 (no bound) or more")
     if not 1 <= h.max_values_per_request <= 1_000_000:
         raise ConfigError("[history] max_values_per_request: must be 1..1000000")
+    if not 1 <= h.max_events_per_request <= 100_000:
+        raise ConfigError("[history] max_events_per_request: must be 1..100000")
 
 
 def load_factory(spec: str, section: str) -> Callable[..., object]:

@@ -591,6 +591,7 @@ class UacellSession(LimitedSession):
 
     async def create_session(self, params: ua.CreateSessionParameters, sockname: Any = None) -> ua.CreateSessionResult:
         self._client_description = params.ClientDescription  # Caller.client: LockingClient shows it
+        self.session_name = params.SessionName or ""  # the client's name for it (audit trail)
         processor = context.current_processor()
         self.client_address = _address(processor)
         if processor is not None:

@@ -213,6 +213,8 @@ class UacellServer:
             lambda role: may(Role.parse(role), "history_read"),
             self.event_tap,
         )
+        if self.history is not None:  # a closed session's released continuation points are forgotten
+            self.security.on_session_closed.append(self.history.forget_session)
         if self.config.pubsub.enabled:
             from uacell.pubsub.service import PartRef, install_pubsub
 

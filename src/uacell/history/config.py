@@ -16,4 +16,5 @@ class HistoryConfig:
     max_age_days: float = 30.0  # 0: keep forever
     max_mb: float = 1024.0  # 0: no size bound
     max_values_per_request: int = 10_000  # per node and HistoryRead; more through continuation points
+    max_events_per_request: int = 1_000  # events per node and HistoryRead (a page's work is bounded)
     axis_positions: bool = False  # also keep every robot axis' ActualPosition

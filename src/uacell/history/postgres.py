@@ -15,6 +15,10 @@ from uacell.history.backends import _COLUMNS, Query, Row, Sample, _where
 
 
 class PostgresBackend:
+    """The table is created when missing, at the first connection that succeeds: the database may be
+    unreachable when uacell starts (the store then keeps samples in memory and tries again). A
+    connection that failed is dropped and made anew at the next use."""
+
     def __init__(self, dsn: str, table: str = "uacell_samples") -> None:
         import psycopg  # only needed with this backend
 
@@ -26,7 +30,14 @@ class PostgresBackend:
         self._local = threading.local()
         self._all: list[Any] = []
         self._lock = threading.Lock()
-        con = self._con()
+        self._table_ready = False
+        try:
+            self._con()
+        except psycopg.OperationalError:
+            pass  # unreachable now: the first use that connects creates the table
+
+    def _create_table(self, con: Any) -> None:
+        table = self.table
         with con.transaction():
             con.execute(
                 f"CREATE TABLE IF NOT EXISTS {table} (node TEXT NOT NULL, time BIGINT NOT NULL,"
@@ -35,28 +46,48 @@ class PostgresBackend:
             )
             con.execute(f"CREATE INDEX IF NOT EXISTS {table}_node_time ON {table} (node, kind, time, seq)")
             con.execute(f"CREATE INDEX IF NOT EXISTS {table}_time ON {table} (time)")
+        self._table_ready = True
 
     def _con(self) -> Any:
         con = getattr(self._local, "con", None)
-        if con is None or con.closed:
-            con = self._psycopg.connect(self.dsn, autocommit=True)
+        if con is None or con.closed or con.broken:
+            con = self._psycopg.connect(self.dsn, autocommit=True, connect_timeout=5)
             self._local.con = con
             with self._lock:
                 self._all.append(con)
+            if not self._table_ready:
+                self._create_table(con)
         return con
 
-    def write(self, rows: Sequence[Row]) -> None:
+    def _use(self, work: Any) -> Any:
+        """``work(connection)``; a connection that failed is closed, so that the next use reconnects."""
         con = self._con()
-        with con.transaction(), con.cursor() as cur:
-            cur.executemany(f"INSERT INTO {self.table} ({_COLUMNS}) VALUES (%s, %s, %s, %s, %s, %s, %s)", rows)
+        try:
+            return work(con)
+        except self._psycopg.OperationalError:
+            try:
+                con.close()
+            except Exception:
+                pass
+            raise
+
+    def write(self, rows: Sequence[Row]) -> None:
+        sql = f"INSERT INTO {self.table} ({_COLUMNS}) VALUES (%s, %s, %s, %s, %s, %s, %s)"
+
+        def insert(con: Any) -> None:
+            with con.transaction(), con.cursor() as cur:
+                cur.executemany(sql, rows)
+
+        self._use(insert)
 
     def read(self, q: Query) -> list[Sample]:
         where, args = _where(q, "%s")
-        rows = self._con().execute(f"SELECT {_COLUMNS} FROM {self.table} WHERE {where}", args).fetchall()
+        sql = f"SELECT {_COLUMNS} FROM {self.table} WHERE {where}"
+        rows = self._use(lambda con: con.execute(sql, args).fetchall())
         return [Sample(r[0], int(r[1]), int(r[2]), int(r[3]), int(r[4]), r[5], bytes(r[6])) for r in rows]
 
     def max_seq(self) -> int:
-        row = self._con().execute(f"SELECT MAX(seq) FROM {self.table}").fetchone()
+        row = self._use(lambda con: con.execute(f"SELECT MAX(seq) FROM {self.table}").fetchone())
         return int(row[0]) if row and row[0] is not None else 0
 
     def size(self) -> int:

@@ -28,8 +28,12 @@ Point = tuple[int, float | None, int]
 
 _GOOD = ua.StatusCodes.Good
 _UNCERTAIN = ua.StatusCodes.UncertainDataSubNormal
-_CALCULATED = 0x200  # the HistorianBits of a calculated value (Part 11 6.3.2)
-_PARTIAL = 0x4  # Partial: the interval is incomplete (the last one, shorter than the others)
+# A StatusCode's low 16 bits (OPC 10000-4 7.39, Table 181): InfoType DataValue (0x400) says the
+# InfoBits are a historian's (OPC 10000-11 6.3.2 / OPC 10000-4 Table 183): HistorianBits Calculated
+# (0x1), and Partial (0x4) for an interval shorter than the others (the last).
+DATA_VALUE_INFO = 0x400
+CALCULATED = DATA_VALUE_INFO | 0x1
+PARTIAL = 0x4
 
 
 @dataclass(frozen=True)
@@ -64,7 +68,7 @@ def aggregate(name: str, points: Sequence[Point], start: int, end: int, interval
         while j < len(points) and points[j][0] < b:
             j += 1
         inside = points[i:j]
-        partial = _PARTIAL if b - a < interval else 0
+        partial = PARTIAL if b - a < interval else 0
         out.append(_one(name, a, b, inside, prior, partial))
     return out
 
@@ -72,10 +76,9 @@ def aggregate(name: str, points: Sequence[Point], start: int, end: int, interval
 def _one(name: str, a: int, b: int, inside: Sequence[Point], prior: Point | None, partial: int) -> Interval:
     good = [p for p in inside if _good(p)]
     uncertain = len(good) != len(inside)
-    status = (_UNCERTAIN if uncertain else _GOOD) | _CALCULATED | partial
+    status = (_UNCERTAIN if uncertain else _GOOD) | CALCULATED | partial
     if name == "Count":
-        if not inside:  # no raw value at all: Bad_NoData (as node-opcua-aggregates answers)
-            return Interval(a, None, ua.StatusCodes.BadNoData)
+        # the number of Good raw values: 0 (Good, Calculated) for an interval without any (OPC 10000-13, Count)
         return Interval(a, len(good), status, integer=True)
     if name == "TimeAverage":
         return _time_average(a, b, inside, prior, partial)
@@ -112,5 +115,5 @@ def _time_average(a: int, b: int, inside: Sequence[Point], prior: Point | None, 
     if covered == 0:
         return Interval(a, None, ua.StatusCodes.BadNoData)
     whole = covered == b - a and not bad
-    status = (_GOOD if whole else _UNCERTAIN) | _CALCULATED | partial
+    status = (_GOOD if whole else _UNCERTAIN) | CALCULATED | partial
     return Interval(a, total / covered, status)

@@ -8,6 +8,7 @@ docs/history.md says what each request answers.
 
 from __future__ import annotations
 
+import asyncio
 import functools
 import logging
 import math
@@ -24,8 +25,9 @@ from asyncua.ua.ua_binary import Primitives, variant_from_binary, variant_to_bin
 
 from uacell.history.backends import EVENT, VALUE, Query, Sample
 from uacell.history.processed import AGGREGATES, Interval, aggregate
-from uacell.history.store import ContinuationPointInvalid, HistoryStore
-from uacell.ua.context import current_caller
+from uacell.history.slices import Slices
+from uacell.history.store import ContinuationPointInvalid, HistoryStore, first_line
+from uacell.ua.context import caller_of, current_caller
 from uacell.ua.event_tap import EventTap
 from uacell.ua.toolkit import supertype
 
@@ -212,11 +214,17 @@ class HistoryService:
         store: HistoryStore,
         allows: Callable[[str], bool],
         max_per_request: int = 10_000,
+        max_events_per_request: int = 1_000,
     ) -> None:
         self.iserver = iserver
         self.allows = allows  # may a caller of this role HistoryRead (uacell.roles: "history_read")
         self.store = store
         self.max_per_request = max_per_request
+        self.max_events_per_request = max_events_per_request
+        self.slice = Slices().budget  # seconds of a request's work between two turns of the event loop
+        # continuation points a session released (OPC 10000-4 7.9), by session; dropped when it closes
+        self._released: dict[str, set[bytes]] = {}
+        self._store_failing = False  # the last read failed in the store (logged once)
         self.values: dict[ua.NodeId, str] = {}
         self.notifiers: dict[ua.NodeId, str] = {}
         self._handles: list[int] = []
@@ -338,17 +346,26 @@ class HistoryService:
         except ValueError:  # not a role uacell knows
             allowed = False
         results = []
+        session = caller.session_id
         for rv in params.NodesToRead:
             if not allowed:
                 results.append(_fail(_SC.BadUserAccessDenied))
                 continue
             try:
-                results.append(await self._read_one(params, rv))
+                results.append(await self._read_one(params, rv, session))
+                self._store_failing = False
             except HistoryError as e:
                 results.append(_fail(e.code))
+            except Exception as exc:  # the store does not answer (a database gone): this node's answer
+                results.append(_fail(_SC.BadNoCommunication))
+                if not self._store_failing and not self.store.down:  # the writer said so already
+                    log.warning("history: a read failed, answered Bad_NoCommunication: %s", first_line(exc))
+                self._store_failing = True
         return results
 
-    async def _read_one(self, params: ua.HistoryReadParameters, rv: ua.HistoryReadValueId) -> ua.HistoryReadResult:
+    async def _read_one(
+        self, params: ua.HistoryReadParameters, rv: ua.HistoryReadValueId, session: str
+    ) -> ua.HistoryReadResult:
         details = params.HistoryReadDetails
         node = rv.NodeId
         if node not in self.iserver.aspace:
@@ -360,27 +377,59 @@ class HistoryService:
             if details.IsReadModified:
                 raise HistoryError(_SC.BadHistoryOperationUnsupported)  # values are never modified
             if params.ReleaseContinuationPoints:
-                return ua.HistoryReadResult(HistoryData=ua.HistoryData())
-            samples, cp = await self._page(key, VALUE, details.StartTime, details.EndTime, details.NumValuesPerNode, rv)
-            data = ua.HistoryData(DataValues=[_datavalue(s, params.TimestampsToReturn) for s in samples])
-            return _ok(data, cp, bool(samples) or bool(rv.ContinuationPoint))
+                return self._release(key, rv, session, ua.HistoryData())
+            after = self._after(key, rv, session)
+            samples, cp = await self._page(key, details, after, session)
+            slices = Slices(self.slice)
+            values = []
+            for sample in samples:
+                values.append(_datavalue(sample, params.TimestampsToReturn))
+                await slices.tick()
+            return _ok(ua.HistoryData(DataValues=values), cp, bool(samples) or bool(rv.ContinuationPoint))
         if isinstance(details, ua.ReadEventDetails):
             notifier = self.notifiers.get(node)
             if notifier is None:
                 raise HistoryError(_SC.BadHistoryOperationUnsupported)
             key = notifier
             if params.ReleaseContinuationPoints:
-                return ua.HistoryReadResult(HistoryData=ua.HistoryEvent())
+                return self._release(key, rv, session, ua.HistoryEvent())
             flt = details.Filter or ua.EventFilter()
             check_filter(flt)
-            events, cp = await self._events(key, details, rv, flt)
+            events, cp = await self._events(key, details, self._after(key, rv, session), flt, session)
             return _ok(ua.HistoryEvent(Events=events), cp, bool(events) or bool(rv.ContinuationPoint))
         if isinstance(details, ua.ReadProcessedDetails):
             key = self._value_key(node)
             if params.ReleaseContinuationPoints:
-                return ua.HistoryReadResult(HistoryData=ua.HistoryData())
-            return await self._processed(key, details, rv)
+                return self._release(key, rv, session, ua.HistoryData())
+            return await self._processed(key, details)
         raise HistoryError(_SC.BadHistoryOperationUnsupported)  # ReadAtTime, annotations
+
+    # -- continuation points ---------------------------------------------------------------------
+
+    def _release(self, key: str, rv: ua.HistoryReadValueId, session: str, empty: Any) -> ua.HistoryReadResult:
+        """ReleaseContinuationPoints: the point is checked (its session's, this node's) and never
+        accepted again (OPC 10000-4 7.9 / 5.10.3)."""
+        if rv.ContinuationPoint:
+            self._after(key, rv, session)  # Bad_ContinuationPointInvalid when it is not this session's
+            released = self._released.setdefault(session, set())
+            if len(released) >= _RELEASED_MAX:
+                released.clear()  # a session releasing without end: the oldest ones are forgotten
+            released.add(bytes(rv.ContinuationPoint))
+        return ua.HistoryReadResult(StatusCode=ua.StatusCode(_SC.Good), HistoryData=empty)
+
+    def forget_session(self, session: Any) -> None:
+        """A closed session's points are invalid anyway (signed for it): its release list goes."""
+        self._released.pop(caller_of(session).session_id, None)
+
+    def _after(self, key: str, rv: ua.HistoryReadValueId, session: str) -> tuple[int, int] | None:
+        if not rv.ContinuationPoint:
+            return None
+        if bytes(rv.ContinuationPoint) in self._released.get(session, ()):
+            raise HistoryError(_SC.BadContinuationPointInvalid)
+        try:
+            return self.store.cursor.decode(key, rv.ContinuationPoint, session)
+        except ContinuationPointInvalid:
+            raise HistoryError(_SC.BadContinuationPointInvalid) from None
 
     def _value_key(self, node: ua.NodeId) -> str:
         key = self.values.get(node)
@@ -410,44 +459,42 @@ class HistoryService:
         return None, to_micros(end) + 1, True, True
 
     async def _page(
-        self, key: str, kind: int, start: datetime | None, end: datetime | None, count: int, rv: ua.HistoryReadValueId
+        self, key: str, details: ua.ReadRawModifiedDetails, after: tuple[int, int] | None, session: str
     ) -> tuple[list[Sample], bytes | None]:
-        lo, hi, reverse, lo_inc = self._plan(start, end, count)
-        after = self._after(key, rv)
+        count = details.NumValuesPerNode
+        lo, hi, reverse, lo_inc = self._plan(details.StartTime, details.EndTime, count)
         limit = min(count, self.max_per_request) if count > 0 else self.max_per_request
-        rows = await self.store.read(Query(key, kind, lo, hi, reverse, limit + 1, after, lo_inc))
+        rows = await self.store.read(Query(key, VALUE, lo, hi, reverse, limit + 1, after, lo_inc))
         if len(rows) > limit:
             rows = rows[:limit]
             last = rows[-1]
-            return rows, self.store.cursor.encode(key, last.time, last.seq)
+            return rows, self.store.cursor.encode(key, last.time, last.seq, session)
         return rows, None
 
-    def _after(self, key: str, rv: ua.HistoryReadValueId) -> tuple[int, int] | None:
-        if not rv.ContinuationPoint:
-            return None
-        try:
-            return self.store.cursor.decode(key, rv.ContinuationPoint)
-        except ContinuationPointInvalid:
-            raise HistoryError(_SC.BadContinuationPointInvalid) from None
-
     async def _events(
-        self, key: str, details: ua.ReadEventDetails, rv: ua.HistoryReadValueId, flt: ua.EventFilter
+        self, key: str, details: ua.ReadEventDetails, after: tuple[int, int] | None, flt: ua.EventFilter, session: str
     ) -> tuple[list[ua.HistoryEventFieldList], bytes | None]:
+        """One page of events: at most ``max_events_per_request`` (and NumValuesPerNode); the stored
+        rows are read in chunks by a worker thread and decoded, filtered and selected on the loop in
+        slices (``Slices``), so that other clients are served meanwhile."""
         count = details.NumValuesPerNode
         lo, hi, reverse, lo_inc = self._plan(details.StartTime, details.EndTime, count)
-        after = self._after(key, rv)
-        limit = min(count, self.max_per_request) if count > 0 else self.max_per_request
+        cap = self.max_events_per_request
+        limit = min(count, cap) if count > 0 else cap
+        chunk = min(limit, _EVENT_CHUNK)
+        names = [_selected(op) for op in flt.SelectClauses or []]
         out: list[ua.HistoryEventFieldList] = []
+        slices = Slices(self.slice)
         while True:
-            rows = await self.store.read(Query(key, EVENT, lo, hi, reverse, limit, after, lo_inc))
+            rows = await self.store.read(Query(key, EVENT, lo, hi, reverse, chunk, after, lo_inc))
             for row in rows:
                 fields = decode_fields(row.data)
                 if self.matches(flt.WhereClause, fields, row.etype):
-                    event = Event.from_field_dict(fields)
-                    out.append(ua.HistoryEventFieldList(EventFields=event.to_event_fields(flt.SelectClauses or [])))
+                    out.append(ua.HistoryEventFieldList(EventFields=[_field_of(fields, n) for n in names]))
                     if len(out) == limit:
-                        return out, self.store.cursor.encode(key, row.time, row.seq)
-            if len(rows) < limit:
+                        return out, self.store.cursor.encode(key, row.time, row.seq, session)
+                await slices.tick()
+            if len(rows) < chunk:
                 return out, None
             after = (rows[-1].time, rows[-1].seq)
 
@@ -519,9 +566,7 @@ class HistoryService:
 
     # -- processed values ------------------------------------------------------------------------
 
-    async def _processed(
-        self, key: str, details: ua.ReadProcessedDetails, rv: ua.HistoryReadValueId
-    ) -> ua.HistoryReadResult:
+    async def _processed(self, key: str, details: ua.ReadProcessedDetails) -> ua.HistoryReadResult:
         if _unspecified(details.StartTime) or _unspecified(details.EndTime):
             raise HistoryError(_SC.BadInvalidTimestampArgument)
         start, end = to_micros(details.StartTime), to_micros(details.EndTime)
@@ -536,26 +581,52 @@ class HistoryService:
         interval = int(details.ProcessingInterval * 1000) or (end - start)
         if math.ceil((end - start) / max(interval, 1)) > self.max_per_request:
             raise HistoryError(_SC.BadTooManyOperations)
-        # the value before the start (for TimeAverage's first interval) and every one inside
-        before = await self.store.read(Query(key, VALUE, None, start, True, 1))
-        points: list[tuple[int, float | None, int]] = []
-        for s in before:
-            points.append(_point(s))
+        # the value before the start (for TimeAverage's first interval) and every one inside, decoded
+        # in the reading thread (pure), then aggregated in a worker thread (pure): nothing of it on the loop
+        before = await self.store.read_mapped(Query(key, VALUE, None, start, True, 1), _points)
+        points: list[tuple[int, float | None, int]] = list(before)
         after: tuple[int, int] | None = None
         while True:
-            rows = await self.store.read(Query(key, VALUE, start, end, False, 50_000, after))
-            points += [_point(s) for s in rows]
-            if len(rows) < 50_000:
+            rows = await self.store.read(Query(key, VALUE, start, end, False, _VALUE_CHUNK, after))
+            points += await asyncio.to_thread(_points, rows)
+            if len(rows) < _VALUE_CHUNK:
                 break
             after = (rows[-1].time, rows[-1].seq)
+        intervals = await asyncio.to_thread(aggregate, name, points, start, end, interval)
+        slices = Slices(self.slice)
         dvs = []
-        for iv in aggregate(name, points, start, end, interval):
+        for iv in intervals:
             dvs.append(_processed_value(iv))
+            await slices.tick()
         return ua.HistoryReadResult(HistoryData=ua.HistoryData(DataValues=dvs))
 
     async def close(self) -> None:
         if self._tap is not None and self._on_event in self._tap.listeners:
             self._tap.listeners.remove(self._on_event)
+
+
+_RELEASED_MAX = 4096  # released continuation points remembered per session
+_EVENT_CHUNK = 256  # stored events read at once (then decoded, filtered and selected in slices)
+_VALUE_CHUNK = 50_000  # raw values read at once for an aggregate
+
+
+def _selected(op: ua.SimpleAttributeOperand) -> str:
+    """The stored field a select clause names (asyncua's ``Event.to_event_fields``: the browse path
+    joined with "/", or the attribute's name without one)."""
+    if not op.BrowsePath:
+        return str(ua.AttributeIds(op.AttributeId).name)
+    return "/".join(q.Name for q in op.BrowsePath)
+
+
+def _field_of(fields: dict[str, ua.Variant], name: str) -> ua.Variant:
+    """A selected field: its stored Variant (decoded for this event alone), a null Variant when the
+    event has none."""
+    found = fields.get(name)
+    return found if found is not None else ua.Variant()
+
+
+def _points(samples: list[Sample]) -> list[tuple[int, float | None, int]]:
+    return [_point(s) for s in samples]
 
 
 def _point(s: Sample) -> tuple[int, float | None, int]:

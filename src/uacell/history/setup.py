@@ -53,11 +53,13 @@ async def install_history(
     tap: EventTap,
 ) -> HistoryService | None:
     """Keep what ``uacell.datasets`` declares for ``parts`` (role, node) and answer HistoryRead for
-    callers whose role ``allows``; None when ``[history]`` is off."""
+    callers whose role ``allows``; None when ``[history]`` is off (then every HistoryRead and
+    HistoryUpdate item answers Bad_HistoryOperationUnsupported: ``NoHistory``)."""
     if not cfg.enabled:
+        server.iserver.history_manager = NoHistory()
         return None
     store = HistoryStore(make_backend(cfg, data_dir), settings_of(cfg))
-    service = HistoryService(server.iserver, store, allows, cfg.max_values_per_request)
+    service = HistoryService(server.iserver, store, allows, cfg.max_values_per_request, cfg.max_events_per_request)
     await service.install(tap)
     parts = list(parts)
     configurations = _Configurations(server)
@@ -73,6 +75,28 @@ async def install_history(
     await service.historize_events(ua.NodeId(ua.ObjectIds.Server))
     await publish_capabilities(server, cfg)
     return service
+
+
+class NoHistory:
+    """asyncua's HistoryManager when ``[history] enabled = false``: nothing is kept, so every item of
+    a HistoryRead or HistoryUpdate is Bad_HistoryOperationUnsupported (OPC 10000-4 5.10.3), never
+    Good with no values (asyncua's own manager would answer from an empty memory store)."""
+
+    async def init(self) -> None:
+        return None
+
+    async def stop(self) -> None:
+        return None
+
+    async def read_history(self, params: ua.HistoryReadParameters) -> list[ua.HistoryReadResult]:
+        return [ua.HistoryReadResult(StatusCode=_unsupported()) for _ in params.NodesToRead or ()]
+
+    def update_history(self, params: ua.HistoryUpdateParameters) -> list[ua.HistoryUpdateResult]:
+        return [ua.HistoryUpdateResult(StatusCode=_unsupported()) for _ in params.HistoryUpdateDetails or ()]
+
+
+def _unsupported() -> ua.StatusCode:
+    return ua.StatusCode(ua.StatusCodes.BadHistoryOperationUnsupported)
 
 
 def _children(server: Server) -> Callable[[ua.NodeId], list[tuple[str, ua.NodeId]]]:
@@ -245,7 +269,7 @@ async def publish_capabilities(server: Server, cfg: HistoryConfig) -> None:
             cfg.max_values_per_request, ua.VariantType.UInt32
         ),
         ids.HistoryServerCapabilities_MaxReturnEventValues: ua.Variant(
-            cfg.max_values_per_request, ua.VariantType.UInt32
+            cfg.max_events_per_request, ua.VariantType.UInt32
         ),
         ids.HistoryServerCapabilities_InsertDataCapability: False,
         ids.HistoryServerCapabilities_ReplaceDataCapability: False,

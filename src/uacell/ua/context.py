@@ -78,6 +78,20 @@ ReadHook = Callable[[InternalSession, Any, list[Any]], None]
 _read_hooks: list[ReadHook] = []
 
 
+def session_text(session_id: Any) -> str:
+    """A SessionId as the standard NodeId string (OPC 10000-6 5.3.1.10: ``ns=1;i=11``, ``ns=1;g=...``):
+    what ``Caller.session_id`` holds and the audit trail writes."""
+    to_string = getattr(session_id, "to_string", None)
+    return str(to_string()) if callable(to_string) else str(session_id)
+
+
+def session_name(session: Any) -> str:
+    """The SessionName the client gave in CreateSession ("" if none): asyncua's own ``name`` of a
+    session is its peer's address."""
+    name = getattr(session, "session_name", None)
+    return name if isinstance(name, str) else ""
+
+
 def caller_of(session: InternalSession | None, default_role: str = "observer") -> Caller:
     if session is None:
         return INTERNAL
@@ -91,7 +105,7 @@ def caller_of(session: InternalSession | None, default_role: str = "observer") -
     with_desc = getattr(session, "_client_description", None)
     if with_desc is not None:
         client = getattr(with_desc, "ApplicationUri", "") or ""
-    caller = Caller(str(session.session_id), session.name, getattr(user, "name", None), role, client)
+    caller = Caller(session_text(session.session_id), session_name(session), getattr(user, "name", None), role, client)
     if with_desc is not None:  # the description is set at CreateSession, before any call
         session._uacell_caller = (user, role, caller)
     return caller

@@ -350,7 +350,7 @@ def bind_get_monitored_items(app: Host) -> None:
     """``Server.GetMonitoredItems(SubscriptionId) -> ServerHandles, ClientHandles`` (OPC 10000-5, 9.1)."""
     from uacell.errors import CallError
     from uacell.roles import Family
-    from uacell.ua.context import Caller
+    from uacell.ua.context import Caller, session_text
 
     service = app.server.iserver.subscription_service
 
@@ -358,7 +358,7 @@ def bind_get_monitored_items(app: Host) -> None:
         subscription = service.subscriptions.get(subscription_id)
         if subscription is None:
             raise CallError("BadSubscriptionIdInvalid", f"no subscription {subscription_id}")
-        if str(subscription.session_id) != caller.session_id:
+        if session_text(subscription.session_id) != caller.session_id:
             raise CallError("BadUserAccessDenied", f"subscription {subscription_id} belongs to another session")
         items = sorted(subscription.monitored_item_srv._monitored_items.items())
         return [[int(i) for i, _ in items], [int(m.client_handle or 0) for _, m in items]]

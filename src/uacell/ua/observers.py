@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 from asyncua import ua
 
 from uacell.audit import AuditTrail
-from uacell.ua.context import Caller
+from uacell.ua.context import Caller, session_name, session_text
 
 if TYPE_CHECKING:
     from uacell.host import Host
@@ -89,8 +89,8 @@ def session_fields(session: Any) -> dict[str, Any]:
     description = getattr(session, "_client_description", None)
     user = getattr(session, "user", None)
     return {
-        "session": str(session.session_id),
-        "session_name": session.name,
+        "session": session_text(session.session_id),
+        "session_name": session_name(session),
         "user": getattr(user, "name", None) or "anonymous",
         "application_uri": getattr(description, "ApplicationUri", "") or "",
     }

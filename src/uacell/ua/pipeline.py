@@ -246,6 +246,11 @@ async def _read_service(session: InternalSession, params: Any) -> Any:
     return await session.read(params)
 
 
+async def _history_update_service(session: InternalSession, params: Any) -> Any:
+    """HistoryUpdate (asyncua has no processing for it): the history manager answers each item."""
+    return await session.history_update(params)
+
+
 Service = tuple[Callable[[Buffer], Any], type, Callable[[InternalSession, Any], Awaitable[Any]], Callable[[Any], bytes]]
 # The services uacell runs as asyncua does, by request type: (the parameters' decoder, the response,
 # what runs, the response's encoder: the Call's are written out, ua/codec.py)
@@ -255,6 +260,10 @@ SERVICES: dict[ua.NodeId, Service] = {
     ),
     ua.NodeId(ua.ObjectIds.ReadRequest_Encoding_DefaultBinary): (
         functools.partial(struct_from_binary, ua.ReadParameters), ua.ReadResponse, _read_service, struct_to_binary,
+    ),
+    ua.NodeId(ua.ObjectIds.HistoryUpdateRequest_Encoding_DefaultBinary): (
+        functools.partial(struct_from_binary, ua.HistoryUpdateParameters), ua.HistoryUpdateResponse,
+        _history_update_service, struct_to_binary,
     ),
 }  # fmt: skip
 
@@ -281,10 +290,11 @@ async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any
     if pipeline is None:
         return await _ORIGINAL_PROCESS_MESSAGE(self, typeid, requesthdr, seqhdr, body)
     request = Request(self, typeid, requesthdr, seqhdr, body)
-    if typeid == _CALL:
-        # A call may wait for equipment (a PLC confirming a command): it runs apart, so the
-        # connection keeps answering its other requests (a client's keep-alive Read) meanwhile;
-        # its response goes out when it is done (OPC UA matches responses by RequestHandle).
+    if typeid in _APART:
+        # A call may wait for equipment (a PLC confirming a command), a history read works through
+        # a page in slices (docs/history.md): each runs apart, so the connection keeps answering its
+        # other requests (a client's keep-alive Read) meanwhile; its response goes out when it is
+        # done (OPC UA matches responses by RequestHandle).
         running: set[asyncio.Task[None]] | None = self.__dict__.get("_uacell_calls")
         if running is None:
             running = self.__dict__["_uacell_calls"] = set()
@@ -299,11 +309,12 @@ async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any
 
 
 _CALL = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
-CALLS_APART = 16  # calls of one connection under way at once; more wait their turn
+_APART = frozenset({_CALL, ua.NodeId(ua.ObjectIds.HistoryReadRequest_Encoding_DefaultBinary)})
+CALLS_APART = 16  # calls and history reads of one connection under way at once; more wait their turn
 
 
 async def _call_apart(pipeline: Pipeline, request: Request) -> None:
-    """One Call request, as asyncua's ``process_message`` would run it, in a task of its own."""
+    """One Call (or HistoryRead) request, as asyncua's ``process_message`` would run it, in a task of its own."""
     processor = request.processor
     try:
         if await pipeline.request(request) is False:
@@ -311,7 +322,7 @@ async def _call_apart(pipeline: Pipeline, request: Request) -> None:
     except (ServiceError, ua.UaStatusCodeError) as exc:
         _fault(processor, request.header, request.seqhdr, exc.code)
     except Exception:
-        log.exception("a Call request failed")
+        log.exception("a %s request failed", request.typeid)
         _fault(processor, request.header, request.seqhdr, ua.StatusCodes.BadInternalError)
 
 

@@ -195,8 +195,18 @@ class EventEmitter:
 
     @classmethod
     async def create(cls, server: Server, event_type: int | ua.NodeId, source: ua.NodeId) -> EventEmitter:
+        # asyncua's generator sets the source's EventNotifier to SubscribeToEvents alone: the bits it
+        # had (HistoryRead, set by history for the notifiers it keeps) are given back
+        aspace = server.iserver.aspace
+        before = aspace.read_attribute_value(source, ua.AttributeIds.EventNotifier).Value
         generator = EventGenerator(server.iserver.isession)
         await generator.init(event_type, source, add_generates_event=False)
+        kept = (before.Value if before is not None else 0) or 0
+        if kept & ~ua.EventNotifier.SubscribeToEvents.mask:
+            bits = kept | ua.EventNotifier.SubscribeToEvents.mask
+            await aspace.write_attribute_value(
+                source, ua.AttributeIds.EventNotifier, ua.DataValue(ua.Variant(bits, ua.VariantType.Byte))
+            )
         return cls(server, generator, source)
 
     async def fire(

@@ -1,0 +1,291 @@
+"""History as OPC 10000-4, -11 and -13 answer it (issue 44), from asyncua clients over TCP: the
+aggregates' status bits and Count of an empty interval, EventNotifier's HistoryRead bit after
+transitions, HistoryUpdate per item, continuation points bound to their session and released,
+``[history] enabled = false`` (docs/history.md)."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import pytest
+import pytest_asyncio
+from asyncua import Client, ua
+from asyncua.ua.ua_binary import variant_to_binary
+from conftest import fast_config, start_app
+from helpers import wait_until
+
+from uacell.history.backends import EVENT, VALUE
+from uacell.history.processed import aggregate
+from uacell.history.service import encode_fields, event_plan, to_micros
+from uacell.server import UacellServer
+from uacell.users import UserStore
+
+module_loop = pytest.mark.asyncio(loop_scope="module")
+
+CELL = "urn:uacell:cell"
+PASSWORD = "pw-history-1"
+SPEED = "Filler1.Status.CurMachSpeed"
+MACHINE = "Filler1.BaseStateMachine.MachineState"
+CTRL = "Robot1.Controllers.Controller1"
+SO = f"{CTRL}.SystemOperation.SystemOperationStateMachine"
+TC = f"{CTRL}.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
+SC = ua.StatusCodes
+MINUTE = timedelta(minutes=1)
+GOOD_CALCULATED = 0x401  # Good, InfoType DataValue (0x400), HistorianBits Calculated (0x1)
+GOOD_CALCULATED_PARTIAL = 0x405  # and Partial (0x4)
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def app(tmp_path_factory: pytest.TempPathFactory):
+    data = tmp_path_factory.mktemp("history-standard") / "data"
+    UserStore.in_data_dir(data).add("ada", "admin", PASSWORD)
+    programs = data / "programs" / "Robot1" / "Controller1"
+    programs.mkdir(parents=True)
+    (programs / "short.robot").write_text("program Short version 1\nmove 10 0 0 0 0 0\nwait 1\n")
+    server = await start_app(fast_config(data))
+    yield server
+    await server.stop()
+
+
+async def connect(app: UacellServer, user: str | None = None) -> tuple[Client, int]:
+    client = Client(app.endpoint, timeout=30)
+    if user:
+        client.set_user(user)
+        client.set_password(PASSWORD)
+    await client.connect()
+    return client, await client.get_namespace_index(CELL)
+
+
+def params(
+    details: object, node: ua.NodeId, cp: bytes | None = None, release: bool = False
+) -> ua.HistoryReadParameters:
+    return ua.HistoryReadParameters(
+        HistoryReadDetails=details,
+        TimestampsToReturn=ua.TimestampsToReturn.Both,
+        ReleaseContinuationPoints=release,
+        NodesToRead=[ua.HistoryReadValueId(NodeId=node, ContinuationPoint=cp)],
+    )
+
+
+def raw(start: datetime, end: datetime, count: int) -> ua.ReadRawModifiedDetails:
+    return ua.ReadRawModifiedDetails(IsReadModified=False, StartTime=start, EndTime=end, NumValuesPerNode=count)
+
+
+def processed(start: datetime, end: datetime, aggregate_id: int) -> ua.ReadProcessedDetails:
+    return ua.ReadProcessedDetails(
+        StartTime=start, EndTime=end, ProcessingInterval=60_000.0, AggregateType=[ua.NodeId(aggregate_id)]
+    )
+
+
+async def store_values(app: UacellServer, node: ua.NodeId, values: list[tuple[datetime, float]]) -> None:
+    assert app.history is not None
+    key = app.history.values[node]
+    for t, v in values:
+        app.history.store.record(
+            key, to_micros(t), VALUE, 0, "", variant_to_binary(ua.Variant(v, ua.VariantType.Double))
+        )
+    await app.history.store.flush()
+
+
+def test_aggregate_status_bits_pure() -> None:
+    """Part 13 / Part 4 7.39: Calculated aggregates carry InfoType DataValue + Calculated (0x401), the
+    shorter last interval Partial too (0x405); Count of an interval with no value is 0, Good."""
+    m = 60_000_000
+    points = [(0, 1.0, 0), (m // 2, 3.0, 0), (2 * m + 1, 5.0, 0)]
+    average = aggregate("Average", points, 0, 2 * m + m // 2, m)
+    assert [(iv.value, iv.status) for iv in average] == [
+        (2.0, GOOD_CALCULATED),
+        (None, SC.BadNoData),  # no raw value: no average (Part 13)
+        (5.0, GOOD_CALCULATED_PARTIAL),
+    ]
+    count = aggregate("Count", points, 0, 2 * m + m // 2, m)
+    assert [(iv.value, iv.status, iv.integer) for iv in count] == [
+        (2, GOOD_CALCULATED, True),
+        (0, GOOD_CALCULATED, True),
+        (1, GOOD_CALCULATED_PARTIAL, True),
+    ]
+    uncertain = aggregate("Maximum", [(0, 1.0, 0), (1, 7.0, SC.BadSensorFailure)], 0, m, m)
+    assert uncertain[0].status == SC.UncertainDataSubNormal | GOOD_CALCULATED
+
+
+@module_loop
+async def test_processed_values_carry_calculated_and_partial_bits(app: UacellServer) -> None:
+    client, ns = await connect(app)
+    try:
+        speed = ua.NodeId(SPEED, ns)
+        base = datetime.now(UTC).replace(microsecond=0) - timedelta(days=3)
+        # minute 0: 10, 20; minute 1: nothing; minute 2 (half of it asked): 30
+        await store_values(app, speed, [(base, 10.0), (base + MINUTE / 2, 20.0), (base + 2 * MINUTE, 30.0)])
+        end = base + 2 * MINUTE + MINUTE / 2
+        (avg,) = await client.uaclient.history_read(
+            params(processed(base, end, ua.ObjectIds.AggregateFunction_Average), speed)
+        )
+        got = [
+            (dv.Value.Value if dv.Value is not None else None, dv.StatusCode.value) for dv in avg.HistoryData.DataValues
+        ]
+        assert got == [(15.0, GOOD_CALCULATED), (None, SC.BadNoData), (30.0, GOOD_CALCULATED_PARTIAL)]
+        (count,) = await client.uaclient.history_read(
+            params(processed(base, end, ua.ObjectIds.AggregateFunction_Count), speed)
+        )
+        got = [(dv.Value.Value, dv.Value.VariantType, dv.StatusCode.value) for dv in count.HistoryData.DataValues]
+        assert got == [
+            (2, ua.VariantType.UInt32, GOOD_CALCULATED),
+            (0, ua.VariantType.UInt32, GOOD_CALCULATED),  # empty: 0, Good, Calculated (not Bad_NoData)
+            (1, ua.VariantType.UInt32, GOOD_CALCULATED_PARTIAL),
+        ]
+        assert [dv.SourceTimestamp for dv in count.HistoryData.DataValues] == [base, base + MINUTE, base + 2 * MINUTE]
+    finally:
+        await client.disconnect()
+
+
+@module_loop
+async def test_event_notifiers_keep_their_history_read_bit_after_transitions(app: UacellServer) -> None:
+    """A machine's first transition caused by a call makes its audit event emitter: the HistoryRead
+    bit that history set stays (5 = SubscribeToEvents | HistoryRead, before and after)."""
+    client, ns = await connect(app)
+    machines = [MACHINE, f"{MACHINE}.ExecuteState", TC, SO]
+
+    async def notifiers() -> list[int]:
+        return [
+            (await client.get_node(ua.NodeId(m, ns)).read_attribute(ua.AttributeIds.EventNotifier)).Value.Value
+            for m in machines
+        ]
+
+    try:
+        assert await notifiers() == [5, 5, 5, 5]
+        calls = [
+            (MACHINE, "Reset", []),
+            (SO, "GetReady", []),
+            (TC, "LoadByName", [ua.Variant("short", ua.VariantType.String)]),
+        ]
+        for obj, method, args in calls:
+            node = client.get_node(ua.NodeId(obj, ns))
+            await node.call_method(ua.NodeId(f"{obj}.{method}", ns), *args)
+        execute = client.get_node(ua.NodeId(f"{MACHINE}.ExecuteState.CurrentState", ns))
+
+        async def idle() -> bool:
+            return (await execute.read_value()).Text == "Idle"
+
+        for _ in range(400):
+            if await idle():
+                break
+        assert await idle()
+        assert await notifiers() == [5, 5, 5, 5]
+        # and the audit emitters exist now (the rewrite happened at their creation)
+        binding = app.server.iserver.aspace
+        assert binding.read_attribute_value(ua.NodeId(SO, ns), ua.AttributeIds.EventNotifier).Value.Value == 5
+    finally:
+        await client.disconnect()
+
+
+@module_loop
+@pytest.mark.parametrize("user", [None, "ada"])
+async def test_history_update_answers_unsupported_per_item(app: UacellServer, user: str | None) -> None:
+    """No service fault, not Bad_UserAccessDenied (an operator and an admin alike): each item
+    Bad_HistoryOperationUnsupported (history is what happened: nothing rewrites it)."""
+    client, ns = await connect(app, user)
+    try:
+        speed = ua.NodeId(SPEED, ns)
+        update = ua.UpdateDataDetails(
+            NodeId=speed,
+            PerformInsertReplace=ua.PerformUpdateType.Insert,
+            UpdateValues=[ua.DataValue(ua.Variant(1.0, ua.VariantType.Double), SourceTimestamp=datetime.now(UTC))],
+        )
+        delete = ua.DeleteRawModifiedDetails(
+            NodeId=speed, IsDeleteModified=False, StartTime=datetime.now(UTC) - MINUTE, EndTime=datetime.now(UTC)
+        )
+        results = await client.uaclient.history_update(
+            ua.HistoryUpdateParameters(HistoryUpdateDetails=[update, delete])
+        )
+        assert [r.StatusCode.value for r in results] == [SC.BadHistoryOperationUnsupported] * 2
+    finally:
+        await client.disconnect()
+
+
+@module_loop
+async def test_continuation_points_belong_to_their_session_and_are_released(app: UacellServer) -> None:
+    """Part 4 7.9: a point from another session, or after ReleaseContinuationPoints, is
+    Bad_ContinuationPointInvalid; releasing answers Good with no data."""
+    first, ns = await connect(app)
+    second, _ = await connect(app)
+    try:
+        speed = ua.NodeId(SPEED, ns)
+        base = datetime.now(UTC).replace(microsecond=0) - timedelta(days=5)
+        await store_values(app, speed, [(base + i * MINUTE, float(i)) for i in range(30)])
+        window = raw(base, base + 30 * MINUTE, 10)
+        (page,) = await first.uaclient.history_read(params(window, speed))
+        assert [dv.Value.Value for dv in page.HistoryData.DataValues] == [float(i) for i in range(10)]
+        cp = page.ContinuationPoint
+        assert cp
+        (other,) = await second.uaclient.history_read(params(window, speed, cp))
+        assert other.StatusCode.value == SC.BadContinuationPointInvalid
+        (other,) = await second.uaclient.history_read(params(window, speed, cp, release=True))
+        assert other.StatusCode.value == SC.BadContinuationPointInvalid  # not its point to release
+        (again,) = await first.uaclient.history_read(params(window, speed, cp))  # still valid for its own
+        assert [dv.Value.Value for dv in again.HistoryData.DataValues] == [float(i) for i in range(10, 20)]
+        (released,) = await first.uaclient.history_read(params(window, speed, cp, release=True))
+        assert released.StatusCode.value == SC.Good and not released.HistoryData.DataValues
+        assert not released.ContinuationPoint
+        (after,) = await first.uaclient.history_read(params(window, speed, cp))
+        assert after.StatusCode.value == SC.BadContinuationPointInvalid
+        # events' points alike
+        events = ua.ReadEventDetails(StartTime=base, EndTime=datetime.now(UTC) + MINUTE, NumValuesPerNode=1)
+        events.Filter = ua.EventFilter(SelectClauses=[ua.SimpleAttributeOperand(BrowsePath=[ua.QualifiedName("Time")])])
+        server = ua.NodeId(ua.ObjectIds.Server)
+        assert app.history is not None
+        plan = event_plan({"Time": ua.VariantType.DateTime, "Message": ua.VariantType.LocalizedText})
+        for i in range(2):
+            t = base + i * MINUTE
+            data = encode_fields({"Time": t, "Message": ua.LocalizedText(f"event {i}")}, plan)
+            app.history.store.record(app.history.notifiers[server], to_micros(t), EVENT, 0, "i=2041", data)
+        await app.history.store.flush()
+        (ev,) = await first.uaclient.history_read(params(events, server))
+        assert len(ev.HistoryData.Events) == 1 and ev.ContinuationPoint
+        (other,) = await second.uaclient.history_read(params(events, server, ev.ContinuationPoint))
+        assert other.StatusCode.value == SC.BadContinuationPointInvalid
+        (released,) = await first.uaclient.history_read(params(events, server, ev.ContinuationPoint, release=True))
+        assert released.StatusCode.value == SC.Good
+        (after,) = await first.uaclient.history_read(params(events, server, ev.ContinuationPoint))
+        assert after.StatusCode.value == SC.BadContinuationPointInvalid
+    finally:
+        await first.disconnect()
+        await second.disconnect()
+    # a closed session's release list goes with it
+    assert app.history is not None
+    await wait_until(lambda: not app.history._released)  # type: ignore[union-attr]
+
+
+@module_loop
+async def test_history_disabled_answers_unsupported(tmp_path: Path) -> None:
+    """``[history] enabled = false``: every HistoryRead and HistoryUpdate item is
+    Bad_HistoryOperationUnsupported, never Good with no values."""
+    config = fast_config(tmp_path / "data")
+    config.history.enabled = False
+    server = await start_app(config)
+    try:
+        assert server.history is None
+        client, ns = await connect(server)
+        try:
+            speed = ua.NodeId(SPEED, ns)
+            now = datetime.now(UTC)
+            events = ua.ReadEventDetails(StartTime=now - MINUTE, EndTime=now)
+            events.Filter = ua.EventFilter(
+                SelectClauses=[ua.SimpleAttributeOperand(BrowsePath=[ua.QualifiedName("Time")])]
+            )
+            for details, node in (
+                (raw(now - MINUTE, now, 0), speed),
+                (processed(now - MINUTE, now, ua.ObjectIds.AggregateFunction_Average), speed),
+                (events, ua.NodeId(ua.ObjectIds.Server)),
+            ):
+                (res,) = await client.uaclient.history_read(params(details, node))
+                assert res.StatusCode.value == SC.BadHistoryOperationUnsupported, details
+            delete = ua.DeleteRawModifiedDetails(
+                NodeId=speed, IsDeleteModified=False, StartTime=now - MINUTE, EndTime=now
+            )
+            results = await client.uaclient.history_update(ua.HistoryUpdateParameters(HistoryUpdateDetails=[delete]))
+            assert [r.StatusCode.value for r in results] == [SC.BadHistoryOperationUnsupported]
+        finally:
+            await client.disconnect()
+    finally:
+        await server.stop()
