@@ -1,0 +1,409 @@
+"""Sparkplug B 3.0 from a served cell to Debian's mosquitto on a free port, checked by an independent
+host application (sparkplug_host.py: protoc-generated classes from the spec's payload definition):
+births before data with aliases, seq without gaps, bdSeq of NBIRTH and NDEATH after kill -9, rebirth,
+DDEATH/DBIRTH when a PLC goes and comes back, the primary host's STATE, commands with and without a
+role, the broker lost while OPC UA calls go on (docs/sparkplug.md)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import pytest
+from asyncua import Client, ua
+from conftest import fast_config, serving, start_app
+from helpers import call_path, free_port, packml_params, wait_until
+from mqtt_broker import Broker, needs_mosquitto
+from sparkplug_host import BOOLEAN, FLOAT, INT32, STRING, Host, compile_proto, following, value
+from test_operations import wait_for_audit
+
+from uacell.config import Config, load_cell
+from uacell.errors import ConfigError
+from uacell.sparkplug.config import SparkplugConfig, check_sparkplug, password_of
+from uacell.sparkplug.node import Device, EdgeNode, Sample
+from uacell.sparkplug.payload import DataType
+
+GROUP, EDGE = "plant", "cell-under-test"
+F = "Filler1"
+MACH = f"{F}.BaseStateMachine.MachineState"
+EXEC = f"{MACH}.ExecuteState"
+CTRL = "Robot1.Controllers.Controller1"
+EXEC_STATE = "BaseStateMachine/MachineState/ExecuteState/CurrentState"
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+@pytest.fixture(scope="module")
+def pb(tmp_path_factory: pytest.TempPathFactory) -> ModuleType:
+    return compile_proto(tmp_path_factory.mktemp("sparkplug_pb"))
+
+
+# -- pure: payloads, sequence numbers, the configuration -------------------------------------------
+
+
+def test_a_birth_and_data_decode_with_the_spec_definition(pb: ModuleType) -> None:
+    node = EdgeNode(GROUP, EDGE, bdseq=7)
+    device = Device("D1")
+    device.add("Speed", DataType.Float, Sample(1.5, 1000), [("engUnit", DataType.String, "ppm")], alias=1)
+    device.add("Offset", DataType.Int32, Sample(-5, 1001), alias=2)
+    device.add("Name", DataType.String, Sample(None, 1002), alias=3)
+    node.devices["D1"] = device
+    births = [node.nbirth(2000), node.dbirth(device, 2000)]
+    device.update(2, Sample(-70000, 3000))
+    data = node.ddata(device, 3001)
+    assert data is not None and node.ddata(device, 3002) is None  # nothing new: no message
+    host = Host(pb, 0, GROUP)
+    for m in [*births, data]:
+        host.handle(m.topic, m.payload)
+    assert host.errors == []
+    assert [s.topic for s in host.seen] == [
+        f"spBv1.0/{GROUP}/NBIRTH/{EDGE}",
+        f"spBv1.0/{GROUP}/DBIRTH/{EDGE}/D1",
+        f"spBv1.0/{GROUP}/DDATA/{EDGE}/D1",
+    ]
+    view = host.device(EDGE, "D1")
+    assert view.values == {"Speed": 1.5, "Offset": -70000, "Name": None}
+    assert view.properties["Speed"] == {"engUnit": "ppm"} and view.stamps["Offset"] == 3000
+    assert host.nodes[EDGE].births == [7]
+    (only,) = host.seen[2].payload.metrics
+    assert only.alias == 2 and not only.HasField("name")  # data by alias only
+    death = pb.Payload()
+    death.ParseFromString(node.ndeath(4000).payload)
+    assert [(m.name, value(m, m.datatype)) for m in death.metrics] == [("bdSeq", 7)]
+    assert not death.HasField("seq")
+
+
+def test_seq_wraps_after_255_and_bdseq_counts_sessions() -> None:
+    node = EdgeNode(GROUP, EDGE, bdseq=254)
+    device = Device("D1")
+    device.add("X", DataType.Int32, Sample(0, 0), alias=1)
+    node.devices["D1"] = device
+    node.nbirth(0)
+    node.dbirth(device, 0)
+    seqs = []
+    for i in range(300):
+        device.update(1, Sample(i, i))
+        message = node.ddata(device, i)
+        assert message is not None
+        seqs.append(message.payload)
+    assert node.seq == (2 + 300) % 256
+    assert [node.next_session(), node.next_session()] == [255, 0]
+    assert node.nbirth(0) and node.seq == 1  # a birth starts again at 0
+
+
+@pytest.mark.parametrize(
+    ("keys", "message"),
+    [
+        ({"broker": "http://x"}, "[sparkplug] broker: must look like mqtt://"),
+        ({"broker": "mqtt://u:p@host"}, "[sparkplug] broker: no user or password"),
+        ({"group_id": "a/b"}, "[sparkplug] group_id: must be one MQTT topic level"),
+        ({"group_id": ""}, "[sparkplug] group_id: must be one MQTT topic level"),
+        ({"edge_node_id": "a+"}, "[sparkplug] edge_node_id"),
+        ({"primary_host_id": "#"}, "[sparkplug] primary_host_id"),
+        ({"command_role": "root"}, "[sparkplug] command_role: must be one of"),
+        ({"keep_alive": 2}, "[sparkplug] keep_alive"),
+        ({"key_file": Path("k.pem")}, "[sparkplug] key_file: needs cert_file"),
+        ({"extra_values": ["nocolon"]}, "[sparkplug] extra_values"),
+        ({"parts": ["a/b"]}, "[sparkplug] parts"),
+    ],
+)
+def test_settings_that_cannot_work_are_one_line(keys: dict[str, Any], message: str) -> None:
+    cfg = SparkplugConfig(enabled=True, **keys)
+    with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("]", r"\]").replace("+", r"\+")):
+        check_sparkplug(cfg)
+
+
+def test_the_password_only_from_an_owner_only_file_or_the_environment(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    secret = tmp_path / "secret"
+    secret.write_text("s3cret\n")
+    secret.chmod(0o644)
+    with pytest.raises(ConfigError, match="may be read by others"):
+        password_of(SparkplugConfig(password_file=secret))
+    secret.chmod(0o600)
+    assert password_of(SparkplugConfig(password_file=secret)) == "s3cret"
+    monkeypatch.setenv("UACELL_SPARKPLUG_PASSWORD", "from-env")
+    assert password_of(SparkplugConfig()) == "from-env"
+
+
+def test_the_section_is_read_from_toml(tmp_path: Path) -> None:
+    from uacell.config import load_config
+
+    path = tmp_path / "uacell.toml"
+    path.write_text(
+        f'[server]\ndata_dir = "{tmp_path / "d"}"\n[sparkplug]\nenabled = true\ngroup_id = "line1"\n'
+        'parts = ["Filler1"]\ncommand_role = "operator"\n'
+    )
+    cfg = load_config(path).sparkplug
+    assert (cfg.enabled, cfg.group_id, cfg.parts, cfg.command_role) == (True, "line1", ["Filler1"], "operator")
+    path.write_text('[sparkplug]\ngroup_id = "a/b"\n')
+    with pytest.raises(ConfigError, match=r"\[sparkplug\] group_id"):
+        load_config(path)
+
+
+# -- a served cell ---------------------------------------------------------------------------------
+
+
+def sparkplug_config(data: Path, broker: Broker, **keys: Any) -> Config:
+    config = fast_config(data)
+    s = config.sparkplug
+    s.enabled, s.broker, s.group_id, s.edge_node_id = True, broker.url, GROUP, EDGE
+    for key, v in keys.items():
+        setattr(s, key, v)
+    return config
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Any:
+    b = Broker(tmp_path / "broker")
+    b.start()
+    try:
+        yield b
+    finally:
+        b.stop()
+
+
+@pytest.fixture
+async def host(pb: ModuleType, broker: Broker) -> AsyncIterator[Host]:
+    async with following(pb, broker.port, GROUP, "scada") as h:
+        yield h
+
+
+async def born(host: Host, *devices: str, births: int = 1) -> None:
+    await host.wait(lambda: len(host.of("NBIRTH")) >= births)
+    for d in devices:
+        await host.wait(lambda d=d: host.device(EDGE, d).births >= births)
+
+
+def metric(host: Host, device: str, name: str) -> Any:
+    return host.device(EDGE, device).values.get(name)
+
+
+async def test_births_before_data_aliases_resolved_seq_without_gaps(tmp_path: Path, broker: Broker, host: Host) -> None:
+    async with serving(sparkplug_config(tmp_path / "data", broker, command_role="operator")) as (app, client):
+        await born(host, F, CTRL)
+        filler = host.device(EDGE, F)
+        assert filler.values["BaseStateMachine/MachineState/CurrentState"] == "Stopped"
+        assert filler.datatypes["Status/MachSpeed"] == FLOAT and filler.datatypes["Status/UnitModeCurrent"] == INT32
+        assert filler.datatypes["Command/Reset"] == BOOLEAN and filler.datatypes["Command/SetMachSpeed"] == FLOAT
+        robot = host.device(EDGE, CTRL)
+        assert robot.values["SystemOperation/SystemOperationStateMachine/CurrentState"] == "Idle"
+        assert robot.datatypes["Command/LoadByName"] == STRING
+        assert "MotionDevices/Arm1/Axes/Axis1/ParameterSet/ActualPosition" in robot.values
+        assert len(set(filler.aliases) | set(robot.aliases)) == len(filler.aliases) + len(robot.aliases)
+        # a PackML cycle from an OPC UA client: every state arrives as DDATA by alias, in order
+        assert (await call_path(client, MACH, "Reset")).StatusCode.is_good()
+        await host.wait(lambda: metric(host, F, EXEC_STATE) == "Idle")
+        assert (await call_path(client, EXEC, "Start", packml_params())).StatusCode.is_good()
+        await host.wait(lambda: metric(host, F, EXEC_STATE) == "Execute")
+        speed = ua.Variant(75.0, ua.VariantType.Float)
+        assert (await call_path(client, F, "SetMachSpeed", speed)).StatusCode.is_good()
+        await host.wait(lambda: metric(host, F, "Status/MachSpeed") == 75.0)
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        dv = await client.get_node(ua.NodeId(f"{F}.Status.MachSpeed", ns)).read_data_value()
+        assert filler.stamps["Status/MachSpeed"] == int(dv.SourceTimestamp.timestamp() * 1000)  # the source's
+        states = [
+            value(m, 12)
+            for s in host.of("DDATA", F)
+            for m in s.payload.metrics
+            if filler.aliases[m.alias] == EXEC_STATE
+        ]
+        assert [s for s in states if s] == ["Resetting", "Idle", "Starting", "Execute"]
+        births = [i for i, s in enumerate(host.seen) if s.kind in ("NBIRTH", "DBIRTH")]
+        first_data = min(i for i, s in enumerate(host.seen) if s.kind == "DDATA")
+        assert max(births) < first_data
+        assert host.errors == []  # seq without gaps, aliases all born
+
+
+async def test_rebirth_on_request_and_data_after_it(tmp_path: Path, broker: Broker, host: Host) -> None:
+    async with serving(sparkplug_config(tmp_path / "data", broker)) as (_app, client):
+        await born(host, F, CTRL)
+        bdseq = host.nodes[EDGE].bdseq
+        await host.rebirth(EDGE)
+        await born(host, F, CTRL, births=2)
+        assert host.nodes[EDGE].births == [bdseq, bdseq]  # the same session
+        assert host.of("NBIRTH")[1].payload.seq == 0
+        assert (await call_path(client, F, "SetMachSpeed", ua.Variant(33.0, ua.VariantType.Float))).StatusCode.is_good()
+        await host.wait(lambda: metric(host, F, "Status/MachSpeed") == 33.0)
+        assert host.errors == []
+
+
+async def test_commands_are_refused_until_a_role_is_configured(tmp_path: Path, broker: Broker, host: Host) -> None:
+    async with serving(sparkplug_config(tmp_path / "data", broker)) as (app, client):
+        await born(host, F)
+        await host.dcmd(EDGE, F, ("Command/Reset", BOOLEAN, True))
+        await host.wait(lambda: metric(host, F, "Command/Result/Symbol") == "BadUserAccessDenied")
+        assert metric(host, F, "Command/Result/Command") == "Command/Reset"
+        assert metric(host, F, "Command/Result/StatusCode") == ua.StatusCodes.BadUserAccessDenied
+        assert metric(host, F, "BaseStateMachine/MachineState/CurrentState") == "Stopped"
+        entry = await wait_for_audit(app, lambda e: e.get("method") == "Reset" and e.get("session") == "sparkplug")
+        assert entry["result"] == "BadUserAccessDenied" and entry["role"] == "observer"
+        assert host.errors == []
+
+
+async def test_commands_run_the_same_calls_with_the_configured_role(tmp_path: Path, broker: Broker, host: Host) -> None:
+    async with serving(sparkplug_config(tmp_path / "data", broker, command_role="operator")) as (app, client):
+        await born(host, F, CTRL)
+        await host.dcmd(EDGE, F, ("Command/Reset", BOOLEAN, True), by_alias=True)
+        await host.wait(lambda: metric(host, F, EXEC_STATE) == "Idle")
+        assert metric(host, F, "Command/Result/Symbol") == "Good"
+        entry = await wait_for_audit(app, lambda e: e.get("method") == "Reset" and e.get("session") == "sparkplug")
+        assert (entry["result"], entry["role"], entry["user"]) == ("Good", "operator", "sparkplug")
+        await host.dcmd(EDGE, F, ("Command/SetMachSpeed", FLOAT, 42.0))
+        await host.wait(lambda: metric(host, F, "Status/MachSpeed") == 42.0)
+        # a value of the wrong type: the dispatcher's answer, nothing changed
+        await host.dcmd(EDGE, F, ("Command/SetMachSpeed", STRING, "fast"))
+        await host.wait(lambda: metric(host, F, "Command/Result/Symbol") == "BadTypeMismatch")
+        assert metric(host, F, "Status/MachSpeed") == 42.0
+        # Start with its Parameter array from the metrics beside it
+        await host.dcmd(
+            EDGE, F, ("Command/Start", BOOLEAN, True), ("Command/Start/Parameter/7", FLOAT, 2.5)
+        )
+        await host.wait(lambda: metric(host, F, EXEC_STATE) == "Execute")
+        entry = await wait_for_audit(app, lambda e: e.get("method") == "Start" and e.get("session") == "sparkplug")
+        assert entry["result"] == "Good"
+        # a state the command cannot run in: the unit's answer
+        await host.dcmd(EDGE, F, ("Command/Reset", BOOLEAN, True))
+        await host.wait(lambda: metric(host, F, "Command/Result/Symbol") == "BadInvalidState")
+        # a metric that is no command
+        await host.dcmd(EDGE, F, ("Status/MachSpeed", FLOAT, 1.0))
+        await host.wait(lambda: metric(host, F, "Command/Result/Symbol") == "BadNotWritable")
+        # the robot: GetReady, then a program by name
+        await host.dcmd(EDGE, CTRL, ("Command/GetReady", BOOLEAN, True))
+        await host.wait(lambda: metric(host, CTRL, "SystemOperation/SystemOperationStateMachine/CurrentState") == "Ready")
+        await host.dcmd(EDGE, CTRL, ("Command/LoadByName", STRING, "pick_and_place"))
+        name = "TaskControls/TaskControl1/ParameterSet/TaskProgramName"
+        await host.wait(lambda: metric(host, CTRL, name) == "PickAndPlace", timeout=30)
+        assert metric(host, CTRL, "TaskControls/TaskControl1/ParameterSet/TaskProgramLoaded") is True
+        assert metric(host, CTRL, "Command/Result/Command") == "Command/LoadByName"
+        await host.dcmd(EDGE, CTRL, ("Command/Start", BOOLEAN, True))
+        await host.wait(lambda: metric(host, CTRL, "Command/Result/Command") == "Command/Start")
+        assert metric(host, CTRL, "Command/Result/Symbol") == "Good"
+
+        def program_run(e: dict[str, Any]) -> bool:
+            return e.get("method") == "Start" and "TaskControl" in e.get("object", "") and e.get("session") == "sparkplug"
+
+        assert (await wait_for_audit(app, program_run))["result"] == "Good"
+        assert host.errors == []
+
+
+async def test_a_primary_host_offline_stops_publishing_and_its_return_brings_a_rebirth(
+    tmp_path: Path, broker: Broker, host: Host
+) -> None:
+    async with serving(sparkplug_config(tmp_path / "data", broker, primary_host_id="scada")) as (app, client):
+        sp = app.sparkplug
+        assert sp is not None
+        await wait_until(sp.link.connected.is_set)
+        assert not sp.live and host.of("NBIRTH") == []  # connected, subscribed, waiting for the host
+        await host.state(True)
+        await born(host, F, CTRL)
+        first = host.nodes[EDGE].bdseq
+        await host.state(False, stamp=1)  # older than the online STATE: not followed
+        assert (await call_path(client, F, "SetMachSpeed", ua.Variant(11.0, ua.VariantType.Float))).StatusCode.is_good()
+        await host.wait(lambda: metric(host, F, "Status/MachSpeed") == 11.0)
+        await host.state(False)
+        await host.wait(lambda: host.nodes[EDGE].deaths == [first])  # the NDEATH of that session
+        await wait_until(lambda: sp.link.connects >= 2 and not sp.live, timeout=30)
+        seen = len(host.seen)
+        assert (await call_path(client, F, "SetMachSpeed", ua.Variant(12.0, ua.VariantType.Float))).StatusCode.is_good()
+        await app.settle()
+        await host.state(True)
+        await born(host, F, CTRL, births=2)
+        assert host.nodes[EDGE].births == [first, (first + 1) % 256]
+        assert [s.kind for s in host.seen[seen:]][0] == "NBIRTH"  # nothing between the NDEATH and it
+        assert metric(host, F, "Status/MachSpeed") == 12.0  # the birth carries what changed meanwhile
+        assert host.errors == []
+
+
+async def test_kill_9_the_ndeath_has_the_bdseq_of_the_nbirth(tmp_path: Path, broker: Broker, host: Host) -> None:
+    config = tmp_path / "uacell.toml"
+    config.write_text(
+        f"""
+[server]
+port = {free_port()}
+data_dir = "{tmp_path / "data"}"
+
+[web]
+enabled = false
+
+[sparkplug]
+enabled = true
+broker = "{broker.url}"
+group_id = "{GROUP}"
+edge_node_id = "{EDGE}"
+keep_alive = 5
+"""
+    )
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    cmd = [sys.executable, "-m", "uacell", "serve", "--config", str(config)]
+    for run in (1, 2):  # the second run goes on from the bdSeq the first one kept
+        proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            await host.wait(lambda run=run: len(host.node(EDGE).births) >= run, timeout=60)
+            proc.kill()
+            proc.wait(10)
+            killed = time.monotonic()
+            await host.wait(lambda run=run: len(host.nodes[EDGE].deaths) >= run, timeout=15)
+            assert time.monotonic() - killed <= 1.5 * 5 + 1.0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
+    node = host.nodes[EDGE]
+    assert node.deaths == node.births and node.births[1] == (node.births[0] + 1) % 256
+    assert not node.online and host.errors == []
+
+
+async def test_a_plc_lost_is_a_ddeath_and_its_return_a_dbirth(tmp_path: Path, broker: Broker, host: Host) -> None:
+    from test_gateway_packml_modbus import ModbusPLC, shipped_cell
+
+    plc = ModbusPLC()
+    plc.start()
+    try:
+        path = tmp_path / "cell.toml"
+        path.write_text(shipped_cell(plc))
+        config = sparkplug_config(tmp_path / "data", broker)
+        config.cell = load_cell(path)
+        async with serving(config) as (_app, _client):
+            await born(host, "Capper", "Labeler")
+            assert host.device(EDGE, "Capper").values["Status/UnitModeCurrent"] is not None
+            plc.kill()
+            await host.wait(lambda: host.device(EDGE, "Capper").deaths == 1 and host.device(EDGE, "Labeler").deaths == 1)
+            assert not host.device(EDGE, "Capper").online and host.nodes[EDGE].online  # the node lives on
+            plc.start()  # the same port
+            await host.wait(lambda: host.device(EDGE, "Capper").births == 2, timeout=30)
+            capper = host.device(EDGE, "Capper")
+            assert capper.online and capper.values["Status/UnitModeCurrent"] is not None
+            assert host.errors == []
+    finally:
+        plc.kill()
+
+
+async def test_the_broker_lost_calls_go_on_and_the_next_session_births_again(
+    tmp_path: Path, pb: ModuleType, broker: Broker
+) -> None:
+    app = await start_app(sparkplug_config(tmp_path / "data", broker))
+    try:
+        sp = app.sparkplug
+        assert sp is not None
+        await wait_until(lambda: sp.live, timeout=30)
+        first = sp.node.bdseq
+        async with Client(app.endpoint, timeout=30) as client:
+            broker.kill()
+            await wait_until(lambda: not sp.link.connected.is_set(), timeout=30)
+            res = await call_path(client, F, "SetMachSpeed", ua.Variant(55.0, ua.VariantType.Float))
+            assert res.StatusCode.is_good()  # the server answers while the broker is away
+            broker.start()  # the same port
+            async with following(pb, broker.port, GROUP) as host:
+                await born(host, F)
+                assert host.nodes[EDGE].births[-1] == (first + 1) % 256
+                assert metric(host, F, "Status/MachSpeed") == 55.0
+                assert host.errors == []
+    finally:
+        await app.stop()
