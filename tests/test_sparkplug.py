@@ -185,8 +185,9 @@ def metric(host: Host, device: str, name: str) -> Any:
     return host.device(EDGE, device).values.get(name)
 
 
+@needs_mosquitto
 async def test_births_before_data_aliases_resolved_seq_without_gaps(tmp_path: Path, broker: Broker, host: Host) -> None:
-    async with serving(sparkplug_config(tmp_path / "data", broker, command_role="operator")) as (app, client):
+    async with serving(sparkplug_config(tmp_path / "data", broker, command_role="operator")) as (_app, client):
         await born(host, F, CTRL)
         filler = host.device(EDGE, F)
         assert filler.values["BaseStateMachine/MachineState/CurrentState"] == "Stopped"
@@ -221,6 +222,7 @@ async def test_births_before_data_aliases_resolved_seq_without_gaps(tmp_path: Pa
         assert host.errors == []  # seq without gaps, aliases all born
 
 
+@needs_mosquitto
 async def test_rebirth_on_request_and_data_after_it(tmp_path: Path, broker: Broker, host: Host) -> None:
     async with serving(sparkplug_config(tmp_path / "data", broker)) as (_app, client):
         await born(host, F, CTRL)
@@ -234,8 +236,9 @@ async def test_rebirth_on_request_and_data_after_it(tmp_path: Path, broker: Brok
         assert host.errors == []
 
 
+@needs_mosquitto
 async def test_commands_are_refused_until_a_role_is_configured(tmp_path: Path, broker: Broker, host: Host) -> None:
-    async with serving(sparkplug_config(tmp_path / "data", broker)) as (app, client):
+    async with serving(sparkplug_config(tmp_path / "data", broker)) as (app, _client):
         await born(host, F)
         await host.dcmd(EDGE, F, ("Command/Reset", BOOLEAN, True))
         await host.wait(lambda: metric(host, F, "Command/Result/Symbol") == "BadUserAccessDenied")
@@ -247,8 +250,9 @@ async def test_commands_are_refused_until_a_role_is_configured(tmp_path: Path, b
         assert host.errors == []
 
 
+@needs_mosquitto
 async def test_commands_run_the_same_calls_with_the_configured_role(tmp_path: Path, broker: Broker, host: Host) -> None:
-    async with serving(sparkplug_config(tmp_path / "data", broker, command_role="operator")) as (app, client):
+    async with serving(sparkplug_config(tmp_path / "data", broker, command_role="operator")) as (app, _client):
         await born(host, F, CTRL)
         await host.dcmd(EDGE, F, ("Command/Reset", BOOLEAN, True), by_alias=True)
         await host.wait(lambda: metric(host, F, EXEC_STATE) == "Idle")
@@ -262,9 +266,7 @@ async def test_commands_run_the_same_calls_with_the_configured_role(tmp_path: Pa
         await host.wait(lambda: metric(host, F, "Command/Result/Symbol") == "BadTypeMismatch")
         assert metric(host, F, "Status/MachSpeed") == 42.0
         # Start with its Parameter array from the metrics beside it
-        await host.dcmd(
-            EDGE, F, ("Command/Start", BOOLEAN, True), ("Command/Start/Parameter/7", FLOAT, 2.5)
-        )
+        await host.dcmd(EDGE, F, ("Command/Start", BOOLEAN, True), ("Command/Start/Parameter/7", FLOAT, 2.5))
         await host.wait(lambda: metric(host, F, EXEC_STATE) == "Execute")
         entry = await wait_for_audit(app, lambda e: e.get("method") == "Start" and e.get("session") == "sparkplug")
         assert entry["result"] == "Good"
@@ -276,7 +278,8 @@ async def test_commands_run_the_same_calls_with_the_configured_role(tmp_path: Pa
         await host.wait(lambda: metric(host, F, "Command/Result/Symbol") == "BadNotWritable")
         # the robot: GetReady, then a program by name
         await host.dcmd(EDGE, CTRL, ("Command/GetReady", BOOLEAN, True))
-        await host.wait(lambda: metric(host, CTRL, "SystemOperation/SystemOperationStateMachine/CurrentState") == "Ready")
+        system = "SystemOperation/SystemOperationStateMachine/CurrentState"
+        await host.wait(lambda: metric(host, CTRL, system) == "Ready")
         await host.dcmd(EDGE, CTRL, ("Command/LoadByName", STRING, "pick_and_place"))
         name = "TaskControls/TaskControl1/ParameterSet/TaskProgramName"
         await host.wait(lambda: metric(host, CTRL, name) == "PickAndPlace", timeout=30)
@@ -287,12 +290,14 @@ async def test_commands_run_the_same_calls_with_the_configured_role(tmp_path: Pa
         assert metric(host, CTRL, "Command/Result/Symbol") == "Good"
 
         def program_run(e: dict[str, Any]) -> bool:
-            return e.get("method") == "Start" and "TaskControl" in e.get("object", "") and e.get("session") == "sparkplug"
+            ours = e.get("session") == "sparkplug"
+            return ours and e.get("method") == "Start" and "TaskControl" in e.get("object", "")
 
         assert (await wait_for_audit(app, program_run))["result"] == "Good"
         assert host.errors == []
 
 
+@needs_mosquitto
 async def test_a_primary_host_offline_stops_publishing_and_its_return_brings_a_rebirth(
     tmp_path: Path, broker: Broker, host: Host
 ) -> None:
@@ -316,11 +321,12 @@ async def test_a_primary_host_offline_stops_publishing_and_its_return_brings_a_r
         await host.state(True)
         await born(host, F, CTRL, births=2)
         assert host.nodes[EDGE].births == [first, (first + 1) % 256]
-        assert [s.kind for s in host.seen[seen:]][0] == "NBIRTH"  # nothing between the NDEATH and it
+        assert host.seen[seen].kind == "NBIRTH"  # nothing between the NDEATH and it
         assert metric(host, F, "Status/MachSpeed") == 12.0  # the birth carries what changed meanwhile
         assert host.errors == []
 
 
+@needs_mosquitto
 async def test_kill_9_the_ndeath_has_the_bdseq_of_the_nbirth(tmp_path: Path, broker: Broker, host: Host) -> None:
     config = tmp_path / "uacell.toml"
     config.write_text(
@@ -360,6 +366,7 @@ keep_alive = 5
     assert not node.online and host.errors == []
 
 
+@needs_mosquitto
 async def test_a_plc_lost_is_a_ddeath_and_its_return_a_dbirth(tmp_path: Path, broker: Broker, host: Host) -> None:
     from test_gateway_packml_modbus import ModbusPLC, shipped_cell
 
@@ -374,7 +381,7 @@ async def test_a_plc_lost_is_a_ddeath_and_its_return_a_dbirth(tmp_path: Path, br
             await born(host, "Capper", "Labeler")
             assert host.device(EDGE, "Capper").values["Status/UnitModeCurrent"] is not None
             plc.kill()
-            await host.wait(lambda: host.device(EDGE, "Capper").deaths == 1 and host.device(EDGE, "Labeler").deaths == 1)
+            await host.wait(lambda: [host.device(EDGE, d).deaths for d in ("Capper", "Labeler")] == [1, 1])
             assert not host.device(EDGE, "Capper").online and host.nodes[EDGE].online  # the node lives on
             plc.start()  # the same port
             await host.wait(lambda: host.device(EDGE, "Capper").births == 2, timeout=30)
@@ -385,6 +392,7 @@ async def test_a_plc_lost_is_a_ddeath_and_its_return_a_dbirth(tmp_path: Path, br
         plc.kill()
 
 
+@needs_mosquitto
 async def test_the_broker_lost_calls_go_on_and_the_next_session_births_again(
     tmp_path: Path, pb: ModuleType, broker: Broker
 ) -> None:
