@@ -218,17 +218,18 @@ class Host:
 
 
 @contextlib.asynccontextmanager
-async def following(pb: ModuleType, port: int, group: str, host_id: str = "") -> AsyncIterator[Host]:
-    """A host following ``group`` on the broker at ``port`` (subscribed before it yields)."""
+async def following(pb: ModuleType, port: int, group: str, host_id: str = "", **client: Any) -> AsyncIterator[Host]:
+    """A host following ``group`` on the broker at ``port`` (subscribed before it yields); ``client``:
+    aiomqtt.Client's username, password, tls_context."""
     host = Host(pb, port, group, host_id)
     ready = asyncio.Event()
 
     async def run() -> None:
-        async with aiomqtt.Client("127.0.0.1", port) as client:
-            host.client = client
-            await client.subscribe(f"spBv1.0/{group}/#", qos=1)
+        async with aiomqtt.Client("127.0.0.1", port, **client) as c:
+            host.client = c
+            await c.subscribe(f"spBv1.0/{group}/#", qos=1)
             ready.set()
-            async for message in client.messages:
+            async for message in c.messages:
                 payload = message.payload if isinstance(message.payload, bytes | bytearray) else b""
                 host.handle(str(message.topic), bytes(payload))
 

@@ -7,6 +7,7 @@ role, the broker lost while OPC UA calls go on (docs/sparkplug.md)."""
 from __future__ import annotations
 
 import os
+import ssl
 import subprocess
 import sys
 import time
@@ -19,7 +20,7 @@ import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving, start_app
 from helpers import call_path, free_port, packml_params, wait_until
-from mqtt_broker import Broker, needs_mosquitto
+from mqtt_broker import Broker, make_tls, needs_mosquitto
 from sparkplug_host import BOOLEAN, FLOAT, INT32, STRING, Host, compile_proto, following, value
 from test_operations import wait_for_audit
 
@@ -145,6 +146,21 @@ def test_the_section_is_read_from_toml(tmp_path: Path) -> None:
     path.write_text('[sparkplug]\ngroup_id = "a/b"\n')
     with pytest.raises(ConfigError, match=r"\[sparkplug\] group_id"):
         load_config(path)
+
+
+def test_every_command_is_refused_to_the_role_commands_run_under_by_default() -> None:
+    """Without ``command_role`` commands run as observer: the role table refuses every declared one."""
+    from uacell.rights import may_call
+    from uacell.roles import Role
+    from uacell.sparkplug.commands import DECLARED
+
+    families = {"packml_unit": "PackML", "controller": "SystemOperation", "task_control": "TaskControl"}
+    assert set(DECLARED) == set(families)
+    for role, commands in DECLARED.items():
+        for _name, targets in commands:
+            for _obj, method in targets:
+                assert not may_call(Role.OBSERVER, method, families[role]), (role, method)
+                assert may_call(Role.OPERATOR, method, families[role]), (role, method)
 
 
 # -- a served cell ---------------------------------------------------------------------------------
@@ -390,6 +406,29 @@ async def test_a_plc_lost_is_a_ddeath_and_its_return_a_dbirth(tmp_path: Path, br
             assert host.errors == []
     finally:
         plc.kill()
+
+
+@needs_mosquitto
+async def test_tls_and_a_password_from_the_environment(
+    tmp_path: Path, pb: ModuleType, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    tls = make_tls(tmp_path / "tls")
+    secure = Broker(tmp_path / "secure", users={"cell": "s3cret-pass", "scada": "h0st-pass"}, tls=tls)
+    secure.start()
+    try:
+        monkeypatch.setenv("UACELL_SPARKPLUG_PASSWORD", "s3cret-pass")
+        ctx = ssl.create_default_context(cafile=str(tls.ca))
+        async with following(pb, secure.port, GROUP, username="scada", password="h0st-pass", tls_context=ctx) as host:
+            app = await start_app(sparkplug_config(tmp_path / "data", secure, username="cell", ca_file=tls.ca))
+            try:
+                assert secure.url.startswith("mqtts://")
+                await born(host, F, CTRL)
+                assert host.errors == []
+            finally:
+                await app.stop()
+            await host.wait(lambda: host.nodes[EDGE].deaths == host.nodes[EDGE].births)  # a clean stop's NDEATH
+    finally:
+        secure.stop()
 
 
 @needs_mosquitto
