@@ -88,6 +88,7 @@ class NodeView:
     bdseq: int | None = None
     seq: int | None = None
     births: list[int] = field(default_factory=list)  # bdSeq of each NBIRTH
+    aliases: dict[str, int] = field(default_factory=dict)  # the NBIRTH's metric names -> aliases
     deaths: list[int] = field(default_factory=list)  # bdSeq of each NDEATH
     devices: dict[str, DeviceView] = field(default_factory=dict)
 
@@ -136,7 +137,12 @@ class Host:
         payload.ParseFromString(data)
         self.seen.append(Seen(topic, kind, edge, device, payload, time.time()))
         node = self.node(edge)
+        if kind in ("NBIRTH", "DBIRTH") and any(
+            not (m.HasField("name") and m.HasField("alias")) for m in payload.metrics
+        ):
+            self.errors.append(f"{kind} {device or edge}: a metric without both name and alias (3.0, 6.4.6)")
         if kind == "NBIRTH":
+            node.aliases = {m.name: m.alias for m in payload.metrics}
             bdseq = {m.name: value(m, m.datatype) for m in payload.metrics}.get("bdSeq")
             if payload.seq != 0 or bdseq is None:
                 self.errors.append(f"NBIRTH with seq {payload.seq}, bdSeq {bdseq}")
@@ -194,9 +200,13 @@ class Host:
         body = json.dumps({"online": online, "timestamp": stamp or int(time.time() * 1000)})
         await self.client.publish(f"spBv1.0/STATE/{self.host_id}", body, qos=1, retain=True)
 
-    async def rebirth(self, edge: str) -> None:
+    async def rebirth(self, edge: str, by_alias: bool = False) -> None:
+        """NCMD ``Node Control/Rebirth`` = true, by name or (as 3.0, 6.4.6 wants it) by the NBIRTH's alias."""
         payload = self.pb.Payload(timestamp=int(time.time() * 1000))
-        payload.metrics.add(name="Node Control/Rebirth", datatype=BOOLEAN, boolean_value=True)
+        if by_alias:
+            payload.metrics.add(alias=self.node(edge).aliases["Node Control/Rebirth"], boolean_value=True)
+        else:
+            payload.metrics.add(name="Node Control/Rebirth", datatype=BOOLEAN, boolean_value=True)
         assert self.client is not None
         await self.client.publish(f"spBv1.0/{self.group}/NCMD/{edge}", payload.SerializeToString(), qos=0)
 

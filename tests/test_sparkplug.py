@@ -50,12 +50,14 @@ def pb(tmp_path_factory: pytest.TempPathFactory) -> ModuleType:
 def test_a_birth_and_data_decode_with_the_spec_definition(pb: ModuleType) -> None:
     node = EdgeNode(GROUP, EDGE, bdseq=7)
     device = Device("D1")
-    device.add("Speed", DataType.Float, Sample(1.5, 1000), [("engUnit", DataType.String, "ppm")], alias=1)
-    device.add("Offset", DataType.Int32, Sample(-5, 1001), alias=2)
-    device.add("Name", DataType.String, Sample(None, 1002), alias=3)
+    a = node.first_device_alias  # after the node's own: bdSeq 1, Node Control/Rebirth 2
+    assert a == 3
+    device.add("Speed", DataType.Float, Sample(1.5, 1000), [("engUnit", DataType.String, "ppm")], alias=a)
+    device.add("Offset", DataType.Int32, Sample(-5, 1001), alias=a + 1)
+    device.add("Name", DataType.String, Sample(None, 1002), alias=a + 2)
     node.devices["D1"] = device
     births = [node.nbirth(2000), node.dbirth(device, 2000)]
-    device.update(2, Sample(-70000, 3000))
+    device.update(a + 1, Sample(-70000, 3000))
     data = node.ddata(device, 3001)
     assert data is not None and node.ddata(device, 3002) is None  # nothing new: no message
     host = Host(pb, 0, GROUP)
@@ -70,9 +72,9 @@ def test_a_birth_and_data_decode_with_the_spec_definition(pb: ModuleType) -> Non
     view = host.device(EDGE, "D1")
     assert view.values == {"Speed": 1.5, "Offset": -70000, "Name": None}
     assert view.properties["Speed"] == {"engUnit": "ppm"} and view.stamps["Offset"] == 3000
-    assert host.nodes[EDGE].births == [7]
+    assert host.nodes[EDGE].births == [7] and host.nodes[EDGE].aliases == {"bdSeq": 1, "Node Control/Rebirth": 2}
     (only,) = host.seen[2].payload.metrics
-    assert only.alias == 2 and not only.HasField("name")  # data by alias only
+    assert only.alias == a + 1 and not only.HasField("name") and not only.HasField("datatype")  # by alias only
     death = pb.Payload()
     death.ParseFromString(node.ndeath(4000).payload)
     assert [(m.name, value(m, m.datatype)) for m in death.metrics] == [("bdSeq", 7)]
@@ -247,6 +249,8 @@ async def test_rebirth_on_request_and_data_after_it(tmp_path: Path, broker: Brok
         await born(host, F, CTRL, births=2)
         assert host.nodes[EDGE].births == [bdseq, bdseq]  # the same session
         assert host.of("NBIRTH")[1].payload.seq == 0
+        await host.rebirth(EDGE, by_alias=True)  # the same by the alias the NBIRTH gave
+        await born(host, F, CTRL, births=3)
         assert (await call_path(client, F, "SetMachSpeed", ua.Variant(33.0, ua.VariantType.Float))).StatusCode.is_good()
         await host.wait(lambda: metric(host, F, "Status/MachSpeed") == 33.0)
         assert host.errors == []

@@ -123,14 +123,24 @@ class EdgeNode:
         _metric(payload, BDSEQ, DataType.Int64, self.bdseq, now)
         return Message(self.topic("NDEATH"), payload.SerializeToString())
 
+    def node_alias(self, name: str) -> int:
+        """The alias of a node metric (bdSeq 1, Node Control/Rebirth 2, then ``node_metrics``')."""
+        names = [BDSEQ, REBIRTH, *(n for n, _, _ in self.node_metrics)]
+        return names.index(name) + 1
+
+    @property
+    def first_device_alias(self) -> int:
+        """Aliases are unique across the edge node (3.0, 6.4.6): devices' start after the node's."""
+        return 3 + len(self.node_metrics)
+
     def nbirth(self, now: int) -> Message:
-        """The NBIRTH: seq starts again at 0; bdSeq, Node Control/Rebirth and the node's metrics."""
+        """The NBIRTH: seq starts again at 0; bdSeq, Node Control/Rebirth and the node's metrics,
+        each with its name and alias (3.0, 6.4.6)."""
         self.seq = 0
         payload = self._payload(now)
-        _metric(payload, BDSEQ, DataType.Int64, self.bdseq, now)
-        _metric(payload, REBIRTH, DataType.Boolean, False, now)
-        for name, datatype, value in self.node_metrics:
-            _metric(payload, name, datatype, value, now)
+        metrics = [(BDSEQ, DataType.Int64, self.bdseq), (REBIRTH, DataType.Boolean, False), *self.node_metrics]
+        for alias, (name, datatype, value) in enumerate(metrics, start=1):
+            _metric(payload, name, datatype, value, now, alias=alias)
         for device in self.devices.values():
             device.born = False
         return Message(self.topic("NBIRTH"), payload.SerializeToString())
@@ -151,14 +161,15 @@ class EdgeNode:
         return Message(self.topic("DBIRTH", device.device_id), payload.SerializeToString())
 
     def ddata(self, device: Device, now: int) -> Message | None:
-        """The metrics that changed since the last message, by alias; None when nothing did."""
+        """The metrics that changed since the last message, by alias only (no name, no datatype: 3.0,
+        6.4.6); None when nothing did."""
         if not device.changed:
             return None
         payload = self._payload(now)
         types = {m.alias: m.datatype for m in device.metrics}
         for alias in device.changed:
             s = device.samples[alias]
-            metric = payload.metrics.add(alias=alias, timestamp=s.timestamp, datatype=types[alias])
+            metric = payload.metrics.add(alias=alias, timestamp=s.timestamp)
             set_value(metric, types[alias], s.value)
         device.changed.clear()
         return Message(self.topic("DDATA", device.device_id), payload.SerializeToString())

@@ -74,7 +74,7 @@ class SparkplugService:
         self.commands: dict[str, dict[str, Command]] = {}  # device id -> metric name -> command
         self._aliases: dict[str, dict[int, str]] = {}  # device id -> alias -> metric name
         self._bad: dict[str, set[int]] = {}  # device id -> aliases whose value says "unreachable"
-        self._next_alias = 1
+        self._next_alias = self.node.first_device_alias
         self._handles: list[int] = []
         self._flush_pending = False
         self._first_session = True
@@ -252,8 +252,10 @@ class SparkplugService:
             log.warning("sparkplug: %s: not a Sparkplug B payload; ignored", topic)
             return
         if topic == self.node.topic("NCMD"):
+            rebirth = self.node.node_alias(REBIRTH)
             for metric in message.metrics:
-                if metric.name == REBIRTH and get_value(metric, DataType.Boolean) is True and self.live:
+                named = metric.name == REBIRTH if metric.HasField("name") else metric.alias == rebirth
+                if named and get_value(metric, DataType.Boolean) is True and self.live:
                     log.info("sparkplug: rebirth requested")
                     self.birth()
             return
