@@ -262,6 +262,7 @@ async def test_commands_are_refused_until_a_role_is_configured(tmp_path: Path, b
         await born(host, F)
         await host.dcmd(EDGE, F, ("Command/Reset", BOOLEAN, True))
         await host.wait(lambda: metric(host, F, "Command/Result/Symbol") == "BadUserAccessDenied")
+        assert metric(host, F, "Command/Result/Status") is None  # PackML methods have no Status output
         assert metric(host, F, "Command/Result/Command") == "Command/Reset"
         assert metric(host, F, "Command/Result/StatusCode") == ua.StatusCodes.BadUserAccessDenied
         assert metric(host, F, "BaseStateMachine/MachineState/CurrentState") == "Stopped"
@@ -305,6 +306,14 @@ async def test_commands_run_the_same_calls_with_the_configured_role(tmp_path: Pa
         await host.wait(lambda: metric(host, CTRL, name) == "PickAndPlace", timeout=30)
         assert metric(host, CTRL, "TaskControls/TaskControl1/ParameterSet/TaskProgramLoaded") is True
         assert metric(host, CTRL, "Command/Result/Command") == "Command/LoadByName"
+        assert metric(host, CTRL, "Command/Result/Status") == 0  # LoadByName's Status output: loaded
+        await host.dcmd(EDGE, CTRL, ("Command/UnloadProgram", BOOLEAN, True))
+        await host.wait(lambda: metric(host, CTRL, "TaskControls/TaskControl1/ParameterSet/TaskProgramLoaded") is False)
+        await host.dcmd(EDGE, CTRL, ("Command/LoadByName", STRING, "no_such_program"))
+        await host.wait(lambda: metric(host, CTRL, "Command/Result/Status") == -1)  # Good call, Status: not found
+        assert metric(host, CTRL, "Command/Result/Symbol") == "Good"
+        await host.dcmd(EDGE, CTRL, ("Command/LoadByName", STRING, "pick_and_place"))
+        await host.wait(lambda: metric(host, CTRL, name) == "PickAndPlace")
         await host.dcmd(EDGE, CTRL, ("Command/Start", BOOLEAN, True))
         await host.wait(lambda: metric(host, CTRL, "Command/Result/Command") == "Command/Start")
         assert metric(host, CTRL, "Command/Result/Symbol") == "Good"

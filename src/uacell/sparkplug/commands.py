@@ -28,6 +28,7 @@ PREFIX = "Command/"
 RESULT_COMMAND = "Command/Result/Command"
 RESULT_CODE = "Command/Result/StatusCode"
 RESULT_SYMBOL = "Command/Result/Symbol"
+RESULT_STATUS = "Command/Result/Status"  # a method's Status output (OPC 40010's methods have one), else null
 
 _PACKML_SM = "BaseStateMachine"
 _MACHINE = f"{_PACKML_SM}/MachineState"
@@ -70,6 +71,15 @@ class Command:
     methods: list[BoundMethod]
     datatype: DataType
     structure: ua.Argument | None = None  # PackML Start's Parameter (PackMLDescriptorDataType[])
+
+    @staticmethod
+    def status_output(bound: BoundMethod, outputs: Sequence[ua.Variant]) -> int | None:
+        """The ``Status`` output argument of a call (Robotics' GetReady, LoadByName, ...), if it has one."""
+        names = [a.Name for a in bound.outputs]
+        if "Status" not in names or names.index("Status") >= len(outputs):
+            return None
+        value = outputs[names.index("Status")].Value
+        return int(value) if isinstance(value, int) else None
 
     def pick(self) -> BoundMethod:
         """The first method whose Executable (as last published) is not false, else the first."""

@@ -24,7 +24,14 @@ from uacell import __version__
 from uacell.background import Background
 from uacell.datasets import resolve
 from uacell.pubsub.mqtt import LinkSettings
-from uacell.sparkplug.commands import RESULT_CODE, RESULT_COMMAND, RESULT_SYMBOL, Command, parameters_of
+from uacell.sparkplug.commands import (
+    RESULT_CODE,
+    RESULT_COMMAND,
+    RESULT_STATUS,
+    RESULT_SYMBOL,
+    Command,
+    parameters_of,
+)
 from uacell.sparkplug.commands import resolve as resolve_commands
 from uacell.sparkplug.config import SparkplugConfig, broker_of_sparkplug, password_of
 from uacell.sparkplug.devices import DevicePlan, PartRef, plan_devices
@@ -147,6 +154,7 @@ class SparkplugService:
             self._add(device, RESULT_COMMAND, DataType.String, Sample("", stamp))
             self._add(device, RESULT_CODE, DataType.UInt32, Sample(0, stamp))
             self._add(device, RESULT_SYMBOL, DataType.String, Sample("Good", stamp))
+            self._add(device, RESULT_STATUS, DataType.Int32, Sample(None, stamp))
             device.reachable = not self._bad[plan.device_id]
 
     def _add(self, device: Device, name: str, datatype: DataType, sample: Sample, properties: Any = (),
@@ -317,13 +325,16 @@ class SparkplugService:
         bound = command.pick()
         request = ua.CallMethodRequest(ObjectId=bound.object_id, MethodId=bound.method_id, InputArguments=inputs)
         result = await self.dispatcher.dispatch(request, self.caller)
-        self._result(device, command.metric, result.StatusCode.value)
+        status = Command.status_output(bound, result.OutputArguments or [])
+        self._result(device, command.metric, result.StatusCode.value, status)
 
-    def _result(self, device: Device, command: str, code: int) -> None:
+    def _result(self, device: Device, command: str, code: int, status: int | None = None) -> None:
+        """The answer to a command, as the ``Command/Result/*`` metrics."""
         now = now_ms()
         by_name = {m.name: m.alias for m in device.metrics}
         symbol = ua.StatusCode(code).name
-        for name, value in ((RESULT_COMMAND, command), (RESULT_CODE, code), (RESULT_SYMBOL, symbol)):
+        answer = ((RESULT_COMMAND, command), (RESULT_CODE, code), (RESULT_SYMBOL, symbol), (RESULT_STATUS, status))
+        for name, value in answer:
             device.update(by_name[name], Sample(value, now))
         self._schedule()
 
