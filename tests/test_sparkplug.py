@@ -22,7 +22,7 @@ from conftest import fast_config, serving, start_app
 from helpers import call_path, free_port, packml_params, wait_until
 from mqtt_broker import Broker, make_tls, needs_mosquitto
 from sparkplug_host import BOOLEAN, FLOAT, INT32, STRING, Host, compile_proto, following, value
-from test_operations import wait_for_audit
+from test_operations import sample, scrape, wait_for_audit
 
 from uacell.config import Config, load_cell
 from uacell.errors import ConfigError
@@ -445,10 +445,32 @@ async def test_tls_and_a_password_from_the_environment(
 
 
 @needs_mosquitto
+async def test_a_wrong_password_is_one_clear_line_and_uacell_serves_on(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    secure = Broker(tmp_path / "secure", users={"cell": "right-pass"})
+    secure.start()
+    try:
+        monkeypatch.setenv("UACELL_SPARKPLUG_PASSWORD", "wrong-pass")
+        async with serving(sparkplug_config(tmp_path / "data", secure, username="cell")) as (app, client):
+            sp = app.sparkplug
+            assert sp is not None
+            await wait_until(lambda: sp.link.failures >= 3, timeout=30)
+            lines = [r.getMessage() for r in caplog.records if r.name == "uacell.sparkplug.link"]
+            assert len(lines) == 1 and "Not authorized" in lines[0] and secure.url in lines[0], lines
+            res = await call_path(client, F, "SetMachSpeed", ua.Variant(5.0, ua.VariantType.Float))
+            assert res.StatusCode.is_good() and not sp.live
+    finally:
+        secure.stop()
+
+
+@needs_mosquitto
 async def test_the_broker_lost_calls_go_on_and_the_next_session_births_again(
     tmp_path: Path, pb: ModuleType, broker: Broker
 ) -> None:
-    app = await start_app(sparkplug_config(tmp_path / "data", broker))
+    config = sparkplug_config(tmp_path / "data", broker)
+    config.metrics.enabled, config.metrics.port = True, free_port()
+    app = await start_app(config)
     try:
         sp = app.sparkplug
         assert sp is not None
@@ -459,11 +481,19 @@ async def test_the_broker_lost_calls_go_on_and_the_next_session_births_again(
             await wait_until(lambda: not sp.link.connected.is_set(), timeout=30)
             res = await call_path(client, F, "SetMachSpeed", ua.Variant(55.0, ua.VariantType.Float))
             assert res.StatusCode.is_good()  # the server answers while the broker is away
+            _, body = await scrape(app)  # and /metrics says so
+            assert (
+                sample(body, "uacell_sparkplug_connected") == 0 and sample(body, "uacell_sparkplug_sessions_total") == 1
+            )
             broker.start()  # the same port
             async with following(pb, broker.port, GROUP) as host:
                 await born(host, F)
                 assert host.nodes[EDGE].births[-1] == (first + 1) % 256
                 assert metric(host, F, "Status/MachSpeed") == 55.0
                 assert host.errors == []
+                _, body = await scrape(app)
+                assert (
+                    sample(body, "uacell_sparkplug_sessions_total") == 2 and sample(body, "uacell_sparkplug_born") == 1
+                )
     finally:
         await app.stop()

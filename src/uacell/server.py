@@ -269,6 +269,10 @@ class UacellServer:
                 from uacell.pubsub.metrics import PubSubCollector
 
                 self.metrics.registry.register(PubSubCollector(self.pubsub.link))
+            if self.sparkplug is not None:
+                from uacell.sparkplug.metrics import SparkplugCollector
+
+                self.metrics.registry.register(SparkplugCollector(self.sparkplug))
             await self.metrics.start(self.config.metrics.host, self.config.metrics.port)
         if self.config.discovery.url:
             cfg, pki = self.config.server, PkiPaths.in_data_dir(self.data_dir)
