@@ -25,6 +25,7 @@ from sparkplug_host import BOOLEAN, FLOAT, INT32, STRING, Host, compile_proto, f
 from test_operations import sample, scrape, wait_for_audit
 
 from uacell.config import Config, load_cell
+from uacell.datasets import Kind
 from uacell.errors import ConfigError
 from uacell.sparkplug.config import SparkplugConfig, check_sparkplug, password_of
 from uacell.sparkplug.node import Device, EdgeNode, Sample
@@ -152,17 +153,47 @@ def test_the_section_is_read_from_toml(tmp_path: Path) -> None:
 
 def test_every_command_is_refused_to_the_role_commands_run_under_by_default() -> None:
     """Without ``command_role`` commands run as observer: the role table refuses every declared one."""
+    from uacell.catalog import dataset_of
     from uacell.rights import may_call
     from uacell.roles import Role
-    from uacell.sparkplug.commands import DECLARED
 
     families = {"packml_unit": "PackML", "controller": "SystemOperation", "task_control": "TaskControl"}
-    assert set(DECLARED) == set(families)
-    for role, commands in DECLARED.items():
-        for _name, targets in commands:
+    declared = 0
+    for role, family in families.items():
+        dataset = dataset_of(role)
+        assert dataset is not None
+        for _name, targets in dataset.commands:
             for _obj, method in targets:
-                assert not may_call(Role.OBSERVER, method, families[role]), (role, method)
-                assert may_call(Role.OPERATOR, method, families[role]), (role, method)
+                declared += 1
+                assert not may_call(Role.OBSERVER, method, family), (role, method)
+                assert may_call(Role.OPERATOR, method, family), (role, method)
+    assert declared == 19
+
+
+def test_devices_of_the_demo_cell_and_what_joins_them() -> None:
+    from uacell.sparkplug.devices import PartRef, plan_devices
+
+    demo = [  # the demo cell's parts as the server builds them (role, path), in its order
+        ("", "Robot1"),
+        ("controller", CTRL),
+        ("task_control", f"{CTRL}.TaskControls.TaskControl1"),
+        ("", f"{CTRL}.Software.Software1"),
+        ("motion_device", "Robot1.MotionDevices.Arm1"),
+        ("", "Robot1.MotionDevices.Arm1.Axes.Axis1"),
+        ("", "Robot1.SafetyStates.SafetyState1"),
+        ("packml_unit", F),
+    ]
+    parts = [PartRef(role, ua.NodeId(path, 6), path) for role, path in demo]
+    plans = plan_devices(parts, axis_positions=False)
+    assert [p.device_id for p in plans] == [CTRL, F]
+    robot = plans[0]
+    assert [(s.part.path, s.prefix) for s in robot.sources] == [
+        (CTRL, ""),
+        (f"{CTRL}.TaskControls.TaskControl1", "TaskControls/TaskControl1/"),
+        ("Robot1.MotionDevices.Arm1", "MotionDevices/Arm1/"),
+    ]
+    assert all(i.kind is not Kind.POSITION for s in robot.sources for i in s.items)
+    assert [p.device_id for p in plan_devices(parts, only=[F])] == [F]
 
 
 # -- a served cell ---------------------------------------------------------------------------------

@@ -2,12 +2,13 @@
 method dispatcher, as an OPC UA client's call would (argument checks, the role table, DI locks,
 serialization per state machine, the audit trail), under ``[sparkplug] command_role``.
 
-Declared per part role: the metric's name and the method(s) it calls, as (object path below the part,
-method BrowseName); where one name stands for several methods (PackML's Reset, on MachineState from
-Stopped and on ExecuteState from Complete), the first whose Executable is true is called, else the
-first. A method without inputs is a Boolean metric (writing true calls it); a method with one scalar
-input takes the metric's value as it; PackML's Start takes its ``Parameter`` array from the
-``Command/Start/Parameter/<ID>`` metrics of the same DCMD (docs/sparkplug.md, "Commands").
+Declared by the companions with their parts' DataSets (``uacell.datasets.PartDataSet.commands``): the
+metric's name and the method(s) it calls, as (object path below the part, method BrowseName); where
+one name stands for several methods (PackML's Reset), the first whose Executable is true is called,
+else the first. A method without inputs is a Boolean metric (writing true calls it); a method with
+one scalar input takes the metric's value as it; a method whose one input is an array of descriptor
+structures (ID, Name, Value: PackML's Start) is a Boolean metric whose array comes from the
+``<command>/Parameter/<ID>`` metrics of the same DCMD (docs/sparkplug.md, "Commands").
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 
 from asyncua import ua
 
+from uacell.datasets import Command as DeclaredCommand
 from uacell.sparkplug.payload import DataType
 from uacell.sparkplug.values import VARIANTS, datatype_of
 from uacell.ua.dispatch import BoundMethod
@@ -29,40 +31,6 @@ RESULT_COMMAND = "Command/Result/Command"
 RESULT_CODE = "Command/Result/StatusCode"
 RESULT_SYMBOL = "Command/Result/Symbol"
 RESULT_STATUS = "Command/Result/Status"  # a method's Status output (OPC 40010's methods have one), else null
-
-_PACKML_SM = "BaseStateMachine"
-_MACHINE = f"{_PACKML_SM}/MachineState"
-_EXECUTE = f"{_MACHINE}/ExecuteState"
-_SYSTEM = "SystemOperation/SystemOperationStateMachine"
-_TASK = "TaskControlOperation/TaskControlStateMachine"
-
-# part role -> (metric name below "Command/", ((object path below the part, method), ...))
-DECLARED: dict[str, tuple[tuple[str, tuple[tuple[str, str], ...]], ...]] = {
-    "packml_unit": (
-        ("Reset", ((_MACHINE, "Reset"), (_EXECUTE, "Reset"))),
-        ("Start", ((_EXECUTE, "Start"),)),
-        ("Stop", ((_MACHINE, "Stop"),)),
-        ("Hold", ((_EXECUTE, "Hold"),)),
-        ("Unhold", ((_EXECUTE, "Unhold"),)),
-        ("Suspend", ((_EXECUTE, "Suspend"),)),
-        ("Unsuspend", ((_EXECUTE, "Unsuspend"),)),
-        ("Complete", ((_EXECUTE, "ToComplete"),)),
-        ("Abort", ((_PACKML_SM, "Abort"),)),
-        ("Clear", ((_PACKML_SM, "Clear"),)),
-        ("SetMachSpeed", (("", "SetMachSpeed"),)),
-        ("SetUnitMode", (("", "SetUnitMode"),)),
-    ),
-    "controller": (
-        ("GetReady", ((_SYSTEM, "GetReady"),)),
-        ("StandDown", ((_SYSTEM, "StandDown"),)),
-    ),
-    "task_control": (
-        ("LoadByName", ((_TASK, "LoadByName"),)),
-        ("UnloadProgram", ((_TASK, "UnloadProgram"),)),
-        ("Start", ((_TASK, "Start"),)),
-        ("Stop", ((_TASK, "Stop"),)),
-    ),
-}
 
 
 @dataclass
@@ -100,15 +68,15 @@ class Command:
 
 
 def resolve(
-    role: str,
+    declared: Sequence[DeclaredCommand],
     part_node: ua.NodeId,
     methods: dict[ua.NodeId, BoundMethod],
     builtin_of: Builtin,
     prefix: str = PREFIX,
 ) -> list[Command]:
-    """The declared commands of a part of ``role`` the server has bound (cell NodeIds are the paths)."""
+    """The ``declared`` commands of a part the server has bound (cell NodeIds are the paths)."""
     commands = []
-    for name, targets in DECLARED.get(role, ()):
+    for name, targets in declared:
         bound = []
         for obj, method in targets:
             path = ".".join(p for p in (str(part_node.Identifier), obj.replace("/", ".")) if p)

@@ -1,10 +1,13 @@
 """Which devices a cell has and which metrics each carries (docs/sparkplug.md, "Devices and metrics").
 
-One device per PackML unit (its part path, ``Filler1``) and per robot controller
-(``Robot1.Controllers.Controller1``); a controller's device also carries its task controls' values
-(``TaskControls/TaskControl1/…``) and its robot's motion devices' (``MotionDevices/Arm1/…``).
-A metric is named by its BrowseName path below the device's part (or its robot), the values being what
-the part's companion declares (``uacell.datasets``, as for history and PubSub) plus ``extra_values``.
+A part whose DataSet (``uacell.datasets``, its companion's) says ``device`` is a device of its own,
+named by its path (``Filler1``, ``Robot1.Controllers.Controller1``); every other part with a DataSet
+joins the device whose path shares the most leading levels with its own (a controller's task
+controls, its robot's motion devices; the first such device in the cell's order on a tie), its
+metric names below the levels they do not share (``TaskControls/TaskControl1/…``,
+``MotionDevices/Arm1/…``). A metric is named by its BrowseName path below that, the values being
+what the DataSet declares plus ``extra_values``; the commands are the DataSets' too, a device's own
+first, then its parts' in the cell's order (of two with one name, the first).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from dataclasses import dataclass, field
 from asyncua import ua
 
 from uacell.catalog import dataset_of
-from uacell.datasets import Item, Kind
+from uacell.datasets import Command, Item, Kind
 
 
 @dataclass(frozen=True)
@@ -32,14 +35,23 @@ class Source:
     part: PartRef
     prefix: str  # "" for the device's own part, "TaskControls/TaskControl1/" for one of its task controls
     items: tuple[Item, ...]
-    commands: bool  # its declared commands are the device's (the first task control's only)
+    commands: tuple[Command, ...]
 
 
 @dataclass
 class DevicePlan:
     device_id: str
-    role: str
     sources: list[Source] = field(default_factory=list)
+
+
+def _shared(a: str, b: str) -> int:
+    """How many leading path levels ``a`` and ``b`` share."""
+    n = 0
+    for x, y in zip(a.split("."), b.split("."), strict=False):
+        if x != y:
+            break
+        n += 1
+    return n
 
 
 def plan_devices(
@@ -50,27 +62,23 @@ def plan_devices(
     for entry in extra:
         role, _, path = entry.partition(":")
         added.setdefault(role, []).append(Item(path, Kind.STATE))
-
-    def items(role: str) -> tuple[Item, ...]:
-        dataset = dataset_of(role)
-        declared = [*(dataset.values if dataset else ()), *added.get(role, [])]
-        return tuple(i for i in declared if axis_positions or i.kind is not Kind.POSITION)
-
-    plans = []
+    plans: dict[str, DevicePlan] = {}
+    joining: list[tuple[PartRef, tuple[Item, ...], tuple[Command, ...]]] = []
     for part in parts:
-        if part.role == "packml_unit":
-            plans.append(DevicePlan(part.path, part.role, [Source(part, "", items(part.role), True)]))
-        elif part.role == "controller":
-            plan = DevicePlan(part.path, part.role, [Source(part, "", items(part.role), True)])
-            robot = part.path.split(".Controllers.", 1)[0]
-            first_task = True
-            for other in parts:
-                if other.role == "task_control" and other.path.startswith(part.path + "."):
-                    prefix = other.path[len(part.path) + 1 :].replace(".", "/") + "/"
-                    plan.sources.append(Source(other, prefix, items(other.role), first_task))
-                    first_task = False
-                elif other.role == "motion_device" and other.path.startswith(robot + ".MotionDevices."):
-                    prefix = other.path[len(robot) + 1 :].replace(".", "/") + "/"
-                    plan.sources.append(Source(other, prefix, items(other.role), False))
-            plans.append(plan)
-    return [p for p in plans if not only or p.device_id in only]
+        dataset = dataset_of(part.role)
+        if dataset is None:
+            continue
+        declared = [*dataset.values, *added.get(part.role, [])]
+        items = tuple(i for i in declared if axis_positions or i.kind is not Kind.POSITION)
+        if dataset.device:
+            plans[part.path] = DevicePlan(part.path, [Source(part, "", items, dataset.commands)])
+        else:
+            joining.append((part, items, dataset.commands))
+    for part, items, commands in joining:
+        best = max(plans, key=lambda d: _shared(d, part.path), default=None)
+        shared = _shared(best, part.path) if best is not None else 0
+        if best is None or shared == 0:
+            continue  # no device of its own nor one nearby: not published
+        prefix = "/".join(part.path.split(".")[shared:]) + "/"
+        plans[best].sources.append(Source(part, prefix, items, commands))
+    return [p for p in plans.values() if not only or p.device_id in only]

@@ -141,11 +141,11 @@ class SparkplugService:
                 for item in source.items:
                     for path, node in resolve(item.path, lambda n: toolkit.children(self.aspace, n), source.part.node):
                         self._metric(device, source.prefix + path, node)
-                if source.commands:
-                    found = resolve_commands(
-                        source.part.role, source.part.node, self.dispatcher.methods, self.dispatcher.types.builtin_of
-                    )
-                    commands.update((c.metric, c) for c in found)
+                found = resolve_commands(
+                    source.commands, source.part.node, self.dispatcher.methods, self.dispatcher.types.builtin_of
+                )
+                for command in found:  # of two with one name, the first
+                    commands.setdefault(command.metric, command)
             self.commands[plan.device_id] = commands
             stamp = now_ms()
             for command in commands.values():
