@@ -496,6 +496,30 @@ async def test_a_wrong_password_is_one_clear_line_and_uacell_serves_on(
 
 
 @needs_mosquitto
+async def test_beside_pubsub_on_the_same_broker_with_the_default_ids(
+    tmp_path: Path, broker: Broker, host: Host
+) -> None:
+    """[pubsub] and [sparkplug] on one broker, ids left to their defaults: two MQTT clients that do not
+    push each other off (the same client id would), each publishing its own messages."""
+    from mqtt_broker import subscribed
+
+    config = sparkplug_config(tmp_path / "data", broker, edge_node_id="")
+    config.pubsub.enabled, config.pubsub.broker, config.pubsub.publishing_interval = True, broker.url, 0.05
+    async with subscribed(broker, "opcua/json/data/#") as sub, serving(config) as (app, client):
+        sp, ps = app.sparkplug, app.pubsub
+        assert sp is not None and ps is not None
+        edge = sp.node.edge
+        assert edge == ps.publisher.publisher_id  # the same default name, yet two clients
+        await host.wait(lambda: host.device(edge, F).births == 1)
+        res = await call_path(client, F, "SetMachSpeed", ua.Variant(21.0, ua.VariantType.Float))
+        assert res.StatusCode.is_good()
+        await host.wait(lambda: host.device(edge, F).values.get("Status/MachSpeed") == 21.0)
+        await sub.wait_for(lambda r: "Status/MachSpeed" in str(r.body) and "21.0" in str(r.body))
+        assert sp.link.connects == 1 and ps.link.connects == 1 and sp.link.failures == 0 == ps.link.failures
+        assert len(host.of("NBIRTH")) == 1 and host.errors == []
+
+
+@needs_mosquitto
 async def test_the_broker_lost_calls_go_on_and_the_next_session_births_again(
     tmp_path: Path, pb: ModuleType, broker: Broker
 ) -> None:

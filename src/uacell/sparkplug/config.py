@@ -29,7 +29,7 @@ class SparkplugConfig:
     broker: str = "mqtt://127.0.0.1:1883"  # mqtt://host:port or mqtts://host:port (TLS)
     group_id: str = "uacell"
     edge_node_id: str = ""  # "": uacell-<host name>-<[server] port>
-    client_id: str = ""  # "": the edge node id
+    client_id: str = ""  # "": <edge node id>-sparkplug (never [pubsub]'s, on the same broker)
     primary_host_id: str = ""  # "": no primary host: births as soon as connected
     command_role: str = ""  # the role DCMD method calls run under; "": every command refused
     parts: list[str] = field(default_factory=list)  # device ids (part paths) published; []: every one

@@ -98,7 +98,7 @@ class SparkplugService:
         broker = broker_of_sparkplug(cfg)
         settings = LinkSettings(
             broker=broker,
-            client_id=cfg.client_id or edge_node_id,
+            client_id=cfg.client_id or f"{edge_node_id}-sparkplug",  # not [pubsub]'s (the same host-port)
             qos=0,
             keep_alive=cfg.keep_alive,
             buffer=0,
