@@ -82,6 +82,17 @@ def test_a_birth_and_data_decode_with_the_spec_definition(pb: ModuleType) -> Non
     assert not death.HasField("seq")
 
 
+def test_a_value_its_datatype_cannot_hold_is_null_not_an_error(pb: ModuleType) -> None:
+    node = EdgeNode(GROUP, EDGE)
+    device = Device("D1")
+    device.add("Count", DataType.Int32, Sample("not a number", 5), alias=3)
+    node.devices["D1"] = device
+    host = Host(pb, 0, GROUP)
+    for m in (node.nbirth(5), node.dbirth(device, 5)):
+        host.handle(m.topic, m.payload)
+    assert host.device(EDGE, "D1").values == {"Count": None} and host.errors == []
+
+
 def test_seq_wraps_after_255_and_bdseq_counts_sessions() -> None:
     node = EdgeNode(GROUP, EDGE, bdseq=254)
     device = Device("D1")
@@ -542,6 +553,10 @@ async def test_the_broker_lost_calls_go_on_and_the_next_session_births_again(
             )
             broker.start()  # the same port
             async with following(pb, broker.port, GROUP) as host:
+                # uacell may have connected and been born before this host subscribed: as a host does
+                # on joining late, it asks for a rebirth once the node's new session is up
+                await wait_until(lambda: sp.link.connects >= 2 and sp.live, timeout=30)
+                await host.rebirth(EDGE)
                 await born(host, F)
                 assert host.nodes[EDGE].births[-1] == (first + 1) % 256
                 assert metric(host, F, "Status/MachSpeed") == 55.0

@@ -155,14 +155,18 @@ def value_field(datatype: DataType) -> str:
 
 def set_value(target: Any, datatype: DataType, value: Any) -> None:
     """``value`` into a Metric or PropertyValue: signed integers as two's complement in the unsigned
-    field of their width (Sparkplug 3.0, 6.4.16), None as ``is_null``."""
+    field of their width (Sparkplug 3.0, 6.4.16), None (or a value the datatype cannot hold) as
+    ``is_null``."""
     if value is None:
         target.is_null = True
         return
     field = value_field(datatype)
-    if datatype in _BITS and int(value) < 0:
-        value = int(value) + (1 << _BITS[datatype])
-    setattr(target, field, value)
+    try:
+        if datatype in _BITS and int(value) < 0:
+            value = int(value) + (1 << _BITS[datatype])
+        setattr(target, field, value)
+    except (TypeError, ValueError):
+        target.is_null = True
 
 
 def get_value(source: Any, datatype: DataType) -> Any:

@@ -223,14 +223,21 @@ class SparkplugService:
             return
         now = now_ms()
         for device in self.node.devices.values():
-            if device.born and not device.reachable:
-                self.link.send(self.node.ddeath(device, now))
-            elif not device.born and device.reachable:
-                self.link.send(self.node.dbirth(device, now))
-            elif device.born:
-                message = self.node.ddata(device, now)
-                if message is not None:
-                    self.link.send(message)
+            try:
+                message = self._next_message(device, now)
+            except Exception:  # one device's trouble is logged, never the others' silence
+                log.exception("sparkplug: the message of %s failed", device.device_id)
+                device.changed.clear()
+                continue
+            if message is not None:
+                self.link.send(message)
+
+    def _next_message(self, device: Device, now: int) -> Message | None:
+        if device.born and not device.reachable:
+            return self.node.ddeath(device, now)
+        if not device.born and device.reachable:
+            return self.node.dbirth(device, now)
+        return self.node.ddata(device, now) if device.born else None
 
     # -- the session -------------------------------------------------------------------------------
 
