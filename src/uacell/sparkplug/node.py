@@ -20,7 +20,7 @@ from uacell.sparkplug.payload import DataType, Payload, set_value
 NAMESPACE = "spBv1.0"
 REBIRTH = "Node Control/Rebirth"
 BDSEQ = "bdSeq"
-# Properties a metric's DBIRTH carries (names as Ignition's MQTT modules read them, docs/sparkplug.md).
+# Properties a metric's DBIRTH carries: engineering units and range (docs/sparkplug.md, "Devices and metrics").
 ENG_UNIT, ENG_LOW, ENG_HIGH = "engUnit", "engLow", "engHigh"
 
 

@@ -77,7 +77,7 @@ class SparkplugService:
         self.dispatcher = dispatcher
         self._bdseq_file = data_dir / BDSEQ_FILE
         self.node = EdgeNode(cfg.group_id, edge_node_id, self._last_bdseq())
-        self.node.node_metrics = [("Node Info/Application", DataType.String, f"uacell {__version__}")]
+        self.node.node_metrics = [("Application", DataType.String, f"uacell {__version__}")]
         self.commands: dict[str, dict[str, Command]] = {}  # device id -> metric name -> command
         self._aliases: dict[str, dict[int, str]] = {}  # device id -> alias -> metric name
         self._bad: dict[str, set[int]] = {}  # device id -> aliases whose value says "unreachable"
