@@ -28,7 +28,7 @@ from helpers import wait_until
 
 PROTO = Path(__file__).with_name("sparkplug_b.proto")
 
-# 6.4.16: datatype -> the value field that carries it
+# 3.0, "Data Types": datatype -> the value field that carries it
 INT8, INT16, INT32, INT64, UINT8, UINT16, UINT32, UINT64 = 1, 2, 3, 4, 5, 6, 7, 8
 FLOAT, DOUBLE, BOOLEAN, STRING, DATETIME, TEXT, UUID, BYTES = 9, 10, 11, 12, 13, 14, 15, 17
 _FIELD = {
@@ -153,7 +153,7 @@ class Host:
         elif kind == "NDEATH":
             bdseq = {m.name: value(m, m.datatype) for m in payload.metrics}.get("bdSeq")
             node.deaths.append(bdseq)
-            if bdseq == node.bdseq:  # an NDEATH of an older session is not this one's (3.0, 7.2.2)
+            if bdseq == node.bdseq:  # an NDEATH of an older session is not this one's (3.0: the bdSeq pairs them)
                 node.online = False
                 for d in node.devices.values():
                     d.online = False

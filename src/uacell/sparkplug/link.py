@@ -93,7 +93,7 @@ class SparkplugLink:
             identifier=s.client_id,
             username=s.username,
             password=s.password,
-            # Sparkplug 3.0, 7.1.2: the NDEATH Will with QoS 1, not retained; a clean session
+            # Sparkplug 3.0 (NDEATH): the Will with QoS 1, not retained; a clean session
             will=aiomqtt.Will(will.topic, will.payload, qos=1, retain=False),
             keepalive=s.keep_alive,
             tls_context=tls_context,

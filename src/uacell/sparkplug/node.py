@@ -3,7 +3,7 @@
 Topics (3.0, 4.1): ``spBv1.0/<group>/<type>/<edge node>[/<device>]``. The node's session is one MQTT
 connection: its ``bdSeq`` (0-255, one more per connection) is in the NDEATH registered as the Will
 and in the NBIRTH that follows; every message after the NBIRTH (seq 0) carries the next ``seq``,
-255 wrapping to 0 (6.4.19). A device is born (DBIRTH: every metric with name, alias, datatype,
+255 wrapping to 0 (3.0, 6.4.5). A device is born (DBIRTH: every metric with name, alias, datatype,
 properties and value), then reports changes by alias only (DDATA), and dies (DDEATH) when its
 equipment cannot be reached; a rebirth sends the NBIRTH and every living device's DBIRTH again.
 """
@@ -74,7 +74,7 @@ def topic(group: str, kind: str, edge: str, device: str | None = None) -> str:
 
 
 def state_topic(host_id: str) -> str:
-    """The primary host application's STATE topic (3.0, 4.1.2.2)."""
+    """The primary host application's STATE topic (3.0, "STATE")."""
     return f"{NAMESPACE}/STATE/{host_id}"
 
 
@@ -118,7 +118,7 @@ class EdgeNode:
         return payload
 
     def ndeath(self, now: int) -> Message:
-        """The NDEATH of the current bdSeq (no seq, 6.4.19): the Will, or said before a clean goodbye."""
+        """The NDEATH of the current bdSeq (no seq, 3.0, 6.4.5): the Will, or said before a clean goodbye."""
         payload = Payload(timestamp=now)
         _metric(payload, BDSEQ, DataType.Int64, self.bdseq, now)
         return Message(self.topic("NDEATH"), payload.SerializeToString())

@@ -21,7 +21,7 @@ _PACKAGE = "org.eclipse.tahu.protobuf"
 
 
 class DataType(IntEnum):
-    """Sparkplug 3.0, 6.4.16: the datatype of a metric, a property value."""
+    """Sparkplug 3.0 ("Data Types"): the datatype of a metric, a property value."""
 
     Unknown = 0
     Int8 = 1
@@ -131,7 +131,7 @@ def _build() -> Any:
 
 Payload: Any = _build()
 
-# Which value field a datatype's value goes into (6.4.16, and the proto's comments).
+# Which value field a datatype's value goes into (3.0, "Data Types", and the proto's comments).
 _INT = (DataType.Int8, DataType.Int16, DataType.Int32, DataType.UInt8, DataType.UInt16, DataType.UInt32)
 _LONG = (DataType.Int64, DataType.UInt64, DataType.DateTime)
 _BITS = {DataType.Int8: 8, DataType.Int16: 16, DataType.Int32: 32, DataType.Int64: 64}
@@ -155,7 +155,7 @@ def value_field(datatype: DataType) -> str:
 
 def set_value(target: Any, datatype: DataType, value: Any) -> None:
     """``value`` into a Metric or PropertyValue: signed integers as two's complement in the unsigned
-    field of their width (Sparkplug 3.0, 6.4.16), None (or a value the datatype cannot hold) as
+    field of their width (Sparkplug 3.0, "Data Types"), None (or a value the datatype cannot hold) as
     ``is_null``."""
     if value is None:
         target.is_null = True

@@ -285,7 +285,7 @@ class SparkplugService:
             return
         online, stamp = state
         if stamp < self._host_stamp:
-            return  # an older STATE than the one followed (3.0, 5.9.2)
+            return  # older than the STATE followed: the timestamp is for this (3.0, STATE)
         self._host_stamp = stamp
         self.host_online = online
         if online and not self.live and self.link.connected.is_set():
