@@ -17,7 +17,8 @@ from uacell.roles import Role
 from uacell.secret_file import SecretError, read_secret
 
 PASSWORD_ENV = "UACELL_SPARKPLUG_PASSWORD"
-# Sparkplug 3.0 (topic namespace elements): group, edge node and device ids are one topic level of UTF-8 without '/', '+', '#'.
+# Sparkplug 3.0 (topic namespace elements): group, edge node and device ids are one topic level of
+# UTF-8 without '/', '+', '#'.
 _ID = re.compile(r"[^/+#\s]+")
 
 
