@@ -464,6 +464,37 @@ async def test_a_plc_lost_is_a_ddeath_and_its_return_a_dbirth(tmp_path: Path, br
 
 
 @needs_mosquitto
+async def test_a_robot_controller_lost_is_a_ddeath_and_its_return_a_dbirth(
+    tmp_path: Path, broker: Broker, host: Host
+) -> None:
+    """The modbus-signals robot (the example controller behind Modbus/TCP): its axis values say when
+    it cannot be reached, and so its device dies and is born again."""
+    from test_gateway_robot import PLC, cell_text
+
+    plc = PLC(free_port(), 1.0)
+    plc.start()
+    try:
+        await plc.io()  # listening before uacell starts
+        cell = tmp_path / "cell.toml"
+        cell.write_text(cell_text(plc.port))
+        config = sparkplug_config(tmp_path / "data", broker)
+        config.cell = load_cell(cell)
+        robot = "Palletizer.Controllers.Cabinet"
+        async with serving(config):
+            await born(host, robot)
+            assert host.device(EDGE, robot).values["MotionDevices/Arm1/Axes/Axis1/ParameterSet/ActualPosition"] == 0.0
+            plc.kill()
+            await host.wait(lambda: host.device(EDGE, robot).deaths == 1)
+            plc.start()  # the same port
+            await host.wait(lambda: host.device(EDGE, robot).births == 2, timeout=30)
+            assert host.device(EDGE, robot).online and host.errors == []
+    finally:
+        plc.kill()
+        for conn in plc.clients:
+            conn.close()
+
+
+@needs_mosquitto
 async def test_tls_and_a_password_from_the_environment(
     tmp_path: Path, pb: ModuleType, monkeypatch: pytest.MonkeyPatch
 ) -> None:

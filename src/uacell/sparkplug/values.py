@@ -105,5 +105,5 @@ def plain(value: Any) -> Any:
 
 
 def unreachable(dv: ua.DataValue) -> bool:
-    """Does ``dv`` say its equipment cannot be reached (as the gateway writes it, docs/gateway.md)?"""
+    """Does ``dv`` say its equipment cannot be reached (as the gateway writes it, docs/equipment.md)?"""
     return dv.StatusCode is not None and dv.StatusCode.value in UNREACHABLE
