@@ -101,6 +101,7 @@ class Seen:
     device: str | None
     payload: Any
     arrived: float  # time.time() when it arrived
+    raw: bytes = b""
 
 
 class Host:
@@ -135,7 +136,7 @@ class Host:
         device = levels[4] if len(levels) > 4 else None
         payload = self.pb.Payload()
         payload.ParseFromString(data)
-        self.seen.append(Seen(topic, kind, edge, device, payload, time.time()))
+        self.seen.append(Seen(topic, kind, edge, device, payload, time.time(), data))
         node = self.node(edge)
         if kind in ("NBIRTH", "DBIRTH") and any(
             not (m.HasField("name") and m.HasField("alias")) for m in payload.metrics

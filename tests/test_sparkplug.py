@@ -75,7 +75,7 @@ def test_a_birth_and_data_decode_with_the_spec_definition(pb: ModuleType) -> Non
     assert view.properties["Speed"] == {"engUnit": "ppm"} and view.stamps["Offset"] == 3000
     assert host.nodes[EDGE].births == [7] and host.nodes[EDGE].aliases == {"bdSeq": 1, "Node Control/Rebirth": 2}
     (only,) = host.seen[2].payload.metrics
-    assert only.alias == a + 1 and not only.HasField("name") and not only.HasField("datatype")  # by alias only
+    assert only.alias == a + 1 and not only.HasField("name") and only.datatype == INT32  # by alias only
     death = pb.Payload()
     death.ParseFromString(node.ndeath(4000).payload)
     assert [(m.name, value(m, m.datatype)) for m in death.metrics] == [("bdSeq", 7)]
@@ -280,6 +280,51 @@ async def test_births_before_data_aliases_resolved_seq_without_gaps(tmp_path: Pa
         first_data = min(i for i, s in enumerate(host.seen) if s.kind == "DDATA")
         assert max(births) < first_data
         assert host.errors == []  # seq without gaps, aliases all born
+
+
+@needs_mosquitto
+@pytest.mark.interop
+async def test_eclipse_tahus_decoder_reads_what_the_host_read(tmp_path: Path, broker: Broker, host: Host) -> None:
+    """The third reader: Eclipse Tahu's JavaScript library (sparkplug-payload, interop/) decodes every
+    message the host took, and finds the same seq, names, aliases, types and values."""
+    import base64
+    import json
+
+    from conftest import INTEROP
+
+    async with serving(sparkplug_config(tmp_path / "data", broker)) as (_app, client):
+        await born(host, F, CTRL)
+        assert (await call_path(client, F, "SetMachSpeed", ua.Variant(64.5, ua.VariantType.Float))).StatusCode.is_good()
+        await host.wait(lambda: metric(host, F, "Status/MachSpeed") == 64.5)
+    seen = [x for x in host.seen if x.kind in ("NBIRTH", "DBIRTH", "DDATA")]
+    given = json.dumps([{"topic": x.topic, "payload": base64.b64encode(x.raw).decode()} for x in seen])
+    proc = subprocess.run(
+        ["node", str(INTEROP / "sparkplug_decode.js")], input=given, capture_output=True, text=True, timeout=60
+    )
+    assert proc.returncode == 0, proc.stderr
+    tahu = json.loads(proc.stdout.splitlines()[-1])["messages"]
+    assert [m["seq"] for m in tahu] == [x.payload.seq for x in seen]
+    names = {"Boolean": BOOLEAN, "Float": FLOAT, "Int32": INT32, "String": STRING}
+    tahu_uint32 = 0
+    for x, t in zip(seen, tahu, strict=True):
+        for ours, theirs in zip(x.payload.metrics, t["metrics"], strict=True):
+            assert theirs["alias"] == ours.alias
+            assert theirs.get("name", "") == ours.name
+            if theirs["type"] in names:
+                assert names[theirs["type"]] == ours.datatype
+            mine = value(ours, ours.datatype)
+            if theirs["type"] == "UInt32":
+                # Tahu's JavaScript library reads a UInt32 from long_value; Sparkplug 3.0 ("Datatype
+                # Details": Google Protocol Buffer Type uint32) and uacell put it in int_value
+                assert ours.WhichOneof("value") in ("int_value", None) and theirs["value"] is None
+                tahu_uint32 += 1
+            elif isinstance(mine, float):
+                assert theirs["value"] == pytest.approx(mine)
+            elif mine is not None:
+                assert theirs["value"] == mine, (x.topic, ours.alias)
+    speeds = [m for t in tahu if "/DDATA/" in t["topic"] for m in t["metrics"] if m["value"] == 64.5]
+    assert speeds and speeds[0]["type"] == "Float"
+    assert tahu_uint32 > 0  # the deviation above is real (Command/Result/StatusCode, program pointers)
 
 
 @needs_mosquitto

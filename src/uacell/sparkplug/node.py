@@ -161,15 +161,16 @@ class EdgeNode:
         return Message(self.topic("DBIRTH", device.device_id), payload.SerializeToString())
 
     def ddata(self, device: Device, now: int) -> Message | None:
-        """The metrics that changed since the last message, by alias only (no name, no datatype: 3.0,
-        6.4.6); None when nothing did."""
+        """The metrics that changed since the last message, by alias (no name, 3.0, 6.4.6); None when
+        nothing did. Each keeps its datatype: 3.0 says a DDATA SHOULD NOT carry it, but Eclipse Tahu's
+        own decoder (sparkplug-payload) reads no value without it (docs/decisions.md)."""
         if not device.changed:
             return None
         payload = self._payload(now)
         types = {m.alias: m.datatype for m in device.metrics}
         for alias in device.changed:
             s = device.samples[alias]
-            metric = payload.metrics.add(alias=alias, timestamp=s.timestamp)
+            metric = payload.metrics.add(alias=alias, timestamp=s.timestamp, datatype=types[alias])
             set_value(metric, types[alias], s.value)
         device.changed.clear()
         return Message(self.topic("DDATA", device.device_id), payload.SerializeToString())
