@@ -11,7 +11,7 @@ import ssl
 import subprocess
 import sys
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -20,7 +20,7 @@ import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving, start_app
 from helpers import call_path, free_port, packml_params, wait_until
-from mqtt_broker import Broker, make_tls, needs_mosquitto
+from mqtt_broker import Broker, make_tls, needs_mosquitto, running_broker
 from sparkplug_host import BOOLEAN, FLOAT, INT32, STRING, Host, compile_proto, following, value
 from test_operations import sample, scrape, wait_for_audit
 
@@ -220,13 +220,9 @@ def sparkplug_config(data: Path, broker: Broker, **keys: Any) -> Config:
 
 
 @pytest.fixture
-def broker(tmp_path: Path) -> Any:
-    b = Broker(tmp_path / "broker")
-    b.start()
-    try:
+def broker(tmp_path: Path) -> Iterator[Broker]:
+    with running_broker(tmp_path / "broker") as b:
         yield b
-    finally:
-        b.stop()
 
 
 @pytest.fixture
@@ -544,9 +540,8 @@ async def test_tls_and_a_password_from_the_environment(
     tmp_path: Path, pb: ModuleType, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     tls = make_tls(tmp_path / "tls")
-    secure = Broker(tmp_path / "secure", users={"cell": "s3cret-pass", "scada": "h0st-pass"}, tls=tls)
-    secure.start()
-    try:
+    users = {"cell": "s3cret-pass", "scada": "h0st-pass"}
+    with running_broker(tmp_path / "secure", users=users, tls=tls) as secure:
         monkeypatch.setenv("UACELL_SPARKPLUG_PASSWORD", "s3cret-pass")
         ctx = ssl.create_default_context(cafile=str(tls.ca))
         async with following(pb, secure.port, GROUP, username="scada", password="h0st-pass", tls_context=ctx) as host:
@@ -558,17 +553,13 @@ async def test_tls_and_a_password_from_the_environment(
             finally:
                 await app.stop()
             await host.wait(lambda: host.nodes[EDGE].deaths == host.nodes[EDGE].births)  # a clean stop's NDEATH
-    finally:
-        secure.stop()
 
 
 @needs_mosquitto
 async def test_a_wrong_password_is_one_clear_line_and_uacell_serves_on(
     tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    secure = Broker(tmp_path / "secure", users={"cell": "right-pass"})
-    secure.start()
-    try:
+    with running_broker(tmp_path / "secure", users={"cell": "right-pass"}) as secure:
         monkeypatch.setenv("UACELL_SPARKPLUG_PASSWORD", "wrong-pass")
         async with serving(sparkplug_config(tmp_path / "data", secure, username="cell")) as (app, client):
             sp = app.sparkplug
@@ -578,8 +569,6 @@ async def test_a_wrong_password_is_one_clear_line_and_uacell_serves_on(
             assert len(lines) == 1 and "Not authorized" in lines[0] and secure.url in lines[0], lines
             res = await call_path(client, F, "SetMachSpeed", ua.Variant(5.0, ua.VariantType.Float))
             assert res.StatusCode.is_good() and not sp.live
-    finally:
-        secure.stop()
 
 
 @needs_mosquitto
