@@ -6,6 +6,7 @@ role, the broker lost while OPC UA calls go on (docs/sparkplug.md)."""
 
 from __future__ import annotations
 
+import json
 import os
 import ssl
 import subprocess
@@ -356,7 +357,9 @@ async def test_commands_are_refused_until_a_role_is_configured(tmp_path: Path, b
 
 @needs_mosquitto
 async def test_commands_run_the_same_calls_with_the_configured_role(tmp_path: Path, broker: Broker, host: Host) -> None:
-    async with serving(sparkplug_config(tmp_path / "data", broker, command_role="operator")) as (app, _client):
+    extra = ["packml_unit:Status/StartParameters"]  # where a unit keeps Start's Parameter (docs/packml.md)
+    config = sparkplug_config(tmp_path / "data", broker, command_role="operator", extra_values=extra)
+    async with serving(config) as (app, _client):
         await born(host, F, CTRL)
         await host.dcmd(EDGE, F, ("Command/Reset", BOOLEAN, True), by_alias=True)
         await host.wait(lambda: metric(host, F, EXEC_STATE) == "Idle")
@@ -374,6 +377,9 @@ async def test_commands_run_the_same_calls_with_the_configured_role(tmp_path: Pa
         await host.wait(lambda: metric(host, F, EXEC_STATE) == "Execute")
         entry = await wait_for_audit(app, lambda e: e.get("method") == "Start" and e.get("session") == "sparkplug")
         assert entry["result"] == "Good"
+        await host.wait(lambda: bool(json.loads(metric(host, F, "Status/StartParameters") or "[]")))
+        (parameter,) = json.loads(metric(host, F, "Status/StartParameters"))
+        assert (parameter["ID"], parameter["Value"]) == (7, 2.5)  # the metric set became Start's Parameter
         # a state the command cannot run in: the unit's answer
         await host.dcmd(EDGE, F, ("Command/Reset", BOOLEAN, True))
         await host.wait(lambda: metric(host, F, "Command/Result/Symbol") == "BadInvalidState")
