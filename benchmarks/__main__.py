@@ -33,6 +33,7 @@ from typing import Any
 from benchmarks.gateway import gateway_section
 from benchmarks.history import history_section
 from benchmarks.plant import plant_section
+from benchmarks.sparkplug import sparkplug_section
 from benchmarks.web import web_section
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -137,7 +138,13 @@ class Peers:
         self.nodeset_files = [str(paths[m.key]) for m in official_models()]
 
     def uacell(
-        self, cell: str = "demo", snapshot: bool = True, history: bool = True, pubsub: str = "", publisher: str = ""
+        self,
+        cell: str = "demo",
+        snapshot: bool = True,
+        history: bool = True,
+        pubsub: str = "",
+        publisher: str = "",
+        sparkplug: str = "",
     ) -> Peer:
         """A uacell peer; ``snapshot``: a restart, with the cell's data directory and the shared cache
         directory of address-space snapshots (the first peer of each cell writes its snapshot,
@@ -157,7 +164,9 @@ class Peers:
         cache = self.cache if snapshot else data / "cache"
         cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", cell]
         cmd += [] if history else ["--no-history"]
-        cmd += ["--pubsub", pubsub, "--publisher-id", publisher] if pubsub else []
+        cmd += ["--pubsub", pubsub] if pubsub else []
+        cmd += ["--sparkplug", sparkplug] if sparkplug else []
+        cmd += ["--publisher-id", publisher] if publisher else []
         name = f"uacell {cell} cell" + ("" if history else " (history off)") + (f" {publisher}" if publisher else "")
         return Peer(name, [*cmd, "--data-dir", str(data), "--cache-dir", str(cache)], port=port)
 
@@ -556,6 +565,7 @@ SECTIONS = {
     "web": web_section,
     "history": history_section,
     "plant": plant_section,
+    "sparkplug": sparkplug_section,
     "gateway": gateway_section,
 }
 
@@ -566,7 +576,7 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, help="interleaved rounds (default 3, quick 1)")
     parser.add_argument("--seconds", type=float, help="length of each measured load run (default 2, quick 1.5)")
     parser.add_argument("--sessions-total", type=int, dest="many_sessions", help="concurrent sessions (1000/100)")
-    parser.add_argument("--cells", type=int, help="publishing uacell processes of the plant section (20/5)")
+    parser.add_argument("--cells", type=int, help="uacell processes of the plant and sparkplug sections (20/5)")
     parser.add_argument("--only", choices=sorted(SECTIONS), action="append", help="run only these sections")
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "last-run.json", help="raw figures")
     args = parser.parse_args()

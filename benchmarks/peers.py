@@ -57,7 +57,14 @@ async def bare_asyncua(port: int, nodesets: bool) -> None:
 
 
 async def uacell(
-    port: int, cell: str, data_dir: str, cache_dir: str, history: bool = True, pubsub: str = "", publisher_id: str = ""
+    port: int,
+    cell: str,
+    data_dir: str,
+    cache_dir: str,
+    history: bool = True,
+    pubsub: str = "",
+    publisher_id: str = "",
+    sparkplug: str = "",
 ) -> None:
     from pathlib import Path
 
@@ -81,6 +88,11 @@ async def uacell(
         config.pubsub.enabled = True
         config.pubsub.broker = pubsub
         config.pubsub.publisher_id = publisher_id
+    if sparkplug:  # an edge node on this broker, named publisher_id
+        config.sparkplug.enabled = True
+        config.sparkplug.broker = sparkplug
+        config.sparkplug.group_id = "bench"
+        config.sparkplug.edge_node_id = publisher_id
     if cell.endswith(".toml"):  # a cell file (the gateway section's)
         from uacell.config import load_cell
 
@@ -106,7 +118,8 @@ def main() -> int:
     parser.add_argument("--cache-dir", default="")
     parser.add_argument("--no-history", action="store_true", help="[history] enabled = false")
     parser.add_argument("--pubsub", default="", help="[pubsub] broker (enables PubSub)")
-    parser.add_argument("--publisher-id", default="", help="[pubsub] publisher_id")
+    parser.add_argument("--publisher-id", default="", help="[pubsub] publisher_id ([sparkplug] edge_node_id)")
+    parser.add_argument("--sparkplug", default="", help="[sparkplug] broker (enables Sparkplug B)")
     args = parser.parse_args()
     if args.kind == "asyncua":
         asyncio.run(bare_asyncua(args.port, args.nodesets))
@@ -116,7 +129,8 @@ def main() -> int:
         early.pause_gc()  # as `uacell serve` does, from its first line
         codecache.install()
         history = not args.no_history
-        early.run(uacell(args.port, args.cell, args.data_dir, args.cache_dir, history, args.pubsub, args.publisher_id))
+        where = (args.port, args.cell, args.data_dir, args.cache_dir)
+        early.run(uacell(*where, history, args.pubsub, args.publisher_id, args.sparkplug))
     return 0
 
 

@@ -22,6 +22,8 @@ import shutil
 import subprocess
 import time
 from collections import defaultdict
+from collections.abc import Callable, Coroutine
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -74,27 +76,43 @@ class Mosquitto:
             self.proc.wait(10)
 
 
-def plant_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
+Measure = Callable[[Mosquitto, str, list["Peer"]], Coroutine[Any, Any, dict[str, Any]]]
+
+
+def with_broker(peers: Peers, title: str, measure: Measure) -> dict[str, Any] | None:
+    """``measure(broker, url, started)`` against a mosquitto of its own; the cells it appends to
+    ``started`` and the broker are stopped after it. None (and a line saying so) without mosquitto."""
     from benchmarks.__main__ import free_port
 
+    name = title.split(" ", 1)[0]
     if not (shutil.which("mosquitto") or Path("/usr/sbin/mosquitto").exists()):
-        print("== plant: skipped, mosquitto is not installed (make setup installs it)", flush=True)
-        return
-    cells = args.cells
-    seconds = 8.0 if args.quick else 20.0
-    print(f"== plant ({cells} publishing cells, one mosquitto, one subscriber, {seconds:.0f} s)", flush=True)
+        print(f"== {name}: skipped, mosquitto is not installed (make setup installs it)", flush=True)
+        return None
+    print(f"== {title}", flush=True)
     broker = Mosquitto(peers.tmp, free_port())
     broker.start()
     started: list[Peer] = []
     try:
-        url = f"mqtt://127.0.0.1:{broker.port}"
-        for i in range(cells):
-            started.append(peers.uacell(pubsub=url, publisher=f"cell{i + 1:03d}").start())
-        raw = asyncio.run(_measure(broker, started, seconds))
+        return asyncio.run(measure(broker, f"mqtt://127.0.0.1:{broker.port}", started))
     finally:
         for p in started:
             p.stop()
         broker.stop()
+
+
+def plant_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
+    cells = args.cells
+    seconds = 8.0 if args.quick else 20.0
+
+    async def measure(broker: Mosquitto, url: str, started: list[Peer]) -> dict[str, Any]:
+        for i in range(cells):
+            started.append(await asyncio.to_thread(peers.uacell(pubsub=url, publisher=f"cell{i + 1:03d}").start))
+        return await _measure(broker, started, seconds)
+
+    title = f"plant ({cells} publishing cells, one mosquitto, one subscriber, {seconds:.0f} s)"
+    raw = with_broker(peers, title, measure)
+    if raw is None:
+        return
     report.raw["plant"] = raw
     latency = raw["latency_ms"]
     p99 = percentile(latency, 0.99)
@@ -142,11 +160,54 @@ def plant_section(report: Report, peers: Peers, args: argparse.Namespace) -> Non
     )
 
 
+@dataclass
+class Drive:
+    """What ``drive_speeds`` did: the values set per cell (by index), how long, the CPU shares."""
+
+    values: dict[int, list[float]]
+    wall: float
+    cpu: list[float]  # of each cell's process, share of one core
+    broker_cpu: float
+    rss: list[float]  # MiB, of each cell's process at the end
+
+
+async def drive_speeds(cells: list[Peer], broker: Mosquitto, seconds: float, settle: float) -> Drive:
+    """Set each cell's Filler1 MachSpeed to a new value every ``SET_EVERY`` s for ``seconds`` (an
+    asyncua client per cell), then wait ``settle`` s for the last values' way."""
+    from asyncua import Client, ua
+
+    clients = [Client(p.endpoint, timeout=30) for p in cells]
+    for c in clients:
+        await c.connect()
+    ns = await clients[0].get_namespace_index("urn:uacell:cell")
+    unit, method = ua.NodeId("Filler1", ns), ua.NodeId("Filler1.SetMachSpeed", ns)
+    values: dict[int, list[float]] = defaultdict(list)
+    pids = [p.proc.pid for p in cells if p.proc is not None]
+    cpu0 = [cpu_seconds(pid) for pid in pids]
+    broker0 = cpu_seconds(broker.proc.pid) if broker.proc else 0.0
+    t0 = time.monotonic()
+    step = 0
+    while time.monotonic() - t0 < seconds:
+        step += 1
+        for i, c in enumerate(clients):
+            value = float(step * 10 + i % 10) + 0.5
+            await c.get_node(unit).call_method(method, ua.Variant(value, ua.VariantType.Float))
+            values[i].append(value)
+        await asyncio.sleep(max(0.0, t0 + step * SET_EVERY - time.monotonic()))
+    await asyncio.sleep(settle)
+    wall = time.monotonic() - t0
+    cpu = [(cpu_seconds(pid) - c0) / wall for pid, c0 in zip(pids, cpu0, strict=True)]
+    broker_cpu = ((cpu_seconds(broker.proc.pid) if broker.proc else 0.0) - broker0) / wall
+    rss = [_rss_mib(pid) for pid in pids]
+    for c in clients:
+        await c.disconnect()
+    return Drive(values, wall, cpu, broker_cpu, rss)
+
+
 async def _measure(broker: Mosquitto, cells: list[Peer], seconds: float) -> dict[str, Any]:
     import logging
 
     import aiomqtt
-    from asyncua import Client, ua
 
     logging.getLogger("asyncua").setLevel(logging.ERROR)
 
@@ -162,32 +223,9 @@ async def _measure(broker: Mosquitto, cells: list[Peer], seconds: float) -> dict
 
     sub = asyncio.ensure_future(subscribe())
     await asyncio.wait_for(ready.wait(), 15)
-    clients = [Client(p.endpoint, timeout=30) for p in cells]
-    for c in clients:
-        await c.connect()
-    ns = await clients[0].get_namespace_index("urn:uacell:cell")
-    unit, method = ua.NodeId("Filler1", ns), ua.NodeId("Filler1.SetMachSpeed", ns)
-    values: dict[int, list[float]] = defaultdict(list)
-    pids = [p.proc.pid for p in cells if p.proc is not None]
-    cpu0 = [cpu_seconds(pid) for pid in pids]
-    broker0 = cpu_seconds(broker.proc.pid) if broker.proc else 0.0
     first = len(received)
-    t0 = time.monotonic()
-    step = 0
-    while time.monotonic() - t0 < seconds:
-        step += 1
-        for i, c in enumerate(clients):
-            value = float(step * 10 + i % 10) + 0.5
-            await c.get_node(unit).call_method(method, ua.Variant(value, ua.VariantType.Float))
-            values[i].append(value)
-        await asyncio.sleep(max(0.0, t0 + step * SET_EVERY - time.monotonic()))
-    await asyncio.sleep(PUBLISHING_INTERVAL * 2 + 0.2)  # the last values' interval, and the way
-    wall = time.monotonic() - t0
-    cpu = [(cpu_seconds(pid) - c0) / wall for pid, c0 in zip(pids, cpu0, strict=True)]
-    broker_cpu = ((cpu_seconds(broker.proc.pid) if broker.proc else 0.0) - broker0) / wall
-    rss = [_rss_mib(pid) for pid in pids]
-    for c in clients:
-        await c.disconnect()
+    run = await drive_speeds(cells, broker, seconds, PUBLISHING_INTERVAL * 2 + 0.2)
+    values, wall, cpu, broker_cpu, rss = run.values, run.wall, run.cpu, run.broker_cpu, run.rss
     sub.cancel()
     with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
         await sub

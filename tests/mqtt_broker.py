@@ -10,7 +10,7 @@ import shutil
 import socket
 import subprocess
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -219,3 +219,14 @@ def make_tls(directory: Path) -> TlsFiles:
         key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())
     )
     return files
+
+
+@contextlib.contextmanager
+def running_broker(workdir: Path, **options: Any) -> Iterator[Broker]:
+    """A started ``Broker`` (options as its constructor's), stopped after (also on failure)."""
+    b = Broker(workdir, **options)
+    b.start()
+    try:
+        yield b
+    finally:
+        b.stop()

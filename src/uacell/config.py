@@ -33,6 +33,7 @@ from uacell.errors import ConfigError
 from uacell.history.config import HistoryConfig
 from uacell.pubsub.config import PubSubConfig, check_pubsub
 from uacell.roles import Role
+from uacell.sparkplug.config import SparkplugConfig, check_sparkplug
 
 T = TypeVar("T")
 
@@ -181,6 +182,7 @@ _OWN: dict[str, type[Any]] = {
     "discovery": DiscoveryConfig,
     "history": HistoryConfig,
     "pubsub": PubSubConfig,
+    "sparkplug": SparkplugConfig,
 }
 _PATHS = {"data_dir", "file", "audit_file", "cache_dir", "ca_file", "cert_file", "key_file", "password_file"}
 _ZERO_MEANS_NO_BOUND = {"max_age_days", "max_mb"}  # [history]: 0 keeps history forever / unbounded
@@ -202,6 +204,7 @@ class Config:
         self.discovery = DiscoveryConfig()
         self.history = HistoryConfig()
         self.pubsub = PubSubConfig()
+        self.sparkplug = SparkplugConfig()
         self.source: Path | None = None
         # The cell: the companions' cell sections ([[robots]], [[packml_units]]), else the demo cell.
         self.cell: CellConfig = load_cell(builtin_cell_path("demo"))
@@ -241,9 +244,9 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
         if not isinstance(value, str):
             raise ConfigError(f"{name}: must be a path string")
         return Path(value).expanduser() if value else None
-    if key == "extra_values":
+    if key in ("extra_values", "parts"):
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-            raise ConfigError(f"{name}: must be a list of 'role:Browse/Path' strings")
+            raise ConfigError(f"{name}: must be a list of strings")
         return list(value)
     if key == "capabilities":
         if not isinstance(value, list) or not all(isinstance(v, str) and v.strip() for v in value):
@@ -450,6 +453,7 @@ def validate(config: Config) -> None:
         raise ConfigError("[users] min_password_length: must be 1..1024")
     check_history(config.history)
     check_pubsub(config.pubsub)
+    check_sparkplug(config.sparkplug)
 
 
 def check_history(h: HistoryConfig) -> None:

@@ -1,4 +1,4 @@
-"""Which values and events of a part matter: the one declaration history and PubSub both read.
+"""Which values and events of a part matter: the one declaration history, PubSub and Sparkplug read.
 
 Each companion declares the DataSets of its parts (``Companion.datasets``, e.g. ``uacell.packml.datasets``);
 ``uacell.catalog.dataset_of(role)`` finds one.
@@ -6,8 +6,8 @@ Per part role (``uacell.cell.Part.role``), the variables below the part (BrowseN
 separated, ``*`` one child of any name) with what they are, and the notifiers below the part whose
 events matter (state machines: their TransitionEvents and AuditUpdateStateEvents; a robot
 controller's alarms, fired through the controller; history also keeps the Server object's events as
-a whole). Pure: resolving a path to a node is the
-reader's (``resolve`` takes a child lookup).
+a whole); for Sparkplug (docs/sparkplug.md) whether the part is a device of its own and the commands
+it takes. Pure: resolving a path to a node is the reader's (``resolve`` takes a child lookup).
 """
 
 from __future__ import annotations
@@ -41,11 +41,19 @@ class Item:
         return self.kind is Kind.POSITION
 
 
+# A command a part takes from outside OPC UA (Sparkplug's DCMD, docs/sparkplug.md): its name and the
+# method(s) it calls, as (object path below the part, method BrowseName); of several, the first
+# whose Executable is true.
+Command = tuple[str, tuple[tuple[str, str], ...]]
+
+
 @dataclass(frozen=True)
 class PartDataSet:
     role: str  # the part role it applies to
     values: tuple[Item, ...]
     notifiers: tuple[str, ...]  # state machines below the part whose events matter
+    device: bool = False  # a Sparkplug device of its own; other parts join the device nearest in the cell
+    commands: tuple[Command, ...] = ()
 
 
 def resolve(path: str, children: Callable[[N], list[tuple[str, N]]], root: N) -> Iterator[tuple[str, N]]:

@@ -45,6 +45,7 @@ from uacell.users import UserStore
 if TYPE_CHECKING:  # imported when [metrics] or [pubsub] is on (prometheus-client, aiomqtt)
     from uacell.metrics import Metrics
     from uacell.pubsub.service import PubSubService
+    from uacell.sparkplug.service import SparkplugService
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +108,7 @@ class UacellServer:
         self.discovery_registration: DiscoveryRegistration | None = None  # with [discovery] url
         self.history: HistoryService | None = None  # HistoryRead ([history], docs/history.md)
         self.pubsub: PubSubService | None = None  # PubSub JSON over MQTT ([pubsub], docs/pubsub.md)
+        self.sparkplug: SparkplugService | None = None  # Sparkplug B ([sparkplug], docs/sparkplug.md)
         self.event_tap = EventTap(self.server.iserver)  # every event fired, for history and PubSub
 
     @property
@@ -229,6 +231,22 @@ class UacellServer:
                 self.config.server.port,
                 self.data_dir,
             )
+        if self.config.sparkplug.enabled:
+            self.sparkplug = self._sparkplug()
+
+    def _sparkplug(self) -> SparkplugService | None:
+        from uacell.pubsub.service import default_publisher_id
+        from uacell.sparkplug.devices import PartRef as SparkplugPart
+        from uacell.sparkplug.service import install_sparkplug
+
+        return install_sparkplug(
+            self.config.sparkplug,
+            self.server.iserver.aspace,
+            self.dispatcher,
+            [SparkplugPart(b.part.role, b.node, b.path) for b in self.cell.built],
+            default_publisher_id(self.config.server.port),
+            self.data_dir,
+        )
 
     async def start(self) -> None:
         await publish_operation_limits(self.server, self.limits)
@@ -242,6 +260,8 @@ class UacellServer:
         await self.dispatcher.refresh_executable()
         if self.pubsub is not None:
             self.pubsub.start(self.event_tap)
+        if self.sparkplug is not None:
+            self.sparkplug.start()
         if self.diagnostics is not None:
             await self.diagnostics.start()
         if self.config.metrics.enabled:
@@ -252,6 +272,10 @@ class UacellServer:
                 from uacell.pubsub.metrics import PubSubCollector
 
                 self.metrics.registry.register(PubSubCollector(self.pubsub.link))
+            if self.sparkplug is not None:
+                from uacell.sparkplug.metrics import SparkplugCollector
+
+                self.metrics.registry.register(SparkplugCollector(self.sparkplug))
             await self.metrics.start(self.config.metrics.host, self.config.metrics.port)
         if self.config.discovery.url:
             cfg, pki = self.config.server, PkiPaths.in_data_dir(self.data_dir)
@@ -298,6 +322,8 @@ class UacellServer:
         await self.publisher.close()
         if self.pubsub is not None:  # the last values out, then the status Disabled
             await self.pubsub.stop()
+        if self.sparkplug is not None:  # the last values out, then the NDEATH
+            await self.sparkplug.stop()
         if self.diagnostics is not None:
             await self.diagnostics.stop()
         await self.server.stop()

@@ -1,9 +1,13 @@
-"""What history keeps and PubSub publishes of a PackML unit (``Companion.datasets``, uacell.datasets)."""
+"""What history keeps, PubSub and Sparkplug publish of a PackML unit, and the commands it takes
+(``Companion.datasets``, uacell.datasets)."""
 
 from __future__ import annotations
 
 from uacell.datasets import Item, Kind, PartDataSet
 
+_SM = "BaseStateMachine"
+_MACHINE = f"{_SM}/MachineState"
+_EXECUTE = f"{_MACHINE}/ExecuteState"
 _PACKML_MACHINES = (
     "BaseStateMachine",
     "BaseStateMachine/MachineState",
@@ -32,4 +36,20 @@ PACKML_UNIT = PartDataSet(
         Item("OEE/GoodCount", Kind.OEE),
     ),
     notifiers=_PACKML_MACHINES,
+    device=True,
+    # Reset: MachineState's from Stopped, ExecuteState's from Complete (whichever is executable)
+    commands=(
+        ("Reset", ((_MACHINE, "Reset"), (_EXECUTE, "Reset"))),
+        ("Start", ((_EXECUTE, "Start"),)),
+        ("Stop", ((_MACHINE, "Stop"),)),
+        ("Hold", ((_EXECUTE, "Hold"),)),
+        ("Unhold", ((_EXECUTE, "Unhold"),)),
+        ("Suspend", ((_EXECUTE, "Suspend"),)),
+        ("Unsuspend", ((_EXECUTE, "Unsuspend"),)),
+        ("Complete", ((_EXECUTE, "ToComplete"),)),
+        ("Abort", ((_SM, "Abort"),)),
+        ("Clear", ((_SM, "Clear"),)),
+        ("SetMachSpeed", (("", "SetMachSpeed"),)),
+        ("SetUnitMode", (("", "SetUnitMode"),)),
+    ),
 )

@@ -1,26 +1,38 @@
-"""What history keeps and PubSub publishes of a robot's parts (``Companion.datasets``, uacell.datasets)."""
+"""What history keeps, PubSub and Sparkplug publish of a robot's parts, and the commands they take
+(``Companion.datasets``, uacell.datasets)."""
 
 from __future__ import annotations
 
 from uacell.datasets import Item, Kind, PartDataSet
 
+_SYSTEM = "SystemOperation/SystemOperationStateMachine"
+_TASK = "TaskControlOperation/TaskControlStateMachine"
+
 ROBOT_CONTROLLER = PartDataSet(
     role="controller",
-    values=(Item("SystemOperation/SystemOperationStateMachine/CurrentState", Kind.STATE),),
+    values=(Item(f"{_SYSTEM}/CurrentState", Kind.STATE),),
     # "": the controller itself, which its alarms (Conditions) are fired through
-    notifiers=("", "SystemOperation/SystemOperationStateMachine"),
+    notifiers=("", _SYSTEM),
+    device=True,  # with its task controls and its robot's motion devices
+    commands=(("GetReady", ((_SYSTEM, "GetReady"),)), ("StandDown", ((_SYSTEM, "StandDown"),))),
 )
 
 ROBOT_TASK_CONTROL = PartDataSet(
     role="task_control",
     values=(
-        Item("TaskControlOperation/TaskControlStateMachine/CurrentState", Kind.STATE),
+        Item(f"{_TASK}/CurrentState", Kind.STATE),
         Item("ParameterSet/TaskProgramName", Kind.PROGRAM),
         Item("ParameterSet/ProgramPointer", Kind.PROGRAM),
         Item("ParameterSet/CurrentLine", Kind.PROGRAM),  # uacell's own: the program's source line
         Item("ParameterSet/TaskProgramLoaded", Kind.PROGRAM),
     ),
-    notifiers=("TaskControlOperation/TaskControlStateMachine",),
+    notifiers=(_TASK,),
+    commands=(
+        ("LoadByName", ((_TASK, "LoadByName"),)),
+        ("UnloadProgram", ((_TASK, "UnloadProgram"),)),
+        ("Start", ((_TASK, "Start"),)),
+        ("Stop", ((_TASK, "Stop"),)),
+    ),
 )
 
 ROBOT_MOTION_DEVICE = PartDataSet(
