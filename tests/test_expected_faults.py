@@ -1,0 +1,251 @@
+"""Faults the docs call expected and handled log no ERROR and no traceback: one WARNING line says each
+(a PLC or a robot controller killed), nothing above INFO for a client killed in the middle of a call;
+a genuine bug in the same places still logs its ERROR with the traceback.
+
+Every counterpart is real and its own process: node-opcua's PackTags PLC (interop/plc_packtags.js),
+the Modbus PackTags PLC and the Modbus robot controller (pymodbus servers, uacell.gateway.examples),
+an asyncua client killed with SIGKILL. The log is the one uacell writes (caplog at INFO, asyncua's
+loggers at uacell's own level), grepped after the fault was handled."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import pytest
+from asyncua import Client, ua
+from conftest import fast_config, serving
+from helpers import cell_executable, free_port, until, wait_until
+from test_gateway_packml import PLC as PackTagsPLC
+from test_gateway_packml_modbus import ModbusPLC
+from test_gateway_robot import PLC as RobotController
+from test_gateway_robot import cell_text as robot_cell
+
+from uacell.cell_file import builtin_cell_path
+from uacell.config import load_cell
+from uacell.gateway import modbus, opcua_link, packml_modbus, packml_opcua
+from uacell.server import UacellServer
+
+pytestmark = pytest.mark.interop
+RESET = "Capper.BaseStateMachine.MachineState.Reset"
+SESSION_LOG = "asyncua.client.ua_session.UaSession"
+
+
+def above_info(caplog: pytest.LogCaptureFixture) -> list[tuple[str, str, str]]:
+    """(level, logger, message) of every WARNING and ERROR record."""
+    return [(r.levelname, r.name, r.getMessage()) for r in caplog.records if r.levelno >= logging.WARNING]
+
+
+def assert_quiet(caplog: pytest.LogCaptureFixture, warnings: list[str]) -> None:
+    """No ERROR, no traceback anywhere in the log, and exactly ``warnings`` (messages) as WARNINGs."""
+    errors = [r for r in caplog.records if r.levelno >= logging.ERROR]
+    assert not errors, [(r.name, r.getMessage()) for r in errors]
+    assert not [r for r in caplog.records if r.exc_info], "a record carries a traceback"
+    assert "Traceback" not in caplog.text
+    assert [m for level, _, m in above_info(caplog) if level == "WARNING"] == warnings, above_info(caplog)
+
+
+def capture(caplog: pytest.LogCaptureFixture) -> None:
+    """From now on: the log at INFO, as uacell logs (asyncua's loggers keep uacell's ERROR), and
+    asyncua's session logger at DEBUG, where the demoted records show what asyncua saw."""
+    caplog.clear()
+    caplog.set_level(logging.INFO)
+    caplog.set_level(logging.DEBUG, logger=SESSION_LOG)  # restored after the test
+
+
+@pytest.fixture
+async def packtags_plc() -> AsyncIterator[PackTagsPLC]:
+    p = PackTagsPLC(["Capper"])
+    p.start()
+    try:
+        yield p
+    finally:
+        p.kill()
+
+
+@contextlib.asynccontextmanager
+async def serve_cell(tmp_path: Path, text: str) -> AsyncIterator[tuple[UacellServer, Client]]:
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(path)
+    async with serving(config) as served:
+        yield served
+
+
+async def test_a_killed_opcua_plc_is_one_warning_and_no_traceback(
+    tmp_path: Path, packtags_plc: PackTagsPLC, caplog: pytest.LogCaptureFixture
+) -> None:
+    text = builtin_cell_path("packtags-unit").read_text().replace(":4841/", f":{packtags_plc.port}/")
+    async with serve_cell(tmp_path, text) as (_app, client):
+        await until(lambda: cell_executable(client, RESET), True)
+        (link,) = packml_opcua.POOL._links.values()
+        capture(caplog)
+        packtags_plc.kill()
+        await until(lambda: cell_executable(client, RESET), False)  # CommunicationLost: handled
+        before = link.attempts
+        await wait_until(lambda: link.attempts >= before + 3, timeout=30)  # and reconnection tried
+        assert_quiet(caplog, [f"the PLC at {packtags_plc.endpoint}: lost the connection (retrying)"])
+        # asyncua's client did see it, and says so at DEBUG only, in one line
+        said = [r for r in caplog.records if r.name == SESSION_LOG and "Publish iteration crashed" in r.getMessage()]
+        assert said and {r.levelno for r in said} == {logging.DEBUG}, said
+        assert "ConnectionError" in said[0].getMessage() and "an expected fault" in said[0].getMessage()
+        # the reconnection attempts that meet a closed port are INFO, said once
+        refused = [r for r in caplog.records if "(retrying)" in r.getMessage() and r.levelno == logging.INFO]
+        assert len(refused) == 1, [r.getMessage() for r in refused]
+
+
+async def test_a_killed_modbus_plc_is_one_warning_and_no_traceback(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    plc = ModbusPLC()
+    plc.start()
+    try:
+        text = builtin_cell_path("modbus-packtags").read_text().replace("port = 5021", f"port = {plc.port}")
+        async with serve_cell(tmp_path, text) as (_app, client):
+            await until(lambda: cell_executable(client, RESET), True)
+            (link,) = packml_modbus.POOL._links.values()  # the two units share it
+            capture(caplog)
+            plc.kill()
+            for unit in ("Capper", "Labeler"):
+                await until(lambda u=unit: cell_executable(client, f"{u}.BaseStateMachine.MachineState.Reset"), False)
+            before = link.attempts
+            await wait_until(lambda: link.attempts >= before + 3, timeout=30)
+            assert_quiet(caplog, [f"the PLC at modbus://127.0.0.1:{plc.port}: lost the connection (retrying)"])
+    finally:
+        plc.kill()
+
+
+async def test_a_killed_robot_controller_is_one_warning_and_no_traceback(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    controller = RobotController(free_port(), 1.0)
+    controller.start()
+    try:
+        await controller.io()  # listening
+        async with serve_cell(tmp_path, robot_cell(controller.port)) as (_app, client):
+            conn = modbus.SHARED._connections[("127.0.0.1", controller.port)]
+            ns = await client.get_namespace_index("urn:uacell:cell")
+            lost = client.get_node(
+                ua.NodeId(
+                    "Palletizer.Controllers.Cabinet.SystemOperation.Conditions.CommunicationLost.ActiveState.Id", ns
+                )
+            )
+            capture(caplog)
+            controller.kill()
+            await until(lost.read_value, True)
+            before = conn.attempts
+            await wait_until(lambda: conn.attempts >= before + 3, timeout=30)
+            endpoint = f"modbus://127.0.0.1:{controller.port}"
+            assert_quiet(caplog, [f"Palletizer.Controllers.Cabinet: lost the controller at {endpoint} (retrying)"])
+    finally:
+        controller.kill()
+        for c in controller.clients:
+            c.close()
+
+
+CLIENT = """
+import asyncio, sys
+from asyncua import Client, ua
+
+async def main():
+    async with Client(sys.argv[1], timeout=30) as client:
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        obj = "Capper.BaseStateMachine.MachineState"
+        print("calling", flush=True)
+        await client.get_node(ua.NodeId(obj, ns)).call_method(ua.NodeId(obj + ".Reset", ns))
+
+asyncio.run(main())
+"""
+
+
+async def test_a_client_killed_in_the_middle_of_a_call_logs_nothing_above_info(
+    tmp_path: Path, packtags_plc: PackTagsPLC, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Reset waits for the PLC (frozen: it never takes the request) while its client is killed; the
+    call ends with its timeout and its answer goes nowhere, quietly."""
+    text = builtin_cell_path("packtags-unit").read_text().replace(":4841/", f":{packtags_plc.port}/")
+    async with serve_cell(tmp_path, text) as (app, client):
+        await until(lambda: cell_executable(client, RESET), True)
+        async with Client(packtags_plc.endpoint, timeout=10, watchdog_intervall=30.0) as plc_client:
+            packtags_plc.client = plc_client
+            await packtags_plc.set("Capper", "Sim.Frozen", True, ua.VariantType.Boolean)
+            capture(caplog)
+            proc = subprocess.Popen(
+                [sys.executable, "-c", CLIENT, app.endpoint],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.DEVNULL,
+                text=True,
+            )
+            try:
+                await until(lambda: packtags_plc.tag("Capper", "Command.CmdChangeRequest"), True)  # in flight
+                os.kill(proc.pid, signal.SIGKILL)
+                await asyncio.to_thread(proc.wait, 10)
+                # the call ends (its request taken back from the PLC) and is audited once it is answered
+                await until(lambda: packtags_plc.tag("Capper", "Command.CmdChangeRequest"), False)
+
+                def answered() -> bool:
+                    return any(r.name == "uacell.audit" and r.getMessage() == "call" for r in caplog.records)
+
+                await wait_until(answered, timeout=30)
+            finally:
+                proc.kill()
+                proc.wait(10)
+                assert proc.stdout is not None
+                proc.stdout.close()
+            packtags_plc.client = None
+        assert_quiet(caplog, [])
+        assert await cell_executable(client, RESET)  # and the server goes on serving
+
+
+def test_a_genuine_fault_in_the_same_loggers_keeps_its_error_and_traceback(caplog: pytest.LogCaptureFixture) -> None:
+    """The filters take the expected faults only: an exception that is not a lost connection, logged
+    where asyncua's client and pymodbus log theirs, stays an ERROR with its traceback."""
+    opcua_link.quiet_client()
+    modbus.quiet_pymodbus()
+    caplog.set_level(logging.DEBUG)
+    caplog.set_level(logging.DEBUG, logger="asyncua")
+    session = logging.getLogger(SESSION_LOG)
+    for exc in (
+        ConnectionError("Connection is closed"),
+        KeyError("SubscriptionId"),
+        PermissionError(13, "Permission denied"),
+    ):
+        try:
+            raise exc
+        except Exception:
+            session.exception("Publish iteration crashed; retrying in 1s")
+    closing = logging.getLogger("asyncua.client.client")
+    try:
+        raise ua.UaStatusCodeError(ua.StatusCodes.BadSecureChannelClosed)
+    except ua.UaError:
+        closing.exception("close_secure_channel raised during disconnect; continuing teardown")
+    try:
+        raise ua.UaStatusCodeError(ua.StatusCodes.BadNodeIdUnknown)
+    except ua.UaError:
+        closing.exception("close_session raised during disconnect; continuing teardown")
+    pymodbus_log = logging.getLogger("pymodbus.logging")
+    pymodbus_log.warning("Failed to connect [Errno 111] Connect call failed ('127.0.0.1', 502)")
+    pymodbus_log.warning("Repeating....")
+    pymodbus_log.error("Invalid Modbus protocol id: 7")
+    pymodbus_log.error("Repeating....")
+    kept = [(r.levelname, r.getMessage(), type(r.exc_info[1]).__name__ if r.exc_info else None) for r in caplog.records]
+    assert [k for k in kept if k[0] != "DEBUG"] == [
+        ("ERROR", "Publish iteration crashed; retrying in 1s", "KeyError"),
+        ("ERROR", "Publish iteration crashed; retrying in 1s", "PermissionError"),
+        ("ERROR", "close_session raised during disconnect; continuing teardown", "BadNodeIdUnknown"),
+        ("ERROR", "Invalid Modbus protocol id: 7", None),
+        ("ERROR", "Repeating....", None),
+    ]
+    quiet = [m for level, m, _ in kept if level == "DEBUG"]
+    assert len(quiet) == 4, quiet  # the lost connections: one line each, without a traceback
+    assert quiet[0].startswith("Publish iteration crashed; retrying in 1s (ConnectionError: Connection is closed)")
+    assert "BadSecureChannelClosed" in quiet[1] and quiet[2].startswith("Failed to connect") and "Repeating" in quiet[3]
+    assert all(not r.exc_info for r in caplog.records if r.levelno == logging.DEBUG)
