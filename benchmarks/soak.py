@@ -284,6 +284,7 @@ class Load:
             await start_robot(driver, self.ns, f"Robot{i}")
         holders = [await self._subscribed() for _ in range(SESSIONS)]
         probe = await self.client()
+        await asyncio.to_thread(self._open_hmi)  # the page's browser session, before its requests
         begin()
         self.window = Window()  # the set-up is not the soak
         tasks = [
@@ -369,16 +370,14 @@ class Load:
         await self.timed("HistoryRead values", node.read_raw_history(end - timedelta(minutes=5), end, 1000))
 
     # the HMI page: a browser session, its event stream held open, the history every 15 s
-    def _opener(self) -> urllib.request.OpenerDirector:
-        if not hasattr(self, "_hmi"):
-            self._hmi = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
-            with self._hmi.open(self.server.url + "/api/session", timeout=60) as res:
-                res.read()
-        return self._hmi
+    def _open_hmi(self) -> None:
+        self._hmi = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
+        with self._hmi.open(self.server.url + "/api/session", timeout=60) as res:
+            res.read()
 
     def _hmi_events(self) -> None:
         try:
-            with self._opener().open(self.server.url + "/api/events", timeout=120) as stream:
+            with self._hmi.open(self.server.url + "/api/events", timeout=120) as stream:
                 for line in stream:
                     if line.startswith(b"data: "):
                         self.window.count("HMI events")
@@ -390,7 +389,7 @@ class Load:
 
     async def _hmi_history(self) -> None:
         def fetch() -> int:
-            with self._opener().open(self.server.url + "/api/history?hours=8", timeout=120) as res:
+            with self._hmi.open(self.server.url + "/api/history?hours=8", timeout=120) as res:
                 return len(res.read())
 
         size = await self.timed("HMI history", asyncio.to_thread(fetch))
