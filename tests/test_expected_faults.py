@@ -91,19 +91,31 @@ async def serve_cell(tmp_path: Path, text: str) -> AsyncIterator[tuple[UacellSer
         yield served
 
 
+def fail(proc: subprocess.Popen[str] | subprocess.Popen[bytes] | None, fault: str) -> None:
+    """``killed``: SIGKILL, its port closes; ``frozen``: SIGSTOP, its connections stay open and nothing
+    answers (the fixtures kill it in the end)."""
+    assert proc is not None
+    proc.send_signal(signal.SIGKILL if fault == "killed" else signal.SIGSTOP)
+    if fault == "killed":
+        proc.wait(10)
+
+
+@pytest.mark.parametrize("fault", ["killed", "frozen"])
 async def test_a_killed_opcua_plc_is_one_warning_and_no_traceback(
-    tmp_path: Path, packtags_plc: PackTagsPLC, caplog: pytest.LogCaptureFixture
+    tmp_path: Path, packtags_plc: PackTagsPLC, caplog: pytest.LogCaptureFixture, fault: str
 ) -> None:
     text = builtin_cell_path("packtags-unit").read_text().replace(":4841/", f":{packtags_plc.port}/")
     async with serve_cell(tmp_path, text) as (_app, client):
         await until(lambda: cell_executable(client, RESET), True)
         (link,) = packml_opcua.POOL._links.values()
         capture(caplog, asyncua_session=True)
-        packtags_plc.kill()
+        fail(packtags_plc.proc, fault)
         await until(lambda: cell_executable(client, RESET), False)  # CommunicationLost: handled
         before = link.attempts
         await wait_until(lambda: link.attempts >= before + 3, timeout=30)  # and reconnection tried
         assert_quiet(caplog, [f"the PLC at {packtags_plc.endpoint}: lost the connection (retrying)"])
+        if fault == "frozen":
+            return
         # asyncua's client did see it, and says so at DEBUG only, in one line
         said = [r for r in caplog.records if r.name == SESSION_LOG and "Publish iteration crashed" in r.getMessage()]
         assert said and {r.levelno for r in said} == {logging.DEBUG}, said
@@ -113,8 +125,9 @@ async def test_a_killed_opcua_plc_is_one_warning_and_no_traceback(
         assert len(refused) == 1, [r.getMessage() for r in refused]
 
 
+@pytest.mark.parametrize("fault", ["killed", "frozen"])
 async def test_a_killed_modbus_plc_is_one_warning_and_no_traceback(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, fault: str
 ) -> None:
     plc = ModbusPLC()
     plc.start()
@@ -124,7 +137,7 @@ async def test_a_killed_modbus_plc_is_one_warning_and_no_traceback(
             await until(lambda: cell_executable(client, RESET), True)
             (link,) = packml_modbus.POOL._links.values()  # the two units share it
             capture(caplog)
-            plc.kill()
+            fail(plc.proc, fault)
             for unit in ("Capper", "Labeler"):
                 await until(lambda u=unit: cell_executable(client, f"{u}.BaseStateMachine.MachineState.Reset"), False)
             before = link.attempts
@@ -134,8 +147,9 @@ async def test_a_killed_modbus_plc_is_one_warning_and_no_traceback(
         plc.kill()
 
 
+@pytest.mark.parametrize("fault", ["killed", "frozen"])
 async def test_a_killed_robot_controller_is_one_warning_and_no_traceback(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, fault: str
 ) -> None:
     controller = RobotController(free_port(), 1.0)
     controller.start()
@@ -150,10 +164,10 @@ async def test_a_killed_robot_controller_is_one_warning_and_no_traceback(
                 )
             )
             capture(caplog)
-            controller.kill()
+            fail(controller.proc, fault)
             await until(lost.read_value, True)
-            before = conn.attempts
-            await wait_until(lambda: conn.attempts >= before + 3, timeout=30)
+            before = conn.attempts + conn.unanswered
+            await wait_until(lambda: conn.attempts + conn.unanswered >= before + 3, timeout=30)  # and it retried
             endpoint = f"modbus://127.0.0.1:{controller.port}"
             assert_quiet(caplog, [f"Palletizer.Controllers.Cabinet: lost the controller at {endpoint} (retrying)"])
     finally:

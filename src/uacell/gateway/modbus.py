@@ -61,6 +61,11 @@ class CommunicationError(Exception):
     """The endpoint did not answer or answered with an error (message names the endpoint)."""
 
 
+class NoAnswer(CommunicationError):
+    """The endpoint did not answer at all (gone, frozen or out of reach): the connection is lost, not
+    a request refused."""
+
+
 @dataclass(frozen=True)
 class ModbusTag:
     table: str  # one of TABLES
@@ -129,6 +134,7 @@ class ModbusConnection:
         quiet_pymodbus()
         self.host, self.port, self.timeout = host, port, timeout
         self.attempts = 0  # failed attempts to connect
+        self.unanswered = 0  # requests that got no answer
         self.owner = ""  # the part that opened it (for messages)
         self._client = AsyncModbusTcpClient(host, port=port, timeout=timeout, retries=0, reconnect_delay=0)
         self._lock = asyncio.Lock()
@@ -176,7 +182,8 @@ class ModbusConnection:
                     rr = await self._client.read_input_registers(start, count=count, device_id=unit)
             except (TimeoutError, ModbusException, OSError) as exc:
                 _cancelled()
-                raise CommunicationError(f"{self.name}: {exc}") from None
+                self.unanswered += 1
+                raise NoAnswer(f"{self.name}: {exc}") from None
         if rr.isError():
             raise CommunicationError(f"{self.name}: unit {unit} {table} {start}..{start + count - 1}: {_refusal(rr)}")
         if table in ("coil", "discrete"):
@@ -200,7 +207,8 @@ class ModbusConnection:
                     rr = await self._client.write_registers(start, [int(v) for v in values], device_id=unit)
             except (TimeoutError, ModbusException, OSError) as exc:
                 _cancelled()
-                raise CommunicationError(f"{self.name}: {exc}") from None
+                self.unanswered += 1
+                raise NoAnswer(f"{self.name}: {exc}") from None
         if rr.isError():
             raise CommunicationError(f"{self.name}: unit {unit} {table} {start}: {_refusal(rr)}")
 

@@ -25,7 +25,15 @@ from typing import Any
 from uacell.gateway import driver_settings
 from uacell.gateway.codec import CodecError, RegisterType
 from uacell.gateway.link import FIRST_RETRY, LAST_RETRY, Listeners, StateListener, ValueListener
-from uacell.gateway.modbus import SHARED, CommunicationError, ModbusConnection, ModbusTag, endpoint_name, spans
+from uacell.gateway.modbus import (
+    SHARED,
+    CommunicationError,
+    ModbusConnection,
+    ModbusTag,
+    NoAnswer,
+    endpoint_name,
+    spans,
+)
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
 from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag
 
@@ -235,7 +243,7 @@ class ModbusTagLink(Listeners):
             up = False
             try:
                 if not self.conn.connected and not await self.conn.connect():
-                    raise CommunicationError("no answer")
+                    raise NoAnswer("no answer")
                 await self._first_read()
                 self._announce()
                 up = True
@@ -245,11 +253,11 @@ class ModbusTagLink(Listeners):
                     await self._poll()
                 self._report_lost()  # a unit's read or write found it gone
             except CommunicationError as exc:
-                if up and not self.conn.connected:
+                lost = isinstance(exc, NoAnswer) or not self.conn.connected
+                if up and lost:
                     self._report_lost()
                 else:
-                    reason = str(exc).removeprefix(f"{self.endpoint}: ")
-                    self._report_failed(reason, unreachable=not self.conn.connected)
+                    self._report_failed(str(exc).removeprefix(f"{self.endpoint}: "), unreachable=lost)
             self._set_connected(False)
             await asyncio.sleep(delay)
             delay = min(delay * 2, LAST_RETRY)
@@ -259,8 +267,8 @@ class ModbusTagLink(Listeners):
         addresses = list(self._watched)
         try:
             values = await self._read(addresses)
-        except CommunicationError:
-            if not self.conn.connected:
+        except CommunicationError as exc:
+            if isinstance(exc, NoAnswer) or not self.conn.connected:
                 raise
             for address in addresses:
                 try:
