@@ -249,6 +249,8 @@ class Load:
         self.window = Window()
         self.stopping = asyncio.Event()
         self.ns = 0
+        self.turn = 0  # the filler cycled last (1..FILLERS - 1 stand for Filler2..)
+        self._hmi: urllib.request.OpenerDirector | None = None
 
     async def timed(self, kind: str, work: Awaitable[Any]) -> Any:
         t0 = time.perf_counter()
@@ -340,8 +342,8 @@ class Load:
 
     async def _cycle_filler(self, client: Client) -> None:
         """One filler in turn (2..4: Filler1 keeps producing for the call probe) is stopped and started again."""
-        self._turn = getattr(self, "_turn", 0) % (FILLERS - 1) + 1
-        filler = f"Filler{self._turn + 1}"
+        self.turn = self.turn % (FILLERS - 1) + 1
+        filler = f"Filler{self.turn + 1}"
 
         async def cycle() -> None:
             await call(client, self.ns, machine(filler), "Stop")
@@ -375,9 +377,14 @@ class Load:
         with self._hmi.open(self.server.url + "/api/session", timeout=60) as res:
             res.read()
 
+    @property
+    def hmi(self) -> urllib.request.OpenerDirector:
+        assert self._hmi is not None, "the HMI session is opened before the load starts"
+        return self._hmi
+
     def _hmi_events(self) -> None:
         try:
-            with self._hmi.open(self.server.url + "/api/events", timeout=120) as stream:
+            with self.hmi.open(self.server.url + "/api/events", timeout=120) as stream:
                 for line in stream:
                     if line.startswith(b"data: "):
                         self.window.count("HMI events")
@@ -389,7 +396,7 @@ class Load:
 
     async def _hmi_history(self) -> None:
         def fetch() -> int:
-            with self._hmi.open(self.server.url + "/api/history?hours=8", timeout=120) as res:
+            with self.hmi.open(self.server.url + "/api/history?hours=8", timeout=120) as res:
                 return len(res.read())
 
         size = await self.timed("HMI history", asyncio.to_thread(fetch))
