@@ -80,3 +80,18 @@ def test_serve_refuses_them_before_it_listens(tmp_path: Path) -> None:
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert proc.stderr.strip().splitlines()[-1].endswith(REFUSAL), proc.stderr
     assert "Traceback" not in proc.stderr and "listening" not in proc.stdout
+
+
+def test_a_robot_and_a_unit_on_one_plc_share_the_connection_and_its_timeout(tmp_path: Path) -> None:
+    """The modbus-signals robot driver and the modbus-packtags units use the same pool."""
+    robot = builtin_cell_path("modbus-robot").read_text().replace("port = 5020", "port = 5021, timeout = 2.0")
+    path = tmp_path / "cell.toml"
+    path.write_text(builtin_cell_path("modbus-packtags").read_text() + "\n" + robot)
+    proc = uacell("config", "check", str(path))
+    assert proc.returncode != 0, proc.stdout
+    assert proc.stderr.strip().endswith(
+        "Palletizer.Cabinet: timeout = 2, but Capper shares its connection to modbus://127.0.0.1:5021 with "
+        "timeout = 1: parts on one PLC endpoint use one connection, so give them the same timeout"
+    ), proc.stderr
+    path.write_text(path.read_text().replace("port = 5021, timeout = 2.0", "port = 5022, timeout = 2.0"))
+    assert uacell("config", "check", str(path)).returncode == 0  # another PLC: its own connection
