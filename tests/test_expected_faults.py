@@ -23,9 +23,10 @@ import sys
 import urllib.request
 from collections.abc import AsyncIterator
 from pathlib import Path
+from typing import Any
 
 import pytest
-from asyncua import Client, ua
+from asyncua import Client, Server, ua
 from conftest import fast_config, serving, start_app
 from helpers import cell_executable, free_port, until, wait_until
 from test_gateway_packml import PLC as PackTagsPLC
@@ -327,3 +328,43 @@ async def test_a_web_client_gone_in_the_middle_of_a_request_logs_nothing_above_i
     finally:
         await web.stop()
         await app.stop()
+
+
+class _Broken(dict[Any, str]):
+    """A lookup that fails the way a bug would (not a lost connection)."""
+
+    def get(self, key: Any, default: Any = None) -> str:
+        raise KeyError(key)
+
+
+async def test_a_bug_under_asyncua_s_client_still_logs_its_error_and_traceback(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A real PLC link to an asyncua server whose subscription handler breaks: asyncua's client logs
+    "Exception calling subscription handler" at ERROR with the traceback, through the filter."""
+    server = Server()
+    await server.init()
+    port = free_port()
+    server.set_endpoint(f"opc.tcp://127.0.0.1:{port}/")
+    ns = await server.register_namespace("urn:test:plc")
+    tag = await server.nodes.objects.add_variable(ua.NodeId("Count", ns), "Count", ua.Variant(0, ua.VariantType.Int32))
+    link = opcua_link.PlcLink(opcua_link.LinkOptions(f"opc.tcp://127.0.0.1:{port}/"))
+    seen: list[Any] = []
+    async with server:
+        await link.watch([f"ns={ns};s=Count"], lambda _a, v: seen.append(v), lambda _c: None)
+        link.start()
+        try:
+            assert await link.wait_connected(30)
+            caplog.set_level(logging.INFO)
+            link._address_of = _Broken()  # the handler now fails on every data change
+            await tag.write_value(ua.Variant(1, ua.VariantType.Int32))
+
+            def reported() -> bool:
+                return any("Exception calling subscription handler" in r.getMessage() for r in caplog.records)
+
+            await wait_until(reported, timeout=30)
+        finally:
+            await link.close()
+    (bug,) = [r for r in caplog.records if "Exception calling subscription handler" in r.getMessage()]
+    assert bug.levelno == logging.ERROR and bug.exc_info is not None and isinstance(bug.exc_info[1], KeyError)
+    assert bug.name == "asyncua.common.subscription"
