@@ -72,6 +72,7 @@ PYTEST_ARGS ?= -n 2 --dist loadfile
 test: setup
 	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
 
+# Every section, the 20-minute soak included; one of them: ARGS="--only soak --minutes 2" (docs/performance.md).
 bench: setup
 	$(BIN)/python -m benchmarks $(ARGS)
 
@@ -81,6 +82,7 @@ screenshots: setup
 
 # Not part of `make test`: 200 sessions with subscriptions for 10 minutes while the cell cycles;
 # reports the server's RSS growth and lost notifications (SOAK_ARGS="--sessions 50 --minutes 2").
+# The mixed-load soak with targets is a section of `make bench` (--only soak).
 soak: setup
 	$(BIN)/python tools/soak.py $(SOAK_ARGS)
 

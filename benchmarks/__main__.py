@@ -33,6 +33,7 @@ from typing import Any
 from benchmarks.gateway import gateway_section
 from benchmarks.history import history_section
 from benchmarks.plant import plant_section
+from benchmarks.soak import soak_section
 from benchmarks.sparkplug import sparkplug_section
 from benchmarks.web import web_section
 
@@ -567,6 +568,7 @@ SECTIONS = {
     "plant": plant_section,
     "sparkplug": sparkplug_section,
     "gateway": gateway_section,
+    "soak": soak_section,
 }
 
 
@@ -577,6 +579,7 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, help="length of each measured load run (default 2, quick 1.5)")
     parser.add_argument("--sessions-total", type=int, dest="many_sessions", help="concurrent sessions (1000/100)")
     parser.add_argument("--cells", type=int, help="uacell processes of the plant and sparkplug sections (20/5)")
+    parser.add_argument("--minutes", type=float, help="length of the soak section (default 20, quick 5)")
     parser.add_argument("--only", choices=sorted(SECTIONS), action="append", help="run only these sections")
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "last-run.json", help="raw figures")
     args = parser.parse_args()
@@ -586,6 +589,7 @@ def main() -> int:
     args.seconds = args.seconds or (1.5 if args.quick else 2.0)
     args.many_sessions = args.many_sessions or (100 if args.quick else 1000)
     args.cells = args.cells or (5 if args.quick else 20)
+    args.minutes = args.minutes or (5.0 if args.quick else 20.0)
     args.startup_rounds = max(1, args.rounds - 1)  # the large cell alone takes a minute to start here
     args.sessions = (1, 8, 32)
     args.size_sessions = (1, 8)

@@ -27,14 +27,12 @@ from pathlib import Path
 
 from asyncua import Client, ua
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository: its benchmarks package
+from benchmarks.soak import start_filler, start_robot  # the cell driving, shared with `make bench`
+
 CELL = "urn:uacell:cell"
 F = "Filler1"
-MACH = f"{F}.BaseStateMachine.MachineState"
-EXEC = f"{MACH}.ExecuteState"
-CTRL = "Robot1.Controllers.Controller1"
-TASK = f"{CTRL}.TaskControls.TaskControl1"
-TC = f"{TASK}.TaskControlOperation.TaskControlStateMachine"
-SO = f"{CTRL}.SystemOperation.SystemOperationStateMachine"
+TASK = "Robot1.Controllers.Controller1.TaskControls.TaskControl1"
 
 
 def free_port() -> int:
@@ -73,43 +71,14 @@ class Counts:
         return sum(b - a - 1 for a, b in itertools.pairwise(numbers) if b > a + 1)
 
 
-async def call(client: Client, ns: int, obj: str, method: str, *args: ua.Variant) -> ua.CallMethodResult:
-    req = ua.CallMethodRequest(ObjectId=ua.NodeId(obj, ns), MethodId=ua.NodeId(f"{obj}.{method}", ns))
-    req.InputArguments = list(args)
-    (res,) = await client.uaclient.call([req])
-    if not res.StatusCode.is_good():
-        raise RuntimeError(f"{method}: {res.StatusCode}")
-    return res
-
-
-async def robot(client: Client, ns: int, obj: str, method: str, *args: ua.Variant) -> None:
-    """A Robotics method, which answers its outcome in the Int32 Status output."""
-    status = (await call(client, ns, obj, method, *args)).OutputArguments[0].Value
-    if status != 0:
-        raise RuntimeError(f"{method}: Status {status}")
-
-
 async def drive(endpoint: str) -> Client:
     """Set the cell cycling; the returned client stays connected."""
     client = Client(endpoint, timeout=60)
     await client.connect()
     await client.load_data_type_definitions()  # registers the PackML structures for every client here
     ns = await client.get_namespace_index(CELL)
-    await call(client, ns, MACH, "Reset")
-    await asyncio.sleep(1.0)
-    await call(client, ns, F, "SetMachSpeed", ua.Variant(120.0, ua.VariantType.Float))  # 2 packages/s
-    await call(client, ns, EXEC, "Start", ua.Variant([], ua.VariantType.ExtensionObject, is_array=True))
-    await robot(client, ns, SO, "GetReady")
-    for _ in range(200):
-        state = await client.get_node(ua.NodeId(f"{SO}.CurrentState", ns)).read_value()
-        if state.Text == "Ready":
-            break
-        await asyncio.sleep(0.1)
-    mode = client.get_node(ua.NodeId(f"{TASK}.ParameterSet.ExecutionMode", ns))
-    await mode.write_value(ua.Variant(1, ua.VariantType.Int32))  # CONTINUOUS
-    for program in ("gripper", "pick_and_place"):
-        await robot(client, ns, TC, "LoadByName", ua.Variant(program, ua.VariantType.String))
-    await robot(client, ns, TC, "Start")
+    await start_filler(client, ns, F, 120.0)  # 2 packages/s
+    await start_robot(client, ns, "Robot1")
     return client
 
 

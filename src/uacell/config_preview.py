@@ -34,12 +34,20 @@ def _key(folder: str) -> str:
 
 
 def check_factories(config: Config) -> None:
-    """Every factory the configuration names is importable and callable (it is called only when serving)."""
-    for where, spec in equipment_specs(config):
+    """Every factory the configuration names is importable and callable (it is called only when serving),
+    and parts that share a connection to a PLC agree on its settings (``gateway.probe.shared_settings``)."""
+    specs = equipment_specs(config)
+    for where, spec in specs:
         try:
             load_factory(spec, where)
         except ConfigError as exc:
             raise ConfigError(f"configuration {config.source}: {exc}" if config.source else str(exc)) from exc
+    if any(spec.startswith("uacell.gateway.") for _, spec in specs):
+        from uacell.gateway.probe import shared_settings
+
+        problems = shared_settings(config.cell.parts())
+        if problems:
+            raise ConfigError(f"cell {config.cell.source}: {problems[0]}")
 
 
 def check_lines(config: Config) -> list[str]:

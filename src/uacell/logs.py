@@ -6,6 +6,10 @@ error is reported in the chosen format); ``configure`` then applies the ``[loggi
 handler they install carries the one ``RepeatFilter``: it lets the first ``burst`` records with the
 same logger, level and message template through in each ``window`` seconds and drops the rest; the
 first record let through after a drop says how many were dropped.
+
+``quiet_expected`` installs an ``ExpectedFaults`` filter on a library's loggers: a fault uacell expects
+and handles itself (a PLC killed, a client gone) is one DEBUG line there instead of an ERROR with a
+traceback; uacell says it once, in its own words, where it handles it.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ import logging
 import logging.handlers
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from uacell.config import Config
@@ -142,6 +146,43 @@ def configure(config: Config) -> None:
     for name, level in cfg.levels.items():
         logging.getLogger(name).setLevel(level)
         configured_levels.add(name)
+
+
+class ExpectedFaults(logging.Filter):
+    """Drops a library's WARNING-or-above record of a fault uacell expects and handles itself
+    (``expected(record)`` says which), and says it again on the same logger as one DEBUG line without
+    the traceback; every other record passes unchanged, so a genuine bug keeps its ERROR and traceback.
+
+    ``kind`` names the filter: ``quiet_expected`` installs one filter of a kind on a logger."""
+
+    def __init__(self, kind: str, expected: Callable[[logging.LogRecord], bool]) -> None:
+        super().__init__(kind)
+        self.kind = kind
+        self.expected = expected
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < logging.WARNING or not self.expected(record):
+            return True
+        logger = logging.getLogger(record.name)
+        if logger.isEnabledFor(logging.DEBUG):
+            exc = record.exc_info[1] if record.exc_info else None
+            cause = f" ({type(exc).__name__}: {exc})" if exc is not None else ""
+            logger.debug("%s%s [an expected fault: uacell handles it]", record.getMessage(), cause)
+        return False
+
+
+def quiet_expected(kind: str, loggers: Iterable[str], expected: Callable[[logging.LogRecord], bool]) -> None:
+    """Install ``ExpectedFaults(kind, expected)`` on each of ``loggers`` (by exact name: a logger's
+    filters do not apply to its children), once however often it is called."""
+    for name in loggers:
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, ExpectedFaults) and f.kind == kind for f in logger.filters):
+            logger.addFilter(ExpectedFaults(kind, expected))
+
+
+def exception_of(record: logging.LogRecord) -> BaseException | None:
+    """The exception a record carries (``log.exception``), if any."""
+    return record.exc_info[1] if record.exc_info else None
 
 
 class RefusalLog:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import logging
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
@@ -13,8 +14,24 @@ log = logging.getLogger(__name__)
 
 FIRST_RETRY, LAST_RETRY = 0.5, 2.0  # seconds between reconnection attempts: doubling, at most LAST_RETRY
 
+LOST = "lost the connection"
+# a peer gone or out of reach (asyncio raises a plain OSError for a refused or failed connect)
+NETWORK_ERRNOS = frozenset(
+    {
+        errno.ECONNREFUSED, errno.ECONNRESET, errno.ECONNABORTED, errno.EPIPE, errno.ETIMEDOUT, errno.EBADF,
+        errno.EHOSTUNREACH, errno.ENETUNREACH, errno.ENETDOWN, errno.EHOSTDOWN, errno.ENOTCONN,
+    }
+)  # fmt: skip
+
 ValueListener = Callable[[str, Any], None]  # (address, value)
 StateListener = Callable[[bool], None]  # connected
+
+
+def network_error(exc: BaseException | None) -> bool:
+    """``exc`` says the peer went away or cannot be reached (not a fault of a request or of uacell)."""
+    if isinstance(exc, ConnectionError | TimeoutError):
+        return True
+    return isinstance(exc, OSError) and exc.errno in NETWORK_ERRNOS
 
 
 class TagLink(Protocol):
@@ -54,6 +71,8 @@ class Listeners:
         self.endpoint = ""
         self.connected = False
         self.last_error = ""  # why the last attempt to connect failed, said once
+        self.attempts = 0  # failed attempts to connect (the loss itself included)
+        self.log = log  # the driver's logger
         self._watched: dict[str, list[ValueListener]] = {}
         self._state_listeners: list[StateListener] = []
         self._ready = asyncio.Event()  # set once the first connection was made
@@ -88,10 +107,27 @@ class Listeners:
             except Exception:
                 log.exception("a PLC tag listener failed")
 
+    def _report_lost(self) -> None:
+        """The connection went: one WARNING."""
+        self.attempts += 1
+        self.log.warning("the PLC at %s: %s (retrying)", self.endpoint, LOST)
+        self.last_error = LOST
+
+    def _report_failed(self, reason: str, unreachable: bool) -> None:
+        """An attempt to connect failed: each new reason once. Not reaching the PLC while it is away
+        is INFO (the WARNING was said when it went, or at the first attempt); anything else (a tag
+        the PLC lacks, a refused login) is a WARNING."""
+        self.attempts += 1
+        if reason == self.last_error:
+            return
+        level = logging.INFO if unreachable and self.last_error else logging.WARNING
+        self.log.log(level, "the PLC at %s: %s (retrying)", self.endpoint, reason)
+        self.last_error = reason
+
     def _announce(self) -> None:
         """Connected (again)."""
         if self.last_error:
-            log.info("the PLC at %s answers again", self.endpoint)
+            self.log.info("the PLC at %s answers again", self.endpoint)
         self.last_error = ""
         self._set_connected(True)
 

@@ -3,17 +3,22 @@
 Reads and writes typed tags (``codec.RegisterType``) in the four Modbus tables. A failed request
 marks the connection lost and raises ``CommunicationError``; nothing is queued or retried here (the
 driver decides, and never replays a command).
+
+A PLC killed or out of reach is expected: the drivers say it once, and pymodbus's own records of it
+("Failed to connect", "No response received", ...) are one DEBUG line each (``quiet_pymodbus``).
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 from dataclasses import dataclass
 
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from uacell.gateway.codec import RegisterType
+from uacell.logs import quiet_expected
 
 TABLES = ("coil", "discrete", "holding", "input")
 
@@ -23,8 +28,42 @@ def endpoint_name(host: str, port: int) -> str:
     return f"modbus://{host}:{port}"
 
 
+# how pymodbus's client says that the server went away or cannot be reached
+_LOST = (
+    "Failed to connect",
+    "Not connected, trying to connect!",
+    "No response received",
+    "Cancel send, because not connected!",
+    "Connection to (",
+)
+_REPEATING = "Repeating...."  # pymodbus's stand-in for its previous message said again
+
+
+class _PymodbusLost:
+    """Which pymodbus records say the server is lost; "Repeating...." takes the fate of the record it repeats."""
+
+    def __init__(self) -> None:
+        self.last = False
+
+    def __call__(self, record: logging.LogRecord) -> bool:
+        message = str(record.msg)
+        if message != _REPEATING:
+            self.last = message.startswith(_LOST)
+        return self.last
+
+
+def quiet_pymodbus() -> None:
+    """pymodbus's records of a lost server become DEBUG lines (``uacell.logs.ExpectedFaults``)."""
+    quiet_expected("plc-lost", ("pymodbus.logging",), _PymodbusLost())
+
+
 class CommunicationError(Exception):
     """The endpoint did not answer or answered with an error (message names the endpoint)."""
+
+
+class NoAnswer(CommunicationError):
+    """The endpoint did not answer at all (gone, frozen or out of reach): the connection is lost, not
+    a request refused."""
 
 
 @dataclass(frozen=True)
@@ -92,7 +131,11 @@ class ModbusConnection:
     """One Modbus/TCP endpoint; requests are serialised (one transaction at a time)."""
 
     def __init__(self, host: str, port: int = 502, timeout: float = 1.0) -> None:
-        self.host, self.port = host, port
+        quiet_pymodbus()
+        self.host, self.port, self.timeout = host, port, timeout
+        self.attempts = 0  # failed attempts to connect
+        self.unanswered = 0  # requests that got no answer
+        self.owner = ""  # the part that opened it (for messages)
         self._client = AsyncModbusTcpClient(host, port=port, timeout=timeout, retries=0, reconnect_delay=0)
         self._lock = asyncio.Lock()
         self.users = 0
@@ -100,6 +143,12 @@ class ModbusConnection:
     @property
     def name(self) -> str:
         return endpoint_name(self.host, self.port)
+
+    def check_shared(self, part: str, timeout: float) -> None:
+        """A ValueError naming both parts if ``part`` would share this connection with another timeout."""
+        if timeout != self.timeout:
+            first = (self.owner or "another part", self.timeout)
+            raise ValueError(shared_conflict(self.name, "timeout", first, (part, timeout)))
 
     @property
     def connected(self) -> bool:
@@ -110,6 +159,7 @@ class ModbusConnection:
         if not self._client.connected:
             await self._client.connect()
             _cancelled()
+            self.attempts += not self._client.connected
         return bool(self._client.connected)
 
     def close(self) -> None:
@@ -132,7 +182,8 @@ class ModbusConnection:
                     rr = await self._client.read_input_registers(start, count=count, device_id=unit)
             except (TimeoutError, ModbusException, OSError) as exc:
                 _cancelled()
-                raise CommunicationError(f"{self.name}: {exc}") from None
+                self.unanswered += 1
+                raise NoAnswer(f"{self.name}: {exc}") from None
         if rr.isError():
             raise CommunicationError(f"{self.name}: unit {unit} {table} {start}..{start + count - 1}: {_refusal(rr)}")
         if table in ("coil", "discrete"):
@@ -156,7 +207,8 @@ class ModbusConnection:
                     rr = await self._client.write_registers(start, [int(v) for v in values], device_id=unit)
             except (TimeoutError, ModbusException, OSError) as exc:
                 _cancelled()
-                raise CommunicationError(f"{self.name}: {exc}") from None
+                self.unanswered += 1
+                raise NoAnswer(f"{self.name}: {exc}") from None
         if rr.isError():
             raise CommunicationError(f"{self.name}: unit {unit} {table} {start}: {_refusal(rr)}")
 
@@ -178,16 +230,33 @@ def _cancelled() -> None:
         raise asyncio.CancelledError
 
 
+def shared_conflict(endpoint: str, key: str, first: tuple[str, object], second: tuple[str, object]) -> str:
+    """The one-line refusal of two parts that share the connection to ``endpoint`` with different ``key``."""
+    (a, x), (b, y) = first, second
+
+    def said(v: object) -> str:
+        return f"{v:g}" if isinstance(v, float) else repr(v)
+
+    return (
+        f"{b or 'a part'}: {key} = {said(y)}, but {a} shares its connection to {endpoint} with {key} = {said(x)}: "
+        f"parts on one PLC endpoint use one connection, so give them the same {key}"
+    )
+
+
 class ModbusPool:
     """Connections shared per endpoint: two parts on the same host and port use one connection."""
 
     def __init__(self) -> None:
         self._connections: dict[tuple[str, int], ModbusConnection] = {}
 
-    def get(self, host: str, port: int = 502, timeout: float = 1.0) -> ModbusConnection:
+    def get(self, host: str, port: int = 502, timeout: float = 1.0, part: str = "") -> ModbusConnection:
+        """The connection to ``host``:``port``; a ValueError if it is open with another ``timeout``
+        (one connection has one: ``uacell config check`` names both parts, ``shared_settings``)."""
         conn = self._connections.get((host, port))
         if conn is None:
             conn = self._connections[(host, port)] = ModbusConnection(host, port, timeout)
+            conn.owner = part
+        conn.check_shared(part, timeout)
         conn.users += 1
         return conn
 

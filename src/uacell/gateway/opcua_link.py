@@ -10,6 +10,10 @@ state. Reads and writes go straight to the PLC (no queue, no replay): a lost con
 ``CommunicationError``. The channel may be signed and encrypted (``security``, with uacell's client
 certificate and key as files) and the session may log in as a user whose password comes from an
 owner-only file or the environment (``uacell.secret_file``), never from the cell file.
+
+A PLC killed or out of reach is expected: uacell says it once (``Listeners._report_lost``), and the
+records asyncua's client makes of it ("Publish iteration crashed", "close_secure_channel raised"
+with a traceback) are one DEBUG line each (``quiet_client``); any other exception keeps its ERROR.
 """
 
 from __future__ import annotations
@@ -24,8 +28,9 @@ from typing import Any
 
 from asyncua import Client, ua
 
-from uacell.gateway.link import FIRST_RETRY, LAST_RETRY, Listeners, StateListener, ValueListener
+from uacell.gateway.link import FIRST_RETRY, LAST_RETRY, Listeners, StateListener, ValueListener, network_error
 from uacell.gateway.modbus import CommunicationError
+from uacell.logs import exception_of, quiet_expected
 from uacell.secret_file import SecretError, read_secret
 
 log = logging.getLogger(__name__)
@@ -42,6 +47,46 @@ LINK_SETTINGS = (
     "endpoint", "security", "certificate", "private_key", "username", "password_file", "password_env",
     "mode", "interval", "publishing_interval",
 )  # fmt: skip
+
+
+# asyncua's client loggers (by exact name: a logger's filters do not apply to its children)
+CLIENT_LOGGERS = (
+    "asyncua.client.client",
+    "asyncua.client.ua_client.UaClient",
+    "asyncua.client.ua_client.UASocketProtocol",
+    "asyncua.client.ua_session.UaSession",
+    "asyncua.common.subscription",
+)
+# what a server gone or going away answers
+LOSS_CODES = frozenset(
+    getattr(ua.StatusCodes, name)
+    for name in (
+        "BadConnectionClosed", "BadSecureChannelClosed", "BadSecureChannelIdInvalid", "BadTcpSecureChannelUnknown",
+        "BadSessionClosed", "BadSessionIdInvalid", "BadTimeout", "BadRequestTimeout", "BadServerNotConnected",
+        "BadNotConnected", "BadConnectionRejected", "BadCommunicationError", "BadNoCommunication", "BadShutdown",
+        "BadServerHalted",
+    )
+)  # fmt: skip
+# asyncua's warnings when it closes what the server already closed
+_CLOSED = (
+    "close_session was called but connection is closed",
+    "close_secure_channel was called but connection is closed",
+)
+
+
+def server_lost(exc: BaseException | None) -> bool:
+    """``exc`` says the server (the PLC) went away or cannot be reached."""
+    return network_error(exc) or (isinstance(exc, ua.UaStatusCodeError) and exc.code in LOSS_CODES)
+
+
+def _expected(record: logging.LogRecord) -> bool:
+    exc = exception_of(record)
+    return server_lost(exc) if exc is not None else str(record.msg).startswith(_CLOSED)
+
+
+def quiet_client() -> None:
+    """asyncua's client records of a lost server become DEBUG lines (``uacell.logs.ExpectedFaults``)."""
+    quiet_expected("plc-lost", CLIENT_LOGGERS, _expected)
 
 
 @dataclass(frozen=True)
@@ -109,6 +154,7 @@ class PlcLink(Listeners):
         self.endpoint = options.endpoint
         self.timeout = timeout
         self.users = 0
+        self.log = log
         self._client: Client | None = None
         self._subscription: Any = None
         self._watchdog: asyncio.Task[None] | None = None
@@ -221,13 +267,11 @@ class PlcLink(Listeners):
                 await self._connect()
                 delay = FIRST_RETRY
                 await self._lost.wait()
+                self._report_lost()
             except asyncio.CancelledError:
                 raise
             except Exception as exc:
-                reason = str(exc) or type(exc).__name__
-                if reason != self.last_error:
-                    log.warning("the PLC at %s: %s (retrying)", self.endpoint, reason)
-                self.last_error = reason
+                self._report_failed(str(exc) or type(exc).__name__, server_lost(exc))
             self._set_connected(False)
             await self._disconnect()
             await asyncio.sleep(delay)
@@ -329,6 +373,7 @@ class PlcLink(Listeners):
 
 async def new_client(o: LinkOptions, timeout: float) -> Client:
     """An asyncua client for the PLC, its channel security and user set (not yet connected)."""
+    quiet_client()
     client = Client(o.endpoint, timeout=timeout)
     client.session_timeout = 30_000
     if o.security != "None":

@@ -25,7 +25,15 @@ from typing import Any
 from uacell.gateway import driver_settings
 from uacell.gateway.codec import CodecError, RegisterType
 from uacell.gateway.link import FIRST_RETRY, LAST_RETRY, Listeners, StateListener, ValueListener
-from uacell.gateway.modbus import SHARED, CommunicationError, ModbusConnection, ModbusTag, endpoint_name, spans
+from uacell.gateway.modbus import (
+    SHARED,
+    CommunicationError,
+    ModbusConnection,
+    ModbusTag,
+    NoAnswer,
+    endpoint_name,
+    spans,
+)
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
 from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag
 
@@ -132,6 +140,7 @@ class ModbusTagLink(Listeners):
         self.conn, self.interval = conn, interval
         self.endpoint = conn.name
         self.users = 0
+        self.log = log
         self._points: dict[str, Point] = {}
         self._last: dict[str, Any] = {}
         self._task: asyncio.Task[None] | None = None
@@ -231,19 +240,24 @@ class ModbusTagLink(Listeners):
     async def _run(self) -> None:
         delay = FIRST_RETRY
         while True:
+            up = False
             try:
                 if not self.conn.connected and not await self.conn.connect():
-                    raise CommunicationError(f"{self.endpoint}: no answer")
+                    raise NoAnswer("no answer")
                 await self._first_read()
                 self._announce()
+                up = True
                 delay = FIRST_RETRY
                 while self.conn.connected:
                     await asyncio.sleep(self.interval)
                     await self._poll()
+                self._report_lost()  # a unit's read or write found it gone
             except CommunicationError as exc:
-                if str(exc) != self.last_error:
-                    log.warning("the PLC at %s: %s (retrying)", self.endpoint, exc)
-                self.last_error = str(exc)
+                lost = isinstance(exc, NoAnswer) or not self.conn.connected
+                if up and lost:
+                    self._report_lost()
+                else:
+                    self._report_failed(str(exc).removeprefix(f"{self.endpoint}: "), unreachable=lost)
             self._set_connected(False)
             await asyncio.sleep(delay)
             delay = min(delay * 2, LAST_RETRY)
@@ -253,8 +267,8 @@ class ModbusTagLink(Listeners):
         addresses = list(self._watched)
         try:
             values = await self._read(addresses)
-        except CommunicationError:
-            if not self.conn.connected:
+        except CommunicationError as exc:
+            if isinstance(exc, NoAnswer) or not self.conn.connected:
                 raise
             for address in addresses:
                 try:
@@ -287,11 +301,13 @@ class ModbusLinkPool:
     def __init__(self) -> None:
         self._links: dict[tuple[str, int, float], ModbusTagLink] = {}
 
-    def get(self, host: str, port: int, interval: float, timeout: float = 1.0) -> ModbusTagLink:
+    def get(self, host: str, port: int, interval: float, timeout: float = 1.0, part: str = "") -> ModbusTagLink:
         key = (host, port, interval)
         link = self._links.get(key)
         if link is None:
-            link = self._links[key] = ModbusTagLink(SHARED.get(host, port, timeout), interval)
+            link = self._links[key] = ModbusTagLink(SHARED.get(host, port, timeout, part), interval)
+        else:
+            link.conn.check_shared(part, timeout)
         link.users += 1
         return link
 
@@ -365,5 +381,5 @@ def where(part: str, settings: Mapping[str, Any]) -> Where:
 async def modbus_packtags(spec: Any) -> PackTagsUnit:
     """The equipment factory of the ``modbus-packtags`` driver."""
     w = where(spec.part, spec.settings)
-    link = POOL.get(w.host, w.port, w.interval, w.timeout)
+    link = POOL.get(w.host, w.port, w.interval, w.timeout, spec.part)
     return await start_unit(spec.part, link, w.tags, spec.settings, POOL.release)

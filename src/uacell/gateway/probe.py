@@ -1,5 +1,7 @@
 """``uacell config check --connect``: try every endpoint and tag the gateway drivers of a cell name,
-and say for each what was found (docs/equipment.md, "Gateway")."""
+and say for each what was found (docs/equipment.md, "Gateway"); and, with or without ``--connect``
+(and before ``uacell serve`` starts), ``shared_settings``: parts that share one connection to a PLC
+must agree on its settings."""
 
 from __future__ import annotations
 
@@ -11,7 +13,7 @@ from typing import Any
 from asyncua import ua
 
 from uacell.cell_file import Part
-from uacell.gateway.modbus import CommunicationError, ModbusConnection, endpoint_name
+from uacell.gateway.modbus import CommunicationError, ModbusConnection, endpoint_name, shared_conflict
 from uacell.gateway.modbus_robot import signal_tags
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
 from uacell.gateway.packml_modbus import Point, where
@@ -46,6 +48,32 @@ def gateway_parts(parts: list[tuple[str, Part]]) -> Iterator[tuple[str, str, Map
 
     for _root, part in parts:
         yield from walk(part, "")
+
+
+def _modbus_connection(part: str, driver: str, settings: Mapping[str, Any]) -> tuple[str, int, float]:
+    """(host, port, timeout) of a Modbus driver's connection; ValueError or TypeError if the settings are wrong."""
+    if driver == MODBUS_PACKTAGS:
+        w = where(part, settings)
+        return w.host, w.port, w.timeout
+    return str(settings.get("host", "")), int(settings.get("port", 502)), float(settings.get("timeout", 1.0))
+
+
+def shared_settings(parts: list[tuple[str, Part]]) -> list[str]:
+    """Parts on one Modbus endpoint (host and port) share one connection, which has one ``timeout``:
+    a line for every part that gives it another than the first part there did (naming both)."""
+    first: dict[tuple[str, int], tuple[str, float]] = {}
+    problems = []
+    for path, driver, settings in gateway_parts(parts):
+        if driver not in (MODBUS, MODBUS_PACKTAGS):
+            continue
+        try:
+            host, port, timeout = _modbus_connection(path, driver, settings)
+        except (ValueError, TypeError):
+            continue  # the driver says what is wrong when it starts
+        seen = first.setdefault((host, port), (path, timeout))
+        if seen[1] != timeout:
+            problems.append(shared_conflict(endpoint_name(host, port), "timeout", seen, (path, timeout)))
+    return problems
 
 
 async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
