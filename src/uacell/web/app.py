@@ -13,7 +13,7 @@ import json
 import logging
 import secrets
 import time
-from collections.abc import AsyncIterator, Coroutine, Iterable
+from collections.abc import AsyncIterator, Callable, Coroutine, Iterable
 from dataclasses import dataclass, field
 from importlib import resources
 from typing import Any
@@ -23,10 +23,19 @@ from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
+from starlette.types import Receive, Scope, Send
 
 from uacell.web.guards import HostGuard
 from uacell.web.history import MAX_HOURS as MAX_HISTORY_HOURS
-from uacell.web.uasession import CallFailed, CellCache, Credentials, UaSession, UnknownKey
+from uacell.web.uasession import (
+    CallFailed,
+    CellCache,
+    Credentials,
+    SessionSlots,
+    UaSession,
+    UnknownKey,
+    login_refusal,
+)
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +46,7 @@ RELEASE_AFTER = 30.0  # seconds after its last page closed, a web session's OPC 
 HEARTBEAT = 15.0
 MAX_SESSIONS = 200  # beyond this, the longest unused web session (without a page open) ends
 MAX_UPLOAD = 1_000_000
+LOGIN_SLOT_WAIT = 10.0  # seconds a login waits for one of the HMI's OPC UA sessions to come free
 
 
 @dataclass
@@ -46,7 +56,8 @@ class WebSession:
     ua: UaSession | None = None
     user: str | None = None
     last_seen: float = field(default_factory=time.monotonic)
-    streams: int = 0
+    streams: int = 0  # pages open (or opening) on this session
+    busy_since: float = 0.0  # when its page was last told "HMI busy" (the longest waiting is served first)
     ended_because: str = ""  # said to the page when the HMI ended the session itself
 
 
@@ -87,6 +98,10 @@ class WebApp:
         self.ua_sessions = ua_sessions
         self.release_after = release_after
         self.sessions: dict[str, WebSession] = {}
+        # What the HMI holds on the server: at most ``ua_sessions``, counted before a connect starts.
+        self.slots = SessionSlots(ua_sessions)
+        self.slots.on_free = self._place_freed
+        self._admitting = False
         self.cells = CellCache()
         self.closing = asyncio.Event()
         self._reaper: asyncio.Task[None] | None = None
@@ -167,19 +182,51 @@ class WebApp:
                     log.info("web session of %s: no page open, its OPC UA session released", s.user or "anonymous")
                     await s.ua.release()
 
-    async def _make_room(self, s: WebSession) -> bool:
-        """Whether ``s`` may hold an OPC UA session: below ``ua_sessions``, or after releasing the one
-        of the longest-unused web session without an open page. Pages that are open keep theirs."""
-        held = [x for x in self.sessions.values() if x is not s and x.ua is not None and x.ua.holding]
-        if len(held) < self.ua_sessions:
+    def _busy_text(self) -> str:
+        return f"this HMI already serves {self.ua_sessions} users with open pages; try again in a minute"
+
+    async def _make_room(self, s: WebSession, ua: UaSession) -> bool:
+        """Take a slot for ``ua`` (of web session ``s``): a free one, or the one of the longest-unused
+        web session without an open page, whose OPC UA session is released for it. Pages that are
+        open (or opening) keep theirs, and so do sessions still connecting."""
+        if self.slots.take(ua):
             return True
-        idle = sorted((x for x in held if x.streams == 0), key=lambda x: x.last_seen)
+        idle = sorted(
+            (
+                x
+                for x in self.sessions.values()
+                if x is not s and x.streams == 0 and x.ua is not None and x.ua.status == "connected"
+            ),
+            key=lambda x: x.last_seen,
+        )
         if not idle:
             return False
-        assert idle[0].ua is not None
-        log.info("web: %d OPC UA sessions held; releasing the longest unused one", len(held))
-        await idle[0].ua.release()
-        return True
+        victim = idle[0].ua
+        assert victim is not None
+        log.info("web: %d OPC UA sessions held; releasing the longest unused one", len(self.slots.holders))
+        await victim.release()  # its slot is free when this returns: taken in the same step
+        return self.slots.take(ua)
+
+    def _place_freed(self) -> None:
+        """A slot came free: the page that has waited longest gets it (soon, in a task of its own)."""
+        if not self._admitting and not self.closing.is_set():
+            self._admitting = True
+            self._later(self._admit_waiting())
+
+    async def _admit_waiting(self) -> None:
+        try:
+            while self.slots.free > 0:
+                waiting = [
+                    x for x in self.sessions.values() if x.streams and x.ua is not None and x.ua.status == "busy"
+                ]
+                if not waiting:
+                    return
+                s = min(waiting, key=lambda x: x.busy_since)
+                await self._ua(s)
+                if s.ua is not None and s.ua.status == "busy":
+                    return  # the server itself has no session free: the reaper tries again later
+        finally:
+            self._admitting = False
 
     def _refused(self, s: WebSession, problem: str) -> None:
         """The server no longer takes the password of ``s``: end it, the page asks for a login."""
@@ -195,6 +242,7 @@ class WebApp:
 
     def _watch(self, s: WebSession, ua: UaSession) -> UaSession:
         ua.on_identity_refused = lambda exc: self._refused(s, ua.problem)
+        ua.slots = self.slots
         return ua
 
     async def _ua(self, s: WebSession) -> UaSession:
@@ -210,10 +258,10 @@ class WebApp:
             ua.status = "released"
         ua = s.ua
         if ua.status in ("released", "busy"):
-            if not await self._make_room(s):
-                ua.status = "busy"
-                ua.problem = f"this HMI already serves {self.ua_sessions} users with open pages; try again in a minute"
-                ua.announce()
+            if not await self._make_room(s, ua):
+                if ua.status != "busy":
+                    s.busy_since = time.monotonic()
+                ua.wait_for_place(self._busy_text())
                 return ua
             await ua.resume()
             s.last_seen = time.monotonic()  # connecting took time: the page is about to use it
@@ -262,27 +310,53 @@ class WebApp:
         user, password = body.get("user"), body.get("password")
         if not isinstance(user, str) or not user or not isinstance(password, str):
             return JSONResponse({"error": "user name and password are required"}, status_code=400)
-        if not await self._make_room(s):
-            problem = f"this HMI already serves {self.ua_sessions} users with open pages; try again in a minute"
-            return JSONResponse({"error": problem, "code": "BadTooManySessions"}, status_code=503)
-        ua = UaSession(self.url, self.credentials, user=user, password=password, cache=self.cells)
+        ua = self._watch(s, UaSession(self.url, self.credentials, user=user, password=password, cache=self.cells))
+        if not await self._make_room(s, ua) and not await self._login_room(s, ua):
+            return JSONResponse({"error": self._busy_text(), "code": "BadTooManySessions"}, status_code=503)
         try:
             await ua.connect()
         except CallFailed as exc:
+            await ua.close()
+            self._resume_later(s)
             log.info("web login of %s refused: %s", user, exc.name)
-            return JSONResponse({"error": f"{exc.name}: {exc.doc}", "code": exc.name}, status_code=401)
+            return JSONResponse({"error": login_refusal(exc), "code": exc.name}, status_code=401)
         except TimeoutError:
+            await ua.close()
+            self._resume_later(s)
             log.info("web login of %s: no answer from the server in time", user)
             problem = "the server did not check the login in time (it slows logins down after failed attempts)"
             return JSONResponse({"error": f"{problem}; try again in a minute", "code": "BadTimeout"}, status_code=503)
         except Exception as exc:
+            await ua.close()
+            self._resume_later(s)
             log.info("web login of %s failed: server unreachable (%s)", user, type(exc).__name__)
             return JSONResponse({"error": f"the OPC UA server {self.url} cannot be reached"}, status_code=503)
         log.info("web login of %s", user)
         await self._end(s)
         fresh = self._new_session()  # a new id and CSRF token after every login
-        fresh.ua, fresh.user = self._watch(fresh, ua), user
+        fresh.ua, fresh.user = ua, user
+        ua.on_identity_refused = lambda exc: self._refused(fresh, ua.problem)
         return self._set_cookie(JSONResponse({"user": user, "csrf": fresh.csrf}), fresh)
+
+    async def _login_room(self, s: WebSession, ua: UaSession) -> bool:
+        """A slot for a login when every one is held: the page's own anonymous session makes room for
+        it, or the login waits a little (other logins end within seconds)."""
+        if s.ua is not None and s.ua.status == "connected":
+            await s.ua.release()
+            if self.slots.take(ua):
+                return True
+        if await self.slots.wait_take(ua, LOGIN_SLOT_WAIT):
+            return True
+        self._resume_later(s)
+        return False
+
+    def _resume_later(self, s: WebSession) -> None:
+        """After a login that did not happen: the page's own session comes back if a page is open."""
+        if s.streams and s.ua is not None and s.ua.status in ("released", "busy"):
+            self._later(self._resume(s))
+
+    async def _resume(self, s: WebSession) -> None:
+        await self._ua(s)
 
     async def logout(self, request: Request) -> Response:
         checked = await self._checked(request)
@@ -298,12 +372,24 @@ class WebApp:
         s = self._session(request)
         if s is None:
             return JSONResponse({"error": "session expired", "expired": True}, status_code=401)
-        ua = await self._ua(s)
+        s.streams += 1  # a page opening: its session is neither released nor ended meanwhile
+        try:
+            ua = await self._ua(s)
+        except BaseException:
+            s.streams -= 1
+            raise
         queue: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+        ua.listeners.add(queue.put_nowait)
+        started = False
+
+        def page_gone() -> None:
+            s.streams -= 1
+            s.last_seen = time.monotonic()
+            ua.listeners.discard(queue.put_nowait)
 
         async def stream() -> AsyncIterator[str]:
-            s.streams += 1
-            ua.listeners.add(queue.put_nowait)
+            nonlocal started
+            started = True
             try:
                 yield _sse({"type": "snapshot", **ua.snapshot()})
                 closing = asyncio.ensure_future(self.closing.wait())
@@ -331,12 +417,10 @@ class WebApp:
                     if getter is not None:
                         getter.cancel()
             finally:
-                s.streams -= 1
-                s.last_seen = time.monotonic()
-                ua.listeners.discard(queue.put_nowait)
+                page_gone()
 
         headers = {"Cache-Control": "no-store", "X-Accel-Buffering": "no"}
-        return StreamingResponse(stream(), media_type="text/event-stream", headers=headers)
+        return _PageStream(stream(), lambda: None if started else page_gone(), headers)
 
     async def _act(self, request: Request, action: str) -> Response:
         checked = await self._checked(request)
@@ -405,6 +489,20 @@ class WebApp:
 
     async def delete(self, request: Request) -> Response:
         return await self._act(request, "delete")
+
+
+class _PageStream(StreamingResponse):
+    """An event stream that says when it was never read (the browser left before the first byte)."""
+
+    def __init__(self, content: AsyncIterator[str], unread: Callable[[], None], headers: dict[str, str]) -> None:
+        super().__init__(content, media_type="text/event-stream", headers=headers)
+        self._unread = unread
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        finally:
+            self._unread()
 
 
 _SECURITY_HEADERS = {
