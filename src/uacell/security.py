@@ -41,10 +41,11 @@ import hmac
 import logging
 import os
 import struct
+import time
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, NoReturn, cast
 from urllib.parse import urlparse
 
 from asyncua import Server, ua
@@ -56,6 +57,7 @@ from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary
 from cryptography import x509
 
+from uacell.config import login_answer_margin
 from uacell.logs import RefusalLog
 from uacell.pki import (
     CertificateValidator,
@@ -452,31 +454,81 @@ class Security:
             # Anonymous or another token type: asyncua decides, nobody waits.
             return await self._audited(processor, address, None, call)
         user = str(token.UserName)
+        deadline = self.answer_deadline(processor, requesthdr)
         # One attempt at a time per user name, so parallel connections cannot skip the delay.
         lock = self._user_locks.setdefault(user, asyncio.Lock())
         try:
-            async with lock:
+            if not lock.locked():
+                await lock.acquire()
+            else:
+                try:
+                    await asyncio.wait_for(lock.acquire(), max(0.0, deadline - time.monotonic()))
+                except TimeoutError:
+                    self._unchecked(processor, address, user, "another attempt of this user name was under way")
+            try:
                 wait = self.throttle.wait_time(user, address)
                 if wait > 0:
+                    if time.monotonic() + wait > deadline:
+                        self._unchecked(processor, address, user, f"its {wait:.1f} s delay would outlast its deadline")
                     log.info("delaying login of user %r from %s by %.1f s after failed attempts", user, address, wait)
                     await asyncio.sleep(wait)
-                verified = await self._verify_off_loop(processor, requesthdr, token)
-                try:
-                    result = await self._audited(processor, address, user, call)
-                except ServiceError as exc:
-                    if exc.code == ua.StatusCodes.BadUserAccessDenied:
-                        self.throttle.failed(user, address)
-                    raise
-                finally:
-                    if verified is not None:
-                        verified_login.reset(verified)
-                logged_in = getattr(processor.session, "user", None)
-                if logged_in is not None and not getattr(logged_in, "anonymous", True):
-                    self.throttle.succeeded(user, address)
-                return result
+                return await self._checked_login(processor, requesthdr, token, address, user, call)
+            finally:
+                lock.release()
         finally:
             if not lock.locked() and self._user_locks.get(user) is lock:
                 del self._user_locks[user]  # a spray of names leaves nothing behind
+
+    async def _checked_login(
+        self,
+        processor: UaProcessor,
+        requesthdr: Any,
+        token: ua.UserNameIdentityToken,
+        address: str,
+        user: str,
+        call: Callable[[], Any],
+    ) -> Any:
+        verified = await self._verify_off_loop(processor, requesthdr, token)
+        try:
+            result = await self._audited(processor, address, user, call)
+        except ServiceError as exc:
+            if exc.code == ua.StatusCodes.BadUserAccessDenied:
+                self.throttle.failed(user, address)
+            raise
+        finally:
+            if verified is not None:
+                verified_login.reset(verified)
+        logged_in = getattr(processor.session, "user", None)
+        if logged_in is not None and not getattr(logged_in, "anonymous", True):
+            self.throttle.succeeded(user, address)
+        return result
+
+    def answer_deadline(self, processor: UaProcessor, requesthdr: Any) -> float:
+        """When (``time.monotonic()``) an ActivateSession must have its answer out, less the margin to
+        check the password and send it (decision 59): before asyncua closes a connection without an
+        activated session (``[limits] activation_timeout`` from connecting), before an activated
+        session's own timeout, and within the request's TimeoutHint when the client gives one."""
+        now = time.monotonic()
+        session = processor.session
+        deadlines = []
+        if session is None or not session.is_activated():
+            window = float(self.app.config.limits.activation_timeout)
+            started = float(getattr(processor, "_uacell_connected", now))
+            deadlines.append(started + window - login_answer_margin(window))
+        elif session.session_timeout:
+            window = float(session.session_timeout)
+            deadlines.append(now + window - login_answer_margin(window))
+        hint = float(getattr(requesthdr, "TimeoutHint", 0) or 0) / 1000.0
+        if hint > 0:
+            deadlines.append(now + hint - login_answer_margin(hint))
+        return min(deadlines, default=now)
+
+    def _unchecked(self, processor: UaProcessor, address: str, user: str, why: str) -> NoReturn:
+        """Answer Bad_UserAccessDenied now, without checking the password (and without counting a
+        failure): the throttle may not check it before its deadline (decision 59)."""
+        log.info("login of user %r from %s refused unchecked: %s", user, address, why)
+        self._audit_login(processor, address, user, "BadUserAccessDenied")
+        raise ServiceError(ua.StatusCodes.BadUserAccessDenied)
 
     async def _verify_off_loop(self, processor: UaProcessor, requesthdr: Any, token: ua.UserNameIdentityToken) -> Any:
         """Check the password in a worker thread (the hash takes tens of ms) and leave the outcome for

@@ -379,7 +379,7 @@ class UaSession:
 
     async def _new_client(self) -> Client:
         # The client's health probe starts with CreateSession, before the login is checked; a server
-        # that slows down logins after failed attempts (uacell: up to 30 s) must not look dead meanwhile.
+        # that slows down logins after failed attempts (uacell: up to 20 s) must not look dead meanwhile.
         # A server that goes away closes the TCP connection, which is noticed at once anyway.
         client = Client(self.url, timeout=LOGIN_TIMEOUT, watchdog_intervall=LOGIN_TIMEOUT)
         client.application_uri = APPLICATION_URI
