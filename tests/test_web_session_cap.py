@@ -71,29 +71,31 @@ async def _request(port: int, head: str) -> tuple[asyncio.StreamReader, asyncio.
     return reader, writer
 
 
-async def new_cookie(port: int) -> str:
-    """A fresh web session, as a browser's first request makes one: the ``Cookie`` header value."""
+async def new_session(port: int) -> tuple[str, str]:
+    """A fresh web session, as a page's first request makes one: the ``Cookie`` header value and the
+    session's token."""
     reader, writer = await _request(port, "GET /api/session HTTP/1.1\r\nConnection: close\r\n")
     try:
         answer = (await reader.read()).decode()
     finally:
         writer.close()
     line = next(x for x in answer.split("\r\n") if x.lower().startswith("set-cookie:"))
-    return line.split(":", 1)[1].strip().split(";", 1)[0]
+    return line.split(":", 1)[1].strip().split(";", 1)[0], json.loads(answer.split("\r\n\r\n", 1)[1])["csrf"]
 
 
 class Page:
     """One open page: its event stream, read as the page reads it."""
 
-    def __init__(self, port: int, cookie: str) -> None:
-        self.port, self.cookie = port, cookie
+    def __init__(self, port: int, session: tuple[str, str]) -> None:
+        self.port, (self.cookie, self.key) = port, session
         self.reader: asyncio.StreamReader | None = None
         self.writer: asyncio.StreamWriter | None = None
         self.statuses: list[str] = []
 
     async def open(self) -> str:
         """Open the page; the first settled status it shows."""
-        self.reader, self.writer = await _request(self.port, f"GET /api/events HTTP/1.1\r\nCookie: {self.cookie}\r\n")
+        head = f"GET /api/events?key={self.key} HTTP/1.1\r\nCookie: {self.cookie}\r\n"
+        self.reader, self.writer = await _request(self.port, head)
         return await self.until(lambda status: status in SETTLED)
 
     async def until(self, want, timeout: float = 240.0) -> str:
@@ -126,8 +128,7 @@ async def _current_session_count(app) -> int:
 async def test_200_pages_opened_at_once_hold_at_most_ua_sessions_and_the_rest_are_told_busy(stack):
     app, web, sessions = stack
     port = _port(web)
-    cookies = [await new_cookie(port) for _ in range(PAGES)]
-    pages = [Page(port, c) for c in cookies]
+    pages = [Page(port, await new_session(port)) for _ in range(PAGES)]
     try:
         first = await asyncio.gather(*(p.open() for p in pages))
         connected = [p for p, status in zip(pages, first, strict=True) if status == "connected"]

@@ -141,6 +141,21 @@ class WebApp:
         return s
 
     def _session(self, request: Request) -> WebSession | None:
+        """The web session of a request that carries both its cookie and its token (the ``X-CSRF-Token``
+        header, or ``?key=`` for the event stream, which cannot send headers). Browsers send a
+        host's cookies to every port of it, so a cookie alone may have been replayed by another
+        program on this host; the token is kept in the page's own storage, which is per origin
+        (scheme, host and port) and never reaches another port (decision 60)."""
+        s = self._by_cookie(request)
+        if s is None:
+            return None
+        token = request.headers.get("x-csrf-token") or request.query_params.get("key", "")
+        if not secrets.compare_digest(token.encode(), s.csrf.encode()):
+            log.info("web: a request to %s had a session cookie without its token: refused", request.url.path)
+            return None
+        return s
+
+    def _by_cookie(self, request: Request) -> WebSession | None:
         s = self.sessions.get(request.cookies.get(self.cookie, ""))
         if s is not None:
             s.last_seen = time.monotonic()
@@ -271,7 +286,7 @@ class WebApp:
 
     async def _checked(self, request: Request) -> tuple[WebSession, dict[str, Any]] | Response:
         """The session and JSON body of a state-changing request, or the refusal."""
-        s = self._session(request)
+        s = self._by_cookie(request)
         if s is None:
             return JSONResponse({"error": "session expired", "expired": True}, status_code=401)
         token = request.headers.get("x-csrf-token", "")
@@ -289,10 +304,8 @@ class WebApp:
         return s, body
 
     async def index(self, request: Request) -> Response:
-        response = FileResponse(self._index, headers=_SECURITY_HEADERS)
-        if self._session(request) is None:
-            self._set_cookie(response, self._new_session())
-        return response
+        # The page asks for its session (/api/session) with the token it keeps, or gets a new one.
+        return FileResponse(self._index, headers=_SECURITY_HEADERS)
 
     async def session_info(self, request: Request) -> Response:
         s = self._session(request)

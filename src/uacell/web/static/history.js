@@ -139,7 +139,8 @@
     const hours = $("history-hours").value;
     let data;
     try {
-      const res = await fetch(`/api/history?hours=${encodeURIComponent(hours)}`, { credentials: "same-origin" });
+      const token = localStorage.getItem("uacell-token") || "";  // kept by app.js: the session's token
+      const res = await fetch(`/api/history?hours=${encodeURIComponent(hours)}`, { credentials: "same-origin", headers: { "X-CSRF-Token": token } });
       data = await res.json();
       if (!res.ok) throw new Error(data.error || res.statusText);
     } catch (err) {
