@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import secrets
 import time
 from collections.abc import AsyncIterator, Callable, Coroutine, Iterable
@@ -27,6 +28,7 @@ from starlette.types import Receive, Scope, Send
 
 from uacell.web.guards import HostGuard
 from uacell.web.history import MAX_HOURS as MAX_HISTORY_HOURS
+from uacell.web.history import WIDTH as HISTORY_WIDTH
 from uacell.web.uasession import (
     CallFailed,
     CellCache,
@@ -477,18 +479,25 @@ class WebApp:
         return await self._act(request, "call")
 
     async def history(self, request: Request) -> Response:
-        """GET ?hours=N: the history view's data (uacell.web.history), read as this session's user."""
+        """GET ?hours=N[&width=W][&since=T]: the history view's data (uacell.web.history), read as this
+        session's user: ``width`` pixel columns per trend, and with ``since`` (the ``end`` of the
+        answer before) only what is new since then."""
         s = self._session(request)
         if s is None:
             return JSONResponse({"error": "session expired", "expired": True}, status_code=401)
+        query = request.query_params
         try:
-            hours = float(request.query_params.get("hours", "8"))
+            hours = float(query.get("hours", "8"))
+            width = int(query.get("width", str(HISTORY_WIDTH)))
+            since = float(query["since"]) if "since" in query else None
         except ValueError:
-            hours = -1.0
+            return JSONResponse({"error": "hours, width and since must be numbers"}, 400)
         if not 0 < hours <= MAX_HISTORY_HOURS:
             return JSONResponse({"error": f"hours must be more than 0 and at most {MAX_HISTORY_HOURS:g}"}, 400)
+        if since is not None and not math.isfinite(since):
+            return JSONResponse({"error": "since must be a time in seconds since the epoch"}, 400)
         try:
-            return JSONResponse(await (await self._ua(s)).history(hours))
+            return JSONResponse(await (await self._ua(s)).history(hours, since=since, width=width))
         except CallFailed as exc:
             return JSONResponse({"error": f"{exc.name}: {exc.doc}", "code": exc.name}, status_code=409)
         except (OSError, TimeoutError, ConnectionError) as exc:

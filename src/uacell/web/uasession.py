@@ -28,7 +28,7 @@ from asyncua.ua.uaerrors import UaStatusCodeError
 
 from uacell.errors import login_refusal as refused_login
 from uacell.web.discovery import Cell, discover, list_files
-from uacell.web.history import cell_history
+from uacell.web.history import WIDTH, cell_history
 
 log = logging.getLogger(__name__)
 
@@ -595,9 +595,10 @@ class UaSession:
             raise CallFailed(ua.StatusCodes.BadServerNotConnected, "not connected")
         return self.client
 
-    async def history(self, hours: float) -> dict[str, Any]:
-        """The history view of the last ``hours`` (uacell.web.history), through this session."""
-        return await cell_history(self._require(), self.cell, hours)
+    async def history(self, hours: float, *, since: float | None = None, width: int = WIDTH) -> dict[str, Any]:
+        """The history view of the last ``hours`` (uacell.web.history), through this session: whole, or
+        what came after ``since``."""
+        return await cell_history(self._require(), self.cell, hours, since=since, width=width)
 
     # what the page sees ----------------------------------------------------------------------
 
