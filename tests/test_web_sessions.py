@@ -237,3 +237,21 @@ async def test_a_session_cookie_replayed_by_another_local_program_is_nobodys_ses
         await page.until(lambda m: m.get("status") == "connected")
     finally:
         await page.close()
+
+
+async def test_a_page_and_a_request_of_one_session_at_once_make_one_opc_ua_session(stack):
+    app, web = stack
+    await wait_until(lambda: held(app) == 0, timeout=30)
+    b = Browser(web.url)
+    await b.start()
+    page = Page(web, b)
+    try:
+        history, _ = await asyncio.gather(
+            b.get("/api/history?hours=1"),
+            (await page.open()).until(lambda m: m.get("status") == "connected"),
+        )
+        assert history[0] == 200
+        assert held(app) == 1  # one session for both, none left over from a second connect
+    finally:
+        await page.close()
+    await wait_until(lambda: held(app) == 0, timeout=30)

@@ -60,6 +60,7 @@ class WebSession:
     last_seen: float = field(default_factory=time.monotonic)
     streams: int = 0  # pages open (or opening) on this session
     busy_since: float = 0.0  # when its page was last told "HMI busy" (the longest waiting is served first)
+    admitting: asyncio.Event | None = None  # set when the request finding its OPC UA session a place is done
     ended_because: str = ""  # said to the page when the HMI ended the session itself
 
 
@@ -274,13 +275,21 @@ class WebApp:
                 return ua
             ua.status = "released"
         ua = s.ua
+        if s.admitting is not None:  # another request of this session is finding it a place: its outcome
+            await s.admitting.wait()
+            return ua
         if ua.status in ("released", "busy"):
-            if not await self._make_room(s, ua):
-                if ua.status != "busy":
-                    s.busy_since = time.monotonic()
-                ua.wait_for_place(self._busy_text())
-                return ua
-            await ua.resume()
+            s.admitting = asyncio.Event()  # one request at a time finds it a place
+            try:
+                if not await self._make_room(s, ua):
+                    if ua.status != "busy":
+                        s.busy_since = time.monotonic()
+                    ua.wait_for_place(self._busy_text())
+                    return ua
+                await ua.resume()
+            finally:
+                s.admitting.set()
+                s.admitting = None
             s.last_seen = time.monotonic()  # connecting took time: the page is about to use it
         return ua
 

@@ -535,7 +535,10 @@ class UaSession:
         self._settle()
 
     async def resume(self) -> None:
-        """Connect again after ``release()`` (or after the HMI was busy); failures as in ``connect()``."""
+        """Connect again after ``release()`` (or after the HMI was busy); failures as in ``connect()``.
+        Nothing to do while a connect of this session is under way or it is connected."""
+        if self._connecting or self.status == "connected":
+            return
         self.status = "connecting"
         try:
             await self.connect()
