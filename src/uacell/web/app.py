@@ -15,7 +15,6 @@ import math
 import secrets
 import time
 from collections.abc import AsyncIterator, Callable, Coroutine, Iterable
-from dataclasses import dataclass, field
 from importlib import resources
 from typing import Any
 
@@ -29,15 +28,8 @@ from starlette.types import Receive, Scope, Send
 from uacell.web.guards import HostGuard
 from uacell.web.history import MAX_HOURS as MAX_HISTORY_HOURS
 from uacell.web.history import WIDTH as HISTORY_WIDTH
-from uacell.web.uasession import (
-    CallFailed,
-    CellCache,
-    Credentials,
-    SessionSlots,
-    UaSession,
-    UnknownKey,
-    login_refusal,
-)
+from uacell.web.places import Places, WebSession
+from uacell.web.uasession import CallFailed, Credentials, UnknownKey, login_refusal
 
 log = logging.getLogger(__name__)
 
@@ -48,20 +40,6 @@ RELEASE_AFTER = 30.0  # seconds after its last page closed, a web session's OPC 
 HEARTBEAT = 15.0
 MAX_SESSIONS = 200  # beyond this, the longest unused web session (without a page open) ends
 MAX_UPLOAD = 1_000_000
-LOGIN_SLOT_WAIT = 10.0  # seconds a login waits for one of the HMI's OPC UA sessions to come free
-
-
-@dataclass
-class WebSession:
-    id: str
-    csrf: str
-    ua: UaSession | None = None
-    user: str | None = None
-    last_seen: float = field(default_factory=time.monotonic)
-    streams: int = 0  # pages open (or opening) on this session
-    busy_since: float = 0.0  # when its page was last told "HMI busy" (the longest waiting is served first)
-    admitting: asyncio.Event | None = None  # set when the request finding its OPC UA session a place is done
-    ended_because: str = ""  # said to the page when the HMI ended the session itself
 
 
 def cookie_name(port: int, https: bool) -> str:
@@ -101,14 +79,20 @@ class WebApp:
         self.ua_sessions = ua_sessions
         self.release_after = release_after
         self.sessions: dict[str, WebSession] = {}
-        # What the HMI holds on the server: at most ``ua_sessions``, counted before a connect starts.
-        self.slots = SessionSlots(ua_sessions)
-        self.slots.on_free = self._place_freed
-        self._admitting = False
-        self.cells = CellCache()
         self.closing = asyncio.Event()
         self._reaper: asyncio.Task[None] | None = None
         self._ending: set[asyncio.Task[None]] = set()
+        # What the HMI holds on the server: at most ``ua_sessions``, counted before a connect starts.
+        self.places = Places(
+            url,
+            credentials,
+            self.sessions,
+            ua_sessions=ua_sessions,
+            anonymous=anonymous,
+            later=self._later,
+            refused=self._refused,
+            closing=self.closing,
+        )
         static = _static_dir()
         routes = Starlette(
             routes=[
@@ -186,7 +170,7 @@ class WebApp:
             for s in list(self.sessions.values()):
                 if s.streams:
                     if s.ua is not None and s.ua.status == "busy":  # an open page waits: a place may be free
-                        await self._ua(s)
+                        await self.places.ua(s)
                     continue
                 if now - s.last_seen > self.idle_timeout:
                     log.info("web session of %s ended after %.0f s unused", s.user or "anonymous", now - s.last_seen)
@@ -200,52 +184,6 @@ class WebApp:
                     log.info("web session of %s: no page open, its OPC UA session released", s.user or "anonymous")
                     await s.ua.release()
 
-    def _busy_text(self) -> str:
-        return f"this HMI already serves {self.ua_sessions} users with open pages; try again in a minute"
-
-    async def _make_room(self, s: WebSession, ua: UaSession) -> bool:
-        """Take a slot for ``ua`` (of web session ``s``): a free one, or the one of the longest-unused
-        web session without an open page, whose OPC UA session is released for it. Pages that are
-        open (or opening) keep theirs, and so do sessions still connecting."""
-        if self.slots.take(ua):
-            return True
-        idle = sorted(
-            (
-                x
-                for x in self.sessions.values()
-                if x is not s and x.streams == 0 and x.ua is not None and x.ua.status == "connected"
-            ),
-            key=lambda x: x.last_seen,
-        )
-        if not idle:
-            return False
-        victim = idle[0].ua
-        assert victim is not None
-        log.info("web: %d OPC UA sessions held; releasing the longest unused one", len(self.slots.holders))
-        await victim.release()  # its slot is free when this returns: taken in the same step
-        return self.slots.take(ua)
-
-    def _place_freed(self) -> None:
-        """A slot came free: the page that has waited longest gets it (soon, in a task of its own)."""
-        if not self._admitting and not self.closing.is_set():
-            self._admitting = True
-            self._later(self._admit_waiting())
-
-    async def _admit_waiting(self) -> None:
-        try:
-            while self.slots.free > 0:
-                waiting = [
-                    x for x in self.sessions.values() if x.streams and x.ua is not None and x.ua.status == "busy"
-                ]
-                if not waiting:
-                    return
-                s = min(waiting, key=lambda x: x.busy_since)
-                await self._ua(s)
-                if s.ua is not None and s.ua.status == "busy":
-                    return  # the server itself has no session free: the reaper tries again later
-        finally:
-            self._admitting = False
-
     def _refused(self, s: WebSession, problem: str) -> None:
         """The server no longer takes the password of ``s``: end it, the page asks for a login."""
         s.ended_because = problem
@@ -257,41 +195,6 @@ class WebApp:
             await self._end(s)
         if self._reaper is not None:
             self._reaper.cancel()
-
-    def _watch(self, s: WebSession, ua: UaSession) -> UaSession:
-        ua.on_identity_refused = lambda exc: self._refused(s, ua.problem)
-        ua.slots = self.slots
-        return ua
-
-    async def _ua(self, s: WebSession) -> UaSession:
-        """The session's OPC UA session: made anonymously on first use, made again after it was
-        released, and "busy" (with the reason) while the HMI holds ``ua_sessions`` for open pages."""
-        if s.ua is None:
-            ua = self._watch(s, UaSession(self.url, self.credentials, cache=self.cells))
-            s.ua = ua
-            if s.user is None and not self.anonymous:
-                ua.status = "login-required"
-                ua.problem = "Log in to use this HMI: it takes no anonymous users on this address"
-                return ua
-            ua.status = "released"
-        ua = s.ua
-        if s.admitting is not None:  # another request of this session is finding it a place: its outcome
-            await s.admitting.wait()
-            return ua
-        if ua.status in ("released", "busy"):
-            s.admitting = asyncio.Event()  # one request at a time finds it a place
-            try:
-                if not await self._make_room(s, ua):
-                    if ua.status != "busy":
-                        s.busy_since = time.monotonic()
-                    ua.wait_for_place(self._busy_text())
-                    return ua
-                await ua.resume()
-            finally:
-                s.admitting.set()
-                s.admitting = None
-            s.last_seen = time.monotonic()  # connecting took time: the page is about to use it
-        return ua
 
     # requests --------------------------------------------------------------------------------
 
@@ -334,27 +237,15 @@ class WebApp:
         user, password = body.get("user"), body.get("password")
         if not isinstance(user, str) or not user or not isinstance(password, str):
             return JSONResponse({"error": "user name and password are required"}, status_code=400)
-        ua = self._watch(s, UaSession(self.url, self.credentials, user=user, password=password, cache=self.cells))
-        if not await self._make_room(s, ua) and not await self._login_room(s, ua):
-            return JSONResponse({"error": self._busy_text(), "code": "BadTooManySessions"}, status_code=503)
+        ua = self.places.new_login(s, user, password)
+        if not await self.places.login_room(s, ua):
+            return JSONResponse({"error": self.places.busy_text(), "code": "BadTooManySessions"}, status_code=503)
         try:
             await ua.connect()
-        except CallFailed as exc:
-            await ua.close()
-            self._resume_later(s)
-            log.info("web login of %s refused: %s", user, exc.name)
-            return JSONResponse({"error": login_refusal(exc), "code": exc.name}, status_code=401)
-        except TimeoutError:
-            await ua.close()
-            self._resume_later(s)
-            log.info("web login of %s: no answer from the server in time", user)
-            problem = "the server did not check the login in time (it slows logins down after failed attempts)"
-            return JSONResponse({"error": f"{problem}; try again in a minute", "code": "BadTimeout"}, status_code=503)
         except Exception as exc:
             await ua.close()
-            self._resume_later(s)
-            log.info("web login of %s failed: server unreachable (%s)", user, type(exc).__name__)
-            return JSONResponse({"error": f"the OPC UA server {self.url} cannot be reached"}, status_code=503)
+            self.places.resume_later(s)
+            return self._login_failed(user, exc)
         log.info("web login of %s", user)
         await self._end(s)
         fresh = self._new_session()  # a new id and CSRF token after every login
@@ -362,25 +253,16 @@ class WebApp:
         ua.on_identity_refused = lambda exc: self._refused(fresh, ua.problem)
         return self._set_cookie(JSONResponse({"user": user, "csrf": fresh.csrf}), fresh)
 
-    async def _login_room(self, s: WebSession, ua: UaSession) -> bool:
-        """A slot for a login when every one is held: the page's own anonymous session makes room for
-        it, or the login waits a little (other logins end within seconds)."""
-        if s.ua is not None and s.ua.status == "connected":
-            await s.ua.release()
-            if self.slots.take(ua):
-                return True
-        if await self.slots.wait_take(ua, LOGIN_SLOT_WAIT):
-            return True
-        self._resume_later(s)
-        return False
-
-    def _resume_later(self, s: WebSession) -> None:
-        """After a login that did not happen: the page's own session comes back if a page is open."""
-        if s.streams and s.ua is not None and s.ua.status in ("released", "busy"):
-            self._later(self._resume(s))
-
-    async def _resume(self, s: WebSession) -> None:
-        await self._ua(s)
+    def _login_failed(self, user: str, exc: Exception) -> Response:
+        if isinstance(exc, CallFailed):
+            log.info("web login of %s refused: %s", user, exc.name)
+            return JSONResponse({"error": login_refusal(exc), "code": exc.name}, status_code=401)
+        if isinstance(exc, TimeoutError):
+            log.info("web login of %s: no answer from the server in time", user)
+            problem = "the server did not check the login in time (it slows logins down after failed attempts)"
+            return JSONResponse({"error": f"{problem}; try again in a minute", "code": "BadTimeout"}, status_code=503)
+        log.info("web login of %s failed: server unreachable (%s)", user, type(exc).__name__)
+        return JSONResponse({"error": f"the OPC UA server {self.url} cannot be reached"}, status_code=503)
 
     async def logout(self, request: Request) -> Response:
         checked = await self._checked(request)
@@ -398,7 +280,7 @@ class WebApp:
             return JSONResponse({"error": "session expired", "expired": True}, status_code=401)
         s.streams += 1  # a page opening: its session is neither released nor ended meanwhile
         try:
-            ua = await self._ua(s)
+            ua = await self.places.ua(s)
         except BaseException:
             s.streams -= 1
             raise
@@ -451,7 +333,7 @@ class WebApp:
         if isinstance(checked, Response):
             return checked
         s, body = checked
-        ua = await self._ua(s)
+        ua = await self.places.ua(s)
         try:
             if action == "call":
                 args = body.get("args", [])
@@ -506,7 +388,7 @@ class WebApp:
         if since is not None and not math.isfinite(since):
             return JSONResponse({"error": "since must be a time in seconds since the epoch"}, 400)
         try:
-            return JSONResponse(await (await self._ua(s)).history(hours, since=since, width=width))
+            return JSONResponse(await (await self.places.ua(s)).history(hours, since=since, width=width))
         except CallFailed as exc:
             return JSONResponse({"error": f"{exc.name}: {exc.doc}", "code": exc.name}, status_code=409)
         except (OSError, TimeoutError, ConnectionError) as exc:
