@@ -178,6 +178,25 @@ async def test_password_checks_run_off_the_loop_at_most_a_few_at_once(env, monke
     assert threading.main_thread().name not in threads  # the event loop never hashed a password
 
 
+async def test_attempts_of_one_name_share_one_lock_until_the_last_is_done(env, monkeypatch: pytest.MonkeyPatch) -> None:  # type: ignore[no-untyped-def]
+    app, cert = env
+    seen: list[object] = []
+    original = app.users.verify
+
+    def watched(name: str, password: str) -> Role | None:
+        seen.append(app.security._user_locks.get(name))  # the lock the next attempt would take
+        time.sleep(0.2)
+        return original(name, password)
+
+    monkeypatch.setattr(app.users, "verify", watched)
+    results = await asyncio.gather(*(_login(app, cert, "user5", PASSWORD) for _ in range(3)))
+    assert all(ok for _, ok in results)
+    # While attempts overlapped, every one found the same lock: none was forgotten while another
+    # still waited for it (a new attempt would then have run beside the waiting one).
+    assert len(seen) == 3 and seen[0] is not None and all(x is seen[0] for x in seen)
+    assert "user5" not in app.security._user_locks and "user5" not in app.security._lock_users
+
+
 # --- issue 39 point 2: a delayed login is always answered before its connection's deadline -----------
 WINDOW = 6.0  # [limits] activation_timeout of this server: the issue's 30 s, scaled down
 

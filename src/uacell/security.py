@@ -180,6 +180,7 @@ class _Logins:
     password_checks: asyncio.Semaphore
     _password_threads: ThreadPoolExecutor
     _user_locks: dict[str, asyncio.Lock]
+    _lock_users: dict[str, int]  # attempts holding or waiting for each user name's lock
 
     def decrypt_user_token(self, isession: InternalSession, token: ua.UserNameIdentityToken) -> tuple[str, str]:
         raise NotImplementedError  # Security's
@@ -199,6 +200,7 @@ class _Logins:
         deadline = self.answer_deadline(processor, requesthdr)
         # One attempt at a time per user name, so parallel connections cannot skip the delay.
         lock = self._user_locks.setdefault(user, asyncio.Lock())
+        self._lock_users[user] = self._lock_users.get(user, 0) + 1
         try:
             if not lock.locked():
                 await lock.acquire()
@@ -218,8 +220,14 @@ class _Logins:
             finally:
                 lock.release()
         finally:
-            if not lock.locked() and self._user_locks.get(user) is lock:
-                del self._user_locks[user]  # a spray of names leaves nothing behind
+            # The last attempt of this name (none waiting for the lock either) forgets it: a spray of
+            # names leaves nothing behind, and a waiter is never left with a lock nobody else shares.
+            left = self._lock_users[user] - 1
+            if left:
+                self._lock_users[user] = left
+            else:
+                del self._lock_users[user]
+                self._user_locks.pop(user, None)
 
     async def _checked_login(
         self,
@@ -328,6 +336,7 @@ class Security(_Logins):
         self._password_threads = ThreadPoolExecutor(limits.password_checks, thread_name_prefix="uacell-password")
         self.on_session_closed: list[Callable[[InternalSession], None]] = []
         self._user_locks: dict[str, asyncio.Lock] = {}
+        self._lock_users: dict[str, int] = {}
         self.trust_list: TrustList | None = None
         self.policies: list[ua.SecurityPolicyType] = []
         self.refusals = RefusalLog()
