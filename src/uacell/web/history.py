@@ -190,11 +190,18 @@ async def unit_history(client: Client, cell: Cell, name: str, w: Window) -> dict
     for m in _UNIT_MACHINES:
         node = cell.variables.get(f"{name}/{m}/CurrentState")
         machines.append(await _history(client, node, w.since, w.end) if node is not None else [])
-    trends = {}
-    for key, aggregate in _TRENDS.items():
-        node = cell.variables.get(f"{name}/{key}")
+    trends: dict[str, list[list[float]]] = {}
+    series = [(key.split("/")[1], cell.variables.get(f"{name}/{key}"), aggregate) for key, aggregate in _TRENDS.items()]
+    nodes = {label: node for label, node, _ in series if node is not None}
+    for label, node, aggregate in series:
         if node is not None:
-            trends[key.split("/")[1]] = await _columns(client, node, aggregate, w)
+            trends[label] = await _columns(client, node, aggregate, w)
+    # Each trend ends with the value now (the legend's "now"; the last column is an aggregate).
+    now_values = await client.read_values([client.get_node(n) for n in nodes.values()]) if nodes else []
+    for label, value in zip(nodes, now_values, strict=True):
+        value = _text(value)
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            trends[label].append([e, float(value)])
     oee: dict[str, Any] = {}
     base = next((ua.NodeId.from_string(n) for n, k in cell.machines.items() if k == f"{name}/BaseStateMachine"), None)
     if base is not None:
