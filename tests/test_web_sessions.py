@@ -255,3 +255,33 @@ async def test_a_page_and_a_request_of_one_session_at_once_make_one_opc_ua_sessi
     finally:
         await page.close()
     await wait_until(lambda: held(app) == 0, timeout=30)
+
+
+async def test_the_loopback_hardening_setting_leaves_anonymous_pages_and_local_programs_watching(tmp_path):
+    """docs/security.md, "The loopback trust model": ``[server] anonymous_role = "observer"`` takes the
+    anonymous operator away from local programs and from the HMI's anonymous pages; a login operates."""
+    data = tmp_path / "data"
+    config = fast_config(data)
+    config.server.anonymous_role = "observer"
+    app = await start_app(config)
+    app.users.add("otto", "operator", PASSWORD)
+    trust_hmi(data)
+    web = await start_web(app.endpoint, data, port=0, server_certificate=PkiPaths.in_data_dir(data).cert)
+    try:
+        speed = {"key": "Filler1/SetMachSpeed", "args": [60.0]}
+        b = Browser(web.url)
+        await b.start()
+        status, answer = await b.post("/api/call", speed)
+        assert status == 200 and answer["code"] == "BadUserAccessDenied"
+        async with Client(app.endpoint, timeout=20) as local:  # a local program, anonymous
+            filler = ua.NodeId("Filler1", app.cell.instantiator.ns)
+            method = app.dispatcher.method_of(filler, "SetMachSpeed")
+            with pytest.raises(ua.UaStatusCodeError) as refused:
+                await local.get_node(filler).call_method(method, ua.Variant(60.0, ua.VariantType.Float))
+            assert refused.value.code == ua.StatusCodes.BadUserAccessDenied
+        assert (await b.login("otto"))[0] == 200
+        status, answer = await b.post("/api/call", speed)
+        assert status == 200 and answer["code"] == "Good"
+    finally:
+        await web.stop()
+        await app.stop()

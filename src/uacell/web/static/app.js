@@ -30,7 +30,7 @@ function el(tag, attrs = {}, ...children) {
 async function api(path, body) {
   const res = await fetch(path, {
     method: "POST", credentials: "same-origin",
-    headers: {"Content-Type": "application/json", "X-CSRF-Token": S.csrf},
+    headers: {"Content-Type": "application/json", "X-CSRF-Token": token()},
     body: JSON.stringify(body || {}),
   });
   let data = {};
@@ -50,9 +50,12 @@ function keepToken(token) {
 function storedToken() {
   try { return localStorage.getItem(TOKEN_KEY) || ""; } catch (e) { return ""; }
 }
+// The stored one first: the cookie is shared by every tab of this origin, and so is the token (a
+// login in another tab renewed both).
+const token = () => storedToken() || S.csrf;
 
 async function loadSession() {
-  const res = await fetch("/api/session", {credentials: "same-origin", headers: {"X-CSRF-Token": S.csrf || storedToken()}});
+  const res = await fetch("/api/session", {credentials: "same-origin", headers: {"X-CSRF-Token": token()}});
   const data = await res.json();
   keepToken(data.csrf);
   return data;
@@ -71,7 +74,7 @@ function sessionExpired(reason) {
 
 function connect() {
   if (S.es) S.es.close();
-  const es = new EventSource(`/api/events?key=${encodeURIComponent(S.csrf)}`);
+  const es = new EventSource(`/api/events?key=${encodeURIComponent(token())}`);
   S.es = es;
   es.onmessage = (m) => handle(JSON.parse(m.data));
   es.onopen = () => { if (S.status === "web-lost") setConn("connecting", ""); };
