@@ -283,6 +283,21 @@ async def test_a_client_that_waits_less_than_the_delay_is_answered_within_its_ti
     assert throttle._failures[("user", "ulla")][0] == 2  # refused unchecked: not counted
 
 
+async def test_a_delay_beyond_the_channels_lifetime_is_answered_before_the_channel_expires(short) -> None:  # type: ignore[no-untyped-def]
+    app, cert = short
+    app.security.throttle = throttle = LoginThrottle(base=4.0, cap=4.0, free=1, free_per_user=100)
+    throttle.failed("ulla", "127.0.0.1")
+    assert throttle.failed("ulla", "127.0.0.1") == pytest.approx(4.0, abs=0.1)
+    client = await secure_client(app, cert, user="ulla", password=PASSWORD, connect=False)
+    client.secure_channel_timeout = 3000  # the channel's token lives 3 s, less than the 4 s delay
+    start = time.monotonic()
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await client.connect()
+    assert refused.value.code == ua.StatusCodes.BadUserAccessDenied
+    assert time.monotonic() - start < 3.0
+    assert throttle._failures[("user", "ulla")][0] == 2  # refused unchecked: not counted
+
+
 async def test_a_max_delay_that_would_outlast_the_activation_deadline_is_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
     from uacell.config import load_config
     from uacell.errors import ConfigError

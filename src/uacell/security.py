@@ -44,6 +44,7 @@ import struct
 import time
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn, cast
 from urllib.parse import urlparse
@@ -257,7 +258,8 @@ class _Logins:
         """When (``time.monotonic()``) an ActivateSession must have its answer out, less the margin to
         check the password and send it (decision 59): before asyncua closes a connection without an
         activated session (``[limits] activation_timeout`` from connecting), before an activated
-        session's own timeout, and within the request's TimeoutHint when the client gives one."""
+        session's own timeout, within the request's TimeoutHint when the client gives one, and before
+        the channel's security token expires."""
         now = time.monotonic()
         session = processor.session
         deadlines = []
@@ -271,6 +273,12 @@ class _Logins:
         hint = float(getattr(requesthdr, "TimeoutHint", 0) or 0) / 1000.0
         if hint > 0:
             deadlines.append(now + hint - login_answer_margin(hint))
+        token = getattr(getattr(processor, "_connection", None), "security_token", None)
+        lifetime = float(getattr(token, "RevisedLifetime", 0) or 0) / 1000.0
+        created = getattr(token, "CreatedAt", None)
+        if lifetime > 0 and isinstance(created, datetime):  # the channel's token, renewed by the client
+            left = (created + timedelta(seconds=lifetime) - datetime.now(UTC)).total_seconds()
+            deadlines.append(now + left - login_answer_margin(lifetime))
         return min(deadlines, default=now)
 
     def _unchecked(self, processor: UaProcessor, address: str, user: str, why: str) -> NoReturn:
