@@ -265,37 +265,41 @@ async def test_the_right_password_after_many_failures_is_slowed_then_checked_and
     assert delay - 0.3 <= took < WINDOW
 
 
+def _delayed(app: UacellServer, delay: float) -> LoginThrottle:
+    """A throttle that makes ulla's next attempt wait ``delay`` seconds (two failures just now)."""
+    app.security.throttle = throttle = LoginThrottle(base=delay, cap=delay, free=1, free_per_user=100)
+    throttle.failed("ulla", "127.0.0.1")
+    assert throttle.failed("ulla", "127.0.0.1") == pytest.approx(delay, abs=0.1)
+    return throttle
+
+
+async def _refused_at_once(client: Client, within: float, throttle: LoginThrottle) -> None:
+    """The right password, answered Bad_UserAccessDenied within ``within`` s, unchecked and not counted."""
+    start = time.monotonic()
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await client.connect()
+    assert refused.value.code == ua.StatusCodes.BadUserAccessDenied
+    assert time.monotonic() - start < within
+    assert throttle._failures[("user", "ulla")][0] == 2
+
+
 async def test_a_client_that_waits_less_than_the_delay_is_answered_within_its_timeout_hint(short) -> None:  # type: ignore[no-untyped-def]
     app, cert = short
-    app.security.throttle = throttle = LoginThrottle(base=3.0, cap=3.0, free=1, free_per_user=100)
-    throttle.failed("ulla", "127.0.0.1")
-    assert throttle.failed("ulla", "127.0.0.1") == pytest.approx(3.0, abs=0.1)
+    throttle = _delayed(app, 3.0)
     client = Client(app.endpoint, timeout=2.0)  # its TimeoutHint: 2000 ms, less than the 3 s delay
     client.application_uri = cert.uri
     client.set_user("ulla")
     client.set_password(PASSWORD)
     await client.set_security(SecurityPolicyBasic256Sha256, str(cert.cert), str(cert.key))
-    start = time.monotonic()
-    with pytest.raises(ua.UaStatusCodeError) as refused:
-        await client.connect()
-    assert refused.value.code == ua.StatusCodes.BadUserAccessDenied
-    assert time.monotonic() - start < 2.0
-    assert throttle._failures[("user", "ulla")][0] == 2  # refused unchecked: not counted
+    await _refused_at_once(client, 2.0, throttle)
 
 
 async def test_a_delay_beyond_the_channels_lifetime_is_answered_before_the_channel_expires(short) -> None:  # type: ignore[no-untyped-def]
     app, cert = short
-    app.security.throttle = throttle = LoginThrottle(base=4.0, cap=4.0, free=1, free_per_user=100)
-    throttle.failed("ulla", "127.0.0.1")
-    assert throttle.failed("ulla", "127.0.0.1") == pytest.approx(4.0, abs=0.1)
+    throttle = _delayed(app, 4.0)
     client = await secure_client(app, cert, user="ulla", password=PASSWORD, connect=False)
     client.secure_channel_timeout = 3000  # the channel's token lives 3 s, less than the 4 s delay
-    start = time.monotonic()
-    with pytest.raises(ua.UaStatusCodeError) as refused:
-        await client.connect()
-    assert refused.value.code == ua.StatusCodes.BadUserAccessDenied
-    assert time.monotonic() - start < 3.0
-    assert throttle._failures[("user", "ulla")][0] == 2  # refused unchecked: not counted
+    await _refused_at_once(client, 3.0, throttle)
 
 
 async def test_a_max_delay_that_would_outlast_the_activation_deadline_is_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
