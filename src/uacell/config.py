@@ -106,7 +106,7 @@ class ProgramsConfig:
 
 def login_answer_margin(window: float) -> float:
     """Seconds a delayed login keeps before a deadline ``window`` seconds long: to check the password
-    and send the answer back (decision 59)."""
+    and send the answer back (decision 65)."""
     return min(5.0, window / 5)
 
 
@@ -128,7 +128,7 @@ class LimitsConfig:
     pending_bytes_per_connection: int = 1024 * 1024  # the same in bytes
     operations_per_request: int = 1000  # nodes one Read/Write/Browse/Call/... may name
     login_base_delay: float = 1.0  # first delay after the free failures, doubled per further failure
-    login_max_delay: float = 20.0  # at most activation_timeout - handshake_timeout - margin (decision 59)
+    login_max_delay: float = 20.0  # at most activation_timeout - handshake_timeout - margin (decision 65)
     login_free_failures: int = 2  # failures in a row of one user name at one address without delay
     login_free_failures_per_user: int = 10  # the same over all addresses
     password_checks: int = 2  # password hashes verified at once, server-wide

@@ -172,7 +172,7 @@ async def prepare_certificate(server: Server, data_dir: Path, application_uri: s
 
 class _Logins:
     """The login part of ``Security``: ActivateSession with a user name throttled per user name,
-    answered before its deadline (decision 59), the password checked in a worker thread and every
+    answered before its deadline (decision 65), the password checked in a worker thread and every
     attempt audited."""
 
     app: Host
@@ -256,7 +256,7 @@ class _Logins:
 
     def answer_deadline(self, processor: UaProcessor, requesthdr: Any) -> float:
         """When (``time.monotonic()``) an ActivateSession must have its answer out, less the margin to
-        check the password and send it (decision 59): before asyncua closes a connection without an
+        check the password and send it (decision 65): before asyncua closes a connection without an
         activated session (``[limits] activation_timeout`` from connecting), before an activated
         session's own timeout, within the request's TimeoutHint when the client gives one, and before
         the channel's security token expires."""
@@ -283,7 +283,7 @@ class _Logins:
 
     def _unchecked(self, processor: UaProcessor, address: str, user: str, why: str) -> NoReturn:
         """Answer Bad_UserAccessDenied now, without checking the password (and without counting a
-        failure): the throttle may not check it before its deadline (decision 59)."""
+        failure): the throttle may not check it before its deadline (decision 65)."""
         log.info("login of user %r from %s refused unchecked: %s", user, address, why)
         self._audit_login(processor, address, user, "BadUserAccessDenied")
         raise ServiceError(ua.StatusCodes.BadUserAccessDenied)

@@ -132,7 +132,7 @@ class WebApp:
         header, or ``?key=`` for the event stream, which cannot send headers). Browsers send a
         host's cookies to every port of it, so a cookie alone may have been replayed by another
         program on this host; the token is kept in the page's own storage, which is per origin
-        (scheme, host and port) and never reaches another port (decision 60)."""
+        (scheme, host and port) and never reaches another port (decision 66)."""
         s = self._by_cookie(request)
         if s is None:
             return None

@@ -1,5 +1,5 @@
 """The HMI's places on the OPC UA server: which web session holds one of its ``[web] ua_sessions``
-OPC UA sessions, and who waits for one (decision 58).
+OPC UA sessions, and who waits for one (decision 64).
 
 A place is taken before a connect starts and given back only once the session is closed
 (``SessionSlots``), so the cap holds whatever the concurrency. A connected session without an open
