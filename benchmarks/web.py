@@ -100,9 +100,9 @@ class Stream:
         self.thread = threading.Thread(target=self._read, daemon=True)
 
     def start(self) -> None:
-        with self.opener.open(self.url + "/api/session", timeout=60) as res:  # the session cookie
-            res.read()
-        self.response = self.opener.open(self.url + "/api/events", timeout=120)
+        with self.opener.open(self.url + "/api/session", timeout=60) as res:  # the session cookie and token
+            token = json.loads(res.read())["csrf"]
+        self.response = self.opener.open(f"{self.url}/api/events?key={token}", timeout=120)
         self.thread.start()
 
     def _read(self) -> None:

@@ -13,6 +13,7 @@ from collections.abc import AsyncIterator
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from conftest import fast_config, start_app
 from helpers import wait_until
 from test_security import ClientCert, secure_client
@@ -175,3 +176,139 @@ async def test_password_checks_run_off_the_loop_at_most_a_few_at_once(env, monke
     assert all(ok for _, ok in results)
     assert peak == 2
     assert threading.main_thread().name not in threads  # the event loop never hashed a password
+
+
+async def test_attempts_of_one_name_share_one_lock_until_the_last_is_done(env, monkeypatch: pytest.MonkeyPatch) -> None:  # type: ignore[no-untyped-def]
+    app, cert = env
+    seen: list[object] = []
+    original = app.users.verify
+
+    def watched(name: str, password: str) -> Role | None:
+        seen.append(app.security._user_locks.get(name))  # the lock the next attempt would take
+        time.sleep(0.2)
+        return original(name, password)
+
+    monkeypatch.setattr(app.users, "verify", watched)
+    results = await asyncio.gather(*(_login(app, cert, "user5", PASSWORD) for _ in range(3)))
+    assert all(ok for _, ok in results)
+    # While attempts overlapped, every one found the same lock: none was forgotten while another
+    # still waited for it (a new attempt would then have run beside the waiting one).
+    assert len(seen) == 3 and seen[0] is not None and all(x is seen[0] for x in seen)
+    assert "user5" not in app.security._user_locks and "user5" not in app.security._lock_users
+
+
+# --- issue 39 point 2: a delayed login is always answered before its connection's deadline -----------
+WINDOW = 6.0  # [limits] activation_timeout of this server: the issue's 30 s, scaled down
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def short(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[tuple[UacellServer, ClientCert]]:
+    base = tmp_path_factory.mktemp("deadline")
+    config = fast_config(base / "data")
+    config.limits.activation_timeout = WINDOW
+    app = await start_app(config)
+    cert = ClientCert(base / "client")
+    TrustList(PkiPaths.in_data_dir(app.data_dir)).trust(cert.der)
+    app.users.add("ulla", Role.OPERATOR, PASSWORD)
+    try:
+        yield app, cert
+    finally:
+        await app.stop()
+
+
+async def _timed_login(app: UacellServer, cert: ClientCert, password: str) -> tuple[float, str]:
+    """Seconds from connecting to the answer, and the answer: "Good", a status code name, or the
+    client's error when the connection was closed instead of answered."""
+    start = time.monotonic()
+    client = await secure_client(app, cert, user="ulla", password=password, connect=False)
+    try:
+        await client.connect()
+    except ua.UaStatusCodeError as exc:
+        return time.monotonic() - start, ua.StatusCode(exc.code).name
+    except Exception as exc:  # "Connection is closed": dropped unanswered
+        return time.monotonic() - start, f"dropped: {exc!r}"
+    await client.disconnect()
+    return time.monotonic() - start, "Good"
+
+
+async def test_the_activation_deadline_is_the_configured_one(short) -> None:  # type: ignore[no-untyped-def]
+    app, _ = short
+    assert app.server.iserver.max_pending_activation_seconds == WINDOW
+
+
+async def test_a_throttle_delay_as_long_as_the_deadline_is_answered_never_dropped(short) -> None:  # type: ignore[no-untyped-def]
+    app, cert = short
+    # The issue's case: the delay reaches the activation deadline itself (30 s there, WINDOW here).
+    app.security.throttle = LoginThrottle(base=WINDOW, cap=WINDOW, free=1, free_per_user=100)
+    answers = [await _timed_login(app, cert, f"wrong-{i}") for i in range(6)]
+    assert [code for _, code in answers] == ["BadUserAccessDenied"] * 6
+    assert all(took < WINDOW for took, _ in answers), answers
+    # The attempts that came too early for the delay were refused unchecked and not counted: fewer
+    # failures counted than made.
+    assert app.security.throttle._failures[("user", "ulla")][0] < 6
+
+
+async def test_the_right_password_after_many_failures_is_slowed_then_checked_and_let_in(short) -> None:  # type: ignore[no-untyped-def]
+    app, cert = short
+    delay = 2.5  # the largest delay, well inside WINDOW less the margin
+    app.security.throttle = throttle = LoginThrottle(base=1.0, cap=delay, free=1, free_per_user=100)
+    for i in range(12):
+        took, code = await _timed_login(app, cert, f"wrong-{i}")
+        assert code == "BadUserAccessDenied" and took < WINDOW
+        await wait_until(lambda: throttle.wait_time("ulla", "127.0.0.1") < delay - 0.5, timeout=10)
+    # The user who knows the password waits out the delay and gets in; never cut off unchecked.
+    await wait_until(lambda: throttle.wait_time("ulla", "127.0.0.1") == 0.0, timeout=10)
+    throttle.failed("ulla", "127.0.0.1")  # one more failure just now: the full delay applies
+    assert throttle.wait_time("ulla", "127.0.0.1") > delay - 0.2
+    took, code = await _timed_login(app, cert, PASSWORD)
+    assert code == "Good"
+    assert delay - 0.3 <= took < WINDOW
+
+
+def _delayed(app: UacellServer, delay: float) -> LoginThrottle:
+    """A throttle that makes ulla's next attempt wait ``delay`` seconds (two failures just now)."""
+    app.security.throttle = throttle = LoginThrottle(base=delay, cap=delay, free=1, free_per_user=100)
+    throttle.failed("ulla", "127.0.0.1")
+    assert throttle.failed("ulla", "127.0.0.1") == pytest.approx(delay, abs=0.1)
+    return throttle
+
+
+async def _refused_at_once(client: Client, within: float, throttle: LoginThrottle) -> None:
+    """The right password, answered Bad_UserAccessDenied within ``within`` s, unchecked and not counted."""
+    start = time.monotonic()
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await client.connect()
+    assert refused.value.code == ua.StatusCodes.BadUserAccessDenied
+    assert time.monotonic() - start < within
+    assert throttle._failures[("user", "ulla")][0] == 2
+
+
+async def test_a_client_that_waits_less_than_the_delay_is_answered_within_its_timeout_hint(short) -> None:  # type: ignore[no-untyped-def]
+    app, cert = short
+    throttle = _delayed(app, 3.0)
+    client = Client(app.endpoint, timeout=2.0)  # its TimeoutHint: 2000 ms, less than the 3 s delay
+    client.application_uri = cert.uri
+    client.set_user("ulla")
+    client.set_password(PASSWORD)
+    await client.set_security(SecurityPolicyBasic256Sha256, str(cert.cert), str(cert.key))
+    await _refused_at_once(client, 2.0, throttle)
+
+
+async def test_a_delay_beyond_the_channels_lifetime_is_answered_before_the_channel_expires(short) -> None:  # type: ignore[no-untyped-def]
+    app, cert = short
+    throttle = _delayed(app, 4.0)
+    client = await secure_client(app, cert, user="ulla", password=PASSWORD, connect=False)
+    client.secure_channel_timeout = 3000  # the channel's token lives 3 s, less than the 4 s delay
+    await _refused_at_once(client, 3.0, throttle)
+
+
+async def test_a_max_delay_that_would_outlast_the_activation_deadline_is_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from uacell.config import load_config
+    from uacell.errors import ConfigError
+
+    path = tmp_path / "c.toml"
+    path.write_text("[limits]\nlogin_max_delay = 30.0\n")  # the old default, equal to the deadline
+    with pytest.raises(ConfigError, match=r"login_max_delay: must be at most 20 s"):
+        load_config(path)
+    path.write_text("[limits]\nactivation_timeout = 45.0\nlogin_max_delay = 30.0\n")
+    assert load_config(path).limits.login_max_delay == 30.0

@@ -83,7 +83,8 @@ class Browser:
             return status, raw.decode(errors="replace")
 
     async def get(self, path: str) -> tuple[int, Any]:
-        return await asyncio.to_thread(self._send, path, None, {})
+        """A GET as the page makes it: with the session's token beside the cookie (once it has one)."""
+        return await asyncio.to_thread(self._send, path, None, {"X-CSRF-Token": self.csrf} if self.csrf else {})
 
     async def post(self, path: str, body: dict, csrf: str | None = None) -> tuple[int, Any]:
         headers = {"Content-Type": "application/json", "X-CSRF-Token": self.csrf if csrf is None else csrf}
@@ -144,9 +145,10 @@ async def test_cookie_is_httponly_samesite_and_actions_need_the_csrf_token(stack
     b = Browser(web.url)
     status, page = await b.get("/")
     assert status == 200 and "<svg" not in page and "/static/app.js" in page
+    assert "content-security-policy" in {k.lower() for k in b.last_headers}
+    status, _ = await b.get("/api/session")  # the page asks for its session: the cookie comes with it
     cookie = b.last_headers.get_all("set-cookie")[0].lower()
     assert "httponly" in cookie and "samesite=strict" in cookie and "secure" not in cookie
-    assert "content-security-policy" in {k.lower() for k in b.last_headers}
     await b.start()
     before = await _state(app, FILLER)
     key = "Filler1/MachineState/Reset"
@@ -245,7 +247,7 @@ async def test_https_only_on_a_non_loopback_address(stack, tmp_path):
         context.check_hostname = False
         context.verify_mode = ssl.CERT_NONE
         b = Browser(f"https://127.0.0.1:{port}", context)
-        status, _ = await b.get("/")
+        status, _ = await b.get("/api/session")
         assert status == 200
         assert "secure" in b.last_headers.get_all("set-cookie")[0].lower()
         assert b.last_headers.get_all("set-cookie")[0].startswith(f"__Host-uacell_{port}=")
@@ -296,7 +298,7 @@ async def test_static_files_are_package_data() -> None:
 def _sse_until(b: Browser, want, timeout: float = 90.0) -> dict:
     """Read the page's event stream until a message satisfies ``want``; return it."""
     deadline = time.monotonic() + timeout
-    with b.opener.open(urllib.request.Request(b.base + "/api/events"), timeout=30) as res:
+    with b.opener.open(urllib.request.Request(f"{b.base}/api/events?key={b.csrf}"), timeout=30) as res:
         while time.monotonic() < deadline:
             line = res.readline()
             assert line, "the event stream ended"

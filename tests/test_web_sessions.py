@@ -61,14 +61,15 @@ class Page:
     """An open page: the event stream of browser ``b``, read as the page reads it."""
 
     def __init__(self, web, b: Browser) -> None:
-        self.port, self.cookie = _port(web), f"{web.web.cookie}={b.cookie()}"
+        self.port, self.cookie, self.key = _port(web), f"{web.web.cookie}={b.cookie()}", b.csrf
         self.reader: asyncio.StreamReader | None = None
         self.writer: asyncio.StreamWriter | None = None
 
     async def open(self) -> Page:
         self.reader, self.writer = await asyncio.open_connection("127.0.0.1", self.port)
         self.writer.write(
-            f"GET /api/events HTTP/1.1\r\nHost: 127.0.0.1:{self.port}\r\nCookie: {self.cookie}\r\n\r\n".encode()
+            f"GET /api/events?key={self.key} HTTP/1.1\r\nHost: 127.0.0.1:{self.port}\r\n"
+            f"Cookie: {self.cookie}\r\n\r\n".encode()
         )
         await self.writer.drain()
         return self
@@ -193,3 +194,94 @@ async def test_concurrent_wrong_logins_are_each_refused_as_wrong(stack):
         await b.start()
     answers = await asyncio.gather(*(b.login("otto", f"wrong-{i}") for i, b in enumerate(browsers)))
     assert [(status, answer.get("code")) for status, answer in answers] == [(401, "BadUserAccessDenied")] * 6
+
+
+async def _raw(web, request: str) -> tuple[int, dict]:
+    """One HTTP request as another program on this host sends it (no browser): status and JSON body."""
+    port = _port(web)
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    try:
+        writer.write(request.replace("HOST", f"127.0.0.1:{port}").encode())
+        await writer.drain()
+        answer = (await asyncio.wait_for(reader.read(), 30)).decode()
+    finally:
+        writer.close()
+    head, _, body = answer.partition("\r\n\r\n")
+    return int(head.split(" ", 2)[1]), json.loads(body)
+
+
+async def test_a_session_cookie_replayed_by_another_local_program_is_nobodys_session(stack):
+    app, web = stack
+    app.users.add("rita", "operator", PASSWORD)
+    b = Browser(web.url)
+    await b.start()
+    assert (await b.login("rita"))[0] == 200
+    # Another program on this host got rita's cookie (browsers send it to every port of 127.0.0.1)
+    # and replays it; it never sees the token, which the page keeps in its own origin's storage.
+    cookie = f"{web.web.cookie}={b.cookie()}"
+    common = f"Host: HOST\r\nCookie: {cookie}\r\nConnection: close\r\n"
+    status, info = await _raw(web, f"GET /api/session HTTP/1.1\r\n{common}\r\n")
+    assert status == 200 and info["fresh"] and info["user"] is None and info["csrf"] != b.csrf
+    assert (await _raw(web, f"GET /api/events HTTP/1.1\r\n{common}\r\n"))[0] == 401
+    assert (await _raw(web, f"GET /api/events?key=guess HTTP/1.1\r\n{common}\r\n"))[0] == 401
+    assert (await _raw(web, f"GET /api/history?hours=1 HTTP/1.1\r\n{common}\r\n"))[0] == 401
+    body = json.dumps({"key": "Filler1/SetMachSpeed", "args": [60.0]})
+    length = f"Content-Type: application/json\r\nContent-Length: {len(body)}\r\n"
+    post = f"POST /api/call HTTP/1.1\r\n{common}{length}\r\n{body}"
+    assert (await _raw(web, post))[0] == 403
+    # The page itself, with cookie and token, is still rita's.
+    status, info = await b.get("/api/session")
+    assert status == 200 and info["user"] == "rita" and not info["fresh"] and info["csrf"] == b.csrf
+    page = await Page(web, b).open()
+    try:
+        await page.until(lambda m: m.get("status") == "connected")
+    finally:
+        await page.close()
+
+
+async def test_a_page_and_a_request_of_one_session_at_once_make_one_opc_ua_session(stack):
+    app, web = stack
+    await wait_until(lambda: held(app) == 0, timeout=30)
+    b = Browser(web.url)
+    await b.start()
+    page = Page(web, b)
+    try:
+        history, _ = await asyncio.gather(
+            b.get("/api/history?hours=1"),
+            (await page.open()).until(lambda m: m.get("status") == "connected"),
+        )
+        assert history[0] == 200
+        assert held(app) == 1  # one session for both, none left over from a second connect
+    finally:
+        await page.close()
+    await wait_until(lambda: held(app) == 0, timeout=30)
+
+
+async def test_the_loopback_hardening_setting_leaves_anonymous_pages_and_local_programs_watching(tmp_path):
+    """docs/security.md, "The loopback trust model": ``[server] anonymous_role = "observer"`` takes the
+    anonymous operator away from local programs and from the HMI's anonymous pages; a login operates."""
+    data = tmp_path / "data"
+    config = fast_config(data)
+    config.server.anonymous_role = "observer"
+    app = await start_app(config)
+    app.users.add("otto", "operator", PASSWORD)
+    trust_hmi(data)
+    web = await start_web(app.endpoint, data, port=0, server_certificate=PkiPaths.in_data_dir(data).cert)
+    try:
+        speed = {"key": "Filler1/SetMachSpeed", "args": [60.0]}
+        b = Browser(web.url)
+        await b.start()
+        status, answer = await b.post("/api/call", speed)
+        assert status == 200 and answer["code"] == "BadUserAccessDenied"
+        async with Client(app.endpoint, timeout=20) as local:  # a local program, anonymous
+            filler = ua.NodeId("Filler1", app.cell.instantiator.ns)
+            method = app.dispatcher.method_of(filler, "SetMachSpeed")
+            with pytest.raises(ua.UaStatusCodeError) as refused:
+                await local.get_node(filler).call_method(method, ua.Variant(60.0, ua.VariantType.Float))
+            assert refused.value.code == ua.StatusCodes.BadUserAccessDenied
+        assert (await b.login("otto"))[0] == 200
+        status, answer = await b.post("/api/call", speed)
+        assert status == 200 and answer["code"] == "Good"
+    finally:
+        await web.stop()
+        await app.stop()

@@ -105,6 +105,12 @@ class ProgramsConfig:
     max_folder_bytes: int = 64 * 1024 * 1024
 
 
+def login_answer_margin(window: float) -> float:
+    """Seconds a delayed login keeps before a deadline ``window`` seconds long: to check the password
+    and send the answer back (decision 65)."""
+    return min(5.0, window / 5)
+
+
 @dataclass
 class LimitsConfig:
     """What clients may hold and send (docs/security.md, "Limits")."""
@@ -123,11 +129,12 @@ class LimitsConfig:
     pending_bytes_per_connection: int = 1024 * 1024  # the same in bytes
     operations_per_request: int = 1000  # nodes one Read/Write/Browse/Call/... may name
     login_base_delay: float = 1.0  # first delay after the free failures, doubled per further failure
-    login_max_delay: float = 30.0
+    login_max_delay: float = 20.0  # at most activation_timeout - handshake_timeout - margin (decision 65)
     login_free_failures: int = 2  # failures in a row of one user name at one address without delay
     login_free_failures_per_user: int = 10  # the same over all addresses
     password_checks: int = 2  # password hashes verified at once, server-wide
     handshake_timeout: float = 5.0  # seconds from connecting to an open secure channel (Hello, OpenSecureChannel)
+    activation_timeout: float = 30.0  # seconds from connecting to an activated session; closed beyond
     pending_per_address: int = 32  # connections of one address without an activated session
 
 
@@ -376,6 +383,14 @@ def _load_file(path: str | Path | None) -> Config:
         raise ConfigError(f"configuration {path}: [limits] max_chunk_size: must be 8192..max_message_size")
     if limits.login_base_delay > limits.login_max_delay:
         raise ConfigError(f"configuration {path}: [limits] login_base_delay: must not exceed login_max_delay")
+    margin = login_answer_margin(limits.activation_timeout)
+    longest = limits.activation_timeout - margin - limits.handshake_timeout
+    if limits.login_max_delay > longest:
+        raise ConfigError(
+            f"configuration {path}: [limits] login_max_delay: must be at most {longest:g} s: activation_timeout "
+            f"({limits.activation_timeout:g} s) less handshake_timeout ({limits.handshake_timeout:g} s) and "
+            f"{margin:g} s to check the password, so that a delayed login is answered before its connection is closed"
+        )
     return config
 
 

@@ -32,3 +32,19 @@ class CallError(Exception):
 
 class ConfigError(Exception):
     """The configuration cannot be read or is not valid."""
+
+
+WRONG_CREDENTIALS = "the user name or password is wrong"
+
+# How a refused login reads to a person (HMI, ``uacell health``): the status code's own text ("User
+# does not have permission to perform the requested operation") says nothing about a typo.
+_LOGIN_REFUSALS = {
+    "BadUserAccessDenied": WRONG_CREDENTIALS,
+    "BadIdentityTokenInvalid": "the server could not read the login (its token was refused as invalid)",
+    "BadIdentityTokenRejected": "the server does not take a user name and password over this connection",
+}
+
+
+def login_refusal(status: str) -> str | None:
+    """Plain words for a login refused with ``status`` (a StatusCode name); None for other refusals."""
+    return _LOGIN_REFUSALS.get(status)

@@ -2,7 +2,8 @@
 
 It asks the server for its endpoints (OPC UA discovery, open to everyone on every endpoint). Where an
 unencrypted endpoint is offered (loopback), it also opens an anonymous session and requires
-Server/ServerStatus/State to be Running. Elsewhere, answering discovery is the sign of life: reading the
+Server/ServerStatus/State to be Running (as the user named in the endpoint, ``opc.tcp://user:password@host:port/``,
+if any: a refused login is said in plain words). Elsewhere, answering discovery is the sign of life: reading the
 state would need a trusted client certificate.
 """
 
@@ -12,6 +13,8 @@ import asyncio
 import logging
 
 from asyncua import Client, ua
+
+from uacell.errors import login_refusal
 
 
 async def check(endpoint: str, timeout: float = 10.0) -> tuple[bool, str]:
@@ -33,6 +36,11 @@ async def check(endpoint: str, timeout: float = 10.0) -> tuple[bool, str]:
                 await client.disconnect()
     except TimeoutError:
         return False, f"no answer within {timeout:g} s"
+    except ua.UaStatusCodeError as exc:
+        words = login_refusal(ua.StatusCode(exc.code).name)
+        if words is not None:  # user:password@ in the endpoint, refused
+            return False, f"the server refused the login: {words} ({ua.StatusCode(exc.code).name})"
+        return False, f"not reachable: {exc}"
     except (OSError, ua.UaError) as exc:
         return False, f"not reachable: {exc}"
     finally:

@@ -41,10 +41,12 @@ import hmac
 import logging
 import os
 import struct
+import time
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, NoReturn, cast
 from urllib.parse import urlparse
 
 from asyncua import Server, ua
@@ -56,6 +58,7 @@ from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary
 from cryptography import x509
 
+from uacell.config import login_answer_margin
 from uacell.logs import RefusalLog
 from uacell.pki import (
     CertificateValidator,
@@ -167,7 +170,162 @@ async def prepare_certificate(server: Server, data_dir: Path, application_uri: s
     return cert
 
 
-class Security:
+class _Logins:
+    """The login part of ``Security``: ActivateSession with a user name throttled per user name,
+    answered before its deadline (decision 65), the password checked in a worker thread and every
+    attempt audited."""
+
+    app: Host
+    server: Server
+    throttle: LoginThrottle
+    password_checks: asyncio.Semaphore
+    _password_threads: ThreadPoolExecutor
+    _user_locks: dict[str, asyncio.Lock]
+    _lock_users: dict[str, int]  # attempts holding or waiting for each user name's lock
+
+    def decrypt_user_token(self, isession: InternalSession, token: ua.UserNameIdentityToken) -> tuple[str, str]:
+        raise NotImplementedError  # Security's
+
+    async def activate(self, processor: UaProcessor, requesthdr: Any, body: Any, call: Callable[[], Any]) -> Any:
+        """Run one ActivateSession: throttled per user name (never for anonymous logins), the password
+        checked in a worker thread, at most ``[limits] password_checks`` at once server-wide."""
+        session = processor.session
+        if session is not None and (session.state == SessionState.Closed or session.nonce is None):
+            raise ServiceError(_S.BadSessionIdInvalid)  # its CreateSession was refused
+        token = _identity_token(body)
+        address = _address(processor)
+        if not isinstance(token, ua.UserNameIdentityToken) or not token.UserName:
+            # Anonymous or another token type: asyncua decides, nobody waits.
+            return await self._audited(processor, address, None, call)
+        user = str(token.UserName)
+        deadline = self.answer_deadline(processor, requesthdr)
+        # One attempt at a time per user name, so parallel connections cannot skip the delay.
+        lock = self._user_locks.setdefault(user, asyncio.Lock())
+        self._lock_users[user] = self._lock_users.get(user, 0) + 1
+        try:
+            if not lock.locked():
+                await lock.acquire()
+            else:
+                try:
+                    await asyncio.wait_for(lock.acquire(), max(0.0, deadline - time.monotonic()))
+                except TimeoutError:
+                    self._unchecked(processor, address, user, "another attempt of this user name was under way")
+            try:
+                wait = self.throttle.wait_time(user, address)
+                if wait > 0:
+                    if time.monotonic() + wait > deadline:
+                        self._unchecked(processor, address, user, f"its {wait:.1f} s delay would outlast its deadline")
+                    log.info("delaying login of user %r from %s by %.1f s after failed attempts", user, address, wait)
+                    await asyncio.sleep(wait)
+                return await self._checked_login(processor, requesthdr, token, address, user, call)
+            finally:
+                lock.release()
+        finally:
+            # The last attempt of this name (none waiting for the lock either) forgets it: a spray of
+            # names leaves nothing behind, and a waiter is never left with a lock nobody else shares.
+            left = self._lock_users[user] - 1
+            if left:
+                self._lock_users[user] = left
+            else:
+                del self._lock_users[user]
+                self._user_locks.pop(user, None)
+
+    async def _checked_login(
+        self,
+        processor: UaProcessor,
+        requesthdr: Any,
+        token: ua.UserNameIdentityToken,
+        address: str,
+        user: str,
+        call: Callable[[], Any],
+    ) -> Any:
+        verified = await self._verify_off_loop(processor, requesthdr, token)
+        try:
+            result = await self._audited(processor, address, user, call)
+        except ServiceError as exc:
+            if exc.code == ua.StatusCodes.BadUserAccessDenied:
+                self.throttle.failed(user, address)
+            raise
+        finally:
+            if verified is not None:
+                verified_login.reset(verified)
+        logged_in = getattr(processor.session, "user", None)
+        if logged_in is not None and not getattr(logged_in, "anonymous", True):
+            self.throttle.succeeded(user, address)
+        return result
+
+    def answer_deadline(self, processor: UaProcessor, requesthdr: Any) -> float:
+        """When (``time.monotonic()``) an ActivateSession must have its answer out, less the margin to
+        check the password and send it (decision 65): before asyncua closes a connection without an
+        activated session (``[limits] activation_timeout`` from connecting), before an activated
+        session's own timeout, within the request's TimeoutHint when the client gives one, and before
+        the channel's security token expires."""
+        now = time.monotonic()
+        session = processor.session
+        deadlines = []
+        if session is None or not session.is_activated():
+            window = float(self.app.config.limits.activation_timeout)
+            started = float(getattr(processor, "_uacell_connected", now))
+            deadlines.append(started + window - login_answer_margin(window))
+        elif session.session_timeout:
+            window = float(session.session_timeout)
+            deadlines.append(now + window - login_answer_margin(window))
+        hint = float(getattr(requesthdr, "TimeoutHint", 0) or 0) / 1000.0
+        if hint > 0:
+            deadlines.append(now + hint - login_answer_margin(hint))
+        token = getattr(getattr(processor, "_connection", None), "security_token", None)
+        lifetime = float(getattr(token, "RevisedLifetime", 0) or 0) / 1000.0
+        created = getattr(token, "CreatedAt", None)
+        if lifetime > 0 and isinstance(created, datetime):  # the channel's token, renewed by the client
+            left = (created + timedelta(seconds=lifetime) - datetime.now(UTC)).total_seconds()
+            deadlines.append(now + left - login_answer_margin(lifetime))
+        return min(deadlines, default=now)
+
+    def _unchecked(self, processor: UaProcessor, address: str, user: str, why: str) -> NoReturn:
+        """Answer Bad_UserAccessDenied now, without checking the password (and without counting a
+        failure): the throttle may not check it before its deadline (decision 65)."""
+        log.info("login of user %r from %s refused unchecked: %s", user, address, why)
+        self._audit_login(processor, address, user, "BadUserAccessDenied")
+        raise ServiceError(ua.StatusCodes.BadUserAccessDenied)
+
+    async def _verify_off_loop(self, processor: UaProcessor, requesthdr: Any, token: ua.UserNameIdentityToken) -> Any:
+        """Check the password in a worker thread (the hash takes tens of ms) and leave the outcome for
+        ``UacellUserManager.get_user``; None when asyncua's own path must decide (it refuses then)."""
+        if not token.EncryptionAlgorithm and _channel_mode(processor) != ua.MessageSecurityMode.SignAndEncrypt:
+            return None  # a clear-text password is refused before any check
+        iserver = self.server.iserver
+        isession = processor.session or iserver.lookup_external_session(requesthdr.AuthenticationToken)
+        if isession is None:
+            return None
+        try:
+            # The same checks and decryption as the activation itself (no side effects); it runs again.
+            name, password = self.decrypt_user_token(isession, token)
+        except Exception:
+            return None  # the activation refuses the token itself
+        async with self.password_checks:
+            loop = asyncio.get_running_loop()
+            role = await loop.run_in_executor(self._password_threads, self.app.users.verify, name, password or "")
+        return verified_login.set((name, password or "", role))
+
+    async def _audited(self, processor: UaProcessor, address: str, user: str | None, call: Callable[[], Any]) -> Any:
+        """Run an activation and record it in the audit trail, refused or not."""
+        try:
+            result = await call()
+        except ServiceError as exc:
+            self._audit_login(processor, address, user, ua.StatusCode(exc.code).name)
+            raise
+        self._audit_login(processor, address, user, "Good")
+        return result
+
+    def _audit_login(self, processor: UaProcessor, address: str, user: str | None, result: str) -> None:
+        from uacell.ua.observers import session_fields
+
+        fields = session_fields(processor.session) if processor.session is not None else {}
+        fields["user"] = user or fields.get("user", "anonymous")
+        self.app.audit.record("login", **fields, address=address, result=result)
+
+
+class Security(_Logins):
     """The security setup of one server (asyncua objects reach it as ``channel.attached(iserver, "security")``)."""
 
     def __init__(self, app: Host) -> None:
@@ -186,6 +344,7 @@ class Security:
         self._password_threads = ThreadPoolExecutor(limits.password_checks, thread_name_prefix="uacell-password")
         self.on_session_closed: list[Callable[[InternalSession], None]] = []
         self._user_locks: dict[str, asyncio.Lock] = {}
+        self._lock_users: dict[str, int] = {}
         self.trust_list: TrustList | None = None
         self.policies: list[ua.SecurityPolicyType] = []
         self.refusals = RefusalLog()
@@ -439,80 +598,6 @@ class Security:
         """The channel's requested security mode, checked before asyncua opens it."""
         request = struct_from_binary(ua.OpenSecureChannelRequest, body.copy())
         self.check_channel(processor, algohdr.SecurityPolicyURI, request.Parameters.SecurityMode)
-
-    async def activate(self, processor: UaProcessor, requesthdr: Any, body: Any, call: Callable[[], Any]) -> Any:
-        """Run one ActivateSession: throttled per user name (never for anonymous logins), the password
-        checked in a worker thread, at most ``[limits] password_checks`` at once server-wide."""
-        session = processor.session
-        if session is not None and (session.state == SessionState.Closed or session.nonce is None):
-            raise ServiceError(_S.BadSessionIdInvalid)  # its CreateSession was refused
-        token = _identity_token(body)
-        address = _address(processor)
-        if not isinstance(token, ua.UserNameIdentityToken) or not token.UserName:
-            # Anonymous or another token type: asyncua decides, nobody waits.
-            return await self._audited(processor, address, None, call)
-        user = str(token.UserName)
-        # One attempt at a time per user name, so parallel connections cannot skip the delay.
-        lock = self._user_locks.setdefault(user, asyncio.Lock())
-        try:
-            async with lock:
-                wait = self.throttle.wait_time(user, address)
-                if wait > 0:
-                    log.info("delaying login of user %r from %s by %.1f s after failed attempts", user, address, wait)
-                    await asyncio.sleep(wait)
-                verified = await self._verify_off_loop(processor, requesthdr, token)
-                try:
-                    result = await self._audited(processor, address, user, call)
-                except ServiceError as exc:
-                    if exc.code == ua.StatusCodes.BadUserAccessDenied:
-                        self.throttle.failed(user, address)
-                    raise
-                finally:
-                    if verified is not None:
-                        verified_login.reset(verified)
-                logged_in = getattr(processor.session, "user", None)
-                if logged_in is not None and not getattr(logged_in, "anonymous", True):
-                    self.throttle.succeeded(user, address)
-                return result
-        finally:
-            if not lock.locked() and self._user_locks.get(user) is lock:
-                del self._user_locks[user]  # a spray of names leaves nothing behind
-
-    async def _verify_off_loop(self, processor: UaProcessor, requesthdr: Any, token: ua.UserNameIdentityToken) -> Any:
-        """Check the password in a worker thread (the hash takes tens of ms) and leave the outcome for
-        ``UacellUserManager.get_user``; None when asyncua's own path must decide (it refuses then)."""
-        if not token.EncryptionAlgorithm and _channel_mode(processor) != ua.MessageSecurityMode.SignAndEncrypt:
-            return None  # a clear-text password is refused before any check
-        iserver = self.server.iserver
-        isession = processor.session or iserver.lookup_external_session(requesthdr.AuthenticationToken)
-        if isession is None:
-            return None
-        try:
-            # The same checks and decryption as the activation itself (no side effects); it runs again.
-            name, password = self.decrypt_user_token(isession, token)
-        except Exception:
-            return None  # the activation refuses the token itself
-        async with self.password_checks:
-            loop = asyncio.get_running_loop()
-            role = await loop.run_in_executor(self._password_threads, self.app.users.verify, name, password or "")
-        return verified_login.set((name, password or "", role))
-
-    async def _audited(self, processor: UaProcessor, address: str, user: str | None, call: Callable[[], Any]) -> Any:
-        """Run an activation and record it in the audit trail, refused or not."""
-        try:
-            result = await call()
-        except ServiceError as exc:
-            self._audit_login(processor, address, user, ua.StatusCode(exc.code).name)
-            raise
-        self._audit_login(processor, address, user, "Good")
-        return result
-
-    def _audit_login(self, processor: UaProcessor, address: str, user: str | None, result: str) -> None:
-        from uacell.ua.observers import session_fields
-
-        fields = session_fields(processor.session) if processor.session is not None else {}
-        fields["user"] = user or fields.get("user", "anonymous")
-        self.app.audit.record("login", **fields, address=address, result=result)
 
     # per-session attributes ------------------------------------------------------------------------
 

@@ -34,6 +34,7 @@ import logging
 import math
 import resource
 import struct
+import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, cast
 
@@ -128,6 +129,7 @@ def install_limits(app: Any) -> ServerLimits:
     iserver._uacell_limits = limits
     iserver.max_connections = limits.connections
     iserver.max_subscriptions = limits.subscriptions
+    iserver.max_pending_activation_seconds = cfg.activation_timeout
     iserver.max_pending_messages_per_connection = limits.pending_chunks_per_connection
     server.limits = ServerTransportLimits(
         max_recv_buffer=limits.max_chunk_size,
@@ -271,6 +273,8 @@ def admit(protocol: OPCUAProtocol, transport: Any, original: Callable[[OPCUAProt
             f"closed the oldest connection without a session from {_peer(victim)} to admit one from {address}",
         )
     original(protocol, transport)
+    if protocol.processor is not None:  # when the activation deadline started (uacell.security)
+        protocol.processor._uacell_connected = time.monotonic()
     if protocol.transport is not None:  # admitted: it has handshake_timeout to open its channel
         protocol._uacell_handshake = asyncio.get_running_loop().call_later(
             limits.handshake_timeout, _handshake_late, protocol

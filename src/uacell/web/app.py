@@ -11,10 +11,10 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import secrets
 import time
-from collections.abc import AsyncIterator, Coroutine, Iterable
-from dataclasses import dataclass, field
+from collections.abc import AsyncIterator, Callable, Coroutine, Iterable
 from importlib import resources
 from typing import Any
 
@@ -23,10 +23,13 @@ from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
+from starlette.types import Receive, Scope, Send
 
 from uacell.web.guards import HostGuard
 from uacell.web.history import MAX_HOURS as MAX_HISTORY_HOURS
-from uacell.web.uasession import CallFailed, CellCache, Credentials, UaSession, UnknownKey
+from uacell.web.history import WIDTH as HISTORY_WIDTH
+from uacell.web.places import Places, WebSession
+from uacell.web.uasession import CallFailed, Credentials, UnknownKey, login_refusal
 
 log = logging.getLogger(__name__)
 
@@ -37,17 +40,6 @@ RELEASE_AFTER = 30.0  # seconds after its last page closed, a web session's OPC 
 HEARTBEAT = 15.0
 MAX_SESSIONS = 200  # beyond this, the longest unused web session (without a page open) ends
 MAX_UPLOAD = 1_000_000
-
-
-@dataclass
-class WebSession:
-    id: str
-    csrf: str
-    ua: UaSession | None = None
-    user: str | None = None
-    last_seen: float = field(default_factory=time.monotonic)
-    streams: int = 0
-    ended_because: str = ""  # said to the page when the HMI ended the session itself
 
 
 def cookie_name(port: int, https: bool) -> str:
@@ -87,10 +79,20 @@ class WebApp:
         self.ua_sessions = ua_sessions
         self.release_after = release_after
         self.sessions: dict[str, WebSession] = {}
-        self.cells = CellCache()
         self.closing = asyncio.Event()
         self._reaper: asyncio.Task[None] | None = None
         self._ending: set[asyncio.Task[None]] = set()
+        # What the HMI holds on the server: at most ``ua_sessions``, counted before a connect starts.
+        self.places = Places(
+            url,
+            credentials,
+            self.sessions,
+            ua_sessions=ua_sessions,
+            anonymous=anonymous,
+            later=self._later,
+            refused=self._refused,
+            closing=self.closing,
+        )
         static = _static_dir()
         routes = Starlette(
             routes=[
@@ -126,6 +128,21 @@ class WebApp:
         return s
 
     def _session(self, request: Request) -> WebSession | None:
+        """The web session of a request that carries both its cookie and its token (the ``X-CSRF-Token``
+        header, or ``?key=`` for the event stream, which cannot send headers). Browsers send a
+        host's cookies to every port of it, so a cookie alone may have been replayed by another
+        program on this host; the token is kept in the page's own storage, which is per origin
+        (scheme, host and port) and never reaches another port (decision 66)."""
+        s = self._by_cookie(request)
+        if s is None:
+            return None
+        token = request.headers.get("x-csrf-token") or request.query_params.get("key", "")
+        if not secrets.compare_digest(token.encode(), s.csrf.encode()):
+            log.info("web: a request to %s had a session cookie without its token: refused", request.url.path)
+            return None
+        return s
+
+    def _by_cookie(self, request: Request) -> WebSession | None:
         s = self.sessions.get(request.cookies.get(self.cookie, ""))
         if s is not None:
             s.last_seen = time.monotonic()
@@ -153,7 +170,7 @@ class WebApp:
             for s in list(self.sessions.values()):
                 if s.streams:
                     if s.ua is not None and s.ua.status == "busy":  # an open page waits: a place may be free
-                        await self._ua(s)
+                        await self.places.ua(s)
                     continue
                 if now - s.last_seen > self.idle_timeout:
                     log.info("web session of %s ended after %.0f s unused", s.user or "anonymous", now - s.last_seen)
@@ -167,20 +184,6 @@ class WebApp:
                     log.info("web session of %s: no page open, its OPC UA session released", s.user or "anonymous")
                     await s.ua.release()
 
-    async def _make_room(self, s: WebSession) -> bool:
-        """Whether ``s`` may hold an OPC UA session: below ``ua_sessions``, or after releasing the one
-        of the longest-unused web session without an open page. Pages that are open keep theirs."""
-        held = [x for x in self.sessions.values() if x is not s and x.ua is not None and x.ua.holding]
-        if len(held) < self.ua_sessions:
-            return True
-        idle = sorted((x for x in held if x.streams == 0), key=lambda x: x.last_seen)
-        if not idle:
-            return False
-        assert idle[0].ua is not None
-        log.info("web: %d OPC UA sessions held; releasing the longest unused one", len(held))
-        await idle[0].ua.release()
-        return True
-
     def _refused(self, s: WebSession, problem: str) -> None:
         """The server no longer takes the password of ``s``: end it, the page asks for a login."""
         s.ended_because = problem
@@ -193,37 +196,11 @@ class WebApp:
         if self._reaper is not None:
             self._reaper.cancel()
 
-    def _watch(self, s: WebSession, ua: UaSession) -> UaSession:
-        ua.on_identity_refused = lambda exc: self._refused(s, ua.problem)
-        return ua
-
-    async def _ua(self, s: WebSession) -> UaSession:
-        """The session's OPC UA session: made anonymously on first use, made again after it was
-        released, and "busy" (with the reason) while the HMI holds ``ua_sessions`` for open pages."""
-        if s.ua is None:
-            ua = self._watch(s, UaSession(self.url, self.credentials, cache=self.cells))
-            s.ua = ua
-            if s.user is None and not self.anonymous:
-                ua.status = "login-required"
-                ua.problem = "Log in to use this HMI: it takes no anonymous users on this address"
-                return ua
-            ua.status = "released"
-        ua = s.ua
-        if ua.status in ("released", "busy"):
-            if not await self._make_room(s):
-                ua.status = "busy"
-                ua.problem = f"this HMI already serves {self.ua_sessions} users with open pages; try again in a minute"
-                ua.announce()
-                return ua
-            await ua.resume()
-            s.last_seen = time.monotonic()  # connecting took time: the page is about to use it
-        return ua
-
     # requests --------------------------------------------------------------------------------
 
     async def _checked(self, request: Request) -> tuple[WebSession, dict[str, Any]] | Response:
         """The session and JSON body of a state-changing request, or the refusal."""
-        s = self._session(request)
+        s = self._by_cookie(request)
         if s is None:
             return JSONResponse({"error": "session expired", "expired": True}, status_code=401)
         token = request.headers.get("x-csrf-token", "")
@@ -241,10 +218,8 @@ class WebApp:
         return s, body
 
     async def index(self, request: Request) -> Response:
-        response = FileResponse(self._index, headers=_SECURITY_HEADERS)
-        if self._session(request) is None:
-            self._set_cookie(response, self._new_session())
-        return response
+        # The page asks for its session (/api/session) with the token it keeps, or gets a new one.
+        return FileResponse(self._index, headers=_SECURITY_HEADERS)
 
     async def session_info(self, request: Request) -> Response:
         s = self._session(request)
@@ -262,27 +237,32 @@ class WebApp:
         user, password = body.get("user"), body.get("password")
         if not isinstance(user, str) or not user or not isinstance(password, str):
             return JSONResponse({"error": "user name and password are required"}, status_code=400)
-        if not await self._make_room(s):
-            problem = f"this HMI already serves {self.ua_sessions} users with open pages; try again in a minute"
-            return JSONResponse({"error": problem, "code": "BadTooManySessions"}, status_code=503)
-        ua = UaSession(self.url, self.credentials, user=user, password=password, cache=self.cells)
+        ua = self.places.new_login(s, user, password)
+        if not await self.places.login_room(s, ua):
+            return JSONResponse({"error": self.places.busy_text(), "code": "BadTooManySessions"}, status_code=503)
         try:
             await ua.connect()
-        except CallFailed as exc:
-            log.info("web login of %s refused: %s", user, exc.name)
-            return JSONResponse({"error": f"{exc.name}: {exc.doc}", "code": exc.name}, status_code=401)
-        except TimeoutError:
-            log.info("web login of %s: no answer from the server in time", user)
-            problem = "the server did not check the login in time (it slows logins down after failed attempts)"
-            return JSONResponse({"error": f"{problem}; try again in a minute", "code": "BadTimeout"}, status_code=503)
         except Exception as exc:
-            log.info("web login of %s failed: server unreachable (%s)", user, type(exc).__name__)
-            return JSONResponse({"error": f"the OPC UA server {self.url} cannot be reached"}, status_code=503)
+            await ua.close()
+            self.places.resume_later(s)
+            return self._login_failed(user, exc)
         log.info("web login of %s", user)
         await self._end(s)
         fresh = self._new_session()  # a new id and CSRF token after every login
-        fresh.ua, fresh.user = self._watch(fresh, ua), user
+        fresh.ua, fresh.user = ua, user
+        ua.on_identity_refused = lambda exc: self._refused(fresh, ua.problem)
         return self._set_cookie(JSONResponse({"user": user, "csrf": fresh.csrf}), fresh)
+
+    def _login_failed(self, user: str, exc: Exception) -> Response:
+        if isinstance(exc, CallFailed):
+            log.info("web login of %s refused: %s", user, exc.name)
+            return JSONResponse({"error": login_refusal(exc), "code": exc.name}, status_code=401)
+        if isinstance(exc, TimeoutError):
+            log.info("web login of %s: no answer from the server in time", user)
+            problem = "the server did not check the login in time (it slows logins down after failed attempts)"
+            return JSONResponse({"error": f"{problem}; try again in a minute", "code": "BadTimeout"}, status_code=503)
+        log.info("web login of %s failed: server unreachable (%s)", user, type(exc).__name__)
+        return JSONResponse({"error": f"the OPC UA server {self.url} cannot be reached"}, status_code=503)
 
     async def logout(self, request: Request) -> Response:
         checked = await self._checked(request)
@@ -298,12 +278,24 @@ class WebApp:
         s = self._session(request)
         if s is None:
             return JSONResponse({"error": "session expired", "expired": True}, status_code=401)
-        ua = await self._ua(s)
+        s.streams += 1  # a page opening: its session is neither released nor ended meanwhile
+        try:
+            ua = await self.places.ua(s)
+        except BaseException:
+            s.streams -= 1
+            raise
         queue: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+        ua.listeners.add(queue.put_nowait)
+        started = False
+
+        def page_gone() -> None:
+            s.streams -= 1
+            s.last_seen = time.monotonic()
+            ua.listeners.discard(queue.put_nowait)
 
         async def stream() -> AsyncIterator[str]:
-            s.streams += 1
-            ua.listeners.add(queue.put_nowait)
+            nonlocal started
+            started = True
             try:
                 yield _sse({"type": "snapshot", **ua.snapshot()})
                 closing = asyncio.ensure_future(self.closing.wait())
@@ -331,19 +323,17 @@ class WebApp:
                     if getter is not None:
                         getter.cancel()
             finally:
-                s.streams -= 1
-                s.last_seen = time.monotonic()
-                ua.listeners.discard(queue.put_nowait)
+                page_gone()
 
         headers = {"Cache-Control": "no-store", "X-Accel-Buffering": "no"}
-        return StreamingResponse(stream(), media_type="text/event-stream", headers=headers)
+        return _PageStream(stream(), lambda: None if started else page_gone(), headers)
 
     async def _act(self, request: Request, action: str) -> Response:
         checked = await self._checked(request)
         if isinstance(checked, Response):
             return checked
         s, body = checked
-        ua = await self._ua(s)
+        ua = await self.places.ua(s)
         try:
             if action == "call":
                 args = body.get("args", [])
@@ -380,18 +370,25 @@ class WebApp:
         return await self._act(request, "call")
 
     async def history(self, request: Request) -> Response:
-        """GET ?hours=N: the history view's data (uacell.web.history), read as this session's user."""
+        """GET ?hours=N[&width=W][&since=T]: the history view's data (uacell.web.history), read as this
+        session's user: ``width`` pixel columns per trend, and with ``since`` (the ``end`` of the
+        answer before) only what is new since then."""
         s = self._session(request)
         if s is None:
             return JSONResponse({"error": "session expired", "expired": True}, status_code=401)
+        query = request.query_params
         try:
-            hours = float(request.query_params.get("hours", "8"))
+            hours = float(query.get("hours", "8"))
+            width = int(query.get("width", str(HISTORY_WIDTH)))
+            since = float(query["since"]) if "since" in query else None
         except ValueError:
-            hours = -1.0
+            return JSONResponse({"error": "hours, width and since must be numbers"}, 400)
         if not 0 < hours <= MAX_HISTORY_HOURS:
             return JSONResponse({"error": f"hours must be more than 0 and at most {MAX_HISTORY_HOURS:g}"}, 400)
+        if since is not None and not math.isfinite(since):
+            return JSONResponse({"error": "since must be a time in seconds since the epoch"}, 400)
         try:
-            return JSONResponse(await (await self._ua(s)).history(hours))
+            return JSONResponse(await (await self.places.ua(s)).history(hours, since=since, width=width))
         except CallFailed as exc:
             return JSONResponse({"error": f"{exc.name}: {exc.doc}", "code": exc.name}, status_code=409)
         except (OSError, TimeoutError, ConnectionError) as exc:
@@ -405,6 +402,20 @@ class WebApp:
 
     async def delete(self, request: Request) -> Response:
         return await self._act(request, "delete")
+
+
+class _PageStream(StreamingResponse):
+    """An event stream that says when it was never read (the browser left before the first byte)."""
+
+    def __init__(self, content: AsyncIterator[str], unread: Callable[[], None], headers: dict[str, str]) -> None:
+        super().__init__(content, media_type="text/event-stream", headers=headers)
+        self._unread = unread
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        finally:
+            self._unread()
 
 
 _SECURITY_HEADERS = {

@@ -3,6 +3,13 @@ figures; per robot the timeline of its program runs. Read with HistoryRead throu
 OPC UA session (so its role applies), from the nodes the HMI's discovery found (docs/web.md).
 
 ``timeline`` and ``program_runs`` are pure: they turn value changes into segments.
+
+The page asks for what it draws, and only for what is new (issue 39): trends come as one aggregate
+per pixel column (OPC UA ReadProcessed: TimeAverage of a speed, Maximum of a count over each column,
+on a grid of ``hours * 3600 / width`` seconds anchored at the epoch, so that columns of successive
+polls line up), and a poll with ``since`` (the ``end`` of the answer before) reads history from then
+on only: the state changes since, the columns from the one ``since`` falls in. What one poll costs
+the server is bounded by the time since the last poll, not by the history kept.
 """
 
 from __future__ import annotations
@@ -18,6 +25,17 @@ from uacell.web.discovery import Cell
 
 Change = tuple[float, Any]  # (seconds since the epoch, value or None when the status was bad)
 MAX_HOURS = 168.0
+WIDTH = 600  # pixel columns of a trend when the page does not say
+MAX_WIDTH = 2000
+_TIME_AVERAGE = ua.ObjectIds.AggregateFunction_TimeAverage
+_MAXIMUM = ua.ObjectIds.AggregateFunction_Maximum
+# Trends of a PackML unit: speeds averaged over each column, counts (only ever growing) their maximum.
+_TRENDS = {
+    "Status/MachSpeed": _TIME_AVERAGE,
+    "Status/CurMachSpeed": _TIME_AVERAGE,
+    "Admin/ProdProcessedCount": _MAXIMUM,
+    "Admin/ProdDefectiveCount": _MAXIMUM,
+}
 _UNIT_MACHINES = ("BaseStateMachine", "MachineState", "ExecuteState")
 _OEE = ("Availability", "Performance", "Quality", "OEE", "ProcessedCount", "GoodCount")
 
@@ -122,21 +140,68 @@ async def _history(client: Client, node: ua.NodeId, start: datetime, end: dateti
     return out
 
 
-def _trend(changes: Sequence[Change]) -> list[list[float]]:
-    return [[t, float(v)] for t, v in changes if isinstance(v, (int, float)) and not isinstance(v, bool)]
+@dataclass(frozen=True)
+class Window:
+    """What one answer covers: the view from ``start`` to ``end``, read from ``since`` on (``start``
+    for a full answer), trends in columns of ``column_us`` microseconds."""
+
+    start: datetime
+    end: datetime
+    since: datetime
+    column_us: int
+
+    @property
+    def first_column(self) -> datetime:
+        """The start of the column ``since`` falls in: that column is computed again, whole."""
+        micros = int(_seconds(self.since) * 1_000_000)
+        return datetime.fromtimestamp((micros // self.column_us) * self.column_us / 1_000_000, UTC)
 
 
-async def unit_history(client: Client, cell: Cell, name: str, start: datetime, end: datetime) -> dict[str, Any]:
-    s, e = _seconds(start), _seconds(end)
+async def _columns(client: Client, node: ua.NodeId, aggregate: int, w: Window) -> list[list[float]]:
+    """``aggregate`` of ``node`` per column from ``w.first_column`` to ``w.end``: [[column start, value]],
+    columns without a value left out (the page holds the one before)."""
+    details = ua.ReadProcessedDetails()
+    details.StartTime = w.first_column
+    details.EndTime = w.end
+    details.ProcessingInterval = w.column_us / 1000.0
+    details.AggregateType = [ua.NodeId(aggregate)]
+    details.AggregateConfiguration = ua.AggregateConfiguration(UseServerCapabilitiesDefaults=True)
+    params = ua.HistoryReadParameters()
+    params.HistoryReadDetails = details
+    params.TimestampsToReturn = ua.TimestampsToReturn.Source
+    params.ReleaseContinuationPoints = False  # asyncua's default is True: an empty answer
+    params.NodesToRead = [ua.HistoryReadValueId(NodeId=node)]
+    (result,) = await client.uaclient.history_read(params)
+    if not result.StatusCode.is_good() or result.HistoryData is None:
+        return []
+    out = []
+    for dv in result.HistoryData.DataValues or []:
+        value = dv.Value.Value if dv.Value is not None else None
+        bad = dv.StatusCode is not None and dv.StatusCode.value & 0x80000000
+        if bad or not isinstance(value, int | float) or isinstance(value, bool) or dv.SourceTimestamp is None:
+            continue
+        out.append([_seconds(dv.SourceTimestamp), float(value)])
+    return out
+
+
+async def unit_history(client: Client, cell: Cell, name: str, w: Window) -> dict[str, Any]:
+    s, e = _seconds(w.since), _seconds(w.end)
     machines = []
     for m in _UNIT_MACHINES:
         node = cell.variables.get(f"{name}/{m}/CurrentState")
-        machines.append(await _history(client, node, start, end) if node is not None else [])
-    trends = {}
-    for key in ("Status/MachSpeed", "Status/CurMachSpeed", "Admin/ProdProcessedCount", "Admin/ProdDefectiveCount"):
-        node = cell.variables.get(f"{name}/{key}")
+        machines.append(await _history(client, node, w.since, w.end) if node is not None else [])
+    trends: dict[str, list[list[float]]] = {}
+    series = [(key.split("/")[1], cell.variables.get(f"{name}/{key}"), aggregate) for key, aggregate in _TRENDS.items()]
+    nodes = {label: node for label, node, _ in series if node is not None}
+    for label, node, aggregate in series:
         if node is not None:
-            trends[key.split("/")[1]] = _trend(await _history(client, node, start, end))
+            trends[label] = await _columns(client, node, aggregate, w)
+    # Each trend ends with the value now (the legend's "now"; the last column is an aggregate).
+    now_values = await client.read_values([client.get_node(n) for n in nodes.values()]) if nodes else []
+    for label, value in zip(nodes, now_values, strict=True):
+        value = _text(value)
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            trends[label].append([e, float(value)])
     oee: dict[str, Any] = {}
     base = next((ua.NodeId.from_string(n) for n, k in cell.machines.items() if k == f"{name}/BaseStateMachine"), None)
     if base is not None:
@@ -147,9 +212,8 @@ async def unit_history(client: Client, cell: Cell, name: str, start: datetime, e
                 for figure in _OEE:
                     node = await folder.get_child(f"{base.NamespaceIndex}:{figure}")
                     oee[figure] = await node.read_value()
-                oee["trend"] = _trend(
-                    await _history(client, (await folder.get_child(f"{base.NamespaceIndex}:OEE")).nodeid, start, end)
-                )
+                figure_node = (await folder.get_child(f"{base.NamespaceIndex}:OEE")).nodeid
+                oee["trend"] = await _columns(client, figure_node, _TIME_AVERAGE, w)
             except ua.UaError:
                 oee = {}
     return {
@@ -160,27 +224,55 @@ async def unit_history(client: Client, cell: Cell, name: str, start: datetime, e
     }
 
 
-async def robot_history(client: Client, cell: Cell, name: str, start: datetime, end: datetime) -> dict[str, Any]:
-    s, e = _seconds(start), _seconds(end)
+async def robot_history(client: Client, cell: Cell, name: str, w: Window) -> dict[str, Any]:
+    s, e = _seconds(w.since), _seconds(w.end)
     tasks = []
     for node_text, key in sorted(cell.machines.items(), key=lambda kv: kv[1]):
         if not (key.startswith(f"{name}/") and node_text.endswith(".TaskControlStateMachine")):
             continue
         state = cell.variables.get(f"{key}/CurrentState")
         program = cell.variables.get(f"{key}/TaskProgramName")
-        states = await _history(client, state, start, end) if state is not None else []
-        programs = await _history(client, program, start, end) if program is not None else []
+        states = await _history(client, state, w.since, w.end) if state is not None else []
+        programs = await _history(client, program, w.since, w.end) if program is not None else []
         tasks.append({"task": key, "runs": [r.json() for r in program_runs(states, programs, s, e)]})
     return {"name": name, "tasks": tasks}
 
 
-async def cell_history(client: Client, cell: Cell, hours: float, now: datetime | None = None) -> dict[str, Any]:
+async def cell_history(
+    client: Client,
+    cell: Cell,
+    hours: float,
+    now: datetime | None = None,
+    *,
+    since: float | None = None,
+    width: int = WIDTH,
+) -> dict[str, Any]:
+    """The view of the last ``hours``: whole, or (``since``: the ``end`` of the answer before, within
+    the view) only what came after it, for the page to add to what it has (``since`` in the answer)."""
     end = now or datetime.now(UTC)
     start = end - timedelta(hours=hours)
-    units = [await unit_history(client, cell, u["name"], start, end) for u in cell.layout.get("units", [])]
-    robots = [await robot_history(client, cell, r["name"], start, end) for r in cell.layout.get("robots", [])]
-    # The view starts where history does (a server kept for less than ``hours`` fills the width).
-    known = [seg["start"] for u in units for seg in u["timeline"]]
-    known += [points[0][0] for u in units for points in u["trends"].values() if points]
-    first = max(start.timestamp(), min(known, default=start.timestamp()))
-    return {"start": first, "end": end.timestamp(), "hours": hours, "units": units, "robots": robots}
+    width = max(10, min(MAX_WIDTH, width))
+    column_us = max(1_000_000, round(hours * 3600e6 / width))
+    since_t = (
+        datetime.fromtimestamp(since, UTC)
+        if since is not None and start.timestamp() < since <= end.timestamp()
+        else None
+    )
+    w = Window(start, end, since_t or start, column_us)
+    units = [await unit_history(client, cell, u["name"], w) for u in cell.layout.get("units", [])]
+    robots = [await robot_history(client, cell, r["name"], w) for r in cell.layout.get("robots", [])]
+    first = start.timestamp()
+    if since_t is None:  # the view starts where history does (a server kept for less than ``hours`` fills the width)
+        known = [seg["start"] for u in units for seg in u["timeline"]]
+        known += [points[0][0] for u in units for points in u["trends"].values() if points]
+        first = max(start.timestamp(), min(known, default=start.timestamp()))
+    return {
+        "start": first,
+        "end": end.timestamp(),
+        "hours": hours,
+        "since": since_t.timestamp() if since_t is not None else None,
+        "column": column_us / 1_000_000,
+        "width": width,
+        "units": units,
+        "robots": robots,
+    }

@@ -26,8 +26,9 @@ from asyncua import Client, Node, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from asyncua.ua.uaerrors import UaStatusCodeError
 
+from uacell.errors import login_refusal as refused_login
 from uacell.web.discovery import Cell, discover, list_files
-from uacell.web.history import cell_history
+from uacell.web.history import WIDTH, cell_history
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +36,7 @@ APPLICATION_URI = "urn:uacell:web"
 RETRY_SECONDS = 2.0
 LOGIN_TIMEOUT = 45.0  # seconds a server may take to check a login (and a dead connection may go unnoticed)
 EVENTS_KEPT = 30
+CONNECTS_AT_ONCE = 8  # OPC UA connections the HMI opens at once (handshake and activation)
 _AUDIT_UPDATE_STATE = ua.NodeId(ua.ObjectIds.AuditUpdateStateEventType)
 _FILE_CHUNK = 60000
 # OPC 40010-1 method result Status names (docs/robotics.md), shown beside the number.
@@ -62,6 +64,61 @@ IDENTITY_REFUSED = frozenset(
 )
 
 
+class SessionSlots:
+    """The OPC UA sessions an HMI may hold on the server at once (``[web] ua_sessions``).
+
+    A ``UaSession`` takes a slot before it connects and gives it back only once its client is
+    disconnected and no connect of it is under way, so the server never holds more sessions of this
+    HMI than there are slots, whatever the concurrency. ``take`` and ``give`` never await: checking
+    and taking happen in one step of the event loop. ``on_free`` is told whenever a slot came free.
+    """
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = capacity
+        self.holders: set[object] = set()
+        self.on_free: Callable[[], None] | None = None
+        self._freed = asyncio.Event()
+        # Connections of one address that have not activated a session yet are what a server evicts
+        # first ([limits] pending_per_address, 32 in uacell): the HMI opens only a few at once.
+        self.connecting = asyncio.Semaphore(CONNECTS_AT_ONCE)
+
+    def take(self, holder: object) -> bool:
+        if holder in self.holders:
+            return True
+        if len(self.holders) >= self.capacity:
+            return False
+        self.holders.add(holder)
+        return True
+
+    def give(self, holder: object) -> None:
+        if holder in self.holders:
+            self.holders.discard(holder)
+            self._freed.set()
+            self._freed = asyncio.Event()
+            if self.on_free is not None:
+                self.on_free()
+
+    async def wait_take(self, holder: object, timeout: float) -> bool:
+        """``take``, waiting up to ``timeout`` seconds for a slot to come free."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while not self.take(holder):
+            remaining = deadline - loop.time()
+            if remaining <= 0:
+                return False
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._freed.wait(), remaining)
+        return True
+
+    @property
+    def free(self) -> int:
+        return self.capacity - len(self.holders)
+
+
+class Superseded(Exception):
+    """A connect that finished after its session was released or closed: its client was disconnected."""
+
+
 class UnknownKey(LookupError):
     """The page named a method or directory this cell does not have."""
 
@@ -75,6 +132,12 @@ class CallFailed(Exception):
         super().__init__(f"{context}: {name}" if context else name)
         self.name = name
         self.doc = doc
+
+
+def login_refusal(exc: CallFailed) -> str:
+    """What the login box says when the server refused a login: plain words for wrong credentials."""
+    words = refused_login(exc.name)
+    return f"{words[0].upper()}{words[1:]}" if words else f"{exc.name}: {exc.doc}"
 
 
 def status_text(code: int) -> tuple[str, str]:
@@ -304,6 +367,10 @@ class UaSession:
         self._reconnect_task: asyncio.Task[None] | None = None
         self._closed = False
         self._by_node: dict[ua.NodeId, str] = {}
+        # The slot this session holds while it has (or makes) an OPC UA session; None: not counted.
+        self.slots: SessionSlots | None = None
+        self._generation = 0  # release() and close() move it on: a connect under way then gives up
+        self._connecting = 0
         # Called once when the server stops accepting this user's password (changed or removed while
         # the web session lived): the HMI ends the web session and asks for a new login.
         self.on_identity_refused: Callable[[CallFailed], None] | None = None
@@ -312,7 +379,7 @@ class UaSession:
 
     async def _new_client(self) -> Client:
         # The client's health probe starts with CreateSession, before the login is checked; a server
-        # that slows down logins after failed attempts (uacell: up to 30 s) must not look dead meanwhile.
+        # that slows down logins after failed attempts (uacell: up to 20 s) must not look dead meanwhile.
         # A server that goes away closes the TCP connection, which is noticed at once anyway.
         client = Client(self.url, timeout=LOGIN_TIMEOUT, watchdog_intervall=LOGIN_TIMEOUT)
         client.application_uri = APPLICATION_URI
@@ -333,22 +400,51 @@ class UaSession:
         return client
 
     async def connect(self) -> None:
+        generation = self._generation
+        self._connecting += 1
+        try:
+            await self._connect(generation)
+        finally:
+            self._connecting -= 1
+            self._settle()
+
+    async def _connect(self, generation: int) -> None:
         client = await self._new_client()
         try:
-            await client.connect()
+            if self.slots is None:
+                await client.connect()
+            else:
+                async with self.slots.connecting:
+                    await client.connect()
         except UaStatusCodeError as exc:
             raise CallFailed(exc.code, "connect") from None
+        except BaseException:
+            client.disconnect_socket()  # cancelled or failed half-way: the server sees the connection go
+            raise
+        if generation != self._generation:
+            await _quietly_disconnect(client)
+            raise Superseded
         self.client = client
         try:
             await self._prepare(client)
-        except Exception:
-            with contextlib.suppress(Exception):
-                await client.disconnect()
+            if generation != self._generation:
+                raise Superseded
+        except BaseException:
+            if self.client is client:
+                self.client = None
+            await _quietly_disconnect(client)
             raise
         client.connection_lost_callback = self._lost
         self.status = "connected"
         self.problem = ""
         self._emit({"type": "snapshot", **self.snapshot()})
+
+    def _settle(self) -> None:
+        """Give the slot back once this session holds no OPC UA session and makes none."""
+        if self.slots is None or self.client is not None or self._connecting:
+            return
+        if self._closed or self.status in ("released", "busy", "login-required"):
+            self.slots.give(self)
 
     async def _prepare(self, client: Client) -> None:
         self.cell = await self.cache.get(client)
@@ -406,6 +502,7 @@ class UaSession:
             return False
         log.info("web session of %s: the server no longer accepts its password (%s)", self.user, exc.name)
         self._closed = True
+        self._settle()
         self.status = "login-required"
         self.problem = f"The server no longer accepts the password of {self.user} ({exc.name}): log in again"
         self.announce()
@@ -420,22 +517,38 @@ class UaSession:
 
     async def release(self) -> None:
         """Give the server its session back while no page is open; ``resume()`` makes a new one."""
+        self._generation += 1
         for task in (self._reconnect_task, self._methods_task, self._modules_task):
             if task is not None and not task.done():
                 task.cancel()
         client, self.client = self.client, None
         self.status, self.problem = "released", ""
         if client is not None:
-            with contextlib.suppress(Exception):
-                await client.disconnect()
+            await _quietly_disconnect(client)
+        self._settle()
+
+    def wait_for_place(self, problem: str) -> None:
+        """No slot (or no session on the server) for this session now: say "busy"; the HMI resumes it
+        when a place comes free."""
+        self.status, self.problem = "busy", problem
+        self.announce()
+        self._settle()
 
     async def resume(self) -> None:
-        """Connect again after ``release()`` (or after the HMI was busy); failures as in ``connect()``."""
+        """Connect again after ``release()`` (or after the HMI was busy); failures as in ``connect()``.
+        Nothing to do while a connect of this session is under way or it is connected."""
+        if self._connecting or self.status == "connected":
+            return
         self.status = "connecting"
         try:
             await self.connect()
+        except Superseded:
+            return
         except CallFailed as exc:
-            if not self.identity_refused(exc):
+            if exc.code == ua.StatusCodes.BadTooManySessions:  # the server's own limit: wait as for a slot
+                log.info("web: the server %s has no session free for the HMI now", self.url)
+                self.wait_for_place(f"the OPC UA server has no session free now ({exc.name}); waiting for one")
+            elif not self.identity_refused(exc):
                 log.warning("web: the server %s refused the HMI's session: %s", self.url, exc.name)
                 self.fail(f"the server refused the HMI's session: {exc.name} ({exc.doc})")
         except Exception as exc:
@@ -451,6 +564,8 @@ class UaSession:
             await asyncio.sleep(RETRY_SECONDS)
             try:
                 await self.connect()
+            except Superseded:
+                return
             except CallFailed as exc:
                 if self.identity_refused(exc):
                     return
@@ -465,13 +580,14 @@ class UaSession:
 
     async def close(self) -> None:
         self._closed = True
+        self._generation += 1
         for task in (self._reconnect_task, self._methods_task, self._modules_task):
             if task is not None and not task.done():
                 task.cancel()
-        if self.client is not None:
-            with contextlib.suppress(Exception):
-                await self.client.disconnect()
-            self.client = None
+        client, self.client = self.client, None
+        if client is not None:
+            await _quietly_disconnect(client)
+        self._settle()
 
     def _require(self) -> Client:
         if self.status == "login-required":
@@ -482,9 +598,10 @@ class UaSession:
             raise CallFailed(ua.StatusCodes.BadServerNotConnected, "not connected")
         return self.client
 
-    async def history(self, hours: float) -> dict[str, Any]:
-        """The history view of the last ``hours`` (uacell.web.history), through this session."""
-        return await cell_history(self._require(), self.cell, hours)
+    async def history(self, hours: float, *, since: float | None = None, width: int = WIDTH) -> dict[str, Any]:
+        """The history view of the last ``hours`` (uacell.web.history), through this session: whole, or
+        what came after ``since``."""
+        return await cell_history(self._require(), self.cell, hours, since=since, width=width)
 
     # what the page sees ----------------------------------------------------------------------
 
@@ -763,6 +880,14 @@ class UaSession:
         await self._file_method(self.cell.directories[directory], "Delete", ua.Variant(node, ua.VariantType.NodeId))
         log.info("%s deleted program file %s", self.user or "anonymous", path)
         await self.refresh_files()
+
+
+async def _quietly_disconnect(client: Client) -> None:
+    """CloseSession (the server forgets the session before it answers), then the channel and socket."""
+    try:
+        await client.disconnect()
+    except Exception:
+        client.disconnect_socket()
 
 
 class _Handler:

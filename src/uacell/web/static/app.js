@@ -30,7 +30,7 @@ function el(tag, attrs = {}, ...children) {
 async function api(path, body) {
   const res = await fetch(path, {
     method: "POST", credentials: "same-origin",
-    headers: {"Content-Type": "application/json", "X-CSRF-Token": S.csrf},
+    headers: {"Content-Type": "application/json", "X-CSRF-Token": token()},
     body: JSON.stringify(body || {}),
   });
   let data = {};
@@ -39,10 +39,25 @@ async function api(path, body) {
   return {status: res.status, data};
 }
 
+// The web session's token: sent with every request beside the cookie. It is kept in this origin's
+// storage (scheme, host and port), which no other port of the host can read, while the cookie goes
+// to every port of the host (docs/web.md, "What the browser gets").
+const TOKEN_KEY = "uacell-token";
+function keepToken(token) {
+  S.csrf = token;
+  try { localStorage.setItem(TOKEN_KEY, token); } catch (e) { /* storage off: this tab keeps it */ }
+}
+function storedToken() {
+  try { return localStorage.getItem(TOKEN_KEY) || ""; } catch (e) { return ""; }
+}
+// The stored one first: the cookie is shared by every tab of this origin, and so is the token (a
+// login in another tab renewed both).
+const token = () => storedToken() || S.csrf;
+
 async function loadSession() {
-  const res = await fetch("/api/session", {credentials: "same-origin"});
+  const res = await fetch("/api/session", {credentials: "same-origin", headers: {"X-CSRF-Token": token()}});
   const data = await res.json();
-  S.csrf = data.csrf;
+  keepToken(data.csrf);
   return data;
 }
 
@@ -59,7 +74,7 @@ function sessionExpired(reason) {
 
 function connect() {
   if (S.es) S.es.close();
-  const es = new EventSource("/api/events");
+  const es = new EventSource(`/api/events?key=${encodeURIComponent(token())}`);
   S.es = es;
   es.onmessage = (m) => handle(JSON.parse(m.data));
   es.onopen = () => { if (S.status === "web-lost") setConn("connecting", ""); };
@@ -67,8 +82,7 @@ function connect() {
     if (es !== S.es) return;
     if (es.readyState === EventSource.CLOSED) {
       // The HMI refused the stream: the web session ended (or the HMI restarted).
-      fetch("/api/session", {credentials: "same-origin"}).then((r) => r.json()).then((d) => {
-        S.csrf = d.csrf;
+      loadSession().then((d) => {
         if (d.fresh && S.user) sessionExpired(); else setTimeout(connect, 1000);
       }).catch(() => { setConn("web-lost", "The HMI cannot be reached; retrying…"); setTimeout(connect, 2000); });
     } else {
@@ -830,7 +844,7 @@ async function submitLogin(ev) {
     const {status, data} = await api("/api/login", {user, password});
     $("#login-password").value = "";
     if (status === 200) {
-      S.csrf = data.csrf; S.user = data.user; S.myLocks.clear();
+      keepToken(data.csrf); S.user = data.user; S.myLocks.clear();
       $("#login").close();
       showUser();
       connect();
@@ -845,7 +859,7 @@ async function submitLogin(ev) {
 
 async function logout() {
   const {data} = await api("/api/logout", {});
-  S.csrf = data.csrf; S.user = null; S.myLocks.clear();
+  keepToken(data.csrf); S.user = null; S.myLocks.clear();
   showUser();
   connect();
 }

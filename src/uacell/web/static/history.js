@@ -1,5 +1,6 @@
 // The history view (docs/web.md, "History"): per PackML unit a state timeline, speed and count
-// trends and the OEE figures; per robot the program runs. Plain SVG, data from GET /api/history.
+// trends and the OEE figures; per robot the program runs. Plain SVG, data from GET /api/history:
+// whole at first, then every 15 s only what is new (since=), trends as one value per pixel column.
 "use strict";
 (() => {
   const SVGNS = "http://www.w3.org/2000/svg";
@@ -133,21 +134,82 @@
     return art;
   }
 
-  async function load() {
+  // What the view shows now; each poll asks only for what came after its end (issue 39: the work of a
+  // poll does not grow with the history kept) and for one value per pixel column of a trend.
+  let view = null;  // {hours, width, data}
+
+  function columns() {
+    const body = $("history-body");
+    return Math.max(100, Math.min(2000, Math.round((body && body.clientWidth) || 1000)));
+  }
+
+  function joinSegments(old, add, from) {
+    const out = old.map((s) => ({ ...s }));
+    for (const seg of add) {
+      const last = out[out.length - 1];
+      if (last && last.label === seg.label && last.end >= seg.start - 1e-6) {
+        last.end = Math.max(last.end, seg.end);
+      } else {
+        out.push({ ...seg });
+      }
+    }
+    return out
+      .filter((s) => s.end > from)
+      .map((s) => {
+        const start = Math.max(s.start, from);
+        return { ...s, start, seconds: s.end - start };
+      });
+  }
+
+  function joinPoints(old, add, from, column) {
+    const first = add.length ? add[0][0] : Infinity;  // that column and later ones are computed again
+    return [...(old || []).filter((p) => p[0] < first), ...add].filter((p) => p[0] >= from - column);
+  }
+
+  function merge(old, add) {
+    const from = add.end - add.hours * 3600;
+    const out = { ...add, start: Math.max(old.start, from), since: null };
+    out.units = add.units.map((u) => {
+      const o = old.units.find((x) => x.name === u.name) || { timeline: [], trends: {}, oee: {} };
+      const trends = {};
+      for (const [k, pts] of Object.entries(u.trends)) trends[k] = joinPoints(o.trends[k], pts, from, add.column);
+      const oee = { ...u.oee };
+      if (u.oee.trend) oee.trend = joinPoints((o.oee || {}).trend, u.oee.trend, from, add.column);
+      return { ...u, timeline: joinSegments(o.timeline, u.timeline, from), trends, oee };
+    });
+    out.robots = add.robots.map((r) => {
+      const o = old.robots.find((x) => x.name === r.name) || { tasks: [] };
+      const tasks = r.tasks.map((t) => {
+        const ot = o.tasks.find((x) => x.task === t.task) || { runs: [] };
+        return { ...t, runs: joinSegments(ot.runs, t.runs, from) };
+      });
+      return { ...r, tasks };
+    });
+    return out;
+  }
+
+  async function load(full) {
     const body = $("history-body");
     if (!body) return;
-    const hours = $("history-hours").value;
+    const hours = Number($("history-hours").value);
+    const width = columns();
+    const more = full !== true && view && view.hours === hours && view.width === width;
+    const query = new URLSearchParams({ hours: String(hours), width: String(width) });
+    if (more) query.set("since", String(view.data.end));
     let data;
     try {
-      const res = await fetch(`/api/history?hours=${encodeURIComponent(hours)}`, { credentials: "same-origin" });
+      const token = localStorage.getItem("uacell-token") || "";  // kept by app.js: the session's token
+      const res = await fetch(`/api/history?${query}`, { credentials: "same-origin", headers: { "X-CSRF-Token": token } });
       data = await res.json();
       if (!res.ok) throw new Error(data.error || res.statusText);
     } catch (err) {
       body.replaceChildren(el("p", { class: "error" }, `History: ${err.message}`));
       return;
     }
-    const range = { start: data.start, end: data.end };
-    const parts = [...data.units.map((u) => unitView(u, range)), ...data.robots.map((r) => robotView(r, range))];
+    view = { hours, width, data: more && data.since !== null ? merge(view.data, data) : data };
+    const shown = view.data;
+    const range = { start: shown.start, end: shown.end };
+    const parts = [...shown.units.map((u) => unitView(u, range)), ...shown.robots.map((r) => robotView(r, range))];
     body.replaceChildren(...parts);
     body.dataset.loaded = String(Date.now());
   }
@@ -165,10 +227,10 @@
 
   document.addEventListener("DOMContentLoaded", () => {
     if (!$("history-body")) return;
-    $("history-hours").addEventListener("change", load);
-    $("history-refresh").addEventListener("click", load);
+    $("history-hours").addEventListener("change", () => load(true));
+    $("history-refresh").addEventListener("click", () => load(true));
     whenConnected(() => {
-      load();
+      load(true);
       setInterval(load, 15000);
     });
   });

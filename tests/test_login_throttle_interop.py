@@ -1,0 +1,55 @@
+"""node-opcua against `uacell serve`'s login throttle (issue 39 point 2): every throttled login is
+answered, Good or Bad_UserAccessDenied, before the connection's activation deadline; the right
+password after the failures gets in. The deadline is scaled down from 30 s to 6 s."""
+
+from __future__ import annotations
+
+import pytest
+from conftest import run_node, start_serve
+from cryptography import x509
+from cryptography.hazmat.primitives import serialization
+from test_security_interop import NODE_URI
+
+from uacell.pki import PkiPaths, TrustList, make_client_certificate
+from uacell.roles import Role
+from uacell.users import UserStore
+
+pytestmark = pytest.mark.interop
+
+WINDOW = 6.0
+
+
+def test_node_opcua_logins_under_the_throttle_are_all_answered_within_the_deadline(tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    UserStore.in_data_dir(data).add("tilda", Role.OPERATOR, "t1lda-secret")
+    der, key_pem = make_client_certificate(NODE_URI)
+    cert_file, key_file = tmp_path / "node-cert.pem", tmp_path / "node-key.pem"
+    cert_file.write_bytes(x509.load_der_x509_certificate(der).public_bytes(serialization.Encoding.PEM))
+    key_file.write_bytes(key_pem)
+    TrustList(PkiPaths.in_data_dir(data)).trust(der)
+    config = tmp_path / "uacell.toml"
+    config.write_text(
+        f"[limits]\nactivation_timeout = {WINDOW}\nhandshake_timeout = 1.0\nlogin_base_delay = 1.5\n"
+        "login_max_delay = 3.0\nlogin_free_failures = 1\nlogin_free_failures_per_user = 1\n"
+    )
+    sp = start_serve(data, "--config", str(config))
+    try:
+        out = run_node(
+            "login_throttle.js",
+            sp.endpoint,
+            str(cert_file),
+            str(key_file),
+            NODE_URI,
+            str(tmp_path / "node-pki"),
+            "tilda",
+            "t1lda-secret",
+            "6",
+            timeout=180,
+        )
+    finally:
+        sp.stop()
+    attempts = out["attempts"]
+    assert [a["answer"] for a in attempts] == ["BadUserAccessDenied"] * 6 + ["Good"], attempts
+    assert all(a["seconds"] < WINDOW for a in attempts), attempts
+    assert any(a["seconds"] > 1.0 for a in attempts[1:]), attempts  # the throttle did slow them down
