@@ -279,7 +279,8 @@ async def test_a_robot_program_run(rig):
         await until(r, "Robot1", "MachineryItemState", "NotExecuting")  # the program ended
         await events.wait_for(lambda e: getattr(e, "ToState", None) == ua.LocalizedText("NotExecuting"))
         assert to_states(events, item.nodeid) == ["Executing", "NotExecuting"]
-        assert [e.Transition.Text for e in events.events] == ["FromNotExecutingToExecuting", "FromExecutingToNotExecuting"]
+        transitions = [e.Transition.Text for e in events.events]
+        assert transitions == ["FromNotExecutingToExecuting", "FromExecutingToNotExecuting"]
     finally:
         await sub.delete()
     await ok(r.client, SO, "StandDown")
