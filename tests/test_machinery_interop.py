@@ -16,7 +16,7 @@ from conftest import NodeServer, fast_config, run_node, serving, start_serve
 from helpers import Collector, call_path, free_port, until
 from helpers import cell_state as state
 from test_gateway_packml import PLC, cell
-from test_machinery_server import CTRL, EXEC, MACH, MACHINES, SO, TC, config_with_machines, upload
+from test_machinery_server import EXEC, MACH, MACHINES, SO, TC, config_with_machines, upload
 from test_nodeset_export import differences, run_export
 from test_robotics_interop import run_trusted
 
