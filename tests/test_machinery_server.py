@@ -336,3 +336,38 @@ async def test_an_entry_naming_no_robot_or_unit_stops_the_start(tmp_path):
             await app.setup()
     finally:
         await app.stop()
+
+
+# --- the HMI's view ------------------------------------------------------------------------------------
+
+
+async def test_the_hmi_finds_one_tile_per_machine_with_its_state_and_mode(rig):
+    from uacell.web.discovery import discover
+
+    r = rig
+    async with Client(r.app.endpoint, timeout=30) as client:
+        cell = await discover(client)
+        tiles = {m["name"]: m for m in cell.layout["machines"]}
+        assert set(tiles) == {"Robot1", "Filler1"}
+        filler = tiles["Filler1"]
+        assert filler["state"]["key"] == "Machines/Filler1/MachineryItemState"
+        # each key leads to the node of that BrowseName path
+        state = client.get_node(cell.variables[filler["state"]["state"]])
+        mode = client.get_node(cell.variables[filler["mode"]["state"]])
+        assert (await state.read_value()).Text == (await current(r, "Filler1", "MachineryItemState"))[0]
+        assert (await mode.read_value()).Text == (await current(r, "Filler1", "MachineryOperationMode"))[0]
+        serial = client.get_node(cell.variables[filler["identification"]["SerialNumber"]])
+        assert await serial.read_value() == "F-2291"
+        assert set(tiles["Robot1"]["identification"]) == {
+            "Manufacturer",
+            "Model",
+            "SerialNumber",
+            "ProductInstanceUri",
+            "YearOfConstruction",
+            "Location",
+        }
+        # their TransitionEvents are listed with the others' (the page's "Last transitions")
+        assert (
+            cell.machines[state.nodeid.to_string().removesuffix(".CurrentState")]
+            == "Machines/Filler1/MachineryItemState"
+        )
