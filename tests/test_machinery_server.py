@@ -371,3 +371,39 @@ async def test_the_hmi_finds_one_tile_per_machine_with_its_state_and_mode(rig):
             cell.machines[state.nodeid.to_string().removesuffix(".CurrentState")]
             == "Machines/Filler1/MachineryItemState"
         )
+
+
+# --- identification the equipment reports of itself ---------------------------------------------------
+
+
+def reporting_unit(spec: Any) -> Any:
+    """A simulated unit whose equipment reports who made it (``identification``), as a PLC that knows
+    its nameplate would: the factory a cell file names as ``test_machinery_server:reporting_unit``."""
+    from uacell.packml.sim import simulator
+
+    unit = simulator(spec)
+    unit.identification = {"Manufacturer": "PLC Maker", "SerialNumber": "PLC-77", "Model": "", "DeviceRevision": "3"}
+    return unit
+
+
+async def test_identification_the_equipment_reports_under_the_cell_files(tmp_path):
+    from conftest import serving
+
+    path = tmp_path / "cell.toml"
+    path.write_text(
+        '[[packml_units]]\nname = "Labeler"\nequipment = "test_machinery_server:reporting_unit"\n'
+        '[[machines]]\nname = "Labeler"\nmanufacturer = "ACME (as the plant knows it)"\n'
+    )
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(path)
+    async with serving(config) as (app, client):
+        r = Rig()
+        r.app, r.client = app, client
+        r.m = await client.get_namespace_index(MACHINERY)
+        r.di = await client.get_namespace_index(DI)
+        r.machines = {"Labeler": ua.NodeId("Labeler", await client.get_namespace_index(CELL))}
+        assert await identification(r, "Labeler") == {
+            "Manufacturer": "ACME (as the plant knows it)",  # the cell file wins
+            "SerialNumber": "PLC-77",  # the equipment's, where the file says nothing
+            "ProductInstanceUri": f"{app.config.server.application_uri}:machine:Labeler",
+        }  # an empty Model and DI's DeviceRevision (no Machinery property) are not taken

@@ -14,6 +14,7 @@ is never published).
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, date, datetime
 from typing import Any
@@ -24,7 +25,7 @@ from uacell.cell import BuiltPart
 from uacell.companion import Closer
 from uacell.errors import ConfigError
 from uacell.host import BinderHost
-from uacell.machinery.config import MachineryConfig, MachinesSection
+from uacell.machinery.config import INITIAL_OPERATION_DATE, NUMBER_KEYS, MachineryConfig, MachinesSection
 from uacell.machinery.model import Machine, MachineryTables
 from uacell.machinery.nodes import MACHINE_MEMBERS, MachineNodes, add_machine
 from uacell.machinery.sources import RobotSource, Source, UnitSource
@@ -34,6 +35,8 @@ from uacell.robotics.binding import CONTROLLERS
 from uacell.ua.machine_binding import Publisher
 
 log = logging.getLogger(__name__)
+# Members that are not text: equipment reports text only, the cell file gives these.
+NUMBERED = frozenset({*(m for m, _, _ in NUMBER_KEYS.values()), INITIAL_OPERATION_DATE})
 
 # The parts that are machines: (model, type) -> how their facts are found.
 ROBOT, UNIT = ("Robotics", "MotionDeviceSystemType"), ("PackML", "PackMLBaseObjectType")
@@ -81,12 +84,18 @@ def _source(app: BinderHost, built: BuiltPart) -> Source | None:
 
 
 def identification(
-    built: BuiltPart, settings: MachineryConfig, section: MachinesSection | None, application_uri: str
+    built: BuiltPart,
+    settings: MachineryConfig,
+    section: MachinesSection | None,
+    application_uri: str,
+    reported: Mapping[str, str] | None = None,
 ) -> dict[str, str | int | date]:
-    """The machine's identification by BrowseName: the part's DI identification, ``[machinery]``,
-    then its ``[[machines]]`` entry; ProductInstanceUri, when none of them gives it, from the
-    server's ApplicationUri and the machine's name (unique in this server)."""
+    """The machine's identification by BrowseName: the part's DI identification, what its equipment
+    reports of itself (``reported``), ``[machinery]``, then its ``[[machines]]`` entry (the later
+    wins); ProductInstanceUri, when none of them gives it, from the server's ApplicationUri and the
+    machine's name (unique in this server)."""
     values: dict[str, str | int | date] = {k: v for k, v in built.part.values.items() if k in MACHINE_MEMBERS}
+    values.update({k: v for k, v in (reported or {}).items() if k in MACHINE_MEMBERS - NUMBERED})
     if settings.location:
         values["Location"] = settings.location
     entry = section.of(built.part.name) if section is not None else None
@@ -145,7 +154,7 @@ async def bind_machinery(app: BinderHost) -> Closer | None:
         if source is None:  # its companion bound nothing there (a robot without controllers)
             log.info("%s: no model to follow; not a machine", part.path)
             continue
-        values = identification(part, settings, section, app.config.server.application_uri)
+        values = identification(part, settings, section, app.config.server.application_uri, source.identification())
         await bind_machine(app, part, source, tables, values)
     return None
 

@@ -4,7 +4,7 @@ a robot's controllers'), read and watched, never changed. Each source turns its 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 from uacell.machinery.model import Facts, packml_facts, robot_facts
@@ -19,6 +19,11 @@ class Source(Protocol):
 
     def watch(self, changed: Callable[[], None]) -> None:
         """Call ``changed`` after every change the model announces (several per change are fine)."""
+        ...
+
+    def identification(self) -> dict[str, str]:
+        """What the equipment reports of itself (BrowseName -> text), where its interface has
+        ``identification``: a controller or PLC that knows its serial number."""
         ...
 
 
@@ -39,10 +44,21 @@ class UnitSource:
             machine.listeners.append(lambda _change: changed())
         u.conditions.condition_listeners.append(lambda _condition: changed())  # CommunicationLost
 
+    def identification(self) -> dict[str, str]:
+        return _identification(self.unit.equipment)
+
 
 def _reported(equipment: Any, name: str, default: Any) -> Any:
-    """What equipment reports of itself where its interface has it (``reachable``, ``operational_mode``)."""
+    """What equipment reports of itself where its interface has it (``reachable``, ``operational_mode``,
+    ``identification``): members no equipment Protocol requires (yet)."""
     return getattr(equipment, name, default)
+
+
+def _identification(equipment: Any) -> dict[str, str]:
+    found = _reported(equipment, "identification", None)
+    if not isinstance(found, Mapping):
+        return {}
+    return {str(k): str(v) for k, v in found.items() if v is not None and str(v)}
 
 
 class RobotSource:
@@ -63,3 +79,6 @@ class RobotSource:
     def watch(self, changed: Callable[[], None]) -> None:
         for cell in self.cells:
             cell.add_listener(changed)
+
+    def identification(self) -> dict[str, str]:
+        return _identification(self.cells[0].equipment) if self.cells else {}
