@@ -166,7 +166,9 @@ async def test_machines_organizes_every_robot_and_unit_with_the_building_blocks(
             ref.BrowseName.to_string(): ref.TypeDefinition
             for ref in await machine.get_references(ua.ObjectIds.HasAddIn, ua.BrowseDirection.Forward)
         }
-        assert add_ins == {f"{r.di}:Identification": ua.NodeId(1012, r.m)}, name  # MachineIdentificationType
+        # MachineIdentificationType; a robot's Components (MachineComponentsType) too
+        components = {f"{r.m}:Components": ua.NodeId(1006, r.m)} if name == "Robot1" else {}
+        assert add_ins == {f"{r.di}:Identification": ua.NodeId(1012, r.m), **components}, name
         blocks = await machine.get_child(f"{r.m}:MachineryBuildingBlocks")
         assert await blocks.read_type_definition() == ua.NodeId(ua.ObjectIds.FolderType)
         in_blocks = {
@@ -177,7 +179,30 @@ async def test_machines_organizes_every_robot_and_unit_with_the_building_blocks(
             f"{r.di}:Identification": ua.NodeId(1012, r.m),
             f"{r.m}:MachineryItemState": ua.NodeId(1002, r.m),  # MachineryItemState_StateMachineType
             f"{r.m}:MachineryOperationMode": ua.NodeId(1008, r.m),  # MachineryOperationModeStateMachineType
+            **components,
         }
+
+
+async def test_a_robots_components_are_its_controllers_and_motion_devices_with_their_identification(rig):
+    r = rig
+    components = await child(r, r.machines["Robot1"], f"{r.m}:Components")
+    found = {
+        ref.BrowseName.Name: ref.NodeId
+        for ref in await components.get_references(ua.ObjectIds.HasComponent, ua.BrowseDirection.Forward)
+    }
+    cell = await r.client.get_namespace_index(CELL)
+    assert found == {"Controller1": ua.NodeId(CTRL, cell), "Arm1": ua.NodeId("Robot1.MotionDevices.Arm1", cell)}
+    ident = await r.client.get_node(found["Controller1"]).get_child(f"{r.di}:Identification")
+    assert await ident.read_type_definition() == ua.NodeId(1005, r.m)  # MachineryComponentIdentificationType
+    r.machines["Controller1"] = found["Controller1"]
+    # the controller's DI identification (the demo cell's), now also where a Machinery client looks
+    assert await identification(r, "Controller1") == {
+        "Manufacturer": "uacell",
+        "Model": "Simulated controller",
+        "ProductCode": "SIM-C",
+        "SerialNumber": "DEMO-C1",
+    }
+    del r.machines["Controller1"]
 
 
 async def test_identification_from_the_cell_file(rig):

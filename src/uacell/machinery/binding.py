@@ -27,7 +27,7 @@ from uacell.errors import ConfigError
 from uacell.host import BinderHost
 from uacell.machinery.config import INITIAL_OPERATION_DATE, NUMBER_KEYS, MachineryConfig, MachinesSection
 from uacell.machinery.model import Machine, MachineryTables
-from uacell.machinery.nodes import MACHINE_MEMBERS, MachineNodes, add_machine
+from uacell.machinery.nodes import MACHINE_MEMBERS, MachineNodes, add_components, add_machine
 from uacell.machinery.sources import RobotSource, Source, UnitSource
 from uacell.packml.binding import UNITS
 from uacell.registry import RegistryKey
@@ -41,6 +41,8 @@ NUMBERED = frozenset({*(m for m, _, _ in NUMBER_KEYS.values()), INITIAL_OPERATIO
 # The parts that are machines: (model, type) -> how their facts are found.
 ROBOT, UNIT = ("Robotics", "MotionDeviceSystemType"), ("PackML", "PackMLBaseObjectType")
 MACHINE_TYPES = (ROBOT, UNIT)
+# A robot's parts that are its components (OPC 40001-1 Components): controllers and motion devices.
+COMPONENT_TYPES = (("Robotics", "ControllerType"), ("Robotics", "MotionDeviceType"))
 
 
 @dataclass
@@ -124,15 +126,31 @@ def _variant(app: BinderHost, node: ua.NodeId, value: str | int | date) -> ua.Va
     return ua.Variant(converted, vtype)
 
 
+async def _write(app: BinderHost, identification: ua.NodeId, values: Mapping[str, str | int | date]) -> None:
+    """Each value into the property of that BrowseName below ``identification``."""
+    for member, value in values.items():
+        node = app.cell.child(identification, member)
+        variant = _variant(app, node, value)
+        await app.space.aspace.write_attribute_value(node, ua.AttributeIds.Value, ua.DataValue(variant))
+
+
 async def bind_machine(
     app: BinderHost, built: BuiltPart, source: Source, tables: MachineryTables, values: dict[str, str | int | date]
 ) -> MachineBinding:
     machine = Machine(built.part.name, tables, source.facts())
     nodes = await add_machine(app.space, app.cell, built, app.model_indexes, tuple(values))
-    for member, value in values.items():
-        node = app.cell.child(nodes.identification, member)
-        variant = _variant(app, node, value)
-        await app.space.aspace.write_attribute_value(node, ua.AttributeIds.Value, ua.DataValue(variant))
+    await _write(app, nodes.identification, values)
+    components = [
+        b
+        for b in app.cell.built
+        if b.path.startswith(f"{built.path}.") and (b.part.model, b.part.type_name) in COMPONENT_TYPES
+    ]
+    if components:
+        ns_m, ns_di = app.model_indexes["Machinery"], app.model_indexes["DI"]
+        await add_components(app.space, app.cell, nodes, [(c, c.part.values) for c in components], ns_m, ns_di)
+        for component in components:
+            own = {k: v for k, v in component.part.values.items() if k in MACHINE_MEMBERS}
+            await _write(app, app.cell.child(component.node, "Identification"), own)
     await app.space.bind_machine(nodes.item_state, machine.item_state, app.publisher, app.refs)
     await app.space.bind_machine(nodes.operation_mode, machine.operation_mode, app.publisher, app.refs)
     follower = Follower(app.publisher, machine, source)

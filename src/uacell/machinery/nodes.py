@@ -8,6 +8,13 @@ lays them out and OPC 40010-1 Annex C shows for a MotionDeviceSystem:
         --HasAddIn--> 3:MachineryItemState            MachineryItemState_StateMachineType
         --HasAddIn--> 3:MachineryOperationMode        MachineryOperationModeStateMachineType
 
+and on a robot the Components building block (OPC 40001-1 section 11) over its controllers and motion
+devices, which get a component Identification of their own:
+
+    <robot> --HasAddIn--> 3:Components                MachineComponentsType (also from MachineryBuildingBlocks)
+        --HasComponent--> <controller>, <motion device>   the robot's own parts
+    <controller> --HasAddIn--> 2:Identification       MachineryComponentIdentificationType
+
 Each is made unless it exists. ``members`` are the Optional properties of Identification that get a value.
 """
 
@@ -26,6 +33,7 @@ from uacell.ua.space import Space
 
 MACHINES_FOLDER = 1001  # ns=Machinery;i=1001
 BLOCKS = "MachineryBuildingBlocks"
+COMPONENTS = "Components"
 IDENTIFICATION = "Identification"
 HAS_ADD_IN = ua.ObjectIds.HasAddIn
 ORGANIZES = ua.ObjectIds.Organizes
@@ -37,6 +45,41 @@ STATE_MACHINE = Selection(
     ("CurrentState/Number", "LastTransition", "LastTransition/Number", "LastTransition/TransitionTime",
      "AvailableStates", "AvailableTransitions"),
 )  # fmt: skip
+
+
+def _create(
+    cell: CellBuilder, parent: ua.NodeId, type_name: str, name: ua.QualifiedName, selection: Selection, ref: int
+) -> ua.NodeId:
+    """An instance of the Machinery type ``type_name`` called ``name`` below ``parent`` (NodeId: the
+    parent's path and the name), unless it exists."""
+    make = cell.instantiator
+    nodeid = make.nodeid(f"{parent.Identifier}.{name.Name}")
+    if nodeid in cell.aspace:
+        return nodeid
+    type_node = cell.type_node(MACHINERY, type_name)
+    return make.create(parent, type_node, name, selection, reference_type=ref, path=str(nodeid.Identifier))
+
+
+async def add_components(
+    space: Space,
+    cell: CellBuilder,
+    machine: MachineNodes,
+    parts: Iterable[tuple[BuiltPart, Iterable[str]]],
+    ns_m: int,
+    ns_di: int,
+) -> ua.NodeId:
+    """The Components add-in of ``machine`` over ``parts`` (each with the members its component
+    Identification gets), each part given that Identification, unless they exist; the Components node."""
+    components = _create(
+        cell, machine.machine, "MachineComponentsType", ua.QualifiedName(COMPONENTS, ns_m), Selection(), HAS_ADD_IN
+    )
+    await _reference(space, machine.blocks, components, HAS_ADD_IN)
+    for part, members in parts:
+        wanted = Selection(tuple(sorted(set(members) & MACHINE_MEMBERS - {"Location"})))
+        name = ua.QualifiedName(IDENTIFICATION, ns_di)
+        _create(cell, part.node, "MachineryComponentIdentificationType", name, wanted, HAS_ADD_IN)
+        await _reference(space, components, part.node, ua.ObjectIds.HasComponent)
+    return components
 
 
 @dataclass(frozen=True)
@@ -66,11 +109,7 @@ async def add_machine(
     path = built.path
 
     def create(parent: ua.NodeId, type_name: str, name: ua.QualifiedName, selection: Selection, ref: int) -> ua.NodeId:
-        nodeid = make.nodeid(f"{parent.Identifier}.{name.Name}")
-        if nodeid in aspace:
-            return nodeid
-        type_node = cell.type_node(MACHINERY, type_name)
-        return make.create(parent, type_node, name, selection, reference_type=ref, path=str(nodeid.Identifier))
+        return _create(cell, parent, type_name, name, selection, ref)
 
     wanted = Selection(tuple(sorted(set(members) & MACHINE_MEMBERS)))
     ident = create(built.node, "MachineIdentificationType", ua.QualifiedName(IDENTIFICATION, ns_di), wanted, HAS_ADD_IN)
