@@ -99,3 +99,24 @@ async def test_pubsub_publishes_the_item_state_and_its_transitions(tmp_path: Pat
                 assert message["Payload"][FIELD]["Value"]["Text"] == "NotExecuting"
     finally:
         broker.stop()
+
+
+async def test_metrics_count_the_machines_by_state_and_mode(tmp_path: Path) -> None:
+    from conftest import fast_config
+    from helpers import free_port
+    from test_operations import sample, scrape
+
+    config = fast_config(tmp_path / "data")
+    config.metrics.enabled, config.metrics.port = True, free_port()
+    async with serving(config) as (app, client):
+        status, body = await scrape(app)
+        assert status.endswith("200 OK")
+        assert sample(body, "uacell_machines", item_state="NotExecuting", operation_mode="Processing") == 2.0
+        await cycle(client)
+        await until(lambda: state(client, ITEM), "Executing")
+        _, body = await scrape(app)
+        assert sample(body, "uacell_machines", item_state="NotExecuting", operation_mode="Processing") == 1.0
+        assert sample(body, "uacell_machines", item_state="Executing", operation_mode="Processing") == 1.0
+        # and each machine's own state with every other state machine's
+        machine = "Filler1.MachineryBuildingBlocks.MachineryItemState"
+        assert sample(body, "uacell_state_machine_state", machine=machine, state="Executing") == 1.0
