@@ -172,3 +172,42 @@ def test_the_export_loaded_into_node_opcua_shows_the_same_machines(tmp_path: Pat
     assert not found, "\n".join(found)
     machinery = [k for k in loaded_tree if ".MachineryBuildingBlocks.Machinery" in k]
     assert len(machinery) >= 20  # the two state machines of each machine with their members
+
+
+async def test_a_gateway_robot_whose_controller_is_lost_is_not_available(tmp_path: Path) -> None:
+    """The shipped modbus-robot cell: its controller (the example Modbus controller) killed and back."""
+    from test_gateway_robot import PLC as Controller
+    from test_gateway_robot import cell_text
+
+    controller = Controller(free_port(), 1.0)
+    controller.start()
+    try:
+        await controller.io()  # listening before uacell starts
+        path = tmp_path / "cell.toml"
+        path.write_text(cell_text(controller.port) + '\n[[machines]]\nname = "Palletizer"\nlocation = "Cell 4"\n')
+        config = fast_config(tmp_path / "data")
+        config.cell = load_cell(path)
+        async with serving(config) as (app, client):
+            m = await client.get_namespace_index(MACHINERY)
+            cell_ns = await client.get_namespace_index("urn:uacell:cell")
+            blocks = client.get_node(ua.NodeId("Palletizer.MachineryBuildingBlocks", cell_ns))
+            current = await blocks.get_child([f"{m}:MachineryItemState", "0:CurrentState"])
+            mode = await blocks.get_child([f"{m}:MachineryOperationMode", "0:CurrentState"])
+
+            async def item_state() -> str:
+                return str((await current.read_value()).Text)
+
+            await until(item_state, "NotExecuting", timeout=20.0)  # once the controller answered
+            controller.kill()
+            await until(item_state, "NotAvailable", timeout=20.0)
+            assert (await mode.read_value()).Text == "None"
+            seen = await machines(app.endpoint)
+            assert seen["Palletizer"]["itemState"] == ["NotAvailable", 0]
+            assert seen["Palletizer"]["identification"]["Location"] == "Cell 4"
+            controller.start()  # the same port
+            await until(item_state, "NotExecuting", timeout=30.0)
+            assert (await mode.read_value()).Text == "Processing"
+    finally:
+        controller.kill()
+        for conn in controller.clients:
+            conn.close()
