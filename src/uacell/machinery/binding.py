@@ -2,9 +2,10 @@
 
 For each machine (a part of a type in ``MACHINE_TYPES``) it makes, in the cell's namespace below the
 part (``uacell.machinery.nodes``): ``Identification`` (MachineIdentificationType, HasAddIn) with the
-values of the part's DI identification, ``[machinery]`` and its ``[[machines]]`` entry;
-``MachineryBuildingBlocks`` with ``MachineryItemState`` and ``MachineryOperationMode``; and the
-Organizes reference from ``Objects/Machines``. The two state machines are a pure
+values of the part's DI identification, what its equipment reports, ``[machinery]`` and its
+``[[machines]]`` entry; ``MachineryBuildingBlocks`` with ``MachineryItemState`` and
+``MachineryOperationMode``; on a robot, ``Components`` over its controllers and motion devices; and
+the Organizes reference from ``Objects/Machines``. The two state machines are a pure
 ``uacell.machinery.model.Machine`` bound with the one state-machine binding; they follow the facts the
 part's own companion model gives (``uacell.machinery.sources``), re-read in a publisher job after each
 change that model announces (so a change seen half-way, a parent machine moved before its sub-machine,
