@@ -76,6 +76,7 @@ def _demo_before_configuration() -> list[tuple[str, Part]]:
         "Robotics",
         "MotionDeviceSystemType",
         children=[controller, arm, Part("SafetyState1", "Robotics", "SafetyStateType", "SafetyStates")],
+        role="robot",  # since Machinery: its DataSet names the robot (docs/machinery.md)
     )
     filler = Part("Filler1", "PackML", "PackMLBaseObjectType", include=("**",), role="packml_unit")
     return [("DeviceSet", robot), ("PackMLObjects", filler)]

@@ -244,7 +244,17 @@ async def check_node(
         ref = children.get(_key(name))
         label = f"{where}/{path}"
         if not wanted:
-            if ref is not None:
+            # An optional AddIn another companion applies with a subtype of the declared type is no
+            # copying error: OPC 40001-1's MachineIdentificationType as DI's Identification
+            # (OPC 40010-1 Annex C; docs/machinery.md).
+            applied = (
+                ref is not None
+                and ref.ReferenceTypeId == HAS_ADDIN
+                and m.type_definition is not None
+                and await space.is_subtype(ref.TypeDefinition, m.type_definition)
+                and ref.TypeDefinition != m.type_definition
+            )
+            if ref is not None and not applied:
                 problems.append(f"{label}: optional member not requested but present")
             continue
         if ref is None:
@@ -281,8 +291,11 @@ async def check_node(
             # Extensions in the server's own namespace are allowed (OPC UA lets instances carry more,
             # e.g. Filler1's InjectFault); a stray name from a standard namespace is a copying error,
             # except a historized variable's Part 11 "HA Configuration" (HasHistoricalConfiguration).
+            # So are AddIns another specification applies (HasAddIn, OPC 10000-3) and the folder
+            # OPC 40001-1 keeps its building blocks in (docs/machinery.md).
             historical = ref.ReferenceTypeId == ua.NodeId(ua.ObjectIds.HasHistoricalConfiguration)
-            if name[0] != space.cell_ns and not (historical and name == (0, "HA Configuration")):
+            add_in = ref.ReferenceTypeId == HAS_ADDIN or name == (space.ns["Machinery"], "MachineryBuildingBlocks")
+            if name[0] != space.cell_ns and not add_in and not (historical and name == (0, "HA Configuration")):
                 problems.append(f"{where}/{rel}: unexpected child {name[0]}:{name[1]}")
     for p in placeholders:
         if p.rule == MANDATORY_PLACEHOLDER and filled[p.decl] == 0:
@@ -319,6 +332,7 @@ async def _serve_cell(base: Path, cell: str, from_snapshot: bool) -> AsyncIterat
                 ("DI", "http://opcfoundation.org/UA/DI/"),
                 ("Robotics", "http://opcfoundation.org/UA/Robotics/"),
                 ("PackML", "http://opcfoundation.org/UA/PackML/"),
+                ("Machinery", "http://opcfoundation.org/UA/Machinery/"),
             )
         }
         s.roots = {}

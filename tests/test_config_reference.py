@@ -56,6 +56,8 @@ name = "R"
     name = "J"
 [[packml_units]]
 name = "U"
+[[machines]]
+name = "U"
 """
 PROBE_NAMES = {"R", "C", "T", "M", "J", "U"}
 # Tables whose keys are not fixed (documented in prose): free settings, per-state times, DI identification

@@ -96,7 +96,7 @@ def test_the_copy_of_the_official_files_is_accepted(good_copy):
 
 def test_a_ua_nodeset_checkout_layout_is_found(tmp_path, real_models):
     checkout = tmp_path / "UA-Nodeset"
-    folders = {"DI": "DI", "IA": "IA", "Robotics": "Robotics", "PackML": "PackML"}
+    folders = {"DI": "DI", "IA": "IA", "Robotics": "Robotics", "PackML": "PackML", "Machinery": "Machinery"}
     for key, path in real_models.items():
         (checkout / folders[key]).mkdir(parents=True)
         shutil.copy(path, checkout / folders[key] / path.name)

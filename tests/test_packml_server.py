@@ -121,6 +121,8 @@ class Events:
         self.app = app
 
     def event_notification(self, event) -> None:
+        if event.SourceNode not in self.by_node and event.SourceNode != ua.NodeId(ua.ObjectIds.Server):
+            return  # another companion's machine (the unit's Machinery state, docs/machinery.md)
         self.got.append(
             (
                 self.by_node.get(event.SourceNode, str(event.SourceNode)),

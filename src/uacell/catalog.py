@@ -21,6 +21,7 @@ COMPANIONS = (
     "uacell.di.companion:DI_LOCKING",
     "uacell.robotics.companion:ROBOTICS",
     "uacell.packml.companion:PACKML_COMPANION",
+    "uacell.machinery.companion:MACHINERY_COMPANION",
 )
 
 
@@ -37,5 +38,12 @@ def companions() -> tuple[Companion, ...]:
 
 
 def dataset_of(role: str) -> PartDataSet | None:
-    """What history keeps and PubSub publishes of parts of ``role`` (their companion's ``datasets``)."""
-    return next((d for c in companions() for d in c.datasets if d.role == role), None)
+    """What history keeps and PubSub publishes of parts of ``role``: every companion's ``datasets``
+    for that role joined, in the companions' order (a robot's or a unit's own, then what another
+    companion adds to the same part, as Machinery adds a machine's state and mode)."""
+    found = [d for c in companions() for d in c.datasets if d.role == role]
+    if len(found) <= 1:
+        return found[0] if found else None
+    values = tuple(i for d in found for i in d.values)
+    notifiers = tuple(dict.fromkeys(n for d in found for n in d.notifiers))
+    return PartDataSet(role, values, notifiers)

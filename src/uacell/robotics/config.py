@@ -307,6 +307,7 @@ def robot_part(robot: RobotSpec) -> Part:
         "Robotics",
         "MotionDeviceSystemType",
         children=[*controllers, *devices, *safety],
+        role="robot",
         values=_values(robot.identification),
         spec=robot,
     )

@@ -346,6 +346,7 @@ function render() {
     main.append(renderRobot(r));
   }
   if (!L.units.length && !L.robots.length) main.append(el("p", {class: "muted", text: "This server offers no robot and no PackML unit."}));
+  if ((L.machines || []).length) main.prepend(renderMachines(L.machines));
   tree.append(el("h2", {text: "Cell"}), list);
   main.append(el("section", {class: "card", id: "events"}, el("h2", {text: "Last transitions"}), el("ol", {id: "event-list"})));
   renderEvents();
@@ -773,6 +774,32 @@ function updateRobots() {
   for (const box of $$(".device")) updateDevice(box);
 }
 
+// OPC 40001-1 machines (Objects/Machines): one tile each with MachineryItemState and MachineryOperationMode.
+function renderMachines(machines) {
+  const tiles = machines.map((m) => {
+    const ident = ["Manufacturer", "Model", "SerialNumber", "Location"].filter((n) => m.identification[n]);
+    const tile = el("div", {class: "machine-tile", "data-machine": m.name},
+      el("h3", {text: m.name}),
+      el("div", {}, "State ", el("strong", {class: "m-state", text: "–"})),
+      el("div", {}, "Mode ", el("strong", {class: "m-mode", text: "–"})),
+      el("div", {class: "m-ident muted"}));
+    tile._machine = m; tile._ident = ident;
+    return tile;
+  });
+  return el("section", {class: "card", id: "machines"}, el("h2", {text: "Machines"}), el("div", {class: "machine-tiles"}, ...tiles));
+}
+
+function updateMachines() {
+  for (const tile of $$(".machine-tile")) {
+    const m = tile._machine;
+    const state = m.state && m.state.state ? machineText(m.state) : "–";
+    $(".m-state", tile).textContent = state;
+    tile.dataset.state = state;
+    $(".m-mode", tile).textContent = m.mode && m.mode.state ? machineText(m.mode) : "–";
+    $(".m-ident", tile).textContent = tile._ident.map((n) => S.values[m.identification[n]]).filter((v) => v).join(" · ");
+  }
+}
+
 function renderEvents() {
   const list = $("#event-list");
   if (!list) return;
@@ -823,6 +850,7 @@ function update() {
   if (!S.layout) return;
   for (const u of S.layout.units) updateUnit(u);
   updateRobots();
+  updateMachines();
   updateAlarmBanner();
   updateButtons();
 }

@@ -1,0 +1,123 @@
+"""A machine's OPC 40001-1 nodes below its part, in the cell's namespace, as OPC 40001-1 section 7
+lays them out and OPC 40010-1 Annex C shows for a MotionDeviceSystem:
+
+    Objects/Machines (ns=Machinery;i=1001) --Organizes--> <part>
+    <part> --HasAddIn--> 2:Identification            MachineIdentificationType (DI's BrowseName)
+    <part> --HasComponent--> 3:MachineryBuildingBlocks   FolderType
+        --HasAddIn--> 2:Identification                the same node
+        --HasAddIn--> 3:MachineryItemState            MachineryItemState_StateMachineType
+        --HasAddIn--> 3:MachineryOperationMode        MachineryOperationModeStateMachineType
+
+and on a robot the Components building block (OPC 40001-1 section 11) over its controllers and motion
+devices, which get a component Identification of their own:
+
+    <robot> --HasAddIn--> 3:Components                MachineComponentsType (also from MachineryBuildingBlocks)
+        --HasComponent--> <controller>, <motion device>   the robot's own parts
+    <controller> --HasAddIn--> 2:Identification       MachineryComponentIdentificationType
+
+Each is made unless it exists. ``members`` are the Optional properties of Identification that get a value.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from asyncua import ua
+
+from uacell.cell import BuiltPart, CellBuilder
+from uacell.machinery.config import INITIAL_OPERATION_DATE, NUMBER_KEYS, TEXT_KEYS
+from uacell.machinery.model import ITEM_STATE, ITEM_STATE_TYPE, MACHINERY, OPERATION_MODE, OPERATION_MODE_TYPE
+from uacell.ua.instantiate import Selection
+from uacell.ua.space import Space
+
+MACHINES_FOLDER = 1001  # ns=Machinery;i=1001
+BLOCKS = "MachineryBuildingBlocks"
+COMPONENTS = "Components"
+IDENTIFICATION = "Identification"
+HAS_ADD_IN = ua.ObjectIds.HasAddIn
+ORGANIZES = ua.ObjectIds.Organizes
+# The properties of MachineIdentificationType a machine may have a value for.
+MACHINE_MEMBERS = frozenset({*TEXT_KEYS.values(), *(m for m, _, _ in NUMBER_KEYS.values()), INITIAL_OPERATION_DATE})
+# What a state machine gets of its optional members: the last transition, its number and time, the
+# states and transitions it has; not what uacell does not keep current (names, effective display name).
+STATE_MACHINE = Selection(
+    ("CurrentState/Number", "LastTransition", "LastTransition/Number", "LastTransition/TransitionTime",
+     "AvailableStates", "AvailableTransitions"),
+)  # fmt: skip
+
+
+def _create(
+    cell: CellBuilder, parent: ua.NodeId, type_name: str, name: ua.QualifiedName, selection: Selection, ref: int
+) -> ua.NodeId:
+    """An instance of the Machinery type ``type_name`` called ``name`` below ``parent`` (NodeId: the
+    parent's path and the name), unless it exists."""
+    make = cell.instantiator
+    nodeid = make.nodeid(f"{parent.Identifier}.{name.Name}")
+    if nodeid in cell.aspace:
+        return nodeid
+    type_node = cell.type_node(MACHINERY, type_name)
+    return make.create(parent, type_node, name, selection, reference_type=ref, path=str(nodeid.Identifier))
+
+
+async def add_components(
+    space: Space,
+    cell: CellBuilder,
+    machine: MachineNodes,
+    parts: Iterable[tuple[BuiltPart, Iterable[str]]],
+    ns_m: int,
+    ns_di: int,
+) -> ua.NodeId:
+    """The Components add-in of ``machine`` over ``parts`` (each with the members its component
+    Identification gets), each part given that Identification, unless they exist; the Components node."""
+    components = _create(
+        cell, machine.machine, "MachineComponentsType", ua.QualifiedName(COMPONENTS, ns_m), Selection(), HAS_ADD_IN
+    )
+    await _reference(space, machine.blocks, components, HAS_ADD_IN)
+    for part, members in parts:
+        wanted = Selection(tuple(sorted(set(members) & MACHINE_MEMBERS - {"Location"})))
+        name = ua.QualifiedName(IDENTIFICATION, ns_di)
+        _create(cell, part.node, "MachineryComponentIdentificationType", name, wanted, HAS_ADD_IN)
+        await _reference(space, components, part.node, ua.ObjectIds.HasComponent)
+    return components
+
+
+@dataclass(frozen=True)
+class MachineNodes:
+    machine: ua.NodeId
+    identification: ua.NodeId
+    blocks: ua.NodeId
+    item_state: ua.NodeId
+    operation_mode: ua.NodeId
+
+
+async def _reference(space: Space, source: ua.NodeId, target: ua.NodeId, reference: int) -> None:
+    """``source --reference--> target`` (and its inverse) unless it is there."""
+    refs = space.aspace[source].references
+    if any(r.IsForward and r.NodeId == target and r.ReferenceTypeId == ua.NodeId(reference) for r in refs):
+        return
+    await space.node(source).add_reference(target, reference, forward=True, bidirectional=True)
+
+
+async def add_machine(
+    space: Space, cell: CellBuilder, built: BuiltPart, indexes: dict[str, int], members: Iterable[str]
+) -> MachineNodes:
+    """The machine's nodes below ``built`` (see the module docstring), each unless it exists."""
+    ns_m, ns_di = indexes[MACHINERY], indexes["DI"]
+    make = cell.instantiator
+    aspace = space.aspace
+    path = built.path
+
+    def create(parent: ua.NodeId, type_name: str, name: ua.QualifiedName, selection: Selection, ref: int) -> ua.NodeId:
+        return _create(cell, parent, type_name, name, selection, ref)
+
+    wanted = Selection(tuple(sorted(set(members) & MACHINE_MEMBERS)))
+    ident = create(built.node, "MachineIdentificationType", ua.QualifiedName(IDENTIFICATION, ns_di), wanted, HAS_ADD_IN)
+    blocks = make.nodeid(f"{path}.{BLOCKS}")
+    if blocks not in aspace:
+        await space.node(built.node).add_folder(blocks, ua.QualifiedName(BLOCKS, ns_m))
+    item = create(blocks, ITEM_STATE_TYPE, ua.QualifiedName(ITEM_STATE, ns_m), STATE_MACHINE, HAS_ADD_IN)
+    mode = create(blocks, OPERATION_MODE_TYPE, ua.QualifiedName(OPERATION_MODE, ns_m), STATE_MACHINE, HAS_ADD_IN)
+    await _reference(space, blocks, ident, HAS_ADD_IN)
+    await _reference(space, ua.NodeId(MACHINES_FOLDER, ns_m), built.node, ORGANIZES)
+    return MachineNodes(built.node, ident, blocks, item, mode)
