@@ -28,7 +28,7 @@ from typing import Any, ClassVar
 
 import aiomqtt
 
-from uacell.pubsub.config import Broker
+from uacell.pubsub.config import Broker, BrokerConfig, broker_of, password_of
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +56,23 @@ class LinkSettings:
     ca_file: str | None = None
     cert_file: str | None = None
     key_file: str | None = None
+
+    @classmethod
+    def of(cls, cfg: BrokerConfig, client_id: str, qos: int, buffer: int) -> LinkSettings:
+        """The link of a section's broker keys (URL, keep-alive, TLS files, credentials); ConfigError
+        names a key that cannot work."""
+        return cls(
+            broker=broker_of(cfg),
+            client_id=client_id,
+            qos=qos,
+            keep_alive=cfg.keep_alive,
+            buffer=buffer,
+            username=cfg.username or None,
+            password=password_of(cfg),
+            ca_file=str(cfg.ca_file) if cfg.ca_file else None,
+            cert_file=str(cfg.cert_file) if cfg.cert_file else None,
+            key_file=str(cfg.key_file) if cfg.key_file else None,
+        )
 
     @property
     def url(self) -> str:
