@@ -37,8 +37,8 @@ class SparkplugLink(MqttLink):
             message = will()
             return Outgoing(message.topic, message.payload)
 
-        super().__init__(settings, death, list, subscriptions, on_message)
-        self.on_session = on_connect
+        super().__init__(settings, death, list, subscriptions, on_message)  # no retained messages of its own
+        self.on_session = on_connect  # told once connected, after the subscriptions: it births when it may
 
     def send(self, message: Message | Outgoing) -> None:
         """Publish ``message`` in this session, after those before it; dropped when not connected."""
@@ -47,5 +47,6 @@ class SparkplugLink(MqttLink):
             self._wake.set()
 
     async def _begin(self, client: aiomqtt.Client) -> None:
+        """Connected first, so that what ``on_session`` sends (the births) goes out in this session."""
         self.connected.set()
         self.on_session()
