@@ -7,6 +7,7 @@ role, the broker lost while OPC UA calls go on (docs/sparkplug.md)."""
 from __future__ import annotations
 
 import json
+import logging
 import os
 import ssl
 import subprocess
@@ -575,6 +576,33 @@ async def test_a_wrong_password_is_one_clear_line_and_uacell_serves_on(
             assert len(lines) == 1 and "Not authorized" in lines[0] and secure.url in lines[0], lines
             res = await call_path(client, F, "SetMachSpeed", ua.Variant(5.0, ua.VariantType.Float))
             assert res.StatusCode.is_good() and not sp.live
+
+
+@needs_mosquitto
+async def test_a_ca_file_not_there_yet_is_one_line_and_the_node_is_born_once_it_is(
+    tmp_path: Path, pb: ModuleType, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The TLS set-up failing (the CA file missing) is a failed connection like any other: one WARNING
+    line, no traceback, retries; once the file is there the node connects and is born."""
+    tls = make_tls(tmp_path / "tls")
+    ca_file = tmp_path / "later" / "ca.pem"
+    with running_broker(tmp_path / "secure", tls=tls) as secure:
+        ctx = ssl.create_default_context(cafile=str(tls.ca))
+        async with following(pb, secure.port, GROUP, tls_context=ctx) as host:
+            async with serving(sparkplug_config(tmp_path / "data", secure, ca_file=ca_file)) as (app, client):
+                sp = app.sparkplug
+                assert sp is not None
+                await wait_until(lambda: sp.link.failures >= 2, timeout=30)
+                lines = [r for r in caplog.records if r.name == "uacell.sparkplug.link"]
+                assert len(lines) == 1 and lines[0].levelno == logging.WARNING and not lines[0].exc_info, lines
+                assert secure.url in lines[0].getMessage() and "[sparkplug]" in lines[0].getMessage()
+                res = await call_path(client, F, "SetMachSpeed", ua.Variant(5.0, ua.VariantType.Float))
+                assert res.StatusCode.is_good() and not sp.live
+                ca_file.parent.mkdir()
+                ca_file.write_bytes(tls.ca.read_bytes())
+                await born(host, F, CTRL)
+                assert sp.link.connects == 1 and host.errors == []
+    assert "Traceback" not in caplog.text
 
 
 @needs_mosquitto

@@ -1,14 +1,18 @@
 """One MQTT connection to the plant's broker, kept up by uacell: aiomqtt (on paho-mqtt) underneath.
+PubSub uses ``MqttLink`` as it is; Sparkplug's link (sparkplug/link.py) is a subclass of it.
 
 ``MqttLink.send`` never blocks and never fails: a message goes into a bounded buffer, and when the
 buffer is full the oldest message is dropped and counted (the sequence numbers already in the
-messages let a subscriber see the gap). A task connects, registers the Will (the Status message with
-PubSubState Error, retained, OPC 10000-14 7.3.4.7.7; when ``will`` is a function it is called on every
-connect, so each Will has a MessageId of its own), publishes the retained messages ``on_connect``
-returns (status Operational, every writer's metadata), then drains the buffer in order. aiomqtt does
-not reconnect by itself: when the connection fails or drops, the task waits (0.5 s, doubling to 10 s)
-and tries again; each new reason is logged once (one WARNING line), not each retry, and never with a
-traceback. ``close`` can clear retained topics (an empty retained message, MQTT 3.1.1 §3.3.1.3).
+messages let a subscriber see the gap). A task connects, registers the Will (PubSub's: the Status
+message with PubSubState Error, retained, OPC 10000-14 7.3.4.7.7; when ``will`` is a function it is
+called on every connect, so each Will has a MessageId of its own), subscribes to ``subscriptions``
+(their messages go to ``on_message``), starts the session (``_begin``: PubSub's publishes the
+retained messages ``on_connect`` returns, status Operational and every writer's metadata), then
+drains the buffer in order. aiomqtt does not reconnect by itself: when the connection fails or
+drops, the task waits (0.5 s, doubling to 10 s) and tries again; each new reason is logged once (one
+WARNING line, tagged with ``section``), not each retry, and never with a traceback. ``leave`` ends a
+session cleanly and connects again at once. ``close`` can clear retained topics (an empty retained
+message, MQTT 3.1.1 §3.3.1.3).
 """
 
 from __future__ import annotations
@@ -18,13 +22,13 @@ import contextlib
 import logging
 import ssl
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import aiomqtt
 
-from uacell.pubsub.config import Broker
+from uacell.pubsub.config import Broker, BrokerConfig, broker_of, password_of
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +56,23 @@ class LinkSettings:
     ca_file: str | None = None
     cert_file: str | None = None
     key_file: str | None = None
+
+    @classmethod
+    def of(cls, cfg: BrokerConfig, client_id: str, qos: int, buffer: int) -> LinkSettings:
+        """The link of a section's broker keys (URL, keep-alive, TLS files, credentials); ConfigError
+        names a key that cannot work."""
+        return cls(
+            broker=broker_of(cfg),
+            client_id=client_id,
+            qos=qos,
+            keep_alive=cfg.keep_alive,
+            buffer=buffer,
+            username=cfg.username or None,
+            password=password_of(cfg),
+            ca_file=str(cfg.ca_file) if cfg.ca_file else None,
+            cert_file=str(cfg.cert_file) if cfg.cert_file else None,
+            key_file=str(cfg.key_file) if cfg.key_file else None,
+        )
 
     @property
     def url(self) -> str:
@@ -85,15 +106,23 @@ class _Client(aiomqtt.Client):  # on aiomqtt 2's internals (pyproject: <3); test
 
 
 class MqttLink:
+    section: ClassVar[str] = "pubsub"  # the tag of its log lines, the config section and docs/<section>.md
+    log: ClassVar[logging.Logger] = log
+    keeps_buffer: ClassVar[bool] = True  # False: what a session did not send is dropped when it ends
+
     def __init__(
         self,
         settings: LinkSettings,
         will: Outgoing | Callable[[], Outgoing],
-        on_connect: Callable[[], list[Outgoing]],
+        on_connect: Callable[[], Sequence[Outgoing]],
+        subscriptions: Sequence[str] = (),
+        on_message: Callable[[str, bytes], Awaitable[None]] | None = None,
     ) -> None:
         self.settings = settings
         self._will = will
         self.on_connect = on_connect
+        self.subscriptions = list(subscriptions)
+        self.on_message = on_message
         self.buffer: deque[Outgoing] = deque()
         self.sent = 0  # messages the broker took
         self.dropped = 0  # messages dropped from a full buffer
@@ -103,6 +132,7 @@ class MqttLink:
         self.last_error = ""
         self._wake = asyncio.Event()
         self._closing = False
+        self._leave = asyncio.Event()  # set: end this session cleanly (and connect again)
         self._task: asyncio.Task[None] | None = None
         self._last_words: Outgoing | None = None
         self._clear: tuple[str, ...] = ()
@@ -127,7 +157,12 @@ class MqttLink:
         self._wake.set()
 
     def start(self) -> None:
-        self._task = asyncio.get_running_loop().create_task(self._run(), name="uacell-mqtt")
+        self._task = asyncio.get_running_loop().create_task(self._run(), name=f"uacell-{self.section}")
+
+    def leave(self) -> None:
+        """End the session cleanly (what is buffered goes first) and connect again."""
+        self._leave.set()
+        self._wake.set()
 
     async def close(self, last_words: Outgoing | None = None, timeout: float = 3.0, clear: Sequence[str] = ()) -> None:
         """Send what is buffered and ``last_words`` (retained) if connected, clear the retained messages
@@ -164,12 +199,18 @@ class MqttLink:
             identifier=s.client_id,
             username=s.username,
             password=s.password,
-            will=aiomqtt.Will(will.topic, will.payload, qos=1, retain=True),
+            will=aiomqtt.Will(will.topic, will.payload, qos=1, retain=will.retain),
             keepalive=s.keep_alive,
             tls_context=tls_context,
             timeout=PUBLISH_TIMEOUT,
             clean_session=True,
         )
+
+    async def _begin(self, client: aiomqtt.Client) -> None:
+        """A new session, subscribed: publish ``on_connect``'s messages (retained), then say connected."""
+        for retained in self.on_connect():
+            await client.publish(retained.topic, retained.payload, qos=1, retain=True)
+        self.connected.set()
 
     async def _run(self) -> None:
         delay = FIRST_RETRY
@@ -179,25 +220,30 @@ class MqttLink:
                     self.session = client
                     self.connects += 1
                     delay = FIRST_RETRY
-                    if self.last_error:
-                        log.info("pubsub: connected to %s again", self.settings.url)
-                    else:
-                        log.info("pubsub: connected to %s", self.settings.url)
+                    again = " again" if self.last_error else ""
+                    self.log.info("%s: connected to %s%s", self.section, self.settings.url, again)
                     self.last_error = ""
-                    for retained in self.on_connect():
-                        await client.publish(retained.topic, retained.payload, qos=1, retain=True)
-                    self.connected.set()
+                    for subscription in self.subscriptions:
+                        await client.subscribe(subscription, qos=1)
+                    self._leave.clear()
                     try:
+                        await self._begin(client)
                         await self._serve(client)
                     finally:
                         self.connected.clear()
                         self.session = None
             except aiomqtt.MqttError as exc:
-                self._failed(str(exc))
+                self._failed(str(exc) or type(exc).__name__)
             except (OSError, ssl.SSLError, ValueError) as exc:  # certificate files, TLS set-up
                 self._failed(str(exc) or type(exc).__name__)
+            finally:
+                if not self.keeps_buffer:
+                    self.buffer.clear()
             if self._closing:
                 return
+            if self._leave.is_set():
+                self._leave.clear()
+                continue
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._closed(), delay)
             delay = min(delay * 2, LAST_RETRY)
@@ -210,15 +256,18 @@ class MqttLink:
     def _failed(self, reason: str) -> None:
         self.failures += 1
         if reason != self.last_error:
-            log.warning(
-                "pubsub: the broker %s: %s (uacell keeps serving and retries; [pubsub] in docs/pubsub.md)",
+            self.log.warning(
+                "%s: the broker %s: %s (uacell keeps serving and retries; [%s] in docs/%s.md)",
+                self.section,
                 self.settings.url,
                 reason,
+                self.section,
+                self.section,
             )
         self.last_error = reason
 
     async def _serve(self, client: aiomqtt.Client) -> None:
-        """Drain the buffer until the connection drops (MqttError) or uacell closes."""
+        """Drain the buffer until the connection drops (MqttError), the session ends or uacell closes."""
         watcher = asyncio.ensure_future(self._watch(client))
         try:
             while True:
@@ -237,6 +286,8 @@ class MqttLink:
                     for topic in self._clear:
                         await client.publish(topic, b"", qos=1, retain=True)
                     return
+                if self._leave.is_set():
+                    return
                 self._wake.clear()
                 wake = asyncio.ensure_future(self._wake.wait())
                 await asyncio.wait({wake, watcher}, return_when=asyncio.FIRST_COMPLETED)
@@ -249,8 +300,14 @@ class MqttLink:
             with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
                 await watcher
 
-    @staticmethod
-    async def _watch(client: aiomqtt.Client) -> None:
-        """Returns (raising MqttError) when the connection drops: aiomqtt ends message iteration then."""
-        async for _ in client.messages:
-            pass
+    async def _watch(self, client: aiomqtt.Client) -> None:
+        """Hands each message to ``on_message``; returns (raising MqttError) when the connection drops:
+        aiomqtt ends message iteration then."""
+        async for message in client.messages:
+            if self.on_message is None:
+                continue
+            payload = message.payload if isinstance(message.payload, bytes | bytearray) else b""
+            try:
+                await self.on_message(str(message.topic), bytes(payload))
+            except Exception:
+                self.log.exception("%s: handling a message on %s failed", self.section, message.topic)

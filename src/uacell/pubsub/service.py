@@ -26,7 +26,7 @@ from asyncua.server.address_space import AddressSpace
 from uacell.catalog import dataset_of
 from uacell.datasets import Item, Kind, resolve
 from uacell.pubsub.address_space import PubSubNodes
-from uacell.pubsub.config import PubSubConfig, broker_of, password_of
+from uacell.pubsub.config import PubSubConfig
 from uacell.pubsub.encoding import JsonEncoder
 from uacell.pubsub.messages import DISABLED, ERROR, OPERATIONAL, Field, Publisher, Topics, Writer, encode
 from uacell.pubsub.mqtt import LinkSettings, MqttLink, Outgoing
@@ -89,19 +89,7 @@ class PubSubService:
         self._tap: EventTap | None = None
         self._task: asyncio.Task[None] | None = None
         self.schema = SchemaCollector(aspace, encoder)
-        broker = broker_of(cfg)
-        settings = LinkSettings(
-            broker=broker,
-            client_id=cfg.client_id or publisher_id,
-            qos=cfg.qos,
-            keep_alive=cfg.keep_alive,
-            buffer=cfg.buffer,
-            username=cfg.username or None,
-            password=password_of(cfg),
-            ca_file=str(cfg.ca_file) if cfg.ca_file else None,
-            cert_file=str(cfg.cert_file) if cfg.cert_file else None,
-            key_file=str(cfg.key_file) if cfg.key_file else None,
-        )
+        settings = LinkSettings.of(cfg, cfg.client_id or publisher_id, cfg.qos, cfg.buffer)
         self.link = MqttLink(settings, lambda: self._status(ERROR), self._retained)  # a new Will each connect
         self._dropped_reported = 0
 

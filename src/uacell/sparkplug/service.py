@@ -33,7 +33,7 @@ from uacell.sparkplug.commands import (
     parameters_of,
 )
 from uacell.sparkplug.commands import resolve as resolve_commands
-from uacell.sparkplug.config import SparkplugConfig, broker_of_sparkplug, password_of
+from uacell.sparkplug.config import SparkplugConfig
 from uacell.sparkplug.devices import DevicePlan, PartRef, plan_devices
 from uacell.sparkplug.link import SparkplugLink
 from uacell.sparkplug.node import (
@@ -95,19 +95,8 @@ class SparkplugService:
         if cfg.primary_host_id:
             self.host_online = False
             subscriptions.insert(0, state_topic(cfg.primary_host_id))
-        broker = broker_of_sparkplug(cfg)
-        settings = LinkSettings(
-            broker=broker,
-            client_id=cfg.client_id or f"{edge_node_id}-sparkplug",  # not [pubsub]'s (the same host-port)
-            qos=0,
-            keep_alive=cfg.keep_alive,
-            buffer=0,
-            username=cfg.username or None,
-            password=password_of(cfg),
-            ca_file=str(cfg.ca_file) if cfg.ca_file else None,
-            cert_file=str(cfg.cert_file) if cfg.cert_file else None,
-            key_file=str(cfg.key_file) if cfg.key_file else None,
-        )
+        client_id = cfg.client_id or f"{edge_node_id}-sparkplug"  # not [pubsub]'s (the same host-port)
+        settings = LinkSettings.of(cfg, client_id, qos=0, buffer=0)
         self.link = SparkplugLink(settings, self._will, subscriptions, self._connected, self._on_message)
 
     # -- bdSeq: one more per connection, kept across restarts ------------------------------------

@@ -4,7 +4,7 @@ OPC UA session (so its role applies), from the nodes the HMI's discovery found (
 
 ``timeline`` and ``program_runs`` are pure: they turn value changes into segments.
 
-The page asks for what it draws, and only for what is new (issue 39): trends come as one aggregate
+The page asks for what it draws, and only for what is new: trends come as one aggregate
 per pixel column (OPC UA ReadProcessed: TimeAverage of a speed, Maximum of a count over each column,
 on a grid of ``hours * 3600 / width`` seconds anchored at the epoch, so that columns of successive
 polls line up), and a poll with ``since`` (the ``end`` of the answer before) reads history from then

@@ -134,7 +134,7 @@
     return art;
   }
 
-  // What the view shows now; each poll asks only for what came after its end (issue 39: the work of a
+  // What the view shows now; each poll asks only for what came after its end (so the work of a
   // poll does not grow with the history kept) and for one value per pixel column of a trend.
   let view = null;  // {hours, width, data}
 
