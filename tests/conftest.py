@@ -187,7 +187,9 @@ async def client(app) -> AsyncIterator:
     """An asyncua client connected anonymously (operator on loopback) to ``app``."""
     from asyncua import Client
 
-    c = Client(app.endpoint, timeout=30)
+    # The client shares the server's event loop: asyncua's default 1 s watchdog read can miss its
+    # answer while the loop builds the data type definitions on a loaded machine, and close a sound session.
+    c = Client(app.endpoint, timeout=30, watchdog_intervall=30.0)
     await c.connect()
     await c.load_data_type_definitions()
     try:

@@ -300,10 +300,11 @@ async def test_repeated_failures_are_slowed_down(env):
         third, ok3 = await attempt("wrong")
         fourth, ok4 = await attempt(PASSWORD)
         assert (ok1, ok2, ok3, ok4) == (False, False, False, True)
-        assert third - second >= 0.8  # waited 1 s
-        assert fourth - second >= 1.7  # waited 2 s, the doubled delay, even with the right password
-        after, ok5 = await attempt("wrong")  # the success reset the count
-        assert not ok5 and after < third
+        # A delay is a lower bound whatever the machine's load; the undelayed attempts are not timed.
+        assert third >= 1.0  # waited 1 s
+        assert fourth >= 2.0  # waited 2 s, the doubled delay, even with the right password
+        after, ok5 = await attempt("wrong")  # the success reset the count: no 2 s wait again
+        assert not ok5 and after < fourth
     finally:
         await client.close_session()
         await client.close_secure_channel()
