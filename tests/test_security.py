@@ -296,7 +296,7 @@ async def test_repeated_failures_are_slowed_down(env):
 
     try:
         _, ok1 = await attempt("wrong")
-        second, ok2 = await attempt("wrong")  # undelayed; after this one the delays start
+        _, ok2 = await attempt("wrong")  # undelayed; after this one the delays start
         third, ok3 = await attempt("wrong")
         fourth, ok4 = await attempt(PASSWORD)
         assert (ok1, ok2, ok3, ok4) == (False, False, False, True)
