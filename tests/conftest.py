@@ -239,3 +239,12 @@ class NodeServer:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.communicate()
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Iterator[Any]:
+    """A mosquitto of the test's own on a free loopback port (tests/mqtt_broker.py), stopped after."""
+    from mqtt_broker import running_broker
+
+    with running_broker(tmp_path / "broker") as b:
+        yield b

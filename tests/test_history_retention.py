@@ -11,7 +11,6 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-import pytest
 from asyncua import Client, ua
 from asyncua.ua.ua_binary import variant_to_binary
 from conftest import fast_config, start_app
@@ -33,16 +32,6 @@ TYPES = {
     "Time": V.DateTime, "ReceiveTime": V.DateTime, "Message": V.LocalizedText, "Severity": V.UInt16,
     "ToState": V.LocalizedText, "ToState/Id": V.NodeId,
 }  # fmt: skip
-
-
-@pytest.fixture
-def broker(tmp_path: Path) -> Any:
-    b = Broker(tmp_path / "broker")
-    b.start()
-    try:
-        yield b
-    finally:
-        b.stop()
 
 
 async def test_pruning_holds_a_small_cap_while_writes_reads_and_pubsub_go_on(tmp_path: Path, broker: Broker) -> None:

@@ -25,16 +25,6 @@ pytestmark = [pytest.mark.interop, needs_mosquitto]
 EXECUTE = "BaseStateMachine/MachineState/ExecuteState/CurrentState"
 
 
-@pytest.fixture
-def broker(tmp_path: Path) -> Any:
-    b = Broker(tmp_path / "broker")
-    b.start()
-    try:
-        yield b
-    finally:
-        b.stop()
-
-
 def falsy(value: Any) -> bool:
     return value in (False, 0, "") and value is not None
 

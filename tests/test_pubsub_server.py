@@ -57,16 +57,6 @@ def pubsub_config(data: Path, broker: Broker, **keys: Any) -> Config:
 
 
 @pytest.fixture
-def broker(tmp_path: Path) -> Any:
-    b = Broker(tmp_path / "broker")
-    b.start()
-    try:
-        yield b
-    finally:
-        b.stop()
-
-
-@pytest.fixture
 async def served(tmp_path: Path, broker: Broker) -> AsyncIterator[tuple[UacellServer, Client]]:
     async with serving(pubsub_config(tmp_path / "data", broker)) as served:
         yield served

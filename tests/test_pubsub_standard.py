@@ -27,18 +27,6 @@ from uacell.pubsub.messages import DISABLED, ERROR, OPERATIONAL
 pytestmark = needs_mosquitto
 
 
-@pytest.fixture
-def broker(tmp_path: Path) -> Any:
-    b = Broker(tmp_path / "broker")
-    b.start()
-    try:
-        yield b
-    finally:
-        if b.process is not None:
-            os.kill(b.process.pid, signal.SIGCONT)  # in case a test left it stopped
-        b.stop()
-
-
 def validate(sub: Subscriber) -> Validator:
     v = Validator()
     for r in sub.messages:

@@ -13,7 +13,7 @@ import ssl
 import subprocess
 import sys
 import time
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -219,12 +219,6 @@ def sparkplug_config(data: Path, broker: Broker, **keys: Any) -> Config:
     for key, v in keys.items():
         setattr(s, key, v)
     return config
-
-
-@pytest.fixture
-def broker(tmp_path: Path) -> Iterator[Broker]:
-    with running_broker(tmp_path / "broker") as b:
-        yield b
 
 
 @pytest.fixture

@@ -46,4 +46,6 @@ def dataset_of(role: str) -> PartDataSet | None:
         return found[0] if found else None
     values = tuple(i for d in found for i in d.values)
     notifiers = tuple(dict.fromkeys(n for d in found for n in d.notifiers))
-    return PartDataSet(role, values, notifiers)
+    device = any(d.device for d in found)
+    commands = tuple(c for d in found for c in d.commands)
+    return PartDataSet(role, values, notifiers, device, commands)
