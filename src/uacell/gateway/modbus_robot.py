@@ -75,6 +75,13 @@ class ModbusRobotIO:
             return RobotStatus(connected=False)
         return RobotStatus(**values)  # type: ignore[arg-type]
 
+    async def write_signal(self, signal: str, value: bool | int | str) -> None:
+        """One signal written at once (CallError Bad_CommunicationError when it cannot be)."""
+        try:
+            await self.conn.write(self.tags[signal], value, self.unit)
+        except CommunicationError as exc:
+            raise CallError("BadCommunicationError", f"{signal}: {exc}") from None
+
     async def _write(self, writes: tuple[Write, ...]) -> None:
         for w in writes:
             await self.conn.write(self.tags[w.tag], w.value, self.unit)

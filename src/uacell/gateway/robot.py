@@ -32,7 +32,7 @@ import asyncio
 import logging
 import re
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,7 +40,7 @@ from uacell.errors import CallError
 from uacell.gateway import driver_settings
 from uacell.gateway.modbus import SHARED, ModbusConnection
 from uacell.gateway.modbus_robot import ModbusRobotIO, signal_tags
-from uacell.gateway.signals import RobotStatus, SignalOp
+from uacell.gateway.signals import RobotStatus, SignalOp, start_missing
 from uacell.robotics.equipment import (
     AlarmListener,
     AlarmStop,
@@ -52,7 +52,9 @@ from uacell.robotics.equipment import (
     ProgramRejected,
     Progress,
     RunOutcome,
+    StartRefused,
     StopMode,
+    UnknownProgram,
 )
 from uacell.robotics.program import Kind, Program
 from uacell.robotics.sim import DEFAULT_AXES
@@ -89,8 +91,13 @@ class ModbusSignalsRobot:
     ) -> None:
         self.part, self.io, self.conn, self.timing = part, io, conn, timing
         self.programs = {program_key(k): v for k, v in programs.items()}
+        self._names = {program_key(k): k for k in programs}  # the configured spelling
         self._axes = tuple(axes)
         self._listeners: list[AlarmListener] = []
+        self._power_listeners: list[Callable[[bool], None]] = []
+        self._power_op = False  # uacell is switching the drives (GetReady / StandDown)
+        self._begun: set[str] = set()  # tasks whose start the controller confirmed, run not yet watching
+        self._background: set[asyncio.Task[None]] = set()
         self.status = RobotStatus(connected=False)
         self.reachable = False
         self._poller: asyncio.Task[None] | None = None
@@ -110,6 +117,26 @@ class ModbusSignalsRobot:
 
     def add_alarm_listener(self, listener: AlarmListener) -> None:
         self._listeners.append(listener)
+
+    def add_power_listener(self, listener: Callable[[bool], None]) -> None:
+        self._power_listeners.append(listener)
+        if self.status.connected:
+            listener(self.status.drives_are_on)  # as the controller is now
+
+    # -- the controller's programs (ProgramCatalogue) ---------------------------------------------
+
+    def program_names(self) -> Sequence[str]:
+        return sorted(self._names.values())
+
+    def find_program(self, name: str) -> str | None:
+        return self._names.get(program_key(name))
+
+    async def select(self, task: str, name: str) -> None:
+        selection = self.programs.get(program_key(name))
+        if selection is None:
+            raise UnknownProgram(f"{name} is not in programs")
+        t = self.timing
+        await self._perform(lambda s, now: SignalOp.load(selection, s, now, t.confirm_timeout, t.pulse_width))
 
     def axis_states(self) -> Sequence[AxisState]:
         return [AxisState(0.0, 0.0) for _ in self._axes]
@@ -140,6 +167,41 @@ class ModbusSignalsRobot:
             self._tell(COMMUNICATION, not status.connected, f"no answer from {self.conn.name}")
         if status.connected and (status.fault != before.fault or status.fault_code != before.fault_code):
             self._tell(FAULT, status.fault, f"controller fault {status.fault_code}" if status.fault else "")
+        if status.connected and (status.drives_are_on != before.drives_are_on or not before.connected):
+            for power in list(self._power_listeners):
+                power(status.drives_are_on)
+            if before.connected and before.drives_are_on and not self._power_op:
+                # the controller switched its drives off (a fault, its panel): uacell's drives_on is
+                # cleared too, so they never come back by themselves; GetReady switches them on again
+                self._spawn(self._drop_drives())
+
+    def _spawn(self, coro: Any) -> None:
+        task = asyncio.get_running_loop().create_task(coro)
+        self._background.add(task)
+        task.add_done_callback(self._background.discard)
+
+    async def _drop_drives(self) -> None:
+        try:
+            await self.io.write_signal("drives_on", False)
+        except CallError as e:
+            log.warning("%s: could not clear drives_on: %s", self.part, e)
+
+    # -- the reset handshake (AlarmReset) ---------------------------------------------------------
+
+    def alarm_acknowledged(self, name: str) -> None:
+        """Acknowledging ControllerFault pulses ``reset`` (confirmed by the fault bit falling, when
+        it is set); the answer to Acknowledge does not wait for it."""
+        if name == FAULT and self.reachable:
+            self._spawn(self.reset())
+
+    async def reset(self) -> None:
+        """The reset handshake; a controller that keeps its fault leaves the condition active."""
+        t = self.timing
+        try:
+            await self._perform(lambda s, now: SignalOp.reset(s, now, t.confirm_timeout, t.pulse_width))
+            log.info("%s: reset sent to the controller", self.part)
+        except CallError as e:
+            log.warning("%s: the controller kept its fault after the reset: %s", self.part, e)
 
     def _tell(self, name: str, active: bool, message: str) -> None:
         for listener in list(self._listeners):
@@ -158,26 +220,61 @@ class ModbusSignalsRobot:
             self._observe(await self.io.status())
 
     async def power_up(self) -> None:
+        self._power_op = True
         try:
             await self._perform(lambda s, now: SignalOp.drives(True, s, now, self.timing.confirm_timeout))
         except CallError as e:
+            await self._drop_drives()  # not left asking for drives that did not come on
             raise NotPowered(f"drives did not come on: {e}") from None
+        finally:
+            self._power_op = False
 
     async def power_down(self) -> None:
+        self._power_op = True
         try:
             await self._perform(lambda s, now: SignalOp.drives(False, s, now, self.timing.confirm_timeout))
         except CallError as e:
             raise EquipmentError(f"drives did not go off: {e}") from None
+        finally:
+            self._power_op = False
 
     async def load(self, task: str, program: Program) -> None:
+        """A file in Programs: the controller takes no files, so its program of the same name is
+        selected (the file's text stays uacell's); none of that name: refused (Status -2)."""
         if program.kind is Kind.MODULE:
             return  # the controller holds its modules; nothing to select
         selection = self.programs.get(program_key(program.name))
         if selection is None:
-            known = ", ".join(sorted(self.programs)) or "none"
-            raise ProgramRejected(f"no program number or name for {program.name} in programs (known: {known})")
+            known = ", ".join(self.program_names()) or "none"
+            raise ProgramRejected(
+                f"the controller takes no program files and holds no program {program.name}"
+                f" (no number or name for it in programs; it holds: {known})"
+            )
         t = self.timing
         await self._perform(lambda s, now: SignalOp.load(selection, s, now, t.confirm_timeout, t.pulse_width))
+
+    async def begin(self, task: str, pointer: int, mode: ExecutionMode) -> None:
+        """The start pulse, answered once ``running`` confirms it (ConfirmedStart). Refused at once,
+        nothing written: a fault (AlarmStop), anything else the start needs (StartRefused)."""
+        status = await self.io.status()
+        self._observe(status)
+        if not status.connected:
+            raise CallError("BadCommunicationError", f"no answer from {self.conn.name}")
+        if status.fault:
+            raise AlarmStop(f"controller fault {status.fault_code}")
+        missing = start_missing(status)
+        if missing:
+            raise StartRefused("start needs " + ", ".join(missing))
+        t = self.timing
+        self._phase = "starting"
+        try:
+            await self._perform(lambda s, now: SignalOp.start(s, now, t.confirm_timeout, t.pulse_width))
+        except CallError as e:
+            self._phase = None
+            if e.status == "BadInvalidState":
+                raise AlarmStop(f"controller fault {self.status.fault_code} on start") from None
+            raise
+        self._begun.add(task)
 
     async def unload(self, task: str, name: str) -> None:
         return  # the selection stays on the controller until the next one
@@ -185,11 +282,12 @@ class ModbusSignalsRobot:
     async def run(self, task: str, pointer: int, mode: ExecutionMode, progress: Progress) -> RunOutcome:
         t = self.timing
         try:
-            self._phase = "starting"
-            try:
-                await self._perform(lambda s, now: SignalOp.start(s, now, t.confirm_timeout, t.pulse_width))
-            except CallError as e:
-                raise EquipmentError(f"the controller did not start: {e}") from None
+            if task not in self._begun:  # called without ``begin`` (the conformance kit): start now
+                try:
+                    await self.begin(task, pointer, mode)
+                except CallError as e:
+                    raise EquipmentError(f"the controller did not start: {e}") from None
+            self._begun.discard(task)
             self._phase = "running"
             if self._stop_requested:  # asked while the start was being confirmed: it applies to this run
                 await self._send_stop()
@@ -229,9 +327,10 @@ class ModbusSignalsRobot:
 
     async def close(self) -> None:
         self._closed = True
-        if self._poller is not None:
-            self._poller.cancel()
-            await asyncio.wait({self._poller}, timeout=5.0)  # never held up by the transport
+        for task in [self._poller, *self._background]:
+            if task is not None:
+                task.cancel()
+                await asyncio.wait({task}, timeout=5.0)  # never held up by the transport
         POOL.release(self.conn)
 
 

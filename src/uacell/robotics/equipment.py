@@ -161,3 +161,65 @@ class RobotEquipment(Protocol):
         executed its first instruction: the request then applies to that run.
         """
         ...
+
+
+# --- optional capabilities: equipment declares them by implementing the Protocol -------------------
+class StartRefused(EquipmentError):
+    """The controller refused a confirmed start (remote control off, drives off, no program, ...):
+    Start answers Status 1 (E_SystemState) at once and nothing changes."""
+
+
+class UnknownProgram(EquipmentError):
+    """The controller holds no program of that name (Status -1)."""
+
+
+@runtime_checkable
+class ConfirmedStart(Protocol):
+    """Equipment whose start the controller confirms (a gateway robot). The model calls ``begin``
+    before it shows Executing and calls ``run`` only once ``begin`` returned."""
+
+    async def begin(self, task: str, pointer: int, mode: ExecutionMode) -> None:
+        """Start the task's program and return once the controller confirms it runs. Raise
+        ``StartRefused`` when the controller refuses, ``AlarmStop`` for a fault, ``EquipmentError``
+        otherwise (or ``uacell.errors.CallError`` for a timeout or a lost connection)."""
+        ...
+
+
+@runtime_checkable
+class PowerFeedback(Protocol):
+    """Equipment that reports its drive power as the controller sees it. SystemOperation follows:
+    drives that go off by themselves (a fault, the pendant) take Ready to Idle (reason Error), drives
+    that come on by themselves take Idle/StandBy to Ready (reason System)."""
+
+    def add_power_listener(self, listener: Callable[[bool], None]) -> None:
+        """Call ``listener(drives_on)`` whenever the controller's drive power changes."""
+        ...
+
+
+@runtime_checkable
+class AlarmReset(Protocol):
+    """Equipment that resets a latched alarm when a client acknowledges its condition (the gateway's
+    ``reset`` handshake)."""
+
+    def alarm_acknowledged(self, name: str) -> None:
+        """The condition ``name`` was acknowledged; returns at once (the reset runs in the background)."""
+        ...
+
+
+@runtime_checkable
+class ProgramCatalogue(Protocol):
+    """Equipment whose controller keeps its own programs (a gateway robot): LoadByName and LoadByNodeId
+    select them by name with no file in ``Programs`` (docs/robotics.md, "Programs on the controller")."""
+
+    def program_names(self) -> Sequence[str]:
+        """The programs the controller holds, as LoadByName takes them (configured and reported)."""
+        ...
+
+    def find_program(self, name: str) -> str | None:
+        """The controller's name of the program ``name`` names, or None if it holds none."""
+        ...
+
+    async def select(self, task: str, name: str) -> None:
+        """Select the program ``name`` (from ``find_program``) on the controller for ``task``; raise
+        ``UnknownProgram`` when the controller does not know it, ``EquipmentError`` otherwise."""
+        ...

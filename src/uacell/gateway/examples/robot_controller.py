@@ -8,6 +8,11 @@ copies program_number and program_name (a string of 8 registers) to their echoes
 with drives on, a program selected and no fault runs the program for ``--cycle`` seconds, then sets
 program end and at start; a rising stop ends the run at once (no program end); a program number of
 99 faults on start (code 99) until reset.
+
+Its panel, holding registers a test (or you, with any Modbus client) writes: ``REMOTE_OFF`` (holding
+20) non-zero takes remote control away (remote_ready off: starts are ignored); ``ESTOP`` (holding
+21) non-zero is an emergency stop: the run ends, the drives drop, fault 21 is latched and stays until a
+reset pulse with the emergency stop released.
 """
 
 from __future__ import annotations
@@ -25,6 +30,8 @@ from uacell.gateway.signals import DEFAULT_MAP
 FC = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
 UNIT = 1
 FAULT_PROGRAM = 99
+REMOTE_OFF, ESTOP = 20, 21  # holding registers of the panel
+ESTOP_CODE = 21
 
 
 class Controller:
@@ -51,12 +58,33 @@ class Controller:
             values = [bool(value)] if table in ("coil", "discrete") else [value]
         await self.store.async_setValues(UNIT, FC[table], address, values)
 
+    async def panel(self) -> tuple[bool, bool]:
+        got = await self.store.async_getValues(UNIT, FC["holding"], REMOTE_OFF, 2)
+        assert isinstance(got, list), got
+        return bool(got[0]), bool(got[1])
+
     async def scan(self, now: float) -> None:
         read = {name: await self.get(name) for name in DEFAULT_MAP}
+        remote_off, estop = await self.panel()
         v = dict(read)  # updated as the program decides, so later rules see this scan's outputs
         rising = {n for n in ("program_strobe", "reset", "start", "stop") if v[n] and not self.last.get(n)}
         self.last = {n: bool(v[n]) for n in ("program_strobe", "reset", "start", "stop")}
-        out: dict[str, int | tuple[int, ...]] = {"remote_ready": 1, "drives_are_on": v["drives_on"]}
+        if estop and not (v["fault"] and v["fault_code"] == ESTOP_CODE):
+            v["fault"], v["fault_code"] = 1, ESTOP_CODE
+        estop_latched = bool(v["fault"]) and v["fault_code"] == ESTOP_CODE
+        if estop_latched and "reset" in rising and estop:
+            rising.discard("reset")  # still pressed: the reset does nothing
+        v["remote_ready"] = 0 if remote_off else 1
+        if remote_off:
+            rising.discard("start")
+        out: dict[str, int | tuple[int, ...]] = {
+            "remote_ready": v["remote_ready"],
+            "drives_are_on": v["drives_on"] and not estop_latched,
+            "fault": v["fault"],
+            "fault_code": v["fault_code"],
+        }
+        if estop_latched:
+            v["drives_on"] = 0
         if "program_strobe" in rising:
             # read again now: a client's writes may land between this scan's reads, and the number or
             # name written before the strobe must not be the one read before it
@@ -65,7 +93,8 @@ class Controller:
             out["program_name_echo"] = v["program_name_echo"] = selected_name
         if "reset" in rising:
             out["fault"] = v["fault"] = 0
-            out["fault_code"] = 0
+            out["fault_code"] = v["fault_code"] = 0
+            out["drives_are_on"] = 0 if estop_latched else v["drives_on"]
         selected = v["program_echo"] or any(v["program_name_echo"])  # type: ignore[arg-type]
         if "start" in rising and v["drives_on"] and selected and not v["fault"] and not v["running"]:
             if v["program_echo"] == FAULT_PROGRAM:

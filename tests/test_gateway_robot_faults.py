@@ -1,0 +1,182 @@
+"""modbus-signals: faults, the reset handshake, refused starts and the controller's own programs, against
+the example controller (pymodbus's server and its scan-cycle program, its panel switched by the test
+through Modbus as an operator would at the cabinet), served by uacell from the cell file alone."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import pytest
+from asyncua import Client, ua
+from conftest import fast_config, serving
+from test_gateway_robot import (
+    COND,
+    PLC,
+    READY,
+    SO,
+    TC,
+    call,
+    cell_text,
+    held,
+    read,
+    running_plc,
+    s,
+    state,
+    status,
+    until_state,
+    wait_controller,
+    wait_until_async,
+)
+
+from uacell.config import load_cell
+from uacell.gateway.codec import RegisterType
+from uacell.gateway.examples.robot_controller import ESTOP, ESTOP_CODE, REMOTE_OFF
+from uacell.gateway.modbus import ModbusTag
+from uacell.gateway.modbus_robot import ModbusRobotIO
+from uacell.server import UacellServer
+
+FAULT = f"{COND}.ControllerFault"
+PROGRAMS = "Palletizer.Controllers.Cabinet.Programs"
+
+
+@pytest.fixture
+async def plc() -> AsyncIterator[PLC]:
+    async with running_plc(30.0) as p:  # a run lasts until stopped or faulted
+        yield p
+
+
+@pytest.fixture
+async def served(tmp_path: Path, plc: PLC) -> AsyncIterator[tuple[UacellServer, Client]]:
+    await plc.io()
+    cell = tmp_path / "cell.toml"
+    cell.write_text(cell_text(plc.port, palletize=99))
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(cell)
+    async with serving(config) as served:
+        yield served
+
+
+async def panel(io: ModbusRobotIO, register: int, on: bool) -> None:
+    """Switch the controller's panel (its own holding registers, not one of uacell's signals)."""
+    await io.conn.write(ModbusTag("holding", register, RegisterType("uint16")), int(on), 1)
+
+
+async def acknowledge(client: Client, condition: str) -> ua.StatusCode:
+    event_id = await read(client, f"{condition}.EventId")
+    comment = ua.Variant(ua.LocalizedText("reset at the cabinet"), ua.VariantType.LocalizedText)
+    res = await call(client, condition, "Acknowledge", ua.Variant(event_id, ua.VariantType.ByteString), comment)
+    return res.StatusCode
+
+
+async def test_an_emergency_stop_latched_until_acknowledged_then_recovered_over_opc_ua(served, plc: PLC) -> None:
+    """E-stop mid-run: the run ends with an error, the drives drop and SystemOperation follows to Idle
+    (never Ready with the drives off); GetReady answers 3 while the fault is latched, also after the
+    e-stop is released; Acknowledge pulses reset, the fault falls, GetReady and Start work again."""
+    _app, client = served
+    io = await plc.io()
+    assert await status(client, SO, "GetReady") == 0
+    await until_state(client, SO, "Ready")
+    assert await status(client, TC, "LoadByName", s("pick_and_place")) == 0
+    assert await status(client, TC, "Start") == 0
+    assert await state(client, SO) == "Executing"
+    await panel(io, ESTOP, True)
+    await until_state(client, TC, "Ready")
+    assert await state(client, READY) == "Suspended"
+    await until_state(client, SO, "Idle")  # the drives dropped with the fault
+    controller = await held(io)
+    assert controller.fault and controller.fault_code == ESTOP_CODE and not controller.drives_are_on
+    await wait_until_async(lambda: read(client, f"{FAULT}.ActiveState.Id"), True)
+    assert not (await io.conn.read(io.tags["drives_on"], 1))  # uacell no longer asks for the drives
+    assert await status(client, SO, "GetReady") == 3  # E_ActiveAlarm
+    await panel(io, ESTOP, False)  # released, but the controller latches the fault
+    await wait_controller(io, lambda c: c.fault)
+    assert await status(client, SO, "GetReady") == 3
+    assert (await acknowledge(client, FAULT)).is_good()
+    await wait_controller(io, lambda c: not c.fault)  # the reset pulse cleared it
+    await wait_until_async(lambda: read(client, f"{FAULT}.ActiveState.Id"), False)
+    assert await read(client, f"{FAULT}.AckedState.Id") is True
+    assert not (await io.conn.read(io.tags["reset"], 1))  # the pulse ended
+    assert await status(client, SO, "GetReady") == 0
+    await until_state(client, SO, "Ready")
+    assert await status(client, TC, "Start") == 0
+    assert (await held(io)).running
+
+
+async def test_stand_down_during_a_fault_then_get_ready_after_it(served, plc: PLC) -> None:
+    """A fault with the drives on (program 99 faults on start): StandDown takes the drives off and
+    SystemOperation to Idle at once; after Acknowledge (reset) GetReady answers 0 and the drives come on."""
+    _app, client = served
+    io = await plc.io()
+    assert await status(client, SO, "GetReady") == 0
+    await until_state(client, SO, "Ready")
+    assert await status(client, TC, "LoadByName", s("palletize")) == 0
+    assert await status(client, TC, "Start") == 3  # faulted on start
+    await wait_until_async(lambda: read(client, f"{FAULT}.ActiveState.Id"), True)
+    assert (await held(io)).drives_are_on
+    assert await status(client, SO, "StandDown") == 0
+    await until_state(client, SO, "Idle")
+    assert not (await held(io)).drives_are_on
+    assert await status(client, SO, "GetReady") == 3
+    assert (await acknowledge(client, FAULT)).is_good()
+    await wait_until_async(lambda: read(client, f"{FAULT}.ActiveState.Id"), False)
+    assert await status(client, SO, "GetReady") == 0
+    await until_state(client, SO, "Ready")
+    assert (await held(io)).drives_are_on
+
+
+async def test_a_start_the_controller_refuses_answers_1_at_once_and_writes_nothing(served, plc: PLC) -> None:
+    """Remote control off at the cabinet: Start answers 1 (E_SystemState) at once, the task stays Ready,
+    the start signal is never set; with remote control back, Start runs."""
+    _app, client = served
+    io = await plc.io()
+    assert await status(client, SO, "GetReady") == 0
+    await until_state(client, SO, "Ready")
+    assert await status(client, TC, "LoadByName", s("pick_and_place")) == 0
+    await panel(io, REMOTE_OFF, True)
+    await wait_controller(io, lambda c: not c.remote_ready)
+    assert await status(client, TC, "Start") == 1
+    assert await status(client, SO, "Start") == 1
+    assert await state(client, TC) == "Ready" and await state(client, SO) == "Ready"
+    assert not (await io.conn.read(io.tags["start"], 1))
+    assert not (await held(io)).running
+    await panel(io, REMOTE_OFF, False)
+    await wait_controller(io, lambda c: c.remote_ready)
+    assert await status(client, SO, "Start") == 0  # SystemOperation's Start: the task's confirmed start
+    assert await state(client, TC) == "Executing" and await state(client, SO) == "Executing"
+    assert (await held(io)).running
+
+
+async def test_programs_lists_the_controller_programs_and_load_by_node_id_selects_one(served, plc: PLC) -> None:
+    _app, client = served
+    io = await plc.io()
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    folder = client.get_node(ua.NodeId(PROGRAMS, ns))
+    names = {(await c.read_browse_name()).Name for c in await folder.get_children()}
+    assert {"pick_and_place", "palletize"} <= names
+    node = ua.NodeId(f"{PROGRAMS}.palletize", ns)
+    description = await client.get_node(node).read_description()
+    assert "controller" in str(description.Text)
+    expanded = ua.ExpandedNodeId(node.Identifier, node.NamespaceIndex, node.NodeIdType)
+    res = await call(client, TC, "LoadByNodeId", ua.Variant(expanded, ua.VariantType.ExpandedNodeId))
+    assert res.StatusCode.is_good() and res.OutputArguments[0].Value == 0
+    assert (await held(io)).program_echo == 99
+    assert await read(client, f"{TC.rsplit('.TaskControlOperation', 1)[0]}.ParameterSet.TaskProgramName") == "palletize"
+
+
+async def test_a_local_file_loads_only_a_program_the_controller_holds(served, plc: PLC) -> None:
+    """A file in Programs is uacell's text; the controller takes no files: a file whose program it holds
+    selects that program, one it does not hold answers -2 and selects nothing."""
+    app, client = served
+    io = await plc.io()
+    root = Path(app.config.server.data_dir) / "programs" / "Palletizer" / "Cabinet"
+    (root / "sweep.robot").write_text("program Sweep version 1\nwait 1\n")
+    (root / "local_pick.robot").write_text("program PickAndPlace version 3\nwait 1\n")
+    res = await call(client, TC, "LoadByName", s("sweep"))
+    assert res.StatusCode.is_good() and res.OutputArguments[0].Value == -2
+    assert (await held(io)).program_echo == 0 and await state(client, TC) == "Idle"
+    assert await status(client, TC, "LoadByName", s("local_pick")) == 0
+    assert (await held(io)).program_echo == 3
+    assert await read(client, "Palletizer.Controllers.Cabinet.TaskControls.Main.ParameterSet.TaskProgramName") == (
+        "PickAndPlace"
+    )
