@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving
+from helpers import config_check_connect
 from test_gateway_robot import (
     COND,
     PLC,
@@ -31,7 +32,7 @@ from test_gateway_robot import (
 
 from uacell.config import load_cell
 from uacell.gateway.codec import RegisterType
-from uacell.gateway.examples.robot_controller import ESTOP, ESTOP_CODE, REMOTE_OFF
+from uacell.gateway.examples.robot_controller import ESTOP, ESTOP_CODE, MODE, PSTOP, REMOTE_OFF
 from uacell.gateway.modbus import ModbusTag
 from uacell.gateway.modbus_robot import ModbusRobotIO
 from uacell.server import UacellServer
@@ -180,3 +181,68 @@ async def test_a_local_file_loads_only_a_program_the_controller_holds(served, pl
     assert await read(client, "Palletizer.Controllers.Cabinet.TaskControls.Main.ParameterSet.TaskProgramName") == (
         "PickAndPlace"
     )
+
+
+MOTION = (
+    'unit = 1, poll = 0.02, confirm_timeout = 3.0, motion = { position = ["input", 20, "int16"],'
+    ' speed = ["input", 26, "int16"], scale = 0.01, speed_scale = 0.01, unit = "deg" },'
+    ' map = { emergency_stop = ["discrete", 6, "bool"], protective_stop = ["discrete", 7, "bool"],'
+    ' operational_mode = ["input", 2, "uint16"] } }'
+)
+ROBOT = "Palletizer"
+SAFETY = f"{ROBOT}.SafetyStates.SafetyState1.ParameterSet"
+AXIS = f"{ROBOT}.MotionDevices.Arm1.Axes.Axis{{}}.ParameterSet.{{}}"
+
+
+async def test_joints_modes_and_safety_come_from_the_controller(tmp_path: Path, plc: PLC) -> None:
+    """``motion`` maps the joints' registers (int16, hundredths of a degree): ActualPosition and
+    ActualSpeed are the controller's while it moves; the safety signals set SafetyState1's
+    OperationalMode, EmergencyStop and ProtectiveStop, and the EmergencyStop / ProtectiveStop conditions."""
+    io = await plc.io()
+    cell = tmp_path / "cell.toml"
+    cell.write_text(cell_text(plc.port).replace("unit = 1, poll = 0.02, confirm_timeout = 3.0 }", MOTION))
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(cell)
+    joint = ModbusTag("input", 20 + 5, RegisterType("int16"))  # Axis6's position, as the test reads it
+    async with serving(config) as (_app, client):
+        await wait_until_async(lambda: read(client, f"{SAFETY}.OperationalMode"), 4)  # AUTOMATIC_EXTERNAL
+        assert await read(client, f"{SAFETY}.EmergencyStop") is False
+        assert await status(client, SO, "GetReady") == 0
+        await until_state(client, SO, "Ready")
+        assert await status(client, TC, "LoadByName", s("pick_and_place")) == 0
+        assert await status(client, TC, "Start") == 0
+
+        async def moved() -> bool:
+            ua_value = await read(client, AXIS.format(6, "ActualPosition"))
+            raw = await io.conn.read(joint, 1)
+            assert isinstance(ua_value, float) and isinstance(raw, int)
+            return abs(ua_value) > 5 and abs(ua_value - raw / 100) < 15  # the controller's, not 0
+
+        await wait_until_async(moved, True)
+        assert await read(client, AXIS.format(6, "ActualSpeed")) != 0.0
+        await panel(io, PSTOP, True)
+        await wait_until_async(lambda: read(client, f"{SAFETY}.ProtectiveStop"), True)
+        await wait_until_async(lambda: read(client, f"{COND}.ProtectiveStop.ActiveState.Id"), True)
+        await until_state(client, TC, "Ready")  # the protective stop ended the run
+        await panel(io, PSTOP, False)
+        await wait_until_async(lambda: read(client, f"{COND}.ProtectiveStop.ActiveState.Id"), False)
+        position = await read(client, AXIS.format(6, "ActualPosition"))
+        assert position == pytest.approx((await io.conn.read(joint, 1)) / 100, abs=0.01)  # still where it is
+        await panel(io, MODE, True)  # 1: MANUAL_REDUCED_SPEED
+        await wait_until_async(lambda: read(client, f"{SAFETY}.OperationalMode"), 1)
+        await panel(io, ESTOP, True)
+        await wait_until_async(lambda: read(client, f"{SAFETY}.EmergencyStop"), True)
+        await wait_until_async(lambda: read(client, f"{COND}.EmergencyStop.ActiveState.Id"), True)
+
+
+async def test_config_check_connect_names_a_missing_axis_or_safety_register(tmp_path: Path, plc: PLC) -> None:
+    await plc.io()
+    bad = tmp_path / "bad.toml"
+    motion = MOTION.replace('["input", 20, "int16"]', '["input", 200, "int16"]')
+    bad.write_text(cell_text(plc.port).replace("unit = 1, poll = 0.02, confirm_timeout = 3.0 }", motion))
+    proc = await config_check_connect(bad)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    problems = [ln for ln in proc.stdout.splitlines() if "PROBLEM" in ln]
+    assert any("axis1.position" in ln and "input 200" in ln for ln in problems), proc.stdout
+    assert not any("emergency_stop" in ln for ln in problems)  # that one is there
+    assert any("operational_mode" in ln and "input 2 = " in ln for ln in proc.stdout.splitlines())

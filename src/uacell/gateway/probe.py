@@ -12,11 +12,10 @@ from asyncua import ua
 
 from uacell.cell_file import Part
 from uacell.gateway.modbus import CommunicationError, ModbusConnection, endpoint_name
-from uacell.gateway.modbus_robot import signal_tags
+from uacell.gateway.modbus_robot import parse_motion, signal_tags, used_tags
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
 from uacell.gateway.packml_modbus import Point, where
 from uacell.gateway.packtags import PackTagsMapError, resolve
-from uacell.gateway.signals import NAME_SIGNALS
 
 MODBUS = "uacell.gateway.robot:modbus_signals"
 PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
@@ -95,11 +94,13 @@ async def probe_modbus(part: str, settings: Mapping[str, Any], timeout: float = 
     endpoint = f"{endpoint_name(host, port)} unit {unit}"
     try:
         overrides = {k: (str(v[0]), int(v[1]), str(v[2])) for k, v in dict(settings.get("map", {})).items()}
-        tags = signal_tags(overrides)
+        by_name = any(isinstance(v, str) for v in dict(settings.get("programs", {})).values())
+        motion = parse_motion(settings["motion"]) if "motion" in settings else None
+        # what the driver reads and writes: the name signals only when asked for, the safety signals
+        # only when mapped, the axes' registers (six axes: the probe does not know the motion device)
+        tags = used_tags(signal_tags(overrides), by_name, list(overrides), motion, 6)
     except (ValueError, TypeError, IndexError) as e:
         return [Row(part, endpoint, "(map)", str(e), False)]
-    if not any(isinstance(v, str) for v in dict(settings.get("programs", {})).values()):
-        tags = {k: t for k, t in tags.items() if k not in NAME_SIGNALS}  # not used: not asked for
     conn = ModbusConnection(host, port, timeout=timeout)
     try:
         if not await conn.connect():

@@ -39,8 +39,8 @@ from typing import Any
 from uacell.errors import CallError
 from uacell.gateway import driver_settings
 from uacell.gateway.modbus import SHARED, ModbusConnection
-from uacell.gateway.modbus_robot import ModbusRobotIO, signal_tags
-from uacell.gateway.signals import RobotStatus, SignalOp, start_missing
+from uacell.gateway.modbus_robot import ModbusRobotIO, parse_motion, signal_tags
+from uacell.gateway.signals import SAFETY_SIGNALS, RobotStatus, SignalOp, start_missing
 from uacell.robotics.equipment import (
     AlarmListener,
     AlarmStop,
@@ -52,6 +52,7 @@ from uacell.robotics.equipment import (
     ProgramRejected,
     Progress,
     RunOutcome,
+    SafetyReport,
     StartRefused,
     StopMode,
     UnknownProgram,
@@ -62,7 +63,8 @@ from uacell.robotics.sim import DEFAULT_AXES
 log = logging.getLogger(__name__)
 
 FAULT, COMMUNICATION = "ControllerFault", "CommunicationLost"
-SETTINGS = ("host", "port", "unit", "timeout", "poll", "confirm_timeout", "pulse_width", "programs", "map")
+ESTOP, PSTOP = "EmergencyStop", "ProtectiveStop"  # conditions, when their signals are mapped
+SETTINGS = ("host", "port", "unit", "timeout", "poll", "confirm_timeout", "pulse_width", "programs", "map", "motion")
 POOL = SHARED  # connections shared by every part of the process, per host and port
 MAX_BACKOFF = 2.0
 
@@ -98,7 +100,14 @@ class ModbusSignalsRobot:
         self._power_op = False  # uacell is switching the drives (GetReady / StandDown)
         self._begun: set[str] = set()  # tasks whose start the controller confirmed, run not yet watching
         self._background: set[asyncio.Task[None]] = set()
+        self._axis_listeners: list[Callable[[], None]] = []
+        self._safety_listeners: list[Callable[[], None]] = []
+        safety = set(io.signals)
+        self._alarms = (FAULT, COMMUNICATION, *((ESTOP,) if "emergency_stop" in safety else ()))
+        self._alarms += (PSTOP,) if "protective_stop" in safety else ()
+        self._reports_safety = bool(safety & {"emergency_stop", "protective_stop", "operational_mode"})
         self.status = RobotStatus(connected=False)
+        self._seen = self.status  # the last status read while the controller answered
         self.reachable = False
         self._poller: asyncio.Task[None] | None = None
         self._stop_requested = False
@@ -113,7 +122,7 @@ class ModbusSignalsRobot:
 
     @property
     def alarm_names(self) -> Sequence[str]:
-        return (FAULT, COMMUNICATION)
+        return self._alarms
 
     def add_alarm_listener(self, listener: AlarmListener) -> None:
         self._listeners.append(listener)
@@ -139,7 +148,25 @@ class ModbusSignalsRobot:
         await self._perform(lambda s, now: SignalOp.load(selection, s, now, t.confirm_timeout, t.pulse_width))
 
     def axis_states(self) -> Sequence[AxisState]:
-        return [AxisState(0.0, 0.0) for _ in self._axes]
+        """From the last status read: the mapped axis registers (``motion``), else 0."""
+        positions, speeds = self.status.positions, self.status.speeds
+        return [
+            AxisState(positions[i] if i < len(positions) else 0.0, speeds[i] if i < len(speeds) else 0.0)
+            for i in range(len(self._axes))
+        ]
+
+    def add_axis_listener(self, listener: Callable[[], None]) -> None:
+        if self.io.motion is not None:  # without mapped axes they never change: nothing to tell
+            self._axis_listeners.append(listener)
+
+    def safety_report(self) -> SafetyReport | None:
+        if not self._reports_safety or not self.status.connected:
+            return None
+        s = self.status
+        return SafetyReport(s.operational_mode, s.emergency_stop, s.protective_stop)
+
+    def add_safety_listener(self, listener: Callable[[], None]) -> None:
+        self._safety_listeners.append(listener)
 
     # -- the status poll ----------------------------------------------------------------------
 
@@ -157,7 +184,10 @@ class ModbusSignalsRobot:
             delay = self.timing.poll if status.connected else min(MAX_BACKOFF, max(delay * 2, 0.1))
 
     def _observe(self, status: RobotStatus) -> None:
-        before, self.status = self.status, status
+        """Tell what changed since the controller last answered (a fault that cleared while it was
+        away clears its condition when it answers again)."""
+        self.status = status
+        before = self._seen
         if status.connected != self.reachable:
             self.reachable = status.connected
             if status.connected:
@@ -165,9 +195,23 @@ class ModbusSignalsRobot:
             else:
                 log.warning("%s: lost the controller at %s (retrying)", self.part, self.conn.name)
             self._tell(COMMUNICATION, not status.connected, f"no answer from {self.conn.name}")
-        if status.connected and (status.fault != before.fault or status.fault_code != before.fault_code):
+        if not status.connected:
+            return
+        self._seen = status
+        if status.fault != before.fault or status.fault_code != before.fault_code:
             self._tell(FAULT, status.fault, f"controller fault {status.fault_code}" if status.fault else "")
-        if status.connected and (status.drives_are_on != before.drives_are_on or not before.connected):
+        if status.emergency_stop != before.emergency_stop and ESTOP in self._alarms:
+            self._tell(ESTOP, status.emergency_stop, "emergency stop" if status.emergency_stop else "")
+        if status.protective_stop != before.protective_stop and PSTOP in self._alarms:
+            self._tell(PSTOP, status.protective_stop, "protective stop" if status.protective_stop else "")
+        if (status.positions, status.speeds) != (before.positions, before.speeds):
+            for axes in list(self._axis_listeners):
+                axes()
+        safety = (status.operational_mode, status.emergency_stop, status.protective_stop)
+        if safety != (before.operational_mode, before.emergency_stop, before.protective_stop) or not before.connected:
+            for listener in list(self._safety_listeners):
+                listener()
+        if status.drives_are_on != before.drives_are_on or not before.connected:
             for power in list(self._power_listeners):
                 power(status.drives_are_on)
             if before.connected and before.drives_are_on and not self._power_op:
@@ -349,6 +393,8 @@ async def modbus_signals(spec: Any) -> ModbusSignalsRobot:
             raise ValueError(f"programs: {key} = {value!r}: a program number (1..65535) or a name (a string)")
     overrides = {k: (str(v[0]), int(v[1]), str(v[2])) for k, v in dict(settings.get("map", {})).items()}
     tags = signal_tags(overrides)
+    motion = parse_motion(settings["motion"]) if "motion" in settings else None
+    axes = tuple(getattr(spec, "axes", ())) or DEFAULT_AXES
     timing = Timing(
         poll=float(settings.get("poll", Timing.poll)),
         confirm_timeout=float(settings.get("confirm_timeout", Timing.confirm_timeout)),
@@ -356,7 +402,10 @@ async def modbus_signals(spec: Any) -> ModbusSignalsRobot:
     )
     conn = POOL.get(host, port, float(settings.get("timeout", 1.0)))
     by_name = any(isinstance(v, str) for v in programs.values())
-    io = ModbusRobotIO(conn, unit, tags, poll=min(timing.poll, 0.01), by_name=by_name)
-    robot = ModbusSignalsRobot(spec.part, io, conn, programs, tuple(getattr(spec, "axes", ())) or DEFAULT_AXES, timing)
+    safety = tuple(k for k in SAFETY_SIGNALS if k in overrides)
+    io = ModbusRobotIO(
+        conn, unit, tags, poll=min(timing.poll, 0.01), by_name=by_name, safety=safety, motion=motion, axes=len(axes)
+    )
+    robot = ModbusSignalsRobot(spec.part, io, conn, programs, axes, timing)
     await robot.start()  # unreachable at start: uacell serves anyway, the part reports it
     return robot

@@ -34,8 +34,13 @@ DEFAULT_MAP: dict[str, tuple[str, int, str]] = {
     "program_echo": ("input", 0, "uint16"),
     "fault_code": ("input", 1, "uint16"),
     "program_name_echo": ("input", 10, "string:8"),
+    # safety, read only when ``map`` names them (their defaults are where the example controller has them)
+    "emergency_stop": ("discrete", 6, "bool"),
+    "protective_stop": ("discrete", 7, "bool"),
+    "operational_mode": ("input", 2, "uint16"),  # an OperationalModeEnumeration value (0..4)
 }
 NAME_SIGNALS = ("program_name", "program_name_echo")  # in use only for a programs entry that is a name
+SAFETY_SIGNALS = ("emergency_stop", "protective_stop", "operational_mode")  # in use only when mapped
 
 
 @dataclass(frozen=True)
@@ -50,6 +55,11 @@ class RobotStatus:
     fault_code: int = 0
     program_name_echo: str = ""
     connected: bool = True
+    emergency_stop: bool = False
+    protective_stop: bool = False
+    operational_mode: int = 0
+    positions: tuple[float, ...] = ()  # degrees, one per axis, when the axes are mapped
+    speeds: tuple[float, ...] = ()  # degrees/s
 
 
 class SignalOp:

@@ -223,3 +223,38 @@ class ProgramCatalogue(Protocol):
         """Select the program ``name`` (from ``find_program``) on the controller for ``task``; raise
         ``UnknownProgram`` when the controller does not know it, ``EquipmentError`` otherwise."""
         ...
+
+
+@dataclass(frozen=True)
+class SafetyReport:
+    """The robot's safety state as its controller reports it (OPC 40010-1 SafetyStateType ParameterSet):
+    ``operational_mode`` an OperationalModeEnumeration value (OTHER 0, MANUAL_REDUCED_SPEED 1,
+    MANUAL_HIGH_SPEED 2, AUTOMATIC 3, AUTOMATIC_EXTERNAL 4)."""
+
+    operational_mode: int
+    emergency_stop: bool
+    protective_stop: bool
+
+
+@runtime_checkable
+class SafetyFeedback(Protocol):
+    """Equipment that reports the robot's safety state; the binding writes it to the robot's
+    ``SafetyStates/<first>/ParameterSet`` (OperationalMode, EmergencyStop, ProtectiveStop)."""
+
+    def safety_report(self) -> SafetyReport | None:
+        """The safety state now; None while it is not known (the controller not read yet)."""
+        ...
+
+    def add_safety_listener(self, listener: Callable[[], None]) -> None:
+        """Call ``listener()`` whenever ``safety_report`` changes."""
+        ...
+
+
+@runtime_checkable
+class AxisFeed(Protocol):
+    """Equipment that reads its axes from the controller: the binding publishes ``axis_states()`` when
+    the equipment says they changed, instead of sampling them every 0.1 s."""
+
+    def add_axis_listener(self, listener: Callable[[], None]) -> None:
+        """Call ``listener()`` after every read of the axes that changed a position or speed."""
+        ...

@@ -15,6 +15,7 @@ from uacell.registry import RegistryKey
 from uacell.robotics.binding.arm import Arm
 from uacell.robotics.binding.conditions import Conditions
 from uacell.robotics.binding.programs import Programs, StoreLibrary, adopt_legacy_programs, install_samples
+from uacell.robotics.binding.safety import Safety
 from uacell.robotics.binding.shared import Concern, ControllerBinding
 from uacell.robotics.binding.system_operation import SystemOperationNodes
 from uacell.robotics.binding.task_control import TaskControls
@@ -48,8 +49,9 @@ class RoboticsBinding(ControllerBinding):
         self.system_operation = SystemOperationNodes(self)
         self.conditions = Conditions(self)
         self.axes = Arm(self)
+        self.safety = Safety(self)
         self.concerns: list[Concern] = [
-            self.programs, self.task_controls, self.system_operation, self.conditions, self.axes,
+            self.programs, self.task_controls, self.system_operation, self.conditions, self.axes, self.safety,
         ]  # fmt: skip
 
     # --- life -----------------------------------------------------------------------------------
