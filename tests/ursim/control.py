@@ -1,0 +1,123 @@
+"""The test's hands on a simulated UR cell: a small line protocol on its own TCP port.
+
+What a person at the cell would do (the pendant's Local/Remote switch, an emergency stop button, a
+safeguard, a collision) and what only a test needs (end the program, kill and restart the
+controller, read the whole state). One command per line, one reply line: ``ok``, a JSON object
+(``state``) or ``error: <why>``.
+
+====================================  ====================================================
+remote on | remote off                the pendant's Remote/Local control switch
+estop | estop robot | estop release   press the system (or the robot's) e-stop; release it
+protective stop                       a protective stop (latched until unlocked)
+fault | violation                     a safety FAULT / VIOLATION (latched until restart safety)
+safeguard open | safeguard close      a safeguard stop input
+finish                                the playing program reaches its end now
+operational mode <NONE|MANUAL|AUTOMATIC>  what ``get operational mode`` answers
+program seconds <s|none>              how long a program plays before it ends by itself
+kill | restart                        the controller goes away (Dashboard and Modbus ports
+                                      closed, connections dropped) / comes back, rebooted
+reset                                 a fresh cell (buttons released, Remote, AUTOMATIC, home
+                                      pose), then restart
+state                                 the whole state as JSON (robot.URSim.snapshot)
+====================================  ====================================================
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+from collections.abc import Awaitable, Callable
+
+from .robot import SafetyStatus, URSim
+
+MODES = ("NONE", "MANUAL", "AUTOMATIC")
+
+
+class Control:
+    """The control commands, on a URSim and the servers that front it."""
+
+    def __init__(self, sim: URSim, kill: Callable[[], Awaitable[None]], restart: Callable[[], Awaitable[None]]) -> None:
+        self.sim, self._kill, self._restart = sim, kill, restart
+        self.actions: dict[str, Callable[[], None]] = {
+            "remote on": lambda: sim.set_remote_control(True),
+            "remote off": lambda: sim.set_remote_control(False),
+            "estop": sim.emergency_stop,
+            "estop robot": lambda: sim.emergency_stop(robot=True),
+            "estop release": sim.release_emergency_stop,
+            "protective stop": sim.protective_stop,
+            "fault": sim.fault,
+            "violation": lambda: sim.fault(SafetyStatus.VIOLATION),
+            "safeguard open": lambda: sim.safeguard_stop(True),
+            "safeguard close": lambda: sim.safeguard_stop(False),
+            "finish": sim.finish_program,
+        }
+
+    async def answer(self, line: str) -> str:
+        command = " ".join(line.split()).lower()
+        if command in self.actions:
+            self.actions[command]()
+            return "ok"
+        if command == "state":
+            return json.dumps(self.sim.snapshot())
+        if command == "kill":
+            await self._kill()
+            return "ok"
+        if command == "restart":
+            await self._restart()
+            return "ok"
+        if command == "reset":
+            self.sim.reset()
+            await self._restart()
+            return "ok"
+        if command.startswith("operational mode "):
+            mode = command.removeprefix("operational mode ").upper()
+            if mode not in MODES:
+                return f"error: operational mode must be one of {', '.join(MODES)}"
+            self.sim.operational_mode = mode
+            return "ok"
+        if command.startswith("program seconds "):
+            value = command.removeprefix("program seconds ")
+            try:
+                self.sim.program_seconds = None if value == "none" else float(value)
+            except ValueError:
+                return f"error: not a number of seconds: {value}"
+            return "ok"
+        return f"error: unknown command: {line.strip()}"
+
+
+class ControlServer:
+    """The control protocol on a TCP port (127.0.0.1 only)."""
+
+    def __init__(self, control: Control, port: int = 0, host: str = "127.0.0.1") -> None:
+        self.control, self.host, self.port = control, host, port
+        self._server: asyncio.Server | None = None
+        self._writers: set[asyncio.StreamWriter] = set()
+
+    async def start(self) -> None:
+        self._server = await asyncio.start_server(self._serve, self.host, self.port, reuse_address=True)
+        self.port = self._server.sockets[0].getsockname()[1]
+
+    async def stop(self) -> None:
+        server, self._server = self._server, None
+        if server is not None:
+            server.close()
+        for writer in list(self._writers):
+            writer.close()
+        if server is not None:
+            await server.wait_closed()
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._writers.add(writer)
+        try:
+            while raw := await reader.readline():
+                reply = await self.control.answer(raw.decode("utf-8", "replace"))
+                writer.write((reply + "\n").encode())
+                await writer.drain()
+        except (ConnectionError, asyncio.CancelledError):
+            pass
+        finally:
+            self._writers.discard(writer)
+            writer.close()
+            with contextlib.suppress(Exception):
+                await writer.wait_closed()
