@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import socket
 import subprocess
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import pytest
 from helpers import FakeClock, free_port, wait_until
-from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.client import AsyncModbusTcpClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException
 from ursim.dashboard import NOT_REMOTE, UNLOCK_TOO_EARLY, WELCOME
 from ursim.modbus import joint_angle, signed
@@ -236,6 +237,43 @@ def test_ur_rtde_recovers_a_latched_fault_with_restart_safety(robot: Process) ->
     db.disconnect()
 
 
+def test_the_control_port_kills_and_restarts_the_controller_and_nothing_is_replayed(robot: Process) -> None:
+    db = client(robot)
+    db.loadURP("pick.urp")
+    db.brakeRelease()
+    until(db.robotmode, "Robotmode: RUNNING")
+    db.play()
+    with ModbusTcpClient("127.0.0.1", port=robot.modbus_port, timeout=TIMEOUT) as mb:
+        assert mb.read_input_registers(258, count=1).registers == [7]  # RUNNING, same state as the dashboard
+    assert robot.control("kill") == "ok"
+    with pytest.raises(OSError):
+        socket.create_connection(("127.0.0.1", robot.port), timeout=TIMEOUT).close()
+    with pytest.raises(OSError):
+        socket.create_connection(("127.0.0.1", robot.modbus_port), timeout=TIMEOUT).close()
+    assert robot.control("restart") == "ok"
+    state = json.loads(robot.control("state"))
+    assert (state["robot_mode"], state["program_state"], state["loaded"]) == ("POWER_OFF", "STOPPED", None)
+    again = client(robot)
+    assert again.getLoadedProgram() == "No program loaded"
+    assert again.robotmode() == "Robotmode: POWER_OFF"
+    with ModbusTcpClient("127.0.0.1", port=robot.modbus_port, timeout=TIMEOUT) as mb:
+        assert mb.read_holding_registers(258, count=1).registers == [3]
+    again.disconnect()
+
+
+def test_the_control_port_refuses_what_it_does_not_know(robot: Process) -> None:
+    assert robot.control("jump") == "error: unknown command: jump"
+    assert robot.control("operational mode fast").startswith("error: operational mode must be one of")
+    assert robot.control("program seconds soon") == "error: not a number of seconds: soon"
+    assert robot.control("operational mode manual") == "ok"
+    assert robot.control("program seconds 2.5") == "ok"
+    db = client(robot)
+    assert db.robotmode() == "Robotmode: POWER_OFF"
+    db.send("get operational mode\n")
+    assert db.receive() == "MANUAL"
+    db.disconnect()
+
+
 def test_the_process_exits_after_the_shutdown_command(tmp_path: Path) -> None:
     p = Process(programs(tmp_path / "programs"))
     try:
@@ -420,6 +458,13 @@ async def test_other_commands_answer_as_polyscope_5_does(cell: Cell) -> None:
     assert await line("quit") == "Disconnected"
     assert await line.reader.read() == b""  # closed by the server
     assert servers.received[-1] == "quit"
+    await line.close()
+
+
+async def test_a_line_over_the_limit_is_not_understood_and_the_connection_goes_on(cell: Cell) -> None:
+    line = await open_line(cell.servers)
+    assert (await line("x" * 70000)).startswith("could not understand: ")
+    assert await line("robotmode") == "Robotmode: POWER_OFF"
     await line.close()
 
 

@@ -24,11 +24,10 @@ state                                 the whole state as JSON (robot.URSim.snaps
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import json
 from collections.abc import Awaitable, Callable
 
+from .lines import LineServer
 from .robot import SafetyStatus, URSim
 
 MODES = ("NONE", "MANUAL", "AUTOMATIC")
@@ -86,38 +85,15 @@ class Control:
         return f"error: unknown command: {line.strip()}"
 
 
-class ControlServer:
+class ControlServer(LineServer[None]):
     """The control protocol on a TCP port (127.0.0.1 only)."""
 
     def __init__(self, control: Control, port: int = 0, host: str = "127.0.0.1") -> None:
-        self.control, self.host, self.port = control, host, port
-        self._server: asyncio.Server | None = None
-        self._writers: set[asyncio.StreamWriter] = set()
+        super().__init__(port, host)
+        self.control = control
 
-    async def start(self) -> None:
-        self._server = await asyncio.start_server(self._serve, self.host, self.port, reuse_address=True)
-        self.port = self._server.sockets[0].getsockname()[1]
+    def session(self) -> None:
+        return None
 
-    async def stop(self) -> None:
-        server, self._server = self._server, None
-        if server is not None:
-            server.close()
-        for writer in list(self._writers):
-            writer.close()
-        if server is not None:
-            await server.wait_closed()
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._writers.add(writer)
-        try:
-            while raw := await reader.readline():
-                reply = await self.control.answer(raw.decode("utf-8", "replace"))
-                writer.write((reply + "\n").encode())
-                await writer.drain()
-        except (ConnectionError, asyncio.CancelledError):
-            pass
-        finally:
-            self._writers.discard(writer)
-            writer.close()
-            with contextlib.suppress(Exception):
-                await writer.wait_closed()
+    async def reply(self, session: None, line: str) -> tuple[str, bool]:
+        return await self.control.answer(line), False

@@ -61,15 +61,11 @@ refuses those commands on a connection opened before the last switch, as the rea
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
-import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from .lines import LineServer
 from .robot import URSim
-
-log = logging.getLogger(__name__)
 
 WELCOME = "Connected: Universal Robots Dashboard Server"
 NOT_REMOTE = (
@@ -80,7 +76,6 @@ UNLOCK_TOO_EARLY = (
     "Cannot unlock protective stop until 5s after occurrence. Always inspect cause of protective stop before unlocking"
 )
 OPERATIONAL_MODES = ("MANUAL", "AUTOMATIC")
-MAX_LINE = 4096  # bytes: a longer line is answered as not understood
 
 
 @dataclass
@@ -270,65 +265,21 @@ class Dashboard:
         return "Shutting down"
 
 
-class DashboardServer:
+class DashboardServer(LineServer[Session]):
     """The Dashboard protocol on a TCP port (127.0.0.1 only). ``stop`` drops every connection."""
 
     def __init__(self, sim: URSim, port: int = 0, host: str = "127.0.0.1") -> None:
+        super().__init__(port, host)
         self.dashboard = Dashboard(sim)
-        self.host, self.port = host, port
-        self._server: asyncio.Server | None = None
-        self._writers: set[asyncio.StreamWriter] = set()
-        self._tasks: set[asyncio.Task[object]] = set()
 
-    @property
-    def listening(self) -> bool:
-        return self._server is not None
+    def greeting(self) -> str:
+        return WELCOME
 
-    async def start(self) -> None:
-        self._server = await asyncio.start_server(self._serve, self.host, self.port, reuse_address=True)
-        self.port = self._server.sockets[0].getsockname()[1]
+    def session(self) -> Session:
+        return self.dashboard.session()
 
-    async def stop(self) -> None:
-        server, self._server = self._server, None
-        if server is not None:
-            server.close()
-        for writer in list(self._writers):
-            writer.close()
-        for task in list(self._tasks):
-            task.cancel()
-        if self._tasks:
-            await asyncio.gather(*self._tasks, return_exceptions=True)
-        if server is not None:
-            await server.wait_closed()
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        task = asyncio.current_task()
-        assert task is not None
-        self._tasks.add(task)
-        self._writers.add(writer)
-        session = self.dashboard.session()
-        try:
-            writer.write((WELCOME + "\n").encode())
-            await writer.drain()
-            while not session.closing:
-                try:
-                    raw = await reader.readuntil(b"\n")
-                except asyncio.LimitOverrunError:
-                    await reader.read(MAX_LINE * 16)
-                    raw = b"?"
-                except asyncio.IncompleteReadError:
-                    return
-                reply = self.dashboard.answer(session, raw.decode("utf-8", "replace"))
-                writer.write((reply + "\n").encode())
-                await writer.drain()
-        except (ConnectionError, asyncio.CancelledError):
-            pass
-        finally:
-            self._writers.discard(writer)
-            self._tasks.discard(task)
-            writer.close()
-            with contextlib.suppress(Exception):
-                await writer.wait_closed()
+    async def reply(self, session: Session, line: str) -> tuple[str, bool]:
+        return self.dashboard.answer(session, line), session.closing
 
 
 if __name__ == "__main__":
