@@ -18,8 +18,6 @@ import asyncio
 import json
 import math
 import socket
-import subprocess
-import sys
 import time
 from collections.abc import AsyncIterator, Iterator
 from dataclasses import dataclass
@@ -31,10 +29,10 @@ from pymodbus.client import AsyncModbusTcpClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException
 from ursim.dashboard import NOT_REMOTE, UNLOCK_TOO_EARLY, WELCOME
 from ursim.modbus import joint_angle, signed
+from ursim.process import URSimProcess
 from ursim.robot import HOME, SafetyStatus, URSim
 from ursim.server import URSimServers
 
-ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT = 20.0
 
 dashboard_client = pytest.importorskip("dashboard_client", reason="ur-rtde (the test extra) is not installed")
@@ -52,52 +50,21 @@ def programs(where: Path) -> Path:
 # -- the simulator as a process, driven by ur-rtde -----------------------------------------------
 
 
-class Process:
-    def __init__(self, programs_dir: Path) -> None:
-        self.programs_dir = programs_dir
-        self.port, self.modbus_port, self.control_port = free_port(), free_port(), free_port()
-        cmd = [sys.executable, "-m", "tests.ursim", "--port", str(self.port), "--programs-dir", str(programs_dir)]
-        cmd += ["--modbus-port", str(self.modbus_port), "--control-port", str(self.control_port)]
-        cmd += ["--unlock-delay", "0"]
-        self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        assert self.proc.stdout is not None
-        line = self.proc.stdout.readline()  # one line once every port listens (or EOF if it failed)
-        assert line.startswith("ursim ready"), (line, self.proc.stderr.read() if self.proc.stderr else "")
-
-    def control(self, command: str) -> str:
-        with socket.create_connection(("127.0.0.1", self.control_port), timeout=TIMEOUT) as s:
-            s.sendall((command + "\n").encode())
-            return s.makefile().readline().strip()
-
-    def stop(self) -> None:
-        self.proc.terminate()
-        try:
-            self.proc.wait(TIMEOUT)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(TIMEOUT)
-        for stream in (self.proc.stdout, self.proc.stderr):
-            if stream is not None:
-                stream.close()
-
-
 @pytest.fixture(scope="module")
-def process(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Process]:
-    p = Process(programs(tmp_path_factory.mktemp("ursim") / "programs"))
-    try:
+def process(tmp_path_factory: pytest.TempPathFactory) -> Iterator[URSimProcess]:
+    where = programs(tmp_path_factory.mktemp("ursim") / "programs")
+    with URSimProcess(where, free_port(), free_port(), free_port(), "--unlock-delay", "0") as p:
         yield p
-    finally:
-        p.stop()
 
 
 @pytest.fixture
-def robot(process: Process) -> Iterator[Process]:
+def robot(process: URSimProcess) -> Iterator[URSimProcess]:
     """The process's controller, fresh: rebooted, Remote control, nothing pressed."""
     assert process.control("reset") == "ok"
     yield process
 
 
-def client(robot: Process) -> object:
+def client(robot: URSimProcess) -> object:
     db = dashboard_client.DashboardClient("127.0.0.1", robot.port)
     db.connect()
     assert db.isConnected()
@@ -111,7 +78,7 @@ def until(read: object, expected: str) -> None:
         time.sleep(0.01)
 
 
-def test_ur_rtde_identifies_an_e_series_controller_in_remote_control(robot: Process) -> None:
+def test_ur_rtde_identifies_an_e_series_controller_in_remote_control(robot: URSimProcess) -> None:
     db = client(robot)
     assert db.polyscopeVersion() == "5.19.0.1210631"  # parsed from "URSoftware 5.19.0.1210631 (...)"
     assert db.isInRemoteControl() is True  # only asked when the version is 5.6 or later
@@ -122,10 +89,11 @@ def test_ur_rtde_identifies_an_e_series_controller_in_remote_control(robot: Proc
     assert db.safetymode() == "Safetymode: NORMAL"
     assert db.programState() == "STOPPED <unnamed>"
     assert db.getLoadedProgram() == "No program loaded"
+    assert db.isProgramSaved() is False  # "false <unnamed>"
     db.disconnect()
 
 
-def test_ur_rtde_loads_powers_up_plays_pauses_and_stops_a_program(robot: Process) -> None:
+def test_ur_rtde_loads_powers_up_plays_pauses_and_stops_a_program(robot: URSimProcess) -> None:
     db = client(robot)
     db.loadURP("pick.urp")  # raises unless "Loading program: ..."
     assert db.getLoadedProgram() == f"Loaded program: {robot.programs_dir / 'pick.urp'}"
@@ -156,7 +124,7 @@ def test_ur_rtde_loads_powers_up_plays_pauses_and_stops_a_program(robot: Process
     assert '"program_runs": 1' in state and '"robot_mode": "POWER_OFF"' in state
 
 
-def test_ur_rtde_gets_the_controllers_refusals_as_errors(robot: Process) -> None:
+def test_ur_rtde_gets_the_controllers_refusals_as_errors(robot: URSimProcess) -> None:
     db = client(robot)
     with pytest.raises(RuntimeError, match=r"^File not found: missing\.urp$"):
         db.loadURP("missing.urp")
@@ -172,7 +140,7 @@ def test_ur_rtde_gets_the_controllers_refusals_as_errors(robot: Process) -> None
     db.disconnect()
 
 
-def test_local_control_refuses_commands_until_remote_and_a_new_connection(robot: Process) -> None:
+def test_local_control_refuses_commands_until_remote_and_a_new_connection(robot: URSimProcess) -> None:
     before = client(robot)
     assert robot.control("remote off") == "ok"
     local = client(robot)
@@ -195,7 +163,7 @@ def test_local_control_refuses_commands_until_remote_and_a_new_connection(robot:
         db.disconnect()
 
 
-def test_ur_rtde_unlocks_a_protective_stop_and_resumes(robot: Process) -> None:
+def test_ur_rtde_unlocks_a_protective_stop_and_resumes(robot: URSimProcess) -> None:
     db = client(robot)
     db.loadURP("pick.urp")
     db.brakeRelease()  # PolyScope 5 powers on and releases from POWER_OFF
@@ -215,7 +183,7 @@ def test_ur_rtde_unlocks_a_protective_stop_and_resumes(robot: Process) -> None:
     db.disconnect()
 
 
-def test_ur_rtde_recovers_a_latched_fault_with_restart_safety(robot: Process) -> None:
+def test_ur_rtde_recovers_a_latched_fault_with_restart_safety(robot: URSimProcess) -> None:
     db = client(robot)
     db.loadURP("pick.urp")
     db.brakeRelease()
@@ -237,7 +205,7 @@ def test_ur_rtde_recovers_a_latched_fault_with_restart_safety(robot: Process) ->
     db.disconnect()
 
 
-def test_the_control_port_kills_and_restarts_the_controller_and_nothing_is_replayed(robot: Process) -> None:
+def test_the_control_port_kills_and_restarts_the_controller_and_nothing_is_replayed(robot: URSimProcess) -> None:
     db = client(robot)
     db.loadURP("pick.urp")
     db.brakeRelease()
@@ -261,7 +229,7 @@ def test_the_control_port_kills_and_restarts_the_controller_and_nothing_is_repla
     again.disconnect()
 
 
-def test_the_control_port_refuses_what_it_does_not_know(robot: Process) -> None:
+def test_the_control_port_refuses_what_it_does_not_know(robot: URSimProcess) -> None:
     assert robot.control("jump") == "error: unknown command: jump"
     assert robot.control("operational mode fast").startswith("error: operational mode must be one of")
     assert robot.control("program seconds soon") == "error: not a number of seconds: soon"
@@ -275,7 +243,10 @@ def test_the_control_port_refuses_what_it_does_not_know(robot: Process) -> None:
 
 
 def test_the_process_exits_after_the_shutdown_command(tmp_path: Path) -> None:
-    p = Process(programs(tmp_path / "programs"))
+    p = URSimProcess(programs(tmp_path / "programs"), free_port(), free_port(), free_port())
+    p.start()
+    proc = p.proc
+    assert proc is not None
     try:
         with socket.create_connection(("127.0.0.1", p.port), timeout=TIMEOUT) as s:
             f = s.makefile("rw")
@@ -284,9 +255,22 @@ def test_the_process_exits_after_the_shutdown_command(tmp_path: Path) -> None:
             f.flush()
             assert f.readline() == "Shutting down\n"
             assert f.readline() == ""  # the controller closed the connection
-        assert p.proc.wait(TIMEOUT) == 0
+        assert proc.wait(TIMEOUT) == 0
     finally:
         p.stop()
+
+
+def test_a_killed_process_comes_back_on_the_same_ports(tmp_path: Path) -> None:
+    with URSimProcess(programs(tmp_path / "programs"), free_port(), free_port(), free_port()) as p:
+        db = client(p)
+        db.loadURP("pick.urp")
+        p.kill()  # SIGKILL: the controller is gone at once
+        with pytest.raises(OSError):
+            socket.create_connection(("127.0.0.1", p.port), timeout=TIMEOUT).close()
+        p.start()
+        again = client(p)
+        assert again.getLoadedProgram() == "No program loaded"
+        again.disconnect()
 
 
 # -- in process: raw protocol with a fake clock, and the Modbus map -----------------------------

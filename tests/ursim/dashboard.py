@@ -4,8 +4,9 @@ Written from UR's public documentation only: the "Dashboard Server e-Series, por
 "Dashboard Server CB-Series, port 29999" articles (command table and return values, PolyScope 5.x,
 e-Series), UR's Client Library (``dashboard_client_implementation_g5.cpp``, 2025: the reply pattern it
 expects for each command, and its tests' expectations of PolyScope 5), and replies recorded from real
-e-Series robots in UR's driver issue trackers (the remote-control refusal, the welcome line). Every
-reply below is the exact string a PolyScope 5.19 controller sends, one line ending in ``\\n``.
+e-Series robots in UR's driver issue trackers (the remote-control refusal, the welcome line). The
+replies are those of a PolyScope 5.19 controller, one line ending in ``\\n``; where no source gives
+the exact string for a case, the reply is our choice and marked (*) below.
 
 Protocol: on connect the server sends ``Connected: Universal Robots Dashboard Server``; then one reply
 line per command line. Commands are matched without regard to case (the argument keeps its case).
@@ -14,19 +15,23 @@ line per command line. Commands are matched without regard to case (the argument
 command                         reply (success / failure)
 ==============================  =================================================================
 load <program.urp>              ``Loading program: <path>`` / ``File not found: <program.urp>`` /
-                                ``Error while loading program: <path>`` (empty file, or a program
-                                running: our choice for the unspecified case)
-play                            ``Starting program`` / ``Failed to execute: play``
-stop                            ``Stopped`` / ``Failed to execute: stop`` (nothing running)
-pause                           ``Pausing program`` / ``Failed to execute: pause``
+                                ``Error while loading program: <path>`` (an empty file; (*) also
+                                while a program plays or is paused). <path> is the full path under
+                                the programs directory (*: UR's clients accept it or the bare name)
+play                            ``Starting program`` / ``Failed to execute: play`` (no program, arm
+                                not RUNNING, or a safety stop)
+stop                            ``Stopped`` / ``Failed to execute: stop`` ((*) nothing running)
+pause                           ``Pausing program`` / ``Failed to execute: pause`` ((*) not playing)
 programState                    ``STOPPED <name>`` / ``PLAYING <name>`` / ``PAUSED <name>``
-                                (``<unnamed>`` when no program is loaded)
+                                (``<unnamed>`` when no program is loaded (*))
 running                         ``Program running: true`` / ``Program running: false``
 get loaded program              ``Loaded program: <path>`` / ``No program loaded``
-isProgramSaved                  ``true <name>`` / ``false <name>``
+isProgramSaved                  ``true <name>`` / ``false <name>`` (UR's Client Library pattern;
+                                ur-rtde looks for ``True``, so it reads false here)
 robotmode                       ``Robotmode: <mode>`` (NO_CONTROLLER ... RUNNING)
 safetymode, safetystatus        ``Safetymode: <mode>``, ``Safetystatus: <status>``
-power on / power off            ``Powering on`` / ``Powering off``
+power on / power off            ``Powering on`` / ``Powering off`` (the same answer when the arm
+                                cannot power on: clients must check ``robotmode``)
 brake release                   ``Brake releasing``
 unlock protective stop          ``Protective stop releasing`` / ``Cannot unlock protective stop until
                                 5s after occurrence. Always inspect cause of protective stop before
@@ -41,8 +46,8 @@ get robot model                 ``UR3`` / ``UR5`` / ``UR10`` / ``UR16`` / ``UR20
 PolyscopeVersion                ``URSoftware 5.19.0.1210631 (Oct 23 2024)``
 version                         ``5.19.0.1210631``
 get operational mode            ``MANUAL`` / ``AUTOMATIC`` / ``NONE``
-set operational mode <mode>     ``Operational mode '<MODE>' is set`` / ``Failed setting operational
-                                mode: <mode>``
+set operational mode <mode>     ``Operational mode '<MODE>' is set`` / (*) ``Failed setting
+                                operational mode: <mode>``
 clear operational mode          ``No longer controlling the operational mode. Current operational
                                 mode: '<MODE>'.``
 load installation <file>        ``Loading installation: <path>`` / ``File not found: <file>``
@@ -56,7 +61,12 @@ Remote control (e-Series): while the pendant is in Local control, the commands t
 restart safety, shutdown, set/clear operational mode) answer ``Command is not allowed due to safety
 reasons, please switch robot to Remote Control mode and reconnect to port 29999``. As UR's driver
 maintainers explain, a client connected before a Local/Remote switch must reconnect: this server
-refuses those commands on a connection opened before the last switch, as the real one does.
+refuses those commands on a connection opened before the last switch, as the real one does. Queries
+(robotmode, programState, safetystatus, ...) and the popups answer in Local control too.
+
+UR's PolyScope 5 Dashboard Server has no command that lists the programs on the controller (PolyScope
+X's Robot API has one): a client learns the catalogue elsewhere; ``URSim.programs()`` gives the tests
+the ``*.urp`` files of the programs directory.
 """
 
 from __future__ import annotations

@@ -48,6 +48,7 @@ DH parameters), computed from the simulated joints.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -98,8 +99,10 @@ def joint_angle(angle_register: int, revolution_register: int) -> float:
     return signed(revolution_register) * 2 * math.pi + angle_register / 1000
 
 
-def flange_pose(joints: list[float]) -> tuple[float, float, float, float, float, float]:
-    """(x, y, z in m, rx, ry, rz rotation vector in rad) of the UR5e flange in the base frame."""
+@functools.lru_cache(maxsize=16)
+def flange_pose(joints: tuple[float, ...]) -> tuple[float, float, float, float, float, float]:
+    """(x, y, z in m, rx, ry, rz rotation vector in rad) of the UR5e flange in the base frame.
+    Cached: one read of 400-405 asks six times for the same joints."""
     t = [[1.0 if i == j else 0.0 for j in range(4)] for i in range(4)]
     for q, a, d, alpha in zip(joints, DH_A, DH_D, DH_ALPHA, strict=True):
         cq, sq, ca, sa = math.cos(q), math.sin(q), math.cos(alpha), math.sin(alpha)
@@ -154,7 +157,7 @@ def _joint(i: int, what: str) -> Callable[[URSim], int]:
 
 def _tcp(i: int) -> Callable[[URSim], int]:
     def read(sim: URSim) -> int:
-        pose = flange_pose(sim.joints)
+        pose = flange_pose(tuple(sim.joints))
         return s16(pose[i] * 10000 if i < 3 else pose[i] * 1000)
 
     return read
