@@ -233,13 +233,20 @@ def test_the_control_port_refuses_what_it_does_not_know(robot: URSimProcess) -> 
     assert robot.control("jump") == "error: unknown command: jump"
     assert robot.control("operational mode fast").startswith("error: operational mode must be one of")
     assert robot.control("program seconds soon") == "error: not a number of seconds: soon"
+    assert robot.control("robot mode flying").startswith("error: robot mode must be one of NO_CONTROLLER")
+    assert robot.control("safety calm").startswith("error: safety status must be one of NORMAL")
     assert robot.control("operational mode manual") == "ok"
     assert robot.control("program seconds 2.5") == "ok"
+    assert robot.control("robot mode backdrive") == "ok"
+    assert robot.control("safety reduced") == "ok"
     db = client(robot)
-    assert db.robotmode() == "Robotmode: POWER_OFF"
+    assert db.robotmode() == "Robotmode: BACKDRIVE"
+    assert db.safetystatus() == "Safetystatus: REDUCED"
     db.send("get operational mode\n")
     assert db.receive() == "MANUAL"
     db.disconnect()
+    with ModbusTcpClient("127.0.0.1", port=robot.modbus_port, timeout=TIMEOUT) as mb:
+        assert mb.read_holding_registers(258, count=9).registers == [6, 0, 1, 0, 0, 0, 0, 0, 2]
 
 
 def test_the_process_exits_after_the_shutdown_command(tmp_path: Path) -> None:

@@ -14,6 +14,8 @@ safeguard open | safeguard close      a safeguard stop input
 finish                                the playing program reaches its end now
 operational mode <NONE|MANUAL|AUTOMATIC>  what ``get operational mode`` answers
 program seconds <s|none>              how long a program plays before it ends by itself
+robot mode <NAME>                     force a robot mode (NO_CONTROLLER, BOOTING, BACKDRIVE...)
+safety <NAME>                         force a safety status (REDUCED, RECOVERY, ...), as is
 kill | restart                        the controller goes away (Dashboard and Modbus ports
                                       closed, connections dropped) / comes back, rebooted
 reset                                 a fresh cell (buttons released, Remote, AUTOMATIC, home
@@ -28,7 +30,7 @@ import json
 from collections.abc import Awaitable, Callable
 
 from .lines import LineServer
-from .robot import SafetyStatus, URSim
+from .robot import RobotMode, SafetyStatus, URSim
 
 MODES = ("NONE", "MANUAL", "AUTOMATIC")
 
@@ -74,6 +76,18 @@ class Control:
             if mode not in MODES:
                 return f"error: operational mode must be one of {', '.join(MODES)}"
             self.sim.operational_mode = mode
+            return "ok"
+        if command.startswith("robot mode "):
+            name = command.removeprefix("robot mode ").upper()
+            if name not in RobotMode.__members__:
+                return f"error: robot mode must be one of {', '.join(RobotMode.__members__)}"
+            self.sim.robot_mode = RobotMode[name]
+            return "ok"
+        if command.startswith("safety "):
+            name = command.removeprefix("safety ").upper()
+            if name not in SafetyStatus.__members__:
+                return f"error: safety status must be one of {', '.join(SafetyStatus.__members__)}"
+            self.sim.safety = SafetyStatus[name]
             return "ok"
         if command.startswith("program seconds "):
             value = command.removeprefix("program seconds ")

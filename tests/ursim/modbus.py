@@ -17,7 +17,7 @@ address    content                                     unit                encod
 128-255    general purpose registers                   -                   uint16, read/write
 256        controller version, major ("high number")   -                   uint16
 257        controller version, minor ("low number")    -                   uint16
-258        robot mode (0 DISCONNECTED ... 7 RUNNING)   enum                uint16 (UR's RobotMode numbers)
+258        robot mode (0 DISCONNECTED ... 7 RUNNING)   enum                UR's RobotMode numbers (-1 as 65535)
 260        is power on (robot)                         bool                0/1
 261        is protective stopped ("security stopped")  bool                0/1
 262        is emergency stopped                        bool                0/1
@@ -170,7 +170,7 @@ def _version(part: int) -> Callable[[URSim], int]:
 REGISTERS: tuple[Register, ...] = (
     Register(256, "controller version major", _version(0)),
     Register(257, "controller version minor", _version(1)),
-    Register(258, "robot mode", lambda sim: u16(sim.robot_mode.value)),
+    Register(258, "robot mode", lambda sim: s16(sim.robot_mode.value)),
     Register(260, "is power on", lambda sim: int(sim.robot_mode in POWERED)),
     Register(261, "is protective stopped", lambda sim: int(sim.safety is SafetyStatus.PROTECTIVE_STOP)),
     Register(262, "is emergency stopped", lambda sim: int(sim.safety in EMERGENCY)),
