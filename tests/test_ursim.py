@@ -452,6 +452,15 @@ async def test_other_commands_answer_as_polyscope_5_does(cell: Cell) -> None:
     await line.close()
 
 
+async def test_commands_sent_together_or_with_crlf_get_one_reply_each_in_order(cell: Cell) -> None:
+    line = await open_line(cell.servers)
+    line.writer.write(b"robotmode\r\nprogramState\nis in remote control\r\n")
+    await line.writer.drain()
+    assert [await line.read() for _ in range(3)] == ["Robotmode: POWER_OFF", "STOPPED <unnamed>", "true"]
+    assert cell.servers.received == ["robotmode", "programState", "is in remote control"]
+    await line.close()
+
+
 async def test_a_line_over_the_limit_is_not_understood_and_the_connection_goes_on(cell: Cell) -> None:
     line = await open_line(cell.servers)
     assert (await line("x" * 70000)).startswith("could not understand: ")
