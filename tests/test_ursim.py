@@ -22,6 +22,7 @@ import time
 from collections.abc import AsyncIterator, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 from helpers import FakeClock, free_port, wait_until
@@ -34,8 +35,6 @@ from ursim.robot import HOME, SafetyStatus, URSim
 from ursim.server import URSimServers
 
 TIMEOUT = 20.0
-
-dashboard_client = pytest.importorskip("dashboard_client", reason="ur-rtde (the test extra) is not installed")
 
 
 def programs(where: Path) -> Path:
@@ -64,7 +63,9 @@ def robot(process: URSimProcess) -> Iterator[URSimProcess]:
     yield process
 
 
-def client(robot: URSimProcess) -> object:
+def client(robot: URSimProcess) -> Any:
+    """ur-rtde's DashboardClient, connected (the test is skipped where ur-rtde is not installed)."""
+    dashboard_client = pytest.importorskip("dashboard_client", reason="ur-rtde (the test extra) is not installed")
     db = dashboard_client.DashboardClient("127.0.0.1", robot.port)
     db.connect()
     assert db.isConnected()
