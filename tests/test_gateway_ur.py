@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving
-from helpers import free_port
+from helpers import config_check_connect, free_port
 from test_gateway_robot import call, read, s, state, status, until_state, wait_until_async
 from ursim.robot import ProgramState as UrProgramState
 from ursim.robot import RobotMode, SafetyStatus, URSim
@@ -215,3 +215,20 @@ async def test_the_robot_killed_and_back_nothing_replayed(rig: Rig) -> None:
     commands = [line.lower() for line in rig.servers.received[sent:]]
     assert not any(c.startswith(("load", "play", "power", "brake")) for c in commands), commands
     assert sim.robot_mode is RobotMode.POWER_OFF and sim.loaded is None
+
+
+async def test_config_check_connect_names_an_unreachable_dashboard(tmp_path: Path) -> None:
+    sim = URSim(tmp_path, unlock_delay=0.0)
+    async with URSimServers(sim, free_port(), free_port()) as servers:
+        assert servers.modbus is not None
+        good, bad = tmp_path / "good.toml", tmp_path / "bad.toml"
+        good.write_text(CELL.format(dashboard=servers.dashboard_port, modbus=servers.modbus.port))
+        bad.write_text(CELL.format(dashboard=free_port(), modbus=servers.modbus.port))  # nobody on that port
+        proc = await config_check_connect(good)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        assert any("robotmode" in ln and "Robotmode: POWER_OFF" in ln for ln in proc.stdout.splitlines())
+        assert any("holding 258..266" in ln for ln in proc.stdout.splitlines())
+        proc = await config_check_connect(bad)
+        assert proc.returncode == 1, proc.stdout + proc.stderr
+        problem = [ln for ln in proc.stdout.splitlines() if "PROBLEM" in ln]
+        assert len(problem) == 1 and "dashboard 127.0.0.1" in problem[0] and "unreachable" in problem[0], problem

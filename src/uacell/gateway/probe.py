@@ -16,10 +16,12 @@ from uacell.gateway.modbus_robot import parse_motion, signal_tags, used_tags
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
 from uacell.gateway.packml_modbus import Point, where
 from uacell.gateway.packtags import PackTagsMapError, resolve
+from uacell.gateway.ur_link import JOINT_REGISTERS, STATE_REGISTERS, TURN_REGISTERS, Dashboard, DashboardError
 
 MODBUS = "uacell.gateway.robot:modbus_signals"
 PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
 MODBUS_PACKTAGS = "uacell.gateway.packml_modbus:modbus_packtags"
+UR = "uacell.gateway.ur_robot:ur_dashboard"
 _BUILTIN = {ua.VariantType.Int32: "Int32", ua.VariantType.Boolean: "Boolean", ua.VariantType.Float: "Float"}
 
 
@@ -38,7 +40,7 @@ def gateway_parts(parts: list[tuple[str, Part]]) -> Iterator[tuple[str, str, Map
     def walk(part: Part, path: str) -> Iterator[tuple[str, str, Mapping[str, Any]]]:
         here = f"{path}.{part.name}" if path else part.name
         equipment = getattr(part.spec, "equipment", "")
-        if equipment in (MODBUS, PACKTAGS, MODBUS_PACKTAGS):
+        if equipment in PROBES:
             yield here, equipment, getattr(part.spec, "settings", {})
         for child in part.children:
             yield from walk(child, here)
@@ -139,7 +141,45 @@ async def probe_modbus_packtags(part: str, settings: Mapping[str, Any], timeout:
         conn.close()
 
 
-PROBES = {MODBUS: probe_modbus, PACKTAGS: probe_packtags, MODBUS_PACKTAGS: probe_modbus_packtags}
+async def probe_ur(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    """The Dashboard Server (its welcome, robot mode, remote control, the configured program files are
+    not checked: PolyScope 5 cannot list them) and UR's Modbus registers the driver reads."""
+    host = str(settings.get("host", ""))
+    port, modbus_port = int(settings.get("port", 29999)), int(settings.get("modbus_port", 502))
+    rows: list[Row] = []
+    dashboard = Dashboard(host, port, timeout)
+    where = f"dashboard {host}:{port}"
+    try:
+        await dashboard.connect()
+        for command in ("PolyscopeVersion", "robotmode", "is in remote control"):
+            rows.append(Row(part, where, command, await dashboard.ask(command), True))
+    except DashboardError as e:
+        rows.append(Row(part, where, "(endpoint)", f"unreachable: {str(e).rpartition(': ')[2]}", False))
+    finally:
+        dashboard.close()
+    conn = ModbusConnection(host, modbus_port, timeout=timeout)
+    where = f"{endpoint_name(host, modbus_port)} unit {int(settings.get('unit', 1))}"
+    try:
+        if not await conn.connect():
+            return [*rows, Row(part, where, "(endpoint)", "unreachable", False)]
+        for first, count in (STATE_REGISTERS, JOINT_REGISTERS, TURN_REGISTERS):
+            name = f"holding {first}..{first + count - 1}"
+            try:
+                values = await conn.read_block("holding", first, count, int(settings.get("unit", 1)))
+                rows.append(Row(part, where, name, f"= {list(values)}", True))
+            except CommunicationError as e:
+                rows.append(Row(part, where, name, str(e).rpartition(": ")[2], False))
+    finally:
+        conn.close()
+    return rows
+
+
+PROBES = {
+    MODBUS: probe_modbus,
+    PACKTAGS: probe_packtags,
+    MODBUS_PACKTAGS: probe_modbus_packtags,
+    UR: probe_ur,
+}
 
 
 async def probe(parts: list[tuple[str, Part]]) -> list[Row]:
