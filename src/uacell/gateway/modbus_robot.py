@@ -17,7 +17,7 @@ from typing import Any
 from uacell.errors import CallError
 from uacell.gateway.codec import RegisterType
 from uacell.gateway.handshake import Write
-from uacell.gateway.modbus import CommunicationError, ModbusConnection, ModbusTag, spans
+from uacell.gateway.modbus import SHARED, CommunicationError, ModbusConnection, ModbusTag, spans
 from uacell.gateway.signals import DEFAULT_MAP, NAME_SIGNALS, SAFETY_SIGNALS, RobotStatus, SignalOp
 
 STATUS_SIGNALS = (
@@ -139,6 +139,13 @@ class ModbusRobotIO:
         self._read = {name: tags[name] for name in self.signals}
         self._axis_tags = motion.tags(axes) if motion is not None else {}
         self._spans = spans([*self._read.values(), *self._axis_tags.values()], gap=0)
+
+    @property
+    def name(self) -> str:
+        return self.conn.name
+
+    async def close(self) -> None:
+        SHARED.release(self.conn)
 
     async def status(self) -> RobotStatus:
         """The controller's status now, in one read per block of adjacent registers; ``connected=False``

@@ -14,6 +14,7 @@ from uacell.cell_file import Part
 from uacell.gateway.modbus import CommunicationError, ModbusConnection, endpoint_name
 from uacell.gateway.modbus_robot import parse_motion, signal_tags, used_tags
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
+from uacell.gateway.opcua_robot import robot_addresses
 from uacell.gateway.packml_modbus import Point, where
 from uacell.gateway.packtags import PackTagsMapError, resolve
 from uacell.gateway.ur_link import JOINT_REGISTERS, STATE_REGISTERS, TURN_REGISTERS, Dashboard, DashboardError
@@ -22,6 +23,7 @@ MODBUS = "uacell.gateway.robot:modbus_signals"
 PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
 MODBUS_PACKTAGS = "uacell.gateway.packml_modbus:modbus_packtags"
 UR = "uacell.gateway.ur_robot:ur_dashboard"
+OPCUA_SIGNALS = "uacell.gateway.opcua_robot:opcua_signals"
 _BUILTIN = {ua.VariantType.Int32: "Int32", ua.VariantType.Boolean: "Boolean", ua.VariantType.Float: "Float"}
 
 
@@ -174,7 +176,40 @@ async def probe_ur(part: str, settings: Mapping[str, Any], timeout: float = 3.0)
     return rows
 
 
+async def probe_opcua_signals(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    """Every signal variable (and axis variable) the opcua-signals driver uses: found, and its value."""
+    endpoint = str(settings.get("endpoint", ""))
+    try:
+        options = link_options(part, settings)
+        used = robot_addresses(settings)
+    except ValueError as e:
+        return [Row(part, endpoint, "(settings)", str(e), False)]
+    try:
+        client = await new_client(options, timeout)
+        await asyncio.wait_for(client.connect(), timeout)
+    except Exception as e:
+        return [Row(part, endpoint, "(endpoint)", f"unreachable: {e or type(e).__name__}", False)]
+    rows = []
+    try:
+        for key, address in used.items():
+            try:
+                node = client.get_node(await resolve_address(client, address))
+                dv = await node.read_data_value(raise_on_bad_status=False)
+            except Exception as e:
+                rows.append(Row(part, endpoint, key, f"{address}: {e}", False))
+                continue
+            if not dv.StatusCode.is_good():
+                rows.append(Row(part, endpoint, key, f"{address}: {dv.StatusCode.name}", False))
+                continue
+            found = _BUILTIN.get(dv.Value.VariantType, dv.Value.VariantType.name) if dv.Value else "null"
+            rows.append(Row(part, endpoint, key, f"{found} = {dv.Value.Value if dv.Value else None!r}", True))
+    finally:
+        await client.disconnect()
+    return rows
+
+
 PROBES = {
+    OPCUA_SIGNALS: probe_opcua_signals,
     MODBUS: probe_modbus,
     PACKTAGS: probe_packtags,
     MODBUS_PACKTAGS: probe_modbus_packtags,

@@ -34,7 +34,7 @@ import re
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from uacell.errors import CallError
 from uacell.gateway import driver_settings
@@ -81,12 +81,34 @@ class Timing:
     pulse_width: float = 0.2  # seconds a pulse stays set (at most; it ends once confirmed)
 
 
+class SignalIO(Protocol):
+    """The transport of the signal operations: Modbus registers (``ModbusRobotIO``) or a PLC's OPC UA
+    variables (``opcua_robot.OpcuaRobotIO``)."""
+
+    signals: tuple[str, ...]  # the signals ``status`` reads
+    motion: Any  # where the axes are (None: not mapped)
+
+    @property
+    def name(self) -> str: ...
+
+    async def status(self) -> RobotStatus: ...
+
+    async def perform(self, op: SignalOp) -> None: ...
+
+    async def write_signal(self, signal: str, value: bool | int | str) -> None: ...
+
+    async def close(self) -> None: ...
+
+
 class ModbusSignalsRobot:
+    """The remote-operation signals of a robot controller as a ``RobotEquipment``, whatever carries
+    them (``SignalIO``): the modbus-signals and opcua-signals drivers."""
+
     def __init__(
         self,
         part: str,
-        io: ModbusRobotIO,
-        conn: ModbusConnection,
+        io: SignalIO,
+        conn: ModbusConnection | None,
         programs: Mapping[str, int | str],
         axes: Sequence[AxisInfo],
         timing: Timing,
@@ -191,10 +213,10 @@ class ModbusSignalsRobot:
         if status.connected != self.reachable:
             self.reachable = status.connected
             if status.connected:
-                log.info("%s: the controller at %s answers", self.part, self.conn.name)
+                log.info("%s: the controller at %s answers", self.part, self.io.name)
             else:
-                log.warning("%s: lost the controller at %s (retrying)", self.part, self.conn.name)
-            self._tell(COMMUNICATION, not status.connected, f"no answer from {self.conn.name}")
+                log.warning("%s: lost the controller at %s (retrying)", self.part, self.io.name)
+            self._tell(COMMUNICATION, not status.connected, f"no answer from {self.io.name}")
         if not status.connected:
             return
         self._seen = status
@@ -303,7 +325,7 @@ class ModbusSignalsRobot:
         status = await self.io.status()
         self._observe(status)
         if not status.connected:
-            raise CallError("BadCommunicationError", f"no answer from {self.conn.name}")
+            raise CallError("BadCommunicationError", f"no answer from {self.io.name}")
         if status.fault:
             raise AlarmStop(f"controller fault {status.fault_code}")
         missing = start_missing(status)
@@ -341,7 +363,7 @@ class ModbusSignalsRobot:
                 status = await self.io.status()
                 self._observe(status)
                 if not status.connected:
-                    raise EquipmentError(f"lost the controller at {self.conn.name} while it ran")
+                    raise EquipmentError(f"lost the controller at {self.io.name} while it ran")
                 if status.fault:
                     raise AlarmStop(f"controller fault {status.fault_code}")
                 if not status.running:
@@ -375,7 +397,17 @@ class ModbusSignalsRobot:
             if task is not None:
                 task.cancel()
                 await asyncio.wait({task}, timeout=5.0)  # never held up by the transport
-        POOL.release(self.conn)
+        await self.io.close()
+
+
+def check_programs(programs: Any) -> dict[str, int | str]:
+    """The ``programs`` setting: program name -> number or the controller's name for it."""
+    if not isinstance(programs, Mapping):
+        raise ValueError("programs must map program names to numbers (or to the names the controller knows)")
+    for key, value in programs.items():
+        if isinstance(value, bool) or not isinstance(value, int | str) or value in ("", 0):
+            raise ValueError(f"programs: {key} = {value!r}: a program number (1..65535) or a name (a string)")
+    return dict(programs)
 
 
 async def modbus_signals(spec: Any) -> ModbusSignalsRobot:
@@ -385,12 +417,7 @@ async def modbus_signals(spec: Any) -> ModbusSignalsRobot:
     if not isinstance(host, str) or not host:
         raise ValueError('the modbus-signals driver needs host = "<address of the controller or PLC>"')
     port, unit = int(settings.get("port", 502)), int(settings.get("unit", 1))
-    programs = settings.get("programs", {})
-    if not isinstance(programs, Mapping):
-        raise ValueError("programs must map program names to numbers (or to the names the controller knows)")
-    for key, value in programs.items():
-        if isinstance(value, bool) or not isinstance(value, int | str) or value in ("", 0):
-            raise ValueError(f"programs: {key} = {value!r}: a program number (1..65535) or a name (a string)")
+    programs = check_programs(settings.get("programs", {}))
     overrides = {k: (str(v[0]), int(v[1]), str(v[2])) for k, v in dict(settings.get("map", {})).items()}
     tags = signal_tags(overrides)
     motion = parse_motion(settings["motion"]) if "motion" in settings else None

@@ -38,6 +38,7 @@ _ONE_CONTROLLER = [{"name": "Controller1"}]
 DRIVERS = {
     "modbus-signals": "uacell.gateway.robot:modbus_signals",
     "ur-dashboard": "uacell.gateway.ur_robot:ur_dashboard",
+    "opcua-signals": "uacell.gateway.opcua_robot:opcua_signals",
 }
 
 
