@@ -4,6 +4,7 @@ through Modbus as an operator would at the cabinet), served by uacell from the c
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -35,6 +36,7 @@ from uacell.gateway.codec import RegisterType
 from uacell.gateway.examples.robot_controller import ESTOP, ESTOP_CODE, MODE, PSTOP, REMOTE_OFF
 from uacell.gateway.modbus import ModbusTag
 from uacell.gateway.modbus_robot import ModbusRobotIO
+from uacell.roles import Role
 from uacell.server import UacellServer
 
 FAULT = f"{COND}.ControllerFault"
@@ -246,3 +248,33 @@ async def test_config_check_connect_names_a_missing_axis_or_safety_register(tmp_
     assert any("axis1.position" in ln and "input 200" in ln for ln in problems), proc.stdout
     assert not any("emergency_stop" in ln for ln in problems)  # that one is there
     assert any("operational_mode" in ln and "input 2 = " in ln for ln in proc.stdout.splitlines())
+
+
+async def test_loads_by_name_keep_locks_and_roles(tmp_path: Path, plc: PLC) -> None:
+    """Another session's DI lock on the Controller: Bad_ResourceUnavailable, nothing sent; an observer:
+    Bad_UserAccessDenied; exactly as for the simulator."""
+    io = await plc.io()
+    cell = tmp_path / "cell.toml"
+    cell.write_text(cell_text(plc.port))
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(cell)
+    async with serving(config) as (app, client), Client(app.endpoint, timeout=30) as other:
+        ctrl = "Palletizer.Controllers.Cabinet"
+        res = await call(other, f"{ctrl}.Lock", "InitLock", s("maintenance"))
+        assert res.StatusCode.is_good() and res.OutputArguments[0].Value == 0
+        res = await call(client, TC, "LoadByName", s("pick_and_place"))
+        assert res.StatusCode.value == ua.StatusCodes.BadResourceUnavailable
+        assert (await held(io)).program_echo == 0  # nothing was selected
+        assert (await call(other, f"{ctrl}.Lock", "ExitLock")).OutputArguments[0].Value == 0
+        manager = app.server.iserver.user_manager
+        policy = manager.policy
+        manager.policy = dataclasses.replace(policy, anonymous_role=Role.OBSERVER)
+        try:
+            async with Client(app.endpoint, timeout=30) as observer:  # its role: observer
+                res = await call(observer, TC, "LoadByName", s("pick_and_place"))
+                assert res.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
+        finally:
+            manager.policy = policy
+        assert (await held(io)).program_echo == 0
+        assert await status(client, TC, "LoadByName", s("pick_and_place")) == 0
+        assert (await held(io)).program_echo == 3

@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
 from enum import IntEnum
 from pathlib import Path, PurePosixPath
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from uacell.background import Background
 from uacell.conditions import ConditionSet
@@ -297,8 +297,76 @@ class _Guarded:
         return [(name, m) for name, machine in self._machines.items() for m in sorted(machine.table.methods)]
 
 
+# --- a controller that keeps its programs and confirms its starts (decision 58) --------------------
+class _OnController(_Guarded):
+    """What TaskControl does for equipment that keeps its own programs (``ProgramCatalogue``) and
+    confirms its starts (``ConfirmedStart``)."""
+
+    name: str
+    equipment: RobotEquipment
+    machine: StateMachine
+    pointer: int
+    execution_mode: ExecutionMode
+    last_error: str
+    _lock: asyncio.Lock
+    _modules: dict[str, tuple[Program, str | None]]
+
+    if TYPE_CHECKING:  # TaskControl's
+
+        def _load_failed(self, status: Status, reason: str) -> int: ...
+        def _fail(self, status: Status, reason: str) -> int: ...
+        def _take_program(self, program: Program, relpath: str | None, on_controller: bool = False) -> None: ...
+        def _start_problem(self) -> Status | None: ...
+        def _go(self, reason: Reason) -> int: ...
+
+    async def load_controller_program(self, name: str) -> int:
+        """LoadByNodeId, after the binding resolved the NodeId to a program the controller holds."""
+        async with self._lock:
+            if (problem := self._refusal(TASK_CONTROL, "LoadByNodeId")) is not None:
+                return problem
+            return await self._select(name)
+
+    async def _select(self, name: str) -> int:
+        """Select the controller's own program ``name`` (a ``ProgramCatalogue``): no file, no text;
+        what it calls is the controller's business (Start never answers -3 for it)."""
+        assert isinstance(self.equipment, ProgramCatalogue)
+        if name in self._modules:
+            return self._load_failed(Status.INVALID_CONTENT, f"program {name} has a loaded module's name")
+        try:
+            await self.equipment.select(self.name, name)
+        except UnknownProgram as e:
+            return self._load_failed(Status.NOT_FOUND, f"the controller has no program {name!r}: {e}")
+        except ProgramRejected as e:
+            return self._load_failed(Status.INVALID_CONTENT, f"the controller rejected {name!r}: {e}")
+        except EquipmentError as e:
+            return self._load_failed(Status.E_UNEXPECTED_ERROR, f"the controller could not select {name!r}: {e}")
+        if self.machine.current == EXECUTING:
+            return self._load_failed(Status.E_SYSTEM_STATE, "task control started during load")
+        self.last_error = ""
+        self._take_program(Program(name, Kind.PROGRAM, "", (), ()), None, on_controller=True)
+        return Status.OK
+
+    async def _start_confirmed(self, reason: Reason) -> int:
+        """Start on a controller that confirms it: Executing once it runs; a refusal answers at once
+        (StartRefused: 1, a fault: 3, another failure: 2) and changes nothing. Loads wait meanwhile,
+        a second Start answers 1."""
+        assert isinstance(self.equipment, ConfirmedStart)
+        if (problem := self._start_problem()) is not None:
+            return problem
+        async with self._lock:
+            try:
+                await self.equipment.begin(self.name, self.pointer, self.execution_mode)
+            except StartRefused as e:
+                return self._fail(Status.E_SYSTEM_STATE, f"the controller refused the start: {e}")
+            except AlarmStop as e:
+                return self._fail(Status.E_ACTIVE_ALARM, f"the controller refused the start: {e}")
+            except EquipmentError as e:
+                return self._fail(Status.E_UNEXPECTED_ERROR, f"the controller did not start: {e}")
+            return self._go(reason)
+
+
 # --- TaskControl -----------------------------------------------------------------------------------
-class TaskControl(_Guarded):
+class TaskControl(_OnController):
     """One task control: loads programs and modules, runs them on the equipment (TaskControlStateMachine)."""
 
     def __init__(
@@ -405,33 +473,6 @@ class TaskControl(_Guarded):
             if found is None:
                 return self._load_failed(Status.NOT_FOUND, f"no program or module named {name!r}")
             return await self._select(found)
-
-    async def load_controller_program(self, name: str) -> int:
-        """LoadByNodeId, after the binding resolved the NodeId to a program the controller holds."""
-        async with self._lock:
-            if (problem := self._refusal(TASK_CONTROL, "LoadByNodeId")) is not None:
-                return problem
-            return await self._select(name)
-
-    async def _select(self, name: str) -> int:
-        """Select the controller's own program ``name`` (a ``ProgramCatalogue``): no file, no text;
-        what it calls is the controller's business (Start never answers -3 for it)."""
-        assert isinstance(self.equipment, ProgramCatalogue)
-        if name in self._modules:
-            return self._load_failed(Status.INVALID_CONTENT, f"program {name} has a loaded module's name")
-        try:
-            await self.equipment.select(self.name, name)
-        except UnknownProgram as e:
-            return self._load_failed(Status.NOT_FOUND, f"the controller has no program {name!r}: {e}")
-        except ProgramRejected as e:
-            return self._load_failed(Status.INVALID_CONTENT, f"the controller rejected {name!r}: {e}")
-        except EquipmentError as e:
-            return self._load_failed(Status.E_UNEXPECTED_ERROR, f"the controller could not select {name!r}: {e}")
-        if self.machine.current == EXECUTING:
-            return self._load_failed(Status.E_SYSTEM_STATE, "task control started during load")
-        self.last_error = ""
-        self._take_program(Program(name, Kind.PROGRAM, "", (), ()), None, on_controller=True)
-        return Status.OK
 
     async def load_file(self, relpath: str) -> int:
         """LoadByNodeId, after the binding resolved the NodeId to a file in Programs."""
@@ -656,24 +697,6 @@ class TaskControl(_Guarded):
                 return Status(self._fail(problem, str(self._unresolved())))
             return Status(self._fail(problem, f"cannot start in {self.machine.current}"))
         return None
-
-    async def _start_confirmed(self, reason: Reason) -> int:
-        """Start on a controller that confirms it: Executing once it runs; a refusal answers at once
-        (StartRefused: 1, a fault: 3, another failure: 2) and changes nothing. Loads wait meanwhile,
-        a second Start answers 1."""
-        assert isinstance(self.equipment, ConfirmedStart)
-        if (problem := self._start_problem()) is not None:
-            return problem
-        async with self._lock:
-            try:
-                await self.equipment.begin(self.name, self.pointer, self.execution_mode)
-            except StartRefused as e:
-                return self._fail(Status.E_SYSTEM_STATE, f"the controller refused the start: {e}")
-            except AlarmStop as e:
-                return self._fail(Status.E_ACTIVE_ALARM, f"the controller refused the start: {e}")
-            except EquipmentError as e:
-                return self._fail(Status.E_UNEXPECTED_ERROR, f"the controller did not start: {e}")
-            return self._go(reason)
 
     def _start(self, reason: Reason) -> int:
         if (problem := self._start_problem()) is not None:
