@@ -31,7 +31,7 @@ from uacell.robotics.equipment import (
     StopMode,
     UnknownProgram,
 )
-from uacell.robotics.model import DirectoryLibrary, RobotCell, Status
+from uacell.robotics.model import DirectoryLibrary, RobotCell, Status, SystemOperation, TaskControl
 from uacell.robotics.program import Program
 from uacell.robotics.sim import DEFAULT_AXES, SimulatedRobot
 
@@ -151,6 +151,15 @@ async def rig(tmp_path: Path) -> AsyncIterator[tuple[RobotCell, Controller]]:
     await cell.close()
 
 
+async def ready_with_pick(cell: RobotCell) -> tuple[TaskControl, SystemOperation]:
+    """SystemOperation Ready, the controller's program ``pick`` selected."""
+    task, system = cell.tasks["TaskControl1"], cell.system
+    assert await system.get_ready() == Status.OK
+    await wait_until(lambda: system.state == "Ready")
+    assert await task.load_by_name("pick") == Status.OK
+    return task, system
+
+
 def test_the_capabilities_are_protocols_the_simulator_does_not_have() -> None:
     controller = Controller()
     for capability in (RobotEquipment, ConfirmedStart, PowerFeedback, AlarmReset, ProgramCatalogue):
@@ -185,10 +194,7 @@ async def test_start_is_executing_only_once_confirmed_and_a_refusal_answers_at_o
     rig: tuple[RobotCell, Controller],
 ) -> None:
     cell, controller = rig
-    task, system = cell.tasks["TaskControl1"], cell.system
-    assert await system.get_ready() == Status.OK
-    await wait_until(lambda: system.state == "Ready")
-    assert await task.load_by_name("pick") == Status.OK
+    task, system = await ready_with_pick(cell)
     controller.remote = False
     assert await task.start() == Status.E_SYSTEM_STATE  # refused: 1, nothing changed
     assert await system.start() == Status.E_SYSTEM_STATE
@@ -208,10 +214,7 @@ async def test_drives_that_drop_take_system_operation_to_idle_and_acknowledge_re
     rig: tuple[RobotCell, Controller],
 ) -> None:
     cell, controller = rig
-    task, system = cell.tasks["TaskControl1"], cell.system
-    assert await system.get_ready() == Status.OK
-    await wait_until(lambda: system.state == "Ready")
-    assert await task.load_by_name("pick") == Status.OK
+    task, system = await ready_with_pick(cell)
     assert await task.start() == Status.OK
     reasons: list[tuple[str, Reason]] = []
     system.machine.listeners.append(lambda c: reasons.append((c.to_state, c.reason)))
@@ -250,10 +253,7 @@ async def test_stand_down_during_a_fault_reaches_idle(rig: tuple[RobotCell, Cont
 
 async def test_a_fault_in_answer_to_start_answers_3(rig: tuple[RobotCell, Controller]) -> None:
     cell, controller = rig
-    task, system = cell.tasks["TaskControl1"], cell.system
-    assert await system.get_ready() == Status.OK
-    await wait_until(lambda: system.state == "Ready")
-    assert await task.load_by_name("pick") == Status.OK
+    task, _system = await ready_with_pick(cell)
 
     async def faulting_begin(task_name: str, pointer: int, mode: ExecutionMode) -> None:
         raise AlarmStop("fault 9 on start")
