@@ -33,6 +33,7 @@ from typing import Any
 from benchmarks.gateway import gateway_section
 from benchmarks.history import history_section
 from benchmarks.plant import plant_section
+from benchmarks.robots import robots_section
 from benchmarks.web import web_section
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -557,6 +558,7 @@ SECTIONS = {
     "history": history_section,
     "plant": plant_section,
     "gateway": gateway_section,
+    "robots": robots_section,
 }
 
 

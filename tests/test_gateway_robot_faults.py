@@ -278,3 +278,13 @@ async def test_loads_by_name_keep_locks_and_roles(tmp_path: Path, plc: PLC) -> N
         assert (await held(io)).program_echo == 0
         assert await status(client, TC, "LoadByName", s("pick_and_place")) == 0
         assert (await held(io)).program_echo == 3
+
+
+async def test_back_to_back_loads_each_give_the_controller_a_strobe_edge(served, plc: PLC) -> None:
+    """The strobe stays low for pulse_width between two loads: a controller scanning slower than
+    uacell writes still sees every rising edge (each load confirmed, none timing out)."""
+    _app, client = served
+    io = await plc.io()
+    for name, number in (("pick_and_place", 3), ("palletize", 99), ("pick_and_place", 3), ("palletize", 99)):
+        assert await status(client, TC, "LoadByName", s(name)) == 0
+        assert (await held(io)).program_echo == number

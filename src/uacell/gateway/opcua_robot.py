@@ -33,7 +33,7 @@ from uacell.gateway.signals import DEFAULT_MAP, NAME_SIGNALS, SAFETY_SIGNALS, Ro
 from uacell.robotics.sim import DEFAULT_AXES
 
 SETTINGS = (
-    *LINK_SETTINGS, "prefix", "map", "types", "programs", "confirm_timeout", "pulse_width", "motion",
+    *LINK_SETTINGS, "prefix", "map", "types", "programs", "confirm_timeout", "pulse_width", "pulse_gap", "motion",
 )  # fmt: skip
 POOL = LinkPool()
 # the built-in types uacell writes the signals as (``types`` changes them, e.g. program_number = "UInt16")
@@ -224,6 +224,7 @@ async def opcua_signals(spec: Any) -> ModbusSignalsRobot:
         poll=options.interval,
         confirm_timeout=float(settings.get("confirm_timeout", Timing.confirm_timeout)),
         pulse_width=float(settings.get("pulse_width", Timing.pulse_width)),
+        pulse_gap=float(settings.get("pulse_gap", Timing.pulse_gap)),
     )
     io = OpcuaRobotIO(
         POOL.get(options), addresses,

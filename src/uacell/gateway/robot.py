@@ -64,7 +64,10 @@ log = logging.getLogger(__name__)
 
 FAULT, COMMUNICATION = "ControllerFault", "CommunicationLost"
 ESTOP, PSTOP = "EmergencyStop", "ProtectiveStop"  # conditions, when their signals are mapped
-SETTINGS = ("host", "port", "unit", "timeout", "poll", "confirm_timeout", "pulse_width", "programs", "map", "motion")
+SETTINGS = (
+    "host", "port", "unit", "timeout", "poll", "confirm_timeout", "pulse_width", "pulse_gap", "programs", "map",
+    "motion",
+)  # fmt: skip
 POOL = SHARED  # connections shared by every part of the process, per host and port
 MAX_BACKOFF = 2.0
 
@@ -79,6 +82,7 @@ class Timing:
     poll: float = 0.05  # seconds between status reads
     confirm_timeout: float = 5.0  # seconds a handshake may take
     pulse_width: float = 0.2  # seconds a pulse stays set (at most; it ends once confirmed)
+    pulse_gap: float = 0.05  # seconds a pulse signal stays low before it is set again
 
 
 class SignalIO(Protocol):
@@ -122,6 +126,8 @@ class ModbusSignalsRobot:
         self._power_op = False  # uacell is switching the drives (GetReady / StandDown)
         self._begun: set[str] = set()  # tasks whose start the controller confirmed, run not yet watching
         self._background: set[asyncio.Task[None]] = set()
+        self._read = asyncio.Event()  # set (and replaced) after every poll
+        self._low_since: dict[str, float] = {}  # pulse signal -> when it was last written low
         self._axis_listeners: list[Callable[[], None]] = []
         self._safety_listeners: list[Callable[[], None]] = []
         safety = set(io.signals)
@@ -203,7 +209,17 @@ class ModbusSignalsRobot:
             await asyncio.sleep(delay)
             status = await self.io.status()
             self._observe(status)
+            read, self._read = self._read, asyncio.Event()
+            read.set()
             delay = self.timing.poll if status.connected else min(MAX_BACKOFF, max(delay * 2, 0.1))
+
+    async def _next_status(self) -> RobotStatus:
+        """The status the poller reads next (at most ``poll`` plus a read from now)."""
+        if self._poller is None or self._poller.done():  # no poller (a driver built by hand): read
+            self._observe(await self.io.status())
+            return self.status
+        await self._read.wait()
+        return self.status
 
     def _observe(self, status: RobotStatus) -> None:
         """Tell what changed since the controller last answered (a fault that cleared while it was
@@ -280,9 +296,21 @@ class ModbusSignalsRobot:
         status = await self.io.status()
         self._observe(status)
         op: SignalOp = make(status, time.monotonic())
+        # a pulse signal stays low for ``pulse_width`` before it is set again, so that a controller
+        # scanning slower than uacell writes sees the edge
+        wait = max(
+            (self._low_since.get(s, 0.0) + self.timing.pulse_width - time.monotonic() for s in op.pulses), default=0.0
+        )
+        if wait > 0:
+            await asyncio.sleep(wait)
+            status = await self.io.status()
+            self._observe(status)
+            op = make(status, time.monotonic())
         try:
             await self.io.perform(op)
         finally:
+            now = time.monotonic()
+            self._low_since.update((s, now) for s in op.pulses)
             self._observe(await self.io.status())
 
     async def power_up(self) -> None:
@@ -346,7 +374,6 @@ class ModbusSignalsRobot:
         return  # the selection stays on the controller until the next one
 
     async def run(self, task: str, pointer: int, mode: ExecutionMode, progress: Progress) -> RunOutcome:
-        t = self.timing
         try:
             if task not in self._begun:  # called without ``begin`` (the conformance kit): start now
                 try:
@@ -357,11 +384,10 @@ class ModbusSignalsRobot:
             self._phase = "running"
             if self._stop_requested:  # asked while the start was being confirmed: it applies to this run
                 await self._send_stop()
+            status = self.status
             while True:
                 if self._closed:
                     raise EquipmentError("the driver was closed while the program ran")
-                status = await self.io.status()
-                self._observe(status)
                 if not status.connected:
                     raise EquipmentError(f"lost the controller at {self.io.name} while it ran")
                 if status.fault:
@@ -370,7 +396,7 @@ class ModbusSignalsRobot:
                     if status.program_end and not self._stop_requested:
                         return RunOutcome(0, completed=True)
                     return RunOutcome(pointer, completed=False)
-                await asyncio.sleep(t.poll)
+                status = await self._next_status()  # the poller's next read: no request of its own
         finally:
             self._phase = None
             self._stop_requested = False
@@ -426,6 +452,7 @@ async def modbus_signals(spec: Any) -> ModbusSignalsRobot:
         poll=float(settings.get("poll", Timing.poll)),
         confirm_timeout=float(settings.get("confirm_timeout", Timing.confirm_timeout)),
         pulse_width=float(settings.get("pulse_width", Timing.pulse_width)),
+        pulse_gap=float(settings.get("pulse_gap", Timing.pulse_gap)),
     )
     conn = POOL.get(host, port, float(settings.get("timeout", 1.0)))
     by_name = any(isinstance(v, str) for v in programs.values())

@@ -85,6 +85,7 @@ class SignalOp:
         self._pulse_until = now + pulse_width
         self._fault_ends = fault_ends
         self._expires_ok = expires_ok  # a plain pulse: done when its width has passed
+        self.pulses = tuple(w.tag for w in pulse_off)  # the pulse signals this operation sets
         self.done = False
 
     def pulse_end(self, now: float) -> tuple[Write, ...]:
