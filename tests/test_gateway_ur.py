@@ -21,6 +21,7 @@ from ursim.robot import ProgramState as UrProgramState
 from ursim.robot import RobotMode, SafetyStatus, URSim
 from ursim.server import URSimServers
 
+from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
 
 CTRL = "UR5e.Controllers.Cabinet"
@@ -32,22 +33,14 @@ COND = f"{CTRL}.SystemOperation.Conditions"
 SAFETY = "UR5e.SafetyStates.SafetyState1.ParameterSet"
 AXIS = "UR5e.MotionDevices.Arm1.Axes.Axis{}.ParameterSet.{}"
 
-CELL = """
-[[robots]]
-name = "UR5e"
+SHIPPED = builtin_cell_path("ur-robot").read_text()
 
-  [[robots.controllers]]
-  name = "Cabinet"
-  equipment = {{ driver = "ur-dashboard", host = "127.0.0.1", port = {dashboard}, modbus_port = {modbus}, poll = 0.02 }}
-  programs = {{ pick = "pick.urp" }}
 
-    [[robots.controllers.task_controls]]
-    name = "Main"
-
-  [[robots.motion_devices]]
-  name = "Arm1"
-  axes = 6
-"""
+def cell_text(dashboard: int, modbus: int) -> str:
+    """The shipped cell with nothing changed but the ports (and a faster poll for the tests)."""
+    return SHIPPED.replace(
+        "port = 29999, modbus_port = 5502", f"port = {dashboard}, modbus_port = {modbus}, poll = 0.02"
+    )
 
 
 @dataclass
@@ -69,7 +62,7 @@ async def rig(tmp_path: Path) -> AsyncIterator[Rig]:
     async with URSimServers(sim, free_port(), free_port()) as servers:
         assert servers.modbus is not None
         cell = tmp_path / "cell.toml"
-        cell.write_text(CELL.format(dashboard=servers.dashboard_port, modbus=servers.modbus.port))
+        cell.write_text(cell_text(servers.dashboard_port, servers.modbus.port))
         config = fast_config(tmp_path / "data")
         config.cell = load_cell(cell)
         async with serving(config) as (app, client):
@@ -222,8 +215,8 @@ async def test_config_check_connect_names_an_unreachable_dashboard(tmp_path: Pat
     async with URSimServers(sim, free_port(), free_port()) as servers:
         assert servers.modbus is not None
         good, bad = tmp_path / "good.toml", tmp_path / "bad.toml"
-        good.write_text(CELL.format(dashboard=servers.dashboard_port, modbus=servers.modbus.port))
-        bad.write_text(CELL.format(dashboard=free_port(), modbus=servers.modbus.port))  # nobody on that port
+        good.write_text(cell_text(servers.dashboard_port, servers.modbus.port))
+        bad.write_text(cell_text(free_port(), servers.modbus.port))  # nobody on that port
         proc = await config_check_connect(good)
         assert proc.returncode == 0, proc.stdout + proc.stderr
         assert any("robotmode" in ln and "Robotmode: POWER_OFF" in ln for ln in proc.stdout.splitlines())

@@ -3,6 +3,9 @@
 
 - ``robot`` (``modbus-signals``): a robot controller's remote-operation signals over Modbus/TCP
   (``modbus``, ``modbus_robot``, ``signals``; ``codec`` for register values);
+- ``opcua_robot`` (``opcua-signals``): the same signals as a PLC's OPC UA variables (``opcua_link``);
+- ``ur_robot`` (``ur-dashboard``): Universal Robots through the Dashboard Server and UR's Modbus
+  registers (``ur_link``);
 - ``packml_opcua`` (``opcua-packtags``): a PackML unit whose state machine runs in a PLC, over its
   PackTags on OPC UA (``opcua_link``, ``packtags``, ``handshake``).
 

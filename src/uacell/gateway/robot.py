@@ -128,6 +128,7 @@ class ModbusSignalsRobot:
         self._background: set[asyncio.Task[None]] = set()
         self._read = asyncio.Event()  # set (and replaced) after every poll
         self._low_since: dict[str, float] = {}  # pulse signal -> when it was last written low
+        self._fault_acked = False  # ControllerFault was acknowledged since the fault rose
         self._axis_listeners: list[Callable[[], None]] = []
         self._safety_listeners: list[Callable[[], None]] = []
         safety = set(io.signals)
@@ -236,7 +237,12 @@ class ModbusSignalsRobot:
         if not status.connected:
             return
         self._seen = status
-        if status.fault != before.fault or status.fault_code != before.fault_code:
+        # a new code while the fault stays active renews the message until it is acknowledged (the
+        # bit and the code are two reads: the code may come one poll later); after that, only a
+        # fault that rises again asks for an acknowledgement again
+        renewed = status.fault and status.fault_code != before.fault_code and not self._fault_acked
+        if status.fault != before.fault or renewed:
+            self._fault_acked = False
             self._tell(FAULT, status.fault, f"controller fault {status.fault_code}" if status.fault else "")
         if status.emergency_stop != before.emergency_stop and ESTOP in self._alarms:
             self._tell(ESTOP, status.emergency_stop, "emergency stop" if status.emergency_stop else "")
@@ -273,6 +279,8 @@ class ModbusSignalsRobot:
     def alarm_acknowledged(self, name: str) -> None:
         """Acknowledging ControllerFault pulses ``reset`` (confirmed by the fault bit falling, when
         it is set); the answer to Acknowledge does not wait for it."""
+        if name == FAULT:
+            self._fault_acked = True
         if name == FAULT and self.reachable:
             self._spawn(self.reset())
 
