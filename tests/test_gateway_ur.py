@@ -225,3 +225,22 @@ async def test_config_check_connect_names_an_unreachable_dashboard(tmp_path: Pat
         assert proc.returncode == 1, proc.stdout + proc.stderr
         problem = [ln for ln in proc.stdout.splitlines() if "PROBLEM" in ln]
         assert len(problem) == 1 and "dashboard 127.0.0.1" in problem[0] and "unreachable" in problem[0], problem
+
+
+async def test_a_process_stop_pauses_and_start_resumes_a_reset_restarts(rig: Rig) -> None:
+    """ProcessStop (3) is the robot's ``pause``: Start resumes it with ``play``; after
+    ResetToProgramStart, Start stops the paused program first, so it begins again."""
+    client, sim = rig.client, rig.sim
+    await ready_with(rig, "pick")
+    assert await status(client, TC, "Start") == 0
+    assert await status(client, TC, "Stop", ua.Variant(3, ua.VariantType.Int64)) == 0
+    await until_state(client, TC, "Ready")
+    assert await state(client, READY) == "Suspended" and sim.program_state is UrProgramState.PAUSED
+    runs = sim.program_runs
+    assert await status(client, TC, "Start") == 0  # resumed, not begun again
+    assert sim.program_state is UrProgramState.PLAYING and sim.program_runs == runs
+    assert await status(client, TC, "Stop", ua.Variant(5, ua.VariantType.Int64)) == 0
+    await until_state(client, TC, "Ready")
+    assert await status(client, f"{TC}.ReadySubstateMachine", "ResetToProgramStart") == 0
+    assert await status(client, TC, "Start") == 0
+    assert sim.program_state is UrProgramState.PLAYING and sim.program_runs == runs + 1  # begun again
