@@ -1,12 +1,12 @@
-"""A robot whose signals live in a PLC's OPC UA server (the opcua-signals driver): an asyncua server on a
-free port holds the signals of docs/equipment.md under Objects/Robot1 (string NodeIds ``Robot1.<signal>``,
-BrowseNames ``<signal>``) and runs a scan-cycle controller program on them; uacell, from the cell file
+"""A robot whose signals live in a PLC's OPC UA server (the opcua-signals driver): the example PLC
+(``uacell.gateway.examples.robot_plc``: asyncua's server on a free port holding the signals of
+docs/equipment.md under Objects/Robot1, string NodeIds ``Robot1.<signal>``, BrowseNames ``<signal>``,
+and a scan-cycle controller program on them); uacell, from the cell file
 alone, loads by name, starts, stops, follows the joints, recovers a latched fault and the PLC killed and
 back."""
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import math
 from collections.abc import AsyncIterator
@@ -14,12 +14,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from asyncua import Server, ua
+from asyncua import ua
 from conftest import fast_config, serving
 from helpers import config_check_connect, free_port
 from test_gateway_robot import call, read, s, state, status, until_state, wait_until_async
 
 from uacell.config import load_cell
+from uacell.gateway.examples.robot_plc import FAULT_PROGRAM, PLC
 
 ROBOT = "Palletizer"
 CTRL = f"{ROBOT}.Controllers.Cabinet"
@@ -27,94 +28,6 @@ TC = f"{CTRL}.TaskControls.Main.TaskControlOperation.TaskControlStateMachine"
 SO = f"{CTRL}.SystemOperation.SystemOperationStateMachine"
 COND = f"{CTRL}.SystemOperation.Conditions"
 AXIS = f"{ROBOT}.MotionDevices.Arm1.Axes.Axis{{}}.ParameterSet.{{}}"
-FAULT_PROGRAM = 99
-
-# the PLC's variables: signal -> (OPC UA type, initial value)
-SIGNALS: dict[str, tuple[ua.VariantType, Any]] = {
-    **{n: (ua.VariantType.Boolean, False) for n in ("start", "stop", "reset", "drives_on", "program_strobe")},
-    "program_number": (ua.VariantType.Int32, 0),
-    "program_name": (ua.VariantType.String, ""),
-    **{n: (ua.VariantType.Boolean, False) for n in ("drives_are_on", "running", "program_end", "at_start", "fault")},
-    "remote_ready": (ua.VariantType.Boolean, True),
-    "program_echo": (ua.VariantType.Int32, 0),
-    "fault_code": (ua.VariantType.Int32, 0),
-    "program_name_echo": (ua.VariantType.String, ""),
-    "emergency_stop": (ua.VariantType.Boolean, False),
-    "operational_mode": (ua.VariantType.Int32, 4),
-    "joints": (ua.VariantType.Double, [0.0] * 6),  # radians, one array
-}
-
-
-class PLC:
-    """asyncua's server with the robot's signals and a scan-cycle program (10 ms) acting on them."""
-
-    def __init__(self, port: int) -> None:
-        self.port = port
-        self.server: Server | None = None
-        self.nodes: dict[str, Any] = {}
-        self.ns = 0
-        self._scan: asyncio.Task[None] | None = None
-        self.writes: list[str] = []  # the signals uacell wrote, in order
-
-    async def start(self) -> None:
-        server = Server()
-        await server.init()
-        server.set_endpoint(f"opc.tcp://127.0.0.1:{self.port}/")
-        self.ns = await server.register_namespace("urn:example:plc")
-        robot = await server.nodes.objects.add_object(ua.NodeId("Robot1", self.ns), ua.QualifiedName("Robot1", self.ns))
-        for name, (vtype, value) in SIGNALS.items():
-            node = await robot.add_variable(
-                ua.NodeId(f"Robot1.{name}", self.ns), ua.QualifiedName(name, self.ns), ua.Variant(value, vtype)
-            )
-            await node.set_writable()
-            self.nodes[name] = node
-        await server.start()
-        self.server = server
-        self._scan = asyncio.get_running_loop().create_task(self._program())
-
-    async def stop(self) -> None:
-        if self._scan is not None:
-            self._scan.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._scan
-        if self.server is not None:
-            await self.server.stop()
-            self.server = None
-
-    async def get(self, name: str) -> Any:
-        return await self.nodes[name].read_value()
-
-    async def set(self, name: str, value: Any) -> None:
-        await self.nodes[name].write_value(ua.Variant(value, SIGNALS[name][0]))
-
-    async def _program(self) -> None:
-        last: dict[str, bool] = {}
-        t = 0.0
-        while True:
-            await asyncio.sleep(0.01)
-            v = {n: await self.get(n) for n in SIGNALS}
-            rising = {n for n in ("start", "stop", "reset", "program_strobe") if v[n] and not last.get(n)}
-            last = {n: bool(v[n]) for n in ("start", "stop", "reset", "program_strobe")}
-            if v["drives_are_on"] != v["drives_on"]:
-                await self.set("drives_are_on", v["drives_on"])
-            if "program_strobe" in rising:
-                await self.set("program_echo", v["program_number"])
-                await self.set("program_name_echo", v["program_name"])
-            if "reset" in rising and v["fault"]:
-                await self.set("fault", False)
-                await self.set("fault_code", 0)
-            if "start" in rising and v["drives_on"] and not v["fault"] and not v["running"]:
-                if v["program_echo"] == FAULT_PROGRAM:
-                    await self.set("fault_code", FAULT_PROGRAM)
-                    await self.set("fault", True)
-                elif v["program_echo"]:
-                    await self.set("running", True)
-                    await self.set("program_end", False)
-            if v["running"] and ("stop" in rising or not v["drives_on"]):
-                await self.set("running", False)
-            if v["running"]:
-                t += 0.01
-                await self.set("joints", [0.1 * (i + 1) * math.sin(t) for i in range(6)])
 
 
 @contextlib.asynccontextmanager

@@ -304,10 +304,10 @@ class ModbusSignalsRobot:
         status = await self.io.status()
         self._observe(status)
         op: SignalOp = make(status, time.monotonic())
-        # a pulse signal stays low for ``pulse_width`` before it is set again, so that a controller
+        # a pulse signal stays low for ``pulse_gap`` before it is set again, so that a controller
         # scanning slower than uacell writes sees the edge
         wait = max(
-            (self._low_since.get(s, 0.0) + self.timing.pulse_width - time.monotonic() for s in op.pulses), default=0.0
+            (self._low_since.get(s, 0.0) + self.timing.pulse_gap - time.monotonic() for s in op.pulses), default=0.0
         )
         if wait > 0:
             await asyncio.sleep(wait)
