@@ -9,7 +9,8 @@
 - ``packml_opcua`` (``opcua-packtags``): a PackML unit whose state machine runs in a PLC, over its
   PackTags on OPC UA (``opcua_link``, ``packtags``, ``handshake``).
 
-``examples/robot_controller.py`` is a Modbus robot controller to try the first with;
+``examples/robot_controller.py`` is a Modbus robot controller to try the first with,
+``examples/robot_plc.py`` an OPC UA PLC holding robot signals for ``opcua-signals``;
 ``interop/plc_packtags.js`` a PackTags PLC for the second.
 """
 
