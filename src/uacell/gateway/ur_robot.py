@@ -327,7 +327,7 @@ class URRobot:
     async def begin(self, task: str, pointer: int, mode: ExecutionMode) -> None:
         """``play``, answered once ``programState`` says PLAYING. A program paused and then reset to its
         start (pointer 0) is stopped first, so it begins again."""
-        await self._read()
+        await self._read(slow=True)  # remote control as it is now
         if not self.reachable:
             raise CallError("BadCommunicationError", f"no answer from {self.dashboard.name}")
         assert self.state is not None
