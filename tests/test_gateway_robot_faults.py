@@ -138,6 +138,9 @@ async def test_a_start_the_controller_refuses_answers_1_at_once_and_writes_nothi
     assert await status(client, TC, "LoadByName", s("pick_and_place")) == 0
     await panel(io, REMOTE_OFF, True)
     await wait_controller(io, lambda c: not c.remote_ready)
+    ns = await client.get_namespace_index("urn:uacell:cell")
+    start = client.get_node(ua.NodeId(f"{TC}.Start", ns))
+    await wait_until_async(lambda: start.read_attribute(ua.AttributeIds.Executable), False, value=True)
     assert await status(client, TC, "Start") == 1
     assert await status(client, SO, "Start") == 1
     assert await state(client, TC) == "Ready" and await state(client, SO) == "Ready"
@@ -145,6 +148,7 @@ async def test_a_start_the_controller_refuses_answers_1_at_once_and_writes_nothi
     assert not (await held(io)).running
     await panel(io, REMOTE_OFF, False)
     await wait_controller(io, lambda c: c.remote_ready)
+    await wait_until_async(lambda: start.read_attribute(ua.AttributeIds.Executable), True, value=True)
     assert await status(client, SO, "Start") == 0  # SystemOperation's Start: the task's confirmed start
     assert await state(client, TC) == "Executing" and await state(client, SO) == "Executing"
     assert (await held(io)).running
@@ -280,11 +284,17 @@ async def test_loads_by_name_keep_locks_and_roles(tmp_path: Path, plc: PLC) -> N
         assert (await held(io)).program_echo == 3
 
 
-async def test_back_to_back_loads_each_give_the_controller_a_strobe_edge(served, plc: PLC) -> None:
-    """The strobe stays low for pulse_width between two loads: a controller scanning slower than
-    uacell writes still sees every rising edge (each load confirmed, none timing out)."""
-    _app, client = served
+async def test_back_to_back_loads_each_give_the_controller_a_strobe_edge(tmp_path: Path, plc: PLC) -> None:
+    """The strobe stays low for pulse_gap between two loads (here 0.3 s, above the example controller's
+    scan even on a loaded machine): the controller sees every rising edge, each load is confirmed."""
     io = await plc.io()
-    for name, number in (("pick_and_place", 3), ("palletize", 99), ("pick_and_place", 3), ("palletize", 99)):
-        assert await status(client, TC, "LoadByName", s(name)) == 0
-        assert (await held(io)).program_echo == number
+    cell = tmp_path / "cell.toml"
+    cell.write_text(
+        cell_text(plc.port, palletize=99).replace("confirm_timeout = 3.0", "confirm_timeout = 3.0, pulse_gap = 0.3")
+    )
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(cell)
+    async with serving(config) as (_app, client):
+        for name, number in (("pick_and_place", 3), ("palletize", 99), ("pick_and_place", 3), ("palletize", 99)):
+            assert await status(client, TC, "LoadByName", s(name)) == 0
+            assert (await held(io)).program_echo == number

@@ -42,6 +42,7 @@ class Controller:
 
     def __init__(self) -> None:
         self.remote = True
+        self.refuse_next = False
         self.drives = False
         self.fault_active = False
         self.selected = ""
@@ -109,11 +110,15 @@ class Controller:
         self.ended.set()
 
     # the capabilities
+    def start_refusal(self) -> str | None:
+        return None if self.remote else "not in remote control"
+
     async def begin(self, task: str, pointer: int, mode: ExecutionMode) -> None:
         if self.fault_active:
             raise AlarmStop("fault 7")
-        if not self.remote:
-            raise StartRefused("not in remote control")
+        if self.refuse_next:  # it changed its mind between its last report and the start
+            self.refuse_next = False
+            raise StartRefused("not in remote control any more")
         self.sent.append("start")
         self.ended.clear()
         self.running.set()
@@ -195,12 +200,17 @@ async def test_start_is_executing_only_once_confirmed_and_a_refusal_answers_at_o
 ) -> None:
     cell, controller = rig
     task, system = await ready_with_pick(cell)
-    controller.remote = False
-    assert await task.start() == Status.E_SYSTEM_STATE  # refused: 1, nothing changed
+    controller.remote = False  # as it reports: Start is not Executable and answers 1, nothing sent
+    assert not task.executable("TaskControlStateMachine", "Start")
+    assert await task.start() == Status.E_SYSTEM_STATE
     assert await system.start() == Status.E_SYSTEM_STATE
     assert task.state == "Ready" and system.state == "Ready" and "start" not in controller.sent
-    assert "remote control" in task.last_error
+    assert "would refuse the start: not in remote control" in task.last_error
     controller.remote = True
+    assert task.executable("TaskControlStateMachine", "Start")
+    controller.refuse_next = True  # refused when asked: 1 at once, nothing changed
+    assert await task.start() == Status.E_SYSTEM_STATE
+    assert task.state == "Ready" and "refused the start" in task.last_error
     changes: list[Change] = []
     system.machine.listeners.append(changes.append)
     assert await system.start() == Status.OK  # SystemOperation's Start: its task's confirmed start

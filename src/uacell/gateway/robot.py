@@ -255,6 +255,9 @@ class ModbusSignalsRobot:
         if safety != (before.operational_mode, before.emergency_stop, before.protective_stop) or not before.connected:
             for listener in list(self._safety_listeners):
                 listener()
+        if start_missing(status) != start_missing(before) and status.drives_are_on == before.drives_are_on:
+            for power in list(self._power_listeners):  # what a start needs changed: Executable follows
+                power(status.drives_are_on)
         if status.drives_are_on != before.drives_are_on or not before.connected:
             for power in list(self._power_listeners):
                 power(status.drives_are_on)
@@ -354,6 +357,11 @@ class ModbusSignalsRobot:
             )
         t = self.timing
         await self._perform(lambda s, now: SignalOp.load(selection, s, now, t.confirm_timeout, t.pulse_width))
+
+    def start_refusal(self) -> str | None:
+        """What a start needs and the controller does not show (a fault aside: a condition)."""
+        missing = [m for m in start_missing(self.status) if m not in ("no fault", "not running")]
+        return "start needs " + ", ".join(missing) if missing and self.status.connected else None
 
     async def begin(self, task: str, pointer: int, mode: ExecutionMode) -> None:
         """The start pulse, answered once ``running`` confirms it (ConfirmedStart). Refused at once,

@@ -223,8 +223,12 @@ class URRobot:
                 remote = (await self.dashboard.ask("is in remote control")).lower() == "true"
                 mode = MODES.get((await self.dashboard.ask("get operational mode")).upper(), 0)
                 if (remote, mode) != (self.remote, self.operational_mode):
+                    remote_changed = remote != self.remote
                     self.remote, self.operational_mode = remote, mode
                     self._tell_all(self._safety_listeners)
+                    if remote_changed and self.state is not None:
+                        for power in list(self._power):  # what a start needs changed: Executable follows
+                            power(self.state.arm_running)
         except (CommunicationError, DashboardError) as e:
             self._lost(str(e))
             return
@@ -323,6 +327,16 @@ class URRobot:
             await self._until(lambda: self.state is not None and self.state.robot_mode <= POWER_OFF_MODE, "")
         except (CallError, StartRefused) as e:
             raise EquipmentError(f"the arm did not power off (robot mode {self._mode()}): {e}") from None
+
+    def start_refusal(self) -> str | None:
+        """Local control, or the arm not ready to move (a safety stop aside: a condition)."""
+        if self.state is None or not self.reachable:
+            return None
+        if not self.remote:
+            return "the robot is in Local control (its pendant), not Remote"
+        if not self.state.arm_running:
+            return f"the arm is not ready to move (robot mode {self._mode()})"
+        return None
 
     async def begin(self, task: str, pointer: int, mode: ExecutionMode) -> None:
         """``play``, answered once ``programState`` says PLAYING. A program paused and then reset to its

@@ -176,7 +176,14 @@ class UnknownProgram(EquipmentError):
 @runtime_checkable
 class ConfirmedStart(Protocol):
     """Equipment whose start the controller confirms (a gateway robot). The model calls ``begin``
-    before it shows Executing and calls ``run`` only once ``begin`` returned."""
+    before it shows Executing and calls ``run`` only once ``begin`` returned; ``start_refusal`` makes
+    Start not Executable (and answer 1 with nothing sent) while the controller would refuse it."""
+
+    def start_refusal(self) -> str | None:
+        """Why the controller would refuse a start now, from what it last reported (remote control
+        off, drives off, ...; a fault is a condition already), or None. When it changes, the equipment
+        tells its power listeners (``PowerFeedback``), so that Executable follows."""
+        ...
 
     async def begin(self, task: str, pointer: int, mode: ExecutionMode) -> None:
         """Start the task's program and return once the controller confirms it runs. Raise
@@ -192,7 +199,8 @@ class PowerFeedback(Protocol):
     that come on by themselves take Idle/StandBy to Ready (reason System)."""
 
     def add_power_listener(self, listener: Callable[[bool], None]) -> None:
-        """Call ``listener(drives_on)`` whenever the controller's drive power changes."""
+        """Call ``listener(drives_on)`` whenever the controller's drive power changes (and whenever
+        ``ConfirmedStart.start_refusal`` changes)."""
         ...
 
 

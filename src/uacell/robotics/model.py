@@ -665,6 +665,8 @@ class TaskControl(_OnController):
             alarm = self.system.alarm_status()
             if alarm is not None:
                 return alarm
+        if isinstance(self.equipment, ConfirmedStart) and self.equipment.start_refusal() is not None:
+            return Status.E_SYSTEM_STATE  # the controller would refuse it: nothing is sent
         problem = self._unresolved()
         if isinstance(problem, ProgramTooLarge | NothingToExecute):
             return Status.INVALID_CONTENT
@@ -695,7 +697,9 @@ class TaskControl(_OnController):
         if problem is not None:
             if problem in (Status.UNRESOLVED_REFERENCE, Status.INVALID_CONTENT):
                 return Status(self._fail(problem, str(self._unresolved())))
-            return Status(self._fail(problem, f"cannot start in {self.machine.current}"))
+            refusal = self.equipment.start_refusal() if isinstance(self.equipment, ConfirmedStart) else None
+            why = f"the controller would refuse the start: {refusal}" if refusal else f"cannot start in {self.state}"
+            return Status(self._fail(problem, why))
         return None
 
     def _start(self, reason: Reason) -> int:
@@ -893,6 +897,7 @@ class SystemOperation(_Guarded, ConditionSet):
         SystemOperation is never Ready with the drives off nor Idle/StandBy with them on."""
         self.drives_on = on
         self._follow_power()
+        self._changed()  # what a start needs may have changed with it: Executable is evaluated again
 
     def _follow_power(self) -> None:
         if self.drives_on is None or self.powering_down or self._getting_ready is not None:
