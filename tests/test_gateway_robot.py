@@ -38,11 +38,16 @@ COND = f"{CTRL}.SystemOperation.Conditions"
 SHIPPED = builtin_cell_path("modbus-robot").read_text()
 
 
+TIMING = "poll = 0.02, confirm_timeout = 6.0, timeout = 3.0"
+
+
 def cell_text(port: int, **programs: int) -> str:
     text = SHIPPED.replace("port = 5020", f"port = {port}")
     for name, number in programs.items():
         text = re.sub(rf"\b{name} = \d+", f"{name} = {number}", text)
-    return text.replace("unit = 1 }", "unit = 1, poll = 0.02, confirm_timeout = 3.0 }")
+    # generous timeouts: on a loaded machine a request may wait (a lost connection would need an
+    # acknowledgement, a slow confirmation answer Bad_Timeout)
+    return text.replace("unit = 1 }", f"unit = 1, {TIMING} }}")
 
 
 class PLC:

@@ -18,6 +18,7 @@ from test_gateway_robot import (
     READY,
     SO,
     TC,
+    TIMING,
     call,
     cell_text,
     held,
@@ -190,7 +191,7 @@ async def test_a_local_file_loads_only_a_program_the_controller_holds(served, pl
 
 
 MOTION = (
-    'unit = 1, poll = 0.02, confirm_timeout = 3.0, motion = { position = ["input", 20, "int16"],'
+    f'unit = 1, {TIMING}, motion = {{ position = ["input", 20, "int16"],'
     ' speed = ["input", 26, "int16"], scale = 0.01, speed_scale = 0.01, unit = "deg" },'
     ' map = { emergency_stop = ["discrete", 6, "bool"], protective_stop = ["discrete", 7, "bool"],'
     ' operational_mode = ["input", 2, "uint16"] } }'
@@ -206,7 +207,7 @@ async def test_joints_modes_and_safety_come_from_the_controller(tmp_path: Path, 
     OperationalMode, EmergencyStop and ProtectiveStop, and the EmergencyStop / ProtectiveStop conditions."""
     io = await plc.io()
     cell = tmp_path / "cell.toml"
-    cell.write_text(cell_text(plc.port).replace("unit = 1, poll = 0.02, confirm_timeout = 3.0 }", MOTION))
+    cell.write_text(cell_text(plc.port).replace(f"unit = 1, {TIMING} }}", MOTION))
     config = fast_config(tmp_path / "data")
     config.cell = load_cell(cell)
     joint = ModbusTag("input", 20 + 5, RegisterType("int16"))  # Axis6's position, as the test reads it
@@ -245,7 +246,7 @@ async def test_config_check_connect_names_a_missing_axis_or_safety_register(tmp_
     await plc.io()
     bad = tmp_path / "bad.toml"
     motion = MOTION.replace('["input", 20, "int16"]', '["input", 200, "int16"]')
-    bad.write_text(cell_text(plc.port).replace("unit = 1, poll = 0.02, confirm_timeout = 3.0 }", motion))
+    bad.write_text(cell_text(plc.port).replace(f"unit = 1, {TIMING} }}", motion))
     proc = await config_check_connect(bad)
     assert proc.returncode == 1, proc.stdout + proc.stderr
     problems = [ln for ln in proc.stdout.splitlines() if "PROBLEM" in ln]
@@ -289,9 +290,7 @@ async def test_back_to_back_loads_each_give_the_controller_a_strobe_edge(tmp_pat
     scan even on a loaded machine): the controller sees every rising edge, each load is confirmed."""
     io = await plc.io()
     cell = tmp_path / "cell.toml"
-    cell.write_text(
-        cell_text(plc.port, palletize=99).replace("confirm_timeout = 3.0", "confirm_timeout = 3.0, pulse_gap = 0.3")
-    )
+    cell.write_text(cell_text(plc.port, palletize=99).replace(TIMING, f"{TIMING}, pulse_gap = 0.3"))
     config = fast_config(tmp_path / "data")
     config.cell = load_cell(cell)
     async with serving(config) as (_app, client):
