@@ -91,7 +91,7 @@ async def test_an_emergency_stop_latched_until_acknowledged_then_recovered_over_
     controller = await held(io)
     assert controller.fault and controller.fault_code == ESTOP_CODE and not controller.drives_are_on
     await wait_until_async(lambda: read(client, f"{FAULT}.ActiveState.Id"), True)
-    assert not (await io.conn.read(io.tags["drives_on"], 1))  # uacell no longer asks for the drives
+    await wait_until_async(lambda: io.conn.read(io.tags["drives_on"], 1), False)  # uacell no longer asks
     assert await status(client, SO, "GetReady") == 3  # E_ActiveAlarm
     await panel(io, ESTOP, False)  # released, but the controller latches the fault
     await wait_controller(io, lambda c: c.fault)
@@ -100,7 +100,7 @@ async def test_an_emergency_stop_latched_until_acknowledged_then_recovered_over_
     await wait_controller(io, lambda c: not c.fault)  # the reset pulse cleared it
     await wait_until_async(lambda: read(client, f"{FAULT}.ActiveState.Id"), False)
     assert await read(client, f"{FAULT}.AckedState.Id") is True
-    assert not (await io.conn.read(io.tags["reset"], 1))  # the pulse ended
+    await wait_until_async(lambda: io.conn.read(io.tags["reset"], 1), False)  # the pulse ended
     assert await status(client, SO, "GetReady") == 0
     await until_state(client, SO, "Ready")
     assert await status(client, TC, "Start") == 0
