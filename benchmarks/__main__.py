@@ -33,6 +33,7 @@ from typing import Any
 from benchmarks.gateway import gateway_section
 from benchmarks.history import history_section
 from benchmarks.plant import plant_section
+from benchmarks.robots import robots_section
 from benchmarks.soak import soak_section
 from benchmarks.sparkplug import sparkplug_section
 from benchmarks.web import web_section
@@ -569,6 +570,7 @@ SECTIONS = {
     "sparkplug": sparkplug_section,
     "gateway": gateway_section,
     "soak": soak_section,
+    "robots": robots_section,
 }
 
 

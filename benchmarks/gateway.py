@@ -307,7 +307,6 @@ async def _measure_robot(uacell_endpoint: str, ctrl_port: int, rounds: int) -> d
 
             assert await call(SYSTEM, "GetReady") == 0
             await _until(lambda: _text(client, ns, SYSTEM), "Ready")
-            assert await call(TASK_CONTROL, "LoadByName", ua.Variant("gripper", ua.VariantType.String)) == 0
             assert await call(TASK_CONTROL, "LoadByName", ua.Variant("pick_and_place", ua.VariantType.String)) == 0
             sub = await client.create_subscription(0, Handler())
             await sub.subscribe_data_change(client.get_node(ua.NodeId(f"{TASK_CONTROL}.CurrentState", ns)))

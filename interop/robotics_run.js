@@ -135,6 +135,7 @@ main(async () => {
   lineItem.on("changed", (dv) => out.lines.push(dv.value.value));
   out.startMethod = await m(tc, "Start");
   out.start = await callStatus(session, tc, out.startMethod);
+  out.stateAfterStart = await readText(session, await resolve(session, ns, tc, "/CurrentState"));
   await Promise.race([
     programEnded,
     new Promise((_, rej) => setTimeout(() => rej(new Error(`no ExecutingToReady: ${JSON.stringify(out.events)}`)), 60000)),

@@ -90,8 +90,31 @@ def test_reset_waits_while_the_fault_is_still_set() -> None:
     op = SignalOp.reset(faulted, now=0.0, timeout=1.0, pulse_width=0.1)
     assert op.observe(faulted, 0.05) is False
     assert op.observe(RobotStatus(remote_ready=True), 0.2) is True
+    assert op.pulse_end(0.2) == (Write("reset", False),)
+    still = SignalOp.reset(faulted, now=0.0, timeout=1.0, pulse_width=0.1)
+    with pytest.raises(CallError) as err:  # a controller that keeps its fault: the reset times out
+        still.observe(faulted, 1.0)
+    assert err.value.status == "BadTimeout"
+
+
+def test_reset_after_the_fault_fell_is_a_plain_pulse() -> None:
+    """A fault that fell by itself and is acknowledged afterwards: the pulse, for its width only."""
+    op = SignalOp.reset(READY, now=0.0, timeout=1.0, pulse_width=0.1)
+    assert op.writes == (Write("reset", True),)
+    assert op.observe(READY, 0.05) is False
+    assert op.pulse_end(0.05) == ()
+    assert op.observe(READY, 0.1) is True
+    assert op.pulse_end(0.1) == (Write("reset", False),)
+
+
+def test_drives_off_is_confirmed_also_during_a_fault() -> None:
+    faulted = RobotStatus(remote_ready=True, drives_are_on=True, fault=True, fault_code=9)
+    off = SignalOp.drives(False, faulted, now=0.0, timeout=1.0)
+    assert off.observe(faulted, 0.05) is False  # waits for the drives, the fault is no refusal
+    assert off.observe(RobotStatus(remote_ready=True, fault=True, fault_code=9), 0.1) is True
+    on = SignalOp.drives(True, RobotStatus(remote_ready=True, fault=True), now=0.0, timeout=1.0)
     with pytest.raises(CallError) as err:
-        SignalOp.reset(READY, now=0.0, timeout=1.0, pulse_width=0.1)
+        on.observe(RobotStatus(remote_ready=True, fault=True), 0.05)
     assert err.value.status == "BadInvalidState"
 
 

@@ -69,7 +69,7 @@ async def rig(tmp_path_factory):
     config = fast_config(tmp_path_factory.mktemp("robotics") / "data")
     config.server.anonymous_role = "engineer"
     app = await start_app(config)
-    client = Client(app.endpoint, timeout=30)
+    client = Client(app.endpoint, timeout=30, watchdog_intervall=30.0)  # as conftest.serving: a loaded machine
     await client.connect()
     await client.load_data_type_definitions()
     r = Rig()

@@ -3,10 +3,14 @@
 
 - ``robot`` (``modbus-signals``): a robot controller's remote-operation signals over Modbus/TCP
   (``modbus``, ``modbus_robot``, ``signals``; ``codec`` for register values);
+- ``opcua_robot`` (``opcua-signals``): the same signals as a PLC's OPC UA variables (``opcua_link``);
+- ``ur_robot`` (``ur-dashboard``): Universal Robots through the Dashboard Server and UR's Modbus
+  registers (``ur_link``);
 - ``packml_opcua`` (``opcua-packtags``): a PackML unit whose state machine runs in a PLC, over its
   PackTags on OPC UA (``opcua_link``, ``packtags``, ``handshake``).
 
-``examples/robot_controller.py`` is a Modbus robot controller to try the first with;
+``examples/robot_controller.py`` is a Modbus robot controller to try the first with,
+``examples/robot_plc.py`` an OPC UA PLC holding robot signals for ``opcua-signals``;
 ``interop/plc_packtags.js`` a PackTags PLC for the second.
 """
 

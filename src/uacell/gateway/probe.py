@@ -14,15 +14,18 @@ from asyncua import ua
 
 from uacell.cell_file import Part
 from uacell.gateway.modbus import CommunicationError, ModbusConnection, endpoint_name, shared_conflict
-from uacell.gateway.modbus_robot import signal_tags
+from uacell.gateway.modbus_robot import parse_motion, signal_tags, used_tags
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
+from uacell.gateway.opcua_robot import robot_addresses
 from uacell.gateway.packml_modbus import Point, where
 from uacell.gateway.packtags import PackTagsMapError, resolve
-from uacell.gateway.signals import NAME_SIGNALS
+from uacell.gateway.ur_link import JOINT_REGISTERS, STATE_REGISTERS, TURN_REGISTERS, Dashboard, DashboardError
 
 MODBUS = "uacell.gateway.robot:modbus_signals"
 PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
 MODBUS_PACKTAGS = "uacell.gateway.packml_modbus:modbus_packtags"
+UR = "uacell.gateway.ur_robot:ur_dashboard"
+OPCUA_SIGNALS = "uacell.gateway.opcua_robot:opcua_signals"
 _BUILTIN = {ua.VariantType.Int32: "Int32", ua.VariantType.Boolean: "Boolean", ua.VariantType.Float: "Float"}
 
 
@@ -41,7 +44,7 @@ def gateway_parts(parts: list[tuple[str, Part]]) -> Iterator[tuple[str, str, Map
     def walk(part: Part, path: str) -> Iterator[tuple[str, str, Mapping[str, Any]]]:
         here = f"{path}.{part.name}" if path else part.name
         equipment = getattr(part.spec, "equipment", "")
-        if equipment in (MODBUS, PACKTAGS, MODBUS_PACKTAGS):
+        if equipment in PROBES:
             yield here, equipment, getattr(part.spec, "settings", {})
         for child in part.children:
             yield from walk(child, here)
@@ -123,11 +126,13 @@ async def probe_modbus(part: str, settings: Mapping[str, Any], timeout: float = 
     endpoint = f"{endpoint_name(host, port)} unit {unit}"
     try:
         overrides = {k: (str(v[0]), int(v[1]), str(v[2])) for k, v in dict(settings.get("map", {})).items()}
-        tags = signal_tags(overrides)
+        by_name = any(isinstance(v, str) for v in dict(settings.get("programs", {})).values())
+        motion = parse_motion(settings["motion"]) if "motion" in settings else None
+        # what the driver reads and writes: the name signals only when asked for, the safety signals
+        # only when mapped, the axes' registers (six axes: the probe does not know the motion device)
+        tags = used_tags(signal_tags(overrides), by_name, list(overrides), motion, 6)
     except (ValueError, TypeError, IndexError) as e:
         return [Row(part, endpoint, "(map)", str(e), False)]
-    if not any(isinstance(v, str) for v in dict(settings.get("programs", {})).values()):
-        tags = {k: t for k, t in tags.items() if k not in NAME_SIGNALS}  # not used: not asked for
     conn = ModbusConnection(host, port, timeout=timeout)
     try:
         if not await conn.connect():
@@ -166,7 +171,78 @@ async def probe_modbus_packtags(part: str, settings: Mapping[str, Any], timeout:
         conn.close()
 
 
-PROBES = {MODBUS: probe_modbus, PACKTAGS: probe_packtags, MODBUS_PACKTAGS: probe_modbus_packtags}
+async def probe_ur(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    """The Dashboard Server (its welcome, robot mode, remote control, the configured program files are
+    not checked: PolyScope 5 cannot list them) and UR's Modbus registers the driver reads."""
+    host = str(settings.get("host", ""))
+    port, modbus_port = int(settings.get("port", 29999)), int(settings.get("modbus_port", 502))
+    rows: list[Row] = []
+    dashboard = Dashboard(host, port, timeout)
+    where = f"dashboard {host}:{port}"
+    try:
+        await dashboard.connect()
+        for command in ("PolyscopeVersion", "robotmode", "is in remote control"):
+            rows.append(Row(part, where, command, await dashboard.ask(command), True))
+    except DashboardError as e:
+        rows.append(Row(part, where, "(endpoint)", f"unreachable: {str(e).rpartition(': ')[2]}", False))
+    finally:
+        dashboard.close()
+    conn = ModbusConnection(host, modbus_port, timeout=timeout)
+    where = f"{endpoint_name(host, modbus_port)} unit {int(settings.get('unit', 1))}"
+    try:
+        if not await conn.connect():
+            return [*rows, Row(part, where, "(endpoint)", "unreachable", False)]
+        for first, count in (STATE_REGISTERS, JOINT_REGISTERS, TURN_REGISTERS):
+            name = f"holding {first}..{first + count - 1}"
+            try:
+                values = await conn.read_block("holding", first, count, int(settings.get("unit", 1)))
+                rows.append(Row(part, where, name, f"= {list(values)}", True))
+            except CommunicationError as e:
+                rows.append(Row(part, where, name, str(e).rpartition(": ")[2], False))
+    finally:
+        conn.close()
+    return rows
+
+
+async def probe_opcua_signals(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    """Every signal variable (and axis variable) the opcua-signals driver uses: found, and its value."""
+    endpoint = str(settings.get("endpoint", ""))
+    try:
+        options = link_options(part, settings)
+        used = robot_addresses(settings)
+    except ValueError as e:
+        return [Row(part, endpoint, "(settings)", str(e), False)]
+    try:
+        client = await new_client(options, timeout)
+        await asyncio.wait_for(client.connect(), timeout)
+    except Exception as e:
+        return [Row(part, endpoint, "(endpoint)", f"unreachable: {e or type(e).__name__}", False)]
+    rows = []
+    try:
+        for key, address in used.items():
+            try:
+                node = client.get_node(await resolve_address(client, address))
+                dv = await node.read_data_value(raise_on_bad_status=False)
+            except Exception as e:
+                rows.append(Row(part, endpoint, key, f"{address}: {e}", False))
+                continue
+            if not dv.StatusCode.is_good():
+                rows.append(Row(part, endpoint, key, f"{address}: {dv.StatusCode.name}", False))
+                continue
+            found = _BUILTIN.get(dv.Value.VariantType, dv.Value.VariantType.name) if dv.Value else "null"
+            rows.append(Row(part, endpoint, key, f"{found} = {dv.Value.Value if dv.Value else None!r}", True))
+    finally:
+        await client.disconnect()
+    return rows
+
+
+PROBES = {
+    OPCUA_SIGNALS: probe_opcua_signals,
+    MODBUS: probe_modbus,
+    PACKTAGS: probe_packtags,
+    MODBUS_PACKTAGS: probe_modbus_packtags,
+    UR: probe_ur,
+}
 
 
 async def probe(parts: list[tuple[str, Part]]) -> list[Row]:

@@ -34,8 +34,13 @@ DEFAULT_MAP: dict[str, tuple[str, int, str]] = {
     "program_echo": ("input", 0, "uint16"),
     "fault_code": ("input", 1, "uint16"),
     "program_name_echo": ("input", 10, "string:8"),
+    # safety, read only when ``map`` names them (their defaults are where the example controller has them)
+    "emergency_stop": ("discrete", 6, "bool"),
+    "protective_stop": ("discrete", 7, "bool"),
+    "operational_mode": ("input", 2, "uint16"),  # an OperationalModeEnumeration value (0..4)
 }
 NAME_SIGNALS = ("program_name", "program_name_echo")  # in use only for a programs entry that is a name
+SAFETY_SIGNALS = ("emergency_stop", "protective_stop", "operational_mode")  # in use only when mapped
 
 
 @dataclass(frozen=True)
@@ -50,6 +55,11 @@ class RobotStatus:
     fault_code: int = 0
     program_name_echo: str = ""
     connected: bool = True
+    emergency_stop: bool = False
+    protective_stop: bool = False
+    operational_mode: int = 0
+    positions: tuple[float, ...] = ()  # degrees, one per axis, when the axes are mapped
+    speeds: tuple[float, ...] = ()  # degrees/s
 
 
 class SignalOp:
@@ -65,6 +75,7 @@ class SignalOp:
         timeout: float,
         pulse_width: float,
         fault_ends: bool = True,
+        expires_ok: bool = False,
     ) -> None:
         self.name = name
         self.writes = writes
@@ -73,6 +84,8 @@ class SignalOp:
         self._deadline = now + timeout
         self._pulse_until = now + pulse_width
         self._fault_ends = fault_ends
+        self._expires_ok = expires_ok  # a plain pulse: done when its width has passed
+        self.pulses = tuple(w.tag for w in pulse_off)  # the pulse signals this operation sets
         self.done = False
 
     def pulse_end(self, now: float) -> tuple[Write, ...]:
@@ -97,6 +110,8 @@ class SignalOp:
             raise CallError("BadInvalidState", f"{self.name}: the controller reports fault {status.fault_code}")
         if now >= self._deadline:
             self.done = True
+            if self._expires_ok:
+                return True
             raise CallError("BadTimeout", f"{self.name}: the controller did not confirm in time")
         return False
 
@@ -131,17 +146,7 @@ class SignalOp:
     def start(cls, status: RobotStatus, now: float, timeout: float, pulse_width: float) -> SignalOp:
         """Start pulse; needs remote ready, drives on, a selected program, no fault; confirmed by running."""
         _reachable(status)
-        missing = [
-            what
-            for what, ok in (
-                ("remote ready", status.remote_ready),
-                ("drives on", status.drives_are_on),
-                ("a selected program", status.program_echo != 0 or status.program_name_echo != ""),
-                ("no fault", not status.fault),
-                ("not running", not status.running),
-            )
-            if not ok
-        ]
+        missing = start_missing(status)
         if missing:
             raise CallError("BadInvalidState", "start needs " + ", ".join(missing))
         return cls(
@@ -160,10 +165,14 @@ class SignalOp:
 
     @classmethod
     def reset(cls, status: RobotStatus, now: float, timeout: float, pulse_width: float) -> SignalOp:
-        """Acknowledge pulse; confirmed by the fault bit falling."""
+        """Acknowledge pulse: with the fault bit set, confirmed by its falling; without (a fault that
+        fell by itself, acknowledged afterwards), a plain pulse of ``pulse_width``."""
         _reachable(status)
         if not status.fault:
-            raise CallError("BadInvalidState", "no fault to acknowledge")
+            return cls(
+                "reset", (Write("reset", True),), (Write("reset", False),), lambda s: False,
+                now, pulse_width, pulse_width, fault_ends=False, expires_ok=True,
+            )  # fmt: skip
         return cls(
             "reset",
             (Write("reset", True),),
@@ -187,7 +196,23 @@ class SignalOp:
             now,
             timeout,
             0.0,
+            fault_ends=on,  # drives may always be switched off, also during a fault
         )
+
+
+def start_missing(status: RobotStatus) -> list[str]:
+    """What a start needs and the controller does not show (empty: it may start); a fault aside."""
+    return [
+        what
+        for what, ok in (
+            ("remote ready (remote control)", status.remote_ready),
+            ("drives on", status.drives_are_on),
+            ("a selected program", status.program_echo != 0 or status.program_name_echo != ""),
+            ("no fault", not status.fault),
+            ("not running", not status.running),
+        )
+        if not ok
+    ]
 
 
 def _reachable(status: RobotStatus) -> None:

@@ -35,7 +35,11 @@ _ONE_CONTROLLER = [{"name": "Controller1"}]
 
 
 # The drivers shipped for robot controllers (docs/equipment.md, "Gateway"): equipment = { driver = ... }.
-DRIVERS = {"modbus-signals": "uacell.gateway.robot:modbus_signals"}
+DRIVERS = {
+    "modbus-signals": "uacell.gateway.robot:modbus_signals",
+    "ur-dashboard": "uacell.gateway.ur_robot:ur_dashboard",
+    "opcua-signals": "uacell.gateway.opcua_robot:opcua_signals",
+}
 
 
 @dataclass

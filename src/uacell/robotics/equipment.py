@@ -161,3 +161,108 @@ class RobotEquipment(Protocol):
         executed its first instruction: the request then applies to that run.
         """
         ...
+
+
+# --- optional capabilities: equipment declares them by implementing the Protocol -------------------
+class StartRefused(EquipmentError):
+    """The controller refused a confirmed start (remote control off, drives off, no program, ...):
+    Start answers Status 1 (E_SystemState) at once and nothing changes."""
+
+
+class UnknownProgram(EquipmentError):
+    """The controller holds no program of that name (Status -1)."""
+
+
+@runtime_checkable
+class ConfirmedStart(Protocol):
+    """Equipment whose start the controller confirms (a gateway robot). The model calls ``begin``
+    before it shows Executing and calls ``run`` only once ``begin`` returned; ``start_refusal`` makes
+    Start not Executable (and answer 1 with nothing sent) while the controller would refuse it."""
+
+    def start_refusal(self) -> str | None:
+        """Why the controller would refuse a start now, from what it last reported (remote control
+        off, drives off, ...; a fault is a condition already), or None. When it changes, the equipment
+        tells its power listeners (``PowerFeedback``), so that Executable follows."""
+        ...
+
+    async def begin(self, task: str, pointer: int, mode: ExecutionMode) -> None:
+        """Start the task's program and return once the controller confirms it runs. Raise
+        ``StartRefused`` when the controller refuses, ``AlarmStop`` for a fault, ``EquipmentError``
+        otherwise (or ``uacell.errors.CallError`` for a timeout or a lost connection)."""
+        ...
+
+
+@runtime_checkable
+class PowerFeedback(Protocol):
+    """Equipment that reports its drive power as the controller sees it. SystemOperation follows:
+    drives that go off by themselves (a fault, the pendant) take Ready to Idle (reason Error), drives
+    that come on by themselves take Idle/StandBy to Ready (reason System)."""
+
+    def add_power_listener(self, listener: Callable[[bool], None]) -> None:
+        """Call ``listener(drives_on)`` whenever the controller's drive power changes (and whenever
+        ``ConfirmedStart.start_refusal`` changes)."""
+        ...
+
+
+@runtime_checkable
+class AlarmReset(Protocol):
+    """Equipment that resets a latched alarm when a client acknowledges its condition (the gateway's
+    ``reset`` handshake)."""
+
+    def alarm_acknowledged(self, name: str) -> None:
+        """The condition ``name`` was acknowledged; returns at once (the reset runs in the background)."""
+        ...
+
+
+@runtime_checkable
+class ProgramCatalogue(Protocol):
+    """Equipment whose controller keeps its own programs (a gateway robot): LoadByName and LoadByNodeId
+    select them by name with no file in ``Programs`` (docs/robotics.md, "Programs on the controller")."""
+
+    def program_names(self) -> Sequence[str]:
+        """The programs the controller holds, as LoadByName takes them (configured and reported)."""
+        ...
+
+    def find_program(self, name: str) -> str | None:
+        """The controller's name of the program ``name`` names, or None if it holds none."""
+        ...
+
+    async def select(self, task: str, name: str) -> None:
+        """Select the program ``name`` (from ``find_program``) on the controller for ``task``; raise
+        ``UnknownProgram`` when the controller does not know it, ``EquipmentError`` otherwise."""
+        ...
+
+
+@dataclass(frozen=True)
+class SafetyReport:
+    """The robot's safety state as its controller reports it (OPC 40010-1 SafetyStateType ParameterSet):
+    ``operational_mode`` an OperationalModeEnumeration value (OTHER 0, MANUAL_REDUCED_SPEED 1,
+    MANUAL_HIGH_SPEED 2, AUTOMATIC 3, AUTOMATIC_EXTERNAL 4)."""
+
+    operational_mode: int
+    emergency_stop: bool
+    protective_stop: bool
+
+
+@runtime_checkable
+class SafetyFeedback(Protocol):
+    """Equipment that reports the robot's safety state; the binding writes it to the robot's
+    ``SafetyStates/<first>/ParameterSet`` (OperationalMode, EmergencyStop, ProtectiveStop)."""
+
+    def safety_report(self) -> SafetyReport | None:
+        """The safety state now; None while it is not known (the controller not read yet)."""
+        ...
+
+    def add_safety_listener(self, listener: Callable[[], None]) -> None:
+        """Call ``listener()`` whenever ``safety_report`` changes."""
+        ...
+
+
+@runtime_checkable
+class AxisFeed(Protocol):
+    """Equipment that reads its axes from the controller: the binding publishes ``axis_states()`` when
+    the equipment says they changed, instead of sampling them every 0.1 s."""
+
+    def add_axis_listener(self, listener: Callable[[], None]) -> None:
+        """Call ``listener()`` after every read of the axes that changed a position or speed."""
+        ...

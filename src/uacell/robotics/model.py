@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
 from enum import IntEnum
 from pathlib import Path, PurePosixPath
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from uacell.background import Background
 from uacell.conditions import ConditionSet
@@ -25,12 +25,19 @@ from uacell.files import settled, stamp
 from uacell.fsm import Reason, StateMachine
 from uacell.models import FsmTable, TableLoader
 from uacell.robotics.equipment import (
+    AlarmReset,
+    AlarmStop,
+    ConfirmedStart,
     EquipmentError,
     ExecutionMode,
+    PowerFeedback,
+    ProgramCatalogue,
     ProgramRejected,
     RobotEquipment,
     RunOutcome,
+    StartRefused,
     StopMode,
+    UnknownProgram,
 )
 from uacell.robotics.program import (
     DEFAULT_LIMITS,
@@ -290,8 +297,76 @@ class _Guarded:
         return [(name, m) for name, machine in self._machines.items() for m in sorted(machine.table.methods)]
 
 
+# --- a controller that keeps its programs and confirms its starts (decision 70) --------------------
+class _OnController(_Guarded):
+    """What TaskControl does for equipment that keeps its own programs (``ProgramCatalogue``) and
+    confirms its starts (``ConfirmedStart``)."""
+
+    name: str
+    equipment: RobotEquipment
+    machine: StateMachine
+    pointer: int
+    execution_mode: ExecutionMode
+    last_error: str
+    _lock: asyncio.Lock
+    _modules: dict[str, tuple[Program, str | None]]
+
+    if TYPE_CHECKING:  # TaskControl's
+
+        def _load_failed(self, status: Status, reason: str) -> int: ...
+        def _fail(self, status: Status, reason: str) -> int: ...
+        def _take_program(self, program: Program, relpath: str | None, on_controller: bool = False) -> None: ...
+        def _start_problem(self) -> Status | None: ...
+        def _go(self, reason: Reason) -> int: ...
+
+    async def load_controller_program(self, name: str) -> int:
+        """LoadByNodeId, after the binding resolved the NodeId to a program the controller holds."""
+        async with self._lock:
+            if (problem := self._refusal(TASK_CONTROL, "LoadByNodeId")) is not None:
+                return problem
+            return await self._select(name)
+
+    async def _select(self, name: str) -> int:
+        """Select the controller's own program ``name`` (a ``ProgramCatalogue``): no file, no text;
+        what it calls is the controller's business (Start never answers -3 for it)."""
+        assert isinstance(self.equipment, ProgramCatalogue)
+        if name in self._modules:
+            return self._load_failed(Status.INVALID_CONTENT, f"program {name} has a loaded module's name")
+        try:
+            await self.equipment.select(self.name, name)
+        except UnknownProgram as e:
+            return self._load_failed(Status.NOT_FOUND, f"the controller has no program {name!r}: {e}")
+        except ProgramRejected as e:
+            return self._load_failed(Status.INVALID_CONTENT, f"the controller rejected {name!r}: {e}")
+        except EquipmentError as e:
+            return self._load_failed(Status.E_UNEXPECTED_ERROR, f"the controller could not select {name!r}: {e}")
+        if self.machine.current == EXECUTING:
+            return self._load_failed(Status.E_SYSTEM_STATE, "task control started during load")
+        self.last_error = ""
+        self._take_program(Program(name, Kind.PROGRAM, "", (), ()), None, on_controller=True)
+        return Status.OK
+
+    async def _start_confirmed(self, reason: Reason) -> int:
+        """Start on a controller that confirms it: Executing once it runs; a refusal answers at once
+        (StartRefused: 1, a fault: 3, another failure: 2) and changes nothing. Loads wait meanwhile,
+        a second Start answers 1."""
+        assert isinstance(self.equipment, ConfirmedStart)
+        if (problem := self._start_problem()) is not None:
+            return problem
+        async with self._lock:
+            try:
+                await self.equipment.begin(self.name, self.pointer, self.execution_mode)
+            except StartRefused as e:
+                return self._fail(Status.E_SYSTEM_STATE, f"the controller refused the start: {e}")
+            except AlarmStop as e:
+                return self._fail(Status.E_ACTIVE_ALARM, f"the controller refused the start: {e}")
+            except EquipmentError as e:
+                return self._fail(Status.E_UNEXPECTED_ERROR, f"the controller did not start: {e}")
+            return self._go(reason)
+
+
 # --- TaskControl -----------------------------------------------------------------------------------
-class TaskControl(_Guarded):
+class TaskControl(_OnController):
     """One task control: loads programs and modules, runs them on the equipment (TaskControlStateMachine)."""
 
     def __init__(
@@ -330,6 +405,7 @@ class TaskControl(_Guarded):
         }
         self.program: Program | None = None
         self.program_file: str | None = None
+        self.on_controller = False  # the program is the controller's own (no file, no text)
         self._modules: dict[str, tuple[Program, str | None]] = {}
         self.pointer = 0  # index of the next step to execute
         self.current_line = 0  # source line of the instruction being executed (0: none)
@@ -390,9 +466,13 @@ class TaskControl(_Guarded):
             if (problem := self._refusal(TASK_CONTROL, "LoadByName")) is not None:
                 return problem
             relpath = self.library.resolve(name)
-            if relpath is None:
+            if relpath is not None:  # a file in Programs: uacell holds the text (also on a gateway robot)
+                return await self._load(relpath)
+            catalogue = self.equipment if isinstance(self.equipment, ProgramCatalogue) else None
+            found = catalogue.find_program(name) if catalogue is not None else None
+            if found is None:
                 return self._load_failed(Status.NOT_FOUND, f"no program or module named {name!r}")
-            return await self._load(relpath)
+            return await self._select(found)
 
     async def load_file(self, relpath: str) -> int:
         """LoadByNodeId, after the binding resolved the NodeId to a file in Programs."""
@@ -476,15 +556,19 @@ class TaskControl(_Guarded):
                 self.ready.move(AT_PROGRAM_START, Reason.EXTERNAL)
             self._changed()
             return Status.OK
+        self._take_program(program, relpath)
+        return Status.OK
+
+    def _take_program(self, program: Program, relpath: str | None, on_controller: bool = False) -> None:
         self.program, self.program_file, self.pointer, self.current_line = program, relpath, 0, 0
-        log.info("%s: loaded program %s %s", self.name, program.name, program.version)
+        self.on_controller = on_controller
+        log.info("%s: loaded program %s %s", self.name, program.name, program.version or "(on the controller)")
         if self.machine.current == IDLE:
             self.machine.move(READY, Reason.EXTERNAL)
             self.ready.enter(AT_PROGRAM_START, Reason.EXTERNAL)
         elif self.ready.current == SUSPENDED:
             self.ready.move(AT_PROGRAM_START, Reason.EXTERNAL)
         self._changed()
-        return Status.OK
 
     def _load_failed(self, status: Status, reason: str) -> int:
         self.last_error = reason
@@ -542,6 +626,7 @@ class TaskControl(_Guarded):
             return self._fail(Status.E_UNEXPECTED_ERROR, f"controller could not unload: {e}")
         log.info("%s: unloaded program %s", self.name, self.program.name)
         self.program, self.program_file, self.pointer, self.current_line = None, None, 0, 0
+        self.on_controller = False
         self.machine.move(IDLE, Reason.EXTERNAL)
         self._changed()
         return Status.OK
@@ -580,6 +665,8 @@ class TaskControl(_Guarded):
             alarm = self.system.alarm_status()
             if alarm is not None:
                 return alarm
+        if isinstance(self.equipment, ConfirmedStart) and self.equipment.start_refusal() is not None:
+            return Status.E_SYSTEM_STATE  # the controller would refuse it: nothing is sent
         problem = self._unresolved()
         if isinstance(problem, ProgramTooLarge | NothingToExecute):
             return Status.INVALID_CONTENT
@@ -591,7 +678,7 @@ class TaskControl(_Guarded):
         """Why the program's calls do not resolve against the loaded modules (cached per load/unload)."""
         if self._resolution is _UNKNOWN:
             self._resolution = None
-            if self.program is not None:
+            if self.program is not None and not self.on_controller:
                 try:
                     measure(self.program, {n: m for n, (m, _) in self._modules.items()}, self.bounds)
                 except ProgramError as e:
@@ -599,15 +686,28 @@ class TaskControl(_Guarded):
         return self._resolution  # type: ignore[return-value]
 
     async def start(self) -> int:
-        """Start: Ready -> Executing, from the program start or where it was suspended."""
+        """Start: Ready -> Executing, from the program start or where it was suspended; on equipment
+        that confirms starts (``ConfirmedStart``) once the controller confirmed it."""
+        if isinstance(self.equipment, ConfirmedStart):
+            return await self._start_confirmed(Reason.EXTERNAL)
         return self._start(Reason.EXTERNAL)
 
-    def _start(self, reason: Reason) -> int:
+    def _start_problem(self) -> Status | None:
         problem = self._start_check()
         if problem is not None:
             if problem in (Status.UNRESOLVED_REFERENCE, Status.INVALID_CONTENT):
-                return self._fail(problem, str(self._unresolved()))
-            return self._fail(problem, f"cannot start in {self.machine.current}")
+                return Status(self._fail(problem, str(self._unresolved())))
+            refusal = self.equipment.start_refusal() if isinstance(self.equipment, ConfirmedStart) else None
+            why = f"the controller would refuse the start: {refusal}" if refusal else f"cannot start in {self.state}"
+            return Status(self._fail(problem, why))
+        return None
+
+    def _start(self, reason: Reason) -> int:
+        if (problem := self._start_problem()) is not None:
+            return problem
+        return self._go(reason)
+
+    def _go(self, reason: Reason) -> int:
         self.stopping = False
         self._stop_context = None
         self.machine.move(EXECUTING, reason)
@@ -749,7 +849,11 @@ class SystemOperation(_Guarded, ConditionSet):
         self._stop_requested = False
         self._getting_ready: asyncio.Task[None] | None = None
         self._bg = Background()
+        self._external_start = False  # a SystemOperation Start is starting its tasks (confirmed starts)
+        self.drives_on: bool | None = None  # the controller's drive power, for PowerFeedback equipment
         equipment.add_alarm_listener(self._on_alarm)
+        if isinstance(equipment, PowerFeedback):
+            equipment.add_power_listener(self._on_power)
 
     def __repr__(self) -> str:
         return f"<SystemOperation {self.machine.current}>"
@@ -782,6 +886,32 @@ class SystemOperation(_Guarded, ConditionSet):
     def _on_alarm(self, name: str, active: bool, message: str) -> None:
         self.alarm(name, active, message)
 
+    def acknowledge(self, name: str, comment: str = "") -> None:
+        """The condition's Acknowledge; equipment that resets alarms (``AlarmReset``) is told."""
+        super().acknowledge(name, comment)
+        if isinstance(self.equipment, AlarmReset):
+            self.equipment.alarm_acknowledged(name)
+
+    def _on_power(self, on: bool) -> None:
+        """The controller's drive power changed (``PowerFeedback``): the power state follows, so that
+        SystemOperation is never Ready with the drives off nor Idle/StandBy with them on."""
+        self.drives_on = on
+        self._follow_power()
+        self._changed()  # what a start needs may have changed with it: Executable is evaluated again
+
+    def _follow_power(self) -> None:
+        if self.drives_on is None or self.powering_down or self._getting_ready is not None:
+            return  # a GetReady or StandDown under way completes the transition itself
+        if not self.drives_on and self.machine.current == READY:
+            self.last_error = "the controller switched the drives off"
+            log.warning("%s", self.last_error)
+            self.machine.move(IDLE, Reason.ERROR)
+            self.idle.enter(STAND_BY, Reason.ERROR)
+            self._changed()
+        elif self.drives_on and self.idle.is_in(STAND_BY):
+            self.machine.move(READY, Reason.SYSTEM)
+            self._changed()
+
     def conditions_changed(self) -> None:
         self._changed()
 
@@ -793,8 +923,9 @@ class SystemOperation(_Guarded, ConditionSet):
     def _task_started(self, task: TaskControl) -> None:
         if self.machine.current == READY:
             self._stop_requested = False
-            self.machine.move(EXECUTING, Reason.SYSTEM)
-            self.executing.enter(RUNNING, Reason.SYSTEM)
+            reason = Reason.EXTERNAL if self._external_start else Reason.SYSTEM
+            self.machine.move(EXECUTING, reason)
+            self.executing.enter(RUNNING, reason)
             self._changed()
 
     def _task_stopping(self, reason: Reason = Reason.SYSTEM) -> None:
@@ -813,6 +944,7 @@ class SystemOperation(_Guarded, ConditionSet):
         self._stop_requested = False
         self.machine.move(READY, reason)
         self._changed()
+        self._follow_power()  # the drives went off during the run (a fault): Idle
 
     def _get_ready_conditions(self) -> Status | None:
         if not self.idle.is_in(STAND_BY) or self.powering_down:
@@ -916,6 +1048,8 @@ class SystemOperation(_Guarded, ConditionSet):
         problem = self._start_check()
         if problem is not None:
             return problem
+        if isinstance(self.equipment, ConfirmedStart):
+            return await self._start_confirmed()
         self._stop_requested = False
         self.machine.move(EXECUTING, Reason.EXTERNAL)
         self.executing.enter(RUNNING, Reason.EXTERNAL)
@@ -924,6 +1058,27 @@ class SystemOperation(_Guarded, ConditionSet):
                 task._start(Reason.SYSTEM)
         self._changed()
         return Status.OK
+
+    async def _start_confirmed(self) -> int:
+        """Start each task that can on a controller that confirms starts: ReadyToExecuting (reason 1)
+        with the first it confirms; when it confirms none, the first refusal's answer."""
+        answers: list[int] = []
+        failure: CallError | None = None
+        self._external_start = True
+        try:
+            for task in list(self.tasks):
+                if task.machine.current == READY and task._start_check() is None:
+                    try:
+                        answers.append(await task._start_confirmed(Reason.SYSTEM))
+                    except CallError as e:  # Bad_Timeout, Bad_CommunicationError: answered if none started
+                        failure = failure or e
+        finally:
+            self._external_start = False
+        if Status.OK in answers:
+            return Status.OK
+        if failure is not None:
+            raise failure
+        return answers[0] if answers else Status.E_SYSTEM_STATE
 
     async def stop(self, stop_mode: int) -> int:
         """Stop: stops every executing task control; ExecutingToReady when all have stopped."""

@@ -11,6 +11,7 @@ from asyncua import ua
 
 from uacell.background import Background
 from uacell.robotics.binding.shared import ControllerBinding
+from uacell.robotics.equipment import AxisFeed
 from uacell.robotics.model import EXECUTING, READY
 
 log = logging.getLogger(__name__)
@@ -29,6 +30,9 @@ class Arm:
         self._last_axes: list[tuple[float, float]] | None = None
         self._reachable = True  # what the axis values last said about the equipment
         self._background = Background()
+        self._fed = False  # the equipment says when its axes change (AxisFeed)
+        self._feed_pending = False
+        self._fed_at = 0.0
 
     async def setup(self) -> None:
         b = self.binding
@@ -48,7 +52,25 @@ class Arm:
         with contextlib.suppress(KeyError):
             await b.values.write(b.child(b.arm.node, "ParameterSet/SpeedOverride"), 100.0, ua.VariantType.Double)
         await self.publish_axes(0.0)
+        equipment = b.cell.equipment
+        if isinstance(equipment, AxisFeed):
+            self._fed = True
+            self._fed_at = asyncio.get_running_loop().time()
+            equipment.add_axis_listener(self._axes_changed)
         self._background.spawn(self._sample_axes(), name=f"axes-{b.arm.path}")
+
+    def _axes_changed(self) -> None:
+        """AxisFeed: the controller's axes were read and changed: published once the publisher runs
+        (one pending publication at a time, reading the latest values)."""
+        if not self._feed_pending and self._reachable:
+            self._feed_pending = True
+            self.binding.app.publisher.submit(self._publish_fed)
+
+    async def _publish_fed(self) -> None:
+        self._feed_pending = False
+        now = asyncio.get_running_loop().time()
+        dt, self._fed_at = now - self._fed_at, now
+        await self.publish_axes(dt)
 
     async def _sample_axes(self) -> None:
         loop = asyncio.get_running_loop()
@@ -65,7 +87,9 @@ class Arm:
                 if not reachable:
                     self.binding.app.publisher.submit(self._unreachable)
                     continue
-            if not reachable:
+            if not reachable or self._fed:
+                if reachable and self._last_axes is None:  # back after a loss: written afresh
+                    self.binding.app.publisher.submit(functools.partial(self.publish_axes, dt))
                 continue
             try:
                 states = [(round(a.position, 4), round(a.speed, 4)) for a in equipment.axis_states()]

@@ -15,12 +15,13 @@ from uacell.registry import RegistryKey
 from uacell.robotics.binding.arm import Arm
 from uacell.robotics.binding.conditions import Conditions
 from uacell.robotics.binding.programs import Programs, StoreLibrary, adopt_legacy_programs, install_samples
+from uacell.robotics.binding.safety import Safety
 from uacell.robotics.binding.shared import Concern, ControllerBinding
 from uacell.robotics.binding.system_operation import SystemOperationNodes
 from uacell.robotics.binding.task_control import TaskControls
 from uacell.robotics.companion import CONTROLLER, MOTION_DEVICE, TASK_CONTROL_PART
 from uacell.robotics.config import ControllerSpec, MotionDeviceSpec, RobotConfig, TaskControlSpec
-from uacell.robotics.equipment import AxisInfo, ControllerEquipmentSpec, RobotEquipment, StopMode
+from uacell.robotics.equipment import AxisInfo, ControllerEquipmentSpec, ProgramCatalogue, RobotEquipment, StopMode
 from uacell.robotics.model import RobotCell, RoboticsTables, TaskControl
 from uacell.robotics.program import ProgramLimits
 from uacell.robotics.sim import SimulatedRobot
@@ -48,8 +49,9 @@ class RoboticsBinding(ControllerBinding):
         self.system_operation = SystemOperationNodes(self)
         self.conditions = Conditions(self)
         self.axes = Arm(self)
+        self.safety = Safety(self)
         self.concerns: list[Concern] = [
-            self.programs, self.task_controls, self.system_operation, self.conditions, self.axes,
+            self.programs, self.task_controls, self.system_operation, self.conditions, self.axes, self.safety,
         ]  # fmt: skip
 
     # --- life -----------------------------------------------------------------------------------
@@ -147,7 +149,10 @@ async def bind_controller(app: BinderHost, controller: BuiltPart, tables: Roboti
     robots = sorted({c.path.partition(".Controllers.")[0] for c in app.cell.by_role(CONTROLLER)})
     if controller is app.cell.by_role(CONTROLLER)[0]:
         adopt_legacy_programs(root.parent.parent, root, robots)
-    install_samples(root, equipment.axes, moves=arm is not None)
+    if isinstance(equipment, ProgramCatalogue):  # the controller holds its programs: no samples
+        root.mkdir(parents=True, exist_ok=True)
+    else:
+        install_samples(root, equipment.axes, moves=arm is not None)
     store = FileStore(root, max_bytes=app.config.programs.max_folder_bytes, handles=app.file_handles)
     library = StoreLibrary(store)
     library.max_bytes = bounds.max_file_bytes

@@ -11,7 +11,7 @@ from asyncua import ua
 
 from uacell.errors import CallError
 from uacell.robotics.binding.shared import ControllerBinding
-from uacell.robotics.equipment import AxisInfo
+from uacell.robotics.equipment import AxisInfo, ProgramCatalogue
 from uacell.robotics.model import PROGRAM_SUFFIX, DirectoryLibrary
 from uacell.robotics.program import AXIS_COUNT, samples, wave_program
 from uacell.ua.file_directory import FileDirectoryBinding
@@ -102,14 +102,48 @@ class Programs:
         self.binding = binding
         self.directory: FileDirectoryBinding | None = None
         self._protected: set[str] = set()
+        self.controller_programs: dict[str, ua.NodeId] = {}  # the controller's own, by name
 
     async def setup(self) -> None:
         b = self.binding
         b.store.protect = self.protect
         node = b.child(b.controller.node, "Programs")
         self.directory = await FileDirectoryBinding.create(b.app, node, b.store)
+        await self._sync_catalogue()
+
+    async def _sync_catalogue(self) -> None:
+        """One object per program the controller holds (a ``ProgramCatalogue``), organized by Programs
+        beside its files, named as LoadByName takes it: ``Programs/<name>`` (BaseObjectType, its
+        Description says it is the controller's). LoadByNodeId takes its NodeId."""
+        b = self.binding
+        equipment = b.cell.equipment
+        if not isinstance(equipment, ProgramCatalogue):
+            return
+        names = list(equipment.program_names())
+        if names == list(self.controller_programs):
+            return
+        folder = b.child(b.controller.node, "Programs")
+        for gone in [n for n in self.controller_programs if n not in names]:
+            node = self.controller_programs.pop(gone)
+            await b.app.space.delete([node])
+            b.forget_children()
+        for name in names:
+            if name not in self.controller_programs:
+                node = b.app.cell.instantiator.create(
+                    folder, ua.NodeId(ua.ObjectIds.BaseObjectType), ua.QualifiedName(name, b.ns),
+                    reference_type=ua.ObjectIds.Organizes, path=f"{b.controller.path}.Programs.{name}",
+                )  # fmt: skip
+                text = ua.LocalizedText(f"uacell: the controller's program {name} (held by the controller, no file)")
+                await b.app.space.aspace.write_attribute_value(node, _A.Description, ua.DataValue(ua.Variant(text)))
+                self.controller_programs[name] = node
+
+    def controller_program_of(self, id_: Any) -> str | None:
+        """The name of the controller's program whose object ``id_`` is, or None."""
+        nodeid = self.local_nodeid(id_)
+        return next((n for n, node in self.controller_programs.items() if node == nodeid), None)
 
     async def publish(self) -> None:
+        await self._sync_catalogue()
         protected = self.protected_files()
         if protected != self._protected and self.directory is not None:
             # Writable/UserWritable of the files that became (un)protected.

@@ -120,6 +120,9 @@ class TaskControls:
         programs = self.programs
 
         async def load_by_node_id(caller: Caller, id_: ua.ExpandedNodeId) -> list[int]:
+            name = programs.controller_program_of(id_)
+            if name is not None:
+                return [await task.load_controller_program(name)]
             return [await task.load_file(programs.file_of(id_))]
 
         async def load_by_name(caller: Caller, name: str) -> list[int]:
