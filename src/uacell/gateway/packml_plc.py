@@ -44,9 +44,10 @@ COMMUNICATION = "CommunicationLost"  # the unit's alarm condition while the PLC 
 PACKTAGS_COMMAND = {"ToComplete": "Complete"}
 # the tags the unit follows (with Admin.Alarm[i].ID when there are alarms)
 WATCHED = (
-    "Status.StateCurrent", "Status.UnitModeCurrent", "Admin.ProdProcessedCount", "Admin.ProdDefectiveCount",
-    "Admin.StopReason",
+    "Status.StateCurrent", "Status.UnitModeCurrent", "Status.MachSpeed", "Status.CurMachSpeed",
+    "Admin.ProdProcessedCount", "Admin.ProdDefectiveCount", "Admin.StopReason",
 )  # fmt: skip
+SPEEDS = ("Status.MachSpeed", "Status.CurMachSpeed")  # the PLC's: shown as it reports them
 
 
 @dataclass(frozen=True)
@@ -103,6 +104,17 @@ class PackTagsUnit(EquipmentBase):
             self.unit.equipment_unit_mode(int(value))  # a mode the PLC changed by itself
         elif key.startswith("Admin.Alarm[") and self._attached:
             self._alarms()
+        elif key in SPEEDS and self._attached:
+            self._speeds()
+
+    def _speeds(self) -> None:
+        """MachSpeed and CurMachSpeed are the PLC's (the cell file's ``mach_speed`` only stands where the
+        PLC has no ``Status.MachSpeed``)."""
+        mach, cur = (self.plc.get(k) for k in SPEEDS)
+        if mach is not None or cur is not None:
+            self.unit.equipment_speeds(
+                float(mach) if mach is not None else None, float(cur) if cur is not None else None
+            )
 
     def _alarms(self) -> None:
         """Admin.Alarm follows the PLC's Admin.Alarm[i].ID tags (0: an empty entry)."""
@@ -153,6 +165,7 @@ class PackTagsUnit(EquipmentBase):
             self.unit.equipment_unit_mode(int(mode))
         if any(k.startswith("Admin.Alarm[") for k in self.tags):
             self._alarms()
+        self._speeds()
         self.follow()
 
     def follow(self) -> None:
@@ -283,10 +296,26 @@ class PackTagsUnit(EquipmentBase):
     def on_mach_speed(self, speed: float) -> None:
         if not self.reachable:
             raise CallError("BadCommunicationError", f"no connection to the PLC at {self.link.endpoint}")
-        task = asyncio.get_running_loop().create_task(
-            self.link.write(self._tag("Command.MachSpeed"), float(speed), "Float")
-        )
+        task = asyncio.get_running_loop().create_task(self._set_speed(float(speed)))
         task.add_done_callback(_log_failure(self.part, "Command.MachSpeed"))
+
+    async def _set_speed(self, speed: float) -> None:
+        """SetMachSpeed does not wait for the PLC: the model shows the request at once; this writes it,
+        then shows what the PLC's ``Status.MachSpeed`` says once it took it (or ``confirm_timeout``
+        passed: a PLC that keeps its own set point is shown with it)."""
+        await self.link.write(self._tag("Command.MachSpeed"), speed, "Float")
+        if "Status.MachSpeed" not in self.tags:
+            return
+        deadline = time.monotonic() + self.timing.confirm_timeout
+        while True:
+            reported = await self.link.read(self._tag("Status.MachSpeed"))
+            took = _is(reported, "Float") and abs(reported - speed) <= 1e-4 * max(1.0, abs(speed))
+            if took or time.monotonic() >= deadline:
+                break
+            await asyncio.sleep(self.timing.poll * 5)
+        if _is(reported, "Float"):
+            self.plc["Status.MachSpeed"] = reported
+            self._speeds()
 
     def close(self) -> Awaitable[None]:
         return self._release(self.link)
