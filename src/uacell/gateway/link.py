@@ -20,9 +20,14 @@ StateListener = Callable[[bool], None]  # connected
 class TagLink(Protocol):
     """A connection to a PLC's tags by address (shared by the units on it); a lost connection makes
     every read and write raise ``CommunicationError``. Values are Python ``int``/``float``/``bool``;
-    a write names the PackTags type of its tag ("Int32", "Boolean", "Float")."""
+    a write names the PackTags type of its tag ("Int32", "Boolean", "Float").
+
+    A watched address the PLC does not have (it answers, but not for that tag) does not fail the
+    connection: it is in ``missing`` (address -> what the PLC said) once connected, is left out of
+    subscriptions and polls, and is tried again on the next connection."""
 
     endpoint: str
+    missing: dict[str, str]
 
     def start(self) -> None: ...
 
@@ -54,6 +59,7 @@ class Listeners:
         self.endpoint = ""
         self.connected = False
         self.last_error = ""  # why the last attempt to connect failed, said once
+        self.missing: dict[str, str] = {}  # watched addresses the PLC does not have -> what it said
         self._watched: dict[str, list[ValueListener]] = {}
         self._state_listeners: list[StateListener] = []
         self._ready = asyncio.Event()  # set once the first connection was made
@@ -70,6 +76,10 @@ class Listeners:
             self._watched.setdefault(address, []).append(listener)
         self._state_listeners.append(on_state)
         self._labels.update(labels or {})
+
+    def present(self) -> list[str]:
+        """The watched addresses the PLC has (as far as the last connection found)."""
+        return [a for a in self._watched if a not in self.missing]
 
     def named(self, address: str) -> str:
         """The address with what it is, for messages: ``Capper: Admin.StopReason (ns=1;s=Nope)``."""

@@ -160,9 +160,7 @@ class ModbusTagLink(Listeners):
         self._listen(addresses, listener, on_state, labels)
         if self.connected:  # another unit on this PLC connected it already: these values now
             try:
-                for address, value in zip(addresses, await self.read_many(addresses), strict=True):
-                    self._last[address] = value
-                    listener(address, value)
+                await self._first_read(addresses, listener)
                 on_state(True)
             except CommunicationError as exc:
                 log.warning("the PLC at %s: %s", self.endpoint, exc)
@@ -234,7 +232,8 @@ class ModbusTagLink(Listeners):
             try:
                 if not self.conn.connected and not await self.conn.connect():
                     raise CommunicationError(f"{self.endpoint}: no answer")
-                await self._first_read()
+                self.missing.clear()
+                await self._first_read(list(self._watched), None)
                 self._announce()
                 delay = FIRST_RETRY
                 while self.conn.connected:
@@ -248,26 +247,35 @@ class ModbusTagLink(Listeners):
             await asyncio.sleep(delay)
             delay = min(delay * 2, LAST_RETRY)
 
-    async def _first_read(self) -> None:
-        """Every watched tag once; a tag the PLC does not have is named (one request each, once)."""
-        addresses = list(self._watched)
+    async def _first_read(self, addresses: list[str], listener: ValueListener | None) -> None:
+        """Each of ``addresses`` once, delivered (to ``listener``, else to every part watching it). When
+        the PLC refuses the block, each is read alone: one it refuses goes to ``missing`` with its
+        exception (one request each, once a connection)."""
         try:
-            values = await self._read(addresses)
+            values: list[Any] = await self._read(addresses)
         except CommunicationError:
             if not self.conn.connected:
                 raise
+            values = []
             for address in addresses:
                 try:
-                    await self._read([address])
+                    values += await self._read([address])
                 except CommunicationError as exc:
-                    raise CommunicationError(f"{self.named(address)}: {str(exc).rpartition(': ')[2]}") from None
-            raise
+                    if not self.conn.connected:
+                        raise
+                    self.missing[address] = str(exc).rpartition(": ")[2]
+                    values.append(_UNSET)
         for address, value in zip(addresses, values, strict=True):
+            if value is _UNSET:
+                continue
             self._last[address] = value
-            self._deliver(address, value)
+            if listener is not None:
+                listener(address, value)
+            else:
+                self._deliver(address, value)
 
     async def _poll(self) -> None:
-        addresses = list(self._watched)
+        addresses = self.present()
         for address, value in zip(addresses, await self._read(addresses), strict=True):
             if self._last.get(address, _UNSET) != value:
                 self._last[address] = value

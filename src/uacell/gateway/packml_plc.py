@@ -30,7 +30,7 @@ from uacell.errors import CallError
 from uacell.gateway.handshake import COMMANDS, Handshake, PlcStatus
 from uacell.gateway.link import TagLink
 from uacell.gateway.modbus import CommunicationError
-from uacell.gateway.packtags import ResolvedTag
+from uacell.gateway.packtags import NEEDED_BY, ResolvedTag
 from uacell.packml.equipment import EquipmentBase
 from uacell.packml.model import COMPLETE
 from uacell.packml.types import PackMLDescriptorDataType
@@ -47,6 +47,8 @@ WATCHED = (
     "Status.StateCurrent", "Status.UnitModeCurrent", "Status.MachSpeed", "Status.CurMachSpeed",
     "Admin.ProdProcessedCount", "Admin.ProdDefectiveCount", "Admin.StopReason",
 )  # fmt: skip
+# what a command's handshake reads, in one Read
+STATUS = ("Status.StateCurrent", "Command.CmdChangeRequest", "Status.UnitModeCurrent", "Command.UnitModeChangeRequest")
 SPEEDS = ("Status.MachSpeed", "Status.CurMachSpeed")  # the PLC's: shown as it reports them
 
 
@@ -81,6 +83,8 @@ class PackTagsUnit(EquipmentBase):
         self._attached = False
         self._aborting = False
         self._lost = False  # what the CommunicationLost condition says
+        self.missing: dict[str, str] = {}  # tag key -> what the PLC said of it (it has no such tag)
+        self._said: set[tuple[str, str]] = set()  # missing tags logged (once each)
 
     # -- the PLC's values -------------------------------------------------------------------------
 
@@ -123,11 +127,34 @@ class PackTagsUnit(EquipmentBase):
 
     def on_connection(self, connected: bool) -> None:
         self.reachable = connected
+        if connected:
+            self._take_missing()
         if not self._attached:
             return
         self._tell_lost(not connected)
         if connected:
             self._catch_up()
+
+    def _take_missing(self) -> None:
+        """The tags the PLC does not have, as the link found them on connecting: each is one log line
+        (once), and the unit works without it; what needs it is refused (``_need``)."""
+        found = self.link.missing
+        self.missing = {k: found[t.address] for k, t in self.tags.items() if t.address in found}
+        for key, reason in self.missing.items():
+            self.plc.pop(key, None)
+            if (key, reason) not in self._said:
+                self._said.add((key, reason))
+                needed = [what for what, keys in NEEDED_BY.items() if key in keys]
+                effect = f"{', '.join(needed)} refused until it is there" if needed else "the unit works without it"
+                log.warning("%s: the PLC has no %s (%s: %s); %s", self.part, key, self._tag(key), reason, effect)
+
+    def _need(self, keys: Sequence[str]) -> None:
+        """CallError (Bad_ConfigurationError) naming the first of ``keys`` the PLC does not have."""
+        for key in keys:
+            if key in self.missing:
+                raise CallError(
+                    "BadConfigurationError", f"the PLC has no {key} ({self._tag(key)}: {self.missing[key]})"
+                )
 
     def _tell_lost(self, lost: bool) -> None:
         """Warning 9001 in Admin.Warning (PackML's view) and the CommunicationLost condition (alarm
@@ -205,7 +232,8 @@ class PackTagsUnit(EquipmentBase):
 
     async def _abort_with_reason(self) -> None:
         try:
-            reason = int(await self.link.read(self._tag("Admin.StopReason")) or 0)
+            missing = "Admin.StopReason" in self.missing
+            reason = 0 if missing else int(await self.link.read(self._tag("Admin.StopReason")) or 0)
         except CommunicationError:
             reason = 0
         finally:
@@ -227,6 +255,7 @@ class PackTagsUnit(EquipmentBase):
     async def send_command(self, machine: str | None, method: str, args: Sequence[Any]) -> None:
         """Write a machine command as PackTags and wait until the PLC accepted it (module doc)."""
         if machine is None and method == "SetUnitMode":
+            self._need(NEEDED_BY["SetUnitMode"])
             await self._handshake(
                 method, lambda st, now: Handshake.unit_mode(int(args[0]), st, now, self.timing.confirm_timeout)
             )
@@ -236,11 +265,17 @@ class PackTagsUnit(EquipmentBase):
         name = PACKTAGS_COMMAND.get(method, method)
         if name not in COMMANDS:
             return
+        self._need(NEEDED_BY["every command"])
         parameters: list[float] = []
         if method == "Start" and args:
             given: Sequence[PackMLDescriptorDataType] = args[0] or ()
             parameters = [float(p.value) for p in given]
-            room = sum(1 for k in self.tags if k.startswith("Command.Parameter["))
+            room = 0  # Command.Parameter[0] .. [room - 1]: the slots the PLC has, in order
+            while (
+                f"Command.Parameter[{room}].Value" in self.tags
+                and f"Command.Parameter[{room}].Value" not in self.missing
+            ):
+                room += 1
             if len(parameters) > room:
                 raise CallError(
                     "BadInvalidArgument", f"the PLC takes {room} parameters, not {len(parameters)}", argument=0
@@ -279,23 +314,19 @@ class PackTagsUnit(EquipmentBase):
             asyncio.get_running_loop().call_soon(self.follow)  # after the model took the command
 
     async def _status(self) -> PlcStatus:
+        keys = [k for k in STATUS if k not in self.missing]
         try:  # in one Read: a cleared request and the state it led to come from the same scan
-            state, request, mode, mode_request = await self.link.read_many(
-                [
-                    self._tag("Status.StateCurrent"),
-                    self._tag("Command.CmdChangeRequest"),
-                    self._tag("Status.UnitModeCurrent"),
-                    self._tag("Command.UnitModeChangeRequest"),
-                ]
-            )
+            got = dict(zip(keys, await self.link.read_many([self._tag(k) for k in keys]), strict=True))
         except CommunicationError:
             return PlcStatus(0, 0, False, connected=False)
+        state, request, mode, mode_request = (got.get(k) for k in STATUS)
         self.plc["Status.StateCurrent"] = state
-        return PlcStatus(int(state), int(mode or 0), bool(request), bool(mode_request))
+        return PlcStatus(int(state or 0), int(mode or 0), bool(request), bool(mode_request))
 
     def on_mach_speed(self, speed: float) -> None:
         if not self.reachable:
             raise CallError("BadCommunicationError", f"no connection to the PLC at {self.link.endpoint}")
+        self._need(NEEDED_BY["SetMachSpeed"])
         task = asyncio.get_running_loop().create_task(self._set_speed(float(speed)))
         task.add_done_callback(_log_failure(self.part, "Command.MachSpeed"))
 
@@ -304,7 +335,7 @@ class PackTagsUnit(EquipmentBase):
         then shows what the PLC's ``Status.MachSpeed`` says once it took it (or ``confirm_timeout``
         passed: a PLC that keeps its own set point is shown with it)."""
         await self.link.write(self._tag("Command.MachSpeed"), speed, "Float")
-        if "Status.MachSpeed" not in self.tags:
+        if "Status.MachSpeed" not in self.tags or "Status.MachSpeed" in self.missing:
             return
         deadline = time.monotonic() + self.timing.confirm_timeout
         while True:
@@ -343,7 +374,8 @@ async def start_unit(
     """The unit on ``link``, its tags watched; it waits up to 3 s for the PLC (unreachable at start:
     uacell serves anyway, the unit reports it)."""
     unit = PackTagsUnit(part, link, tags, timing_of(settings), release)
-    watched = [tags[k].address for k in WATCHED] + [t.address for k, t in tags.items() if k.startswith("Admin.Alarm[")]
+    # every tag, also those uacell only writes: a tag the PLC does not have is found when it connects
+    watched = [tags[k].address for k in WATCHED] + [t.address for k, t in tags.items() if k not in WATCHED]
     labels = {t.address: f"{part}: {k}" for k, t in tags.items()}
     link.start()
     await link.watch(watched, unit.on_value, unit.on_connection, labels)

@@ -60,6 +60,7 @@ async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float 
             str(settings.get("prefix", "")),
             {str(k): str(v) for k, v in dict(settings.get("map", {})).items()},
             parameters=int(settings.get("parameters", 5)),
+            alarms=int(settings.get("alarms", 0)),
         )
     except PackTagsMapError as e:
         return [Row(part, endpoint, "(map)", str(e), False)]
