@@ -1,6 +1,6 @@
 """What the PLC owns, uacell follows: every tag of the PackTags map that uacell reads (Status.* and
-Admin.*) is walked, on each test PLC (node-opcua's over OPC UA, pymodbus's over Modbus/TCP, the
-snap7 S7 PLC): the test PLC is frozen (no scan moves anything), the test writes the tag in the PLC
+Admin.*) is walked, on each test PLC (node-opcua's over OPC UA, pymodbus's over Modbus/TCP,
+python-snap7's S7 server): the test PLC is frozen (no scan moves anything), the test writes the tag in the PLC
 and reads what uacell shows. The speeds the PLC holds are shown from the start (not the cell file's
 ``mach_speed``), and a set point the PLC keeps wins over a SetMachSpeed it did not take."""
 
@@ -92,7 +92,33 @@ async def modbus_plc() -> AsyncIterator[PlcUnderTest]:
         p.kill()
 
 
-PLCS = {"opcua": opcua_plc, "modbus": modbus_plc}
+@asynccontextmanager
+async def s7_plc() -> AsyncIterator[PlcUnderTest]:
+    from test_gateway_packml_s7 import S7PLC
+
+    p = S7PLC(units=1)
+    p.start()
+    try:
+        await p.open()
+
+        async def set_(key: str, value: Any) -> None:
+            await p.put(0, key, value)
+
+        async def get(key: str) -> Any:
+            return await p.tag(0, key)
+
+        async def freeze(on: bool) -> None:
+            await p.switch(0, 1, on)
+
+        text = f'[[packml_units]]\nname = "{F}"\nequipment = {{ driver = "s7-packtags", host = "127.0.0.1", '
+        text += f"port = {p.port}, db = 1, alarms = 2 }}\n"
+        yield PlcUnderTest(text, set_, freeze, get)
+    finally:
+        await p.close()
+        p.kill()
+
+
+PLCS = {"opcua": opcua_plc, "modbus": modbus_plc, "s7": s7_plc}
 
 
 async def count(client: Client, name: str) -> int:

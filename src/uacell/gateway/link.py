@@ -1,13 +1,18 @@
 """What a PackTags unit needs of a transport to a PLC (``TagLink``), and the listeners a link calls.
-Implemented by ``opcua_link.PlcLink`` (OPC UA client) and ``packml_modbus.ModbusTagLink`` (Modbus/TCP)."""
+Implemented by ``opcua_link.PlcLink`` (OPC UA client) and, on ``PolledLink`` (a poll loop over
+blocks of addresses), ``packml_modbus.ModbusTagLink`` (Modbus/TCP) and ``packml_s7.S7TagLink``
+(Siemens S7)."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
 import logging
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
+
+from uacell.gateway.modbus import CommunicationError
 
 log = logging.getLogger(__name__)
 
@@ -116,3 +121,169 @@ class Listeners:
                 listener(connected)
             except Exception:
                 log.exception("a PLC state listener failed")
+
+
+_UNSET = object()
+
+
+class Connection(Protocol):
+    """A transport's connection to one PLC, as a ``PolledLink`` uses it."""
+
+    @property
+    def connected(self) -> bool: ...
+
+    async def connect(self) -> bool:
+        """Try once; True when connected."""
+        ...
+
+
+class PolledLink(Listeners, ABC):
+    """A ``TagLink`` that polls: every ``interval`` it reads the watched addresses the PLC has (the
+    transport groups them into blocks), delivers the values that changed, and reconnects with backoff
+    (0.5 s doubling to 2 s) when the PLC stops answering. A transport gives its connection and says
+    how to parse an address, read addresses and write them."""
+
+    def __init__(self, conn: Connection, endpoint: str, interval: float) -> None:
+        super().__init__()
+        self.conn, self.endpoint, self.interval = conn, endpoint, interval
+        self.users = 0
+        self._last: dict[str, Any] = {}
+        self._task: asyncio.Task[None] | None = None
+        self._parsed: dict[str, Any] = {}
+
+    @property
+    def link_up(self) -> bool:
+        return self.conn.connected
+
+    async def connect(self) -> bool:
+        return await self.conn.connect()
+
+    def parsed(self, address: str) -> Any:
+        """``address`` as the transport parses it (once)."""
+        found = self._parsed.get(address)
+        if found is None:
+            found = self._parsed[address] = self.parse(address)
+        return found
+
+    # -- what a transport provides ----------------------------------------------------------------
+
+    @abstractmethod
+    def parse(self, address: str) -> Any:
+        """The transport's form of an address string."""
+
+    @abstractmethod
+    async def _read(self, addresses: list[str]) -> list[Any]:
+        """The values of ``addresses`` (CommunicationError when the PLC refuses or does not answer)."""
+
+    @abstractmethod
+    async def _write(self, writes: list[tuple[str, Any, str]]) -> None:
+        """The values, in order (the transport groups neighbours into one request)."""
+
+    # -- TagLink ----------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        if self._task is None:
+            self._task = asyncio.get_running_loop().create_task(self._run(), name=f"plc {self.endpoint}")
+
+    async def watch(
+        self,
+        addresses: list[str],
+        listener: ValueListener,
+        on_state: StateListener,
+        labels: Mapping[str, str] | None = None,
+    ) -> None:
+        self._listen(addresses, listener, on_state, labels)
+        if self.connected:  # another unit on this PLC connected it already: these values now
+            try:
+                await self._first_read(addresses, listener)
+                on_state(True)
+            except CommunicationError as exc:
+                log.warning("the PLC at %s: %s", self.endpoint, exc)
+
+    async def read(self, address: str) -> Any:
+        (value,) = await self.read_many([address])
+        return value
+
+    async def read_many(self, addresses: list[str]) -> list[Any]:
+        if not self.connected:
+            raise CommunicationError(f"no connection to the PLC at {self.endpoint}")
+        values: list[Any] = await self._io(self._read(addresses))
+        return values
+
+    async def write(self, address: str, value: Any, type_name: str) -> None:
+        await self.write_many([(address, value, type_name)])
+
+    async def write_many(self, writes: list[tuple[str, Any, str]]) -> None:
+        if not self.connected:
+            raise CommunicationError(f"no connection to the PLC at {self.endpoint}")
+        await self._io(self._write(writes))
+
+    async def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            await asyncio.wait({self._task}, timeout=5.0)
+
+    # -- the loop ---------------------------------------------------------------------------------
+
+    async def _io(self, request: Any) -> Any:
+        try:
+            return await request
+        except CommunicationError:
+            if not self.link_up:
+                self._set_connected(False)
+            raise
+
+    async def _run(self) -> None:
+        delay = FIRST_RETRY
+        while True:
+            try:
+                if not self.link_up and not await self.connect():
+                    raise CommunicationError(f"{self.endpoint}: no answer")
+                self.missing.clear()
+                await self._first_read(list(self._watched), None)
+                self._announce()
+                delay = FIRST_RETRY
+                while self.link_up:
+                    await asyncio.sleep(self.interval)
+                    await self._poll()
+            except CommunicationError as exc:
+                if str(exc) != self.last_error:
+                    log.warning("the PLC at %s: %s (retrying)", self.endpoint, exc)
+                self.last_error = str(exc)
+            self._set_connected(False)
+            await asyncio.sleep(delay)
+            delay = min(delay * 2, LAST_RETRY)
+
+    async def _first_read(self, addresses: list[str], listener: ValueListener | None) -> None:
+        """Each of ``addresses`` once, delivered (to ``listener``, else to every part watching it). When
+        the PLC refuses the block, each is read alone: one it refuses goes to ``missing`` with what it
+        said (one request each, once a connection)."""
+        try:
+            values: list[Any] = await self._read(addresses)
+        except CommunicationError:
+            if not self.link_up:
+                raise
+            values = []
+            for address in addresses:
+                try:
+                    values += await self._read([address])
+                except CommunicationError as exc:
+                    if not self.link_up:
+                        raise
+                    self.missing[address] = str(exc).rpartition(": ")[2]
+                    values.append(_UNSET)
+        for address, value in zip(addresses, values, strict=True):
+            if value is _UNSET:
+                continue
+            self._last[address] = value
+            if listener is not None:
+                listener(address, value)
+            else:
+                self._deliver(address, value)
+
+    async def _poll(self) -> None:
+        addresses = self.present()
+        for address, value in zip(addresses, await self._read(addresses), strict=True):
+            if self._last.get(address, _UNSET) != value:
+                self._last[address] = value
+                self._deliver(address, value)

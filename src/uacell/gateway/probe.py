@@ -15,12 +15,16 @@ from uacell.gateway.modbus import CommunicationError, ModbusConnection, endpoint
 from uacell.gateway.modbus_robot import signal_tags
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
 from uacell.gateway.packml_modbus import Point, where
+from uacell.gateway.packml_s7 import S7Connection
+from uacell.gateway.packml_s7 import where as s7_where
 from uacell.gateway.packtags import PackTagsMapError, resolve
+from uacell.gateway.s7 import S7Address
 from uacell.gateway.signals import NAME_SIGNALS
 
 MODBUS = "uacell.gateway.robot:modbus_signals"
 PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
 MODBUS_PACKTAGS = "uacell.gateway.packml_modbus:modbus_packtags"
+S7_PACKTAGS = "uacell.gateway.packml_s7:s7_packtags"
 _BUILTIN = {ua.VariantType.Int32: "Int32", ua.VariantType.Boolean: "Boolean", ua.VariantType.Float: "Float"}
 
 
@@ -39,7 +43,7 @@ def gateway_parts(parts: list[tuple[str, Part]]) -> Iterator[tuple[str, str, Map
     def walk(part: Part, path: str) -> Iterator[tuple[str, str, Mapping[str, Any]]]:
         here = f"{path}.{part.name}" if path else part.name
         equipment = getattr(part.spec, "equipment", "")
-        if equipment in (MODBUS, PACKTAGS, MODBUS_PACKTAGS):
+        if equipment in PROBES:
             yield here, equipment, getattr(part.spec, "settings", {})
         for child in part.children:
             yield from walk(child, here)
@@ -139,7 +143,36 @@ async def probe_modbus_packtags(part: str, settings: Mapping[str, Any], timeout:
         conn.close()
 
 
-PROBES = {MODBUS: probe_modbus, PACKTAGS: probe_packtags, MODBUS_PACKTAGS: probe_modbus_packtags}
+async def probe_s7_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    try:
+        w = s7_where(part, settings)
+    except ValueError as e:
+        return [Row(part, f"s7://{settings.get('host', '')}", "(settings)", str(e), False)]
+    conn = S7Connection(w.host, w.port, w.rack, w.slot, timeout)
+    if not await conn.connect():
+        return [Row(part, w.endpoint, "(endpoint)", "unreachable", False)]
+    rows = []
+    try:
+        for key, tag in w.tags.items():
+            address = S7Address.parse(tag.address)
+            try:
+                block = await conn.read(address.db, address.byte, address.size)
+                rows.append(Row(part, w.endpoint, key, f"{address} = {address.decode(block, address.byte)!r}", True))
+            except CommunicationError as e:
+                rows.append(Row(part, w.endpoint, key, f"{address}: {str(e).rpartition(': ')[2]}", False))
+                if not conn.connected:
+                    break
+        return rows
+    finally:
+        await conn.close()
+
+
+PROBES = {
+    MODBUS: probe_modbus,
+    PACKTAGS: probe_packtags,
+    MODBUS_PACKTAGS: probe_modbus_packtags,
+    S7_PACKTAGS: probe_s7_packtags,
+}
 
 
 async def probe(parts: list[tuple[str, Part]]) -> list[Row]:
