@@ -239,6 +239,7 @@ async def test_a_full_cycle_goes_to_the_plc_and_comes_back(served, plc: S7PLC) -
     await until(lambda: cell_state(client, EXEC), "Idle")
     assert (await call_path(client, F, "SetMachSpeed", ua.Variant(120.0, ua.VariantType.Float))).StatusCode.is_good()
     await until(lambda: plc.tag(0, "Command.MachSpeed"), 120.0)
+    await plc.put(0, "Command.Parameter[4].Value", 9.5)  # an older Start's value, left in the PLC
     res = await call_path(client, EXEC, "Start", packml_params((1, 180.5), (2, 0.25)))
     assert res.StatusCode.is_good(), res.StatusCode
     assert await plc.taken() == pytest.approx([180.5, 0.25, 0.0, 0.0, 0.0])  # unused slots are written 0.0

@@ -270,19 +270,25 @@ class PackTagsUnit(EquipmentBase):
         if method == "Start" and args:
             given: Sequence[PackMLDescriptorDataType] = args[0] or ()
             parameters = [float(p.value) for p in given]
-            room = 0  # Command.Parameter[0] .. [room - 1]: the slots the PLC has, in order
-            while (
-                f"Command.Parameter[{room}].Value" in self.tags
-                and f"Command.Parameter[{room}].Value" not in self.missing
-            ):
-                room += 1
+            room = self._parameter_room()
             if len(parameters) > room:
                 raise CallError(
                     "BadInvalidArgument", f"the PLC takes {room} parameters, not {len(parameters)}", argument=0
                 )
+        if method == "Start":  # every slot written: the slots Start does not use hold 0.0, not an older value
+            parameters += [0.0] * (self._parameter_room() - len(parameters))
         await self._handshake(
             method, lambda st, now: Handshake.command(name, st, now, self.timing.confirm_timeout, parameters)
         )
+
+    def _parameter_room(self) -> int:
+        """How many ``Command.Parameter[i].Value`` slots the PLC has, from 0 on without a gap."""
+        room = 0
+        while (
+            f"Command.Parameter[{room}].Value" in self.tags and f"Command.Parameter[{room}].Value" not in self.missing
+        ):
+            room += 1
+        return room
 
     async def _handshake(self, method: str, make: Any) -> None:
         """Write the handshake ``make(status, now)`` builds and wait until the PLC accepted it."""
