@@ -14,6 +14,8 @@ from uacell.cell_file import Part
 from uacell.gateway.modbus import CommunicationError, ModbusConnection, endpoint_name
 from uacell.gateway.modbus_robot import signal_tags
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
+from uacell.gateway.packml_logix import LogixConnection
+from uacell.gateway.packml_logix import where as logix_where
 from uacell.gateway.packml_modbus import Point, where
 from uacell.gateway.packml_s7 import S7Connection
 from uacell.gateway.packml_s7 import where as s7_where
@@ -25,6 +27,7 @@ MODBUS = "uacell.gateway.robot:modbus_signals"
 PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
 MODBUS_PACKTAGS = "uacell.gateway.packml_modbus:modbus_packtags"
 S7_PACKTAGS = "uacell.gateway.packml_s7:s7_packtags"
+LOGIX_PACKTAGS = "uacell.gateway.packml_logix:logix_packtags"
 _BUILTIN = {ua.VariantType.Int32: "Int32", ua.VariantType.Boolean: "Boolean", ua.VariantType.Float: "Float"}
 
 
@@ -167,11 +170,39 @@ async def probe_s7_packtags(part: str, settings: Mapping[str, Any], timeout: flo
         await conn.close()
 
 
+async def probe_logix_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    try:
+        w = logix_where(part, settings)
+    except ValueError as e:
+        return [Row(part, f"logix://{settings.get('host', '')}", "(settings)", str(e), False)]
+    conn = LogixConnection(w.host, w.port, w.slot, timeout)
+    if not await conn.connect():
+        return [Row(part, w.endpoint, "(endpoint)", "unreachable", False)]
+    rows = []
+    try:
+        for key, tag in w.tags.items():
+            try:
+                (value,) = await conn.read([tag.address])
+            except CommunicationError as e:
+                rows.append(Row(part, w.endpoint, key, f"{tag.address}: {str(e).rpartition(': ')[2]}", False))
+                if not conn.connected:
+                    break
+                continue
+            found = {bool: "Boolean", int: "Int32", float: "Float"}.get(type(value), type(value).__name__)
+            ok = found == tag.type_name or (found == "Int32" and tag.type_name == "Float")
+            text = f"{tag.address} = {value!r}" if ok else f"{tag.address} = {value!r}, expected {tag.type_name}"
+            rows.append(Row(part, w.endpoint, key, text, ok))
+        return rows
+    finally:
+        await asyncio.to_thread(conn.close)
+
+
 PROBES = {
     MODBUS: probe_modbus,
     PACKTAGS: probe_packtags,
     MODBUS_PACKTAGS: probe_modbus_packtags,
     S7_PACKTAGS: probe_s7_packtags,
+    LOGIX_PACKTAGS: probe_logix_packtags,
 }
 
 
