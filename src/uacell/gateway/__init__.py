@@ -5,9 +5,9 @@
   (``modbus``, ``modbus_robot``, ``signals``; ``codec`` for register values);
 - ``packml_opcua`` (``opcua-packtags``): a PackML unit whose state machine runs in a PLC, over its
   PackTags on OPC UA (``opcua_link``, ``packtags``, ``handshake``);
-- ``packml_modbus`` (``modbus-packtags``) and ``packml_s7`` (``s7-packtags``, ``s7`` for S7
-  addresses and write jobs): the same unit over Modbus/TCP registers or a Siemens S7 data block
-  (``link.PolledLink``).
+- ``packml_modbus`` (``modbus-packtags``), ``packml_s7`` (``s7-packtags``, ``s7`` for S7
+  addresses and write jobs) and ``packml_logix`` (``logix-packtags``): the same unit over Modbus/TCP
+  registers, a Siemens S7 data block or Rockwell Logix tags (``link.PolledLink``).
 
 ``examples/robot_controller.py`` is a Modbus robot controller to try the first with;
 ``interop/plc_packtags.js`` a PackTags PLC for the second.
