@@ -1,8 +1,9 @@
 """What the PLC owns, uacell follows: every tag of the PackTags map that uacell reads (Status.* and
 Admin.*) is walked, on each test PLC (node-opcua's over OPC UA, pymodbus's over Modbus/TCP,
-python-snap7's S7 server): the test PLC is frozen (no scan moves anything), the test writes the tag in the PLC
-and reads what uacell shows. The speeds the PLC holds are shown from the start (not the cell file's
-``mach_speed``), and a set point the PLC keeps wins over a SetMachSpeed it did not take."""
+python-snap7's S7 server, cpppo's Logix simulator): the test PLC is frozen (no scan moves
+anything), the test writes the tag in the PLC and reads what uacell shows. The speeds the PLC holds
+are shown from the start (not the cell file's ``mach_speed``), and a set point the PLC keeps wins
+over a SetMachSpeed it did not take."""
 
 from __future__ import annotations
 
@@ -118,7 +119,39 @@ async def s7_plc() -> AsyncIterator[PlcUnderTest]:
         p.kill()
 
 
-PLCS = {"opcua": opcua_plc, "modbus": modbus_plc, "s7": s7_plc}
+@asynccontextmanager
+async def logix_plc() -> AsyncIterator[PlcUnderTest]:
+    from test_gateway_packml_logix import LogixPLC
+
+    from uacell.gateway.packml_logix import where
+
+    p = LogixPLC()
+    p.start()
+    try:
+        await p.open()
+        arrays = {f"Command.Parameter[{i}].Value": f"{F}_Parameter[{i}]" for i in range(5)}
+        arrays |= {f"Admin.Alarm[{i}].ID": f"{F}_Alarm[{i}]" for i in range(2)}
+        tags = where(F, {"host": "x", "prefix": F, "alarms": 2, "map": arrays}).tags
+
+        async def set_(key: str, value: Any) -> None:
+            await p.put(tags[key].address, value)
+
+        async def get(key: str) -> Any:
+            return await p.tag(tags[key].address)
+
+        async def freeze(on: bool) -> None:
+            await p.put(f"{F}_Frozen", on)
+
+        pairs = ", ".join(f'"{k}" = "{v}"' for k, v in arrays.items())
+        text = f'[[packml_units]]\nname = "{F}"\nequipment = {{ driver = "logix-packtags", host = "127.0.0.1", '
+        text += f'port = {p.port}, prefix = "{F}", alarms = 2, timeout = 3.0, map = {{ {pairs} }} }}\n'
+        yield PlcUnderTest(text, set_, freeze, get)
+    finally:
+        await p.close()
+        p.kill()
+
+
+PLCS = {"opcua": opcua_plc, "modbus": modbus_plc, "s7": s7_plc, "logix": logix_plc}
 
 
 async def count(client: Client, name: str) -> int:

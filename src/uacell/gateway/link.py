@@ -9,7 +9,7 @@ import asyncio
 import contextlib
 import logging
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 from uacell.gateway.modbus import CommunicationError
@@ -29,7 +29,8 @@ class TagLink(Protocol):
 
     A watched address the PLC does not have (it answers, but not for that tag) does not fail the
     connection: it is in ``missing`` (address -> what the PLC said) once connected, is left out of
-    subscriptions and polls, and is tried again on the next connection."""
+    subscriptions and polls, and is tried again on the next connection. ``checked`` addresses are
+    only tried (once a connection, for ``missing``), not followed."""
 
     endpoint: str
     missing: dict[str, str]
@@ -42,6 +43,7 @@ class TagLink(Protocol):
         listener: ValueListener,
         on_state: StateListener,
         labels: Mapping[str, str] | None = None,
+        checked: Sequence[str] = (),
     ) -> None:
         """``labels``: what each address is ("Capper: Status.StateCurrent"), for messages."""
         ...
@@ -69,6 +71,7 @@ class Listeners:
         self._state_listeners: list[StateListener] = []
         self._ready = asyncio.Event()  # set once the first connection was made
         self._labels: dict[str, str] = {}
+        self._checked: dict[str, None] = {}  # tried once a connection, not followed
 
     def _listen(
         self,
@@ -76,11 +79,17 @@ class Listeners:
         listener: ValueListener,
         on_state: StateListener,
         labels: Mapping[str, str] | None,
+        checked: Sequence[str] = (),
     ) -> None:
+        self._checked.update(dict.fromkeys(a for a in checked if a not in addresses))
         for address in addresses:
             self._watched.setdefault(address, []).append(listener)
         self._state_listeners.append(on_state)
         self._labels.update(labels or {})
+
+    def tried(self) -> list[str]:
+        """Every address a connection tries: the watched, then the checked."""
+        return [*self._watched, *(a for a in self._checked if a not in self._watched)]
 
     def present(self) -> list[str]:
         """The watched addresses the PLC has (as far as the last connection found)."""
@@ -191,14 +200,17 @@ class PolledLink(Listeners, ABC):
         listener: ValueListener,
         on_state: StateListener,
         labels: Mapping[str, str] | None = None,
+        checked: Sequence[str] = (),
     ) -> None:
-        self._listen(addresses, listener, on_state, labels)
-        if self.connected:  # another unit on this PLC connected it already: these values now
-            try:
-                await self._first_read(addresses, listener)
-                on_state(True)
+        self._labels.update(labels or {})
+        if self.connected:  # another unit on this PLC connected it already: these values now (and the
+            try:  # tags it lacks found) before the polls include them
+                await self._first_read([*addresses, *checked], listener)
             except CommunicationError as exc:
                 log.warning("the PLC at %s: %s", self.endpoint, exc)
+        self._listen(addresses, listener, on_state, labels, checked)
+        if self.connected:
+            on_state(True)
 
     async def read(self, address: str) -> Any:
         (value,) = await self.read_many([address])
@@ -240,7 +252,7 @@ class PolledLink(Listeners, ABC):
                 if not self.link_up and not await self.connect():
                     raise CommunicationError(f"{self.endpoint}: no answer")
                 self.missing.clear()
-                await self._first_read(list(self._watched), None)
+                await self._first_read(self.tried(), None)
                 self._announce()
                 delay = FIRST_RETRY
                 while self.link_up:
@@ -283,7 +295,14 @@ class PolledLink(Listeners, ABC):
 
     async def _poll(self) -> None:
         addresses = self.present()
-        for address, value in zip(addresses, await self._read(addresses), strict=True):
+        try:
+            values = await self._read(addresses)
+        except CommunicationError:
+            if not self.link_up:
+                raise
+            await self._first_read(addresses, None)  # the PLC refused one: it goes to ``missing``
+            return
+        for address, value in zip(addresses, values, strict=True):
             if self._last.get(address, _UNSET) != value:
                 self._last[address] = value
                 self._deliver(address, value)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -127,12 +127,15 @@ class PlcLink(Listeners):
         listener: ValueListener,
         on_state: StateListener,
         labels: Mapping[str, str] | None = None,
+        checked: Sequence[str] = (),
     ) -> None:
-        """Call ``listener`` with each value of ``node_ids`` (on every connection, then on change)."""
-        self._listen(node_ids, listener, on_state, labels)
+        """Call ``listener`` with each value of ``node_ids`` (on every connection, then on change);
+        ``checked``: only tried, for ``missing``."""
+        self._listen(node_ids, listener, on_state, labels, checked)
         if self.connected and self._client is not None:
             try:  # connected already (another part on this PLC): read and subscribe these too
-                nodes = await self._first_read(self._client, node_ids, listener)
+                found = await self._first_read(self._client, [*node_ids, *checked], listener)
+                nodes = [node for address, node in found.items() if address in node_ids]
                 if self._subscription is not None and nodes:
                     await self._subscription.subscribe_data_change(nodes, queuesize=100, sampling_interval=SAMPLING)
                 on_state(True)
@@ -234,7 +237,8 @@ class PlcLink(Listeners):
         self._address_of.clear()
         self.missing.clear()
         # a first read of everything (a missing tag is set aside in ``missing``, the parts say so)
-        nodes = await self._first_read(client, list(self._watched), None)
+        found = await self._first_read(client, self.tried(), None)
+        nodes = [node for address, node in found.items() if address in self._watched]
         if o.mode == "poll":
             self._announce()
             self._watchdog = asyncio.get_running_loop().create_task(self._poll(client))
@@ -255,11 +259,11 @@ class PlcLink(Listeners):
         self._announce()
         self._watchdog = asyncio.get_running_loop().create_task(self._keepalive(client))
 
-    async def _first_read(self, client: Client, addresses: list[str], listener: ValueListener | None) -> list[Any]:
+    async def _first_read(self, client: Client, addresses: list[str], listener: ValueListener | None) -> dict[str, Any]:
         """Read each address once and deliver its value (to ``listener``, else to every part watching
         it); an address the PLC has no node for, or answers with a bad status, goes to ``missing``.
-        The nodes of the others are returned (to subscribe)."""
-        nodes = []
+        The nodes of the others are returned by address (to subscribe)."""
+        nodes = {}
         for nid in addresses:
             try:
                 await self._resolve(client, [nid])
@@ -277,7 +281,7 @@ class PlcLink(Listeners):
                 listener(nid, value)
             else:
                 self._deliver(nid, value)
-            nodes.append(node)
+            nodes[nid] = node
         return nodes
 
     async def _poll(self, client: Client) -> None:

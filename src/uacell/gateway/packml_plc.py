@@ -380,10 +380,11 @@ async def start_unit(
     """The unit on ``link``, its tags watched; it waits up to 3 s for the PLC (unreachable at start:
     uacell serves anyway, the unit reports it)."""
     unit = PackTagsUnit(part, link, tags, timing_of(settings), release)
-    # every tag, also those uacell only writes: a tag the PLC does not have is found when it connects
-    watched = [tags[k].address for k in WATCHED] + [t.address for k, t in tags.items() if k not in WATCHED]
+    watched = [tags[k].address for k in WATCHED] + [t.address for k, t in tags.items() if k.startswith("Admin.Alarm[")]
+    # the tags uacell only writes are tried too, once a connection: a tag the PLC does not have is found then
+    checked = [t.address for t in tags.values() if t.address not in watched]
     labels = {t.address: f"{part}: {k}" for k, t in tags.items()}
     link.start()
-    await link.watch(watched, unit.on_value, unit.on_connection, labels)
+    await link.watch(watched, unit.on_value, unit.on_connection, labels, checked)
     await link.wait_connected(3.0)
     return unit
