@@ -373,14 +373,15 @@ async def test_config_check_connect_names_an_address_the_plc_does_not_have(tmp_p
         await until(lambda: plc.tag(200, "Status.StateCurrent"), 4)
 
 
-async def test_units_on_one_plc_must_agree_on_the_connection(tmp_path: Path, plc: S7PLC) -> None:
-    text = shipped_cell(plc).replace("start = 200 }", "start = 200, interval = 0.2 }")
-    path = tmp_path / "cell.toml"
-    path.write_text(text)
-    proc = await config_check_connect(path)
-    assert proc.returncode == 0, proc.stdout  # each unit alone can connect
-    config = fast_config(tmp_path / "data")
-    config.cell = load_cell(path)
-    with pytest.raises(Exception, match=r"Labeler: interval: another unit on s7://127\.0\.0\.1"):
-        async with serving(config):
-            pass
+def test_units_on_one_plc_must_agree_on_the_connection() -> None:
+    """One connection per PLC (host, port, rack, slot): a second unit on it with another poll interval
+    is refused, naming the unit and the setting; another slot is another PLC (its own connection)."""
+    from uacell.gateway.packml_s7 import S7LinkPool
+
+    pool = S7LinkPool()
+    first = pool.get("Capper", where("Capper", {"host": "plc", "start": 0}))
+    assert pool.get("Labeler", where("Labeler", {"host": "plc", "start": 200})) is first
+    with pytest.raises(ValueError, match=r"Filler: interval: another unit on s7://plc:102 rack 0 slot 1 set 0\.05"):
+        pool.get("Filler", where("Filler", {"host": "plc", "start": 400, "interval": 0.2}))
+    assert pool.get("Other", where("Other", {"host": "plc", "slot": 2, "interval": 0.2})) is not first
+    assert first.users == 2
