@@ -376,12 +376,19 @@ async def test_config_check_connect_names_an_address_the_plc_does_not_have(tmp_p
 def test_units_on_one_plc_must_agree_on_the_connection() -> None:
     """One connection per PLC (host, port, rack, slot): a second unit on it with another poll interval
     is refused, naming the unit and the setting; another slot is another PLC (its own connection)."""
-    from uacell.gateway.packml_s7 import S7LinkPool
+    from uacell.gateway.link import SharedLinks
+    from uacell.gateway.packml_s7 import S7Connection, S7TagLink
 
-    pool = S7LinkPool()
-    first = pool.get("Capper", where("Capper", {"host": "plc", "start": 0}))
-    assert pool.get("Labeler", where("Labeler", {"host": "plc", "start": 200})) is first
+    pool = SharedLinks()
+
+    def get(part: str, settings: dict[str, Any]) -> Any:
+        w = where(part, {"host": "plc"} | settings)
+        key = (w.host, w.port, w.rack, w.slot)
+        return pool.get(part, key, w.interval, w.timeout, lambda: S7TagLink(S7Connection(*key, w.timeout), w.interval))
+
+    first = get("Capper", {"start": 0})
+    assert get("Labeler", {"start": 200}) is first
     with pytest.raises(ValueError, match=r"Filler: interval: another unit on s7://plc:102 rack 0 slot 1 set 0\.05"):
-        pool.get("Filler", where("Filler", {"host": "plc", "start": 400, "interval": 0.2}))
-    assert pool.get("Other", where("Other", {"host": "plc", "slot": 2, "interval": 0.2})) is not first
+        get("Filler", {"start": 400, "interval": 0.2})
+    assert get("Other", {"slot": 2, "interval": 0.2}) is not first
     assert first.users == 2

@@ -9,7 +9,7 @@ import asyncio
 import contextlib
 import logging
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from typing import Any, Protocol
 
 from uacell.gateway.modbus import CommunicationError
@@ -306,3 +306,34 @@ class PolledLink(Listeners, ABC):
             if self._last.get(address, _UNSET) != value:
                 self._last[address] = value
                 self._deliver(address, value)
+
+
+class SharedLinks:
+    """One ``PolledLink`` (one connection) per PLC, shared by its units: they must agree on the poll
+    interval and the timeout (a ValueError names the part and the setting that differs)."""
+
+    def __init__(self) -> None:
+        self._links: dict[Hashable, PolledLink] = {}
+
+    def get(
+        self, part: str, key: Hashable, interval: float, timeout: float, make: Callable[[], PolledLink]
+    ) -> PolledLink:
+        link = self._links.get(key)
+        if link is None:
+            link = self._links[key] = make()
+        else:
+            had = {"interval": link.interval, "timeout": getattr(link.conn, "timeout", timeout)}
+            for what, value in (("interval", interval), ("timeout", timeout)):
+                if had[what] != value:
+                    raise ValueError(
+                        f"{part}: {what}: another unit on {link.endpoint} set {had[what]}; "
+                        "units on one PLC share its connection and its settings"
+                    )
+        link.users += 1
+        return link
+
+    async def release(self, link: PolledLink) -> None:
+        link.users -= 1
+        if link.users <= 0:
+            self._links = {k: v for k, v in self._links.items() if v is not link}
+            await link.close()

@@ -29,7 +29,7 @@ from typing import Any
 from pylogix import PLC
 
 from uacell.gateway import driver_settings, number, whole_number
-from uacell.gateway.link import PolledLink
+from uacell.gateway.link import PolledLink, SharedLinks
 from uacell.gateway.modbus import CommunicationError
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
 from uacell.gateway.packtags import PackTagsMapError, ResolvedTag, resolve
@@ -189,38 +189,17 @@ def where(part: str, settings: Mapping[str, Any]) -> Where:
     )
 
 
-class LogixLinkPool:
-    """One link (one session) per controller: host, port and slot; its units must agree on the
-    interval and the timeout (a ValueError names the part and the setting)."""
-
-    def __init__(self) -> None:
-        self._links: dict[tuple[str, int, int], LogixTagLink] = {}
-
-    def get(self, part: str, w: Where) -> LogixTagLink:
-        key = (w.host, w.port, w.slot)
-        link = self._links.get(key)
-        if link is None:
-            link = self._links[key] = LogixTagLink(LogixConnection(*key, w.timeout), w.interval)
-        elif (link.interval, link.conn.timeout) != (w.interval, w.timeout):
-            what, had = ("interval", link.interval) if link.interval != w.interval else ("timeout", link.conn.timeout)
-            raise ValueError(
-                f"{part}: {what}: another unit on {link.endpoint} set {had}; "
-                "units on one controller share its connection and its settings"
-            )
-        link.users += 1
-        return link
-
-    async def release(self, link: LogixTagLink) -> None:
-        link.users -= 1
-        if link.users <= 0:
-            self._links = {k: v for k, v in self._links.items() if v is not link}
-            await link.close()
-
-
-POOL = LogixLinkPool()
+POOL = SharedLinks()  # one session per controller: host, port and slot
 
 
 async def logix_packtags(spec: Any) -> PackTagsUnit:
     """The equipment factory of the ``logix-packtags`` driver."""
     w = where(spec.part, spec.settings)
-    return await start_unit(spec.part, POOL.get(spec.part, w), w.tags, spec.settings, POOL.release)
+    link = POOL.get(
+        spec.part,
+        (w.host, w.port, w.slot),
+        w.interval,
+        w.timeout,
+        lambda: LogixTagLink(LogixConnection(w.host, w.port, w.slot, w.timeout), w.interval),
+    )
+    return await start_unit(spec.part, link, w.tags, spec.settings, POOL.release)

@@ -27,7 +27,7 @@ from snap7.async_client import AsyncClient
 from snap7.error import S7Error, S7ProtocolError
 
 from uacell.gateway import driver_settings, number, whole_number
-from uacell.gateway.link import PolledLink
+from uacell.gateway.link import PolledLink, SharedLinks
 from uacell.gateway.modbus import CommunicationError
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
 from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag
@@ -214,35 +214,7 @@ class S7TagLink(PolledLink):
         await self.conn.close()
 
 
-class S7LinkPool:
-    """One link (one connection) per PLC: host, port, rack and slot; its units must agree on the poll
-    interval and the timeout (a ValueError names the part and the setting that differs)."""
-
-    def __init__(self) -> None:
-        self._links: dict[tuple[str, int, int, int], S7TagLink] = {}
-
-    def get(self, part: str, w: Where) -> S7TagLink:
-        key = (w.host, w.port, w.rack, w.slot)
-        link = self._links.get(key)
-        if link is None:
-            link = self._links[key] = S7TagLink(S7Connection(*key, w.timeout), w.interval)
-        elif (link.interval, link.conn.timeout) != (w.interval, w.timeout):
-            what = "interval" if link.interval != w.interval else "timeout"
-            raise ValueError(
-                f"{part}: {what}: another unit on {link.endpoint} set {getattr(link, what, link.conn.timeout)}; "
-                "units on one PLC share its connection and its settings"
-            )
-        link.users += 1
-        return link
-
-    async def release(self, link: S7TagLink) -> None:
-        link.users -= 1
-        if link.users <= 0:
-            self._links = {k: v for k, v in self._links.items() if v is not link}
-            await link.close()
-
-
-POOL = S7LinkPool()
+POOL = SharedLinks()  # one connection per PLC: host, port, rack and slot
 
 
 @dataclass(frozen=True)
@@ -293,4 +265,11 @@ def where(part: str, settings: Mapping[str, Any]) -> Where:
 async def s7_packtags(spec: Any) -> PackTagsUnit:
     """The equipment factory of the ``s7-packtags`` driver."""
     w = where(spec.part, spec.settings)
-    return await start_unit(spec.part, POOL.get(spec.part, w), w.tags, spec.settings, POOL.release)
+    link = POOL.get(
+        spec.part,
+        (w.host, w.port, w.rack, w.slot),
+        w.interval,
+        w.timeout,
+        lambda: S7TagLink(S7Connection(w.host, w.port, w.rack, w.slot, w.timeout), w.interval),
+    )
+    return await start_unit(spec.part, link, w.tags, spec.settings, POOL.release)
