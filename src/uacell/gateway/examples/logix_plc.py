@@ -25,7 +25,7 @@ from typing import Any
 from cpppo.server.enip import logix
 from cpppo.server.enip import main as enip
 
-from uacell.gateway.examples.packtags_plc import ABORTABLE, ACTING_NEXT, COMMANDS, MODE_CHANGE_IN, S
+from uacell.gateway.examples.scan import ScanProgram
 
 PARAMETERS, ALARMS = 5, 4
 TAGS = {
@@ -34,6 +34,7 @@ TAGS = {
     "Status.UnitModeCurrent": "DINT", "Status.CurMachSpeed": "REAL", "Status.MachSpeed": "REAL",
     "Admin.ProdProcessedCount": "DINT", "Admin.ProdDefectiveCount": "DINT", "Admin.StopReason.ID": "DINT",
 }  # fmt: skip
+PATHS = {"Admin.StopReason": "Admin.StopReason.ID"}  # a map key -> its tag path, where they differ
 LOCK = threading.Lock()
 
 
@@ -45,69 +46,28 @@ def definitions(unit: str) -> list[str]:
 
 
 class Unit:
-    def __init__(self, name: str, acting: float) -> None:
-        self.name, self.acting = name, acting
-        self.entered = time.monotonic()
-        self.produced = 0.0
-        self.last_scan = time.monotonic()
-        self.last_fault = False
+    """One unit's tags in cpppo's tag table (``scan.Memory``)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
 
     def _attribute(self, tag: str) -> Any:
         return dict.__getitem__(enip.tags, tag).attribute  # a plain lookup: the name has dots
 
-    def get(self, path: str, index: int = 0) -> Any:
-        return self._attribute(f"{self.name}.{path}" if "." in path else f"{self.name}_{path}")[index]
+    def get(self, tag: str) -> Any:
+        return self._attribute(f"{self.name}.{PATHS.get(tag, tag)}")[0]
 
-    def set(self, path: str, value: Any, index: int = 0) -> None:
-        self._attribute(f"{self.name}.{path}" if "." in path else f"{self.name}_{path}")[index] = value
+    def set(self, tag: str, value: Any) -> None:
+        self._attribute(f"{self.name}.{PATHS.get(tag, tag)}")[0] = value
 
-    def enter(self, state: int, now: float) -> None:
-        self.set("Status.StateCurrent", state)
-        self.entered = now
+    def switches(self) -> tuple[bool, bool, bool]:
+        refuse, frozen, fault = (bool(self._attribute(f"{self.name}_{s}")[0]) for s in ("Refuse", "Frozen", "Fault"))
+        return refuse, frozen, fault
 
-    def initialise(self) -> None:
-        self.set("Status.StateCurrent", S["Stopped"])
-        self.set("Status.UnitModeCurrent", 1)
-        self.set("Command.UnitMode", 1)
-        self.set("Command.MachSpeed", 60.0)
-        self.set("Status.MachSpeed", 60.0)
-
-    def scan(self, now: float) -> None:
-        if self.get("Frozen"):
-            return
-        refuse, fault = self.get("Refuse"), self.get("Fault")
-        state = int(self.get("Status.StateCurrent"))
-        if fault and not self.last_fault and state in ABORTABLE:
-            self.set("Admin.StopReason.ID", 42)
-            self.enter(state := S["Aborting"], now)
-        self.last_fault = bool(fault)
-        if self.get("Command.CmdChangeRequest"):
-            self.set("Command.CmdChangeRequest", False)
-            rule = COMMANDS.get(int(self.get("Command.CntrlCmd")))
-            if not refuse and rule is not None and state in rule[0]:
-                if rule[1] == S["Starting"]:
-                    for i in range(PARAMETERS):
-                        self.set("Taken", self.get("Parameter", i), i)
-                self.enter(state := rule[1], now)
-        if self.get("Command.UnitModeChangeRequest"):
-            self.set("Command.UnitModeChangeRequest", False)
-            if not refuse and state in MODE_CHANGE_IN:
-                self.set("Status.UnitModeCurrent", self.get("Command.UnitMode"))
-        speed = float(self.get("Command.MachSpeed"))
-        if speed > 0:
-            self.set("Status.MachSpeed", speed)
-        if state in ACTING_NEXT and now - self.entered >= self.acting:
-            self.enter(state := ACTING_NEXT[state], now)
-        if state == S["Execute"]:
-            self.set("Status.CurMachSpeed", speed)
-            self.produced += speed / 60.0 * (now - self.last_scan)
-            whole = int(self.produced)
-            if whole:
-                self.produced -= whole
-                self.set("Admin.ProdProcessedCount", int(self.get("Admin.ProdProcessedCount")) + whole)
-        else:
-            self.set("Status.CurMachSpeed", 0.0)
-        self.last_scan = now
+    def take_parameters(self) -> None:
+        taken, given = self._attribute(f"{self.name}_Taken"), self._attribute(f"{self.name}_Parameter")
+        for i in range(PARAMETERS):
+            taken[i] = given[i]
 
 
 def locked_process(addr: Any, data: Any, **kwds: Any) -> Any:
@@ -117,7 +77,7 @@ def locked_process(addr: Any, data: Any, **kwds: Any) -> Any:
 
 
 def run(port: int, units: list[str], acting: float, period: float) -> None:
-    program = [Unit(u, acting) for u in units]
+    program = [ScanProgram(Unit(u), acting) for u in units]
 
     def scan() -> None:
         while not enip.tags:  # cpppo's main defines the tags first

@@ -29,7 +29,7 @@ from typing import Any
 from snap7.server import Server
 from snap7.type import SrvArea
 
-from uacell.gateway.examples.packtags_plc import ABORTABLE, ACTING_NEXT, COMMANDS, MODE_CHANGE_IN, S
+from uacell.gateway.examples.scan import ScanProgram
 
 DB = 1
 UNIT_BYTES = 200
@@ -40,7 +40,7 @@ LAYOUT = {
     "Admin.ProdDefectiveCount": (20, "DINT"), "Admin.StopReason": (24, "DINT"), "Command.CntrlCmd": (28, "DINT"),
     "Command.UnitMode": (32, "DINT"), "Command.MachSpeed": (36, "REAL"),
 }  # fmt: skip
-REQUEST, MODE_REQUEST = (40, 0), (40, 1)  # Command.CmdChangeRequest, Command.UnitModeChangeRequest (BOOL)
+BITS = {"Command.CmdChangeRequest": (40, 0), "Command.UnitModeChangeRequest": (40, 1)}  # (byte, bit): BOOL
 PARAMETERS_AT, PARAMETERS = 74, 5
 SWITCHES, TAKEN = 160, 164
 FORMATS = {"DINT": ">i", "REAL": ">f"}
@@ -94,84 +94,40 @@ class PackTagsS7(Server):
 
 
 class Unit:
-    """One unit's PackTags in the data block, and its program (the Modbus example's, on bytes)."""
+    """One unit's PackTags in the data block (``scan.Memory``), from byte ``base``."""
 
-    def __init__(self, plc: PackTagsS7, base: int, acting: float) -> None:
-        self.plc, self.base, self.acting = plc, base, acting
-        self.entered = time.monotonic()
-        self.produced = 0.0
-        self.last_scan = time.monotonic()
-        self.last_fault = False
+    def __init__(self, plc: PackTagsS7, base: int) -> None:
+        self.plc, self.base = plc, base
 
     def get(self, tag: str) -> Any:
+        if tag in BITS:
+            byte, bit = BITS[tag]
+            return bool(self.plc.db[self.base + byte] >> bit & 1)
         offset, kind = LAYOUT[tag]
         (value,) = struct.unpack_from(FORMATS[kind], self.plc.db, self.base + offset)
         return value
 
     def set(self, tag: str, value: Any) -> None:
+        if tag in BITS:
+            byte, bit = BITS[tag]
+            at = self.base + byte
+            self.plc.db[at] = self.plc.db[at] | (1 << bit) if value else self.plc.db[at] & ~(1 << bit)
+            return
         offset, kind = LAYOUT[tag]
         struct.pack_into(FORMATS[kind], self.plc.db, self.base + offset, value)
 
-    def bit(self, where: tuple[int, int]) -> bool:
-        return bool(self.plc.db[self.base + where[0]] >> where[1] & 1)
+    def switches(self) -> tuple[bool, bool, bool]:
+        refuse, frozen, fault = (bool(self.plc.db[self.base + SWITCHES] >> b & 1) for b in range(3))
+        return refuse, frozen, fault
 
-    def clear(self, where: tuple[int, int]) -> None:
-        self.plc.db[self.base + where[0]] &= ~(1 << where[1])
-
-    def enter(self, state: int, now: float) -> None:
-        self.set("Status.StateCurrent", state)
-        self.entered = now
-
-    def initialise(self) -> None:
-        self.set("Status.StateCurrent", S["Stopped"])
-        self.set("Status.UnitModeCurrent", 1)
-        self.set("Command.UnitMode", 1)
-        self.set("Command.MachSpeed", 60.0)
-        self.set("Status.MachSpeed", 60.0)
-
-    def scan(self, now: float) -> None:
-        refuse, frozen, fault = (self.bit((SWITCHES, b)) for b in range(3))
-        if frozen:
-            return
-        state = int(self.get("Status.StateCurrent"))
-        if fault and not self.last_fault and state in ABORTABLE:
-            self.set("Admin.StopReason", 42)
-            self.enter(state := S["Aborting"], now)
-        self.last_fault = fault
-        if self.bit(REQUEST):
-            self.clear(REQUEST)
-            rule = COMMANDS.get(int(self.get("Command.CntrlCmd")))
-            if not refuse and rule is not None and state in rule[0]:
-                if rule[1] == S["Starting"]:
-                    at = self.base + PARAMETERS_AT
-                    self.plc.db[self.base + TAKEN : self.base + TAKEN + 4 * PARAMETERS] = self.plc.db[
-                        at : at + 4 * PARAMETERS
-                    ]
-                self.enter(state := rule[1], now)
-        if self.bit(MODE_REQUEST):
-            self.clear(MODE_REQUEST)
-            if not refuse and state in MODE_CHANGE_IN:
-                self.set("Status.UnitModeCurrent", self.get("Command.UnitMode"))
-        speed = float(self.get("Command.MachSpeed"))
-        if speed > 0:
-            self.set("Status.MachSpeed", speed)
-        if state in ACTING_NEXT and now - self.entered >= self.acting:
-            self.enter(state := ACTING_NEXT[state], now)
-        if state == S["Execute"]:
-            self.set("Status.CurMachSpeed", speed)
-            self.produced += speed / 60.0 * (now - self.last_scan)
-            whole = int(self.produced)
-            if whole:
-                self.produced -= whole
-                self.set("Admin.ProdProcessedCount", int(self.get("Admin.ProdProcessedCount")) + whole)
-        else:
-            self.set("Status.CurMachSpeed", 0.0)
-        self.last_scan = now
+    def take_parameters(self) -> None:
+        at, to = self.base + PARAMETERS_AT, self.base + TAKEN
+        self.plc.db[to : to + 4 * PARAMETERS] = self.plc.db[at : at + 4 * PARAMETERS]
 
 
 def main(port: int, units: int, acting: float, period: float) -> None:
     plc = PackTagsS7(UNIT_BYTES * units)
-    program = [Unit(plc, UNIT_BYTES * i, acting) for i in range(units)]
+    program = [ScanProgram(Unit(plc, UNIT_BYTES * i), acting) for i in range(units)]
     for unit in program:
         unit.initialise()
     plc.start_to("127.0.0.1", port)
