@@ -151,7 +151,8 @@ class S7Connection:
         except S7AddressError as exc:
             raise CommunicationError(f"{self.name}: {exc}") from None
         try:
-            reference = client.protocol._next_sequence()  # the job's PDU reference, as the client's own jobs
+            framing = client.protocol  # snap7's S7Protocol: the PDU references of the client's own jobs
+            reference = framing._next_sequence()
             response = await asyncio.wait_for(client._send_receive(write_job(reference, items)), self.timeout)
         except (S7Error, OSError, TimeoutError, ConnectionError) as exc:
             raise await self._failed(exc, "") from None
