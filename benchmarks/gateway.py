@@ -14,6 +14,9 @@ connection, its subscription at 20 ms).
   units in the default register layout, the ``modbus-packtags`` driver polling every 20 ms): command
   round trip and mirror latency as above, the PLC read by a second Modbus client every 2 ms; target
   p99 <= the poll + 20 ms;
+- the same for 4 PackML units in an S7 PLC (the example ``uacell.gateway.examples.s7_plc``, snap7's
+  server, ``s7-packtags`` polling every 20 ms) and in a Logix controller (the example
+  ``uacell.gateway.examples.logix_plc``, cpppo's simulator, ``logix-packtags`` polling every 20 ms);
 - a robot over Modbus signals (the example controller, ``uacell.gateway.examples.robot_controller``,
   served from the shipped ``modbus-robot`` cell with a 20 ms poll): a Start's round trip until the
   controller's ``running`` bit rose, and the controller's program end (``running`` fell) until the
@@ -121,6 +124,8 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
         lambda x: x >= 1.0,
     )
     modbus_packtags_section(report, peers, rounds // 2)
+    s7_packtags_section(report, peers, rounds // 2)
+    logix_packtags_section(report, peers, max(3, rounds // 4))  # cpppo's simulator: about 40 ms a request
     _latency_rows(
         report,
         raw,
@@ -151,7 +156,7 @@ def modbus_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
             for i in range(MODBUS_UNITS)
         )
         with _served(peers, "modbus-gateway", text) as server:
-            raw = asyncio.run(_measure_modbus(server.endpoint, plc_port, rounds))
+            raw = asyncio.run(_measure_polled(server.endpoint, _ModbusProbe(plc_port), rounds))
     report.raw["gateway_modbus"] = raw
     _latency_rows(
         report,
@@ -162,6 +167,73 @@ def modbus_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
         ),
         f"Modbus poll {MODBUS_POLL * 1000:.0f} ms, {MODBUS_UNITS} units",
         (MODBUS_POLL + 0.020) * 1000,
+        rounds,
+    )
+
+
+S7_POLL = 0.02  # the s7-packtags and logix-packtags drivers' poll in their parts
+S7_UNITS = 4
+
+
+def s7_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
+    """The S7 PackML part: the example S7 PLC (snap7's server), units from byte 200 * i of DB 1."""
+    import sys
+
+    from benchmarks.__main__ import free_port
+
+    plc_port = free_port()
+    cmd = [sys.executable, "-m", "uacell.gateway.examples.s7_plc", "--port", str(plc_port)]
+    with _process([*cmd, "--units", str(S7_UNITS), "--acting", "0.2"], ROOT, ready="listening"):
+        text = "".join(
+            f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "s7-packtags", host = "127.0.0.1", '
+            f"port = {plc_port}, db = 1, start = {200 * i}, interval = {S7_POLL} }}\n\n"
+            for i in range(S7_UNITS)
+        )
+        with _served(peers, "s7-gateway", text) as server:
+            raw = asyncio.run(_measure_polled(server.endpoint, _S7Probe(plc_port), rounds))
+    report.raw["gateway_s7"] = raw
+    _latency_rows(
+        report,
+        raw,
+        (
+            ("S7 PackML command round trip (call -> the PLC sees it)", "command_ms"),
+            ("S7 PackML mirror latency (PLC -> client)", "mirror_ms"),
+        ),
+        f"S7 poll {S7_POLL * 1000:.0f} ms, {S7_UNITS} units",
+        (S7_POLL + 0.020) * 1000,
+        rounds,
+    )
+
+
+def logix_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
+    """The Logix PackML part: the example controller (cpppo's simulator), units M0..M3 by name."""
+    import sys
+
+    from benchmarks.__main__ import free_port
+
+    plc_port = free_port()
+    names = ",".join(f"M{i}" for i in range(S7_UNITS))
+    cmd = [sys.executable, "-m", "uacell.gateway.examples.logix_plc", "--port", str(plc_port), "--units", names]
+    with _process([*cmd, "--acting", "0.2"], ROOT, ready="listening"):
+        maps = ", ".join(f'"Command.Parameter[{j}].Value" = "{{u}}_Parameter[{j}]"' for j in range(5))
+        text = "".join(
+            f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "logix-packtags", host = "127.0.0.1", '
+            f'port = {plc_port}, prefix = "M{i}", interval = {S7_POLL}, confirm_timeout = 10.0, '
+            f"map = {{ {maps.format(u=f'M{i}')} }} }}\n\n"
+            for i in range(S7_UNITS)
+        )
+        with _served(peers, "logix-gateway", text) as server:
+            raw = asyncio.run(_measure_polled(server.endpoint, _LogixProbe(plc_port), rounds))
+    report.raw["gateway_logix"] = raw
+    _latency_rows(
+        report,
+        raw,
+        (
+            ("Logix PackML command round trip (call -> the PLC sees it)", "command_ms"),
+            ("Logix PackML mirror latency (PLC -> client)", "mirror_ms"),
+        ),
+        f"EtherNet/IP poll {S7_POLL * 1000:.0f} ms, {S7_UNITS} units (cpppo's simulator)",
+        (S7_POLL + 0.020) * 1000,
         rounds,
     )
 
@@ -331,28 +403,99 @@ async def _measure_robot(uacell_endpoint: str, ctrl_port: int, rounds: int) -> d
     return raw
 
 
-async def _measure_modbus(uacell_endpoint: str, plc_port: int, rounds: int) -> dict[str, Any]:
-    """Command round trip on M1 and mirror latency on M3 (its command written straight to the PLC)."""
+class _ModbusProbe:
+    """The test's own look into the example Modbus PLC: a unit's state, a command at its panel."""
+
+    def __init__(self, port: int) -> None:
+        from uacell.gateway.modbus import ModbusConnection
+
+        self.conn = ModbusConnection("127.0.0.1", port, timeout=1.0)
+
+    async def open(self) -> None:
+        assert await self.conn.connect()
+
+    def _tag(self, unit: int, key: str) -> Any:
+        from uacell.gateway.packml_modbus import Point, resolve_modbus
+
+        return Point.parse(resolve_modbus("bench", 1, 100 * unit)[key].address).tag
+
+    async def state(self, unit: int) -> int:
+        return int(await self.conn.read(self._tag(unit, "Status.StateCurrent"), 1))
+
+    async def command(self, unit: int, number: int) -> None:
+        await self.conn.write(self._tag(unit, "Command.CntrlCmd"), number, 1)
+        await self.conn.write(self._tag(unit, "Command.CmdChangeRequest"), True, 1)
+
+    async def close(self) -> None:
+        self.conn.close()
+
+
+class _S7Probe:
+    """The same into the example S7 PLC (unit i from byte 200 * i of DB 1)."""
+
+    def __init__(self, port: int) -> None:
+        from uacell.gateway.packml_s7 import S7Connection
+
+        self.conn = S7Connection("127.0.0.1", port, 0, 1, 1.0)
+
+    async def open(self) -> None:
+        assert await self.conn.connect()
+
+    def _address(self, unit: int, key: str) -> Any:
+        from uacell.gateway.packml_s7 import resolve_s7
+        from uacell.gateway.s7 import S7Address
+
+        return S7Address.parse(resolve_s7("bench", 1, 200 * unit)[key].address)
+
+    async def state(self, unit: int) -> int:
+        a = self._address(unit, "Status.StateCurrent")
+        return int(a.decode(await self.conn.read(a.db, a.byte, 4), a.byte))
+
+    async def command(self, unit: int, number: int) -> None:
+        cmd, req = self._address(unit, "Command.CntrlCmd"), self._address(unit, "Command.CmdChangeRequest")
+        await self.conn.write([(cmd, number), (req, True)])
+
+    async def close(self) -> None:
+        await self.conn.close()
+
+
+class _LogixProbe:
+    """The same into the example Logix controller (units named M<i>)."""
+
+    def __init__(self, port: int) -> None:
+        from uacell.gateway.packml_logix import LogixConnection
+
+        self.conn = LogixConnection("127.0.0.1", port, 0, 1.0)
+
+    async def open(self) -> None:
+        assert await self.conn.connect()
+
+    async def state(self, unit: int) -> int:
+        (value,) = await self.conn.read([f"M{unit}.Status.StateCurrent"])
+        return int(value)
+
+    async def command(self, unit: int, number: int) -> None:
+        await self.conn.write([(f"M{unit}.Command.CntrlCmd", number), (f"M{unit}.Command.CmdChangeRequest", True)])
+
+    async def close(self) -> None:
+        await asyncio.to_thread(self.conn.close)
+
+
+async def _measure_polled(uacell_endpoint: str, plc: Any, rounds: int) -> dict[str, Any]:
+    """Command round trip on M1 and mirror latency on M3 (its command written straight to the PLC),
+    the PLC read by the test's own connection every 2 ms."""
     import logging
 
     from asyncua import Client, ua
 
-    from uacell.gateway.modbus import ModbusConnection
-    from uacell.gateway.packml_modbus import Point, resolve_modbus
-
     logging.getLogger("asyncua").setLevel(logging.ERROR)
     raw: dict[str, Any] = {"command_ms": [], "mirror_ms": []}
-    conn = ModbusConnection("127.0.0.1", plc_port, timeout=1.0)
-    assert await conn.connect()
-
-    def point(unit: int, key: str) -> Point:
-        return Point.parse(resolve_modbus("bench", 1, 100 * unit)[key].address)
+    await plc.open()
 
     async def until_plc(unit: int, state: int, leaves: bool = False, timeout: float = 10.0) -> float:
         """When the PLC's state is ``state`` (``leaves``: no longer), read every 2 ms."""
-        p = point(unit, "Status.StateCurrent")
         limit = time.perf_counter() + timeout
-        while ((await conn.read(p.tag, 1)) == state) == leaves:
+        while ((await plc.state(unit)) == state) == leaves:
             if time.perf_counter() > limit:
                 raise TimeoutError(f"M{unit}: the PLC did not reach {state}")
             await asyncio.sleep(0.002)
@@ -389,11 +532,9 @@ async def _measure_modbus(uacell_endpoint: str, plc_port: int, rounds: int) -> d
             sub = await client.create_subscription(0, Handler())
             state = client.get_node(ua.NodeId(f"{machine(3, 'ExecuteState')}.CurrentState", ns))
             await sub.subscribe_data_change(state)
-            command, request = point(3, "Command.CntrlCmd"), point(3, "Command.CmdChangeRequest")
             for _ in range(rounds):
                 arrived.clear()
-                await conn.write(command.tag, 1, 1)  # the PLC's own panel: Reset
-                await conn.write(request.tag, True, 1)
+                await plc.command(3, 1)  # the PLC's own panel: Reset
                 changed = await until_plc(3, 15)
                 limit = time.perf_counter() + 5
                 while not any(t == "Resetting" for _, t in arrived) and time.perf_counter() < limit:
@@ -406,7 +547,7 @@ async def _measure_modbus(uacell_endpoint: str, plc_port: int, rounds: int) -> d
                 await _until(lambda: _text(client, ns, machine(3, "MachineState")), "Stopped")
             await sub.delete()
     finally:
-        conn.close()
+        await plc.close()
     return raw
 
 

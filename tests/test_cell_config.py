@@ -224,11 +224,12 @@ ERRORS = [
     ),
     (
         ('name = "U"', 'name = "U"\nequipment = { host = "x" }'),
-        "[packml_units.U] equipment: needs a driver (modbus-packtags, opcua-packtags)",
+        "[packml_units.U] equipment: needs a driver (logix-packtags, modbus-packtags, opcua-packtags, s7-packtags)",
     ),
     (
         ('name = "U"', 'name = "U"\nequipment = { driver = "modbus-signals", host = "a" }'),
-        "[packml_units.U] equipment: driver 'modbus-signals' is not one of: modbus-packtags, opcua-packtags",
+        "[packml_units.U] equipment: driver 'modbus-signals' is not one of: "
+        "logix-packtags, modbus-packtags, opcua-packtags, s7-packtags",
     ),
     (
         ("[[packml_units]]", '[server]\nanonymous_role = "guest"\n[[packml_units]]'),

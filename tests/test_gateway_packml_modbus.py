@@ -266,6 +266,13 @@ async def test_the_plc_killed_and_back(served, plc: ModbusPLC) -> None:
         return cell_status(client, f"{F}.Status.MachSpeed")
 
     await until(speed_status, "BadNoCommunication")  # the PLC's values are not current any more
+
+    def machine_quality() -> Any:  # the machines show the PLC's last state, and say it is not live
+        return cell_status(client, f"{MACH}.CurrentState")
+
+    await until(machine_quality, "UncertainNoCommunicationLastUsableValue")
+    last = await client.get_node(ua.NodeId(f"{MACH}.CurrentState", ns)).read_data_value(raise_on_bad_status=False)
+    assert last.Value.Value.Text == "Stopped"  # the last state known, still readable
     warnings = client.get_node(ua.NodeId(f"{F}.Admin.Warning", ns))
     assert any(w.ID == 9001 for w in await warnings.read_value())  # uacell's own: readable, says why
     plc.start()  # the same port
@@ -273,6 +280,7 @@ async def test_the_plc_killed_and_back(served, plc: ModbusPLC) -> None:
     await until(executable, True)
     assert time.monotonic() - back <= 5.0
     await until(speed_status, "Good")
+    await until(machine_quality, "Good")
     assert not any(w.ID == 9001 for w in await warnings.read_value())
     res = await call_path(client, MACH, "Reset")
     assert res.StatusCode.is_good(), res.StatusCode
@@ -311,24 +319,31 @@ async def test_config_check_connect_names_a_register_the_plc_does_not_have(
     assert "PROBLEM: unit 1 holding 9000 int32 big/big: illegal data address (exception 2)" in bad[0], lines
     assert any(ln.startswith("Capper") and "Status.StateCurrent" in ln and "= 2" in ln for ln in lines), lines
     assert "connect: 33 of 34 as configured" in proc.stdout, proc.stdout
-    # served anyway: one log line names the unit, the tag, where it was looked for and what the PLC said
+    # served anyway: one log line names the unit, the tag, where it was looked for and what the PLC
+    # said; the tag is optional, so both units work (issue 42: one missing tag is not a dead unit)
     config = fast_config(tmp_path / "data")
     config.cell = load_cell(path)
-    with caplog.at_level(logging.WARNING, logger="uacell.gateway.packml_modbus"):
+    with caplog.at_level(logging.WARNING, logger="uacell.gateway.packml_plc"):
         async with serving(config) as (_app, client):
 
             def lines() -> Any:
                 async def found() -> bool:
                     return any(
-                        "Labeler: Admin.StopReason (unit 1 holding 9000" in r.getMessage() for r in caplog.records
+                        "Labeler: the PLC has no Admin.StopReason (unit 1 holding 9000" in r.getMessage()
+                        for r in caplog.records
                     )
 
                 return found()
 
             await until(lines, True)
-            assert await cell_status(client, f"{F}.Status.MachSpeed") == "BadNoCommunication"
+            await until(lambda: cell_status(client, f"{F}.Status.MachSpeed"), "Good")
+            res = await call_path(client, machines(L)[1], "Reset")
+            assert res.StatusCode.is_good(), res.StatusCode
+            await until(lambda: cell_state(client, machines(L)[2]), "Idle")
+            assert await plc.tag(100, "Status.StateCurrent") == 4
     said = [r.getMessage() for r in caplog.records if "Admin.StopReason" in r.getMessage()]
-    assert "illegal data address (exception 2)" in said[0] and len(said) == 1, said  # once, not every retry
+    assert "illegal data address (exception 2)); the unit works without it" in said[0], said
+    assert len(said) == 1, said  # once
 
 
 async def test_fifty_units_on_one_modbus_connection(tmp_path: Path) -> None:

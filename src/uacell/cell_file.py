@@ -304,5 +304,6 @@ def parse_cell(data: Mapping[str, Any], source: str, parsers: Mapping[str, Secti
 def builtin_cell_path(name: str) -> Path:
     """The shipped cell ``demo`` (the default), ``example`` (a larger cell), ``modbus-robot`` (a
     robot behind Modbus/TCP signals), ``packtags-unit`` (a PackML unit in a PLC over OPC UA) or
-    ``modbus-packtags`` (two units in a PLC over Modbus/TCP; docs/equipment.md)."""
+    ``modbus-packtags`` (two units in a PLC over Modbus/TCP) or ``s7-packtags`` (two units in a
+    Siemens S7 data block) or ``logix-packtags`` (a unit in a Rockwell Logix controller; docs/equipment.md)."""
     return Path(str(resources.files("uacell") / "cells" / f"{name}.toml"))

@@ -64,6 +64,8 @@ class StateMachine:
         self.parent_state = parent_state
         self.children: list[StateMachine] = []
         self.listeners: list[Listener] = []
+        # the current state is the last one known, not live (equipment behind a PLC that cannot be reached)
+        self.stale = False
         if parent is not None:
             if parent_state not in parent.table.states:
                 raise ValueError(f"{parent.table.type_name} has no state {parent_state!r}")
@@ -118,6 +120,13 @@ class StateMachine:
             raise ValueError(f"{self.table.type_name} has no state {state!r}")
         previous, self.current = self.current, state
         return self._notify(Change(self, None, previous, state, reason, datetime.now(UTC)))
+
+    def set_stale(self, stale: bool) -> None:
+        """Mark the current state as the last known one (``stale``) or live again; listeners are told
+        (a change without a transition, to the same state) so the state is shown with its quality."""
+        if stale != self.stale:
+            self.stale = stale
+            self._notify(Change(self, None, self.current, self.current, self.last_reason, datetime.now(UTC)))
 
     def _notify(self, change: Change) -> Change:
         for listener in list(self.listeners):

@@ -7,7 +7,10 @@
 - ``ur_robot`` (``ur-dashboard``): Universal Robots through the Dashboard Server and UR's Modbus
   registers (``ur_link``);
 - ``packml_opcua`` (``opcua-packtags``): a PackML unit whose state machine runs in a PLC, over its
-  PackTags on OPC UA (``opcua_link``, ``packtags``, ``handshake``).
+  PackTags on OPC UA (``opcua_link``, ``packtags``, ``handshake``);
+- ``packml_modbus`` (``modbus-packtags``), ``packml_s7`` (``s7-packtags``, ``s7`` for S7
+  addresses and write jobs) and ``packml_logix`` (``logix-packtags``): the same unit over Modbus/TCP
+  registers, a Siemens S7 data block or Rockwell Logix tags (``link.PolledLink``).
 
 ``examples/robot_controller.py`` is a Modbus robot controller to try the first with,
 ``examples/robot_plc.py`` an OPC UA PLC holding robot signals for ``opcua-signals``;
@@ -26,3 +29,19 @@ def driver_settings(driver: str, settings: Mapping[str, Any], known: Sequence[st
     if unknown:
         raise ValueError(f"the {driver} driver has no setting {unknown[0]!r} (it knows {', '.join(known)})")
     return dict(settings)
+
+
+def whole_number(part: str, settings: Mapping[str, Any], key: str, default: int, low: int, high: int) -> int:
+    """The setting ``key`` (``default`` when absent); ValueError naming the part unless a whole number in range."""
+    value = settings.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise ValueError(f"{part}: {key}: a whole number from {low} to {high}, not {value!r}")
+    return value
+
+
+def number(part: str, settings: Mapping[str, Any], key: str, default: float, low: float, high: float) -> float:
+    """The setting ``key`` (``default`` when absent); ValueError naming the part unless a number in range."""
+    value = settings.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
+        raise ValueError(f"{part}: {key}: a number from {low:g} to {high:g}, not {value!r}")
+    return float(value)

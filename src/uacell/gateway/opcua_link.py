@@ -21,7 +21,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -173,21 +173,16 @@ class PlcLink(Listeners):
         listener: ValueListener,
         on_state: StateListener,
         labels: Mapping[str, str] | None = None,
+        checked: Sequence[str] = (),
     ) -> None:
-        """Call ``listener`` with each value of ``node_ids`` (on every connection, then on change)."""
-        self._listen(node_ids, listener, on_state, labels)
+        """Call ``listener`` with each value of ``node_ids`` (on every connection, then on change);
+        ``checked``: only tried, for ``missing``."""
+        self._listen(node_ids, listener, on_state, labels, checked)
         if self.connected and self._client is not None:
             try:  # connected already (another part on this PLC): read and subscribe these too
-                await self._resolve(self._client, node_ids)
-                nodes = [self._node(self._client, n) for n in node_ids]
-                for nid, node in zip(node_ids, nodes, strict=True):
-                    dv = await node.read_data_value(raise_on_bad_status=False)
-                    if not dv.StatusCode.is_good():
-                        raise CommunicationError(f"{self.endpoint}: {self.named(nid)}: {dv.StatusCode.name}")
-                    value = dv.Value.Value if dv.Value is not None else None
-                    self._last[nid] = value
-                    listener(nid, value)
-                if self._subscription is not None:
+                found = await self._first_read(self._client, [*node_ids, *checked], listener)
+                nodes = [node for address, node in found.items() if address in node_ids]
+                if self._subscription is not None and nodes:
                     await self._subscription.subscribe_data_change(nodes, queuesize=100, sampling_interval=SAMPLING)
                 on_state(True)
             except CommunicationError as exc:
@@ -284,16 +279,10 @@ class PlcLink(Listeners):
         await client.connect()
         self._resolved.clear()
         self._address_of.clear()
-        await self._resolve(client, list(self._watched))
-        nodes = {nid: self._node(client, nid) for nid in self._watched}
-        # a first read of everything (a missing tag or a wrong type is named here, once)
-        for nid, node in nodes.items():
-            dv = await node.read_data_value(raise_on_bad_status=False)
-            if not dv.StatusCode.is_good():
-                raise CommunicationError(f"{self.endpoint}: {self.named(nid)}: {dv.StatusCode.name}")
-            value = dv.Value.Value if dv.Value is not None else None
-            self._last[nid] = value
-            self._deliver(nid, value)
+        self.missing.clear()
+        # a first read of everything (a missing tag is set aside in ``missing``, the parts say so)
+        found = await self._first_read(client, self.tried(), None)
+        nodes = [node for address, node in found.items() if address in self._watched]
         if o.mode == "poll":
             self._announce()
             self._watchdog = asyncio.get_running_loop().create_task(self._poll(client))
@@ -309,17 +298,42 @@ class PlcLink(Listeners):
 
         subscription = await client.create_subscription(o.interval * 1000, Handler())
         if nodes:
-            await subscription.subscribe_data_change(list(nodes.values()), queuesize=100, sampling_interval=SAMPLING)
+            await subscription.subscribe_data_change(nodes, queuesize=100, sampling_interval=SAMPLING)
         self._subscription = subscription
         self._announce()
         self._watchdog = asyncio.get_running_loop().create_task(self._keepalive(client))
+
+    async def _first_read(self, client: Client, addresses: list[str], listener: ValueListener | None) -> dict[str, Any]:
+        """Read each address once and deliver its value (to ``listener``, else to every part watching
+        it); an address the PLC has no node for, or answers with a bad status, goes to ``missing``.
+        The nodes of the others are returned by address (to subscribe)."""
+        nodes = {}
+        for nid in addresses:
+            try:
+                await self._resolve(client, [nid])
+            except CommunicationError as exc:
+                self.missing[nid] = str(exc).rpartition(": ")[2]
+                continue
+            node = self._node(client, nid)
+            dv = await node.read_data_value(raise_on_bad_status=False)
+            if not dv.StatusCode.is_good():
+                self.missing[nid] = dv.StatusCode.name
+                continue
+            value = dv.Value.Value if dv.Value is not None else None
+            self._last[nid] = value
+            if listener is not None:
+                listener(nid, value)
+            else:
+                self._deliver(nid, value)
+            nodes[nid] = node
+        return nodes
 
     async def _poll(self, client: Client) -> None:
         """Poll mode: every watched tag in one Read request each ``interval``; changes delivered."""
         interval = self.options.interval
         while not self._lost.is_set():
             await asyncio.sleep(interval)
-            ids = list(self._watched)
+            ids = self.present()
             try:
                 values = await client.read_values([self._node(client, n) for n in ids])
             except Exception as exc:

@@ -16,28 +16,16 @@ reach the PLC together).
 
 from __future__ import annotations
 
-import asyncio
-import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from uacell.gateway import driver_settings
+from uacell.gateway import driver_settings, number, whole_number
 from uacell.gateway.codec import CodecError, RegisterType
-from uacell.gateway.link import FIRST_RETRY, LAST_RETRY, Listeners, StateListener, ValueListener
-from uacell.gateway.modbus import (
-    SHARED,
-    CommunicationError,
-    ModbusConnection,
-    ModbusTag,
-    NoAnswer,
-    endpoint_name,
-    spans,
-)
+from uacell.gateway.link import PolledLink
+from uacell.gateway.modbus import SHARED, CommunicationError, ModbusConnection, ModbusTag, endpoint_name, spans
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
 from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag
-
-log = logging.getLogger(__name__)
 
 SETTINGS = ("host", "port", "unit", "base", "interval", "timeout", "byte_order", "word_order", *UNIT_SETTINGS)
 UNIT_REGISTERS = 100  # a unit's block of holding registers in the default layout
@@ -132,79 +120,36 @@ def resolve_modbus(
     return out
 
 
-class ModbusTagLink(Listeners):
+class ModbusTagLink(PolledLink):
     """The ``TagLink`` of one Modbus/TCP endpoint: polls the watched points, reconnects with backoff."""
 
+    conn: ModbusConnection
+
     def __init__(self, conn: ModbusConnection, interval: float) -> None:
-        super().__init__()
-        self.conn, self.interval = conn, interval
-        self.endpoint = conn.name
-        self.users = 0
-        self.log = log
-        self._points: dict[str, Point] = {}
-        self._last: dict[str, Any] = {}
-        self._task: asyncio.Task[None] | None = None
+        super().__init__(conn, conn.name, interval)
+
+    def parse(self, address: str) -> Point:
+        return Point.parse(address)
 
     def point(self, address: str) -> Point:
-        p = self._points.get(address)
-        if p is None:
-            p = self._points[address] = Point.parse(address)
+        p: Point = self.parsed(address)
         return p
 
-    # -- TagLink ----------------------------------------------------------------------------------
-
-    def start(self) -> None:
-        if self._task is None:
-            self._task = asyncio.get_running_loop().create_task(self._run(), name=f"plc {self.endpoint}")
-
-    async def watch(
-        self,
-        addresses: list[str],
-        listener: ValueListener,
-        on_state: StateListener,
-        labels: Mapping[str, str] | None = None,
-    ) -> None:
-        for address in addresses:
-            self.point(address)
-        self._listen(addresses, listener, on_state, labels)
-        if self.connected:  # another unit on this PLC connected it already: these values now
-            try:
-                for address, value in zip(addresses, await self.read_many(addresses), strict=True):
-                    self._last[address] = value
-                    listener(address, value)
-                on_state(True)
-            except CommunicationError as exc:
-                log.warning("the PLC at %s: %s", self.endpoint, exc)
-
-    async def read(self, address: str) -> Any:
-        (value,) = await self.read_many([address])
-        return value
-
-    async def read_many(self, addresses: list[str]) -> list[Any]:
-        """The values of ``addresses``, one request per block of nearby registers."""
-        if not self.connected:
-            raise CommunicationError(f"no connection to the PLC at {self.endpoint}")
-        return await self._read(addresses)
-
     async def _read(self, addresses: list[str]) -> list[Any]:
+        """The values of ``addresses``, one request per block of nearby registers."""
         points = [self.point(a) for a in addresses]
         values: dict[Point, Any] = {}
         for device in sorted({p.device for p in points}):
             mine = [p for p in points if p.device == device]
             for span in spans([p.tag for p in mine]):
-                block = await self._io(self.conn.read_block(span.table, span.start, span.count, device))
+                block = await self.conn.read_block(span.table, span.start, span.count, device)
                 for p in mine:
                     if p.tag.table == span.table and span.start <= p.tag.address < span.start + span.count:
                         values[p] = p.tag.value_in(block, span.start)
         return [values[p] for p in points]
 
-    async def write(self, address: str, value: Any, type_name: str) -> None:
-        await self.write_many([(address, value, type_name)])
-
-    async def write_many(self, writes: list[tuple[str, Any, str]]) -> None:
+    async def _write(self, writes: list[tuple[str, Any, str]]) -> None:
         """The values in order; neighbouring holding registers of one device in one request."""
-        if not self.connected:
-            raise CommunicationError(f"no connection to the PLC at {self.endpoint}")
         blocks: list[tuple[int, str, int, list[Any]]] = []  # (device, table, start, values)
         for address, value, _ in writes:
             p = self.point(address)
@@ -219,76 +164,11 @@ class ModbusTagLink(Listeners):
             else:
                 blocks.append((p.device, t.table, t.address, words))
         for device, table, start, values in blocks:
-            await self._io(self.conn.write_block(table, start, values, device))
+            await self.conn.write_block(table, start, values, device)
 
     async def close(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            await asyncio.wait({self._task}, timeout=5.0)
+        await super().close()
         SHARED.release(self.conn)
-
-    # -- the connection ---------------------------------------------------------------------------
-
-    async def _io(self, request: Any) -> Any:
-        try:
-            return await request
-        except CommunicationError:
-            if not self.conn.connected:
-                self._set_connected(False)
-            raise
-
-    async def _run(self) -> None:
-        delay = FIRST_RETRY
-        while True:
-            up = False
-            try:
-                if not self.conn.connected and not await self.conn.connect():
-                    raise NoAnswer("no answer")
-                await self._first_read()
-                self._announce()
-                up = True
-                delay = FIRST_RETRY
-                while self.conn.connected:
-                    await asyncio.sleep(self.interval)
-                    await self._poll()
-                self._report_lost()  # a unit's read or write found it gone
-            except CommunicationError as exc:
-                lost = isinstance(exc, NoAnswer) or not self.conn.connected
-                if up and lost:
-                    self._report_lost()
-                else:
-                    self._report_failed(str(exc).removeprefix(f"{self.endpoint}: "), unreachable=lost)
-            self._set_connected(False)
-            await asyncio.sleep(delay)
-            delay = min(delay * 2, LAST_RETRY)
-
-    async def _first_read(self) -> None:
-        """Every watched tag once; a tag the PLC does not have is named (one request each, once)."""
-        addresses = list(self._watched)
-        try:
-            values = await self._read(addresses)
-        except CommunicationError as exc:
-            if isinstance(exc, NoAnswer) or not self.conn.connected:
-                raise
-            for address in addresses:
-                try:
-                    await self._read([address])
-                except CommunicationError as exc:
-                    raise CommunicationError(f"{self.named(address)}: {str(exc).rpartition(': ')[2]}") from None
-            raise
-        for address, value in zip(addresses, values, strict=True):
-            self._last[address] = value
-            self._deliver(address, value)
-
-    async def _poll(self) -> None:
-        addresses = list(self._watched)
-        for address, value in zip(addresses, await self._read(addresses), strict=True):
-            if self._last.get(address, _UNSET) != value:
-                self._last[address] = value
-                self._deliver(address, value)
-
-
-_UNSET = object()
 
 
 def _article(word: str) -> str:
@@ -321,20 +201,6 @@ class ModbusLinkPool:
 POOL = ModbusLinkPool()
 
 
-def _number(part: str, settings: Mapping[str, Any], key: str, default: float, low: float, high: float) -> float:
-    value = settings.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
-        raise ValueError(f"{part}: {key}: a number from {low:g} to {high:g}, not {value!r}")
-    return float(value)
-
-
-def _integer(part: str, settings: Mapping[str, Any], key: str, default: int, low: int, high: int) -> int:
-    value = settings.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise ValueError(f"{part}: {key}: a whole number from {low} to {high}, not {value!r}")
-    return value
-
-
 @dataclass(frozen=True)
 class Where:
     """Where a unit's PackTags are: the PLC's host and port, and every tag as a Modbus point."""
@@ -361,19 +227,19 @@ def where(part: str, settings: Mapping[str, Any]) -> Where:
         raise ValueError(f"{part}: map: a table of tag = [table, address, type], not {map_!r}")
     tags = resolve_modbus(
         part,
-        _integer(part, settings, "unit", 1, 0, 255),
-        _integer(part, settings, "base", 0, 0, 65535 - UNIT_REGISTERS),
+        whole_number(part, settings, "unit", 1, 0, 255),
+        whole_number(part, settings, "base", 0, 0, 65535 - UNIT_REGISTERS),
         map_,
-        parameters=_integer(part, settings, "parameters", 5, 0, PARAMETER_ROOM),
-        alarms=_integer(part, settings, "alarms", 0, 0, ALARM_ROOM),
+        parameters=whole_number(part, settings, "parameters", 5, 0, PARAMETER_ROOM),
+        alarms=whole_number(part, settings, "alarms", 0, 0, ALARM_ROOM),
         byte_order=str(settings.get("byte_order", "big")),
         word_order=str(settings.get("word_order", "big")),
     )
     return Where(
         host,
-        _integer(part, settings, "port", 502, 1, 65535),
-        _number(part, settings, "interval", 0.05, 0.005, 60),
-        _number(part, settings, "timeout", 1.0, 0.05, 60),
+        whole_number(part, settings, "port", 502, 1, 65535),
+        number(part, settings, "interval", 0.05, 0.005, 60),
+        number(part, settings, "timeout", 1.0, 0.05, 60),
         tags,
     )
 

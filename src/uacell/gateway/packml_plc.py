@@ -30,7 +30,7 @@ from uacell.errors import CallError
 from uacell.gateway.handshake import COMMANDS, Handshake, PlcStatus
 from uacell.gateway.link import TagLink
 from uacell.gateway.modbus import CommunicationError
-from uacell.gateway.packtags import ResolvedTag
+from uacell.gateway.packtags import NEEDED_BY, ResolvedTag
 from uacell.packml.equipment import EquipmentBase
 from uacell.packml.model import COMPLETE
 from uacell.packml.types import PackMLDescriptorDataType
@@ -44,9 +44,12 @@ COMMUNICATION = "CommunicationLost"  # the unit's alarm condition while the PLC 
 PACKTAGS_COMMAND = {"ToComplete": "Complete"}
 # the tags the unit follows (with Admin.Alarm[i].ID when there are alarms)
 WATCHED = (
-    "Status.StateCurrent", "Status.UnitModeCurrent", "Admin.ProdProcessedCount", "Admin.ProdDefectiveCount",
-    "Admin.StopReason",
+    "Status.StateCurrent", "Status.UnitModeCurrent", "Status.MachSpeed", "Status.CurMachSpeed",
+    "Admin.ProdProcessedCount", "Admin.ProdDefectiveCount", "Admin.StopReason",
 )  # fmt: skip
+# what a command's handshake reads, in one Read
+STATUS = ("Status.StateCurrent", "Command.CmdChangeRequest", "Status.UnitModeCurrent", "Command.UnitModeChangeRequest")
+SPEEDS = ("Status.MachSpeed", "Status.CurMachSpeed")  # the PLC's: shown as it reports them
 
 
 @dataclass(frozen=True)
@@ -80,6 +83,8 @@ class PackTagsUnit(EquipmentBase):
         self._attached = False
         self._aborting = False
         self._lost = False  # what the CommunicationLost condition says
+        self.missing: dict[str, str] = {}  # tag key -> what the PLC said of it (it has no such tag)
+        self._said: set[tuple[str, str]] = set()  # missing tags logged (once each)
 
     # -- the PLC's values -------------------------------------------------------------------------
 
@@ -103,6 +108,17 @@ class PackTagsUnit(EquipmentBase):
             self.unit.equipment_unit_mode(int(value))  # a mode the PLC changed by itself
         elif key.startswith("Admin.Alarm[") and self._attached:
             self._alarms()
+        elif key in SPEEDS and self._attached:
+            self._speeds()
+
+    def _speeds(self) -> None:
+        """MachSpeed and CurMachSpeed are the PLC's (the cell file's ``mach_speed`` only stands where the
+        PLC has no ``Status.MachSpeed``)."""
+        mach, cur = (self.plc.get(k) for k in SPEEDS)
+        if mach is not None or cur is not None:
+            self.unit.equipment_speeds(
+                float(mach) if mach is not None else None, float(cur) if cur is not None else None
+            )
 
     def _alarms(self) -> None:
         """Admin.Alarm follows the PLC's Admin.Alarm[i].ID tags (0: an empty entry)."""
@@ -111,11 +127,34 @@ class PackTagsUnit(EquipmentBase):
 
     def on_connection(self, connected: bool) -> None:
         self.reachable = connected
+        if connected:
+            self._take_missing()
         if not self._attached:
             return
         self._tell_lost(not connected)
         if connected:
             self._catch_up()
+
+    def _take_missing(self) -> None:
+        """The tags the PLC does not have, as the link found them on connecting: each is one log line
+        (once), and the unit works without it; what needs it is refused (``_need``)."""
+        found = self.link.missing
+        self.missing = {k: found[t.address] for k, t in self.tags.items() if t.address in found}
+        for key, reason in self.missing.items():
+            self.plc.pop(key, None)
+            if (key, reason) not in self._said:
+                self._said.add((key, reason))
+                needed = [what for what, keys in NEEDED_BY.items() if key in keys]
+                effect = f"{', '.join(needed)} refused until it is there" if needed else "the unit works without it"
+                log.warning("%s: the PLC has no %s (%s: %s); %s", self.part, key, self._tag(key), reason, effect)
+
+    def _need(self, keys: Sequence[str]) -> None:
+        """CallError (Bad_ConfigurationError) naming the first of ``keys`` the PLC does not have."""
+        for key in keys:
+            if key in self.missing:
+                raise CallError(
+                    "BadConfigurationError", f"the PLC has no {key} ({self._tag(key)}: {self.missing[key]})"
+                )
 
     def _tell_lost(self, lost: bool) -> None:
         """Warning 9001 in Admin.Warning (PackML's view) and the CommunicationLost condition (alarm
@@ -153,6 +192,7 @@ class PackTagsUnit(EquipmentBase):
             self.unit.equipment_unit_mode(int(mode))
         if any(k.startswith("Admin.Alarm[") for k in self.tags):
             self._alarms()
+        self._speeds()
         self.follow()
 
     def follow(self) -> None:
@@ -192,7 +232,8 @@ class PackTagsUnit(EquipmentBase):
 
     async def _abort_with_reason(self) -> None:
         try:
-            reason = int(await self.link.read(self._tag("Admin.StopReason")) or 0)
+            missing = "Admin.StopReason" in self.missing
+            reason = 0 if missing else int(await self.link.read(self._tag("Admin.StopReason")) or 0)
         except CommunicationError:
             reason = 0
         finally:
@@ -214,6 +255,7 @@ class PackTagsUnit(EquipmentBase):
     async def send_command(self, machine: str | None, method: str, args: Sequence[Any]) -> None:
         """Write a machine command as PackTags and wait until the PLC accepted it (module doc)."""
         if machine is None and method == "SetUnitMode":
+            self._need(NEEDED_BY["SetUnitMode"])
             await self._handshake(
                 method, lambda st, now: Handshake.unit_mode(int(args[0]), st, now, self.timing.confirm_timeout)
             )
@@ -223,18 +265,30 @@ class PackTagsUnit(EquipmentBase):
         name = PACKTAGS_COMMAND.get(method, method)
         if name not in COMMANDS:
             return
+        self._need(NEEDED_BY["every command"])
         parameters: list[float] = []
         if method == "Start" and args:
             given: Sequence[PackMLDescriptorDataType] = args[0] or ()
             parameters = [float(p.value) for p in given]
-            room = sum(1 for k in self.tags if k.startswith("Command.Parameter["))
+            room = self._parameter_room()
             if len(parameters) > room:
                 raise CallError(
                     "BadInvalidArgument", f"the PLC takes {room} parameters, not {len(parameters)}", argument=0
                 )
+        if method == "Start":  # every slot written: the slots Start does not use hold 0.0, not an older value
+            parameters += [0.0] * (self._parameter_room() - len(parameters))
         await self._handshake(
             method, lambda st, now: Handshake.command(name, st, now, self.timing.confirm_timeout, parameters)
         )
+
+    def _parameter_room(self) -> int:
+        """How many ``Command.Parameter[i].Value`` slots the PLC has, from 0 on without a gap."""
+        room = 0
+        while (
+            f"Command.Parameter[{room}].Value" in self.tags and f"Command.Parameter[{room}].Value" not in self.missing
+        ):
+            room += 1
+        return room
 
     async def _handshake(self, method: str, make: Any) -> None:
         """Write the handshake ``make(status, now)`` builds and wait until the PLC accepted it."""
@@ -266,27 +320,39 @@ class PackTagsUnit(EquipmentBase):
             asyncio.get_running_loop().call_soon(self.follow)  # after the model took the command
 
     async def _status(self) -> PlcStatus:
+        keys = [k for k in STATUS if k not in self.missing]
         try:  # in one Read: a cleared request and the state it led to come from the same scan
-            state, request, mode, mode_request = await self.link.read_many(
-                [
-                    self._tag("Status.StateCurrent"),
-                    self._tag("Command.CmdChangeRequest"),
-                    self._tag("Status.UnitModeCurrent"),
-                    self._tag("Command.UnitModeChangeRequest"),
-                ]
-            )
+            got = dict(zip(keys, await self.link.read_many([self._tag(k) for k in keys]), strict=True))
         except CommunicationError:
             return PlcStatus(0, 0, False, connected=False)
+        state, request, mode, mode_request = (got.get(k) for k in STATUS)
         self.plc["Status.StateCurrent"] = state
-        return PlcStatus(int(state), int(mode or 0), bool(request), bool(mode_request))
+        return PlcStatus(int(state or 0), int(mode or 0), bool(request), bool(mode_request))
 
     def on_mach_speed(self, speed: float) -> None:
         if not self.reachable:
             raise CallError("BadCommunicationError", f"no connection to the PLC at {self.link.endpoint}")
-        task = asyncio.get_running_loop().create_task(
-            self.link.write(self._tag("Command.MachSpeed"), float(speed), "Float")
-        )
+        self._need(NEEDED_BY["SetMachSpeed"])
+        task = asyncio.get_running_loop().create_task(self._set_speed(float(speed)))
         task.add_done_callback(_log_failure(self.part, "Command.MachSpeed"))
+
+    async def _set_speed(self, speed: float) -> None:
+        """SetMachSpeed does not wait for the PLC: the model shows the request at once; this writes it,
+        then shows what the PLC's ``Status.MachSpeed`` says once it took it (or ``confirm_timeout``
+        passed: a PLC that keeps its own set point is shown with it)."""
+        await self.link.write(self._tag("Command.MachSpeed"), speed, "Float")
+        if "Status.MachSpeed" not in self.tags or "Status.MachSpeed" in self.missing:
+            return
+        deadline = time.monotonic() + self.timing.confirm_timeout
+        while True:
+            reported = await self.link.read(self._tag("Status.MachSpeed"))
+            took = _is(reported, "Float") and abs(reported - speed) <= 1e-4 * max(1.0, abs(speed))
+            if took or time.monotonic() >= deadline:
+                break
+            await asyncio.sleep(self.timing.poll * 5)
+        if _is(reported, "Float"):
+            self.plc["Status.MachSpeed"] = reported
+            self._speeds()
 
     def close(self) -> Awaitable[None]:
         return self._release(self.link)
@@ -315,8 +381,10 @@ async def start_unit(
     uacell serves anyway, the unit reports it)."""
     unit = PackTagsUnit(part, link, tags, timing_of(settings), release)
     watched = [tags[k].address for k in WATCHED] + [t.address for k, t in tags.items() if k.startswith("Admin.Alarm[")]
+    # the tags uacell only writes are tried too, once a connection: a tag the PLC does not have is found then
+    checked = [t.address for t in tags.values() if t.address not in watched]
     labels = {t.address: f"{part}: {k}" for k, t in tags.items()}
     link.start()
-    await link.watch(watched, unit.on_value, unit.on_connection, labels)
+    await link.watch(watched, unit.on_value, unit.on_connection, labels, checked)
     await link.wait_connected(3.0)
     return unit

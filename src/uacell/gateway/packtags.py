@@ -31,6 +31,15 @@ DEFAULT_MAP: dict[str, tuple[str, str]] = {
 }
 
 
+# What needs which tags: a tag the PLC lacks refuses these (Bad_ConfigurationError, naming it); every
+# other tag is optional (the unit works without it; docs/equipment.md, "Required and optional tags").
+NEEDED_BY: dict[str, tuple[str, ...]] = {
+    "every command": ("Status.StateCurrent", "Command.CntrlCmd", "Command.CmdChangeRequest"),
+    "SetUnitMode": ("Status.UnitModeCurrent", "Command.UnitMode", "Command.UnitModeChangeRequest"),
+    "SetMachSpeed": ("Command.MachSpeed",),
+}
+
+
 class PackTagsMapError(ValueError):
     """A map that cannot be resolved; the message is one line naming part and tag."""
 

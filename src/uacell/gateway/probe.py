@@ -17,8 +17,13 @@ from uacell.gateway.modbus import CommunicationError, ModbusConnection, endpoint
 from uacell.gateway.modbus_robot import parse_motion, signal_tags, used_tags
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
 from uacell.gateway.opcua_robot import robot_addresses
+from uacell.gateway.packml_logix import LogixConnection
+from uacell.gateway.packml_logix import where as logix_where
 from uacell.gateway.packml_modbus import Point, where
+from uacell.gateway.packml_s7 import S7Connection
+from uacell.gateway.packml_s7 import where as s7_where
 from uacell.gateway.packtags import PackTagsMapError, resolve
+from uacell.gateway.s7 import S7Address
 from uacell.gateway.ur_link import JOINT_REGISTERS, STATE_REGISTERS, TURN_REGISTERS, Dashboard, DashboardError
 
 MODBUS = "uacell.gateway.robot:modbus_signals"
@@ -26,6 +31,8 @@ PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
 MODBUS_PACKTAGS = "uacell.gateway.packml_modbus:modbus_packtags"
 UR = "uacell.gateway.ur_robot:ur_dashboard"
 OPCUA_SIGNALS = "uacell.gateway.opcua_robot:opcua_signals"
+S7_PACKTAGS = "uacell.gateway.packml_s7:s7_packtags"
+LOGIX_PACKTAGS = "uacell.gateway.packml_logix:logix_packtags"
 _BUILTIN = {ua.VariantType.Int32: "Int32", ua.VariantType.Boolean: "Boolean", ua.VariantType.Float: "Float"}
 
 
@@ -91,6 +98,7 @@ async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float 
             str(settings.get("prefix", "")),
             {str(k): str(v) for k, v in dict(settings.get("map", {})).items()},
             parameters=int(settings.get("parameters", 5)),
+            alarms=int(settings.get("alarms", 0)),
         )
     except PackTagsMapError as e:
         return [Row(part, endpoint, "(map)", str(e), False)]
@@ -236,12 +244,65 @@ async def probe_opcua_signals(part: str, settings: Mapping[str, Any], timeout: f
     return rows
 
 
+async def probe_s7_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    try:
+        w = s7_where(part, settings)
+    except ValueError as e:
+        return [Row(part, f"s7://{settings.get('host', '')}", "(settings)", str(e), False)]
+    conn = S7Connection(w.host, w.port, w.rack, w.slot, timeout)
+    if not await conn.connect():
+        return [Row(part, w.endpoint, "(endpoint)", "unreachable", False)]
+    rows = []
+    try:
+        for key, tag in w.tags.items():
+            address = S7Address.parse(tag.address)
+            try:
+                block = await conn.read(address.db, address.byte, address.size)
+                rows.append(Row(part, w.endpoint, key, f"{address} = {address.decode(block, address.byte)!r}", True))
+            except CommunicationError as e:
+                rows.append(Row(part, w.endpoint, key, f"{address}: {str(e).rpartition(': ')[2]}", False))
+                if not conn.connected:
+                    break
+        return rows
+    finally:
+        await conn.close()
+
+
+async def probe_logix_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    try:
+        w = logix_where(part, settings)
+    except ValueError as e:
+        return [Row(part, f"logix://{settings.get('host', '')}", "(settings)", str(e), False)]
+    conn = LogixConnection(w.host, w.port, w.slot, timeout)
+    if not await conn.connect():
+        return [Row(part, w.endpoint, "(endpoint)", "unreachable", False)]
+    rows = []
+    try:
+        for key, tag in w.tags.items():
+            try:
+                (value,) = await conn.read([tag.address])
+            except CommunicationError as e:
+                rows.append(Row(part, w.endpoint, key, f"{tag.address}: {str(e).rpartition(': ')[2]}", False))
+                if not conn.connected:
+                    break
+                continue
+            found = {bool: "Boolean", int: "Int32", float: "Float"}.get(type(value), type(value).__name__)
+            ok = found == tag.type_name or (found == "Int32" and tag.type_name == "Float")
+            text = f"{tag.address} = {value!r}" if ok else f"{tag.address} = {value!r}, expected {tag.type_name}"
+            rows.append(Row(part, w.endpoint, key, text, ok))
+        return rows
+    finally:
+        await asyncio.to_thread(conn.close)
+
+
 PROBES = {
     OPCUA_SIGNALS: probe_opcua_signals,
     MODBUS: probe_modbus,
     PACKTAGS: probe_packtags,
     MODBUS_PACKTAGS: probe_modbus_packtags,
     UR: probe_ur,
+    S7_PACKTAGS: probe_s7_packtags,
+    LOGIX_PACKTAGS: probe_logix_packtags,
 }
 
 

@@ -270,6 +270,8 @@ class UnitBinding:
             # Equipment that cannot reach its PLC: every Status and Admin value says so (its last
             # value is not the PLC's any more); once it answers again, each is written afresh.
             self._reachable = reachable
+            for machine in self.unit.machines.values():  # their states: the last known, said so
+                machine.set_stale(not reachable)
             if not reachable:
                 self.app.publisher.submit(self._unreachable)
             else:

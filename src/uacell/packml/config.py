@@ -34,6 +34,8 @@ ACTING_STATES = (
 DRIVERS = {
     "opcua-packtags": "uacell.gateway.packml_opcua:opcua_packtags",
     "modbus-packtags": "uacell.gateway.packml_modbus:modbus_packtags",
+    "s7-packtags": "uacell.gateway.packml_s7:s7_packtags",
+    "logix-packtags": "uacell.gateway.packml_logix:logix_packtags",
 }
 
 

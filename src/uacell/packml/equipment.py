@@ -89,6 +89,12 @@ class UnitPort(Protocol):
         """The alarms the machine has active now (ID -> message) become Admin.Alarm."""
         ...
 
+    def equipment_speeds(self, mach_speed: float | None = None, cur_mach_speed: float | None = None) -> None:
+        """The machine's own MachSpeed set point and the speed it runs at now (a PLC's
+        ``Status.MachSpeed`` / ``Status.CurMachSpeed``): shown as they are. None leaves a value as it is;
+        once the machine reported CurMachSpeed, it is no longer derived from MachSpeed and the state."""
+        ...
+
     def equipment_condition(self, name: str, active: bool, message: str) -> None:
         """Raise (``active``) or clear the alarm condition ``name``, one the equipment declares in an
         optional ``condition_names`` attribute (OPC 10000-9 conditions in ``<unit>/Conditions``)."""

@@ -278,6 +278,7 @@ class PackMLUnit:
             material_interlock=[True] * interlocks,
         )
         self.status.mach_speed = float(mach_speed)
+        self._reported_cur_mach_speed: float | None = None  # the equipment's own (equipment_speeds)
         product = PackMLCountDataType(1, "Product", PACKAGES)
         self.admin = Admin(
             alarm_extent=alarm_extent,
@@ -683,6 +684,17 @@ class PackMLUnit:
                     _push(a.alarm, alarm, a.alarm_extent)
                     _push(a.alarm_history, alarm, a.alarm_history_extent)
 
+    def equipment_speeds(self, mach_speed: float | None = None, cur_mach_speed: float | None = None) -> None:
+        """The equipment's own MachSpeed and CurMachSpeed (a PLC owns them): shown as reported, not
+        checked against the EURange (the machine runs at what it runs at). A reported CurMachSpeed
+        replaces the derived one (MachSpeed in Execute, else 0) from then on."""
+        touched = ("Status/MachSpeed",) if mach_speed is not None else ()
+        with self._operation(touched=touched):
+            if mach_speed is not None:
+                self.status.mach_speed = float(mach_speed)
+            if cur_mach_speed is not None:
+                self._reported_cur_mach_speed = float(cur_mach_speed)
+
     def equipment_condition(self, name: str, active: bool, message: str) -> None:
         """The equipment raises (``active``) or clears its condition ``name`` (one of its
         ``condition_names``)."""
@@ -950,7 +962,8 @@ class PackMLUnit:
         sc = self._sc.get((sm.name, sm.current))
         s.state_change_in_process = sc is not None
         s.state_requested = sm.table.states[sc.to_state if sc else sm.current].number
-        s.cur_mach_speed = s.mach_speed if self.execute.is_in("Execute") else 0.0
+        reported = self._reported_cur_mach_speed
+        s.cur_mach_speed = reported if reported is not None else s.mach_speed if self.execute.is_in("Execute") else 0.0
 
     def _record_stop(self, reason: PackMLAlarmDataType) -> None:
         if self._stop_armed:

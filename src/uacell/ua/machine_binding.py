@@ -41,6 +41,8 @@ log = logging.getLogger(__name__)
 _A = ua.AttributeIds
 _VT = ua.VariantType
 _NOT_ACTIVE = ua.StatusCode(ua.StatusCodes.BadStateNotActive)
+# a machine whose equipment cannot be reached: its last known state, saying so (OPC 10000-4 7.38)
+_STALE = ua.StatusCode(ua.StatusCodes.UncertainNoCommunicationLastUsableValue)
 _REASON_TEXT = {reason: ua.LocalizedText(reason.name.title()) for reason in Reason}  # ValueAsText
 
 
@@ -238,24 +240,29 @@ class StateMachineBinding:
             await child.publish_tree()
 
     async def _write(
-        self, values: list[tuple[ua.NodeId | None, Any, ua.VariantType]], status: ua.StatusCode | None = None
+        self,
+        values: list[tuple[ua.NodeId | None, Any, ua.VariantType]],
+        status: ua.StatusCode | None = None,
+        quality: ua.StatusCode | None = None,
     ) -> None:
         """Write each ``(node, value, vtype)`` (a list value: an array), or only ``status`` to each node
-        when one is given; a node the machine's type does not have (None) is skipped."""
+        when one is given, the value with ``quality`` when that is given (Uncertain); a node the
+        machine's type does not have (None) is skipped."""
         # A machine's whole subtree is republished on every change: write only what changed (and make
         # the Variant only then). Keyed by the node objects of this binding, held for its lifetime.
         written = self._written
         for node, value, vtype in values:
             if node is None:
                 continue
-            key = (status.value,) if status is not None else (0, vtype, value)
+            key = (status.value,) if status is not None else (quality.value if quality else 0, vtype, value)
             if written.get(id(node)) == key:
                 continue
             written[id(node)] = key
             if status is not None:
                 await self.values.write_status(node, status)
             else:
-                await self.values.write(node, ua.Variant(value, vtype, is_array=isinstance(value, list)), force=True)
+                variant = ua.Variant(value, vtype, is_array=isinstance(value, list))
+                await self.values.write(node, variant, force=True, status=quality)
 
     async def publish(self) -> None:
         m = self.machine
@@ -278,7 +285,7 @@ class StateMachineBinding:
                 (self.last_number, m.table.transition_number(t.name), _VT.UInt32),
                 (self.last_time, m.last_transition_time, _VT.DateTime),
             ]
-        await self._write(values, bad)
+        await self._write(values, bad, _STALE if active and m.stale else None)
         if self.reason is not None:
             reason = m.last_reason
             await self._write(

@@ -114,8 +114,15 @@ class ValueWriter:
         return self._builtin_of(datatype) or ua.VariantType.Variant
 
     async def write(
-        self, nodeid: ua.NodeId, value: Any, vtype: ua.VariantType | None = None, *, force: bool = False
+        self,
+        nodeid: ua.NodeId,
+        value: Any,
+        vtype: ua.VariantType | None = None,
+        *,
+        force: bool = False,
+        status: ua.StatusCode | None = None,
     ) -> None:
+        """Write ``value`` (Good, or with ``status``: an Uncertain quality, the value kept)."""
         if not force and nodeid in self._written and self._written[nodeid] == value:
             return
         self._written[nodeid] = value
@@ -126,6 +133,8 @@ class ValueWriter:
         )
         now = datetime.now(UTC)
         dv = ua.DataValue(variant, SourceTimestamp=now, ServerTimestamp=now)
+        if status is not None:
+            dv.StatusCode = status
         attval = self._unwatched(nodeid)
         old = attval.value if attval is not None else None
         if attval is not None and old is not None and old.Value is not None:
