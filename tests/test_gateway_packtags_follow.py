@@ -216,7 +216,7 @@ async def test_every_tag_uacell_reads_follows_the_plc(kind: str, tmp_path: Path)
             # request at once, then the PLC's Status.MachSpeed again within confirm_timeout (3 s)
             res = await call_path(client, F, "SetMachSpeed", ua.Variant(100.0, ua.VariantType.Float))
             assert res.StatusCode.is_good(), res.StatusCode
-            assert await plc.get("Command.MachSpeed") == pytest.approx(100.0)
+            await until(lambda: plc.get("Command.MachSpeed"), pytest.approx(100.0))  # written after the answer
             await until(lambda: cell_read(client, f"{F}.Status.MachSpeed"), pytest.approx(24.0), timeout=10)
             await plc.freeze(False)  # scanning again: it takes the set point and reports it
             res = await call_path(client, F, "SetMachSpeed", ua.Variant(90.0, ua.VariantType.Float))
