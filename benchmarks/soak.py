@@ -552,6 +552,15 @@ def verdicts(result: dict[str, Any]) -> list[tuple[str, str, str, float | None, 
             )
     errors = len(result["errors"])
     out.append(("soak: ERROR lines in the server's log", str(errors), "0", float(errors), "0", errors == 0))
+    # a load that did not run measures nothing: every request of it is answered (the HMI's got 401
+    # for a while, unnoticed, when the web session came to need its token)
+    failures: dict[str, str] = {}
+    for r in rows:
+        for kind, why in r.get("failures", {}).items():
+            failures.setdefault(kind, why)
+    failed = sum(v for r in rows for k, v in r["counts"].items() if k.endswith(" failed"))
+    first = "; ".join(f"{kind}: {why}" for kind, why in failures.items())
+    out.append(("soak: requests of the load that failed", str(failed), first or "0", float(failed), "0", failed == 0))
     return out
 
 
