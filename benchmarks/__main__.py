@@ -147,6 +147,7 @@ class Peers:
         pubsub: str = "",
         publisher: str = "",
         sparkplug: str = "",
+        history_events: int = 0,
     ) -> Peer:
         """A uacell peer; ``snapshot``: a restart, with the cell's data directory and the shared cache
         directory of address-space snapshots (the first peer of each cell writes its snapshot,
@@ -163,12 +164,15 @@ class Peers:
             data = data.with_name(data.name + "-no-history")
         if publisher:  # one of many cells publishing side by side
             data = data.with_name(f"{data.name}-{publisher}")
+        if history_events:  # its stored events are its own (the other peers' history stays as it was)
+            data = data.with_name(f"{data.name}-{history_events}-events")
         cache = self.cache if snapshot else data / "cache"
         cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", cell]
         cmd += [] if history else ["--no-history"]
         cmd += ["--pubsub", pubsub] if pubsub else []
         cmd += ["--sparkplug", sparkplug] if sparkplug else []
         cmd += ["--publisher-id", publisher] if publisher else []
+        cmd += ["--history-events", str(history_events)] if history_events else []
         name = f"uacell {cell} cell" + ("" if history else " (history off)") + (f" {publisher}" if publisher else "")
         return Peer(name, [*cmd, "--data-dir", str(data), "--cache-dir", str(cache)], port=port)
 

@@ -6,13 +6,19 @@
 - a raw read of 1,000,000 values through continuation points over OPC UA (asyncua client): none
   repeated, none missing;
 - store growth per PackML unit per day: the demo Filler1 producing (Execute) for a while, the bytes
-  and rows history.sqlite gained, scaled to a day.
+  and rows history.sqlite gained, scaled to a day;
+- other clients while history is read: a ``uacell serve`` peer with 30,000 stored events, a probing
+  client's Reads of CurrentTime (p99) alone and while two clients read every event through
+  continuation points, each client its own process and connection (issue 39).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import json
+import subprocess
+import sys
 import tempfile
 import time
 from datetime import UTC, datetime, timedelta
@@ -22,6 +28,8 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from benchmarks.__main__ import Peers, Report
 
+ROOT = Path(__file__).resolve().parents[1]
+
 READ_VALUES = 1_000_000
 INGEST_RATE = 5_000
 
@@ -29,7 +37,7 @@ INGEST_RATE = 5_000
 def history_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
     from benchmarks.__main__ import SET_SPEED, client, median, rotated, running
 
-    print("== history (SetMachSpeed with history on vs off, ingest CPU, 1,000,000 values, growth)", flush=True)
+    print("== history (SetMachSpeed with history on vs off, ingest CPU, 1M values, growth, other clients)", flush=True)
     raw: dict[str, Any] = {}
     report.raw["history"] = raw
     on, off = peers.uacell(), peers.uacell(history=False)
@@ -77,6 +85,7 @@ def history_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
         f"measured over {growth['seconds']:.0f} s",
         None,
     )
+    stall_row(report, peers, args, raw)
 
 
 async def _server(data: Path, **history: Any) -> Any:
@@ -276,3 +285,217 @@ def _size(db: Path) -> int:
     finally:
         con.close()
     return int((pages - free) * size)
+
+
+# --- other clients while history is read (issue 39, docs/history.md "Other clients") ---------------
+STALL_EVENTS = 30_000
+STALL_READERS = 2
+STALL_TARGET_MS = 50.0
+
+
+def fill_events(service: Any, count: int) -> None:
+    """``count`` TransitionEvents of Filler1's MachineState kept with the Server object, one a
+    millisecond up to an hour ago (queued for the store's writer thread; flush to wait for them)."""
+    from asyncua import ua
+
+    from uacell.history.backends import EVENT
+    from uacell.history.service import encode_fields, event_plan, to_micros
+
+    vt = ua.VariantType
+    types = {
+        "EventId": vt.ByteString, "EventType": vt.NodeId, "SourceNode": vt.NodeId, "SourceName": vt.String,
+        "Time": vt.DateTime, "ReceiveTime": vt.DateTime, "Message": vt.LocalizedText, "Severity": vt.UInt16,
+        "FromState": vt.LocalizedText, "ToState": vt.LocalizedText, "ToState/Id": vt.NodeId,
+    }  # fmt: skip
+    plan = event_plan(types)
+    key = service.notifiers[ua.NodeId(ua.ObjectIds.Server)]
+    source = ua.NodeId("Filler1.BaseStateMachine.MachineState", 1)
+    first = datetime.now(UTC) - timedelta(hours=1, milliseconds=count)
+    for i in range(count):
+        t = first + timedelta(milliseconds=i)
+        fields: dict[str, Any] = {
+            "EventId": b"bench" + i.to_bytes(11, "big"), "EventType": ua.NodeId(ua.ObjectIds.TransitionEventType),
+            "SourceNode": source, "SourceName": "MachineState", "Time": t, "ReceiveTime": t,
+            "Message": ua.LocalizedText(f"Transition {i}"), "Severity": 500,
+            "FromState": ua.LocalizedText("Idle"), "ToState": ua.LocalizedText("Starting"),
+            "ToState/Id": ua.NodeId("Starting", 1),
+        }  # fmt: skip
+        service.store.record(key, to_micros(t), EVENT, 0, "i=2311", encode_fields(fields, plan))
+
+
+def stall_row(report: Report, peers: Peers, args: argparse.Namespace, raw: dict[str, Any]) -> None:
+    """A probing client (its own process and connection) reads CurrentTime every 5 ms, first alone,
+    then while ``STALL_READERS`` clients (each its own process) read every stored event through
+    continuation points, again and again."""
+    from benchmarks.__main__ import running
+
+    seconds = 10.0 if args.quick else 30.0
+    with running(peers.uacell(history_events=STALL_EVENTS)) as (peer,):
+        alone = _probe(peer.endpoint, seconds)
+        readers = [_spawn("read", peer.endpoint) for _ in range(STALL_READERS)]
+        try:
+            for r in readers:  # connected, first page read
+                assert r.stdout is not None
+                line = r.stdout.readline()
+                if line.strip() != "ready":
+                    raise RuntimeError(f"a history reader did not start: {line!r}")
+            loaded = _probe(peer.endpoint, seconds)
+        finally:
+            reads = []
+            for r in readers:
+                try:
+                    out, _ = r.communicate("stop\n", timeout=120)
+                    reads.append(json.loads(out.strip().splitlines()[-1]))
+                except (subprocess.TimeoutExpired, json.JSONDecodeError, IndexError):
+                    r.kill()
+                    r.wait()
+                    reads.append({"passes": 0, "events": 0, "complete": False, "seconds": 0.0, "max_page": 0})
+    raw["stall"] = {"events_stored": STALL_EVENTS, "alone": alone, "loaded": loaded, "readers": reads}
+    passes = sum(r["passes"] for r in reads)
+    events = sum(r["events"] for r in reads)
+    report.add(
+        f"CurrentTime Read p99 while {STALL_READERS} clients read {STALL_EVENTS:,} events",
+        f"p50 {_ms(loaded, 'p50_ms')} ms p99 {_ms(loaded, 'p99_ms')} ms max {_ms(loaded, 'max_ms')} ms"
+        f" ({loaded['reads']} reads)",
+        f"no history read: p50 {_ms(alone, 'p50_ms')} ms p99 {_ms(alone, 'p99_ms')} ms",
+        loaded["p99_ms"] / STALL_TARGET_MS,
+        "<= 1x (50 ms)",
+        lambda x: x <= 1.0,
+    )
+    report.add(
+        "  events those clients read meanwhile",
+        f"{events:,} events, {passes} full passes, {events / max(1e-9, max(r['seconds'] for r in reads)):,.0f}/s",
+        f"every pass all {STALL_EVENTS:,}, pages <= 1,000",
+        1.0 if passes and all(r["complete"] and r["max_page"] <= 1000 for r in reads) else 0.0,
+        "== 1x",
+        lambda x: x == 1.0,
+    )
+
+
+def _ms(result: dict[str, Any], key: str) -> str:
+    return f"{result[key]:.1f}"
+
+
+def _spawn(role: str, endpoint: str, *extra: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "benchmarks.history", role, endpoint, *extra],
+        cwd=ROOT,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+
+
+def _probe(endpoint: str, seconds: float) -> dict[str, Any]:
+    proc = _spawn("probe", endpoint, str(seconds))
+    try:
+        out, _ = proc.communicate(timeout=seconds + 120)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        raise RuntimeError("the probing client did not finish") from None
+    lines = out.strip().splitlines()
+    if proc.returncode != 0 or not lines:
+        raise RuntimeError(f"the probing client failed (exit {proc.returncode})")
+    result: dict[str, Any] = json.loads(lines[-1])
+    return result
+
+
+async def probe(endpoint: str, seconds: float) -> dict[str, Any]:
+    """Reads of the Server's CurrentTime, one every 5 ms (the next 5 ms after the last answer)."""
+    from asyncua import Client, ua
+
+    latencies: list[float] = []
+    # keep-alives every 5 s, not asyncua's 1 s: a shared machine may hold the probe for a second
+    async with Client(endpoint, timeout=60, watchdog_intervall=5.0) as client:
+        node = client.get_node(ua.ObjectIds.Server_ServerStatus_CurrentTime)
+        await node.read_value()
+        t_end = time.perf_counter() + seconds
+        while time.perf_counter() < t_end:
+            t0 = time.perf_counter()
+            await node.read_value()
+            latencies.append((time.perf_counter() - t0) * 1000)
+            await asyncio.sleep(0.005)
+    latencies.sort()
+    return {
+        "reads": len(latencies),
+        "p50_ms": latencies[len(latencies) // 2],
+        "p99_ms": latencies[max(0, int(len(latencies) * 0.99) - 1)],
+        "max_ms": latencies[-1],
+    }
+
+
+async def read_events(endpoint: str) -> dict[str, Any]:
+    """Every event the Server object keeps, newest first through continuation points, pass after
+    pass until ``stop`` arrives on stdin (the current pass is finished)."""
+    import threading
+
+    from asyncua import Client, ua
+
+    stop = threading.Event()
+
+    def until_stop() -> None:
+        sys.stdin.readline()
+        stop.set()
+
+    threading.Thread(target=until_stop, daemon=True).start()
+    passes = events = max_page = 0
+    complete = True
+    t0 = time.perf_counter()
+    async with Client(endpoint, timeout=120, watchdog_intervall=5.0) as client:
+        details = ua.ReadEventDetails(
+            StartTime=datetime.now(UTC) + timedelta(hours=1), EndTime=datetime.now(UTC) - timedelta(days=1)
+        )
+        details.NumValuesPerNode = 0  # as many as the server gives in one page
+        details.Filter = ua.EventFilter(
+            SelectClauses=[
+                ua.SimpleAttributeOperand(BrowsePath=[ua.QualifiedName(n)])
+                for n in ("EventId", "EventType", "SourceNode", "SourceName", "Time", "Message", "Severity", "ToState")
+            ]
+        )
+        while not stop.is_set():
+            cp = None
+            ids: set[bytes] = set()
+            while True:
+                params = ua.HistoryReadParameters(
+                    HistoryReadDetails=details,
+                    TimestampsToReturn=ua.TimestampsToReturn.Both,
+                    ReleaseContinuationPoints=False,
+                    NodesToRead=[ua.HistoryReadValueId(NodeId=ua.NodeId(ua.ObjectIds.Server), ContinuationPoint=cp)],
+                )
+                (res,) = await client.uaclient.history_read(params)
+                page = res.HistoryData.Events if res.StatusCode.is_good() else []
+                max_page = max(max_page, len(page))
+                ids.update(e.EventFields[0].Value for e in page if e.EventFields[0].Value.startswith(b"bench"))
+                if passes == 0 and cp is None:
+                    print("ready", flush=True)
+                cp = res.ContinuationPoint
+                if not cp:
+                    break
+            passes += 1
+            events += len(ids)
+            complete = complete and len(ids) == STALL_EVENTS
+    return {
+        "passes": passes,
+        "events": events,
+        "complete": complete,
+        "max_page": max_page,
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def main() -> int:
+    """``python -m benchmarks.history probe ENDPOINT SECONDS`` or ``read ENDPOINT``: one client of
+    the stall row, its figures as a JSON line."""
+    role, endpoint = sys.argv[1], sys.argv[2]
+    if role == "probe":
+        result = asyncio.run(probe(endpoint, float(sys.argv[3])))
+    else:
+        result = asyncio.run(read_events(endpoint))
+    print(json.dumps(result), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -4,7 +4,8 @@
   importing the same four NodeSets as uacell (asyncua's ``import_xml``);
 - ``uacell --cell demo|large|units|FILE.toml``: uacell with the cell ``benchmarks.cells.bench_cell`` names
   (or a cell file),
-  acting times zero (``--pubsub URL --publisher-id ID``: publishing to that broker).
+  acting times zero (``--pubsub URL --publisher-id ID``: publishing to that broker; ``--history-events N``:
+  N events stored with the Server object before it says ``listening``).
 
 Each prints ``listening`` once clients can connect and runs until SIGTERM.
 """
@@ -65,6 +66,7 @@ async def uacell(
     pubsub: str = "",
     publisher_id: str = "",
     sparkplug: str = "",
+    history_events: int = 0,
 ) -> None:
     from pathlib import Path
 
@@ -103,6 +105,11 @@ async def uacell(
     await app.setup()
     early.resume_gc()  # as `uacell serve` does
     await app.start()
+    if history_events and app.history is not None:  # the history section's stall row
+        from benchmarks.history import fill_events
+
+        fill_events(app.history, history_events)
+        await app.history.store.flush()
     print("listening", flush=True)
     await _until_stopped()
     await app.stop()
@@ -120,6 +127,7 @@ def main() -> int:
     parser.add_argument("--pubsub", default="", help="[pubsub] broker (enables PubSub)")
     parser.add_argument("--publisher-id", default="", help="[pubsub] publisher_id ([sparkplug] edge_node_id)")
     parser.add_argument("--sparkplug", default="", help="[sparkplug] broker (enables Sparkplug B)")
+    parser.add_argument("--history-events", type=int, default=0, help="events stored with the Server object")
     args = parser.parse_args()
     if args.kind == "asyncua":
         asyncio.run(bare_asyncua(args.port, args.nodesets))
@@ -130,7 +138,7 @@ def main() -> int:
         codecache.install()
         history = not args.no_history
         where = (args.port, args.cell, args.data_dir, args.cache_dir)
-        early.run(uacell(*where, history, args.pubsub, args.publisher_id, args.sparkplug))
+        early.run(uacell(*where, history, args.pubsub, args.publisher_id, args.sparkplug, args.history_events))
     return 0
 
 

@@ -251,6 +251,7 @@ class Load:
         self.ns = 0
         self.turn = 0  # the filler cycled last (1..FILLERS - 1 stand for Filler2..)
         self._hmi: urllib.request.OpenerDirector | None = None
+        self._hmi_end: float | None = None  # the ``end`` of the HMI's last history answer
 
     async def timed(self, kind: str, work: Awaitable[Any]) -> Any:
         t0 = time.perf_counter()
@@ -375,7 +376,9 @@ class Load:
     def _open_hmi(self) -> None:
         self._hmi = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
         with self._hmi.open(self.server.url + "/api/session", timeout=60) as res:
-            res.read()
+            token = json.loads(res.read())["csrf"]
+        # the session's token beside its cookie on every request, as the page sends it (docs/web.md)
+        self._hmi.addheaders = [*self._hmi.addheaders, ("X-CSRF-Token", token)]
 
     @property
     def hmi(self) -> urllib.request.OpenerDirector:
@@ -396,8 +399,12 @@ class Load:
 
     async def _hmi_history(self) -> None:
         def fetch() -> int:
-            with self.hmi.open(self.server.url + "/api/history?hours=8", timeout=120) as res:
-                return len(res.read())
+            # as the page polls: the whole view once, then only what is new since the last answer's end
+            since = "" if self._hmi_end is None else f"&since={self._hmi_end}"
+            with self.hmi.open(self.server.url + "/api/history?hours=8" + since, timeout=120) as res:
+                body = res.read()
+            self._hmi_end = json.loads(body).get("end", self._hmi_end)
+            return len(body)
 
         size = await self.timed("HMI history", asyncio.to_thread(fetch))
         if size:
@@ -545,6 +552,15 @@ def verdicts(result: dict[str, Any]) -> list[tuple[str, str, str, float | None, 
             )
     errors = len(result["errors"])
     out.append(("soak: ERROR lines in the server's log", str(errors), "0", float(errors), "0", errors == 0))
+    # a load that did not run measures nothing: every request of it is answered (the HMI's got 401
+    # for a while, unnoticed, when the web session came to need its token)
+    failures: dict[str, str] = {}
+    for r in rows:
+        for kind, why in r.get("failures", {}).items():
+            failures.setdefault(kind, why)
+    failed = sum(v for r in rows for k, v in r["counts"].items() if k.endswith(" failed"))
+    first = "; ".join(f"{kind}: {why}" for kind, why in failures.items())
+    out.append(("soak: requests of the load that failed", str(failed), first or "0", float(failed), "0", failed == 0))
     return out
 
 
