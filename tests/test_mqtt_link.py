@@ -106,3 +106,22 @@ async def test_the_broker_keeps_the_will_only_when_it_says_retain(broker: Broker
         async with aiomqtt.Client("127.0.0.1", broker.port, identifier=f"cleaner-{retain}") as cleaner:
             for t in (topic, marker):
                 await cleaner.publish(t, b"", qos=1, retain=True)
+
+
+async def test_pahos_error_for_a_dropped_broker_is_demoted_and_other_errors_are_kept(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """paho logs "failed to receive on socket: [Errno 32] Broken pipe" at ERROR when the broker drops
+    the connection; the link reports the drop itself, so that record becomes DEBUG. Any other ERROR of
+    paho's stays an ERROR."""
+    from uacell.pubsub.mqtt import PAHO_LOGGER
+
+    config = PubSubConfig(broker="mqtt://127.0.0.1:1")  # never connected: making its client is enough
+    MqttLink(LinkSettings.of(config, "quiet", qos=1, buffer=1), Outgoing("t", b""), list)._client()
+    paho = logging.getLogger(PAHO_LOGGER)
+    caplog.set_level(logging.DEBUG, logger=PAHO_LOGGER)
+    paho.error("failed to receive on socket: %s", BrokenPipeError(32, "Broken pipe"))
+    paho.error("Error: Unrecognised command %s", 99)
+    above = [(r.levelname, r.getMessage()) for r in caplog.records if r.levelno >= logging.WARNING]
+    assert above == [("ERROR", "Error: Unrecognised command 99")]
+    assert any(r.levelno == logging.DEBUG and "Broken pipe" in r.getMessage() for r in caplog.records)

@@ -28,9 +28,19 @@ from typing import Any, ClassVar
 
 import aiomqtt
 
+from uacell.logs import exception_of, quiet_expected
 from uacell.pubsub.config import Broker, BrokerConfig, broker_of, password_of
 
 log = logging.getLogger(__name__)
+
+PAHO_LOGGER = "mqtt"  # the logger aiomqtt hands to paho
+
+
+def _broker_gone(record: logging.LogRecord) -> bool:
+    """paho's ERROR when the broker dropped the connection ("failed to receive on socket: [Errno 32]
+    Broken pipe"): the link reports the drop itself, in one WARNING line (decision 62)."""
+    cause = record.args[0] if isinstance(record.args, tuple) and record.args else exception_of(record)
+    return str(record.msg).startswith("failed to ") and isinstance(cause, OSError)
 
 FIRST_RETRY = 0.5
 LAST_RETRY = 10.0
@@ -186,6 +196,7 @@ class MqttLink:
     # -- the connection ---------------------------------------------------------------------------
 
     def _client(self) -> aiomqtt.Client:
+        quiet_expected("broker-lost", (PAHO_LOGGER,), _broker_gone)
         s = self.settings
         tls_context = None
         if s.broker.tls:
