@@ -15,21 +15,13 @@ from dataclasses import dataclass, field
 from datetime import date
 from typing import Any
 
-from uacell.cell_file import Table, unique
+from uacell.cell_file import IDENTIFICATION, Table, unique
 
-# [[machines]] keys that are text -> the BrowseName of MachineIdentificationType's property.
+# [[machines]] keys that are text -> the BrowseName of MachineIdentificationType's property: the text
+# properties of DI's identification that its nameplate interfaces also have (not DeviceRevision and
+# DeviceManual), and Location.
 TEXT_KEYS = {
-    "manufacturer": "Manufacturer",
-    "manufacturer_uri": "ManufacturerUri",
-    "model": "Model",
-    "product_code": "ProductCode",
-    "serial_number": "SerialNumber",
-    "product_instance_uri": "ProductInstanceUri",
-    "hardware_revision": "HardwareRevision",
-    "software_revision": "SoftwareRevision",
-    "device_class": "DeviceClass",
-    "asset_id": "AssetId",
-    "component_name": "ComponentName",
+    **{key: name for key, name in IDENTIFICATION.items() if key not in ("device_revision", "device_manual")},
     "location": "Location",
 }
 # [[machines]] keys that are integers -> (BrowseName, least, greatest).
