@@ -102,7 +102,8 @@ async def test_a_cycle_through_the_plcs_opc_ua_signals(served: Any, plc: PLC) ->
     await wait_until_async(follows, True)
     assert await status(client, TC, "Stop", ua.Variant(0, ua.VariantType.Int64)) == 0
     await until_state(client, TC, "Ready")
-    assert await plc.get("running") is False and await plc.get("stop") is False  # the pulse ended
+    assert await plc.get("running") is False
+    await wait_until_async(lambda: plc.get("stop"), False)  # the pulse ends once confirmed (a write after)
     assert await read(client, f"{ROBOT}.SafetyStates.SafetyState1.ParameterSet.OperationalMode") == 4
     await plc.set("emergency_stop", True)
     await wait_until_async(lambda: read(client, f"{COND}.EmergencyStop.ActiveState.Id"), True)
@@ -122,7 +123,8 @@ async def test_a_latched_fault_is_reset_by_acknowledge(served: Any, plc: PLC) ->
     )
     assert res.StatusCode.is_good()
     await wait_until_async(lambda: read(client, f"{COND}.ControllerFault.ActiveState.Id"), False)
-    assert await plc.get("fault") is False and await plc.get("reset") is False
+    assert await plc.get("fault") is False
+    await wait_until_async(lambda: plc.get("reset"), False)  # the pulse ends once the fault fell (a write after)
 
 
 async def test_the_plc_killed_and_back_nothing_replayed(tmp_path: Path) -> None:
