@@ -468,8 +468,9 @@ class PackMLUnit(UnitView, EquipmentSide, UnitMethods):
         self._refresh()
         final = self._depth == 0  # a publish inside an operation (SetUnitMode's request) leaves the rest due
         values = self.publishing.select(self, final)
-        # Decision 28: store before publishing, so that a crash never loses a value a client has read.
-        self.saving.settle(values, self.save)
+        if self.store is not None:
+            # Decision 28: store before publishing, so that a crash never loses a value a client has read.
+            self.saving.settle(values, self.save)
         self.publishing.emit(values, final)
 
     def _load(self, store: AdminStore) -> None:

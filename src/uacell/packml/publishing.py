@@ -84,11 +84,7 @@ class Publishing:
     def change(self, touched: Iterable[str] | None = None) -> None:
         """A change that may alter published values: ``touched`` names them, None means any."""
         self._changes += 1
-        self.touch(touched)
-
-    def touch(self, touched: Iterable[str] | None) -> None:
-        """Mark values changed for the next publish: ``touched`` names them, None means any."""
-        if touched is None or self.everything:
+        if touched is None or self.everything:  # ``touch``, inline: every operation passes here
             self._touched = None
         elif self._touched is not None:
             self._touched.update(touched)
