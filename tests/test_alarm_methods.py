@@ -16,7 +16,8 @@ from conftest import fast_config, start_app
 from helpers import robot_cell, robotics_tables
 
 from uacell.errors import CallError
-from uacell.robotics.model import DirectoryLibrary, RobotCell, Status
+from uacell.robotics.model import RobotCell, Status
+from uacell.robotics.program_cache import DirectoryLibrary
 from uacell.robotics.sim import SimulatedRobot
 from uacell.roles import Role
 

@@ -1,5 +1,5 @@
 """Running work at once, with a task only from its first wait on (uacell.background.eager), and the
-address-space publisher that uses it (uacell.ua.machine_binding.Publisher). Pure asyncio."""
+address-space publisher that uses it (uacell.ua.publisher.Publisher). Pure asyncio."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from collections.abc import Awaitable, Callable
 import pytest
 
 from uacell.background import eager
-from uacell.ua.machine_binding import Publisher
+from uacell.ua.publisher import Publisher
 
 WHO: contextvars.ContextVar[str] = contextvars.ContextVar("who", default="nobody")
 

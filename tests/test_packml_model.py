@@ -788,7 +788,7 @@ def _twin(tmp: Any, clock: Any, everything: bool) -> tuple[PackMLUnit, HeldWrite
     start = datetime(2026, 11, 26, tzinfo=UTC)
     unit = new_unit(store=store, clock=clock, wall_clock=lambda: start + timedelta(seconds=clock()))
     if everything:
-        unit._touch = lambda touched: setattr(unit, "_touched", None)  # type: ignore[method-assign]
+        unit.publishing.everything = True
     seen = unit.values()
     unit.listeners.append(seen.update)
     return unit, writer, seen

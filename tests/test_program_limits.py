@@ -11,7 +11,7 @@ import pytest
 from helpers import robotics_tables
 
 from uacell.robotics.equipment import ExecutionMode, StopMode
-from uacell.robotics.model import DirectoryLibrary, RobotCell, Status
+from uacell.robotics.model import RobotCell, Status
 from uacell.robotics.program import (
     NothingToExecute,
     ProgramError,
@@ -21,6 +21,7 @@ from uacell.robotics.program import (
     measure,
     parse,
 )
+from uacell.robotics.program_cache import DirectoryLibrary
 from uacell.robotics.sim import SimulatedRobot
 
 SPIN3 = "program Spin3\nrepeat 10000\nrepeat 10000\nrepeat 10000\nspeed 50\nend\nend\nend\n"

@@ -15,8 +15,8 @@ from conftest import fast_config, serving
 from helpers import raw_call, wait_until
 
 from uacell.robotics.binding import CONTROLLERS
-from uacell.ua.machine_binding import Publisher
 from uacell.ua.pipeline import PublishedStage
+from uacell.ua.publisher import Publisher
 
 TC = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
 

@@ -12,8 +12,8 @@ from uacell.errors import ConfigError
 from uacell.robotics.binding import StoreLibrary, install_samples
 from uacell.robotics.binding.programs import adopt_legacy_programs
 from uacell.robotics.equipment import AxisInfo, ControllerEquipmentSpec, RobotEquipment
-from uacell.robotics.model import DirectoryLibrary
 from uacell.robotics.program import wave_program
+from uacell.robotics.program_cache import DirectoryLibrary
 from uacell.robotics.sim import SimulatedRobot
 from uacell.ua.file_store import TEMP_PREFIX, FileStore
 
@@ -176,7 +176,7 @@ def test_store_library_index_follows_the_listing(tmp_path):
 
 def test_library_keeps_a_settled_small_file_text_while_its_status_is_unchanged(tmp_path, monkeypatch):
     import uacell.files
-    import uacell.robotics.model as model
+    import uacell.robotics.program_cache as model
 
     root = tmp_path / "programs"
     root.mkdir()

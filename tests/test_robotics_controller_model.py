@@ -31,8 +31,9 @@ from uacell.robotics.equipment import (
     StopMode,
     UnknownProgram,
 )
-from uacell.robotics.model import DirectoryLibrary, RobotCell, Status, SystemOperation, TaskControl
+from uacell.robotics.model import RobotCell, Status, SystemOperation, TaskControl
 from uacell.robotics.program import Program
+from uacell.robotics.program_cache import DirectoryLibrary
 from uacell.robotics.sim import DEFAULT_AXES, SimulatedRobot
 
 

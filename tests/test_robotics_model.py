@@ -16,7 +16,6 @@ from uacell.errors import CallError
 from uacell.fsm import Change, Reason, StateMachine
 from uacell.robotics.equipment import EquipmentError, ExecutionMode, ProgramRejected, StopMode
 from uacell.robotics.model import (
-    DirectoryLibrary,
     RobotCell,
     Status,
     SystemOperation,
@@ -24,6 +23,7 @@ from uacell.robotics.model import (
     TaskModule,
 )
 from uacell.robotics.program import Program, samples
+from uacell.robotics.program_cache import DirectoryLibrary
 from uacell.robotics.sim import SimulatedRobot
 
 SCALE = 0.0005  # 1 simulated second = 0.5 ms

@@ -24,7 +24,8 @@ from uacell.registry import Registry, RegistryKey
 from uacell.roles import ListeningPolicy
 from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.file_store import HandlePool
-from uacell.ua.machine_binding import NodeRefs, Publisher
+from uacell.ua.machine_binding import NodeRefs
+from uacell.ua.publisher import Publisher
 from uacell.ua.space import Space
 from uacell.ua.writes import WriteRouter
 from uacell.users import UserStore

@@ -33,10 +33,11 @@ from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.event_tap import EventTap
 from uacell.ua.file_store import HandlePool
 from uacell.ua.limits import DecodingStage, admit, guard_bytes, install_limits, publish_operation_limits
-from uacell.ua.machine_binding import NodeRefs, Publisher
+from uacell.ua.machine_binding import NodeRefs
 from uacell.ua.nodesets import SnapshotJob, init_address_space
 from uacell.ua.observers import install_audit
 from uacell.ua.pipeline import ContextStage, Pipeline, PublishedStage
+from uacell.ua.publisher import Publisher
 from uacell.ua.snapshot import WriteCancelled
 from uacell.ua.space import Space
 from uacell.ua.writes import WriteRouter

@@ -33,7 +33,7 @@ from uacell.machinery.sources import RobotSource, Source, UnitSource
 from uacell.packml.binding import UNITS
 from uacell.registry import RegistryKey
 from uacell.robotics.binding import CONTROLLERS
-from uacell.ua.machine_binding import Publisher
+from uacell.ua.publisher import Publisher
 
 log = logging.getLogger(__name__)
 # Members that are not text: equipment reports text only, the cell file gives these.

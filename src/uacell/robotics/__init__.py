@@ -17,7 +17,6 @@ from uacell.robotics.equipment import (
     StopMode,
 )
 from uacell.robotics.model import (
-    DirectoryLibrary,
     ProgramLibrary,
     RobotCell,
     RoboticsTables,
@@ -27,6 +26,7 @@ from uacell.robotics.model import (
     TaskModule,
 )
 from uacell.robotics.program import Kind, Program, ProgramError, parse
+from uacell.robotics.program_cache import DirectoryLibrary
 from uacell.robotics.sim import SimulatedRobot
 
 __all__ = [

@@ -118,7 +118,7 @@ class ContextStage:
 
 
 class Settling(Protocol):
-    """What publishes the changes of answered calls (``machine_binding.Publisher``)."""
+    """What publishes the changes of answered calls (``uacell.ua.publisher.Publisher``)."""
 
     @property
     def pending(self) -> bool: ...

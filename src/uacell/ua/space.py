@@ -12,7 +12,8 @@ from asyncua import Node, Server, ua
 from asyncua.server.address_space import AddressSpace
 
 from uacell.fsm import StateMachine
-from uacell.ua.machine_binding import NodeRefs, Publisher, StateMachineBinding, bind_tree
+from uacell.ua.machine_binding import NodeRefs, StateMachineBinding, bind_tree
+from uacell.ua.publisher import Publisher
 from uacell.ua.toolkit import EventEmitter
 
 

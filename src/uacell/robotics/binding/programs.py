@@ -12,8 +12,8 @@ from asyncua import ua
 from uacell.errors import CallError
 from uacell.robotics.binding.shared import ControllerBinding
 from uacell.robotics.equipment import AxisInfo, ProgramCatalogue
-from uacell.robotics.model import PROGRAM_SUFFIX, DirectoryLibrary
 from uacell.robotics.program import AXIS_COUNT, samples, wave_program
+from uacell.robotics.program_cache import PROGRAM_SUFFIX, DirectoryLibrary
 from uacell.ua.file_directory import FileDirectoryBinding
 from uacell.ua.file_store import FileStore
 
