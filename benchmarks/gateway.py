@@ -30,16 +30,12 @@ import argparse
 import asyncio
 import contextlib
 import shutil
-import subprocess
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from benchmarks.plant import percentile
-
-if TYPE_CHECKING:
-    from benchmarks.__main__ import Peer, Peers, Report
+from benchmarks.harness import Peers, Report, free_port, percentile, process, served, text_of, until
 
 ROOT = Path(__file__).resolve().parent.parent
 UNITS = 50
@@ -66,7 +62,6 @@ PATHS = {
 
 
 def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
-    from benchmarks.__main__ import free_port
 
     if shutil.which("node") is None:
         print("== gateway: skipped, node is not installed", flush=True)
@@ -76,18 +71,18 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
     plc_port = free_port()
     units = [f"U{i}" for i in range(1, UNITS + 1)]
     plc_cmd = ["node", str(ROOT / "interop" / "plc_packtags.js"), str(plc_port), ",".join(units), "200"]
-    with _process(plc_cmd, ROOT / "interop", ready="listening"):
+    with process(plc_cmd, ROOT / "interop", ready="listening"):
         endpoint = f"opc.tcp://127.0.0.1:{plc_port}/"
         text = "".join(
             f'[[packml_units]]\nname = "{u}"\nequipment = {{ driver = "opcua-packtags", '
             f'endpoint = "{endpoint}", prefix = "ns=1;s={u}.PackTags" }}\n\n'
             for u in units
         )
-        with _served(peers, "gateway", text) as server:
+        with served(peers, "gateway", text) as server:
             raw = asyncio.run(_measure(server.endpoint, endpoint, rounds))
         # the same PLC polled instead: one Read of every watched tag each POLL_INTERVAL
         poll_text = text.replace('PackTags" }', f'PackTags", mode = "poll", interval = {POLL_INTERVAL} }}')
-        with _served(peers, "gateway-poll", poll_text) as server:
+        with served(peers, "gateway-poll", poll_text) as server:
             raw["poll_mirror_ms"] = asyncio.run(_measure_poll_mirror(server.endpoint, endpoint, rounds))
     report.raw["gateway"] = raw
     bare = raw["bare_mirror_ms"]
@@ -145,17 +140,15 @@ def modbus_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
     """The Modbus PackML part (module doc): the example Modbus PLC, units in the default layout."""
     import sys
 
-    from benchmarks.__main__ import free_port
-
     plc_port = free_port()
     cmd = [sys.executable, "-m", "uacell.gateway.examples.packtags_plc", "--port", str(plc_port)]
-    with _process([*cmd, "--units", str(MODBUS_UNITS), "--acting", "0.2"], ROOT, ready="listening"):
+    with process([*cmd, "--units", str(MODBUS_UNITS), "--acting", "0.2"], ROOT, ready="listening"):
         text = "".join(
             f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "modbus-packtags", host = "127.0.0.1", '
             f"port = {plc_port}, base = {100 * i}, interval = {MODBUS_POLL} }}\n\n"
             for i in range(MODBUS_UNITS)
         )
-        with _served(peers, "modbus-gateway", text) as server:
+        with served(peers, "modbus-gateway", text) as server:
             raw = asyncio.run(_measure_polled(server.endpoint, _ModbusProbe(plc_port), rounds))
     report.raw["gateway_modbus"] = raw
     _latency_rows(
@@ -179,17 +172,15 @@ def s7_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
     """The S7 PackML part: the example S7 PLC (snap7's server), units from byte 200 * i of DB 1."""
     import sys
 
-    from benchmarks.__main__ import free_port
-
     plc_port = free_port()
     cmd = [sys.executable, "-m", "uacell.gateway.examples.s7_plc", "--port", str(plc_port)]
-    with _process([*cmd, "--units", str(S7_UNITS), "--acting", "0.2"], ROOT, ready="listening"):
+    with process([*cmd, "--units", str(S7_UNITS), "--acting", "0.2"], ROOT, ready="listening"):
         text = "".join(
             f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "s7-packtags", host = "127.0.0.1", '
             f"port = {plc_port}, db = 1, start = {200 * i}, interval = {S7_POLL} }}\n\n"
             for i in range(S7_UNITS)
         )
-        with _served(peers, "s7-gateway", text) as server:
+        with served(peers, "s7-gateway", text) as server:
             raw = asyncio.run(_measure_polled(server.endpoint, _S7Probe(plc_port), rounds))
     report.raw["gateway_s7"] = raw
     _latency_rows(
@@ -209,12 +200,10 @@ def logix_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
     """The Logix PackML part: the example controller (cpppo's simulator), units M0..M3 by name."""
     import sys
 
-    from benchmarks.__main__ import free_port
-
     plc_port = free_port()
     names = ",".join(f"M{i}" for i in range(S7_UNITS))
     cmd = [sys.executable, "-m", "uacell.gateway.examples.logix_plc", "--port", str(plc_port), "--units", names]
-    with _process([*cmd, "--acting", "0.2"], ROOT, ready="listening"):
+    with process([*cmd, "--acting", "0.2"], ROOT, ready="listening"):
         maps = ", ".join(f'"Command.Parameter[{j}].Value" = "{{u}}_Parameter[{j}]"' for j in range(5))
         text = "".join(
             f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "logix-packtags", host = "127.0.0.1", '
@@ -222,7 +211,7 @@ def logix_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
             f"map = {{ {maps.format(u=f'M{i}')} }} }}\n\n"
             for i in range(S7_UNITS)
         )
-        with _served(peers, "logix-gateway", text) as server:
+        with served(peers, "logix-gateway", text) as server:
             raw = asyncio.run(_measure_polled(server.endpoint, _LogixProbe(plc_port), rounds))
     report.raw["gateway_logix"] = raw
     _latency_rows(
@@ -247,14 +236,13 @@ def robot_section(report: Report, peers: Peers, rounds: int) -> None:
     """The robot part (module doc): the example controller and the shipped cell, nothing else."""
     import sys
 
-    from benchmarks.__main__ import free_port
     from uacell.cell_file import builtin_cell_path
 
     ctrl_port = free_port()
     ctrl_cmd = [sys.executable, "-m", "uacell.gateway.examples.robot_controller", "--port", str(ctrl_port)]
-    with _process([*ctrl_cmd, "--cycle", "0.3"], ROOT):
+    with process([*ctrl_cmd, "--cycle", "0.3"], ROOT):
         text = builtin_cell_path("modbus-robot").read_text().replace("port = 5020", f"port = {ctrl_port}")
-        with _served(peers, "robot-gateway", text.replace("unit = 1 }", f"unit = 1, poll = {ROBOT_POLL} }}")) as server:
+        with served(peers, "robot-gateway", text.replace("unit = 1 }", f"unit = 1, poll = {ROBOT_POLL} }}")) as server:
             raw = asyncio.run(_measure_robot(server.endpoint, ctrl_port, rounds))
     report.raw["gateway_robot"] = raw
     _latency_rows(
@@ -268,53 +256,6 @@ def robot_section(report: Report, peers: Peers, rounds: int) -> None:
         (ROBOT_POLL + 0.020) * 1000,
         rounds,
     )
-
-
-@contextlib.contextmanager
-def _process(cmd: list[str], cwd: Path, ready: str = "") -> Iterator[subprocess.Popen[str]]:
-    """A helper process (a PLC, a controller), stopped on the way out; ``ready``: the line it prints
-    once it serves."""
-    proc = subprocess.Popen(
-        cmd, cwd=cwd, stdout=subprocess.PIPE if ready else subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True
-    )
-    try:
-        if ready:
-            assert proc.stdout is not None
-            for line in proc.stdout:
-                if line.strip() == ready:
-                    break
-        yield proc
-    finally:
-        proc.terminate()
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            proc.wait(10)
-        if proc.poll() is None:
-            proc.kill()
-
-
-@contextlib.contextmanager
-def _served(peers: Peers, name: str, cell_text: str) -> Iterator[Peer]:
-    """A uacell peer serving ``cell_text`` (a cell file's content), stopped on the way out."""
-    import sys
-
-    from benchmarks.__main__ import Peer, free_port
-
-    cell = peers.tmp / f"{name}.toml"
-    cell.write_text(cell_text)
-    port = free_port()
-    cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", str(cell)]
-    cmd += ["--data-dir", str(peers.tmp / f"{name}-data"), "--cache-dir", str(peers.tmp / f"{name}-cache")]
-    server = Peer(f"uacell {name} cell", cmd, port=port).start()
-    try:
-        # a first start writes its address-space snapshot in a thread beside the loop: measure after it
-        from uacell.ua.snapshot import PREFIX, SUFFIX
-
-        deadline = time.monotonic() + 60
-        while not any((peers.tmp / f"{name}-cache").glob(f"{PREFIX}*{SUFFIX}")) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        yield server
-    finally:
-        server.stop()
 
 
 def _latency_rows(
@@ -378,13 +319,13 @@ async def _measure_robot(uacell_endpoint: str, ctrl_port: int, rounds: int) -> d
                         arrived.append((time.perf_counter(), val.Text or ""))
 
             assert await call(SYSTEM, "GetReady") == 0
-            await _until(lambda: _text(client, ns, SYSTEM), "Ready")
+            await until(lambda: text_of(client, ns, SYSTEM), "Ready")
             assert await call(TASK_CONTROL, "LoadByName", ua.Variant("pick_and_place", ua.VariantType.String)) == 0
             sub = await client.create_subscription(0, Handler())
             await sub.subscribe_data_change(client.get_node(ua.NodeId(f"{TASK_CONTROL}.CurrentState", ns)))
             await asyncio.sleep(0.2)  # the subscription's first notification (the current state) is not a round's
             for _ in range(rounds):
-                await _until(lambda: _text(client, ns, TASK_CONTROL), "Ready")
+                await until(lambda: text_of(client, ns, TASK_CONTROL), "Ready")
                 arrived.clear()
                 t0 = time.perf_counter()
                 start = asyncio.ensure_future(call(TASK_CONTROL, "Start"))
@@ -518,9 +459,9 @@ async def _measure_polled(uacell_endpoint: str, plc: Any, rounds: int) -> dict[s
                 t0 = time.perf_counter()
                 assert (await call(1, "MachineState", "Reset")).is_good()
                 raw["command_ms"].append((await until_plc(1, 2, leaves=True) - t0) * 1000)
-                await _until(lambda: _text(client, ns, machine(1, "ExecuteState")), "Idle")
+                await until(lambda: text_of(client, ns, machine(1, "ExecuteState")), "Idle")
                 assert (await call(1, "MachineState", "Stop")).is_good()
-                await _until(lambda: _text(client, ns, machine(1, "MachineState")), "Stopped")
+                await until(lambda: text_of(client, ns, machine(1, "MachineState")), "Stopped")
 
             arrived: list[tuple[float, str]] = []
 
@@ -542,28 +483,13 @@ async def _measure_polled(uacell_endpoint: str, plc: Any, rounds: int) -> dict[s
                 seen = next((at for at, t in arrived if t == "Resetting"), None)
                 if seen is not None:
                     raw["mirror_ms"].append(max(0.0, seen - changed) * 1000)
-                await _until(lambda: _text(client, ns, machine(3, "ExecuteState")), "Idle")
+                await until(lambda: text_of(client, ns, machine(3, "ExecuteState")), "Idle")
                 assert (await call(3, "MachineState", "Stop")).is_good()
-                await _until(lambda: _text(client, ns, machine(3, "MachineState")), "Stopped")
+                await until(lambda: text_of(client, ns, machine(3, "MachineState")), "Stopped")
             await sub.delete()
     finally:
         await plc.close()
     return raw
-
-
-async def _text(client: Any, ns: int, machine: str) -> str:
-    from asyncua import ua
-
-    value = await client.get_node(ua.NodeId(f"{machine}.CurrentState", ns)).read_value()
-    return str(value.Text)
-
-
-async def _until(read: Any, wanted: str, timeout: float = 10.0) -> None:
-    limit = time.perf_counter() + timeout
-    while await read() != wanted:
-        if time.perf_counter() > limit:
-            raise TimeoutError(f"waited for {wanted}")
-        await asyncio.sleep(0.005)
 
 
 class _Rig:

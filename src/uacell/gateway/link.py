@@ -13,7 +13,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from typing import Any, Protocol
 
-from uacell.gateway.modbus import CommunicationError, NoAnswer
+from uacell.gateway.errors import CommunicationError, NoAnswer
 
 log = logging.getLogger(__name__)
 

@@ -18,6 +18,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from uacell.gateway.codec import RegisterType
+from uacell.gateway.errors import CommunicationError, NoAnswer
 from uacell.logs import quiet_expected
 
 TABLES = ("coil", "discrete", "holding", "input")
@@ -55,15 +56,6 @@ class _PymodbusLost:
 def quiet_pymodbus() -> None:
     """pymodbus's records of a lost server become DEBUG lines (``uacell.logs.ExpectedFaults``)."""
     quiet_expected("plc-lost", ("pymodbus.logging",), _PymodbusLost())
-
-
-class CommunicationError(Exception):
-    """The endpoint did not answer or answered with an error (message names the endpoint)."""
-
-
-class NoAnswer(CommunicationError):
-    """The endpoint did not answer at all (gone, frozen or out of reach): the connection is lost, not
-    a request refused."""
 
 
 @dataclass(frozen=True)

@@ -16,8 +16,9 @@ from typing import Any
 
 from uacell.errors import CallError
 from uacell.gateway.codec import RegisterType
+from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Write
-from uacell.gateway.modbus import SHARED, CommunicationError, ModbusConnection, ModbusTag, spans
+from uacell.gateway.modbus import SHARED, ModbusConnection, ModbusTag, spans
 from uacell.gateway.signals import DEFAULT_MAP, NAME_SIGNALS, SAFETY_SIGNALS, RobotStatus, SignalOp
 
 STATUS_SIGNALS = (

@@ -28,8 +28,8 @@ from typing import Any
 
 from asyncua import Client, ua
 
+from uacell.gateway.errors import CommunicationError
 from uacell.gateway.link import FIRST_RETRY, LAST_RETRY, Listeners, StateListener, ValueListener, network_error
-from uacell.gateway.modbus import CommunicationError
 from uacell.logs import exception_of, quiet_expected
 from uacell.secret_file import SecretError, read_secret
 

@@ -24,8 +24,8 @@ from typing import Any
 
 from uacell.errors import CallError
 from uacell.gateway import driver_settings
+from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Write
-from uacell.gateway.modbus import CommunicationError
 from uacell.gateway.modbus_robot import STATUS_SIGNALS, UNITS
 from uacell.gateway.opcua_link import LINK_SETTINGS, LinkPool, PlcLink, link_options
 from uacell.gateway.robot import ModbusSignalsRobot, Timing, check_programs

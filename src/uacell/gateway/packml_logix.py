@@ -29,8 +29,8 @@ from typing import Any
 from pylogix import PLC
 
 from uacell.gateway import driver_settings, number, whole_number
+from uacell.gateway.errors import CommunicationError
 from uacell.gateway.link import PolledLink, SharedLinks
-from uacell.gateway.modbus import CommunicationError
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
 from uacell.gateway.packtags import PackTagsMapError, ResolvedTag, resolve
 

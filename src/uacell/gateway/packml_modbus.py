@@ -22,8 +22,9 @@ from typing import Any
 
 from uacell.gateway import driver_settings, number, whole_number
 from uacell.gateway.codec import CodecError, RegisterType
+from uacell.gateway.errors import CommunicationError
 from uacell.gateway.link import PolledLink
-from uacell.gateway.modbus import SHARED, CommunicationError, ModbusConnection, ModbusTag, endpoint_name, spans
+from uacell.gateway.modbus import SHARED, ModbusConnection, ModbusTag, endpoint_name, spans
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
 from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag
 

@@ -27,8 +27,8 @@ from snap7.async_client import AsyncClient
 from snap7.error import S7Error, S7ProtocolError
 
 from uacell.gateway import driver_settings, number, whole_number
+from uacell.gateway.errors import CommunicationError
 from uacell.gateway.link import PolledLink, SharedLinks
-from uacell.gateway.modbus import CommunicationError
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
 from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag
 from uacell.gateway.s7 import S7Address, S7AddressError, byte_spans, write_items, write_job, write_results

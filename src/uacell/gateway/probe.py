@@ -13,7 +13,8 @@ from typing import Any
 from asyncua import ua
 
 from uacell.cell_file import Part
-from uacell.gateway.modbus import CommunicationError, ModbusConnection, endpoint_name, shared_conflict
+from uacell.gateway.errors import CommunicationError, DashboardError
+from uacell.gateway.modbus import ModbusConnection, endpoint_name, shared_conflict
 from uacell.gateway.modbus_robot import parse_motion, signal_tags, used_tags
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
 from uacell.gateway.opcua_robot import robot_addresses
@@ -24,7 +25,7 @@ from uacell.gateway.packml_s7 import S7Connection
 from uacell.gateway.packml_s7 import where as s7_where
 from uacell.gateway.packtags import PackTagsMapError, resolve
 from uacell.gateway.s7 import S7Address
-from uacell.gateway.ur_link import JOINT_REGISTERS, STATE_REGISTERS, TURN_REGISTERS, Dashboard, DashboardError
+from uacell.gateway.ur_link import JOINT_REGISTERS, STATE_REGISTERS, TURN_REGISTERS, Dashboard
 
 MODBUS = "uacell.gateway.robot:modbus_signals"
 PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"

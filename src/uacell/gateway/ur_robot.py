@@ -28,7 +28,8 @@ from typing import Any
 
 from uacell.errors import CallError
 from uacell.gateway import driver_settings
-from uacell.gateway.modbus import SHARED, CommunicationError
+from uacell.gateway.errors import CommunicationError, DashboardError
+from uacell.gateway.modbus import SHARED
 from uacell.gateway.robot import program_key
 from uacell.gateway.ur_link import (
     EMERGENCY_MODES,
@@ -40,7 +41,6 @@ from uacell.gateway.ur_link import (
     SAFEGUARD_MODES,
     SAFETY_MODES,
     Dashboard,
-    DashboardError,
     URState,
     read_state,
 )

@@ -69,7 +69,12 @@ JOB_STATES = frozenset(
     {"Starting", "Execute", "Completing", "Holding", "Held", "Unholding", "Suspending", "Suspended", "Unsuspending"}
 )
 # StopReason.ID for a commanded stop: the ISA-TR88 command number (Stop 3, Hold 4, Suspend 6, Abort 8).
-STOP_COMMAND_IDS = {"Stop": 3, "Hold": 4, "Suspend": 6, "Abort": 8}
+# ISA-TR88.00.02's command numbers (PackTags Command.CntrlCmd; the gateway writes them)
+COMMAND_IDS = {
+    "Reset": 1, "Start": 2, "Stop": 3, "Hold": 4, "Unhold": 5, "Suspend": 6, "Unsuspend": 7, "Abort": 8, "Clear": 9,
+    "Complete": 10,
+}  # fmt: skip
+STOP_COMMAND_IDS = {k: COMMAND_IDS[k] for k in ("Stop", "Hold", "Suspend", "Abort")}
 TICK_GROUP = 10  # run_units lets the event loop run other work after every this many units
 STATE_COLUMNS = 18  # StateCurrentTime/StateCumulativeTime second index: TR88 state numbers 0..17
 INT32_WRAP = 2**31
