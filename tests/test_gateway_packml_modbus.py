@@ -190,7 +190,7 @@ async def test_a_full_cycle_goes_to_the_plc_and_comes_back(served, plc: ModbusPL
     from uacell.gateway.modbus import SHARED
     from uacell.gateway.packml_modbus import POOL
 
-    assert len(POOL._links) == 1 and len(SHARED._connections) == 1  # both units on one connection
+    assert len(POOL) == 1 and len(SHARED) == 1  # both units on one connection
     assert await plc.tag(0, "Status.StateCurrent") == 2  # Stopped
     assert await cell_state(client, MACH) == "Stopped"
     res = await call_path(client, MACH, "Reset")
@@ -366,7 +366,7 @@ async def test_fifty_units_on_one_modbus_connection(tmp_path: Path) -> None:
         config = fast_config(tmp_path / "data")
         config.cell = load_cell(path)
         async with serving(config) as (_app, client):
-            assert len(POOL._links) == 1 and len(SHARED._connections) == 1
+            assert len(POOL) == 1 and len(SHARED) == 1
 
             async def reset(i: int) -> str:
                 return str((await call_path(client, machines(f"U{i}")[1], "Reset")).StatusCode.name)

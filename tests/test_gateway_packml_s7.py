@@ -230,7 +230,7 @@ async def test_a_full_cycle_goes_to_the_plc_and_comes_back(served, plc: S7PLC) -
     _app, client = served
     from uacell.gateway.packml_s7 import POOL
 
-    assert len(POOL._links) == 1  # both units on one connection
+    assert len(POOL) == 1  # both units on one connection
     assert await plc.tag(0, "Status.StateCurrent") == 2  # Stopped
     assert await cell_state(client, MACH) == "Stopped"
     res = await call_path(client, MACH, "Reset")
@@ -384,7 +384,7 @@ def test_units_on_one_plc_must_agree_on_the_connection() -> None:
     def get(part: str, settings: dict[str, Any]) -> Any:
         w = where(part, {"host": "plc"} | settings)
         key = (w.host, w.port, w.rack, w.slot)
-        return pool.get(part, key, w.interval, w.timeout, lambda: S7TagLink(S7Connection(*key, w.timeout), w.interval))
+        return pool.link(part, key, w.interval, w.timeout, lambda: S7TagLink(S7Connection(*key, w.timeout), w.interval))
 
     first = get("Capper", {"start": 0})
     assert get("Labeler", {"start": 200}) is first

@@ -14,6 +14,7 @@ from collections.abc import Callable, Hashable, Mapping, Sequence
 from typing import Any, Protocol
 
 from uacell.gateway.errors import CommunicationError, NoAnswer
+from uacell.gateway.pool import SharedPool, unit_conflict
 
 log = logging.getLogger(__name__)
 
@@ -349,32 +350,14 @@ class PolledLink(Listeners, ABC):
                 self._deliver(address, value)
 
 
-class SharedLinks:
+class SharedLinks(SharedPool[Hashable, PolledLink]):
     """One ``PolledLink`` (one connection) per PLC, shared by its units: they must agree on the poll
     interval and the timeout (a ValueError names the part and the setting that differs)."""
 
     def __init__(self) -> None:
-        self._links: dict[Hashable, PolledLink] = {}
+        super().__init__(lambda link: link.close(), lambda link: link.endpoint, unit_conflict)
 
-    def get(
+    def link(
         self, part: str, key: Hashable, interval: float, timeout: float, make: Callable[[], PolledLink]
     ) -> PolledLink:
-        link = self._links.get(key)
-        if link is None:
-            link = self._links[key] = make()
-        else:
-            had = {"interval": link.interval, "timeout": getattr(link.conn, "timeout", timeout)}
-            for what, value in (("interval", interval), ("timeout", timeout)):
-                if had[what] != value:
-                    raise ValueError(
-                        f"{part}: {what}: another unit on {link.endpoint} set {had[what]}; "
-                        "units on one PLC share its connection and its settings"
-                    )
-        link.users += 1
-        return link
-
-    async def release(self, link: PolledLink) -> None:
-        link.users -= 1
-        if link.users <= 0:
-            self._links = {k: v for k, v in self._links.items() if v is not link}
-            await link.close()
+        return self.get(key, make, part, interval=interval, timeout=timeout)

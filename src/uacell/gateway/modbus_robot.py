@@ -8,7 +8,6 @@ A transport failure becomes ``CallError("BadCommunicationError")``; nothing is r
 from __future__ import annotations
 
 import asyncio
-import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -19,17 +18,14 @@ from uacell.gateway.codec import RegisterType
 from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Write
 from uacell.gateway.modbus import SHARED, ModbusConnection, ModbusTag, spans
-from uacell.gateway.signals import DEFAULT_MAP, NAME_SIGNALS, SAFETY_SIGNALS, RobotStatus, SignalOp
-
-STATUS_SIGNALS = (
-    "remote_ready",
-    "drives_are_on",
-    "running",
-    "program_end",
-    "at_start",
-    "fault",
-    "program_echo",
-    "fault_code",
+from uacell.gateway.signals import (
+    DEFAULT_MAP,
+    NAME_SIGNALS,
+    SAFETY_SIGNALS,
+    STATUS_SIGNALS,
+    UNITS,
+    RobotStatus,
+    SignalOp,
 )
 
 
@@ -52,9 +48,6 @@ def register_type(kind: str) -> RegisterType:
             raise ValueError(f"type {kind!r}: a string needs its length in registers, e.g. 'string:8'")
         return RegisterType("string", length=int(length))
     return RegisterType(kind)
-
-
-UNITS = {"deg": 1.0, "rad": 180.0 / math.pi, "mrad": 0.18 / math.pi}  # to degrees
 
 
 @dataclass(frozen=True)
@@ -146,7 +139,7 @@ class ModbusRobotIO:
         return self.conn.name
 
     async def close(self) -> None:
-        SHARED.release(self.conn)
+        await SHARED.release(self.conn)
 
     async def status(self) -> RobotStatus:
         """The controller's status now, in one read per block of adjacent registers; ``connected=False``

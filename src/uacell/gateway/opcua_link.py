@@ -30,6 +30,7 @@ from asyncua import Client, ua
 
 from uacell.gateway.errors import CommunicationError
 from uacell.gateway.link import FIRST_RETRY, LAST_RETRY, Listeners, StateListener, ValueListener, network_error
+from uacell.gateway.pool import SharedPool
 from uacell.logs import exception_of, quiet_expected
 from uacell.secret_file import SecretError, read_secret
 
@@ -427,21 +428,10 @@ def _application_uri(certificate: str) -> str | None:
     return uris[0] if uris else None
 
 
-class LinkPool:
+def link_pool() -> SharedPool[LinkOptions, PlcLink]:
     """Links shared per endpoint and options: fifty units on one PLC use one connection."""
+    return SharedPool(lambda link: link.close(), lambda link: link.endpoint)
 
-    def __init__(self) -> None:
-        self._links: dict[LinkOptions, PlcLink] = {}
 
-    def get(self, options: LinkOptions) -> PlcLink:
-        link = self._links.get(options)
-        if link is None:
-            link = self._links[options] = PlcLink(options)
-        link.users += 1
-        return link
-
-    async def release(self, link: PlcLink) -> None:
-        link.users -= 1
-        if link.users <= 0:
-            self._links.pop(link.options, None)
-            await link.close()
+def shared_link(pool: SharedPool[LinkOptions, PlcLink], options: LinkOptions, part: str = "") -> PlcLink:
+    return pool.get(options, lambda: PlcLink(options), part)

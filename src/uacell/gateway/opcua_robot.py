@@ -26,16 +26,23 @@ from uacell.errors import CallError
 from uacell.gateway import driver_settings
 from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Write
-from uacell.gateway.modbus_robot import STATUS_SIGNALS, UNITS
-from uacell.gateway.opcua_link import LINK_SETTINGS, LinkPool, PlcLink, link_options
-from uacell.gateway.robot import ModbusSignalsRobot, Timing, check_programs
-from uacell.gateway.signals import DEFAULT_MAP, NAME_SIGNALS, SAFETY_SIGNALS, RobotStatus, SignalOp
+from uacell.gateway.opcua_link import LINK_SETTINGS, PlcLink, link_options, link_pool, shared_link
+from uacell.gateway.signal_robot import ModbusSignalsRobot, Timing, check_programs
+from uacell.gateway.signals import (
+    DEFAULT_MAP,
+    NAME_SIGNALS,
+    SAFETY_SIGNALS,
+    STATUS_SIGNALS,
+    UNITS,
+    RobotStatus,
+    SignalOp,
+)
 from uacell.robotics.sim import DEFAULT_AXES
 
 SETTINGS = (
     *LINK_SETTINGS, "prefix", "map", "types", "programs", "confirm_timeout", "pulse_width", "pulse_gap", "motion",
 )  # fmt: skip
-POOL = LinkPool()
+POOL = link_pool()
 # the built-in types uacell writes the signals as (``types`` changes them, e.g. program_number = "UInt16")
 WRITE_TYPES = {"program_number": "Int32", "program_name": "String"}
 MOTION_KEYS = ("position", "speed", "scale", "speed_scale", "unit")
@@ -227,7 +234,7 @@ async def opcua_signals(spec: Any) -> ModbusSignalsRobot:
         pulse_gap=float(settings.get("pulse_gap", Timing.pulse_gap)),
     )
     io = OpcuaRobotIO(
-        POOL.get(options), addresses,
+        shared_link(POOL, options, spec.part), addresses,
         by_name=any(isinstance(v, str) for v in programs.values()),
         safety=tuple(k for k in SAFETY_SIGNALS if k in overrides),
         motion=motion, axes=len(axes), types={str(k): str(v) for k, v in dict(settings.get("types", {})).items()},

@@ -195,7 +195,7 @@ POOL = SharedLinks()  # one session per controller: host, port and slot
 async def logix_packtags(spec: Any) -> PackTagsUnit:
     """The equipment factory of the ``logix-packtags`` driver."""
     w = where(spec.part, spec.settings)
-    link = POOL.get(
+    link = POOL.link(
         spec.part,
         (w.host, w.port, w.slot),
         w.interval,

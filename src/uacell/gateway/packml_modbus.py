@@ -27,6 +27,7 @@ from uacell.gateway.link import PolledLink
 from uacell.gateway.modbus import SHARED, ModbusConnection, ModbusTag, endpoint_name, spans
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
 from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag
+from uacell.gateway.pool import SharedPool
 
 SETTINGS = ("host", "port", "unit", "base", "interval", "timeout", "byte_order", "word_order", *UNIT_SETTINGS)
 UNIT_REGISTERS = 100  # a unit's block of holding registers in the default layout
@@ -169,37 +170,25 @@ class ModbusTagLink(PolledLink):
 
     async def close(self) -> None:
         await super().close()
-        SHARED.release(self.conn)
+        await SHARED.release(self.conn)
 
 
 def _article(word: str) -> str:
     return "an" if word[0] in "aeiou" else "a"
 
 
-class ModbusLinkPool:
-    """One link per host, port and poll interval, on the process's shared connection to that PLC."""
-
-    def __init__(self) -> None:
-        self._links: dict[tuple[str, int, float], ModbusTagLink] = {}
-
-    def get(self, host: str, port: int, interval: float, timeout: float = 1.0, part: str = "") -> ModbusTagLink:
-        key = (host, port, interval)
-        link = self._links.get(key)
-        if link is None:
-            link = self._links[key] = ModbusTagLink(SHARED.get(host, port, timeout, part), interval)
-        else:
-            link.conn.check_shared(part, timeout)
-        link.users += 1
-        return link
-
-    async def release(self, link: ModbusTagLink) -> None:
-        link.users -= 1
-        if link.users <= 0:
-            self._links = {k: v for k, v in self._links.items() if v is not link}
-            await link.close()
+# one link per host, port and poll interval, on the process's shared connection to that PLC
+POOL: SharedPool[tuple[str, int, float], ModbusTagLink] = SharedPool(
+    lambda link: link.close(), lambda link: link.endpoint
+)
 
 
-POOL = ModbusLinkPool()
+def modbus_link(host: str, port: int, interval: float, timeout: float = 1.0, part: str = "") -> ModbusTagLink:
+    """The link a unit on ``host``:``port`` polls with; a ValueError if the connection has another timeout."""
+    SHARED.check((host, port), part, timeout=timeout)
+    return POOL.get(
+        (host, port, interval), lambda: ModbusTagLink(SHARED.connection(host, port, timeout, part), interval), part
+    )
 
 
 @dataclass(frozen=True)
@@ -248,5 +237,5 @@ def where(part: str, settings: Mapping[str, Any]) -> Where:
 async def modbus_packtags(spec: Any) -> PackTagsUnit:
     """The equipment factory of the ``modbus-packtags`` driver."""
     w = where(spec.part, spec.settings)
-    link = POOL.get(w.host, w.port, w.interval, w.timeout, spec.part)
+    link = modbus_link(w.host, w.port, w.interval, w.timeout, spec.part)
     return await start_unit(spec.part, link, w.tags, spec.settings, POOL.release)

@@ -266,7 +266,7 @@ def where(part: str, settings: Mapping[str, Any]) -> Where:
 async def s7_packtags(spec: Any) -> PackTagsUnit:
     """The equipment factory of the ``s7-packtags`` driver."""
     w = where(spec.part, spec.settings)
-    link = POOL.get(
+    link = POOL.link(
         spec.part,
         (w.host, w.port, w.rack, w.slot),
         w.interval,

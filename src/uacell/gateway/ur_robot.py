@@ -30,7 +30,7 @@ from uacell.errors import CallError
 from uacell.gateway import driver_settings
 from uacell.gateway.errors import CommunicationError, DashboardError
 from uacell.gateway.modbus import SHARED
-from uacell.gateway.robot import program_key
+from uacell.gateway.signal_robot import program_key
 from uacell.gateway.ur_link import (
     EMERGENCY_MODES,
     FAULT_MODES,
@@ -418,7 +418,7 @@ class URRobot:
                 task.cancel()
                 await asyncio.wait({task}, timeout=5.0)
         self.dashboard.close()
-        SHARED.release(self.modbus)
+        await SHARED.release(self.modbus)
 
 
 async def ur_dashboard(spec: Any) -> URRobot:
@@ -435,7 +435,7 @@ async def ur_dashboard(spec: Any) -> URRobot:
     )
     programs = dict(settings.get("programs", {}))
     dashboard = Dashboard(host, int(settings.get("port", 29999)), timeout)
-    modbus = SHARED.get(host, int(settings.get("modbus_port", 502)), timeout)
+    modbus = SHARED.connection(host, int(settings.get("modbus_port", 502)), timeout, spec.part)
     axes = tuple(getattr(spec, "axes", ())) or DEFAULT_AXES
     robot = URRobot(spec.part, dashboard, modbus, int(settings.get("unit", 1)), programs, axes, timing)
     await robot.start()  # unreachable at start: uacell serves anyway, the part reports it
