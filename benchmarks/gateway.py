@@ -31,7 +31,8 @@ import asyncio
 import contextlib
 import shutil
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -118,9 +119,8 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
         "all (1.0x)",
         lambda x: x >= 1.0,
     )
-    modbus_packtags_section(report, peers, rounds // 2)
-    s7_packtags_section(report, peers, rounds // 2)
-    logix_packtags_section(report, peers, max(3, rounds // 4))  # cpppo's simulator: about 40 ms a request
+    for part in POLLED:
+        polled_section(report, peers, part, part.rounds(rounds))
     _latency_rows(
         report,
         raw,
@@ -132,97 +132,74 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
     robot_section(report, peers, rounds // 2)
 
 
-MODBUS_POLL = 0.02  # the modbus-packtags driver's poll in the Modbus PackML part
-MODBUS_UNITS = 10
+@dataclass(frozen=True)
+class PolledPart:
+    """One part of the gateway section whose PLC the driver polls: the example PLC to start, the
+    cell's units on it, the test's own look into the PLC, and the report rows."""
+
+    name: str  # "Modbus", "S7", "Logix": the rows' prefix, the peer's and the figures' names
+    example: str  # the example PLC's module (uacell.gateway.examples.<example>)
+    plc_args: Callable[[int], list[str]]  # its arguments besides --port, for this many units
+    unit: Callable[[int, int], str]  # (i, PLC port) -> unit Mi's equipment table in the cell file
+    probe: Callable[[int], Any]  # PLC port -> the test's own connection to it
+    units: int
+    rounds: Callable[[int], int]  # the section's rounds -> this part's
+    reference: str  # what the latency is measured against
+    note: str = ""
 
 
-def modbus_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
-    """The Modbus PackML part (module doc): the example Modbus PLC, units in the default layout."""
+POLL = 0.02  # every polled driver's poll interval in its part
+_LOGIX_MAP = ", ".join(f'"Command.Parameter[{j}].Value" = "{{u}}_Parameter[{j}]"' for j in range(5))
+POLLED = (
+    PolledPart(
+        "Modbus", "packtags_plc",
+        lambda n: ["--units", str(n), "--acting", "0.2"],
+        lambda i, port: f'driver = "modbus-packtags", host = "127.0.0.1", port = {port}, base = {100 * i}',
+        lambda port: _ModbusProbe(port), 10, lambda r: r // 2, "Modbus poll",
+    ),
+    PolledPart(
+        "S7", "s7_plc",
+        lambda n: ["--units", str(n), "--acting", "0.2"],
+        lambda i, port: f'driver = "s7-packtags", host = "127.0.0.1", port = {port}, db = 1, start = {200 * i}',
+        lambda port: _S7Probe(port), 4, lambda r: r // 2, "S7 poll",
+    ),
+    PolledPart(
+        "Logix", "logix_plc",
+        lambda n: ["--units", ",".join(f"M{i}" for i in range(n)), "--acting", "0.2"],
+        lambda i, port: (
+            f'driver = "logix-packtags", host = "127.0.0.1", port = {port}, prefix = "M{i}", confirm_timeout = 10.0, '
+            f"map = {{ {_LOGIX_MAP.format(u=f'M{i}')} }}"
+        ),
+        lambda port: _LogixProbe(port), 4, lambda r: max(3, r // 4),  # cpppo's simulator: about 40 ms a request
+        "EtherNet/IP poll", " (cpppo's simulator)",
+    ),
+)  # fmt: skip
+
+
+def polled_section(report: Report, peers: Peers, part: PolledPart, rounds: int) -> None:
+    """One polled part (module doc): the example PLC, ``part.units`` units M0.. on it, polled every POLL."""
     import sys
 
     plc_port = free_port()
-    cmd = [sys.executable, "-m", "uacell.gateway.examples.packtags_plc", "--port", str(plc_port)]
-    with process([*cmd, "--units", str(MODBUS_UNITS), "--acting", "0.2"], ROOT, ready="listening"):
+    cmd = [sys.executable, "-m", f"uacell.gateway.examples.{part.example}", "--port", str(plc_port)]
+    with process([*cmd, *part.plc_args(part.units)], ROOT, ready="listening"):
         text = "".join(
-            f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "modbus-packtags", host = "127.0.0.1", '
-            f"port = {plc_port}, base = {100 * i}, interval = {MODBUS_POLL} }}\n\n"
-            for i in range(MODBUS_UNITS)
+            f'[[packml_units]]\nname = "M{i}"\nequipment = {{ {part.unit(i, plc_port)}, interval = {POLL} }}\n\n'
+            for i in range(part.units)
         )
-        with served(peers, "modbus-gateway", text) as server:
-            raw = asyncio.run(_measure_polled(server.endpoint, _ModbusProbe(plc_port), rounds))
-    report.raw["gateway_modbus"] = raw
+        with served(peers, f"{part.name.lower()}-gateway", text) as server:
+            raw = asyncio.run(_measure_polled(server.endpoint, lambda: part.probe(plc_port), rounds))
+    report.raw[f"gateway_{part.name.lower()}"] = raw
     _latency_rows(
         report,
         raw,
         (
-            ("Modbus PackML command round trip (call -> the PLC sees it)", "command_ms"),
-            ("Modbus PackML mirror latency (PLC -> client)", "mirror_ms"),
+            (f"{part.name} PackML command round trip (call -> the PLC sees it)", "command_ms"),
+            (f"{part.name} PackML mirror latency (PLC -> client)", "mirror_ms"),
         ),
-        f"Modbus poll {MODBUS_POLL * 1000:.0f} ms, {MODBUS_UNITS} units",
-        (MODBUS_POLL + 0.020) * 1000,
-        rounds,
-    )
-
-
-S7_POLL = 0.02  # the s7-packtags and logix-packtags drivers' poll in their parts
-S7_UNITS = 4
-
-
-def s7_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
-    """The S7 PackML part: the example S7 PLC (snap7's server), units from byte 200 * i of DB 1."""
-    import sys
-
-    plc_port = free_port()
-    cmd = [sys.executable, "-m", "uacell.gateway.examples.s7_plc", "--port", str(plc_port)]
-    with process([*cmd, "--units", str(S7_UNITS), "--acting", "0.2"], ROOT, ready="listening"):
-        text = "".join(
-            f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "s7-packtags", host = "127.0.0.1", '
-            f"port = {plc_port}, db = 1, start = {200 * i}, interval = {S7_POLL} }}\n\n"
-            for i in range(S7_UNITS)
-        )
-        with served(peers, "s7-gateway", text) as server:
-            raw = asyncio.run(_measure_polled(server.endpoint, _S7Probe(plc_port), rounds))
-    report.raw["gateway_s7"] = raw
-    _latency_rows(
-        report,
-        raw,
-        (
-            ("S7 PackML command round trip (call -> the PLC sees it)", "command_ms"),
-            ("S7 PackML mirror latency (PLC -> client)", "mirror_ms"),
-        ),
-        f"S7 poll {S7_POLL * 1000:.0f} ms, {S7_UNITS} units",
-        (S7_POLL + 0.020) * 1000,
-        rounds,
-    )
-
-
-def logix_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
-    """The Logix PackML part: the example controller (cpppo's simulator), units M0..M3 by name."""
-    import sys
-
-    plc_port = free_port()
-    names = ",".join(f"M{i}" for i in range(S7_UNITS))
-    cmd = [sys.executable, "-m", "uacell.gateway.examples.logix_plc", "--port", str(plc_port), "--units", names]
-    with process([*cmd, "--acting", "0.2"], ROOT, ready="listening"):
-        maps = ", ".join(f'"Command.Parameter[{j}].Value" = "{{u}}_Parameter[{j}]"' for j in range(5))
-        text = "".join(
-            f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "logix-packtags", host = "127.0.0.1", '
-            f'port = {plc_port}, prefix = "M{i}", interval = {S7_POLL}, confirm_timeout = 10.0, '
-            f"map = {{ {maps.format(u=f'M{i}')} }} }}\n\n"
-            for i in range(S7_UNITS)
-        )
-        with served(peers, "logix-gateway", text) as server:
-            raw = asyncio.run(_measure_polled(server.endpoint, _LogixProbe(plc_port), rounds))
-    report.raw["gateway_logix"] = raw
-    _latency_rows(
-        report,
-        raw,
-        (
-            ("Logix PackML command round trip (call -> the PLC sees it)", "command_ms"),
-            ("Logix PackML mirror latency (PLC -> client)", "mirror_ms"),
-        ),
-        f"EtherNet/IP poll {S7_POLL * 1000:.0f} ms, {S7_UNITS} units (cpppo's simulator)",
-        (S7_POLL + 0.020) * 1000,
+        f"{part.reference} {POLL * 1000:.0f} ms, {part.units} units"
+        + (" (cpppo's simulator)" if part.name == "Logix" else ""),
+        (POLL + 0.020) * 1000,
         rounds,
     )
 
@@ -422,15 +399,16 @@ class _LogixProbe:
         await asyncio.to_thread(self.conn.close)
 
 
-async def _measure_polled(uacell_endpoint: str, plc: Any, rounds: int) -> dict[str, Any]:
+async def _measure_polled(uacell_endpoint: str, probe: Callable[[], Any], rounds: int) -> dict[str, Any]:
     """Command round trip on M1 and mirror latency on M3 (its command written straight to the PLC),
-    the PLC read by the test's own connection every 2 ms."""
+    the PLC read by the test's own connection (``probe()``, made on the loop) every 2 ms."""
     import logging
 
     from asyncua import Client, ua
 
     logging.getLogger("asyncua").setLevel(logging.ERROR)
     raw: dict[str, Any] = {"command_ms": [], "mirror_ms": []}
+    plc = probe()  # pymodbus's client wants the running loop
     await plc.open()
 
     async def until_plc(unit: int, state: int, leaves: bool = False, timeout: float = 10.0) -> float:

@@ -7,7 +7,6 @@ A transport failure becomes ``CallError("BadCommunicationError")``; nothing is r
 
 from __future__ import annotations
 
-import asyncio
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -18,6 +17,7 @@ from uacell.gateway.codec import RegisterType
 from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Write
 from uacell.gateway.modbus import SHARED, ModbusConnection, ModbusTag, spans
+from uacell.gateway.signal_robot import perform
 from uacell.gateway.signals import (
     DEFAULT_MAP,
     NAME_SIGNALS,
@@ -187,15 +187,4 @@ class ModbusRobotIO:
 
     async def perform(self, op: SignalOp) -> None:
         """Write ``op``, wait for its confirmation; CallError with the op's code when it fails."""
-        try:
-            await self._write(op.writes)
-            try:
-                while True:
-                    await self._write(op.pulse_end(self.clock()))
-                    if op.observe(await self.status(), self.clock()):
-                        return
-                    await asyncio.sleep(self.poll)
-            finally:
-                await self._write(op.pulse_end(float("inf")) if op.done else ())
-        except CommunicationError as exc:
-            raise CallError("BadCommunicationError", f"{op.name}: {exc}") from None
+        await perform(op, self._write, self.status, self.poll, self.clock)

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from uacell.gateway import driver_settings
+from uacell.gateway import DriverSettings
 from uacell.gateway.modbus import SHARED
 from uacell.gateway.modbus_robot import ModbusRobotIO, parse_motion, signal_tags
 from uacell.gateway.signal_robot import ModbusSignalsRobot, Timing, check_programs, program_key
@@ -48,23 +48,16 @@ POOL = SHARED  # connections shared by every part of the process, per host and p
 
 async def modbus_signals(spec: Any) -> ModbusSignalsRobot:
     """The equipment factory of the ``modbus-signals`` driver (``spec``: a ControllerEquipmentSpec)."""
-    settings = driver_settings("modbus-signals", spec.settings, SETTINGS)
-    host = settings.get("host")
-    if not isinstance(host, str) or not host:
-        raise ValueError('the modbus-signals driver needs host = "<address of the controller or PLC>"')
+    settings = DriverSettings("modbus-signals", spec.part, spec.settings, SETTINGS)
+    host = settings.host("the controller or PLC")
     port, unit = int(settings.get("port", 502)), int(settings.get("unit", 1))
     programs = check_programs(settings.get("programs", {}))
     overrides = {k: (str(v[0]), int(v[1]), str(v[2])) for k, v in dict(settings.get("map", {})).items()}
     tags = signal_tags(overrides)
-    motion = parse_motion(settings["motion"]) if "motion" in settings else None
+    motion = parse_motion(settings.get("motion")) if "motion" in settings else None
     axes = tuple(getattr(spec, "axes", ())) or DEFAULT_AXES
-    timing = Timing(
-        poll=float(settings.get("poll", Timing.poll)),
-        confirm_timeout=float(settings.get("confirm_timeout", Timing.confirm_timeout)),
-        pulse_width=float(settings.get("pulse_width", Timing.pulse_width)),
-        pulse_gap=float(settings.get("pulse_gap", Timing.pulse_gap)),
-    )
-    conn = POOL.connection(host, port, float(settings.get("timeout", 1.0)), spec.part)
+    timing = Timing(**settings.reals(Timing, "poll", "confirm_timeout", "pulse_width", "pulse_gap"))
+    conn = POOL.connection(host, port, settings.real("timeout", 1.0), spec.part)
     by_name = any(isinstance(v, str) for v in programs.values())
     safety = tuple(k for k in SAFETY_SIGNALS if k in overrides)
     io = ModbusRobotIO(

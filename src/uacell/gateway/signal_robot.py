@@ -10,35 +10,22 @@ import asyncio
 import logging
 import re
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 from uacell.errors import CallError
+from uacell.gateway.errors import CommunicationError
+from uacell.gateway.handshake import Write
+from uacell.gateway.retry import keep_trying, poll_backoff
 from uacell.gateway.signals import RobotStatus, SignalOp, start_missing
-from uacell.robotics.equipment import (
-    AlarmListener,
-    AlarmStop,
-    AxisInfo,
-    AxisState,
-    EquipmentError,
-    ExecutionMode,
-    NotPowered,
-    ProgramRejected,
-    Progress,
-    RunOutcome,
-    SafetyReport,
-    StartRefused,
-    StopMode,
-    UnknownProgram,
-)
+from uacell.robotics import equipment as eq
 from uacell.robotics.program import Kind, Program
 
 log = logging.getLogger(__name__)
 
 FAULT, COMMUNICATION = "ControllerFault", "CommunicationLost"
 ESTOP, PSTOP = "EmergencyStop", "ProtectiveStop"  # conditions, when their signals are mapped
-MAX_BACKOFF = 2.0
 
 
 def program_key(name: str) -> str:
@@ -52,6 +39,30 @@ class Timing:
     confirm_timeout: float = 5.0  # seconds a handshake may take
     pulse_width: float = 0.2  # seconds a pulse stays set (at most; it ends once confirmed)
     pulse_gap: float = 0.05  # seconds a pulse signal stays low before it is set again
+
+
+async def perform(
+    op: SignalOp,
+    write: Callable[[tuple[Write, ...]], Awaitable[None]],
+    status: Callable[[], Awaitable[RobotStatus]],
+    poll: float,
+    clock: Callable[[], float],
+) -> None:
+    """Run a signal operation over a transport: ``op``'s writes, then status reads every ``poll`` until
+    it is confirmed (pulse ends written on the way, and at the end); CallError with the op's code when
+    it fails, Bad_CommunicationError when the transport does."""
+    try:
+        await write(op.writes)
+        try:
+            while True:
+                await write(op.pulse_end(clock()))
+                if op.observe(await status(), clock()):
+                    return
+                await asyncio.sleep(poll)
+        finally:
+            await write(op.pulse_end(float("inf")) if op.done else ())
+    except CommunicationError as exc:
+        raise CallError("BadCommunicationError", f"{op.name}: {exc}") from None
 
 
 class SignalIO(Protocol):
@@ -83,14 +94,14 @@ class ModbusSignalsRobot:
         io: SignalIO,
         conn: object | None,
         programs: Mapping[str, int | str],
-        axes: Sequence[AxisInfo],
+        axes: Sequence[eq.AxisInfo],
         timing: Timing,
     ) -> None:
         self.part, self.io, self.conn, self.timing = part, io, conn, timing
         self.programs = {program_key(k): v for k, v in programs.items()}
         self._names = {program_key(k): k for k in programs}  # the configured spelling
         self._axes = tuple(axes)
-        self._listeners: list[AlarmListener] = []
+        self._listeners: list[eq.AlarmListener] = []
         self._power_listeners: list[Callable[[bool], None]] = []
         self._power_op = False  # uacell is switching the drives (GetReady / StandDown)
         self._begun: set[str] = set()  # tasks whose start the controller confirmed, run not yet watching
@@ -115,14 +126,14 @@ class ModbusSignalsRobot:
     # -- what the model reads ---------------------------------------------------------------------
 
     @property
-    def axes(self) -> Sequence[AxisInfo]:
+    def axes(self) -> Sequence[eq.AxisInfo]:
         return self._axes
 
     @property
     def alarm_names(self) -> Sequence[str]:
         return self._alarms
 
-    def add_alarm_listener(self, listener: AlarmListener) -> None:
+    def add_alarm_listener(self, listener: eq.AlarmListener) -> None:
         self._listeners.append(listener)
 
     def add_power_listener(self, listener: Callable[[bool], None]) -> None:
@@ -141,15 +152,15 @@ class ModbusSignalsRobot:
     async def select(self, task: str, name: str) -> None:
         selection = self.programs.get(program_key(name))
         if selection is None:
-            raise UnknownProgram(f"{name} is not in programs")
+            raise eq.UnknownProgram(f"{name} is not in programs")
         t = self.timing
         await self._perform(lambda s, now: SignalOp.load(selection, s, now, t.confirm_timeout, t.pulse_width))
 
-    def axis_states(self) -> Sequence[AxisState]:
+    def axis_states(self) -> Sequence[eq.AxisState]:
         """From the last status read: the mapped axis registers (``motion``), else 0."""
         positions, speeds = self.status.positions, self.status.speeds
         return [
-            AxisState(positions[i] if i < len(positions) else 0.0, speeds[i] if i < len(speeds) else 0.0)
+            eq.AxisState(positions[i] if i < len(positions) else 0.0, speeds[i] if i < len(speeds) else 0.0)
             for i in range(len(self._axes))
         ]
 
@@ -157,11 +168,11 @@ class ModbusSignalsRobot:
         if self.io.motion is not None:  # without mapped axes they never change: nothing to tell
             self._axis_listeners.append(listener)
 
-    def safety_report(self) -> SafetyReport | None:
+    def safety_report(self) -> eq.SafetyReport | None:
         if not self._reports_safety or not self.status.connected:
             return None
         s = self.status
-        return SafetyReport(s.operational_mode, s.emergency_stop, s.protective_stop)
+        return eq.SafetyReport(s.operational_mode, s.emergency_stop, s.protective_stop)
 
     def add_safety_listener(self, listener: Callable[[], None]) -> None:
         self._safety_listeners.append(listener)
@@ -174,14 +185,16 @@ class ModbusSignalsRobot:
         self._poller = asyncio.get_running_loop().create_task(self._poll(), name=f"{self.part} signals")
 
     async def _poll(self) -> None:
-        delay = self.timing.poll
-        while not self._closed:
-            await asyncio.sleep(delay)
-            status = await self.io.status()
-            self._observe(status)
-            read, self._read = self._read, asyncio.Event()
-            read.set()
-            delay = self.timing.poll if status.connected else min(MAX_BACKOFF, max(delay * 2, 0.1))
+        poll = self.timing.poll
+        await asyncio.sleep(poll)
+        await keep_trying(self._poll_once, first=poll_backoff(poll), pause=poll, closed=lambda: self._closed)
+
+    async def _poll_once(self) -> bool:
+        status = await self.io.status()
+        self._observe(status)
+        read, self._read = self._read, asyncio.Event()
+        read.set()
+        return status.connected
 
     async def _next_status(self) -> RobotStatus:
         """The status the poller reads next (at most ``poll`` plus a read from now)."""
@@ -299,7 +312,7 @@ class ModbusSignalsRobot:
             await self._perform(lambda s, now: SignalOp.drives(True, s, now, self.timing.confirm_timeout))
         except CallError as e:
             await self._drop_drives()  # not left asking for drives that did not come on
-            raise NotPowered(f"drives did not come on: {e}") from None
+            raise eq.NotPowered(f"drives did not come on: {e}") from None
         finally:
             self._power_op = False
 
@@ -308,7 +321,7 @@ class ModbusSignalsRobot:
         try:
             await self._perform(lambda s, now: SignalOp.drives(False, s, now, self.timing.confirm_timeout))
         except CallError as e:
-            raise EquipmentError(f"drives did not go off: {e}") from None
+            raise eq.EquipmentError(f"drives did not go off: {e}") from None
         finally:
             self._power_op = False
 
@@ -320,7 +333,7 @@ class ModbusSignalsRobot:
         selection = self.programs.get(program_key(program.name))
         if selection is None:
             known = ", ".join(self.program_names()) or "none"
-            raise ProgramRejected(
+            raise eq.ProgramRejected(
                 f"the controller takes no program files and holds no program {program.name}"
                 f" (no number or name for it in programs; it holds: {known})"
             )
@@ -332,18 +345,18 @@ class ModbusSignalsRobot:
         missing = [m for m in start_missing(self.status) if m not in ("no fault", "not running")]
         return "start needs " + ", ".join(missing) if missing and self.status.connected else None
 
-    async def begin(self, task: str, pointer: int, mode: ExecutionMode) -> None:
+    async def begin(self, task: str, pointer: int, mode: eq.ExecutionMode) -> None:
         """The start pulse, answered once ``running`` confirms it (ConfirmedStart). Refused at once,
-        nothing written: a fault (AlarmStop), anything else the start needs (StartRefused)."""
+        nothing written: a fault (eq.AlarmStop), anything else the start needs (eq.StartRefused)."""
         status = await self.io.status()
         self._observe(status)
         if not status.connected:
             raise CallError("BadCommunicationError", f"no answer from {self.io.name}")
         if status.fault:
-            raise AlarmStop(f"controller fault {status.fault_code}")
+            raise eq.AlarmStop(f"controller fault {status.fault_code}")
         missing = start_missing(status)
         if missing:
-            raise StartRefused("start needs " + ", ".join(missing))
+            raise eq.StartRefused("start needs " + ", ".join(missing))
         t = self.timing
         self._phase = "starting"
         try:
@@ -351,20 +364,20 @@ class ModbusSignalsRobot:
         except CallError as e:
             self._phase = None
             if e.status == "BadInvalidState":
-                raise AlarmStop(f"controller fault {self.status.fault_code} on start") from None
+                raise eq.AlarmStop(f"controller fault {self.status.fault_code} on start") from None
             raise
         self._begun.add(task)
 
     async def unload(self, task: str, name: str) -> None:
         return  # the selection stays on the controller until the next one
 
-    async def run(self, task: str, pointer: int, mode: ExecutionMode, progress: Progress) -> RunOutcome:
+    async def run(self, task: str, pointer: int, mode: eq.ExecutionMode, progress: eq.Progress) -> eq.RunOutcome:
         try:
             if task not in self._begun:  # called without ``begin`` (the conformance kit): start now
                 try:
                     await self.begin(task, pointer, mode)
                 except CallError as e:
-                    raise EquipmentError(f"the controller did not start: {e}") from None
+                    raise eq.EquipmentError(f"the controller did not start: {e}") from None
             self._begun.discard(task)
             self._phase = "running"
             if self._stop_requested:  # asked while the start was being confirmed: it applies to this run
@@ -372,21 +385,21 @@ class ModbusSignalsRobot:
             status = self.status
             while True:
                 if self._closed:
-                    raise EquipmentError("the driver was closed while the program ran")
+                    raise eq.EquipmentError("the driver was closed while the program ran")
                 if not status.connected:
-                    raise EquipmentError(f"lost the controller at {self.io.name} while it ran")
+                    raise eq.EquipmentError(f"lost the controller at {self.io.name} while it ran")
                 if status.fault:
-                    raise AlarmStop(f"controller fault {status.fault_code}")
+                    raise eq.AlarmStop(f"controller fault {status.fault_code}")
                 if not status.running:
                     if status.program_end and not self._stop_requested:
-                        return RunOutcome(0, completed=True)
-                    return RunOutcome(pointer, completed=False)
+                        return eq.RunOutcome(0, completed=True)
+                    return eq.RunOutcome(pointer, completed=False)
                 status = await self._next_status()  # the poller's next read: no request of its own
         finally:
             self._phase = None
             self._stop_requested = False
 
-    async def stop(self, task: str, mode: StopMode) -> None:
+    async def stop(self, task: str, mode: eq.StopMode) -> None:
         """Every stop mode is the controller's stop signal; a stop asked before the start was
         confirmed is sent once it is (``run`` sends it)."""
         self._stop_requested = True
@@ -400,7 +413,7 @@ class ModbusSignalsRobot:
         except CallError as e:
             if e.status == "BadInvalidState" and not self.status.running:
                 return  # it ended by itself meanwhile: the run reports how
-            raise EquipmentError(f"the controller did not stop: {e}") from None
+            raise eq.EquipmentError(f"the controller did not stop: {e}") from None
 
     async def close(self) -> None:
         self._closed = True
