@@ -20,6 +20,7 @@ async def keep_trying(
     last: float = LAST_RETRY,
     pause: float | None = None,
     closed: Callable[[], bool] = _never,
+    sleep: Callable[[float], Awaitable[None]] = asyncio.sleep,
 ) -> None:
     """Call ``attempt`` again and again until ``closed()`` (or the task is cancelled). After an attempt
     that reached the equipment (it returns True) the wait is ``pause`` when given (a poll that was
@@ -30,9 +31,9 @@ async def keep_trying(
         if await attempt():
             delay = first
             if pause is not None:
-                await asyncio.sleep(pause)
+                await sleep(pause)
                 continue
-        await asyncio.sleep(delay)
+        await sleep(delay)
         delay = min(delay * 2, last)
 
 
