@@ -42,7 +42,9 @@ class ExamplePLC:
         )
         assert self.proc.stdout is not None
         line = self.proc.stdout.readline()  # the PLC prints it once it serves (or ends: "")
-        assert line.strip() == "listening", line
+        if line.strip() != "listening":
+            self.kill()  # not left running (or its pipe open) when it did not come up
+            raise AssertionError(f"the example PLC {self.module} did not start: {line!r}")
 
     def kill(self) -> None:
         if self.proc is not None:
