@@ -129,8 +129,13 @@ class S7Connection:
     async def close(self) -> None:
         client, self._client = self._client, None
         if client is not None:
+            # snap7's stream: closed here too, so a disconnect cut short by the timeout (its drain
+            # cancelled) does not leave the socket open
+            writer = getattr(getattr(client, "connection", None), "_writer", None)
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(client.disconnect(), 1.0)
+            if writer is not None:
+                writer.close()
 
     async def read(self, db: int, start: int, count: int) -> bytearray:
         client = self._usable()
