@@ -52,7 +52,7 @@ mosquitto:
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -e '.[all,test]'  # every extra: the tests use them all
 	@touch $@
 
 models: $(STAMP)

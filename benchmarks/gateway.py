@@ -30,16 +30,13 @@ import argparse
 import asyncio
 import contextlib
 import shutil
-import subprocess
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from benchmarks.plant import percentile
-
-if TYPE_CHECKING:
-    from benchmarks.__main__ import Peer, Peers, Report
+from benchmarks.harness import Peers, Report, free_port, percentile, process, served, text_of, until
 
 ROOT = Path(__file__).resolve().parent.parent
 UNITS = 50
@@ -66,7 +63,6 @@ PATHS = {
 
 
 def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
-    from benchmarks.__main__ import free_port
 
     if shutil.which("node") is None:
         print("== gateway: skipped, node is not installed", flush=True)
@@ -76,18 +72,18 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
     plc_port = free_port()
     units = [f"U{i}" for i in range(1, UNITS + 1)]
     plc_cmd = ["node", str(ROOT / "interop" / "plc_packtags.js"), str(plc_port), ",".join(units), "200"]
-    with _process(plc_cmd, ROOT / "interop", ready="listening"):
+    with process(plc_cmd, ROOT / "interop", ready="listening"):
         endpoint = f"opc.tcp://127.0.0.1:{plc_port}/"
         text = "".join(
             f'[[packml_units]]\nname = "{u}"\nequipment = {{ driver = "opcua-packtags", '
             f'endpoint = "{endpoint}", prefix = "ns=1;s={u}.PackTags" }}\n\n'
             for u in units
         )
-        with _served(peers, "gateway", text) as server:
+        with served(peers, "gateway", text) as server:
             raw = asyncio.run(_measure(server.endpoint, endpoint, rounds))
         # the same PLC polled instead: one Read of every watched tag each POLL_INTERVAL
         poll_text = text.replace('PackTags" }', f'PackTags", mode = "poll", interval = {POLL_INTERVAL} }}')
-        with _served(peers, "gateway-poll", poll_text) as server:
+        with served(peers, "gateway-poll", poll_text) as server:
             raw["poll_mirror_ms"] = asyncio.run(_measure_poll_mirror(server.endpoint, endpoint, rounds))
     report.raw["gateway"] = raw
     bare = raw["bare_mirror_ms"]
@@ -123,9 +119,8 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
         "all (1.0x)",
         lambda x: x >= 1.0,
     )
-    modbus_packtags_section(report, peers, rounds // 2)
-    s7_packtags_section(report, peers, rounds // 2)
-    logix_packtags_section(report, peers, max(3, rounds // 4))  # cpppo's simulator: about 40 ms a request
+    for part in POLLED:
+        polled_section(report, peers, part, part.rounds(rounds))
     _latency_rows(
         report,
         raw,
@@ -137,103 +132,74 @@ def gateway_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
     robot_section(report, peers, rounds // 2)
 
 
-MODBUS_POLL = 0.02  # the modbus-packtags driver's poll in the Modbus PackML part
-MODBUS_UNITS = 10
+@dataclass(frozen=True)
+class PolledPart:
+    """One part of the gateway section whose PLC the driver polls: the example PLC to start, the
+    cell's units on it, the test's own look into the PLC, and the report rows."""
+
+    name: str  # "Modbus", "S7", "Logix": the rows' prefix, the peer's and the figures' names
+    example: str  # the example PLC's module (uacell.gateway.examples.<example>)
+    plc_args: Callable[[int], list[str]]  # its arguments besides --port, for this many units
+    unit: Callable[[int, int], str]  # (i, PLC port) -> unit Mi's equipment table in the cell file
+    probe: Callable[[int], Any]  # PLC port -> the test's own connection to it
+    units: int
+    rounds: Callable[[int], int]  # the section's rounds -> this part's
+    reference: str  # what the latency is measured against
+    note: str = ""
 
 
-def modbus_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
-    """The Modbus PackML part (module doc): the example Modbus PLC, units in the default layout."""
+POLL = 0.02  # every polled driver's poll interval in its part
+_LOGIX_MAP = ", ".join(f'"Command.Parameter[{j}].Value" = "{{u}}_Parameter[{j}]"' for j in range(5))
+POLLED = (
+    PolledPart(
+        "Modbus", "packtags_plc",
+        lambda n: ["--units", str(n), "--acting", "0.2"],
+        lambda i, port: f'driver = "modbus-packtags", host = "127.0.0.1", port = {port}, base = {100 * i}',
+        lambda port: _ModbusProbe(port), 10, lambda r: r // 2, "Modbus poll",
+    ),
+    PolledPart(
+        "S7", "s7_plc",
+        lambda n: ["--units", str(n), "--acting", "0.2"],
+        lambda i, port: f'driver = "s7-packtags", host = "127.0.0.1", port = {port}, db = 1, start = {200 * i}',
+        lambda port: _S7Probe(port), 4, lambda r: r // 2, "S7 poll",
+    ),
+    PolledPart(
+        "Logix", "logix_plc",
+        lambda n: ["--units", ",".join(f"M{i}" for i in range(n)), "--acting", "0.2"],
+        lambda i, port: (
+            f'driver = "logix-packtags", host = "127.0.0.1", port = {port}, prefix = "M{i}", confirm_timeout = 10.0, '
+            f"map = {{ {_LOGIX_MAP.format(u=f'M{i}')} }}"
+        ),
+        lambda port: _LogixProbe(port), 4, lambda r: max(3, r // 4),  # cpppo's simulator: about 40 ms a request
+        "EtherNet/IP poll", " (cpppo's simulator)",
+    ),
+)  # fmt: skip
+
+
+def polled_section(report: Report, peers: Peers, part: PolledPart, rounds: int) -> None:
+    """One polled part (module doc): the example PLC, ``part.units`` units M0.. on it, polled every POLL."""
     import sys
 
-    from benchmarks.__main__ import free_port
-
     plc_port = free_port()
-    cmd = [sys.executable, "-m", "uacell.gateway.examples.packtags_plc", "--port", str(plc_port)]
-    with _process([*cmd, "--units", str(MODBUS_UNITS), "--acting", "0.2"], ROOT, ready="listening"):
+    cmd = [sys.executable, "-m", f"uacell.gateway.examples.{part.example}", "--port", str(plc_port)]
+    with process([*cmd, *part.plc_args(part.units)], ROOT, ready="listening"):
         text = "".join(
-            f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "modbus-packtags", host = "127.0.0.1", '
-            f"port = {plc_port}, base = {100 * i}, interval = {MODBUS_POLL} }}\n\n"
-            for i in range(MODBUS_UNITS)
+            f'[[packml_units]]\nname = "M{i}"\nequipment = {{ {part.unit(i, plc_port)}, interval = {POLL} }}\n\n'
+            for i in range(part.units)
         )
-        with _served(peers, "modbus-gateway", text) as server:
-            raw = asyncio.run(_measure_polled(server.endpoint, _ModbusProbe(plc_port), rounds))
-    report.raw["gateway_modbus"] = raw
+        with served(peers, f"{part.name.lower()}-gateway", text) as server:
+            raw = asyncio.run(_measure_polled(server.endpoint, lambda: part.probe(plc_port), rounds))
+    report.raw[f"gateway_{part.name.lower()}"] = raw
     _latency_rows(
         report,
         raw,
         (
-            ("Modbus PackML command round trip (call -> the PLC sees it)", "command_ms"),
-            ("Modbus PackML mirror latency (PLC -> client)", "mirror_ms"),
+            (f"{part.name} PackML command round trip (call -> the PLC sees it)", "command_ms"),
+            (f"{part.name} PackML mirror latency (PLC -> client)", "mirror_ms"),
         ),
-        f"Modbus poll {MODBUS_POLL * 1000:.0f} ms, {MODBUS_UNITS} units",
-        (MODBUS_POLL + 0.020) * 1000,
-        rounds,
-    )
-
-
-S7_POLL = 0.02  # the s7-packtags and logix-packtags drivers' poll in their parts
-S7_UNITS = 4
-
-
-def s7_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
-    """The S7 PackML part: the example S7 PLC (snap7's server), units from byte 200 * i of DB 1."""
-    import sys
-
-    from benchmarks.__main__ import free_port
-
-    plc_port = free_port()
-    cmd = [sys.executable, "-m", "uacell.gateway.examples.s7_plc", "--port", str(plc_port)]
-    with _process([*cmd, "--units", str(S7_UNITS), "--acting", "0.2"], ROOT, ready="listening"):
-        text = "".join(
-            f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "s7-packtags", host = "127.0.0.1", '
-            f"port = {plc_port}, db = 1, start = {200 * i}, interval = {S7_POLL} }}\n\n"
-            for i in range(S7_UNITS)
-        )
-        with _served(peers, "s7-gateway", text) as server:
-            raw = asyncio.run(_measure_polled(server.endpoint, _S7Probe(plc_port), rounds))
-    report.raw["gateway_s7"] = raw
-    _latency_rows(
-        report,
-        raw,
-        (
-            ("S7 PackML command round trip (call -> the PLC sees it)", "command_ms"),
-            ("S7 PackML mirror latency (PLC -> client)", "mirror_ms"),
-        ),
-        f"S7 poll {S7_POLL * 1000:.0f} ms, {S7_UNITS} units",
-        (S7_POLL + 0.020) * 1000,
-        rounds,
-    )
-
-
-def logix_packtags_section(report: Report, peers: Peers, rounds: int) -> None:
-    """The Logix PackML part: the example controller (cpppo's simulator), units M0..M3 by name."""
-    import sys
-
-    from benchmarks.__main__ import free_port
-
-    plc_port = free_port()
-    names = ",".join(f"M{i}" for i in range(S7_UNITS))
-    cmd = [sys.executable, "-m", "uacell.gateway.examples.logix_plc", "--port", str(plc_port), "--units", names]
-    with _process([*cmd, "--acting", "0.2"], ROOT, ready="listening"):
-        maps = ", ".join(f'"Command.Parameter[{j}].Value" = "{{u}}_Parameter[{j}]"' for j in range(5))
-        text = "".join(
-            f'[[packml_units]]\nname = "M{i}"\nequipment = {{ driver = "logix-packtags", host = "127.0.0.1", '
-            f'port = {plc_port}, prefix = "M{i}", interval = {S7_POLL}, confirm_timeout = 10.0, '
-            f"map = {{ {maps.format(u=f'M{i}')} }} }}\n\n"
-            for i in range(S7_UNITS)
-        )
-        with _served(peers, "logix-gateway", text) as server:
-            raw = asyncio.run(_measure_polled(server.endpoint, _LogixProbe(plc_port), rounds))
-    report.raw["gateway_logix"] = raw
-    _latency_rows(
-        report,
-        raw,
-        (
-            ("Logix PackML command round trip (call -> the PLC sees it)", "command_ms"),
-            ("Logix PackML mirror latency (PLC -> client)", "mirror_ms"),
-        ),
-        f"EtherNet/IP poll {S7_POLL * 1000:.0f} ms, {S7_UNITS} units (cpppo's simulator)",
-        (S7_POLL + 0.020) * 1000,
+        f"{part.reference} {POLL * 1000:.0f} ms, {part.units} units"
+        + (" (cpppo's simulator)" if part.name == "Logix" else ""),
+        (POLL + 0.020) * 1000,
         rounds,
     )
 
@@ -247,14 +213,13 @@ def robot_section(report: Report, peers: Peers, rounds: int) -> None:
     """The robot part (module doc): the example controller and the shipped cell, nothing else."""
     import sys
 
-    from benchmarks.__main__ import free_port
     from uacell.cell_file import builtin_cell_path
 
     ctrl_port = free_port()
     ctrl_cmd = [sys.executable, "-m", "uacell.gateway.examples.robot_controller", "--port", str(ctrl_port)]
-    with _process([*ctrl_cmd, "--cycle", "0.3"], ROOT):
+    with process([*ctrl_cmd, "--cycle", "0.3"], ROOT):
         text = builtin_cell_path("modbus-robot").read_text().replace("port = 5020", f"port = {ctrl_port}")
-        with _served(peers, "robot-gateway", text.replace("unit = 1 }", f"unit = 1, poll = {ROBOT_POLL} }}")) as server:
+        with served(peers, "robot-gateway", text.replace("unit = 1 }", f"unit = 1, poll = {ROBOT_POLL} }}")) as server:
             raw = asyncio.run(_measure_robot(server.endpoint, ctrl_port, rounds))
     report.raw["gateway_robot"] = raw
     _latency_rows(
@@ -268,53 +233,6 @@ def robot_section(report: Report, peers: Peers, rounds: int) -> None:
         (ROBOT_POLL + 0.020) * 1000,
         rounds,
     )
-
-
-@contextlib.contextmanager
-def _process(cmd: list[str], cwd: Path, ready: str = "") -> Iterator[subprocess.Popen[str]]:
-    """A helper process (a PLC, a controller), stopped on the way out; ``ready``: the line it prints
-    once it serves."""
-    proc = subprocess.Popen(
-        cmd, cwd=cwd, stdout=subprocess.PIPE if ready else subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True
-    )
-    try:
-        if ready:
-            assert proc.stdout is not None
-            for line in proc.stdout:
-                if line.strip() == ready:
-                    break
-        yield proc
-    finally:
-        proc.terminate()
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            proc.wait(10)
-        if proc.poll() is None:
-            proc.kill()
-
-
-@contextlib.contextmanager
-def _served(peers: Peers, name: str, cell_text: str) -> Iterator[Peer]:
-    """A uacell peer serving ``cell_text`` (a cell file's content), stopped on the way out."""
-    import sys
-
-    from benchmarks.__main__ import Peer, free_port
-
-    cell = peers.tmp / f"{name}.toml"
-    cell.write_text(cell_text)
-    port = free_port()
-    cmd = [sys.executable, "-m", "benchmarks.peers", "uacell", "--port", str(port), "--cell", str(cell)]
-    cmd += ["--data-dir", str(peers.tmp / f"{name}-data"), "--cache-dir", str(peers.tmp / f"{name}-cache")]
-    server = Peer(f"uacell {name} cell", cmd, port=port).start()
-    try:
-        # a first start writes its address-space snapshot in a thread beside the loop: measure after it
-        from uacell.ua.snapshot import PREFIX, SUFFIX
-
-        deadline = time.monotonic() + 60
-        while not any((peers.tmp / f"{name}-cache").glob(f"{PREFIX}*{SUFFIX}")) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        yield server
-    finally:
-        server.stop()
 
 
 def _latency_rows(
@@ -378,13 +296,13 @@ async def _measure_robot(uacell_endpoint: str, ctrl_port: int, rounds: int) -> d
                         arrived.append((time.perf_counter(), val.Text or ""))
 
             assert await call(SYSTEM, "GetReady") == 0
-            await _until(lambda: _text(client, ns, SYSTEM), "Ready")
+            await until(lambda: text_of(client, ns, SYSTEM), "Ready")
             assert await call(TASK_CONTROL, "LoadByName", ua.Variant("pick_and_place", ua.VariantType.String)) == 0
             sub = await client.create_subscription(0, Handler())
             await sub.subscribe_data_change(client.get_node(ua.NodeId(f"{TASK_CONTROL}.CurrentState", ns)))
             await asyncio.sleep(0.2)  # the subscription's first notification (the current state) is not a round's
             for _ in range(rounds):
-                await _until(lambda: _text(client, ns, TASK_CONTROL), "Ready")
+                await until(lambda: text_of(client, ns, TASK_CONTROL), "Ready")
                 arrived.clear()
                 t0 = time.perf_counter()
                 start = asyncio.ensure_future(call(TASK_CONTROL, "Start"))
@@ -481,15 +399,16 @@ class _LogixProbe:
         await asyncio.to_thread(self.conn.close)
 
 
-async def _measure_polled(uacell_endpoint: str, plc: Any, rounds: int) -> dict[str, Any]:
+async def _measure_polled(uacell_endpoint: str, probe: Callable[[], Any], rounds: int) -> dict[str, Any]:
     """Command round trip on M1 and mirror latency on M3 (its command written straight to the PLC),
-    the PLC read by the test's own connection every 2 ms."""
+    the PLC read by the test's own connection (``probe()``, made on the loop) every 2 ms."""
     import logging
 
     from asyncua import Client, ua
 
     logging.getLogger("asyncua").setLevel(logging.ERROR)
     raw: dict[str, Any] = {"command_ms": [], "mirror_ms": []}
+    plc = probe()  # pymodbus's client wants the running loop
     await plc.open()
 
     async def until_plc(unit: int, state: int, leaves: bool = False, timeout: float = 10.0) -> float:
@@ -518,9 +437,9 @@ async def _measure_polled(uacell_endpoint: str, plc: Any, rounds: int) -> dict[s
                 t0 = time.perf_counter()
                 assert (await call(1, "MachineState", "Reset")).is_good()
                 raw["command_ms"].append((await until_plc(1, 2, leaves=True) - t0) * 1000)
-                await _until(lambda: _text(client, ns, machine(1, "ExecuteState")), "Idle")
+                await until(lambda: text_of(client, ns, machine(1, "ExecuteState")), "Idle")
                 assert (await call(1, "MachineState", "Stop")).is_good()
-                await _until(lambda: _text(client, ns, machine(1, "MachineState")), "Stopped")
+                await until(lambda: text_of(client, ns, machine(1, "MachineState")), "Stopped")
 
             arrived: list[tuple[float, str]] = []
 
@@ -542,28 +461,13 @@ async def _measure_polled(uacell_endpoint: str, plc: Any, rounds: int) -> dict[s
                 seen = next((at for at, t in arrived if t == "Resetting"), None)
                 if seen is not None:
                     raw["mirror_ms"].append(max(0.0, seen - changed) * 1000)
-                await _until(lambda: _text(client, ns, machine(3, "ExecuteState")), "Idle")
+                await until(lambda: text_of(client, ns, machine(3, "ExecuteState")), "Idle")
                 assert (await call(3, "MachineState", "Stop")).is_good()
-                await _until(lambda: _text(client, ns, machine(3, "MachineState")), "Stopped")
+                await until(lambda: text_of(client, ns, machine(3, "MachineState")), "Stopped")
             await sub.delete()
     finally:
         await plc.close()
     return raw
-
-
-async def _text(client: Any, ns: int, machine: str) -> str:
-    from asyncua import ua
-
-    value = await client.get_node(ua.NodeId(f"{machine}.CurrentState", ns)).read_value()
-    return str(value.Text)
-
-
-async def _until(read: Any, wanted: str, timeout: float = 10.0) -> None:
-    limit = time.perf_counter() + timeout
-    while await read() != wanted:
-        if time.perf_counter() > limit:
-            raise TimeoutError(f"waited for {wanted}")
-        await asyncio.sleep(0.005)
 
 
 class _Rig:

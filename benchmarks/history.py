@@ -23,10 +23,9 @@ import tempfile
 import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:
-    from benchmarks.__main__ import Peers, Report
+from benchmarks.harness import SET_SPEED, Peers, Report, client, free_port, median, rotated, running
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,7 +34,6 @@ INGEST_RATE = 5_000
 
 
 def history_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
-    from benchmarks.__main__ import SET_SPEED, client, median, rotated, running
 
     print("== history (SetMachSpeed with history on vs off, ingest CPU, 1M values, growth, other clients)", flush=True)
     raw: dict[str, Any] = {}
@@ -89,7 +87,6 @@ def history_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
 
 
 async def _server(data: Path, **history: Any) -> Any:
-    from benchmarks.__main__ import free_port
     from uacell.config import Config
     from uacell.server import UacellServer
 
@@ -327,7 +324,6 @@ def stall_row(report: Report, peers: Peers, args: argparse.Namespace, raw: dict[
     """A probing client (its own process and connection) reads CurrentTime every 5 ms, first alone,
     then while ``STALL_READERS`` clients (each its own process) read every stored event through
     continuation points, again and again."""
-    from benchmarks.__main__ import running
 
     seconds = 10.0 if args.quick else 30.0
     with running(peers.uacell(history_events=STALL_EVENTS)) as (peer,):

@@ -26,10 +26,9 @@ from collections.abc import Callable, Coroutine
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:
-    from benchmarks.__main__ import Peer, Peers, Report
+from benchmarks.harness import Peer, Peers, Report, free_port, percentile, rss_kib
 
 PUBLISHING_INTERVAL = 0.5  # [pubsub] publishing_interval's default
 SET_EVERY = 1.0
@@ -42,13 +41,6 @@ def cpu_seconds(pid: int) -> float:
         return (int(fields[11]) + int(fields[12])) / TICKS
     except (OSError, IndexError, ValueError):
         return 0.0
-
-
-def percentile(values: list[float], q: float) -> float | None:
-    if not values:
-        return None
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
 class Mosquitto:
@@ -82,7 +74,6 @@ Measure = Callable[[Mosquitto, str, list["Peer"]], Coroutine[Any, Any, dict[str,
 def with_broker(peers: Peers, title: str, measure: Measure) -> dict[str, Any] | None:
     """``measure(broker, url, started)`` against a mosquitto of its own; the cells it appends to
     ``started`` and the broker are stopped after it. None (and a line saying so) without mosquitto."""
-    from benchmarks.__main__ import free_port
 
     name = title.split(" ", 1)[0]
     if not (shutil.which("mosquitto") or Path("/usr/sbin/mosquitto").exists()):
@@ -267,6 +258,5 @@ async def _measure(broker: Mosquitto, cells: list[Peer], seconds: float) -> dict
 
 
 def _rss_mib(pid: int) -> float:
-    from benchmarks.__main__ import rss_kib
 
     return rss_kib(pid) / 1024

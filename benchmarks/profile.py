@@ -18,8 +18,8 @@ from pathlib import Path
 
 from asyncua import Client, ua
 
-from benchmarks.__main__ import free_port
 from benchmarks.cells import bench_cell
+from benchmarks.harness import free_port
 
 TC = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
 # name -> the calls of one cycle: (object NodeId path, method, arguments)

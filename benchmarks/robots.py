@@ -29,13 +29,9 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from benchmarks.gateway import _process, _served, _text, _until
-from benchmarks.plant import percentile
-
-if TYPE_CHECKING:
-    from benchmarks.__main__ import Peers, Report
+from benchmarks.harness import Peers, Report, free_port, percentile, process, served, text_of, until
 
 ROOT = Path(__file__).resolve().parent.parent
 POLL = 0.02
@@ -105,7 +101,6 @@ def _plc(port: int) -> Iterator[int]:
 
 
 def robots_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
-    from benchmarks.__main__ import free_port
     from uacell.cell_file import builtin_cell_path
 
     rounds = 10 if args.quick else 40
@@ -113,9 +108,9 @@ def robots_section(report: Report, peers: Peers, args: argparse.Namespace) -> No
     print(f"== robots (modbus-signals and ur-dashboard, {rounds} round trips each, poll {POLL * 1000:.0f} ms)")
     port = free_port()
     cmd = [sys.executable, "-m", "uacell.gateway.examples.robot_controller", "--port", str(port), "--cycle", "3600"]
-    with _process(cmd, ROOT):
+    with process(cmd, ROOT):
         text = builtin_cell_path("modbus-robot").read_text().replace("port = 5020", f"port = {port}")
-        with _served(peers, "robot-modbus", text.replace("unit = 1 }", MOTION)) as server:
+        with served(peers, "robot-modbus", text.replace("unit = 1 }", MOTION)) as server:
             assert server.proc is not None
             raw = asyncio.run(_measure_modbus(server.endpoint, port, rounds, seconds, server.proc.pid))
     report.raw["robots_modbus"] = raw
@@ -123,14 +118,14 @@ def robots_section(report: Report, peers: Peers, args: argparse.Namespace) -> No
     _axis_rows(report, raw)
     plc_port = free_port()
     with _plc(plc_port) as ns:
-        with _served(peers, "robot-opcua", OPCUA_CELL.format(port=plc_port, ns=ns, interval=POLL)) as server:
+        with served(peers, "robot-opcua", OPCUA_CELL.format(port=plc_port, ns=ns, interval=POLL)) as server:
             raw = asyncio.run(_measure_ur(server.endpoint, rounds))
     report.raw["robots_opcua"] = raw
     _rows(report, "opcua-signals", raw, rounds)
     dashboard, modbus, control = free_port(), free_port(), free_port()
     with _ursim(peers.tmp / "ursim-programs", dashboard, modbus, control):
         text = UR_CELL.format(dashboard=dashboard, modbus=modbus, poll=POLL)
-        with _served(peers, "robot-ur", text) as server:
+        with served(peers, "robot-ur", text) as server:
             raw = asyncio.run(_measure_ur(server.endpoint, rounds))
     report.raw["robots_ur"] = raw
     _rows(report, "ur-dashboard", raw, rounds)
@@ -220,7 +215,7 @@ async def _cycle(calls: _Calls, raw: dict[str, Any], rounds: int, ns: int) -> No
 
     names = [ua.Variant(n, ua.VariantType.String) for n in ("pick_and_place", "palletize")]
     assert await calls.status(SO, "GetReady") == 0
-    await _until(lambda: _text(calls.client, ns, SO), "Ready", timeout=60)
+    await until(lambda: text_of(calls.client, ns, SO), "Ready", timeout=60)
     for i in range(rounds):
         await asyncio.sleep(PAUSE)  # the strobe's pulse_gap has passed: the handshake alone is timed
         raw["load_ms"].append(await calls.timed(TC, "LoadByName", names[i % 2]))
@@ -229,7 +224,7 @@ async def _cycle(calls: _Calls, raw: dict[str, Any], rounds: int, ns: int) -> No
         await asyncio.sleep(PAUSE)
         raw["start_ms"].append(await calls.timed(TC, "Start"))
         assert await calls.status(TC, "Stop", ua.Variant(4, ua.VariantType.Int64)) == 0
-        await _until(lambda: _text(calls.client, ns, TC), "Ready")
+        await until(lambda: text_of(calls.client, ns, TC), "Ready")
 
 
 async def _measure_modbus(endpoint: str, port: int, rounds: int, seconds: float, pid: int) -> dict[str, Any]:

@@ -16,12 +16,10 @@ import argparse
 import asyncio
 import time
 from collections import defaultdict
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from benchmarks.plant import Mosquitto, drive_speeds, percentile, with_broker
-
-if TYPE_CHECKING:
-    from benchmarks.__main__ import Peer, Peers, Report
+from benchmarks.harness import Peer, Peers, Report, percentile
+from benchmarks.plant import Mosquitto, drive_speeds, with_broker
 
 TARGET_MS = 50.0
 

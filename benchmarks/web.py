@@ -32,10 +32,9 @@ import urllib.request
 from collections.abc import Iterator
 from http.cookiejar import CookieJar
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:
-    from benchmarks.__main__ import Peers, Report
+from benchmarks.harness import Peers, Report
 
 BOUND_MS = 250.0
 KEY = "Filler1/Status/MachSpeed"

@@ -108,7 +108,7 @@ async def test_a_killed_opcua_plc_is_one_warning_and_no_traceback(
     text = builtin_cell_path("packtags-unit").read_text().replace(":4841/", f":{packtags_plc.port}/")
     async with serve_cell(tmp_path, text) as (_app, client):
         await until(lambda: cell_executable(client, RESET), True)
-        (link,) = packml_opcua.POOL._links.values()
+        (link,) = packml_opcua.POOL.values()
         capture(caplog, asyncua_session=True)
         fail(packtags_plc.proc, fault)
         await until(lambda: cell_executable(client, RESET), False)  # CommunicationLost: handled
@@ -136,7 +136,7 @@ async def test_a_killed_modbus_plc_is_one_warning_and_no_traceback(
         text = builtin_cell_path("modbus-packtags").read_text().replace("port = 5021", f"port = {plc.port}")
         async with serve_cell(tmp_path, text) as (_app, client):
             await until(lambda: cell_executable(client, RESET), True)
-            (link,) = packml_modbus.POOL._links.values()  # the two units share it
+            (link,) = packml_modbus.POOL.values()  # the two units share it
             capture(caplog)
             fail(plc.proc, fault)
             for unit in ("Capper", "Labeler"):
@@ -157,7 +157,7 @@ async def test_a_killed_robot_controller_is_one_warning_and_no_traceback(
     try:
         await controller.io()  # listening
         async with serve_cell(tmp_path, robot_cell(controller.port)) as (_app, client):
-            conn = modbus.SHARED._connections[("127.0.0.1", controller.port)]
+            conn = modbus.SHARED.get_open(("127.0.0.1", controller.port))
             ns = await client.get_namespace_index("urn:uacell:cell")
             lost = client.get_node(
                 ua.NodeId(

@@ -101,9 +101,9 @@ async def test_controller_gone(robot: ModbusRobotIO, controller: tuple[int, subp
 
 async def test_pool_shares_one_connection_per_endpoint() -> None:
     pool = ModbusPool()
-    a = pool.get("127.0.0.1", 1502)
-    assert pool.get("127.0.0.1", 1502) is a
-    assert pool.get("127.0.0.1", 1503) is not a
+    a = pool.connection("127.0.0.1", 1502)
+    assert pool.connection("127.0.0.1", 1502) is a
+    assert pool.connection("127.0.0.1", 1503) is not a
     assert a.users == 2
     pool.close()
 

@@ -223,7 +223,7 @@ async def test_fifty_units_on_one_plc_connection(tmp_path: Path) -> None:
             p.client = plc_client
             from uacell.gateway.packml_opcua import POOL
 
-            assert len(POOL._links) == 1  # one connection to the PLC
+            assert len(POOL) == 1  # one connection to the PLC
 
             async def reset(u: str) -> str:
                 return str((await call_path(client, f"{u}.BaseStateMachine.MachineState", "Reset")).StatusCode.name)

@@ -1,16 +1,16 @@
 """PackML units whose state machine runs in a PLC that speaks Modbus/TCP only, served by uacell from
 the cell file alone (the modbus-packtags driver): pymodbus's server holds the PackTags registers and
 runs a TR88 scan-cycle program (uacell.gateway.examples.packtags_plc) on a free port; an asyncua
-client (and node-opcua once) drives uacell, which drives the PLC."""
+client (and node-opcua once) drives uacell, which drives the PLC.
+
+The scenarios every polled PackTags driver passes (a full cycle, a refused and a frozen command, a
+fault, the PLC killed and back, node-opcua's cycle) are in test_gateway_packml_acceptance.py; here
+is what only this transport has."""
 
 from __future__ import annotations
 
 import asyncio
 import logging
-import os
-import subprocess
-import sys
-import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -18,26 +18,22 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving
+from gateway_plcs import ModbusPLC
+from gateway_plcs import modbus_cell as shipped_cell
 from helpers import (
     call_path,
-    cell_executable,
-    cell_read,
     cell_state,
     cell_status,
     config_check_connect,
-    free_port,
-    packml_params,
     until,
 )
 
-from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
 from uacell.gateway.codec import RegisterType
-from uacell.gateway.modbus import MAX_SPAN, ModbusConnection, ModbusTag, Span, spans
+from uacell.gateway.modbus import MAX_SPAN, ModbusTag, Span, spans
 from uacell.gateway.packml_modbus import Point, resolve_modbus, where
 from uacell.server import UacellServer
 
-SRC = str(Path(__file__).resolve().parents[1] / "src")
 F, L = "Capper", "Labeler"  # the shipped cell's units: registers from 0 and from 100
 
 
@@ -47,58 +43,6 @@ def machines(unit: str) -> tuple[str, str, str]:
 
 
 BASE, MACH, EXEC = machines(F)
-
-
-class ModbusPLC:
-    """The example PLC in its own process, and a Modbus client of the test's to look into it."""
-
-    def __init__(self, units: int = 2, acting: float = 0.1) -> None:
-        self.port, self.units, self.acting = free_port(), units, acting
-        self.proc: subprocess.Popen[str] | None = None
-        self.conn: ModbusConnection | None = None
-
-    def start(self) -> None:
-        cmd = [sys.executable, "-m", "uacell.gateway.examples.packtags_plc", "--port", str(self.port)]
-        cmd += ["--units", str(self.units), "--acting", str(self.acting)]
-        self.proc = subprocess.Popen(
-            cmd, env={**os.environ, "PYTHONPATH": SRC}, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
-        )
-        assert self.proc.stdout is not None
-        line = self.proc.stdout.readline()  # the PLC prints it once it serves (or ends: "")
-        assert line.strip() == "listening", line
-
-    def kill(self) -> None:
-        if self.proc is not None:
-            self.proc.kill()
-            self.proc.wait(10)
-            if self.proc.stdout is not None:
-                self.proc.stdout.close()
-            self.proc = None
-
-    async def open(self) -> None:
-        self.conn = ModbusConnection("127.0.0.1", self.port, timeout=2.0)
-        assert await self.conn.connect()
-
-    def close(self) -> None:
-        if self.conn is not None:
-            self.conn.close()
-            self.conn = None
-
-    async def tag(self, base: int, key: str) -> Any:
-        assert self.conn is not None
-        point = Point.parse(resolve_modbus("test", 1, base)[key].address)
-        return await self.conn.read(point.tag, 1)
-
-    async def switch(self, base: int, offset: int, on: bool) -> None:
-        """One of the example PLC's test switches (80 refuse, 81 frozen, 82 fault)."""
-        assert self.conn is not None
-        await self.conn.write(ModbusTag("holding", base + offset, RegisterType("bool")), on, 1)
-
-    async def taken(self, base: int = 0) -> list[float]:
-        """The parameters the last Start took (the example PLC copies them to base + 84..)."""
-        assert self.conn is not None
-        f = RegisterType("float32")
-        return [float(await self.conn.read(ModbusTag("holding", base + 84 + 2 * i, f), 1)) for i in range(5)]
 
 
 @pytest.fixture
@@ -111,10 +55,6 @@ async def plc() -> AsyncIterator[ModbusPLC]:
     finally:
         p.close()
         p.kill()
-
-
-def shipped_cell(plc: ModbusPLC) -> str:
-    return builtin_cell_path("modbus-packtags").read_text().replace("port = 5021", f"port = {plc.port}")
 
 
 @pytest.fixture
@@ -185,124 +125,6 @@ def test_nearby_tags_are_read_in_one_request() -> None:
 # -- against the Modbus PLC -------------------------------------------------------------------------
 
 
-async def test_a_full_cycle_goes_to_the_plc_and_comes_back(served, plc: ModbusPLC) -> None:
-    _app, client = served
-    from uacell.gateway.modbus import SHARED
-    from uacell.gateway.packml_modbus import POOL
-
-    assert len(POOL._links) == 1 and len(SHARED._connections) == 1  # both units on one connection
-    assert await plc.tag(0, "Status.StateCurrent") == 2  # Stopped
-    assert await cell_state(client, MACH) == "Stopped"
-    res = await call_path(client, MACH, "Reset")
-    assert res.StatusCode.is_good(), res.StatusCode
-    assert await plc.tag(0, "Status.StateCurrent") in (15, 4)  # the PLC took it before the call answered
-    await until(lambda: cell_state(client, EXEC), "Idle")
-    assert (await call_path(client, F, "SetMachSpeed", ua.Variant(120.0, ua.VariantType.Float))).StatusCode.is_good()
-    await until(lambda: plc.tag(0, "Command.MachSpeed"), 120.0)
-    res = await call_path(client, EXEC, "Start", packml_params((1, 180.5), (2, 0.25)))
-    assert res.StatusCode.is_good(), res.StatusCode
-    assert await plc.taken() == pytest.approx([180.5, 0.25, 0.0, 0.0, 0.0])
-    await until(lambda: cell_state(client, EXEC), "Execute")
-    assert await cell_read(client, f"{F}.Status.MachSpeed") == pytest.approx(120.0)  # the PLC's Status.MachSpeed
-
-    async def produced() -> bool:  # the PLC's count, mirrored into Admin.ProdProcessedCount
-        (count,) = await cell_read(client, f"{F}.Admin.ProdProcessedCount")
-        return bool(count.Count > 0)
-
-    await until(produced, True)
-    assert (await call_path(client, MACH, "Stop")).StatusCode.is_good()
-    await until(lambda: cell_state(client, MACH), "Stopped")
-    assert await plc.tag(0, "Status.StateCurrent") == 2
-    # uacell's own rules before the PLC's: Start is not allowed in Stopped, nothing is written
-    res = await call_path(client, EXEC, "Start", packml_params())
-    assert res.StatusCode.value in (ua.StatusCodes.BadInvalidState, ua.StatusCodes.BadMethodInvalid)
-    assert await plc.tag(0, "Command.CntrlCmd") == 3  # still the Stop
-    # the other unit on the same connection, registers from 100, was not touched
-    assert await cell_state(client, machines(L)[1]) == "Stopped" and await plc.tag(100, "Status.StateCurrent") == 2
-    res = await call_path(client, machines(L)[1], "Reset")
-    assert res.StatusCode.is_good(), res.StatusCode
-    await until(lambda: plc.tag(100, "Status.StateCurrent"), 4)
-    assert await plc.tag(0, "Status.StateCurrent") == 2
-
-
-async def test_a_command_the_plc_refuses_or_never_takes(served, plc: ModbusPLC) -> None:
-    _app, client = served
-    await plc.switch(0, 80, True)  # refuse
-    res = await call_path(client, MACH, "Reset")
-    assert res.StatusCode.value == ua.StatusCodes.BadInvalidState
-    assert await cell_state(client, MACH) == "Stopped" and await plc.tag(0, "Status.StateCurrent") == 2
-    await plc.switch(0, 80, False)
-    await plc.switch(0, 81, True)  # frozen: no scan takes the request
-    started = time.monotonic()
-    res = await call_path(client, MACH, "Reset")
-    assert res.StatusCode.value == ua.StatusCodes.BadTimeout
-    assert time.monotonic() - started >= 2.5  # confirm_timeout 3 s
-    assert await plc.tag(0, "Command.CmdChangeRequest") is False  # nothing left half-written
-    assert await cell_state(client, MACH) == "Stopped"
-
-
-async def test_the_plc_faults_and_uacell_aborts_with_its_stop_reason(served, plc: ModbusPLC) -> None:
-    _app, client = served
-    assert (await call_path(client, MACH, "Reset")).StatusCode.is_good()
-    await until(lambda: cell_state(client, EXEC), "Idle")
-    await plc.switch(0, 82, True)
-    await until(lambda: cell_state(client, BASE), "Aborted")
-    assert (await cell_read(client, f"{F}.Admin.StopReason")).ID == 42
-
-
-async def test_the_plc_killed_and_back(served, plc: ModbusPLC) -> None:
-    _app, client = served
-    plc.close()
-    plc.kill()
-    ns = await client.get_namespace_index("urn:uacell:cell")
-
-    def executable() -> Any:
-        return cell_executable(client, f"{MACH}.Reset")
-
-    await until(executable, False)
-    assert (await call_path(client, MACH, "Reset")).StatusCode.value == ua.StatusCodes.BadCommunicationError
-
-    def speed_status() -> Any:
-        return cell_status(client, f"{F}.Status.MachSpeed")
-
-    await until(speed_status, "BadNoCommunication")  # the PLC's values are not current any more
-
-    def machine_quality() -> Any:  # the machines show the PLC's last state, and say it is not live
-        return cell_status(client, f"{MACH}.CurrentState")
-
-    await until(machine_quality, "UncertainNoCommunicationLastUsableValue")
-    last = await client.get_node(ua.NodeId(f"{MACH}.CurrentState", ns)).read_data_value(raise_on_bad_status=False)
-    assert last.Value.Value.Text == "Stopped"  # the last state known, still readable
-    warnings = client.get_node(ua.NodeId(f"{F}.Admin.Warning", ns))
-    assert any(w.ID == 9001 for w in await warnings.read_value())  # uacell's own: readable, says why
-    plc.start()  # the same port
-    back = time.monotonic()
-    await until(executable, True)
-    assert time.monotonic() - back <= 5.0
-    await until(speed_status, "Good")
-    await until(machine_quality, "Good")
-    assert not any(w.ID == 9001 for w in await warnings.read_value())
-    res = await call_path(client, MACH, "Reset")
-    assert res.StatusCode.is_good(), res.StatusCode
-    await plc.open()
-    await until(lambda: plc.tag(0, "Status.StateCurrent"), 4)
-
-
-async def test_node_opcua_runs_a_cycle_through_uacell_to_the_modbus_plc(tmp_path: Path, plc: ModbusPLC) -> None:
-    """The independent client: node-opcua resets and starts (with two parameters) a unit the PLC owns."""
-    from conftest import run_node
-
-    path = tmp_path / "cell.toml"
-    path.write_text(shipped_cell(plc).replace(f'name = "{F}"', 'name = "Filler1"'))
-    config = fast_config(tmp_path / "data")
-    config.cell = load_cell(path)
-    async with serving(config) as (app, _client):
-        out = await asyncio.to_thread(run_node, "packml_start.js", app.endpoint)
-        assert (out["reset"], out["start"], out["state"]) == ("Good", "Good", "Execute")
-        assert await plc.tag(0, "Status.StateCurrent") == 6  # the PLC is in Execute
-        assert await plc.taken() == pytest.approx([250.5, -12.25, 0.0, 0.0, 0.0])
-
-
 async def test_config_check_connect_names_a_register_the_plc_does_not_have(
     tmp_path: Path, plc: ModbusPLC, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -366,7 +188,7 @@ async def test_fifty_units_on_one_modbus_connection(tmp_path: Path) -> None:
         config = fast_config(tmp_path / "data")
         config.cell = load_cell(path)
         async with serving(config) as (_app, client):
-            assert len(POOL._links) == 1 and len(SHARED._connections) == 1
+            assert len(POOL) == 1 and len(SHARED) == 1
 
             async def reset(i: int) -> str:
                 return str((await call_path(client, machines(f"U{i}")[1], "Reset")).StatusCode.name)

@@ -43,13 +43,13 @@ def two_units(tmp_path: Path, labeler: str) -> Path:
 
 async def test_the_pool_refuses_a_second_timeout_naming_both_parts() -> None:
     pool = ModbusPool()
-    first = pool.get("127.0.0.1", 5021, 1.0, part="Capper")
-    assert pool.get("127.0.0.1", 5021, 1.0, part="Labeler") is first and first.users == 2  # shared
+    first = pool.connection("127.0.0.1", 5021, 1.0, part="Capper")
+    assert pool.connection("127.0.0.1", 5021, 1.0, part="Labeler") is first and first.users == 2  # shared
     with pytest.raises(ValueError) as refused:
-        pool.get("127.0.0.1", 5021, 2.5, part="Labeler")
+        pool.connection("127.0.0.1", 5021, 2.5, part="Labeler")
     assert str(refused.value) == REFUSAL
     assert first.users == 2 and first.timeout == 1.0  # nothing changed
-    other = pool.get("127.0.0.1", 5022, 2.5, part="Labeler")  # another endpoint: its own timeout
+    other = pool.connection("127.0.0.1", 5022, 2.5, part="Labeler")  # another endpoint: its own timeout
     assert other is not first and other.timeout == 2.5
     pool.close()
 

@@ -97,6 +97,14 @@ def test_uacell_has_no_import_cycles() -> None:
     assert found == [], "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
 
 
+def test_the_benchmarks_have_no_import_cycles() -> None:
+    """The sections import ``benchmarks.harness``, never ``benchmarks.__main__`` (which imports them)."""
+    graph = module_graph(SRC.parent, "benchmarks")
+    assert "benchmarks.harness" in graph and graph["benchmarks.__main__"]  # the walk found the package
+    found = cycles(graph)
+    assert found == [], "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
+
+
 def test_the_walk_counts_function_level_and_type_checking_imports(tmp_path: Path) -> None:
     pkg = tmp_path / "demo"
     (pkg / "sub").mkdir(parents=True)

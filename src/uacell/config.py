@@ -30,6 +30,7 @@ from uacell.catalog import companions
 from uacell.cell_file import CellConfig, SectionParser, builtin_cell_path, did_you_mean, parse_cell
 from uacell.discovery_registration import DiscoveryConfig
 from uacell.errors import ConfigError
+from uacell.extras import MissingExtra, require
 from uacell.history.config import HistoryConfig
 from uacell.pubsub.config import PubSubConfig, check_pubsub
 from uacell.roles import Role
@@ -469,6 +470,21 @@ def validate(config: Config) -> None:
     check_history(config.history)
     check_pubsub(config.pubsub)
     check_sparkplug(config.sparkplug)
+    check_extras(config)
+
+
+def check_extras(config: Config) -> None:
+    """MissingExtra (one line: the section, the extra, the pip command) for a section that is on and
+    needs an optional extra that is not installed (README.md, "Install")."""
+    needs = (
+        (config.metrics.enabled, "metrics", "[metrics]"),
+        (config.history.backend == "postgresql", "postgres", "[history] backend = 'postgresql'"),
+        (config.pubsub.enabled, "mqtt", "[pubsub]"),
+        (config.sparkplug.enabled, "sparkplug", "[sparkplug]"),
+    )
+    for on, extra, who in needs:
+        if on:
+            require(extra, who)
 
 
 def check_history(h: HistoryConfig) -> None:
@@ -493,7 +509,9 @@ def load_factory(spec: str, section: str) -> Callable[..., object]:
         raise ConfigError(f"[{section}] equipment: must look like 'package.module:factory', not {spec!r}")
     try:
         factory = getattr(importlib.import_module(module_name), attr)
-    except (ImportError, AttributeError) as exc:
+    except ImportError as exc:  # a driver whose library is an extra not installed: one line naming it
+        raise MissingExtra.of(f"[{section}] equipment: {spec!r}", exc) from exc
+    except AttributeError as exc:
         raise ConfigError(f"[{section}] equipment: {spec!r} cannot be loaded: {exc}") from exc
     if not callable(factory):
         raise ConfigError(f"[{section}] equipment: {spec!r} is not callable")

@@ -21,14 +21,19 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
-from prometheus_client import CollectorRegistry, Counter, Histogram, generate_latest
-from prometheus_client.core import GaugeMetricFamily, Metric
-from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
 from uacell.catalog import companions
 from uacell.errors import ConfigError
+from uacell.extras import MissingExtra
 from uacell.ua.channel import session_count
 from uacell.ua.context import Caller
+
+try:
+    from prometheus_client import CollectorRegistry, Counter, Histogram, generate_latest
+    from prometheus_client.core import GaugeMetricFamily, Metric
+    from prometheus_client.exposition import CONTENT_TYPE_LATEST
+except ImportError as exc:  # the 'metrics' extra
+    raise MissingExtra.of("[metrics]", exc) from exc
 
 if TYPE_CHECKING:
     from uacell.host import Host

@@ -20,20 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from uacell.errors import CallError
-
-COMMANDS: dict[str, int] = {
-    "Reset": 1,
-    "Start": 2,
-    "Stop": 3,
-    "Hold": 4,
-    "Unhold": 5,
-    "Suspend": 6,
-    "Unsuspend": 7,
-    "Abort": 8,
-    "Clear": 9,
-    "Complete": 10,
-}
-UNIT_MODES: dict[str, int] = {"Production": 1, "Maintenance": 2, "Manual": 3}
+from uacell.packml.model import TR88_COMMANDS
 
 
 @dataclass(frozen=True)
@@ -72,7 +59,7 @@ class Handshake:
         cls, name: str, status: PlcStatus, now: float, timeout: float, parameters: Sequence[float] = ()
     ) -> Handshake:
         """The writes for PackML command ``name``; CallError if it cannot be asked now."""
-        number = COMMANDS.get(name)
+        number = TR88_COMMANDS.get(name)  # packml's one TR88 table
         if number is None:
             raise CallError("BadInvalidArgument", f"{name!r} is not a PackTags command")
         if parameters and name != "Start":

@@ -13,11 +13,12 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from typing import Any, Protocol
 
-from uacell.gateway.modbus import CommunicationError, NoAnswer
+from uacell.gateway.errors import CommunicationError, NoAnswer
+from uacell.gateway.pool import SharedPool, unit_conflict
+from uacell.gateway.retry import keep_trying
 
 log = logging.getLogger(__name__)
 
-FIRST_RETRY, LAST_RETRY = 0.5, 2.0  # seconds between reconnection attempts: doubling, at most LAST_RETRY
 
 LOST = "lost the connection"
 # a peer gone or out of reach (asyncio raises a plain OSError for a refused or failed connect)
@@ -282,30 +283,30 @@ class PolledLink(Listeners, ABC):
             raise
 
     async def _run(self) -> None:
-        delay = FIRST_RETRY
-        while True:
-            up = False
-            try:
-                if not self.link_up and not await self.connect():
-                    raise NoAnswer(f"{self.endpoint}: no answer")
-                self.missing.clear()
-                await self._first_read(self.tried(), None)
-                self._announce()
-                up = True
-                delay = FIRST_RETRY
-                while self.link_up:
-                    await asyncio.sleep(self.interval)
-                    await self._poll()
-                self._report_lost()  # a unit's read or write found it gone
-            except CommunicationError as exc:
-                lost = isinstance(exc, NoAnswer) or not self.link_up
-                if up and lost:
-                    self._report_lost()
-                else:
-                    self._report_failed(str(exc).removeprefix(f"{self.endpoint}: "), unreachable=lost)
-            self._set_connected(False)
-            await asyncio.sleep(delay)
-            delay = min(delay * 2, LAST_RETRY)
+        await keep_trying(self._session)
+
+    async def _session(self) -> bool:
+        """Connect, read every tag once, then poll until the PLC stops answering; True if it was up."""
+        up = False
+        try:
+            if not self.link_up and not await self.connect():
+                raise NoAnswer(f"{self.endpoint}: no answer")
+            self.missing.clear()
+            await self._first_read(self.tried(), None)
+            self._announce()
+            up = True
+            while self.link_up:
+                await asyncio.sleep(self.interval)
+                await self._poll()
+            self._report_lost()  # a unit's read or write found it gone
+        except CommunicationError as exc:
+            lost = isinstance(exc, NoAnswer) or not self.link_up
+            if up and lost:
+                self._report_lost()
+            else:
+                self._report_failed(str(exc).removeprefix(f"{self.endpoint}: "), unreachable=lost)
+        self._set_connected(False)
+        return up
 
     async def _first_read(self, addresses: list[str], listener: ValueListener | None) -> None:
         """Each of ``addresses`` once, delivered (to ``listener``, else to every part watching it). When
@@ -349,32 +350,14 @@ class PolledLink(Listeners, ABC):
                 self._deliver(address, value)
 
 
-class SharedLinks:
+class SharedLinks(SharedPool[Hashable, PolledLink]):
     """One ``PolledLink`` (one connection) per PLC, shared by its units: they must agree on the poll
     interval and the timeout (a ValueError names the part and the setting that differs)."""
 
     def __init__(self) -> None:
-        self._links: dict[Hashable, PolledLink] = {}
+        super().__init__(lambda link: link.close(), lambda link: link.endpoint, unit_conflict)
 
-    def get(
+    def link(
         self, part: str, key: Hashable, interval: float, timeout: float, make: Callable[[], PolledLink]
     ) -> PolledLink:
-        link = self._links.get(key)
-        if link is None:
-            link = self._links[key] = make()
-        else:
-            had = {"interval": link.interval, "timeout": getattr(link.conn, "timeout", timeout)}
-            for what, value in (("interval", interval), ("timeout", timeout)):
-                if had[what] != value:
-                    raise ValueError(
-                        f"{part}: {what}: another unit on {link.endpoint} set {had[what]}; "
-                        "units on one PLC share its connection and its settings"
-                    )
-        link.users += 1
-        return link
-
-    async def release(self, link: PolledLink) -> None:
-        link.users -= 1
-        if link.users <= 0:
-            self._links = {k: v for k, v in self._links.items() if v is not link}
-            await link.close()
+        return self.get(key, make, part, interval=interval, timeout=timeout)

@@ -18,6 +18,8 @@ from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from uacell.gateway.codec import RegisterType
+from uacell.gateway.errors import CommunicationError, NoAnswer
+from uacell.gateway.pool import SharedPool
 from uacell.logs import quiet_expected
 
 TABLES = ("coil", "discrete", "holding", "input")
@@ -55,15 +57,6 @@ class _PymodbusLost:
 def quiet_pymodbus() -> None:
     """pymodbus's records of a lost server become DEBUG lines (``uacell.logs.ExpectedFaults``)."""
     quiet_expected("plc-lost", ("pymodbus.logging",), _PymodbusLost())
-
-
-class CommunicationError(Exception):
-    """The endpoint did not answer or answered with an error (message names the endpoint)."""
-
-
-class NoAnswer(CommunicationError):
-    """The endpoint did not answer at all (gone, frozen or out of reach): the connection is lost, not
-    a request refused."""
 
 
 @dataclass(frozen=True)
@@ -135,7 +128,6 @@ class ModbusConnection:
         self.host, self.port, self.timeout = host, port, timeout
         self.attempts = 0  # failed attempts to connect
         self.unanswered = 0  # requests that got no answer
-        self.owner = ""  # the part that opened it (for messages)
         self._client = AsyncModbusTcpClient(host, port=port, timeout=timeout, retries=0, reconnect_delay=0)
         self._lock = asyncio.Lock()
         self.users = 0
@@ -143,12 +135,6 @@ class ModbusConnection:
     @property
     def name(self) -> str:
         return endpoint_name(self.host, self.port)
-
-    def check_shared(self, part: str, timeout: float) -> None:
-        """A ValueError naming both parts if ``part`` would share this connection with another timeout."""
-        if timeout != self.timeout:
-            first = (self.owner or "another part", self.timeout)
-            raise ValueError(shared_conflict(self.name, "timeout", first, (part, timeout)))
 
     @property
     def connected(self) -> bool:
@@ -230,47 +216,21 @@ def _cancelled() -> None:
         raise asyncio.CancelledError
 
 
-def shared_conflict(endpoint: str, key: str, first: tuple[str, object], second: tuple[str, object]) -> str:
-    """The one-line refusal of two parts that share the connection to ``endpoint`` with different ``key``."""
-    (a, x), (b, y) = first, second
-
-    def said(v: object) -> str:
-        return f"{v:g}" if isinstance(v, float) else repr(v)
-
-    return (
-        f"{b or 'a part'}: {key} = {said(y)}, but {a} shares its connection to {endpoint} with {key} = {said(x)}: "
-        f"parts on one PLC endpoint use one connection, so give them the same {key}"
-    )
-
-
-class ModbusPool:
+class ModbusPool(SharedPool[tuple[str, int], ModbusConnection]):
     """Connections shared per endpoint: two parts on the same host and port use one connection."""
 
     def __init__(self) -> None:
-        self._connections: dict[tuple[str, int], ModbusConnection] = {}
+        super().__init__(lambda conn: conn.close(), lambda conn: conn.name)
 
-    def get(self, host: str, port: int = 502, timeout: float = 1.0, part: str = "") -> ModbusConnection:
+    def connection(self, host: str, port: int = 502, timeout: float = 1.0, part: str = "") -> ModbusConnection:
         """The connection to ``host``:``port``; a ValueError if it is open with another ``timeout``
         (one connection has one: ``uacell config check`` names both parts, ``shared_settings``)."""
-        conn = self._connections.get((host, port))
-        if conn is None:
-            conn = self._connections[(host, port)] = ModbusConnection(host, port, timeout)
-            conn.owner = part
-        conn.check_shared(part, timeout)
-        conn.users += 1
-        return conn
-
-    def release(self, conn: ModbusConnection) -> None:
-        """One user less; the last one closes the connection."""
-        conn.users -= 1
-        if conn.users <= 0:
-            conn.close()
-            self._connections.pop((conn.host, conn.port), None)
+        return self.get((host, port), lambda: ModbusConnection(host, port, timeout), part, timeout=timeout)
 
     def close(self) -> None:
-        for conn in self._connections.values():
+        for conn in self.values():
             conn.close()
-        self._connections.clear()
+        self._entries.clear()
 
 
 SHARED = ModbusPool()  # the process's connections: every driver on one host and port uses one

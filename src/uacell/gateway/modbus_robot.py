@@ -7,8 +7,6 @@ A transport failure becomes ``CallError("BadCommunicationError")``; nothing is r
 
 from __future__ import annotations
 
-import asyncio
-import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -16,19 +14,18 @@ from typing import Any
 
 from uacell.errors import CallError
 from uacell.gateway.codec import RegisterType
+from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Write
-from uacell.gateway.modbus import SHARED, CommunicationError, ModbusConnection, ModbusTag, spans
-from uacell.gateway.signals import DEFAULT_MAP, NAME_SIGNALS, SAFETY_SIGNALS, RobotStatus, SignalOp
-
-STATUS_SIGNALS = (
-    "remote_ready",
-    "drives_are_on",
-    "running",
-    "program_end",
-    "at_start",
-    "fault",
-    "program_echo",
-    "fault_code",
+from uacell.gateway.modbus import SHARED, ModbusConnection, ModbusTag, spans
+from uacell.gateway.signal_robot import perform
+from uacell.gateway.signals import (
+    DEFAULT_MAP,
+    NAME_SIGNALS,
+    SAFETY_SIGNALS,
+    STATUS_SIGNALS,
+    UNITS,
+    RobotStatus,
+    SignalOp,
 )
 
 
@@ -51,9 +48,6 @@ def register_type(kind: str) -> RegisterType:
             raise ValueError(f"type {kind!r}: a string needs its length in registers, e.g. 'string:8'")
         return RegisterType("string", length=int(length))
     return RegisterType(kind)
-
-
-UNITS = {"deg": 1.0, "rad": 180.0 / math.pi, "mrad": 0.18 / math.pi}  # to degrees
 
 
 @dataclass(frozen=True)
@@ -145,7 +139,7 @@ class ModbusRobotIO:
         return self.conn.name
 
     async def close(self) -> None:
-        SHARED.release(self.conn)
+        await SHARED.release(self.conn)
 
     async def status(self) -> RobotStatus:
         """The controller's status now, in one read per block of adjacent registers; ``connected=False``
@@ -193,15 +187,4 @@ class ModbusRobotIO:
 
     async def perform(self, op: SignalOp) -> None:
         """Write ``op``, wait for its confirmation; CallError with the op's code when it fails."""
-        try:
-            await self._write(op.writes)
-            try:
-                while True:
-                    await self._write(op.pulse_end(self.clock()))
-                    if op.observe(await self.status(), self.clock()):
-                        return
-                    await asyncio.sleep(self.poll)
-            finally:
-                await self._write(op.pulse_end(float("inf")) if op.done else ())
-        except CommunicationError as exc:
-            raise CallError("BadCommunicationError", f"{op.name}: {exc}") from None
+        await perform(op, self._write, self.status, self.poll, self.clock)

@@ -28,8 +28,10 @@ from typing import Any
 
 from asyncua import Client, ua
 
-from uacell.gateway.link import FIRST_RETRY, LAST_RETRY, Listeners, StateListener, ValueListener, network_error
-from uacell.gateway.modbus import CommunicationError
+from uacell.gateway.errors import CommunicationError
+from uacell.gateway.link import Listeners, StateListener, ValueListener, network_error
+from uacell.gateway.pool import SharedPool
+from uacell.gateway.retry import keep_trying
 from uacell.logs import exception_of, quiet_expected
 from uacell.secret_file import SecretError, read_secret
 
@@ -256,21 +258,23 @@ class PlcLink(Listeners):
         return CommunicationError(f"{self.endpoint}: {exc or type(exc).__name__}")
 
     async def _run(self) -> None:
-        delay = FIRST_RETRY
-        while True:
-            try:
-                await self._connect()
-                delay = FIRST_RETRY
-                await self._lost.wait()
-                self._report_lost()
-            except asyncio.CancelledError:
-                raise
-            except Exception as exc:
-                self._report_failed(str(exc) or type(exc).__name__, server_lost(exc))
-            self._set_connected(False)
-            await self._disconnect()
-            await asyncio.sleep(delay)
-            delay = min(delay * 2, LAST_RETRY)
+        await keep_trying(self._session)
+
+    async def _session(self) -> bool:
+        """Connect and serve the parts until the connection is lost; True if it was up."""
+        up = False
+        try:
+            await self._connect()
+            up = True
+            await self._lost.wait()
+            self._report_lost()
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            self._report_failed(str(exc) or type(exc).__name__, server_lost(exc))
+        self._set_connected(False)
+        await self._disconnect()
+        return up
 
     async def _connect(self) -> None:
         self._lost.clear()
@@ -427,21 +431,10 @@ def _application_uri(certificate: str) -> str | None:
     return uris[0] if uris else None
 
 
-class LinkPool:
+def link_pool() -> SharedPool[LinkOptions, PlcLink]:
     """Links shared per endpoint and options: fifty units on one PLC use one connection."""
+    return SharedPool(lambda link: link.close(), lambda link: link.endpoint)
 
-    def __init__(self) -> None:
-        self._links: dict[LinkOptions, PlcLink] = {}
 
-    def get(self, options: LinkOptions) -> PlcLink:
-        link = self._links.get(options)
-        if link is None:
-            link = self._links[options] = PlcLink(options)
-        link.users += 1
-        return link
-
-    async def release(self, link: PlcLink) -> None:
-        link.users -= 1
-        if link.users <= 0:
-            self._links.pop(link.options, None)
-            await link.close()
+def shared_link(pool: SharedPool[LinkOptions, PlcLink], options: LinkOptions, part: str = "") -> PlcLink:
+    return pool.get(options, lambda: PlcLink(options), part)

@@ -15,7 +15,6 @@ or its own ``map`` entry; the watched ones are subscribed through the PLC's shar
 
 from __future__ import annotations
 
-import asyncio
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -23,19 +22,26 @@ from dataclasses import dataclass
 from typing import Any
 
 from uacell.errors import CallError
-from uacell.gateway import driver_settings
+from uacell.gateway import DriverSettings
+from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Write
-from uacell.gateway.modbus import CommunicationError
-from uacell.gateway.modbus_robot import STATUS_SIGNALS, UNITS
-from uacell.gateway.opcua_link import LINK_SETTINGS, LinkPool, PlcLink, link_options
-from uacell.gateway.robot import ModbusSignalsRobot, Timing, check_programs
-from uacell.gateway.signals import DEFAULT_MAP, NAME_SIGNALS, SAFETY_SIGNALS, RobotStatus, SignalOp
+from uacell.gateway.opcua_link import LINK_SETTINGS, PlcLink, link_options, link_pool, shared_link
+from uacell.gateway.signal_robot import ModbusSignalsRobot, Timing, check_programs, perform
+from uacell.gateway.signals import (
+    DEFAULT_MAP,
+    NAME_SIGNALS,
+    SAFETY_SIGNALS,
+    STATUS_SIGNALS,
+    UNITS,
+    RobotStatus,
+    SignalOp,
+)
 from uacell.robotics.sim import DEFAULT_AXES
 
 SETTINGS = (
     *LINK_SETTINGS, "prefix", "map", "types", "programs", "confirm_timeout", "pulse_width", "pulse_gap", "motion",
 )  # fmt: skip
-POOL = LinkPool()
+POOL = link_pool()
 # the built-in types uacell writes the signals as (``types`` changes them, e.g. program_number = "UInt16")
 WRITE_TYPES = {"program_number": "Int32", "program_name": "String"}
 MOTION_KEYS = ("position", "speed", "scale", "speed_scale", "unit")
@@ -166,18 +172,7 @@ class OpcuaRobotIO:
 
     async def perform(self, op: SignalOp) -> None:
         """Write ``op``, wait for its confirmation in the subscribed values."""
-        try:
-            await self._write(op.writes)
-            try:
-                while True:
-                    await self._write(op.pulse_end(self.clock()))
-                    if op.observe(await self.status(), self.clock()):
-                        return
-                    await asyncio.sleep(self.poll)
-            finally:
-                await self._write(op.pulse_end(float("inf")) if op.done else ())
-        except CommunicationError as exc:
-            raise CallError("BadCommunicationError", f"{op.name}: {exc}") from None
+        await perform(op, self._write, self.status, self.poll, self.clock)
 
     async def close(self) -> None:
         await POOL.release(self.link)
@@ -213,21 +208,16 @@ def robot_addresses(settings: Mapping[str, Any]) -> dict[str, str]:
 
 async def opcua_signals(spec: Any) -> ModbusSignalsRobot:
     """The equipment factory of the ``opcua-signals`` driver (``spec``: a ControllerEquipmentSpec)."""
-    settings = driver_settings("opcua-signals", spec.settings, SETTINGS)
-    options = link_options(spec.part, settings)
+    settings = DriverSettings("opcua-signals", spec.part, spec.settings, SETTINGS)
+    options = link_options(spec.part, settings.raw)
     overrides = {str(k): str(v) for k, v in dict(settings.get("map", {})).items()}
     addresses = signal_addresses(str(settings.get("prefix", "")), overrides)
     programs = check_programs(settings.get("programs", {}))
-    motion = parse_motion_tags(settings["motion"]) if "motion" in settings else None
+    motion = parse_motion_tags(settings.get("motion")) if "motion" in settings else None
     axes = tuple(getattr(spec, "axes", ())) or DEFAULT_AXES
-    timing = Timing(
-        poll=options.interval,
-        confirm_timeout=float(settings.get("confirm_timeout", Timing.confirm_timeout)),
-        pulse_width=float(settings.get("pulse_width", Timing.pulse_width)),
-        pulse_gap=float(settings.get("pulse_gap", Timing.pulse_gap)),
-    )
+    timing = Timing(poll=options.interval, **settings.reals(Timing, "confirm_timeout", "pulse_width", "pulse_gap"))
     io = OpcuaRobotIO(
-        POOL.get(options), addresses,
+        shared_link(POOL, options, spec.part), addresses,
         by_name=any(isinstance(v, str) for v in programs.values()),
         safety=tuple(k for k in SAFETY_SIGNALS if k in overrides),
         motion=motion, axes=len(axes), types={str(k): str(v) for k, v in dict(settings.get("types", {})).items()},

@@ -23,16 +23,15 @@ import asyncio
 import contextlib
 import threading
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 from pylogix import PLC
 
-from uacell.gateway import driver_settings, number, whole_number
+from uacell.gateway import DriverSettings
+from uacell.gateway.errors import CommunicationError
 from uacell.gateway.link import PolledLink, SharedLinks
-from uacell.gateway.modbus import CommunicationError
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
-from uacell.gateway.packtags import PackTagsMapError, ResolvedTag, resolve
+from uacell.gateway.packtags import PackTagsMapError, Where, resolve
 
 SETTINGS = ("host", "port", "slot", "prefix", "interval", "timeout", *UNIT_SETTINGS)
 # what a controller answers for a tag it does not have (CIP general status 0x04, 0x05)
@@ -143,30 +142,14 @@ class LogixTagLink(PolledLink):
         await asyncio.to_thread(self.conn.close)
 
 
-@dataclass(frozen=True)
-class Where:
-    host: str
-    port: int
-    slot: int
-    interval: float
-    timeout: float
-    tags: dict[str, ResolvedTag]
-
-    @property
-    def endpoint(self) -> str:
-        return f"logix://{self.host}:{self.port} slot {self.slot}"
-
-
 def where(part: str, settings: Mapping[str, Any]) -> Where:
     """The driver's settings, checked (a ValueError names the part and the setting)."""
-    settings = driver_settings("logix-packtags", settings, SETTINGS)
-    host = settings.get("host")
-    if not isinstance(host, str) or not host:
-        raise ValueError(f'{part}: host: needs "<address of the controller>"')
-    map_ = settings.get("map", {})
-    if not isinstance(map_, Mapping) or not all(isinstance(v, str) for v in map_.values()):
+    s = DriverSettings("logix-packtags", part, settings, SETTINGS)
+    host = s.host("the controller")
+    map_ = s.table("map", 'a table of tag = "<Logix tag name>"')
+    if not all(isinstance(v, str) for v in map_.values()):
         raise ValueError(f'{part}: map: a table of tag = "<Logix tag name>", not {map_!r}')
-    prefix = str(settings.get("prefix", ""))
+    prefix = s.text("prefix")
     if prefix.startswith("/") or ";" in prefix:
         raise ValueError(f"{part}: prefix: {prefix!r} is not a Logix tag name (Capper, Program:Packer.Capper)")
     try:
@@ -174,19 +157,13 @@ def where(part: str, settings: Mapping[str, Any]) -> Where:
             part,
             prefix,
             {str(k): v for k, v in map_.items()},
-            parameters=whole_number(part, settings, "parameters", 5, 0, 100),
-            alarms=whole_number(part, settings, "alarms", 0, 0, 100),
+            parameters=s.whole("parameters", 5, 0, 100),
+            alarms=s.whole("alarms", 0, 0, 100),
         )
     except PackTagsMapError as e:
         raise ValueError(str(e)) from None
-    return Where(
-        host,
-        whole_number(part, settings, "port", 44818, 1, 65535),
-        whole_number(part, settings, "slot", 0, 0, 31),
-        number(part, settings, "interval", 0.05, 0.005, 60),
-        number(part, settings, "timeout", 1.0, 0.05, 60),
-        tags,
-    )
+    port, slot = s.whole("port", 44818, 1, 65535), s.whole("slot", 0, 0, 31)
+    return Where(f"logix://{host}:{port} slot {slot}", host, port, *s.polling(), tags, slot=slot)
 
 
 POOL = SharedLinks()  # one session per controller: host, port and slot
@@ -195,7 +172,7 @@ POOL = SharedLinks()  # one session per controller: host, port and slot
 async def logix_packtags(spec: Any) -> PackTagsUnit:
     """The equipment factory of the ``logix-packtags`` driver."""
     w = where(spec.part, spec.settings)
-    link = POOL.get(
+    link = POOL.link(
         spec.part,
         (w.host, w.port, w.slot),
         w.interval,

@@ -20,12 +20,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from uacell.gateway import driver_settings, number, whole_number
+from uacell.gateway import DriverSettings
 from uacell.gateway.codec import CodecError, RegisterType
+from uacell.gateway.errors import CommunicationError
 from uacell.gateway.link import PolledLink
-from uacell.gateway.modbus import SHARED, CommunicationError, ModbusConnection, ModbusTag, endpoint_name, spans
+from uacell.gateway.modbus import SHARED, ModbusConnection, ModbusTag, endpoint_name, spans
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
-from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag
+from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag, Where
+from uacell.gateway.pool import SharedPool
 
 SETTINGS = ("host", "port", "unit", "base", "interval", "timeout", "byte_order", "word_order", *UNIT_SETTINGS)
 UNIT_REGISTERS = 100  # a unit's block of holding registers in the default layout
@@ -168,84 +170,48 @@ class ModbusTagLink(PolledLink):
 
     async def close(self) -> None:
         await super().close()
-        SHARED.release(self.conn)
+        await SHARED.release(self.conn)
 
 
 def _article(word: str) -> str:
     return "an" if word[0] in "aeiou" else "a"
 
 
-class ModbusLinkPool:
-    """One link per host, port and poll interval, on the process's shared connection to that PLC."""
-
-    def __init__(self) -> None:
-        self._links: dict[tuple[str, int, float], ModbusTagLink] = {}
-
-    def get(self, host: str, port: int, interval: float, timeout: float = 1.0, part: str = "") -> ModbusTagLink:
-        key = (host, port, interval)
-        link = self._links.get(key)
-        if link is None:
-            link = self._links[key] = ModbusTagLink(SHARED.get(host, port, timeout, part), interval)
-        else:
-            link.conn.check_shared(part, timeout)
-        link.users += 1
-        return link
-
-    async def release(self, link: ModbusTagLink) -> None:
-        link.users -= 1
-        if link.users <= 0:
-            self._links = {k: v for k, v in self._links.items() if v is not link}
-            await link.close()
+# one link per host, port and poll interval, on the process's shared connection to that PLC
+POOL: SharedPool[tuple[str, int, float], ModbusTagLink] = SharedPool(
+    lambda link: link.close(), lambda link: link.endpoint
+)
 
 
-POOL = ModbusLinkPool()
-
-
-@dataclass(frozen=True)
-class Where:
-    """Where a unit's PackTags are: the PLC's host and port, and every tag as a Modbus point."""
-
-    host: str
-    port: int
-    interval: float
-    timeout: float
-    tags: dict[str, ResolvedTag]
-
-    @property
-    def endpoint(self) -> str:
-        return endpoint_name(self.host, self.port)
+def modbus_link(host: str, port: int, interval: float, timeout: float = 1.0, part: str = "") -> ModbusTagLink:
+    """The link a unit on ``host``:``port`` polls with; a ValueError if the connection has another timeout."""
+    SHARED.check((host, port), part, timeout=timeout)
+    return POOL.get(
+        (host, port, interval), lambda: ModbusTagLink(SHARED.connection(host, port, timeout, part), interval), part
+    )
 
 
 def where(part: str, settings: Mapping[str, Any]) -> Where:
     """The driver's settings, checked (a ValueError names the part and the setting)."""
-    settings = driver_settings("modbus-packtags", settings, SETTINGS)
-    host = settings.get("host")
-    if not isinstance(host, str) or not host:
-        raise ValueError(f'{part}: host: needs "<address of the PLC>"')
-    map_ = settings.get("map", {})
-    if not isinstance(map_, Mapping):
-        raise ValueError(f"{part}: map: a table of tag = [table, address, type], not {map_!r}")
+    s = DriverSettings("modbus-packtags", part, settings, SETTINGS)
+    host = s.host("the PLC")
+    map_ = s.table("map", "a table of tag = [table, address, type]")
     tags = resolve_modbus(
         part,
-        whole_number(part, settings, "unit", 1, 0, 255),
-        whole_number(part, settings, "base", 0, 0, 65535 - UNIT_REGISTERS),
+        s.whole("unit", 1, 0, 255),
+        s.whole("base", 0, 0, 65535 - UNIT_REGISTERS),
         map_,
-        parameters=whole_number(part, settings, "parameters", 5, 0, PARAMETER_ROOM),
-        alarms=whole_number(part, settings, "alarms", 0, 0, ALARM_ROOM),
-        byte_order=str(settings.get("byte_order", "big")),
-        word_order=str(settings.get("word_order", "big")),
+        parameters=s.whole("parameters", 5, 0, PARAMETER_ROOM),
+        alarms=s.whole("alarms", 0, 0, ALARM_ROOM),
+        byte_order=s.text("byte_order", "big"),
+        word_order=s.text("word_order", "big"),
     )
-    return Where(
-        host,
-        whole_number(part, settings, "port", 502, 1, 65535),
-        number(part, settings, "interval", 0.05, 0.005, 60),
-        number(part, settings, "timeout", 1.0, 0.05, 60),
-        tags,
-    )
+    port = s.whole("port", 502, 1, 65535)
+    return Where(endpoint_name(host, port), host, port, *s.polling(), tags)
 
 
 async def modbus_packtags(spec: Any) -> PackTagsUnit:
     """The equipment factory of the ``modbus-packtags`` driver."""
     w = where(spec.part, spec.settings)
-    link = POOL.get(w.host, w.port, w.interval, w.timeout, spec.part)
+    link = modbus_link(w.host, w.port, w.interval, w.timeout, spec.part)
     return await start_unit(spec.part, link, w.tags, spec.settings, POOL.release)

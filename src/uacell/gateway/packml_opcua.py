@@ -10,19 +10,19 @@ from __future__ import annotations
 
 from typing import Any
 
-from uacell.gateway import driver_settings
-from uacell.gateway.opcua_link import LINK_SETTINGS, LinkPool, link_options
+from uacell.gateway import DriverSettings
+from uacell.gateway.opcua_link import LINK_SETTINGS, link_options, link_pool, shared_link
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
 from uacell.gateway.packtags import PackTagsMapError, resolve
 
 SETTINGS = (*LINK_SETTINGS, "prefix", *UNIT_SETTINGS)
-POOL = LinkPool()
+POOL = link_pool()
 
 
 async def opcua_packtags(spec: Any) -> PackTagsUnit:
     """The equipment factory of the ``opcua-packtags`` driver."""
-    settings = driver_settings("opcua-packtags", spec.settings, SETTINGS)
-    options = link_options(spec.part, settings)
+    settings = DriverSettings("opcua-packtags", spec.part, spec.settings, SETTINGS)
+    options = link_options(spec.part, settings.raw)
     try:
         tags = resolve(
             spec.part,
@@ -33,4 +33,4 @@ async def opcua_packtags(spec: Any) -> PackTagsUnit:
         )
     except PackTagsMapError as e:
         raise ValueError(str(e)) from None
-    return await start_unit(spec.part, POOL.get(options), tags, settings, POOL.release)
+    return await start_unit(spec.part, shared_link(POOL, options, spec.part), tags, settings.raw, POOL.release)

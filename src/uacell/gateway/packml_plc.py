@@ -27,12 +27,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from uacell.errors import CallError
-from uacell.gateway.handshake import COMMANDS, Handshake, PlcStatus
+from uacell.gateway.errors import CommunicationError
+from uacell.gateway.handshake import Handshake, PlcStatus
 from uacell.gateway.link import TagLink
-from uacell.gateway.modbus import CommunicationError
 from uacell.gateway.packtags import NEEDED_BY, ResolvedTag
 from uacell.packml.equipment import EquipmentBase
-from uacell.packml.model import COMPLETE
+from uacell.packml.model import COMPLETE, TR88_COMMANDS
 from uacell.packml.types import PackMLDescriptorDataType
 
 log = logging.getLogger(__name__)
@@ -263,7 +263,7 @@ class PackTagsUnit(EquipmentBase):
         if machine is None:
             return  # SetMachSpeed writes Command.MachSpeed (on_mach_speed); the other unit methods stay uacell's
         name = PACKTAGS_COMMAND.get(method, method)
-        if name not in COMMANDS:
+        if name not in TR88_COMMANDS:
             return
         self._need(NEEDED_BY["every command"])
         parameters: list[float] = []

@@ -20,17 +20,16 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 from snap7.async_client import AsyncClient
 from snap7.error import S7Error, S7ProtocolError
 
-from uacell.gateway import driver_settings, number, whole_number
+from uacell.gateway import DriverSettings
+from uacell.gateway.errors import CommunicationError
 from uacell.gateway.link import PolledLink, SharedLinks
-from uacell.gateway.modbus import CommunicationError
 from uacell.gateway.packml_plc import UNIT_SETTINGS, PackTagsUnit, start_unit
-from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag
+from uacell.gateway.packtags import DEFAULT_MAP, ResolvedTag, Where
 from uacell.gateway.s7 import S7Address, S7AddressError, byte_spans, write_items, write_job, write_results
 
 SETTINGS = ("host", "port", "rack", "slot", "db", "start", "interval", "timeout", *UNIT_SETTINGS)
@@ -130,8 +129,13 @@ class S7Connection:
     async def close(self) -> None:
         client, self._client = self._client, None
         if client is not None:
+            # snap7's stream: closed here too, so a disconnect cut short by the timeout (its drain
+            # cancelled) does not leave the socket open
+            writer = getattr(getattr(client, "connection", None), "_writer", None)
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(client.disconnect(), 1.0)
+            if writer is not None:
+                writer.close()
 
     async def read(self, db: int, start: int, count: int) -> bytearray:
         client = self._usable()
@@ -218,55 +222,28 @@ class S7TagLink(PolledLink):
 POOL = SharedLinks()  # one connection per PLC: host, port, rack and slot
 
 
-@dataclass(frozen=True)
-class Where:
-    """Where a unit's PackTags are: the PLC and every tag as an absolute data block address."""
-
-    host: str
-    port: int
-    rack: int
-    slot: int
-    interval: float
-    timeout: float
-    tags: dict[str, ResolvedTag]
-
-    @property
-    def endpoint(self) -> str:
-        return f"s7://{self.host}:{self.port} rack {self.rack} slot {self.slot}"
-
-
 def where(part: str, settings: Mapping[str, Any]) -> Where:
     """The driver's settings, checked (a ValueError names the part and the setting)."""
-    settings = driver_settings("s7-packtags", settings, SETTINGS)
-    host = settings.get("host")
-    if not isinstance(host, str) or not host:
-        raise ValueError(f'{part}: host: needs "<address of the PLC>"')
-    map_ = settings.get("map", {})
-    if not isinstance(map_, Mapping):
-        raise ValueError(f'{part}: map: a table of tag = "DB<n>.DBD<byte>", not {map_!r}')
+    s = DriverSettings("s7-packtags", part, settings, SETTINGS)
+    host = s.host("the PLC")
+    map_ = s.table("map", 'a table of tag = "DB<n>.DBD<byte>"')
     tags = resolve_s7(
         part,
-        whole_number(part, settings, "db", 1, 1, 65535),
-        whole_number(part, settings, "start", 0, 0, 65535 - UNIT_BYTES),
+        s.whole("db", 1, 1, 65535),
+        s.whole("start", 0, 0, 65535 - UNIT_BYTES),
         map_,
-        parameters=whole_number(part, settings, "parameters", 5, 0, PARAMETER_ROOM),
-        alarms=whole_number(part, settings, "alarms", 0, 0, ALARM_ROOM),
+        parameters=s.whole("parameters", 5, 0, PARAMETER_ROOM),
+        alarms=s.whole("alarms", 0, 0, ALARM_ROOM),
     )
-    return Where(
-        host,
-        whole_number(part, settings, "port", 102, 1, 65535),
-        whole_number(part, settings, "rack", 0, 0, 7),
-        whole_number(part, settings, "slot", 1, 0, 31),
-        number(part, settings, "interval", 0.05, 0.005, 60),
-        number(part, settings, "timeout", 1.0, 0.05, 60),
-        tags,
-    )
+    port, rack, slot = s.whole("port", 102, 1, 65535), s.whole("rack", 0, 0, 7), s.whole("slot", 1, 0, 31)
+    endpoint = f"s7://{host}:{port} rack {rack} slot {slot}"
+    return Where(endpoint, host, port, *s.polling(), tags, rack=rack, slot=slot)
 
 
 async def s7_packtags(spec: Any) -> PackTagsUnit:
     """The equipment factory of the ``s7-packtags`` driver."""
     w = where(spec.part, spec.settings)
-    link = POOL.get(
+    link = POOL.link(
         spec.part,
         (w.host, w.port, w.rack, w.slot),
         w.interval,

@@ -51,6 +51,21 @@ class ResolvedTag:
     type_name: str
 
 
+@dataclass(frozen=True)
+class Where:
+    """Where a polled unit's PackTags are (``modbus-packtags``, ``s7-packtags``, ``logix-packtags``):
+    the PLC, how it is polled, and every tag's address; ``rack`` and ``slot`` where the transport has them."""
+
+    endpoint: str  # how messages name the PLC
+    host: str
+    port: int
+    interval: float
+    timeout: float
+    tags: dict[str, ResolvedTag]
+    rack: int = 0
+    slot: int = 0
+
+
 def resolve(
     part: str,
     prefix: str,

@@ -13,18 +13,14 @@ from typing import Any
 from asyncua import ua
 
 from uacell.cell_file import Part
-from uacell.gateway.modbus import CommunicationError, ModbusConnection, endpoint_name, shared_conflict
-from uacell.gateway.modbus_robot import parse_motion, signal_tags, used_tags
+from uacell.gateway.errors import CommunicationError, DashboardError
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
 from uacell.gateway.opcua_robot import robot_addresses
-from uacell.gateway.packml_logix import LogixConnection
-from uacell.gateway.packml_logix import where as logix_where
-from uacell.gateway.packml_modbus import Point, where
-from uacell.gateway.packml_s7 import S7Connection
-from uacell.gateway.packml_s7 import where as s7_where
 from uacell.gateway.packtags import PackTagsMapError, resolve
-from uacell.gateway.s7 import S7Address
-from uacell.gateway.ur_link import JOINT_REGISTERS, STATE_REGISTERS, TURN_REGISTERS, Dashboard, DashboardError
+from uacell.gateway.pool import shared_conflict
+
+# The Modbus, S7 and Logix transports are imported by the probes that use them: each needs its
+# library, an optional extra (uacell.extras) that a cell without such a part may not have installed.
 
 MODBUS = "uacell.gateway.robot:modbus_signals"
 PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
@@ -62,10 +58,18 @@ def gateway_parts(parts: list[tuple[str, Part]]) -> Iterator[tuple[str, str, Map
 
 def _modbus_connection(part: str, driver: str, settings: Mapping[str, Any]) -> tuple[str, int, float]:
     """(host, port, timeout) of a Modbus driver's connection; ValueError or TypeError if the settings are wrong."""
+    from uacell.gateway.packml_modbus import where  # the 'modbus' extra: its factory was loaded
+
     if driver == MODBUS_PACKTAGS:
         w = where(part, settings)
         return w.host, w.port, w.timeout
     return str(settings.get("host", "")), int(settings.get("port", 502)), float(settings.get("timeout", 1.0))
+
+
+def _modbus_endpoint(host: str, port: int) -> str:
+    from uacell.gateway.modbus import endpoint_name
+
+    return endpoint_name(host, port)
 
 
 def shared_settings(parts: list[tuple[str, Part]]) -> list[str]:
@@ -82,7 +86,7 @@ def shared_settings(parts: list[tuple[str, Part]]) -> list[str]:
             continue  # the driver says what is wrong when it starts
         seen = first.setdefault((host, port), (path, timeout))
         if seen[1] != timeout:
-            problems.append(shared_conflict(endpoint_name(host, port), "timeout", seen, (path, timeout)))
+            problems.append(shared_conflict(_modbus_endpoint(host, port), "timeout", seen, (path, timeout)))
     return problems
 
 
@@ -130,6 +134,9 @@ async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float 
 
 
 async def probe_modbus(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    from uacell.gateway.modbus import ModbusConnection, endpoint_name
+    from uacell.gateway.modbus_robot import parse_motion, signal_tags, used_tags
+
     host, port, unit = str(settings.get("host", "")), int(settings.get("port", 502)), int(settings.get("unit", 1))
     endpoint = f"{endpoint_name(host, port)} unit {unit}"
     try:
@@ -158,6 +165,9 @@ async def probe_modbus(part: str, settings: Mapping[str, Any], timeout: float = 
 
 
 async def probe_modbus_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    from uacell.gateway.modbus import ModbusConnection
+    from uacell.gateway.packml_modbus import Point, where
+
     try:
         w = where(part, settings)
     except ValueError as e:
@@ -182,6 +192,9 @@ async def probe_modbus_packtags(part: str, settings: Mapping[str, Any], timeout:
 async def probe_ur(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
     """The Dashboard Server (its welcome, robot mode, remote control, the configured program files are
     not checked: PolyScope 5 cannot list them) and UR's Modbus registers the driver reads."""
+    from uacell.gateway.modbus import ModbusConnection, endpoint_name
+    from uacell.gateway.ur_link import JOINT_REGISTERS, STATE_REGISTERS, TURN_REGISTERS, Dashboard
+
     host = str(settings.get("host", ""))
     port, modbus_port = int(settings.get("port", 29999)), int(settings.get("modbus_port", 502))
     rows: list[Row] = []
@@ -245,6 +258,10 @@ async def probe_opcua_signals(part: str, settings: Mapping[str, Any], timeout: f
 
 
 async def probe_s7_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    from uacell.gateway.packml_s7 import S7Connection
+    from uacell.gateway.packml_s7 import where as s7_where
+    from uacell.gateway.s7 import S7Address
+
     try:
         w = s7_where(part, settings)
     except ValueError as e:
@@ -269,6 +286,9 @@ async def probe_s7_packtags(part: str, settings: Mapping[str, Any], timeout: flo
 
 
 async def probe_logix_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
+    from uacell.gateway.packml_logix import LogixConnection
+    from uacell.gateway.packml_logix import where as logix_where
+
     try:
         w = logix_where(part, settings)
     except ValueError as e:

@@ -8,12 +8,27 @@ feeds ``observe`` only status read after the writes completed.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from uacell.errors import CallError
 from uacell.gateway.handshake import Write
 
+# the signals every status read carries (with the name's echo and the safety signals, when they are used)
+STATUS_SIGNALS = (
+    "remote_ready",
+    "drives_are_on",
+    "running",
+    "program_end",
+    "at_start",
+    "fault",
+    "program_echo",
+    "fault_code",
+)
+
+# the axes' units -> degrees
+UNITS = {"deg": 1.0, "rad": 180.0 / math.pi, "mrad": 0.18 / math.pi}
 # signal -> (Modbus table, address, type); every entry overridable from the cell file
 DEFAULT_MAP: dict[str, tuple[str, int, str]] = {
     # to the robot

@@ -21,7 +21,8 @@ import asyncio
 import math
 from dataclasses import dataclass
 
-from uacell.gateway.modbus import CommunicationError, ModbusConnection
+from uacell.gateway.errors import DashboardError
+from uacell.gateway.modbus import ModbusConnection
 
 WELCOME = "Connected: Universal Robots Dashboard Server"
 NOT_REMOTE = "Command is not allowed due to safety reasons"
@@ -43,10 +44,6 @@ SAFEGUARD_MODES = frozenset({5, 12, 13})
 STATE_REGISTERS = (258, 9)  # 258 .. 266
 JOINT_REGISTERS = (270, 16)  # 270 .. 285: angles in the turn, then speeds
 TURN_REGISTERS = (320, 6)
-
-
-class DashboardError(Exception):
-    """The Dashboard Server cannot be reached or did not answer."""
 
 
 class Dashboard:
@@ -147,6 +144,3 @@ async def read_state(conn: ModbusConnection, unit: int, axes: int) -> URState:
         positions=tuple(joint_degrees(joints[i], turns[i]) for i in range(n)),
         speeds=tuple(math.degrees(signed(joints[10 + i]) / 1000.0) for i in range(n)),
     )
-
-
-__all__ = ["CommunicationError", "Dashboard", "DashboardError", "URState", "read_state"]

@@ -27,9 +27,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from uacell.errors import CallError
-from uacell.gateway import driver_settings
-from uacell.gateway.modbus import SHARED, CommunicationError
-from uacell.gateway.robot import program_key
+from uacell.gateway import DriverSettings
+from uacell.gateway.errors import CommunicationError, DashboardError
+from uacell.gateway.modbus import SHARED
+from uacell.gateway.retry import keep_trying, poll_backoff
+from uacell.gateway.signal_robot import program_key
 from uacell.gateway.ur_link import (
     EMERGENCY_MODES,
     FAULT_MODES,
@@ -40,26 +42,10 @@ from uacell.gateway.ur_link import (
     SAFEGUARD_MODES,
     SAFETY_MODES,
     Dashboard,
-    DashboardError,
     URState,
     read_state,
 )
-from uacell.robotics.equipment import (
-    AlarmListener,
-    AlarmStop,
-    AxisInfo,
-    AxisState,
-    EquipmentError,
-    ExecutionMode,
-    NotPowered,
-    ProgramRejected,
-    Progress,
-    RunOutcome,
-    SafetyReport,
-    StartRefused,
-    StopMode,
-    UnknownProgram,
-)
+from uacell.robotics import equipment as eq
 from uacell.robotics.program import Kind, Program
 from uacell.robotics.sim import DEFAULT_AXES
 
@@ -69,16 +55,15 @@ FAULT, COMMUNICATION, ESTOP, PSTOP, SAFEGUARD = (
     "ControllerFault", "CommunicationLost", "EmergencyStop", "ProtectiveStop", "SafeguardStop",
 )  # fmt: skip
 SETTINGS = ("host", "port", "modbus_port", "unit", "timeout", "poll", "confirm_timeout", "power_timeout", "programs")
-MAX_BACKOFF = 2.0
 FILE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_ ./-]{0,200}$")
 # uacell's stop modes on the robot: "stop" ends the program (Start begins it again), "pause" holds it
 # (Start resumes it), None lets it run to its end
-STOPS: dict[StopMode, str | None] = {
-    StopMode.ON_PATH: "stop",
-    StopMode.QUICK_STOP: "stop",
-    StopMode.END_OF_INSTRUCTION: "pause",
-    StopMode.PROCESS_STOP: "pause",
-    StopMode.END_OF_CYCLE: None,
+STOPS: dict[eq.StopMode, str | None] = {
+    eq.StopMode.ON_PATH: "stop",
+    eq.StopMode.QUICK_STOP: "stop",
+    eq.StopMode.END_OF_INSTRUCTION: "pause",
+    eq.StopMode.PROCESS_STOP: "pause",
+    eq.StopMode.END_OF_CYCLE: None,
 }
 PAUSED_POINTER = 1  # the pointer of a paused program: Start resumes it; 0 (ResetToProgramStart) restarts it
 MODES = {"MANUAL": 1, "AUTOMATIC": 3}  # get operational mode -> OperationalModeEnumeration
@@ -101,7 +86,7 @@ class Timing:
 class URRobot:
     def __init__(
         self, part: str, dashboard: Dashboard, modbus: Any, unit: int, programs: Mapping[str, Any],
-        axes: Sequence[AxisInfo], timing: Timing,
+        axes: Sequence[eq.AxisInfo], timing: Timing,
     ) -> None:  # fmt: skip
         self.part, self.dashboard, self.modbus, self.unit, self.timing = part, dashboard, modbus, unit, timing
         self.configured = dict(programs)
@@ -112,7 +97,7 @@ class URRobot:
         self.remote = False
         self.operational_mode = 0
         self.reachable = False
-        self._listeners: list[AlarmListener] = []
+        self._listeners: list[eq.AlarmListener] = []
         self._power: list[Callable[[bool], None]] = []
         self._axis_listeners: list[Callable[[], None]] = []
         self._safety_listeners: list[Callable[[], None]] = []
@@ -125,14 +110,14 @@ class URRobot:
 
     # -- what the model reads --------------------------------------------------------------------
     @property
-    def axes(self) -> Sequence[AxisInfo]:
+    def axes(self) -> Sequence[eq.AxisInfo]:
         return self._axes
 
     @property
     def alarm_names(self) -> Sequence[str]:
         return (FAULT, COMMUNICATION, ESTOP, PSTOP, SAFEGUARD)
 
-    def add_alarm_listener(self, listener: AlarmListener) -> None:
+    def add_alarm_listener(self, listener: eq.AlarmListener) -> None:
         self._listeners.append(listener)
 
     def add_power_listener(self, listener: Callable[[bool], None]) -> None:
@@ -146,20 +131,20 @@ class URRobot:
     def add_safety_listener(self, listener: Callable[[], None]) -> None:
         self._safety_listeners.append(listener)
 
-    def axis_states(self) -> Sequence[AxisState]:
+    def axis_states(self) -> Sequence[eq.AxisState]:
         s = self.state
         if s is None:
-            return [AxisState(0.0, 0.0) for _ in self._axes]
+            return [eq.AxisState(0.0, 0.0) for _ in self._axes]
         return [
-            AxisState(s.positions[i] if i < len(s.positions) else 0.0, s.speeds[i] if i < len(s.speeds) else 0.0)
+            eq.AxisState(s.positions[i] if i < len(s.positions) else 0.0, s.speeds[i] if i < len(s.speeds) else 0.0)
             for i in range(len(self._axes))
         ]
 
-    def safety_report(self) -> SafetyReport | None:
+    def safety_report(self) -> eq.SafetyReport | None:
         if self.state is None or not self.reachable:
             return None
         mode = 4 if self.remote and self.operational_mode != 1 else self.operational_mode
-        return SafetyReport(mode, self.state.emergency_stopped, self.state.protective_stopped)
+        return eq.SafetyReport(mode, self.state.emergency_stopped, self.state.protective_stopped)
 
     # -- the controller's programs (ProgramCatalogue) --------------------------------------------
     def program_names(self) -> Sequence[str]:
@@ -176,11 +161,11 @@ class URRobot:
         file = program_file(name, self.configured)
         reply = await self._command(f"load {file}")
         if reply.startswith("File not found"):
-            raise UnknownProgram(reply)
+            raise eq.UnknownProgram(reply)
         if reply.startswith("Error while loading"):
-            raise ProgramRejected(reply)
+            raise eq.ProgramRejected(reply)
         if not reply.startswith("Loading program"):
-            raise EquipmentError(f"load {file}: {reply}")
+            raise eq.EquipmentError(f"load {file}: {reply}")
         await self._until(lambda: self.loaded.endswith(file), f"the robot did not report {file} loaded", slow=True)
 
     async def load(self, task: str, program: Program) -> None:
@@ -191,8 +176,10 @@ class URRobot:
         name = next((n for n in self.configured if program_key(n) == key), program.name)
         try:
             await self.select(task, name)
-        except UnknownProgram as e:
-            raise ProgramRejected(f"the robot takes no program files and has no program {program.name}: {e}") from None
+        except eq.UnknownProgram as e:
+            raise eq.ProgramRejected(
+                f"the robot takes no program files and has no program {program.name}: {e}"
+            ) from None
 
     async def unload(self, task: str, name: str) -> None:
         return  # the robot keeps its program loaded until the next load
@@ -203,11 +190,13 @@ class URRobot:
         self._poller = asyncio.get_running_loop().create_task(self._poll(), name=f"{self.part} ur")
 
     async def _poll(self) -> None:
-        delay = self.timing.poll
-        while not self._closed:
-            await asyncio.sleep(delay)
-            await self._read()
-            delay = self.timing.poll if self.reachable else min(MAX_BACKOFF, max(delay * 2, 0.1))
+        poll = self.timing.poll
+        await asyncio.sleep(poll)
+        await keep_trying(self._read_once, first=poll_backoff(poll), pause=poll, closed=lambda: self._closed)
+
+    async def _read_once(self) -> bool:
+        await self._read()
+        return self.reachable
 
     async def _read(self, slow: bool = False) -> None:
         try:
@@ -289,7 +278,7 @@ class URRobot:
             self._lost(str(e))
             raise CallError("BadCommunicationError", str(e)) from None
         if reply.startswith(NOT_REMOTE):
-            raise StartRefused(f"{command}: the robot is in Local control (its pendant): {reply}")
+            raise eq.StartRefused(f"{command}: the robot is in Local control (its pendant): {reply}")
         return reply
 
     async def _until(
@@ -318,15 +307,15 @@ class URRobot:
             )
             await self._command("brake release")
             await self._until(lambda: self.state is not None and self.state.arm_running, "", power)
-        except (CallError, StartRefused) as e:
-            raise NotPowered(f"the arm did not power up (robot mode {self._mode()}): {e}") from None
+        except (CallError, eq.StartRefused) as e:
+            raise eq.NotPowered(f"the arm did not power up (robot mode {self._mode()}): {e}") from None
 
     async def power_down(self) -> None:
         try:
             await self._command("power off")
             await self._until(lambda: self.state is not None and self.state.robot_mode <= POWER_OFF_MODE, "")
-        except (CallError, StartRefused) as e:
-            raise EquipmentError(f"the arm did not power off (robot mode {self._mode()}): {e}") from None
+        except (CallError, eq.StartRefused) as e:
+            raise eq.EquipmentError(f"the arm did not power off (robot mode {self._mode()}): {e}") from None
 
     def start_refusal(self) -> str | None:
         """Local control, or the arm not ready to move (a safety stop aside: a condition)."""
@@ -338,7 +327,7 @@ class URRobot:
             return f"the arm is not ready to move (robot mode {self._mode()})"
         return None
 
-    async def begin(self, task: str, pointer: int, mode: ExecutionMode) -> None:
+    async def begin(self, task: str, pointer: int, mode: eq.ExecutionMode) -> None:
         """``play``, answered once ``programState`` says PLAYING. A program paused and then reset to its
         start (pointer 0) is stopped first, so it begins again."""
         await self._read(slow=True)  # remote control as it is now
@@ -346,53 +335,55 @@ class URRobot:
             raise CallError("BadCommunicationError", f"no answer from {self.dashboard.name}")
         assert self.state is not None
         if self.state.safety_mode not in SAFE_MODES:
-            raise AlarmStop(f"safety mode {SAFETY_MODES.get(self.state.safety_mode, self.state.safety_mode)}")
+            raise eq.AlarmStop(f"safety mode {SAFETY_MODES.get(self.state.safety_mode, self.state.safety_mode)}")
         if not self.remote:
-            raise StartRefused("the robot is in Local control (its pendant), not Remote")
+            raise eq.StartRefused("the robot is in Local control (its pendant), not Remote")
         if not self.state.arm_running:
-            raise StartRefused(f"the arm is not ready to move (robot mode {self._mode()})")
+            raise eq.StartRefused(f"the arm is not ready to move (robot mode {self._mode()})")
         if self.program_state == "PAUSED" and pointer == 0:
             await self._command("stop")
         self._stop_requested = False
         reply = await self._command("play")
         if not reply.startswith("Starting program"):
-            raise StartRefused(f"play: {reply}")
+            raise eq.StartRefused(f"play: {reply}")
         await self._until(lambda: self.program_state == "PLAYING", "the robot did not confirm play")
 
-    async def run(self, task: str, pointer: int, mode: ExecutionMode, progress: Progress) -> RunOutcome:
+    async def run(self, task: str, pointer: int, mode: eq.ExecutionMode, progress: eq.Progress) -> eq.RunOutcome:
         if self.program_state != "PLAYING":
             try:
                 await self.begin(task, pointer, mode)
             except CallError as e:
-                raise EquipmentError(f"the robot did not start: {e}") from None
+                raise eq.EquipmentError(f"the robot did not start: {e}") from None
         try:
             while True:
                 await asyncio.sleep(self.timing.poll)
                 if self._closed:
-                    raise EquipmentError("the driver was closed while the program ran")
+                    raise eq.EquipmentError("the driver was closed while the program ran")
                 if not self.reachable:
-                    raise EquipmentError(f"lost the robot at {self.dashboard.name} while it ran")
+                    raise eq.EquipmentError(f"lost the robot at {self.dashboard.name} while it ran")
                 assert self.state is not None
                 if self.state.safety_mode not in SAFE_MODES:
-                    raise AlarmStop(f"safety mode {SAFETY_MODES.get(self.state.safety_mode, self.state.safety_mode)}")
+                    raise eq.AlarmStop(
+                        f"safety mode {SAFETY_MODES.get(self.state.safety_mode, self.state.safety_mode)}"
+                    )
                 if self.program_state == "PAUSED":
-                    return RunOutcome(PAUSED_POINTER, completed=False)
+                    return eq.RunOutcome(PAUSED_POINTER, completed=False)
                 if self.program_state == "STOPPED":
-                    return RunOutcome(0, completed=not self._stop_requested)
+                    return eq.RunOutcome(0, completed=not self._stop_requested)
         finally:
             self._stop_requested = False
 
-    async def stop(self, task: str, mode: StopMode) -> None:
+    async def stop(self, task: str, mode: eq.StopMode) -> None:
         self._stop_requested = True
         command = STOPS[mode]
         if command is None:
             return  # EndOfCycle: the program runs to its end
         try:
             reply = await self._command(command)
-        except StartRefused as e:
-            raise EquipmentError(str(e)) from None
+        except eq.StartRefused as e:
+            raise eq.EquipmentError(str(e)) from None
         if reply.startswith("Failed") and self.program_state == "PLAYING":
-            raise EquipmentError(f"{command}: {reply}")
+            raise eq.EquipmentError(f"{command}: {reply}")
 
     # -- alarms acknowledged (AlarmReset) ---------------------------------------------------------
     def alarm_acknowledged(self, name: str) -> None:
@@ -408,7 +399,7 @@ class URRobot:
             log.info("%s: %s: %s", self.part, command, reply)
             if command != "close safety popup":
                 await self._command("close safety popup")
-        except (CallError, EquipmentError) as e:
+        except (CallError, eq.EquipmentError) as e:
             log.warning("%s: %s failed: %s", self.part, command, e)
 
     async def close(self) -> None:
@@ -418,24 +409,18 @@ class URRobot:
                 task.cancel()
                 await asyncio.wait({task}, timeout=5.0)
         self.dashboard.close()
-        SHARED.release(self.modbus)
+        await SHARED.release(self.modbus)
 
 
 async def ur_dashboard(spec: Any) -> URRobot:
     """The equipment factory of the ``ur-dashboard`` driver (``spec``: a ControllerEquipmentSpec)."""
-    settings = driver_settings("ur-dashboard", spec.settings, SETTINGS)
-    host = settings.get("host")
-    if not isinstance(host, str) or not host:
-        raise ValueError('the ur-dashboard driver needs host = "<address of the robot>"')
-    timeout = float(settings.get("timeout", 2.0))
-    timing = Timing(
-        poll=float(settings.get("poll", Timing.poll)),
-        confirm_timeout=float(settings.get("confirm_timeout", Timing.confirm_timeout)),
-        power_timeout=float(settings.get("power_timeout", Timing.power_timeout)),
-    )
+    settings = DriverSettings("ur-dashboard", spec.part, spec.settings, SETTINGS)
+    host = settings.host("the robot")
+    timeout = settings.real("timeout", 2.0)
+    timing = Timing(**settings.reals(Timing, "poll", "confirm_timeout", "power_timeout"))
     programs = dict(settings.get("programs", {}))
     dashboard = Dashboard(host, int(settings.get("port", 29999)), timeout)
-    modbus = SHARED.get(host, int(settings.get("modbus_port", 502)), timeout)
+    modbus = SHARED.connection(host, int(settings.get("modbus_port", 502)), timeout, spec.part)
     axes = tuple(getattr(spec, "axes", ())) or DEFAULT_AXES
     robot = URRobot(spec.part, dashboard, modbus, int(settings.get("unit", 1)), programs, axes, timing)
     await robot.start()  # unreachable at start: uacell serves anyway, the part reports it

@@ -11,6 +11,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
+from uacell.extras import MissingExtra
 from uacell.history.backends import _COLUMNS, Query, Row, Sample, _where
 
 
@@ -20,7 +21,10 @@ class PostgresBackend:
     connection that failed is dropped and made anew at the next use."""
 
     def __init__(self, dsn: str, table: str = "uacell_samples") -> None:
-        import psycopg  # only needed with this backend
+        try:  # only needed with this backend: the 'postgres' extra
+            import psycopg
+        except ImportError as exc:
+            raise MissingExtra.of("[history] backend = 'postgresql'", exc) from exc
 
         if not table.isidentifier():
             raise ValueError(f"table name {table!r}")

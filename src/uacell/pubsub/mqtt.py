@@ -26,10 +26,14 @@ from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import aiomqtt
-
+from uacell.extras import MissingExtra
 from uacell.logs import exception_of, quiet_expected
 from uacell.pubsub.config import Broker, BrokerConfig, broker_of, password_of
+
+try:
+    import aiomqtt
+except ImportError as exc:  # the 'mqtt' extra (the 'sparkplug' extra includes it)
+    raise MissingExtra.of("[pubsub] or [sparkplug]", exc) from exc
 
 log = logging.getLogger(__name__)
 

@@ -14,7 +14,12 @@ from __future__ import annotations
 from enum import IntEnum
 from typing import Any
 
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from uacell.extras import MissingExtra
+
+try:
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+except ImportError as exc:  # the 'sparkplug' extra
+    raise MissingExtra.of("[sparkplug]", exc) from exc
 
 _F = descriptor_pb2.FieldDescriptorProto
 _PACKAGE = "org.eclipse.tahu.protobuf"
