@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from uacell.cell_file import SectionParser
-from uacell.datasets import PartDataSet
+from uacell.datasets import DataSets, PartDataSet
 from uacell.models.model_file import ModelFile
 from uacell.roles import Family, Role
 
@@ -153,3 +153,8 @@ class Companion:
     type_hints: Mapping[str, Family] = field(default_factory=dict)  # ObjectType/instance name -> family
     locks: tuple[LockRule, ...] = ()
     lock_guarded: frozenset[Family] = frozenset()  # families a foreign lock refuses (docs/decisions.md 20)
+
+
+def datasets_of(companions: Iterable[Companion]) -> DataSets:
+    """The DataSets ``companions`` declare, joined by part role (``uacell.datasets.DataSets``)."""
+    return DataSets(d for c in companions for d in c.datasets)

@@ -42,6 +42,7 @@ def _broker_gone(record: logging.LogRecord) -> bool:
     cause = record.args[0] if isinstance(record.args, tuple) and record.args else exception_of(record)
     return str(record.msg).startswith("failed to ") and isinstance(cause, OSError)
 
+
 FIRST_RETRY = 0.5
 LAST_RETRY = 10.0
 PUBLISH_TIMEOUT = 10.0
