@@ -16,7 +16,7 @@ import enum
 import logging
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -26,6 +26,7 @@ from asyncua import Client, Node, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from asyncua.ua.uaerrors import UaStatusCodeError
 
+from uacell.companion import WebView
 from uacell.errors import login_refusal as refused_login
 from uacell.web.discovery import Cell, discover, list_files
 from uacell.web.history import WIDTH, cell_history
@@ -39,18 +40,6 @@ EVENTS_KEPT = 30
 CONNECTS_AT_ONCE = 8  # OPC UA connections the HMI opens at once (handshake and activation)
 _AUDIT_UPDATE_STATE = ua.NodeId(ua.ObjectIds.AuditUpdateStateEventType)
 _FILE_CHUNK = 60000
-# OPC 40010-1 method result Status names (docs/robotics.md), shown beside the number.
-ROBOTICS_STATUS = {
-    0: "OK",
-    1: "E_SystemState",
-    2: "E_UnexpectedError",
-    3: "E_ActiveAlarm",
-    4: "E_AcknowledgeRequired",
-    -1: "not found",
-    -2: "invalid content",
-    -3: "unresolved reference",
-    -4: "module in use",
-}
 
 
 # The server refused who the session claims to be: retrying the same password cannot help (and each
@@ -315,7 +304,8 @@ class CellCache:
     Found again whenever a session had lost the server: it may have restarted with another cell.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, views: Sequence[WebView] = ()) -> None:
+        self.views = tuple(views)  # what the page shows (the companions' web views)
         self.cell: Cell | None = None
         self._lock = asyncio.Lock()
 
@@ -324,7 +314,7 @@ class CellCache:
             if self.cell is None:
                 # The server's structures (PackML parameters, counts, alarms) for decoding and encoding.
                 await client.load_data_type_definitions()
-                self.cell = await discover(client)
+                self.cell = await discover(client, self.views)
             return self.cell
 
     def forget(self) -> None:
@@ -785,11 +775,12 @@ class UaSession:
         inputs = [to_variant(a, v) for a, v in zip(ref.arguments, args, strict=False)]
         answer = await self._call(ref.object, ref.method, inputs, key)
         outputs = answer["outputs"]
-        if ref.robotics:
-            # Loading or unloading a module changes no state or program name: browse the modules again.
+        if ref.status is not None:
+            # An operation (loading or unloading a module) may change no state or program name:
+            # browse the modules again.
             self._schedule_modules()
             if outputs and isinstance(outputs[0], int):
-                answer["status_name"] = ROBOTICS_STATUS.get(outputs[0], "")
+                answer["status_name"] = ref.status.get(outputs[0], "")
         return answer
 
     async def _call(self, obj: ua.NodeId, method: ua.NodeId, inputs: list[ua.Variant], what: str) -> dict[str, Any]:
