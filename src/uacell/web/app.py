@@ -379,14 +379,14 @@ class WebApp:
                 return JSONResponse(await ua.call(str(body.get("key", "")), args))
             directory, path = str(body.get("directory", "")), str(body.get("path", ""))
             if action == "file":
-                return JSONResponse({"content": await ua.read_file(directory, path)})
+                return JSONResponse({"content": await ua.programs.read(directory, path)})
             if action == "upload":
                 content = str(body.get("content", "")).encode("utf-8")
                 if len(content) > MAX_UPLOAD or not path or "/" in path:
                     return JSONResponse({"error": "a file name and at most 1 MB of text"}, status_code=400)
-                await ua.write_file(directory, path, content)
+                await ua.programs.write(directory, path, content)
             elif action == "delete":
-                await ua.delete_file(directory, path)
+                await ua.programs.delete(directory, path)
             return JSONResponse({"good": True, "code": "Good", "meaning": ""})
         except UnknownKey as exc:
             return JSONResponse({"error": f"unknown {exc}"}, status_code=404)
