@@ -30,7 +30,7 @@ from uacell.errors import ConfigError
 from uacell.packml.admin_store import AdminStore, AdminWriter
 from uacell.packml.companion import PACKML, UNIT_PART
 from uacell.packml.config import PackMLConfig, UnitSpec
-from uacell.packml.equipment import PackMLEquipment
+from uacell.packml.equipment import CommandForwarder, PackMLEquipment
 from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLTables, PackMLUnit, run_units
 from uacell.packml.oee import parse_shifts
 from uacell.packml.shape import (
@@ -345,7 +345,8 @@ class UnitBinding:
         async def handler(caller: Caller, *values: Any) -> list[Any]:
             log.info("%s: %s.%s by %s", self.unit.name, machine_name or "unit", method, caller.display_user)
             args = convert(*values)
-            send = getattr(self.unit.equipment, "send_command", None)
+            equipment = self.unit.equipment
+            send = equipment.send_command if isinstance(equipment, CommandForwarder) else None
             if send is not None and (machine_name is not None or method == "SetUnitMode"):
                 # A PLC that owns the state (a gateway driver): uacell's rules first, then the PLC must
                 # accept the command before uacell's machines take it (docs/equipment.md, "Gateway").

@@ -21,12 +21,13 @@ from datetime import UTC, datetime, timedelta
 from datetime import time as dt_time
 from typing import Any
 
+from uacell.capabilities import Reachable
 from uacell.conditions import ConditionSet
 from uacell.errors import CallError
 from uacell.fsm import Reason, StateMachine
 from uacell.models.tables import FsmTable, TableLoader, TransitionInfo
 from uacell.packml.admin_store import AdminStore
-from uacell.packml.equipment import EquipmentBase, PackMLEquipment
+from uacell.packml.equipment import EquipmentBase, NamedConditions, PackMLEquipment
 from uacell.packml.oee import OEE, Figures
 from uacell.packml.types import (
     EUInformation,
@@ -296,7 +297,7 @@ class PackMLUnit:
         self.listeners: list[Listener] = []
         # OPC 10000-9 alarm conditions the equipment declares (a gateway's CommunicationLost), in
         # <unit>/Conditions (decision 45); PackML's own alarms stay Admin.Alarm and Admin.Warning
-        self.conditions = ConditionSet(getattr(equipment, "condition_names", ()))
+        self.conditions = ConditionSet(equipment.condition_names if isinstance(equipment, NamedConditions) else ())
         self._depth = 0
         # Changes that may have altered a published value, counted; an operation publishes only if the
         # count moved since the last publish (a tick that changes no whole second publishes nothing).
@@ -371,7 +372,8 @@ class PackMLUnit:
     @property
     def reachable(self) -> bool:
         """False while equipment that says so (a gateway driver's ``reachable``) cannot reach its PLC."""
-        return bool(getattr(getattr(self, "equipment", None), "reachable", True))
+        equipment = getattr(self, "equipment", None)  # none yet while the unit is being made
+        return equipment.reachable if isinstance(equipment, Reachable) else True
 
     def check_reachable(self) -> None:
         """Bad_CommunicationError while the equipment cannot reach its PLC: nothing is tried."""
