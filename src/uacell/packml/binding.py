@@ -25,6 +25,7 @@ from asyncua import ua
 from uacell.background import Background
 from uacell.cell import BuiltPart
 from uacell.companion import Closer
+from uacell.drivers import PACKML_UNIT, SIMULATORS
 from uacell.equipment_factory import EquipmentSpec, choose_equipment, make_equipment
 from uacell.errors import ConfigError
 from uacell.packml.admin_store import AdminStore, AdminWriter
@@ -423,7 +424,7 @@ _INPUTS: dict[str, Callable[..., tuple[Any, ...]]] = {
 }
 
 
-SIMULATOR = "uacell.packml.sim:simulator"
+SIMULATOR = SIMULATORS[PACKML_UNIT]
 
 
 async def make_unit_equipment(app: BinderHost, built: BuiltPart) -> PackMLEquipment:

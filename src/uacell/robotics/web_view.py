@@ -103,6 +103,7 @@ async def task_control(d: Discoverer, prefix: str, task: Child) -> dict[str, Any
     modules = await d.child(task.node, "TaskModules")
     if modules is not None:
         d.cell.folders[f"{prefix}/TaskModules"] = modules
+        d.cell.rebrowse = ("/TaskProgramName", "/CurrentState")
     methods = await d.methods(prefix, machine, TASK_METHODS, status=ROBOTICS_STATUS)
     methods |= await d.methods(f"{prefix}/ReadySubstateMachine", ready, ("ResetToProgramStart",), ROBOTICS_STATUS)
     return {

@@ -62,6 +62,9 @@ class Cell:
     directories: dict[str, ua.NodeId] = field(default_factory=dict)
     # TaskModules folders: key -> node (browsed again when the loaded program changes).
     folders: dict[str, ua.NodeId] = field(default_factory=dict)
+    # The folders are browsed again when a value whose key ends so changes (set by the view that
+    # registers them: a robot's task control, its program name and states).
+    rebrowse: tuple[str, ...] = ()
     # Nodes whose TransitionEvents the page lists, by NodeId string -> key of the machine.
     machines: dict[str, str] = field(default_factory=dict)
     # uacell's Server/CurrentRole (decision 39): read once per session, each session its own role.

@@ -402,7 +402,7 @@ class UaSession:
         if key is None:
             return
         self.values[key] = self._pending[key] = jsonable(value)
-        if key.endswith(("/TaskProgramName", "/CurrentState")):
+        if self.cell.rebrowse and key.endswith(self.cell.rebrowse):
             self.refresher.schedule_modules()
         if not self._flush_scheduled:
             self._flush_scheduled = True
