@@ -373,7 +373,7 @@ class PackMLUnit:
     def reachable(self) -> bool:
         """False while equipment that says so (a gateway driver's ``reachable``) cannot reach its PLC."""
         equipment = getattr(self, "equipment", None)  # none yet while the unit is being made
-        return equipment.reachable if isinstance(equipment, Reachable) else True
+        return bool(equipment.reachable) if isinstance(equipment, Reachable) else True
 
     def check_reachable(self) -> None:
         """Bad_CommunicationError while the equipment cannot reach its PLC: nothing is tried."""
