@@ -164,14 +164,15 @@ class UacellServer:
         # what the snapshot of the address space is keyed by, beside the models and the code
         shapes = [c.shape for c in self.companions if c.shape is not None]
         shaped = f"{history_shape(self.config.history)},shapes={shapes_digest(shapes)}"
-        self.snapshot_digest = digest = cell_digest(parts, shaped)
+        roots = [root for c in self.companions for root in c.roots]
+        self.snapshot_digest = digest = cell_digest(parts, shaped, roots=roots)
         prepared = await init_address_space(self.server, cfg.models_dir, cfg.snapshot_dir, digest)
         self.model_indexes = prepared.indexes
         self.address_space_source = prepared.source
         if prepared.extras is not None:  # the state-machine tables an earlier start read from the NodeSets
             self.tables.adopt(prepared.extras.get("fsm_tables"))
         self._cell = await build_cell(
-            self.server, self.model_indexes, parts, restored=prepared.extras, type_index=prepared.types
+            self.server, self.model_indexes, parts, restored=prepared.extras, type_index=prepared.types, roots=roots
         )
         if prepared.capture is not None:
             # the nodes of uacell's own the companions give their parts, and the HA Configuration
