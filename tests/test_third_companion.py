@@ -6,6 +6,7 @@ thread's event loop (the browser tests are synchronous)."""
 
 from __future__ import annotations
 
+import urllib.error
 import urllib.request
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
@@ -189,10 +190,18 @@ def test_the_hmi_discovers_it_and_serves_its_view(rig: Rig, ua_thread: UaThread)
     (part,) = cell.layout["thermometers"]
     assert part == {"name": UNIT, "temperature": f"{FOLDER}/{UNIT}/Temperature"}
     assert cell.variables[part["temperature"]] == temperature_node(UNIT, rig.ns)
-    page = urllib.request.urlopen(rig.web.url, timeout=30).read().decode()
+    with urllib.request.urlopen(rig.web.url, timeout=30) as answer:
+        page = answer.read().decode()
     assert '<script type="module" src="/views/thermometers.js"></script>' in page
-    script = urllib.request.urlopen(f"{rig.web.url}views/thermometers.js", timeout=30).read()
+    with urllib.request.urlopen(f"{rig.web.url}views/thermometers.js", timeout=30) as answer:
+        script = answer.read()
+        assert answer.headers["Content-Type"] == "text/javascript; charset=utf-8"
     assert script == (ROOT / "tests/companions/testco/static/view.js").read_bytes()
+    for undeclared in ("nothing.js", "thermometers.py", "..%2Fcompanion.py"):  # only the declared files
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(f"{rig.web.url}views/{undeclared}", timeout=30)
+        refused.value.close()
+        assert refused.value.code == 404
 
 
 @pytest.mark.skipif(
