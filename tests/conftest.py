@@ -13,7 +13,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -139,11 +139,11 @@ def fast_config(data_dir: Path) -> Config:
     return config
 
 
-async def start_app(config: Config, binders: list | None = None) -> UacellServer:
+async def start_app(config: Config, binders: list | None = None, companions: Sequence | None = None) -> UacellServer:
     """An in-process uacell server, set up and listening (on another free port if another test's
-    listener took the chosen one meanwhile)."""
+    listener took the chosen one meanwhile); ``companions``: those it serves (default: this build's)."""
     for attempt in range(3):
-        server = UacellServer(config, binders=binders)
+        server = UacellServer(config, binders=binders, companions=companions)
         await server.setup()
         try:
             await server.start()

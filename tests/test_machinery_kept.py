@@ -15,7 +15,8 @@ from mqtt_broker import Broker, needs_mosquitto, subscribed
 from test_history_server import history, raw
 from test_pubsub_server import pubsub_config, states, transitions_of
 
-from uacell.catalog import dataset_of
+from uacell.catalog import companions
+from uacell.companion import datasets_of
 
 EXEC = "Filler1.BaseStateMachine.MachineState.ExecuteState"
 MACH = "Filler1.BaseStateMachine.MachineState"
@@ -25,6 +26,7 @@ EMPTY = ua.Variant([], ua.VariantType.ExtensionObject, is_array=True)
 
 
 def test_the_robot_and_the_unit_keep_their_own_dataset_and_the_machines():
+    dataset_of = datasets_of(companions()).of
     unit = dataset_of("packml_unit")
     assert unit is not None and unit.values[0].path == "BaseStateMachine/CurrentState"  # PackML's first
     assert FIELD in [i.path for i in unit.values]

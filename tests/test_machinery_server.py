@@ -367,11 +367,12 @@ async def test_an_entry_naming_no_robot_or_unit_stops_the_start(tmp_path):
 
 
 async def test_the_hmi_finds_one_tile_per_machine_with_its_state_and_mode(rig):
+    from uacell.companion import web_views
     from uacell.web.discovery import discover
 
     r = rig
     async with Client(r.app.endpoint, timeout=30) as client:
-        cell = await discover(client)
+        cell = await discover(client, web_views(r.app.companions))
         tiles = {m["name"]: m for m in cell.layout["machines"]}
         assert set(tiles) == {"Robot1", "Filler1"}
         filler = tiles["Filler1"]

@@ -26,9 +26,11 @@ from mqtt_broker import Broker, make_tls, needs_mosquitto, running_broker
 from sparkplug_host import BOOLEAN, FLOAT, INT32, STRING, Host, compile_proto, following, value
 from test_operations import sample, scrape, wait_for_audit
 
+from uacell.catalog import companions
+from uacell.companion import datasets_of
 from uacell.config import Config, load_cell
-from uacell.datasets import Kind
 from uacell.errors import ConfigError
+from uacell.robotics.datasets import POSITION
 from uacell.sparkplug.config import SparkplugConfig, check_sparkplug, password_of
 from uacell.sparkplug.node import Device, EdgeNode, Sample
 from uacell.sparkplug.payload import DataType
@@ -166,14 +168,13 @@ def test_the_section_is_read_from_toml(tmp_path: Path) -> None:
 
 def test_every_command_is_refused_to_the_role_commands_run_under_by_default() -> None:
     """Without ``command_role`` commands run as observer: the role table refuses every declared one."""
-    from uacell.catalog import dataset_of
     from uacell.rights import may_call
     from uacell.roles import Role
 
     families = {"packml_unit": "PackML", "controller": "SystemOperation", "task_control": "TaskControl"}
     declared = 0
     for role, family in families.items():
-        dataset = dataset_of(role)
+        dataset = datasets_of(companions()).of(role)
         assert dataset is not None
         for _name, targets in dataset.commands:
             for _obj, method in targets:
@@ -197,7 +198,8 @@ def test_devices_of_the_demo_cell_and_what_joins_them() -> None:
         ("packml_unit", F),
     ]
     parts = [PartRef(role, ua.NodeId(path, 6), path) for role, path in demo]
-    plans = plan_devices(parts, axis_positions=False)
+    datasets = datasets_of(companions())
+    plans = plan_devices(datasets, parts, axis_positions=False)
     assert [p.device_id for p in plans] == [CTRL, F]
     robot = plans[0]
     assert [(s.part.path, s.prefix) for s in robot.sources] == [
@@ -205,8 +207,8 @@ def test_devices_of_the_demo_cell_and_what_joins_them() -> None:
         (f"{CTRL}.TaskControls.TaskControl1", "TaskControls/TaskControl1/"),
         ("Robot1.MotionDevices.Arm1", "MotionDevices/Arm1/"),
     ]
-    assert all(i.kind is not Kind.POSITION for s in robot.sources for i in s.items)
-    assert [p.device_id for p in plan_devices(parts, only=[F])] == [F]
+    assert all(i.kind is not POSITION for s in robot.sources for i in s.items)
+    assert [p.device_id for p in plan_devices(datasets, parts, only=[F])] == [F]
 
 
 # -- a served cell ---------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ from asyncua import Client, ua
 from conftest import fast_config, free_port, start_app
 from helpers import wait_until
 
+from uacell.companion import web_views
 from uacell.errors import ConfigError
 from uacell.packml.binding import UNITS
 from uacell.pki import PkiPaths
@@ -114,7 +115,7 @@ async def _state(app, machine: str) -> str:
 async def test_discovery_finds_the_demo_cell_by_type_and_browse_name(stack):
     app, _ = stack
     async with Client(app.endpoint, timeout=20) as client:
-        cell = await discover(client)
+        cell = await discover(client, web_views(app.companions))
         (unit,) = cell.layout["units"]
         assert unit["name"] == "Filler1"
         assert [m["name"] for m in unit["machines"]] == ["BaseStateMachine", "MachineState", "ExecuteState"]

@@ -12,6 +12,7 @@ from asyncua import Client, ua
 from asyncua.ua.ua_binary import variant_to_binary
 from conftest import fast_config, start_app
 
+from uacell.companion import web_views
 from uacell.history.backends import VALUE
 from uacell.history.service import to_micros
 from uacell.web.discovery import discover
@@ -57,7 +58,7 @@ async def served(tmp_path_factory):
     app = await start_app(fast_config(tmp_path_factory.mktemp("webhistory") / "data"))
     try:
         async with Client(app.endpoint, timeout=60, watchdog_intervall=60) as client:
-            yield app, client, await discover(client)
+            yield app, client, await discover(client, web_views(app.companions))
     finally:
         await app.stop()
 

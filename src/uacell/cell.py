@@ -9,6 +9,7 @@ The cell comes from the configuration (``uacell.cell_file``); the default is the
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Sequence
 from copy import deepcopy
 from dataclasses import dataclass, replace
 from typing import Any
@@ -16,8 +17,8 @@ from typing import Any
 from asyncua import Server, ua
 from asyncua.server.address_space import AddressSpace
 
-from uacell.catalog import companions
 from uacell.cell_file import STATE_MACHINE, Part
+from uacell.companion import Root
 from uacell.ua import toolkit
 from uacell.ua.instantiate import Instantiator, Selection
 
@@ -167,8 +168,11 @@ async def build_cell(
     parts: list[tuple[str, Part]] | None = None,
     restored: dict[str, Any] | None = None,
     type_index: dict[tuple[int, int, str], ua.NodeId] | None = None,
+    *,
+    roots: Sequence[Root],
 ) -> CellBuilder:
-    """Create the cell's instances; ``parts`` (root name, part) defaults to the demo cell.
+    """Create the cell's instances; ``parts`` (root name, part) defaults to the demo cell, each placed
+    in the companions' ``roots`` (``Companion.roots``) its root name names.
 
     ``restored``: the instances came with the address-space snapshot (which was written with
     ``CellBuilder.extras()`` of the same cell): only the builder's records are made.
@@ -180,9 +184,9 @@ async def build_cell(
         builder.instantiator.declarations.update(restored["declarations"])
         builder.instantiator.templates.update(restored.get("templates", {}))
         builder._types.update(restored["types"])
-    roots = {root.name: root for c in companions() for root in c.roots}
+    by_name = {root.name: root for root in roots}
     for name, part in parts or demo_cell():
-        root = roots[name]
+        root = by_name[name]
         where = ua.NodeId(root.node, model_indexes[root.model])
         builder.build(where, part, reference_type=root.reference, create=restored is None)
     if restored is None:
@@ -204,13 +208,13 @@ def _shape(part: Part) -> tuple[Any, ...]:
     )
 
 
-def cell_digest(parts: list[tuple[str, Part]] | None, extra: str = "") -> str:
+def cell_digest(parts: list[tuple[str, Part]] | None, extra: str = "", *, roots: Sequence[Root]) -> str:
     """SHA-256 of everything that shapes the cell's instances: the parts (not their equipment
     settings, which the binders apply), where the companions place them, the cell namespace, and
     ``extra`` (what else adds nodes before the snapshot: history's HA Configurations)."""
-    roots = sorted(repr(root) for c in companions() for root in c.roots)
+    placed = sorted(repr(root) for root in roots)
     shape = [(name, _shape(part)) for name, part in parts or demo_cell()]
-    return hashlib.sha256(repr((CELL_NAMESPACE, roots, shape, extra)).encode()).hexdigest()
+    return hashlib.sha256(repr((CELL_NAMESPACE, placed, shape, extra)).encode()).hexdigest()
 
 
 def sized_cell(units: int, robots: int, task_controls: int = 1) -> list[tuple[str, Part]]:

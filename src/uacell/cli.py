@@ -298,9 +298,10 @@ def _prepare_and_run(config: Config) -> int:
 
 async def _run(config: Config) -> int:
     from uacell import notify
+    from uacell.catalog import companions
     from uacell.server import UacellServer
 
-    app = UacellServer(config)
+    app = UacellServer(config, companions=companions())
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -400,6 +401,7 @@ async def _start_web_beside(config: Config, app: UacellServer) -> RunningWeb:
         ua_sessions=config.web.ua_sessions,
         release_after=config.web.release_after,
         header_timeout=config.web.header_timeout,
+        companions=app.companions,
     )
 
 
@@ -413,6 +415,7 @@ def _web(args: argparse.Namespace, config: Config) -> int:
 
 
 async def _run_web(server: str, data_dir: Path, config: Config) -> int:
+    from uacell.catalog import companions
     from uacell.web.hosting import start_web
 
     stop = asyncio.Event()
@@ -431,6 +434,7 @@ async def _run_web(server: str, data_dir: Path, config: Config) -> int:
             ua_sessions=config.web.ua_sessions,
             release_after=config.web.release_after,
             header_timeout=config.web.header_timeout,
+            companions=companions(),
         )
     except ConfigError as exc:
         print(f"uacell: {exc}", file=sys.stderr)

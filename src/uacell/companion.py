@@ -21,14 +21,16 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import importlib.resources
 import importlib.util
 from collections.abc import Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any
 
 from uacell.cell_file import SectionParser
-from uacell.datasets import PartDataSet
+from uacell.datasets import DataSets, PartDataSet
 from uacell.models.model_file import ModelFile
 from uacell.roles import Family, Role
 
@@ -117,20 +119,44 @@ class LockRule:
 
 @dataclass(frozen=True)
 class WebView:
-    """What the web HMI shows of a companion's parts: the instances of type ``type_id`` (numeric, in the
-    companion's ``namespace``) in the folder ``root`` of Objects, each described for the page by
-    ``describe`` (``"module:function"``, an async function of the discoverer, the instance and the
-    namespace index), listed under ``layout_key`` in the page's layout."""
+    """What the web HMI shows of a companion's parts, all of it in the companion's package.
+
+    The server side: the instances of type ``type_id`` (numeric, in the companion's ``namespace``) in
+    the folder ``root`` of Objects, each described for the page by ``describe`` (an async function of
+    the discoverer, the instance and the namespace index), listed under ``layout_key`` in the page's
+    layout; ``history`` (optional) reads a part's history view (an async function of the client, the
+    discovered cell, the part's name and the window, ``uacell.web.history``). Both functions are
+    named ``"module:function"``: they are imported when the HMI browses (with asyncua's client), so
+    that loading the configuration does not import them.
+
+    The browser side: ``script``, a JavaScript module in the package (e.g. ``static/view.js``) the
+    page loads (served at ``/views/<layout_key>.js``), which registers how the parts of ``layout_key``
+    are drawn (docs/companions.md); ``style``, its stylesheet (``/views/<layout_key>.css``).
+    """
 
     layout_key: str
     namespace: str
     root: str
     type_id: int
     describe: str
+    script: Traversable | None = None
+    style: Traversable | None = None
+    history: str | None = None
 
     def describer(self) -> Callable[..., Awaitable[dict[str, Any]]]:
         found: Callable[..., Awaitable[dict[str, Any]]] = _function(self.describe)
         return found
+
+    def history_reader(self) -> Callable[..., Awaitable[dict[str, Any]]] | None:
+        if self.history is None:
+            return None
+        found: Callable[..., Awaitable[dict[str, Any]]] = _function(self.history)
+        return found
+
+
+def package_file(package: str, name: str) -> Traversable:
+    """The file ``name`` (``"static/view.js"``) shipped in ``package`` (``"uacell.machinery"``)."""
+    return importlib.resources.files(package).joinpath(*name.split("/"))
 
 
 @dataclass(frozen=True)
@@ -153,3 +179,13 @@ class Companion:
     type_hints: Mapping[str, Family] = field(default_factory=dict)  # ObjectType/instance name -> family
     locks: tuple[LockRule, ...] = ()
     lock_guarded: frozenset[Family] = frozenset()  # families a foreign lock refuses (docs/decisions.md 20)
+
+
+def datasets_of(companions: Iterable[Companion]) -> DataSets:
+    """The DataSets ``companions`` declare, joined by part role (``uacell.datasets.DataSets``)."""
+    return DataSets(d for c in companions for d in c.datasets)
+
+
+def web_views(companions: Iterable[Companion]) -> list[WebView]:
+    """What the web HMI shows of ``companions``' parts: their web views, in their order."""
+    return [c.web_view for c in companions if c.web_view is not None]

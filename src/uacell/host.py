@@ -18,6 +18,7 @@ from asyncua import Server, ua
 
 from uacell.audit import AuditTrail
 from uacell.cell import CellBuilder
+from uacell.companion import Companion
 from uacell.config import Config
 from uacell.models.tables import StateTables
 from uacell.registry import Registry, RegistryKey
@@ -112,6 +113,11 @@ class BinderHost(_Shared, Protocol):
 
     @property
     def security(self) -> SessionEvents: ...
+
+    @property
+    def companions(self) -> tuple[Companion, ...]:
+        """The companions this server serves (their lock rules, DataSets, ...)."""
+        ...
 
     def registry(self, key: RegistryKey[T]) -> Registry[T]: ...
 

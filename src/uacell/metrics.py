@@ -17,12 +17,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
 
-from uacell.catalog import companions
+from uacell.companion import Companion
 from uacell.errors import ConfigError
 from uacell.extras import MissingExtra
 from uacell.ua.channel import session_count
@@ -89,7 +89,7 @@ class _AddressSpaceCollector:
 class Metrics:
     """The metrics of one server and, once started, the endpoint that serves them."""
 
-    def __init__(self, app: Host) -> None:
+    def __init__(self, app: Host, companions: Iterable[Companion]) -> None:
         self.registry = CollectorRegistry()
         self.calls = Counter(
             "uacell_calls", "Method calls by method and result", ["method", "result"], registry=self.registry
@@ -102,7 +102,7 @@ class Metrics:
             buckets=(0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0),
         )
         self.registry.register(_AddressSpaceCollector(app))
-        for companion in companions():  # each companion's own figures (Companion.metrics)
+        for companion in companions:  # each companion's own figures (Companion.metrics)
             if companion.metrics is not None:
                 self.registry.register(companion.metrics(app))
         app.dispatcher.observers.append(self._on_call)

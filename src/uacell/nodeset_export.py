@@ -39,7 +39,7 @@ import math
 import sys
 import tempfile
 import xml.etree.ElementTree as ET
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from copy import deepcopy
 from dataclasses import dataclass
 from enum import Enum
@@ -51,6 +51,7 @@ from asyncua.server.address_space import AddressSpace
 
 from uacell import __version__
 from uacell.cell import CELL_NAMESPACE
+from uacell.companion import Companion
 from uacell.config import Config
 from uacell.models.source import locate_models, official_models
 
@@ -421,13 +422,14 @@ def _simulated(config: Config, data_dir: Path) -> Config:
     return copy
 
 
-async def export_cell(config: Config) -> bytes:
-    """The NodeSet2 file of the cell ``config`` serves, assembled without listening."""
+async def export_cell(config: Config, companions: Sequence[Companion] | None = None) -> bytes:
+    """The NodeSet2 file of the cell ``config`` serves with ``companions`` (default: this build's),
+    assembled without listening."""
     from uacell.server import UacellServer
 
     models = model_infos(config.server.models_dir)
     with tempfile.TemporaryDirectory(prefix="uacell-export-") as tmp:
-        app = UacellServer(_simulated(config, Path(tmp)))
+        app = UacellServer(_simulated(config, Path(tmp)), companions=companions)
         try:
             await app.setup()
             aspace = app.server.iserver.aspace

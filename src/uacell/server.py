@@ -6,7 +6,7 @@ import asyncio
 import functools
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -14,9 +14,9 @@ from asyncua import Server, ua
 
 from uacell import __version__
 from uacell.audit import AuditTrail
-from uacell.catalog import companions
+from uacell.catalog import companions as catalog_companions
 from uacell.cell import CellBuilder, Part, build_cell, cell_digest
-from uacell.companion import Binder, Closer, shape_function, shapes_digest
+from uacell.companion import Binder, Closer, Companion, datasets_of, shape_function, shapes_digest
 from uacell.config import Config, default_application_uri
 from uacell.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
 from uacell.history.service import HistoryService
@@ -74,17 +74,25 @@ class UacellServer:
     """
 
     def __init__(
-        self, config: Config, binders: list[Binder] | None = None, parts: list[tuple[str, Part]] | None = None
+        self,
+        config: Config,
+        binders: list[Binder] | None = None,
+        parts: list[tuple[str, Part]] | None = None,
+        companions: Sequence[Companion] | None = None,
     ) -> None:
         _quiet_asyncua()
         self.config = config
+        # The companions this server serves (default: this build's, ``uacell.catalog``): handed from
+        # here to the parts that read their declarations (history, PubSub, Sparkplug, metrics).
+        self.companions = tuple(companions) if companions is not None else catalog_companions()
+        self.datasets = datasets_of(self.companions)
         self.parts = parts  # the cell's parts; None: the demo cell
         self.server = Server()
         self._cell: CellBuilder | None = None
         self.model_indexes: dict[str, int] = {}
         # The state-machine tables of the configured NodeSets: binders hand them to the models.
         self.tables = StateTables(config.server.models_dir)
-        self.binders = binders if binders is not None else default_binders()
+        self.binders = binders if binders is not None else default_binders(self.companions)
         self._closers: list[Closer] = []
         self.registries = Registries()
         self.dispatcher = MethodDispatcher.install(self.server)
@@ -155,16 +163,17 @@ class UacellServer:
         # snapshot when there is one for this cell, else built (and a snapshot written once listening).
         parts = self.parts if self.parts is not None else self.config.cell.parts()
         # what the snapshot of the address space is keyed by, beside the models and the code
-        shapes = [c.shape for c in companions() if c.shape is not None]
+        shapes = [c.shape for c in self.companions if c.shape is not None]
         shaped = f"{history_shape(self.config.history)},shapes={shapes_digest(shapes)}"
-        self.snapshot_digest = digest = cell_digest(parts, shaped)
+        roots = [root for c in self.companions for root in c.roots]
+        self.snapshot_digest = digest = cell_digest(parts, shaped, roots=roots)
         prepared = await init_address_space(self.server, cfg.models_dir, cfg.snapshot_dir, digest)
         self.model_indexes = prepared.indexes
         self.address_space_source = prepared.source
         if prepared.extras is not None:  # the state-machine tables an earlier start read from the NodeSets
             self.tables.adopt(prepared.extras.get("fsm_tables"))
         self._cell = await build_cell(
-            self.server, self.model_indexes, parts, restored=prepared.extras, type_index=prepared.types
+            self.server, self.model_indexes, parts, restored=prepared.extras, type_index=prepared.types, roots=roots
         )
         if prepared.capture is not None:
             # the nodes of uacell's own the companions give their parts, and the HA Configuration
@@ -172,7 +181,7 @@ class UacellServer:
             for spec in shapes:
                 await shape_function(spec)(self.space, self._cell)
             kept = [(b.part.role, b.node) for b in self._cell.built]
-            await add_configurations(self.server, self.config.history, kept)
+            await add_configurations(self.server, self.config.history, kept, self.datasets)
             self._snapshot_job = await prepared.capture()
         self.limits = install_limits(self)
         self.server.set_endpoint(self.endpoint)
@@ -215,6 +224,7 @@ class UacellServer:
             kept,
             lambda role: may(Role.parse(role), "history_read"),
             self.event_tap,
+            self.datasets,
         )
         if self.history is not None:  # a closed session's released continuation points are forgotten
             self.security.on_session_closed.append(self.history.forget_session)
@@ -231,6 +241,7 @@ class UacellServer:
                 [PartRef(b.part.role, b.node, b.path) for b in self.cell.built],
                 self.config.server.port,
                 self.data_dir,
+                datasets=self.datasets,
             )
         if self.config.sparkplug.enabled:
             self.sparkplug = self._sparkplug()
@@ -247,6 +258,7 @@ class UacellServer:
             [SparkplugPart(b.part.role, b.node, b.path) for b in self.cell.built],
             default_publisher_id(self.config.server.port),
             self.data_dir,
+            self.datasets,
         )
 
     async def start(self) -> None:
@@ -268,7 +280,7 @@ class UacellServer:
         if self.config.metrics.enabled:
             from uacell.metrics import Metrics
 
-            self.metrics = Metrics(self)
+            self.metrics = Metrics(self, self.companions)
             if self.pubsub is not None:
                 from uacell.pubsub.metrics import PubSubCollector
 
@@ -335,9 +347,10 @@ class UacellServer:
         self.audit.close()
 
 
-def default_binders() -> list[Binder]:
-    """The binders of every companion (``uacell.catalog.companions``), in their order."""
-    return [c.binder for c in companions() if c.binder is not None]
+def default_binders(companions: Sequence[Companion] | None = None) -> list[Binder]:
+    """The binders of ``companions`` (default: this build's, ``uacell.catalog``), in their order."""
+    found = companions if companions is not None else catalog_companions()
+    return [c.binder for c in found if c.binder is not None]
 
 
 if TYPE_CHECKING:  # the server is the host its parts and binders are typed against

@@ -23,7 +23,6 @@ from typing import TYPE_CHECKING
 from asyncua import ua
 
 from uacell.background import Background
-from uacell.catalog import companions
 from uacell.di.companion import LOCKING
 from uacell.di.locking import LockManager, LockOwner
 from uacell.errors import CallError
@@ -76,7 +75,7 @@ class LockBinding:
         if manager is not None:
             manager._on_change = self._changed
         self.lock_nodes: dict[Hashable, ua.NodeId] = {}  # element -> its Lock object
-        self.guarded: frozenset[Family] = frozenset().union(*(c.lock_guarded for c in companions()))
+        self.guarded: frozenset[Family] = frozenset().union(*(c.lock_guarded for c in app.companions))
         self.values = ValueWriter(app.space.aspace, app.dispatcher.types.builtin_of)
         self._background = Background()
 
@@ -85,7 +84,7 @@ class LockBinding:
     def build_tree(self) -> None:
         """The companions' lock rules, in order: a rule's parents come from an earlier rule."""
         cell = self.app.cell
-        for rule in (r for c in companions() for r in c.locks):
+        for rule in (r for c in self.app.companions for r in c.locks):
             parents = cell.by_role(rule.parent_role) if rule.parent_role else []
             for part in cell.by_role(rule.role):
                 above = [p for p in parents if part.path.startswith(p.path + ".")]

@@ -13,6 +13,7 @@ from typing import Any
 from asyncua import ua
 
 from uacell.cell_file import Part
+from uacell.drivers import factory_of
 from uacell.gateway.errors import CommunicationError, DashboardError
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
 from uacell.gateway.opcua_robot import robot_addresses
@@ -22,13 +23,14 @@ from uacell.gateway.pool import shared_conflict
 # The Modbus, S7 and Logix transports are imported by the probes that use them: each needs its
 # library, an optional extra (uacell.extras) that a cell without such a part may not have installed.
 
-MODBUS = "uacell.gateway.robot:modbus_signals"
-PACKTAGS = "uacell.gateway.packml_opcua:opcua_packtags"
-MODBUS_PACKTAGS = "uacell.gateway.packml_modbus:modbus_packtags"
-UR = "uacell.gateway.ur_robot:ur_dashboard"
-OPCUA_SIGNALS = "uacell.gateway.opcua_robot:opcua_signals"
-S7_PACKTAGS = "uacell.gateway.packml_s7:s7_packtags"
-LOGIX_PACKTAGS = "uacell.gateway.packml_logix:logix_packtags"
+# The drivers it knows how to probe, by their factories (uacell.drivers, the one registry).
+MODBUS = factory_of("modbus-signals")
+PACKTAGS = factory_of("opcua-packtags")
+MODBUS_PACKTAGS = factory_of("modbus-packtags")
+UR = factory_of("ur-dashboard")
+OPCUA_SIGNALS = factory_of("opcua-signals")
+S7_PACKTAGS = factory_of("s7-packtags")
+LOGIX_PACKTAGS = factory_of("logix-packtags")
 _BUILTIN = {ua.VariantType.Int32: "Int32", ua.VariantType.Boolean: "Boolean", ua.VariantType.Float: "Float"}
 
 

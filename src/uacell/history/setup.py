@@ -16,8 +16,7 @@ from typing import Any
 from asyncua import Node, Server, ua
 from asyncua.server.address_space import AttributeValue, NodeData
 
-from uacell.catalog import dataset_of
-from uacell.datasets import resolve
+from uacell.datasets import DataSets, resolve
 from uacell.history.backends import Backend, SqliteBackend
 from uacell.history.config import HistoryConfig
 from uacell.history.processed import AGGREGATES
@@ -51,8 +50,9 @@ async def install_history(
     parts: Iterable[tuple[str, ua.NodeId]],
     allows: Callable[[str], bool],
     tap: EventTap,
+    datasets: DataSets,
 ) -> HistoryService | None:
-    """Keep what ``uacell.datasets`` declares for ``parts`` (role, node) and answer HistoryRead for
+    """Keep what ``datasets`` declare for ``parts`` (role, node) and answer HistoryRead for
     callers whose role ``allows``; None when ``[history]`` is off (then every HistoryRead and
     HistoryUpdate item answers Bad_HistoryOperationUnsupported: ``NoHistory``)."""
     if not cfg.enabled:
@@ -63,12 +63,12 @@ async def install_history(
     await service.install(tap)
     parts = list(parts)
     configurations = _Configurations(server)
-    for node in kept_values(server, cfg, parts):
+    for node in kept_values(server, cfg, parts, datasets):
         await service.historize_value(node)
         await configurations.add(node)  # when the snapshot did not hold it (a variable a binder added)
     children = _children(server)  # listed after the configurations were added
     for role, root in parts:
-        dataset = dataset_of(role)
+        dataset = datasets.of(role)
         for path in dataset.notifiers if dataset is not None else ():
             for _path, node in resolve(path, children, root):
                 await service.historize_events(node)
@@ -114,13 +114,15 @@ def _children(server: Server) -> Callable[[ua.NodeId], list[tuple[str, ua.NodeId
     return children
 
 
-def kept_values(server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, ua.NodeId]]) -> list[ua.NodeId]:
+def kept_values(
+    server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, ua.NodeId]], datasets: DataSets
+) -> list[ua.NodeId]:
     """The variables whose values are kept: each part's DataSet values (found in the address space
     as it is now), axis positions only with ``axis_positions``."""
     children = _children(server)
     out: list[ua.NodeId] = []
     for role, root in parts:
-        dataset = dataset_of(role)
+        dataset = datasets.of(role)
         for item in dataset.values if dataset is not None else ():
             if item.optional and not cfg.axis_positions:
                 continue
@@ -128,7 +130,9 @@ def kept_values(server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, u
     return out
 
 
-async def add_configurations(server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, ua.NodeId]]) -> None:
+async def add_configurations(
+    server: Server, cfg: HistoryConfig, parts: Iterable[tuple[str, ua.NodeId]], datasets: DataSets
+) -> None:
     """The HA Configuration of every kept variable that has none yet, and its Historizing and
     HistoryRead bits (``mark_historizing``). ``uacell.server`` calls it before the address-space
     snapshot is taken, so that restarts find them in it (the snapshot's key includes
@@ -137,7 +141,7 @@ async def add_configurations(server: Server, cfg: HistoryConfig, parts: Iterable
         return
     configurations = _Configurations(server)
     aspace = server.iserver.aspace
-    for node in kept_values(server, cfg, parts):
+    for node in kept_values(server, cfg, parts, datasets):
         await configurations.add(node)
         await mark_historizing(aspace, node)
 

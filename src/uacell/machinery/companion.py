@@ -6,7 +6,7 @@ machine (``uacell.machinery.binding``). Its ``[[machines]]`` entries add identif
 
 from __future__ import annotations
 
-from uacell.companion import Companion, WebView, lazy_binder, lazy_metrics
+from uacell.companion import Companion, WebView, lazy_binder, lazy_metrics, package_file
 from uacell.di.companion import DI_MODEL
 from uacell.machinery.config import MachineryConfig, parse_machines
 from uacell.machinery.datasets import DATASETS
@@ -33,7 +33,15 @@ MACHINERY_COMPANION = Companion(
     models=(DI_MODEL, IA_MODEL, MACHINERY_MODEL),
     datasets=DATASETS,
     # Machines: every object the Machines folder organizes, whatever its type (BaseObjectType, i=58).
-    web_view=WebView("machines", BASE_URI, "Machines", 58, "uacell.machinery.web_view:describe_machine"),
+    web_view=WebView(
+        "machines",
+        BASE_URI,
+        "Machines",
+        58,
+        "uacell.machinery.web_view:describe_machine",
+        script=package_file(__package__, "static/view.js"),
+        style=package_file(__package__, "static/view.css"),
+    ),
     metrics=lazy_metrics("uacell.machinery.metrics", "machinery_metrics"),
     binder=lazy_binder("uacell.machinery.binding", "bind_machinery"),
     section="machinery",

@@ -3,7 +3,7 @@ MachineryItemState and MachineryOperationMode, values and TransitionEvents, on e
 
 from __future__ import annotations
 
-from uacell.datasets import Item, Kind, PartDataSet
+from uacell.datasets import STATE, Item, PartDataSet
 
 BLOCKS = "MachineryBuildingBlocks"
 _MACHINES = (f"{BLOCKS}/MachineryItemState", f"{BLOCKS}/MachineryOperationMode")
@@ -14,7 +14,7 @@ MACHINE_ROLES = ("robot", "packml_unit")
 DATASETS = tuple(
     PartDataSet(
         role=role,
-        values=tuple(Item(f"{m}/CurrentState", Kind.STATE) for m in _MACHINES),
+        values=tuple(Item(f"{m}/CurrentState", STATE) for m in _MACHINES),
         notifiers=_MACHINES,
     )
     for role in MACHINE_ROLES

@@ -5,10 +5,12 @@ a robot's controllers'), read and watched, never changed. Each source turns its 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Protocol
+from typing import Protocol
 
+from uacell.capabilities import Identified, Reachable
 from uacell.machinery.model import Facts, packml_facts, robot_facts
 from uacell.packml.model import PackMLUnit
+from uacell.robotics.equipment import ModeReporting
 from uacell.robotics.model import RobotCell
 
 
@@ -48,14 +50,9 @@ class UnitSource:
         return _identification(self.unit.equipment)
 
 
-def _reported(equipment: Any, name: str, default: Any) -> Any:
-    """What equipment reports of itself where its interface has it (``reachable``, ``operational_mode``,
-    ``identification``): members no equipment Protocol requires (yet)."""
-    return getattr(equipment, name, default)
-
-
-def _identification(equipment: Any) -> dict[str, str]:
-    found = _reported(equipment, "identification", None)
+def _identification(equipment: object) -> dict[str, str]:
+    """What equipment reports of itself (``uacell.capabilities.Identified``), as text."""
+    found = equipment.identification if isinstance(equipment, Identified) else None
     if not isinstance(found, Mapping):
         return {}
     return {str(k): str(v) for k, v in found.items() if v is not None and str(v)}
@@ -68,12 +65,12 @@ class RobotSource:
         self.cells = list(cells)
 
     def facts(self) -> Facts:
-        modes = [m for c in self.cells if (m := _reported(c.equipment, "operational_mode", None)) is not None]
+        modes = [c.equipment.operational_mode for c in self.cells if isinstance(c.equipment, ModeReporting)]
         return robot_facts(
             [c.system.state for c in self.cells],
             int(modes[0]) if modes else None,
             alarm=any(cond.active and cond.enabled for c in self.cells for cond in c.system.conditions.values()),
-            reachable=all(_reported(c.equipment, "reachable", True) for c in self.cells),
+            reachable=all(c.equipment.reachable for c in self.cells if isinstance(c.equipment, Reachable)),
         )
 
     def watch(self, changed: Callable[[], None]) -> None:

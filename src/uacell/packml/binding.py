@@ -25,12 +25,13 @@ from asyncua import ua
 from uacell.background import Background
 from uacell.cell import BuiltPart
 from uacell.companion import Closer
+from uacell.drivers import PACKML_UNIT, SIMULATORS
 from uacell.equipment_factory import EquipmentSpec, choose_equipment, make_equipment
 from uacell.errors import ConfigError
 from uacell.packml.admin_store import AdminStore, AdminWriter
 from uacell.packml.companion import PACKML, UNIT_PART
 from uacell.packml.config import PackMLConfig, UnitSpec
-from uacell.packml.equipment import PackMLEquipment
+from uacell.packml.equipment import CommandForwarder, PackMLEquipment
 from uacell.packml.model import BASE, EXECUTE, MACHINE, UNIT, PackMLTables, PackMLUnit, run_units
 from uacell.packml.oee import parse_shifts
 from uacell.packml.shape import (
@@ -345,7 +346,8 @@ class UnitBinding:
         async def handler(caller: Caller, *values: Any) -> list[Any]:
             log.info("%s: %s.%s by %s", self.unit.name, machine_name or "unit", method, caller.display_user)
             args = convert(*values)
-            send = getattr(self.unit.equipment, "send_command", None)
+            equipment = self.unit.equipment
+            send = equipment.send_command if isinstance(equipment, CommandForwarder) else None
             if send is not None and (machine_name is not None or method == "SetUnitMode"):
                 # A PLC that owns the state (a gateway driver): uacell's rules first, then the PLC must
                 # accept the command before uacell's machines take it (docs/equipment.md, "Gateway").
@@ -422,7 +424,7 @@ _INPUTS: dict[str, Callable[..., tuple[Any, ...]]] = {
 }
 
 
-SIMULATOR = "uacell.packml.sim:simulator"
+SIMULATOR = SIMULATORS[PACKML_UNIT]
 
 
 async def make_unit_equipment(app: BinderHost, built: BuiltPart) -> PackMLEquipment:

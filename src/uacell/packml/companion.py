@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from uacell.companion import Companion, Root, WebView, lazy_binder, lazy_metrics
+from uacell.companion import Companion, Root, WebView, lazy_binder, lazy_metrics, package_file
 from uacell.models.model_file import ModelFile
 from uacell.packml.config import PackMLConfig, parse_units
 from uacell.packml.datasets import PACKML_UNIT
@@ -31,7 +31,16 @@ PACKML_COMPANION = Companion(
     models=(PACKML_MODEL,),
     datasets=(PACKML_UNIT,),
     # Units: PackMLBaseObjectType (i=6) instances in PackMLObjects.
-    web_view=WebView("units", PACKML_MODEL.namespace_uri, "PackMLObjects", 6, "uacell.packml.web_view:describe_unit"),
+    web_view=WebView(
+        "units",
+        PACKML_MODEL.namespace_uri,
+        "PackMLObjects",
+        6,
+        "uacell.packml.web_view:describe_unit",
+        script=package_file(__package__, "static/view.js"),
+        style=package_file(__package__, "static/view.css"),
+        history="uacell.packml.web_view:unit_history",
+    ),
     metrics=lazy_metrics("uacell.packml.metrics", "packml_metrics"),
     binder=lazy_binder("uacell.packml.binding", "bind_packml"),
     shape="uacell.packml.shape:shape_units",

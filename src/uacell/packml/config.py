@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from uacell.cell_file import Part, Table
+from uacell.drivers import PACKML_UNIT, drivers_of
 from uacell.packml.types import ProductionMaintenanceModeEnum
 
 # ProductionMaintenanceModeEnum's names, as the NodeSet spells them.
@@ -31,12 +32,7 @@ ACTING_STATES = (
 
 
 # The drivers shipped for PackML units (docs/equipment.md, "Gateway"): equipment = { driver = ... }.
-DRIVERS = {
-    "opcua-packtags": "uacell.gateway.packml_opcua:opcua_packtags",
-    "modbus-packtags": "uacell.gateway.packml_modbus:modbus_packtags",
-    "s7-packtags": "uacell.gateway.packml_s7:s7_packtags",
-    "logix-packtags": "uacell.gateway.packml_logix:logix_packtags",
-}
+DRIVERS = drivers_of(PACKML_UNIT)  # name -> factory (uacell.drivers, the one registry)
 
 
 @dataclass

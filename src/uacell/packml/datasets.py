@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
-from uacell.datasets import Item, Kind, PartDataSet
+from uacell.datasets import ALARM, COUNTER, SPEED, STATE, Item, Kind, PartDataSet
+
+OEE = Kind("oee")  # OEE figures (uacell's namespace, docs/packml.md): a PackML unit's own kind
 
 _SM = "BaseStateMachine"
 _MACHINE = f"{_SM}/MachineState"
@@ -17,23 +19,23 @@ _PACKML_MACHINES = (
 PACKML_UNIT = PartDataSet(
     role="packml_unit",
     values=(
-        *(Item(f"{m}/CurrentState", Kind.STATE) for m in _PACKML_MACHINES),
-        Item("Status/UnitModeCurrent", Kind.STATE),
-        Item("Status/EquipmentBlocked", Kind.STATE),
-        Item("Status/EquipmentStarved", Kind.STATE),
-        Item("Status/MachSpeed", Kind.SPEED),
-        Item("Status/CurMachSpeed", Kind.SPEED),
-        Item("Admin/ProdProcessedCount", Kind.COUNTER),
-        Item("Admin/ProdDefectiveCount", Kind.COUNTER),
-        Item("Admin/ProdConsumedCount", Kind.COUNTER),
-        Item("Admin/StopReason", Kind.ALARM),
-        Item("Admin/Alarm", Kind.ALARM),
-        Item("OEE/Availability", Kind.OEE),
-        Item("OEE/Performance", Kind.OEE),
-        Item("OEE/Quality", Kind.OEE),
-        Item("OEE/OEE", Kind.OEE),
-        Item("OEE/ProcessedCount", Kind.OEE),
-        Item("OEE/GoodCount", Kind.OEE),
+        *(Item(f"{m}/CurrentState", STATE) for m in _PACKML_MACHINES),
+        Item("Status/UnitModeCurrent", STATE),
+        Item("Status/EquipmentBlocked", STATE),
+        Item("Status/EquipmentStarved", STATE),
+        Item("Status/MachSpeed", SPEED),
+        Item("Status/CurMachSpeed", SPEED),
+        Item("Admin/ProdProcessedCount", COUNTER),
+        Item("Admin/ProdDefectiveCount", COUNTER),
+        Item("Admin/ProdConsumedCount", COUNTER),
+        Item("Admin/StopReason", ALARM),
+        Item("Admin/Alarm", ALARM),
+        Item("OEE/Availability", OEE),
+        Item("OEE/Performance", OEE),
+        Item("OEE/Quality", OEE),
+        Item("OEE/OEE", OEE),
+        Item("OEE/ProcessedCount", OEE),
+        Item("OEE/GoodCount", OEE),
     ),
     notifiers=_PACKML_MACHINES,
     device=True,

@@ -16,7 +16,7 @@ anything else is logged and turned into a fault (the unit aborts).
 from __future__ import annotations
 
 from collections.abc import Awaitable, Mapping, Sequence
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 from uacell.packml.types import (
     PackMLDescriptorDataType,
@@ -227,3 +227,23 @@ class InstantEquipment(EquipmentBase):
     def on_state(self, state: str) -> None:
         # The model defers completions requested from inside a hook until the hook returns.
         self.unit.state_complete(state)
+
+
+# --- optional capabilities: equipment declares them by implementing the Protocol -------------------
+
+
+@runtime_checkable
+class CommandForwarder(Protocol):
+    """Equipment whose PLC owns the state (a gateway driver): a unit command or SetUnitMode passes
+    uacell's rules, then must be accepted by the PLC before uacell's machines take it
+    (docs/equipment.md, "Gateway")."""
+
+    async def send_command(self, machine: str | None, method: str, args: Sequence[Any]) -> None: ...
+
+
+@runtime_checkable
+class NamedConditions(Protocol):
+    """Equipment with OPC 10000-9 conditions of its own, in ``<unit>/Conditions``, by name."""
+
+    @property
+    def condition_names(self) -> Sequence[str]: ...

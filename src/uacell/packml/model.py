@@ -31,7 +31,7 @@ from uacell.models.tables import TransitionInfo
 from uacell.packml.accounting import DURABLE_KEYS, DURABLE_TIMES, AdminAccounting
 from uacell.packml.admin_store import AdminStore
 from uacell.packml.data import INT32_WRAP, PACKAGES, STATE_COLUMNS, Admin, Status
-from uacell.packml.equipment import EquipmentBase, PackMLEquipment
+from uacell.packml.equipment import EquipmentBase, NamedConditions, PackMLEquipment
 from uacell.packml.equipment_side import EquipmentSide
 from uacell.packml.oee import OEE
 from uacell.packml.publishing import (
@@ -178,7 +178,7 @@ class PackMLUnit(UnitView, EquipmentSide, UnitMethods):
         self.saving = StoredValues(name, store, clock, since=self.accounting.last)
         # OPC 10000-9 alarm conditions the equipment declares (a gateway's CommunicationLost), in
         # <unit>/Conditions (decision 45); PackML's own alarms stay Admin.Alarm and Admin.Warning
-        self.conditions = ConditionSet(getattr(equipment, "condition_names", ()))
+        self.conditions = ConditionSet(equipment.condition_names if isinstance(equipment, NamedConditions) else ())
         self._depth = 0
         self._pending: list[str | None] = []
         # The acting state a command entered and that command's context: the state's completion runs

@@ -6,6 +6,7 @@ from __future__ import annotations
 from datetime import timedelta
 from typing import Any
 
+from uacell.capabilities import Reachable
 from uacell.errors import CallError
 from uacell.fsm import StateMachine
 from uacell.packml.oee import Figures
@@ -62,7 +63,8 @@ class UnitView(UnitBase):
     @property
     def reachable(self) -> bool:
         """False while equipment that says so (a gateway driver's ``reachable``) cannot reach its PLC."""
-        return bool(getattr(getattr(self, "equipment", None), "reachable", True))
+        equipment = getattr(self, "equipment", None)  # none yet while the unit is being made
+        return bool(equipment.reachable) if isinstance(equipment, Reachable) else True
 
     def check_reachable(self) -> None:
         """Bad_CommunicationError while the equipment cannot reach its PLC: nothing is tried."""

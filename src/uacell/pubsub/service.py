@@ -23,8 +23,7 @@ from typing import Any
 from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 
-from uacell.catalog import dataset_of
-from uacell.datasets import Item, Kind, resolve
+from uacell.datasets import STATE, DataSets, Item, resolve
 from uacell.pubsub.address_space import PubSubNodes
 from uacell.pubsub.config import PubSubConfig
 from uacell.pubsub.encoding import JsonEncoder
@@ -95,17 +94,17 @@ class PubSubService:
 
     # -- what is published -----------------------------------------------------------------------
 
-    def add_parts(self, parts: Iterable[PartRef], extra: Sequence[str] = ()) -> None:
+    def add_parts(self, parts: Iterable[PartRef], datasets: DataSets, extra: Sequence[str] = ()) -> None:
         added: dict[str, list[Item]] = {}
         for entry in extra:
             role, _, path = entry.partition(":")
-            added.setdefault(role, []).append(Item(path, Kind.STATE))
+            added.setdefault(role, []).append(Item(path, STATE))
         ticks = max(1, round(self.cfg.positions_interval / self.cfg.publishing_interval))
         for part in parts:
-            dataset = dataset_of(part.role)
+            dataset = datasets.of(part.role)
             items = [*(dataset.values if dataset else ()), *added.get(part.role, [])]
-            plain = [i for i in items if i.kind is not Kind.POSITION]
-            positions = [i for i in items if i.kind is Kind.POSITION] if self.cfg.axis_positions else []
+            plain = [i for i in items if not i.optional]
+            positions = [i for i in items if i.optional] if self.cfg.axis_positions else []
             if plain:
                 self._value_writer(part.path, part.node, plain, 1)
             if positions:
@@ -294,13 +293,15 @@ async def install_pubsub(
     parts: Iterable[PartRef],
     port: int,
     data_dir: Path | None = None,
+    *,
+    datasets: DataSets,
 ) -> PubSubService | None:
     """The PubSub service for ``parts``, not yet started, its configuration shown below
     Server/PublishSubscribe; None when ``[pubsub]`` is off. ``data_dir`` keeps the DataSets' versions."""
     if not cfg.enabled:
         return None
     service = PubSubService(cfg, aspace, JsonEncoder(namespaces), cfg.publisher_id or default_publisher_id(port))
-    service.add_parts(parts, cfg.extra_values)
+    service.add_parts(parts, datasets, cfg.extra_values)
     versions = VersionStore(data_dir)
     now = datetime.now(UTC)
     for w in service.writers:

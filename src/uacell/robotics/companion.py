@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from uacell.companion import Companion, LockRule, WebView, lazy_binder
+from uacell.companion import Companion, LockRule, WebView, lazy_binder, package_file
 from uacell.models.model_file import ModelFile
 from uacell.robotics.config import RobotConfig, parse_robots
 from uacell.robotics.datasets import DATASETS
@@ -47,7 +47,16 @@ ROBOTICS = Companion(
     models=MODELS,
     datasets=DATASETS,
     # Robots: MotionDeviceSystemType (i=1002) instances in DeviceSet.
-    web_view=WebView("robots", ROBOTICS_URI, "DeviceSet", 1002, "uacell.robotics.web_view:describe_robot"),
+    web_view=WebView(
+        "robots",
+        ROBOTICS_URI,
+        "DeviceSet",
+        1002,
+        "uacell.robotics.web_view:describe_robot",
+        script=package_file(__package__, "static/view.js"),
+        style=package_file(__package__, "static/view.css"),
+        history="uacell.robotics.web_view:robot_history",
+    ),
     binder=lazy_binder("uacell.robotics.binding", "bind_robotics"),
     section="robot",
     settings=RobotConfig,

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from uacell.cell_file import STATE_MACHINE, Part, Table, check_name, identification_lines, read_identification, unique
+from uacell.drivers import ROBOT_CONTROLLER, drivers_of
 from uacell.errors import ConfigError
 from uacell.robotics.equipment import AxisInfo, ExecutionMode, StopMode
 from uacell.robotics.sim import DEFAULT_AXES
@@ -35,11 +36,7 @@ _ONE_CONTROLLER = [{"name": "Controller1"}]
 
 
 # The drivers shipped for robot controllers (docs/equipment.md, "Gateway"): equipment = { driver = ... }.
-DRIVERS = {
-    "modbus-signals": "uacell.gateway.robot:modbus_signals",
-    "ur-dashboard": "uacell.gateway.ur_robot:ur_dashboard",
-    "opcua-signals": "uacell.gateway.opcua_robot:opcua_signals",
-}
+DRIVERS = drivers_of(ROBOT_CONTROLLER)  # name -> factory (uacell.drivers, the one registry)
 
 
 @dataclass

@@ -3,14 +3,18 @@
 
 from __future__ import annotations
 
-from uacell.datasets import Item, Kind, PartDataSet
+from uacell.datasets import SPEED, STATE, Item, Kind, PartDataSet
+
+# A robot's own kinds of value (``uacell.datasets.Kind`` is open).
+POSITION = Kind("position", optional=True)  # axis positions: many changes; only with axis_positions
+PROGRAM = Kind("program")  # which program runs, where it is
 
 _SYSTEM = "SystemOperation/SystemOperationStateMachine"
 _TASK = "TaskControlOperation/TaskControlStateMachine"
 
 ROBOT_CONTROLLER = PartDataSet(
     role="controller",
-    values=(Item(f"{_SYSTEM}/CurrentState", Kind.STATE),),
+    values=(Item(f"{_SYSTEM}/CurrentState", STATE),),
     # "": the controller itself, which its alarms (Conditions) are fired through
     notifiers=("", _SYSTEM),
     device=True,  # with its task controls and its robot's motion devices
@@ -20,11 +24,11 @@ ROBOT_CONTROLLER = PartDataSet(
 ROBOT_TASK_CONTROL = PartDataSet(
     role="task_control",
     values=(
-        Item(f"{_TASK}/CurrentState", Kind.STATE),
-        Item("ParameterSet/TaskProgramName", Kind.PROGRAM),
-        Item("ParameterSet/ProgramPointer", Kind.PROGRAM),
-        Item("ParameterSet/CurrentLine", Kind.PROGRAM),  # uacell's own: the program's source line
-        Item("ParameterSet/TaskProgramLoaded", Kind.PROGRAM),
+        Item(f"{_TASK}/CurrentState", STATE),
+        Item("ParameterSet/TaskProgramName", PROGRAM),
+        Item("ParameterSet/ProgramPointer", PROGRAM),
+        Item("ParameterSet/CurrentLine", PROGRAM),  # uacell's own: the program's source line
+        Item("ParameterSet/TaskProgramLoaded", PROGRAM),
     ),
     notifiers=(_TASK,),
     commands=(
@@ -38,8 +42,8 @@ ROBOT_TASK_CONTROL = PartDataSet(
 ROBOT_MOTION_DEVICE = PartDataSet(
     role="motion_device",
     values=(
-        Item("ParameterSet/SpeedOverride", Kind.SPEED),
-        Item("Axes/*/ParameterSet/ActualPosition", Kind.POSITION),
+        Item("ParameterSet/SpeedOverride", SPEED),
+        Item("Axes/*/ParameterSet/ActualPosition", POSITION),
     ),
     notifiers=(),
 )

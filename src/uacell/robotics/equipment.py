@@ -193,6 +193,16 @@ class ConfirmedStart(Protocol):
 
 
 @runtime_checkable
+class ModeReporting(Protocol):
+    """Equipment that reports the controller's operational mode (OPC 40010-1 OperationalModeEnumeration:
+    MANUAL_REDUCED_SPEED 1, MANUAL_HIGH_SPEED 2, AUTOMATIC 3, AUTOMATIC_EXTERNAL 4; 0 OTHER), which
+    the machine's MachineryOperationMode follows (uacell.machinery)."""
+
+    @property
+    def operational_mode(self) -> int: ...
+
+
+@runtime_checkable
 class PowerFeedback(Protocol):
     """Equipment that reports its drive power as the controller sees it. SystemOperation follows:
     drives that go off by themselves (a fault, the pendant) take Ready to Idle (reason Error), drives

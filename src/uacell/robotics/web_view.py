@@ -1,15 +1,30 @@
-"""What the web HMI shows of a robot (``Companion.web_view``): found by type in any server."""
+"""What the web HMI shows of a robot (``Companion.web_view``): found by type in any server; its history
+view; the page draws it with ``static/view.js`` beside this module."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from asyncua import ua
+from asyncua import Client, ua
 
-from uacell.web.discovery import CONDITION_VARIABLES, Child, Discoverer
+from uacell.web.discovery import CONDITION_VARIABLES, Cell, Child, Discoverer
+from uacell.web.history import Window, program_runs, seconds, value_history
 
 _CONDITION_TYPE = ua.NodeId(ua.ObjectIds.ConditionType)
 
+# OPC 40010-1 method result Status names (docs/robotics.md), shown beside the number: the first
+# output of the operation methods below (``Discoverer.methods(..., status=ROBOTICS_STATUS)``).
+ROBOTICS_STATUS = {
+    0: "OK",
+    1: "E_SystemState",
+    2: "E_UnexpectedError",
+    3: "E_ActiveAlarm",
+    4: "E_AcknowledgeRequired",
+    -1: "not found",
+    -2: "invalid content",
+    -3: "unresolved reference",
+    -4: "module in use",
+}
 SYSOP_METHODS = ("GetReady", "StandDown", "Start", "Stop")
 # CurrentLine and ProgramPointer are uacell's own (docs/robotics.md): absent on other servers.
 TASK_VARIABLES = ("TaskProgramName", "TaskProgramLoaded", "ExecutionMode", "CurrentLine", "ProgramPointer")
@@ -70,7 +85,7 @@ async def controller(d: Discoverer, prefix: str, part: Child, r: int) -> dict[st
                 await d.machine(f"{sysop_prefix}/{sub}", await d.child(machine, sub))
                 for sub in ("IdleSubstateMachine", "ExecutingSubstateMachine")
             ],
-            "methods": await d.methods(sysop_prefix, machine, SYSOP_METHODS, robotics=True),
+            "methods": await d.methods(sysop_prefix, machine, SYSOP_METHODS, status=ROBOTICS_STATUS),
         },
         "conditions": conditions,
         "lock": await d.lock(prefix, part.node),
@@ -88,8 +103,9 @@ async def task_control(d: Discoverer, prefix: str, task: Child) -> dict[str, Any
     modules = await d.child(task.node, "TaskModules")
     if modules is not None:
         d.cell.folders[f"{prefix}/TaskModules"] = modules
-    methods = await d.methods(prefix, machine, TASK_METHODS, robotics=True)
-    methods |= await d.methods(f"{prefix}/ReadySubstateMachine", ready, ("ResetToProgramStart",), True)
+        d.cell.rebrowse = ("/TaskProgramName", "/CurrentState")
+    methods = await d.methods(prefix, machine, TASK_METHODS, status=ROBOTICS_STATUS)
+    methods |= await d.methods(f"{prefix}/ReadySubstateMachine", ready, ("ResetToProgramStart",), ROBOTICS_STATUS)
     return {
         "name": task.name,
         **await d.machine(prefix, machine),
@@ -99,3 +115,19 @@ async def task_control(d: Discoverer, prefix: str, task: Child) -> dict[str, Any
         "lock": await d.lock(prefix, task.node),
         "methods": methods,
     }
+
+
+async def robot_history(client: Client, cell: Cell, name: str, w: Window) -> dict[str, Any]:
+    """The history view of a robot (``WebView.history``, uacell.web.history): each task control's
+    program runs."""
+    s, e = seconds(w.since), seconds(w.end)
+    tasks = []
+    for node_text, key in sorted(cell.machines.items(), key=lambda kv: kv[1]):
+        if not (key.startswith(f"{name}/") and node_text.endswith(".TaskControlStateMachine")):
+            continue
+        state = cell.variables.get(f"{key}/CurrentState")
+        program = cell.variables.get(f"{key}/TaskProgramName")
+        states = await value_history(client, state, w.since, w.end) if state is not None else []
+        programs = await value_history(client, program, w.since, w.end) if program is not None else []
+        tasks.append({"task": key, "runs": [r.json() for r in program_runs(states, programs, s, e)]})
+    return {"name": name, "tasks": tasks}

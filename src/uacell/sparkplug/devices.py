@@ -17,8 +17,7 @@ from dataclasses import dataclass, field
 
 from asyncua import ua
 
-from uacell.catalog import dataset_of
-from uacell.datasets import Command, Item, Kind
+from uacell.datasets import STATE, Command, DataSets, Item
 
 
 @dataclass(frozen=True)
@@ -55,21 +54,25 @@ def _shared(a: str, b: str) -> int:
 
 
 def plan_devices(
-    parts: Sequence[PartRef], extra: Iterable[str] = (), axis_positions: bool = True, only: Sequence[str] = ()
+    datasets: DataSets,
+    parts: Sequence[PartRef],
+    extra: Iterable[str] = (),
+    axis_positions: bool = True,
+    only: Sequence[str] = (),
 ) -> list[DevicePlan]:
     """The devices of ``parts`` in the cell's order (only those named in ``only``, when given)."""
     added: dict[str, list[Item]] = {}
     for entry in extra:
         role, _, path = entry.partition(":")
-        added.setdefault(role, []).append(Item(path, Kind.STATE))
+        added.setdefault(role, []).append(Item(path, STATE))
     plans: dict[str, DevicePlan] = {}
     joining: list[tuple[PartRef, tuple[Item, ...], tuple[Command, ...]]] = []
     for part in parts:
-        dataset = dataset_of(part.role)
+        dataset = datasets.of(part.role)
         if dataset is None:
             continue
         declared = [*dataset.values, *added.get(part.role, [])]
-        items = tuple(i for i in declared if axis_positions or i.kind is not Kind.POSITION)
+        items = tuple(i for i in declared if axis_positions or not i.optional)
         if dataset.device:
             plans[part.path] = DevicePlan(part.path, [Source(part, "", items, dataset.commands)])
         else:

@@ -22,7 +22,7 @@ from asyncua.server.address_space import AddressSpace
 
 from uacell import __version__
 from uacell.background import Background
-from uacell.datasets import resolve
+from uacell.datasets import DataSets, resolve
 from uacell.pubsub.mqtt import LinkSettings
 from uacell.sparkplug.commands import (
     RESULT_CODE,
@@ -358,12 +358,13 @@ def install_sparkplug(
     parts: Sequence[PartRef],
     edge_node_id: str,
     data_dir: Path,
+    datasets: DataSets,
 ) -> SparkplugService | None:
     """The edge node for ``parts``, not yet started; None when ``[sparkplug]`` is off."""
     if not cfg.enabled:
         return None
     service = SparkplugService(cfg, aspace, dispatcher, cfg.edge_node_id or edge_node_id, data_dir)
-    service.add_devices(plan_devices(parts, cfg.extra_values, cfg.axis_positions, cfg.parts))
+    service.add_devices(plan_devices(datasets, parts, cfg.extra_values, cfg.axis_positions, cfg.parts))
     log.info(
         "sparkplug: edge node %s/%s with %d device(s) on %s",
         cfg.group_id,

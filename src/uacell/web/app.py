@@ -9,22 +9,25 @@ the ``X-CSRF-Token`` header. Passwords travel only in POST bodies and are never 
 from __future__ import annotations
 
 import asyncio
+import html
 import json
 import logging
 import math
 import secrets
 import time
-from collections.abc import AsyncIterator, Callable, Coroutine, Iterable
+from collections.abc import AsyncIterator, Callable, Coroutine, Iterable, Sequence
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 from starlette.applications import Starlette
 from starlette.requests import Request
-from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from starlette.responses import HTMLResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 from starlette.types import Receive, Scope, Send
 
+from uacell.companion import WebView
 from uacell.web.guards import HostGuard
 from uacell.web.history import MAX_HOURS as MAX_HISTORY_HOURS
 from uacell.web.history import WIDTH as HISTORY_WIDTH
@@ -67,8 +70,18 @@ class WebApp:
         hosts: Iterable[str] = (),
         ua_sessions: int = UA_SESSIONS,
         release_after: float = RELEASE_AFTER,
+        views: Sequence[WebView] = (),
     ) -> None:
         self.url = url
+        # What the page shows: each companion's web view (``Companion.web_view``), its browser module
+        # and stylesheet served from the companion's package at /views/<layout key>.js and .css.
+        self.views = tuple(views)
+        self._view_files = {
+            f"{v.layout_key}.{kind}": file
+            for v in self.views
+            for kind, file in (("js", v.script), ("css", v.style))
+            if file is not None
+        }
         self.credentials = credentials
         # False: visitors must log in (the HMI is on the network, the OPC UA server on loopback, where
         # the server would grant anonymous clients the rights it means for the local machine only).
@@ -92,6 +105,7 @@ class WebApp:
             later=self._later,
             refused=self._refused,
             closing=self.closing,
+            views=self.views,
         )
         static = _static_dir()
         routes = Starlette(
@@ -106,12 +120,13 @@ class WebApp:
                 Route("/api/upload", self.upload, methods=["POST"]),
                 Route("/api/delete", self.delete, methods=["POST"]),
                 Route("/api/history", self.history),
+                Route("/views/{name}", self.view_file),
                 Mount("/static", StaticFiles(directory=static), name="static"),
             ]
         )
         # Only the names the HMI is served under (loopback names, IP addresses, ``hosts``): DNS rebinding.
         self.app = HostGuard(routes, names=hosts, https=https)
-        self._index = f"{static}/index.html"
+        self._index = self._page(Path(static, "index.html").read_text(encoding="utf-8"))
 
     # sessions --------------------------------------------------------------------------------
 
@@ -217,9 +232,31 @@ class WebApp:
             return JSONResponse({"error": "the request body must be a JSON object"}, status_code=400)
         return s, body
 
+    def _page(self, template: str) -> str:
+        """index.html with each view's stylesheet and module in the companions' order (the modules run
+        after app.js, before the page opens its session: they register how their parts are drawn)."""
+        tags = [
+            f'<link rel="stylesheet" href="/views/{html.escape(n)}">' for n in self._view_files if n.endswith(".css")
+        ]
+        tags += [
+            f'<script type="module" src="/views/{html.escape(n)}"></script>'
+            for n in self._view_files
+            if n.endswith(".js")
+        ]
+        return template.replace("<!-- companion views -->", "\n".join(tags))
+
     async def index(self, request: Request) -> Response:
         # The page asks for its session (/api/session) with the token it keeps, or gets a new one.
-        return FileResponse(self._index, headers=_SECURITY_HEADERS)
+        return HTMLResponse(self._index, headers=_SECURITY_HEADERS)
+
+    async def view_file(self, request: Request) -> Response:
+        """A companion's web view module or stylesheet (only those the companions declare)."""
+        name = request.path_params["name"]
+        file = self._view_files.get(name)
+        if file is None:
+            return Response("not found", status_code=404, media_type="text/plain")
+        media = "text/javascript" if name.endswith(".js") else "text/css"
+        return Response(file.read_bytes(), media_type=f"{media}; charset=utf-8", headers=_SECURITY_HEADERS)
 
     async def session_info(self, request: Request) -> Response:
         s = self._session(request)
@@ -342,14 +379,14 @@ class WebApp:
                 return JSONResponse(await ua.call(str(body.get("key", "")), args))
             directory, path = str(body.get("directory", "")), str(body.get("path", ""))
             if action == "file":
-                return JSONResponse({"content": await ua.read_file(directory, path)})
+                return JSONResponse({"content": await ua.programs.read(directory, path)})
             if action == "upload":
                 content = str(body.get("content", "")).encode("utf-8")
                 if len(content) > MAX_UPLOAD or not path or "/" in path:
                     return JSONResponse({"error": "a file name and at most 1 MB of text"}, status_code=400)
-                await ua.write_file(directory, path, content)
+                await ua.programs.write(directory, path, content)
             elif action == "delete":
-                await ua.delete_file(directory, path)
+                await ua.programs.delete(directory, path)
             return JSONResponse({"good": True, "code": "Good", "meaning": ""})
         except UnknownKey as exc:
             return JSONResponse({"error": f"unknown {exc}"}, status_code=404)

@@ -1,9 +1,10 @@
 """Find the cell in any server's address space: by type and BrowseName, never by NodeId.
 
-Each companion says what the page shows of its parts (``Companion.web_view``): which type's instances,
-in which folder of ``Objects``, and the function that describes one (robots:
-``uacell.robotics.web_view``, PackML units: ``uacell.packml.web_view``); the helpers here browse,
-register the keys and read locks and state machines for all of them. Namespaces are resolved by URI.
+Each companion says what the page shows of its parts (``Companion.web_view``, handed here by the HMI's
+composition root, ``uacell.web.hosting``): which type's instances, in which folder of ``Objects``, and
+the function that describes one (robots: ``uacell.robotics.web_view``, PackML units:
+``uacell.packml.web_view``); the helpers here browse, register the keys and read locks and state
+machines for all of them. Namespaces are resolved by URI.
 
 The result, ``Cell``, holds a JSON description for the page (``layout``) in which every value and
 method is named by a *key* (its BrowseName path, e.g. ``Filler1/Status/MachSpeed``), and the maps
@@ -13,12 +14,13 @@ from those keys to the NodeIds found in this server.
 from __future__ import annotations
 
 import logging
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from asyncua import Client, Node, ua
 
-from uacell.catalog import companions
+from uacell.companion import WebView
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +48,9 @@ class MethodRef:
     object: ua.NodeId
     method: ua.NodeId
     arguments: list[ua.Argument] = field(default_factory=list)
-    robotics: bool = False  # an OPC 40010-1 operation method: its first output is a Status value
+    # An operation method whose first output is a Status value (OPC 40010-1's): the names of its
+    # values, as its companion declares them (``WebView.status_names``); None: a plain method.
+    status: Mapping[int, str] | None = None
 
 
 @dataclass
@@ -58,15 +62,21 @@ class Cell:
     directories: dict[str, ua.NodeId] = field(default_factory=dict)
     # TaskModules folders: key -> node (browsed again when the loaded program changes).
     folders: dict[str, ua.NodeId] = field(default_factory=dict)
+    # The folders are browsed again when a value whose key ends so changes (set by the view that
+    # registers them: a robot's task control, its program name and states).
+    rebrowse: tuple[str, ...] = ()
     # Nodes whose TransitionEvents the page lists, by NodeId string -> key of the machine.
     machines: dict[str, str] = field(default_factory=dict)
     # uacell's Server/CurrentRole (decision 39): read once per session, each session its own role.
     role: ua.NodeId | None = None
+    # Per layout key, how a part's history view is read (``WebView.history``), where its companion has one.
+    histories: dict[str, Callable[..., Awaitable[dict[str, Any]]]] = field(default_factory=dict)
 
 
 class Discoverer:
-    def __init__(self, client: Client) -> None:
+    def __init__(self, client: Client, views: Sequence[WebView] = ()) -> None:
         self.client = client
+        self.views = tuple(views)
         self.cell = Cell()
         self._supertypes: dict[ua.NodeId, ua.NodeId | None] = {}
 
@@ -117,7 +127,9 @@ class Discoverer:
         self.cell.variables[key] = found
         return key
 
-    async def method(self, key: str, obj: ua.NodeId | None, name: str, robotics: bool = False) -> str | None:
+    async def method(
+        self, key: str, obj: ua.NodeId | None, name: str, status: Mapping[int, str] | None = None
+    ) -> str | None:
         found = await self.child(obj, name)
         if obj is None or found is None:
             return None
@@ -126,15 +138,15 @@ class Discoverer:
         if prop is not None:
             value = await Node(self.client.uaclient, prop).read_value()
             args = list(value or [])
-        self.cell.methods[key] = MethodRef(obj, found, args, robotics)
+        self.cell.methods[key] = MethodRef(obj, found, args, status)
         return key
 
     async def methods(
-        self, prefix: str, obj: ua.NodeId | None, names: tuple[str, ...], robotics: bool = False
+        self, prefix: str, obj: ua.NodeId | None, names: tuple[str, ...], status: Mapping[int, str] | None = None
     ) -> dict[str, str]:
         out = {}
         for name in names:
-            key = await self.method(f"{prefix}/{name}", obj, name, robotics)
+            key = await self.method(f"{prefix}/{name}", obj, name, status)
             if key:
                 out[name] = key
         return out
@@ -169,11 +181,11 @@ class Discoverer:
         objects = ua.NodeId(ua.ObjectIds.ObjectsFolder)
         top = {c.name: c.node for c in await self.children(objects)}
         layout: dict[str, Any] = {}
-        for companion in companions():
-            view = companion.web_view
-            if view is None:
-                continue
+        for view in self.views:
             found = layout.setdefault(view.layout_key, [])
+            reader = view.history_reader()
+            if reader is not None:
+                self.cell.histories[view.layout_key] = reader
             if view.namespace not in index:
                 continue
             describe = view.describer()
@@ -194,9 +206,9 @@ class Discoverer:
         return bool(dv.StatusCode.is_good() and dv.Value is not None and dv.Value.Value)
 
 
-async def discover(client: Client) -> Cell:
-    """Browse ``client``'s server for robots and PackML units (see the module docstring)."""
-    return await Discoverer(client).discover()
+async def discover(client: Client, views: Sequence[WebView]) -> Cell:
+    """Browse ``client``'s server for the parts ``views`` show (see the module docstring)."""
+    return await Discoverer(client, views).discover()
 
 
 async def list_files(client: Client, directory: ua.NodeId, prefix: str = "") -> list[dict[str, Any]]:

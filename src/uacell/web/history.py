@@ -1,6 +1,8 @@
-"""The HMI's history view: per PackML unit a state timeline, trends of speed and counts and the OEE
-figures; per robot the timeline of its program runs. Read with HistoryRead through the web user's own
-OPC UA session (so its role applies), from the nodes the HMI's discovery found (docs/web.md).
+"""The HMI's history view: what each companion's web view reads of its parts (``WebView.history``: per
+PackML unit a state timeline, trends of speed and counts and the OEE figures, ``uacell.packml.web_view``;
+per robot the timeline of its program runs, ``uacell.robotics.web_view``), under the parts' layout
+keys. Read with HistoryRead through the web user's own OPC UA session (so its role applies), from the
+nodes the HMI's discovery found (docs/web.md); the helpers here read values and aggregates.
 
 ``timeline`` and ``program_runs`` are pure: they turn value changes into segments.
 
@@ -27,17 +29,8 @@ Change = tuple[float, Any]  # (seconds since the epoch, value or None when the s
 MAX_HOURS = 168.0
 WIDTH = 600  # pixel columns of a trend when the page does not say
 MAX_WIDTH = 2000
-_TIME_AVERAGE = ua.ObjectIds.AggregateFunction_TimeAverage
-_MAXIMUM = ua.ObjectIds.AggregateFunction_Maximum
-# Trends of a PackML unit: speeds averaged over each column, counts (only ever growing) their maximum.
-_TRENDS = {
-    "Status/MachSpeed": _TIME_AVERAGE,
-    "Status/CurMachSpeed": _TIME_AVERAGE,
-    "Admin/ProdProcessedCount": _MAXIMUM,
-    "Admin/ProdDefectiveCount": _MAXIMUM,
-}
-_UNIT_MACHINES = ("BaseStateMachine", "MachineState", "ExecuteState")
-_OEE = ("Availability", "Performance", "Quality", "OEE", "ProcessedCount", "GoodCount")
+TIME_AVERAGE = ua.ObjectIds.AggregateFunction_TimeAverage
+MAXIMUM = ua.ObjectIds.AggregateFunction_Maximum
 
 
 @dataclass(frozen=True)
@@ -86,7 +79,7 @@ def program_runs(states: Sequence[Change], programs: Sequence[Change], start: fl
     return [Segment(str(_value_at(programs, r.start) or "(no program)"), r.start, r.end) for r in runs]
 
 
-def _text(value: Any) -> Any:
+def text_of(value: Any) -> Any:
     if isinstance(value, ua.LocalizedText):
         return value.Text
     if isinstance(value, list):  # PackMLCountDataType[]: the sum of the counts
@@ -94,11 +87,11 @@ def _text(value: Any) -> Any:
     return value
 
 
-def _seconds(t: datetime) -> float:
+def seconds(t: datetime) -> float:
     return (t if t.tzinfo else t.replace(tzinfo=UTC)).timestamp()
 
 
-async def _history(client: Client, node: ua.NodeId, start: datetime, end: datetime) -> list[Change]:
+async def value_history(client: Client, node: ua.NodeId, start: datetime, end: datetime) -> list[Change]:
     """Every value of ``node`` from ``start`` to ``end``, led by the last one before ``start``."""
     out: list[Change] = []
 
@@ -136,7 +129,7 @@ async def _history(client: Client, node: ua.NodeId, start: datetime, end: dateti
         if t is None:
             continue
         good = dv.StatusCode is None or dv.StatusCode.is_good()
-        out.append((max(_seconds(t), _seconds(start)), _text(dv.Value.Value) if good and dv.Value else None))
+        out.append((max(seconds(t), seconds(start)), text_of(dv.Value.Value) if good and dv.Value else None))
     return out
 
 
@@ -153,11 +146,11 @@ class Window:
     @property
     def first_column(self) -> datetime:
         """The start of the column ``since`` falls in: that column is computed again, whole."""
-        micros = int(_seconds(self.since) * 1_000_000)
+        micros = int(seconds(self.since) * 1_000_000)
         return datetime.fromtimestamp((micros // self.column_us) * self.column_us / 1_000_000, UTC)
 
 
-async def _columns(client: Client, node: ua.NodeId, aggregate: int, w: Window) -> list[list[float]]:
+async def columns(client: Client, node: ua.NodeId, aggregate: int, w: Window) -> list[list[float]]:
     """``aggregate`` of ``node`` per column from ``w.first_column`` to ``w.end``: [[column start, value]],
     columns without a value left out (the page holds the one before)."""
     details = ua.ReadProcessedDetails()
@@ -180,62 +173,8 @@ async def _columns(client: Client, node: ua.NodeId, aggregate: int, w: Window) -
         bad = dv.StatusCode is not None and dv.StatusCode.value & 0x80000000
         if bad or not isinstance(value, int | float) or isinstance(value, bool) or dv.SourceTimestamp is None:
             continue
-        out.append([_seconds(dv.SourceTimestamp), float(value)])
+        out.append([seconds(dv.SourceTimestamp), float(value)])
     return out
-
-
-async def unit_history(client: Client, cell: Cell, name: str, w: Window) -> dict[str, Any]:
-    s, e = _seconds(w.since), _seconds(w.end)
-    machines = []
-    for m in _UNIT_MACHINES:
-        node = cell.variables.get(f"{name}/{m}/CurrentState")
-        machines.append(await _history(client, node, w.since, w.end) if node is not None else [])
-    trends: dict[str, list[list[float]]] = {}
-    series = [(key.split("/")[1], cell.variables.get(f"{name}/{key}"), aggregate) for key, aggregate in _TRENDS.items()]
-    nodes = {label: node for label, node, _ in series if node is not None}
-    for label, node, aggregate in series:
-        if node is not None:
-            trends[label] = await _columns(client, node, aggregate, w)
-    # Each trend ends with the value now (the legend's "now"; the last column is an aggregate).
-    now_values = await client.read_values([client.get_node(n) for n in nodes.values()]) if nodes else []
-    for label, value in zip(nodes, now_values, strict=True):
-        value = _text(value)
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            trends[label].append([e, float(value)])
-    oee: dict[str, Any] = {}
-    base = next((ua.NodeId.from_string(n) for n, k in cell.machines.items() if k == f"{name}/BaseStateMachine"), None)
-    if base is not None:
-        unit = await client.get_node(base).get_parent()
-        if unit is not None:
-            try:
-                folder = await unit.get_child(f"{base.NamespaceIndex}:OEE")
-                for figure in _OEE:
-                    node = await folder.get_child(f"{base.NamespaceIndex}:{figure}")
-                    oee[figure] = await node.read_value()
-                figure_node = (await folder.get_child(f"{base.NamespaceIndex}:OEE")).nodeid
-                oee["trend"] = await _columns(client, figure_node, _TIME_AVERAGE, w)
-            except ua.UaError:
-                oee = {}
-    return {
-        "name": name,
-        "timeline": [seg.json() for seg in timeline(machines, s, e)],
-        "trends": trends,
-        "oee": oee,
-    }
-
-
-async def robot_history(client: Client, cell: Cell, name: str, w: Window) -> dict[str, Any]:
-    s, e = _seconds(w.since), _seconds(w.end)
-    tasks = []
-    for node_text, key in sorted(cell.machines.items(), key=lambda kv: kv[1]):
-        if not (key.startswith(f"{name}/") and node_text.endswith(".TaskControlStateMachine")):
-            continue
-        state = cell.variables.get(f"{key}/CurrentState")
-        program = cell.variables.get(f"{key}/TaskProgramName")
-        states = await _history(client, state, w.since, w.end) if state is not None else []
-        programs = await _history(client, program, w.since, w.end) if program is not None else []
-        tasks.append({"task": key, "runs": [r.json() for r in program_runs(states, programs, s, e)]})
-    return {"name": name, "tasks": tasks}
 
 
 async def cell_history(
@@ -259,12 +198,16 @@ async def cell_history(
         else None
     )
     w = Window(start, end, since_t or start, column_us)
-    units = [await unit_history(client, cell, u["name"], w) for u in cell.layout.get("units", [])]
-    robots = [await robot_history(client, cell, r["name"], w) for r in cell.layout.get("robots", [])]
+    # Each companion's parts (``WebView.history``), under the layout key they are listed by.
+    parts = {
+        key: [await read(client, cell, part["name"], w) for part in cell.layout.get(key, [])]
+        for key, read in cell.histories.items()
+    }
     first = start.timestamp()
     if since_t is None:  # the view starts where history does (a server kept for less than ``hours`` fills the width)
-        known = [seg["start"] for u in units for seg in u["timeline"]]
-        known += [points[0][0] for u in units for points in u["trends"].values() if points]
+        found = [p for answers in parts.values() for p in answers]
+        known = [seg["start"] for p in found for seg in p.get("timeline", ())]
+        known += [points[0][0] for p in found for points in p.get("trends", {}).values() if points]
         first = max(start.timestamp(), min(known, default=start.timestamp()))
     return {
         "start": first,
@@ -273,6 +216,6 @@ async def cell_history(
         "since": since_t.timestamp() if since_t is not None else None,
         "column": column_us / 1_000_000,
         "width": width,
-        "units": units,
-        "robots": robots,
+        "keys": list(parts),
+        **parts,
     }

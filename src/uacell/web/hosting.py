@@ -21,6 +21,7 @@ import errno
 import logging
 import re
 import socket
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlparse
@@ -31,6 +32,8 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 
+from uacell.catalog import companions as catalog_companions
+from uacell.companion import Companion, web_views
 from uacell.errors import ConfigError
 from uacell.files import atomic_write
 from uacell.pki import (
@@ -166,6 +169,7 @@ async def start_web(
     ua_sessions: int = UA_SESSIONS,
     release_after: float = RELEASE_AFTER,
     header_timeout: float = HEADER_TIMEOUT,
+    companions: Sequence[Companion] | None = None,
 ) -> RunningWeb:
     """Serve the HMI for the OPC UA server ``server_url``; HTTPS on every non-loopback address.
 
@@ -173,6 +177,8 @@ async def start_web(
     otherwise it is pinned on first connection. HTTPS needs ``https_certificate`` and ``https_key``
     (PEM, or a DER certificate) unless ``host`` is loopback. ``ua_sessions``, ``release_after`` and
     ``header_timeout`` are the ``[web]`` settings of the same names (docs/configuration.md).
+    The page shows the parts of ``companions`` (default: this build's, ``uacell.catalog``) that
+    declare a web view.
     """
     cert, key = hmi_certificate(data_dir)
     https = not is_loopback(host)
@@ -204,6 +210,7 @@ async def start_web(
         hosts=(host, *machine_names()),
         ua_sessions=ua_sessions,
         release_after=release_after,
+        views=web_views(companions if companions is not None else catalog_companions()),
     )
     sock = _bind(host, port)
     config = uvicorn.Config(

@@ -12,10 +12,11 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable, Coroutine
+from collections.abc import Callable, Coroutine, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from uacell.companion import WebView
 from uacell.web.uasession import CellCache, Credentials, SessionSlots, UaSession
 
 log = logging.getLogger(__name__)
@@ -52,11 +53,12 @@ class Places:
         later: Callable[[Coroutine[Any, Any, None]], None],
         refused: Callable[[WebSession, str], None],
         closing: asyncio.Event,
+        views: Sequence[WebView] = (),
     ) -> None:
         self.url, self.credentials, self.sessions = url, credentials, sessions
         self.ua_sessions, self.anonymous = ua_sessions, anonymous
         self._later, self._refused, self._closing = later, refused, closing
-        self.cells = CellCache()
+        self.cells = CellCache(views)  # the parts of ``views`` (the companions' web views)
         self.slots = SessionSlots(ua_sessions)
         self.slots.on_free = self._freed
         self._admitting = False

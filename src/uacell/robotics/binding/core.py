@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from uacell.cell import BuiltPart
 from uacell.companion import Closer
+from uacell.drivers import ROBOT_CONTROLLER, SIMULATORS
 from uacell.equipment_factory import choose_equipment, close_equipment, make_equipment
 from uacell.errors import ConfigError
 from uacell.registry import RegistryKey
@@ -89,7 +90,7 @@ def program_limits(cfg: Any) -> ProgramLimits:
     return ProgramLimits(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(ProgramLimits)})
 
 
-SIMULATOR = "uacell.robotics.sim:simulator"
+SIMULATOR = SIMULATORS[ROBOT_CONTROLLER]
 
 
 async def make_controller_equipment(

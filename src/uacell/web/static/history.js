@@ -1,5 +1,6 @@
-// The history view (docs/web.md, "History"): per PackML unit a state timeline, speed and count
-// trends and the OEE figures; per robot the program runs. Plain SVG, data from GET /api/history:
+// The history view (docs/web.md, "History"): what each companion's view module draws of its parts
+// (per PackML unit a state timeline, speed and count trends and the OEE figures; per robot the
+// program runs), in its order. Plain SVG, data from GET /api/history:
 // whole at first, then every 15 s only what is new (since=), trends as one value per pixel column.
 "use strict";
 (() => {
@@ -100,40 +101,6 @@
     return table;
   }
 
-  function unitView(u, range) {
-    const art = el("article", { class: "hist-unit", "data-unit": u.name });
-    art.appendChild(el("h3", {}, `${u.name}`));
-    const oee = el("dl", { class: "oee" });
-    for (const name of ["Availability", "Performance", "Quality", "OEE"]) {
-      const item = el("div", { "data-figure": name });
-      item.append(el("dt", {}, name), el("dd", {}, pct(u.oee[name])));
-      oee.appendChild(item);
-    }
-    art.appendChild(oee);
-    art.appendChild(el("h4", {}, "State timeline"));
-    art.append(bar(u.timeline, range, `${u.name} states`), axis(range));
-    art.appendChild(trend({ MachSpeed: u.trends.MachSpeed || [], CurMachSpeed: u.trends.CurMachSpeed || [] }, range, "Speed (packages/min)", true));
-    art.appendChild(trend({ Processed: u.trends.ProdProcessedCount || [], Defective: u.trends.ProdDefectiveCount || [] }, range, "Counts", true));
-    art.appendChild(stateTable(u.timeline));
-    return art;
-  }
-
-  function robotView(r, range) {
-    const art = el("article", { class: "hist-robot", "data-robot": r.name });
-    art.appendChild(el("h3", {}, r.name));
-    for (const t of r.tasks) {
-      art.appendChild(el("h4", {}, `${t.task}: program runs`));
-      art.append(bar(t.runs, range, `${t.task} program runs`), axis(range));
-      const list = el("ul", { class: "hist-runs" });
-      if (!t.runs.length) list.appendChild(el("li", { class: "muted" }, "no program ran in this range"));
-      for (const run of t.runs.slice().reverse().slice(0, 20)) {
-        list.appendChild(el("li", { "data-program": run.label }, `${run.label}: ${clock(run.start)} to ${clock(run.end)} (${span(run.seconds)})`));
-      }
-      art.appendChild(list);
-    }
-    return art;
-  }
-
   // What the view shows now; each poll asks only for what came after its end (so the work of a
   // poll does not grow with the history kept) and for one value per pixel column of a trend.
   let view = null;  // {hours, width, data}
@@ -166,25 +133,22 @@
     return [...(old || []).filter((p) => p[0] < first), ...add].filter((p) => p[0] >= from - column);
   }
 
+  // How each kind of part's history is drawn and joined with a poll's news: registered by the
+  // companions' view modules (``uacellHistory.register(key, {order, view(part, range), merge(old, part,
+  // from, column)})``) under the key the server answers those parts by (its ``WebView.history``).
+  const HISTORY = [];
+  function register(key, h) {
+    HISTORY.push({ key, order: 100, ...h });
+    HISTORY.sort((a, b) => a.order - b.order);
+  }
+
   function merge(old, add) {
     const from = add.end - add.hours * 3600;
     const out = { ...add, start: Math.max(old.start, from), since: null };
-    out.units = add.units.map((u) => {
-      const o = old.units.find((x) => x.name === u.name) || { timeline: [], trends: {}, oee: {} };
-      const trends = {};
-      for (const [k, pts] of Object.entries(u.trends)) trends[k] = joinPoints(o.trends[k], pts, from, add.column);
-      const oee = { ...u.oee };
-      if (u.oee.trend) oee.trend = joinPoints((o.oee || {}).trend, u.oee.trend, from, add.column);
-      return { ...u, timeline: joinSegments(o.timeline, u.timeline, from), trends, oee };
-    });
-    out.robots = add.robots.map((r) => {
-      const o = old.robots.find((x) => x.name === r.name) || { tasks: [] };
-      const tasks = r.tasks.map((t) => {
-        const ot = o.tasks.find((x) => x.task === t.task) || { runs: [] };
-        return { ...t, runs: joinSegments(ot.runs, t.runs, from) };
-      });
-      return { ...r, tasks };
-    });
+    for (const h of HISTORY) {
+      const before = old[h.key] || [];
+      out[h.key] = (add[h.key] || []).map((p) => h.merge(before.find((x) => x.name === p.name), p, from, add.column));
+    }
     return out;
   }
 
@@ -209,7 +173,7 @@
     view = { hours, width, data: more && data.since !== null ? merge(view.data, data) : data };
     const shown = view.data;
     const range = { start: shown.start, end: shown.end };
-    const parts = [...shown.units.map((u) => unitView(u, range)), ...shown.robots.map((r) => robotView(r, range))];
+    const parts = HISTORY.flatMap((h) => (shown[h.key] || []).map((p) => h.view(p, range)));
     body.replaceChildren(...parts);
     body.dataset.loaded = String(Date.now());
   }
@@ -224,6 +188,9 @@
     });
     obs.observe(conn, { attributes: true, attributeFilter: ["data-status"] });
   }
+
+  // What the companions' view modules use of this view.
+  window.uacellHistory = { register, el, bar, axis, trend, stateTable, clock, span, pct, joinSegments, joinPoints };
 
   document.addEventListener("DOMContentLoaded", () => {
     if (!$("history-body")) return;

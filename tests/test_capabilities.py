@@ -1,0 +1,49 @@
+"""Optional equipment capabilities are Protocols checked with isinstance (uacell.capabilities and the
+companions' equipment modules): what a unit and a machine make of equipment that has them, and of
+equipment that has not."""
+
+from __future__ import annotations
+
+import pytest
+from helpers import packml_tables
+
+from uacell.capabilities import Identified, Reachable
+from uacell.errors import CallError
+from uacell.machinery.sources import UnitSource
+from uacell.packml import PackMLUnit
+from uacell.packml.equipment import CommandForwarder, EquipmentBase, NamedConditions
+
+
+class Plain(EquipmentBase):
+    pass
+
+
+class Gateway(EquipmentBase):
+    """What a gateway driver has beyond PackMLEquipment: its PLC's reachability, its nameplate."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.reachable = True
+        self.identification = {"Manufacturer": "ACME", "SerialNumber": "SN-42", "Model": None}
+
+
+def test_equipment_without_a_capability_is_reachable_and_reports_nothing() -> None:
+    equipment = Plain()
+    assert not isinstance(equipment, Reachable | Identified | CommandForwarder | NamedConditions)
+    unit = PackMLUnit(equipment, tables=packml_tables())
+    assert unit.reachable is True
+    assert UnitSource(unit).facts().reachable is True
+    assert UnitSource(unit).identification() == {}
+
+
+def test_a_unit_and_its_machine_follow_what_the_equipment_reports() -> None:
+    equipment = Gateway()
+    assert isinstance(equipment, Reachable) and isinstance(equipment, Identified)
+    unit = PackMLUnit(equipment, tables=packml_tables())
+    source = UnitSource(unit)
+    assert source.identification() == {"Manufacturer": "ACME", "SerialNumber": "SN-42"}  # None left out
+    assert unit.reachable is True and source.facts().reachable is True
+    equipment.reachable = False  # the PLC went away
+    assert unit.reachable is False and source.facts().reachable is False
+    with pytest.raises(CallError):
+        unit.check_reachable()
