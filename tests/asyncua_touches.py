@@ -7,8 +7,8 @@ What counts as an asyncua object, statically:
 - a name imported from ``asyncua``/``uvicorn`` (module or class), and what is reached from it;
 - a parameter or variable annotated with such a class (``asyncua.ua``'s data types excepted: they are
   values, free to fill), and a variable assigned from an asyncua object;
-- what the attributes by which uacell reaches asyncua's server parts lead to (``.iserver``,
-  ``.aspace``, ``.isession``, the services, ``.server``);
+- what the names by which uacell reaches asyncua's server parts lead to (``iserver``, ``aspace``,
+  ``isession``, the services), and ``self.X`` where a method of the class set it from an asyncua object;
 - in a class whose base is an asyncua class: ``self``'s attributes that the base defines, and
   anything reached through ``super()``.
 A uacell private (``self._locks`` in a uacell class, ``_helper()``) is none of these."""
@@ -35,10 +35,10 @@ BRIDGES = frozenset(
         "attribute_service",
         "method_service",
         "history_manager",
-        "server",
-        "_server",
     }
 )
+# Attributes that lead to values asyncua hands out to be filled (an event's fields).
+VALUES = frozenset({"event"})
 DOOR_DECORATOR = "subclass"  # ``@door.subclass(KEY)``
 
 
@@ -90,8 +90,9 @@ class _Checker(ast.NodeVisitor):
         self.touches: list[Touch] = []
         self.names: dict[str, str] = {}  # local name -> asyncua module path it was imported from
         self.data_names: set[str] = set()
-        self.scopes: list[set[str]] = [set()]  # names bound to asyncua objects, per function
+        self.scopes: list[dict[str, str]] = [{}]  # names bound to asyncua objects (-> package), per function
         self.classes: list[frozenset[str] | None] = []  # base privates of the enclosing asyncua subclass
+        self.self_attrs: list[set[str]] = [set()]  # attributes of self set from asyncua objects, per class
 
     def flag(self, node: ast.AST, what: str) -> None:
         self.touches.append(Touch(self.module, getattr(node, "lineno", 0), what))
@@ -133,22 +134,46 @@ class _Checker(ast.NodeVisitor):
                 return True
         return False
 
+    def _annotation_root(self, annotation: ast.expr | None) -> str:
+        for sub in ast.walk(annotation) if annotation is not None else ():
+            if isinstance(sub, ast.Name) and sub.id in self.names:
+                return self.names[sub.id].split(".")[0]
+        return "asyncua"
+
     def foreign(self, node: ast.expr) -> bool:
         """Whether ``node`` evaluates to an asyncua module, class or (non-value) object."""
         if isinstance(node, ast.Name):
-            if node.id in self.names:
-                return node.id not in self.data_names or True
-            return node.id in self.scopes[-1]
+            return node.id in self.names or node.id in BRIDGES or node.id in self.scopes[-1]
         if isinstance(node, ast.Attribute):
+            if node.attr in VALUES:
+                return False
+            if isinstance(node.value, ast.Name) and node.value.id == "self" and node.attr in self.self_attrs[-1]:
+                return True
             return node.attr in BRIDGES or self.foreign(node.value)
         if isinstance(node, ast.Subscript):
             return self.foreign(node.value)
         if isinstance(node, ast.Call):
             func = node.func
+            if isinstance(func, ast.Name):  # an asyncua class instantiated
+                return func.id in self.names and func.id not in self.data_names
             if isinstance(func, ast.Attribute) and self.foreign(func.value):
                 return not self._data_rooted(func.value)
             return False
         return False
+
+    def _made(self, node: ast.expr) -> bool:
+        """An asyncua class instantiated by uacell (a Client, a NodeData): its own object to configure."""
+        return isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in self.names
+
+    def _root(self, node: ast.expr) -> str:
+        """The package an expression's name was imported from ("" when it is no imported name)."""
+        while isinstance(node, (ast.Attribute, ast.Subscript, ast.Call)):
+            node = node.func if isinstance(node, ast.Call) else node.value
+        if isinstance(node, ast.Name):
+            if node.id in self.names:
+                return self.names[node.id].split(".")[0]
+            return self.scopes[-1].get(node.id, "")
+        return ""
 
     def _data_rooted(self, node: ast.expr) -> bool:
         while isinstance(node, (ast.Attribute, ast.Subscript, ast.Call)):
@@ -164,11 +189,11 @@ class _Checker(ast.NodeVisitor):
 
     # --- scopes --------------------------------------------------------------------------------
     def _function(self, node: ast.FunctionDef | ast.AsyncFunctionDef) -> None:
-        bound: set[str] = set()
+        bound: dict[str, str] = {}
         args = node.args
         for arg in [*args.posonlyargs, *args.args, *args.kwonlyargs, args.vararg, args.kwarg]:
             if arg is not None and self._annotated(arg.annotation):
-                bound.add(arg.arg)
+                bound[arg.arg] = self._annotation_root(arg.annotation)
         self.scopes.append(bound)
         for decorator in node.decorator_list:
             self.visit(decorator)
@@ -199,7 +224,9 @@ class _Checker(ast.NodeVisitor):
         if foreign_base and not any(_registers(d) for d in node.decorator_list):
             self.flag(node, f"class {node.name} subclasses asyncua's {ast.unparse(node.bases[0])} without @door.subclass")
         self.classes.append(frozenset(privates) if foreign_base else None)
+        self.self_attrs.append(_self_attributes(node, self))
         self.generic_visit(node)
+        self.self_attrs.pop()
         self.classes.pop()
 
     # --- touches -------------------------------------------------------------------------------
@@ -219,7 +246,11 @@ class _Checker(ast.NodeVisitor):
         self.generic_visit(node)
 
     def _target(self, target: ast.expr, verb: str) -> None:
-        if isinstance(target, ast.Attribute) and self._instance(target.value):
+        if (
+            isinstance(target, ast.Attribute)
+            and self._instance(target.value)
+            and self._root(target.value) not in ("uvicorn", "made")
+        ):
             self.flag(target, f"{verb} {ast.unparse(target)} on an asyncua object")
         elif isinstance(target, (ast.Tuple, ast.List)):
             for element in target.elts:
@@ -228,10 +259,14 @@ class _Checker(ast.NodeVisitor):
     def _bind(self, target: ast.expr, value: ast.expr | None, annotation: ast.expr | None = None) -> None:
         if isinstance(target, ast.Name):
             scope = self.scopes[-1]
-            if self._annotated(annotation) or (value is not None and self.foreign(value) and not self._data_rooted(value)):
-                scope.add(target.id)
+            if self._annotated(annotation):
+                scope[target.id] = self._annotation_root(annotation)
+            elif value is not None and self._made(value):
+                scope[target.id] = "made"
+            elif value is not None and self.foreign(value) and not self._data_rooted(value):
+                scope[target.id] = self._root(value) or "asyncua"
             else:
-                scope.discard(target.id)
+                scope.pop(target.id, None)
 
     def visit_Assign(self, node: ast.Assign) -> None:
         self.visit(node.value)
@@ -264,6 +299,44 @@ class _Checker(ast.NodeVisitor):
             if self.foreign(node.args[0]) and (func.id != "getattr" or private):
                 self.flag(node, f"{func.id} on an asyncua object: {ast.unparse(node)}")
         self.generic_visit(node)
+
+
+def _self_attributes(node: ast.ClassDef, checker: _Checker) -> set[str]:
+    """Attributes a class's methods set on ``self`` from an asyncua object (a parameter annotated with
+    an asyncua class, or a value reached from one)."""
+    found: set[str] = set()
+    for method in node.body:
+        if not isinstance(method, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        args = method.args
+        params = {a.arg: "asyncua" for a in [*args.posonlyargs, *args.args, *args.kwonlyargs] if checker._annotated(a.annotation)}
+        checker.scopes.append(params)
+        for sub in ast.walk(method):
+            targets: list[ast.expr] = []
+            value: ast.expr | None = None
+            annotation: ast.expr | None = None
+            if isinstance(sub, ast.Assign):
+                targets, value = sub.targets, sub.value
+            elif isinstance(sub, ast.AnnAssign):
+                targets, value, annotation = [sub.target], sub.value, sub.annotation
+            for target in targets:
+                if (
+                    isinstance(target, ast.Attribute)
+                    and isinstance(target.value, ast.Name)
+                    and target.value.id == "self"
+                    and (
+                        checker._annotated(annotation)
+                        or (
+                            value is not None
+                            and checker.foreign(value)
+                            and not checker._data_rooted(value)
+                            and not checker._made(value)
+                        )
+                    )
+                ):
+                    found.add(target.attr)
+        checker.scopes.pop()
+    return found
 
 
 def _registers(decorator: ast.expr) -> bool:

@@ -27,6 +27,7 @@ from uacell.history.backends import EVENT, VALUE, Query, Sample
 from uacell.history.processed import AGGREGATES, Interval, aggregate
 from uacell.history.slices import Slices
 from uacell.history.store import ContinuationPointInvalid, HistoryStore, first_line
+from uacell.ua import door
 from uacell.ua.context import caller_of, current_caller
 from uacell.ua.event_tap import EventTap
 from uacell.ua.toolkit import supertype
@@ -236,7 +237,7 @@ class HistoryService:
     # -- what is kept -----------------------------------------------------------------------------
 
     async def install(self, tap: EventTap) -> None:
-        self.iserver.history_manager = self
+        door.swap(self.iserver, "InternalServer.history_manager", self)
         self._tap = tap
         tap.listeners.append(self._on_event)
         self.store.start()

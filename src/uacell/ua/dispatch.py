@@ -35,8 +35,9 @@ from asyncua.server.address_space import MethodService
 from uacell.errors import CallError
 from uacell.rights import may_call
 from uacell.roles import Family, Role
-from uacell.ua import context, pipeline, toolkit
+from uacell.ua import context, door, pipeline, toolkit
 from uacell.ua.context import Caller
+from uacell.ua.door.services import asyncua_method_call
 
 log = logging.getLogger(__name__)
 
@@ -71,11 +72,13 @@ class BoundMethod:
     last_executable: bool | None = field(default=None, repr=False)
 
 
+@door.subclass("asyncua.server.address_space.MethodService")
 class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """Replaces asyncua's MethodService; install with ``MethodDispatcher.install(server)``."""
 
     def __init__(self, server: Server) -> None:
         super().__init__(server.iserver.aspace)
+        self.aspace = server.iserver.aspace
         self.server = server
         self.methods: dict[ua.NodeId, BoundMethod] = {}
         self.guards: list[Guard] = []
@@ -112,15 +115,15 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
     def install(cls, server: Server) -> MethodDispatcher:
         pipeline.attach()  # the session known while its calls run
         dispatcher = cls(server)
-        server.iserver.method_service = dispatcher
+        door.swap(server.iserver, "InternalServer.method_service", dispatcher)
         return dispatcher
 
     # --- registration -----------------------------------------------------------------------
     def arguments(self, method_id: ua.NodeId, name: str) -> list[ua.Argument]:
-        prop = toolkit.find_child(self._aspace, method_id, name)
+        prop = toolkit.find_child(self.aspace, method_id, name)
         if prop is None:
             return []
-        value = self._aspace[prop].attributes[_A.Value].value.Value.Value
+        value = self.aspace[prop].attributes[_A.Value].value.Value.Value
         return list(value or [])
 
     def bind(
@@ -139,7 +142,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         """Bind ``method_id`` of ``object_id`` to ``handler``. ``executable()`` is re-evaluated after a
         call of any method of the same ``scope`` (default ``serialize_on``), and whenever a binding
         calls ``touch(scope)`` or ``refresh_executable(scope)`` for a change made outside calls."""
-        name = self._aspace[method_id].attributes[_A.BrowseName].value.Value.Value.Name
+        name = self.aspace[method_id].attributes[_A.BrowseName].value.Value.Value.Name
         bound = BoundMethod(
             object_id,
             method_id,
@@ -195,7 +198,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         self._by_decl = None
 
     def method_of(self, object_id: ua.NodeId, name: str) -> ua.NodeId:
-        for ref in self._aspace[object_id].references:
+        for ref in self.aspace[object_id].references:
             if ref.IsForward and ref.BrowseName.Name == name and ref.NodeClass == ua.NodeClass.Method:
                 return ref.NodeId
         raise KeyError(f"{object_id} has no method {name}")
@@ -248,7 +251,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
             if now != bound.last_executable:
                 bound.last_executable = now
                 dv = ua.DataValue(ua.Variant(now, ua.VariantType.Boolean))
-                await self._aspace.write_attribute_value(bound.method_id, _A.Executable, dv)
+                await self.aspace.write_attribute_value(bound.method_id, _A.Executable, dv)
 
     def user_executable(self, method_id: ua.NodeId, role: str) -> bool | None:
         bound = self.methods.get(method_id)
@@ -299,7 +302,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         bound = self.methods.get(method_id)
         if bound is not None:
             return bound.name
-        data = self._aspace.get(method_id)
+        data = self.aspace.get(method_id)
         name = data.attributes.get(_A.BrowseName) if data is not None else None
         return str(name.value.Value.Value.Name) if name is not None else ""
 
@@ -335,7 +338,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
     def _belongs(self, object_id: ua.NodeId, method_id: ua.NodeId) -> bool:
         """Is ``method_id`` a method component of the object, or of its type (or a supertype)?"""
         has_component = ua.NodeId(ua.ObjectIds.HasComponent)
-        obj = self._aspace.get(object_id)
+        obj = self.aspace.get(object_id)
         if obj is None:
             return False
         holders = [object_id]
@@ -343,9 +346,9 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         type_id = next((r.NodeId for r in obj.references if r.IsForward and r.ReferenceTypeId == has_type), None)
         while type_id is not None:
             holders.append(type_id)
-            type_id = toolkit.supertype(self._aspace, type_id)
+            type_id = toolkit.supertype(self.aspace, type_id)
         for holder in holders:
-            data = self._aspace.get(holder)
+            data = self.aspace.get(holder)
             if data is None:
                 continue
             for ref in data.references:
@@ -355,18 +358,18 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
 
     def _type_hint(self, object_id: ua.NodeId) -> str:
         """The BrowseName the role table knows the object by: its type's, or its own for a type node."""
-        obj = self._aspace[object_id]
+        obj = self.aspace[object_id]
         has_type = ua.NodeId(ua.ObjectIds.HasTypeDefinition)
         type_id = next((r.NodeId for r in obj.references if r.IsForward and r.ReferenceTypeId == has_type), None)
-        holder = self._aspace.get(type_id) if type_id is not None else obj
+        holder = self.aspace.get(type_id) if type_id is not None else obj
         return holder.attributes[_A.BrowseName].value.Value.Value.Name if holder is not None else ""
 
     async def _unbound(self, request: ua.CallMethodRequest, caller: Caller) -> ua.CallMethodResult:
         """A method no binding declared: never the stack's default answers, never past the role table."""
         try:
-            if request.ObjectId not in self._aspace:
+            if request.ObjectId not in self.aspace:
                 return _result(ua.StatusCodes.BadNodeIdUnknown)
-            method = self._aspace.get(request.MethodId)
+            method = self.aspace.get(request.MethodId)
             if (
                 method is None
                 or method.attributes[_A.NodeClass].value.Value.Value != ua.NodeClass.Method
@@ -383,7 +386,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
                 return refused
             if not may_call(Role.parse(caller.role), name, self._type_hint(request.ObjectId)):
                 return _result(ua.StatusCodes.BadUserAccessDenied)  # not in the table: admin only
-            result = await super()._call(request)
+            result = await asyncua_method_call(self, request)
             if result.StatusCode.value == ua.StatusCodes.BadUnexpectedError:
                 result.StatusCode = ua.StatusCode(ua.StatusCodes.BadInternalError)
             return result
@@ -413,7 +416,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
     async def _dispatch(self, bound: BoundMethod, request: ua.CallMethodRequest, caller: Caller) -> ua.CallMethodResult:
         if request.ObjectId != bound.object_id:
             code = (
-                ua.StatusCodes.BadMethodInvalid if request.ObjectId in self._aspace else ua.StatusCodes.BadNodeIdUnknown
+                ua.StatusCodes.BadMethodInvalid if request.ObjectId in self.aspace else ua.StatusCodes.BadNodeIdUnknown
             )
             return _result(code)
         args = list(request.InputArguments or [])

@@ -13,7 +13,7 @@ name or assigns an asyncua attribute (tests/test_asyncua_door.py reads every mod
 
 from __future__ import annotations
 
-import importlib.metadata
+import importlib
 import logging
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -50,8 +50,16 @@ class DoorError(RuntimeError):
     the inventory."""
 
 
+# "Class.attribute" for each entry whose last two parts name it alone (InternalServer.method_service)
+_SHORT = {
+    short: e.target
+    for e in ENTRIES
+    if sum(1 for o in ENTRIES if o.target.endswith("." + (short := ".".join(e.target.split(".")[-2:])))) == 1
+}
+
+
 def _entry(target: str, *kinds: Kind) -> Entry:
-    entry = INVENTORY.get(target)
+    entry = INVENTORY.get(target) or INVENTORY.get(_SHORT.get(target, ""))
     if entry is None:
         raise DoorError(f"{target} is not in uacell.ua.door.inventory: list it (docs/asyncua.md) before changing it")
     if entry.kind not in kinds:
@@ -82,6 +90,8 @@ def check_versions() -> None:
 
 
 def _version(package: str) -> str | None:
+    import importlib.metadata  # here: the door is imported before anything heavy (uacell.codecache)
+
     try:
         return importlib.metadata.version(package)
     except importlib.metadata.PackageNotFoundError:
@@ -90,11 +100,11 @@ def _version(package: str) -> str | None:
 
 def patch(target: str, value: Any) -> Any:
     """Replace a class's (or module's) attribute process-wide; returns what it was."""
-    _entry(target, Kind.PATCH)
-    owner, name = _resolve_owner(target)
+    entry = _entry(target, Kind.PATCH)
+    owner, name = _resolve_owner(entry.target)
     original = getattr(owner, name, None)
     setattr(owner, name, value)
-    _INSTALLED.add(target)
+    _INSTALLED.add(entry.target)
     return original
 
 
@@ -113,12 +123,13 @@ def _resolve_owner(target: str) -> tuple[Any, str]:
 
 
 def swap(obj: Any, target: str, value: Any) -> Any:
-    """Replace the attribute ``target`` names (``module.Class.attr``) on one object; returns what it was."""
-    _entry(target, Kind.SWAP)
+    """Replace the attribute ``target`` names (``module.Class.attr``, or ``Class.attr`` when that is
+    unambiguous) on one object; returns what it was."""
+    entry = _entry(target, Kind.SWAP)
     name = target.rpartition(".")[2]
     original = getattr(obj, name)
     setattr(obj, name, value)
-    _INSTALLED.add(target)
+    _INSTALLED.add(entry.target)
     return original
 
 
@@ -140,20 +151,20 @@ def swapped(obj: Any, target: str, value: Any) -> Iterator[Any]:
 
 def configure(obj: Any, target: str, value: Any) -> None:
     """Set a setting asyncua reads from an attribute of ``obj``."""
-    _entry(target, Kind.SETTING)
+    entry = _entry(target, Kind.SETTING)
     setattr(obj, target.rpartition(".")[2], value)
-    _INSTALLED.add(target)
+    _INSTALLED.add(entry.target)
 
 
 def subclass(target: str) -> Callable[[C], C]:
     """Register a subclass of the asyncua (or uvicorn) class ``target``."""
-    _entry(target, Kind.SUBCLASS)
+    entry = _entry(target, Kind.SUBCLASS)
 
     def register(cls: C) -> C:
-        base = _resolve_owner(target)
+        base = _resolve_owner(entry.target)
         if not issubclass(cls, getattr(*base)):
             raise DoorError(f"{cls.__qualname__} is registered as a subclass of {target} but is not one")
-        _INSTALLED.add(target)
+        _INSTALLED.add(entry.target)
         return cls
 
     return register
@@ -171,5 +182,4 @@ def tagged(obj: Any, name: str, default: Any = None) -> Any:
 
 def record(target: str) -> None:
     """For the door's own modules: ``target`` (a listed entry) is installed."""
-    _entry(target, *Kind)
-    _INSTALLED.add(target)
+    _INSTALLED.add(_entry(target, *Kind).target)
