@@ -182,10 +182,7 @@ class _Checker(ast.NodeVisitor):
 
     def _instance(self, node: ast.expr) -> bool:
         """An asyncua object whose attributes may not be assigned (a value type's instance may)."""
-        return self.foreign(node) and not self._data_instance(node)
-
-    def _data_instance(self, node: ast.expr) -> bool:
-        return False
+        return self.foreign(node)
 
     # --- scopes --------------------------------------------------------------------------------
     def _function(self, node: ast.FunctionDef | ast.AsyncFunctionDef) -> None:
@@ -222,7 +219,9 @@ class _Checker(ast.NodeVisitor):
                     module, _, name = f"{module}.{name}".rpartition(".")
                 privates |= _base_privates(module, name)
         if foreign_base and not any(_registers(d) for d in node.decorator_list):
-            self.flag(node, f"class {node.name} subclasses asyncua's {ast.unparse(node.bases[0])} without @door.subclass")
+            self.flag(
+                node, f"class {node.name} subclasses asyncua's {ast.unparse(node.bases[0])} without @door.subclass"
+            )
         self.classes.append(frozenset(privates) if foreign_base else None)
         self.self_attrs.append(_self_attributes(node, self))
         self.generic_visit(node)
@@ -309,7 +308,11 @@ def _self_attributes(node: ast.ClassDef, checker: _Checker) -> set[str]:
         if not isinstance(method, (ast.FunctionDef, ast.AsyncFunctionDef)):
             continue
         args = method.args
-        params = {a.arg: "asyncua" for a in [*args.posonlyargs, *args.args, *args.kwonlyargs] if checker._annotated(a.annotation)}
+        params = {
+            a.arg: "asyncua"
+            for a in [*args.posonlyargs, *args.args, *args.kwonlyargs]
+            if checker._annotated(a.annotation)
+        }
         checker.scopes.append(params)
         for sub in ast.walk(method):
             targets: list[ast.expr] = []
