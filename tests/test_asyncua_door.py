@@ -220,3 +220,18 @@ def test_attach_wraps_asyncua_once() -> None:
     first = UaProcessor.process_message
     attach()
     assert UaProcessor.process_message is first and set(INVENTORY) >= door.installed()
+
+
+def test_binders_reach_the_address_space_by_typed_operations_only() -> None:
+    from uacell.ua.space import Space
+
+    assert not hasattr(Space, "aspace") and not hasattr(Space, "node")  # no AddressSpace, no Node handed out
+    adapter = SRC / "ua"
+    found = []
+    for path in sorted(SRC.rglob("*.py")):
+        if adapter in path.parents:
+            continue
+        text = path.read_text(encoding="utf-8")
+        if re.search(r"from uacell\.ua\.space import [^\n]*\baddress_space\b", text):
+            found.append(str(path.relative_to(SRC)))
+    assert found == [], "binders use Space's operations, not the node store: " + ", ".join(found)
