@@ -235,3 +235,11 @@ def test_binders_reach_the_address_space_by_typed_operations_only() -> None:
         if re.search(r"from uacell\.ua\.space import [^\n]*\baddress_space\b", text):
             found.append(str(path.relative_to(SRC)))
     assert found == [], "binders use Space's operations, not the node store: " + ", ".join(found)
+
+
+def test_docs_asyncua_lists_every_inventory_entry_and_the_verified_versions() -> None:
+    doc = (SRC.parents[1] / "docs" / "asyncua.md").read_text(encoding="utf-8")
+    for entry in ENTRIES:
+        shown = re.sub(r"^asyncua\.(server|common|crypto)\.", "", entry.target)
+        assert f"| `{shown}` | {entry.kind.value} | `{entry.owner}` |" in doc, entry.target
+    assert f"asyncua {door.VERIFIED['asyncua']}, uvicorn {door.VERIFIED['uvicorn']}" in doc
