@@ -199,8 +199,7 @@ def guard_bytes(self: OPCUAProtocol, data: bytes, original: Callable[[OPCUAProto
     if limits is None:
         original(self, data)
         return
-    pending = connection.received(self) + data
-    connection.set_received(self, b"")
+    pending = connection.take_received(self, data)
     while pending:
         if len(pending) < _HEADER.size:
             connection.set_received(self, pending)

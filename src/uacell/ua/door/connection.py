@@ -121,10 +121,11 @@ def buffer_bytes(body: Buffer) -> Any:
     return body._data
 
 
-def received(protocol: OPCUAProtocol) -> bytes:
-    """Bytes the connection received that asyncua has not parsed yet."""
-    data: bytes = protocol._buffer
-    return data
+def take_received(protocol: OPCUAProtocol, data: bytes) -> bytes:
+    """What the connection had received and not parsed, followed by ``data``; none is kept now."""
+    pending: bytes = protocol._buffer + data
+    protocol._buffer = b""
+    return pending
 
 
 def set_received(protocol: OPCUAProtocol, data: bytes) -> None:
