@@ -241,5 +241,6 @@ def test_docs_asyncua_lists_every_inventory_entry_and_the_verified_versions() ->
     doc = (SRC.parents[1] / "docs" / "asyncua.md").read_text(encoding="utf-8")
     for entry in ENTRIES:
         shown = re.sub(r"^asyncua\.(server|common|crypto)\.", "", entry.target)
-        assert f"| `{shown}` | {entry.kind.value} | `{entry.owner}` |" in doc, entry.target
+        row = f"| `{shown}` | {entry.kind.value} | `{entry.owner}` | {entry.why} | {entry.replaces or '—'} |"
+        assert row in doc, f"docs/asyncua.md's row for {entry.target} is not the inventory's: {row}"
     assert f"asyncua {door.VERIFIED['asyncua']}, uvicorn {door.VERIFIED['uvicorn']}" in doc

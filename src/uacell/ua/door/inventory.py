@@ -46,7 +46,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry(f"{_P}._process_message", Kind.PATCH, "uacell.ua.pipeline", "the request stages; Call, Read, HistoryUpdate by one lookup; calls apart (decisions 48, 51)", "its service dispatch by comparing the request type with 40 NodeIds"),
     Entry(f"{_P}.process_message", Kind.PATCH, "uacell.ua.pipeline", "request header decoded by ua/codec.py; faults answered in one place (decision 50)", "struct_from_binary of the header; its error handling"),
     Entry(f"{_P}.process", Kind.PATCH, "uacell.ua.pipeline", "the channel guard before an OpenSecureChannel; a refusal closes the connection in one INFO line", "logs a traceback at ERROR and keeps the connection"),
-    Entry(f"{_P}.open_secure_channel", Kind.PATCH, "uacell.ua.pipeline", "only the policies and modes the endpoints offer (security.py)", "accepts any policy it knows"),
+    Entry(f"{_P}.open_secure_channel", Kind.PATCH, "uacell.ua.pipeline", "only the policies and modes the endpoints offer (security.py)", "select_policy keeps its default (None) channel when a client asks for it, offered or not"),
     Entry(f"{_T}.data_received", Kind.PATCH, "uacell.ua.pipeline", "chunk sizes checked before buffering (ua/limits.py); a parsed message runs at once", "buffers any declared size; wakes the connection's task per message"),
     Entry(f"{_T}._process_one_msg", Kind.PATCH, "uacell.ua.pipeline", "one message at a time when the first ran at once (decision 51)", "its message loop's step"),
     Entry(f"{_T}.connection_made", Kind.PATCH, "uacell.ua.pipeline", "admission: room made, handshake deadline (ua/limits.py)", "refuses beyond max_connections only"),
