@@ -34,10 +34,11 @@ from asyncua.server.address_space import MethodService
 from uacell.errors import CallError
 from uacell.rights import may_call
 from uacell.roles import Family, Role
-from uacell.ua import context, door, pipeline, toolkit
+from uacell.ua import context, door, toolkit
 from uacell.ua.calls import UNSCOPED, BoundMethod, Handler, call_result
 from uacell.ua.context import Caller
 from uacell.ua.dispatch_unbound import UnboundCalls
+from uacell.ua.door import processing
 from uacell.ua.executable import ExecutableRefresh
 
 __all__ = ["BoundMethod", "Handler", "MethodDispatcher", "TypeChecker", "add_method_node"]
@@ -88,7 +89,7 @@ class MethodDispatcher(ExecutableRefresh, UnboundCalls, MethodService):  # type:
 
     @classmethod
     def install(cls, server: Server) -> MethodDispatcher:
-        pipeline.attach()  # the session known while its calls run
+        processing.attach()  # the session known while its calls run
         dispatcher = cls(server)
         door.swap(server.iserver, "InternalServer.method_service", dispatcher)
         return dispatcher

@@ -62,9 +62,7 @@ from uacell.background import eager
 from uacell.ua import channel, context
 from uacell.ua.codec import decode_call_parameters, encode_call_response
 from uacell.ua.door import connection, processing
-from uacell.ua.door.processing import attach, fault
-
-__all__ = ["attach"]  # the door's, for the modules that ask for the session context only
+from uacell.ua.door.processing import fault
 
 log = logging.getLogger(__name__)
 
@@ -154,7 +152,7 @@ class PublishedStage:
 
 
 class Pipeline:
-    """One server's stages and guards (``attach()`` runs them)."""
+    """One server's stages and guards (the door's wrappers, ``door/processing.py``, run them)."""
 
     def __init__(
         self,
