@@ -124,3 +124,65 @@ async def test_publisher_flush_waits_for_a_job_that_waits_and_takes_jobs_submitt
     gate.set()
     await asyncio.wait_for(flushing, 5)
     assert done == ["slow", "fast"]
+
+
+async def test_before_its_first_wait_a_coroutine_is_in_a_task_that_timeout_and_cancel_use() -> None:
+    seen: list[object] = []
+    gate: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+
+    async def quick() -> None:
+        async with asyncio.timeout(5):  # no wait inside: the step's task is entered and left
+            seen.append(asyncio.current_task() is not None)
+
+    async def times_out() -> None:
+        try:
+            async with asyncio.timeout(0.01):  # entered before the first wait, expires after it
+                await gate
+        except TimeoutError:
+            seen.append("timed out")
+        seen.append(asyncio.current_task().cancelling())  # type: ignore[union-attr]
+
+    assert eager(quick(), contextvars.copy_context()) is None
+    assert seen == [True]
+    task = eager(times_out(), contextvars.copy_context())
+    assert task is not None
+    await asyncio.wait_for(task, 10)
+    assert seen == [True, "timed out", 0]
+
+
+async def test_a_cancellation_asked_for_before_the_first_wait_reaches_the_coroutine_there() -> None:
+    seen: list[str] = []
+
+    async def work() -> None:
+        asyncio.current_task().cancel()  # type: ignore[union-attr]
+        try:
+            await asyncio.sleep(10)
+        except asyncio.CancelledError:
+            seen.append("cancelled at its first wait")
+            raise
+
+    task = eager(work(), contextvars.copy_context())
+    assert task is not None
+    with pytest.raises(asyncio.CancelledError):
+        await asyncio.wait_for(task, 10)
+    assert seen == ["cancelled at its first wait"] and task.cancelled()
+
+
+async def test_eager_from_inside_a_task_sets_that_task_aside_for_the_step() -> None:
+    outer = asyncio.current_task()
+    inside: list[object] = []
+
+    async def work() -> None:
+        inside.append(asyncio.current_task())
+        async with asyncio.timeout(5):
+            inside.append("timed")
+
+    assert eager(work(), contextvars.copy_context()) is None
+    assert inside[0] is not outer and inside[0] is not None and inside[1] == "timed"
+    assert asyncio.current_task() is outer  # the caller's task is current again
+
+
+async def test_the_running_task_table_eager_uses_is_the_one_current_task_reads() -> None:
+    from uacell.background import _CURRENT
+
+    assert _CURRENT.get(asyncio.get_running_loop()) is asyncio.current_task()

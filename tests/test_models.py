@@ -404,7 +404,7 @@ async def test_the_faster_importer_builds_exactly_the_address_space_asyncua_buil
         with monkeypatch.context() as m:
             if not patched:
                 m.setattr(
-                    nodesets._Importer,
+                    nodesets.Importer,
                     "_add_missing_reverse_references",
                     xi.XmlImporter._add_missing_reverse_references,
                 )

@@ -189,7 +189,7 @@ async def test_messages_of_one_connection_start_in_the_order_they_came(monkeypat
     """The connection's task and the messages run at once never overtake each other: A runs at once and
     waits; B arrives, is taken by the task, and waits for A; C arrives in the moment after A is done and
     before the task resumes B. C must still come after B (the task's claim on B holds it back)."""
-    from uacell.ua import pipeline
+    from uacell.ua.door import processing as pipeline  # asyncua's request path, wrapped by the door
 
     started: list[str] = []
     release = asyncio.Event()

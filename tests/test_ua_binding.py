@@ -387,3 +387,40 @@ async def test_argument_problems_come_with_diagnostics_when_the_client_asks(rig)
     not_asked = await _call_with_diagnostics(r, 0, bad)
     assert not_asked.StatusCode.value == ua.StatusCodes.BadInvalidArgument
     assert not_asked.InputArgumentDiagnosticInfos == []
+
+
+async def test_a_handler_may_use_asyncio_timeout_before_its_first_wait(rig):
+    """Calls run eagerly (uacell.background.eager): before its first wait a handler is in a task all
+    the same, so ``asyncio.timeout`` works there; one that expires gives the status the handler says."""
+    r = rig
+    d = r.app.dispatcher
+    bound = d.methods[d.method_of(ua.NodeId(TC_PATH, r.ns), "LoadByNodeId")]
+    original = bound.handler
+    never: asyncio.Event = asyncio.Event()
+    seen: list[object] = []
+
+    async def quick(caller, node_id):
+        seen.append(asyncio.current_task() is not None)
+        async with asyncio.timeout(5):  # before any wait
+            return [7]
+
+    async def stuck(caller, node_id):
+        try:
+            async with asyncio.timeout(0.05):  # entered before the first wait, expires in it
+                await never.wait()
+        except TimeoutError:
+            raise CallError("BadTimeout", "the equipment did not answer") from None
+        return [0]
+
+    arg = ua.Variant(ua.NodeId(1), ua.VariantType.ExpandedNodeId)
+    try:
+        bound.handler = quick
+        res = await call(r, "LoadByNodeId", arg)
+        assert res.StatusCode.is_good() and res.OutputArguments[0].Value == 7 and seen == [True]
+        bound.handler = stuck
+        res = await call(r, "LoadByNodeId", arg)
+        assert res.StatusCode.value == ua.StatusCodes.BadTimeout
+        res = await call(r, "LoadByName", ua.Variant("prog", ua.VariantType.String))  # the connection goes on
+        assert res.StatusCode.is_good()
+    finally:
+        bound.handler = original

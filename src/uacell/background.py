@@ -12,8 +12,8 @@ from __future__ import annotations
 import asyncio
 import contextvars
 import logging
-import types
-from collections.abc import Coroutine, Generator
+from asyncio.tasks import _current_tasks  # type: ignore[attr-defined]  # not in typeshed: see _CURRENT
+from collections.abc import Callable, Coroutine, Generator
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -50,28 +50,121 @@ def eager(coro: Coroutine[Any, Any, T], context: contextvars.Context) -> asyncio
     """Run ``coro`` now, in ``context``, up to its first wait; a task carries it on from there. None:
     it finished without waiting (what Python 3.12's eager tasks do; a task costs about as much as a
     short request's own work). Its result is dropped; an exception it raises before waiting is
-    raised here."""
+    raised here.
+
+    Before its first wait the coroutine is in a task all the same (decision 73): ``asyncio.current_task()``
+    is an ``EagerStep`` standing for the task that will carry it on, so ``asyncio.timeout``,
+    ``TaskGroup`` and a cancellation work there as in any task (a cancellation asked for then reaches
+    the coroutine at its first wait). A task running ``eager`` is not the coroutine's: it is set aside
+    for the step."""
+    loop = asyncio.get_running_loop()
+    step = EagerStep(coro, loop)
+    outer = _CURRENT.get(loop)
+    _CURRENT[loop] = step
     try:
         waiting = context.run(coro.send, None)
     except StopIteration:
         return None
-    return asyncio.get_running_loop().create_task(_resumed(coro, waiting), context=context)
-
-
-@types.coroutine
-def _resumed(coro: Coroutine[Any, Any, T], waiting: Any) -> Generator[Any, Any, T]:
-    """``coro`` from where it waits on ``waiting``: what it waits on goes to the task, what the task
-    sends or throws (the result, a cancellation) goes to it."""
-    while True:
-        try:
-            value = yield waiting
-        except BaseException as exc:
-            try:
-                waiting = coro.throw(exc)
-            except StopIteration as stop:
-                return stop.value  # type: ignore[no-any-return]
+    finally:
+        if outer is None:
+            del _CURRENT[loop]
         else:
-            try:
-                waiting = coro.send(value)
-            except StopIteration as stop:
-                return stop.value  # type: ignore[no-any-return]
+            _CURRENT[loop] = outer
+    task = loop.create_task(_Resumed(coro, waiting), context=context)
+    step.carried_on(task)
+    return task
+
+
+# The running task of each loop, what ``asyncio.current_task()`` answers from (Python 3.11 to 3.13 keep it
+# in this dict; ``tests/test_eager.py`` checks that it still does).
+_CURRENT: dict[asyncio.AbstractEventLoop, Any] = _current_tasks
+
+
+class EagerStep:
+    """The current task of a coroutine ``eager`` runs, up to its first wait: the task methods a
+    coroutine uses on itself (cancel, uncancel, cancelling, done, names, callbacks), answered here
+    until the task that carries it on exists and by that task afterwards."""
+
+    __slots__ = ("_cancels", "_coro", "_loop", "_message", "_task")
+
+    def __init__(self, coro: Coroutine[Any, Any, Any], loop: asyncio.AbstractEventLoop) -> None:
+        self._coro = coro
+        self._loop = loop
+        self._task: asyncio.Task[Any] | None = None
+        self._cancels = 0
+        self._message: Any = None
+
+    def carried_on(self, task: asyncio.Task[Any]) -> None:
+        self._task = task
+        for _ in range(self._cancels):  # asked for before the first wait: thrown in there
+            task.cancel(self._message)
+
+    def cancel(self, msg: Any = None) -> bool:
+        if self._task is not None:
+            return self._task.cancel(msg)
+        self._cancels += 1
+        self._message = msg
+        return True
+
+    def uncancel(self) -> int:
+        if self._task is not None:
+            return self._task.uncancel()
+        self._cancels = max(0, self._cancels - 1)
+        return self._cancels
+
+    def cancelling(self) -> int:
+        return self._task.cancelling() if self._task is not None else self._cancels
+
+    def cancelled(self) -> bool:
+        return self._task is not None and self._task.cancelled()
+
+    def done(self) -> bool:
+        return self._task is not None and self._task.done()
+
+    def get_coro(self) -> Coroutine[Any, Any, Any]:
+        return self._coro
+
+    def get_loop(self) -> asyncio.AbstractEventLoop:
+        return self._loop
+
+    def get_name(self) -> str:
+        return self._task.get_name() if self._task is not None else f"eager {getattr(self._coro, '__qualname__', '')}"
+
+    def add_done_callback(self, fn: Callable[..., Any], *, context: contextvars.Context | None = None) -> None:
+        if self._task is None:
+            raise RuntimeError("a coroutine run eagerly has no task to call back before its first wait")
+        self._task.add_done_callback(fn, context=context)
+
+
+class _Resumed(Coroutine[Any, Any, T]):
+    """``coro`` from where it waits on ``waiting``, as the task that carries it on sees it: the first
+    step hands the task what it waits on; what the task sends or throws (the result, a cancellation,
+    also one asked for before that first step) goes to ``coro``."""
+
+    __slots__ = ("_coro", "_waiting")
+
+    def __init__(self, coro: Coroutine[Any, Any, T], waiting: Any) -> None:
+        self._coro = coro
+        self._waiting: Any = waiting
+
+    def send(self, value: Any) -> Any:
+        waiting = self._waiting
+        if waiting is not _STARTED:
+            self._waiting = _STARTED
+            return waiting
+        return self._coro.send(value)
+
+    def throw(self, typ: Any, val: Any = None, tb: Any = None) -> Any:
+        self._waiting = _STARTED
+        if val is None and tb is None:
+            return self._coro.throw(typ)
+        return self._coro.throw(typ, val, tb)  # the old three-argument form, as a generator takes it
+
+    def close(self) -> None:
+        self._coro.close()
+
+    def __await__(self) -> Generator[Any, None, T]:
+        return self._coro.__await__()
+
+
+_STARTED = object()

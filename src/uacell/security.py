@@ -70,10 +70,11 @@ from uacell.pki import (
 )
 from uacell.rights import may_call
 from uacell.roles import Family, Role, may
-from uacell.ua import channel, context
+from uacell.ua import channel, context, door
 from uacell.ua.access import user_access_level, verified_login
 from uacell.ua.context import caller_of
 from uacell.ua.diagnostics import readable_by as diagnostics_readable_by
+from uacell.ua.door.connection import connection
 from uacell.ua.limits import LimitedSession
 from uacell.ua.pipeline import Next, Request
 from uacell.users import LoginThrottle
@@ -165,8 +166,12 @@ async def prepare_certificate(server: Server, data_dir: Path, application_uri: s
     cert, _ = ensure_server_certificate(paths, application_uri, hosts)
     # what asyncua's load_certificate and load_private_key set, without a thread per file, and the
     # key's consistency checked once per key (pki.load_server_key)
-    server.iserver.certificate = x509.load_der_x509_certificate(cert.read_bytes())
-    server.iserver.private_key = load_server_key(paths)
+    door.configure(
+        server.iserver,
+        "InternalServer.certificate",
+        x509.load_der_x509_certificate(cert.read_bytes()),
+    )
+    door.configure(server.iserver, "InternalServer.private_key", load_server_key(paths))
     return cert
 
 
@@ -265,7 +270,7 @@ class _Logins:
         deadlines = []
         if session is None or not session.is_activated():
             window = float(self.app.config.limits.activation_timeout)
-            started = float(getattr(processor, "_uacell_connected", now))
+            started = float(door.tagged(processor, "connected", now))
             deadlines.append(started + window - login_answer_margin(window))
         elif session.session_timeout:
             window = float(session.session_timeout)
@@ -273,7 +278,7 @@ class _Logins:
         hint = float(getattr(requesthdr, "TimeoutHint", 0) or 0) / 1000.0
         if hint > 0:
             deadlines.append(now + hint - login_answer_margin(hint))
-        token = getattr(getattr(processor, "_connection", None), "security_token", None)
+        token = getattr(connection(processor), "security_token", None)
         lifetime = float(getattr(token, "RevisedLifetime", 0) or 0) / 1000.0
         created = getattr(token, "CreatedAt", None)
         if lifetime > 0 and isinstance(created, datetime):  # the channel's token, renewed by the client
@@ -373,8 +378,8 @@ class Security(_Logins):
         self.server.set_security_policy(self.policies)
         # X509 user tokens are not mapped to users: offering them would log such users in as anonymous.
         self.server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
-        iserver.create_session = self._create_session
-        iserver.decrypt_user_token = self.decrypt_user_token
+        door.swap(iserver, "InternalServer.create_session", self._create_session)
+        door.swap(iserver, "InternalServer.decrypt_user_token", self.decrypt_user_token)
         await self._add_current_role()
         logging.getLogger("asyncua.server.uaprocessor").addFilter(_drop_fault_echo)  # added once
         context.add_read_hook(_read_hook)
@@ -663,7 +668,7 @@ class UacellSession(LimitedSession):
 
     def __init__(self, security: Security, *args: Any, **kwargs: Any) -> None:
         self._security = security
-        self._client_description: ua.ApplicationDescription | None = None
+        self.client_description: ua.ApplicationDescription | None = None
         self.channel_certificate: bytes | None = None  # the client certificate of the creating channel
         self.client_address = ""
         self._audited_open = False
@@ -675,7 +680,7 @@ class UacellSession(LimitedSession):
             self.iserver.register_external_session(self)
 
     async def create_session(self, params: ua.CreateSessionParameters, sockname: Any = None) -> ua.CreateSessionResult:
-        self._client_description = params.ClientDescription  # Caller.client: LockingClient shows it
+        self.client_description = params.ClientDescription  # Caller.client: LockingClient shows it
         self.session_name = params.SessionName or ""  # the client's name for it (audit trail)
         processor = context.current_processor()
         self.client_address = _address(processor)

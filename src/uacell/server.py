@@ -27,6 +27,7 @@ from uacell.pki import PkiPaths
 from uacell.registry import Registries, Registry, RegistryKey, T
 from uacell.roles import Role, listening_policy, may
 from uacell.security import SecurityStage, install_security
+from uacell.ua import door
 from uacell.ua.access import UacellUserManager
 from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
 from uacell.ua.dispatch import MethodDispatcher
@@ -158,7 +159,7 @@ class UacellServer:
         self.users = UserStore.in_data_dir(self.data_dir)
         self.server.iserver.set_user_manager(UacellUserManager(self.policy, self.users))
         # ConditionRefresh(2) for alarm clients, with Severity 100 on its RefreshStart/End events.
-        self.server.iserver.bind_condition_methods = 100
+        door.configure(self.server.iserver, "InternalServer.bind_condition_methods", 100)
         # asyncua's init(), the official models and the cell's instances: from the address-space
         # snapshot when there is one for this cell, else built (and a snapshot written once listening).
         parts = self.parts if self.parts is not None else self.config.cell.parts()
@@ -206,7 +207,7 @@ class UacellServer:
             refused=self.security.message_refused,
         )
         self.pipeline.install(self.server.iserver)
-        self.server.product_uri = PRODUCT_URI
+        door.configure(self.server, "Server.product_uri", PRODUCT_URI)
         await self.server.set_build_info(PRODUCT_URI, "uacell", "uacell", __version__, "0", ua.DateTime.now())
         self._refs = NodeRefs(await self.server.get_namespace_array())
         self.dispatcher.declarations = self.cell.instantiator.declarations

@@ -28,10 +28,8 @@ from uacell.di.locking import LockManager, LockOwner
 from uacell.errors import CallError
 from uacell.registry import RegistryKey
 from uacell.roles import Family
-from uacell.ua import toolkit
 from uacell.ua.context import Caller, caller_of
 from uacell.ua.dispatch import BoundMethod
-from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
     from asyncua.server.internal_session import InternalSession
@@ -76,7 +74,7 @@ class LockBinding:
             manager._on_change = self._changed
         self.lock_nodes: dict[Hashable, ua.NodeId] = {}  # element -> its Lock object
         self.guarded: frozenset[Family] = frozenset().union(*(c.lock_guarded for c in app.companions))
-        self.values = ValueWriter(app.space.aspace, app.dispatcher.types.builtin_of)
+        self.values = app.space.value_writer(app.dispatcher.types.builtin_of)
         self._background = Background()
 
     # tree -------------------------------------------------------------------------------------------
@@ -96,7 +94,7 @@ class LockBinding:
                         self.manager.add(cell.child(part.node, member), part.node, lockable=False)
 
     def _add(self, node: ua.NodeId, path: str, parent: ua.NodeId | None) -> None:
-        lock = toolkit.find_child(self.app.space.aspace, node, "Lock")
+        lock = self.app.space.find_child(node, "Lock")
         self.manager.add(node, parent, lockable=lock is not None)
         if lock is not None:
             self.lock_nodes[node] = lock
@@ -136,7 +134,7 @@ class LockBinding:
 
     def element_of(self, node: ua.NodeId) -> Hashable | None:
         """The nearest lockable-tree element at or above ``node`` (through child references), if any."""
-        aspace = self.app.space.aspace
+        space = self.app.space
         level: list[ua.NodeId] = [node]
         seen = {node}
         for _ in range(_MAX_DEPTH):
@@ -148,8 +146,7 @@ class LockBinding:
                     return found
             parents: list[ua.NodeId] = []
             for current in level:
-                data = aspace.get(current)
-                for ref in data.references if data is not None else ():
+                for ref in space.references(current):
                     if not ref.IsForward and ref.ReferenceTypeId in _CHILD_REFS and ref.NodeId not in seen:
                         seen.add(ref.NodeId)
                         parents.append(ref.NodeId)
@@ -193,7 +190,7 @@ class LockBinding:
         except ValueError:
             return
         node = ua.NodeId(_MAX_INACTIVE_LOCK_TIME, di)
-        if node in self.app.space.aspace:
+        if node in self.app.space:
             await self.values.write(node, self.manager.max_inactive_ms, ua.VariantType.Double, force=True)
 
     async def _tick(self) -> None:

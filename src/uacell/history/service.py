@@ -18,18 +18,18 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from asyncua import ua
-from asyncua.common.events import Event
 from asyncua.common.utils import Buffer
 from asyncua.server.internal_server import InternalServer
 from asyncua.ua.ua_binary import Primitives, variant_from_binary, variant_to_binary
 
 from uacell.history.backends import EVENT, VALUE, Query, Sample
+from uacell.history.event_filter import HistoryError, WhereClause
 from uacell.history.processed import AGGREGATES, Interval, aggregate
 from uacell.history.slices import Slices
 from uacell.history.store import ContinuationPointInvalid, HistoryStore, first_line
+from uacell.ua import door
 from uacell.ua.context import caller_of, current_caller
 from uacell.ua.event_tap import EventTap
-from uacell.ua.toolkit import supertype
 
 log = logging.getLogger(__name__)
 
@@ -199,12 +199,6 @@ class _Once:
         return self._data
 
 
-class HistoryError(Exception):
-    def __init__(self, code: int) -> None:
-        super().__init__(ua.StatusCode(code).name)
-        self.code = code
-
-
 class HistoryService:
     """Installed as ``iserver.history_manager``: asyncua's sessions hand it every HistoryRead."""
 
@@ -228,7 +222,7 @@ class HistoryService:
         self.values: dict[ua.NodeId, str] = {}
         self.notifiers: dict[ua.NodeId, str] = {}
         self._handles: list[int] = []
-        self._supertypes: dict[str, frozenset[str]] = {}
+        self.where = WhereClause(iserver)  # the WhereClause of ReadEventDetails
         self._tap: EventTap | None = None
         self._last_event: tuple[Any, int, str, _Once] | None = None  # EventId, time, type, its encoding
         self._plans: dict[int, tuple[Any, int, Plan]] = {}  # id(event object) -> (it, its type count, plan)
@@ -236,7 +230,7 @@ class HistoryService:
     # -- what is kept -----------------------------------------------------------------------------
 
     async def install(self, tap: EventTap) -> None:
-        self.iserver.history_manager = self
+        door.swap(self.iserver, "InternalServer.history_manager", self)
         self._tap = tap
         tap.listeners.append(self._on_event)
         self.store.start()
@@ -489,7 +483,7 @@ class HistoryService:
             rows = await self.store.read(Query(key, EVENT, lo, hi, reverse, chunk, after, lo_inc))
             for row in rows:
                 fields = decode_fields(row.data)
-                if self.matches(flt.WhereClause, fields, row.etype):
+                if self.where.matches(flt.WhereClause, fields, row.etype):
                     out.append(ua.HistoryEventFieldList(EventFields=[_field_of(fields, n) for n in names]))
                     if len(out) == limit:
                         return out, self.store.cursor.encode(key, row.time, row.seq, session)
@@ -497,72 +491,6 @@ class HistoryService:
             if len(rows) < chunk:
                 return out, None
             after = (rows[-1].time, rows[-1].seq)
-
-    # -- event filters (the WhereClause of ReadEventDetails) -----------------------------------------
-
-    def _is_subtype(self, etype: str, of: ua.NodeId) -> bool:
-        types = self._supertypes.get(etype)
-        if types is None:
-            seen: set[str] = set()
-            t: ua.NodeId | None = ua.NodeId.from_string(etype) if etype else None
-            while t is not None and t.to_string() not in seen:
-                seen.add(t.to_string())
-                t = supertype(self.iserver.aspace, t)
-            types = frozenset(seen)
-            self._supertypes[etype] = types
-        return of.to_string() in types
-
-    def matches(self, where: ua.ContentFilter | None, fields: dict[str, ua.Variant], etype: str) -> bool:
-        if where is None or not where.Elements:
-            return True
-        return bool(self._eval(where.Elements, 0, fields, etype))
-
-    def _operand(self, op: Any, elements: list[Any], fields: dict[str, ua.Variant], etype: str) -> Any:
-        if isinstance(op, ua.LiteralOperand):
-            return op.Value.Value
-        if isinstance(op, ua.ElementOperand):
-            return self._eval(elements, op.Index, fields, etype)
-        if isinstance(op, ua.SimpleAttributeOperand):
-            if not op.BrowsePath:
-                return ua.NodeId.from_string(etype) if op.AttributeId == _A.NodeId and etype else None
-            name = Event.browse_path_to_attribute_name(op.BrowsePath)
-            v = fields.get(name)
-            return v.Value if v is not None else None
-        raise HistoryError(_SC.BadFilterOperandInvalid)
-
-    def _eval(self, elements: list[Any], index: int, fields: dict[str, ua.Variant], etype: str) -> Any:
-        if not 0 <= index < len(elements):
-            raise HistoryError(_SC.BadFilterOperandInvalid)
-        el = elements[index]
-        op = el.FilterOperator
-        args = el.FilterOperands
-        F = ua.FilterOperator
-        if op == F.OfType:
-            target = self._operand(args[0], elements, fields, etype)
-            return isinstance(target, ua.NodeId) and self._is_subtype(etype, target)
-        vals = [self._operand(a, elements, fields, etype) for a in args]
-        if op == F.And:
-            return bool(vals[0]) and bool(vals[1])
-        if op == F.Or:
-            return bool(vals[0]) or bool(vals[1])
-        if op == F.Not:
-            return not vals[0]
-        if op == F.Equals:
-            return _same(vals[0], vals[1])
-        if op == F.InList:
-            return any(_same(vals[0], v) for v in vals[1:])
-        if op in (F.GreaterThan, F.LessThan, F.GreaterThanOrEqual, F.LessThanOrEqual):
-            try:
-                a, b = vals
-                return {
-                    F.GreaterThan: a > b,
-                    F.LessThan: a < b,
-                    F.GreaterThanOrEqual: a >= b,
-                    F.LessThanOrEqual: a <= b,
-                }[op]
-            except TypeError:
-                return False
-        raise HistoryError(_SC.BadFilterOperatorUnsupported)
 
     # -- processed values ------------------------------------------------------------------------
 
@@ -645,14 +573,6 @@ def _processed_value(iv: Interval) -> ua.DataValue:
     variant = ua.Variant(iv.value, ua.VariantType.UInt32 if iv.integer else ua.VariantType.Double)
     status = ua.StatusCode(iv.status)
     return ua.DataValue(variant, StatusCode=status, SourceTimestamp=t, ServerTimestamp=t)
-
-
-def _same(a: Any, b: Any) -> bool:
-    if isinstance(a, ua.LocalizedText):
-        a = a.Text
-    if isinstance(b, ua.LocalizedText):
-        b = b.Text
-    return bool(a == b)
 
 
 def check_filter(flt: ua.EventFilter) -> None:

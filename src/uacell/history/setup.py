@@ -22,7 +22,7 @@ from uacell.history.config import HistoryConfig
 from uacell.history.processed import AGGREGATES
 from uacell.history.service import HistoryService, mark_historizing
 from uacell.history.store import HistoryStore, StoreSettings
-from uacell.ua import toolkit
+from uacell.ua import door, toolkit
 from uacell.ua.event_tap import EventTap
 
 log = logging.getLogger(__name__)
@@ -56,7 +56,7 @@ async def install_history(
     callers whose role ``allows``; None when ``[history]`` is off (then every HistoryRead and
     HistoryUpdate item answers Bad_HistoryOperationUnsupported: ``NoHistory``)."""
     if not cfg.enabled:
-        server.iserver.history_manager = NoHistory()
+        door.swap(server.iserver, "InternalServer.history_manager", NoHistory())
         return None
     store = HistoryStore(make_backend(cfg, data_dir), settings_of(cfg))
     service = HistoryService(server.iserver, store, allows, cfg.max_values_per_request, cfg.max_events_per_request)

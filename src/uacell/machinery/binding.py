@@ -117,7 +117,7 @@ def _check_entries(section: MachinesSection | None, names: set[str]) -> None:
 
 
 def _variant(app: BinderHost, node: ua.NodeId, value: str | int | date) -> ua.Variant:
-    datatype = app.space.aspace[node].attributes[ua.AttributeIds.DataType].value.Value.Value
+    datatype = app.space.attribute(node, ua.AttributeIds.DataType)
     vtype = app.dispatcher.types.builtin_of(datatype) or ua.VariantType.String
     converted: Any = value
     if vtype == ua.VariantType.LocalizedText:
@@ -132,7 +132,7 @@ async def _write(app: BinderHost, identification: ua.NodeId, values: Mapping[str
     for member, value in values.items():
         node = app.cell.child(identification, member)
         variant = _variant(app, node, value)
-        await app.space.aspace.write_attribute_value(node, ua.AttributeIds.Value, ua.DataValue(variant))
+        await app.space.write(node, ua.AttributeIds.Value, variant)
 
 
 async def bind_machine(

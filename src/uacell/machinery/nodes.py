@@ -93,10 +93,10 @@ class MachineNodes:
 
 async def _reference(space: Space, source: ua.NodeId, target: ua.NodeId, reference: int) -> None:
     """``source --reference--> target`` (and its inverse) unless it is there."""
-    refs = space.aspace[source].references
+    refs = space.references(source)
     if any(r.IsForward and r.NodeId == target and r.ReferenceTypeId == ua.NodeId(reference) for r in refs):
         return
-    await space.node(source).add_reference(target, reference, forward=True, bidirectional=True)
+    await space.add_reference(source, target, reference)
 
 
 async def add_machine(
@@ -105,7 +105,6 @@ async def add_machine(
     """The machine's nodes below ``built`` (see the module docstring), each unless it exists."""
     ns_m, ns_di = indexes[MACHINERY], indexes["DI"]
     make = cell.instantiator
-    aspace = space.aspace
     path = built.path
 
     def create(parent: ua.NodeId, type_name: str, name: ua.QualifiedName, selection: Selection, ref: int) -> ua.NodeId:
@@ -114,8 +113,8 @@ async def add_machine(
     wanted = Selection(tuple(sorted(set(members) & MACHINE_MEMBERS)))
     ident = create(built.node, "MachineIdentificationType", ua.QualifiedName(IDENTIFICATION, ns_di), wanted, HAS_ADD_IN)
     blocks = make.nodeid(f"{path}.{BLOCKS}")
-    if blocks not in aspace:
-        await space.node(built.node).add_folder(blocks, ua.QualifiedName(BLOCKS, ns_m))
+    if blocks not in space:
+        await space.add_folder(built.node, blocks, ua.QualifiedName(BLOCKS, ns_m))
     item = create(blocks, ITEM_STATE_TYPE, ua.QualifiedName(ITEM_STATE, ns_m), STATE_MACHINE, HAS_ADD_IN)
     mode = create(blocks, OPERATION_MODE_TYPE, ua.QualifiedName(OPERATION_MODE, ns_m), STATE_MACHINE, HAS_ADD_IN)
     await _reference(space, blocks, ident, HAS_ADD_IN)

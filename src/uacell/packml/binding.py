@@ -55,7 +55,6 @@ from uacell.registry import RegistryKey
 from uacell.roles import Family
 from uacell.ua.conditions import ConditionNodes, ConditionPlace
 from uacell.ua.context import Caller
-from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
     from uacell.host import BinderHost
@@ -187,11 +186,10 @@ class UnitBinding:
         self.unit = unit
         self.node: ua.NodeId = built.node
         self.ns: int = app.cell.instantiator.ns
-        self.aspace = app.space.aspace
         self.structures = Structures(app.model_indexes["PackML"])
         self.variables: dict[str, tuple[ua.NodeId, ua.VariantType, int]] = {}  # key -> node, type, rank
         self._reachable = True  # what the values last said about the equipment's PLC
-        self.values = ValueWriter(self.aspace, app.dispatcher.types.builtin_of)
+        self.values = app.space.value_writer(app.dispatcher.types.builtin_of)
         self.conditions: ConditionNodes | None = None  # when the equipment declares conditions
 
     # nodes ------------------------------------------------------------------------------------
@@ -205,9 +203,8 @@ class UnitBinding:
             except KeyError:
                 log.warning("%s has no %s; not published", self.unit.name, key)
                 return None
-            attrs = self.aspace[nodeid].attributes
-            datatype = attrs[_A.DataType].value.Value.Value
-            rank = attrs[_A.ValueRank].value.Value.Value
+            datatype = self.app.space.attribute(nodeid, _A.DataType)
+            rank = self.app.space.attribute(nodeid, _A.ValueRank)
             vtype = self.app.dispatcher.types.builtin_of(datatype) or ua.VariantType.Variant
             self.variables[key] = (nodeid, vtype, rank)
         return self.variables[key]
@@ -228,12 +225,11 @@ class UnitBinding:
         if not self.unit.conditions.conditions:
             return
         path = f"{self.built.path}.Conditions"
-        unit = self.app.space.node(self.node)
-        folder = await unit.add_folder(ua.NodeId(path, self.ns), ua.QualifiedName("Conditions", self.ns))
+        space = self.app.space
+        folder = await space.add_folder(self.node, ua.NodeId(path, self.ns), ua.QualifiedName("Conditions", self.ns))
         # the unit is the conditions' source and notifier: its events reach clients subscribed to it
-        notifier = await unit.read_event_notifier()
-        await unit.set_event_notifier([*notifier, ua.EventNotifier.SubscribeToEvents])
-        place = ConditionPlace(folder.nodeid, self.node, self.node, self.unit.name, path)
+        await space.notify_events(self.node)
+        place = ConditionPlace(folder, self.node, self.node, self.unit.name, path)
         d = self.app.dispatcher
 
         # Their Executable depends on the conditions, not on what the unit's methods depend on: a scope of

@@ -16,7 +16,6 @@ from asyncua import ua
 from uacell.cell import CellBuilder
 from uacell.packml.companion import PACKML_MODEL, UNIT_PART
 from uacell.packml.oee import Figures
-from uacell.ua.dispatch import add_method_node
 from uacell.ua.space import Space
 
 DESCRIPTOR_TYPE = 16  # PackMLDescriptorDataType's DataType id (OPC 30050 NodeSet)
@@ -32,44 +31,43 @@ _NOTHING_YET = Figures(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0).values()
 
 async def add_oee(space: Space, unit: ua.NodeId, path: str, ns: int) -> None:
     """``<path>.OEE`` below ``unit`` with a variable per figure (Double or UInt32), each unless it exists."""
-    aspace = space.aspace
     folder_id = ua.NodeId(f"{path}.OEE", ns)
-    if folder_id not in aspace:
-        await space.node(unit).add_object(folder_id, ua.QualifiedName("OEE", ns))
-    folder = space.node(folder_id)
+    if folder_id not in space:
+        await space.add_object(unit, folder_id, ua.QualifiedName("OEE", ns))
     for key, value in _NOTHING_YET.items():
         name = key.split("/")[1]
         variable_id = ua.NodeId(f"{path}.OEE.{name}", ns)
-        if variable_id in aspace:
+        if variable_id in space:
             continue
         vtype = ua.VariantType.Double if isinstance(value, float) else ua.VariantType.UInt32
-        await folder.add_variable(variable_id, ua.QualifiedName(name, ns), ua.Variant(value, vtype))
+        await space.add_variable(folder_id, variable_id, ua.QualifiedName(name, ns), ua.Variant(value, vtype))
 
 
 async def add_start_parameters(space: Space, status: ua.NodeId, path: str, ns: int, packml_ns: int) -> None:
     """The server-defined read-only ``<path>.Status.StartParameters`` (PackMLDescriptorDataType[])
     below the unit's ``status``, unless it exists."""
     nodeid = ua.NodeId(f"{path}.Status.StartParameters", ns)
-    if nodeid in space.aspace:
+    if nodeid in space:
         return
-    var = await space.node(status).add_variable(
+    var = await space.add_variable(
+        status,
         nodeid,
         ua.QualifiedName("StartParameters", ns),
         ua.Variant([], ua.VariantType.ExtensionObject, is_array=True),
         datatype=ua.NodeId(DESCRIPTOR_TYPE, packml_ns),
     )
     a = ua.AttributeIds
-    await var.write_attribute(a.ValueRank, ua.DataValue(ua.Variant(1, ua.VariantType.Int32)))
-    await var.write_attribute(a.ArrayDimensions, ua.DataValue(ua.Variant([0], ua.VariantType.UInt32, is_array=True)))
+    await space.write(var, a.ValueRank, ua.Variant(1, ua.VariantType.Int32))
+    await space.write(var, a.ArrayDimensions, ua.Variant([0], ua.VariantType.UInt32, is_array=True))
     text = ua.LocalizedText("uacell: the parameters of the last accepted Start")
-    await var.write_attribute(a.Description, ua.DataValue(ua.Variant(text, ua.VariantType.LocalizedText)))
+    await space.write(var, a.Description, ua.Variant(text, ua.VariantType.LocalizedText))
 
 
 async def add_inject_fault(space: Space, unit: ua.NodeId, path: str, ns: int) -> None:
     """The ``InjectFault(Int32 Id, String Message)`` method node below ``unit``, unless it exists."""
     nodeid = ua.NodeId(f"{path}.{INJECT_FAULT}", ns)
-    if nodeid not in space.aspace:
-        await add_method_node(space.node(unit), nodeid, ua.QualifiedName(INJECT_FAULT, ns), INJECT_FAULT_INPUTS)
+    if nodeid not in space:
+        await space.add_method(unit, nodeid, ua.QualifiedName(INJECT_FAULT, ns), INJECT_FAULT_INPUTS)
 
 
 async def shape_units(space: Space, cell: CellBuilder) -> None:

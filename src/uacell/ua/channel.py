@@ -1,87 +1,28 @@
-"""What uacell reads of asyncua's connection objects, in one place (asyncua keeps them private).
-
-A ``UaProcessor`` is one client connection: its secure channel's policy (URI, mode, the client
-certificate the channel was opened with) and its transport (to send an Error message before
-closing). The internal server's table of client sessions and the per-server attachments uacell
-hangs on it are here too, so no module outside ``uacell.ua`` touches an underscored asyncua name.
-"""
+"""What uacell reads of asyncua's connection objects: the door's (``uacell.ua.door.connection``),
+under the names the rest of uacell has used."""
 
 from __future__ import annotations
 
-from typing import Any
+from uacell.ua.door.connection import (
+    attach,
+    attached,
+    channel_policy,
+    peer_address,
+    peer_certificate,
+    permits,
+    send_error,
+    send_response,
+    session_count,
+)
 
-from asyncua import ua
-from asyncua.crypto.security_policies import SecurityPolicyNone
-from asyncua.server.internal_server import InternalServer
-from asyncua.server.uaprocessor import UaProcessor
-from asyncua.ua.ua_binary import uatcp_to_binary
-
-
-def peer_address(processor: UaProcessor | None) -> str:
-    """The client's IP address (``"unknown"`` when there is no connection)."""
-    peer = getattr(processor, "name", None)
-    if isinstance(peer, tuple) and peer:
-        return str(peer[0])
-    return str(peer or "unknown")
-
-
-def channel_policy(processor: UaProcessor | None) -> tuple[str, ua.MessageSecurityMode]:
-    """The security policy URI and mode of the processor's secure channel."""
-    if processor is None:
-        return SecurityPolicyNone.URI, ua.MessageSecurityMode.None_
-    policy = processor._connection.security_policy
-    return policy.URI, policy.Mode
-
-
-def peer_certificate(processor: UaProcessor) -> bytes | None:
-    """The client certificate the secure channel was opened with (None on SecurityPolicy None)."""
-    cert: bytes | None = processor._connection.security_policy.peer_certificate
-    return cert
-
-
-def send_error(processor: UaProcessor, code: int, reason: str) -> None:
-    """An Error message (OPC 10000-6 7.1.2.5) to the client; the caller closes the connection."""
-    message = ua.ErrorMessage(ua.StatusCode(code), reason)
-    processor._transport.write(uatcp_to_binary(ua.MessageType.Error, message))
-
-
-def permits(processor: UaProcessor, user: Any, typeid: ua.NodeId, body: Any) -> bool:
-    """Do the channel's security policy's permissions (asyncua's, if any) let ``user`` make this request?
-    A HistoryUpdate is let through as a HistoryRead is (asyncua's rules know no HistoryUpdate): the
-    history answers each item itself (Bad_HistoryOperationUnsupported, docs/history.md)."""
-    permissions = processor._connection.security_policy.permissions
-    if typeid == _HISTORY_UPDATE:
-        typeid = _HISTORY_READ
-    return permissions is None or permissions.check_validity(user, typeid, body) is not False
-
-
-_HISTORY_UPDATE = ua.NodeId(ua.ObjectIds.HistoryUpdateRequest_Encoding_DefaultBinary)
-_HISTORY_READ = ua.NodeId(ua.ObjectIds.HistoryReadRequest_Encoding_DefaultBinary)
-
-
-def send_response(processor: UaProcessor, request_id: int, body: bytes) -> None:
-    """A service response, already encoded, on the processor's secure channel (asyncua's
-    ``send_response`` with uacell's encoder)."""
-    message = ua.MessageType.SecureMessage
-    data = processor._connection.message_to_binary(body, message_type=message, request_id=request_id)
-    processor._transport.write(data)
-
-
-def session_count(iserver: InternalServer) -> int:
-    """Client sessions the server holds now (created, activated or not)."""
-    return len(iserver._external_sessions)
-
-
-_ATTACHED = "_uacell_attached"
-
-
-def attach(iserver: InternalServer, key: str, value: Any) -> None:
-    """Hang ``value`` on the internal server under ``key``, for code that has only asyncua's objects
-    (a session reaches its server's uacell security set-up this way)."""
-    attached = iserver.__dict__.setdefault(_ATTACHED, {})
-    attached[key] = value
-
-
-def attached(iserver: InternalServer, key: str) -> Any:
-    """What ``attach`` hung under ``key``, or None."""
-    return iserver.__dict__.get(_ATTACHED, {}).get(key)
+__all__ = [
+    "attach",
+    "attached",
+    "channel_policy",
+    "peer_address",
+    "peer_certificate",
+    "permits",
+    "send_error",
+    "send_response",
+    "session_count",
+]

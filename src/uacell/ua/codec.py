@@ -32,6 +32,8 @@ from asyncua.ua.ua_binary import (
 )
 from asyncua.ua.uaerrors import UaError
 
+from uacell.ua.door.connection import buffer_bytes
+
 _INT32 = struct.Struct("<i")
 _UINT32 = struct.Struct("<I")
 _HEADER = struct.Struct("<qII")  # Timestamp, RequestHandle, ServiceResult
@@ -225,7 +227,7 @@ def _decoding(decode: Any, body: Buffer) -> Any:
     """Run ``decode(data, pos)`` at the buffer's position, move the buffer past what it read; a message
     cut short is asyncua's NotEnoughData, one with a value of no known kind a UaError (asyncua's own
     decoders raise a ValueError there, which asyncua logs as a server error)."""
-    data = body._data  # asyncua builds a message's body as one Buffer over its bytes
+    data = buffer_bytes(body)  # asyncua builds a message's body as one Buffer over its bytes
     if type(data) is not bytes:
         data = bytes(data)
     start = body.cur_pos

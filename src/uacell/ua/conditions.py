@@ -22,7 +22,7 @@ from uacell.errors import CallError
 from uacell.ua import toolkit
 from uacell.ua.context import Caller
 from uacell.ua.instantiate import Selection
-from uacell.ua.toolkit import EventEmitter, ValueWriter
+from uacell.ua.toolkit import EventEmitter
 
 if TYPE_CHECKING:
     from uacell.host import BinderHost
@@ -79,7 +79,7 @@ class ConditionNodes:
 
     def __init__(self, app: BinderHost, model: ConditionSet, place: ConditionPlace, bind: MethodBinder) -> None:
         self.app, self.model, self.place, self.bind = app, model, place, bind
-        self.values = ValueWriter(app.space.aspace, app.dispatcher.types.builtin_of)
+        self.values = app.space.value_writer(app.dispatcher.types.builtin_of)
         self.nodes: dict[str, ConditionNode] = {}
 
     async def setup(self) -> None:
@@ -91,7 +91,7 @@ class ConditionNodes:
                 place.folder, type_node, ua.QualifiedName(name, ns), Selection(()),
                 reference_type=ua.ObjectIds.Organizes, path=f"{place.path}.{name}",
             )  # fmt: skip
-            await app.space.node(place.notifier).add_reference(node, ua.ObjectIds.HasCondition, True, True)
+            await app.space.add_reference(place.notifier, node, ua.ObjectIds.HasCondition)
             cond = ConditionNode(app, name, node, place.source)
             self.nodes[name] = cond
             static = {

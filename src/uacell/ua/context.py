@@ -21,6 +21,8 @@ from asyncua import ua
 from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.internal_session import InternalSession
 
+from uacell.ua import door
+
 _session: contextvars.ContextVar[InternalSession | None] = contextvars.ContextVar("uacell_session", default=None)
 # The ReturnDiagnostics mask of the request being served (OPC 10000-4 RequestHeader).
 _diagnostics: contextvars.ContextVar[int] = contextvars.ContextVar("uacell_diagnostics", default=0)
@@ -29,6 +31,7 @@ _audit_entry: contextvars.ContextVar[str] = contextvars.ContextVar("uacell_audit
 _processor: contextvars.ContextVar[Any] = contextvars.ContextVar("uacell_processor", default=None)
 
 
+@door.subclass("asyncua.crypto.permission_rules.User")
 class UacellUser(User):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """An asyncua user that also carries uacell's role ("observer", "operator", "engineer", "admin")."""
 
@@ -98,16 +101,16 @@ def caller_of(session: InternalSession | None, default_role: str = "observer") -
     user = session.user
     role = getattr(user, "uacell_role", default_role)
     # Kept on the session while its user and role stay (ActivateSession may change both).
-    cached: tuple[Any, str, Caller] | None = getattr(session, "_uacell_caller", None)
+    cached: tuple[Any, str, Caller] | None = door.tagged(session, "caller")
     if cached is not None and cached[0] is user and cached[1] == role:
         return cached[2]
     client = ""
-    with_desc = getattr(session, "_client_description", None)
+    with_desc = getattr(session, "client_description", None)
     if with_desc is not None:
         client = getattr(with_desc, "ApplicationUri", "") or ""
     caller = Caller(session_text(session.session_id), session_name(session), getattr(user, "name", None), role, client)
     if with_desc is not None:  # the description is set at CreateSession, before any call
-        session._uacell_caller = (user, role, caller)
+        door.tag(session, "caller", (user, role, caller))
     return caller
 
 

@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING, Any
 from asyncua import ua
 from asyncua.common.utils import ServiceError
 
+from uacell.ua import door
+from uacell.ua.door import connection as door_connection
 from uacell.ua.pipeline import Next, Request
 
 if TYPE_CHECKING:
@@ -107,10 +109,10 @@ class SessionSecurityDiagnosticsDataType:
 
 def _key(session: Any) -> str:
     """A session's key in ``Diagnostics.sessions`` (its SessionId as text, made once per session)."""
-    key: str | None = getattr(session, "_uacell_key", None)
+    key: str | None = door.tagged(session, "key")
     if key is None:
         key = str(session.session_id)
-        session._uacell_key = key
+        door.tag(session, "key", key)
     return key
 
 
@@ -253,7 +255,7 @@ class Diagnostics:
         record.locale_ids = []
         record.max_response_size = int(params.MaxResponseMessageSize or 0)
         record.client_certificate = params.ClientCertificate or None
-        connection = getattr(processor, "_connection", None)
+        connection = door_connection.connection(processor)
         policy = getattr(connection, "security_policy", None)
         if policy is not None:
             record.security_mode = policy.Mode
@@ -264,7 +266,7 @@ class Diagnostics:
         record = self.sessions.pop(_key(session), None)
         if record is not None and not record.close_requested:
             timeout = float(getattr(session, "session_timeout", 0) or 0)
-            idle = time.monotonic() - float(getattr(session, "_last_activity", time.monotonic()))
+            idle = time.monotonic() - door_connection.last_activity(session, time.monotonic())
             if timeout and idle >= timeout:
                 self.summary.SessionTimeoutCount += 1
             else:
@@ -274,14 +276,14 @@ class Diagnostics:
     # publishing -------------------------------------------------------------------------------------
 
     def _live_sessions(self) -> list[InternalSession]:
-        return [s for s in self.iserver._external_sessions.values() if str(s.session_id) in self.sessions]
+        return [s for s in door_connection.external_sessions(self.iserver) if str(s.session_id) in self.sessions]
 
     def snapshot(self) -> tuple[ua.ServerDiagnosticsSummaryDataType, list[Any], list[Any]]:
         subscriptions = list(self.iserver.subscription_service.subscriptions.values())
         summary = ua.ServerDiagnosticsSummaryDataType(
             **{f.name: getattr(self.summary, f.name) for f in fields(self.summary)}
         )
-        summary.CurrentSessionCount = len(self.iserver._external_sessions)
+        summary.CurrentSessionCount = door_connection.session_count(self.iserver)
         summary.CurrentSubscriptionCount = len(subscriptions)
         summary.PublishingIntervalCount = len({s.data.RevisedPublishingInterval for s in subscriptions})
         details, security = [], []
@@ -298,7 +300,7 @@ class Diagnostics:
         d = ua.SessionDiagnosticsDataType()
         d.SessionId = session.session_id
         d.SessionName = record.session_name
-        d.ClientDescription = getattr(session, "_client_description", None) or ua.ApplicationDescription()
+        d.ClientDescription = getattr(session, "client_description", None) or ua.ApplicationDescription()
         d.ServerUri = self.app.server.get_application_uri()
         d.EndpointUrl = record.endpoint_url
         d.LocaleIds = list(record.locale_ids)

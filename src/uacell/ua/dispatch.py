@@ -24,8 +24,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Awaitable, Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from typing import Any
 
@@ -35,15 +34,18 @@ from asyncua.server.address_space import MethodService
 from uacell.errors import CallError
 from uacell.rights import may_call
 from uacell.roles import Family, Role
-from uacell.ua import context, pipeline, toolkit
+from uacell.ua import context, door, toolkit
+from uacell.ua.calls import UNSCOPED, BoundMethod, Handler, call_result
 from uacell.ua.context import Caller
+from uacell.ua.dispatch_unbound import UnboundCalls
+from uacell.ua.door import processing
+from uacell.ua.executable import ExecutableRefresh
+
+__all__ = ["BoundMethod", "Handler", "MethodDispatcher", "TypeChecker", "add_method_node"]
 
 log = logging.getLogger(__name__)
 
-Handler = Callable[..., Awaitable[Sequence[Any] | None]]
-_UNKNOWN = object()  # no executable_inputs
-_UNSCOPED = object()  # the scope of methods bound with neither ``scope`` nor ``serialize_on``
-Guard = Callable[[Caller, "BoundMethod"], None]
+Guard = Callable[[Caller, BoundMethod], None]
 # Told of every answered call (audit trail, metrics): caller, request, method name, result, seconds taken.
 CallObserver = Callable[[Caller, ua.CallMethodRequest, str, ua.CallMethodResult, float], None]
 _A = ua.AttributeIds
@@ -52,30 +54,13 @@ _A = ua.AttributeIds
 _OPERATION_DIAGNOSTICS = 0x20 | 0x40 | 0x80 | 0x100 | 0x200
 
 
-@dataclass
-class BoundMethod:
-    object_id: ua.NodeId
-    method_id: ua.NodeId
-    name: str
-    family: Family
-    handler: Handler  # handler(caller, *inputs) -> outputs (python values) or None
-    inputs: list[ua.Argument]
-    outputs: list[ua.Argument]
-    executable: Callable[[], bool] | None = None
-    serialize_on: object | None = None  # calls sharing this key run one at a time
-    element: object | None = None  # what guards (locks) look at
-    file_mode_argument: int | None = None  # FileType.Open: which argument is the mode
-    # the model whose state decides ``executable`` (default: serialize_on); a call or a change
-    # re-evaluates Executable only for the methods of the scope it touched (and those with no scope)
-    scope: object | None = field(default=None, repr=False)
-    last_executable: bool | None = field(default=None, repr=False)
-
-
-class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
+@door.subclass("asyncua.server.address_space.MethodService")
+class MethodDispatcher(ExecutableRefresh, UnboundCalls, MethodService):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """Replaces asyncua's MethodService; install with ``MethodDispatcher.install(server)``."""
 
     def __init__(self, server: Server) -> None:
         super().__init__(server.iserver.aspace)
+        self.aspace = server.iserver.aspace
         self.server = server
         self.methods: dict[ua.NodeId, BoundMethod] = {}
         self.guards: list[Guard] = []
@@ -87,13 +72,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         # so that a call naming the type's method (e.g. Acknowledge, i=9111) on an object works too
         self._declarations: dict[ua.NodeId, ua.NodeId] = {}
         self._by_decl: dict[tuple[ua.NodeId, ua.NodeId], BoundMethod] | None = None  # built on first use
-        # Executable: the bound methods with an ``executable`` by scope, and the scopes touched since
-        # the last refresh (ordered, by id: scopes are arbitrary model objects)
-        self._scoped: dict[int, list[BoundMethod]] = {}
-        self._touched: dict[int, None] = {}
-        self._alias: dict[int, object] = {}  # id(serialize_on) -> its methods' scope
-        self._scope_of: dict[int, object] = {}  # id(scope) -> the scope
-        self._inputs: dict[int, Any] = {}  # id(scope) -> its executable_inputs at its last refresh
+        self._init_executable()  # Executable by scope (ua/executable.py)
         self._closing = False
         self._running = 0  # calls whose behaviour is under way
         self._idle = asyncio.Event()
@@ -110,19 +89,12 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
 
     @classmethod
     def install(cls, server: Server) -> MethodDispatcher:
-        pipeline.attach()  # the session known while its calls run
+        processing.attach()  # the session known while its calls run
         dispatcher = cls(server)
-        server.iserver.method_service = dispatcher
+        door.swap(server.iserver, "InternalServer.method_service", dispatcher)
         return dispatcher
 
     # --- registration -----------------------------------------------------------------------
-    def arguments(self, method_id: ua.NodeId, name: str) -> list[ua.Argument]:
-        prop = toolkit.find_child(self._aspace, method_id, name)
-        if prop is None:
-            return []
-        value = self._aspace[prop].attributes[_A.Value].value.Value.Value
-        return list(value or [])
-
     def bind(
         self,
         object_id: ua.NodeId,
@@ -139,7 +111,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         """Bind ``method_id`` of ``object_id`` to ``handler``. ``executable()`` is re-evaluated after a
         call of any method of the same ``scope`` (default ``serialize_on``), and whenever a binding
         calls ``touch(scope)`` or ``refresh_executable(scope)`` for a change made outside calls."""
-        name = self._aspace[method_id].attributes[_A.BrowseName].value.Value.Value.Name
+        name = self.aspace[method_id].attributes[_A.BrowseName].value.Value.Value.Name
         bound = BoundMethod(
             object_id,
             method_id,
@@ -155,14 +127,10 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         )
         if method_id in self.methods:
             self.unbind(method_id)
-        bound.scope = scope if scope is not None else (serialize_on if serialize_on is not None else _UNSCOPED)
+        bound.scope = scope if scope is not None else (serialize_on if serialize_on is not None else UNSCOPED)
         self.methods[method_id] = bound
         if executable is not None:
-            self._scoped.setdefault(id(bound.scope), []).append(bound)
-            self._scope_of[id(bound.scope)] = bound.scope
-            self._inputs.pop(id(bound.scope), None)  # a new method: evaluate the scope's next time
-            if serialize_on is not None:
-                self._alias.setdefault(id(serialize_on), bound.scope)
+            self._track(bound)
         self._by_decl = None
         return bound
 
@@ -187,75 +155,14 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
             return
         if bound.serialize_on is None:
             self._locks.pop(id(bound), None)  # its own serialization lock goes with it
-        peers = self._scoped.get(id(bound.scope))
-        if peers is not None and bound in peers:
-            peers.remove(bound)
-            if not peers:
-                del self._scoped[id(bound.scope)]
+        self._untrack(bound)
         self._by_decl = None
 
     def method_of(self, object_id: ua.NodeId, name: str) -> ua.NodeId:
-        for ref in self._aspace[object_id].references:
+        for ref in self.aspace[object_id].references:
             if ref.IsForward and ref.BrowseName.Name == name and ref.NodeClass == ua.NodeClass.Method:
                 return ref.NodeId
         raise KeyError(f"{object_id} has no method {name}")
-
-    # --- Executable ---------------------------------------------------------------------------
-    def touch(self, scope: object) -> None:
-        """Note that the model ``scope`` changed (a scope, or the ``serialize_on`` of methods bound with
-        one, e.g. a state machine): the next ``refresh_touched()`` re-evaluates its methods."""
-        key = id(scope)
-        self._touched[id(self._alias.get(key, scope))] = None
-
-    async def refresh_touched(self) -> None:
-        """Re-evaluate Executable of the scopes touched since the last time (the publisher's idle hook).
-        A scope whose model says what its methods' Executable depends on (an ``executable_inputs``
-        attribute) is skipped while that is what it was at its last evaluation."""
-        self._touched[id(_UNSCOPED)] = None  # nothing says what they depend on: always
-        while self._touched:
-            key = next(iter(self._touched))
-            del self._touched[key]
-            await self._refresh_scope(key, skip_unchanged=True)
-
-    async def refresh_executable(self, scope: object | None = None) -> None:
-        """Write Executable wherever it changed (decision 4): of the methods of ``scope``, or of every
-        bound method when no scope is given (start-up, tests)."""
-        if scope is not None:
-            self._touched.pop(id(scope), None)
-            await self._refresh_scope(id(scope))
-            return
-        self._touched.clear()
-        for key in list(self._scoped):
-            await self._refresh_scope(key)
-
-    async def _refresh_scope(self, key: int, skip_unchanged: bool = False) -> None:
-        inputs = getattr(self._scope_of.get(key), "executable_inputs", _UNKNOWN)
-        if skip_unchanged and inputs is not _UNKNOWN and self._inputs.get(key, _UNKNOWN) == inputs:
-            return
-        await self._refresh(self._scoped.get(key, ()))
-        if inputs is not _UNKNOWN:
-            self._inputs[key] = inputs
-
-    async def _refresh(self, group: Sequence[BoundMethod]) -> None:
-        for bound in list(group):
-            if bound.executable is None:
-                continue
-            try:
-                now = bool(bound.executable())
-            except Exception:
-                log.exception("executable() of %s failed", bound.name)
-                now = False
-            if now != bound.last_executable:
-                bound.last_executable = now
-                dv = ua.DataValue(ua.Variant(now, ua.VariantType.Boolean))
-                await self._aspace.write_attribute_value(bound.method_id, _A.Executable, dv)
-
-    def user_executable(self, method_id: ua.NodeId, role: str) -> bool | None:
-        bound = self.methods.get(method_id)
-        if bound is None:
-            return None
-        allowed = may_call(Role.parse(role), bound.name, bound.family)
-        return allowed and (bound.last_executable is not False)
 
     # --- the call ------------------------------------------------------------------------------
     async def call(self, methods: list[ua.CallMethodRequest]) -> list[ua.CallMethodResult]:
@@ -275,12 +182,12 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
 
     async def dispatch(self, request: ua.CallMethodRequest, caller: Caller | None = None) -> ua.CallMethodResult:
         if self._closing:
-            return _result(ua.StatusCodes.BadShutdown)
+            return call_result(ua.StatusCodes.BadShutdown)
         try:
             caller = caller or context.current_caller()
         except Exception:
             log.exception("resolving the caller of %s failed unexpectedly", request.MethodId)
-            return _result(ua.StatusCodes.BadInternalError)
+            return call_result(ua.StatusCodes.BadInternalError)
         self._running += 1
         self._idle.clear()
         started = time.perf_counter()
@@ -299,7 +206,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         bound = self.methods.get(method_id)
         if bound is not None:
             return bound.name
-        data = self._aspace.get(method_id)
+        data = self.aspace.get(method_id)
         name = data.attributes.get(_A.BrowseName) if data is not None else None
         return str(name.value.Value.Value.Name) if name is not None else ""
 
@@ -322,7 +229,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
             bound = self.methods.get(request.MethodId) or self._by_declaration(request.ObjectId, request.MethodId)
         except Exception:
             log.exception("resolving a call of %s failed unexpectedly", request.MethodId)
-            return _result(ua.StatusCodes.BadInternalError)
+            return call_result(ua.StatusCodes.BadInternalError)
         if bound is None:
             return await self._unbound(request, caller)
         try:
@@ -330,77 +237,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         except Exception:
             log.exception("%s on %s failed unexpectedly", bound.name, request.ObjectId.to_string())
             self._after(bound)
-            return _result(ua.StatusCodes.BadInternalError)
-
-    def _belongs(self, object_id: ua.NodeId, method_id: ua.NodeId) -> bool:
-        """Is ``method_id`` a method component of the object, or of its type (or a supertype)?"""
-        has_component = ua.NodeId(ua.ObjectIds.HasComponent)
-        obj = self._aspace.get(object_id)
-        if obj is None:
-            return False
-        holders = [object_id]
-        has_type = ua.NodeId(ua.ObjectIds.HasTypeDefinition)
-        type_id = next((r.NodeId for r in obj.references if r.IsForward and r.ReferenceTypeId == has_type), None)
-        while type_id is not None:
-            holders.append(type_id)
-            type_id = toolkit.supertype(self._aspace, type_id)
-        for holder in holders:
-            data = self._aspace.get(holder)
-            if data is None:
-                continue
-            for ref in data.references:
-                if ref.IsForward and ref.NodeId == method_id and ref.ReferenceTypeId == has_component:
-                    return True
-        return False
-
-    def _type_hint(self, object_id: ua.NodeId) -> str:
-        """The BrowseName the role table knows the object by: its type's, or its own for a type node."""
-        obj = self._aspace[object_id]
-        has_type = ua.NodeId(ua.ObjectIds.HasTypeDefinition)
-        type_id = next((r.NodeId for r in obj.references if r.IsForward and r.ReferenceTypeId == has_type), None)
-        holder = self._aspace.get(type_id) if type_id is not None else obj
-        return holder.attributes[_A.BrowseName].value.Value.Value.Name if holder is not None else ""
-
-    async def _unbound(self, request: ua.CallMethodRequest, caller: Caller) -> ua.CallMethodResult:
-        """A method no binding declared: never the stack's default answers, never past the role table."""
-        try:
-            if request.ObjectId not in self._aspace:
-                return _result(ua.StatusCodes.BadNodeIdUnknown)
-            method = self._aspace.get(request.MethodId)
-            if (
-                method is None
-                or method.attributes[_A.NodeClass].value.Value.Value != ua.NodeClass.Method
-                or not self._belongs(request.ObjectId, request.MethodId)
-            ):
-                return _result(ua.StatusCodes.BadMethodInvalid)
-            if method.call is None:
-                return _result(ua.StatusCodes.BadNotImplemented)
-            name = method.attributes[_A.BrowseName].value.Value.Value.Name
-            refused = self._check_arguments(
-                list(request.InputArguments or []), self.arguments(request.MethodId, "InputArguments")
-            )
-            if refused is not None:
-                return refused
-            if not may_call(Role.parse(caller.role), name, self._type_hint(request.ObjectId)):
-                return _result(ua.StatusCodes.BadUserAccessDenied)  # not in the table: admin only
-            result = await super()._call(request)
-            if result.StatusCode.value == ua.StatusCodes.BadUnexpectedError:
-                result.StatusCode = ua.StatusCode(ua.StatusCodes.BadInternalError)
-            return result
-        except Exception:
-            log.exception("call of %s on %s failed unexpectedly", request.MethodId, request.ObjectId)
-            return _result(ua.StatusCodes.BadInternalError)
-
-    def _check_arguments(self, args: list[ua.Variant], inputs: list[ua.Argument]) -> ua.CallMethodResult | None:
-        """The refusal for arguments that do not match ``inputs`` (count, then types), or None."""
-        if len(args) < len(inputs):
-            return _result(ua.StatusCodes.BadArgumentsMissing)
-        if len(args) > len(inputs):
-            return _result(ua.StatusCodes.BadTooManyArguments)
-        checks = [self.types.check(v, a) for v, a in zip(args, inputs, strict=True)]
-        if any(not c.is_good() for c in checks):
-            return _result(ua.StatusCodes.BadTypeMismatch, checks)
-        return None
+            return call_result(ua.StatusCodes.BadInternalError)
 
     async def close(self, timeout: float = 5.0) -> None:
         """Refuse new calls (Bad_Shutdown) and wait, up to ``timeout`` s, for those under way."""
@@ -413,9 +250,9 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
     async def _dispatch(self, bound: BoundMethod, request: ua.CallMethodRequest, caller: Caller) -> ua.CallMethodResult:
         if request.ObjectId != bound.object_id:
             code = (
-                ua.StatusCodes.BadMethodInvalid if request.ObjectId in self._aspace else ua.StatusCodes.BadNodeIdUnknown
+                ua.StatusCodes.BadMethodInvalid if request.ObjectId in self.aspace else ua.StatusCodes.BadNodeIdUnknown
             )
-            return _result(code)
+            return call_result(code)
         args = list(request.InputArguments or [])
         n = len(bound.inputs)
         refused = self._check_arguments(args, bound.inputs)
@@ -424,7 +261,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
         values = [v.Value for v in args]
         mode = values[bound.file_mode_argument] if bound.file_mode_argument is not None else None
         if not may_call(Role.parse(caller.role), bound.name, bound.family, file_mode=mode):
-            return _result(ua.StatusCodes.BadUserAccessDenied, n=n)
+            return call_result(ua.StatusCodes.BadUserAccessDenied, n=n)
         try:
             for guard in self.guards:
                 guard(caller, bound)
@@ -449,7 +286,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
             if err.argument is not None and 0 <= err.argument < n:
                 results = [ua.StatusCode(ua.StatusCodes.Good)] * n
                 results[err.argument] = ua.StatusCode(getattr(ua.StatusCodes, err.argument_status))
-            result = _result(getattr(ua.StatusCodes, err.status), results, n=n)
+            result = call_result(getattr(ua.StatusCodes, err.status), results, n=n)
             diagnostics = context.return_diagnostics() & _OPERATION_DIAGNOSTICS
             if results is not None and err.argument is not None and diagnostics:
                 # The reason, for clients that ask for operation-level diagnostics (OPC 10000-4 Call).
@@ -459,7 +296,7 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
             self._after(bound)
             return result
         self._after(bound)
-        result = _result(ua.StatusCodes.Good, n=n)
+        result = call_result(ua.StatusCodes.Good, n=n)
         result.OutputArguments = [self.types.variant(v, a) for v, a in zip(outputs or [], bound.outputs, strict=False)]
         return result
 
@@ -474,13 +311,6 @@ class MethodDispatcher(MethodService):  # type: ignore[misc]  # asyncua is untyp
                 hook()
         except Exception:
             log.exception("publishing after a call failed")
-
-
-def _result(code: int, arg_results: list[ua.StatusCode] | None = None, n: int = 0) -> ua.CallMethodResult:
-    r = ua.CallMethodResult()
-    r.StatusCode = ua.StatusCode(code)
-    r.InputArgumentResults = arg_results or []
-    return r
 
 
 # Built-in DataType ids (ns=0;i=1..25) have the same number as their VariantType.

@@ -1,9 +1,9 @@
 """Every event the server fires through a notifier, to whoever listens (history, PubSub).
 
 asyncua's subscription service has one entry for events, ``trigger_event``; the tap is the one place
-uacell wraps it. A listener gets the event object (its fields as attributes, ``emitting_node`` the
-notifier it is fired through) before the subscribed clients do, and must not block: it records and
-returns.
+uacell wraps it (through the door, ``uacell.ua.door``). A listener gets the event object (its fields
+as attributes, ``emitting_node`` the notifier it is fired through) before the subscribed clients do,
+and must not block: it records and returns.
 """
 
 from __future__ import annotations
@@ -14,9 +14,12 @@ from typing import Any
 
 from asyncua.server.internal_server import InternalServer
 
+from uacell.ua import door
+
 log = logging.getLogger(__name__)
 
 Listener = Callable[[Any], None]
+TRIGGER_EVENT = "SubscriptionService.trigger_event"
 
 
 class EventTap:
@@ -40,9 +43,9 @@ class EventTap:
                         log.exception("an event listener failed")
             await original(event, subscription_id)
 
-        service.trigger_event = trigger_event
+        door.swap(service, TRIGGER_EVENT, trigger_event)
 
     def uninstall(self) -> None:
         if self._original is not None:
-            self.iserver.isession.subscription_service.trigger_event = self._original
+            door.swap(self.iserver.isession.subscription_service, TRIGGER_EVENT, self._original)
             self._original = None

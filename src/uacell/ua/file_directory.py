@@ -34,6 +34,7 @@ from uacell.ua import context, toolkit
 from uacell.ua.context import Caller
 from uacell.ua.file_store import Change, Entry, FileStore
 from uacell.ua.instantiate import Selection
+from uacell.ua.space import address_space
 from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
@@ -79,7 +80,7 @@ class FileDirectoryBinding:
         self.family_dir = family_dir
         self.family_file = family_file
         self._instantiator = app.cell.instantiator
-        self._aspace = app.space.aspace
+        self._aspace = address_space(app.space)
         self._base = str(directory_node.Identifier)
         # relpath -> node and back, for the entries that exist in the address space
         self._nodes: dict[str, ua.NodeId] = {}

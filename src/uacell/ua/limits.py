@@ -46,6 +46,8 @@ from asyncua.server.internal_session import InternalSession
 from asyncua.ua.ua_binary import struct_from_binary
 
 from uacell.logs import RefusalLog
+from uacell.ua import door
+from uacell.ua.door import connection
 from uacell.ua.pipeline import Next, Request
 
 if TYPE_CHECKING:
@@ -126,17 +128,18 @@ def install_limits(app: Any) -> ServerLimits:
     fit_descriptors(limits, cfg.file_handles, soft)
     server = app.server
     iserver = server.iserver
-    iserver._uacell_limits = limits
-    iserver.max_connections = limits.connections
-    iserver.max_subscriptions = limits.subscriptions
-    iserver.max_pending_activation_seconds = cfg.activation_timeout
-    iserver.max_pending_messages_per_connection = limits.pending_chunks_per_connection
-    server.limits = ServerTransportLimits(
+    door.tag(iserver, "limits", limits)
+    door.configure(iserver, "InternalServer.max_connections", limits.connections)
+    door.configure(iserver, "InternalServer.max_subscriptions", limits.subscriptions)
+    door.configure(iserver, "InternalServer.max_pending_activation_seconds", cfg.activation_timeout)
+    door.configure(iserver, "InternalServer.max_pending_messages_per_connection", limits.pending_chunks_per_connection)
+    transport = ServerTransportLimits(
         max_recv_buffer=limits.max_chunk_size,
         max_send_buffer=limits.max_chunk_size,
         max_chunk_count=limits.max_chunk_count,
         max_message_size=limits.max_message_size,
     )
+    door.configure(server, "Server.limits", transport)
     _demote_expected_refusals()
     log.info(
         "limits: %d connections, %d sessions, %d subscriptions, %d monitored items, requests up to %d bytes "
@@ -153,13 +156,15 @@ def install_limits(app: Any) -> ServerLimits:
 
 
 def _limits_of(iserver: Any) -> ServerLimits | None:
-    return getattr(iserver, "_uacell_limits", None)
+    limits: ServerLimits | None = door.tagged(iserver, "limits")
+    return limits
 
 
 # --- transport -------------------------------------------------------------------------------------
 MIN_BUFFER = 8192  # the smallest chunk OPC 10000-6 allows
 
 
+@door.subclass("asyncua.common.connection.TransportLimits")
 class ServerTransportLimits(TransportLimits):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """One connection's limits (asyncua copies the server's per connection): the chunk sizes follow
     the Hello; the message size and chunk count stay the server's, enforced, and are announced as 0."""
@@ -182,7 +187,7 @@ class ServerTransportLimits(TransportLimits):  # type: ignore[misc]  # asyncua i
 
 def _refuse_chunk(protocol: OPCUAProtocol, reason: str) -> None:
     log.warning("closing connection from %s: %s", protocol.peer_name, reason)
-    protocol._buffer = b""
+    connection.set_received(protocol, b"")
     if protocol.transport is not None:
         protocol.transport.abort()
 
@@ -194,14 +199,13 @@ def guard_bytes(self: OPCUAProtocol, data: bytes, original: Callable[[OPCUAProto
     if limits is None:
         original(self, data)
         return
-    pending = self._buffer + data
-    self._buffer = b""
+    pending = connection.take_received(self, data)
     while pending:
         if len(pending) < _HEADER.size:
-            self._buffer = pending
+            connection.set_received(self, pending)
             return
         kind, _, size = _HEADER.unpack_from(pending)
-        hello_seen = getattr(self, "_uacell_hello", False)
+        hello_seen = door.tagged(self, "hello", False)
         if not hello_seen:
             if kind != b"HEL":
                 _refuse_chunk(self, f"first message is {kind!r}, not a Hello")
@@ -209,25 +213,25 @@ def guard_bytes(self: OPCUAProtocol, data: bytes, original: Callable[[OPCUAProto
             allowed = PRE_HELLO_BYTES
         else:
             # The negotiated receive buffer (the configured one until the Hello is processed).
-            allowed = min(self.processor._limits.max_recv_buffer, limits.max_chunk_size)
+            allowed = min(connection.receive_buffer(self), limits.max_chunk_size)
         if size > allowed or size < _HEADER.size:
             _refuse_chunk(self, f"a {kind!r} chunk declares {size} bytes (at most {allowed} accepted)")
             return
         if len(pending) < size:
-            self._buffer = pending
+            connection.set_received(self, pending)
             return
         if kind == b"HEL":
-            self._uacell_hello = True
-        queued = sum(len(item[1]) for item in self.messages._queue if item[1] is not None)
+            door.tag(self, "hello", True)
+        queued = connection.queued_bytes(self)
         if queued + size > limits.pending_bytes_per_connection:
             _refuse_chunk(self, f"{queued} bytes wait unprocessed (at most {limits.pending_bytes_per_connection})")
             return
         # One complete chunk: asyncua parses and queues it (and closes on a full queue).
         original(self, pending[:size])
         if self.transport is None or self.transport.is_closing():
-            self._buffer = b""
+            connection.set_received(self, b"")
             return
-        self._buffer = b""
+        connection.set_received(self, b"")
         pending = pending[size:]
 
 
@@ -274,11 +278,10 @@ def admit(protocol: OPCUAProtocol, transport: Any, original: Callable[[OPCUAProt
         )
     original(protocol, transport)
     if protocol.processor is not None:  # when the activation deadline started (uacell.security)
-        protocol.processor._uacell_connected = time.monotonic()
+        door.tag(protocol.processor, "connected", time.monotonic())
     if protocol.transport is not None:  # admitted: it has handshake_timeout to open its channel
-        protocol._uacell_handshake = asyncio.get_running_loop().call_later(
-            limits.handshake_timeout, _handshake_late, protocol
-        )
+        late = asyncio.get_running_loop().call_later(limits.handshake_timeout, _handshake_late, protocol)
+        door.tag(protocol, "handshake", late)
 
 
 def _handshake_late(protocol: OPCUAProtocol) -> None:
@@ -286,7 +289,7 @@ def _handshake_late(protocol: OPCUAProtocol) -> None:
     transport = protocol.transport
     if processor is None or transport is None or transport.is_closing():
         return
-    if processor._connection.is_open():
+    if connection.channel_open(processor):
         return
     limits = _limits_of(protocol.iserver)
     if limits is not None:
@@ -339,7 +342,7 @@ def _decodes(typeid: Any, body: Buffer) -> bool:
     if cls is None:
         return False
     try:
-        struct_from_binary(cls, Buffer(body._data))
+        struct_from_binary(cls, Buffer(connection.buffer_bytes(body)))
     except Exception:
         return False
     return True
@@ -377,6 +380,7 @@ def _check_operations(iserver: Any, count: int, service: str) -> None:
         raise ServiceError(ua.StatusCodes.BadTooManyOperations)
 
 
+@door.subclass("asyncua.server.internal_session.InternalSession")
 class LimitedSession(InternalSession):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """A session counted against ``[limits]``; subscriptions, monitored items and operations too."""
 
@@ -453,8 +457,8 @@ class LimitedSession(InternalSession):  # type: ignore[misc]  # asyncua is untyp
         room = len(items)
         if limits is not None and sub is not None:
             subscriptions = self.subscription_service.subscriptions.values()
-            in_sub = len(sub.monitored_item_srv._monitored_items)
-            in_all = sum(len(s.monitored_item_srv._monitored_items) for s in subscriptions)
+            in_sub = connection.monitored_items(sub)
+            in_all = sum(connection.monitored_items(s) for s in subscriptions)
             room = max(0, min(limits.monitored_items_per_subscription - in_sub, limits.monitored_items - in_all))
         if len(items) <= room:
             return cast("list[ua.MonitoredItemCreateResult]", await super().create_monitored_items(params))

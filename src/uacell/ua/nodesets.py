@@ -16,12 +16,13 @@ from pathlib import Path
 from typing import Any
 
 from asyncua import Server, ua
-from asyncua.common.xmlimporter import XmlImporter
 
 from uacell.models.source import locate_models, official_models
 from uacell.models.source import models_dir as models_directory
 from uacell.models.tables import UA_NS
 from uacell.ua import data_types, snapshot
+from uacell.ua.door.connection import nodes as node_table
+from uacell.ua.door.importer import Importer, standard_nodes_from
 
 log = logging.getLogger(__name__)
 
@@ -61,37 +62,6 @@ def without_design_tool_only(path: Path) -> tuple[str, int]:
     return ET.tostring(root, encoding="unicode"), len(dropped)
 
 
-class _Importer(XmlImporter):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
-    """asyncua's importer, with the reference-type subtype closure cached while it adds the missing
-    inverse references.
-
-    asyncua recomputes "is R a subtype of T" by walking the type tree for every reference it
-    browses there, which is most of a start-up. When that step runs, every node of the file
-    (its ReferenceTypes included) is already in the address space, so the closure cannot change.
-    """
-
-    async def _add_missing_reverse_references(self, new_nodes: Any) -> Any:
-        view = self.session.iserver.view_service
-        closure: dict[ua.NodeId, frozenset[ua.NodeId]] = {}
-        null = ua.NodeId(ua.ObjectIds.Null)
-
-        def suitable(ref1: ua.NodeId, ref2: ua.NodeId, subtypes: bool) -> bool:
-            if ref1 == null or ref1 == ref2:
-                return True
-            if not subtypes:
-                return False
-            below = closure.get(ref1)
-            if below is None:
-                below = closure[ref1] = frozenset(view._get_sub_ref(ref1))
-            return ref2 in below
-
-        view._suitable_reftype = suitable
-        try:
-            return await super()._add_missing_reverse_references(new_nodes)
-        finally:
-            del view._suitable_reftype  # back to the class's own method
-
-
 async def load_models(server: Server, models_dir: str | None = None) -> dict[str, int]:
     """Import every official model; returns each model's namespace index in this server."""
     paths = locate_models(models_dir)
@@ -100,7 +70,7 @@ async def load_models(server: Server, models_dir: str | None = None) -> dict[str
         xml, dropped = without_design_tool_only(paths[model.key])
         if dropped:
             log.debug("%s: left out %d DesignToolOnly nodes", model.filename, dropped)
-        await _Importer(server).import_xml(xmlstring=xml)
+        await Importer(server).import_xml(xmlstring=xml)
         indexes[model.key] = await server.get_namespace_index(model.namespace_uri)
     return indexes
 
@@ -191,10 +161,10 @@ async def write_models_snapshot(models_dir: str | None = None) -> Path:
         server = Server()
         await server.init()
         await load_models(server, models_dir)
-        nodes = snapshot.stripped_copy(server.iserver.aspace._nodes)
+        nodes = snapshot.stripped_copy(node_table(server.iserver.aspace))
         namespaces = list((await server.get_namespace_array())[2:])
-        types = type_index(server.iserver.aspace._nodes, namespaces)
-        made = data_types.registered(server.iserver.aspace._nodes)
+        types = type_index(node_table(server.iserver.aspace), namespaces)
+        made = data_types.registered(node_table(server.iserver.aspace))
     finally:
         quiet.setLevel(level)
     snapshot.write_snapshot(path, models_snapshot_key(), namespaces, nodes, {"types": types, "data_types": made})
@@ -207,15 +177,9 @@ async def _restore(server: Server, found: snapshot.Snapshot) -> dict[str, int]:
     namespace indexes."""
     nodes = found.nodes
 
-    async def from_snapshot(_shelf_file: object) -> None:
-        server.iserver.aspace._nodes = nodes
-
     # asyncua's init() fills the standard nodes here; everything else it does stays as it is.
-    server.iserver.load_standard_address_space = from_snapshot
-    try:
+    with standard_nodes_from(server, nodes):
         await server.init()
-    finally:
-        del server.iserver.load_standard_address_space
     for position, uri in enumerate(found.namespaces, start=2):
         index = await server.register_namespace(uri)
         if index != position:
@@ -290,7 +254,7 @@ async def init_address_space(
     async def capture() -> SnapshotJob:
         # On the event loop, before anything else changes the nodes; the writing can wait. Nodes of
         # the models' snapshot that were never loaded are unchanged: the writer reads them from it.
-        nodes = server.iserver.aspace._nodes
+        nodes = node_table(server.iserver.aspace)
         copy = snapshot.stripped_copy(nodes)
         rest = nodes.rest() if isinstance(nodes, snapshot.LazyNodes) else None
         namespaces = list((await server.get_namespace_array())[2:])

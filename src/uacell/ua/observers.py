@@ -86,7 +86,7 @@ def install_audit(app: Host, trail: AuditTrail) -> None:
 
 def session_fields(session: Any) -> dict[str, Any]:
     """Who a session is, for the audit trail."""
-    description = getattr(session, "_client_description", None)
+    description = getattr(session, "client_description", None)
     user = getattr(session, "user", None)
     return {
         "session": session_text(session.session_id),

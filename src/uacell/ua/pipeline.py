@@ -1,6 +1,7 @@
-"""The one place uacell attaches to asyncua's processing, and the declared stages each request passes.
+"""The declared stages each request passes, and the guards of a connection and a secure channel.
 
-asyncua offers no middleware, so uacell wraps its entry points once, here, process-wide:
+asyncua offers no middleware, so the door (``uacell.ua.door.processing``) wraps its entry points once,
+process-wide, and hands each to the pipeline of the server a connection reached:
 
 - a new connection (``OPCUAProtocol.connection_made``): the server's ``admission`` (``ua/limits.py``:
   room made by closing the oldest connection without a session, a deadline for the handshake);
@@ -42,7 +43,6 @@ stage is one entry in that list.
 
 from __future__ import annotations
 
-import asyncio
 import contextvars
 import functools
 import logging
@@ -60,7 +60,9 @@ from asyncua.ua.ua_binary import struct_from_binary, struct_to_binary
 
 from uacell.background import eager
 from uacell.ua import channel, context
-from uacell.ua.codec import decode_call_parameters, decode_request_header, encode_call_response
+from uacell.ua.codec import decode_call_parameters, encode_call_response
+from uacell.ua.door import connection, processing
+from uacell.ua.door.processing import fault
 
 log = logging.getLogger(__name__)
 
@@ -150,7 +152,7 @@ class PublishedStage:
 
 
 class Pipeline:
-    """One server's stages and guards (``attach()`` runs them)."""
+    """One server's stages and guards (the door's wrappers, ``door/processing.py``, run them)."""
 
     def __init__(
         self,
@@ -170,19 +172,37 @@ class Pipeline:
 
     @staticmethod
     def of(iserver: Any) -> Pipeline | None:
-        pipeline: Pipeline | None = getattr(iserver, "_uacell_pipeline", None)
-        return pipeline
+        pipeline = processing.hooks_of(iserver)
+        return pipeline if isinstance(pipeline, Pipeline) else None
 
     def install(self, iserver: Any) -> None:
         """Run this pipeline for every connection to ``iserver`` (an asyncua InternalServer)."""
-        attach()
-        iserver._uacell_pipeline = self
+        processing.install(iserver, self)
 
     def names(self) -> list[str]:
         """The stages in order, by class name (for logs and tests)."""
         return [type(s).__name__ for s in self.stages]
 
     async def request(self, request: Request) -> Any:
+        return await self._entry(request)
+
+    async def message(self, processor: UaProcessor, typeid: ua.NodeId, header: Any, seqhdr: Any, body: Buffer) -> Any:
+        """One service request from the door (``UaProcessor._process_message``), its TypeId and header
+        decoded: through the stages."""
+        request = Request(processor, typeid, header, seqhdr, body)
+        if typeid in _APART:
+            # A call may wait for equipment (a PLC confirming a command), a history read works through
+            # a page in slices (docs/history.md): each runs apart, so the connection keeps answering its
+            # other requests (a client's keep-alive Read) meanwhile; its response goes out when it is
+            # done (OPC UA matches responses by RequestHandle).
+            running = connection.calls_apart(processor)
+            if len(running) < CALLS_APART:
+                # at once, in a context of its own; a task only from its first wait on (most never wait)
+                task = eager(_call_apart(self, request), contextvars.copy_context())
+                if task is not None:
+                    running.add(task)
+                    task.add_done_callback(running.discard)
+                return True
         return await self._entry(request)
 
 
@@ -199,24 +219,11 @@ def _link(stage: Stage, call_next: Next, request: Request) -> Awaitable[Any]:
     return stage(request, call_next)
 
 
-# asyncua's own entry points, as they were before ``attach()``.
-_ORIGINAL_PROCESS_MESSAGE = UaProcessor._process_message
-_ORIGINAL_PROCESS_SECURE_MESSAGE = UaProcessor.process_message
-_ORIGINAL_PROCESS = UaProcessor.process
-_ORIGINAL_OPEN = UaProcessor.open_secure_channel
-_ORIGINAL_DATA_RECEIVED = OPCUAProtocol.data_received
-_ORIGINAL_PROCESS_ONE_MSG = OPCUAProtocol._process_one_msg
-_ORIGINAL_CONNECTION_MADE = OPCUAProtocol.connection_made
-_ORIGINAL_CALL = InternalSession.call
-_ORIGINAL_READ = InternalSession.read
-_ORIGINAL_HISTORY_READ = InternalSession.history_read
-
-
 async def _service(request: Request) -> Any:
     """The service a request asks for: one of ``SERVICES``, else asyncua's processing."""
     service = SERVICES.get(request.typeid)
     if service is None:
-        return await _ORIGINAL_PROCESS_MESSAGE(
+        return await processing.asyncua_process_message(
             request.processor, request.typeid, request.header, request.seqhdr, request.body
         )
     processor = request.processor
@@ -268,46 +275,6 @@ SERVICES: dict[ua.NodeId, Service] = {
 }  # fmt: skip
 
 
-async def _process_secure_message(self: UaProcessor, seqhdr: Any, body: Buffer) -> Any:
-    """asyncua's ``process_message`` (a request's TypeId and header decoded, then the request handled,
-    a refusal answered with a ServiceFault), the header decoded by ``ua/codec.py`` (decision 50)."""
-    if Pipeline.of(self.iserver) is None:
-        return await _ORIGINAL_PROCESS_SECURE_MESSAGE(self, seqhdr, body)
-    typeid, header = decode_request_header(body)
-    try:
-        return await self._process_message(typeid, header, seqhdr, body)
-    except (ServiceError, ua.UaStatusCodeError) as exc:
-        code = exc.code
-    except Exception:
-        log.exception("a %s request failed", typeid)
-        code = ua.StatusCodes.BadInternalError
-    _fault(self, header, seqhdr, code)
-    return True
-
-
-async def _process_message(self: UaProcessor, typeid: ua.NodeId, requesthdr: Any, seqhdr: Any, body: Buffer) -> Any:
-    pipeline = Pipeline.of(self.iserver)
-    if pipeline is None:
-        return await _ORIGINAL_PROCESS_MESSAGE(self, typeid, requesthdr, seqhdr, body)
-    request = Request(self, typeid, requesthdr, seqhdr, body)
-    if typeid in _APART:
-        # A call may wait for equipment (a PLC confirming a command), a history read works through
-        # a page in slices (docs/history.md): each runs apart, so the connection keeps answering its
-        # other requests (a client's keep-alive Read) meanwhile; its response goes out when it is
-        # done (OPC UA matches responses by RequestHandle).
-        running: set[asyncio.Task[None]] | None = self.__dict__.get("_uacell_calls")
-        if running is None:
-            running = self.__dict__["_uacell_calls"] = set()
-        if len(running) < CALLS_APART:
-            # at once, in a context of its own; a task only from its first wait on (most never wait)
-            task = eager(_call_apart(pipeline, request), contextvars.copy_context())
-            if task is not None:
-                running.add(task)
-                task.add_done_callback(running.discard)
-            return True
-    return await pipeline.request(request)
-
-
 _CALL = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
 _APART = frozenset({_CALL, ua.NodeId(ua.ObjectIds.HistoryReadRequest_Encoding_DefaultBinary)})
 CALLS_APART = 16  # calls and history reads of one connection under way at once; more wait their turn
@@ -318,165 +285,9 @@ async def _call_apart(pipeline: Pipeline, request: Request) -> None:
     processor = request.processor
     try:
         if await pipeline.request(request) is False:
-            processor._transport.close()
+            connection.close(processor)
     except (ServiceError, ua.UaStatusCodeError) as exc:
-        _fault(processor, request.header, request.seqhdr, exc.code)
+        fault(processor, request.header, request.seqhdr, exc.code)
     except Exception:
         log.exception("a %s request failed", request.typeid)
-        _fault(processor, request.header, request.seqhdr, ua.StatusCodes.BadInternalError)
-
-
-def _fault(processor: UaProcessor, header: Any, seqhdr: Any, code: int) -> None:
-    response = ua.ServiceFault()
-    response.ResponseHeader.ServiceResult = ua.StatusCode(code)
-    processor.send_response(header.RequestHandle, seqhdr, response)
-
-
-async def _process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
-    pipeline = Pipeline.of(self.iserver)
-    if pipeline is None:
-        return await _ORIGINAL_PROCESS(self, header, body)
-    guard = pipeline.channel_guard
-    try:
-        if guard is None or header.MessageType != ua.MessageType.SecureOpen or self._connection.is_open():
-            return await _ORIGINAL_PROCESS(self, header, body)
-        return await guard.opening(self, header, body, lambda: _ORIGINAL_PROCESS(self, header, body))
-    except (ua.UaError, ServiceError) as exc:
-        # What a client's message provoked below the request stages (asyncua would log a traceback
-        # at ERROR and keep the connection): refused in one line, and the connection closed.
-        if pipeline.refused is not None:
-            pipeline.refused(self, exc)
-        return False
-
-
-def _open_secure_channel(self: UaProcessor, algohdr: Any, seqhdr: Any, body: Buffer) -> Any:
-    pipeline = Pipeline.of(self.iserver)
-    guard = pipeline.channel_guard if pipeline is not None else None
-    if guard is not None and not self._connection.is_open():
-        guard.open(self, algohdr, body)
-    return _ORIGINAL_OPEN(self, algohdr, seqhdr, body)
-
-
-def _connection_made(self: OPCUAProtocol, transport: Any) -> None:
-    pipeline = Pipeline.of(self.iserver)
-    if pipeline is None or pipeline.admission is None:
-        _ORIGINAL_CONNECTION_MADE(self, transport)
-        return
-    pipeline.admission(self, transport, _ORIGINAL_CONNECTION_MADE)
-
-
-def _data_received(self: OPCUAProtocol, data: bytes) -> None:
-    pipeline = Pipeline.of(self.iserver)
-    if pipeline is None or self.processor is None:
-        _ORIGINAL_DATA_RECEIVED(self, data)
-    elif pipeline.bytes_guard is None:
-        _received(self, data)
-    else:
-        pipeline.bytes_guard(self, data, _received)
-
-
-class _Inbox:
-    """Stands in for a connection's message queue while asyncua parses received bytes: collects what
-    asyncua would queue, full where the queue would be."""
-
-    def __init__(self, queue: asyncio.Queue[Any]) -> None:
-        self.queue = queue
-        self.items: list[tuple[Any, Any]] = []
-
-    def put_nowait(self, item: tuple[Any, Any]) -> None:
-        limit = self.queue.maxsize
-        if limit > 0 and self.queue.qsize() + len(self.items) >= limit:
-            raise asyncio.QueueFull
-        self.items.append(item)
-
-
-def _received(protocol: OPCUAProtocol, data: bytes) -> None:
-    """asyncua's ``data_received``; a message it parsed runs at once when the connection has nothing
-    under way or waiting (asyncua would wake the connection's task for it: a task switch and a future
-    a request), else it waits in the connection's queue as before. One message at a time, in order:
-    one that waits (an ActivateSession checked off the loop) holds back the next (``_process_one_msg``)."""
-    queue = protocol.messages
-    inbox = _Inbox(queue)
-    protocol.messages = inbox
-    try:
-        _ORIGINAL_DATA_RECEIVED(protocol, data)
-    finally:
-        protocol.messages = queue
-    state = protocol.__dict__
-    for item in inbox.items:
-        if state.get("_uacell_claimed", 0) or not queue.empty():
-            queue.put_nowait(item)  # within the room the inbox checked
-            continue
-        state["_uacell_claimed"] = 1
-        ctx = state.get("_uacell_context")
-        if ctx is None:  # the connection's own, as its task has one
-            ctx = state["_uacell_context"] = contextvars.copy_context()
-        task = eager(_run_one(protocol, *item), ctx)
-        if task is not None:
-            state["_uacell_waiting"] = task
-
-
-async def _run_one(protocol: OPCUAProtocol, header: Any, buf: Any) -> None:
-    """One message, as the connection's task runs it (``_process_received_message_loop``)."""
-    try:
-        await _ORIGINAL_PROCESS_ONE_MSG(protocol, header, buf)  # False: it closed the connection
-    except Exception:
-        log.exception("a message from %s failed", protocol.peer_name)
-    finally:
-        protocol.__dict__["_uacell_claimed"] -= 1
-
-
-async def _process_one_msg(self: OPCUAProtocol, header: Any, buf: Any) -> bool:
-    """asyncua's, run by the connection's task: after the message run at once before it, if that one
-    waits. ``_uacell_claimed`` counts the messages taken and not done (run at once, or taken from the
-    queue by the task): none may run at once meanwhile, not even while this one waits its turn."""
-    state = self.__dict__
-    state["_uacell_claimed"] = state.get("_uacell_claimed", 0) + 1
-    try:
-        waiting = state.pop("_uacell_waiting", None)
-        if waiting is not None and not waiting.done():
-            await asyncio.wait([waiting])
-        result: bool = await _ORIGINAL_PROCESS_ONE_MSG(self, header, buf)
-        return result
-    finally:
-        state["_uacell_claimed"] -= 1
-
-
-def _with_session(original: Callable[[InternalSession, Any], Awaitable[Any]]) -> Callable[..., Awaitable[Any]]:
-    """A session's service with the session known (``context.current_caller``) while it runs."""
-
-    async def service(self: InternalSession, params: Any) -> Any:
-        token = context.set_session(self)
-        try:
-            return await original(self, params)
-        finally:
-            context.reset_session(token)
-
-    return service
-
-
-_call = _with_session(_ORIGINAL_CALL)
-_history_read = _with_session(_ORIGINAL_HISTORY_READ)
-
-
-async def _read(self: InternalSession, params: Any) -> Any:
-    results = await _ORIGINAL_READ(self, params)
-    if self.external:
-        context.run_read_hooks(self, params, results)
-    return results
-
-
-def attach() -> None:
-    """Wrap asyncua's entry points (once per process; each looks up its server's pipeline)."""
-    if UaProcessor._process_message is _process_message:
-        return
-    UaProcessor._process_message = _process_message
-    UaProcessor.process_message = _process_secure_message
-    UaProcessor.process = _process
-    UaProcessor.open_secure_channel = _open_secure_channel
-    OPCUAProtocol.data_received = _data_received
-    OPCUAProtocol._process_one_msg = _process_one_msg
-    OPCUAProtocol.connection_made = _connection_made
-    InternalSession.call = _call
-    InternalSession.read = _read
-    InternalSession.history_read = _history_read
+        fault(processor, request.header, request.seqhdr, ua.StatusCodes.BadInternalError)

@@ -54,6 +54,7 @@ from asyncua import ua
 from asyncua.server.address_space import AttributeValue, NodeData
 
 from uacell import __version__
+from uacell.ua.door import connection as door_connection
 
 log = logging.getLogger(__name__)
 
@@ -235,7 +236,7 @@ class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
 
 def every_node_id(aspace: Any) -> set[ua.NodeId]:
     """Every node of an asyncua address space, also those of a snapshot not loaded yet."""
-    nodes = aspace._nodes
+    nodes = door_connection.nodes(aspace)
     return nodes.node_ids() if isinstance(nodes, LazyNodes) else set(nodes.keys())
 
 

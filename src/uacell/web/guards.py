@@ -25,6 +25,8 @@ import h11
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
+from uacell.ua import door
+
 log = logging.getLogger(__name__)
 
 LOOPBACK_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost", "ip6-loopback"})
@@ -153,6 +155,7 @@ def timed_headers(header_timeout: float) -> type[H11Protocol]:
     start, and again from each answer, until a request's headers are complete; past ``header_timeout``
     the connection gets ``408`` and is closed. Bodies are not timed here (the body cap bounds them)."""
 
+    @door.subclass("uvicorn.protocols.http.h11_impl.H11Protocol")
     class TimedHeaders(H11Protocol):
         _timer: asyncio.TimerHandle | None = None
 

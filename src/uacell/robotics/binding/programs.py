@@ -134,7 +134,7 @@ class Programs:
                     reference_type=ua.ObjectIds.Organizes, path=f"{b.controller.path}.Programs.{name}",
                 )  # fmt: skip
                 text = ua.LocalizedText(f"uacell: the controller's program {name} (held by the controller, no file)")
-                await b.app.space.aspace.write_attribute_value(node, _A.Description, ua.DataValue(ua.Variant(text)))
+                await b.app.space.write(node, _A.Description, ua.Variant(text))
                 self.controller_programs[name] = node
 
     def controller_program_of(self, id_: Any) -> str | None:
@@ -179,9 +179,7 @@ class Programs:
         index = id_.NamespaceIndex
         uri = getattr(id_, "NamespaceUri", None)
         if uri:
-            array = self.binding.app.space.aspace.read_attribute_value(
-                ua.NodeId(ua.ObjectIds.Server_NamespaceArray), _A.Value
-            ).Value.Value
+            array = self.binding.app.space.attribute(ua.NodeId(ua.ObjectIds.Server_NamespaceArray))
             if uri not in array:
                 raise CallError("BadNodeIdInvalid", f"unknown namespace {uri}", argument=0)
             index = array.index(uri)

@@ -19,7 +19,6 @@ from uacell.robotics.equipment import StopMode
 from uacell.robotics.model import RobotCell
 from uacell.roles import Family
 from uacell.ua.file_store import FileStore
-from uacell.ua.toolkit import ValueWriter
 
 if TYPE_CHECKING:
     from uacell.host import BinderHost
@@ -56,7 +55,7 @@ class ControllerBinding:
         self.cell = cell
         self.store = store
         self.ns: int = app.cell.instantiator.ns
-        self.values = ValueWriter(app.space.aspace, app.dispatcher.types.builtin_of)
+        self.values = app.space.value_writer(app.dispatcher.types.builtin_of)
         self._children: dict[tuple[ua.NodeId, str], ua.NodeId] = {}
         self.compose()
 

@@ -72,7 +72,7 @@ class TaskControls:
             await b.values.write(b.child(op, "MotionDevicesUnderControl"), [b.arm.node], ua.VariantType.NodeId)
             controls = self.controls_reference()
             if controls is not None:
-                await b.app.space.node(part.node).add_reference(b.arm.node, controls, True, True)
+                await b.app.space.add_reference(part.node, b.arm.node, controls)
         with contextlib.suppress(KeyError):
             mode_node = b.child(part.node, "ParameterSet/ExecutionMode")
             await b.values.set_access(mode_node, ua.AccessLevel.CurrentRead.mask | ua.AccessLevel.CurrentWrite.mask)
@@ -82,16 +82,17 @@ class TaskControls:
         """``ParameterSet/CurrentLine`` and ``ParameterSet/ProgramPointer``: UInt32, read-only, uacell's."""
         b = self.binding
         part = b.task_parts[name]
-        params = b.app.space.node(b.child(part.node, "ParameterSet"))
+        params = b.child(part.node, "ParameterSet")
         for browse_name, text in PROGRAM_POSITION.items():
-            var = await params.add_variable(
+            var = await b.app.space.add_variable(
+                params,
                 ua.NodeId(f"{part.path}.ParameterSet.{browse_name}", b.ns),
                 ua.QualifiedName(browse_name, b.ns),
                 ua.Variant(0, ua.VariantType.UInt32),
                 datatype=ua.NodeId(ua.ObjectIds.UInt32),
             )
             description = ua.Variant(ua.LocalizedText(text), ua.VariantType.LocalizedText)
-            await var.write_attribute(_A.Description, ua.DataValue(description))
+            await b.app.space.write(var, _A.Description, description)
 
     def _position_changed(self, name: str) -> None:
         # Called on every step of a run: one pending write per task, reading the latest position.

@@ -1,0 +1,165 @@
+"""What uacell reads of asyncua's connection objects, in one place (asyncua keeps them private).
+
+A ``UaProcessor`` is one client connection: its secure channel's policy (URI, mode, the client
+certificate the channel was opened with) and its transport (to send an Error message before
+closing). The internal server's table of client sessions and the per-server attachments uacell
+hangs on it are here too, so no module outside the door (``uacell.ua.door``) touches an underscored asyncua name.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from asyncua import ua
+from asyncua.common.utils import Buffer
+from asyncua.crypto.security_policies import SecurityPolicyNone
+from asyncua.server.address_space import AddressSpace
+from asyncua.server.binary_server_asyncio import OPCUAProtocol
+from asyncua.server.internal_server import InternalServer
+from asyncua.server.uaprocessor import UaProcessor
+from asyncua.ua.ua_binary import uatcp_to_binary
+
+
+def peer_address(processor: UaProcessor | None) -> str:
+    """The client's IP address (``"unknown"`` when there is no connection)."""
+    peer = getattr(processor, "name", None)
+    if isinstance(peer, tuple) and peer:
+        return str(peer[0])
+    return str(peer or "unknown")
+
+
+def channel_policy(processor: UaProcessor | None) -> tuple[str, ua.MessageSecurityMode]:
+    """The security policy URI and mode of the processor's secure channel."""
+    if processor is None:
+        return SecurityPolicyNone.URI, ua.MessageSecurityMode.None_
+    policy = processor._connection.security_policy
+    return policy.URI, policy.Mode
+
+
+def peer_certificate(processor: UaProcessor) -> bytes | None:
+    """The client certificate the secure channel was opened with (None on SecurityPolicy None)."""
+    cert: bytes | None = processor._connection.security_policy.peer_certificate
+    return cert
+
+
+def send_error(processor: UaProcessor, code: int, reason: str) -> None:
+    """An Error message (OPC 10000-6 7.1.2.5) to the client; the caller closes the connection."""
+    message = ua.ErrorMessage(ua.StatusCode(code), reason)
+    processor._transport.write(uatcp_to_binary(ua.MessageType.Error, message))
+
+
+def permits(processor: UaProcessor, user: Any, typeid: ua.NodeId, body: Any) -> bool:
+    """Do the channel's security policy's permissions (asyncua's, if any) let ``user`` make this request?
+    A HistoryUpdate is let through as a HistoryRead is (asyncua's rules know no HistoryUpdate): the
+    history answers each item itself (Bad_HistoryOperationUnsupported, docs/history.md)."""
+    permissions = processor._connection.security_policy.permissions
+    if typeid == _HISTORY_UPDATE:
+        typeid = _HISTORY_READ
+    return permissions is None or permissions.check_validity(user, typeid, body) is not False
+
+
+_HISTORY_UPDATE = ua.NodeId(ua.ObjectIds.HistoryUpdateRequest_Encoding_DefaultBinary)
+_HISTORY_READ = ua.NodeId(ua.ObjectIds.HistoryReadRequest_Encoding_DefaultBinary)
+
+
+def send_response(processor: UaProcessor, request_id: int, body: bytes) -> None:
+    """A service response, already encoded, on the processor's secure channel (asyncua's
+    ``send_response`` with uacell's encoder)."""
+    message = ua.MessageType.SecureMessage
+    data = processor._connection.message_to_binary(body, message_type=message, request_id=request_id)
+    processor._transport.write(data)
+
+
+def session_count(iserver: InternalServer) -> int:
+    """Client sessions the server holds now (created, activated or not)."""
+    return len(iserver._external_sessions)
+
+
+_ATTACHED = "_uacell_attached"
+
+
+def attach(iserver: InternalServer, key: str, value: Any) -> None:
+    """Hang ``value`` on the internal server under ``key``, for code that has only asyncua's objects
+    (a session reaches its server's uacell security set-up this way)."""
+    attached = iserver.__dict__.setdefault(_ATTACHED, {})
+    attached[key] = value
+
+
+def attached(iserver: InternalServer, key: str) -> Any:
+    """What ``attach`` hung under ``key``, or None."""
+    return iserver.__dict__.get(_ATTACHED, {}).get(key)
+
+
+# --- private state read for uacell's guards (inventory: "private name read") ------------------------
+def connection(processor: UaProcessor | None) -> Any:
+    """The processor's secure connection (its policy, token, open state), or None."""
+    return getattr(processor, "_connection", None)
+
+
+def channel_open(processor: UaProcessor) -> bool:
+    """Has the processor's secure channel been opened?"""
+    return bool(processor._connection.is_open())
+
+
+def close(processor: UaProcessor) -> None:
+    """Close the processor's connection."""
+    processor._transport.close()
+
+
+def external_sessions(iserver: InternalServer) -> list[Any]:
+    """The client sessions the server holds now."""
+    return list(iserver._external_sessions.values())
+
+
+def last_activity(session: Any, default: float) -> float:
+    """When (``time.monotonic()``) the session last served a request."""
+    return float(getattr(session, "_last_activity", default))
+
+
+def buffer_bytes(body: Buffer) -> Any:
+    """The bytes a Buffer reads from (asyncua builds a message's body as one Buffer over them)."""
+    return body._data
+
+
+def take_received(protocol: OPCUAProtocol, data: bytes) -> bytes:
+    """What the connection had received and not parsed, followed by ``data``; none is kept now."""
+    pending: bytes = protocol._buffer + data
+    protocol._buffer = b""
+    return pending
+
+
+def set_received(protocol: OPCUAProtocol, data: bytes) -> None:
+    protocol._buffer = data
+
+
+def receive_buffer(protocol: OPCUAProtocol) -> int:
+    """The connection's receive buffer (negotiated by the Hello; the configured one before)."""
+    return int(protocol.processor._limits.max_recv_buffer)
+
+
+def queued_bytes(protocol: OPCUAProtocol) -> int:
+    """Bytes of the messages waiting in the connection's queue."""
+    return sum(len(item[1]) for item in protocol.messages._queue if item[1] is not None)
+
+
+def monitored_items(subscription: Any) -> int:
+    """Monitored items of a subscription."""
+    return len(subscription.monitored_item_srv._monitored_items)
+
+
+def nodes(aspace: AddressSpace) -> Any:
+    """The address space's node table (NodeId -> NodeData)."""
+    return aspace._nodes
+
+
+def set_nodes(aspace: AddressSpace, table: Any) -> None:
+    """Replace the address space's node table (a snapshot's, restored)."""
+    aspace._nodes = table
+
+
+def calls_apart(processor: UaProcessor) -> set[Any]:
+    """The calls (and history reads) of the connection running apart (``uacell.ua.pipeline``)."""
+    running: set[Any] | None = processor.__dict__.get("_uacell_calls")
+    if running is None:
+        running = processor.__dict__["_uacell_calls"] = set()
+    return running

@@ -1,0 +1,99 @@
+# ruff: noqa: E501  (one entry a line: the inventory reads as a table)
+"""Everything uacell changes in asyncua (and uvicorn, and the one stdlib module it speeds up), and the
+private names it reads: one entry each. ``uacell.ua.door`` refuses to install anything not listed
+here; ``tests/test_asyncua_door.py`` checks the list against what a started server installed and
+against the installed asyncua (every private name still there). docs/asyncua.md shows it as a table.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+
+# The versions every entry was read against (docs/asyncua.md: how to upgrade).
+VERIFIED = {"asyncua": "2.1.0", "uvicorn": "0.54.0"}
+
+
+class Kind(StrEnum):
+    PATCH = "class attribute replaced"  # process-wide, at attach
+    SWAP = "instance attribute replaced"  # on one server's object
+    SETTING = "public attribute set"  # a setting asyncua reads from an attribute (no setter)
+    SUBCLASS = "subclass"
+    PRIVATE = "private name read"  # read (or written back) through a door function
+
+
+@dataclass(frozen=True)
+class Entry:
+    target: str  # dotted path: module, class, attribute
+    kind: Kind
+    owner: str  # the uacell module that asks for it
+    why: str
+    replaces: str  # asyncua's behaviour it replaces ("" for a private read)
+    at_start: bool = True  # installed by every started server (else only on some paths)
+
+    @property
+    def package(self) -> str:
+        return self.target.split(".")[0]
+
+
+_P = "asyncua.server.uaprocessor.UaProcessor"
+_T = "asyncua.server.binary_server_asyncio.OPCUAProtocol"
+_S = "asyncua.server.internal_session.InternalSession"
+_I = "asyncua.server.internal_server.InternalServer"
+
+ENTRIES: tuple[Entry, ...] = (
+    # --- the request path (door/processing.py, asked for by ua/pipeline.py) ------------------------
+    Entry(f"{_P}._process_message", Kind.PATCH, "uacell.ua.pipeline", "the request stages; Call, Read, HistoryUpdate by one lookup; calls apart (decisions 48, 51)", "its service dispatch by comparing the request type with 40 NodeIds"),
+    Entry(f"{_P}.process_message", Kind.PATCH, "uacell.ua.pipeline", "request header decoded by ua/codec.py; faults answered in one place (decision 50)", "struct_from_binary of the header; its error handling"),
+    Entry(f"{_P}.process", Kind.PATCH, "uacell.ua.pipeline", "the channel guard before an OpenSecureChannel; a refusal closes the connection in one INFO line", "logs a traceback at ERROR and keeps the connection"),
+    Entry(f"{_P}.open_secure_channel", Kind.PATCH, "uacell.ua.pipeline", "only the policies and modes the endpoints offer (security.py)", "select_policy keeps its default (None) channel when a client asks for it, offered or not"),
+    Entry(f"{_T}.data_received", Kind.PATCH, "uacell.ua.pipeline", "chunk sizes checked before buffering (ua/limits.py); a parsed message runs at once", "buffers any declared size; wakes the connection's task per message"),
+    Entry(f"{_T}._process_one_msg", Kind.PATCH, "uacell.ua.pipeline", "one message at a time when the first ran at once (decision 51)", "its message loop's step"),
+    Entry(f"{_T}.connection_made", Kind.PATCH, "uacell.ua.pipeline", "admission: room made, handshake deadline (ua/limits.py)", "refuses beyond max_connections only"),
+    Entry(f"{_S}.call", Kind.PATCH, "uacell.ua.pipeline", "the session known while its calls run (ua/context.py)", "(wrapped, not changed)"),
+    Entry(f"{_S}.read", Kind.PATCH, "uacell.ua.pipeline", "read hooks: role-dependent values (security.py)", "(wrapped, not changed)"),
+    Entry(f"{_S}.history_read", Kind.PATCH, "uacell.ua.pipeline", "the session known while history is read", "(wrapped, not changed)"),
+    Entry(f"{_T}.messages", Kind.SWAP, "uacell.ua.pipeline", "collects what asyncua parses from one read, to run it at once", "its queue, for the duration of one parse"),
+    # --- one server's parts ------------------------------------------------------------------------
+    Entry(f"{_I}.method_service", Kind.SWAP, "uacell.ua.dispatch", "the one method dispatcher", "MethodService: calls the callback with no argument checks or roles"),
+    Entry(f"{_I}.history_manager", Kind.SWAP, "uacell.history.service", "uacell's history (stores, retention, events, HistoryUpdate)", "HistoryManager with its in-memory storage"),
+    Entry("asyncua.server.subscription_service.SubscriptionService.trigger_event", Kind.SWAP, "uacell.ua.event_tap", "every fired event to history and PubSub first", "(wrapped, not changed)"),
+    Entry(f"{_I}.create_session", Kind.SWAP, "uacell.security", "uacell's session class (limits, audit, roles)", "creates an InternalSession"),
+    Entry(f"{_I}.decrypt_user_token", Kind.SWAP, "uacell.security", "password decryption with the policy's rules, off the loop", "its decryption"),
+    Entry(f"{_I}.load_standard_address_space", Kind.SWAP, "uacell.ua.nodesets", "the standard nodes from the address-space snapshot (decision 46)", "loads the standard nodes from asyncua's generated code", at_start=False),
+    Entry("asyncua.server.address_space.ViewService._suitable_reftype", Kind.SWAP, "uacell.ua.nodesets", "the reference-type subtype closure cached while an import adds inverse references", "walks the type tree per reference", at_start=False),
+    Entry("asyncua.server.address_space.AddressSpace._nodes", Kind.PRIVATE, "uacell.ua.nodesets", "the node table, copied to and restored from the snapshot", ""),
+    # --- settings asyncua reads from attributes ------------------------------------------------------
+    Entry(f"{_I}.certificate", Kind.SETTING, "uacell.security", "the server certificate (asyncua's setter reads a file path)", ""),
+    Entry(f"{_I}.private_key", Kind.SETTING, "uacell.security", "the server key, decrypted by uacell", ""),
+    Entry(f"{_I}.max_connections", Kind.SETTING, "uacell.ua.limits", "[limits] connections", ""),
+    Entry(f"{_I}.max_subscriptions", Kind.SETTING, "uacell.ua.limits", "[limits] subscriptions", ""),
+    Entry(f"{_I}.max_pending_activation_seconds", Kind.SETTING, "uacell.ua.limits", "[limits] activation_timeout", ""),
+    Entry(f"{_I}.max_pending_messages_per_connection", Kind.SETTING, "uacell.ua.limits", "[limits] pending chunks", ""),
+    Entry("asyncua.server.server.Server.limits", Kind.SETTING, "uacell.ua.limits", "transport limits per connection (ServerTransportLimits)", "TransportLimits"),
+    Entry(f"{_I}.bind_condition_methods", Kind.SETTING, "uacell.server", "ConditionType's methods bound by asyncua in batches", ""),
+    Entry("asyncua.server.server.Server.product_uri", Kind.SETTING, "uacell.server", "the server's ProductUri", ""),
+    # --- subclasses ----------------------------------------------------------------------------------
+    Entry("asyncua.server.address_space.MethodService", Kind.SUBCLASS, "uacell.ua.dispatch", "MethodDispatcher: the one method dispatcher (argument checks, roles, guards, serialization)", "MethodService.call"),
+    Entry(_S, Kind.SUBCLASS, "uacell.ua.limits", "LimitedSession: sessions, subscriptions, monitored items, operations per request counted", "unlimited sessions"),
+    Entry("asyncua.common.connection.TransportLimits", Kind.SUBCLASS, "uacell.ua.limits", "ServerTransportLimits: chunk sizes from the Hello, message size enforced", "create_acknowledge_and_set_limits"),
+    Entry("asyncua.common.xmlimporter.XmlImporter", Kind.SUBCLASS, "uacell.ua.nodesets", "the subtype closure cached while inverse references are added (start-up time)", "_add_missing_reverse_references", at_start=False),
+    Entry("asyncua.crypto.permission_rules.User", Kind.SUBCLASS, "uacell.ua.context", "UacellUser: the user with uacell's role", "User"),
+    Entry("uvicorn.protocols.http.h11_impl.H11Protocol", Kind.SUBCLASS, "uacell.web.guards", "TimedHeaders: a request's headers within a deadline (slow-header clients)", "no header deadline", at_start=False),
+    # --- the standard library ------------------------------------------------------------------------
+    Entry("dataclasses.exec", Kind.PATCH, "uacell.codecache", "asyncua's 900 dataclasses built from cached code objects (start-up time)", "dataclasses compiles each class's methods", at_start=False),
+    # --- private names read ----------------------------------------------------------------------------
+    Entry(f"{_P}._connection", Kind.PRIVATE, "uacell.ua.channel", "a channel's policy, mode, peer certificate, open state", ""),
+    Entry(f"{_P}._transport", Kind.PRIVATE, "uacell.ua.channel", "to send an Error or a response, to close", ""),
+    Entry(f"{_P}._limits", Kind.PRIVATE, "uacell.ua.limits", "the negotiated receive buffer", ""),
+    Entry(f"{_T}._buffer", Kind.PRIVATE, "uacell.ua.limits", "bytes received and not parsed (chunk sizes checked first)", ""),
+    Entry("asyncio.Queue._queue", Kind.PRIVATE, "uacell.ua.limits", "bytes queued on a connection (asyncua's message queue)", ""),
+    Entry(f"{_I}._external_sessions", Kind.PRIVATE, "uacell.ua.channel", "the client sessions (diagnostics, metrics)", ""),
+    Entry(f"{_S}._last_activity", Kind.PRIVATE, "uacell.ua.diagnostics", "a session's idle time", ""),
+    Entry("asyncua.common.utils.Buffer._data", Kind.PRIVATE, "uacell.ua.codec", "a request's bytes, decoded by ua/codec.py", ""),
+    Entry("asyncua.server.monitored_item_service.MonitoredItemService._monitored_items", Kind.PRIVATE, "uacell.ua.limits", "monitored items counted against [limits]", ""),
+    Entry("asyncua.server.address_space.MethodService._call", Kind.PRIVATE, "uacell.ua.dispatch", "asyncua's callback for a method uacell does not bind (ConditionRefresh)", ""),
+    Entry("asyncua.server.address_space.ViewService._get_sub_ref", Kind.PRIVATE, "uacell.ua.nodesets", "the subtypes of a reference type", ""),
+)  # fmt: skip
+
+INVENTORY: dict[str, Entry] = {e.target: e for e in ENTRIES}
