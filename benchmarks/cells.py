@@ -1,9 +1,9 @@
 """The cells the suite measures. Until cells can be declared in a configuration file, the large cell
-is built here from ``uacell.cell.sized_cell``; this is the one place to switch to a file."""
+is built here from ``uacell.binding.cell.sized_cell``; this is the one place to switch to a file."""
 
 from __future__ import annotations
 
-from uacell.cell import Part, demo_cell, sized_cell
+from uacell.binding.cell import Part, demo_cell, sized_cell
 
 # name -> (PackML units, robots, task controls per robot)
 SIZES = {"large": (100, 10, 2), "units": (21, 1, 1)}

@@ -213,7 +213,7 @@ def robot_section(report: Report, peers: Peers, rounds: int) -> None:
     """The robot part (module doc): the example controller and the shipped cell, nothing else."""
     import sys
 
-    from uacell.cell_file import builtin_cell_path
+    from uacell.core.cell_file import builtin_cell_path
 
     ctrl_port = free_port()
     ctrl_cmd = [sys.executable, "-m", "uacell.gateway.examples.robot_controller", "--port", str(ctrl_port)]

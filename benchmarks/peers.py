@@ -71,8 +71,8 @@ async def uacell(
     from pathlib import Path
 
     from benchmarks.cells import bench_cell
-    from uacell import early
     from uacell.config import Config
+    from uacell.core import early
     from uacell.server import UacellServer
 
     logging.basicConfig(level=logging.ERROR)
@@ -132,7 +132,8 @@ def main() -> int:
     if args.kind == "asyncua":
         asyncio.run(bare_asyncua(args.port, args.nodesets))
     else:
-        from uacell import codecache, early
+        from uacell.core import early
+        from uacell.ua import codecache
 
         early.pause_gc()  # as `uacell serve` does, from its first line
         codecache.install()

@@ -101,7 +101,7 @@ def _plc(port: int) -> Iterator[int]:
 
 
 def robots_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:
-    from uacell.cell_file import builtin_cell_path
+    from uacell.core.cell_file import builtin_cell_path
 
     rounds = 10 if args.quick else 40
     seconds = 3.0 if args.quick else 10.0

@@ -14,7 +14,7 @@ from typing import Any
 
 from helpers import free_port
 
-from uacell.cell_file import builtin_cell_path
+from uacell.core.cell_file import builtin_cell_path
 from uacell.gateway.codec import RegisterType
 from uacell.gateway.modbus import ModbusConnection, ModbusTag
 from uacell.gateway.packml_logix import LogixConnection

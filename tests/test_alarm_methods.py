@@ -15,11 +15,11 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from helpers import robot_cell, robotics_tables
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
+from uacell.core.roles import Role
 from uacell.robotics.model import RobotCell, Status
 from uacell.robotics.program_cache import DirectoryLibrary
 from uacell.robotics.sim import SimulatedRobot
-from uacell.roles import Role
 
 COND = "Robot1.Controllers.Controller1.SystemOperation.Conditions.EmergencyStop"
 SO = "Robot1.Controllers.Controller1.SystemOperation.SystemOperationStateMachine"

@@ -223,7 +223,7 @@ def test_attach_wraps_asyncua_once() -> None:
 
 
 def test_binders_reach_the_address_space_by_typed_operations_only() -> None:
-    from uacell.ua.space import Space
+    from uacell.binding.space import Space
 
     assert not hasattr(Space, "aspace") and not hasattr(Space, "node")  # no AddressSpace, no Node handed out
     adapter = SRC / "ua"

@@ -18,9 +18,9 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from helpers import Collector, delivered, raw_call, wait_until
 
-from uacell.background import Background
+from uacell.core.background import Background
 from uacell.packml.binding import UNITS
-from uacell.users import UserStore
+from uacell.security.users import UserStore
 
 module_loop = pytest.mark.asyncio(loop_scope="module")
 pytestmark = module_loop

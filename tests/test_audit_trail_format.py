@@ -15,9 +15,9 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from helpers import wait_until
 
-from uacell.audit import audit_line
+from uacell.security.audit import audit_line
+from uacell.security.users import UserStore
 from uacell.server import UacellServer
-from uacell.users import UserStore
 
 module_loop = pytest.mark.asyncio(loop_scope="module")
 

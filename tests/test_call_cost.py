@@ -16,7 +16,7 @@ import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config
 
-from uacell.cell import sized_cell
+from uacell.binding.cell import sized_cell
 from uacell.packml.binding import UNITS
 from uacell.server import UacellServer
 

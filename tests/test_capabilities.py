@@ -1,4 +1,4 @@
-"""Optional equipment capabilities are Protocols checked with isinstance (uacell.capabilities and the
+"""Optional equipment capabilities are Protocols checked with isinstance (uacell.core.capabilities and the
 companions' equipment modules): what a unit and a machine make of equipment that has them, and of
 equipment that has not."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import pytest
 from helpers import packml_tables
 
-from uacell.capabilities import Identified, Reachable
-from uacell.errors import CallError
+from uacell.core.capabilities import Identified, Reachable
+from uacell.core.errors import CallError
 from uacell.machinery.sources import UnitSource
 from uacell.packml import PackMLUnit
 from uacell.packml.equipment import CommandForwarder, EquipmentBase, NamedConditions

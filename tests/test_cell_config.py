@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from uacell.cell import Part, demo_cell
-from uacell.cell_file import STATE_MACHINE, builtin_cell_path
+from uacell.binding.cell import Part, demo_cell
 from uacell.config import load_cell, load_config
-from uacell.errors import ConfigError
+from uacell.core.cell_file import STATE_MACHINE, builtin_cell_path
+from uacell.core.errors import ConfigError
 from uacell.robotics.equipment import ExecutionMode, StopMode
 
 

@@ -9,7 +9,7 @@ import pytest
 from conftest import ServeProcess, start_serve
 from test_robotics_interop import run_trusted
 
-from uacell.cell_file import builtin_cell_path
+from uacell.core.cell_file import builtin_cell_path
 
 pytestmark = pytest.mark.interop
 

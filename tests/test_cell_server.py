@@ -16,8 +16,8 @@ from asyncua import ua
 from conftest import fast_config, start_app
 from helpers import CellClient, raw_call
 
-from uacell.cell_file import builtin_cell_path
 from uacell.config import Config, load_cell
+from uacell.core.cell_file import builtin_cell_path
 from uacell.server import UacellServer
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")

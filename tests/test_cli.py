@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from conftest import free_port
 
-from uacell.pki import PkiPaths, TrustList, make_client_certificate, thumbprint
+from uacell.security.pki import PkiPaths, TrustList, make_client_certificate, thumbprint
 
 # Cheap argon2 is not configurable from the command line; each `user add` hashes once (about 0.1 s).
 
@@ -291,7 +291,7 @@ def test_cert_commands_refuse_unknown_short_or_ambiguous_ids_and_change_nothing(
 
 
 def test_cert_renew_keeps_the_old_pair(tmp_path):
-    from uacell.pki import ensure_server_certificate
+    from uacell.security.pki import ensure_server_certificate
 
     paths = PkiPaths.in_data_dir(tmp_path)
     ensure_server_certificate(paths, "urn:uacell:server", ["127.0.0.1"])
@@ -306,8 +306,8 @@ def test_cert_renew_keeps_the_old_pair(tmp_path):
 
 
 def test_a_thumbprint_prefix_naming_two_certificates_is_refused(tmp_path, monkeypatch):
-    from uacell import certs
-    from uacell.pki import generate_key
+    from uacell.cli import certs
+    from uacell.security.pki import generate_key
 
     paths = PkiPaths.in_data_dir(tmp_path)
     key = generate_key()
@@ -327,7 +327,7 @@ def test_a_thumbprint_prefix_naming_two_certificates_is_refused(tmp_path, monkey
 
 
 def test_config_check_takes_the_global_config_option_too() -> None:
-    from uacell.cell_file import builtin_cell_path
+    from uacell.core.cell_file import builtin_cell_path
 
     path = str(builtin_cell_path("modbus-robot"))
     for args in (("config", "check", path), ("--config", path, "config", "check")):

@@ -1,4 +1,4 @@
-"""The compiled dataclass methods kept between starts (uacell.codecache): each case in fresh
+"""The compiled dataclass methods kept between starts (uacell.ua.codecache): each case in fresh
 interpreters, as starts are."""
 
 from __future__ import annotations
@@ -12,14 +12,14 @@ from pathlib import Path
 
 import pytest
 
-from uacell import codecache
+from uacell.ua import codecache
 
 ROOT = Path(__file__).resolve().parents[1]
 
 # A start in miniature: install the cache, define dataclasses of every kind, report what was made.
 _PROGRAM = """
 import dataclasses, inspect, json, sys
-from uacell import codecache
+from uacell.ua import codecache
 cache = codecache.install()
 from dataclasses import dataclass, field
 

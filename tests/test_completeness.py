@@ -18,9 +18,9 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from helpers import first_start_source, free_port
 
-from uacell.cell import _NOISE, Part, demo_cell
-from uacell.cell_file import builtin_cell_path
+from uacell.binding.cell import _NOISE, Part, demo_cell
 from uacell.config import load_cell
+from uacell.core.cell_file import builtin_cell_path
 from uacell.ua.instantiate import Selection
 
 module_loop = pytest.mark.asyncio(loop_scope="module")

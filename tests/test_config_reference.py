@@ -2,7 +2,7 @@
 
 The settings sections are dataclasses (``uacell.config.section_types()``): each field must have a row
 in the table under the heading ``## `[section]` `` with a matching type and, where the default is a
-plain value, that default. The cell's tables are read by ``uacell.cell_file.Table``: the keys their
+plain value, that default. The cell's tables are read by ``uacell.core.cell_file.Table``: the keys their
 parsers ask for (recorded while a probe cell is read, with the getter that read each) must be the rows
 under ``## `[[robots]]` ``, ``### `[[robots.controllers]]` `` and so on, their types matching the getter.
 
@@ -21,8 +21,8 @@ from typing import Any
 import pytest
 
 from uacell.catalog import companions
-from uacell.cell_file import IDENTIFICATION, Table, parse_cell
 from uacell.config import section_types
+from uacell.core.cell_file import IDENTIFICATION, Table, parse_cell
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "configuration.md"

@@ -19,7 +19,7 @@ import pytest
 from asyncua import Client, ua
 from conftest import INTEROP, ROOT, ServeProcess, start_serve
 
-from uacell.users import UserStore
+from uacell.security.users import UserStore
 
 COOKBOOK = ROOT / "docs" / "cookbook"
 PAGE = ROOT / "docs" / "cookbook.md"

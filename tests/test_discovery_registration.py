@@ -18,12 +18,12 @@ from asyncua import Client, ua
 from conftest import NodeServer, ServeProcess, start_serve
 from helpers import free_port, wait_until
 
-from uacell.cli import main
+from uacell.cli.main import main
 from uacell.config import ConfigError, load_config
-from uacell.discovery_registration import DiscoveryConfig, DiscoveryRegistration, Registrant
-from uacell.pki import PkiPaths
+from uacell.security.pki import PkiPaths
+from uacell.services.discovery_registration import DiscoveryConfig, DiscoveryRegistration, Registrant
 
-REGISTRATION = "uacell.discovery_registration"
+REGISTRATION = "uacell.services.discovery_registration"
 
 
 def discovery_server(port: int, pki: Path, log: Path) -> NodeServer:

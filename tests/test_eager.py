@@ -1,5 +1,5 @@
-"""Running work at once, with a task only from its first wait on (uacell.background.eager), and the
-address-space publisher that uses it (uacell.ua.publisher.Publisher). Pure asyncio."""
+"""Running work at once, with a task only from its first wait on (uacell.core.background.eager), and the
+address-space publisher that uses it (uacell.binding.publisher.Publisher). Pure asyncio."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from collections.abc import Awaitable, Callable
 
 import pytest
 
-from uacell.background import eager
-from uacell.ua.publisher import Publisher
+from uacell.binding.publisher import Publisher
+from uacell.core.background import eager
 
 WHO: contextvars.ContextVar[str] = contextvars.ContextVar("who", default="nobody")
 
@@ -183,6 +183,6 @@ async def test_eager_from_inside_a_task_sets_that_task_aside_for_the_step() -> N
 
 
 async def test_the_running_task_table_eager_uses_is_the_one_current_task_reads() -> None:
-    from uacell.background import _CURRENT
+    from uacell.core.background import _CURRENT
 
     assert _CURRENT.get(asyncio.get_running_loop()) is asyncio.current_task()

@@ -13,7 +13,7 @@ from conftest import fast_config, free_port, start_app
 from helpers import robot_cell
 
 from uacell.config import load_cell, load_factory
-from uacell.errors import ConfigError
+from uacell.core.errors import ConfigError
 from uacell.packml.binding import UNITS
 from uacell.server import UacellServer
 

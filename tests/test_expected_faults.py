@@ -34,10 +34,10 @@ from test_gateway_packml_modbus import ModbusPLC
 from test_gateway_robot import PLC as RobotController
 from test_gateway_robot import cell_text as robot_cell
 
-from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
+from uacell.core.cell_file import builtin_cell_path
 from uacell.gateway import modbus, opcua_link, packml_modbus, packml_opcua
-from uacell.pki import PkiPaths
+from uacell.security.pki import PkiPaths
 from uacell.server import UacellServer
 from uacell.web.hosting import start_web, trust_hmi
 

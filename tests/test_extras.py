@@ -19,7 +19,7 @@ from asyncua import Client, ua
 from conftest import start_serve
 from helpers import free_port
 
-from uacell.extras import EXTRAS, MissingExtra, providing, require
+from uacell.core.extras import EXTRAS, MissingExtra, providing, require
 
 ROOT = Path(__file__).resolve().parents[1]
 CELLS = ROOT / "src" / "uacell" / "cells"

@@ -16,10 +16,10 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from helpers import raw_call
 
-from uacell.roles import Role
+from uacell.binding.file_directory import FILE_DIRECTORY_TYPE, FILE_TYPE, FileDirectoryBinding
+from uacell.core.file_store import TEMP_PREFIX, FileStore
+from uacell.core.roles import Role
 from uacell.server import UacellServer
-from uacell.ua.file_directory import FILE_DIRECTORY_TYPE, FILE_TYPE, FileDirectoryBinding
-from uacell.ua.file_store import TEMP_PREFIX, FileStore
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 

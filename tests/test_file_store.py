@@ -9,8 +9,8 @@ from typing import Any
 
 import pytest
 
-from uacell.errors import CallError
-from uacell.ua.file_store import (
+from uacell.core.errors import CallError
+from uacell.core.file_store import (
     MODE_APPEND,
     MODE_ERASE_EXISTING,
     MODE_READ,

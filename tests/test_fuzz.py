@@ -24,8 +24,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_robotics_model import check_consistent
 
+from uacell.core.roles import Role
 from uacell.packml.binding import UNITS
-from uacell.roles import Role
 from uacell.server import UacellServer
 
 T = TypeVar("T")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 from uacell.gateway.handshake import Handshake, PlcStatus, Write
 
 IDLE = PlcStatus(state_current=4, unit_mode_current=1, cmd_change_request=False)

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from helpers import free_port
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 from uacell.gateway.modbus import ModbusConnection, ModbusPool
 from uacell.gateway.modbus_robot import ModbusRobotIO, signal_tags
 from uacell.gateway.signals import RobotStatus, SignalOp

@@ -20,8 +20,8 @@ from helpers import cell_read as read
 from helpers import cell_state as state
 from helpers import packml_params as params
 
-from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
+from uacell.core.cell_file import builtin_cell_path
 from uacell.server import UacellServer
 
 pytestmark = pytest.mark.interop
@@ -346,7 +346,7 @@ async def test_a_plc_away_at_start_is_served_and_picked_up_when_it_comes(tmp_pat
 async def test_a_secure_plc_with_a_user_polled(tmp_path: Path) -> None:
     """A PLC that offers Basic256Sha256 only and admits one user: uacell signs and encrypts with its
     client certificate, logs in with the password from an owner-only file, and polls the tags."""
-    from uacell.pki import make_client_certificate
+    from uacell.security.pki import make_client_certificate
 
     der, key = make_client_certificate("urn:uacell:test:gateway", common_name="uacell gateway")
     (tmp_path / "gateway.der").write_bytes(der)

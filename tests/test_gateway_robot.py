@@ -19,8 +19,8 @@ from asyncua import Client, ua
 from conftest import fast_config, serving
 from helpers import call_path, config_check_connect, free_port
 
-from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
+from uacell.core.cell_file import builtin_cell_path
 from uacell.gateway.modbus import ModbusConnection
 from uacell.gateway.modbus_robot import ModbusRobotIO, signal_tags
 from uacell.gateway.signals import RobotStatus
@@ -250,7 +250,7 @@ async def wait_until_async(read_value, expected, timeout: float = 15.0, value: b
 
 
 def test_cell_file_errors_name_the_part_and_key(tmp_path: Path) -> None:
-    from uacell.errors import ConfigError
+    from uacell.core.errors import ConfigError
 
     bad = tmp_path / "bad.toml"
     bad.write_text(cell_text(502).replace('driver = "modbus-signals"', 'driver = "modbus-sigs"'))

@@ -33,11 +33,11 @@ from test_gateway_robot import (
 )
 
 from uacell.config import load_cell
+from uacell.core.roles import Role
 from uacell.gateway.codec import RegisterType
 from uacell.gateway.examples.robot_controller import ESTOP, ESTOP_CODE, MODE, PSTOP, REMOTE_OFF
 from uacell.gateway.modbus import ModbusTag
 from uacell.gateway.modbus_robot import ModbusRobotIO
-from uacell.roles import Role
 from uacell.server import UacellServer
 
 FAULT = f"{COND}.ControllerFault"

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from helpers import free_port
 
-from uacell.cell_file import builtin_cell_path
+from uacell.core.cell_file import builtin_cell_path
 from uacell.gateway.modbus import ModbusPool
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 from uacell.gateway.handshake import Write
 from uacell.gateway.signals import DEFAULT_MAP, RobotStatus, SignalOp
 

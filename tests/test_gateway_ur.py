@@ -21,8 +21,8 @@ from ursim.robot import ProgramState as UrProgramState
 from ursim.robot import RobotMode, SafetyStatus, URSim
 from ursim.server import URSimServers
 
-from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
+from uacell.core.cell_file import builtin_cell_path
 
 CTRL = "UR5e.Controllers.Cabinet"
 TASK = f"{CTRL}.TaskControls.Main"

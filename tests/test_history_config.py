@@ -13,7 +13,7 @@ from test_history_server import history, raw, set_speed
 from test_history_store import postgres_dsn  # noqa: F401  (the module's PostgreSQL cluster)
 
 from uacell.config import load_config
-from uacell.errors import ConfigError
+from uacell.core.errors import ConfigError
 
 
 @pytest.mark.parametrize(

@@ -285,7 +285,7 @@ async def test_a_restart_keeps_history(tmp_path: Path) -> None:
 
 async def test_history_read_follows_the_callers_role(app: UacellServer, client: Client) -> None:
     """The service asks the role table with the calling session's role (anonymous on loopback: operator)."""
-    from uacell.roles import ACTION_ROLES, Role
+    from uacell.core.roles import ACTION_ROLES, Role
 
     assert ACTION_ROLES["history_read"] == Role.OBSERVER  # like Read
     assert app.history is not None
@@ -316,7 +316,7 @@ async def test_alarm_events_are_kept_with_the_server_object(app: UacellServer) -
 
     from helpers import raw_call
 
-    from uacell.roles import Role
+    from uacell.core.roles import Role
 
     manager = app.server.iserver.user_manager
     policy = manager.policy

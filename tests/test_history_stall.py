@@ -95,7 +95,7 @@ async def test_history_reads_of_20000_events_leave_other_clients_served(app: Uac
     base = datetime.now(UTC) - timedelta(hours=3)
     fill(app, base)
     await app.history.store.flush()
-    # as `uacell serve` does once it listens (uacell.early.resume_gc): the address space and what
+    # as `uacell serve` does once it listens (uacell.core.early.resume_gc): the address space and what
     # start-up made are out of the cyclic collector's sight (else a full collection walks them all,
     # 0.4 s here, whatever runs)
     gc.collect()

@@ -18,8 +18,8 @@ from helpers import wait_until
 from uacell.history.backends import EVENT, VALUE
 from uacell.history.processed import aggregate
 from uacell.history.service import encode_fields, event_plan, to_micros
+from uacell.security.users import UserStore
 from uacell.server import UacellServer
-from uacell.users import UserStore
 
 module_loop = pytest.mark.asyncio(loop_scope="module")
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from helpers import FakeClock
 
+from uacell.core.errors import CallError
 from uacell.di.locking import E_ALREADY_LOCKED, E_INVALID, E_NOT_LOCKED, OK, LockManager, LockOwner
-from uacell.errors import CallError
 
 A = LockOwner("session-a", "urn:client:a", "alice")
 B = LockOwner("session-b", "urn:client:b", "bob")

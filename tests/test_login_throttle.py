@@ -18,11 +18,11 @@ from conftest import fast_config, start_app
 from helpers import wait_until
 from test_security import ClientCert, secure_client
 
-from uacell import security
-from uacell.pki import PkiPaths, TrustList
-from uacell.roles import Role
+from uacell.core.roles import Role
+from uacell.security import policy as security
+from uacell.security.pki import PkiPaths, TrustList
+from uacell.security.users import LoginThrottle
 from uacell.server import UacellServer
-from uacell.users import LoginThrottle
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
@@ -304,7 +304,7 @@ async def test_a_delay_beyond_the_channels_lifetime_is_answered_before_the_chann
 
 async def test_a_max_delay_that_would_outlast_the_activation_deadline_is_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
     from uacell.config import load_config
-    from uacell.errors import ConfigError
+    from uacell.core.errors import ConfigError
 
     path = tmp_path / "c.toml"
     path.write_text("[limits]\nlogin_max_delay = 30.0\n")  # the old default, equal to the deadline

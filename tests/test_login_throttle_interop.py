@@ -10,9 +10,9 @@ from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 from test_security_interop import NODE_URI
 
-from uacell.pki import PkiPaths, TrustList, make_client_certificate
-from uacell.roles import Role
-from uacell.users import UserStore
+from uacell.core.roles import Role
+from uacell.security.pki import PkiPaths, TrustList, make_client_certificate
+from uacell.security.users import UserStore
 
 pytestmark = pytest.mark.interop
 

@@ -9,9 +9,9 @@ import pytest_asyncio
 from conftest import fast_config, start_app
 from test_web import PASSWORD, Browser
 
-from uacell.errors import WRONG_CREDENTIALS, login_refusal
-from uacell.health import check
-from uacell.pki import PkiPaths
+from uacell.cli.health import check
+from uacell.core.errors import WRONG_CREDENTIALS, login_refusal
+from uacell.security.pki import PkiPaths
 from uacell.web.hosting import start_web, trust_hmi
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")

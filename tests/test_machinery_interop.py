@@ -20,8 +20,8 @@ from test_machinery_server import EXEC, MACH, MACHINES, SO, TC, config_with_mach
 from test_nodeset_export import differences, run_export
 from test_robotics_interop import run_trusted
 
-from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
+from uacell.core.cell_file import builtin_cell_path
 from uacell.models.source import locate_models, official_models
 
 pytestmark = pytest.mark.interop

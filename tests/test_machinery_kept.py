@@ -16,7 +16,7 @@ from test_history_server import history, raw
 from test_pubsub_server import pubsub_config, states, transitions_of
 
 from uacell.catalog import companions
-from uacell.companion import datasets_of
+from uacell.core.companion import datasets_of
 
 EXEC = "Filler1.BaseStateMachine.MachineState.ExecuteState"
 MACH = "Filler1.BaseStateMachine.MachineState"

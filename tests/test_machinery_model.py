@@ -8,9 +8,9 @@ from datetime import date
 import pytest
 from helpers import packml_tables, robotics_tables
 
-from uacell.cell_file import Table
-from uacell.errors import ConfigError
-from uacell.fsm import Reason
+from uacell.core.cell_file import Table
+from uacell.core.errors import ConfigError
+from uacell.core.fsm import Reason
 from uacell.machinery.config import parse_machines
 from uacell.machinery.model import (
     EXECUTING,

@@ -16,9 +16,9 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from helpers import Collector, call_path, raw_call
 
-from uacell.cell_file import builtin_cell_path
 from uacell.config import load_cell
-from uacell.errors import ConfigError
+from uacell.core.cell_file import builtin_cell_path
+from uacell.core.errors import ConfigError
 from uacell.robotics.binding import CONTROLLERS
 from uacell.server import UacellServer
 
@@ -367,7 +367,7 @@ async def test_an_entry_naming_no_robot_or_unit_stops_the_start(tmp_path):
 
 
 async def test_the_hmi_finds_one_tile_per_machine_with_its_state_and_mode(rig):
-    from uacell.companion import web_views
+    from uacell.core.companion import web_views
     from uacell.web.discovery import discover
 
     r = rig

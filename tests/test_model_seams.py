@@ -60,7 +60,7 @@ def test_the_robotics_model_imports_no_asyncua_and_no_file_reading_module() -> N
         tree = ast.parse(inspect.getsource(module))
         imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
         imported |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
-        assert not imported & {"os", "io", "shutil", "pathlib", "uacell.files", "uacell.robotics.program_cache"}
+        assert not imported & {"os", "io", "shutil", "pathlib", "uacell.core.files", "uacell.robotics.program_cache"}
         called = {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
         assert "open" not in called, module.__name__
 

@@ -441,7 +441,7 @@ async def test_serve_with_only_a_models_dir_and_no_cache_serves_both_companions(
     finally:
         assert sp.stop() == 0, "".join(sp.output)
     # it must not have filled the models' default cache; the per-user cache holds only its compiled
-    # dataclass methods (uacell.codecache)
+    # dataclass methods (uacell.ua.codecache)
     assert [p.relative_to(empty_cache).as_posix() for p in empty_cache.rglob("*") if p.is_dir()] == [
         "uacell",
         "uacell/code",

@@ -11,7 +11,7 @@ from conftest import fast_config, start_app
 from helpers import wait_until
 
 from uacell.catalog import companions
-from uacell.cell_file import parse_cell
+from uacell.core.cell_file import parse_cell
 from uacell.robotics.binding import CONTROLLERS
 
 CELL = """

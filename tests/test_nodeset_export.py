@@ -19,14 +19,14 @@ from conftest import NodeServer, ServeProcess, fast_config, run_node, start_serv
 from helpers import free_port
 from test_robotics_interop import run_trusted
 
-from uacell.cell import CELL_NAMESPACE
-from uacell.cell_file import builtin_cell_path
-from uacell.cli import main
+from uacell.binding.cell import CELL_NAMESPACE
+from uacell.cli.main import main
+from uacell.cli.nodeset_export import export_cell
+from uacell.core.cell_file import builtin_cell_path
 from uacell.models.source import locate_models, official_models
-from uacell.nodeset_export import export_cell
 from uacell.robotics.binding.core import programs_root
+from uacell.security.users import UserStore
 from uacell.ua.snapshot import every_node_id
-from uacell.users import UserStore
 
 X = "{http://opcfoundation.org/UA/2011/03/UANodeSet.xsd}"
 U = "{http://opcfoundation.org/UA/2008/02/Types.xsd}"

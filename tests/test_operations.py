@@ -23,7 +23,7 @@ import pytest_asyncio
 from asyncua import Client, ua
 from conftest import ROOT, fast_config, free_port, start_app, start_serve
 
-from uacell.notify import notify
+from uacell.core.notify import notify
 from uacell.server import UacellServer
 
 module_loop = pytest.mark.asyncio(loop_scope="module")
@@ -422,8 +422,8 @@ def test_container_image_builds_and_serves():
 def test_log_file_rotates_and_per_logger_levels_apply(tmp_path):
     import logging
 
-    from uacell import logs
     from uacell.config import Config
+    from uacell.core import logs
 
     config = Config()
     config.logging.file = tmp_path / "logs" / "uacell.log"
@@ -452,7 +452,7 @@ def test_log_file_rotates_and_per_logger_levels_apply(tmp_path):
 
 
 def test_audit_trail_writes_in_batches_rotates_and_loses_nothing_on_close(tmp_path):
-    from uacell.audit import AuditTrail
+    from uacell.security.audit import AuditTrail
 
     path = tmp_path / "audit" / "audit.log"
     trail = AuditTrail(path, max_bytes=2048, backups=3, flush_interval=60.0)  # the thread never wakes here
@@ -472,7 +472,7 @@ def test_audit_trail_writes_in_batches_rotates_and_loses_nothing_on_close(tmp_pa
 
 
 async def test_audit_trail_reaches_the_file_within_its_interval_while_running(tmp_path):
-    from uacell.audit import AuditTrail
+    from uacell.security.audit import AuditTrail
 
     path = tmp_path / "audit.log"
     trail = AuditTrail(path, flush_interval=0.05)

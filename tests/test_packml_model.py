@@ -11,8 +11,8 @@ from helpers import packml_tables
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from uacell.errors import CallError
-from uacell.fsm import Change
+from uacell.core.errors import CallError
+from uacell.core.fsm import Change
 from uacell.packml import (
     BASE,
     EXECUTE,

@@ -21,8 +21,8 @@ from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from uacell.config import load_config
-from uacell.errors import ConfigError
-from uacell.pki import (
+from uacell.core.errors import ConfigError
+from uacell.security.pki import (
     CertificateValidator,
     PkiPaths,
     RejectedLimit,
@@ -145,7 +145,7 @@ def test_untrusted_certificate_is_rejected_with_instructions(
 ) -> None:
     der, _ = client_cert
     trust = TrustList(paths)
-    with caplog.at_level(logging.WARNING, logger="uacell.pki"):
+    with caplog.at_level(logging.WARNING, logger="uacell.security.pki"):
         assert trust.admit(der, CLIENT_URI) is False
     rejected = list(paths.rejected.iterdir())
     assert len(rejected) == 1 and rejected[0].read_bytes() == der
@@ -280,7 +280,7 @@ def test_prune_rejected_drops_aged_then_oldest_beyond_the_count(tmp_path: Path) 
 
 def test_trust_list_caps_rejected_and_logs_once(paths: PkiPaths, caplog: pytest.LogCaptureFixture) -> None:
     trust_list = TrustList(paths, rejected_limit=RejectedLimit(max_files=3, max_age=86400.0))
-    caplog.set_level(logging.WARNING, logger="uacell.pki")
+    caplog.set_level(logging.WARNING, logger="uacell.security.pki")
     key = generate_key()
     ders = [make_client_certificate(CLIENT_URI, key=key, common_name=f"flood {i}")[0] for i in range(6)]
     start = dt.datetime.now().timestamp() - 100

@@ -231,7 +231,7 @@ async def test_a_running_program_of_instant_steps_yields_to_the_loop(cell: Robot
 def test_repeated_identical_errors_are_rate_limited() -> None:
     import logging
 
-    from uacell.logs import RepeatFilter
+    from uacell.core.logs import RepeatFilter
 
     now = [0.0]
     repeat = RepeatFilter(burst=3, window=60.0, clock=lambda: now[0])

@@ -14,9 +14,9 @@ from asyncua import Client, ua
 from conftest import fast_config, serving
 from helpers import raw_call, wait_until
 
+from uacell.binding.publisher import Publisher
 from uacell.robotics.binding import CONTROLLERS
 from uacell.ua.pipeline import PublishedStage
-from uacell.ua.publisher import Publisher
 
 TC = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from asyncua import ua
 
-from uacell.errors import ConfigError
+from uacell.core.errors import ConfigError
 from uacell.pubsub.config import PubSubConfig, broker_of, check_pubsub, password_of
 from uacell.pubsub.encoding import JsonEncoder
 from uacell.pubsub.messages import DELTA, KEEPALIVE, KEY, Field, Publisher, Topics, Writer, encode

@@ -7,15 +7,15 @@ import types
 
 import pytest
 
-from uacell.equipment_factory import EquipmentSpec, make_equipment
-from uacell.errors import ConfigError
+from uacell.core.equipment_factory import EquipmentSpec, make_equipment
+from uacell.core.errors import ConfigError
+from uacell.core.file_store import TEMP_PREFIX, FileStore
 from uacell.robotics.binding import StoreLibrary, install_samples
 from uacell.robotics.binding.programs import adopt_legacy_programs
 from uacell.robotics.equipment import AxisInfo, ControllerEquipmentSpec, RobotEquipment
 from uacell.robotics.program import wave_program
 from uacell.robotics.program_cache import DirectoryLibrary
 from uacell.robotics.sim import SimulatedRobot
-from uacell.ua.file_store import TEMP_PREFIX, FileStore
 
 
 async def test_time_scale_above_one_makes_the_simulator_faster():
@@ -175,7 +175,7 @@ def test_store_library_index_follows_the_listing(tmp_path):
 
 
 def test_library_keeps_a_settled_small_file_text_while_its_status_is_unchanged(tmp_path, monkeypatch):
-    import uacell.files
+    import uacell.core.files
     import uacell.robotics.program_cache as model
 
     root = tmp_path / "programs"
@@ -195,7 +195,7 @@ def test_library_keeps_a_settled_small_file_text_while_its_status_is_unchanged(t
     assert library.read("p.robot") == "program One\nwait 1\n"
     assert library.read("p.robot") == "program One\nwait 1\n"
     assert len(opened) == 2
-    monkeypatch.setattr(uacell.files, "SETTLE_NS", 0)  # everything counts as settled from here
+    monkeypatch.setattr(uacell.core.files, "SETTLE_NS", 0)  # everything counts as settled from here
     assert library.read("p.robot") == "program One\nwait 1\n"
     assert library.read("p.robot") == "program One\nwait 1\n"
     assert len(opened) == 3  # kept after the third read

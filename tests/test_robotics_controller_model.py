@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from helpers import robotics_tables, wait_until
 
-from uacell.fsm import Change, Reason
+from uacell.core.fsm import Change, Reason
 from uacell.robotics.equipment import (
     AlarmListener,
     AlarmReset,

@@ -12,8 +12,8 @@ from helpers import robotics_tables, wait_until
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from uacell.errors import CallError
-from uacell.fsm import Change, Reason, StateMachine
+from uacell.core.errors import CallError
+from uacell.core.fsm import Change, Reason, StateMachine
 from uacell.robotics.equipment import EquipmentError, ExecutionMode, ProgramRejected, StopMode
 from uacell.robotics.model import (
     RobotCell,
@@ -958,9 +958,9 @@ async def test_a_controller_without_a_motion_device_refuses_move_and_runs_the_re
 async def test_the_same_text_loads_the_same_program_and_a_changed_one_is_parsed_again(
     cell: RobotCell, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import uacell.files
+    import uacell.core.files
 
-    monkeypatch.setattr(uacell.files, "SETTLE_NS", 0)  # the library keeps texts at once
+    monkeypatch.setattr(uacell.core.files, "SETTLE_NS", 0)  # the library keeps texts at once
     tc = await tc_in(cell, "Idle")
     assert await tc.load_by_name("short") == Status.OK
     first = tc.program

@@ -18,8 +18,8 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from helpers import Collector, delivered, raw_call, robot_binding, robot_cell, server_value, wait_until
 
+from uacell.core.roles import Role
 from uacell.robotics.equipment import ExecutionMode, StopMode
-from uacell.roles import Role
 from uacell.server import UacellServer
 
 module_loop = pytest.mark.asyncio(loop_scope="module")
@@ -446,7 +446,7 @@ async def test_current_line_and_program_pointer_follow_the_run_and_return_to_zer
         assert await node.read_data_type() == ua.NodeId(ua.ObjectIds.UInt32)
         assert (await node.read_browse_name()).NamespaceIndex == r.ns
         assert (await node.read_description()).Text.startswith("uacell: ")
-        # both are historized (uacell.datasets): they may be read, and history-read, not written
+        # both are historized (uacell.core.datasets): they may be read, and history-read, not written
         assert await node.get_access_level() == {ua.AccessLevel.CurrentRead, ua.AccessLevel.HistoryRead}
         with pytest.raises(ua.UaStatusCodeError):
             await node.write_value(ua.Variant(7, ua.VariantType.UInt32))

@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from uacell.rights import may_call, method_roles, required_role
-from uacell.robotics.companion import SYSTEM_OPERATION
-from uacell.roles import (
+from uacell.core.roles import (
     Role,
     anonymous_role,
     is_loopback,
@@ -14,6 +12,8 @@ from uacell.roles import (
     may,
     none_security_allowed,
 )
+from uacell.robotics.companion import SYSTEM_OPERATION
+from uacell.security.rights import may_call, method_roles, required_role
 
 
 def test_roles_are_ordered_and_parse_from_names() -> None:

@@ -20,15 +20,15 @@ from cryptography import x509
 from cryptography.x509.oid import ExtensionOID
 from helpers import raw_call
 
+from uacell.core.errors import CallError
+from uacell.core.roles import Role
 from uacell.di.companion import LOCKING
-from uacell.errors import CallError
-from uacell.pki import PkiPaths, TrustList, make_client_certificate
-from uacell.rights import may_call
 from uacell.robotics.companion import SYSTEM_OPERATION, TASK_CONTROL
-from uacell.roles import Role
-from uacell.security import prepare_certificate
+from uacell.security.pki import PkiPaths, TrustList, make_client_certificate
+from uacell.security.policy import prepare_certificate
+from uacell.security.rights import may_call
+from uacell.security.users import LoginThrottle
 from uacell.server import APPLICATION_URI, UacellServer
-from uacell.users import LoginThrottle
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
@@ -48,7 +48,7 @@ TC = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperat
 
 
 class ClientCert:
-    """A client certificate + key on disk, made with uacell.pki."""
+    """A client certificate + key on disk, made with uacell.security.pki."""
 
     def __init__(self, directory: Path, uri: str = CLIENT_URI) -> None:
         directory.mkdir(parents=True, exist_ok=True)
@@ -207,7 +207,7 @@ async def test_secure_session_with_each_policy_and_mode(env, policy, mode):
 
 async def test_untrusted_client_certificate_refused_with_hint(env, tmp_path, caplog):
     stranger = ClientCert(tmp_path, "urn:uacell:test:stranger")
-    caplog.set_level(logging.INFO, logger="uacell.security")
+    caplog.set_level(logging.INFO, logger="uacell.security.policy")
     with pytest.raises(ua.UaStatusCodeError) as err:
         await secure_client(env, stranger)
     assert err.value.code == ua.StatusCodes.BadCertificateUntrusted

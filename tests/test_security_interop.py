@@ -10,7 +10,7 @@ from conftest import run_node, start_serve
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 
-from uacell.pki import PkiPaths, TrustList, make_client_certificate
+from uacell.security.pki import PkiPaths, TrustList, make_client_certificate
 
 pytestmark = pytest.mark.interop
 

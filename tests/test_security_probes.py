@@ -24,7 +24,7 @@ from conftest import fast_config, start_app, start_serve
 from cryptography import x509
 from uaraw import Fault, RawClient, Refused, anonymous_token, none_session, user_token
 
-from uacell.pki import PkiPaths, TrustList, generate_key, make_certificate, make_client_certificate, thumbprint
+from uacell.security.pki import PkiPaths, TrustList, generate_key, make_certificate, make_client_certificate, thumbprint
 from uacell.server import UacellServer
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
@@ -115,7 +115,7 @@ def fresh_refusal_log(request):
     # Refusals are logged once per address and interval; each test looks at its own.
     for name in ("env", "wide"):
         if name in request.fixturenames:
-            from uacell.logs import RefusalLog
+            from uacell.core.logs import RefusalLog
 
             request.getfixturevalue(name).security.refusals = RefusalLog()
 
@@ -125,7 +125,7 @@ def fresh_refusal_log(request):
 
 async def test_none_channel_on_every_interface_serves_discovery_only(wide, caplog):
     port = wide.config.server.port
-    caplog.set_level(logging.INFO, logger="uacell.security")
+    caplog.set_level(logging.INFO, logger="uacell.security.policy")
     for attempt in range(2):
         async with await RawClient.connect("127.0.0.1", port) as raw:
             await raw.hello()

@@ -7,8 +7,8 @@ import struct
 
 import pytest
 
-from uacell.logs import RefusalLog
-from uacell.security import open_token_secret
+from uacell.core.logs import RefusalLog
+from uacell.security.policy import open_token_secret
 
 NONCE = bytes(range(32))
 
@@ -34,7 +34,7 @@ def test_token_secret_gives_the_password_only_with_this_sessions_nonce() -> None
 def test_refusal_log_reports_once_per_address_reason_and_interval(caplog: pytest.LogCaptureFixture) -> None:
     now = [0.0]
     refusals = RefusalLog(interval=60.0, clock=lambda: now[0])
-    caplog.set_level(logging.INFO, logger="uacell.security")
+    caplog.set_level(logging.INFO, logger="uacell.security.policy")
     assert refusals.report("10.0.0.9", "channel", "refused A")
     assert not refusals.report("10.0.0.9", "channel", "refused A")
     assert not refusals.report("10.0.0.9", "channel", "refused A")

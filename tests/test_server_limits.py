@@ -23,10 +23,10 @@ from asyncua.ua.ua_binary import struct_to_binary
 from conftest import fast_config, start_app
 from helpers import raw_call, robot_binding
 
-from uacell.logs import RefusalLog
-from uacell.roles import Role
+from uacell.core.file_store import FileStore
+from uacell.core.logs import RefusalLog
+from uacell.core.roles import Role
 from uacell.server import UacellServer
-from uacell.ua.file_store import FileStore
 from uacell.ua.limits import FD_RESERVE, PRE_HELLO_BYTES, ServerLimits, fit_descriptors, raise_descriptor_limit
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
@@ -420,7 +420,7 @@ async def test_connections_are_lowered_to_keep_a_reserve(caplog: pytest.LogCaptu
 
 async def test_limits_configuration_is_validated(tmp_path: Path) -> None:
     from uacell.config import load_config
-    from uacell.errors import ConfigError
+    from uacell.core.errors import ConfigError
 
     cases = {
         "[limits]\nsessions = 0\n": "positive integer",
@@ -465,6 +465,6 @@ async def test_a_message_asyncua_refuses_gets_an_error_one_info_line_and_no_trac
         assert await closed_by_server(reader, writer)
     loud = [r for r in caplog.records if r.levelno >= logging.WARNING or r.exc_info]
     assert loud == [], [r.getMessage() for r in loud]
-    told = [r for r in caplog.records if r.name == "uacell.security" and "refused" in r.getMessage()]
+    told = [r for r in caplog.records if r.name == "uacell.security.policy" and "refused" in r.getMessage()]
     assert len(told) == 1, [r.getMessage() for r in told]
     await still_serving(app)

@@ -218,8 +218,8 @@ def test_the_key_names_everything_that_shapes_the_snapshot(tmp_path: Path) -> No
 
 
 def test_the_cell_digest_follows_the_cells_shape_only() -> None:
+    from uacell.binding.cell import cell_digest, demo_cell
     from uacell.catalog import companions
-    from uacell.cell import cell_digest, demo_cell
 
     roots = [root for c in companions() for root in c.roots]
     cell_digest = functools.partial(cell_digest, roots=roots)
@@ -433,7 +433,7 @@ async def test_the_nodes_companions_give_their_parts_come_with_the_snapshot(tmp_
 def test_the_code_of_a_shape_function_is_part_of_the_snapshot_key(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from uacell.companion import shapes_digest
+    from uacell.core.companion import shapes_digest
 
     module = tmp_path / "uacell_test_shape.py"
     module.write_text("async def shape(space, cell):\n    pass\n")
@@ -446,8 +446,8 @@ def test_the_code_of_a_shape_function_is_part_of_the_snapshot_key(
 
 
 async def test_another_cell_gets_its_own_snapshot(tmp_path: Path) -> None:
-    from uacell.cell_file import builtin_cell_path
     from uacell.config import load_cell
+    from uacell.core.cell_file import builtin_cell_path
 
     cache = tmp_path / "cache"
     demo = await _start(tmp_path, cache)

@@ -27,9 +27,9 @@ from sparkplug_host import BOOLEAN, FLOAT, INT32, STRING, Host, compile_proto, f
 from test_operations import sample, scrape, wait_for_audit
 
 from uacell.catalog import companions
-from uacell.companion import datasets_of
 from uacell.config import Config, load_cell
-from uacell.errors import ConfigError
+from uacell.core.companion import datasets_of
+from uacell.core.errors import ConfigError
 from uacell.robotics.datasets import POSITION
 from uacell.sparkplug.config import SparkplugConfig, check_sparkplug, password_of
 from uacell.sparkplug.node import Device, EdgeNode, Sample
@@ -168,8 +168,8 @@ def test_the_section_is_read_from_toml(tmp_path: Path) -> None:
 
 def test_every_command_is_refused_to_the_role_commands_run_under_by_default() -> None:
     """Without ``command_role`` commands run as observer: the role table refuses every declared one."""
-    from uacell.rights import may_call
-    from uacell.roles import Role
+    from uacell.core.roles import Role
+    from uacell.security.rights import may_call
 
     families = {"packml_unit": "PackML", "controller": "SystemOperation", "task_control": "TaskControl"}
     declared = 0

@@ -25,9 +25,9 @@ from test_operations import sample, scrape
 from test_web_browser import ARGS, CHROMIUM, TIMEOUT, UaThread
 
 from uacell.catalog import companions
-from uacell.companion import web_views
-from uacell.nodeset_export import export_cell
-from uacell.pki import PkiPaths
+from uacell.cli.nodeset_export import export_cell
+from uacell.core.companion import web_views
+from uacell.security.pki import PkiPaths
 from uacell.web.discovery import discover
 from uacell.web.hosting import start_web, trust_hmi
 

@@ -15,13 +15,13 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from helpers import raw_call, wait_until
 
-from uacell.errors import CallError
-from uacell.fsm import Reason, StateMachine
+from uacell.binding.machine_binding import bind_tree
+from uacell.core.errors import CallError
+from uacell.core.fsm import Reason, StateMachine
+from uacell.core.roles import Family, Role
 from uacell.models import fsm_table
 from uacell.robotics.companion import TASK_CONTROL
-from uacell.roles import Family, Role
 from uacell.server import UacellServer
-from uacell.ua.machine_binding import bind_tree
 
 ROB = "http://opcfoundation.org/UA/Robotics/"
 TC_PATH = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
@@ -351,7 +351,7 @@ async def test_calls_during_shutdown_finish_and_later_ones_answer_bad_shutdown(r
 
 
 def test_unbinding_drops_the_methods_own_serialization_lock():
-    from uacell.ua.dispatch import BoundMethod, MethodDispatcher
+    from uacell.binding.dispatch import BoundMethod, MethodDispatcher
 
     d = MethodDispatcher.__new__(MethodDispatcher)
     d.methods, d._locks, d._scoped = {}, {}, {}
@@ -390,7 +390,7 @@ async def test_argument_problems_come_with_diagnostics_when_the_client_asks(rig)
 
 
 async def test_a_handler_may_use_asyncio_timeout_before_its_first_wait(rig):
-    """Calls run eagerly (uacell.background.eager): before its first wait a handler is in a task all
+    """Calls run eagerly (uacell.core.background.eager): before its first wait a handler is in a task all
     the same, so ``asyncio.timeout`` works there; one that expires gives the status the handler says."""
     r = rig
     d = r.app.dispatcher

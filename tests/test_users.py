@@ -11,8 +11,8 @@ import pytest
 from argon2 import PasswordHasher
 from helpers import FakeClock
 
-from uacell.roles import Role
-from uacell.users import LoginThrottle, User, UserError, UserStore, validate_name
+from uacell.core.roles import Role
+from uacell.security.users import LoginThrottle, User, UserError, UserStore, validate_name
 
 # Cheap argon2 parameters keep the tests fast; the real store uses argon2-cffi's defaults.
 FAST = PasswordHasher(time_cost=1, memory_cost=64, parallelism=1)

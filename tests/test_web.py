@@ -25,10 +25,10 @@ from asyncua import Client, ua
 from conftest import fast_config, free_port, start_app
 from helpers import wait_until
 
-from uacell.companion import web_views
-from uacell.errors import ConfigError
+from uacell.core.companion import web_views
+from uacell.core.errors import ConfigError
 from uacell.packml.binding import UNITS
-from uacell.pki import PkiPaths
+from uacell.security.pki import PkiPaths
 from uacell.web.discovery import discover
 from uacell.web.guards import MAX_BODY, HostGuard, host_name
 from uacell.web.hosting import start_web, trust_hmi

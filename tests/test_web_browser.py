@@ -25,7 +25,7 @@ from asyncua import ua
 from conftest import ROOT, ServeProcess, start_serve, wait_for_web
 from helpers import CellClient, raw_call
 
-from uacell.users import UserStore
+from uacell.security.users import UserStore
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 pytestmark = pytest.mark.skipif(
@@ -498,7 +498,7 @@ def test_an_alarm_is_shown_and_acknowledged_in_the_page(page, serve, ua_thread):
 def test_the_page_says_when_the_server_is_unreachable_and_comes_back(browser, ua_thread, tmp_path):
     from conftest import fast_config, start_app
 
-    from uacell.pki import PkiPaths
+    from uacell.security.pki import PkiPaths
     from uacell.web.hosting import start_web, trust_hmi
 
     data = tmp_path / "data"

@@ -12,7 +12,7 @@ from asyncua import Client, ua
 from asyncua.ua.ua_binary import variant_to_binary
 from conftest import fast_config, start_app
 
-from uacell.companion import web_views
+from uacell.core.companion import web_views
 from uacell.history.backends import VALUE
 from uacell.history.service import to_micros
 from uacell.web.discovery import discover

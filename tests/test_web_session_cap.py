@@ -18,7 +18,7 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from helpers import wait_until
 
-from uacell.pki import PkiPaths
+from uacell.security.pki import PkiPaths
 from uacell.web.hosting import start_web, trust_hmi
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")

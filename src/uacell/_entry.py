@@ -1,10 +1,11 @@
 """The `uacell` command's entry point, kept tiny so that a stop request is caught from the start
-(``uacell.early`` holds the handler and the flag it sets), and the compiled dataclass methods are
-taken from their cache before anything defines one (``uacell.codecache``)."""
+(``uacell.core.early`` holds the handler and the flag it sets), and the compiled dataclass methods are
+taken from their cache before anything defines one (``uacell.ua.codecache``)."""
 
 from __future__ import annotations
 
-from uacell import codecache, early
+from uacell.core import early
+from uacell.ua import codecache
 
 
 def run() -> int:
@@ -15,7 +16,7 @@ def run() -> int:
         early.pause_gc()
     codecache.install()
     try:
-        from uacell.cli import main
+        from uacell.cli.main import main
 
         return main()
     except BaseException:

@@ -2,7 +2,7 @@
 
 ``[server]``, ``[programs]``, ``[limits]``, ``[web]``, ``[logging]``, ``[metrics]``, ``[users]`` and
 ``[discovery]`` are uacell's own; every other section belongs to a companion, which declares it
-(``uacell.companion.Companion.section``/``settings``) in its package. Each section is a dataclass whose
+(``uacell.core.companion.Companion.section``/``settings``) in its package. Each section is a dataclass whose
 fields are its keys, typed and defaulted; docs/configuration.md documents every one (type, default,
 meaning), and tests/test_config_reference.py fails, naming the key, when the page and the dataclasses
 disagree: a new key needs its row there.
@@ -27,13 +27,13 @@ from typing import Any, TypeVar
 import platformdirs
 
 from uacell.catalog import companions
-from uacell.cell_file import CellConfig, SectionParser, builtin_cell_path, did_you_mean, parse_cell
-from uacell.discovery_registration import DiscoveryConfig
-from uacell.errors import ConfigError
-from uacell.extras import MissingExtra, require
+from uacell.core.cell_file import CellConfig, SectionParser, builtin_cell_path, did_you_mean, parse_cell
+from uacell.core.errors import ConfigError
+from uacell.core.extras import MissingExtra, require
+from uacell.core.roles import Role
 from uacell.history.config import HistoryConfig
 from uacell.pubsub.config import PubSubConfig, check_pubsub
-from uacell.roles import Role
+from uacell.services.discovery_registration import DiscoveryConfig
 from uacell.sparkplug.config import SparkplugConfig, check_sparkplug
 
 T = TypeVar("T")

@@ -4,7 +4,7 @@ Security, diagnostics, metrics and the audit observers are wired by ``uacell.ser
 only as a ``Host``: the asyncua server, the configuration, the cell, the method dispatcher and write
 router, users, the audit trail, the listening policy and the diagnostics hooks. A companion's binder
 sees a ``BinderHost``: not the asyncua server but the address-space operations of
-``uacell.ua.space.Space``, plus registries, the publisher and the state tables. Neither imports
+``uacell.binding.space.Space``, plus registries, the publisher and the state tables. Neither imports
 ``uacell.server`` (which imports them), so the server's assembly stays at the top of the imports.
 """
 
@@ -16,26 +16,26 @@ from typing import Any, Protocol, TypeVar
 
 from asyncua import Server, ua
 
-from uacell.audit import AuditTrail
-from uacell.cell import CellBuilder
-from uacell.companion import Companion
+from uacell.binding.cell import CellBuilder
+from uacell.binding.dispatch import MethodDispatcher
+from uacell.binding.machine_binding import NodeRefs
+from uacell.binding.publisher import Publisher
+from uacell.binding.space import Space
+from uacell.binding.writes import WriteRouter
 from uacell.config import Config
+from uacell.core.companion import Companion
+from uacell.core.file_store import HandlePool
+from uacell.core.registry import Registry, RegistryKey
+from uacell.core.roles import ListeningPolicy
 from uacell.models.tables import StateTables
-from uacell.registry import Registry, RegistryKey
-from uacell.roles import ListeningPolicy
-from uacell.ua.dispatch import MethodDispatcher
-from uacell.ua.file_store import HandlePool
-from uacell.ua.machine_binding import NodeRefs
-from uacell.ua.publisher import Publisher
-from uacell.ua.space import Space
-from uacell.ua.writes import WriteRouter
-from uacell.users import UserStore
+from uacell.security.audit import AuditTrail
+from uacell.security.users import UserStore
 
 T = TypeVar("T")
 
 
 class SessionHooks(Protocol):
-    """What session handling tells the server's diagnostics (``uacell.ua.diagnostics.Diagnostics``)."""
+    """What session handling tells the server's diagnostics (``uacell.services.diagnostics.Diagnostics``)."""
 
     def session_created(self, session: Any, params: ua.CreateSessionParameters, processor: Any) -> None: ...
 

@@ -13,40 +13,40 @@ from typing import TYPE_CHECKING
 from asyncua import Server, ua
 
 from uacell import __version__
-from uacell.audit import AuditTrail
+from uacell.binding.cell import CellBuilder, Part, build_cell, cell_digest
+from uacell.binding.dispatch import MethodDispatcher
+from uacell.binding.machine_binding import NodeRefs
+from uacell.binding.publisher import Publisher
+from uacell.binding.space import Space
+from uacell.binding.writes import WriteRouter
 from uacell.catalog import companions as catalog_companions
-from uacell.cell import CellBuilder, Part, build_cell, cell_digest
-from uacell.companion import Binder, Closer, Companion, datasets_of, shape_function, shapes_digest
 from uacell.config import Config, default_application_uri
-from uacell.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
+from uacell.core.companion import Binder, Closer, Companion, datasets_of, shape_function, shapes_digest
+from uacell.core.file_store import HandlePool
+from uacell.core.logs import configured_levels
+from uacell.core.registry import Registries, Registry, RegistryKey, T
+from uacell.core.roles import Role, listening_policy, may
 from uacell.history.service import HistoryService
 from uacell.history.setup import add_configurations, history_shape, install_history
-from uacell.logs import configured_levels
 from uacell.models import StateTables
-from uacell.pki import PkiPaths
-from uacell.registry import Registries, Registry, RegistryKey, T
-from uacell.roles import Role, listening_policy, may
-from uacell.security import SecurityStage, install_security
+from uacell.security.access import UacellUserManager
+from uacell.security.audit import AuditTrail
+from uacell.security.pki import PkiPaths
+from uacell.security.policy import SecurityStage, install_security
+from uacell.security.users import UserStore
+from uacell.services.diagnostics import Diagnostics, bind_get_monitored_items
+from uacell.services.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
+from uacell.services.observers import install_audit
 from uacell.ua import door
-from uacell.ua.access import UacellUserManager
-from uacell.ua.diagnostics import Diagnostics, bind_get_monitored_items
-from uacell.ua.dispatch import MethodDispatcher
 from uacell.ua.event_tap import EventTap
-from uacell.ua.file_store import HandlePool
 from uacell.ua.limits import DecodingStage, admit, guard_bytes, install_limits, publish_operation_limits
-from uacell.ua.machine_binding import NodeRefs
 from uacell.ua.nodesets import SnapshotJob, init_address_space
-from uacell.ua.observers import install_audit
 from uacell.ua.pipeline import ContextStage, Pipeline, PublishedStage
-from uacell.ua.publisher import Publisher
 from uacell.ua.snapshot import WriteCancelled
-from uacell.ua.space import Space
-from uacell.ua.writes import WriteRouter
-from uacell.users import UserStore
 
 if TYPE_CHECKING:  # imported when [metrics] or [pubsub] is on (prometheus-client, aiomqtt)
-    from uacell.metrics import Metrics
     from uacell.pubsub.service import PubSubService
+    from uacell.services.metrics import Metrics
     from uacell.sparkplug.service import SparkplugService
 
 log = logging.getLogger(__name__)
@@ -279,7 +279,7 @@ class UacellServer:
         if self.diagnostics is not None:
             await self.diagnostics.start()
         if self.config.metrics.enabled:
-            from uacell.metrics import Metrics
+            from uacell.services.metrics import Metrics
 
             self.metrics = Metrics(self, self.companions)
             if self.pubsub is not None:

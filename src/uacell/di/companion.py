@@ -6,9 +6,9 @@ Which parts carry a Lock and which families a lock guards are the other companio
 
 from __future__ import annotations
 
-from uacell.companion import Companion, Root, lazy_binder
+from uacell.core.companion import Companion, Root, lazy_binder
+from uacell.core.roles import Family, Role
 from uacell.models.model_file import ModelFile
-from uacell.roles import Family, Role
 
 LOCKING = Family("Locking")
 

@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable, Hashable, Iterator
 from dataclasses import dataclass
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 
 _log = logging.getLogger(__name__)
 

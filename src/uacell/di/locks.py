@@ -22,14 +22,14 @@ from typing import TYPE_CHECKING
 
 from asyncua import ua
 
-from uacell.background import Background
+from uacell.binding.dispatch import BoundMethod
+from uacell.core.background import Background
+from uacell.core.errors import CallError
+from uacell.core.registry import RegistryKey
+from uacell.core.roles import Family
 from uacell.di.companion import LOCKING
 from uacell.di.locking import LockManager, LockOwner
-from uacell.errors import CallError
-from uacell.registry import RegistryKey
-from uacell.roles import Family
 from uacell.ua.context import Caller, caller_of
-from uacell.ua.dispatch import BoundMethod
 
 if TYPE_CHECKING:
     from asyncua.server.internal_session import InternalSession

@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 from uacell.packml.model import TR88_COMMANDS
 
 

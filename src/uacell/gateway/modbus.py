@@ -17,10 +17,10 @@ from dataclasses import dataclass
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
+from uacell.core.logs import quiet_expected
 from uacell.gateway.codec import RegisterType
 from uacell.gateway.errors import CommunicationError, NoAnswer
 from uacell.gateway.pool import SharedPool
-from uacell.logs import quiet_expected
 
 TABLES = ("coil", "discrete", "holding", "input")
 
@@ -55,7 +55,7 @@ class _PymodbusLost:
 
 
 def quiet_pymodbus() -> None:
-    """pymodbus's records of a lost server become DEBUG lines (``uacell.logs.ExpectedFaults``)."""
+    """pymodbus's records of a lost server become DEBUG lines (``uacell.core.logs.ExpectedFaults``)."""
     quiet_expected("plc-lost", ("pymodbus.logging",), _PymodbusLost())
 
 

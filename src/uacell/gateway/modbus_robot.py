@@ -12,7 +12,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 from uacell.gateway.codec import RegisterType
 from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Write

@@ -9,7 +9,7 @@ every ``interval``; it calls each part's listener with every new value and with 
 state. Reads and writes go straight to the PLC (no queue, no replay): a lost connection raises
 ``CommunicationError``. The channel may be signed and encrypted (``security``, with uacell's client
 certificate and key as files) and the session may log in as a user whose password comes from an
-owner-only file or the environment (``uacell.secret_file``), never from the cell file.
+owner-only file or the environment (``uacell.core.secret_file``), never from the cell file.
 
 A PLC killed or out of reach is expected: uacell says it once (``Listeners._report_lost``), and the
 records asyncua's client makes of it ("Publish iteration crashed", "close_secure_channel raised"
@@ -28,12 +28,12 @@ from typing import Any
 
 from asyncua import Client, ua
 
+from uacell.core.logs import exception_of, quiet_expected
+from uacell.core.secret_file import SecretError, read_secret
 from uacell.gateway.errors import CommunicationError
 from uacell.gateway.link import Listeners, StateListener, ValueListener, network_error
 from uacell.gateway.pool import SharedPool
 from uacell.gateway.retry import keep_trying
-from uacell.logs import exception_of, quiet_expected
-from uacell.secret_file import SecretError, read_secret
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +87,7 @@ def _expected(record: logging.LogRecord) -> bool:
 
 
 def quiet_client() -> None:
-    """asyncua's client records of a lost server become DEBUG lines (``uacell.logs.ExpectedFaults``)."""
+    """asyncua's client records of a lost server become DEBUG lines (``uacell.core.logs.ExpectedFaults``)."""
     quiet_expected("plc-lost", CLIENT_LOGGERS, _expected)
 
 

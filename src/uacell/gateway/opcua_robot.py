@@ -21,7 +21,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 from uacell.gateway import DriverSettings
 from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Write

@@ -26,7 +26,7 @@ from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Handshake, PlcStatus
 from uacell.gateway.link import TagLink

@@ -12,8 +12,8 @@ from typing import Any
 
 from asyncua import ua
 
-from uacell.cell_file import Part
-from uacell.drivers import factory_of
+from uacell.core.cell_file import Part
+from uacell.core.drivers import factory_of
 from uacell.gateway.errors import CommunicationError, DashboardError
 from uacell.gateway.opcua_link import link_options, new_client, resolve_address
 from uacell.gateway.opcua_robot import robot_addresses
@@ -21,9 +21,9 @@ from uacell.gateway.packtags import PackTagsMapError, resolve
 from uacell.gateway.pool import shared_conflict
 
 # The Modbus, S7 and Logix transports are imported by the probes that use them: each needs its
-# library, an optional extra (uacell.extras) that a cell without such a part may not have installed.
+# library, an optional extra (uacell.core.extras) that a cell without such a part may not have installed.
 
-# The drivers it knows how to probe, by their factories (uacell.drivers, the one registry).
+# The drivers it knows how to probe, by their factories (uacell.core.drivers, the one registry).
 MODBUS = factory_of("modbus-signals")
 PACKTAGS = factory_of("opcua-packtags")
 MODBUS_PACKTAGS = factory_of("modbus-packtags")

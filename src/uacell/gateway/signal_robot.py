@@ -14,7 +14,7 @@ from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Write
 from uacell.gateway.retry import keep_trying, poll_backoff

@@ -12,7 +12,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 from uacell.gateway.handshake import Write
 
 # the signals every status read carries (with the name's echo and the safety signals, when they are used)

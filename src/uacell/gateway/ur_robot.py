@@ -26,7 +26,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 from uacell.gateway import DriverSettings
 from uacell.gateway.errors import CommunicationError, DashboardError
 from uacell.gateway.modbus import SHARED

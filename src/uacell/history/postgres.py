@@ -11,7 +11,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-from uacell.extras import MissingExtra
+from uacell.core.extras import MissingExtra
 from uacell.history.backends import _COLUMNS, Query, Row, Sample, _where
 
 

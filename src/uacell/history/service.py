@@ -211,7 +211,7 @@ class HistoryService:
         max_events_per_request: int = 1_000,
     ) -> None:
         self.iserver = iserver
-        self.allows = allows  # may a caller of this role HistoryRead (uacell.roles: "history_read")
+        self.allows = allows  # may a caller of this role HistoryRead (uacell.core.roles: "history_read")
         self.store = store
         self.max_per_request = max_per_request
         self.max_events_per_request = max_events_per_request

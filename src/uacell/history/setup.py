@@ -1,6 +1,6 @@
 """Turn history on for a server: the store, the HistoryRead service, what is kept, the capabilities.
 
-What is kept is ``uacell.datasets``' declaration for every built part, plus every event fired through
+What is kept is ``uacell.core.datasets``' declaration for every built part, plus every event fired through
 the Server object. Each kept variable gets Historizing, AccessLevel's HistoryRead bit and a
 ``HA Configuration`` (HistoricalDataConfigurationType, Stepped) by HasHistoricalConfiguration.
 """
@@ -16,7 +16,7 @@ from typing import Any
 from asyncua import Node, Server, ua
 from asyncua.server.address_space import AttributeValue, NodeData
 
-from uacell.datasets import DataSets, resolve
+from uacell.core.datasets import DataSets, resolve
 from uacell.history.backends import Backend, SqliteBackend
 from uacell.history.config import HistoryConfig
 from uacell.history.processed import AGGREGATES

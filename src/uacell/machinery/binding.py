@@ -22,18 +22,18 @@ from typing import Any
 
 from asyncua import ua
 
-from uacell.cell import BuiltPart
-from uacell.companion import Closer
-from uacell.errors import ConfigError
+from uacell.binding.cell import BuiltPart
+from uacell.binding.publisher import Publisher
+from uacell.core.companion import Closer
+from uacell.core.errors import ConfigError
+from uacell.core.registry import RegistryKey
 from uacell.host import BinderHost
 from uacell.machinery.config import INITIAL_OPERATION_DATE, NUMBER_KEYS, MachineryConfig, MachinesSection
 from uacell.machinery.model import Machine, MachineryTables
 from uacell.machinery.nodes import MACHINE_MEMBERS, MachineNodes, add_components, add_machine
 from uacell.machinery.sources import RobotSource, Source, UnitSource
 from uacell.packml.binding import UNITS
-from uacell.registry import RegistryKey
 from uacell.robotics.binding import CONTROLLERS
-from uacell.ua.publisher import Publisher
 
 log = logging.getLogger(__name__)
 # Members that are not text: equipment reports text only, the cell file gives these.

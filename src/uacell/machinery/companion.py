@@ -6,7 +6,7 @@ machine (``uacell.machinery.binding``). Its ``[[machines]]`` entries add identif
 
 from __future__ import annotations
 
-from uacell.companion import Companion, WebView, lazy_binder, lazy_metrics, package_file
+from uacell.core.companion import Companion, WebView, lazy_binder, lazy_metrics, package_file
 from uacell.di.companion import DI_MODEL
 from uacell.machinery.config import MachineryConfig, parse_machines
 from uacell.machinery.datasets import DATASETS

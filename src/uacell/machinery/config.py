@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from datetime import date
 from typing import Any
 
-from uacell.cell_file import IDENTIFICATION, Table, unique
+from uacell.core.cell_file import IDENTIFICATION, Table, unique
 
 # [[machines]] keys that are text -> the BrowseName of MachineIdentificationType's property: the text
 # properties of DI's identification that its nameplate interfaces also have (not DeviceRevision and
@@ -50,7 +50,7 @@ class MachineSpec:
 
 @dataclass
 class MachinesSection:
-    """Every ``[[machines]]`` entry (a ``uacell.cell_file.CellSection`` that adds no parts)."""
+    """Every ``[[machines]]`` entry (a ``uacell.core.cell_file.CellSection`` that adds no parts)."""
 
     machines: list[MachineSpec]
     tables: list[Table]

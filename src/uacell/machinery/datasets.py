@@ -1,9 +1,9 @@
-"""What history keeps and PubSub publishes of a machine (``Companion.datasets``, uacell.datasets): its
+"""What history keeps and PubSub publishes of a machine (``Companion.datasets``, uacell.core.datasets): its
 MachineryItemState and MachineryOperationMode, values and TransitionEvents, on every robot and unit."""
 
 from __future__ import annotations
 
-from uacell.datasets import STATE, Item, PartDataSet
+from uacell.core.datasets import STATE, Item, PartDataSet
 
 BLOCKS = "MachineryBuildingBlocks"
 _MACHINES = (f"{BLOCKS}/MachineryItemState", f"{BLOCKS}/MachineryOperationMode")

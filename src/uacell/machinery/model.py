@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from uacell.fsm import Reason, StateMachine
+from uacell.core.fsm import Reason, StateMachine
 from uacell.models.tables import FsmTable, TableLoader
 
 MACHINERY = "Machinery"  # the model key of the Machinery NodeSet

@@ -25,11 +25,11 @@ from dataclasses import dataclass
 
 from asyncua import ua
 
-from uacell.cell import BuiltPart, CellBuilder
+from uacell.binding.cell import BuiltPart, CellBuilder
+from uacell.binding.space import Space
 from uacell.machinery.config import INITIAL_OPERATION_DATE, NUMBER_KEYS, TEXT_KEYS
 from uacell.machinery.model import ITEM_STATE, ITEM_STATE_TYPE, MACHINERY, OPERATION_MODE, OPERATION_MODE_TYPE
 from uacell.ua.instantiate import Selection
-from uacell.ua.space import Space
 
 MACHINES_FOLDER = 1001  # ns=Machinery;i=1001
 BLOCKS = "MachineryBuildingBlocks"

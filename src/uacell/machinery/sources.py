@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from typing import Protocol
 
-from uacell.capabilities import Identified, Reachable
+from uacell.core.capabilities import Identified, Reachable
 from uacell.machinery.model import Facts, packml_facts, robot_facts
 from uacell.packml.model import PackMLUnit
 from uacell.robotics.equipment import ModeReporting
@@ -51,7 +51,7 @@ class UnitSource:
 
 
 def _identification(equipment: object) -> dict[str, str]:
-    """What equipment reports of itself (``uacell.capabilities.Identified``), as text."""
+    """What equipment reports of itself (``uacell.core.capabilities.Identified``), as text."""
     found = equipment.identification if isinstance(equipment, Identified) else None
     if not isinstance(found, Mapping):
         return {}

@@ -22,12 +22,15 @@ from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
 
-from uacell.background import Background
-from uacell.cell import BuiltPart
-from uacell.companion import Closer
-from uacell.drivers import PACKML_UNIT, SIMULATORS
-from uacell.equipment_factory import EquipmentSpec, choose_equipment, make_equipment
-from uacell.errors import ConfigError
+from uacell.binding.cell import BuiltPart
+from uacell.binding.conditions import ConditionNodes, ConditionPlace
+from uacell.core.background import Background
+from uacell.core.companion import Closer
+from uacell.core.drivers import PACKML_UNIT, SIMULATORS
+from uacell.core.equipment_factory import EquipmentSpec, choose_equipment, make_equipment
+from uacell.core.errors import ConfigError
+from uacell.core.registry import RegistryKey
+from uacell.core.roles import Family
 from uacell.packml.admin_store import AdminStore, AdminWriter
 from uacell.packml.companion import PACKML, UNIT_PART
 from uacell.packml.config import PackMLConfig, UnitSpec
@@ -51,9 +54,6 @@ from uacell.packml.types import (
     PackMLProductDataType,
     PackMLRemoteInterfaceDataType,
 )
-from uacell.registry import RegistryKey
-from uacell.roles import Family
-from uacell.ua.conditions import ConditionNodes, ConditionPlace
 from uacell.ua.context import Caller
 
 if TYPE_CHECKING:

@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from uacell.companion import Companion, Root, WebView, lazy_binder, lazy_metrics, package_file
+from uacell.core.companion import Companion, Root, WebView, lazy_binder, lazy_metrics, package_file
+from uacell.core.roles import Family, Role
 from uacell.models.model_file import ModelFile
 from uacell.packml.config import PackMLConfig, parse_units
 from uacell.packml.datasets import PACKML_UNIT
-from uacell.roles import Family, Role
 
 PACKML = Family("PackML")
-UNIT_PART = "packml_unit"  # the part role (``uacell.cell.Part.role``) the PackML binder binds
+UNIT_PART = "packml_unit"  # the part role (``uacell.binding.cell.Part.role``) the PackML binder binds
 
 _OPERATOR_METHODS = (
     "Abort", "Clear", "Stop", "Reset", "Start", "Hold", "Unhold", "Suspend", "Unsuspend",

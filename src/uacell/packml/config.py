@@ -1,7 +1,7 @@
 """The ``[packml]`` section and the ``[[packml_units]]`` of a cell: one PackMLBaseObjectType per entry.
 
-Pure: reads and checks the tables (``uacell.cell_file.Table``) and turns them into ``Part`` trees
-(``uacell.cell``). docs/configuration.md documents every key.
+Pure: reads and checks the tables (``uacell.core.cell_file.Table``) and turns them into ``Part`` trees
+(``uacell.binding.cell``). docs/configuration.md documents every key.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from uacell.cell_file import Part, Table
-from uacell.drivers import PACKML_UNIT, drivers_of
+from uacell.core.cell_file import Part, Table
+from uacell.core.drivers import PACKML_UNIT, drivers_of
 from uacell.packml.types import ProductionMaintenanceModeEnum
 
 # ProductionMaintenanceModeEnum's names, as the NodeSet spells them.
@@ -32,7 +32,7 @@ ACTING_STATES = (
 
 
 # The drivers shipped for PackML units (docs/equipment.md, "Gateway"): equipment = { driver = ... }.
-DRIVERS = drivers_of(PACKML_UNIT)  # name -> factory (uacell.drivers, the one registry)
+DRIVERS = drivers_of(PACKML_UNIT)  # name -> factory (uacell.core.drivers, the one registry)
 
 
 @dataclass
@@ -99,7 +99,7 @@ def _unit(table: Table) -> UnitSpec:
 
 @dataclass
 class UnitsSection:
-    """Every ``[[packml_units]]`` entry (a ``uacell.cell_file.CellSection``)."""
+    """Every ``[[packml_units]]`` entry (a ``uacell.core.cell_file.CellSection``)."""
 
     units: list[UnitSpec]
     tables: list[Table]

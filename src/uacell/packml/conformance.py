@@ -13,8 +13,8 @@ from __future__ import annotations
 import asyncio
 import inspect
 
-from uacell.conformance_kit import factory, run, settings
-from uacell.equipment_factory import EquipmentSpec, make_equipment
+from uacell.core.conformance_kit import factory, run, settings
+from uacell.core.equipment_factory import EquipmentSpec, make_equipment
 
 
 # --- PackML units --------------------------------------------------------------------------------

@@ -1,9 +1,9 @@
 """What history keeps, PubSub and Sparkplug publish of a PackML unit, and the commands it takes
-(``Companion.datasets``, uacell.datasets)."""
+(``Companion.datasets``, uacell.core.datasets)."""
 
 from __future__ import annotations
 
-from uacell.datasets import ALARM, COUNTER, SPEED, STATE, Item, Kind, PartDataSet
+from uacell.core.datasets import ALARM, COUNTER, SPEED, STATE, Item, Kind, PartDataSet
 
 OEE = Kind("oee")  # OEE figures (uacell's namespace, docs/packml.md): a PackML unit's own kind
 

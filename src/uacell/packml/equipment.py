@@ -8,7 +8,7 @@ equipment that works in its own thread must hand its calls over with
 ``loop.call_soon_threadsafe``.
 
 A hook that refuses (``validate_start``, ``on_unit_mode``, ``on_mach_speed``, ``on_product``,
-``on_parameter``, ``on_remote_command``, ``on_interlock``) raises ``uacell.errors.CallError``; the
+``on_parameter``, ``on_remote_command``, ``on_interlock``) raises ``uacell.core.errors.CallError``; the
 model then changes nothing and the client gets that status code. An acting-state hook that raises
 anything else is logged and turned into a fault (the unit aborts).
 """

@@ -8,8 +8,8 @@ import dataclasses
 import logging
 from collections.abc import Mapping
 
-from uacell.errors import CallError
-from uacell.fsm import Reason
+from uacell.core.errors import CallError
+from uacell.core.fsm import Reason
 from uacell.packml.data import push
 from uacell.packml.rules import BASE, path
 from uacell.packml.types import PackMLAlarmDataType

@@ -24,9 +24,9 @@ from datetime import UTC, datetime
 from datetime import time as dt_time
 from typing import Any
 
-from uacell.conditions import ConditionSet
-from uacell.errors import CallError
-from uacell.fsm import Reason, StateMachine
+from uacell.core.conditions import ConditionSet
+from uacell.core.errors import CallError
+from uacell.core.fsm import Reason, StateMachine
 from uacell.models.tables import TransitionInfo
 from uacell.packml.accounting import DURABLE_KEYS, DURABLE_TIMES, AdminAccounting
 from uacell.packml.admin_store import AdminStore

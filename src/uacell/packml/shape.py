@@ -13,10 +13,10 @@ from __future__ import annotations
 
 from asyncua import ua
 
-from uacell.cell import CellBuilder
+from uacell.binding.cell import CellBuilder
+from uacell.binding.space import Space
 from uacell.packml.companion import PACKML_MODEL, UNIT_PART
 from uacell.packml.oee import Figures
-from uacell.ua.space import Space
 
 DESCRIPTOR_TYPE = 16  # PackMLDescriptorDataType's DataType id (OPC 30050 NodeSet)
 INJECT_FAULT = "InjectFault"

@@ -14,7 +14,7 @@ from datetime import datetime
 from enum import IntEnum
 from typing import Any
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 
 INT32_MIN = -(2**31)
 INT32_MAX = 2**31 - 1

@@ -8,8 +8,8 @@ from collections.abc import Callable
 from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
-from uacell.conditions import ConditionSet
-from uacell.fsm import Reason, StateMachine
+from uacell.core.conditions import ConditionSet
+from uacell.core.fsm import Reason, StateMachine
 from uacell.models.tables import TransitionInfo
 from uacell.packml.accounting import AdminAccounting
 from uacell.packml.data import Admin, Status

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from uacell.errors import CallError
+from uacell.core.errors import CallError
 from uacell.packml.rules import UNIT
 from uacell.packml.types import (
     PackMLDescriptorDataType,

@@ -6,9 +6,9 @@ from __future__ import annotations
 from datetime import timedelta
 from typing import Any
 
-from uacell.capabilities import Reachable
-from uacell.errors import CallError
-from uacell.fsm import StateMachine
+from uacell.core.capabilities import Reachable
+from uacell.core.errors import CallError
+from uacell.core.fsm import StateMachine
 from uacell.packml.oee import Figures
 from uacell.packml.publishing import TOUCHABLE, derived
 from uacell.packml.rules import UNIT, UNIT_METHODS

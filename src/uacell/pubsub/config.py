@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import ClassVar
 from urllib.parse import urlsplit
 
-from uacell.errors import ConfigError
-from uacell.secret_file import SecretError, read_secret
+from uacell.core.errors import ConfigError
+from uacell.core.secret_file import SecretError, read_secret
 
 PASSWORD_ENV = "UACELL_MQTT_PASSWORD"
 _TOPIC_LEVEL = re.compile(r"[^/+#\s]+")

@@ -26,8 +26,8 @@ from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from uacell.extras import MissingExtra
-from uacell.logs import exception_of, quiet_expected
+from uacell.core.extras import MissingExtra
+from uacell.core.logs import exception_of, quiet_expected
 from uacell.pubsub.config import Broker, BrokerConfig, broker_of, password_of
 
 try:

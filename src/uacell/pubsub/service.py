@@ -1,7 +1,7 @@
 """PubSub for a running server: the writers of every built part, fed by the address space and the
 event tap, published through one MQTT link (docs/pubsub.md).
 
-Per part whose role ``uacell.datasets`` declares: a writer of its values (named by the part's path,
+Per part whose role ``uacell.core.datasets`` declares: a writer of its values (named by the part's path,
 e.g. ``Robot1.Controllers.Controller1``), a writer of its events (``<path>.Events``) when it has
 notifiers, and for a motion device a writer of its axis positions (``<path>.Axes``) at
 ``positions_interval``. Writer ids follow the cell's order, so the same cell file gives the same ids.
@@ -23,7 +23,7 @@ from typing import Any
 from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 
-from uacell.datasets import STATE, DataSets, Item, resolve
+from uacell.core.datasets import STATE, DataSets, Item, resolve
 from uacell.pubsub.address_space import PubSubNodes
 from uacell.pubsub.config import PubSubConfig
 from uacell.pubsub.encoding import JsonEncoder

@@ -3,7 +3,7 @@
 Nothing here imports the OPC UA stack; ``uacell.robotics.binding`` ties it to nodes.
 """
 
-from uacell.conditions import Condition
+from uacell.core.conditions import Condition
 from uacell.robotics.equipment import (
     AlarmStop,
     AxisInfo,

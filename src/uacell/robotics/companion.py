@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-from uacell.companion import Companion, LockRule, WebView, lazy_binder, package_file
+from uacell.core.companion import Companion, LockRule, WebView, lazy_binder, package_file
+from uacell.core.roles import Family, Role
 from uacell.models.model_file import ModelFile
 from uacell.robotics.config import RobotConfig, parse_robots
 from uacell.robotics.datasets import DATASETS
-from uacell.roles import Family, Role
 
 TASK_CONTROL = Family("TaskControl")
 SYSTEM_OPERATION = Family("SystemOperation")
 
-# Part roles in the cell (``uacell.cell.Part.role``) the Robotics binder binds.
+# Part roles in the cell (``uacell.binding.cell.Part.role``) the Robotics binder binds.
 CONTROLLER, TASK_CONTROL_PART, MOTION_DEVICE = "controller", "task_control", "motion_device"
 
 _TASK_CONTROL_METHODS = (

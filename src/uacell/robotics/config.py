@@ -1,7 +1,7 @@
 """The ``[robot]`` section and the ``[[robots]]`` of a cell: robots, controllers, task controls, motion devices.
 
-Pure: reads and checks the tables (``uacell.cell_file.Table``) and turns them into ``Part`` trees
-(``uacell.cell``). docs/configuration.md documents every key.
+Pure: reads and checks the tables (``uacell.core.cell_file.Table``) and turns them into ``Part`` trees
+(``uacell.binding.cell``). docs/configuration.md documents every key.
 """
 
 from __future__ import annotations
@@ -11,9 +11,17 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from uacell.cell_file import STATE_MACHINE, Part, Table, check_name, identification_lines, read_identification, unique
-from uacell.drivers import ROBOT_CONTROLLER, drivers_of
-from uacell.errors import ConfigError
+from uacell.core.cell_file import (
+    STATE_MACHINE,
+    Part,
+    Table,
+    check_name,
+    identification_lines,
+    read_identification,
+    unique,
+)
+from uacell.core.drivers import ROBOT_CONTROLLER, drivers_of
+from uacell.core.errors import ConfigError
 from uacell.robotics.equipment import AxisInfo, ExecutionMode, StopMode
 from uacell.robotics.sim import DEFAULT_AXES
 
@@ -36,7 +44,7 @@ _ONE_CONTROLLER = [{"name": "Controller1"}]
 
 
 # The drivers shipped for robot controllers (docs/equipment.md, "Gateway"): equipment = { driver = ... }.
-DRIVERS = drivers_of(ROBOT_CONTROLLER)  # name -> factory (uacell.drivers, the one registry)
+DRIVERS = drivers_of(ROBOT_CONTROLLER)  # name -> factory (uacell.core.drivers, the one registry)
 
 
 @dataclass
@@ -239,7 +247,7 @@ def _robot(table: Table) -> RobotSpec:
 
 @dataclass
 class RobotsSection:
-    """Every ``[[robots]]`` entry (a ``uacell.cell_file.CellSection``)."""
+    """Every ``[[robots]]`` entry (a ``uacell.core.cell_file.CellSection``)."""
 
     robots: list[RobotSpec]
     tables: list[Table]
@@ -299,7 +307,7 @@ def _values(identification: dict[str, str]) -> dict[str, str]:
 
 
 def robot_part(robot: RobotSpec) -> Part:
-    """The MotionDeviceSystem as a ``Part`` tree (what ``uacell.cell`` instantiates)."""
+    """The MotionDeviceSystem as a ``Part`` tree (what ``uacell.binding.cell`` instantiates)."""
     controllers = [_controller_part(c) for c in robot.controllers]
     devices = [_motion_device_part(m) for m in robot.motion_devices]
     safety = [Part(s, "Robotics", "SafetyStateType", "SafetyStates") for s in robot.safety_states]

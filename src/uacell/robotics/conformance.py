@@ -15,8 +15,8 @@ import asyncio
 import os
 from typing import Any
 
-from uacell.conformance_kit import factory, run, settings
-from uacell.equipment_factory import close_equipment, make_equipment
+from uacell.core.conformance_kit import factory, run, settings
+from uacell.core.equipment_factory import close_equipment, make_equipment
 from uacell.robotics.equipment import (
     AxisInfo,
     AxisState,

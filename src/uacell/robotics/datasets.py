@@ -1,11 +1,11 @@
 """What history keeps, PubSub and Sparkplug publish of a robot's parts, and the commands they take
-(``Companion.datasets``, uacell.datasets)."""
+(``Companion.datasets``, uacell.core.datasets)."""
 
 from __future__ import annotations
 
-from uacell.datasets import SPEED, STATE, Item, Kind, PartDataSet
+from uacell.core.datasets import SPEED, STATE, Item, Kind, PartDataSet
 
-# A robot's own kinds of value (``uacell.datasets.Kind`` is open).
+# A robot's own kinds of value (``uacell.core.datasets.Kind`` is open).
 POSITION = Kind("position", optional=True)  # axis positions: many changes; only with axis_positions
 PROGRAM = Kind("program")  # which program runs, where it is
 

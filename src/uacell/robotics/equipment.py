@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Protocol, runtime_checkable
 
-from uacell.equipment_spec import EquipmentSpec
+from uacell.core.equipment_spec import EquipmentSpec
 from uacell.robotics.program import Program
 
 
@@ -188,7 +188,7 @@ class ConfirmedStart(Protocol):
     async def begin(self, task: str, pointer: int, mode: ExecutionMode) -> None:
         """Start the task's program and return once the controller confirms it runs. Raise
         ``StartRefused`` when the controller refuses, ``AlarmStop`` for a fault, ``EquipmentError``
-        otherwise (or ``uacell.errors.CallError`` for a timeout or a lost connection)."""
+        otherwise (or ``uacell.core.errors.CallError`` for a timeout or a lost connection)."""
         ...
 
 

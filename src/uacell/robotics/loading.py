@@ -13,8 +13,8 @@ import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
-from uacell.errors import CallError
-from uacell.fsm import Reason, StateMachine
+from uacell.core.errors import CallError
+from uacell.core.fsm import Reason, StateMachine
 from uacell.robotics.equipment import (
     EquipmentError,
     ProgramCatalogue,

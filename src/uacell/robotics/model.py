@@ -1,7 +1,7 @@
 """OPC 40010-1 remote operation, free of OPC UA: TaskControl, SystemOperation and the cell wiring them.
 
 The rules are docs/decisions.md 8-21 (docs/robotics.md is the client's view of them). State lives
-only in ``uacell.fsm.StateMachine`` objects built from the NodeSet tables; the OPC UA binding
+only in ``uacell.core.fsm.StateMachine`` objects built from the NodeSet tables; the OPC UA binding
 listens to them and to ``listeners`` (called after any other observable change) and publishes.
 Operations return the Int32 ``Status`` of the Robotics methods, or raise ``CallError`` for Bad codes.
 The shared rules (names, Status, the refusal path) are ``uacell.robotics.rules``; loading programs is
@@ -16,10 +16,10 @@ import contextvars
 import logging
 from collections.abc import Callable, Sequence
 
-from uacell.background import Background
-from uacell.conditions import ConditionSet
-from uacell.errors import CallError
-from uacell.fsm import Reason, StateMachine
+from uacell.core.background import Background
+from uacell.core.conditions import ConditionSet
+from uacell.core.errors import CallError
+from uacell.core.fsm import Reason, StateMachine
 from uacell.robotics.equipment import (
     AlarmReset,
     AlarmStop,

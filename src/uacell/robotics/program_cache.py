@@ -2,7 +2,7 @@
 hands to the pure model (``uacell.robotics.model``) as its ``ProgramLibrary``.
 
 The model reads no file; this module does, and keeps the text of a small file while the file is
-unchanged (``uacell.files.stamp``), so that loading the same program again costs one ``stat``.
+unchanged (``uacell.core.files.stamp``), so that loading the same program again costs one ``stat``.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path, PurePosixPath
 
-from uacell.files import settled, stamp
+from uacell.core.files import settled, stamp
 from uacell.robotics.loading import INLINE_PROGRAM_BYTES, KEPT_TEXTS
 from uacell.robotics.program import DEFAULT_LIMITS, ProgramTooLarge
 

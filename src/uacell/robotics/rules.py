@@ -11,8 +11,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
 from enum import IntEnum
 
-from uacell.errors import CallError
-from uacell.fsm import StateMachine
+from uacell.core.errors import CallError
+from uacell.core.fsm import StateMachine
 from uacell.models import FsmTable, TableLoader
 from uacell.robotics.equipment import RobotEquipment, StopMode
 

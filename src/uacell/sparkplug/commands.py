@@ -2,7 +2,7 @@
 method dispatcher, as an OPC UA client's call would (argument checks, the role table, DI locks,
 serialization per state machine, the audit trail), under ``[sparkplug] command_role``.
 
-Declared by the companions with their parts' DataSets (``uacell.datasets.PartDataSet.commands``): the
+Declared by the companions with their parts' DataSets (``uacell.core.datasets.PartDataSet.commands``): the
 metric's name and the method(s) it calls, as (object path below the part, method BrowseName); where
 one name stands for several methods (PackML's Reset), the first whose Executable is true is called,
 else the first. A method without inputs is a Boolean metric (writing true calls it); a method with
@@ -19,10 +19,10 @@ from typing import Any
 
 from asyncua import ua
 
-from uacell.datasets import Command as DeclaredCommand
+from uacell.binding.dispatch import BoundMethod
+from uacell.core.datasets import Command as DeclaredCommand
 from uacell.sparkplug.payload import DataType
 from uacell.sparkplug.values import VARIANTS, datatype_of
-from uacell.ua.dispatch import BoundMethod
 
 Builtin = Callable[[ua.NodeId], ua.VariantType | None]
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
-from uacell.errors import ConfigError
+from uacell.core.errors import ConfigError
+from uacell.core.roles import Role
 from uacell.pubsub.config import BrokerConfig, check_broker
 from uacell.pubsub.config import password_of as password_of  # the same rules, "[sparkplug]" in messages
-from uacell.roles import Role
 
 PASSWORD_ENV = "UACELL_SPARKPLUG_PASSWORD"
 # Sparkplug 3.0 (topic namespace elements): group, edge node and device ids are one topic level of

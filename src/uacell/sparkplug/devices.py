@@ -1,6 +1,6 @@
 """Which devices a cell has and which metrics each carries (docs/sparkplug.md, "Devices and metrics").
 
-A part whose DataSet (``uacell.datasets``, its companion's) says ``device`` is a device of its own,
+A part whose DataSet (``uacell.core.datasets``, its companion's) says ``device`` is a device of its own,
 named by its path (``Filler1``, ``Robot1.Controllers.Controller1``); every other part with a DataSet
 joins the device whose path shares the most leading levels with its own (a controller's task
 controls, its robot's motion devices; the first such device in the cell's order on a tie), its
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 from asyncua import ua
 
-from uacell.datasets import STATE, Command, DataSets, Item
+from uacell.core.datasets import STATE, Command, DataSets, Item
 
 
 @dataclass(frozen=True)

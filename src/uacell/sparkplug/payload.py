@@ -14,7 +14,7 @@ from __future__ import annotations
 from enum import IntEnum
 from typing import Any
 
-from uacell.extras import MissingExtra
+from uacell.core.extras import MissingExtra
 
 try:
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory

@@ -21,8 +21,9 @@ from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 
 from uacell import __version__
-from uacell.background import Background
-from uacell.datasets import DataSets, resolve
+from uacell.binding.dispatch import MethodDispatcher
+from uacell.core.background import Background
+from uacell.core.datasets import DataSets, resolve
 from uacell.pubsub.mqtt import LinkSettings
 from uacell.sparkplug.commands import (
     RESULT_CODE,
@@ -52,7 +53,6 @@ from uacell.sparkplug.payload import DataType, decode, get_value
 from uacell.sparkplug.values import datatype_of, millis, unreachable, value_of
 from uacell.ua import toolkit
 from uacell.ua.context import Caller
-from uacell.ua.dispatch import MethodDispatcher
 
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds

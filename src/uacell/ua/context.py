@@ -5,7 +5,7 @@ asyncua passes neither the session nor the user to method callbacks. uacell wrap
 session while the request runs; ``current_caller()`` turns it into a ``Caller``. While the method
 dispatcher runs a method's behaviour, ``current_call()`` says which call it is (for the
 AuditUpdateStateEvents of the transitions the call causes). Background tasks start in a fresh
-context (``uacell.background``), so nothing they do is taken for a call's, except what completes a
+context (``uacell.core.background``), so nothing they do is taken for a call's, except what completes a
 call after it returned: the models run that in a copy of the call's context (decision 38).
 """
 

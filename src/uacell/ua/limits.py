@@ -45,7 +45,7 @@ from asyncua.server.binary_server_asyncio import OPCUAProtocol
 from asyncua.server.internal_session import InternalSession
 from asyncua.ua.ua_binary import struct_from_binary
 
-from uacell.logs import RefusalLog
+from uacell.core.logs import RefusalLog
 from uacell.ua import door
 from uacell.ua.door import connection
 from uacell.ua.pipeline import Next, Request
@@ -277,7 +277,7 @@ def admit(protocol: OPCUAProtocol, transport: Any, original: Callable[[OPCUAProt
             f"closed the oldest connection without a session from {_peer(victim)} to admit one from {address}",
         )
     original(protocol, transport)
-    if protocol.processor is not None:  # when the activation deadline started (uacell.security)
+    if protocol.processor is not None:  # when the activation deadline started (uacell.security.policy)
         door.tag(protocol.processor, "connected", time.monotonic())
     if protocol.transport is not None:  # admitted: it has handshake_timeout to open its channel
         late = asyncio.get_running_loop().call_later(limits.handshake_timeout, _handshake_late, protocol)
@@ -303,7 +303,7 @@ def _handshake_late(protocol: OPCUAProtocol) -> None:
 
 class _ExpectedRefusals(logging.Filter):
     """asyncua logs a request over the message limits as an ERROR; it is the client's doing, so uacell
-    says it at INFO instead (asyncua's echo of every service fault is dropped by ``uacell.security``)."""
+    says it at INFO instead (asyncua's echo of every service fault is dropped by ``uacell.security.policy``)."""
 
     PREFIXES = ("Message size:", "Number of message chunks:")
 

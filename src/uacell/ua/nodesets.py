@@ -220,7 +220,7 @@ async def init_address_space(
 ) -> PreparedSpace:
     """``server.init()`` and the official models, from the snapshot in ``cache`` when there is one.
 
-    ``cell`` is the digest of the cell that will be built (``uacell.cell.cell_digest``): a snapshot
+    ``cell`` is the digest of the cell that will be built (``uacell.binding.cell.cell_digest``): a snapshot
     holds its instances too. Without one, the models come from the models' snapshot beside the
     NodeSet files (``write_models_snapshot``) when there is one, else from the NodeSet files.
     ``cache`` None: no snapshot is read or written. A stale snapshot has another key, so another

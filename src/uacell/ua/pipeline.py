@@ -10,7 +10,7 @@ process-wide, and hands each to the pipeline of the server a connection reached:
   parsed runs at once when its connection has nothing under way, else it waits in the connection's
   queue for asyncua's task (``OPCUAProtocol._process_one_msg``), one message after the other (decision 51);
 - the opening of a secure channel (``UaProcessor.process`` for an OpenSecureChannel message, and
-  ``UaProcessor.open_secure_channel``): the server's ``channel_guard`` (``security.py``: only the
+  ``UaProcessor.open_secure_channel``): the server's ``channel_guard`` (``security/policy.py``: only the
   policies and modes the endpoints offer); a message asyncua refuses there or in its chunk handling
   goes to the server's ``refused`` (one INFO line, an Error message) and closes the connection;
 - each service request (``UaProcessor.process_message``, its TypeId and header decoded by
@@ -58,7 +58,7 @@ from asyncua.server.internal_session import InternalSession
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary, struct_to_binary
 
-from uacell.background import eager
+from uacell.core.background import eager
 from uacell.ua import channel, context
 from uacell.ua.codec import decode_call_parameters, encode_call_response
 from uacell.ua.door import connection, processing
@@ -120,7 +120,7 @@ class ContextStage:
 
 
 class Settling(Protocol):
-    """What publishes the changes of answered calls (``uacell.ua.publisher.Publisher``)."""
+    """What publishes the changes of answered calls (``uacell.binding.publisher.Publisher``)."""
 
     @property
     def pending(self) -> bool: ...

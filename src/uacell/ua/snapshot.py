@@ -76,14 +76,21 @@ class SnapshotInvalid(Exception):
 
 
 # what builds the snapshot
-_CODE = ("ua/snapshot.py", "ua/nodesets.py", "ua/data_types.py", "ua/instantiate.py", "cell.py", "models/tables.py")
+_CODE = (
+    "ua/snapshot.py",
+    "ua/nodesets.py",
+    "ua/data_types.py",
+    "ua/instantiate.py",
+    "binding/cell.py",
+    "models/tables.py",
+)
 
 
 def snapshot_key(nodesets: Mapping[str, str], cell: str) -> dict[str, Any]:
     """Everything that shapes the prepared address space, as a JSON-able mapping.
 
     ``nodesets`` maps each NodeSet file's name to its SHA-256; ``cell`` is the digest of the cell's
-    shape (``uacell.cell.cell_digest``). The code that builds the snapshot is keyed by its own
+    shape (``uacell.binding.cell.cell_digest``). The code that builds the snapshot is keyed by its own
     digest too, so a changed loader or instantiation never reads a snapshot the old one wrote, even
     within one uacell version.
     """

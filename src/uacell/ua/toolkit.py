@@ -5,7 +5,7 @@
 - ``ValueWriter``: writes Values typed by the variable's DataType, with timestamps, only when changed;
 - ``EventEmitter``: one event of a type, fired to several notifiers (the source, its parents, Server).
 
-Background tasks are run by ``uacell.background.Background``.
+Background tasks are run by ``uacell.core.background.Background``.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def find_child(aspace: AddressSpace, node: ua.NodeId, name: str) -> ua.NodeId | 
 
 def children(aspace: AddressSpace, node: ua.NodeId) -> list[tuple[str, ua.NodeId]]:
     """``node``'s children as (BrowseName, NodeId): every forward reference but HasTypeDefinition
-    (AddIns too), as ``find_child`` follows them; for ``uacell.datasets.resolve``."""
+    (AddIns too), as ``find_child`` follows them; for ``uacell.core.datasets.resolve``."""
     data = aspace.get(node)
     if data is None:
         return []

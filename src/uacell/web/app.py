@@ -27,7 +27,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 from starlette.types import Receive, Scope, Send
 
-from uacell.companion import WebView
+from uacell.core.companion import WebView
 from uacell.web.guards import HostGuard
 from uacell.web.history import MAX_HOURS as MAX_HISTORY_HOURS
 from uacell.web.history import WIDTH as HISTORY_WIDTH

@@ -20,7 +20,7 @@ from typing import Any
 
 from asyncua import Client, Node, ua
 
-from uacell.companion import WebView
+from uacell.core.companion import WebView
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from asyncua import ua
 
-from uacell.errors import login_refusal as refused_login
+from uacell.core.errors import login_refusal as refused_login
 
 
 class UnknownKey(LookupError):

@@ -33,10 +33,11 @@ from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 
 from uacell.catalog import companions as catalog_companions
-from uacell.companion import Companion, web_views
-from uacell.errors import ConfigError
-from uacell.files import atomic_write
-from uacell.pki import (
+from uacell.core.companion import Companion, web_views
+from uacell.core.errors import ConfigError
+from uacell.core.files import atomic_write
+from uacell.core.roles import is_loopback
+from uacell.security.pki import (
     PkiPaths,
     TrustList,
     cert_to_der,
@@ -46,7 +47,6 @@ from uacell.pki import (
     make_certificate,
     thumbprint,
 )
-from uacell.roles import is_loopback
 from uacell.web.app import RELEASE_AFTER, UA_SESSIONS, WebApp, cookie_name
 from uacell.web.guards import HEADER_TIMEOUT, machine_names, timed_headers
 from uacell.web.uasession import APPLICATION_URI, Credentials

@@ -16,7 +16,7 @@ from collections.abc import Callable, Coroutine, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from uacell.companion import WebView
+from uacell.core.companion import WebView
 from uacell.web.uasession import CellCache, Credentials, SessionSlots, UaSession
 
 log = logging.getLogger(__name__)

@@ -22,7 +22,7 @@ from asyncua import Client, Node, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from asyncua.ua.uaerrors import UaStatusCodeError
 
-from uacell.companion import WebView
+from uacell.core.companion import WebView
 from uacell.web.discovery import Cell, discover
 from uacell.web.errors import CallFailed, UnknownKey, login_refusal, status_text
 from uacell.web.history import WIDTH, cell_history

@@ -16,8 +16,8 @@ from typing import Any
 
 from asyncua import Client, ua
 
-from uacell.companion import Closer, Companion, WebView
-from uacell.datasets import Item, Kind, PartDataSet
+from uacell.core.companion import Closer, Companion, WebView
+from uacell.core.datasets import Item, Kind, PartDataSet
 from uacell.host import BinderHost, Host
 
 NAME = "TestCo"
@@ -27,7 +27,7 @@ START_TEMPERATURE = 21.5
 BASE_URI = "http://opcfoundation.org/UA/"
 HERE = Path(__file__).parent
 
-TEMPERATURE = Kind("temperature")  # a kind of value of its own: the open registry of uacell.datasets
+TEMPERATURE = Kind("temperature")  # a kind of value of its own: the open registry of uacell.core.datasets
 
 DATASET = PartDataSet(
     role="packml_unit", values=(Item(f"{THERMOMETER}/{TEMPERATURE_NAME}", TEMPERATURE),), notifiers=()
@@ -72,7 +72,7 @@ class ThermometerCount:
     def collect(self) -> Iterator[Any]:
         from prometheus_client.core import GaugeMetricFamily
 
-        from uacell.metrics import cell_variables, variable_value
+        from uacell.services.metrics import cell_variables, variable_value
 
         found = {
             path: node for path, node in cell_variables(self.app) if path.endswith(f".{THERMOMETER}.{TEMPERATURE_NAME}")

@@ -7,7 +7,7 @@ The pure ``RobotCell`` (``uacell.robotics.model``) owns every rule; this package
   coalesced publishing, and the binder ``bind_robotics``;
 - ``programs``: ``Controller/Programs``, a ``FileStore`` over ``<data_dir>/programs/<robot>/<controller>``
   (sample programs are installed when that directory does not exist yet) bound by
-  ``uacell.ua.file_directory``; the loaded program and modules are protected (Bad_InvalidState on
+  ``uacell.binding.file_directory``; the loaded program and modules are protected (Bad_InvalidState on
   delete/overwrite); NodeIds given by clients to LoadByNodeId/UnloadByNodeId;
 - ``task_control``: TaskControlStateMachine and ReadySubstateMachine with their methods,
   ``ParameterSet`` values, ``TaskModules`` (one TaskModuleType per loaded module),

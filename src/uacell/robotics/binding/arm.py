@@ -9,7 +9,7 @@ import logging
 
 from asyncua import ua
 
-from uacell.background import Background
+from uacell.core.background import Background
 from uacell.robotics.binding.shared import ControllerBinding
 from uacell.robotics.equipment import AxisFeed
 from uacell.robotics.model import EXECUTING, READY

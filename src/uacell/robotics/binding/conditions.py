@@ -1,5 +1,5 @@
 """The alarm conditions in ``SystemOperation/Conditions`` (docs/decisions.md 18), bound by the shared
-condition binding (``uacell.ua.conditions``), and SimulateAlarm."""
+condition binding (``uacell.binding.conditions``), and SimulateAlarm."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ from typing import Any, Protocol, runtime_checkable
 
 from asyncua import ua
 
-from uacell.errors import CallError
+from uacell.binding.conditions import ConditionNode, ConditionNodes, ConditionPlace
+from uacell.core.errors import CallError
+from uacell.core.roles import Family
 from uacell.robotics.binding.shared import ControllerBinding, Handler
-from uacell.roles import Family
-from uacell.ua.conditions import ConditionNode, ConditionNodes, ConditionPlace
 from uacell.ua.context import Caller
 
 log = logging.getLogger(__name__)

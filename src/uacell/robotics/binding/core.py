@@ -7,12 +7,13 @@ import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from uacell.cell import BuiltPart
-from uacell.companion import Closer
-from uacell.drivers import ROBOT_CONTROLLER, SIMULATORS
-from uacell.equipment_factory import choose_equipment, close_equipment, make_equipment
-from uacell.errors import ConfigError
-from uacell.registry import RegistryKey
+from uacell.binding.cell import BuiltPart
+from uacell.core.companion import Closer
+from uacell.core.drivers import ROBOT_CONTROLLER, SIMULATORS
+from uacell.core.equipment_factory import choose_equipment, close_equipment, make_equipment
+from uacell.core.errors import ConfigError
+from uacell.core.file_store import FileStore
+from uacell.core.registry import RegistryKey
 from uacell.robotics.binding.arm import Arm
 from uacell.robotics.binding.conditions import Conditions
 from uacell.robotics.binding.programs import Programs, StoreLibrary, adopt_legacy_programs, install_samples
@@ -26,7 +27,6 @@ from uacell.robotics.equipment import AxisInfo, ControllerEquipmentSpec, Program
 from uacell.robotics.model import RobotCell, RoboticsTables, TaskControl
 from uacell.robotics.program import ProgramLimits
 from uacell.robotics.sim import SimulatedRobot
-from uacell.ua.file_store import FileStore
 
 if TYPE_CHECKING:
     from uacell.host import BinderHost

@@ -9,13 +9,13 @@ from typing import Any
 
 from asyncua import ua
 
-from uacell.errors import CallError
+from uacell.binding.file_directory import FileDirectoryBinding
+from uacell.core.errors import CallError
+from uacell.core.file_store import FileStore
 from uacell.robotics.binding.shared import ControllerBinding
 from uacell.robotics.equipment import AxisInfo, ProgramCatalogue
 from uacell.robotics.program import AXIS_COUNT, samples, wave_program
 from uacell.robotics.program_cache import PROGRAM_SUFFIX, DirectoryLibrary
-from uacell.ua.file_directory import FileDirectoryBinding
-from uacell.ua.file_store import FileStore
 
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds

@@ -12,13 +12,13 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from asyncua import ua
 
-from uacell.cell import BuiltPart
-from uacell.fsm import StateMachine
+from uacell.binding.cell import BuiltPart
+from uacell.core.file_store import FileStore
+from uacell.core.fsm import StateMachine
+from uacell.core.roles import Family
 from uacell.robotics.config import STOP_MODE_NAMES
 from uacell.robotics.equipment import StopMode
 from uacell.robotics.model import RobotCell
-from uacell.roles import Family
-from uacell.ua.file_store import FileStore
 
 if TYPE_CHECKING:
     from uacell.host import BinderHost

@@ -12,15 +12,15 @@ import logging
 
 from asyncua import ua
 
-from uacell.errors import CallError
+from uacell.binding.writes import WriteHook
+from uacell.core.errors import CallError
+from uacell.core.roles import Role
 from uacell.robotics.binding.programs import Programs
 from uacell.robotics.binding.shared import ControllerBinding, Handler, executable
 from uacell.robotics.companion import TASK_CONTROL
 from uacell.robotics.model import Status, TaskControl
-from uacell.roles import Role
 from uacell.ua.context import Caller
 from uacell.ua.instantiate import Selection
-from uacell.ua.writes import WriteHook
 
 log = logging.getLogger(__name__)
 _MACHINE = "TaskControlOperation/TaskControlStateMachine"

@@ -90,7 +90,7 @@ def check_versions() -> None:
 
 
 def _version(package: str) -> str | None:
-    import importlib.metadata  # here: the door is imported before anything heavy (uacell.codecache)
+    import importlib.metadata  # here: the door is imported before anything heavy (uacell.ua.codecache)
 
     try:
         return importlib.metadata.version(package)

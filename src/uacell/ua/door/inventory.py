@@ -55,17 +55,17 @@ ENTRIES: tuple[Entry, ...] = (
     Entry(f"{_S}.history_read", Kind.PATCH, "uacell.ua.pipeline", "the session known while history is read", "(wrapped, not changed)"),
     Entry(f"{_T}.messages", Kind.SWAP, "uacell.ua.pipeline", "collects what asyncua parses from one read, to run it at once", "its queue, for the duration of one parse"),
     # --- one server's parts ------------------------------------------------------------------------
-    Entry(f"{_I}.method_service", Kind.SWAP, "uacell.ua.dispatch", "the one method dispatcher", "MethodService: calls the callback with no argument checks or roles"),
+    Entry(f"{_I}.method_service", Kind.SWAP, "uacell.binding.dispatch", "the one method dispatcher", "MethodService: calls the callback with no argument checks or roles"),
     Entry(f"{_I}.history_manager", Kind.SWAP, "uacell.history.service", "uacell's history (stores, retention, events, HistoryUpdate)", "HistoryManager with its in-memory storage"),
     Entry("asyncua.server.subscription_service.SubscriptionService.trigger_event", Kind.SWAP, "uacell.ua.event_tap", "every fired event to history and PubSub first", "(wrapped, not changed)"),
-    Entry(f"{_I}.create_session", Kind.SWAP, "uacell.security", "uacell's session class (limits, audit, roles)", "creates an InternalSession"),
-    Entry(f"{_I}.decrypt_user_token", Kind.SWAP, "uacell.security", "password decryption with the policy's rules, off the loop", "its decryption"),
+    Entry(f"{_I}.create_session", Kind.SWAP, "uacell.security.policy", "uacell's session class (limits, audit, roles)", "creates an InternalSession"),
+    Entry(f"{_I}.decrypt_user_token", Kind.SWAP, "uacell.security.policy", "password decryption with the policy's rules, off the loop", "its decryption"),
     Entry(f"{_I}.load_standard_address_space", Kind.SWAP, "uacell.ua.nodesets", "the standard nodes from the address-space snapshot (decision 46)", "loads the standard nodes from asyncua's generated code", at_start=False),
     Entry("asyncua.server.address_space.ViewService._suitable_reftype", Kind.SWAP, "uacell.ua.nodesets", "the reference-type subtype closure cached while an import adds inverse references", "walks the type tree per reference", at_start=False),
     Entry("asyncua.server.address_space.AddressSpace._nodes", Kind.PRIVATE, "uacell.ua.nodesets", "the node table, copied to and restored from the snapshot", ""),
     # --- settings asyncua reads from attributes ------------------------------------------------------
-    Entry(f"{_I}.certificate", Kind.SETTING, "uacell.security", "the server certificate (asyncua's setter reads a file path)", ""),
-    Entry(f"{_I}.private_key", Kind.SETTING, "uacell.security", "the server key, decrypted by uacell", ""),
+    Entry(f"{_I}.certificate", Kind.SETTING, "uacell.security.policy", "the server certificate (asyncua's setter reads a file path)", ""),
+    Entry(f"{_I}.private_key", Kind.SETTING, "uacell.security.policy", "the server key, decrypted by uacell", ""),
     Entry(f"{_I}.max_connections", Kind.SETTING, "uacell.ua.limits", "[limits] connections", ""),
     Entry(f"{_I}.max_subscriptions", Kind.SETTING, "uacell.ua.limits", "[limits] subscriptions", ""),
     Entry(f"{_I}.max_pending_activation_seconds", Kind.SETTING, "uacell.ua.limits", "[limits] activation_timeout", ""),
@@ -74,14 +74,14 @@ ENTRIES: tuple[Entry, ...] = (
     Entry(f"{_I}.bind_condition_methods", Kind.SETTING, "uacell.server", "ConditionType's methods bound by asyncua in batches", ""),
     Entry("asyncua.server.server.Server.product_uri", Kind.SETTING, "uacell.server", "the server's ProductUri", ""),
     # --- subclasses ----------------------------------------------------------------------------------
-    Entry("asyncua.server.address_space.MethodService", Kind.SUBCLASS, "uacell.ua.dispatch", "MethodDispatcher: the one method dispatcher (argument checks, roles, guards, serialization)", "MethodService.call"),
+    Entry("asyncua.server.address_space.MethodService", Kind.SUBCLASS, "uacell.binding.dispatch", "MethodDispatcher: the one method dispatcher (argument checks, roles, guards, serialization)", "MethodService.call"),
     Entry(_S, Kind.SUBCLASS, "uacell.ua.limits", "LimitedSession: sessions, subscriptions, monitored items, operations per request counted", "unlimited sessions"),
     Entry("asyncua.common.connection.TransportLimits", Kind.SUBCLASS, "uacell.ua.limits", "ServerTransportLimits: chunk sizes from the Hello, message size enforced", "create_acknowledge_and_set_limits"),
     Entry("asyncua.common.xmlimporter.XmlImporter", Kind.SUBCLASS, "uacell.ua.nodesets", "the subtype closure cached while inverse references are added (start-up time)", "_add_missing_reverse_references", at_start=False),
     Entry("asyncua.crypto.permission_rules.User", Kind.SUBCLASS, "uacell.ua.context", "UacellUser: the user with uacell's role", "User"),
     Entry("uvicorn.protocols.http.h11_impl.H11Protocol", Kind.SUBCLASS, "uacell.web.guards", "TimedHeaders: a request's headers within a deadline (slow-header clients)", "no header deadline", at_start=False),
     # --- the standard library ------------------------------------------------------------------------
-    Entry("dataclasses.exec", Kind.PATCH, "uacell.codecache", "asyncua's 900 dataclasses built from cached code objects (start-up time)", "dataclasses compiles each class's methods", at_start=False),
+    Entry("dataclasses.exec", Kind.PATCH, "uacell.ua.codecache", "asyncua's 900 dataclasses built from cached code objects (start-up time)", "dataclasses compiles each class's methods", at_start=False),
     # --- private names read ----------------------------------------------------------------------------
     Entry(f"{_P}._connection", Kind.PRIVATE, "uacell.ua.channel", "a channel's policy, mode, peer certificate, open state", ""),
     Entry(f"{_P}._transport", Kind.PRIVATE, "uacell.ua.channel", "to send an Error or a response, to close", ""),
@@ -89,10 +89,10 @@ ENTRIES: tuple[Entry, ...] = (
     Entry(f"{_T}._buffer", Kind.PRIVATE, "uacell.ua.limits", "bytes received and not parsed (chunk sizes checked first)", ""),
     Entry("asyncio.Queue._queue", Kind.PRIVATE, "uacell.ua.limits", "bytes queued on a connection (asyncua's message queue)", ""),
     Entry(f"{_I}._external_sessions", Kind.PRIVATE, "uacell.ua.channel", "the client sessions (diagnostics, metrics)", ""),
-    Entry(f"{_S}._last_activity", Kind.PRIVATE, "uacell.ua.diagnostics", "a session's idle time", ""),
+    Entry(f"{_S}._last_activity", Kind.PRIVATE, "uacell.services.diagnostics", "a session's idle time", ""),
     Entry("asyncua.common.utils.Buffer._data", Kind.PRIVATE, "uacell.ua.codec", "a request's bytes, decoded by ua/codec.py", ""),
     Entry("asyncua.server.monitored_item_service.MonitoredItemService._monitored_items", Kind.PRIVATE, "uacell.ua.limits", "monitored items counted against [limits]", ""),
-    Entry("asyncua.server.address_space.MethodService._call", Kind.PRIVATE, "uacell.ua.dispatch", "asyncua's callback for a method uacell does not bind (ConditionRefresh)", ""),
+    Entry("asyncua.server.address_space.MethodService._call", Kind.PRIVATE, "uacell.binding.dispatch", "asyncua's callback for a method uacell does not bind (ConditionRefresh)", ""),
     Entry("asyncua.server.address_space.ViewService._get_sub_ref", Kind.PRIVATE, "uacell.ua.nodesets", "the subtypes of a reference type", ""),
 )  # fmt: skip
 

@@ -17,7 +17,7 @@ from asyncua.server.binary_server_asyncio import OPCUAProtocol
 from asyncua.server.internal_session import InternalSession
 from asyncua.server.uaprocessor import UaProcessor
 
-from uacell.background import eager
+from uacell.core.background import eager
 from uacell.ua import context
 from uacell.ua.codec import decode_request_header
 from uacell.ua.door import check_versions, patch, record

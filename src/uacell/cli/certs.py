@@ -1,0 +1,215 @@
+"""``uacell cert list | trust ID | reject ID | remove ID | renew``: the PKI of a data directory.
+
+ID is a thumbprint (SHA-1, hex; its first characters are enough when they name one certificate) or a
+certificate file. A running server reads ``pki/trusted/`` at every secure connection, so trust
+changes apply without a restart; a renewed server certificate is loaded at the next start.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import shutil
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cryptography import x509
+from cryptography.x509.oid import NameOID
+
+from uacell.config import Config
+from uacell.security.audit import AuditTrail
+from uacell.security.pki import (
+    _CERT_SUFFIXES,
+    PkiPaths,
+    RejectedLimit,
+    TrustList,
+    _load_any,
+    cert_to_der,
+    ensure_server_certificate,
+    thumbprint,
+)
+
+MIN_PREFIX = 6
+
+
+class CertError(Exception):
+    """The certificate a command names cannot be found or used."""
+
+
+@dataclass(frozen=True)
+class CertInfo:
+    kind: str  # "own", "trusted", "rejected"
+    path: Path
+    der: bytes
+    subject: str
+    application_uri: str
+    not_before: dt.datetime
+    not_after: dt.datetime
+
+    @property
+    def thumbprint(self) -> str:
+        return thumbprint(self.der)
+
+    def validity(self, now: dt.datetime | None = None) -> str:
+        now = now or dt.datetime.now(dt.UTC)
+        state = "expired" if now > self.not_after else "not yet valid" if now < self.not_before else "valid"
+        return f"{state} {self.not_before:%Y-%m-%d} .. {self.not_after:%Y-%m-%d}"
+
+
+def read_certificate(path: Path, kind: str = "file") -> CertInfo:
+    """Load a DER or PEM certificate file; CertError when it is none."""
+    try:
+        cert = _load_any(path.read_bytes())
+    except OSError as exc:
+        raise CertError(f"cannot read {path}: {exc.strerror or exc}") from exc
+    except ValueError as exc:
+        raise CertError(f"{path} is not a certificate: {exc}") from exc
+    return _info(kind, path, cert)
+
+
+def _info(kind: str, path: Path, cert: x509.Certificate) -> CertInfo:
+    try:
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+        uris = san.get_values_for_type(x509.UniformResourceIdentifier)
+    except x509.ExtensionNotFound:
+        uris = []
+    cns = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
+    subject = str(cns[0].value) if cns else cert.subject.rfc4514_string()
+    return CertInfo(
+        kind,
+        path,
+        cert_to_der(cert),
+        subject,
+        uris[0] if uris else "",
+        cert.not_valid_before_utc,
+        cert.not_valid_after_utc,
+    )
+
+
+def certificates(paths: PkiPaths) -> list[CertInfo]:
+    """The own certificate, then trusted, then rejected ones (unreadable files are skipped)."""
+    found = []
+    if paths.cert.is_file():
+        try:
+            found.append(read_certificate(paths.cert, "own"))
+        except CertError:
+            pass
+    for kind, folder in (("trusted", paths.trusted), ("rejected", paths.rejected)):
+        if not folder.is_dir():
+            continue
+        for f in sorted(folder.iterdir()):
+            if f.is_file() and f.suffix.lower() in _CERT_SUFFIXES:
+                try:
+                    found.append(read_certificate(f, kind))
+                except CertError:
+                    continue
+    return found
+
+
+def find(paths: PkiPaths, ident: str, kinds: tuple[str, ...] = ("trusted", "rejected")) -> list[CertInfo]:
+    """The client certificates ``ident`` names (a thumbprint prefix); several files may hold one certificate."""
+    prefix = ident.strip().lower().replace(":", "")
+    if len(prefix) < MIN_PREFIX or any(c not in "0123456789abcdef" for c in prefix):
+        raise CertError(f"{ident!r} is neither a certificate file nor a thumbprint (at least {MIN_PREFIX} hex digits)")
+    hits = [c for c in certificates(paths) if c.kind in kinds and c.thumbprint.startswith(prefix)]
+    if not hits:
+        raise CertError(f"no {' or '.join(kinds)} certificate has a thumbprint starting with {prefix}")
+    if len({c.thumbprint for c in hits}) > 1:
+        names = ", ".join(sorted({c.thumbprint for c in hits}))
+        raise CertError(f"{prefix} names more than one certificate ({names}): give more digits")
+    return hits
+
+
+def _resolve(paths: PkiPaths, ident: str, kinds: tuple[str, ...]) -> list[CertInfo]:
+    candidate = Path(ident).expanduser()
+    if candidate.is_file():
+        return [read_certificate(candidate)]
+    return find(paths, ident, kinds)
+
+
+def trust(paths: PkiPaths, ident: str, limit: RejectedLimit | None = None) -> Path:
+    hits = _resolve(paths, ident, ("rejected", "trusted"))
+    target = TrustList(paths, rejected_limit=limit).trust(hits[0].der)
+    for c in hits:
+        if c.kind == "rejected":
+            c.path.unlink(missing_ok=True)
+    return target
+
+
+def reject(paths: PkiPaths, ident: str, limit: RejectedLimit | None = None) -> Path:
+    hits = _resolve(paths, ident, ("trusted",))
+    trusted = [c for c in hits if c.kind == "trusted"]
+    if not trusted:
+        raise CertError(f"{ident} is not trusted")
+    target = TrustList(paths, rejected_limit=limit).reject(hits[0].der)
+    for c in trusted:
+        c.path.unlink(missing_ok=True)
+    return target
+
+
+def remove(paths: PkiPaths, ident: str) -> list[Path]:
+    hits = find(paths, ident)
+    for c in hits:
+        c.path.unlink(missing_ok=True)
+    return [c.path for c in hits]
+
+
+def renew(paths: PkiPaths, application_uri: str, hosts: list[str]) -> Path:
+    """A new server certificate and key now; the old pair goes to ``pki/own/backup/``."""
+    if paths.cert.exists() or paths.key.exists():
+        stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+        paths.backup.mkdir(parents=True, exist_ok=True)
+        for f, name in ((paths.cert, f"cert-{stamp}.der"), (paths.key, f"key-{stamp}.pem")):
+            if f.exists():
+                shutil.move(f, paths.backup / name)
+    cert, _ = ensure_server_certificate(paths, application_uri, hosts)
+    return cert
+
+
+def _print_list(paths: PkiPaths) -> None:
+    infos = certificates(paths)
+    print(f"{paths.root}: {len(infos) or 'no'} certificate{'' if len(infos) == 1 else 's'}")
+    for c in infos:
+        print(f"{c.kind:8} {c.thumbprint}  {c.subject}  {c.application_uri or '-'}  {c.validity()}  {c.path}")
+
+
+def run_cert_command(args: Any, config: Config) -> int:
+    """``uacell cert ...`` (args from uacell.cli.main); returns the exit status."""
+    from uacell.server import APPLICATION_URI
+
+    paths = PkiPaths.in_data_dir(config.server.data_dir)
+    cfg = config.server
+    limit = RejectedLimit(cfg.rejected_max_files, cfg.rejected_max_age_days * 86400.0)  # as the server keeps it
+    try:
+        if args.action == "list":
+            _print_list(paths)
+            return 0
+        if args.action == "trust":
+            path = trust(paths, args.id, limit)
+            print(f"trusted {path.stem}: {path}")
+            detail: dict[str, Any] = {"thumbprint": path.stem, "file": str(path)}
+        elif args.action == "reject":
+            path = reject(paths, args.id, limit)
+            print(f"rejected {path.stem}: {path}")
+            detail = {"thumbprint": path.stem, "file": str(path)}
+        elif args.action == "remove":
+            removed = remove(paths, args.id)
+            for p in removed:
+                print(f"removed {p}")
+            detail = {"files": [str(p) for p in removed]}
+        elif args.action == "renew":
+            path = renew(paths, APPLICATION_URI, [config.server.host])
+            print(f"new server certificate {thumbprint(path.read_bytes())}: {path} (used from the next start)")
+            detail = {"thumbprint": thumbprint(path.read_bytes()), "file": str(path)}
+        else:
+            raise CertError(f"unknown action {args.action!r}")
+    except (CertError, OSError) as exc:
+        print(f"uacell: {exc}", file=sys.stderr)
+        return 1
+    trail = AuditTrail.for_config(config)
+    try:
+        trail.record("cert", action=args.action, **detail)
+    finally:
+        trail.close()
+    return 0

@@ -1,0 +1,502 @@
+"""The server's certificate and the trust list for client certificates, under ``<data_dir>/pki/``.
+
+``pki/own/cert.der`` + ``pki/own/key.pem``   the application instance certificate and its key, made on
+                                            first start, remade (old pair kept in ``own/backup/``)
+                                            when the application URI or listening hosts change
+``pki/trusted/``                            client certificates the server trusts (DER or PEM)
+``pki/rejected/``                           refused client certificates, ``<thumbprint>.der``;
+                                            ``uacell cert trust`` (or moving one to trusted/) trusts it
+                                            (capped in count and age: ``prune_rejected``)
+
+``CertificateValidator`` plugs the trust list into asyncua's ``Server.set_certificate_validator``.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import ipaddress
+import logging
+import shutil
+import socket
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from asyncua import ua
+from asyncua.common.utils import ServiceError
+from asyncua.crypto.validator import CertificateValidator as _UaValidator
+from asyncua.crypto.validator import CertificateValidatorOptions
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import rsa
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+from uacell.core.files import atomic_write
+
+_log = logging.getLogger(__name__)
+
+KEY_SIZE = 2048
+VALIDITY_DAYS = 5 * 365
+RENEW_BEFORE = dt.timedelta(days=30)  # remake a certificate this close to its end
+_CERT_SUFFIXES = {".der", ".cer", ".crt", ".pem"}
+
+IPAddress = ipaddress.IPv4Address | ipaddress.IPv6Address
+
+
+@dataclass(frozen=True)
+class PkiPaths:
+    """Where the PKI files live for one data directory."""
+
+    root: Path
+
+    @classmethod
+    def in_data_dir(cls, data_dir: Path) -> PkiPaths:
+        return cls(Path(data_dir) / "pki")
+
+    @property
+    def own(self) -> Path:
+        return self.root / "own"
+
+    @property
+    def cert(self) -> Path:
+        return self.own / "cert.der"
+
+    @property
+    def key(self) -> Path:
+        return self.own / "key.pem"
+
+    @property
+    def key_checked(self) -> Path:
+        """The SHA-256 of the key file whose RSA consistency was checked (``load_server_key``)."""
+        return self.own / "key.checked"
+
+    @property
+    def backup(self) -> Path:
+        return self.own / "backup"
+
+    @property
+    def trusted(self) -> Path:
+        return self.root / "trusted"
+
+    @property
+    def rejected(self) -> Path:
+        return self.root / "rejected"
+
+    def create(self) -> None:
+        for d in (self.own, self.trusted, self.rejected):
+            d.mkdir(parents=True, exist_ok=True)
+        self.own.chmod(0o700)
+
+
+# Certificates -----------------------------------------------------------------------------------------
+
+
+def generate_key(size: int = KEY_SIZE) -> rsa.RSAPrivateKey:
+    return rsa.generate_private_key(public_exponent=65537, key_size=size)
+
+
+def make_certificate(
+    key: rsa.RSAPrivateKey,
+    application_uri: str,
+    *,
+    common_name: str,
+    dns_names: Iterable[str] = (),
+    ip_addresses: Iterable[IPAddress] = (),
+    server: bool = True,
+    client: bool = True,
+    days: int = VALIDITY_DAYS,
+    not_before: dt.datetime | None = None,
+) -> x509.Certificate:
+    """A self-signed OPC UA application instance certificate (OPC 10000-6, 6.2.2), SHA-256 signed."""
+    name = x509.Name(
+        [
+            x509.NameAttribute(NameOID.COMMON_NAME, common_name),
+            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "uacell"),
+        ]
+    )
+    start = (not_before or dt.datetime.now(dt.UTC)) - dt.timedelta(minutes=5)  # tolerate clock skew
+    san: list[x509.GeneralName] = [x509.UniformResourceIdentifier(application_uri)]
+    san += [x509.DNSName(d) for d in dict.fromkeys(dns_names)]
+    san += [x509.IPAddress(i) for i in dict.fromkeys(ip_addresses)]
+    usages = [ExtendedKeyUsageOID.SERVER_AUTH] if server else []
+    usages += [ExtendedKeyUsageOID.CLIENT_AUTH] if client else []
+    public = key.public_key()
+    builder = (
+        x509.CertificateBuilder()
+        .subject_name(name)
+        .issuer_name(name)
+        .public_key(public)
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(start)
+        .not_valid_after(start + dt.timedelta(days=days))
+        .add_extension(x509.SubjectAlternativeName(san), critical=False)
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)  # self-signed
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=True,
+                content_commitment=True,
+                key_encipherment=True,
+                data_encipherment=True,
+                key_agreement=False,
+                key_cert_sign=True,
+                crl_sign=False,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
+        .add_extension(x509.ExtendedKeyUsage(usages), critical=False)
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(public), critical=False)
+        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(public), critical=False)
+    )
+    return builder.sign(key, hashes.SHA256())
+
+
+def key_to_pem(key: rsa.RSAPrivateKey) -> bytes:
+    return key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+    )
+
+
+def cert_to_der(cert: x509.Certificate) -> bytes:
+    return cert.public_bytes(serialization.Encoding.DER)
+
+
+def make_client_certificate(
+    application_uri: str,
+    *,
+    key: rsa.RSAPrivateKey | None = None,
+    common_name: str = "uacell test client",
+    days: int = 365,
+    not_before: dt.datetime | None = None,
+) -> tuple[bytes, bytes]:
+    """A client certificate and key for tests and tools: (certificate DER, private key PEM)."""
+    key = key or generate_key()
+    cert = make_certificate(
+        key,
+        application_uri,
+        common_name=common_name,
+        dns_names=[socket.gethostname()],
+        server=False,
+        client=True,
+        days=days,
+        not_before=not_before,
+    )
+    return cert_to_der(cert), key_to_pem(key)
+
+
+def san_for_hosts(hosts: Iterable[str]) -> tuple[list[str], list[IPAddress]]:
+    """DNS names and IP addresses for the certificate of a server listening on ``hosts``.
+
+    A wildcard address (0.0.0.0, ::) stands for this machine: its host name, FQDN and their addresses.
+    """
+    dns: list[str] = []
+    ips: list[IPAddress] = []
+    for host in hosts:
+        h = host.strip().strip("[]")
+        try:
+            ip = ipaddress.ip_address(h)
+        except ValueError:
+            dns.append(h)
+            if h.lower() == "localhost":
+                ips.append(ipaddress.ip_address("127.0.0.1"))
+            continue
+        if ip.is_unspecified:
+            names = [socket.gethostname(), socket.getfqdn()]
+            dns += names
+            for n in names:
+                ips += _resolve(n)
+        else:
+            ips.append(ip)
+            if ip.is_loopback:
+                dns.append("localhost")
+    return list(dict.fromkeys(dns)), list(dict.fromkeys(ips))
+
+
+def _resolve(name: str) -> list[IPAddress]:
+    try:
+        infos = socket.getaddrinfo(name, None, proto=socket.IPPROTO_TCP)
+    except OSError:
+        return []
+    return [ipaddress.ip_address(str(info[4][0]).split("%")[0]) for info in infos]
+
+
+def _required_for_hosts(hosts: Iterable[str]) -> tuple[set[str], set[IPAddress]]:
+    """What a certificate must cover: the listening hosts as given (not what a wildcard resolves to)."""
+    dns: set[str] = set()
+    ips: set[IPAddress] = set()
+    for host in hosts:
+        h = host.strip().strip("[]")
+        try:
+            ip = ipaddress.ip_address(h)
+        except ValueError:
+            dns.add(h.lower())
+            continue
+        if ip.is_unspecified:
+            dns.add(socket.gethostname().lower())
+        else:
+            ips.add(ip)
+    return dns, ips
+
+
+def coverage_problems(cert: x509.Certificate, application_uri: str, hosts: Iterable[str]) -> list[str]:
+    """Why ``cert`` does not suit a server with this URI listening on ``hosts`` (empty when it does)."""
+    problems = []
+    try:
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        return ["no subjectAltName"]
+    if application_uri not in san.get_values_for_type(x509.UniformResourceIdentifier):
+        problems.append(f"application URI {application_uri} missing")
+    have_dns = {d.lower() for d in san.get_values_for_type(x509.DNSName)}
+    have_ips = set(san.get_values_for_type(x509.IPAddress))
+    need_dns, need_ips = _required_for_hosts(hosts)
+    problems += [f"host name {d} missing" for d in sorted(need_dns - have_dns)]
+    problems += [f"address {i} missing" for i in sorted(need_ips - have_ips, key=str)]
+    public = cert.public_key()
+    if not isinstance(public, rsa.RSAPublicKey) or public.key_size < KEY_SIZE:
+        problems.append(f"not an RSA key of {KEY_SIZE} bits or more")
+    if cert.not_valid_after_utc - RENEW_BEFORE < dt.datetime.now(dt.UTC):
+        problems.append(f"expires {cert.not_valid_after_utc:%Y-%m-%d}")
+    return problems
+
+
+def ensure_server_certificate(
+    paths: PkiPaths,
+    application_uri: str,
+    hosts: Iterable[str],
+    *,
+    key: rsa.RSAPrivateKey | None = None,
+) -> tuple[Path, Path]:
+    """Create (or reuse, or remake) the server certificate; returns (cert path, key path).
+
+    The paths can go straight to asyncua's ``Server.load_certificate`` / ``load_private_key``.
+    ``key`` is for tests; normally a fresh key is generated.
+    """
+    hosts = list(hosts)
+    paths.create()
+    if paths.cert.exists() and paths.key.exists():
+        try:
+            cert = x509.load_der_x509_certificate(paths.cert.read_bytes())
+            problems = coverage_problems(cert, application_uri, hosts)
+        except ValueError as exc:
+            problems = [f"unreadable ({exc})"]
+        if not problems:
+            return paths.cert, paths.key
+        stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+        paths.backup.mkdir(exist_ok=True)
+        shutil.move(paths.cert, paths.backup / f"cert-{stamp}.der")
+        shutil.move(paths.key, paths.backup / f"key-{stamp}.pem")
+        _log.warning(
+            "server certificate no longer fits (%s): made a new one, old one kept in %s",
+            "; ".join(problems),
+            paths.backup,
+        )
+    dns, ips = san_for_hosts(hosts)
+    key = key or generate_key()
+    cert = make_certificate(
+        key, application_uri, common_name=f"uacell@{socket.gethostname()}", dns_names=dns, ip_addresses=ips
+    )
+    pem = key_to_pem(key)
+    atomic_write(paths.key, pem, mode=0o600)
+    atomic_write(paths.key_checked, _digest(pem).encode(), mode=0o600)  # made here: consistent
+    atomic_write(paths.cert, cert_to_der(cert), mode=0o644)
+    _log.info(
+        "created server certificate %s (thumbprint %s) for %s",
+        paths.cert,
+        thumbprint(cert_to_der(cert)),
+        ", ".join([application_uri, *dns, *map(str, ips)]),
+    )
+    return paths.cert, paths.key
+
+
+def _digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def load_server_key(paths: PkiPaths) -> rsa.RSAPrivateKey:
+    """The server's private key from ``paths.key``. The RSA consistency check cryptography makes on
+    loading (about 30 ms for 2048 bits, a tenth of a restart) runs once per key: a key uacell made, or
+    one that passed the check, has its file's SHA-256 in ``paths.key_checked``, and a key file with
+    that digest is loaded without it. A key put there by hand, or changed, is checked."""
+    data = paths.key.read_bytes()
+    digest = _digest(data)
+    try:
+        known = paths.key_checked.read_text().strip() == digest
+    except OSError:
+        known = False
+    key = serialization.load_pem_private_key(data, password=None, unsafe_skip_rsa_key_validation=known)
+    if not isinstance(key, rsa.RSAPrivateKey):
+        raise ValueError(f"{paths.key} is not an RSA private key")
+    if not known:
+        try:
+            atomic_write(paths.key_checked, digest.encode(), mode=0o600)
+        except OSError as exc:  # checked again next time; nothing else depends on the note
+            _log.warning("cannot note that %s was checked (%s): it is checked at every start", paths.key, exc)
+    return key
+
+
+# Trust list -------------------------------------------------------------------------------------------
+
+
+def thumbprint(der: bytes) -> str:
+    """The OPC UA certificate thumbprint (SHA-1 of the DER), hex."""
+    return hashlib.sha1(der).hexdigest()  # the thumbprint is defined as SHA-1
+
+
+def _load_any(data: bytes) -> x509.Certificate:
+    if data.lstrip().startswith(b"-----BEGIN"):
+        return x509.load_pem_x509_certificate(data)
+    return x509.load_der_x509_certificate(data)
+
+
+def _file_name(cert: x509.Certificate, der: bytes) -> str:
+    # By thumbprint alone: no spaces or brackets, so a path from the log can be pasted into a shell.
+    return f"{thumbprint(der)}.der"
+
+
+@dataclass(frozen=True)
+class RejectedLimit:
+    """How many refused certificates ``pki/rejected/`` keeps, and for how long (seconds)."""
+
+    max_files: int = 100
+    max_age: float = 30 * 86400.0
+
+
+def prune_rejected(directory: Path, limit: RejectedLimit, now: float | None = None) -> list[Path]:
+    """Delete certificates in ``directory`` older than ``limit.max_age``, then the oldest beyond
+    ``limit.max_files``; returns the files deleted, oldest first. Age is the file's modification time."""
+    now = time.time() if now is None else now
+    files = []
+    for f in directory.iterdir():
+        if f.suffix.lower() in _CERT_SUFFIXES and f.is_file():
+            try:
+                files.append((f.stat().st_mtime, f.name, f))
+            except OSError:  # removed meanwhile
+                continue
+    files.sort()
+    doomed = [f for mtime, _, f in files if now - mtime > limit.max_age]
+    kept = [f for mtime, _, f in files if now - mtime <= limit.max_age]
+    doomed += kept[: max(0, len(kept) - limit.max_files)]
+    for f in doomed:
+        f.unlink(missing_ok=True)
+    return doomed
+
+
+class TrustList:
+    """Answers whether a client certificate is trusted: its exact DER is in ``pki/trusted/``.
+
+    With ``trust_on_first_use``, an unknown (but otherwise valid) certificate is copied to trusted/
+    and accepted; otherwise it is written to rejected/ and refused.
+    """
+
+    def __init__(
+        self,
+        paths: PkiPaths,
+        *,
+        trust_on_first_use: bool = False,
+        rejected_limit: RejectedLimit | None = None,
+        report_refusal: Callable[[str], object] | None = None,
+    ) -> None:
+        self.paths = paths
+        self.trust_on_first_use = trust_on_first_use
+        self.rejected_limit = rejected_limit or RejectedLimit()
+        # How refusals are logged (the server rate-limits them per client address); default: a warning each.
+        self.report_refusal: Callable[[str], object] = report_refusal or _log.warning
+        self._pruning_logged = False
+        paths.create()
+        self.prune_rejected()
+
+    def prune_rejected(self) -> list[Path]:
+        """Keep ``pki/rejected/`` within its limit (oldest dropped first); the first drop is logged."""
+        dropped = prune_rejected(self.paths.rejected, self.rejected_limit)
+        if dropped and not self._pruning_logged:
+            self._pruning_logged = True
+            limit = self.rejected_limit
+            _log.warning(
+                "%s keeps at most %d refused certificates for %.0f days: dropped the oldest (%s); "
+                "further drops are not logged",
+                self.paths.rejected,
+                limit.max_files,
+                limit.max_age / 86400,
+                ", ".join(f.name for f in dropped),
+            )
+        return dropped
+
+    def _trusted_digests(self) -> set[bytes]:
+        # Read on every check: operators add files while the server runs, and sessions are rare.
+        digests = set()
+        for f in sorted(self.paths.trusted.iterdir()):
+            if f.suffix.lower() not in _CERT_SUFFIXES or not f.is_file():
+                continue
+            try:
+                digests.add(hashlib.sha256(cert_to_der(_load_any(f.read_bytes()))).digest())
+            except (ValueError, OSError) as exc:
+                _log.warning("ignoring %s in the trust list: %s", f, exc)
+        return digests
+
+    def is_trusted(self, der: bytes) -> bool:
+        return hashlib.sha256(der).digest() in self._trusted_digests()
+
+    def trust(self, der: bytes) -> Path:
+        """Put ``der`` into trusted/ (and out of rejected/); returns its file."""
+        cert = x509.load_der_x509_certificate(der)
+        target = self.paths.trusted / _file_name(cert, der)
+        atomic_write(target, der, mode=0o644)
+        (self.paths.rejected / target.name).unlink(missing_ok=True)
+        return target
+
+    def reject(self, der: bytes) -> Path:
+        """Put ``der`` into rejected/ so an operator can trust it by moving the file."""
+        cert = x509.load_der_x509_certificate(der)
+        target = self.paths.rejected / _file_name(cert, der)
+        if not target.exists():
+            atomic_write(target, der, mode=0o644)
+            self.prune_rejected()
+        return target
+
+    def admit(self, der: bytes, application_uri: str = "") -> bool:
+        """Decide on a client certificate: trusted, trusted now on first use, or rejected (logged)."""
+        if self.is_trusted(der):
+            return True
+        who = f" of {application_uri}" if application_uri else ""
+        if self.trust_on_first_use:
+            path = self.trust(der)
+            _log.warning("trusting client certificate%s on first use: %s (delete it to revoke)", who, path)
+            return True
+        path = self.reject(der)
+        self.report_refusal(
+            f"refused untrusted client certificate{who} (thumbprint {thumbprint(der)}). "
+            f"To trust it, move {path} to {self.paths.trusted}/ "
+            f"(or run: uacell cert trust {thumbprint(der)[:12]} --data-dir {self.paths.root.parent})"
+        )
+        return False
+
+
+class CertificateValidator:
+    """For asyncua's ``Server.set_certificate_validator``: validity period, URI, then the trust list.
+
+    Raises ``ServiceError`` with BadCertificateTimeInvalid, BadCertificateUriInvalid or
+    BadCertificateUntrusted, which asyncua returns to the client's CreateSession.
+    """
+
+    def __init__(self, trust_list: TrustList) -> None:
+        self.trust_list = trust_list
+        opts = CertificateValidatorOptions
+        self._basic = _UaValidator(opts.BASIC_VALIDATION | opts.PEER_CLIENT)
+
+    async def __call__(self, cert: x509.Certificate, app_description: ua.ApplicationDescription) -> None:
+        der = cert_to_der(cert)
+        try:
+            # Checked first so that trust on first use never records an expired or mismatched certificate.
+            await self._basic.validate(cert, app_description)
+        except ServiceError as exc:
+            self.trust_list.report_refusal(
+                f"refused client certificate {thumbprint(der)} of {app_description.ApplicationUri}: "
+                f"{ua.StatusCode(exc.code).name}"
+            )
+            raise
+        if not self.trust_list.admit(der, app_description.ApplicationUri or ""):
+            raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)

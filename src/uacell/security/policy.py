@@ -1,0 +1,779 @@
+"""Everything server-side about security: certificate, endpoints, trust list, logins, per-session rights.
+
+``install_security(app)`` is called by ``UacellServer.setup()`` after ``Server.init()`` and before the
+binders run. It
+
+- makes or reuses the server certificate in ``<data_dir>/pki/own`` and offers Basic256Sha256,
+  Aes128_Sha256_RsaOaep and Aes256_Sha256_RsaPss with Sign and SignAndEncrypt, plus None where the
+  listening policy allows it;
+- accepts exactly the security policies and modes of the endpoints it offers: an OpenSecureChannel
+  asking for another is answered with an Error message (Bad_SecurityPolicyRejected or
+  Bad_SecurityModeRejected) and the connection closed. The one exception is policy None where it is
+  not offered: such a channel serves discovery only (GetEndpoints, FindServers; OPC 10000-4 wants
+  discovery reachable without security) and every other request on it, CreateSession and
+  ActivateSession included, answers Bad_SecurityPolicyRejected. Refusals are logged once per client
+  address, reason and interval (``RefusalLog``);
+- checks client certificates against ``pki/trusted`` (``uacell.security.pki.CertificateValidator``);
+- accepts anonymous and user-name identity tokens, but a user name only with an encrypted password
+  or over a SignAndEncrypt channel (``Bad_IdentityTokenRejected`` otherwise); an encrypted password
+  must use the algorithm of the endpoint's user token policy and carry the last server nonce this
+  session was sent (``Bad_IdentityTokenInvalid`` otherwise), so a captured token cannot be replayed;
+- gives sessions random AuthenticationTokens and lets a session move to another secure channel only
+  when activated, from the same client certificate and with the same identity;
+- slows down repeated login failures per user name, at one address and across addresses
+  (``uacell.security.users.LoginThrottle``), and checks passwords in worker threads, a few at a time;
+- uses its own session class: writes need the ``write`` action of ``uacell.core.roles``, the client's
+  ApplicationUri is kept for ``Caller.client``, and ``on_session_closed`` hooks run when a session
+  closes or times out (locks are released there);
+- answers UserExecutable, UserAccessLevel, UserWriteMask and the FileType ``UserWritable`` property
+  per session role (a Read hook).
+
+asyncua gives a session neither its secure channel nor its peer address, so the per-connection
+processor is published in a context variable while it handles a request.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import hmac
+import logging
+import os
+import struct
+import time
+from collections.abc import Awaitable, Callable
+from concurrent.futures import ThreadPoolExecutor
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NoReturn, cast
+from urllib.parse import urlparse
+
+from asyncua import Server, ua
+from asyncua.common.utils import Buffer, ServiceError, create_nonce
+from asyncua.crypto import uacrypto
+from asyncua.crypto.security_policies import SECURITY_POLICY_TYPE_MAP, SecurityPolicyNone
+from asyncua.server.internal_session import InternalSession, SessionState
+from asyncua.server.uaprocessor import UaProcessor
+from asyncua.ua.ua_binary import struct_from_binary
+from cryptography import x509
+
+from uacell.config import login_answer_margin
+from uacell.core.logs import RefusalLog
+from uacell.core.roles import Family, Role, may
+from uacell.security.access import user_access_level, verified_login
+from uacell.security.pki import (
+    CertificateValidator,
+    PkiPaths,
+    RejectedLimit,
+    TrustList,
+    ensure_server_certificate,
+    load_server_key,
+)
+from uacell.security.rights import may_call
+from uacell.security.users import LoginThrottle
+from uacell.services.diagnostics import readable_by as diagnostics_readable_by
+from uacell.ua import channel, context, door
+from uacell.ua.context import caller_of
+from uacell.ua.door.connection import connection
+from uacell.ua.limits import LimitedSession
+from uacell.ua.pipeline import Next, Request
+
+if TYPE_CHECKING:
+    from uacell.host import Host
+
+log = logging.getLogger(__name__)
+
+_P = ua.SecurityPolicyType
+# Most widely supported first: asyncua asks clients on a None channel to encrypt user-name tokens
+# with the first SignAndEncrypt policy of this list.
+SECURE_POLICIES: list[ua.SecurityPolicyType] = [
+    _P.Basic256Sha256_SignAndEncrypt,
+    _P.Aes256Sha256RsaPss_SignAndEncrypt,
+    _P.Aes128Sha256RsaOaep_SignAndEncrypt,
+    _P.Basic256Sha256_Sign,
+    _P.Aes256Sha256RsaPss_Sign,
+    _P.Aes128Sha256RsaOaep_Sign,
+]
+
+_ACTIVATE = ua.NodeId(ua.ObjectIds.ActivateSessionRequest_Encoding_DefaultBinary)
+# What a SecurityPolicy None channel may ask where None is not an offered endpoint.
+_DISCOVERY = {
+    ua.NodeId(i)
+    for i in (
+        ua.ObjectIds.GetEndpointsRequest_Encoding_DefaultBinary,
+        ua.ObjectIds.FindServersRequest_Encoding_DefaultBinary,
+        ua.ObjectIds.FindServersOnNetworkRequest_Encoding_DefaultBinary,
+        ua.ObjectIds.CloseSecureChannelRequest_Encoding_DefaultBinary,
+    )
+}
+_S = ua.StatusCodes
+# The asymmetric encryption algorithm each security policy names (OPC 10000-7), for user token secrets.
+_TOKEN_ALGORITHM: dict[str, str] = {
+    cast(Any, cls).URI: cast(Any, cls).AsymmetricEncryptionURI for cls, _, _ in SECURITY_POLICY_TYPE_MAP.values()
+}
+_DECRYPT: dict[str, Callable[[Any, bytes], bytes]] = {
+    "http://www.w3.org/2001/04/xmlenc#rsa-1_5": uacrypto.decrypt_rsa15,
+    "http://www.w3.org/2001/04/xmlenc#rsa-oaep": uacrypto.decrypt_rsa_oaep,
+    "http://opcfoundation.org/UA/security/rsa-oaep-sha2-256": uacrypto.decrypt_rsa_oaep_sha256,
+}
+_USER_WRITABLE = ua.QualifiedName("UserWritable", 0)
+_A = ua.AttributeIds
+
+# The UaProcessor (one per TCP connection) handling the current request.
+# The user name an ActivateSession under way presents (for the audit trail of a refused login).
+
+
+_address = channel.peer_address
+_channel_policy = channel.channel_policy
+
+
+def _channel_mode(processor: UaProcessor | None) -> ua.MessageSecurityMode:
+    return channel.channel_policy(processor)[1]
+
+
+def open_token_secret(plain: bytes, nonce: bytes | None) -> bytes:
+    """The password inside a decrypted user token secret (OPC 10000-4, 7.41: a UInt32 length, then the
+    password, then the server nonce). Raises ValueError unless the secret ends with ``nonce``."""
+    if not nonce:
+        raise ValueError("this session has no server nonce to check against")
+    if len(plain) < 4:
+        raise ValueError("secret too short")
+    (length,) = struct.unpack_from("<I", plain)
+    if length < len(nonce) or 4 + length > len(plain):
+        raise ValueError("secret length out of range")
+    secret = plain[4 : 4 + length]
+    if not hmac.compare_digest(secret[len(secret) - len(nonce) :], nonce):
+        raise ValueError("the server nonce in the token is not the one this session was sent")
+    return secret[: len(secret) - len(nonce)]
+
+
+def _drop_fault_echo(record: logging.LogRecord) -> bool:
+    """asyncua logs every ServiceFault it sends at ERROR; uacell logs its refusals itself (rate-limited)."""
+    return not str(record.msg).startswith("sending service fault response")
+
+
+class _ChannelRefused(Exception):
+    def __init__(self, code: int, reason: str) -> None:
+        super().__init__(reason)
+        self.code = code
+        self.reason = reason
+
+
+async def prepare_certificate(server: Server, data_dir: Path, application_uri: str, hosts: list[str]) -> Path:
+    """Make or reuse ``pki/own/cert.der`` + ``key.pem`` and load them into ``server``; returns the cert path."""
+    paths = PkiPaths.in_data_dir(data_dir)
+    cert, _ = ensure_server_certificate(paths, application_uri, hosts)
+    # what asyncua's load_certificate and load_private_key set, without a thread per file, and the
+    # key's consistency checked once per key (pki.load_server_key)
+    door.configure(
+        server.iserver,
+        "InternalServer.certificate",
+        x509.load_der_x509_certificate(cert.read_bytes()),
+    )
+    door.configure(server.iserver, "InternalServer.private_key", load_server_key(paths))
+    return cert
+
+
+class _Logins:
+    """The login part of ``Security``: ActivateSession with a user name throttled per user name,
+    answered before its deadline (decision 65), the password checked in a worker thread and every
+    attempt audited."""
+
+    app: Host
+    server: Server
+    throttle: LoginThrottle
+    password_checks: asyncio.Semaphore
+    _password_threads: ThreadPoolExecutor
+    _user_locks: dict[str, asyncio.Lock]
+    _lock_users: dict[str, int]  # attempts holding or waiting for each user name's lock
+
+    def decrypt_user_token(self, isession: InternalSession, token: ua.UserNameIdentityToken) -> tuple[str, str]:
+        raise NotImplementedError  # Security's
+
+    async def activate(self, processor: UaProcessor, requesthdr: Any, body: Any, call: Callable[[], Any]) -> Any:
+        """Run one ActivateSession: throttled per user name (never for anonymous logins), the password
+        checked in a worker thread, at most ``[limits] password_checks`` at once server-wide."""
+        session = processor.session
+        if session is not None and (session.state == SessionState.Closed or session.nonce is None):
+            raise ServiceError(_S.BadSessionIdInvalid)  # its CreateSession was refused
+        token = _identity_token(body)
+        address = _address(processor)
+        if not isinstance(token, ua.UserNameIdentityToken) or not token.UserName:
+            # Anonymous or another token type: asyncua decides, nobody waits.
+            return await self._audited(processor, address, None, call)
+        user = str(token.UserName)
+        deadline = self.answer_deadline(processor, requesthdr)
+        # One attempt at a time per user name, so parallel connections cannot skip the delay.
+        lock = self._user_locks.setdefault(user, asyncio.Lock())
+        self._lock_users[user] = self._lock_users.get(user, 0) + 1
+        try:
+            if not lock.locked():
+                await lock.acquire()
+            else:
+                try:
+                    await asyncio.wait_for(lock.acquire(), max(0.0, deadline - time.monotonic()))
+                except TimeoutError:
+                    self._unchecked(processor, address, user, "another attempt of this user name was under way")
+            try:
+                wait = self.throttle.wait_time(user, address)
+                if wait > 0:
+                    if time.monotonic() + wait > deadline:
+                        self._unchecked(processor, address, user, f"its {wait:.1f} s delay would outlast its deadline")
+                    log.info("delaying login of user %r from %s by %.1f s after failed attempts", user, address, wait)
+                    await asyncio.sleep(wait)
+                return await self._checked_login(processor, requesthdr, token, address, user, call)
+            finally:
+                lock.release()
+        finally:
+            # The last attempt of this name (none waiting for the lock either) forgets it: a spray of
+            # names leaves nothing behind, and a waiter is never left with a lock nobody else shares.
+            left = self._lock_users[user] - 1
+            if left:
+                self._lock_users[user] = left
+            else:
+                del self._lock_users[user]
+                self._user_locks.pop(user, None)
+
+    async def _checked_login(
+        self,
+        processor: UaProcessor,
+        requesthdr: Any,
+        token: ua.UserNameIdentityToken,
+        address: str,
+        user: str,
+        call: Callable[[], Any],
+    ) -> Any:
+        verified = await self._verify_off_loop(processor, requesthdr, token)
+        try:
+            result = await self._audited(processor, address, user, call)
+        except ServiceError as exc:
+            if exc.code == ua.StatusCodes.BadUserAccessDenied:
+                self.throttle.failed(user, address)
+            raise
+        finally:
+            if verified is not None:
+                verified_login.reset(verified)
+        logged_in = getattr(processor.session, "user", None)
+        if logged_in is not None and not getattr(logged_in, "anonymous", True):
+            self.throttle.succeeded(user, address)
+        return result
+
+    def answer_deadline(self, processor: UaProcessor, requesthdr: Any) -> float:
+        """When (``time.monotonic()``) an ActivateSession must have its answer out, less the margin to
+        check the password and send it (decision 65): before asyncua closes a connection without an
+        activated session (``[limits] activation_timeout`` from connecting), before an activated
+        session's own timeout, within the request's TimeoutHint when the client gives one, and before
+        the channel's security token expires."""
+        now = time.monotonic()
+        session = processor.session
+        deadlines = []
+        if session is None or not session.is_activated():
+            window = float(self.app.config.limits.activation_timeout)
+            started = float(door.tagged(processor, "connected", now))
+            deadlines.append(started + window - login_answer_margin(window))
+        elif session.session_timeout:
+            window = float(session.session_timeout)
+            deadlines.append(now + window - login_answer_margin(window))
+        hint = float(getattr(requesthdr, "TimeoutHint", 0) or 0) / 1000.0
+        if hint > 0:
+            deadlines.append(now + hint - login_answer_margin(hint))
+        token = getattr(connection(processor), "security_token", None)
+        lifetime = float(getattr(token, "RevisedLifetime", 0) or 0) / 1000.0
+        created = getattr(token, "CreatedAt", None)
+        if lifetime > 0 and isinstance(created, datetime):  # the channel's token, renewed by the client
+            left = (created + timedelta(seconds=lifetime) - datetime.now(UTC)).total_seconds()
+            deadlines.append(now + left - login_answer_margin(lifetime))
+        return min(deadlines, default=now)
+
+    def _unchecked(self, processor: UaProcessor, address: str, user: str, why: str) -> NoReturn:
+        """Answer Bad_UserAccessDenied now, without checking the password (and without counting a
+        failure): the throttle may not check it before its deadline (decision 65)."""
+        log.info("login of user %r from %s refused unchecked: %s", user, address, why)
+        self._audit_login(processor, address, user, "BadUserAccessDenied")
+        raise ServiceError(ua.StatusCodes.BadUserAccessDenied)
+
+    async def _verify_off_loop(self, processor: UaProcessor, requesthdr: Any, token: ua.UserNameIdentityToken) -> Any:
+        """Check the password in a worker thread (the hash takes tens of ms) and leave the outcome for
+        ``UacellUserManager.get_user``; None when asyncua's own path must decide (it refuses then)."""
+        if not token.EncryptionAlgorithm and _channel_mode(processor) != ua.MessageSecurityMode.SignAndEncrypt:
+            return None  # a clear-text password is refused before any check
+        iserver = self.server.iserver
+        isession = processor.session or iserver.lookup_external_session(requesthdr.AuthenticationToken)
+        if isession is None:
+            return None
+        try:
+            # The same checks and decryption as the activation itself (no side effects); it runs again.
+            name, password = self.decrypt_user_token(isession, token)
+        except Exception:
+            return None  # the activation refuses the token itself
+        async with self.password_checks:
+            loop = asyncio.get_running_loop()
+            role = await loop.run_in_executor(self._password_threads, self.app.users.verify, name, password or "")
+        return verified_login.set((name, password or "", role))
+
+    async def _audited(self, processor: UaProcessor, address: str, user: str | None, call: Callable[[], Any]) -> Any:
+        """Run an activation and record it in the audit trail, refused or not."""
+        try:
+            result = await call()
+        except ServiceError as exc:
+            self._audit_login(processor, address, user, ua.StatusCode(exc.code).name)
+            raise
+        self._audit_login(processor, address, user, "Good")
+        return result
+
+    def _audit_login(self, processor: UaProcessor, address: str, user: str | None, result: str) -> None:
+        from uacell.services.observers import session_fields
+
+        fields = session_fields(processor.session) if processor.session is not None else {}
+        fields["user"] = user or fields.get("user", "anonymous")
+        self.app.audit.record("login", **fields, address=address, result=result)
+
+
+class Security(_Logins):
+    """The security setup of one server (asyncua objects reach it as ``channel.attached(iserver, "security")``)."""
+
+    def __init__(self, app: Host) -> None:
+        self.app = app
+        self.server: Server = app.server
+        limits = app.config.limits
+        self.throttle = LoginThrottle(
+            base=limits.login_base_delay,
+            cap=limits.login_max_delay,
+            free=limits.login_free_failures,
+            free_per_user=limits.login_free_failures_per_user,
+        )
+        self.password_checks = asyncio.Semaphore(limits.password_checks)
+        # Threads of their own: a login never waits for other work in the loop's default executor
+        # (history reads, program files), however much of it there is.
+        self._password_threads = ThreadPoolExecutor(limits.password_checks, thread_name_prefix="uacell-password")
+        self.on_session_closed: list[Callable[[InternalSession], None]] = []
+        self._user_locks: dict[str, asyncio.Lock] = {}
+        self._lock_users: dict[str, int] = {}
+        self.trust_list: TrustList | None = None
+        self.policies: list[ua.SecurityPolicyType] = []
+        self.refusals = RefusalLog()
+        self.role_node = ua.NodeId()  # Server/CurrentRole, made by install()
+
+    async def install(self) -> None:
+        cfg = self.app.config.server
+        policy = self.app.policy
+        iserver = self.server.iserver
+        channel.attach(iserver, "security", self)
+        await prepare_certificate(self.server, self.app.data_dir, self.server.get_application_uri(), [cfg.host])
+        limit = RejectedLimit(cfg.rejected_max_files, cfg.rejected_max_age_days * 86400.0)
+        self.trust_list = TrustList(
+            PkiPaths.in_data_dir(self.app.data_dir),
+            trust_on_first_use=cfg.trust_on_first_use,
+            rejected_limit=limit,
+            report_refusal=self._report_certificate_refusal,
+        )
+        if cfg.trust_on_first_use:
+            log.warning(
+                "trust_on_first_use is on: every new client certificate is trusted and kept in %s",
+                self.trust_list.paths.trusted,
+            )
+        self.server.set_certificate_validator(CertificateValidator(self.trust_list))
+        self.policies = list(SECURE_POLICIES) + ([_P.NoSecurity] if policy.none_security else [])
+        self.server.set_security_policy(self.policies)
+        # X509 user tokens are not mapped to users: offering them would log such users in as anonymous.
+        self.server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
+        door.swap(iserver, "InternalServer.create_session", self._create_session)
+        door.swap(iserver, "InternalServer.decrypt_user_token", self.decrypt_user_token)
+        await self._add_current_role()
+        logging.getLogger("asyncua.server.uaprocessor").addFilter(_drop_fault_echo)  # added once
+        context.add_read_hook(_read_hook)
+        log.info(
+            "security: endpoints %s; anonymous clients are %s",
+            ", ".join(p.name for p in self.policies),
+            policy.anonymous_role.label,
+        )
+
+    def _report_certificate_refusal(self, message: str) -> None:
+        address = _address(context.current_processor())
+        self.refusals.report(address, "certificate", f"{message} (client address {address})")
+
+    # sessions ------------------------------------------------------------------------------------
+
+    def _create_session(self, name: Any, user: Any = None, external: bool = False) -> InternalSession:
+        iserver = self.server.iserver
+        if user is None:
+            return UacellSession(self, iserver, iserver.aspace, iserver.subscription_service, name, external=external)
+        return UacellSession(
+            self, iserver, iserver.aspace, iserver.subscription_service, name, user=user, external=external
+        )
+
+    def session_closed(self, session: InternalSession) -> None:
+        for hook in self.on_session_closed:
+            try:
+                hook(session)
+            except Exception:
+                log.exception("session-closed hook failed")
+
+    # endpoints -----------------------------------------------------------------------------------
+
+    def endpoints(self) -> list[ua.EndpointDescription]:
+        """The endpoints this server offers (asyncua fills them in when the server starts)."""
+        return list(self.server.iserver.endpoints)
+
+    def channel_refusal(
+        self, uri: str | None, mode: ua.MessageSecurityMode | None, *, discovery: bool = False
+    ) -> int | None:
+        """Bad_SecurityPolicyRejected or Bad_SecurityModeRejected unless an offered endpoint has this
+        policy (and, when given, this mode); None when it does. With ``discovery``, policy None with mode
+        None is always accepted (for GetEndpoints and FindServers only)."""
+        same_policy = [e for e in self.endpoints() if e.SecurityPolicyUri == uri]
+        if not same_policy and discovery and uri == SecurityPolicyNone.URI:
+            return int(_S.BadSecurityModeRejected) if mode not in (None, ua.MessageSecurityMode.None_) else None
+        if not same_policy:
+            return int(_S.BadSecurityPolicyRejected)
+        if mode is not None and all(e.SecurityMode != mode for e in same_policy):
+            return int(_S.BadSecurityModeRejected)
+        return None
+
+    def check_channel(self, processor: UaProcessor, uri: str | None, mode: ua.MessageSecurityMode | None) -> None:
+        """At OpenSecureChannel: raise _ChannelRefused for a policy or mode no offered endpoint has
+        (policy None passes, for discovery: ``check_service`` limits what it may ask)."""
+        code = self.channel_refusal(uri, mode, discovery=True)
+        if code is None:
+            return
+        what = f"security policy {uri}" if code == _S.BadSecurityPolicyRejected else f"security mode {mode}"
+        self.refusals.report(
+            _address(processor),
+            f"channel:{code}",
+            f"refused secure channel from {_address(processor)}: {what} is not offered ({ua.StatusCode(code).name})",
+        )
+        raise _ChannelRefused(code, f"{what} is not offered by this server")
+
+    def endpoint_of(self, processor: UaProcessor | None) -> ua.EndpointDescription | None:
+        """The offered endpoint whose policy and mode the processor's channel uses."""
+        uri, mode = _channel_policy(processor)
+        for endpoint in self.endpoints():
+            if endpoint.SecurityPolicyUri == uri and endpoint.SecurityMode == mode:
+                return endpoint
+        return None
+
+    def check_service(self, processor: UaProcessor, typeid: ua.NodeId) -> None:
+        """On a channel that is no offered endpoint (policy None kept for discovery), refuse every request
+        but discovery with Bad_SecurityPolicyRejected."""
+        if typeid in _DISCOVERY or self.endpoint_of(processor) is not None:
+            return
+        address = _address(processor)
+        uri, mode = _channel_policy(processor)
+        self.refusals.report(
+            address,
+            "service",
+            f"refused request from {address} on a {uri.rsplit('#', 1)[-1]}/{mode.name} channel: "
+            "no such endpoint is offered, only discovery is served (Bad_SecurityPolicyRejected)",
+        )
+        raise ServiceError(_S.BadSecurityPolicyRejected)
+
+    def check_session(self, processor: UaProcessor | None, params: ua.CreateSessionParameters) -> None:
+        """At CreateSession (OPC 10000-4, 5.6.2): the channel's policy and mode must be an offered
+        endpoint's, and the EndpointUrl an opc.tcp URL."""
+        address = _address(processor)
+        uri, mode = _channel_policy(processor)
+        code = self.channel_refusal(uri, mode)
+        if code is not None:
+            self.refusals.report(
+                address,
+                f"session:{code}",
+                f"refused session from {address}: its channel ({uri}, {mode.name}) is not an "
+                f"offered endpoint ({ua.StatusCode(code).name})",
+            )
+            raise ServiceError(code)
+        url = params.EndpointUrl
+        if url and urlparse(url).scheme.lower() != "opc.tcp":
+            self.refusals.report(
+                address, "session:url", f"refused session from {address}: EndpointUrl {url!r} is not an opc.tcp URL"
+            )
+            raise ServiceError(_S.BadTcpEndpointUrlInvalid)
+
+    def check_reassociation(self, processor: UaProcessor, auth_token: ua.NodeId, body: Buffer) -> None:
+        """ActivateSession of an existing session on a new secure channel (OPC 10000-4, 5.6.3.1): only for an
+        activated session, from a channel with the same client certificate, with the same identity."""
+        session = self.server.iserver.lookup_external_session(auth_token)
+        if not isinstance(session, UacellSession):
+            return  # asyncua answers Bad_SessionIdInvalid
+        address = _address(processor)
+        if not session.is_activated():
+            code, why = _S.BadSessionNotActivated, "it was never activated on the channel that created it"
+        elif session.channel_certificate != channel.peer_certificate(processor):
+            code, why = _S.BadSecurityChecksFailed, "the new channel's client certificate is not the session's"
+        else:
+            params = struct_from_binary(ua.ActivateSessionParameters, body.copy())
+            token = params.UserIdentityToken
+            name = token.UserName if isinstance(token, ua.UserNameIdentityToken) else None
+            if name != getattr(session.user, "name", None):
+                code, why = _S.BadIdentityChangeNotSupported, "the identity differs from the session's"
+            else:
+                return
+        self.refusals.report(
+            address,
+            f"reassociation:{code}",
+            f"refused to move a session to a new channel from {address}: {why} ({ua.StatusCode(code).name})",
+        )
+        raise ServiceError(code)
+
+    def refuse_channel(self, processor: UaProcessor, refused: _ChannelRefused) -> None:
+        """Answer a refused OpenSecureChannel with an Error message (OPC 10000-6, 7.1.2.5); the caller
+        then closes the connection."""
+        channel.send_error(processor, refused.code, refused.reason)
+
+    def message_refused(self, processor: UaProcessor, exc: Exception) -> None:
+        """A message asyncua refused below the request stages (a chunk of a channel it does not know,
+        a bad signature, an unexpected message type): one INFO line per address and interval, an
+        Error message to the client; the pipeline then closes the connection."""
+        code = getattr(exc, "code", None) or ua.StatusCodes.BadSecurityChecksFailed
+        address = _address(processor)
+        name = ua.StatusCode(code).name
+        self.refusals.report(address, f"message {name}", f"refused a message from {address}: {exc} ({name})")
+        with contextlib.suppress(Exception):
+            channel.send_error(processor, code, str(exc)[:200])
+
+    # logins --------------------------------------------------------------------------------------
+
+    def refuse_plaintext(self, token: ua.UserNameIdentityToken) -> None:
+        """A password travels in clear text unless the token or the channel is encrypted: refuse that."""
+        processor = context.current_processor()
+        if token.EncryptionAlgorithm or _channel_mode(processor) == ua.MessageSecurityMode.SignAndEncrypt:
+            return
+        log.info(
+            "refused login of user %r from %s: clear-text password on an unencrypted channel",
+            token.UserName,
+            _address(processor),
+        )
+        raise ServiceError(ua.StatusCodes.BadIdentityTokenRejected)
+
+    def _invalid_token(self, token: ua.UserNameIdentityToken, reason: str, why: str) -> ServiceError:
+        address = _address(context.current_processor())
+        self.refusals.report(
+            address,
+            f"token:{reason}",
+            f"refused login of user {token.UserName!r} from {address}: {why} (Bad_IdentityTokenInvalid)",
+        )
+        return ServiceError(_S.BadIdentityTokenInvalid)
+
+    def decrypt_user_token(self, isession: InternalSession, token: ua.UserNameIdentityToken) -> tuple[str, str]:
+        """asyncua's hook for user-name tokens: (user name, password), or ServiceError.
+
+        The token must name a user token policy of the session's endpoint; an encrypted password must
+        use that policy's algorithm and end with the server nonce last sent to this session."""
+        self.refuse_plaintext(token)
+        endpoint = self.endpoint_of(context.current_processor())
+        policies = [
+            p
+            for p in (endpoint.UserIdentityTokens if endpoint else [])
+            if p.TokenType == ua.UserTokenType.UserName and p.PolicyId == token.PolicyId
+        ]
+        if not policies:
+            raise self._invalid_token(token, "policy", f"no user-name token policy {token.PolicyId!r} on this endpoint")
+        policy_uri = policies[0].SecurityPolicyUri or (endpoint.SecurityPolicyUri if endpoint else "")
+        expected = _TOKEN_ALGORITHM.get(policy_uri or "", "")
+        algorithm = token.EncryptionAlgorithm or ""
+        if algorithm != expected:
+            wanted = expected or "no encryption"
+            raise self._invalid_token(
+                token, "algorithm", f"password encrypted with {algorithm or 'nothing'}, the endpoint asks for {wanted}"
+            )
+        password = token.Password or b""
+        if not algorithm:
+            return token.UserName, password.decode("utf-8") if isinstance(password, bytes) else str(password)
+        try:
+            plain = _DECRYPT[algorithm](self.server.iserver.private_key, password)
+            secret = open_token_secret(plain, isession.nonce)
+            return token.UserName, secret.decode("utf-8")
+        except ValueError as exc:  # includes cryptography's decryption errors and UnicodeDecodeError
+            raise self._invalid_token(token, "secret", str(exc) or "the password cannot be decrypted") from None
+
+    # the channel guard (ua/pipeline.py) ------------------------------------------------------------
+    async def opening(
+        self, processor: UaProcessor, header: ua.Header, body: Buffer, proceed: Callable[[], Awaitable[Any]]
+    ) -> Any:
+        """An OpenSecureChannel message: refused unless an offered endpoint allows its policy (asyncua
+        would fall back to its initial None policy when no offered policy matches)."""
+        try:
+            self.check_channel(processor, _peek_policy_uri(header, body), None)
+            return await proceed()
+        except _ChannelRefused as refused:
+            self.refuse_channel(processor, refused)
+            return False  # the connection is closed
+
+    def open(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None:
+        """The channel's requested security mode, checked before asyncua opens it."""
+        request = struct_from_binary(ua.OpenSecureChannelRequest, body.copy())
+        self.check_channel(processor, algohdr.SecurityPolicyURI, request.Parameters.SecurityMode)
+
+    # per-session attributes ------------------------------------------------------------------------
+
+    async def _add_current_role(self) -> None:
+        """``Server/CurrentRole`` (decision 39): read by a session, the role that session has."""
+        ns = self.app.cell.instantiator.ns
+        self.role_node = ua.NodeId("Server.CurrentRole", ns)
+        if self.role_node in self.server.iserver.aspace:  # restored from the address-space snapshot
+            return
+        node = await self.server.get_node(ua.ObjectIds.Server).add_variable(
+            self.role_node, ua.QualifiedName("CurrentRole", ns), "", varianttype=ua.VariantType.String
+        )
+        await node.write_attribute(
+            ua.AttributeIds.Description,
+            ua.DataValue(ua.Variant(ua.LocalizedText(CURRENT_ROLE_DESCRIPTION, "en"), ua.VariantType.LocalizedText)),
+        )
+
+    def adjust_read(self, session: InternalSession, params: ua.ReadParameters, results: list[ua.DataValue]) -> None:
+        role = caller_of(session).role
+        aspace = self.server.iserver.aspace
+        for i, (rv, dv) in enumerate(zip(params.NodesToRead, results, strict=False)):
+            if dv.StatusCode is not None and not dv.StatusCode.is_good():
+                continue
+            attr = rv.AttributeId
+            if attr == _A.Value and rv.NodeId == self.role_node:
+                results[i] = _with_value(dv, Role.parse(role).label, ua.VariantType.String)
+                continue
+            if attr == _A.Value and not diagnostics_readable_by(rv.NodeId, role):
+                results[i] = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadUserAccessDenied))
+                continue
+            if attr == _A.UserExecutable:
+                allowed = self.app.dispatcher.user_executable(rv.NodeId, role)
+                if allowed is not None:
+                    results[i] = _with_value(dv, allowed, ua.VariantType.Boolean)
+            elif attr == _A.UserAccessLevel and dv.Value is not None and isinstance(dv.Value.Value, int):
+                needed = self.app.writes.required_role(rv.NodeId)
+                level = user_access_level(role, dv.Value.Value, needed)
+                results[i] = _with_value(dv, level, ua.VariantType.Byte)
+            elif attr == _A.UserWriteMask and not may(Role.parse(role), "write"):
+                results[i] = _with_value(dv, 0, ua.VariantType.UInt32)
+            elif attr == _A.Value and dv.Value is not None and isinstance(dv.Value.Value, bool):
+                node = aspace.get(rv.NodeId)
+                name = node.attributes.get(_A.BrowseName) if node is not None else None
+                if name is not None and name.value.Value.Value == _USER_WRITABLE:
+                    allowed = dv.Value.Value and may_call(Role.parse(role), "Write", Family.FILE)
+                    results[i] = _with_value(dv, allowed, ua.VariantType.Boolean)
+
+
+def _with_value(dv: ua.DataValue, value: Any, vtype: ua.VariantType) -> ua.DataValue:
+    return dataclasses.replace(dv, Value=ua.Variant(value, vtype))
+
+
+def _read_hook(session: InternalSession, params: Any, results: list[Any]) -> None:
+    security: Security | None = channel.attached(session.iserver, "security")
+    if security is not None:
+        security.adjust_read(session, params, results)
+
+
+class UacellSession(LimitedSession):
+    """A session that checks writes against the role table and reports its end."""
+
+    nonce: bytes
+
+    def __init__(self, security: Security, *args: Any, **kwargs: Any) -> None:
+        self._security = security
+        self.client_description: ua.ApplicationDescription | None = None
+        self.channel_certificate: bytes | None = None  # the client certificate of the creating channel
+        self.client_address = ""
+        self._audited_open = False
+        super().__init__(*args, **kwargs)
+        if self.external:
+            # asyncua counts AuthenticationTokens up from 1000; OPC 10000-4 (7.31) asks for a secret.
+            self.iserver.unregister_external_session(self)
+            self.auth_token = ua.NodeId(ua.ByteString(os.urandom(32)), ua.Int16(0), ua.NodeIdType.ByteString)
+            self.iserver.register_external_session(self)
+
+    async def create_session(self, params: ua.CreateSessionParameters, sockname: Any = None) -> ua.CreateSessionResult:
+        self.client_description = params.ClientDescription  # Caller.client: LockingClient shows it
+        self.session_name = params.SessionName or ""  # the client's name for it (audit trail)
+        processor = context.current_processor()
+        self.client_address = _address(processor)
+        if processor is not None:
+            self.channel_certificate = channel.peer_certificate(processor)
+        if _channel_mode(processor) == ua.MessageSecurityMode.None_:
+            # OPC 10000-4 CreateSession: on a SecurityPolicy None channel the client certificate plays
+            # no part (nothing is signed with it), so it is not checked against the trust list.
+            params = dataclasses.replace(params, ClientCertificate=None)
+        try:
+            self._security.check_session(processor, params)
+            result = await super().create_session(params, sockname=sockname)
+        except BaseException:
+            await self.close_session()  # a refused session must not be activated later
+            raise
+        self._audited_open = True
+        self._audit("session_open")
+        diagnostics = self._security.app.diagnostics
+        if diagnostics is not None:
+            diagnostics.session_created(self, params, processor)
+        return result
+
+    def _audit(self, event: str) -> None:
+        from uacell.services.observers import session_fields
+
+        self._security.app.audit.record(event, **session_fields(self), address=self.client_address)
+
+    def activate_session(
+        self, params: ua.ActivateSessionParameters, peer_certificate: bytes | None
+    ) -> ua.ActivateSessionResult:
+        issued = self.nonce
+        result = super().activate_session(params, peer_certificate)
+        if self.nonce == issued:  # a nonce is never accepted twice: the next activation needs a fresh one
+            self.nonce = create_nonce(32)
+            result.ServerNonce = self.nonce
+        return result
+
+    async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
+        return await self._security.app.writes.write(caller_of(self), params, super().write)
+
+    async def close_session(self, delete_subs: bool = True) -> None:
+        already = self.state == SessionState.Closed
+        await super().close_session(delete_subs)
+        if not already:
+            if self._audited_open:
+                self._audit("session_close")
+            if self._security.app.diagnostics is not None:
+                self._security.app.diagnostics.session_closed(self)
+            self._security.session_closed(self)
+
+
+def _peek_policy_uri(header: ua.Header, body: Buffer) -> str | None:
+    try:
+        algorithm = struct_from_binary(ua.AsymmetricAlgorithmHeader, body.copy(header.body_size))
+        uri: str | None = algorithm.SecurityPolicyURI
+        return uri
+    except Exception:  # malformed: asyncua's own parsing refuses it
+        return None
+
+
+CURRENT_ROLE_DESCRIPTION = (
+    "uacell: the role of the session that reads this value (observer, operator, engineer or admin); "
+    "each session reads its own"
+)
+
+
+class SecurityStage:
+    """The request stage of security (``ua/pipeline.py``): the service allowed on this channel and for
+    this session; ActivateSession re-associated, throttled, checked off the loop and audited."""
+
+    def __init__(self, security: Security) -> None:
+        self.security = security
+
+    async def __call__(self, request: Request, call_next: Next) -> Any:
+        security, processor = self.security, request.processor
+        security.check_service(processor, request.typeid)
+        if request.typeid != _ACTIVATE:
+            return await call_next(request)
+        if processor.session is None:  # a session created on another channel
+            security.check_reassociation(processor, request.header.AuthenticationToken, request.body)
+        return await security.activate(processor, request.header, request.body, lambda: call_next(request))
+
+
+def _identity_token(body: Any) -> Any:
+    """The UserIdentityToken of an ActivateSession body, read without consuming it (None if unreadable)."""
+    try:
+        return struct_from_binary(ua.ActivateSessionParameters, body.copy()).UserIdentityToken
+    except Exception:
+        return None
+
+
+async def install_security(app: Host) -> Security:
+    """Set up certificates, endpoints, trust list, login rules and per-session rights for ``app``."""
+    security = Security(app)
+    await security.install()
+    return security

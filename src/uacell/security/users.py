@@ -1,0 +1,334 @@
+"""The user store (``<data_dir>/users.toml``) and the login throttle.
+
+Passwords are kept only as argon2id hashes (argon2-cffi). The file is TOML, readable by an operator,
+written atomically with mode 0600 by ``uacell user add/remove``; a running server picks up changes
+on the next login. Pure apart from file I/O: no OPC UA stack here.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import threading
+import time
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from argon2 import PasswordHasher
+from argon2.exceptions import InvalidHashError, VerificationError
+
+from uacell.core.files import atomic_write
+from uacell.core.roles import Role
+
+if TYPE_CHECKING:
+    from uacell.config import Config
+
+_log = logging.getLogger(__name__)
+
+USERS_FILE = "users.toml"
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._@-]{0,63}")
+
+
+class UserError(ValueError):
+    """A user cannot be added or removed (bad name, unknown user, empty password...)."""
+
+
+def validate_name(name: str) -> str:
+    """Return ``name`` if it is a valid user name (1-64 of letters, digits, ``._@-``, not leading)."""
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise UserError(
+            f"invalid user name {name!r}: use 1-64 letters, digits, '.', '_', '@' or '-', "
+            "starting with a letter or digit"
+        )
+    return name
+
+
+def check_password(password: str, min_length: int = 1) -> str:
+    """Return ``password`` if it is long enough (``[users] min_password_length``)."""
+    if not password:
+        raise UserError("the password must not be empty")
+    if len(password) < min_length:
+        raise UserError(f"the password must have at least {min_length} characters")
+    return password
+
+
+@dataclass(frozen=True)
+class User:
+    """A stored user (the hash never leaves this module through ``list``)."""
+
+    name: str
+    role: Role
+
+
+class UserStore:
+    """Users with roles and password hashes in one TOML file."""
+
+    def __init__(self, path: Path, *, hasher: PasswordHasher | None = None) -> None:
+        self.path = Path(path)
+        self._hasher = hasher or PasswordHasher()
+        self._entries: dict[str, tuple[Role, str]] = {}
+        self._stamp: tuple[int, int] | None = None
+        self._dummy_hash: str | None = None
+        self._lock = threading.RLock()
+
+    @classmethod
+    def in_data_dir(cls, data_dir: Path, *, hasher: PasswordHasher | None = None) -> UserStore:
+        return cls(Path(data_dir) / USERS_FILE, hasher=hasher)
+
+    # reading ------------------------------------------------------------------------------------
+
+    def _load(self) -> dict[str, tuple[Role, str]]:
+        """The entries, re-read when the file changed (the CLI may edit it while the server runs)."""
+        with self._lock:  # password checks run in worker threads
+            return self._load_locked()
+
+    def _load_locked(self) -> dict[str, tuple[Role, str]]:
+        try:
+            st = self.path.stat()
+        except FileNotFoundError:
+            self._entries, self._stamp = {}, None
+            return self._entries
+        stamp = (st.st_mtime_ns, st.st_size)
+        if stamp != self._stamp:
+            with self.path.open("rb") as f:
+                data = tomllib.load(f)
+            entries = {}
+            for name, item in data.get("users", {}).items():
+                try:
+                    entries[validate_name(name)] = (Role.parse(item["role"]), str(item["hash"]))
+                except (UserError, ValueError, KeyError, TypeError) as exc:
+                    _log.error("%s: ignoring user %r: %s", self.path, name, exc)
+            self._entries, self._stamp = entries, stamp
+        return self._entries
+
+    def list(self) -> list[User]:
+        """All users, sorted by name."""
+        return [User(n, r) for n, (r, _) in sorted(self._load().items())]
+
+    def role_of(self, name: str) -> Role | None:
+        entry = self._load().get(name)
+        return entry[0] if entry else None
+
+    def verify(self, name: str, password: str) -> Role | None:
+        """The user's role when ``password`` is right, else None."""
+        entry = self._load().get(name)
+        if entry is None and self._dummy_hash is None:
+            # Verifying unknown names against a hash keeps their timing like that of known names.
+            self._dummy_hash = self._hasher.hash("uacell-no-such-user")
+        stored = entry[1] if entry else (self._dummy_hash or "")
+        try:
+            self._hasher.verify(stored, password)
+        except (VerificationError, InvalidHashError):
+            return None
+        if entry is None:
+            return None
+        if self._hasher.check_needs_rehash(stored):
+            # Parameters were raised since this hash was made: store a fresh one.
+            fresh = self._hasher.hash(password)
+            with self._lock:
+                entries = dict(self._load())
+                entries[name] = (entry[0], fresh)
+                self._save(entries)
+        return entry[0]
+
+    # writing ------------------------------------------------------------------------------------
+
+    def add(self, name: str, role: Role | str, password: str, *, min_length: int = 1) -> None:
+        """Add ``name``; refused (UserError) when it exists: ``set_password``/``set_role`` change one."""
+        validate_name(name)
+        role = Role.parse(role)
+        check_password(password, min_length)
+        entries = dict(self._load())
+        if name in entries:
+            raise UserError(f"user {name!r} exists (change it with 'uacell user passwd' or 'uacell user role')")
+        entries[name] = (role, self._hasher.hash(password))
+        self._save(entries)
+
+    def set_password(self, name: str, password: str, *, min_length: int = 1) -> None:
+        check_password(password, min_length)
+        entries = dict(self._load())
+        if name not in entries:
+            raise UserError(f"no user {name!r}")
+        entries[name] = (entries[name][0], self._hasher.hash(password))
+        self._save(entries)
+
+    def set_role(self, name: str, role: Role | str) -> None:
+        role = Role.parse(role)
+        entries = dict(self._load())
+        if name not in entries:
+            raise UserError(f"no user {name!r}")
+        entries[name] = (role, entries[name][1])
+        self._save(entries)
+
+    def remove(self, name: str) -> None:
+        entries = dict(self._load())
+        if name not in entries:
+            raise UserError(f"no user {name!r}")
+        del entries[name]
+        self._save(entries)
+
+    def _save(self, entries: dict[str, tuple[Role, str]]) -> None:
+        lines = [
+            "# uacell users. Managed with `uacell user add|passwd|role|remove|list`.",
+            "# Passwords are stored only as argon2id hashes.",
+        ]
+        for name, (role, hashed) in sorted(entries.items()):
+            # JSON string escaping is valid TOML basic-string escaping for these ASCII values.
+            lines += [
+                "",
+                f"[users.{json.dumps(name)}]",
+                f"role = {json.dumps(role.label)}",
+                f"hash = {json.dumps(hashed)}",
+            ]
+        atomic_write(self.path, ("\n".join(lines) + "\n").encode())
+        self._stamp = None
+
+
+class LoginThrottle:
+    """Slow down repeated login failures of one user name.
+
+    Failures count per user name *at one address* and per user name *across all addresses*: after
+    ``free`` failures in a row at one address (``free_per_user`` over all addresses, so that changing
+    the source address does not help), each further failure makes the next attempt for that name wait
+    ``base * 2**k`` seconds (capped at ``cap``); a success resets both. Anonymous logins and other user
+    names, from the same address or not, are never delayed. Entries idle for ``forget_after`` seconds
+    are forgotten, and at most ``max_entries`` are kept (a spray of names cannot exhaust memory).
+    """
+
+    def __init__(
+        self,
+        *,
+        base: float = 1.0,
+        cap: float = 30.0,
+        free: int = 2,
+        free_per_user: int = 10,
+        forget_after: float = 900.0,
+        max_entries: int = 10_000,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.base, self.cap, self.free, self.free_per_user = base, cap, free, free_per_user
+        self.forget_after, self.max_entries = forget_after, max_entries
+        self._clock = clock
+        # ("at", user, address) or ("user", user) -> (failures in a row, not before, last seen)
+        self._failures: dict[tuple[str, ...], tuple[int, float, float]] = {}
+
+    @staticmethod
+    def _keys(user: str, address: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        return ("at", user, address), ("user", user)
+
+    def wait_time(self, user: str, address: str) -> float:
+        """Seconds before ``user`` may try again from ``address`` (0.0 when it may try now)."""
+        self._forget_idle()
+        now = self._clock()
+        return max(
+            (max(0.0, e[1] - now) for k in self._keys(user, address) if (e := self._failures.get(k))), default=0.0
+        )
+
+    def failed(self, user: str, address: str) -> float:
+        """Record a failure; returns the delay now imposed on ``user`` at ``address``."""
+        now = self._clock()
+        if len(self._failures) >= self.max_entries:
+            self._forget_idle(make_room=True)
+        for key, free in zip(self._keys(user, address), (self.free, self.free_per_user), strict=True):
+            count = self._failures.get(key, (0, now, now))[0] + 1
+            excess = count - free
+            delay = min(self.base * 2 ** min(excess - 1, 32), self.cap) if excess > 0 else 0.0
+            self._failures[key] = (count, now + delay, now)
+        delay = self.wait_time(user, address)
+        if delay:
+            _log.warning("failed logins of user %r (last from %s): next attempt in %.1f s", user, address, delay)
+        return delay
+
+    def succeeded(self, user: str, address: str) -> None:
+        for key in self._keys(user, address):
+            self._failures.pop(key, None)
+
+    def _forget_idle(self, make_room: bool = False) -> None:
+        now = self._clock()
+        for key in [k for k, e in self._failures.items() if now - e[2] > self.forget_after]:
+            del self._failures[key]
+        if make_room and len(self._failures) >= self.max_entries:
+            for key in sorted(self._failures, key=lambda k: self._failures[k][2])[: self.max_entries // 2]:
+                del self._failures[key]
+
+
+class NoTerminal(UserError):
+    """The password cannot be asked for: no terminal and no --password-stdin."""
+
+
+def _read_password(from_stdin: bool) -> str:
+    """The new password: the first line of standard input, or typed twice at a prompt."""
+    import getpass
+    import sys
+
+    if from_stdin:
+        return sys.stdin.readline().rstrip("\r\n")
+    if not sys.stdin.isatty():
+        raise NoTerminal("no terminal to ask for the password: give it on standard input with --password-stdin")
+    first = getpass.getpass("Password: ")
+    if getpass.getpass("Repeat password: ") != first:
+        raise UserError("the passwords do not match")
+    return first
+
+
+def run_user_command(args: Any, config: Config) -> int:
+    """``uacell user add|passwd|role|remove|list`` (args from uacell.cli.main); returns the exit status."""
+    import sys
+
+    from uacell.security.audit import AuditTrail
+
+    store = UserStore.in_data_dir(config.server.data_dir)
+    min_length = config.users.min_password_length
+    trail: AuditTrail | None = None
+    try:
+        if args.action == "list":
+            users = store.list()
+            print(
+                f"{store.path}: {len(users) or 'no'} user{'' if len(users) == 1 else 's'}"
+                + ("" if store.path.exists() else " (the file does not exist)")
+            )
+            for user in users:
+                print(f"{user.name}\t{user.role.label}")
+            return 0
+        validate_name(args.name)
+        if args.action == "add":
+            if store.role_of(args.name) is not None:  # before asking for a password in vain
+                raise UserError(
+                    f"user {args.name!r} exists in {store.path} "
+                    "(change it with 'uacell user passwd' or 'uacell user role')"
+                )
+            store.add(args.name, args.role, _read_password(args.password_stdin), min_length=min_length)
+            done = f"added user {args.name} ({args.role})"
+        elif args.action == "passwd":
+            if store.role_of(args.name) is None:
+                raise UserError(f"no user {args.name!r} in {store.path}")
+            store.set_password(args.name, _read_password(args.password_stdin), min_length=min_length)
+            done = f"changed the password of user {args.name}"
+        elif args.action == "role":
+            store.set_role(args.name, args.role)
+            done = f"changed the role of user {args.name} to {args.role}"
+        elif args.action == "remove":
+            store.remove(args.name)
+            done = f"removed user {args.name}"
+        else:
+            raise UserError(f"unknown action {args.action!r}")
+        print(f"{done} in {store.path}")
+        trail = AuditTrail.for_config(config)
+        trail.record("user", action=args.action, user=args.name, role=getattr(args, "role", None), file=str(store.path))
+    except NoTerminal as exc:
+        print(f"uacell: {exc}", file=sys.stderr)
+        return 2
+    except (UserError, ValueError, OSError) as exc:
+        print(f"uacell: {exc}", file=sys.stderr)
+        return 1
+    except (KeyboardInterrupt, EOFError):
+        print("uacell: cancelled", file=sys.stderr)
+        return 130
+    finally:
+        if trail is not None:
+            trail.close()
+    return 0
