@@ -1,1 +1,1 @@
-"""cli."""
+"""The `uacell` command line: serve, health, config check, models, nodeset, user, cert (main.py)."""

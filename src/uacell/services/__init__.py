@@ -1,1 +1,2 @@
-"""services."""
+"""Server services beside the companions: diagnostics, the audit observers, the Prometheus metrics and
+the registration with a discovery server."""
