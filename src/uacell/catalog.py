@@ -4,7 +4,7 @@ Each entry is the ``Companion`` value's import path. The composition roots (``ua
 ``uacell.web.hosting.start_web``, the CLI) take this list unless given another and hand the companions
 to the parts that read their declarations (history, PubSub, Sparkplug, metrics, the HMI);
 configuration, roles and the models still ask ``companions()`` (docs/companions.md).
-A third companion is one package with its ``core/companion.py`` and one line here.
+A third companion is one package with its ``companion.py`` and one line here.
 Named by path, imported on first use: the companions' packages import the shared modules, never the
 other way round.
 """

@@ -188,7 +188,7 @@ class UacellServer:
         self.server.set_endpoint(self.endpoint)
         self.server.set_server_name(cfg.application_name)
         await self.server.set_application_uri(cfg.application_uri)
-        # State machines fire AuditUpdateStateEvents for the transitions calls cause (ua/machine_binding.py).
+        # State machines fire AuditUpdateStateEvents for the transitions calls cause (binding/machine_binding.py).
         await self.server.get_node(ua.ObjectIds.Server_Auditing).write_value(True)
         self.security = await install_security(self)
         self.diagnostics = Diagnostics(self)

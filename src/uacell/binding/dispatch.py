@@ -72,7 +72,7 @@ class MethodDispatcher(ExecutableRefresh, UnboundCalls, MethodService):  # type:
         # so that a call naming the type's method (e.g. Acknowledge, i=9111) on an object works too
         self._declarations: dict[ua.NodeId, ua.NodeId] = {}
         self._by_decl: dict[tuple[ua.NodeId, ua.NodeId], BoundMethod] | None = None  # built on first use
-        self._init_executable()  # Executable by scope (ua/executable.py)
+        self._init_executable()  # Executable by scope (binding/executable.py)
         self._closing = False
         self._running = 0  # calls whose behaviour is under way
         self._idle = asyncio.Event()

@@ -1,7 +1,7 @@
 """What a companion specification brings to uacell, declared in one place in its own package.
 
 A companion (OPC 40010-1 Robotics, OPC 30050 PackML, DI LockingServices, ...) is a ``Companion``
-value in its package's ``core/companion.py``; ``uacell.catalog`` lists the ones this build serves, one
+value in its package's ``companion.py``; ``uacell.catalog`` lists the ones this build serves, one
 line each. The shared code reads everything companion-specific from there:
 
 - ``uacell.core.roles``: the method families (``type_hints``) and the rows of the role table (``roles``);

@@ -27,14 +27,14 @@ process keep their own stages; an asyncua server without a pipeline runs asyncua
     published    what earlier calls changed is in the address space before the request is served
                  (a call is answered first and published after, decision 56)
     context      the request's processor, ReturnDiagnostics and AuditEntryId for the code below
-    diagnostics  ServerDiagnostics counters (ua/diagnostics.py)
+    diagnostics  ServerDiagnostics counters (services/diagnostics.py)
     security     the service allowed on this channel and for this session; ActivateSession throttled,
-                 checked off the event loop and audited (security.py)
+                 checked off the event loop and audited (security/policy.py)
     decoding     a request asyncua cannot decode answers Bad_DecodingError (ua/limits.py)
     (service)    the service itself: Call and Read as asyncua runs them, found by one dictionary
                  lookup (``SERVICES``; asyncua compares the request's type with up to 40 NodeIds it
                  builds for each request, decision 48); a Call goes on to the one method dispatcher
-                 (ua/dispatch.py); every other service is asyncua's own processing
+                 (binding/dispatch.py); every other service is asyncua's own processing
 
 A stage is any object with ``async __call__(request, call_next)``: it may answer itself, raise a
 ``ServiceError``, or ``await call_next(request)`` and look at the answer. Adding a cross-cutting
