@@ -57,8 +57,8 @@ class Rig:
 
     async def set_temperature(self, value: float) -> None:
         """The equipment's new temperature, as a binder would publish it (a server-side write)."""
-        node = self.app.space.node(temperature_node(UNIT, self.ns))
-        await node.write_value(ua.Variant(value, ua.VariantType.Double))
+        node = temperature_node(UNIT, self.ns)
+        await self.app.space.write(node, ua.AttributeIds.Value, ua.Variant(value, ua.VariantType.Double))
 
 
 @pytest.fixture(scope="module")

@@ -45,21 +45,23 @@ async def bind(app: BinderHost) -> Closer | None:
         return None
     ns = units[0].node.NamespaceIndex
     space = app.space
-    folder = await space.node(ua.ObjectIds.ObjectsFolder).add_folder(
-        ua.NodeId(FOLDER, ns), ua.QualifiedName(FOLDER, ns)
+    folder = await space.add_folder(
+        ua.NodeId(ua.ObjectIds.ObjectsFolder), ua.NodeId(FOLDER, ns), ua.QualifiedName(FOLDER, ns)
     )
+    writable = ua.Variant(ua.AccessLevel.CurrentRead.mask | ua.AccessLevel.CurrentWrite.mask, ua.VariantType.Byte)
     for built in units:
-        unit = space.node(built.node)
-        thermometer = await unit.add_object(
-            ua.NodeId(f"{built.path}.{THERMOMETER}", ns), ua.QualifiedName(THERMOMETER, ns)
+        thermometer = await space.add_object(
+            built.node, ua.NodeId(f"{built.path}.{THERMOMETER}", ns), ua.QualifiedName(THERMOMETER, ns)
         )
-        variable = await thermometer.add_variable(
+        variable = await space.add_variable(
+            thermometer,
             temperature_node(built.path, ns),
             ua.QualifiedName(TEMPERATURE_NAME, ns),
             ua.Variant(START_TEMPERATURE, ua.VariantType.Double),
         )
-        await variable.set_writable(True)
-        await folder.add_reference(built.node, ua.ObjectIds.Organizes, forward=True, bidirectional=True)
+        for level in (ua.AttributeIds.AccessLevel, ua.AttributeIds.UserAccessLevel):
+            await space.write(variable, level, writable)
+        await space.add_reference(folder, built.node, ua.ObjectIds.Organizes)
     return None
 
 
