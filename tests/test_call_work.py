@@ -70,7 +70,6 @@ REPEATS = 3
 PACKML_REPEATS = 2  # each a Reset and a Stop with their acting states completed
 TIMEOUT = 30.0
 CONTROL = "Filler1.BaseStateMachine.MachineState"
-TASK = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
 
 # Where the handling of a request, and of what it schedules, begins on the event loop.
 ROOTS: frozenset[CodeType] = frozenset(
@@ -136,6 +135,7 @@ class Cell:
 
     def __init__(self, app: UacellServer, client: Client, clock: FakeClock) -> None:
         self.app, self.client, self.clock = app, client, clock
+        self.speeds: dict[str, float] = {}
 
     def node(self, path: str) -> ua.NodeId:
         return ua.NodeId(path, self.app.cell.instantiator.ns)
@@ -185,18 +185,27 @@ class Cell:
 Measure = Callable[[Cell], Awaitable[Any]]
 
 
-async def set_mach_speed(cell: Cell) -> None:
-    speed = 90.0 + cell.clock.now % 7  # a new value each time: a real change to publish
-    await cell.call("Filler1", "SetMachSpeed", ua.Variant(speed, ua.VariantType.Float))
+async def set_mach_speed(cell: Cell, unit: str = "Filler1") -> None:
+    speed = cell.speeds[unit] = 91.0 if cell.speeds.get(unit) == 90.0 else 90.0  # a change to publish each time
+    await cell.call(unit, "SetMachSpeed", ua.Variant(speed, ua.VariantType.Float))
+    assert cell.app.registry(UNITS)[unit].unit.status.mach_speed == speed
 
 
 async def read_value(cell: Cell) -> None:
-    await cell.client.get_node(cell.node("Filler1.Status.MachSpeed")).read_value()
+    assert await cell.client.get_node(cell.node("Filler1.Status.MachSpeed")).read_value() in (90.0, 91.0)
 
 
-async def load_cycle(cell: Cell) -> None:
-    assert await cell.call(TASK, "LoadByName", ua.Variant("pick_and_place", ua.VariantType.String)) == [0]
-    assert await cell.call(TASK, "UnloadProgram") == [0]
+async def load_cycle(cell: Cell, robot: int = 1) -> None:
+    task = task_control(robot)
+    assert await cell.call(task, "LoadByName", ua.Variant("pick_and_place", ua.VariantType.String)) == [0]
+    assert await cell.call(task, "UnloadProgram") == [0]
+
+
+def task_control(robot: int) -> str:
+    return (
+        f"Robot{robot}.Controllers.Controller{robot}.TaskControls.TaskControl1"
+        ".TaskControlOperation.TaskControlStateMachine"
+    )
 
 
 async def measure(cell: Cell, action: Measure) -> CallWork:
@@ -265,6 +274,13 @@ async def _measure_served(app: UacellServer, clock: FakeClock) -> Figures:
                 "LoadByName+UnloadProgram": await measure(cell, load_cycle),
             }
             figures.update(await packml_commands(cell))
+            if "Filler100" in app.registry(UNITS):  # the large cell: the last parts as the first ones
+                figures["SetMachSpeed on Filler100"] = await measure(
+                    cell, functools.partial(set_mach_speed, unit="Filler100")
+                )
+                figures["LoadByName+UnloadProgram on Robot10"] = await measure(
+                    cell, functools.partial(load_cycle, robot=10)
+                )
             walk = walk_every_unit(app)
             app.dispatcher.after_call.append(walk)
             try:
@@ -314,6 +330,15 @@ async def test_a_program_load_and_unload_does_the_same_work_in_every_cell_with_t
     same(work["twin"][call], work["large"][call], f"{call} on the large cell against the twin")
     demo, twin = work["demo"][call], work["twin"][call]
     assert demo.calls <= twin.calls
+
+
+async def test_the_last_parts_of_the_large_cell_cost_what_the_first_ones_do(work):
+    """Filler100 and Robot10, the last of their kind: a look-up that scanned the parts and stopped at
+    the first match would cost the first ones nothing more."""
+    large = work["large"]
+    same(large["SetMachSpeed"], large["SetMachSpeed on Filler100"], "SetMachSpeed on Filler100 against Filler1")
+    cycle = "LoadByName+UnloadProgram"
+    same(large[cycle], large[f"{cycle} on Robot10"], f"{cycle} on Robot10 against Robot1")
 
 
 async def test_the_count_sees_work_that_grows(work):
