@@ -131,7 +131,7 @@ class CallWork:
 
 
 class Cell:
-    """One server, a client, and the frozen clock of its PackML units."""
+    """One server, a client connected to it, and the clock of its Filler1 (frozen unless moved here)."""
 
     def __init__(self, app: UacellServer, client: Client, clock: FakeClock) -> None:
         self.app, self.client, self.clock = app, client, clock
