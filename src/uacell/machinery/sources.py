@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from typing import Protocol
 
-from uacell.core.capabilities import Identified, Reachable
+from uacell.core.capabilities import Identified, Reachable, has
 from uacell.machinery.model import Facts, packml_facts, robot_facts
 from uacell.packml.model import PackMLUnit
 from uacell.robotics.equipment import ModeReporting
@@ -52,7 +52,7 @@ class UnitSource:
 
 def _identification(equipment: object) -> dict[str, str]:
     """What equipment reports of itself (``uacell.core.capabilities.Identified``), as text."""
-    found = equipment.identification if isinstance(equipment, Identified) else None
+    found = equipment.identification if has(equipment, Identified) else None
     if not isinstance(found, Mapping):
         return {}
     return {str(k): str(v) for k, v in found.items() if v is not None and str(v)}
@@ -65,12 +65,12 @@ class RobotSource:
         self.cells = list(cells)
 
     def facts(self) -> Facts:
-        modes = [c.equipment.operational_mode for c in self.cells if isinstance(c.equipment, ModeReporting)]
+        modes = [c.equipment.operational_mode for c in self.cells if has(c.equipment, ModeReporting)]
         return robot_facts(
             [c.system.state for c in self.cells],
             int(modes[0]) if modes else None,
             alarm=any(cond.active and cond.enabled for c in self.cells for cond in c.system.conditions.values()),
-            reachable=all(c.equipment.reachable for c in self.cells if isinstance(c.equipment, Reachable)),
+            reachable=all(c.equipment.reachable for c in self.cells if has(c.equipment, Reachable)),
         )
 
     def watch(self, changed: Callable[[], None]) -> None:

@@ -25,6 +25,7 @@ from asyncua import ua
 from uacell.binding.cell import BuiltPart
 from uacell.binding.conditions import ConditionNodes, ConditionPlace
 from uacell.core.background import Background
+from uacell.core.capabilities import has
 from uacell.core.companion import Closer
 from uacell.core.drivers import PACKML_UNIT, SIMULATORS
 from uacell.core.equipment_factory import EquipmentSpec, choose_equipment, make_equipment
@@ -343,7 +344,7 @@ class UnitBinding:
             log.info("%s: %s.%s by %s", self.unit.name, machine_name or "unit", method, caller.display_user)
             args = convert(*values)
             equipment = self.unit.equipment
-            send = equipment.send_command if isinstance(equipment, CommandForwarder) else None
+            send = equipment.send_command if has(equipment, CommandForwarder) else None
             if send is not None and (machine_name is not None or method == "SetUnitMode"):
                 # A PLC that owns the state (a gateway driver): uacell's rules first, then the PLC must
                 # accept the command before uacell's machines take it (docs/equipment.md, "Gateway").

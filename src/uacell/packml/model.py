@@ -24,6 +24,7 @@ from datetime import UTC, datetime
 from datetime import time as dt_time
 from typing import Any
 
+from uacell.core.capabilities import has
 from uacell.core.conditions import ConditionSet
 from uacell.core.errors import CallError
 from uacell.core.fsm import Reason, StateMachine
@@ -178,7 +179,7 @@ class PackMLUnit(UnitView, EquipmentSide, UnitMethods):
         self.saving = StoredValues(name, store, clock, since=self.accounting.last)
         # OPC 10000-9 alarm conditions the equipment declares (a gateway's CommunicationLost), in
         # <unit>/Conditions (decision 45); PackML's own alarms stay Admin.Alarm and Admin.Warning
-        self.conditions = ConditionSet(equipment.condition_names if isinstance(equipment, NamedConditions) else ())
+        self.conditions = ConditionSet(equipment.condition_names if has(equipment, NamedConditions) else ())
         self._depth = 0
         self._pending: list[str | None] = []
         # The acting state a command entered and that command's context: the state's completion runs

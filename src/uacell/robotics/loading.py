@@ -13,6 +13,7 @@ import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
+from uacell.core.capabilities import has
 from uacell.core.errors import CallError
 from uacell.core.fsm import Reason, StateMachine
 from uacell.robotics.equipment import (
@@ -146,7 +147,7 @@ class ProgramLoading(Guarded):
             relpath = self.library.resolve(name)
             if relpath is not None:  # a file in Programs: uacell holds the text (also on a gateway robot)
                 return await self._load(relpath)
-            catalogue = self.equipment if isinstance(self.equipment, ProgramCatalogue) else None
+            catalogue = self.equipment if has(self.equipment, ProgramCatalogue) else None
             found = catalogue.find_program(name) if catalogue is not None else None
             if found is None:
                 return self._load_failed(Status.NOT_FOUND, f"no program or module named {name!r}")
@@ -194,7 +195,7 @@ class ProgramLoading(Guarded):
             # ``read_small`` is optional for a library (``SmallReads``; DirectoryLibrary has it): a small
             # file is read and checked on the loop (a few hundred microseconds at most), anything else
             # in a thread.
-            small = self.library.read_small if isinstance(self.library, SmallReads) else None
+            small = self.library.read_small if has(self.library, SmallReads) else None
             program = self._read_and_check(relpath, modules, small) if small is not None else None
             if program is None:
                 program = await asyncio.to_thread(self._read_and_check, relpath, modules)
@@ -335,7 +336,7 @@ class ProgramLoading(Guarded):
     async def _select(self, name: str) -> int:
         """Select the controller's own program ``name`` (a ``ProgramCatalogue``): no file, no text;
         what it calls is the controller's business (Start never answers -3 for it)."""
-        assert isinstance(self.equipment, ProgramCatalogue)
+        assert has(self.equipment, ProgramCatalogue)
         if name in self._modules:
             return self._load_failed(Status.INVALID_CONTENT, f"program {name} has a loaded module's name")
         try:

@@ -17,6 +17,7 @@ import logging
 from collections.abc import Callable, Sequence
 
 from uacell.core.background import Background
+from uacell.core.capabilities import has
 from uacell.core.conditions import ConditionSet
 from uacell.core.errors import CallError
 from uacell.core.fsm import Reason, StateMachine
@@ -177,7 +178,7 @@ class TaskControl(ProgramLoading):
             alarm = self.system.alarm_status()
             if alarm is not None:
                 return alarm
-        if isinstance(self.equipment, ConfirmedStart) and self.equipment.start_refusal() is not None:
+        if has(self.equipment, ConfirmedStart) and self.equipment.start_refusal() is not None:
             return Status.E_SYSTEM_STATE  # the controller would refuse it: nothing is sent
         problem = self._unresolved()
         if isinstance(problem, ProgramTooLarge | NothingToExecute):
@@ -200,7 +201,7 @@ class TaskControl(ProgramLoading):
     async def start(self) -> int:
         """Start: Ready -> Executing, from the program start or where it was suspended; on equipment
         that confirms starts (``ConfirmedStart``) once the controller confirmed it."""
-        if isinstance(self.equipment, ConfirmedStart):
+        if has(self.equipment, ConfirmedStart):
             return await self._start_confirmed(Reason.EXTERNAL)
         return self._start(Reason.EXTERNAL)
 
@@ -208,7 +209,7 @@ class TaskControl(ProgramLoading):
         """Start on a controller that confirms it: Executing once it runs; a refusal answers at once
         (StartRefused: 1, a fault: 3, another failure: 2) and changes nothing. Loads wait meanwhile,
         a second Start answers 1."""
-        assert isinstance(self.equipment, ConfirmedStart)
+        assert has(self.equipment, ConfirmedStart)
         if (problem := self._start_problem()) is not None:
             return problem
         async with self._lock:
@@ -227,7 +228,7 @@ class TaskControl(ProgramLoading):
         if problem is not None:
             if problem in (Status.UNRESOLVED_REFERENCE, Status.INVALID_CONTENT):
                 return Status(self._fail(problem, str(self._unresolved())))
-            refusal = self.equipment.start_refusal() if isinstance(self.equipment, ConfirmedStart) else None
+            refusal = self.equipment.start_refusal() if has(self.equipment, ConfirmedStart) else None
             why = f"the controller would refuse the start: {refusal}" if refusal else f"cannot start in {self.state}"
             return Status(self._fail(problem, why))
         return None
@@ -382,7 +383,7 @@ class SystemOperation(Guarded, ConditionSet):
         self._external_start = False  # a SystemOperation Start is starting its tasks (confirmed starts)
         self.drives_on: bool | None = None  # the controller's drive power, for PowerFeedback equipment
         equipment.add_alarm_listener(self._on_alarm)
-        if isinstance(equipment, PowerFeedback):
+        if has(equipment, PowerFeedback):
             equipment.add_power_listener(self._on_power)
 
     def __repr__(self) -> str:
@@ -419,7 +420,7 @@ class SystemOperation(Guarded, ConditionSet):
     def acknowledge(self, name: str, comment: str = "") -> None:
         """The condition's Acknowledge; equipment that resets alarms (``AlarmReset``) is told."""
         super().acknowledge(name, comment)
-        if isinstance(self.equipment, AlarmReset):
+        if has(self.equipment, AlarmReset):
             self.equipment.alarm_acknowledged(name)
 
     def _on_power(self, on: bool) -> None:
@@ -578,7 +579,7 @@ class SystemOperation(Guarded, ConditionSet):
         problem = self._start_check()
         if problem is not None:
             return problem
-        if isinstance(self.equipment, ConfirmedStart):
+        if has(self.equipment, ConfirmedStart):
             return await self._start_confirmed()
         self._stop_requested = False
         self.machine.move(EXECUTING, Reason.EXTERNAL)

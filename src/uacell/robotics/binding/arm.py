@@ -10,6 +10,7 @@ import logging
 from asyncua import ua
 
 from uacell.core.background import Background
+from uacell.core.capabilities import Reachable, has
 from uacell.robotics.binding.shared import ControllerBinding
 from uacell.robotics.equipment import AxisFeed
 from uacell.robotics.model import EXECUTING, READY
@@ -53,7 +54,7 @@ class Arm:
             await b.values.write(b.child(b.arm.node, "ParameterSet/SpeedOverride"), 100.0, ua.VariantType.Double)
         await self.publish_axes(0.0)
         equipment = b.cell.equipment
-        if isinstance(equipment, AxisFeed):
+        if has(equipment, AxisFeed):
             self._fed = True
             self._fed_at = asyncio.get_running_loop().time()
             equipment.add_axis_listener(self._axes_changed)
@@ -80,7 +81,8 @@ class Arm:
             await asyncio.sleep(AXIS_PERIOD)
             now = loop.time()
             dt, last = now - last, now
-            reachable = bool(getattr(equipment, "reachable", True))  # a gateway's controller may be away
+            # a gateway's controller may be away
+            reachable = bool(equipment.reachable if has(equipment, Reachable) else True)
             if reachable != self._reachable:
                 self._reachable = reachable
                 self._last_axes = None  # written afresh once it is back

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from uacell.binding.cell import BuiltPart
+from uacell.core.capabilities import has
 from uacell.core.companion import Closer
 from uacell.core.drivers import ROBOT_CONTROLLER, SIMULATORS
 from uacell.core.equipment_factory import choose_equipment, close_equipment, make_equipment
@@ -150,7 +151,7 @@ async def bind_controller(app: BinderHost, controller: BuiltPart, tables: Roboti
     robots = sorted({c.path.partition(".Controllers.")[0] for c in app.cell.by_role(CONTROLLER)})
     if controller is app.cell.by_role(CONTROLLER)[0]:
         adopt_legacy_programs(root.parent.parent, root, robots)
-    if isinstance(equipment, ProgramCatalogue):  # the controller holds its programs: no samples
+    if has(equipment, ProgramCatalogue):  # the controller holds its programs: no samples
         root.mkdir(parents=True, exist_ok=True)
     else:
         install_samples(root, equipment.axes, moves=arm is not None)

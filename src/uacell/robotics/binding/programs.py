@@ -10,6 +10,7 @@ from typing import Any
 from asyncua import ua
 
 from uacell.binding.file_directory import FileDirectoryBinding
+from uacell.core.capabilities import has
 from uacell.core.errors import CallError
 from uacell.core.file_store import FileStore
 from uacell.robotics.binding.shared import ControllerBinding
@@ -117,7 +118,7 @@ class Programs:
         Description says it is the controller's). LoadByNodeId takes its NodeId."""
         b = self.binding
         equipment = b.cell.equipment
-        if not isinstance(equipment, ProgramCatalogue):
+        if not has(equipment, ProgramCatalogue):
             return
         names = list(equipment.program_names())
         if names == list(self.controller_programs):

@@ -8,6 +8,7 @@ import contextlib
 
 from asyncua import ua
 
+from uacell.core.capabilities import Reachable, has
 from uacell.robotics.binding.shared import ControllerBinding
 from uacell.robotics.equipment import SafetyFeedback
 
@@ -26,7 +27,7 @@ class Safety:
     async def setup(self) -> None:
         b = self.binding
         equipment = b.cell.equipment
-        if not isinstance(equipment, SafetyFeedback):
+        if not has(equipment, SafetyFeedback):
             return
         robot = b.controller.path.partition(".Controllers.")[0]
         states = [p for p in b.app.cell.built if p.path.startswith(f"{robot}.SafetyStates.")]
@@ -46,10 +47,10 @@ class Safety:
     async def _write(self) -> None:
         self._pending = False
         equipment = self.binding.cell.equipment
-        assert isinstance(equipment, SafetyFeedback)
+        assert has(equipment, SafetyFeedback)
         report = equipment.safety_report()
         values = self.binding.values
-        if report is None or not getattr(equipment, "reachable", True):
+        if report is None or not (equipment.reachable if has(equipment, Reachable) else True):
             bad = ua.StatusCode(ua.StatusCodes.BadNoCommunication)
             for node in self.nodes.values():
                 await values.write_status(node, bad)
