@@ -1,10 +1,11 @@
 """The companions this build of uacell serves: one line each, named here and nowhere else.
 
-Each entry is the ``Companion`` value's import path. The composition roots (``uacell.server.UacellServer``,
-``uacell.web.hosting.start_web``, the CLI) take this list unless given another and hand the companions
-to the parts that read their declarations (history, PubSub, Sparkplug, metrics, the HMI);
-configuration, roles and the models still ask ``companions()`` (docs/companions.md).
-A third companion is one package with its ``core/companion.py`` and one line here.
+Each entry is the ``Companion`` value's import path. Only the composition root asks ``companions()``
+(``uacell.server.UacellServer`` unless given others, the CLI, which also hands them to the HMI's
+``uacell.web.hosting.start_web``, and ``uacell.config`` for the sections): it hands the companions,
+or what the parts need of them (the role table, the official models), to the parts that read their
+declarations (docs/companions.md; tests/test_layers.py checks that nothing else imports this module).
+A third companion is one package with its ``companion.py`` and one line here.
 Named by path, imported on first use: the companions' packages import the shared modules, never the
 other way round.
 """

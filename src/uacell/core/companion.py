@@ -1,10 +1,10 @@
 """What a companion specification brings to uacell, declared in one place in its own package.
 
 A companion (OPC 40010-1 Robotics, OPC 30050 PackML, DI LockingServices, ...) is a ``Companion``
-value in its package's ``core/companion.py``; ``uacell.catalog`` lists the ones this build serves, one
+value in its package's ``companion.py``; ``uacell.catalog`` lists the ones this build serves, one
 line each. The shared code reads everything companion-specific from there:
 
-- ``uacell.core.roles``: the method families (``type_hints``) and the rows of the role table (``roles``);
+- ``uacell.core.rights``: the method families (``type_hints``) and the rows of the role table (``roles``);
 - ``uacell.config``: the configuration section (``section`` with its dataclass ``settings``) and
   the parts it adds to the cell (``cell_section``, read by ``cell_parser``);
 - ``uacell.binding.cell``: where instances live (``roots``);
@@ -184,6 +184,12 @@ class Companion:
 def datasets_of(companions: Iterable[Companion]) -> DataSets:
     """The DataSets ``companions`` declare, joined by part role (``uacell.core.datasets.DataSets``)."""
     return DataSets(d for c in companions for d in c.datasets)
+
+
+def models_of(companions: Iterable[Companion]) -> tuple[ModelFile, ...]:
+    """The NodeSet files ``companions`` declare, in their order (``uacell.models.source.official_models``
+    orders them for loading)."""
+    return tuple(m for c in companions for m in c.models)
 
 
 def web_views(companions: Iterable[Companion]) -> list[WebView]:

@@ -18,10 +18,11 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Iterable, Iterator
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from asyncua import ua
 
+from uacell.binding.metric_reads import cell_variables, variable_value
 from uacell.core.companion import Companion
 from uacell.core.errors import ConfigError
 from uacell.core.extras import MissingExtra
@@ -41,23 +42,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds
 _MAX_REQUEST = 8192
-
-
-def variable_value(app: Host, node: ua.NodeId) -> Any:
-    """A variable's value as clients read it now (None when it has none)."""
-    data = app.server.iserver.aspace.get(node)
-    if data is None:
-        return None
-    dv = data.attributes[_A.Value].value
-    return None if dv is None or dv.Value is None else dv.Value.Value
-
-
-def cell_variables(app: Host) -> Iterator[tuple[str, ua.NodeId]]:
-    """Every variable of the cell namespace with a string NodeId: (its path, its NodeId)."""
-    ns = app.cell.instantiator.ns
-    for node in list(app.server.iserver.aspace.keys()):
-        if node.NamespaceIndex == ns and isinstance(node.Identifier, str):
-            yield node.Identifier, node
 
 
 class _AddressSpaceCollector:
