@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import importlib
+from typing import Any
 
 from uacell.core.companion import Companion
 
@@ -28,8 +29,14 @@ COMPANIONS = (
 
 
 @functools.cache
-def companions() -> tuple[Companion, ...]:
-    """Every companion of ``COMPANIONS``, in that order."""
+def companions() -> tuple[Companion[Any], ...]:
+    """Every companion of ``COMPANIONS``, in that order.
+
+    Loaded by name, so typed by what they are at run time: each is declared a
+    ``Companion[uacell.host.ServerView]`` where it is defined (mypy checks its binder and metrics
+    factory there), and the server takes them as such. This module cannot name ``uacell.host``:
+    ``uacell.config`` asks it for the sections, and ``uacell.host`` imports the configuration.
+    """
     found = []
     for entry in COMPANIONS:
         module, _, name = entry.partition(":")

@@ -29,6 +29,7 @@ from uacell.core.rights import RoleTable
 from uacell.core.roles import Role, listening_policy, may
 from uacell.history.service import HistoryService
 from uacell.history.setup import add_configurations, history_shape, install_history
+from uacell.host import ServerView
 from uacell.models import StateTables, official_models
 from uacell.security.access import UacellUserManager
 from uacell.security.audit import AuditTrail
@@ -78,9 +79,9 @@ class UacellServer:
     def __init__(
         self,
         config: Config,
-        binders: list[Binder] | None = None,
+        binders: list[Binder[ServerView]] | None = None,
         parts: list[tuple[str, Part]] | None = None,
-        companions: Sequence[Companion] | None = None,
+        companions: Sequence[Companion[ServerView]] | None = None,
     ) -> None:
         _quiet_asyncua()
         self.config = config
@@ -351,7 +352,7 @@ class UacellServer:
         self.audit.close()
 
 
-def default_binders(companions: Sequence[Companion] | None = None) -> list[Binder]:
+def default_binders(companions: Sequence[Companion[ServerView]] | None = None) -> list[Binder[ServerView]]:
     """The binders of ``companions`` (default: this build's, ``uacell.catalog``), in their order."""
     found = companions if companions is not None else catalog_companions()
     return [c.binder for c in found if c.binder is not None]

@@ -53,6 +53,7 @@ from uacell import __version__
 from uacell.binding.cell import CELL_NAMESPACE
 from uacell.config import Config
 from uacell.core.companion import Companion, models_of
+from uacell.host import ServerView
 from uacell.models.model_file import ModelFile
 from uacell.models.source import locate_models, official_models
 
@@ -423,7 +424,7 @@ def _simulated(config: Config, data_dir: Path) -> Config:
     return copy
 
 
-async def export_cell(config: Config, companions: Sequence[Companion] | None = None) -> bytes:
+async def export_cell(config: Config, companions: Sequence[Companion[ServerView]] | None = None) -> bytes:
     """The NodeSet2 file of the cell ``config`` serves with ``companions`` (default: this build's),
     assembled without listening."""
     from uacell.catalog import companions as catalog_companions

@@ -9,6 +9,7 @@ not in the table needs ``admin`` (deny by default). Pure: no OPC UA stack here.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from typing import TypeVar
 
 from uacell.core.companion import Companion
 from uacell.core.roles import BASE_ROLES, TYPE_HINTS, Family, Role
@@ -16,11 +17,13 @@ from uacell.core.roles import BASE_ROLES, TYPE_HINTS, Family, Role
 # FileType Open mode bits (OPC 10000-5 FileType): Read=1, Write=2, EraseExisting=4, Append=8.
 _FILE_WRITE_BITS = 0x2 | 0x4 | 0x8
 
+H = TypeVar("H")  # whatever the companions' functions receive of the server: not read here
+
 
 class RoleTable:
     """THE table of the base rows and ``companions``' rows (``Companion.roles``, ``Companion.type_hints``)."""
 
-    def __init__(self, companions: Iterable[Companion]) -> None:
+    def __init__(self, companions: Iterable[Companion[H]]) -> None:
         table = dict(BASE_ROLES)
         hints = dict(TYPE_HINTS)
         for companion in companions:

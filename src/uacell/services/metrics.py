@@ -37,7 +37,7 @@ except ImportError as exc:  # the 'metrics' extra
     raise MissingExtra.of("[metrics]", exc) from exc
 
 if TYPE_CHECKING:
-    from uacell.host import Host
+    from uacell.host import Host, ServerView
 
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds
@@ -73,7 +73,7 @@ class _AddressSpaceCollector:
 class Metrics:
     """The metrics of one server and, once started, the endpoint that serves them."""
 
-    def __init__(self, app: Host, companions: Iterable[Companion]) -> None:
+    def __init__(self, app: ServerView, companions: Iterable[Companion[ServerView]]) -> None:
         self.registry = CollectorRegistry()
         self.calls = Counter(
             "uacell_calls", "Method calls by method and result", ["method", "result"], registry=self.registry

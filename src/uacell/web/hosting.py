@@ -24,6 +24,7 @@ import socket
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlparse
 
 import uvicorn
@@ -49,6 +50,9 @@ from uacell.security.pki import (
 from uacell.web.app import RELEASE_AFTER, UA_SESSIONS, WebApp, cookie_name
 from uacell.web.guards import HEADER_TIMEOUT, machine_names, timed_headers
 from uacell.web.uasession import APPLICATION_URI, Credentials
+
+if TYPE_CHECKING:  # the annotation only: the HMI is a client and does not load the server's parts
+    from uacell.host import ServerView
 
 log = logging.getLogger(__name__)
 
@@ -160,7 +164,7 @@ async def start_web(
     server_url: str,
     data_dir: Path,
     *,
-    companions: Sequence[Companion],
+    companions: Sequence[Companion[ServerView]],
     host: str = "127.0.0.1",
     port: int = 8080,
     server_certificate: Path | None = None,
