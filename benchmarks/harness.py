@@ -117,10 +117,13 @@ class Peers:
         self.tmp = tmp
         self.count = 0
         self.prepared: set[str] = set()  # cells whose snapshot is in the shared cache directory
+        from uacell.catalog import companions
+        from uacell.core.companion import models_of
         from uacell.models.source import locate_models, official_models
 
-        paths = locate_models()
-        self.nodeset_files = [str(paths[m.key]) for m in official_models()]
+        models = official_models(models_of(companions()))
+        paths = locate_models(models)
+        self.nodeset_files = [str(paths[m.key]) for m in models]
 
     def uacell(
         self,

@@ -39,11 +39,14 @@ async def bare_asyncua(port: int, nodesets: bool) -> None:
     if nodesets:
         # asyncua's own importer; the files lose their DesignToolOnly nodes first, as in uacell
         # (asyncua cannot import them: their parents are not in the files)
+        from uacell.catalog import companions
+        from uacell.core.companion import models_of
         from uacell.models.source import locate_models, official_models
         from uacell.ua.nodesets import without_design_tool_only
 
-        paths = locate_models()
-        for model in official_models():
+        models = official_models(models_of(companions()))
+        paths = locate_models(models)
+        for model in models:
             await server.import_xml(xmlstring=without_design_tool_only(paths[model.key])[0])
     ns = await server.register_namespace(ECHO_NAMESPACE)
     bench = await server.nodes.objects.add_object(ua.NodeId("Bench", ns), ua.QualifiedName("Bench", ns))

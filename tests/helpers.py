@@ -20,9 +20,11 @@ from typing import Any, Protocol
 
 from asyncua import Client, ua
 
+from uacell.catalog import companions
+from uacell.core.companion import models_of
 from uacell.di.locking import LockManager
 from uacell.di.locks import LOCK_SERVICE
-from uacell.models import StateTables
+from uacell.models import ModelFile, StateTables, official_models
 from uacell.packml import PackMLTables
 from uacell.robotics import RobotCell, RoboticsTables
 from uacell.robotics.binding import CONTROLLERS, RoboticsBinding
@@ -31,14 +33,21 @@ from uacell.ua.toolkit import EventEmitter
 
 
 @functools.cache
+def official() -> tuple[ModelFile, ...]:
+    """This build's official models: those of the catalog's companions, in load order, as the server
+    (``UacellServer.models``) and the CLI get them."""
+    return official_models(models_of(companions()))
+
+
+@functools.cache
 def robotics_tables() -> RoboticsTables:
     """The Robotics tables from the default models directory (the cache ``make setup`` fills)."""
-    return RoboticsTables.load(StateTables())
+    return RoboticsTables.load(StateTables(official()))
 
 
 @functools.cache
 def packml_tables() -> PackMLTables:
-    return PackMLTables.load(StateTables())
+    return PackMLTables.load(StateTables(official()))
 
 
 def _ephemeral_ports() -> range:
@@ -306,7 +315,7 @@ def models_copy(where: Path) -> str:
     from uacell.models.source import locate_models
 
     where.mkdir(parents=True, exist_ok=True)
-    for path in locate_models().values():
+    for path in locate_models(official()).values():
         (where / path.name).symlink_to(path.resolve())
     return str(where)
 
@@ -315,4 +324,4 @@ def first_start_source() -> str:
     """Where a first start with the default models directory takes the models from."""
     from uacell.ua.nodesets import models_snapshot_path
 
-    return "models snapshot" if models_snapshot_path(None).exists() else "nodesets"
+    return "models snapshot" if models_snapshot_path(official(), None).exists() else "nodesets"

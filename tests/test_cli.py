@@ -340,12 +340,14 @@ def test_config_check_takes_the_global_config_option_too() -> None:
 def test_models_fetch_writes_the_models_snapshot_beside_the_files(tmp_path: Path) -> None:
     """With the NodeSet files already in the cache, `uacell models fetch` fetches nothing and builds
     the models' snapshot beside them (decision 46), once; not into a directory UACELL_MODELS_DIR names."""
+    from helpers import official
+
     from uacell.models.source import NPM_PACKAGE, NPM_VERSION, locate_models
     from uacell.ua.snapshot import PREFIX, SUFFIX
 
     cache = tmp_path / "xdg" / "uacell" / "nodesets" / f"{NPM_PACKAGE}-{NPM_VERSION}"
     cache.mkdir(parents=True)
-    for path in locate_models().values():
+    for path in locate_models(official()).values():
         (cache / path.name).symlink_to(path.resolve())
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()

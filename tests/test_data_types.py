@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from asyncua import ua
 from asyncua.server.address_space import AttributeValue, NodeData
-from helpers import free_port, models_copy
+from helpers import free_port, models_copy, official
 
 from uacell.ua import data_types
 from uacell.ua.data_types import Enumeration, Structure
@@ -31,6 +31,9 @@ _RESTORE = """
 import asyncio, dataclasses, json, sys
 from pathlib import Path
 from asyncua import Server, ua
+from uacell.catalog import companions
+from uacell.core.companion import models_of
+from uacell.models import official_models
 from uacell.ua import data_types, nodesets
 
 walk = sys.argv[2] == "walk"
@@ -43,7 +46,9 @@ else:
 
 async def main():
     server = Server()
-    prepared = await nodesets.init_address_space(server, sys.argv[1], Path(sys.argv[3]))
+    prepared = await nodesets.init_address_space(
+        server, official_models(models_of(companions())), sys.argv[1], Path(sys.argv[3])
+    )
     assert prepared.source == "models snapshot", prepared.source
     out = {}
     for nodeid, cls in ua.extension_objects_by_datatype.items():
@@ -82,8 +87,8 @@ async def test_a_restore_makes_the_models_data_types_asyncua_would_find(tmp_path
     from uacell.ua.nodesets import models_snapshot_key, models_snapshot_path, write_models_snapshot
 
     models = models_copy(tmp_path / "models")
-    await write_models_snapshot(models)
-    snapshot = read_snapshot(models_snapshot_path(models), models_snapshot_key())
+    await write_models_snapshot(official(), models)
+    snapshot = read_snapshot(models_snapshot_path(official(), models), models_snapshot_key(official()))
     assert snapshot is not None
     found = data_types.stored(snapshot.extras)
     assert found is not None
@@ -207,11 +212,11 @@ def test_state_tables_take_tables_made_before_and_read_files_only_for_the_others
     from uacell.models import StateTables
     from uacell.models.source import ModelError
 
-    made = StateTables()
+    made = StateTables(official())
     task_control = made("Robotics", "TaskControlStateMachineType")
     assert list(made.made()) == [("Robotics", "TaskControlStateMachineType")]
 
-    later = StateTables(str(tmp_path / "no-models-here"))
+    later = StateTables(official(), str(tmp_path / "no-models-here"))
     junk = {("Robotics", "Nonsense"): task_control, "x": task_control, ("PackML", "PackMLBaseStateMachineType"): 1}
     assert later.adopt({**made.made(), **junk}) == 1 and later.adopt(None) == 0
     assert later("Robotics", "TaskControlStateMachineType") is task_control
@@ -222,7 +227,6 @@ def test_state_tables_take_tables_made_before_and_read_files_only_for_the_others
 async def test_a_restart_takes_its_state_tables_from_the_snapshot(tmp_path: Path) -> None:
     from conftest import fast_config, start_app
 
-    from uacell.models import official_models
     from uacell.ua import snapshot as snap
 
     config = fast_config(tmp_path / "data")
@@ -231,7 +235,7 @@ async def test_a_restart_takes_its_state_tables_from_the_snapshot(tmp_path: Path
     try:
         await first.snapshot_written()
         tables = first.tables.made()
-        key = snap.snapshot_key({m.filename: m.sha256 for m in official_models()}, first.snapshot_digest)
+        key = snap.snapshot_key({m.filename: m.sha256 for m in official()}, first.snapshot_digest)
     finally:
         await first.stop()
     kept = read_snapshot(snap.snapshot_path(config.server.snapshot_dir, key), key)

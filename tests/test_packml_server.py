@@ -12,7 +12,7 @@ from pathlib import Path
 
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import fire_marker, raw_call, wait_until
+from helpers import fire_marker, official, raw_call, wait_until
 
 from uacell.models import fsm_table
 from uacell.packml.binding import UNITS
@@ -60,7 +60,7 @@ class Unit:
 
     def __init__(self, client: Client, ns: int, pml: int) -> None:
         self.client, self.ns, self.pml = client, ns, pml
-        self.tables = {k: fsm_table("PackML", t) for k, t in TYPES.items()}
+        self.tables = {k: fsm_table(official(), "PackML", t) for k, t in TYPES.items()}
 
     def node(self, path: str):
         return self.client.get_node(ua.NodeId(path, self.ns))

@@ -8,7 +8,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 import pytest
-from helpers import robotics_tables, wait_until
+from helpers import official, robotics_tables, wait_until
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -901,7 +901,7 @@ def test_the_tables_are_checked_against_every_name_the_model_uses() -> None:
     from uacell.models import StateTables
     from uacell.robotics.model import STAYS, RoboticsTables
 
-    real = StateTables()
+    real = StateTables(official())
 
     def without_suspended(model: str, type_name: str):  # type: ignore[no-untyped-def]
         table = real(model, type_name)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from uacell.catalog import companions
+from uacell.core.rights import RoleTable
 from uacell.core.roles import (
     Role,
     anonymous_role,
@@ -13,7 +15,9 @@ from uacell.core.roles import (
     none_security_allowed,
 )
 from uacell.robotics.companion import SYSTEM_OPERATION
-from uacell.security.rights import may_call, method_roles, required_role
+
+TABLE = RoleTable(companions())
+may_call, required_role = TABLE.may_call, TABLE.required_role
 
 
 def test_roles_are_ordered_and_parse_from_names() -> None:
@@ -60,7 +64,7 @@ def test_file_open_depends_on_mode() -> None:
 
 
 def test_role_method_matrix() -> None:
-    for (family, method), least in method_roles().items():
+    for (family, method), least in TABLE.method_roles.items():
         for role in Role:
             assert may_call(role, method, family, file_mode=1) is (role >= least), (role, family, method)
 

@@ -26,7 +26,6 @@ from uacell.di.companion import LOCKING
 from uacell.robotics.companion import SYSTEM_OPERATION, TASK_CONTROL
 from uacell.security.pki import PkiPaths, TrustList, make_client_certificate
 from uacell.security.policy import prepare_certificate
-from uacell.security.rights import may_call
 from uacell.security.users import LoginThrottle
 from uacell.server import APPLICATION_URI, UacellServer
 
@@ -384,6 +383,7 @@ async def test_role_method_matrix(env, sessions):
             raise CallError("BadInvalidState", "probe")
 
     env.dispatcher.guards.insert(0, probe)
+    may_call = env.dispatcher.roles.may_call
     checked = 0
     families = set()
     try:
@@ -401,7 +401,10 @@ async def test_role_method_matrix(env, sessions):
                 user_exec = (
                     await client.get_node(bound.method_id).read_attribute(ua.AttributeIds.UserExecutable)
                 ).Value.Value
-                assert user_exec is (executable and may_call(role, bound.name, bound.family)), (bound.name, role)
+                assert user_exec is (executable and may_call(role, bound.name, bound.family)), (
+                    bound.name,
+                    role,
+                )
                 checked += 1
             families.add(bound.family)
     finally:

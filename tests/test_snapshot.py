@@ -18,9 +18,8 @@ import pytest
 from asyncua import Client, ua
 from asyncua.server.address_space import AttributeValue, NodeData
 from conftest import fast_config, start_app
-from helpers import free_port, models_copy
+from helpers import free_port, models_copy, official
 
-from uacell.models import official_models
 from uacell.packml.binding import UNITS
 from uacell.ua import snapshot
 from uacell.ua.snapshot import LazyNodes, SnapshotInvalid, read_snapshot, stripped_copy, write_snapshot
@@ -381,7 +380,7 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(t
         assert ua.NodeId("Filler1.Status.MachSpeed.HAConfiguration.Stepped", ns) in aspace
         assert second.history is not None
         # ... and it is stored marked as historized (a restart writes no such attribute again)
-        key = snapshot.snapshot_key({m.filename: m.sha256 for m in official_models()}, second.snapshot_digest)
+        key = snapshot.snapshot_key({m.filename: m.sha256 for m in official()}, second.snapshot_digest)
         stored = read_snapshot(path, key)
         assert stored is not None
         kept = stored.nodes[ua.NodeId("Filler1.Status.MachSpeed", ns)].attributes
@@ -504,9 +503,7 @@ async def test_a_damaged_or_stale_snapshot_is_rebuilt_silently(
 
 
 def _pinned() -> dict[str, str]:
-    from uacell.models.source import official_models
-
-    return {m.filename: m.sha256 for m in official_models()}
+    return {m.filename: m.sha256 for m in official()}
 
 
 async def test_a_stop_does_not_wait_for_the_snapshot_and_leaves_no_half_file(tmp_path: Path) -> None:
@@ -555,8 +552,8 @@ async def test_a_first_start_takes_the_models_from_their_snapshot_and_writes_the
     from uacell.ua.nodesets import models_snapshot_path, write_models_snapshot
 
     models = models_copy(tmp_path / "models")
-    written = await write_models_snapshot(models)
-    assert written == models_snapshot_path(models) and written.parent == Path(models)
+    written = await write_models_snapshot(official(), models)
+    assert written == models_snapshot_path(official(), models) and written.parent == Path(models)
     config = fast_config(tmp_path / "data")
     config.server.cache_dir = tmp_path / "cache"
     config.server.models_dir = models
@@ -625,7 +622,7 @@ async def test_a_damaged_models_snapshot_is_removed_and_the_files_are_read(
     from uacell.ua.nodesets import write_models_snapshot
 
     models = models_copy(tmp_path / "models")
-    path = await write_models_snapshot(models)
+    path = await write_models_snapshot(official(), models)
     data = bytearray(path.read_bytes())
     data[len(data) // 2] ^= 0xFF
     path.write_bytes(bytes(data))

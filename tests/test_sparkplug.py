@@ -168,8 +168,10 @@ def test_the_section_is_read_from_toml(tmp_path: Path) -> None:
 
 def test_every_command_is_refused_to_the_role_commands_run_under_by_default() -> None:
     """Without ``command_role`` commands run as observer: the role table refuses every declared one."""
+    from uacell.core.rights import RoleTable
     from uacell.core.roles import Role
-    from uacell.security.rights import may_call
+
+    may_call = RoleTable(companions()).may_call
 
     families = {"packml_unit": "PackML", "controller": "SystemOperation", "task_control": "TaskControl"}
     declared = 0

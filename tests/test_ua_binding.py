@@ -13,7 +13,7 @@ import dataclasses
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import raw_call, wait_until
+from helpers import official, raw_call, wait_until
 
 from uacell.binding.machine_binding import bind_tree
 from uacell.core.errors import CallError
@@ -38,10 +38,12 @@ class Rig:
 async def _test_binder(app: UacellServer, rig: Rig):
     ns = app.cell.instantiator.ns
     node = ua.NodeId(TC_PATH, ns)
-    rig.machine = StateMachine("TaskControlStateMachine", fsm_table("Robotics", "TaskControlStateMachineType"), "Idle")
+    rig.machine = StateMachine(
+        "TaskControlStateMachine", fsm_table(official(), "Robotics", "TaskControlStateMachineType"), "Idle"
+    )
     rig.ready = StateMachine(
         "ReadySubstateMachine",
-        fsm_table("Robotics", "ReadySubstateMachineType"),
+        fsm_table(official(), "Robotics", "ReadySubstateMachineType"),
         "AtProgramStart",
         parent=rig.machine,
         parent_state="Ready",

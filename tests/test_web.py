@@ -46,7 +46,9 @@ async def stack(tmp_path_factory):
     app.users.add("olga", "observer", PASSWORD)
     app.users.add("otto", "operator", PASSWORD)
     trust_hmi(data)
-    web = await start_web(app.endpoint, data, port=0, server_certificate=PkiPaths.in_data_dir(data).cert)
+    web = await start_web(
+        app.endpoint, data, companions=app.companions, port=0, server_certificate=PkiPaths.in_data_dir(data).cert
+    )
     try:
         yield app, web
     finally:
@@ -230,11 +232,12 @@ async def test_bad_arguments_are_refused_before_reaching_the_server(stack):
 async def test_https_only_on_a_non_loopback_address(stack, tmp_path):
     app, _ = stack
     with pytest.raises(ConfigError, match="HTTPS only"):
-        await start_web(app.endpoint, tmp_path / "d", host="0.0.0.0", port=0)
+        await start_web(app.endpoint, tmp_path / "d", companions=app.companions, host="0.0.0.0", port=0)
     pki = PkiPaths.in_data_dir(app.data_dir)
     web = await start_web(
         app.endpoint,
         app.data_dir,
+        companions=app.companions,
         host="0.0.0.0",
         port=0,
         server_certificate=pki.cert,
@@ -529,7 +532,11 @@ async def test_two_hmis_on_one_host_keep_their_own_sessions_in_one_browser(stack
     """Browsers send a host's cookies to all its ports: each HMI's cookie has a name of its own."""
     app, web = stack
     other = await start_web(
-        app.endpoint, app.data_dir, port=0, server_certificate=PkiPaths.in_data_dir(app.data_dir).cert
+        app.endpoint,
+        app.data_dir,
+        companions=app.companions,
+        port=0,
+        server_certificate=PkiPaths.in_data_dir(app.data_dir).cert,
     )
     try:
         jar = CookieJar()

@@ -505,7 +505,11 @@ def test_the_page_says_when_the_server_is_unreachable_and_comes_back(browser, ua
     config = fast_config(data)
     app = ua_thread.run(start_app(config))
     trust_hmi(data)
-    web = ua_thread.run(start_web(app.endpoint, data, port=0, server_certificate=PkiPaths.in_data_dir(data).cert))
+    web = ua_thread.run(
+        start_web(
+            app.endpoint, data, companions=app.companions, port=0, server_certificate=PkiPaths.in_data_dir(data).cert
+        )
+    )
     context = browser.new_context(viewport={"width": 1400, "height": 1000})
     try:
         page = context.new_page()

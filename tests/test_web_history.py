@@ -12,11 +12,12 @@ from asyncua import Client, ua
 from asyncua.ua.ua_binary import variant_to_binary
 from conftest import fast_config, start_app
 
+from uacell.binding.web_history import Segment, program_runs, timeline
 from uacell.core.companion import web_views
 from uacell.history.backends import VALUE
 from uacell.history.service import to_micros
 from uacell.web.discovery import discover
-from uacell.web.history import Segment, cell_history, program_runs, timeline
+from uacell.web.history import cell_history
 
 
 def test_timeline_takes_the_innermost_active_machine() -> None:

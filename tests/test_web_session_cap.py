@@ -46,6 +46,7 @@ async def stack(tmp_path_factory):
     web = await start_web(
         app.endpoint,
         data,
+        companions=app.companions,
         port=0,
         server_certificate=PkiPaths.in_data_dir(data).cert,
         ua_sessions=CAP,

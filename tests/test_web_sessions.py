@@ -35,6 +35,7 @@ async def stack(tmp_path_factory):
     web = await start_web(
         app.endpoint,
         data,
+        companions=app.companions,
         port=0,
         server_certificate=PkiPaths.in_data_dir(data).cert,
         ua_sessions=CAP,
@@ -266,7 +267,9 @@ async def test_the_loopback_hardening_setting_leaves_anonymous_pages_and_local_p
     app = await start_app(config)
     app.users.add("otto", "operator", PASSWORD)
     trust_hmi(data)
-    web = await start_web(app.endpoint, data, port=0, server_certificate=PkiPaths.in_data_dir(data).cert)
+    web = await start_web(
+        app.endpoint, data, companions=app.companions, port=0, server_certificate=PkiPaths.in_data_dir(data).cert
+    )
     try:
         speed = {"key": "Filler1/SetMachSpeed", "args": [60.0]}
         b = Browser(web.url)

@@ -1,9 +1,10 @@
 """The companions this build of uacell serves: one line each, named here and nowhere else.
 
-Each entry is the ``Companion`` value's import path. The composition roots (``uacell.server.UacellServer``,
-``uacell.web.hosting.start_web``, the CLI) take this list unless given another and hand the companions
-to the parts that read their declarations (history, PubSub, Sparkplug, metrics, the HMI);
-configuration, roles and the models still ask ``companions()`` (docs/companions.md).
+Each entry is the ``Companion`` value's import path. Only the composition root asks ``companions()``
+(``uacell.server.UacellServer`` unless given others, the CLI, which also hands them to the HMI's
+``uacell.web.hosting.start_web``, and ``uacell.config`` for the sections): it hands the companions,
+or what the parts need of them (the role table, the official models), to the parts that read their
+declarations (docs/companions.md; tests/test_layers.py checks that nothing else imports this module).
 A third companion is one package with its ``companion.py`` and one line here.
 Named by path, imported on first use: the companions' packages import the shared modules, never the
 other way round.
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import importlib
+from typing import Any
 
 from uacell.core.companion import Companion
 
@@ -27,8 +29,14 @@ COMPANIONS = (
 
 
 @functools.cache
-def companions() -> tuple[Companion, ...]:
-    """Every companion of ``COMPANIONS``, in that order."""
+def companions() -> tuple[Companion[Any], ...]:
+    """Every companion of ``COMPANIONS``, in that order.
+
+    Loaded by name, so typed by what they are at run time: each is declared a
+    ``Companion[uacell.host.ServerView]`` where it is defined (mypy checks its binder and metrics
+    factory there), and the server takes them as such. This module cannot name ``uacell.host``:
+    ``uacell.config`` asks it for the sections, and ``uacell.host`` imports the configuration.
+    """
     found = []
     for entry in COMPANIONS:
         module, _, name = entry.partition(":")

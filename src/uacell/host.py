@@ -115,10 +115,15 @@ class BinderHost(_Shared, Protocol):
     def security(self) -> SessionEvents: ...
 
     @property
-    def companions(self) -> tuple[Companion, ...]:
+    def companions(self) -> tuple[Companion[ServerView], ...]:
         """The companions this server serves (their lock rules, DataSets, ...)."""
         ...
 
     def registry(self, key: RegistryKey[T]) -> Registry[T]: ...
 
     async def settle(self) -> None: ...
+
+
+class ServerView(Host, BinderHost, Protocol):
+    """The server as a companion's functions receive it (``Companion[ServerView]``): its binder (which
+    should use the ``BinderHost`` part only) and its metrics factory (the ``Host`` part)."""

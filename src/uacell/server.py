@@ -21,14 +21,16 @@ from uacell.binding.space import Space
 from uacell.binding.writes import WriteRouter
 from uacell.catalog import companions as catalog_companions
 from uacell.config import Config, default_application_uri
-from uacell.core.companion import Binder, Closer, Companion, datasets_of, shape_function, shapes_digest
+from uacell.core.companion import Binder, Closer, Companion, datasets_of, models_of, shape_function, shapes_digest
 from uacell.core.file_store import HandlePool
 from uacell.core.logs import configured_levels
 from uacell.core.registry import Registries, Registry, RegistryKey, T
+from uacell.core.rights import RoleTable
 from uacell.core.roles import Role, listening_policy, may
 from uacell.history.service import HistoryService
 from uacell.history.setup import add_configurations, history_shape, install_history
-from uacell.models import StateTables
+from uacell.host import ServerView
+from uacell.models import StateTables, official_models
 from uacell.security.access import UacellUserManager
 from uacell.security.audit import AuditTrail
 from uacell.security.pki import PkiPaths
@@ -77,9 +79,9 @@ class UacellServer:
     def __init__(
         self,
         config: Config,
-        binders: list[Binder] | None = None,
+        binders: list[Binder[ServerView]] | None = None,
         parts: list[tuple[str, Part]] | None = None,
-        companions: Sequence[Companion] | None = None,
+        companions: Sequence[Companion[ServerView]] | None = None,
     ) -> None:
         _quiet_asyncua()
         self.config = config
@@ -92,11 +94,13 @@ class UacellServer:
         self._cell: CellBuilder | None = None
         self.model_indexes: dict[str, int] = {}
         # The state-machine tables of the configured NodeSets: binders hand them to the models.
-        self.tables = StateTables(config.server.models_dir)
+        # The official NodeSet files of the companions served, in load order.
+        self.models = official_models(models_of(self.companions))
+        self.tables = StateTables(self.models, config.server.models_dir)
         self.binders = binders if binders is not None else default_binders(self.companions)
         self._closers: list[Closer] = []
         self.registries = Registries()
-        self.dispatcher = MethodDispatcher.install(self.server)
+        self.dispatcher = MethodDispatcher.install(self.server, RoleTable(self.companions))
         self.publisher = Publisher()
         self.dispatcher.after_call.append(self.publisher.schedule)
         self.publisher.idle_hooks.append(self.dispatcher.refresh_touched)
@@ -168,7 +172,7 @@ class UacellServer:
         shaped = f"{history_shape(self.config.history)},shapes={shapes_digest(shapes)}"
         roots = [root for c in self.companions for root in c.roots]
         self.snapshot_digest = digest = cell_digest(parts, shaped, roots=roots)
-        prepared = await init_address_space(self.server, cfg.models_dir, cfg.snapshot_dir, digest)
+        prepared = await init_address_space(self.server, self.models, cfg.models_dir, cfg.snapshot_dir, digest)
         self.model_indexes = prepared.indexes
         self.address_space_source = prepared.source
         if prepared.extras is not None:  # the state-machine tables an earlier start read from the NodeSets
@@ -348,7 +352,7 @@ class UacellServer:
         self.audit.close()
 
 
-def default_binders(companions: Sequence[Companion] | None = None) -> list[Binder]:
+def default_binders(companions: Sequence[Companion[ServerView]] | None = None) -> list[Binder[ServerView]]:
     """The binders of ``companions`` (default: this build's, ``uacell.catalog``), in their order."""
     found = companions if companions is not None else catalog_companions()
     return [c.binder for c in found if c.binder is not None]

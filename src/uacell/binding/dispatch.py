@@ -6,7 +6,7 @@ For each call it answers, in this order:
    one of the object's (or not a method at all);
 2. the input arguments against the method's ``InputArguments``: ``Bad_ArgumentsMissing``,
    ``Bad_TooManyArguments``, ``Bad_TypeMismatch`` with ``InputArgumentResults`` naming the argument;
-3. the caller's role (``Bad_UserAccessDenied``) from the one table in ``uacell.core.roles``;
+3. the caller's role (``Bad_UserAccessDenied``) from the one table (``uacell.core.rights.RoleTable``);
 4. guards such as DI locks (``Bad_ResourceUnavailable``);
 5. the behaviour, serialized per state machine; its ``CallError`` becomes the status code and
    argument results, its outputs are typed from ``OutputArguments``. Any other exception is logged
@@ -35,8 +35,8 @@ from uacell.binding.calls import UNSCOPED, BoundMethod, Handler, call_result
 from uacell.binding.dispatch_unbound import UnboundCalls
 from uacell.binding.executable import ExecutableRefresh
 from uacell.core.errors import CallError
+from uacell.core.rights import RoleTable
 from uacell.core.roles import Family, Role
-from uacell.security.rights import may_call
 from uacell.ua import context, door, toolkit
 from uacell.ua.context import Caller
 from uacell.ua.door import processing
@@ -58,8 +58,9 @@ _OPERATION_DIAGNOSTICS = 0x20 | 0x40 | 0x80 | 0x100 | 0x200
 class MethodDispatcher(ExecutableRefresh, UnboundCalls, MethodService):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """Replaces asyncua's MethodService; install with ``MethodDispatcher.install(server)``."""
 
-    def __init__(self, server: Server) -> None:
+    def __init__(self, server: Server, roles: RoleTable) -> None:
         super().__init__(server.iserver.aspace)
+        self.roles = roles  # who may call what (the composition root's, of the companions it serves)
         self.aspace = server.iserver.aspace
         self.server = server
         self.methods: dict[ua.NodeId, BoundMethod] = {}
@@ -88,9 +89,9 @@ class MethodDispatcher(ExecutableRefresh, UnboundCalls, MethodService):  # type:
         self._by_decl = None
 
     @classmethod
-    def install(cls, server: Server) -> MethodDispatcher:
+    def install(cls, server: Server, roles: RoleTable) -> MethodDispatcher:
         processing.attach()  # the session known while its calls run
-        dispatcher = cls(server)
+        dispatcher = cls(server, roles)
         door.swap(server.iserver, "InternalServer.method_service", dispatcher)
         return dispatcher
 
@@ -260,7 +261,7 @@ class MethodDispatcher(ExecutableRefresh, UnboundCalls, MethodService):  # type:
             return refused
         values = [v.Value for v in args]
         mode = values[bound.file_mode_argument] if bound.file_mode_argument is not None else None
-        if not may_call(Role.parse(caller.role), bound.name, bound.family, file_mode=mode):
+        if not self.roles.may_call(Role.parse(caller.role), bound.name, bound.family, file_mode=mode):
             return call_result(ua.StatusCodes.BadUserAccessDenied, n=n)
         try:
             for guard in self.guards:

@@ -11,8 +11,8 @@ from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 
 from uacell.binding.calls import call_result
+from uacell.core.rights import RoleTable
 from uacell.core.roles import Role
-from uacell.security.rights import may_call
 from uacell.ua import toolkit
 from uacell.ua.context import Caller
 from uacell.ua.door.services import asyncua_method_call
@@ -25,6 +25,7 @@ class UnboundCalls:
     """Part of ``MethodDispatcher`` (an asyncua ``MethodService``)."""
 
     aspace: AddressSpace
+    roles: RoleTable
     types: Any  # TypeChecker
 
     def arguments(self, method_id: ua.NodeId, name: str) -> list[ua.Argument]:
@@ -83,7 +84,7 @@ class UnboundCalls:
             )
             if refused is not None:
                 return refused
-            if not may_call(Role.parse(caller.role), name, self._type_hint(request.ObjectId)):
+            if not self.roles.may_call(Role.parse(caller.role), name, self._type_hint(request.ObjectId)):
                 return call_result(ua.StatusCodes.BadUserAccessDenied)  # not in the table: admin only
             result = await asyncua_method_call(self, request)
             if result.StatusCode.value == ua.StatusCodes.BadUnexpectedError:

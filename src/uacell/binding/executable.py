@@ -12,8 +12,8 @@ from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 
 from uacell.binding.calls import UNKNOWN, UNSCOPED, BoundMethod
+from uacell.core.rights import RoleTable
 from uacell.core.roles import Role
-from uacell.security.rights import may_call
 
 log = logging.getLogger("uacell.binding.dispatch")
 _A = ua.AttributeIds
@@ -24,6 +24,7 @@ class ExecutableRefresh:
     touched since the last refresh (ordered, by id: scopes are arbitrary model objects)."""
 
     aspace: AddressSpace
+    roles: RoleTable
     methods: dict[ua.NodeId, BoundMethod]
     _scoped: dict[int, list[BoundMethod]]
     _touched: dict[int, None]
@@ -106,5 +107,5 @@ class ExecutableRefresh:
         bound = self.methods.get(method_id)
         if bound is None:
             return None
-        allowed = may_call(Role.parse(role), bound.name, bound.family)
+        allowed = self.roles.may_call(Role.parse(role), bound.name, bound.family)
         return allowed and (bound.last_executable is not False)

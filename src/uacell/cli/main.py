@@ -32,8 +32,9 @@ from uacell.config import (
     validate,
 )
 from uacell.core import early
+from uacell.core.companion import models_of
 from uacell.core.errors import ConfigError
-from uacell.models import ModelError, fetch_models, locate_models, models_dir
+from uacell.models import ModelError, ModelFile, fetch_models, locate_models, models_dir, official_models
 
 if TYPE_CHECKING:
     from uacell.server import UacellServer
@@ -235,18 +236,26 @@ def main(argv: list[str] | None = None) -> int:
     return 2
 
 
+def _official_models() -> tuple[ModelFile, ...]:
+    """The official models of this build's companions (``uacell.catalog``), in load order."""
+    from uacell.catalog import companions
+
+    return official_models(models_of(companions()))
+
+
 def _models(args: argparse.Namespace) -> int:
+    models = _official_models()
     if args.action == "fetch":
-        target = fetch_models(force=args.force)
+        target = fetch_models(models, force=args.force)
         print(target)
         # the models built once into a snapshot beside them, in the cache just filled (not in a
         # directory UACELL_MODELS_DIR names): first starts read it (decision 46)
         from uacell.ua.nodesets import models_snapshot_path, write_models_snapshot
 
-        if args.force or not models_snapshot_path(str(target)).exists():
-            print(asyncio.run(write_models_snapshot(str(target))))
+        if args.force or not models_snapshot_path(models, str(target)).exists():
+            print(asyncio.run(write_models_snapshot(models, str(target))))
         return 0
-    locate_models(args.models_dir)
+    locate_models(models, args.models_dir)
     print(models_dir(args.models_dir))
     return 0
 
@@ -279,7 +288,7 @@ def _serve(args: argparse.Namespace, config: Config) -> int:
 def _prepare_and_run(config: Config) -> int:
     from uacell.core import logs
 
-    locate_models(config.server.models_dir)  # fail early, with the fix, before any other work
+    locate_models(_official_models(), config.server.models_dir)  # fail early, with the fix, before any other work
     from uacell.cli.config_preview import check_factories
 
     check_factories(config)  # importable and callable, before any other work

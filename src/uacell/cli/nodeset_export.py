@@ -52,7 +52,9 @@ from asyncua.server.address_space import AddressSpace
 from uacell import __version__
 from uacell.binding.cell import CELL_NAMESPACE
 from uacell.config import Config
-from uacell.core.companion import Companion
+from uacell.core.companion import Companion, models_of
+from uacell.host import ServerView
+from uacell.models.model_file import ModelFile
 from uacell.models.source import locate_models, official_models
 
 log = logging.getLogger(__name__)
@@ -119,12 +121,12 @@ def _version_key(version: str) -> tuple[int, ...]:
     return tuple(int(p) if p.isdigit() else 0 for p in version.split("."))
 
 
-def model_infos(models_dir: str | None = None) -> list[ModelInfo]:
-    """The OPC UA base model and each official NodeSet uacell loads, as their files declare them."""
-    paths = locate_models(models_dir)
+def model_infos(models: Sequence[ModelFile], models_dir: str | None = None) -> list[ModelInfo]:
+    """The OPC UA base model and each official NodeSet uacell loads (``models``), as their files declare them."""
+    paths = locate_models(models, models_dir)
     infos: list[ModelInfo] = []
     base: list[ModelInfo] = []
-    for model in official_models():
+    for model in models:
         declared, required = _declared_model(paths[model.key])
         infos.append(declared)
         base.extend(r for r in required if r.uri == BASE_NAMESPACE)
@@ -422,14 +424,16 @@ def _simulated(config: Config, data_dir: Path) -> Config:
     return copy
 
 
-async def export_cell(config: Config, companions: Sequence[Companion] | None = None) -> bytes:
+async def export_cell(config: Config, companions: Sequence[Companion[ServerView]] | None = None) -> bytes:
     """The NodeSet2 file of the cell ``config`` serves with ``companions`` (default: this build's),
     assembled without listening."""
+    from uacell.catalog import companions as catalog_companions
     from uacell.server import UacellServer
 
-    models = model_infos(config.server.models_dir)
+    served = tuple(companions) if companions is not None else catalog_companions()
+    models = model_infos(official_models(models_of(served)), config.server.models_dir)
     with tempfile.TemporaryDirectory(prefix="uacell-export-") as tmp:
-        app = UacellServer(_simulated(config, Path(tmp)), companions=companions)
+        app = UacellServer(_simulated(config, Path(tmp)), companions=served)
         try:
             await app.setup()
             aspace = app.server.iserver.aspace

@@ -4,7 +4,7 @@ A companion (OPC 40010-1 Robotics, OPC 30050 PackML, DI LockingServices, ...) is
 value in its package's ``companion.py``; ``uacell.catalog`` lists the ones this build serves, one
 line each. The shared code reads everything companion-specific from there:
 
-- ``uacell.core.roles``: the method families (``type_hints``) and the rows of the role table (``roles``);
+- ``uacell.core.rights``: the method families (``type_hints``) and the rows of the role table (``roles``);
 - ``uacell.config``: the configuration section (``section`` with its dataclass ``settings``) and
   the parts it adds to the cell (``cell_section``, read by ``cell_parser``);
 - ``uacell.binding.cell``: where instances live (``roots``);
@@ -24,10 +24,10 @@ import importlib
 import importlib.resources
 import importlib.util
 from collections.abc import Awaitable, Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import Field, dataclass, field
 from importlib.resources.abc import Traversable
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 from uacell.core.cell_file import SectionParser
 from uacell.core.datasets import DataSets, PartDataSet
@@ -35,17 +35,39 @@ from uacell.core.roles import Family, Role
 from uacell.models.model_file import ModelFile
 
 Closer = Callable[[], Awaitable[None]]
-# Called once the cell exists, before the server listens, with the server (``uacell.server.UacellServer``,
-# typed at each binder's definition: naming it here would tie every companion to the server's
-# imports); returns what to run at shutdown (or None).
-Binder = Callable[[Any], Awaitable[Closer | None]]
+
+# The server as a companion's functions receive it: ``uacell.host.ServerView`` for this build's
+# companions (``Companion[ServerView]``), named by them, not here: the kernel stays below the server's
+# imports. Contravariant: a companion whose functions need less of the server serves one that has more.
+S = TypeVar("S", contravariant=True)
+H = TypeVar("H")
+
+# Called once the cell exists, before the server listens, with the server; returns what to run at
+# shutdown (or None).
+Binder = Callable[[S], Awaitable[Closer | None]]
 
 
-def lazy_binder(module: str, name: str) -> Binder:
+class Collector(Protocol):
+    """A prometheus-client collector: what a companion's metrics factory returns."""
+
+    def collect(self) -> Iterable[Any]: ...
+
+
+# Called with the server when metrics start; returns the companion's collector.
+MetricsFactory = Callable[[S], Collector]
+
+
+class SectionSettings(Protocol):
+    """A companion's configuration section: a dataclass (every field optional, typed by its default)."""
+
+    __dataclass_fields__: ClassVar[dict[str, Field[Any]]]
+
+
+def lazy_binder(module: str, name: str) -> Binder[H]:
     """The binder ``module.name``, imported when the server binds (configuration loading stays light)."""
 
-    async def bind(app: Any) -> Closer | None:
-        binder: Binder = getattr(importlib.import_module(module), name)
+    async def bind(app: H) -> Closer | None:
+        binder: Binder[H] = getattr(importlib.import_module(module), name)
         return await binder(app)
 
     return bind
@@ -84,12 +106,13 @@ def shapes_digest(specs: Iterable[str]) -> str:
     return digest.hexdigest()
 
 
-def lazy_metrics(module: str, name: str) -> Callable[[Any], Any]:
+def lazy_metrics(module: str, name: str) -> MetricsFactory[H]:
     """The metrics factory ``module.name``, imported when metrics start (prometheus-client stays unloaded
     otherwise)."""
 
-    def make(app: Any) -> Any:
-        return getattr(importlib.import_module(module), name)(app)
+    def make(app: H) -> Collector:
+        factory: MetricsFactory[H] = getattr(importlib.import_module(module), name)
+        return factory(app)
 
     return make
 
@@ -160,18 +183,21 @@ def package_file(package: str, name: str) -> Traversable:
 
 
 @dataclass(frozen=True)
-class Companion:
+class Companion(Generic[S]):
+    """A companion's declarations; ``S`` is what its binder and metrics factory receive of the server
+    (``Companion[uacell.host.ServerView]``)."""
+
     name: str
     models: tuple[ModelFile, ...] = ()  # the official NodeSet files it needs (uacell models fetch)
-    # Its figures for /metrics: called with the server (uacell.host.Host) when metrics start, returns
-    # a prometheus-client collector (an object with ``collect()``).
-    metrics: Callable[[Any], Any] | None = None
+    # Its figures for /metrics: called with the server when metrics start, returns a prometheus-client
+    # collector (an object with ``collect()``).
+    metrics: MetricsFactory[S] | None = None
     web_view: WebView | None = None  # what the web HMI shows of its parts (uacell.web.discovery)
     datasets: tuple[PartDataSet, ...] = ()  # what history keeps and PubSub publishes of its parts
-    binder: Binder | None = None
+    binder: Binder[S] | None = None
     shape: str | None = None  # "module:function", a ``Shape``: nodes of its parts kept in the snapshot
     section: str | None = None  # configuration section, e.g. "robot"
-    settings: type[Any] | None = None  # its dataclass: every field optional, typed by its default
+    settings: type[SectionSettings] | None = None  # its dataclass: every field optional, typed by its default
     cell_section: str | None = None  # its parts in the cell configuration, e.g. "robots" ([[robots]])
     cell_parser: SectionParser | None = None  # reads and checks them (uacell.core.cell_file.CellSection)
     roots: tuple[Root, ...] = ()
@@ -181,11 +207,17 @@ class Companion:
     lock_guarded: frozenset[Family] = frozenset()  # families a foreign lock refuses (docs/decisions.md 20)
 
 
-def datasets_of(companions: Iterable[Companion]) -> DataSets:
+def datasets_of(companions: Iterable[Companion[H]]) -> DataSets:
     """The DataSets ``companions`` declare, joined by part role (``uacell.core.datasets.DataSets``)."""
     return DataSets(d for c in companions for d in c.datasets)
 
 
-def web_views(companions: Iterable[Companion]) -> list[WebView]:
+def models_of(companions: Iterable[Companion[H]]) -> tuple[ModelFile, ...]:
+    """The NodeSet files ``companions`` declare, in their order (``uacell.models.source.official_models``
+    orders them for loading)."""
+    return tuple(m for c in companions for m in c.models)
+
+
+def web_views(companions: Iterable[Companion[H]]) -> list[WebView]:
     """What the web HMI shows of ``companions``' parts: their web views, in their order."""
     return [c.web_view for c in companions if c.web_view is not None]

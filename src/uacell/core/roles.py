@@ -1,7 +1,7 @@
 """Roles, method families, the rows of base OPC UA objects, and the listening policy for anonymous clients.
 
 Roles are ordered: ``observer < operator < engineer < admin``; a role may do everything the roles below
-it may. ``BASE_ROLES`` holds the rows of the role table for base OPC UA objects; ``uacell.security.rights``
+it may. ``BASE_ROLES`` holds the rows of the role table for base OPC UA objects; ``uacell.core.rights``
 joins them with each companion's rows into the one table. Pure and a leaf: no OPC UA stack, nothing
 of uacell imported.
 """

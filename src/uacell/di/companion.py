@@ -6,9 +6,14 @@ Which parts carry a Lock and which families a lock guards are the other companio
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from uacell.core.companion import Companion, Root, lazy_binder
 from uacell.core.roles import Family, Role
 from uacell.models.model_file import ModelFile
+
+if TYPE_CHECKING:  # the server's view, for the annotation only: loading the configuration stays light
+    from uacell.host import ServerView
 
 LOCKING = Family("Locking")
 
@@ -21,7 +26,7 @@ DI_MODEL = ModelFile(
     "package/nodesets/Opc.Ua.Di.NodeSet2.xml",
 )
 
-DI_LOCKING = Companion(
+DI_LOCKING: Companion[ServerView] = Companion(
     name="DI",
     models=(DI_MODEL,),
     binder=lazy_binder("uacell.di.locks", "bind_locks"),

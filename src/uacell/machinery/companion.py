@@ -6,12 +6,17 @@ machine (``uacell.machinery.binding``). Its ``[[machines]]`` entries add identif
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from uacell.core.companion import Companion, WebView, lazy_binder, lazy_metrics, package_file
 from uacell.di.companion import DI_MODEL
 from uacell.machinery.config import MachineryConfig, parse_machines
 from uacell.machinery.datasets import DATASETS
 from uacell.models.model_file import ModelFile
 from uacell.robotics.companion import MODELS as ROBOTICS_MODELS
+
+if TYPE_CHECKING:  # the server's view, for the annotation only: loading the configuration stays light
+    from uacell.host import ServerView
 
 MACHINERY_URI = "http://opcfoundation.org/UA/Machinery/"
 BASE_URI = "http://opcfoundation.org/UA/"
@@ -28,7 +33,7 @@ MACHINERY_MODEL = ModelFile(
     requires=("DI", "IA"),
 )
 
-MACHINERY_COMPANION = Companion(
+MACHINERY_COMPANION: Companion[ServerView] = Companion(
     name="Machinery",
     models=(DI_MODEL, IA_MODEL, MACHINERY_MODEL),
     datasets=DATASETS,

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 from asyncua import ua
 from prometheus_client.core import GaugeMetricFamily, Metric
 
-from uacell.services.metrics import cell_variables, variable_value
+from uacell.binding.metric_reads import cell_variables, variable_value
 
 if TYPE_CHECKING:
     from uacell.host import Host

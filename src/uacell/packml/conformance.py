@@ -19,14 +19,21 @@ from uacell.core.equipment_factory import EquipmentSpec, make_equipment
 
 # --- PackML units --------------------------------------------------------------------------------
 def test_unit_completes_its_acting_states_and_produces() -> None:
-    from uacell.models import StateTables
+    from uacell.core.companion import models_of
+    from uacell.models import StateTables, official_models
+    from uacell.packml.companion import PACKML_COMPANION
     from uacell.packml.equipment import PackMLEquipment
     from uacell.packml.model import EXECUTE, MACHINE, PackMLTables, PackMLUnit
 
     async def check() -> None:
         spec = EquipmentSpec("Conformance", settings())
         equipment = await make_equipment(factory("UACELL_UNIT_FACTORY"), spec, PackMLEquipment)
-        unit = PackMLUnit(equipment, name="Conformance", tables=PackMLTables.load(StateTables()), mach_speed=600.0)
+        unit = PackMLUnit(
+            equipment,
+            name="Conformance",
+            tables=PackMLTables.load(StateTables(official_models(models_of([PACKML_COMPANION])))),
+            mach_speed=600.0,
+        )
         ticking = asyncio.ensure_future(unit.run(0.02))
 
         async def reach(state: str) -> None:

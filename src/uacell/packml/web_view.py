@@ -7,8 +7,8 @@ from typing import Any
 
 from asyncua import Client, ua
 
-from uacell.web.discovery import Cell, Child, Discoverer
-from uacell.web.history import MAXIMUM, TIME_AVERAGE, Window, columns, seconds, text_of, timeline, value_history
+from uacell.binding.web_discovery import Cell, Child, Discoverer
+from uacell.binding.web_history import MAXIMUM, TIME_AVERAGE, Window, columns, seconds, text_of, timeline, value_history
 
 # What the page shows of a PackML unit's Status and Admin objects (those present are used).
 UNIT_STATUS = (

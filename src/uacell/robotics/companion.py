@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from uacell.core.companion import Companion, LockRule, WebView, lazy_binder, package_file
 from uacell.core.roles import Family, Role
 from uacell.models.model_file import ModelFile
 from uacell.robotics.config import RobotConfig, parse_robots
 from uacell.robotics.datasets import DATASETS
+
+if TYPE_CHECKING:  # the server's view, for the annotation only: loading the configuration stays light
+    from uacell.host import ServerView
 
 TASK_CONTROL = Family("TaskControl")
 SYSTEM_OPERATION = Family("SystemOperation")
@@ -42,7 +47,7 @@ MODELS = (
     ),
 )
 
-ROBOTICS = Companion(
+ROBOTICS: Companion[ServerView] = Companion(
     name="Robotics",
     models=MODELS,
     datasets=DATASETS,

@@ -7,8 +7,8 @@ from typing import Any
 
 from asyncua import Client, ua
 
-from uacell.web.discovery import CONDITION_VARIABLES, Cell, Child, Discoverer
-from uacell.web.history import Window, program_runs, seconds, value_history
+from uacell.binding.web_discovery import CONDITION_VARIABLES, Cell, Child, Discoverer
+from uacell.binding.web_history import Window, program_runs, seconds, value_history
 
 _CONDITION_TYPE = ua.NodeId(ua.ObjectIds.ConditionType)
 

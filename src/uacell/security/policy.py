@@ -70,7 +70,6 @@ from uacell.security.pki import (
     ensure_server_certificate,
     load_server_key,
 )
-from uacell.security.rights import may_call
 from uacell.security.users import LoginThrottle
 from uacell.services.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua import channel, context, door
@@ -647,7 +646,9 @@ class Security(_Logins):
                 node = aspace.get(rv.NodeId)
                 name = node.attributes.get(_A.BrowseName) if node is not None else None
                 if name is not None and name.value.Value.Value == _USER_WRITABLE:
-                    allowed = dv.Value.Value and may_call(Role.parse(role), "Write", Family.FILE)
+                    allowed = dv.Value.Value and self.app.dispatcher.roles.may_call(
+                        Role.parse(role), "Write", Family.FILE
+                    )
                     results[i] = _with_value(dv, allowed, ua.VariantType.Boolean)
 
 

@@ -18,10 +18,11 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Iterable, Iterator
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from asyncua import ua
 
+from uacell.binding.metric_reads import cell_variables, variable_value
 from uacell.core.companion import Companion
 from uacell.core.errors import ConfigError
 from uacell.core.extras import MissingExtra
@@ -36,28 +37,11 @@ except ImportError as exc:  # the 'metrics' extra
     raise MissingExtra.of("[metrics]", exc) from exc
 
 if TYPE_CHECKING:
-    from uacell.host import Host
+    from uacell.host import Host, ServerView
 
 log = logging.getLogger(__name__)
 _A = ua.AttributeIds
 _MAX_REQUEST = 8192
-
-
-def variable_value(app: Host, node: ua.NodeId) -> Any:
-    """A variable's value as clients read it now (None when it has none)."""
-    data = app.server.iserver.aspace.get(node)
-    if data is None:
-        return None
-    dv = data.attributes[_A.Value].value
-    return None if dv is None or dv.Value is None else dv.Value.Value
-
-
-def cell_variables(app: Host) -> Iterator[tuple[str, ua.NodeId]]:
-    """Every variable of the cell namespace with a string NodeId: (its path, its NodeId)."""
-    ns = app.cell.instantiator.ns
-    for node in list(app.server.iserver.aspace.keys()):
-        if node.NamespaceIndex == ns and isinstance(node.Identifier, str):
-            yield node.Identifier, node
 
 
 class _AddressSpaceCollector:
@@ -89,7 +73,7 @@ class _AddressSpaceCollector:
 class Metrics:
     """The metrics of one server and, once started, the endpoint that serves them."""
 
-    def __init__(self, app: Host, companions: Iterable[Companion]) -> None:
+    def __init__(self, app: ServerView, companions: Iterable[Companion[ServerView]]) -> None:
         self.registry = CollectorRegistry()
         self.calls = Counter(
             "uacell_calls", "Method calls by method and result", ["method", "result"], registry=self.registry

@@ -10,14 +10,15 @@ from __future__ import annotations
 import logging
 import threading
 import xml.etree.ElementTree as ET
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from asyncua import Server, ua
 
-from uacell.models.source import locate_models, official_models
+from uacell.models.model_file import ModelFile
+from uacell.models.source import locate_models
 from uacell.models.source import models_dir as models_directory
 from uacell.models.tables import UA_NS
 from uacell.ua import data_types, snapshot
@@ -62,11 +63,11 @@ def without_design_tool_only(path: Path) -> tuple[str, int]:
     return ET.tostring(root, encoding="unicode"), len(dropped)
 
 
-async def load_models(server: Server, models_dir: str | None = None) -> dict[str, int]:
-    """Import every official model; returns each model's namespace index in this server."""
-    paths = locate_models(models_dir)
+async def load_models(server: Server, models: Sequence[ModelFile], models_dir: str | None = None) -> dict[str, int]:
+    """Import every official model (``models``, in order); returns each model's namespace index in this server."""
+    paths = locate_models(models, models_dir)
     indexes: dict[str, int] = {}
-    for model in official_models():
+    for model in models:
         xml, dropped = without_design_tool_only(paths[model.key])
         if dropped:
             log.debug("%s: left out %d DesignToolOnly nodes", model.filename, dropped)
@@ -138,41 +139,41 @@ def _types_of(found: snapshot.Snapshot) -> dict[tuple[int, int, str], ua.NodeId]
     return {(cls, index[uri], name): ua.NodeId(ident, index[uri]) for (cls, uri, name), ident in stored.items()}
 
 
-def models_snapshot_key() -> dict[str, Any]:
-    """The key of the models' own snapshot: the standard address space and the official NodeSets,
-    no cell (``cell`` empty)."""
-    return snapshot.snapshot_key({m.filename: m.sha256 for m in official_models()}, "")
+def models_snapshot_key(models: Sequence[ModelFile]) -> dict[str, Any]:
+    """The key of the models' own snapshot: the standard address space and the official NodeSets
+    ``models``, no cell (``cell`` empty)."""
+    return snapshot.snapshot_key({m.filename: m.sha256 for m in models}, "")
 
 
-def models_snapshot_path(models_dir: str | None) -> Path:
+def models_snapshot_path(models: Sequence[ModelFile], models_dir: str | None) -> Path:
     """Where the models' snapshot lives: beside the NodeSet files it is made of."""
-    return snapshot.snapshot_path(models_directory(models_dir), models_snapshot_key())
+    return snapshot.snapshot_path(models_directory(models_dir), models_snapshot_key(models))
 
 
-async def write_models_snapshot(models_dir: str | None = None) -> Path:
+async def write_models_snapshot(models: Sequence[ModelFile], models_dir: str | None = None) -> Path:
     """Build the standard address space and the official models once, in a server that never listens,
     and write them as the models' snapshot (``uacell models fetch`` does, after fetching): a first
     start then reads them instead of importing the NodeSets (decision 46)."""
-    path = models_snapshot_path(models_dir)
+    path = models_snapshot_path(models, models_dir)
     quiet = logging.getLogger("asyncua")
     level = quiet.level
     quiet.setLevel(logging.ERROR)  # asyncua says every node it imports, and what it makes of some
     try:
         server = Server()
         await server.init()
-        await load_models(server, models_dir)
+        await load_models(server, models, models_dir)
         nodes = snapshot.stripped_copy(node_table(server.iserver.aspace))
         namespaces = list((await server.get_namespace_array())[2:])
         types = type_index(node_table(server.iserver.aspace), namespaces)
         made = data_types.registered(node_table(server.iserver.aspace))
     finally:
         quiet.setLevel(level)
-    snapshot.write_snapshot(path, models_snapshot_key(), namespaces, nodes, {"types": types, "data_types": made})
+    snapshot.write_snapshot(path, models_snapshot_key(models), namespaces, nodes, {"types": types, "data_types": made})
     snapshot.prune(path.parent, keep=2)  # one for this uacell, one for another beside it
     return path
 
 
-async def _restore(server: Server, found: snapshot.Snapshot) -> dict[str, int]:
+async def _restore(server: Server, found: snapshot.Snapshot, models: Sequence[ModelFile]) -> dict[str, int]:
     """asyncua's ``init()`` with the snapshot's nodes instead of the standard ones; the models'
     namespace indexes."""
     nodes = found.nodes
@@ -188,7 +189,7 @@ async def _restore(server: Server, found: snapshot.Snapshot) -> dict[str, int]:
     # made before any value of theirs is read from the snapshot: from what its writer kept, or else
     # by asyncua walking every DataType for them.
     await _register_data_types(server, found)
-    return {m.key: await server.get_namespace_index(m.namespace_uri) for m in official_models()}
+    return {m.key: await server.get_namespace_index(m.namespace_uri) for m in models}
 
 
 async def _register_data_types(server: Server, found: snapshot.Snapshot) -> None:
@@ -216,9 +217,9 @@ def _read(path: Path, key: dict[str, Any], what: str) -> snapshot.Snapshot | Non
 
 
 async def init_address_space(
-    server: Server, models_dir: str | None, cache: Path | None, cell: str = ""
+    server: Server, models: Sequence[ModelFile], models_dir: str | None, cache: Path | None, cell: str = ""
 ) -> PreparedSpace:
-    """``server.init()`` and the official models, from the snapshot in ``cache`` when there is one.
+    """``server.init()`` and the official ``models``, from the snapshot in ``cache`` when there is one.
 
     ``cell`` is the digest of the cell that will be built (``uacell.binding.cell.cell_digest``): a snapshot
     holds its instances too. Without one, the models come from the models' snapshot beside the
@@ -227,28 +228,28 @@ async def init_address_space(
     file: it is not found. A damaged one is logged at INFO and removed. In both cases the address
     space is built as usual.
     """
-    locate_models(models_dir)  # every file there and verified, even when the snapshot will do
+    locate_models(models, models_dir)  # every file there and verified, even when the snapshot will do
     if cache is None:
         await server.init()
-        return PreparedSpace(await load_models(server, models_dir), "nodesets")
-    key = snapshot.snapshot_key({m.filename: m.sha256 for m in official_models()}, cell)
+        return PreparedSpace(await load_models(server, models, models_dir), "nodesets")
+    key = snapshot.snapshot_key({m.filename: m.sha256 for m in models}, cell)
     target = snapshot.snapshot_path(cache, key)
     found = _read(target, key, "address-space snapshot for this cell and these models")
     if found is not None:
-        indexes = await _restore(server, found)
+        indexes = await _restore(server, found, models)
         log.info("address space from the snapshot %s (%d nodes stored)", target, found.nodes.stored)
         return PreparedSpace(indexes, "snapshot", found.extras)
-    base_path = models_snapshot_path(models_dir)
-    base = _read(base_path, models_snapshot_key(), "snapshot of the models") if base_path.exists() else None
+    base_path = models_snapshot_path(models, models_dir)
+    base = _read(base_path, models_snapshot_key(models), "snapshot of the models") if base_path.exists() else None
     types = None
     if base is not None:
-        indexes = await _restore(server, base)
+        indexes = await _restore(server, base, models)
         source = "models snapshot"
         types = _types_of(base)
         log.info("the models from their snapshot %s", base_path)
     else:
         await server.init()
-        indexes = await load_models(server, models_dir)
+        indexes = await load_models(server, models, models_dir)
         source = "nodesets"
 
     async def capture() -> SnapshotJob:

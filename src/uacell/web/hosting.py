@@ -24,6 +24,7 @@ import socket
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlparse
 
 import uvicorn
@@ -32,7 +33,6 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 
-from uacell.catalog import companions as catalog_companions
 from uacell.core.companion import Companion, web_views
 from uacell.core.errors import ConfigError
 from uacell.core.files import atomic_write
@@ -50,6 +50,9 @@ from uacell.security.pki import (
 from uacell.web.app import RELEASE_AFTER, UA_SESSIONS, WebApp, cookie_name
 from uacell.web.guards import HEADER_TIMEOUT, machine_names, timed_headers
 from uacell.web.uasession import APPLICATION_URI, Credentials
+
+if TYPE_CHECKING:  # the annotation only: the HMI is a client and does not load the server's parts
+    from uacell.host import ServerView
 
 log = logging.getLogger(__name__)
 
@@ -161,6 +164,7 @@ async def start_web(
     server_url: str,
     data_dir: Path,
     *,
+    companions: Sequence[Companion[ServerView]],
     host: str = "127.0.0.1",
     port: int = 8080,
     server_certificate: Path | None = None,
@@ -169,7 +173,6 @@ async def start_web(
     ua_sessions: int = UA_SESSIONS,
     release_after: float = RELEASE_AFTER,
     header_timeout: float = HEADER_TIMEOUT,
-    companions: Sequence[Companion] | None = None,
 ) -> RunningWeb:
     """Serve the HMI for the OPC UA server ``server_url``; HTTPS on every non-loopback address.
 
@@ -177,8 +180,8 @@ async def start_web(
     otherwise it is pinned on first connection. HTTPS needs ``https_certificate`` and ``https_key``
     (PEM, or a DER certificate) unless ``host`` is loopback. ``ua_sessions``, ``release_after`` and
     ``header_timeout`` are the ``[web]`` settings of the same names (docs/configuration.md).
-    The page shows the parts of ``companions`` (default: this build's, ``uacell.catalog``) that
-    declare a web view.
+    The page shows the parts of ``companions`` (the composition root's, the server's) that declare a
+    web view.
     """
     cert, key = hmi_certificate(data_dir)
     https = not is_loopback(host)
@@ -210,7 +213,7 @@ async def start_web(
         hosts=(host, *machine_names()),
         ua_sessions=ua_sessions,
         release_after=release_after,
-        views=web_views(companions if companions is not None else catalog_companions()),
+        views=web_views(companions),
     )
     sock = _bind(host, port)
     config = uvicorn.Config(

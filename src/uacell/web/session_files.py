@@ -10,7 +10,8 @@ from typing import Any, Protocol
 
 from asyncua import Client, Node, ua
 
-from uacell.web.discovery import Cell, list_files
+from uacell.binding.web_discovery import Cell
+from uacell.web.discovery import list_files
 from uacell.web.errors import CallFailed, UnknownKey
 
 log = logging.getLogger(__name__)

@@ -12,7 +12,7 @@ from typing import Any, Protocol
 
 from asyncua import Client, Node, ua
 
-from uacell.web.discovery import Cell
+from uacell.binding.web_discovery import Cell
 
 log = logging.getLogger(__name__)
 

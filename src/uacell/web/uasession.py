@@ -22,8 +22,9 @@ from asyncua import Client, Node, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from asyncua.ua.uaerrors import UaStatusCodeError
 
+from uacell.binding.web_discovery import Cell
 from uacell.core.companion import WebView
-from uacell.web.discovery import Cell, discover
+from uacell.web.discovery import discover
 from uacell.web.errors import CallFailed, UnknownKey, login_refusal, status_text
 from uacell.web.history import WIDTH, cell_history
 from uacell.web.session_files import ProgramFiles

@@ -74,7 +74,7 @@ class ThermometerCount:
     def collect(self) -> Iterator[Any]:
         from prometheus_client.core import GaugeMetricFamily
 
-        from uacell.services.metrics import cell_variables, variable_value
+        from uacell.binding.metric_reads import cell_variables, variable_value
 
         found = {
             path: node for path, node in cell_variables(self.app) if path.endswith(f".{THERMOMETER}.{TEMPERATURE_NAME}")
@@ -89,7 +89,7 @@ class ThermometerCount:
 
 
 async def describe_thermometer(d: Any, unit: Any, _ns: int) -> dict[str, Any]:
-    """What the page gets of a unit's thermometer (``uacell.web.discovery.Discoverer``)."""
+    """What the page gets of a unit's thermometer (``uacell.binding.web_discovery.Discoverer``)."""
     return {
         "name": unit.name,
         "temperature": await d.variable(
@@ -100,7 +100,7 @@ async def describe_thermometer(d: Any, unit: Any, _ns: int) -> dict[str, Any]:
 
 async def thermometer_history(client: Client, cell: Any, name: str, w: Any) -> dict[str, Any]:
     """The history view of a unit's thermometer: its temperatures over the window."""
-    from uacell.web.history import value_history
+    from uacell.binding.web_history import value_history
 
     node = cell.variables.get(f"{FOLDER}/{name}/{TEMPERATURE_NAME}")
     changes = await value_history(client, node, w.since, w.end) if node is not None else []
