@@ -207,6 +207,9 @@ def test_a_different_asyncua_is_refused_at_attach_in_one_line(monkeypatch: pytes
 
 
 def test_a_different_uvicorn_is_a_warning(monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    import uvicorn  # checked once loaded (the web HMI loads it before the server attaches)
+
+    assert uvicorn.__version__
     monkeypatch.setitem(door.VERIFIED, "uvicorn", "0.0.1")
     with caplog.at_level(logging.WARNING, logger="uacell.ua.door"):
         door.check_versions()  # no exception
