@@ -9,11 +9,16 @@ import asyncio
 import os
 import subprocess
 import sys
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
+from asyncua import Client
+from conftest import fast_config, serving
 from helpers import free_port
 
+from uacell.config import load_cell
 from uacell.core.cell_file import builtin_cell_path
 from uacell.gateway.codec import RegisterType
 from uacell.gateway.modbus import ModbusConnection, ModbusTag
@@ -21,8 +26,22 @@ from uacell.gateway.packml_logix import LogixConnection
 from uacell.gateway.packml_modbus import Point, resolve_modbus
 from uacell.gateway.packml_s7 import S7Connection, resolve_s7
 from uacell.gateway.s7 import S7Address
+from uacell.server import UacellServer
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
+
+
+@asynccontextmanager
+async def serving_cell(tmp_path: Path, text: str) -> AsyncIterator[tuple[UacellServer, Client]]:
+    """A server (fast settings) of the cell file ``text`` (a shipped example pointed at a test PLC),
+    with a client that knows the data types."""
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    config = fast_config(tmp_path / "data")
+    config.cell = load_cell(path)
+    async with serving(config) as s:
+        await s[1].load_data_type_definitions()
+        yield s
 
 
 class ExamplePLC:

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving
-from gateway_plcs import S7PLC, LogixPLC, ModbusPLC, logix_cell, modbus_cell, s7_cell
+from gateway_plcs import S7PLC, LogixPLC, ModbusPLC, logix_cell, modbus_cell, s7_cell, serving_cell
 from helpers import call_path, cell_executable, cell_read, cell_state, cell_status, packml_params, until
 
 from uacell.config import load_cell
@@ -152,12 +152,7 @@ def cell(kind: str, plc: Units) -> str:
 
 @pytest.fixture
 async def served(tmp_path: Path, kind: str, plc: Units) -> AsyncIterator[tuple[UacellServer, Client]]:
-    path = tmp_path / "cell.toml"  # the shipped example, nothing changed but the PLC's port
-    path.write_text(cell(kind, plc))
-    config = fast_config(tmp_path / "data")
-    config.cell = load_cell(path)
-    async with serving(config) as s:
-        await s[1].load_data_type_definitions()
+    async with serving_cell(tmp_path, cell(kind, plc)) as s:  # the shipped example, pointed at the PLC
         yield s
 
 

@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving
-from gateway_plcs import ModbusPLC
+from gateway_plcs import ModbusPLC, serving_cell
 from gateway_plcs import modbus_cell as shipped_cell
 from helpers import (
     call_path,
@@ -59,12 +59,7 @@ async def plc() -> AsyncIterator[ModbusPLC]:
 
 @pytest.fixture
 async def served(tmp_path: Path, plc: ModbusPLC) -> AsyncIterator[tuple[UacellServer, Client]]:
-    path = tmp_path / "cell.toml"  # the shipped example, nothing changed but the PLC's port
-    path.write_text(shipped_cell(plc))
-    config = fast_config(tmp_path / "data")
-    config.cell = load_cell(path)
-    async with serving(config) as s:
-        await s[1].load_data_type_definitions()
+    async with serving_cell(tmp_path, shipped_cell(plc)) as s:  # the shipped example, pointed at the PLC
         yield s
 
 
