@@ -1,5 +1,5 @@
 """The work a call makes the server do does not grow with the parts of the cell the call does not touch
-(issue 45, target 3): counted, not timed.
+(docs/performance.md, "What limits each figure"): counted, not timed.
 
 What is counted: the Python function calls (``sys.setprofile``'s ``call`` and ``c_call`` events: Python
 functions, coroutine resumptions, builtins and C methods) that the server's event-loop thread makes

@@ -1,4 +1,5 @@
-"""The named seams of issue 40 around the pure models: the robotics model reads programs only through
+"""The named seams around the pure models (docs/architecture.md, "Rules of the house"): the
+robotics model reads programs only through
 the ``ProgramLibrary`` it is handed (the file reading and its text cache are
 ``robotics.program_cache``), parsed texts are kept by ``ParsedPrograms``; a PackML unit's publish
 bookkeeping (``packml.publishing``) and Admin accounting (``packml.accounting``) work on their own."""
