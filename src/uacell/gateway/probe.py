@@ -15,7 +15,7 @@ from asyncua import ua
 from uacell.core.cell_file import Part
 from uacell.core.drivers import factory_of
 from uacell.gateway.errors import CommunicationError, DashboardError
-from uacell.gateway.opcua_link import link_options, new_client, resolve_address
+from uacell.gateway.opcua_link import LinkOptions, link_options, new_client, resolve_address
 from uacell.gateway.opcua_robot import robot_addresses
 from uacell.gateway.packtags import PackTagsMapError, resolve
 from uacell.gateway.pool import shared_conflict
@@ -108,6 +108,15 @@ async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float 
         )
     except PackTagsMapError as e:
         return [Row(part, endpoint, "(map)", str(e), False)]
+    wanted = {key: (tag.address, tag.type_name) for key, tag in tags.items()}
+    return await _read_opcua(part, endpoint, options, timeout, wanted)
+
+
+async def _read_opcua(
+    part: str, endpoint: str, options: LinkOptions, timeout: float, wanted: Mapping[str, tuple[str, str | None]]
+) -> list[Row]:
+    """Connect as the driver would and read each ``key: (address, expected type or None)`` once: a row
+    per key, found and typed as expected (any type where None), or what is wrong."""
     try:
         client = await new_client(options, timeout)
         await asyncio.wait_for(client.connect(), timeout)
@@ -115,20 +124,20 @@ async def probe_packtags(part: str, settings: Mapping[str, Any], timeout: float 
         return [Row(part, endpoint, "(endpoint)", f"unreachable: {e or type(e).__name__}", False)]
     rows = []
     try:
-        for key, tag in tags.items():
+        for key, (address, expected) in wanted.items():
             try:
-                node = client.get_node(await resolve_address(client, tag.address))
+                node = client.get_node(await resolve_address(client, address))
                 dv = await node.read_data_value(raise_on_bad_status=False)
             except Exception as e:
-                rows.append(Row(part, endpoint, key, f"{tag.address}: {e}", False))
+                rows.append(Row(part, endpoint, key, f"{address}: {e}", False))
                 continue
             if not dv.StatusCode.is_good():
-                rows.append(Row(part, endpoint, key, f"{tag.address}: {dv.StatusCode.name}", False))
+                rows.append(Row(part, endpoint, key, f"{address}: {dv.StatusCode.name}", False))
                 continue
             found = _BUILTIN.get(dv.Value.VariantType, dv.Value.VariantType.name) if dv.Value else "null"
-            ok = found == tag.type_name
+            ok = expected is None or found == expected
             value = dv.Value.Value if dv.Value else None
-            text = f"{found} = {value!r}" if ok else f"{found} = {value!r}, expected {tag.type_name}"
+            text = f"{found} = {value!r}" if ok else f"{found} = {value!r}, expected {expected}"
             rows.append(Row(part, endpoint, key, text, ok))
     finally:
         await client.disconnect()
@@ -235,28 +244,8 @@ async def probe_opcua_signals(part: str, settings: Mapping[str, Any], timeout: f
         used = robot_addresses(settings)
     except ValueError as e:
         return [Row(part, endpoint, "(settings)", str(e), False)]
-    try:
-        client = await new_client(options, timeout)
-        await asyncio.wait_for(client.connect(), timeout)
-    except Exception as e:
-        return [Row(part, endpoint, "(endpoint)", f"unreachable: {e or type(e).__name__}", False)]
-    rows = []
-    try:
-        for key, address in used.items():
-            try:
-                node = client.get_node(await resolve_address(client, address))
-                dv = await node.read_data_value(raise_on_bad_status=False)
-            except Exception as e:
-                rows.append(Row(part, endpoint, key, f"{address}: {e}", False))
-                continue
-            if not dv.StatusCode.is_good():
-                rows.append(Row(part, endpoint, key, f"{address}: {dv.StatusCode.name}", False))
-                continue
-            found = _BUILTIN.get(dv.Value.VariantType, dv.Value.VariantType.name) if dv.Value else "null"
-            rows.append(Row(part, endpoint, key, f"{found} = {dv.Value.Value if dv.Value else None!r}", True))
-    finally:
-        await client.disconnect()
-    return rows
+    wanted = {key: (address, None) for key, address in used.items()}
+    return await _read_opcua(part, endpoint, options, timeout, wanted)
 
 
 async def probe_s7_packtags(part: str, settings: Mapping[str, Any], timeout: float = 3.0) -> list[Row]:
