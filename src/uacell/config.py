@@ -28,6 +28,7 @@ import platformdirs
 
 from uacell.catalog import companions
 from uacell.core.cell_file import CellConfig, SectionParser, builtin_cell_path, did_you_mean, parse_cell
+from uacell.core.early import EVENT_LOOP_ENV, EVENT_LOOPS, uvloop_installed
 from uacell.core.errors import ConfigError
 from uacell.core.extras import MissingExtra, require
 from uacell.core.roles import Role
@@ -84,6 +85,7 @@ class ServerConfig:
     rejected_max_age_days: float = 30.0
     address_space_cache: bool = True
     cache_dir: Path | None = field(default_factory=lambda: _env_path(CACHE_DIR_ENV))  # None: <data_dir>/cache
+    event_loop: str = "auto"  # auto (uvloop where installed), uvloop, asyncio; $UACELL_EVENT_LOOP overrides
 
     @property
     def snapshot_dir(self) -> Path | None:
@@ -290,6 +292,8 @@ def _coerce(section: str, key: str, value: object, default: object) -> object:
         raise ConfigError(f"{name}: must be one of {', '.join(ROLES)}")
     if key == "level" and value.upper() not in LOG_LEVELS:
         raise ConfigError(f"{name}: must be one of {', '.join(LOG_LEVELS)}")
+    if key == "event_loop":
+        return check_event_loop(value, name)
     if key == "format" and value not in LOG_FORMATS:
         raise ConfigError(f"{name}: must be one of {', '.join(LOG_FORMATS)}")
     return value.upper() if key == "level" else value
@@ -421,6 +425,17 @@ def check_host(value: str, name: str) -> str:
     return h
 
 
+def check_event_loop(value: str, name: str) -> str:
+    """``[server] event_loop`` (or ``$UACELL_EVENT_LOOP``): one of ``early.EVENT_LOOPS``, and uvloop only
+    where it is installed."""
+    chosen = value.strip().lower()
+    if chosen not in EVENT_LOOPS:
+        raise ConfigError(f"{name}: must be one of {', '.join(EVENT_LOOPS)}, not {value!r}")
+    if chosen == "uvloop" and not uvloop_installed():
+        raise ConfigError(f"{name}: uvloop is not installed: pip install uvloop, or choose auto or asyncio")
+    return chosen
+
+
 def check_directory(path: Path, name: str) -> Path:
     """``path`` is a directory, or can be made one: it is not a file, nor below a file."""
     for p in (path, *path.parents):
@@ -448,6 +463,9 @@ def validate(config: Config) -> None:
     check_port(config.server.port, "[server] port")
     check_host(config.server.host, "[server] host")
     check_host(config.web.host, "[web] host")
+    check_event_loop(config.server.event_loop, "[server] event_loop")
+    if env_loop := os.environ.get(EVENT_LOOP_ENV, "").strip():
+        check_event_loop(env_loop, f"${EVENT_LOOP_ENV}")
     if config.server.rejected_max_files < 1:
         raise ConfigError("[server] rejected_max_files: must be 1 or more")
     check_directory(config.server.data_dir, "data directory")

@@ -303,7 +303,7 @@ def _prepare_and_run(config: Config) -> int:
         logs.configure(config)
     except OSError as exc:
         raise ConfigError(f"cannot open log file: {exc}") from exc
-    return early.run(_run(config))
+    return early.run(_run(config), config.server.event_loop)
 
 
 async def _run(config: Config) -> int:
@@ -314,6 +314,7 @@ async def _run(config: Config) -> int:
     app = UacellServer(config, companions=companions())
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
+    log.info("event loop: %s", "uvloop" if type(loop).__module__.startswith("uvloop") else "asyncio")
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     if early.stop_requested:  # a stop whose exception some library code caught (e.g. a logging handler)

@@ -49,22 +49,32 @@ def resume_gc() -> None:
     gc.enable()
 
 
-def event_loop_name() -> str:
-    """The event loop ``run`` uses: ``uvloop`` where it is installed (Linux and macOS: a dependency
-    there), else asyncio's own; ``UACELL_EVENT_LOOP=asyncio`` chooses asyncio's anyway."""
-    if os.environ.get("UACELL_EVENT_LOOP", "").strip().lower() == "asyncio":
-        return "asyncio"
+EVENT_LOOPS = ("auto", "uvloop", "asyncio")
+EVENT_LOOP_ENV = "UACELL_EVENT_LOOP"
+
+
+def uvloop_installed() -> bool:
     try:
         import uvloop  # noqa: F401
     except ImportError:
+        return False
+    return True
+
+
+def event_loop_name(setting: str = "auto") -> str:
+    """The event loop ``run`` uses for ``[server] event_loop`` (``$UACELL_EVENT_LOOP`` overrides it):
+    ``auto`` is uvloop where it is installed (Linux and macOS: a dependency there), else asyncio's own;
+    ``uvloop`` and ``asyncio`` name one (``uacell.config`` refuses ``uvloop`` where it is not installed)."""
+    chosen = os.environ.get(EVENT_LOOP_ENV, "").strip().lower() or setting
+    if chosen == "asyncio" or (chosen != "uvloop" and not uvloop_installed()):
         return "asyncio"
     return "uvloop"
 
 
-def run(main: Coroutine[Any, Any, T]) -> T:
-    """``asyncio.run`` on the loop ``event_loop_name`` names (uvloop's: about a quarter more requests
-    a second through asyncua's TCP server here, docs/performance.md)."""
-    if event_loop_name() == "uvloop":
+def run(main: Coroutine[Any, Any, T], setting: str = "auto") -> T:
+    """``asyncio.run`` on the loop ``event_loop_name(setting)`` names (uvloop's: about a quarter more
+    requests a second through asyncua's TCP server here, docs/performance.md)."""
+    if event_loop_name(setting) == "uvloop":
         import uvloop
 
         with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
