@@ -4,6 +4,7 @@ decodes them back to the response."""
 from __future__ import annotations
 
 from datetime import UTC, datetime
+from typing import Any
 
 import pytest
 from asyncua import ua
@@ -215,3 +216,75 @@ def test_a_request_of_an_unknown_kind_is_a_refusal_not_a_server_error() -> None:
     with pytest.raises(UaError) as refused:
         decode_request_header(Buffer(bytes(data)))
     assert not isinstance(refused.value, NotEnoughData)
+
+
+# --- framing: a response on its secure channel ---------------------------------------------------------
+
+
+class _Transport:
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def write(self, data: bytes) -> None:
+        self.sent.append(bytes(data))
+
+
+def _channel(policy: Any, max_send: int = 65535, sequence: int = 0) -> Any:
+    from asyncua.common.connection import SecureConnection, TransportLimits
+
+    conn = SecureConnection(policy, TransportLimits(max_recv_buffer=65535, max_send_buffer=max_send))
+    conn.security_token.ChannelId, conn.security_token.TokenId = 7, 3
+    conn._sequence_number = sequence
+    return conn
+
+
+class _Processor:
+    def __init__(self, conn: Any) -> None:
+        self._connection = conn
+        self._transport = _Transport()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    body=st.binary(min_size=1, max_size=20_000),
+    max_send=st.sampled_from([8192, 16384, 65535]),
+    request_id=st.integers(0, 2**32 - 1),
+    sequence=st.sampled_from([0, 41, 2**32 - 2, 2**32 - 1]),
+)
+def test_a_response_is_framed_as_asyncua_frames_it(body: bytes, max_send: int, request_id: int, sequence: int) -> None:
+    """One chunk on SecurityPolicy None framed from the fixed layout, a larger body in asyncua's chunks:
+    the bytes asyncua's ``message_to_binary`` sends, and the channel's sequence number where asyncua
+    leaves it (wrapping to 1 after 2**32 - 1, OPC 10000-6 6.7.2.4)."""
+    from asyncua.crypto.security_policies import SecurityPolicyNone
+
+    from uacell.ua.door.connection import send_response
+
+    theirs = _channel(SecurityPolicyNone(), max_send, sequence)
+    expected = theirs.message_to_binary(body, message_type=ua.MessageType.SecureMessage, request_id=request_id)
+    processor = _Processor(_channel(SecurityPolicyNone(), max_send, sequence))
+    send_response(processor, request_id, body)  # type: ignore[arg-type]
+    assert processor._transport.sent == [expected]
+    assert processor._connection._sequence_number == theirs._sequence_number
+
+
+def test_a_signed_channel_is_framed_by_asyncua() -> None:
+    """A channel whose symmetric cryptography is not None's (signing, encrypting) is never framed here."""
+    from asyncua.crypto.security_policies import CryptographyNone, SecurityPolicyNone
+
+    class Signing(CryptographyNone):
+        def signature_size(self) -> int:
+            return 4
+
+        def signature(self, data: bytes) -> bytes:
+            return b"SIGN"
+
+    policy = SecurityPolicyNone()
+    policy.symmetric_cryptography = Signing()
+    theirs = _channel(policy)
+    expected = theirs.message_to_binary(b"body", message_type=ua.MessageType.SecureMessage, request_id=5)
+    assert expected.endswith(b"SIGN")
+    processor = _Processor(_channel(policy))
+    from uacell.ua.door.connection import send_response
+
+    send_response(processor, 5, b"body")  # type: ignore[arg-type]
+    assert processor._transport.sent == [expected]

@@ -8,11 +8,12 @@ hangs on it are here too, so no module outside the door (``uacell.ua.door``) tou
 
 from __future__ import annotations
 
+import struct
 from typing import Any
 
 from asyncua import ua
 from asyncua.common.utils import Buffer
-from asyncua.crypto.security_policies import SecurityPolicyNone
+from asyncua.crypto.security_policies import CryptographyNone, SecurityPolicyNone
 from asyncua.server.address_space import AddressSpace
 from asyncua.server.binary_server_asyncio import OPCUAProtocol
 from asyncua.server.internal_server import InternalServer
@@ -62,11 +63,36 @@ _HISTORY_UPDATE = ua.NodeId(ua.ObjectIds.HistoryUpdateRequest_Encoding_DefaultBi
 _HISTORY_READ = ua.NodeId(ua.ObjectIds.HistoryReadRequest_Encoding_DefaultBinary)
 
 
+# A SecureMessage of one chunk (OPC 10000-6 6.7.2): MessageType "MSG", ChunkType "F", MessageSize,
+# SecureChannelId; the symmetric security header's TokenId; the sequence header's SequenceNumber and
+# RequestId. 24 bytes before the body.
+_SINGLE_MSG = struct.Struct("<3scIIIII")
+_SINGLE_MSG_OVERHEAD = _SINGLE_MSG.size
+
+
 def send_response(processor: UaProcessor, request_id: int, body: bytes) -> None:
     """A service response, already encoded, on the processor's secure channel (asyncua's
-    ``send_response`` with uacell's encoder)."""
+    ``send_response`` with uacell's encoder).
+
+    On a channel without signing or encryption (SecurityPolicy None) a response that fits one chunk
+    is framed here from the fixed layout, the same bytes asyncua's ``message_to_binary`` makes
+    (tests/test_codec.py compares them), without its chunk objects; anything else is asyncua's."""
+    conn = processor._connection
+    if (
+        type(conn.security_policy.symmetric_cryptography) is CryptographyNone
+        and len(body) + _SINGLE_MSG_OVERHEAD <= conn._limits.max_send_buffer
+    ):
+        sequence = conn._sequence_number + 1
+        if sequence >= 1 << 32:
+            sequence = 1
+        conn._sequence_number = sequence
+        token = conn.security_token
+        size = _SINGLE_MSG_OVERHEAD + len(body)
+        header = _SINGLE_MSG.pack(b"MSG", b"F", size, token.ChannelId, token.TokenId, sequence, request_id)
+        processor._transport.write(header + body)
+        return
     message = ua.MessageType.SecureMessage
-    data = processor._connection.message_to_binary(body, message_type=message, request_id=request_id)
+    data = conn.message_to_binary(body, message_type=message, request_id=request_id)
     processor._transport.write(data)
 
 

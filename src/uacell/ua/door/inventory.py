@@ -86,6 +86,8 @@ ENTRIES: tuple[Entry, ...] = (
     Entry(f"{_P}._connection", Kind.PRIVATE, "uacell.ua.channel", "a channel's policy, mode, peer certificate, open state", ""),
     Entry(f"{_P}._transport", Kind.PRIVATE, "uacell.ua.channel", "to send an Error or a response, to close", ""),
     Entry(f"{_P}._limits", Kind.PRIVATE, "uacell.ua.limits", "the negotiated receive buffer", ""),
+    Entry("asyncua.common.connection.SecureConnection._sequence_number", Kind.PRIVATE, "uacell.ua.pipeline", "a one-chunk response on SecurityPolicy None framed from its fixed layout (the channel's sequence number read and advanced as asyncua does)", ""),
+    Entry("asyncua.common.connection.SecureConnection._limits", Kind.PRIVATE, "uacell.ua.pipeline", "the negotiated send buffer: does a response fit one chunk", ""),
     Entry(f"{_T}._buffer", Kind.PRIVATE, "uacell.ua.limits", "bytes received and not parsed (chunk sizes checked first)", ""),
     Entry("asyncio.Queue._queue", Kind.PRIVATE, "uacell.ua.limits", "bytes queued on a connection (asyncua's message queue)", ""),
     Entry(f"{_I}._external_sessions", Kind.PRIVATE, "uacell.ua.channel", "the client sessions (diagnostics, metrics)", ""),
