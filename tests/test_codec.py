@@ -288,3 +288,118 @@ def test_a_signed_channel_is_framed_by_asyncua() -> None:
 
     send_response(processor, 5, b"body")  # type: ignore[arg-type]
     assert processor._transport.sent == [expected]
+
+
+def _request_chunk(channel: int, token: int, sequence: int, request_id: int, body: bytes, chunk: bytes = b"F") -> bytes:
+    import struct
+
+    return struct.pack("<3scIIIII", b"MSG", chunk, 24 + len(body), channel, token, sequence, request_id) + body
+
+
+def _received(data: bytes) -> tuple[ua.Header, Buffer]:
+    from asyncua.ua.ua_binary import header_from_binary
+
+    buffer = Buffer(data)
+    return header_from_binary(buffer), buffer
+
+
+def _open_channel(policy: Any = None, peer: int | None = 40, max_message: int = 0) -> Any:
+    from asyncua.crypto.security_policies import SecurityPolicyNone
+
+    conn = _channel(policy or SecurityPolicyNone())
+    conn._open = True
+    conn._peer_sequence_number = peer
+    conn._limits.max_message_size = max_message
+    return conn
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    body=st.binary(min_size=1, max_size=4000),
+    request_id=st.integers(0, 2**32 - 1),
+    peer=st.sampled_from([None, 0, 40, 2**32 - 2]),
+    trailing=st.binary(max_size=16),
+)
+def test_a_one_chunk_request_is_read_as_asyncua_reads_it(
+    body: bytes, request_id: int, peer: int | None, trailing: bytes
+) -> None:
+    """A one-chunk SecureMessage on SecurityPolicy None read from the fixed layout: the sequence header
+    and body asyncua's ``receive_from_header_and_body`` gives, the buffer advanced as far, and the
+    client's sequence number where asyncua leaves it."""
+    from uacell.ua.door.connection import plain_message
+
+    sequence = 1 if peer is None else peer + 1
+    data = _request_chunk(7, 3, sequence, request_id, body) + trailing
+    theirs = _open_channel(peer=peer)
+    header, buffer = _received(data)
+    message = theirs.receive_from_header_and_body(header, buffer)
+    ours = _Processor(_open_channel(peer=peer))
+    header2, buffer2 = _received(data)
+    read = plain_message(ours, header2, buffer2)  # type: ignore[arg-type]
+    assert read is not None
+    seqhdr, got = read
+    assert seqhdr == message.SequenceHeader()
+    assert bytes(got) == bytes(message.body()) == body
+    assert buffer2.cur_pos == buffer.cur_pos and len(buffer2) == len(buffer) == len(trailing)
+    assert ours._connection._peer_sequence_number == theirs._peer_sequence_number == sequence
+
+
+@pytest.mark.parametrize(
+    ("case", "refused_by_asyncua"),
+    [
+        ("another token", True),
+        ("another channel", True),
+        ("a sequence number that is not the next", True),
+        ("the next token (a renewal)", False),
+        ("a wrapped sequence number", False),
+        ("an intermediate chunk", False),
+        ("a message under way", False),
+        ("a closed channel", False),
+        ("a signing channel", False),
+        ("larger than max_message_size", True),
+    ],
+)
+def test_anything_else_is_left_to_asyncua(case: str, refused_by_asyncua: bool) -> None:
+    """Every message but the plain common case goes asyncua's way, untouched: nothing read, the buffer
+    and the channel's state as they were (asyncua then accepts it, revolves a token or refuses it)."""
+    from asyncua.crypto.security_policies import CryptographyNone, SecurityPolicyNone
+
+    from uacell.ua.door.connection import plain_message
+
+    class Signing(CryptographyNone):
+        def signature_size(self) -> int:
+            return 4
+
+    policy = SecurityPolicyNone()
+    if case == "a signing channel":
+        policy.symmetric_cryptography = Signing()
+    peer = 2**32 - 1 if case == "a wrapped sequence number" else 40
+    conn = _open_channel(policy, peer=peer, max_message=100 if case == "larger than max_message_size" else 0)
+    conn.next_security_token.ChannelId, conn.next_security_token.TokenId = 7, 4
+    channel, token, sequence, chunk = 7, 3, 41, b"F"
+    if case == "another token":
+        token = 9
+    elif case == "the next token (a renewal)":
+        token = 4
+    elif case == "another channel":
+        channel = 8
+    elif case == "a sequence number that is not the next":
+        sequence = 43
+    elif case == "a wrapped sequence number":
+        sequence = 1
+    elif case == "an intermediate chunk":
+        chunk = b"C"
+    elif case == "a message under way":
+        conn._incoming_parts = [object()]
+    elif case == "a closed channel":
+        conn._open = False
+    header, buffer = _received(_request_chunk(channel, token, sequence, 5, b"x" * 200, chunk))
+    assert plain_message(_Processor(conn), header, buffer) is None  # type: ignore[arg-type]
+    assert buffer.cur_pos == 12 and conn._peer_sequence_number == peer and conn.security_token.TokenId == 3
+    if case in ("a message under way", "a closed channel", "a signing channel"):
+        return
+    if refused_by_asyncua:
+        with pytest.raises((UaError, ua.UaStatusCodeError)):
+            conn.receive_from_header_and_body(header, buffer)
+    else:
+        conn.receive_from_header_and_body(header, buffer)  # accepted (a chunk kept, a token revolved)

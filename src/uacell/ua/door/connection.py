@@ -96,6 +96,42 @@ def send_response(processor: UaProcessor, request_id: int, body: bytes) -> None:
     processor._transport.write(data)
 
 
+# A SecureMessage chunk's symmetric security header (TokenId) and sequence header (SequenceNumber,
+# RequestId), after the 12 bytes of the message header.
+_SYMMETRIC = struct.Struct("<III")
+
+
+def plain_message(processor: UaProcessor, header: ua.Header, body: Buffer) -> tuple[Any, Buffer] | None:
+    """A SecureMessage of one chunk on an open channel without signing or encryption (SecurityPolicy
+    None), read from the fixed layout: its sequence header and its body, as asyncua's
+    ``receive_from_header_and_body`` gives them, without its chunk objects, and ``body`` advanced past
+    it. None for anything else, and for everything asyncua would refuse or act on (another token, a
+    sequence number that is not the next, a chunk of a longer message, a size beyond the limits):
+    asyncua's own path then handles the message (tests/test_codec.py compares the two)."""
+    conn = processor._connection
+    size = header.body_size
+    if (
+        header.ChunkType != ua.ChunkType.Single
+        or conn._incoming_parts
+        or type(conn.security_policy.symmetric_cryptography) is not CryptographyNone
+        or not conn.is_open()
+        or not _SYMMETRIC.size <= size <= len(body)
+    ):
+        return None
+    limits, length = conn._limits, size - _SYMMETRIC.size
+    if header.packet_size > limits.max_recv_buffer or not 0 < length <= (limits.max_message_size or length):
+        return None
+    token = conn.security_token
+    token_id, sequence, request_id = _SYMMETRIC.unpack_from(body._data, body._cur_pos)
+    peer = conn._peer_sequence_number
+    if header.ChannelId != token.ChannelId or token_id != token.TokenId or (peer is not None and sequence != peer + 1):
+        return None
+    conn._peer_sequence_number = sequence
+    # the message's own bytes (the buffer may go on with the next message's), as asyncua makes them
+    message = Buffer(body.read(size)[_SYMMETRIC.size :])
+    return ua.SequenceHeader(SequenceNumber=sequence, RequestId=request_id), message
+
+
 def session_count(iserver: InternalServer) -> int:
     """Client sessions the server holds now (created, activated or not)."""
     return len(iserver._external_sessions)

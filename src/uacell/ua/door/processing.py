@@ -20,7 +20,7 @@ from asyncua.server.uaprocessor import UaProcessor
 from uacell.core.background import eager
 from uacell.ua import context
 from uacell.ua.codec import decode_request_header
-from uacell.ua.door import check_versions, patch, record
+from uacell.ua.door import check_versions, connection, patch, record
 
 log = logging.getLogger(__name__)
 
@@ -110,6 +110,10 @@ async def _process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
         return await _ORIGINAL_PROCESS(self, header, body)
     guard = hooks.channel_guard
     try:
+        if header.MessageType == ua.MessageType.SecureMessage:
+            plain = connection.plain_message(self, header, body)
+            if plain is not None:  # the common case read from its fixed layout
+                return await self.process_message(*plain)
         if guard is None or header.MessageType != ua.MessageType.SecureOpen or self._connection.is_open():
             return await _ORIGINAL_PROCESS(self, header, body)
         return await guard.opening(self, header, body, lambda: _ORIGINAL_PROCESS(self, header, body))
