@@ -78,6 +78,12 @@ def calls_section(report: Report, peers: Peers, args: argparse.Namespace) -> Non
                 ok = (lambda x, f=floor: x >= f) if floor is not None else None
                 ratio = median([a["rate"] / b["rate"] for a, b in zip(raw[f"{uac.name} x{n}"], theirs, strict=True)])
                 report.add(f"SetMachSpeed calls/s, {n} session(s)", value, reference, ratio, target, ok)
+            if n > 1:  # per-connection fairness: the slowest session's share against an even share
+                for p in (uac, asy, nod):
+                    runs = raw[f"{p.name} x{n}"]
+                    shares = [min(x["per_session"]) * n / max(1, sum(x["per_session"])) for x in runs]
+                    value = f"slowest session {median(shares):.2f} of an even share"
+                    report.add(f"{p.name}: fairness, {n} sessions", value, "1.00 (even)", median(shares))
             errors = sum(x["errors"] for x in ours)
             if errors:
                 print(f"  ! {errors} SetMachSpeed calls failed: {ours[0].get('first_error')}")

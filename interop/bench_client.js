@@ -122,13 +122,14 @@ async function calls(endpoint, spec) {
   const requests = await prepare(sessions[0].session, ns, spec.steps);
   for (const s of sessions) for (let i = 0; i < 2; i++) for (const r of requests) await call(s.session, r); // every path works
   const latencies = [];
+  const perSession = sessions.map(() => 0); // the measured calls of each session (fairness)
   let count = 0;
   let errors = 0;
   let firstError = null;
   // Every session calls in a loop until the deadline; only calls of the measured period are counted.
   const load = (seconds, measured) => {
     const deadline = now() + seconds * 1000;
-    return Promise.all(sessions.map(async ({ session }) => {
+    return Promise.all(sessions.map(async ({ session }, index) => {
       while (now() < deadline) {
         for (const r of requests) {
           const t = now();
@@ -141,6 +142,7 @@ async function calls(endpoint, spec) {
           if (measured) {
             latencies.push(now() - t);
             count += 1;
+            perSession[index] += 1;
           }
         }
       }
@@ -154,7 +156,10 @@ async function calls(endpoint, spec) {
   await load(spec.seconds, true);
   const elapsed = (now() - t0) / 1000;
   await Promise.all(sessions.map(close));
-  return { calls: count, seconds: elapsed, rate: count / elapsed, errors, first_error: firstError, ...stats(latencies) };
+  return {
+    calls: count, seconds: elapsed, rate: count / elapsed, errors, first_error: firstError,
+    per_session: perSession, ...stats(latencies),
+  };
 }
 
 async function readText(session, nodeId) {
