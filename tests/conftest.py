@@ -65,8 +65,10 @@ def start_serve(
     web: bool = False,
     host: str = "127.0.0.1",
     prefix: tuple[str, ...] = (),
+    log_level: str = "WARNING",
 ) -> ServeProcess:
-    """Run `uacell serve` on a free loopback port and wait for its listening line.
+    """Run `uacell serve` on a free loopback port and wait for its listening line (what it printed
+    until then is in ``output``).
 
     The web HMI is off unless ``web`` (then on a free port: pass ``--web-port`` in ``extra`` to choose).
     ``prefix`` runs the command through another (``ip netns exec NS``); ``host`` is where it listens.
@@ -82,7 +84,7 @@ def start_serve(
         "-m",
         "uacell",
         "--log-level",
-        "WARNING",
+        log_level,
         "serve",
         "--host",
         host,

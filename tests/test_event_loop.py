@@ -4,16 +4,10 @@ every other setting, and the server answers on either loop."""
 from __future__ import annotations
 
 import asyncio
-import os
-import signal
-import subprocess
-import sys
-import time
-from pathlib import Path
 
 import pytest
 from asyncua import Client, ua
-from conftest import START_TIMEOUT, free_port
+from conftest import start_serve
 
 from uacell.config import Config, load_config, validate
 from uacell.core import early
@@ -73,48 +67,22 @@ def test_a_bad_environment_value_is_refused(monkeypatch):
         validate(Config())
 
 
-def _serve(tmp_path: Path, setting: str) -> tuple[subprocess.Popen[str], str, list[str]]:
-    cfg = tmp_path / "uacell.toml"
-    cfg.write_text(f'[server]\nevent_loop = "{setting}"\n')
-    env = {k: v for k, v in os.environ.items() if k != early.EVENT_LOOP_ENV}
-    cmd = [sys.executable, "-m", "uacell", "--log-level", "INFO", "serve", "--config", str(cfg)]
-    cmd += ["--no-web", "--port", str(free_port()), "--data-dir", str(tmp_path / "data")]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
-    lines: list[str] = []
-    deadline = time.monotonic() + START_TIMEOUT
-    assert proc.stdout is not None
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        if not line:
-            break
-        lines.append(line)
-        if line.startswith("uacell listening on "):
-            return proc, line.split(" on ", 1)[1].strip(), lines
-    proc.kill()
-    proc.wait()
-    raise AssertionError("uacell serve did not start:\n" + "".join(lines))
-
-
 @pytest.mark.parametrize("setting", ["asyncio", "uvloop"])
 async def test_serve_runs_and_answers_on_the_chosen_loop(tmp_path, setting):
-    proc, endpoint, lines = _serve(tmp_path, setting)
+    cfg = tmp_path / "uacell.toml"
+    cfg.write_text(f'[server]\nevent_loop = "{setting}"\n')
+    # an empty $UACELL_EVENT_LOOP is no choice: the file's stands
+    sp = start_serve(tmp_path / "data", "--config", str(cfg), env={early.EVENT_LOOP_ENV: ""}, log_level="INFO")
     try:
-        assert any(line.rstrip().endswith(f"event loop: {setting}") for line in lines), "".join(lines)
-        async with Client(endpoint, timeout=30) as client:
+        assert any(line.rstrip().endswith(f"event loop: {setting}") for line in sp.output), "".join(sp.output)
+        async with Client(sp.endpoint, timeout=30) as client:
             ns = await client.get_namespace_index("urn:uacell:cell")
-            filler = client.get_node(ua.NodeId("Filler1", ns))
             packml = await client.get_namespace_index("http://opcfoundation.org/UA/PackML/")
+            filler = client.get_node(ua.NodeId("Filler1", ns))
             method = await filler.get_child(f"{packml}:SetMachSpeed")
             await filler.call_method(method, ua.Variant(150.0, ua.VariantType.Float))
             speed = await client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns)).read_value()
             assert speed == 150.0
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            assert proc.wait(30) == 0
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-            assert proc.stdout is not None
-            proc.stdout.close()
+        code = sp.stop()
+    assert code == 0  # a clean stop on SIGTERM
