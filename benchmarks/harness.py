@@ -248,6 +248,20 @@ class Report:
         verdict = {True: "PASS", False: "FAIL", None: ""}[passed]
         print(f"  {measure}: {value} vs {reference} -> {fmt(ratio)} {target} {verdict}", flush=True)
 
+    def add_rates(
+        self, measure: str, ours: list[dict[str, Any]], theirs: list[dict[str, Any]], reference: str, floor: float
+    ) -> None:
+        """A row of calls/s: the median rates of ``ours`` and of ``theirs`` (load runs of the same
+        rounds), the median of the per-round ratios, and the target ``>= floor``."""
+        self.add(
+            measure,
+            f"{median([x['rate'] for x in ours]):.0f}/s",
+            f"{reference} {median([x['rate'] for x in theirs]):.0f}/s",
+            median([a["rate"] / b["rate"] for a, b in zip(ours, theirs, strict=True)]),
+            f">= {floor}x",
+            lambda x: x >= floor,
+        )
+
     def print(self) -> None:
         head = ("measure", "uacell", "reference", "ratio", "target", "")
         table = [head] + [
