@@ -28,7 +28,7 @@ import os
 import shutil
 import tempfile
 import threading
-from collections.abc import Hashable
+from collections.abc import Callable, Hashable
 from pathlib import Path
 from typing import Literal
 
@@ -150,53 +150,38 @@ class FileStore(OpenFiles):
     ) -> tuple[str, int | None]:
         """CreateFile: an empty file; with ``request_file_open`` also a Read+Write handle."""
         with self._lock:
-            parent = self._existing(dir_relpath, want_dir=True)
-            self._check_name(name, argument=0)
-            path = parent / name
-            if os.path.lexists(path):
-                refuse("BadBrowseNameDuplicated", f"{name} already exists", argument=0)
-            self._check_room(ENTRY_BYTES)
-            try:
-                fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
-                try:
-                    os.fsync(fd)
-                finally:
-                    os.close(fd)
-                fsync_dir(parent)
-            except FileExistsError:
-                refuse("BadBrowseNameDuplicated", f"{name} already exists", argument=0)
-            except OSError as exc:
-                logger.exception("cannot create %s", path)
-                refuse("BadUnexpectedError", f"cannot create {name}: {exc.strerror}")
-            relpath = self._rel(path)
-            self._grew(ENTRY_BYTES)
-            logger.info("created file %s", relpath)
-            self._emit("added", relpath, False)
+            relpath = self._create(dir_relpath, name, _make_empty_file, directory=False)
             handle = self.open(session, relpath, MODE_READ | MODE_WRITE) if request_file_open else None
             return relpath, handle
 
     def create_directory(self, dir_relpath: str, name: str) -> str:
         """CreateDirectory: returns the new directory's relpath."""
         with self._lock:
-            parent = self._existing(dir_relpath, want_dir=True)
-            self._check_name(name, argument=0)
-            path = parent / name
-            if os.path.lexists(path):
-                refuse("BadBrowseNameDuplicated", f"{name} already exists", argument=0)
-            self._check_room(ENTRY_BYTES)
-            try:
-                path.mkdir()
-                fsync_dir(parent)
-            except FileExistsError:
-                refuse("BadBrowseNameDuplicated", f"{name} already exists", argument=0)
-            except OSError as exc:
-                logger.exception("cannot create directory %s", path)
-                refuse("BadUnexpectedError", f"cannot create {name}: {exc.strerror}")
-            relpath = self._rel(path)
-            self._grew(ENTRY_BYTES)
-            logger.info("created directory %s", relpath)
-            self._emit("added", relpath, True)
-            return relpath
+            return self._create(dir_relpath, name, Path.mkdir, directory=True)
+
+    def _create(self, dir_relpath: str, name: str, make: Callable[[Path], object], directory: bool) -> str:
+        """A new entry ``name`` in the directory ``dir_relpath``, made by ``make(path)`` and durable
+        (its directory fsynced); its relpath. Refused when the name is taken or there is no room."""
+        what = "directory" if directory else "file"
+        parent = self._existing(dir_relpath, want_dir=True)
+        self._check_name(name, argument=0)
+        path = parent / name
+        if os.path.lexists(path):
+            refuse("BadBrowseNameDuplicated", f"{name} already exists", argument=0)
+        self._check_room(ENTRY_BYTES)
+        try:
+            make(path)
+            fsync_dir(parent)
+        except FileExistsError:
+            refuse("BadBrowseNameDuplicated", f"{name} already exists", argument=0)
+        except OSError as exc:
+            logger.exception("cannot create %s %s", what, path)
+            refuse("BadUnexpectedError", f"cannot create {name}: {exc.strerror}")
+        relpath = self._rel(path)
+        self._grew(ENTRY_BYTES)
+        logger.info("created %s %s", what, relpath)
+        self._emit("added", relpath, directory)
+        return relpath
 
     def delete(self, relpath: str) -> None:
         """Delete a file, or a directory with everything below it."""
@@ -322,3 +307,12 @@ class FileStore(OpenFiles):
                 refuse("BadInvalidState", f"{rel} is in use", argument=argument)
             if any(h.relpath == rel for h in self._handles.values()):
                 refuse("BadInvalidState", f"{rel} is open", argument=argument)
+
+
+def _make_empty_file(path: Path) -> None:
+    """An empty file at ``path``, durable; FileExistsError if there is one."""
+    fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
