@@ -5,7 +5,9 @@ checkout of uacell, e.g. ``git worktree add --detach ../before HEAD~1``, its sou
 or this checkout's again with ``--old-env NAME=VALUE`` set for the old peer only (``UACELL_EVENT_LOOP=asyncio``
 compares the event loops). Each round runs every load (SetMachSpeed at N sessions, or ``cycle``:
 LoadByName + UnloadProgram at one session) on both peers, in an order that rotates from round to
-round; it prints each peer's calls/s per round and the median of the per-round ratios new/old.
+round; it prints each peer's calls/s per round and the median of the per-round ratios new/old, and
+each peer's CPU time per call (the whole process, all threads; medians): the rate moves with what
+else the machine does, the work a call costs much less.
 docs/performance.md records the levers measured so.
 """
 
@@ -16,7 +18,18 @@ import sys
 import tempfile
 from pathlib import Path
 
-from benchmarks.harness import LOAD_CYCLE, SET_SPEED, Peer, Peers, client, free_port, median, rotated, running
+from benchmarks.harness import (
+    LOAD_CYCLE,
+    SET_SPEED,
+    Peer,
+    Peers,
+    client,
+    cpu_seconds,
+    free_port,
+    median,
+    rotated,
+    running,
+)
 
 
 def old_peer(new: Peer, tmp: Path, other: Path | None, env: list[str]) -> Peer:
@@ -44,6 +57,7 @@ def main() -> int:
         parser.error(f"{args.other} is not a uacell checkout (no src/uacell)")
     loads = [x.strip() for x in args.loads.split(",") if x.strip()]
     rates: dict[tuple[str, str], list[float]] = {}
+    cpu: dict[tuple[str, str], list[float]] = {}  # microseconds of CPU per call
     with tempfile.TemporaryDirectory() as tmp:
         new = Peers(Path(tmp)).uacell(args.cell)
         new.name = "new"
@@ -54,7 +68,11 @@ def main() -> int:
                     steps, sessions = (LOAD_CYCLE, 1) if load == "cycle" else (SET_SPEED, int(load))
                     for peer in rotated([new, old], r):
                         spec = {"mode": "calls", "sessions": sessions, "seconds": args.seconds, "steps": steps}
+                        assert peer.proc is not None
+                        before = cpu_seconds(peer.proc.pid)
                         result = client(peer.endpoint, spec)
+                        used = cpu_seconds(peer.proc.pid) - before
+                        cpu.setdefault((peer.name, load), []).append(1e6 * used / max(1, result["calls"]))
                         if result.get("errors"):
                             print(f"  ! {peer.name} {load}: {result['errors']} failed: {result.get('first_error')}")
                         rates.setdefault((peer.name, load), []).append(result["rate"])
@@ -62,6 +80,9 @@ def main() -> int:
         ours, theirs = rates[("new", load)], rates[("old", load)]
         ratio = median([a / b for a, b in zip(ours, theirs, strict=True)])
         print(f"{load:>6}: new {[round(x) for x in ours]} old {[round(x) for x in theirs]} new/old {ratio:.3f}x")
+        ours_cpu, theirs_cpu = median(cpu[("new", load)]), median(cpu[("old", load)])
+        cpu_ratio = ours_cpu / theirs_cpu
+        print(f"        CPU per call: new {ours_cpu:.0f} us, old {theirs_cpu:.0f} us, new/old {cpu_ratio:.3f}x")
     return 0
 
 

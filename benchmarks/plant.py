@@ -17,7 +17,6 @@ import asyncio
 import contextlib
 import itertools
 import json
-import os
 import shutil
 import subprocess
 import time
@@ -28,19 +27,10 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from benchmarks.harness import Peer, Peers, Report, free_port, percentile, rss_kib
+from benchmarks.harness import Peer, Peers, Report, cpu_seconds, free_port, percentile, rss_kib
 
 PUBLISHING_INTERVAL = 0.5  # [pubsub] publishing_interval's default
 SET_EVERY = 1.0
-TICKS = os.sysconf("SC_CLK_TCK")
-
-
-def cpu_seconds(pid: int) -> float:
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / TICKS
-    except (OSError, IndexError, ValueError):
-        return 0.0
 
 
 class Mosquitto:

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import os
 import subprocess
 import sys
 import time
@@ -31,7 +30,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from benchmarks.harness import Peers, Report, free_port, percentile, process, served, text_of, until
+from benchmarks.harness import Peers, Report, cpu_seconds, free_port, percentile, process, served, text_of, until
 
 ROOT = Path(__file__).resolve().parent.parent
 POLL = 0.02
@@ -188,11 +187,6 @@ def _ursim(programs: Path, dashboard: int, modbus: int, control: int) -> Iterato
             proc.kill()
 
 
-def _cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
-
-
 class _Calls:
     def __init__(self, client: Any, ns: int) -> None:
         self.client, self.ns = client, ns
@@ -258,9 +252,9 @@ async def _measure_modbus(endpoint: str, port: int, rounds: int, seconds: float,
             await sub.subscribe_data_change(
                 [client.get_node(ua.NodeId(AXIS.format(i), ns)) for i in range(1, 7)], sampling_interval=0
             )
-            cpu0, wall0 = _cpu_seconds(pid), time.perf_counter()
+            cpu0, wall0 = cpu_seconds(pid), time.perf_counter()
             await asyncio.sleep(seconds)  # polling a still robot: the status, the joints that do not change
-            raw["still_core_fraction"] = (_cpu_seconds(pid) - cpu0) / (time.perf_counter() - wall0)
+            raw["still_core_fraction"] = (cpu_seconds(pid) - cpu0) / (time.perf_counter() - wall0)
             assert await calls.status(TC, "Start") == 0
             changes: list[tuple[float, int]] = []
             t_end = time.perf_counter() + 3.0
@@ -276,10 +270,10 @@ async def _measure_modbus(endpoint: str, port: int, rounds: int, seconds: float,
                 seen = first.get(round(degrees * 100))
                 if seen is not None and at >= seen:
                     raw["axis_ms"].append((at - seen) * 1000)
-            cpu0, wall0 = _cpu_seconds(pid), time.perf_counter()
+            cpu0, wall0 = cpu_seconds(pid), time.perf_counter()
             await asyncio.sleep(seconds)  # streaming 6 axes at 50 Hz to the subscription
             raw["cpu_seconds"] = time.perf_counter() - wall0
-            raw["cpu_core_fraction"] = (_cpu_seconds(pid) - cpu0) / raw["cpu_seconds"]
+            raw["cpu_core_fraction"] = (cpu_seconds(pid) - cpu0) / raw["cpu_seconds"]
             raw["notifications"] = len(arrived)
             await sub.delete()
             assert await calls.status(TC, "Stop", ua.Variant(4, ua.VariantType.Int64)) == 0

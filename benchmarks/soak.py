@@ -41,11 +41,12 @@ from typing import Any
 
 from asyncua import Client, ua
 
+from benchmarks.harness import cpu_seconds
+
 CELL = "urn:uacell:cell"
 FILLERS, ROBOTS = 4, 4
 SESSIONS = 8
 WINDOWS = 10
-TICKS = os.sysconf("SC_CLK_TCK")
 # targets
 RSS_GROWTH_MB = 10.0  # over the second half
 FLAT = {"fds": 4, "threads": 2}  # the most the second half may add (a churning session may be open)
@@ -185,12 +186,11 @@ class Server:
         status = dict(
             line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines() if ":" in line
         )
-        stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         return {
             "rss_mb": int(status["VmRSS"].split()[0]) / 1024,
             "threads": int(status["Threads"]),
             "fds": len(os.listdir(f"/proc/{pid}/fd")),
-            "cpu_s": (int(stat[11]) + int(stat[12])) / TICKS,
+            "cpu_s": cpu_seconds(pid),
         }
 
     def errors(self) -> list[str]:

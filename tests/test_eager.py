@@ -10,7 +10,7 @@ from collections.abc import Awaitable, Callable
 import pytest
 
 from uacell.binding.publisher import Publisher
-from uacell.core.background import RunningLoop, eager
+from uacell.core.background import eager
 
 WHO: contextvars.ContextVar[str] = contextvars.ContextVar("who", default="nobody")
 
@@ -187,42 +187,3 @@ async def test_the_running_task_table_eager_uses_is_the_one_current_task_reads()
 
     assert _CURRENT.get(asyncio.get_running_loop()) is asyncio.current_task()
 
-
-def test_running_loop_is_asked_once_per_loop_and_again_after_that_loop_closed() -> None:
-    """A long-lived object keeps its loop (``RunningLoop``); a server started again on a new loop (as
-    the tests do, one loop after another) gets the new one, not the closed one."""
-    keep = RunningLoop()
-
-    async def ask() -> tuple[asyncio.AbstractEventLoop, asyncio.AbstractEventLoop]:
-        return keep(), asyncio.get_running_loop()
-
-    first = asyncio.new_event_loop()
-    try:
-        got, running = first.run_until_complete(ask())
-        assert got is running is first
-        again, _ = first.run_until_complete(ask())
-        assert again is first
-    finally:
-        first.close()
-    second = asyncio.new_event_loop()
-    try:
-        got, running = second.run_until_complete(ask())
-        assert got is running is second and got is not first
-    finally:
-        second.close()
-    with pytest.raises(RuntimeError):  # outside any loop, the closed one is not handed out
-        keep._loop = first
-        keep()
-
-
-async def test_eager_on_the_loop_given_runs_as_without_it() -> None:
-    seen: list[str] = []
-
-    async def work() -> None:
-        await asyncio.sleep(0)
-        seen.append("done")
-
-    task = eager(work(), contextvars.copy_context(), asyncio.get_running_loop())
-    assert task is not None and not seen
-    await task
-    assert seen == ["done"]

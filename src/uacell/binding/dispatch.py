@@ -34,7 +34,6 @@ from asyncua.server.address_space import MethodService
 from uacell.binding.calls import UNSCOPED, BoundMethod, Handler, call_result
 from uacell.binding.dispatch_unbound import UnboundCalls
 from uacell.binding.executable import ExecutableRefresh
-from uacell.core.background import RunningLoop
 from uacell.core.errors import CallError
 from uacell.core.rights import RoleTable
 from uacell.core.roles import Family, Role
@@ -79,7 +78,6 @@ class MethodDispatcher(ExecutableRefresh, UnboundCalls, MethodService):  # type:
         self._running = 0  # calls whose behaviour is under way
         self._idle = asyncio.Event()
         self._idle.set()
-        self._loop = RunningLoop()
 
     @property
     def declarations(self) -> dict[ua.NodeId, ua.NodeId]:
@@ -201,7 +199,7 @@ class MethodDispatcher(ExecutableRefresh, UnboundCalls, MethodService):  # type:
             if self._running == 0:
                 self._idle.set()
         if self.observers:  # told once the answer is out (the event loop's next turn), as publishing is
-            self._loop().call_soon(self._observe, caller, request, result, time.perf_counter() - started)
+            asyncio.get_running_loop().call_soon(self._observe, caller, request, result, time.perf_counter() - started)
         return result
 
     def method_name(self, method_id: ua.NodeId) -> str:

@@ -14,7 +14,7 @@ import contextvars
 import logging
 from collections.abc import Awaitable, Callable
 
-from uacell.core.background import RunningLoop, eager
+from uacell.core.background import eager
 
 log = logging.getLogger(__name__)
 
@@ -27,7 +27,6 @@ class Publisher:
         self._task: asyncio.Task[None] | None = None  # the drain under way, from its first wait on
         self._draining = False
         self._due: asyncio.Handle | None = None  # the drain scheduled by a submit, not yet started
-        self._loop = RunningLoop()
         # Run whenever the queue has drained: the server refreshes Executable here, so that changes made
         # outside method calls (acting states completing, a program ending) reach it too (decision 4);
         # ``touch(machine)`` tells the touch hooks (the dispatcher) which machine changed, so that only
@@ -47,7 +46,7 @@ class Publisher:
         """Drain soon (on the event loop's next turn), also with nothing queued, so that the idle
         hooks run: a method call touched scopes whose Executable may have changed."""
         if not self._draining and self._due is None:
-            self._due = self._loop().call_soon(self._drain)
+            self._due = asyncio.get_running_loop().call_soon(self._drain)
 
     @property
     def pending(self) -> bool:
@@ -60,7 +59,7 @@ class Publisher:
         self._due = None
         if not self._draining:
             self._draining = True
-            self._task = eager(self._run(), contextvars.Context(), self._loop())
+            self._task = eager(self._run(), contextvars.Context())
 
     async def _run(self) -> None:
         try:

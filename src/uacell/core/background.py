@@ -21,27 +21,6 @@ T = TypeVar("T")
 log = logging.getLogger(__name__)
 
 
-class RunningLoop:
-    """The event loop a long-lived object works on, asked of asyncio once and again only after it closed.
-
-    ``asyncio.get_running_loop()`` makes a ``getpid`` system call on every call (Python 3.11's check that
-    the process did not fork); asked a few times per request, that was up to 8 % of the event loop's
-    time under load (py-spy, docs/performance.md). An object that only ever runs on one loop at a time
-    (the publisher, the dispatcher, the pipeline, a connection) keeps one of these instead; a closed
-    loop is replaced by the running one (tests run a server on one loop after another)."""
-
-    __slots__ = ("_loop",)
-
-    def __init__(self) -> None:
-        self._loop: asyncio.AbstractEventLoop | None = None
-
-    def __call__(self) -> asyncio.AbstractEventLoop:
-        loop = self._loop
-        if loop is None or loop.is_closed():
-            loop = self._loop = asyncio.get_running_loop()
-        return loop
-
-
 class Background:
     """Spawn coroutines with ``spawn``; ``close`` cancels every one still running and waits for them."""
 
@@ -67,9 +46,7 @@ class Background:
                 log.error("a background task had failed: %r", result)
 
 
-def eager(
-    coro: Coroutine[Any, Any, T], context: contextvars.Context, loop: asyncio.AbstractEventLoop | None = None
-) -> asyncio.Task[T] | None:
+def eager(coro: Coroutine[Any, Any, T], context: contextvars.Context) -> asyncio.Task[T] | None:
     """Run ``coro`` now, in ``context``, up to its first wait; a task carries it on from there. None:
     it finished without waiting (what Python 3.12's eager tasks do; a task costs about as much as a
     short request's own work). Its result is dropped; an exception it raises before waiting is
@@ -79,9 +56,8 @@ def eager(
     is an ``EagerStep`` standing for the task that will carry it on, so ``asyncio.timeout``,
     ``TaskGroup`` and a cancellation work there as in any task (a cancellation asked for then reaches
     the coroutine at its first wait). A task running ``eager`` is not the coroutine's: it is set aside
-    for the step. ``loop``: the running loop, when the caller keeps it (``RunningLoop``)."""
-    if loop is None:
-        loop = asyncio.get_running_loop()
+    for the step."""
+    loop = asyncio.get_running_loop()
     step = EagerStep(coro, loop)
     outer = _CURRENT.get(loop)
     _CURRENT[loop] = step

@@ -58,7 +58,7 @@ from asyncua.server.internal_session import InternalSession
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary, struct_to_binary
 
-from uacell.core.background import RunningLoop, eager
+from uacell.core.background import eager
 from uacell.ua import channel, context
 from uacell.ua.codec import decode_call_parameters, encode_call_response
 from uacell.ua.door import connection, processing
@@ -169,7 +169,6 @@ class Pipeline:
         self.channel_guard = channel_guard
         self.refused = refused
         self._entry = _compose(self.stages, _service)
-        self._loop = RunningLoop()
 
     @staticmethod
     def of(iserver: Any) -> Pipeline | None:
@@ -199,7 +198,7 @@ class Pipeline:
             running = connection.calls_apart(processor)
             if len(running) < CALLS_APART:
                 # at once, in a context of its own; a task only from its first wait on (most never wait)
-                task = eager(_call_apart(self, request), contextvars.copy_context(), self._loop())
+                task = eager(_call_apart(self, request), contextvars.copy_context())
                 if task is not None:
                     running.add(task)
                     task.add_done_callback(running.discard)

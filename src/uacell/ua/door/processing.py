@@ -187,10 +187,7 @@ def _received(protocol: OPCUAProtocol, data: bytes) -> None:
         ctx = state.get("_uacell_context")
         if ctx is None:  # the connection's own, as its task has one
             ctx = state["_uacell_context"] = contextvars.copy_context()
-        loop = state.get("_uacell_loop")
-        if loop is None:  # the connection's (asyncio.get_running_loop() is a system call each time)
-            loop = state["_uacell_loop"] = asyncio.get_running_loop()
-        task = eager(_run_one(protocol, *item), ctx, loop)
+        task = eager(_run_one(protocol, *item), ctx)
         if task is not None:
             state["_uacell_waiting"] = task
 
