@@ -6,6 +6,7 @@ stops and faults, and the controller killed and back."""
 
 from __future__ import annotations
 
+import asyncio
 import math
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
@@ -15,14 +16,16 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, serving
-from helpers import config_check_connect, free_port
+from helpers import config_check_connect, free_port, wait_until
 from test_gateway_robot import call, read, s, state, status, until_state, wait_until_async
+from ursim.dashboard import DashboardServer
 from ursim.robot import ProgramState as UrProgramState
 from ursim.robot import RobotMode, SafetyStatus, URSim
 from ursim.server import URSimServers
 
 from uacell.config import load_cell
 from uacell.core.cell_file import builtin_cell_path
+from uacell.gateway.ur_link import Dashboard
 
 CTRL = "UR5e.Controllers.Cabinet"
 TASK = f"{CTRL}.TaskControls.Main"
@@ -244,3 +247,32 @@ async def test_a_process_stop_pauses_and_start_resumes_a_reset_restarts(rig: Rig
     assert await status(client, f"{TC}.ReadySubstateMachine", "ResetToProgramStart") == 0
     assert await status(client, TC, "Start") == 0
     assert sim.program_state is UrProgramState.PLAYING and sim.program_runs == runs + 1  # begun again
+
+
+async def test_a_new_connection_asked_for_while_a_command_waits_leaves_exactly_one(tmp_path: Path) -> None:
+    """The driver connects anew after the pendant went Remote (UR's server judges a connection by when
+    it was opened) while its poller may be asking: the new connection waits for the command under way,
+    which is answered, and the Dashboard Server then holds exactly one connection, none once closed."""
+    server = DashboardServer(URSim(tmp_path, unlock_delay=0.0, boot_seconds=0.05))
+    await server.start()
+    dashboard = Dashboard("127.0.0.1", server.port, timeout=10.0)
+    try:
+        answers: list[str] = []
+
+        async def poll() -> None:
+            for _ in range(40):
+                answers.append(await dashboard.ask("programState"))
+
+        async def reconnect() -> None:
+            for _ in range(15):
+                await dashboard.connect()
+                await asyncio.sleep(0)
+
+        await asyncio.gather(poll(), reconnect())
+        assert len(answers) == 40 and all(a.startswith("STOPPED") for a in answers), answers[:3]
+        await wait_until(lambda: len(server._writers) == 1, timeout=10)  # the replaced ones closed
+        dashboard.close()
+        await wait_until(lambda: not server._writers, timeout=10)
+    finally:
+        dashboard.close()
+        await server.stop()

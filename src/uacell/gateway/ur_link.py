@@ -64,12 +64,20 @@ class Dashboard:
         return self._writer is not None
 
     async def connect(self) -> None:
-        """Connect and read the welcome line; DashboardError when either fails."""
+        """Connect anew and read the welcome line; DashboardError when either fails. A command under way
+        is answered on the connection it was sent on first (the two never cross: a connection replaced
+        under a waiting command, or two made at once, one of them never closed, did)."""
+        async with self._lock:
+            await self._connect()
+
+    async def _connect(self) -> None:
         self.close()
         try:
-            reader, writer = await asyncio.wait_for(asyncio.open_connection(self.host, self.port), self.timeout)
+            async with asyncio.timeout(self.timeout):
+                reader, writer = await asyncio.open_connection(self.host, self.port)
             self._reader, self._writer = reader, writer
-            welcome = await asyncio.wait_for(reader.readline(), self.timeout)
+            async with asyncio.timeout(self.timeout):
+                welcome = await reader.readline()
         except (OSError, TimeoutError) as e:
             self.close()
             raise DashboardError(f"dashboard {self.name}: {e or type(e).__name__}") from None
@@ -82,12 +90,14 @@ class Dashboard:
         connection fails (it is closed then, and connected again by the next ``ask``)."""
         async with self._lock:
             if self._writer is None:
-                await self.connect()
-            assert self._reader is not None and self._writer is not None
+                await self._connect()
+            reader, writer = self._reader, self._writer
+            assert reader is not None and writer is not None
             try:
-                self._writer.write(command.encode() + b"\n")
-                await self._writer.drain()
-                line = await asyncio.wait_for(self._reader.readline(), self.timeout)
+                writer.write(command.encode() + b"\n")
+                await writer.drain()
+                async with asyncio.timeout(self.timeout):
+                    line = await reader.readline()
             except (OSError, TimeoutError) as e:
                 self.close()
                 raise DashboardError(f"dashboard {self.name}: {command}: {e or type(e).__name__}") from None
