@@ -13,12 +13,13 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from helpers import FakeClock, packml_tables, raw_call
 
-from uacell.packml import AdminStore, EquipmentBase, PackMLUnit
-from uacell.packml.admin_store import BATCH, AdminWriter
+from uacell.packml import AdminStore, EquipmentBase, PackMLUnit, admin_store
+from uacell.packml.admin_store import BATCH, AdminWriter, Journal
 
 
 def test_round_trip_and_no_temporary_files_left(tmp_path: Path) -> None:
@@ -317,24 +318,26 @@ async def test_kill_9_during_production_loses_nothing_a_client_read(tmp_path: Pa
 
 
 class SlowDisk:
-    """Stands in for a slow disk under ``AdminStore._replace``: each write waits until ``release()``d and
-    records which thread wrote what."""
+    """Stands in for a slow disk under the writer's journal (``Journal.append``): each append waits until
+    ``release()``d and records which thread wrote what, one entry per store."""
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
         self.gate = threading.Event()
         self.started = threading.Event()
         self.writes: list[tuple[str, dict]] = []
         self.threads: set[int] = set()
-        real = AdminStore._replace
+        real = Journal.append
 
-        def replace(store: AdminStore, data: dict) -> None:
+        def append(journal: Journal, entries: list[tuple[AdminStore, dict]]) -> None:
             self.threads.add(threading.get_ident())
             self.started.set()
             assert self.gate.wait(30), "the test never released the slow disk"
-            real(store, data)
-            self.writes.append((store.path.name, data))
+            real(journal, entries)
+            self.writes.extend(
+                (store.path.name, {k: v for k, v in data.items() if k != "seq"}) for store, data in entries
+            )
 
-        monkeypatch.setattr(AdminStore, "_replace", replace)
+        monkeypatch.setattr(Journal, "append", append)
 
     def release(self) -> None:
         self.gate.set()
@@ -352,8 +355,11 @@ async def test_saves_run_off_the_loop_and_values_are_published_once_durable(
 
     def seen(changed: dict) -> None:
         if "Admin/ProdProcessedCount" in changed:
-            stored = json.loads(store.path.read_text())  # what a crash right now would keep
-            assert stored["prod_processed_count"][0]["count"] == changed["Admin/ProdProcessedCount"][0].count
+            stored = AdminStore(store.path).load()  # what a restart after a crash right now would read
+            assert (
+                stored is not None
+                and stored["prod_processed_count"][0]["count"] == changed["Admin/ProdProcessedCount"][0].count
+            )
         published.append(changed)
 
     unit.listeners.append(seen)
@@ -484,6 +490,7 @@ async def test_a_failing_store_is_logged_once_and_does_not_stop_the_writer(
 WRITER_THREAD = """
 import asyncio, sys
 from pathlib import Path
+from typing import Any
 from uacell.packml.admin_store import AdminStore, AdminWriter
 
 async def main() -> None:
@@ -519,5 +526,123 @@ def test_killed_writer_thread_keeps_every_store_at_least_as_told(tmp_path: Path)
         proc.wait()
     proc.stdout.close()
     for i, n in told.items():
-        data = json.loads((tmp_path / f"u{i}.json").read_text())
-        assert data["check"] == data["n"] * 7 and data["n"] >= n, (i, data["n"], n)
+        data = AdminStore(tmp_path / f"u{i}.json").load()  # the file, or its newer line in the journal
+        assert data is not None and data["check"] == data["n"] * 7 and data["n"] >= n, (i, data, n)
+
+
+# --- the writer's journal --------------------------------------------------------------------------
+
+
+def _on_file(path: Path) -> dict[str, Any] | None:
+    """The unit's own file as it is on disk (without the journal)."""
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def _journal_lines(directory: Path) -> list[dict[str, Any]]:
+    path = directory / "journal.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+async def _stored(store: AdminStore, data: dict[str, Any]) -> None:
+    told: asyncio.Future[OSError | None] = asyncio.get_running_loop().create_future()
+    store.submit(data, lambda error: told.set_result(error))
+    assert await asyncio.wait_for(told, 10) is None
+
+
+async def test_the_writer_appends_to_the_journal_and_folds_it_into_the_files_when_it_closes(tmp_path: Path) -> None:
+    AdminStore(tmp_path / "a.json").save({"n": 0})  # a unit's file from an earlier run
+    writer = AdminWriter(asyncio.get_running_loop())
+    a, b = AdminStore(tmp_path / "a.json", writer), AdminStore(tmp_path / "b.json", writer)
+    assert a.load() == {"n": 0, "version": 1}
+    try:
+        for n in (1, 2):
+            await _stored(a, {"n": n})
+        await _stored(b, {"n": 1})
+        # durable in the journal, one line per save; the files are as they were
+        lines = _journal_lines(tmp_path)
+        assert [(x["unit"], x["data"]["n"], x["data"]["seq"]) for x in lines] == [
+            ("a.json", 1, 2),
+            ("a.json", 2, 3),
+            ("b.json", 1, 1),
+        ]
+        assert (
+            _on_file(tmp_path / "a.json") == {"n": 0, "seq": 1, "version": 1} and _on_file(tmp_path / "b.json") is None
+        )
+        # what a restart right now reads: the newer of the file and the journal
+        assert AdminStore(tmp_path / "a.json").load() == {"n": 2, "version": 1}
+        assert AdminStore(tmp_path / "b.json").load() == {"n": 1, "version": 1}
+    finally:
+        await writer.close()
+    assert _journal_lines(tmp_path) == []  # folded: a clean restart reads the units' files alone
+    assert _on_file(tmp_path / "a.json") == {"n": 2, "seq": 3, "version": 1}
+    assert _on_file(tmp_path / "b.json") == {"n": 1, "seq": 1, "version": 1}
+    late = AdminStore(tmp_path / "a.json")  # after the writer closed a save goes to the file at once
+    assert late.load() == {"n": 2, "version": 1} and late.seq == 3
+
+
+async def test_a_journal_past_its_limit_is_folded_and_loads_never_see_older_data(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(admin_store, "JOURNAL_LIMIT", 2_000)
+    writer = AdminWriter(asyncio.get_running_loop())
+    stores = [AdminStore(tmp_path / f"u{i}.json", writer) for i in range(3)]
+    try:
+        for n in range(1, 30):
+            for store in stores:
+                await _stored(store, {"n": n, "pad": "x" * 100})
+            for i in range(3):
+                assert AdminStore(tmp_path / f"u{i}.json").load()["n"] == n  # type: ignore[index]
+        assert (tmp_path / "journal.jsonl").stat().st_size <= 2_000 + 3 * 300  # folded again and again
+        assert _on_file(tmp_path / "u0.json")["n"] > 1  # type: ignore[index]  # folds wrote the files
+    finally:
+        await writer.close()
+
+
+async def test_a_journal_a_crash_left_is_read_then_folded_before_the_next_run_appends(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    AdminStore(tmp_path / "a.json").save({"n": 1})
+    AdminStore(tmp_path / "b.json").save({"n": 1})
+    whole = [
+        {"unit": "a.json", "data": {"n": 5, "seq": 5, "version": 1}},
+        {"unit": "b.json", "data": {"n": 0, "seq": 0, "version": 1}},  # older than b's file: not taken
+    ]
+    text = "".join(json.dumps(x) + "\n" for x in whole)
+    text += "{not json}\n"  # damaged
+    text += json.dumps({"unit": "b.json", "data": {"n": 9, "seq": 9, "version": 1}})[:30]  # cut short by the crash
+    (tmp_path / "journal.jsonl").write_text(text)
+    caplog.set_level(logging.WARNING)
+    a, b = AdminStore(tmp_path / "a.json"), AdminStore(tmp_path / "b.json")
+    assert a.load() == {"n": 5, "version": 1} and a.seq == 5
+    assert b.load() == {"n": 1, "version": 1} and b.seq == 1
+    assert any("journal" in r.getMessage() and "cut short" in r.getMessage() for r in caplog.records)
+    writer = AdminWriter(asyncio.get_running_loop())
+    b.writer = writer
+    try:
+        await _stored(b, {"n": 2})
+        # before appending, the run folded what it found: a's newer data is in its file now
+        assert _on_file(tmp_path / "a.json") == {"n": 5, "seq": 5, "version": 1}
+        assert [(x["unit"], x["data"]["n"]) for x in _journal_lines(tmp_path)] == [("b.json", 2)]
+    finally:
+        await writer.close()
+    assert AdminStore(tmp_path / "a.json").load() == {"n": 5, "version": 1}
+    assert AdminStore(tmp_path / "b.json").load() == {"n": 2, "version": 1}
+
+
+async def test_the_data_directory_removed_while_serving_is_made_again_and_nothing_goes_to_the_old_journal(
+    tmp_path: Path,
+) -> None:
+    import shutil
+
+    directory = tmp_path / "packml"
+    writer = AdminWriter(asyncio.get_running_loop())
+    store = AdminStore(directory / "a.json", writer)
+    try:
+        await _stored(store, {"n": 1})
+        shutil.rmtree(directory)  # an operator's mistake while the server runs
+        await _stored(store, {"n": 2})
+        assert [x["data"]["n"] for x in _journal_lines(directory)] == [2]
+        assert AdminStore(directory / "a.json").load() == {"n": 2, "version": 1}
+    finally:
+        await writer.close()
+    assert _on_file(directory / "a.json") == {"n": 2, "seq": 2, "version": 1}
