@@ -193,7 +193,8 @@ class AdminWriter:
                 self._cond.notify()
                 return
         log.debug("admin writer closed; storing %s in the caller's thread", store.path)
-        store._store_now(data, done)
+        with _journal_lock(store.path.parent):  # after the closing fold, never beside it
+            store._store_now(data, done)
 
     async def flush(self, store: AdminStore | None = None) -> None:
         """Return once nothing submitted (to ``store``, or at all) waits to be written, and the written
@@ -392,24 +393,28 @@ def _read_journal(directory: Path) -> dict[str, dict[str, Any]]:
     if cached is not None and cached[0] == key:
         return cached[1]
     latest: dict[str, dict[str, Any]] = {}
-    skipped = 0
+    damaged = 0
     try:
         raw = path.read_bytes()
     except OSError as exc:
         log.warning("cannot read the PackML admin journal %s (%s); using the units' files", path, exc)
         return {}
-    for line in raw.split(b"\n")[:-1]:  # the part after the last line end: a line cut short
+    # The part after the last line end is a line cut short (by a crash, or still being appended): never
+    # told durable, so nothing a client has read.
+    for line in raw.split(b"\n")[:-1]:
         try:
             entry = json.loads(line)
             name, data = str(entry["unit"]), dict(entry["data"])
             seq = int(data["seq"])
         except (ValueError, KeyError, TypeError):
-            skipped += 1
+            damaged += 1
             continue
         if data.get("version") == FORMAT_VERSION and seq >= int(latest.get(name, {}).get("seq", -1)):
             latest[name] = data
-    if skipped or (not raw.endswith(b"\n") and raw):
-        log.warning("PackML admin journal %s: skipped a line cut short or damaged (a crash while writing)", path)
+    if damaged:
+        log.warning(
+            "PackML admin journal %s: skipped %d damaged line(s); the units' files are used for them", path, damaged
+        )
     _JOURNAL_CACHE[directory] = (key, latest)
     return latest
 
