@@ -41,6 +41,7 @@ from benchmarks.harness import (
     Report,
     client,
     fmt,
+    loaded,
     median,
     rotated,
     running,
@@ -130,9 +131,10 @@ def large_cell_section(report: Report, peers: Peers, args: argparse.Namespace) -
             for r in range(args.rounds):
                 for p in rotated([demo, large], r):
                     spec = {"mode": "calls", "sessions": n, "seconds": args.seconds, "steps": SET_SPEED}
-                    raw.setdefault(f"{p.name} x{n}", []).append(client(p.endpoint, spec))
+                    raw.setdefault(f"{p.name} x{n}", []).append(loaded(p, spec))
             ours, theirs = raw[f"{large.name} x{n}"], raw[f"{demo.name} x{n}"]
             report.add_rates(f"SetMachSpeed calls/s on the large cell, {n} session(s)", ours, theirs, "demo cell", 0.95)
+            report.add_cpu(f"SetMachSpeed CPU per call on the large cell, {n} session(s)", ours, theirs, "demo cell")
 
 
 def startup_section(report: Report, peers: Peers, args: argparse.Namespace) -> None:

@@ -23,9 +23,8 @@ from benchmarks.harness import (
     SET_SPEED,
     Peer,
     Peers,
-    client,
-    cpu_seconds,
     free_port,
+    loaded,
     median,
     rotated,
     running,
@@ -68,11 +67,8 @@ def main() -> int:
                     steps, sessions = (LOAD_CYCLE, 1) if load == "cycle" else (SET_SPEED, int(load))
                     for peer in rotated([new, old], r):
                         spec = {"mode": "calls", "sessions": sessions, "seconds": args.seconds, "steps": steps}
-                        assert peer.proc is not None
-                        before = cpu_seconds(peer.proc.pid)
-                        result = client(peer.endpoint, spec)
-                        used = cpu_seconds(peer.proc.pid) - before
-                        cpu.setdefault((peer.name, load), []).append(1e6 * used / max(1, result["calls"]))
+                        result = loaded(peer, spec)
+                        cpu.setdefault((peer.name, load), []).append(result["cpu_us_per_call"])
                         if result.get("errors"):
                             print(f"  ! {peer.name} {load}: {result['errors']} failed: {result.get('first_error')}")
                         rates.setdefault((peer.name, load), []).append(result["rate"])

@@ -227,6 +227,16 @@ def client(endpoint: str, spec: dict[str, Any], timeout: float = 300.0) -> dict[
     return json.loads(lines[-1])
 
 
+def loaded(peer: Peer, spec: dict[str, Any]) -> dict[str, Any]:
+    """``client`` against ``peer``, with the peer's CPU time per call (the whole process, every thread)
+    as ``cpu_us_per_call``: much steadier from round to round than the rate on a shared machine."""
+    assert peer.proc is not None
+    before = cpu_seconds(peer.proc.pid)
+    result = client(peer.endpoint, spec)
+    result["cpu_us_per_call"] = 1e6 * (cpu_seconds(peer.proc.pid) - before) / max(1, result["calls"])
+    return result
+
+
 def rotated(items: list[Any], round_no: int) -> list[Any]:
     k = round_no % len(items)
     return items[k:] + items[:k]
@@ -271,6 +281,16 @@ class Report:
             median([a["rate"] / b["rate"] for a, b in zip(ours, theirs, strict=True)]),
             f">= {floor}x",
             lambda x: x >= floor,
+        )
+
+    def add_cpu(self, measure: str, ours: list[dict[str, Any]], theirs: list[dict[str, Any]], reference: str) -> None:
+        """A row of CPU per call (``loaded`` runs), no target: the median of each and of the per-round
+        ratios ours/theirs (below 1: ours costs less)."""
+        self.add(
+            measure,
+            f"{median([x['cpu_us_per_call'] for x in ours]):.0f} us",
+            f"{reference} {median([x['cpu_us_per_call'] for x in theirs]):.0f} us",
+            median([a["cpu_us_per_call"] / b["cpu_us_per_call"] for a, b in zip(ours, theirs, strict=True)]),
         )
 
     def print(self) -> None:
