@@ -63,8 +63,10 @@ class PostgresBackend:
                 self._create_table(con)
         return con
 
-    def _use(self, work: Any) -> Any:
-        """``work(connection)``; a connection that failed is closed, so that the next use reconnects."""
+    def _use(self, work: Any, again: bool = False) -> Any:
+        """``work(connection)``; a connection that failed is closed, so that the next use reconnects.
+        ``again`` (work that only reads): done once more on a new connection first, since a thread's
+        connection made before the database went away fails its first use after the database is back."""
         con = self._con()
         try:
             return work(con)
@@ -73,7 +75,9 @@ class PostgresBackend:
                 con.close()
             except Exception:
                 pass
-            raise
+            if not again:
+                raise
+        return work(self._con())
 
     def write(self, rows: Sequence[Row]) -> None:
         sql = f"INSERT INTO {self.table} ({_COLUMNS}) VALUES (%s, %s, %s, %s, %s, %s, %s)"
@@ -87,11 +91,11 @@ class PostgresBackend:
     def read(self, q: Query) -> list[Sample]:
         where, args = _where(q, "%s")
         sql = f"SELECT {_COLUMNS} FROM {self.table} WHERE {where}"
-        rows = self._use(lambda con: con.execute(sql, args).fetchall())
+        rows = self._use(lambda con: con.execute(sql, args).fetchall(), again=True)
         return [Sample(r[0], int(r[1]), int(r[2]), int(r[3]), int(r[4]), r[5], bytes(r[6])) for r in rows]
 
     def max_seq(self) -> int:
-        row = self._use(lambda con: con.execute(f"SELECT MAX(seq) FROM {self.table}").fetchone())
+        row = self._use(lambda con: con.execute(f"SELECT MAX(seq) FROM {self.table}").fetchone(), again=True)
         return int(row[0]) if row and row[0] is not None else 0
 
     def size(self) -> int:
