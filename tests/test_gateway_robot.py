@@ -38,7 +38,9 @@ COND = f"{CTRL}.SystemOperation.Conditions"
 SHIPPED = builtin_cell_path("modbus-robot").read_text()
 
 
-TIMING = "poll = 0.02, confirm_timeout = 6.0, timeout = 3.0"
+# pulse_width: a pulse ends once confirmed; 1 s lets a controller process starved by a loaded machine still
+# see the strobe (with the default 0.2 s, one CI run timed a LoadByName out)
+TIMING = "poll = 0.02, confirm_timeout = 6.0, timeout = 3.0, pulse_width = 1.0"
 
 
 def cell_text(port: int, **programs: int) -> str:
