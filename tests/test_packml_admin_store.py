@@ -568,6 +568,7 @@ async def test_the_writer_appends_to_the_journal_and_folds_it_into_the_files_whe
         assert (
             _on_file(tmp_path / "a.json") == {"n": 0, "seq": 1, "version": 1} and _on_file(tmp_path / "b.json") is None
         )
+        assert (tmp_path / "journal.jsonl").stat().st_mode & 0o777 == 0o600  # as the units' files
         # what a restart right now reads: the newer of the file and the journal
         assert AdminStore(tmp_path / "a.json").load() == {"n": 2, "version": 1}
         assert AdminStore(tmp_path / "b.json").load() == {"n": 1, "version": 1}

@@ -339,7 +339,9 @@ class Journal:
         with _journal_lock(self.directory):
             self._fold_found()  # a journal an earlier run left (a crash): never appended to as it is
             self.directory.mkdir(parents=True, exist_ok=True)
-            self._file = open(self.path, "a", encoding="utf-8")  # kept open until closed
+            # kept open until closed; readable by the service user only, as the units' files are (mkstemp)
+            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
+            self._file = os.fdopen(fd, "a", encoding="utf-8")
             _fsync_dir(self.directory)  # the journal's own name durable before anything relies on it
             self.size = 0
 
