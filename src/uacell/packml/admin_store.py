@@ -113,13 +113,8 @@ class AdminStore:
         is called on the event loop), else now. ``data`` must not change afterwards."""
         if self.writer is not None:
             self.writer.submit(self, self._stamped(data), done)
-            return
-        try:
-            self.save(data)
-        except OSError as exc:
-            done(exc)
         else:
-            done(None)
+            _stored_now(lambda: self.save(data), done)
 
     def _stamped(self, data: dict[str, Any]) -> dict[str, Any]:
         self.seq += 1
@@ -128,14 +123,6 @@ class AdminStore:
     def _save_stamped(self, data: dict[str, Any]) -> None:
         self._replace(data)
         _fsync_dir(self.path.parent)
-
-    def _store_now(self, data: dict[str, Any], done: Done) -> None:
-        try:
-            self._save_stamped(data)
-        except OSError as exc:
-            done(exc)
-        else:
-            done(None)
 
     async def stored(self) -> None:
         """Return once nothing submitted to this store waits to be written."""
@@ -194,7 +181,7 @@ class AdminWriter:
                 return
         log.debug("admin writer closed; storing %s in the caller's thread", store.path)
         with _journal_lock(store.path.parent):  # after the closing fold, never beside it
-            store._store_now(data, done)
+            _stored_now(lambda: store._save_stamped(data), done)
 
     async def flush(self, store: AdminStore | None = None) -> None:
         """Return once nothing submitted (to ``store``, or at all) waits to be written, and the written
@@ -423,6 +410,16 @@ def _read_journal(directory: Path) -> dict[str, dict[str, Any]]:
 
 def _forget_journal(directory: Path) -> None:
     _JOURNAL_CACHE.pop(directory, None)
+
+
+def _stored_now(save: Callable[[], None], done: Done) -> None:
+    """``save()`` in the calling thread, then ``done`` with its error (None: durable)."""
+    try:
+        save()
+    except OSError as exc:
+        done(exc)
+    else:
+        done(None)
 
 
 def _resolve(waiter: asyncio.Future[None]) -> None:
