@@ -7,11 +7,13 @@ from one. Here: the file format's guarantees, and the server's choice between sn
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import os
 import stat
 import threading
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
@@ -155,6 +157,37 @@ def test_equal_values_and_references_of_a_chunk_are_read_as_one_object(tmp_path:
     ] * 2
     assert len({id(n.references[0]) for n in read}) == 1 and len({id(n.references[1]) for n in read}) == 4
     assert len({id(n.attributes[A.AccessLevel]) for n in read}) == 4  # AttributeValues: each its own
+
+
+def test_every_field_of_a_value_comes_back(tmp_path: Path) -> None:
+    """Values are stored by their fields (not as generic objects): each field, the Encoding mask a
+    decoded value carries included, comes back as it was, and a value read twice is one object."""
+    A = ua.AttributeIds
+    at = datetime(2026, 11, 27, 21, 40, 5, 123456, tzinfo=UTC)
+    full = ua.DataValue(
+        ua.Variant([1.5, 2.5], ua.VariantType.Double, is_array=True),
+        StatusCode=ua.StatusCode(ua.StatusCodes.UncertainLastUsableValue),
+        SourceTimestamp=at,
+        ServerTimestamp=at,
+        SourcePicoseconds=7,
+        ServerPicoseconds=9,
+    )
+    full.Encoding = 0x3F
+    bare = ua.DataValue(ua.Variant(None))
+    node = NodeData(ua.NodeId("Cell.Values", 3))
+    node.attributes[A.Value] = AttributeValue(full)
+    node.attributes[A.Description] = AttributeValue(bare)
+    _write(tmp_path / NAME, {node.nodeid: node})
+    found = read_snapshot(tmp_path / NAME, KEY)
+    assert found is not None
+    read = found.nodes[node.nodeid]
+    for attribute, wanted in ((A.Value, full), (A.Description, bare)):
+        got = read.attributes[attribute]
+        assert isinstance(got, AttributeValue) and isinstance(got.value, ua.DataValue)
+        assert got.value_callback is None and got.value_setter is None and got.datachange_callbacks == {}
+        for field in dataclasses.fields(ua.DataValue):
+            assert getattr(got.value, field.name) == getattr(wanted, field.name), field.name
+    assert read.attributes[A.Value].value.Value.is_array
 
 
 def test_nodes_added_changed_and_deleted_live_beside_the_snapshot(tmp_path: Path) -> None:

@@ -32,7 +32,9 @@ Each key has its own file (``snapshot_path``); the few most recent are kept (``p
 from __future__ import annotations
 
 import contextlib
+import copyreg
 import hashlib
+import io
 import json
 import logging
 import mmap
@@ -58,7 +60,7 @@ from uacell.ua.door import connection as door_connection
 
 log = logging.getLogger(__name__)
 
-FORMAT = 2
+FORMAT = 3  # 3: attribute values and data values pickled by their fields (_PICKLE_TABLE)
 MAGIC = b"uacell address space snapshot\n"
 PREFIX, SUFFIX = "address-space-", ".snapshot"
 KEEP = 3  # snapshots kept per cache directory (one per cell and model set recently served)
@@ -69,6 +71,43 @@ KEEP = 3  # snapshots kept per cache directory (one per cell and model set recen
 # of 8, 24 ms in 4s, 22 ms in pairs, 20 ms one by one, which makes the file a third larger).
 CHUNK, INSTANCE_CHUNK = 2, 256
 _LENGTH = struct.Struct(">I")
+
+
+_DATA_VALUE_FIELDS = (
+    "Encoding", "Value", "StatusCode", "SourceTimestamp", "ServerTimestamp", "SourcePicoseconds", "ServerPicoseconds",
+)  # fmt: skip
+
+
+def _data_value(*fields: Any) -> ua.DataValue:
+    """A ``DataValue`` from its fields in ``_DATA_VALUE_FIELDS`` order (what ``_reduce_data_value`` keeps)."""
+    dv = object.__new__(ua.DataValue)
+    for name, value in zip(_DATA_VALUE_FIELDS, fields, strict=True):
+        object.__setattr__(dv, name, value)
+    return dv
+
+
+def _reduce_data_value(dv: ua.DataValue) -> tuple[Any, ...]:
+    return _data_value, tuple(getattr(dv, name) for name in _DATA_VALUE_FIELDS)
+
+
+def _reduce_attribute_value(value: AttributeValue) -> tuple[Any, ...]:
+    # Only the value: the copies ``stripped_copy`` makes have no callback or setter.
+    return AttributeValue, (value.value,)
+
+
+# How a snapshot pickles the two most frequent objects of its nodes: by their fields, not as generic
+# objects with a state dictionary each (their empty callback dictionaries included). Unpickling the
+# large cell's instances takes about a third less, and the file is a quarter smaller.
+_PICKLE_TABLE = {**copyreg.dispatch_table, ua.DataValue: _reduce_data_value, AttributeValue: _reduce_attribute_value}
+
+
+def _pickled(obj: Any) -> bytes:
+    """``obj`` pickled as a snapshot's chunks are (``_PICKLE_TABLE``)."""
+    out = io.BytesIO()
+    pickler = pickle.Pickler(out, protocol=pickle.HIGHEST_PROTOCOL)
+    pickler.dispatch_table = _PICKLE_TABLE
+    pickler.dump(obj)
+    return out.getvalue()
 
 
 class SnapshotInvalid(Exception):
@@ -362,7 +401,7 @@ def write_snapshot(
         started = time.perf_counter()
         chunk = [data for _nodeid, data in group]
         share_equal_values(chunk)
-        blob = pickle.dumps(chunk, protocol=pickle.HIGHEST_PROTOCOL)
+        blob = _pickled(chunk)
         if share < 1.0:
             time.sleep((time.perf_counter() - started) * (1.0 - share) / share)
         for nodeid, _data in group:
