@@ -22,6 +22,7 @@ from asyncua.server.address_space import AttributeValue, NodeData
 from conftest import fast_config, start_app
 from helpers import free_port, models_copy, official
 
+from uacell.machinery.binding import MACHINES
 from uacell.packml.binding import UNITS
 from uacell.ua import snapshot
 from uacell.ua.snapshot import LazyNodes, SnapshotInvalid, read_snapshot, stripped_copy, write_snapshot
@@ -427,9 +428,11 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(t
 
 
 async def test_the_nodes_companions_give_their_parts_come_with_the_snapshot(tmp_path: Path) -> None:
-    """A PackML unit's OEE folder, StartParameters and InjectFault (``Companion.shape``) are made with
-    the cell, before the snapshot is taken: a restart finds them and their HA Configurations stored
-    there, not made again, and the binder writes the unit's figures into them."""
+    """A PackML unit's OEE folder, StartParameters and InjectFault, and a machine's building blocks
+    (``Companion.shape``) are made with the cell, before the snapshot is taken: a restart finds them
+    and their HA Configurations stored there, not made again, and the binders write into them (the
+    unit's figures, the machine's states). A machine's Identification, whose members come from its
+    equipment too, is made by the binder at every start."""
     cache = tmp_path / "cache"
     first = await _start(tmp_path, cache)
     try:
@@ -449,10 +452,24 @@ async def test_the_nodes_companions_give_their_parts_come_with_the_snapshot(tmp_
         for name in made_with_the_cell:
             node = ua.NodeId(f"Filler1.{name}", ns)
             assert (node.NamespaceIndex, node.Identifier) in nodes._where, name  # stored, not made here
+        blocks = ("MachineryBuildingBlocks", "MachineryItemState", "MachineryOperationMode")
+        for machine in ("Filler1", "Robot1"):
+            stored = (blocks[0], *(f"{blocks[0]}.{name}.CurrentState" for name in blocks[1:]))
+            for name in stored:
+                node = ua.NodeId(f"{machine}.{name}", ns)
+                assert (node.NamespaceIndex, node.Identifier) in nodes._where, (machine, name)
+            identification = ua.NodeId(f"{machine}.Identification", ns)
+            assert (identification.NamespaceIndex, identification.Identifier) not in nodes._where
+            assert identification in nodes  # made by the binder
         binding = second.registry(UNITS).get("Filler1")
         assert binding is not None
         expected = binding.unit.oee_values()
         async with Client(second.endpoint, timeout=30) as client:
+            for machine, bound in second.registry(MACHINES).items():
+                for name, model in (("MachineryItemState", bound.machine.item_state),
+                                    ("MachineryOperationMode", bound.machine.operation_mode)):  # fmt: skip
+                    node = client.get_node(ua.NodeId(f"{machine}.{blocks[0]}.{name}.CurrentState", ns))
+                    assert (await node.read_value()).Text == model.current, (machine, name)
             for key, value in expected.items():
                 node = client.get_node(ua.NodeId(f"Filler1.OEE.{key.split('/')[1]}", ns))
                 assert await node.read_value() == value

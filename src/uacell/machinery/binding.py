@@ -30,7 +30,16 @@ from uacell.core.registry import RegistryKey
 from uacell.host import BinderHost
 from uacell.machinery.config import INITIAL_OPERATION_DATE, NUMBER_KEYS, MachineryConfig, MachinesSection
 from uacell.machinery.model import Machine, MachineryTables
-from uacell.machinery.nodes import MACHINE_MEMBERS, MachineNodes, add_components, add_machine
+from uacell.machinery.nodes import (
+    COMPONENT_TYPES,
+    MACHINE_MEMBERS,
+    MACHINE_TYPES,
+    UNIT,
+    MachineNodes,
+    add_components,
+    add_machine,
+    machine_parts,
+)
 from uacell.machinery.sources import RobotSource, Source, UnitSource
 from uacell.packml.binding import UNITS
 from uacell.robotics.binding import CONTROLLERS
@@ -38,12 +47,6 @@ from uacell.robotics.binding import CONTROLLERS
 log = logging.getLogger(__name__)
 # Members that are not text: equipment reports text only, the cell file gives these.
 NUMBERED = frozenset({*(m for m, _, _ in NUMBER_KEYS.values()), INITIAL_OPERATION_DATE})
-
-# The parts that are machines: (model, type) -> how their facts are found.
-ROBOT, UNIT = ("Robotics", "MotionDeviceSystemType"), ("PackML", "PackMLBaseObjectType")
-MACHINE_TYPES = (ROBOT, UNIT)
-# A robot's parts that are its components (OPC 40001-1 Components): controllers and motion devices.
-COMPONENT_TYPES = (("Robotics", "ControllerType"), ("Robotics", "MotionDeviceType"))
 
 
 @dataclass
@@ -166,10 +169,11 @@ async def bind_machinery(app: BinderHost) -> Closer | None:
     settings = app.config.section("machinery", MachineryConfig)
     section = app.config.cell.sections.get("machines")
     section = section if isinstance(section, MachinesSection) else None
-    built = [b for b in app.cell.built if (b.part.model, b.part.type_name) in MACHINE_TYPES]
-    _check_entries(section, {b.part.name for b in built})
-    for part in built:
-        source = _source(app, part)
+    kinds = [b for b in app.cell.built if (b.part.model, b.part.type_name) in MACHINE_TYPES]
+    _check_entries(section, {b.part.name for b in kinds})
+    machines = {id(b) for b in machine_parts(app.cell)}
+    for part in kinds:
+        source = _source(app, part) if id(part) in machines else None
         if source is None:  # its companion bound nothing there (a robot without controllers)
             log.info("%s: no model to follow; not a machine", part.path)
             continue

@@ -49,6 +49,7 @@ MACHINERY_COMPANION: Companion[ServerView] = Companion(
     ),
     metrics=lazy_metrics("uacell.machinery.metrics", "machinery_metrics"),
     binder=lazy_binder("uacell.machinery.binding", "bind_machinery"),
+    shape="uacell.machinery.nodes:shape_machines",
     section="machinery",
     settings=MachineryConfig,
     cell_section="machines",
