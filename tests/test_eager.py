@@ -186,4 +186,3 @@ async def test_the_running_task_table_eager_uses_is_the_one_current_task_reads()
     from uacell.core.background import _CURRENT
 
     assert _CURRENT.get(asyncio.get_running_loop()) is asyncio.current_task()
-
