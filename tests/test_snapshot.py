@@ -161,8 +161,9 @@ def test_equal_values_and_references_of_a_chunk_are_read_as_one_object(tmp_path:
 
 
 def test_every_field_of_a_value_comes_back(tmp_path: Path) -> None:
-    """Values are stored by their fields (not as generic objects): each field, the Encoding mask a
-    decoded value carries included, comes back as it was, and a value read twice is one object."""
+    """Attribute values are stored as a call with their value (not as generic objects): each field of
+    the value, the Encoding mask a decoded value carries included, comes back as it was, and the
+    attribute value comes back without callbacks."""
     A = ua.AttributeIds
     at = datetime(2026, 11, 27, 21, 40, 5, 123456, tzinfo=UTC)
     full = ua.DataValue(
