@@ -10,6 +10,7 @@ is what only this transport has."""
 
 from __future__ import annotations
 
+import asyncio
 import struct
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -23,6 +24,7 @@ from gateway_plcs import s7_cell as shipped_cell
 from helpers import (
     call_path,
     config_check_connect,
+    free_port,
     until,
 )
 
@@ -195,3 +197,34 @@ def test_units_on_one_plc_must_agree_on_the_connection() -> None:
         get("Filler", {"start": 400, "interval": 0.2})
     assert get("Other", {"slot": 2, "interval": 0.2}) is not first
     assert first.users == 2
+
+
+async def test_a_connect_cancelled_half_way_leaves_no_socket_open() -> None:
+    """A link closing while it connects cancels the connect after the TCP connection was made and
+    before the PLC answered the ISO handshake: the socket is closed then, not left for the collector
+    (python-snap7 closes its stream on errors only). The PLC here accepts and never answers."""
+    accepted: asyncio.Queue[asyncio.StreamReader] = asyncio.Queue()
+    writers: list[asyncio.StreamWriter] = []
+
+    async def silent(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        writers.append(writer)
+        await accepted.put(reader)
+
+    port = free_port()
+    server = await asyncio.start_server(silent, "127.0.0.1", port)
+    try:
+        conn = S7Connection("127.0.0.1", port, 0, 1, 30.0)
+        connecting = asyncio.ensure_future(conn.connect())
+        reader = await asyncio.wait_for(accepted.get(), 10)
+        await asyncio.wait_for(reader.read(4), 10)  # the ISO connection request arrived: snap7 waits now
+        connecting.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await connecting
+        assert not conn.connected
+        rest = await asyncio.wait_for(reader.read(), 5)  # EOF: the client closed its socket
+        assert isinstance(rest, bytes)
+    finally:
+        for w in writers:
+            w.close()
+        server.close()
+        await server.wait_closed()

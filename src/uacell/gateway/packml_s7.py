@@ -99,6 +99,18 @@ def resolve_s7(
     return out
 
 
+def _stream(client: AsyncClient) -> asyncio.StreamWriter | None:
+    """The stream python-snap7's client writes to, if it opened one."""
+    writer: asyncio.StreamWriter | None = getattr(getattr(client, "connection", None), "_writer", None)
+    return writer
+
+
+def _close_stream(client: AsyncClient) -> None:
+    writer = _stream(client)
+    if writer is not None:
+        writer.close()
+
+
 class S7Connection:
     """One S7 connection (python-snap7's ``AsyncClient``): reads of data block bytes and write jobs,
     each bounded by ``timeout``; a failure other than a refused address drops the connection."""
@@ -123,6 +135,11 @@ class S7Connection:
             with contextlib.suppress(Exception):
                 await client.disconnect()
             return False
+        except BaseException:
+            # Cancelled while connecting (the link closing): snap7 closes its stream on errors only, so
+            # the socket it opened is closed here, or it would stay open until collected.
+            _close_stream(client)
+            raise
         self._client = client
         return True
 
@@ -131,7 +148,7 @@ class S7Connection:
         if client is not None:
             # snap7's stream: closed here too, so a disconnect cut short by the timeout (its drain
             # cancelled) does not leave the socket open
-            writer = getattr(getattr(client, "connection", None), "_writer", None)
+            writer = _stream(client)
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(client.disconnect(), 1.0)
             if writer is not None:
