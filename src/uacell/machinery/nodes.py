@@ -124,7 +124,9 @@ def machine_parts(cell: CellBuilder) -> list[BuiltPart]:
     return found
 
 
-async def add_blocks(space: Space, cell: CellBuilder, built: BuiltPart, ns_m: int) -> tuple[ua.NodeId, ...]:
+async def add_blocks(
+    space: Space, cell: CellBuilder, built: BuiltPart, ns_m: int
+) -> tuple[ua.NodeId, ua.NodeId, ua.NodeId]:
     """MachineryBuildingBlocks with the two state machines below ``built``, and the Organizes reference
     from ``Objects/Machines``, each unless it exists: (blocks, item state, operation mode)."""
     blocks = cell.instantiator.nodeid(f"{built.path}.{BLOCKS}")
