@@ -55,7 +55,10 @@ name = "{ROBOT}"
     endpoint = "opc.tcp://127.0.0.1:{port}/"
     prefix = "{where}"
     interval = 0.02
-    confirm_timeout = 3.0
+    # as tests/test_gateway_robot.py's TIMING: a PLC process starved on a loaded CI machine still sees
+    # the strobe and confirms (a first LoadByName timed out once with 3 s and the default 0.2 s pulse)
+    confirm_timeout = 6.0
+    pulse_width = 1.0
     map = {{ emergency_stop = "{node}.emergency_stop", operational_mode = "{node}.operational_mode" }}
     motion = {{ position = "{node}.joints", unit = "rad" }}
 
