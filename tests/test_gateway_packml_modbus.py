@@ -164,7 +164,10 @@ async def test_config_check_connect_names_a_register_the_plc_does_not_have(
 
 
 async def test_fifty_units_on_one_modbus_connection(tmp_path: Path) -> None:
-    """50 units of one PLC, registers 100 apart, reset at once: one connection, every one in Idle."""
+    """50 units of one PLC, registers 100 apart, reset at once: one connection, every one in Idle.
+
+    The PLC simulator is a Python process sharing two cores with the whole suite: it is given 5 s to
+    answer instead of the default 1 s (a loaded CI run once saw one answer come later than that)."""
     from uacell.gateway.modbus import SHARED
     from uacell.gateway.packml_modbus import POOL
 
@@ -176,7 +179,7 @@ async def test_fifty_units_on_one_modbus_connection(tmp_path: Path) -> None:
         path.write_text(
             "".join(
                 f'[[packml_units]]\nname = "U{i}"\nequipment = {{ driver = "modbus-packtags", host = "127.0.0.1", '
-                f"port = {p.port}, base = {100 * i} }}\n\n"
+                f"port = {p.port}, base = {100 * i}, timeout = 5.0 }}\n\n"
                 for i in range(50)
             )
         )
