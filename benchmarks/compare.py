@@ -14,6 +14,7 @@ docs/performance.md records the levers measured so.
 from __future__ import annotations
 
 import argparse
+import statistics
 import sys
 import tempfile
 from pathlib import Path
@@ -25,7 +26,6 @@ from benchmarks.harness import (
     Peers,
     free_port,
     loaded,
-    median,
     rotated,
     running,
 )
@@ -54,6 +54,8 @@ def main() -> int:
     args = parser.parse_args()
     if args.other is not None and not (args.other / "src" / "uacell").is_dir():
         parser.error(f"{args.other} is not a uacell checkout (no src/uacell)")
+    if args.rounds < 1:
+        parser.error("--rounds must be at least 1")
     loads = [x.strip() for x in args.loads.split(",") if x.strip()]
     rates: dict[tuple[str, str], list[float]] = {}
     cpu: dict[tuple[str, str], list[float]] = {}  # microseconds of CPU per call
@@ -72,11 +74,12 @@ def main() -> int:
                         if result.get("errors"):
                             print(f"  ! {peer.name} {load}: {result['errors']} failed: {result.get('first_error')}")
                         rates.setdefault((peer.name, load), []).append(result["rate"])
+    # every round measured every load on both peers: each list below holds args.rounds (>= 1) figures
     for load in loads:
         ours, theirs = rates[("new", load)], rates[("old", load)]
-        ratio = median([a / b for a, b in zip(ours, theirs, strict=True)])
+        ratio = statistics.median([a / b for a, b in zip(ours, theirs, strict=True)])
         print(f"{load:>6}: new {[round(x) for x in ours]} old {[round(x) for x in theirs]} new/old {ratio:.3f}x")
-        ours_cpu, theirs_cpu = median(cpu[("new", load)]), median(cpu[("old", load)])
+        ours_cpu, theirs_cpu = statistics.median(cpu[("new", load)]), statistics.median(cpu[("old", load)])
         cpu_ratio = ours_cpu / theirs_cpu
         print(f"        CPU per call: new {ours_cpu:.0f} us, old {theirs_cpu:.0f} us, new/old {cpu_ratio:.3f}x")
     return 0

@@ -17,7 +17,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -224,7 +224,8 @@ def client(endpoint: str, spec: dict[str, Any], timeout: float = 300.0) -> dict[
     if proc.returncode != 0 or not lines:
         tail = proc.stderr.strip().splitlines()[-3:]
         raise RuntimeError(f"bench client {spec['mode']} failed: {' / '.join(tail)}")
-    return json.loads(lines[-1])
+    result: dict[str, Any] = json.loads(lines[-1])
+    return result
 
 
 def loaded(peer: Peer, spec: dict[str, Any]) -> dict[str, Any]:
@@ -263,7 +264,15 @@ class Report:
     rows: list[Row] = field(default_factory=list)
     raw: dict[str, Any] = field(default_factory=dict)
 
-    def add(self, measure: str, value: str, reference: str, ratio: float | None, target: str = "", ok=None) -> None:
+    def add(
+        self,
+        measure: str,
+        value: str,
+        reference: str,
+        ratio: float | None,
+        target: str = "",
+        ok: Callable[[float], object] | None = None,
+    ) -> None:
         passed = None if ok is None or ratio is None else bool(ok(ratio))
         self.rows.append(Row(measure, value, reference, ratio, target, passed))
         verdict = {True: "PASS", False: "FAIL", None: ""}[passed]
@@ -306,7 +315,7 @@ class Report:
             if i == 0:
                 print("  ".join("-" * w for w in widths))
         targets = [r for r in self.rows if r.passed is not None]
-        print(f"\n{sum(r.passed for r in targets)}/{len(targets)} targets met", flush=True)
+        print(f"\n{sum(1 for r in targets if r.passed)}/{len(targets)} targets met", flush=True)
 
 
 def fmt(x: float | None, unit: str = "x") -> str:

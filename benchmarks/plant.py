@@ -200,7 +200,7 @@ async def _measure(broker: Mosquitto, cells: list[Peer], seconds: float) -> dict
             await c.subscribe("opcua/json/data/#", qos=1)
             ready.set()
             async for m in c.messages:
-                received.append((time.time(), str(m.topic), json.loads(m.payload)))  # type: ignore[arg-type]
+                received.append((time.time(), str(m.topic), json.loads(m.payload)))
 
     sub = asyncio.ensure_future(subscribe())
     await asyncio.wait_for(ready.wait(), 15)

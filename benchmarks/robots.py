@@ -263,7 +263,7 @@ async def _measure_modbus(endpoint: str, port: int, rounds: int, seconds: float,
                 if not changes or changes[-1][1] != value:
                     changes.append((time.perf_counter(), value))
                 await asyncio.sleep(0.002)
-            first = {}
+            first: dict[int, float] = {}
             for at, value in changes:
                 first.setdefault(value, at)
             for at, degrees in arrived:
