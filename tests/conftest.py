@@ -14,7 +14,7 @@ import sys
 import tempfile
 import time
 from collections.abc import AsyncIterator, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +22,8 @@ import pytest
 from helpers import free_port
 
 from uacell.config import CACHE_DIR_ENV, Config
+from uacell.core.companion import Binder, Companion
+from uacell.host import ServerView
 from uacell.server import UacellServer
 
 # One address-space snapshot for the whole run (uacell.ua.snapshot): the first server writes it and
@@ -42,6 +44,8 @@ class ServeProcess:
     endpoint: str
     data_dir: Path
     output: list[str]
+    # the HMI's URL, set by the fixtures that start the process with web=True (wait_for_web)
+    web: str = field(init=False, repr=False, compare=False)
 
     def stop(self, sig: int = signal.SIGTERM, timeout: float = 30.0) -> int:
         if self.proc.poll() is None:
@@ -61,7 +65,7 @@ def start_serve(
     data_dir: Path,
     *extra: str,
     port: int | None = None,
-    env: dict | None = None,
+    env: dict[str, str] | None = None,
     web: bool = False,
     host: str = "127.0.0.1",
     prefix: tuple[str, ...] = (),
@@ -141,7 +145,11 @@ def fast_config(data_dir: Path) -> Config:
     return config
 
 
-async def start_app(config: Config, binders: list | None = None, companions: Sequence | None = None) -> UacellServer:
+async def start_app(
+    config: Config,
+    binders: list[Binder[ServerView]] | None = None,
+    companions: Sequence[Companion[ServerView]] | None = None,
+) -> UacellServer:
     """An in-process uacell server, set up and listening (on another free port if another test's
     listener took the chosen one meanwhile); ``companions``: those it serves (default: this build's)."""
     for attempt in range(3):
@@ -175,7 +183,7 @@ async def serving(config: Config) -> AsyncIterator[tuple[UacellServer, Any]]:
 
 
 @pytest.fixture
-async def app(tmp_path: Path) -> AsyncIterator:
+async def app(tmp_path: Path) -> AsyncIterator[UacellServer]:
     """An in-process uacell server with the demo cell on a free loopback port."""
     server = await start_app(fast_config(tmp_path / "data"))
     try:
@@ -185,7 +193,7 @@ async def app(tmp_path: Path) -> AsyncIterator:
 
 
 @pytest.fixture
-async def client(app) -> AsyncIterator:
+async def client(app) -> AsyncIterator[Any]:
     """An asyncua client connected anonymously (operator on loopback) to ``app``."""
     from asyncua import Client
 
@@ -200,7 +208,7 @@ async def client(app) -> AsyncIterator:
         await c.disconnect()
 
 
-def run_node(script: str, endpoint: str, *args: str, timeout: float = 120.0) -> dict:
+def run_node(script: str, endpoint: str, *args: str, timeout: float = 120.0) -> dict[str, Any]:
     """Run interop/<script> with node-opcua-client; it prints one JSON object as its last JSON line
     (node-opcua may print a log line of its own after it, e.g. a warning about RSA PKCS#1 v1.5)."""
     proc = subprocess.run(

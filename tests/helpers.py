@@ -16,7 +16,7 @@ import time
 import uuid
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 from asyncua import Client, ua
 
@@ -28,6 +28,7 @@ from uacell.models import ModelFile, StateTables, official_models
 from uacell.packml import PackMLTables
 from uacell.robotics import RobotCell, RoboticsTables
 from uacell.robotics.binding import CONTROLLERS, RoboticsBinding
+from uacell.robotics.sim import SimulatedRobot
 from uacell.server import UacellServer
 from uacell.ua.toolkit import EventEmitter
 
@@ -114,6 +115,11 @@ def robot_binding(app: UacellServer, path: str = CONTROLLER1) -> RoboticsBinding
 def robot_cell(app: UacellServer, path: str = CONTROLLER1) -> RobotCell:
     """The pure model of the controller at ``path``."""
     return robot_binding(app, path).cell
+
+
+def simulated_robot(app: UacellServer, path: str = CONTROLLER1) -> SimulatedRobot:
+    """The equipment of the controller at ``path`` where it is the simulator (the demo cell's are)."""
+    return cast(SimulatedRobot, robot_cell(app, path).equipment)
 
 
 def lock_manager(app: UacellServer) -> LockManager:

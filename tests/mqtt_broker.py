@@ -169,7 +169,8 @@ async def subscribed(
 
 async def _first(ready: asyncio.Event, task: asyncio.Future[None]) -> None:
     waiter = asyncio.ensure_future(ready.wait())
-    await asyncio.wait({waiter, task}, return_when=asyncio.FIRST_COMPLETED)
+    either: set[asyncio.Future[Any]] = {waiter, task}
+    await asyncio.wait(either, return_when=asyncio.FIRST_COMPLETED)
     if task.done():
         task.result()
         raise RuntimeError("the subscriber stopped before subscribing")

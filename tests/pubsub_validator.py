@@ -447,6 +447,7 @@ class Validator:
             need(isinstance(messages, dict), where, "Messages is a JSON object when SingleDataSetMessage is declared")
             messages = [messages]
         need(isinstance(messages, list) and len(messages) >= 1, where, "Messages is an array of DataSetMessages")
+        assert isinstance(messages, list)
         for i, message in enumerate(messages):
             self._dataset_message(body, message, f"{where}.Messages[{i}]", rest)
 
@@ -463,7 +464,7 @@ class Validator:
                 need(name in m, where, f"{name} is declared by the DataSetMessageContentMask but missing")
             else:
                 need(name not in m, where, f"{name} is sent but the DataSetMessageContentMask leaves it out")
-        need("Status" not in m or declared.dataset_mask & 0x10, where, "Status is not declared")
+        need("Status" not in m or bool(declared.dataset_mask & 0x10), where, "Status is not declared")
         if "Status" in m:
             status_code(m["Status"], where + ".Status", verbose=True)
         if "DataSetWriterName" in m:

@@ -87,9 +87,9 @@ class NodeView:
     online: bool = False
     bdseq: int | None = None
     seq: int | None = None
-    births: list[int] = field(default_factory=list)  # bdSeq of each NBIRTH
+    births: list[int | None] = field(default_factory=list)  # bdSeq of each NBIRTH (None: it had none)
     aliases: dict[str, int] = field(default_factory=dict)  # the NBIRTH's metric names -> aliases
-    deaths: list[int] = field(default_factory=list)  # bdSeq of each NDEATH
+    deaths: list[int | None] = field(default_factory=list)  # bdSeq of each NDEATH (None: it had none)
     devices: dict[str, DeviceView] = field(default_factory=dict)
 
 

@@ -240,4 +240,4 @@ class URModbusServer:
         """Stop listening and drop every client connection."""
         server, self._server = self._server, None
         if server is not None:
-            await server.shutdown()  # type: ignore[no-untyped-call]
+            await server.shutdown()
