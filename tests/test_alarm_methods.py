@@ -9,11 +9,12 @@ import asyncio
 import dataclasses
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import robot_cell, robotics_tables
+from helpers import robotics_tables, simulated_robot
 
 from uacell.core.errors import CallError
 from uacell.core.roles import Role
@@ -67,7 +68,7 @@ async def test_model_enable_disable_and_comment(tmp_path: Path) -> None:
 
 class Events:
     def __init__(self) -> None:
-        self.items: list = []
+        self.items: list[Any] = []
 
     def event_notification(self, event) -> None:
         self.items.append(event)
@@ -124,7 +125,7 @@ async def test_add_comment_enable_disable_through_asyncua(rig):
     events = Events()
     sub = await client.create_subscription(20, events)
     await sub.subscribe_events(client.get_node(ua.ObjectIds.Server), client.get_node(ua.ObjectIds.AlarmConditionType))
-    robot_cell(app).equipment.raise_alarm("EmergencyStop")
+    simulated_robot(app).raise_alarm("EmergencyStop")
     await app.settle()
     read = lambda p: client.get_node(nid(app, f"{COND}.{p}")).read_value()  # noqa: E731
     event_id = await read("EventId")
@@ -197,7 +198,7 @@ async def test_node_opcua_comments_disables_and_enables_an_alarm(tmp_path):
     config.server.anonymous_role = "engineer"  # Enable/Disable are an engineer's
     app = await start_app(config)
     try:
-        robot_cell(app).equipment.raise_alarm("EmergencyStop")
+        simulated_robot(app).raise_alarm("EmergencyStop")
         await app.settle()
         out = await asyncio.to_thread(run_node, "alarms.js", app.endpoint)
     finally:

@@ -25,7 +25,7 @@ DOOR = SRC / "ua" / "door"
 
 
 def test_no_module_outside_the_door_touches_asyncua_past_its_public_surface() -> None:
-    found = []
+    found: list[str] = []
     for path in sorted(SRC.rglob("*.py")):
         if DOOR in path.parents:
             continue

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextvars
 from datetime import datetime
+from typing import Any
 
 import pytest
 import pytest_asyncio
@@ -39,10 +40,10 @@ TRANSITION = ua.NodeId(ua.ObjectIds.TransitionEventType)
 
 
 class Events(Collector):
-    def transitions(self) -> list:  # markers (helpers.delivered) are dropped already
+    def transitions(self) -> list[Any]:  # markers (helpers.delivered) are dropped already
         return [e for e in self.events if e.EventType == TRANSITION]
 
-    def audits(self) -> list:
+    def audits(self) -> list[Any]:
         return [e for e in self.events if e.EventType == AUDIT]
 
 
@@ -98,7 +99,7 @@ def pairs(events: Events) -> list[tuple[str, str | None]]:
             and audit.OldStateId == getattr(e, "FromState/Id")
             and audit.NewStateId == getattr(e, "ToState/Id")
         )
-        out.append((e.Transition.Text, (audit.ClientUserId or ANONYMOUS) if matched else None))
+        out.append((e.Transition.Text, (audit.ClientUserId or ANONYMOUS) if matched and audit is not None else None))
     return out
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 from collections import Counter
 from collections.abc import AsyncIterator
+from typing import Any
 
 import pytest
 import pytest_asyncio
@@ -62,7 +63,8 @@ def node(app: UacellServer, path: str) -> ua.NodeId:
     return ua.NodeId(path, app.cell.instantiator.ns)
 
 
-async def call(app: UacellServer, client: Client, obj: str, method: str, *args: ua.Variant) -> list:
+async def call(app: UacellServer, client: Client, obj: str, method: str, *args: ua.Variant) -> Any:
+    """The method's output: asyncua hands a single output argument back as itself, several as a list."""
     obj_id = node(app, obj)
     method_id = app.dispatcher.method_of(obj_id, method)
     return await client.get_node(obj_id).call_method(method_id, *args)

@@ -6,6 +6,7 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
+from typing import cast
 
 import pytest
 
@@ -13,6 +14,8 @@ from uacell.binding.cell import Part, demo_cell
 from uacell.config import load_cell, load_config
 from uacell.core.cell_file import STATE_MACHINE, builtin_cell_path
 from uacell.core.errors import ConfigError
+from uacell.packml.config import UnitsSection
+from uacell.robotics.config import RobotsSection
 from uacell.robotics.equipment import ExecutionMode, StopMode
 
 
@@ -96,7 +99,7 @@ def test_a_configuration_without_a_cell_serves_the_demo(tmp_path):
 
 def test_the_example_is_the_larger_cell_the_docs_describe():
     cell = load_cell(builtin_cell_path("example"))
-    robots = cell.sections["robots"].robots
+    robots = cast(RobotsSection, cell.sections["robots"]).robots
     assert [r.name for r in robots] == ["Welder", "Handler"]
     welder = robots[0]
     assert [(c.name, [t.name for t in c.task_controls], c.motion_device) for c in welder.controllers] == [
@@ -108,7 +111,7 @@ def test_the_example_is_the_larger_cell_the_docs_describe():
     assert a.possible_stop_modes == (StopMode.ON_PATH, StopMode.QUICK_STOP, StopMode.END_OF_CYCLE)
     assert a.default_stop_mode is StopMode.QUICK_STOP
     assert a.task_controls[1].execution_mode is ExecutionMode.STEP
-    units = cell.sections["packml_units"].units
+    units = cast(UnitsSection, cell.sections["packml_units"]).units
     assert [(u.name, u.mach_speed, u.design_speed) for u in units] == [
         ("Filler", 60.0, 120.0),
         ("Capper", 180.0, 300.0),
@@ -126,7 +129,7 @@ name = "R"
 def test_a_robot_table_alone_gets_one_controller_task_control_and_six_axis_arm(tmp_path):
     path = tmp_path / "c.toml"
     path.write_text(MINIMAL)
-    robot = load_cell(path).sections["robots"].robots[0]
+    robot = cast(RobotsSection, load_cell(path).sections["robots"]).robots[0]
     assert [c.name for c in robot.controllers] == ["Controller1"]
     assert [t.name for t in robot.controllers[0].task_controls] == ["TaskControl1"]
     assert [(m.name, len(m.axes)) for m in robot.motion_devices] == [("Arm1", 6)]

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import free_port
+from helpers import free_port
 
 from uacell.security.pki import PkiPaths, TrustList, make_client_certificate, thumbprint
 

@@ -130,7 +130,7 @@ EXTRA = st.one_of(
 )
 
 
-def _request(token, handle, diagnostics, audit, timeout, extra, calls):  # type: ignore[no-untyped-def]
+def _request(token, handle, diagnostics, audit, timeout, extra, calls):
     request = ua.CallRequest()
     h = request.RequestHeader
     h.AuthenticationToken, h.RequestHandle, h.ReturnDiagnostics = token, handle, diagnostics
@@ -262,7 +262,7 @@ def test_a_response_is_framed_as_asyncua_frames_it(body: bytes, max_send: int, r
     theirs = _channel(SecurityPolicyNone(), max_send, sequence)
     expected = theirs.message_to_binary(body, message_type=ua.MessageType.SecureMessage, request_id=request_id)
     processor = _Processor(_channel(SecurityPolicyNone(), max_send, sequence))
-    send_response(processor, request_id, body)  # type: ignore[arg-type]
+    send_response(processor, request_id, body)
     assert processor._transport.sent == [expected]
     assert processor._connection._sequence_number == theirs._sequence_number
 
@@ -271,7 +271,7 @@ def test_a_signed_channel_is_framed_by_asyncua() -> None:
     """A channel whose symmetric cryptography is not None's (signing, encrypting) is never framed here."""
     from asyncua.crypto.security_policies import CryptographyNone, SecurityPolicyNone
 
-    class Signing(CryptographyNone):
+    class Signing(CryptographyNone):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
         def signature_size(self) -> int:
             return 4
 
@@ -286,7 +286,7 @@ def test_a_signed_channel_is_framed_by_asyncua() -> None:
     processor = _Processor(_channel(policy))
     from uacell.ua.door.connection import send_response
 
-    send_response(processor, 5, b"body")  # type: ignore[arg-type]
+    send_response(processor, 5, b"body")
     assert processor._transport.sent == [expected]
 
 
@@ -335,7 +335,7 @@ def test_a_one_chunk_request_is_read_as_asyncua_reads_it(
     message = theirs.receive_from_header_and_body(header, buffer)
     ours = _Processor(_open_channel(peer=peer))
     header2, buffer2 = _received(data)
-    read = plain_message(ours, header2, buffer2)  # type: ignore[arg-type]
+    read = plain_message(ours, header2, buffer2)
     assert read is not None
     seqhdr, got = read
     assert seqhdr == message.SequenceHeader()
@@ -366,7 +366,7 @@ def test_anything_else_is_left_to_asyncua(case: str, refused_by_asyncua: bool) -
 
     from uacell.ua.door.connection import plain_message
 
-    class Signing(CryptographyNone):
+    class Signing(CryptographyNone):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
         def signature_size(self) -> int:
             return 4
 
@@ -394,7 +394,7 @@ def test_anything_else_is_left_to_asyncua(case: str, refused_by_asyncua: bool) -
     elif case == "a closed channel":
         conn._open = False
     header, buffer = _received(_request_chunk(channel, token, sequence, 5, b"x" * 200, chunk))
-    assert plain_message(_Processor(conn), header, buffer) is None  # type: ignore[arg-type]
+    assert plain_message(_Processor(conn), header, buffer) is None
     assert buffer.cur_pos == 12 and conn._peer_sequence_number == peer and conn.security_token.TokenId == 3
     if case in ("a message under way", "a closed channel", "a signing channel"):
         return

@@ -111,5 +111,5 @@ def test_a_text_compiled_with_future_flags_is_run_as_exec_would_run_it(tmp_path:
     # this module has `from __future__ import annotations`: exec of a text inherits it
     cache.exec("def f(x: int) -> int: return x", {}, namespace)
     f = namespace["f"]
-    assert f.__annotations__ == {"x": "int", "return": "int"}  # type: ignore[attr-defined]
+    assert f.__annotations__ == {"x": "int", "return": "int"}
     assert cache.compiled == 0 and cache.codes == {}  # passed through, not kept

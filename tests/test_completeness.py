@@ -61,6 +61,12 @@ class Info:
 class Space:
     """A cached, batch-loaded view of the server's address space through one client session."""
 
+    # set by the fixture that loads it: the namespace indexes (cell, and each model's by short name)
+    # and each part's root node by part name
+    cell_ns: int
+    ns: dict[str, int]
+    roots: dict[str, ua.NodeId]
+
     def __init__(self, client: Client) -> None:
         self.client = client
         self.nodes: dict[ua.NodeId, Info] = {}
@@ -203,6 +209,7 @@ async def addin_name(space: Space, member: Member) -> ua.QualifiedName:
         for ref in space.children(await space.get(t)):
             if ref.BrowseName.Name == "DefaultInstanceBrowseName":
                 value = await space.client.get_node(ref.NodeId).read_value()
+                assert member.type_definition is not None  # the type chain was walked from it
                 return ua.QualifiedName(value.Name, member.type_definition.NamespaceIndex)
     return member.browse_name
 

@@ -13,6 +13,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 from asyncua import ua
@@ -217,7 +218,11 @@ def test_state_tables_take_tables_made_before_and_read_files_only_for_the_others
     assert list(made.made()) == [("Robotics", "TaskControlStateMachineType")]
 
     later = StateTables(official(), str(tmp_path / "no-models-here"))
-    junk = {("Robotics", "Nonsense"): task_control, "x": task_control, ("PackML", "PackMLBaseStateMachineType"): 1}
+    junk: dict[Any, Any] = {
+        ("Robotics", "Nonsense"): task_control,
+        "x": task_control,
+        ("PackML", "PackMLBaseStateMachineType"): 1,
+    }
     assert later.adopt({**made.made(), **junk}) == 1 and later.adopt(None) == 0
     assert later("Robotics", "TaskControlStateMachineType") is task_control
     with pytest.raises(ModelError):
@@ -238,6 +243,7 @@ async def test_a_restart_takes_its_state_tables_from_the_snapshot(tmp_path: Path
         key = snap.snapshot_key({m.filename: m.sha256 for m in official()}, first.snapshot_digest)
     finally:
         await first.stop()
+    assert config.server.snapshot_dir is not None  # the cache is on
     kept = read_snapshot(snap.snapshot_path(config.server.snapshot_dir, key), key)
     assert kept is not None and kept.extras["fsm_tables"] == tables
     assert {type_name for _model, type_name in tables} >= {

@@ -19,7 +19,8 @@ from conftest import NodeServer, ServeProcess, start_serve
 from helpers import free_port, wait_until
 
 from uacell.cli.main import main
-from uacell.config import ConfigError, load_config
+from uacell.config import load_config
+from uacell.core.errors import ConfigError
 from uacell.security.pki import PkiPaths
 from uacell.services.discovery_registration import DiscoveryConfig, DiscoveryRegistration, Registrant
 

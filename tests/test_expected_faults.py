@@ -28,9 +28,9 @@ from typing import Any
 import pytest
 from asyncua import Client, Server, ua
 from conftest import fast_config, serving, start_app
+from gateway_plcs import ModbusPLC
 from helpers import cell_executable, free_port, until, wait_until
 from test_gateway_packml import PLC as PackTagsPLC
-from test_gateway_packml_modbus import ModbusPLC
 from test_gateway_robot import PLC as RobotController
 from test_gateway_robot import cell_text as robot_cell
 
@@ -158,6 +158,7 @@ async def test_a_killed_robot_controller_is_one_warning_and_no_traceback(
         await controller.io()  # listening
         async with serve_cell(tmp_path, robot_cell(controller.port)) as (_app, client):
             conn = modbus.SHARED.get_open(("127.0.0.1", controller.port))
+            assert conn is not None  # the cell's link to the controller
             ns = await client.get_namespace_index("urn:uacell:cell")
             lost = client.get_node(
                 ua.NodeId(

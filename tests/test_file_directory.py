@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import pytest
 import pytest_asyncio
@@ -17,8 +18,9 @@ from conftest import fast_config, start_app
 from helpers import raw_call
 
 from uacell.binding.file_directory import FILE_DIRECTORY_TYPE, FILE_TYPE, FileDirectoryBinding
-from uacell.core.file_store import TEMP_PREFIX, FileStore
+from uacell.core.file_store import TEMP_PREFIX, Entry, FileStore
 from uacell.core.roles import Role
+from uacell.host import ServerView
 from uacell.server import UacellServer
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
@@ -59,7 +61,7 @@ def _write_baseline(root: Path) -> None:
         path.write_bytes(content)
 
 
-async def _binder(app: UacellServer, rig: Rig, programs: Path, samples: Path):
+async def _binder(app: ServerView, rig: Rig, programs: Path, samples: Path):
     ns = app.cell.instantiator.ns
     rig.ns = ns
     rig.store = FileStore(programs)
@@ -124,6 +126,7 @@ async def r(server: Rig):
         if folder and not any(e.relpath == folder for e in store.entries()):
             store.create_directory("", folder)
         _, handle = store.create_file("setup", folder, name, True)
+        assert handle is not None  # asked to open it
         store.write("setup", handle, content)
         store.close("setup", handle)
     server.binding.refresh()
@@ -145,7 +148,7 @@ async def call(client: Client, obj: ua.NodeId, method: str, *args: ua.Variant) -
     return await raw_call(client, obj, ua.NodeId(f"{obj.Identifier}.{method}", obj.NamespaceIndex), *args)
 
 
-async def ok(client: Client, obj: ua.NodeId, method: str, *args: ua.Variant) -> list:
+async def ok(client: Client, obj: ua.NodeId, method: str, *args: ua.Variant) -> list[Any]:
     res = await call(client, obj, method, *args)
     assert res.StatusCode.is_good(), f"{method}: {res.StatusCode}"
     return [o.Value for o in res.OutputArguments]
@@ -540,7 +543,12 @@ async def test_a_protection_change_republishes_writable_without_asking_the_disk(
     pick = r.node("pick.robot")
     asked: list[str] = []
     entry = r.store.entry
-    monkeypatch.setattr(r.store, "entry", lambda relpath: asked.append(relpath) or entry(relpath))
+
+    def asked_entry(relpath: str) -> Entry:
+        asked.append(relpath)
+        return entry(relpath)
+
+    monkeypatch.setattr(r.store, "entry", asked_entry)
     r.store.protect = lambda relpath: relpath == "pick.robot"
     r.binding.protection_changed("pick.robot")
     await r.app.settle()

@@ -379,12 +379,12 @@ async def test_a_secure_plc_with_a_user_polled(tmp_path: Path) -> None:
 def test_link_options_refuse_what_cannot_work(tmp_path: Path) -> None:
     from uacell.gateway.opcua_link import link_options
 
-    ok = {"endpoint": "opc.tcp://plc:4840/"}
+    ok: dict[str, Any] = {"endpoint": "opc.tcp://plc:4840/"}
     assert link_options("Capper", ok).mode == "subscribe"
     readable = tmp_path / "pw"
     readable.write_text("x")
     readable.chmod(0o644)
-    cases = {
+    cases: dict[str, tuple[dict[str, Any], str]] = {
         "endpoint": ({"endpoint": "http://plc"}, "Capper: endpoint"),
         "security": (ok | {"security": "Basic128,Sign"}, "Capper: security: 'Basic128,Sign' is not None"),
         "certificate": (ok | {"security": "Basic256Sha256,Sign"}, "Capper: certificate: a secure channel needs"),

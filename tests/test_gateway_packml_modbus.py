@@ -143,7 +143,7 @@ async def test_config_check_connect_names_a_register_the_plc_does_not_have(
     with caplog.at_level(logging.WARNING, logger="uacell.gateway.packml_plc"):
         async with serving(config) as (_app, client):
 
-            def lines() -> Any:
+            def stop_reason_logged() -> Any:
                 async def found() -> bool:
                     return any(
                         "Labeler: the PLC has no Admin.StopReason (unit 1 holding 9000" in r.getMessage()
@@ -152,7 +152,7 @@ async def test_config_check_connect_names_a_register_the_plc_does_not_have(
 
                 return found()
 
-            await until(lines, True)
+            await until(stop_reason_logged, True)
             await until(lambda: cell_status(client, f"{F}.Status.MachSpeed"), "Good")
             res = await call_path(client, machines(L)[1], "Reset")
             assert res.StatusCode.is_good(), res.StatusCode
@@ -260,7 +260,7 @@ async def test_uacell_started_while_the_plc_runs_follows_it_there(tmp_path: Path
     assert plc.conn is not None
     for cmd, reached in ((1, 4), (2, 6)):  # Reset -> Idle, Start -> Execute, at the PLC's panel
         await plc.conn.write_block("holding", command.address, [*command.rtype.encode(cmd), 1], 1)
-        await until(lambda: plc.conn.read(state, 1), reached)  # type: ignore[union-attr]
+        await until(lambda: plc.conn.read(state, 1), reached)
     assert request.address == command.address + 2  # written together above
     path = tmp_path / "cell.toml"
     path.write_text(shipped_cell(plc))

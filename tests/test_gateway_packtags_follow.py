@@ -64,7 +64,7 @@ async def opcua_plc() -> AsyncIterator[PlcUnderTest]:
 
 @asynccontextmanager
 async def modbus_plc() -> AsyncIterator[PlcUnderTest]:
-    from test_gateway_packml_modbus import ModbusPLC
+    from gateway_plcs import ModbusPLC
 
     from uacell.gateway.packml_modbus import Point, resolve_modbus
 
@@ -95,7 +95,7 @@ async def modbus_plc() -> AsyncIterator[PlcUnderTest]:
 
 @asynccontextmanager
 async def s7_plc() -> AsyncIterator[PlcUnderTest]:
-    from test_gateway_packml_s7 import S7PLC
+    from gateway_plcs import S7PLC
 
     p = S7PLC(units=1)
     p.start()
@@ -121,7 +121,7 @@ async def s7_plc() -> AsyncIterator[PlcUnderTest]:
 
 @asynccontextmanager
 async def logix_plc() -> AsyncIterator[PlcUnderTest]:
-    from test_gateway_packml_logix import LogixPLC
+    from gateway_plcs import LogixPLC
 
     from uacell.gateway.packml_logix import where
 

@@ -12,9 +12,9 @@ from typing import Any
 import pytest
 from asyncua import ua
 from conftest import fast_config, serving
+from gateway_plcs import ModbusPLC
 from helpers import call_path, cell_read, cell_state, config_check_connect, until
 from test_gateway_packml import PLC, cell
-from test_gateway_packml_modbus import ModbusPLC
 
 from uacell.config import load_cell
 from uacell.gateway.packtags import NEEDED_BY, resolve

@@ -232,14 +232,14 @@ async def held(io: ModbusRobotIO, timeout: float = 10.0) -> RobotStatus:
     return got
 
 
-async def wait_controller(io: ModbusRobotIO, predicate, timeout: float = 10.0) -> None:  # type: ignore[no-untyped-def]
+async def wait_controller(io: ModbusRobotIO, predicate, timeout: float = 10.0) -> None:
     deadline = time.monotonic() + timeout
     while not predicate(await held(io)):
         assert time.monotonic() < deadline, "the controller did not get there"
         await asyncio.sleep(0.01)
 
 
-async def wait_until_async(read_value, expected, timeout: float = 15.0, value: bool = False) -> None:  # type: ignore[no-untyped-def]
+async def wait_until_async(read_value, expected, timeout: float = 15.0, value: bool = False) -> None:
     deadline = time.monotonic() + timeout
     while True:
         got = await read_value()

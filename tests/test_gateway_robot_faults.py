@@ -234,7 +234,9 @@ async def test_joints_modes_and_safety_come_from_the_controller(tmp_path: Path, 
         await panel(io, PSTOP, False)
         await wait_until_async(lambda: read(client, f"{COND}.ProtectiveStop.ActiveState.Id"), False)
         position = await read(client, AXIS.format(6, "ActualPosition"))
-        assert position == pytest.approx((await io.conn.read(joint, 1)) / 100, abs=0.01)  # still where it is
+        raw = await io.conn.read(joint, 1)
+        assert isinstance(raw, int)
+        assert position == pytest.approx(raw / 100, abs=0.01)  # still where it is
         await panel(io, MODE, True)  # 1: MANUAL_REDUCED_SPEED
         await wait_until_async(lambda: read(client, f"{SAFETY}.OperationalMode"), 1)
         await panel(io, ESTOP, True)

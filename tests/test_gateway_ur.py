@@ -39,6 +39,11 @@ AXIS = "UR5e.MotionDevices.Arm1.Axes.Axis{}.ParameterSet.{}"
 SHIPPED = builtin_cell_path("ur-robot").read_text()
 
 
+def program_state(sim: URSim) -> UrProgramState:
+    """``sim.program_state`` read afresh: the driver changes it, so no earlier assert on it tells its type."""
+    return sim.program_state
+
+
 def cell_text(dashboard: int, modbus: int) -> str:
     """The shipped cell with nothing changed but the ports (and a faster poll for the tests)."""
     return SHIPPED.replace(
@@ -108,7 +113,7 @@ async def test_the_robots_programs_by_name_run_stop_and_the_joints(rig: Rig) -> 
     # Start answers once the robot plays it
     assert await status(client, TC, "Start") == 0
     assert await state(client, TC) == "Executing" and await state(client, SO) == "Executing"
-    assert sim.program_state is UrProgramState.PLAYING
+    assert program_state(sim) is UrProgramState.PLAYING
 
     async def follows() -> bool:  # ActualPosition is the robot's joint, in degrees
         got = await read(client, AXIS.format(1, "ActualPosition"))
@@ -121,7 +126,7 @@ async def test_the_robots_programs_by_name_run_stop_and_the_joints(rig: Rig) -> 
     assert await status(client, TC, "Stop", ua.Variant(4, ua.VariantType.Int64)) == 0
     await until_state(client, TC, "Ready")
     assert await state(client, READY) == "Suspended"
-    assert sim.program_state is UrProgramState.STOPPED
+    assert program_state(sim) is UrProgramState.STOPPED
     # Start again, and the program ends by itself: Ready/AtProgramStart
     assert await status(client, TC, "Start") == 0
     sim.finish_program()
@@ -149,12 +154,12 @@ async def test_local_control_refuses_start_at_once_and_remote_control_lets_it_ru
     await wait_until_async(lambda: read(client, f"{SAFETY}.OperationalMode"), 3)  # AUTOMATIC, local
     assert await status(client, TC, "Start") == 1  # E_SystemState at once, nothing played
     assert await state(client, TC) == "Ready"
-    assert sim.program_state is UrProgramState.STOPPED
+    assert program_state(sim) is UrProgramState.STOPPED
     assert "play" not in [line.lower() for line in rig.servers.received]
     sim.set_remote_control(True)
     await wait_until_async(lambda: read(client, f"{SAFETY}.OperationalMode"), 4)
     assert await status(client, TC, "Start") == 0  # the driver connects again, as UR asks
-    assert sim.program_state is UrProgramState.PLAYING
+    assert program_state(sim) is UrProgramState.PLAYING
 
 
 async def test_a_protective_stop_ends_the_run_and_acknowledge_unlocks_it(rig: Rig) -> None:
@@ -238,15 +243,15 @@ async def test_a_process_stop_pauses_and_start_resumes_a_reset_restarts(rig: Rig
     assert await status(client, TC, "Start") == 0
     assert await status(client, TC, "Stop", ua.Variant(3, ua.VariantType.Int64)) == 0
     await until_state(client, TC, "Ready")
-    assert await state(client, READY) == "Suspended" and sim.program_state is UrProgramState.PAUSED
+    assert await state(client, READY) == "Suspended" and program_state(sim) is UrProgramState.PAUSED
     runs = sim.program_runs
     assert await status(client, TC, "Start") == 0  # resumed, not begun again
-    assert sim.program_state is UrProgramState.PLAYING and sim.program_runs == runs
+    assert program_state(sim) is UrProgramState.PLAYING and sim.program_runs == runs
     assert await status(client, TC, "Stop", ua.Variant(5, ua.VariantType.Int64)) == 0
     await until_state(client, TC, "Ready")
     assert await status(client, f"{TC}.ReadySubstateMachine", "ResetToProgramStart") == 0
     assert await status(client, TC, "Start") == 0
-    assert sim.program_state is UrProgramState.PLAYING and sim.program_runs == runs + 1  # begun again
+    assert program_state(sim) is UrProgramState.PLAYING and sim.program_runs == runs + 1  # begun again
 
 
 async def test_a_new_connection_asked_for_while_a_command_waits_leaves_exactly_one(tmp_path: Path) -> None:

@@ -50,7 +50,7 @@ def test_history_settings_are_read(tmp_path: Path) -> None:
 
 
 async def test_a_server_on_postgresql_answers_and_keeps_history(tmp_path: Path, postgres_dsn: str) -> None:  # noqa: F811
-    def config():  # type: ignore[no-untyped-def]
+    def config():
         c = fast_config(tmp_path / "data")
         c.history.backend = "postgresql"
         c.history.postgresql_dsn = postgres_dsn

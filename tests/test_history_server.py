@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from typing import Any
 
 import pytest
 from asyncua import Client, ua
@@ -32,7 +33,7 @@ def now() -> datetime:
     return datetime.now(UTC)
 
 
-async def history(client: Client, details: object, *nodes: ua.NodeId, cp: bytes | None = None) -> list:
+async def history(client: Client, details: object, *nodes: ua.NodeId, cp: bytes | None = None) -> list[Any]:
     params = ua.HistoryReadParameters()
     params.HistoryReadDetails = details
     params.TimestampsToReturn = ua.TimestampsToReturn.Both
@@ -134,7 +135,7 @@ async def test_a_variable_is_marked_historized_by_writes_only_where_it_is_not_ye
         written.append(attr)
         return await write(node, attr, dv)
 
-    aspace.write_attribute_value = counting  # type: ignore[method-assign]
+    aspace.write_attribute_value = counting
     try:
         await mark_historizing(aspace, var.nodeid)
         assert sorted(written) == sorted(
@@ -347,7 +348,7 @@ async def test_alarm_events_are_kept_with_the_server_object(app: UacellServer) -
             ]
             details = ua.ReadEventDetails(StartTime=t0 - HOUR, EndTime=now() + HOUR)
             details.Filter = ua.EventFilter(SelectClauses=select, WhereClause=where)
-            alarms: list = []
+            alarms: list[Any] = []
             for _ in range(100):
                 await app.history.store.flush()
                 (res,) = await history(engineer, details, ua.NodeId(ua.ObjectIds.Server))

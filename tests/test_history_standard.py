@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from typing import Any
 
 import pytest
 import pytest_asyncio
@@ -121,7 +122,7 @@ async def test_processed_values_carry_calculated_and_partial_bits(app: UacellSer
         (avg,) = await client.uaclient.history_read(
             params(processed(base, end, ua.ObjectIds.AggregateFunction_Average), speed)
         )
-        got = [
+        got: list[tuple[Any, ...]] = [
             (dv.Value.Value if dv.Value is not None else None, dv.StatusCode.value) for dv in avg.HistoryData.DataValues
         ]
         assert got == [(15.0, GOOD_CALCULATED), (None, SC.BadNoData), (30.0, GOOD_CALCULATED_PARTIAL)]

@@ -14,6 +14,7 @@ import sys
 import textwrap
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from pg_cluster import PgCluster
@@ -59,7 +60,7 @@ async def fill(store: HistoryStore, node: str, n: int, per_time: int, t0: int = 
     await store.flush()
 
 
-def numbers(samples: list) -> list[int]:
+def numbers(samples: list[Any]) -> list[int]:
     return [int.from_bytes(s.data, "big") for s in samples]
 
 
@@ -286,7 +287,7 @@ async def test_an_event_fired_through_two_notifiers_is_kept_for_each_and_encoded
 
     monkeypatch.setattr(service, "encode_fields", counting)
     store = HistoryStore(SqliteBackend(tmp_path / "h.sqlite"))
-    history = service.HistoryService(None, store, lambda role: True)  # type: ignore[arg-type]
+    history = service.HistoryService(None, store, lambda role: True)
     machine, server = ua.NodeId("TC", 2), ua.NodeId(ua.ObjectIds.Server)
     history.notifiers = {machine: "ns=2;s=TC", server: "i=2253"}
     event = BaseEvent()
@@ -353,13 +354,15 @@ async def test_an_event_objects_fields_are_planned_once(tmp_path: Path) -> None:
     V = ua.VariantType
 
     class FakeEvent:  # what an asyncua Event holds: fields as attributes, their types, internal names
+        Message: ua.LocalizedText  # set by the test below (declared only: vars() holds what is set)
+
         def __init__(self) -> None:
             self.data_types = {"SourceName": V.String, "Severity": V.UInt16, "internal": V.String}
             self.internal_properties = ("internal",)
             self.SourceName, self.Severity, self.internal = "TaskControl1", 100, "x"
 
     store = HistoryStore(SqliteBackend(tmp_path / "h.sqlite"))
-    history = HistoryService(None, store, lambda role: True)  # type: ignore[arg-type]
+    history = HistoryService(None, store, lambda role: True)
     event = FakeEvent()
     plan = history._event_plan(event)
     assert plan == (("SourceName", V.String), ("Severity", V.UInt16))

@@ -98,6 +98,12 @@ RESOURCE = ua.StatusCodes.BadResourceUnavailable
 DENIED = ua.StatusCodes.BadUserAccessDenied
 
 
+def refused(result: int | ua.StatusCode) -> int:
+    """The StatusCode value of a Lock call the server refused (``Session.lock`` returns it, not a status)."""
+    assert isinstance(result, ua.StatusCode), result
+    return result.value
+
+
 async def wait_unlocked(session: Session, element: str, within: float) -> float:
     """Seconds until ``element``'s Locked reads false (fails after ``within``)."""
     start = time.monotonic()
@@ -121,8 +127,8 @@ async def test_two_sessions_contend_for_the_task_control(app):
         assert 0 < await b.var(TASK, "RemainingLockTime") <= 60000
         assert await b.var(CTRL, "Locked") is False
         # only the owner renews or exits
-        assert (await b.lock(TASK, "RenewLock")).value == DENIED
-        assert (await b.lock(TASK, "ExitLock")).value == DENIED
+        assert refused(await b.lock(TASK, "RenewLock")) == DENIED
+        assert refused(await b.lock(TASK, "ExitLock")) == DENIED
         assert await a.lock(TASK, "RenewLock") == 0
         assert await a.lock(TASK, "ExitLock") == 0
         assert await a.lock(TASK, "ExitLock") == -1  # E_NotLocked
@@ -184,7 +190,7 @@ async def test_break_lock_needs_engineer(app):
         Session(app, "urn:test:e", "erin") as e,
     ):
         assert await a.init_lock(TASK) == 0
-        assert (await b.lock(TASK, "BreakLock")).value == DENIED
+        assert refused(await b.lock(TASK, "BreakLock")) == DENIED
         assert await a.var(TASK, "Locked") is True
         assert await e.lock(TASK, "BreakLock") == 0
         assert await a.var(TASK, "Locked") is False
@@ -251,6 +257,7 @@ async def test_lock_freed_when_the_holding_process_is_killed(app, subscribed):
         stderr=subprocess.STDOUT,
         env=os.environ.copy(),
     )
+    assert proc.stdout is not None
     try:
         line = await asyncio.wait_for(proc.stdout.readline(), 60)
         assert line.decode().strip() == "locked 0", line

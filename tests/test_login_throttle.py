@@ -120,7 +120,7 @@ async def _anonymous(app: UacellServer) -> float:
     return time.monotonic() - start
 
 
-async def test_a_throttled_user_delays_neither_anonymous_clients_nor_other_users(env) -> None:  # type: ignore[no-untyped-def]
+async def test_a_throttled_user_delays_neither_anonymous_clients_nor_other_users(env) -> None:
     app, cert = env
     await _login(app, cert, "user0", "wrong")
     await _login(app, cert, "user0", "wrong")  # from now on user0 waits 2 s at 127.0.0.1
@@ -136,7 +136,7 @@ async def test_a_throttled_user_delays_neither_anonymous_clients_nor_other_users
     assert anonymous < 1.5 and other < waited
 
 
-async def test_rotating_source_addresses_still_delays_the_user(env, monkeypatch: pytest.MonkeyPatch) -> None:  # type: ignore[no-untyped-def]
+async def test_rotating_source_addresses_still_delays_the_user(env, monkeypatch: pytest.MonkeyPatch) -> None:
     app, cert = env
     addresses = (f"127.0.0.{i}" for i in itertools.count(10))
     monkeypatch.setattr(security, "_address", lambda processor: next(addresses))
@@ -150,7 +150,7 @@ async def test_rotating_source_addresses_still_delays_the_user(env, monkeypatch:
     assert app.security.throttle.wait_time("user3", "127.0.0.200") == 0.0
 
 
-async def test_password_checks_run_off_the_loop_at_most_a_few_at_once(env, monkeypatch: pytest.MonkeyPatch) -> None:  # type: ignore[no-untyped-def]
+async def test_password_checks_run_off_the_loop_at_most_a_few_at_once(env, monkeypatch: pytest.MonkeyPatch) -> None:
     app, cert = env
     active, peak = 0, 0
     threads: set[str] = set()
@@ -178,7 +178,7 @@ async def test_password_checks_run_off_the_loop_at_most_a_few_at_once(env, monke
     assert threading.main_thread().name not in threads  # the event loop never hashed a password
 
 
-async def test_attempts_of_one_name_share_one_lock_until_the_last_is_done(env, monkeypatch: pytest.MonkeyPatch) -> None:  # type: ignore[no-untyped-def]
+async def test_attempts_of_one_name_share_one_lock_until_the_last_is_done(env, monkeypatch: pytest.MonkeyPatch) -> None:
     app, cert = env
     seen: list[object] = []
     original = app.users.verify
@@ -231,12 +231,12 @@ async def _timed_login(app: UacellServer, cert: ClientCert, password: str) -> tu
     return time.monotonic() - start, "Good"
 
 
-async def test_the_activation_deadline_is_the_configured_one(short) -> None:  # type: ignore[no-untyped-def]
+async def test_the_activation_deadline_is_the_configured_one(short) -> None:
     app, _ = short
     assert app.server.iserver.max_pending_activation_seconds == WINDOW
 
 
-async def test_a_throttle_delay_as_long_as_the_deadline_is_answered_never_dropped(short) -> None:  # type: ignore[no-untyped-def]
+async def test_a_throttle_delay_as_long_as_the_deadline_is_answered_never_dropped(short) -> None:
     app, cert = short
     # The case: the delay reaches the activation deadline itself (30 s there, WINDOW here).
     app.security.throttle = LoginThrottle(base=WINDOW, cap=WINDOW, free=1, free_per_user=100)
@@ -248,7 +248,7 @@ async def test_a_throttle_delay_as_long_as_the_deadline_is_answered_never_droppe
     assert app.security.throttle._failures[("user", "ulla")][0] < 6
 
 
-async def test_the_right_password_after_many_failures_is_slowed_then_checked_and_let_in(short) -> None:  # type: ignore[no-untyped-def]
+async def test_the_right_password_after_many_failures_is_slowed_then_checked_and_let_in(short) -> None:
     app, cert = short
     delay = 2.5  # the largest delay, well inside WINDOW less the margin
     app.security.throttle = throttle = LoginThrottle(base=1.0, cap=delay, free=1, free_per_user=100)
@@ -283,7 +283,7 @@ async def _refused_at_once(client: Client, within: float, throttle: LoginThrottl
     assert throttle._failures[("user", "ulla")][0] == 2
 
 
-async def test_a_client_that_waits_less_than_the_delay_is_answered_within_its_timeout_hint(short) -> None:  # type: ignore[no-untyped-def]
+async def test_a_client_that_waits_less_than_the_delay_is_answered_within_its_timeout_hint(short) -> None:
     app, cert = short
     throttle = _delayed(app, 3.0)
     client = Client(app.endpoint, timeout=2.0)  # its TimeoutHint: 2000 ms, less than the 3 s delay
@@ -294,7 +294,7 @@ async def test_a_client_that_waits_less_than_the_delay_is_answered_within_its_ti
     await _refused_at_once(client, 2.0, throttle)
 
 
-async def test_a_delay_beyond_the_channels_lifetime_is_answered_before_the_channel_expires(short) -> None:  # type: ignore[no-untyped-def]
+async def test_a_delay_beyond_the_channels_lifetime_is_answered_before_the_channel_expires(short) -> None:
     app, cert = short
     throttle = _delayed(app, 4.0)
     client = await secure_client(app, cert, user="ulla", password=PASSWORD, connect=False)
@@ -302,7 +302,7 @@ async def test_a_delay_beyond_the_channels_lifetime_is_answered_before_the_chann
     await _refused_at_once(client, 3.0, throttle)
 
 
-async def test_a_max_delay_that_would_outlast_the_activation_deadline_is_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
+async def test_a_max_delay_that_would_outlast_the_activation_deadline_is_refused(tmp_path) -> None:
     from uacell.config import load_config
     from uacell.core.errors import ConfigError
 

@@ -10,7 +10,7 @@ from helpers import official, packml_tables, robotics_tables
 
 from uacell.core.cell_file import Table
 from uacell.core.errors import ConfigError
-from uacell.core.fsm import Reason
+from uacell.core.fsm import Change, Reason
 from uacell.machinery.config import parse_machines
 from uacell.machinery.model import (
     EXECUTING,
@@ -122,7 +122,7 @@ def test_the_tables_come_from_the_nodeset(tables):
 
 def test_a_machine_takes_the_nodesets_transition_to_each_new_state(tables):
     machine = Machine("Filler1", tables, packml_facts("Idle", 1))
-    changes = []
+    changes: list[Change] = []
     machine.item_state.listeners.append(changes.append)
     machine.operation_mode.listeners.append(changes.append)
     assert (machine.state, machine.mode) == (NOT_EXECUTING, PROCESSING)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import asyncio
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import pytest
 import pytest_asyncio
@@ -328,7 +328,11 @@ async def wait_path(r: Rig, cell: int, path: str, wanted: str) -> None:
             await asyncio.sleep(0.02)
 
 
-async def upload(r: Rig, cell: int, name: str, text: str) -> None:
+class HasClient(Protocol):
+    client: Client
+
+
+async def upload(r: HasClient, cell: int, name: str, text: str) -> None:
     """CreateFile + Write + Close in the controller's Programs (FileDirectoryType) through OPC UA."""
     programs = ua.NodeId(f"{CTRL}.Programs", cell)
     res = await raw_call(
@@ -408,7 +412,12 @@ def reporting_unit(spec: Any) -> Any:
     from uacell.packml.sim import simulator
 
     unit = simulator(spec)
-    unit.identification = {"Manufacturer": "PLC Maker", "SerialNumber": "PLC-77", "Model": "", "DeviceRevision": "3"}
+    vars(unit)["identification"] = {
+        "Manufacturer": "PLC Maker",
+        "SerialNumber": "PLC-77",
+        "Model": "",
+        "DeviceRevision": "3",
+    }
     return unit
 
 

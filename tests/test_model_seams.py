@@ -132,7 +132,8 @@ class _Unit:
 
 
 def test_publishing_tells_listeners_only_what_changed_and_only_what_an_operation_named() -> None:
-    unit, told = _Unit(), []
+    unit = _Unit()
+    told: list[dict[str, Any]] = []
     publishing = Publishing("Filler1")
     publishing.listeners.append(told.append)
     publishing.start(unit.values())
@@ -156,7 +157,8 @@ def test_publishing_tells_listeners_only_what_changed_and_only_what_an_operation
 
 
 def test_publishing_everything_compares_every_value_even_for_a_named_change() -> None:
-    unit, told = _Unit(), []
+    unit = _Unit()
+    told: list[dict[str, Any]] = []
     publishing = Publishing("Filler1")
     publishing.everything = True
     publishing.listeners.append(told.append)
@@ -187,8 +189,12 @@ def test_stored_values_save_counts_at_once_and_times_alone_once_a_period() -> No
     saving.start(first)
     done: list[dict[str, Any]] = []
 
+    def answered(d: dict[str, Any], e: OSError | None) -> None:
+        done.append(d)
+        saving.stored(d, e)
+
     def save(durable: dict[str, Any]) -> None:
-        saving.submit(durable, lambda: {"n": len(store.submitted)}, lambda d, e: done.append(d) or saving.stored(d, e))
+        saving.submit(durable, lambda: {"n": len(store.submitted)}, answered)
 
     times = {**first, "Admin/AccTimeSinceReset": 1}
     now[0] = TIMES_SAVE_PERIOD / 2

@@ -19,10 +19,10 @@ from pathlib import Path
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
-from conftest import fast_config, free_port, start_app
-from helpers import official
+from conftest import fast_config, start_app
+from helpers import free_port, official
 
-from uacell.models import ModelError, fetch_models, locate_models, models_dir, source
+from uacell.models import ModelError, ModelFile, fetch_models, locate_models, models_dir, source
 from uacell.ua.nodesets import without_design_tool_only
 
 _X = "{http://opcfoundation.org/UA/2011/03/UANodeSet.xsd}"
@@ -50,7 +50,7 @@ def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def _uacell(*args: str, env: dict[str, str] | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
+def _uacell(*args: str, env: dict[str, str] | None = None, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     full_env = {k: v for k, v in os.environ.items() if k != source.ENV_VAR}
     return subprocess.run(
         [sys.executable, "-m", "uacell", *args],
@@ -75,8 +75,14 @@ def test_a_missing_file_names_the_file_the_directory_and_the_fix(good_copy):
     assert "uacell models fetch" in msg and "UACELL_MODELS_DIR" in msg
 
 
+def _model(key: str) -> ModelFile:
+    model = source.model_by_key(official(), key)
+    assert model is not None
+    return model
+
+
 def test_a_tampered_file_names_the_file_and_both_digests(good_copy):
-    model = source.model_by_key(official(), "Robotics")
+    model = _model("Robotics")
     target = good_copy / model.filename
     data = bytearray(target.read_bytes())
     data[len(data) // 2] ^= 0x01  # one byte, the XML may well still parse
@@ -142,11 +148,7 @@ def test_models_path_refuses_a_tampered_copy_in_one_line(good_copy):
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("uacell: ")
-    assert (
-        str(target) in lines[0]
-        and _sha(target) in lines[0]
-        and source.model_by_key(official(), "DI").sha256 in lines[0]
-    )
+    assert str(target) in lines[0] and _sha(target) in lines[0] and _model("DI").sha256 in lines[0]
 
 
 @pytest.mark.parametrize("how", ["option", "environment"])
@@ -220,7 +222,7 @@ def test_fetch_refuses_a_package_whose_file_does_not_match(tmp_path, real_models
     with pytest.raises(ModelError) as err:
         fetch_models(official())
     msg = str(err.value)
-    assert "Opc.Ua.PackML.NodeSet2.xml" in msg and f"expected {source.model_by_key(official(), 'PackML').sha256}" in msg
+    assert "Opc.Ua.PackML.NodeSet2.xml" in msg and f"expected {_model('PackML').sha256}" in msg
     assert not (empty_cache / "Opc.Ua.PackML.NodeSet2.xml").exists()
 
 
@@ -240,7 +242,7 @@ def test_fetch_without_npm_says_what_to_install(tmp_path, empty_cache, monkeypat
 
 
 def _nodes(root: ET.Element) -> dict[str, ET.Element]:
-    return {e.get("NodeId"): e for e in root if e.get("NodeId") is not None}
+    return {node_id: e for e in root if (node_id := e.get("NodeId")) is not None}
 
 
 def _ref_targets(root: ET.Element) -> set[str]:
@@ -400,6 +402,7 @@ async def test_the_faster_importer_builds_exactly_the_address_space_asyncua_buil
     from asyncua import Server
 
     import uacell.ua.nodesets as nodesets
+    from uacell.ua.door.importer import Importer  # the class nodesets imports with
 
     async def references(patched: bool) -> list[tuple[str, str, str, bool]]:
         server = Server()
@@ -407,7 +410,7 @@ async def test_the_faster_importer_builds_exactly_the_address_space_asyncua_buil
         with monkeypatch.context() as m:
             if not patched:
                 m.setattr(
-                    nodesets.Importer,
+                    Importer,
                     "_add_missing_reverse_references",
                     xi.XmlImporter._add_missing_reverse_references,
                 )

@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 import socket
 from collections.abc import Iterator
+from typing import cast
 
 import aiomqtt
 import pytest
@@ -35,7 +36,7 @@ def drop_connection(link: MqttLink) -> None:
     assert link.session is not None
     sock = link.session._client.socket()
     assert sock is not None
-    sock.shutdown(socket.SHUT_RDWR)
+    cast(socket.socket, sock).shutdown(socket.SHUT_RDWR)  # paho's plain TCP socket to the test broker
 
 
 async def test_subscribed_messages_reach_on_message_and_a_failing_handler_is_one_logged_error(

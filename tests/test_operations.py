@@ -17,11 +17,13 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
-from conftest import ROOT, fast_config, free_port, start_app, start_serve
+from conftest import ROOT, fast_config, start_app, start_serve
+from helpers import free_port
 
 from uacell.core.notify import notify
 from uacell.server import UacellServer
@@ -48,12 +50,12 @@ async def app(tmp_path_factory):
         await server.stop()
 
 
-def audit_lines(app: UacellServer) -> list[dict]:
+def audit_lines(app: UacellServer) -> list[dict[str, Any]]:
     path = app.data_dir / "audit.log"
     return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
 
 
-async def wait_for_audit(app: UacellServer, predicate, timeout: float = TIMEOUT) -> dict:
+async def wait_for_audit(app: UacellServer, predicate, timeout: float = TIMEOUT) -> dict[str, Any]:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         for entry in audit_lines(app):
@@ -201,6 +203,7 @@ async def test_audit_records_a_program_upload_and_writes(app):
 
 
 async def scrape(app: UacellServer, path: str = "/metrics") -> tuple[str, str]:
+    assert app.metrics is not None  # the test configuration serves metrics
     reader, writer = await asyncio.open_connection("127.0.0.1", app.metrics.port)
     writer.write(f"GET {path} HTTP/1.1\r\nHost: localhost\r\n\r\n".encode())
     await writer.drain()
@@ -236,7 +239,8 @@ async def test_metrics_values_move_with_a_call(app):
     assert status == "HTTP/1.1 200 OK"
     async with Client(app.endpoint, timeout=20) as client:
         _, during = await scrape(app)
-        assert sample(during, "uacell_sessions") >= 1
+        sessions = sample(during, "uacell_sessions")
+        assert sessions is not None and sessions >= 1
         reset = next(b for b in app.dispatcher.methods.values() if b.name == "Reset")
         res = await call(client, reset.object_id, reset.method_id)
     result = res.StatusCode.name

@@ -22,6 +22,13 @@ from uacell.packml import AdminStore, EquipmentBase, PackMLUnit, admin_store
 from uacell.packml.admin_store import BATCH, AdminWriter, Journal
 
 
+def saved(store: AdminStore) -> dict[str, Any]:
+    """What ``store`` holds, where a test has saved to it."""
+    data = store.load()
+    assert data is not None
+    return data
+
+
 def test_round_trip_and_no_temporary_files_left(tmp_path: Path) -> None:
     store = AdminStore(tmp_path / "packml" / "Filler1.json")
     store.save({"a": [1, 2, 3]})
@@ -152,10 +159,10 @@ def test_saves_on_state_change_and_before_publishing(tmp_path: Path) -> None:
     unit.reset_machine()  # a state change saves at once
     assert store.load() is not None
     unit.report_production(processed=5)
-    assert store.load()["prod_processed_count"][0]["count"] == 5  # stored before clients could see it
+    assert saved(store)["prod_processed_count"][0]["count"] == 5  # stored before clients could see it
     clock.now += 10.0
     unit.tick()
-    assert store.load()["acc_time_since_reset"] == 10.0
+    assert saved(store)["acc_time_since_reset"] == 10.0
 
 
 def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -166,9 +173,14 @@ def test_nothing_is_published_before_it_is_stored(tmp_path: Path, monkeypatch: p
     unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
     saves: list[int] = []
     real_save = store.save
-    monkeypatch.setattr(store, "save", lambda data: (saves.append(1), real_save(data)))
 
-    def check(changed: dict) -> None:
+    def counted_save(data: dict[str, Any]) -> None:
+        saves.append(1)
+        real_save(data)
+
+    monkeypatch.setattr(store, "save", counted_save)
+
+    def check(changed: dict[str, Any]) -> None:
         stored = store.load()
         assert stored is not None
         for key, field in (
@@ -213,7 +225,12 @@ def test_time_alone_is_stored_and_published_once_a_second(tmp_path: Path, monkey
     unit.state_complete()  # Idle: its seconds and the unit's now fall at different instants
     saves: list[float] = []
     real_save = store.save
-    monkeypatch.setattr(store, "save", lambda data: (saves.append(clock.now), real_save(data)))
+
+    def timed_save(data: dict[str, Any]) -> None:
+        saves.append(clock.now)
+        real_save(data)
+
+    monkeypatch.setattr(store, "save", timed_save)
     published: list[tuple[float, int]] = []
     unit.listeners.append(
         lambda changed: published.extend((clock.now, v) for k, v in changed.items() if k == "Admin/AccTimeSinceReset")
@@ -227,7 +244,7 @@ def test_time_alone_is_stored_and_published_once_a_second(tmp_path: Path, monkey
     assert all(v <= t - 50.0 < v + 2.0 for t, v in published)  # at most a second late
     saves.clear()
     unit.report_production(processed=1)  # not a time: stored at once
-    assert len(saves) == 1 and store.load()["prod_processed_count"][0]["count"] == 1
+    assert len(saves) == 1 and saved(store)["prod_processed_count"][0]["count"] == 1
 
 
 def test_unwritable_store_is_logged_not_raised(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
@@ -324,11 +341,11 @@ class SlowDisk:
     def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
         self.gate = threading.Event()
         self.started = threading.Event()
-        self.writes: list[tuple[str, dict]] = []
+        self.writes: list[tuple[str, dict[str, Any]]] = []
         self.threads: set[int] = set()
         real = Journal.append
 
-        def append(journal: Journal, entries: list[tuple[AdminStore, dict]]) -> None:
+        def append(journal: Journal, entries: list[tuple[AdminStore, dict[str, Any]]]) -> None:
             self.threads.add(threading.get_ident())
             self.started.set()
             assert self.gate.wait(30), "the test never released the slow disk"
@@ -351,9 +368,9 @@ async def test_saves_run_off_the_loop_and_values_are_published_once_durable(
     store = AdminStore(tmp_path / "Filler1.json", writer)
     clock = FakeClock(50.0)
     unit = PackMLUnit(EquipmentBase(), tables=packml_tables(), store=store, clock=clock)
-    published: list[dict] = []
+    published: list[dict[str, Any]] = []
 
-    def seen(changed: dict) -> None:
+    def seen(changed: dict[str, Any]) -> None:
         if "Admin/ProdProcessedCount" in changed:
             stored = AdminStore(store.path).load()  # what a restart after a crash right now would read
             assert (
@@ -519,8 +536,8 @@ def test_killed_writer_thread_keeps_every_store_at_least_as_told(tmp_path: Path)
     try:
         while min(told.values()) < 20:  # some stored batches, then a kill right after a report
             assert time.monotonic() < deadline, told
-            _, i, n = proc.stdout.readline().split()
-            told[int(i)] = int(n)
+            _, unit_no, count = proc.stdout.readline().split()
+            told[int(unit_no)] = int(count)
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait()

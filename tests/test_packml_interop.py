@@ -5,6 +5,7 @@ node-opcua and asyncua)."""
 from __future__ import annotations
 
 import shutil
+from typing import Any
 
 import pytest
 from asyncua import Client, ua
@@ -20,7 +21,7 @@ EXPECTED = [
 ]
 
 
-def run_trusted(serve_process, script: str) -> dict:
+def run_trusted(serve_process, script: str) -> dict[str, Any]:
     """Run a node-opcua script; if the server refused its certificate, trust it as an operator would
     (move it from pki/rejected to pki/trusted) and run again."""
     try:

@@ -32,8 +32,20 @@ ABORT, CLEAR = (BASE, "Abort"), (BASE, "Clear")
 STOP, MRESET = (MACHINE, "Stop"), (MACHINE, "Reset")
 XRESET, START, HOLD, UNHOLD = (EXECUTE, "Reset"), (EXECUTE, "Start"), (EXECUTE, "Hold"), (EXECUTE, "Unhold")
 SUSPEND, UNSUSPEND, TOCOMPLETE = (EXECUTE, "Suspend"), (EXECUTE, "Unsuspend"), (EXECUTE, "ToComplete")
-MACHINE_METHODS = [ABORT, CLEAR, STOP, MRESET, XRESET, START, HOLD, UNHOLD, SUSPEND, UNSUSPEND, TOCOMPLETE]
-UNIT_METHODS = [
+MACHINE_METHODS: list[tuple[str | None, str]] = [
+    ABORT,
+    CLEAR,
+    STOP,
+    MRESET,
+    XRESET,
+    START,
+    HOLD,
+    UNHOLD,
+    SUSPEND,
+    UNSUSPEND,
+    TOCOMPLETE,
+]
+UNIT_METHODS: list[tuple[str | None, str]] = [
     (UNIT, m) for m in ("SetUnitMode", "SetMachSpeed", "SetProduct", "SetParameter", "RemoteCommand", "SetInterlock")
 ]
 DONE = "done"  # the running acting state completes
@@ -123,6 +135,11 @@ def snapshot(unit: PackMLUnit) -> tuple[Any, ...]:
     return (machines, unit.values())
 
 
+def states(unit: PackMLUnit) -> tuple[str, str | None, str | None]:
+    """``unit.states`` read afresh: a call changes it, so no earlier assert on it tells its type."""
+    return unit.states
+
+
 def new_unit(**kw: Any) -> PackMLUnit:
     return PackMLUnit(EquipmentBase(), tables=packml_tables(), **kw)
 
@@ -133,7 +150,7 @@ def test_tables_have_all_26_transitions_and_entry_states() -> None:
     assert counts == {BASE: 3, MACHINE: 4, EXECUTE: 19}
     assert unit.machine.parent_state == "Cleared" and unit.execute.parent_state == "Running"
     # Decision 23: initial Base Cleared / Machine Stopped, Execute inactive.
-    assert unit.states == ("Cleared", "Stopped", None)
+    assert states(unit) == ("Cleared", "Stopped", None)
     assert unit.acting_state is None
 
 
@@ -166,6 +183,7 @@ def test_every_state_command_and_mode(state: str, call: tuple[Any, str], mode: i
     if machine_name is not UNIT:
         sm = unit.machines[machine_name]
         table_transition = sm.table.caused_by(method, before[0][list(unit.machines).index(machine_name)][0])
+        assert table_transition is not None  # the command was allowed: the table has its transition
         assert sm.last_transition == table_transition
         assert sm.current == table_transition.to_state
 
@@ -173,15 +191,15 @@ def test_every_state_command_and_mode(state: str, call: tuple[Any, str], mode: i
 def test_entering_cleared_starts_at_clearing_and_running_at_resetting() -> None:
     unit = new_unit()
     unit.reset_machine()
-    assert unit.states == ("Cleared", "Running", "Resetting")
+    assert states(unit) == ("Cleared", "Running", "Resetting")
     unit.abort()
-    assert unit.states == ("Aborting", None, None)
+    assert states(unit) == ("Aborting", None, None)
     unit.state_complete()
     unit.clear()
-    assert unit.states == ("Cleared", "Clearing", None)
+    assert states(unit) == ("Cleared", "Clearing", None)
     assert unit.status.state_change_in_process and unit.status.state_requested == 2
     unit.state_complete()
-    assert unit.states == ("Cleared", "Stopped", None)
+    assert states(unit) == ("Cleared", "Stopped", None)
     assert not unit.status.state_change_in_process and unit.status.state_requested == 2
 
 
@@ -451,7 +469,7 @@ def test_fault_aborts_with_alarm_and_stop_reason() -> None:
     unit = new_unit()
     walk(unit, _EXECUTE)
     unit.fault(17, "jam at infeed", category=1)
-    assert unit.states == ("Aborting", None, None)
+    assert states(unit) == ("Aborting", None, None)
     assert [a.id for a in unit.admin.alarm] == [17] and unit.admin.alarm[0].trigger
     assert unit.admin.stop_reason.id == 17 and unit.admin.stop_reason.message == "jam at infeed"
     unit.fault(18, "second fault")  # first out: StopReason stays
@@ -469,7 +487,7 @@ def test_equipment_fault_category_and_failing_hook() -> None:
     unit = PackMLUnit(Broken(), tables=packml_tables())
     walk(unit, _IDLE)
     unit.start([])  # the hook fails: the unit aborts with an alarm of category 0 naming the error
-    assert unit.states == ("Aborting", None, None)
+    assert states(unit) == ("Aborting", None, None)
     (alarm,) = unit.admin.alarm
     assert alarm.category == 0 and "PLC unreachable" in alarm.message
     unit = new_unit()
@@ -490,7 +508,8 @@ def test_equipment_reports_warnings_blocked_starved_and_its_own_commands() -> No
     unit.set_starved(True)
     assert unit.values()["Status/EquipmentBlocked"] is True and unit.values()["Status/EquipmentStarved"] is True
     unit.equipment_command("Suspend")  # e.g. starved: the same transition as the client's Suspend
-    assert unit.state == "Suspending" and unit.execute.last_transition.name == "ExecuteToSuspending"
+    last = unit.execute.last_transition
+    assert unit.state == "Suspending" and last is not None and last.name == "ExecuteToSuspending"
     with pytest.raises(CallError) as err:
         unit.equipment_command("Unhold")  # the same state rules as for clients
     assert err.value.status == "BadInvalidState" and unit.state == "Suspending"
@@ -632,6 +651,11 @@ def test_all_26_transitions_come_from_the_nodeset_and_are_taken() -> None:
     }
     assert tables == SPEC_TRANSITIONS
     taken: dict[str, set[str]] = {name: set() for name in unit.machines}
+
+    def record(c: Change) -> None:
+        if c.transition:
+            taken[c.machine.name].add(c.transition.name)
+
     for state, path in PATHS.items():
         for step in [DONE, *sorted(ALLOWED_PRODUCE[state], key=str)]:
             if step == DONE and state not in {
@@ -650,7 +674,7 @@ def test_all_26_transitions_come_from_the_nodeset_and_are_taken() -> None:
             unit = new_unit()
             walk(unit, path)
             for m in unit.machines.values():
-                m.listeners.append(lambda c: c.transition and taken[c.machine.name].add(c.transition.name))
+                m.listeners.append(record)
             walk(unit, [step])
     assert taken == {name: set(ts) for name, ts in SPEC_TRANSITIONS.items()}
 

@@ -321,7 +321,7 @@ async def test_full_walk_with_states_events_speed_and_production(app, client):
         polled.append(now)
         poll(now)
 
-    unit.equipment.poll = spy  # type: ignore[method-assign]
+    unit.equipment.poll = spy
     try:
         held_at = unit.now()
         await wait_until(lambda: bool(polled) and polled[-1] >= held_at + 0.3, timeout=TIMEOUT)

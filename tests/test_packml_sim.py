@@ -11,6 +11,11 @@ from uacell.packml import PackMLDescriptorDataType, PackMLUnit, SimulatedUnit
 from uacell.packml.model import run_units
 
 
+def states(unit: PackMLUnit) -> tuple[str, str | None, str | None]:
+    """``unit.states`` read afresh: a call changes it, so no earlier assert on it tells its type."""
+    return unit.states
+
+
 def sim_unit(**sim_kw: object) -> tuple[PackMLUnit, SimulatedUnit, FakeClock]:
     clock = FakeClock(1000.0)
     sim = SimulatedUnit(**{"acting_time": 0.5, **sim_kw})  # type: ignore[arg-type]
@@ -81,9 +86,9 @@ def test_stop_while_starting_cancels_the_pending_completion() -> None:
     advance(unit, clock, 0.3)
     unit.stop()
     advance(unit, clock, 0.3)
-    assert unit.states == ("Cleared", "Stopping", None)
+    assert states(unit) == ("Cleared", "Stopping", None)
     advance(unit, clock, 0.3)
-    assert unit.states == ("Cleared", "Stopped", None)
+    assert states(unit) == ("Cleared", "Stopped", None)
 
 
 def test_injected_fault_aborts_with_alarm() -> None:
@@ -93,9 +98,9 @@ def test_injected_fault_aborts_with_alarm() -> None:
     unit.start([])
     advance(unit, clock, 0.5)
     sim.inject_fault(42, "bottle jam")
-    assert unit.states == ("Aborting", None, None)
+    assert states(unit) == ("Aborting", None, None)
     advance(unit, clock, 0.5)
-    assert unit.states == ("Aborted", None, None)
+    assert states(unit) == ("Aborted", None, None)
     a = unit.admin
     assert (a.stop_reason.id, a.stop_reason.message, a.stop_reason.category) == (42, "bottle jam", 1)
     assert [(x.id, x.trigger) for x in a.alarm] == [(42, True)]
@@ -103,7 +108,7 @@ def test_injected_fault_aborts_with_alarm() -> None:
     unit.clear()
     assert sim.fault_active is None and a.alarm == []
     advance(unit, clock, 0.5)
-    assert unit.states == ("Cleared", "Stopped", None)
+    assert states(unit) == ("Cleared", "Stopped", None)
 
 
 def test_admin_times_follow_states() -> None:

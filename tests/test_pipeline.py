@@ -218,18 +218,18 @@ async def test_messages_of_one_connection_start_in_the_order_they_came(monkeypat
     async def connection_task() -> None:  # asyncua's _process_received_message_loop
         while True:
             header, buf = await connection.messages.get()
-            await pipeline._process_one_msg(connection, header, buf)  # type: ignore[arg-type]
+            await pipeline._process_one_msg(connection, header, buf)
 
     task = asyncio.create_task(connection_task())
     try:
-        pipeline._received(connection, b"A")  # type: ignore[arg-type]
+        pipeline._received(connection, b"A")
         assert started == ["A"]  # at once, and waiting
-        pipeline._received(connection, b"B")  # type: ignore[arg-type]
+        pipeline._received(connection, b"B")
         await _until(lambda: connection.messages.empty())  # the task took B: it waits for A
         release.set()
         await _until(lambda: len(started) == 3)
         assert started == ["A", "B", "C"]
-        pipeline._received(connection, b"D")  # type: ignore[arg-type]
+        pipeline._received(connection, b"D")
         assert started == ["A", "B", "C", "D"]  # idle again: at once
     finally:
         task.cancel()

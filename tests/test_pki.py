@@ -83,10 +83,13 @@ def test_first_start_creates_a_fitting_certificate(paths: PkiPaths, key: rsa.RSA
     eku = cert.extensions.get_extension_for_class(x509.ExtendedKeyUsage).value
     assert set(eku) == {ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH}
     assert isinstance(cert.signature_hash_algorithm, hashes.SHA256)
-    assert cert.public_key().key_size >= 2048
+    public = cert.public_key()
+    assert isinstance(public, rsa.RSAPublicKey)  # OPC UA's RSA policies
+    assert public.key_size >= 2048
     assert cert.not_valid_after_utc - cert.not_valid_before_utc > dt.timedelta(days=3 * 365)
     loaded = serialization.load_pem_private_key(key_path.read_bytes(), None)
-    assert loaded.public_key().public_numbers() == cert.public_key().public_numbers()
+    assert isinstance(loaded, rsa.RSAPrivateKey)
+    assert loaded.public_key().public_numbers() == public.public_numbers()
 
 
 def test_the_server_key_is_checked_once_per_key(

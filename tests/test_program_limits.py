@@ -33,7 +33,7 @@ def deep(levels: int) -> str:
     return "program Deep\n" + "repeat 2\n" * levels + "wait 0\n" + "end\n" * levels
 
 
-def timed(fn, *args):  # type: ignore[no-untyped-def]
+def timed(fn, *args):
     start = time.perf_counter()
     try:
         return fn(*args), time.perf_counter() - start
@@ -117,7 +117,7 @@ def test_limits_must_be_positive() -> None:
 
 
 # --- model: loading refuses with -2, off the event loop -----------------------------------------------
-async def _loop_lag_during(coro, interval: float = 0.005):  # type: ignore[no-untyped-def]
+async def _loop_lag_during(coro, interval: float = 0.005):
     """Run ``coro`` while measuring the longest gap between ticks of a ticker task."""
     loop = asyncio.get_running_loop()
     worst = 0.0
@@ -142,7 +142,7 @@ async def _loop_lag_during(coro, interval: float = 0.005):  # type: ignore[no-un
 
 
 @pytest.fixture
-async def cell(tmp_path: Path):  # type: ignore[no-untyped-def]
+async def cell(tmp_path: Path):
     files = {
         "spin3.robot": SPIN3,
         "spin3wait.robot": SPIN3_WAIT,

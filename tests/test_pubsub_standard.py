@@ -12,7 +12,7 @@ import os
 import signal
 import socket
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pytest
 from asyncua import Client, ua
@@ -192,7 +192,7 @@ async def test_a_dropped_connection_reconnects_with_one_line_no_traceback_and_a_
             assert session is not None
             sock = session._client.socket()
             assert sock is not None
-            sock.shutdown(socket.SHUT_RDWR)
+            cast(socket.socket, sock).shutdown(socket.SHUT_RDWR)  # paho's plain TCP socket to the test broker
             await wait_until(lambda: link.connected.is_set() and link.connects >= 3, timeout=60)
             await wait_until(lambda: len([r for r in sub.messages if status_of(r) == ERROR]) >= 2, timeout=30)
             await wait_until(lambda: status_of(sub.messages[-1]) == OPERATIONAL, timeout=30)

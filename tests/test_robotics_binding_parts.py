@@ -46,7 +46,7 @@ async def test_equipment_factory_is_called_with_the_part_and_its_settings(monkey
         made.append(spec)
         return SimulatedRobot()
 
-    module.make = connect
+    vars(module)["make"] = connect  # the factory the cell names: fake_robot_driver:make
     monkeypatch.setitem(sys.modules, "fake_robot_driver", module)
     spec = EquipmentSpec("Robot1.Controllers.Controller1", {"address": "10.0.0.5"})
     robot = await make_equipment("fake_robot_driver:make", spec, RobotEquipment)

@@ -266,14 +266,14 @@ async def test_a_fault_in_answer_to_start_answers_3(rig: tuple[RobotCell, Contro
     cell, controller = rig
     task, _system = await ready_with_pick(cell)
 
-    async def faulting_begin(task_name: str, pointer: int, mode: ExecutionMode) -> None:
+    async def faulting_begin(task: str, pointer: int, mode: ExecutionMode) -> None:
         raise AlarmStop("fault 9 on start")
 
     controller.begin = faulting_begin  # type: ignore[method-assign]
     assert await task.start() == Status.E_ACTIVE_ALARM
     assert task.state == "Ready"
 
-    async def broken_begin(task_name: str, pointer: int, mode: ExecutionMode) -> None:
+    async def broken_begin(task: str, pointer: int, mode: ExecutionMode) -> None:
         raise EquipmentError("no answer")
 
     controller.begin = broken_begin  # type: ignore[method-assign]

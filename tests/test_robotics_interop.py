@@ -6,6 +6,7 @@ from __future__ import annotations
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from conftest import ServeProcess, run_node, start_serve
@@ -23,7 +24,7 @@ def fast_robot(tmp_path: Path) -> Iterator[ServeProcess]:
     sp.stop()
 
 
-def run_trusted(sp: ServeProcess, script: str, *args: str) -> dict:
+def run_trusted(sp: ServeProcess, script: str, *args: str) -> dict[str, Any]:
     """Run a node-opcua script; if the server refused its certificate, trust it as an operator would
     (move it from pki/rejected to pki/trusted) and run again."""
     try:

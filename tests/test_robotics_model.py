@@ -73,7 +73,7 @@ class Log:
 
 
 @pytest.fixture
-async def cell(tmp_path: Path):  # type: ignore[no-untyped-def]
+async def cell(tmp_path: Path):
     robot = SimulatedRobot(time_scale=SCALE, power_up_time=2.0, power_down_time=0.5)
     c = RobotCell(robot, make_library(tmp_path), tables=robotics_tables())
     yield c
@@ -903,7 +903,7 @@ def test_the_tables_are_checked_against_every_name_the_model_uses() -> None:
 
     real = StateTables(official())
 
-    def without_suspended(model: str, type_name: str):  # type: ignore[no-untyped-def]
+    def without_suspended(model: str, type_name: str):
         table = real(model, type_name)
         if type_name != "ReadySubstateMachineType":
             return table

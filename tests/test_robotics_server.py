@@ -11,12 +11,23 @@ import asyncio
 import contextlib
 import dataclasses
 from collections.abc import Callable
+from typing import Any
 
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
+from asyncua.common.subscription import Subscription
 from conftest import fast_config, start_app
-from helpers import Collector, delivered, raw_call, robot_binding, robot_cell, server_value, wait_until
+from helpers import (
+    Collector,
+    delivered,
+    raw_call,
+    robot_binding,
+    robot_cell,
+    server_value,
+    simulated_robot,
+    wait_until,
+)
 
 from uacell.core.roles import Role
 from uacell.robotics.equipment import ExecutionMode, StopMode
@@ -85,7 +96,7 @@ async def rig(tmp_path_factory):
 
 async def _reset(r: Rig) -> None:
     cell = robot_cell(r.app)
-    equipment = cell.equipment
+    equipment = simulated_robot(r.app)
     for name in list(equipment.active_alarms):
         equipment.clear_alarm(name)
     for cond in cell.system.conditions.values():
@@ -161,7 +172,7 @@ def xid(nodeid: ua.NodeId, **kw) -> ua.Variant:
     return ua.Variant(expanded, ua.VariantType.ExpandedNodeId)
 
 
-async def subscribe_transitions(r: Rig, *paths: str) -> tuple[Events, object]:
+async def subscribe_transitions(r: Rig, *paths: str) -> tuple[Events, Subscription]:
     events = Events()
     sub = await r.client.create_subscription(20, events)
     evtype = r.client.get_node(ua.ObjectIds.TransitionEventType)
@@ -170,7 +181,7 @@ async def subscribe_transitions(r: Rig, *paths: str) -> tuple[Events, object]:
     return events, sub
 
 
-def is_transition(name: str, source: ua.NodeId | None = None) -> Callable[[object], bool]:
+def is_transition(name: str, source: ua.NodeId | None = None) -> Callable[[Any], bool]:
     return lambda e: (
         getattr(getattr(e, "Transition", None), "Text", None) == name and (source is None or e.SourceNode == source)
     )
@@ -635,7 +646,7 @@ async def test_executable_attribute_matches_what_a_call_does(fresh):
     assert await executables(r) == ready_on
     assert await status(r, SO, "GetReady") == 1
     # an active alarm: no Start (Status 3) until it is cleared and acknowledged
-    equipment, system = robot_cell(r.app).equipment, robot_cell(r.app).system
+    equipment, system = simulated_robot(r.app), robot_cell(r.app).system
     equipment.raise_alarm("EmergencyStop")
     assert await executables(r) == {**ready_on, "TC.Start": False, "SO.Start": False}
     assert await status(r, TC, "Start") == 3
@@ -708,7 +719,7 @@ async def test_active_alarm_is_status_3_unacknowledged_is_4_and_acknowledge_clea
     assert await read(r, f"{cond}.AckedState.Id") is False
     assert await read(r, f"{cond}.Retain") is True
     assert await status(r, SO, "GetReady") == 3
-    robot_cell(r.app).equipment.clear_alarm("EmergencyStop")
+    simulated_robot(r.app).clear_alarm("EmergencyStop")
     await r.app.settle()
     assert await read(r, f"{cond}.ActiveState.Id") is False
     assert await status(r, SO, "GetReady") == 4
@@ -739,7 +750,7 @@ async def test_alarm_while_executing_stops_the_program_with_reason_error_and_sta
     assert await status(r, TC, "LoadByName", s("long")) == 0
     events, sub = await subscribe_transitions(r, TC)
     assert await status(r, TC, "Start") == 0
-    robot_cell(r.app).equipment.raise_alarm("CollisionDetected")
+    simulated_robot(r.app).raise_alarm("CollisionDetected")
     await events.wait_for(is_transition("ExecutingToReady"))
     assert await read(r, f"{TC}.LastTransitionReason") == 4
     assert await status(r, TC, "Start") == 3

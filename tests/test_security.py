@@ -10,6 +10,7 @@ import logging
 import time
 import uuid
 from pathlib import Path
+from typing import cast
 
 import pytest
 import pytest_asyncio
@@ -17,6 +18,7 @@ from asyncua import Client, Server, ua
 from asyncua.crypto import security_policies as sp
 from conftest import fast_config, start_app
 from cryptography import x509
+from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.x509.oid import ExtensionOID
 from helpers import raw_call
 
@@ -111,6 +113,16 @@ async def call(client: Client, obj: ua.NodeId, method: ua.NodeId, args: list[ua.
 # fixtures ---------------------------------------------------------------------------------------------
 
 
+class SecurityServer(UacellServer):
+    """``env``'s and ``wide``'s server as the tests use it: the UacellServer ``start_app`` made, with
+    what the fixture attaches to it (a type for the checker: never made)."""
+
+    test_nodes: dict[str, ua.NodeId]
+    client_cert: ClientCert
+    setup_log: list[logging.LogRecord]
+    local_endpoint: str
+
+
 async def _serve(data_dir: Path, host: str) -> UacellServer:
     config = fast_config(data_dir)
     config.server.host = host
@@ -121,7 +133,7 @@ async def _serve(data_dir: Path, host: str) -> UacellServer:
 async def env(tmp_path_factory):
     """The loopback server, a trusted client certificate, users of every role, test nodes."""
     base = tmp_path_factory.mktemp("security")
-    app = await _serve(base / "data", "127.0.0.1")
+    app = cast(SecurityServer, await _serve(base / "data", "127.0.0.1"))  # the test attributes follow
     cert = ClientCert(base / "client")
     TrustList(PkiPaths.in_data_dir(app.data_dir)).trust(cert.der)
     for role in ROLES:
@@ -154,10 +166,14 @@ async def test_server_certificate_made_on_first_start_and_reused(env):
     paths = PkiPaths.in_data_dir(env.data_dir)
     der = paths.cert.read_bytes()
     cert = x509.load_der_x509_certificate(der)
-    san = cert.extensions.get_extension_for_oid(ExtensionOID.SUBJECT_ALTERNATIVE_NAME).value
+    san = cast(
+        x509.SubjectAlternativeName, cert.extensions.get_extension_for_oid(ExtensionOID.SUBJECT_ALTERNATIVE_NAME).value
+    )
     assert APPLICATION_URI in san.get_values_for_type(x509.UniformResourceIdentifier)
     assert "127.0.0.1" in [str(i) for i in san.get_values_for_type(x509.IPAddress)]
-    assert cert.public_key().key_size >= 2048
+    key = cert.public_key()
+    assert isinstance(key, rsa.RSAPublicKey)  # OPC UA's RSA policies
+    assert key.key_size >= 2048
     assert paths.key.stat().st_mode & 0o077 == 0
     # The endpoints carry that very certificate.
     client = Client(env.endpoint, timeout=20)
@@ -423,10 +439,10 @@ async def wide(tmp_path_factory):
     base = tmp_path_factory.mktemp("wide")
     records: list[logging.LogRecord] = []
     handler = logging.Handler()
-    handler.emit = records.append  # type: ignore[method-assign]
+    handler.emit = records.append  # type: ignore[method-assign, assignment]  # a list collects the records
     logging.getLogger("uacell").addHandler(handler)
     try:
-        app = await _serve(base / "data", "0.0.0.0")
+        app = cast(SecurityServer, await _serve(base / "data", "0.0.0.0"))  # the test attributes follow
     finally:
         logging.getLogger("uacell").removeHandler(handler)
     app.setup_log = records

@@ -15,6 +15,7 @@ import threading
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import cast
 
 import pytest
 import pytest_asyncio
@@ -51,7 +52,7 @@ def _secure_policy(app: UacellServer, mode: ua.MessageSecurityMode, key=None, ur
     return policy, cert
 
 
-class _UnofferedPolicy(sp.SecurityPolicyNone):
+class _UnofferedPolicy(sp.SecurityPolicyNone):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """Frames like policy None but names a policy the server does not offer in its header."""
 
     URI = "http://opcfoundation.org/UA/SecurityPolicy#Basic128Rsa15"
@@ -73,12 +74,19 @@ def _warnings(caplog: pytest.LogCaptureFixture, text: str) -> list[str]:
 # fixtures ---------------------------------------------------------------------------------------------
 
 
+class ProbedServer(UacellServer):
+    """``env``'s server as the tests use it: the UacellServer ``start_app`` made, with the trusted
+    client's certificate and key files attached by the fixture (a type for the checker: never made)."""
+
+    client_files: tuple[Path, Path]
+
+
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def env(tmp_path_factory):
     """A loopback server (None offered) with an engineer, a trusted client and a small rejected/ cap."""
     config = fast_config(tmp_path_factory.mktemp("probes") / "data")
     config.server.rejected_max_files = REJECTED_CAP
-    app = await start_app(config)
+    app = cast(ProbedServer, await start_app(config))  # client_files is attached below
     app.users.add("eve-engineer", "engineer", PASSWORD)
     ns = app.cell.instantiator.ns
     var = await app.server.nodes.objects.add_variable(ua.NodeId("ProbeTest.Value", ns), "ProbeTest", 1.0)
@@ -261,7 +269,7 @@ async def test_none_channel_on_a_plant_network_address(plant_namespace, tmp_path
 # 2./3. user tokens --------------------------------------------------------------------------------------
 
 
-async def _capture_engineer_token(app: UacellServer) -> ua.UserNameIdentityToken:
+async def _capture_engineer_token(app: ProbedServer) -> ua.UserNameIdentityToken:
     """An engineer logs in on a Basic256Sha256 Sign channel; the sniffed (encrypted) token is returned."""
     cert, key = app.client_files
     client = Client(app.endpoint, timeout=30)

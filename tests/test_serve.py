@@ -7,7 +7,8 @@ import subprocess
 import sys
 
 import pytest
-from conftest import free_port, run_node, start_serve
+from conftest import run_node, start_serve
+from helpers import free_port
 
 
 def test_serve_prints_listening_line_and_exits_cleanly_on_sigint(tmp_path):

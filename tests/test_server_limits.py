@@ -15,6 +15,7 @@ import struct
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import pytest_asyncio
@@ -305,7 +306,7 @@ async def test_monitored_items_per_subscription_and_in_all(app: UacellServer) ->
     handler = Handler()
     node = ua.NodeId(ua.ObjectIds.Server_ServerStatus_CurrentTime)
 
-    def outcome(results: list) -> list[str]:
+    def outcome(results: list[Any]) -> list[str]:
         return ["ok" if isinstance(r, int) else ua.StatusCode(r.value).name for r in results]
 
     refused = "BadTooManyMonitoredItems"
@@ -333,7 +334,9 @@ async def _open(client: Client, node: ua.NodeId, mode: int = 1) -> ua.CallMethod
 
 
 async def test_file_handles_per_session_and_in_all_are_released_with_the_session(app: UacellServer) -> None:
-    node = robot_binding(app).programs.directory.node_of("pick_and_place.robot")
+    directory = robot_binding(app).programs.directory
+    assert directory is not None  # the demo controller's Programs
+    node = directory.node_of("pick_and_place.robot")
     pool = app.file_handles
     async with session(app) as a, session(app) as b:
         for _ in range(3):

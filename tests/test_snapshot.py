@@ -13,6 +13,7 @@ import logging
 import os
 import stat
 import threading
+import time
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -310,7 +311,7 @@ def test_a_write_that_fails_leaves_the_old_snapshot_whole(tmp_path: Path, monkey
     def fail(fd: int) -> None:
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(snapshot.os, "fsync", fail)
+    monkeypatch.setattr(os, "fsync", fail)  # the os module the snapshot writer calls
     with pytest.raises(OSError, match="No space"):
         _write(path, _nodes(7))
     monkeypatch.undo()
@@ -330,7 +331,7 @@ def test_a_cancelled_write_writes_nothing(tmp_path: Path) -> None:
 
 def test_a_writer_beside_a_server_sleeps_after_each_chunk(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     slept: list[float] = []
-    monkeypatch.setattr(snapshot.time, "sleep", slept.append)
+    monkeypatch.setattr(time, "sleep", slept.append)  # the time module the snapshot writer calls
     write_snapshot(tmp_path / NAME, KEY, [], stripped_copy(_nodes(snapshot.CHUNK * 3)), share=0.5)
     assert len(slept) == 3 and all(s >= 0 for s in slept)
     slept.clear()

@@ -426,6 +426,7 @@ async def test_a_primary_host_offline_stops_publishing_and_its_return_brings_a_r
         await host.state(True)
         await born(host, F, CTRL)
         first = host.nodes[EDGE].bdseq
+        assert first is not None  # its NBIRTH carried one
         await host.state(False, stamp=1)  # older than the online STATE: not followed
         assert (await call_path(client, F, "SetMachSpeed", ua.Variant(11.0, ua.VariantType.Float))).StatusCode.is_good()
         await host.wait(lambda: metric(host, F, "Status/MachSpeed") == 11.0)
@@ -479,13 +480,16 @@ keep_alive = 5
                 proc.kill()
                 proc.wait(10)
     node = host.nodes[EDGE]
-    assert node.deaths == node.births and node.births[1] == (node.births[0] + 1) % 256
+    first = node.births[0]
+    assert first is not None  # its NBIRTH carried one
+    assert node.deaths == node.births and node.births[1] == (first + 1) % 256
     assert not node.online and host.errors == []
 
 
 @needs_mosquitto
 async def test_a_plc_lost_is_a_ddeath_and_its_return_a_dbirth(tmp_path: Path, broker: Broker, host: Host) -> None:
-    from test_gateway_packml_modbus import ModbusPLC, shipped_cell
+    from gateway_plcs import ModbusPLC
+    from gateway_plcs import modbus_cell as shipped_cell
 
     plc = ModbusPLC()
     plc.start()

@@ -172,9 +172,9 @@ def test_metrics_carry_its_figures(rig: Rig, ua_thread: UaThread) -> None:
 
 
 def test_the_nodeset_export_holds_its_nodes(tmp_path: Path, ua_thread: UaThread) -> None:
-    def exported(found: tuple) -> set[str]:
+    def exported(found: tuple[Any, ...]) -> set[str]:
         root = ET.fromstring(ua_thread.run(export_cell(fast_config(tmp_path / "export"), found)))
-        return {e.get("NodeId") for e in root if e.get("NodeId")}
+        return {node_id for e in root if (node_id := e.get("NodeId"))}
 
     with_it = exported(WITH_TESTCO)
     assert {f"ns=1;s={UNIT}.Thermometer", f"ns=1;s={UNIT}.Thermometer.Temperature"} <= with_it

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+from typing import Any
 
 import pytest
-from asyncua import Client, ua
+from asyncua import Client, Node, ua
 from conftest import fast_config, start_app
 from helpers import official, raw_call, wait_until
 
@@ -19,6 +20,7 @@ from uacell.binding.machine_binding import bind_tree
 from uacell.core.errors import CallError
 from uacell.core.fsm import Reason, StateMachine
 from uacell.core.roles import Family, Role
+from uacell.host import ServerView
 from uacell.models import fsm_table
 from uacell.robotics.companion import TASK_CONTROL
 from uacell.server import UacellServer
@@ -32,10 +34,16 @@ class Rig:
 
     machine: StateMachine
     ready: StateMachine
-    calls: list
+    calls: list[Any]
+    # set by the rig fixture
+    app: UacellServer
+    client: Client
+    ns: int
+    rob: int
+    tc: Node
 
 
-async def _test_binder(app: UacellServer, rig: Rig):
+async def _test_binder(app: ServerView, rig: Rig):
     ns = app.cell.instantiator.ns
     node = ua.NodeId(TC_PATH, ns)
     rig.machine = StateMachine(
@@ -357,7 +365,8 @@ def test_unbinding_drops_the_methods_own_serialization_lock():
 
     d = MethodDispatcher.__new__(MethodDispatcher)
     d.methods, d._locks, d._scoped = {}, {}, {}
-    bound = BoundMethod(ua.NodeId(1), ua.NodeId(2), "M", Family.FILE, None, [], [])
+    # no handler: the method is only unbound, never called
+    bound = BoundMethod(ua.NodeId(1), ua.NodeId(2), "M", Family.FILE, None, [], [])  # type: ignore[arg-type]
     d.methods[bound.method_id] = bound
     d._locks[id(bound)] = asyncio.Lock()
     d.unbind(bound.method_id)

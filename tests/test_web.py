@@ -22,8 +22,8 @@ from typing import Any
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
-from conftest import fast_config, free_port, start_app
-from helpers import wait_until
+from conftest import fast_config, start_app
+from helpers import free_port, wait_until
 
 from uacell.core.companion import web_views
 from uacell.core.errors import ConfigError
@@ -69,7 +69,7 @@ class Browser:
         self.csrf = ""
         self.last_headers: Any = None
 
-    def _send(self, path: str, body: dict | None, headers: dict[str, str]) -> tuple[int, Any]:
+    def _send(self, path: str, body: dict[str, Any] | None, headers: dict[str, str]) -> tuple[int, Any]:
         data = json.dumps(body).encode() if body is not None else None
         req = urllib.request.Request(self.base + path, data=data, headers=headers, method="POST" if data else "GET")
         try:
@@ -89,7 +89,7 @@ class Browser:
         """A GET as the page makes it: with the session's token beside the cookie (once it has one)."""
         return await asyncio.to_thread(self._send, path, None, {"X-CSRF-Token": self.csrf} if self.csrf else {})
 
-    async def post(self, path: str, body: dict, csrf: str | None = None) -> tuple[int, Any]:
+    async def post(self, path: str, body: dict[str, Any], csrf: str | None = None) -> tuple[int, Any]:
         headers = {"Content-Type": "application/json", "X-CSRF-Token": self.csrf if csrf is None else csrf}
         return await asyncio.to_thread(self._send, path, body, headers)
 
@@ -105,7 +105,9 @@ class Browser:
         return status, answer
 
     def cookie(self) -> str:
-        return next(c.value for c in self.jar if c.name.startswith(("uacell_", "__Host-uacell_")))
+        value = next(c.value for c in self.jar if c.name.startswith(("uacell_", "__Host-uacell_")))
+        assert value is not None  # the HMI's cookies carry a value
+        return value
 
 
 async def _state(app, machine: str) -> str:
@@ -299,7 +301,7 @@ async def test_static_files_are_package_data() -> None:
     assert "http://" not in text.replace("http://www.w3.org/2000/svg", "") and "https://" not in text
 
 
-def _sse_until(b: Browser, want, timeout: float = 90.0) -> dict:
+def _sse_until(b: Browser, want, timeout: float = 90.0) -> dict[str, Any]:
     """Read the page's event stream until a message satisfies ``want``; return it."""
     deadline = time.monotonic() + timeout
     with b.opener.open(urllib.request.Request(f"{b.base}/api/events?key={b.csrf}"), timeout=30) as res:
@@ -323,9 +325,9 @@ async def test_the_page_learns_who_caused_a_transition_and_the_current_line(stac
     status, answer = await b.post("/api/call", {"key": "Filler1/MachineState/Reset", "args": []})
     assert status == 200 and answer["good"]
 
-    seen: list[dict] = []  # the page's list of last transitions, as the stream keeps it
+    seen: list[dict[str, Any]] = []  # the page's list of last transitions, as the stream keeps it
 
-    def attributed(message: dict) -> bool:
+    def attributed(message: dict[str, Any]) -> bool:
         if "events" in message:  # a snapshot, or the list again after an entry learnt its user
             seen[:] = message["events"]
         elif message.get("type") == "event":
@@ -363,6 +365,7 @@ async def test_uacell_web_standalone_until_the_server_trusts_its_certificate(sta
         stderr=log_file,
         text=True,
     )
+    assert proc.stdout is not None
     try:
         line = await asyncio.to_thread(proc.stdout.readline)
         assert line.strip() == f"uacell web on http://127.0.0.1:{port}/"
@@ -466,7 +469,7 @@ async def test_a_page_under_a_rebound_host_name_gets_421_and_drives_nothing(stac
 
 
 async def test_host_names_are_compared_without_port_case_or_brackets():
-    guard = HostGuard(lambda *a: None, names=["hmi.plant.example"])  # type: ignore[arg-type, return-value]
+    guard = HostGuard(lambda *a: None, names=["hmi.plant.example"])  # type: ignore[arg-type]  # an app never called
     assert host_name("HMI.Plant.Example:8443") == "hmi.plant.example"
     assert host_name("[::1]:8080") == "::1"
     assert guard.allows("hmi.plant.example:8080") and guard.allows("10.1.2.3:80") and guard.allows("localhost")

@@ -272,7 +272,7 @@ def test_reset_then_start_with_two_parameters(page, serve, ua_thread):
     assert used == "FillVolume = 250.5 ml, CapTorque = 1.25 Nm"
     assert page.inner_text('section.unit[data-unit="Filler1"] .v-curmachspeed') == "120.0"
 
-    async def arrived() -> list:
+    async def arrived() -> list[Any]:
         async with Ua(serve.endpoint) as c:
             await c.client.load_data_type_definitions()
             return await c.node("Filler1.Status.StartParameters").read_value()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from datetime import UTC, datetime, timedelta
+from typing import Any
 
 import pytest
 import pytest_asyncio
@@ -95,7 +96,7 @@ async def _fill(app, cell, count: int, start: datetime, end: datetime) -> None:
     await app.history.store.flush()
 
 
-async def _poll(app, client, cell, answer: dict, work: Work) -> tuple[dict, int, int]:
+async def _poll(app, client, cell, answer: dict[str, Any], work: Work) -> tuple[dict[str, Any], int, int]:
     """The page's poll 15 s after ``answer``: what is new since its end. (answer, bytes, values read)."""
     now = datetime.fromtimestamp(answer["end"], UTC) + timedelta(seconds=15)
     await _fill(app, cell, 3, now - timedelta(seconds=14), now - timedelta(seconds=1))

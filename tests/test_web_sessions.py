@@ -10,6 +10,7 @@ import asyncio
 import json
 import logging
 import time
+from typing import Any
 
 import pytest
 import pytest_asyncio
@@ -75,7 +76,7 @@ class Page:
         await self.writer.drain()
         return self
 
-    async def until(self, want, timeout: float = 60.0) -> dict:
+    async def until(self, want, timeout: float = 60.0) -> dict[str, Any]:
         assert self.reader is not None
         async with asyncio.timeout(timeout):
             while True:
@@ -197,7 +198,7 @@ async def test_concurrent_wrong_logins_are_each_refused_as_wrong(stack):
     assert [(status, answer.get("code")) for status, answer in answers] == [(401, "BadUserAccessDenied")] * 6
 
 
-async def _raw(web, request: str) -> tuple[int, dict]:
+async def _raw(web, request: str) -> tuple[int, dict[str, Any]]:
     """One HTTP request as another program on this host sends it (no browser): status and JSON body."""
     port = _port(web)
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
