@@ -170,8 +170,13 @@ async def test_the_plc_faults_and_uacell_aborts_with_its_stop_reason(served, plc
     await until(lambda: state(client, EXEC), "Idle")
     await plc.set(F, "Sim.Fault", True, ua.VariantType.Boolean)
     await until(lambda: state(client, BASE), "Aborted")
-    reason = await read(client, f"{F}.Admin.StopReason")
-    assert reason.ID == 42
+
+    async def stop_reason() -> int:
+        return int((await read(client, f"{F}.Admin.StopReason")).ID)
+
+    # StopReason is a stored value: clients see it once it is durable, a few ms after the state
+    # (docs/packml.md, "Admin variables")
+    await until(stop_reason, 42)
 
 
 async def test_the_plc_killed_and_back(served, plc: PLC) -> None:

@@ -230,7 +230,11 @@ async def test_the_plc_faults_and_uacell_aborts_with_its_stop_reason(served, plc
     await until(lambda: cell_state(client, EXEC), "Idle")
     await plc.flip(F, "fault", True)
     await until(lambda: cell_state(client, BASE), "Aborted")
-    assert (await cell_read(client, f"{F}.Admin.StopReason")).ID == 42
+
+    async def stop_reason() -> int:
+        return int((await cell_read(client, f"{F}.Admin.StopReason")).ID)
+
+    await until(stop_reason, 42)  # a stored value: seen once durable, a few ms after the state (docs/packml.md)
 
 
 async def test_the_plc_killed_and_back_nothing_replayed(served, plc: Units) -> None:
