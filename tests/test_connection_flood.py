@@ -9,7 +9,9 @@ import asyncio
 import contextlib
 import logging
 import resource
+import socket
 import struct
+import threading
 import time
 from collections.abc import AsyncIterator
 
@@ -116,3 +118,74 @@ async def test_sessions_already_active_are_never_closed_to_make_room(app: Uacell
             assert await active.nodes.server_state.read_value() == ua.ServerState.Running
         finally:
             _close(idle)
+
+
+async def test_an_open_secure_channel_sent_in_time_is_answered_however_busy_the_server_was(tmp_path) -> None:
+    """The handshake deadline is the client's: an OpenSecureChannel that arrived in time while the
+    server's event loop was busy past the deadline is read and answered, not closed unread. The server
+    runs on uvloop, the default loop of `uacell serve`, in a thread of its own; the client is a plain
+    socket in another thread, which sends its OpenSecureChannel while the server's loop is busy."""
+    import uvloop
+    from uaraw import open_request
+
+    busy = threading.Event()
+
+    def client(port: int, trigger: socket.socket) -> bytes:
+        with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
+            connected = time.monotonic()
+            sock.sendall(_hello(f"opc.tcp://127.0.0.1:{port}/"))
+            assert _received(sock)[:3] == b"ACK"
+            trigger.send(b"!")
+            assert busy.wait(5)
+            time.sleep(max(0.0, connected + 0.3 - time.monotonic()))
+            sock.sendall(open_request())  # 0.2 s before the deadline; the loop is busy until after it
+            try:
+                return _received(sock)[:3]
+            except ConnectionError:
+                return b"reset"
+
+    async def scenario() -> bytes:
+        config = fast_config(tmp_path / "data")
+        config.limits.handshake_timeout = 0.5
+        server = await start_app(config)
+        loop = asyncio.get_running_loop()
+        stalls, trigger = socket.socketpair()
+        stalls.setblocking(False)
+
+        def stall() -> None:  # in the loop's reading of sockets, as serving a long request would be
+            stalls.recv(1)
+            busy.set()
+            time.sleep(0.8)
+
+        loop.add_reader(stalls, stall)
+        try:
+            return await asyncio.to_thread(client, config.server.port, trigger)
+        finally:
+            loop.remove_reader(stalls)
+            stalls.close()
+            trigger.close()
+            await server.stop()
+
+    def on_uvloop() -> bytes:
+        with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
+            return runner.run(scenario())
+
+    assert await asyncio.to_thread(on_uvloop) == b"OPN"
+
+
+def _received(sock: socket.socket) -> bytes:
+    """One whole OPC UA TCP message; b"" when the server closed the connection."""
+    head = b""
+    while len(head) < 8:
+        more = sock.recv(8 - len(head))
+        if not more:
+            return b""
+        head += more
+    size = struct.unpack_from("<I", head, 4)[0]
+    body = b""
+    while len(body) < size - 8:
+        more = sock.recv(size - 8 - len(body))
+        if not more:
+            return b""
+        body += more
+    return head + body

@@ -129,19 +129,9 @@ class RawClient:
         return struct_from_binary(ua.Acknowledge, body)
 
     async def open_channel(self, mode: ua.MessageSecurityMode | None = None) -> ua.OpenSecureChannelResult:
-        params = ua.OpenSecureChannelParameters()
-        params.ClientProtocolVersion = 0
-        params.RequestType = ua.SecurityTokenRequestType.Issue
-        params.SecurityMode = self.policy.Mode if mode is None else mode
-        params.RequestedLifetime = 600000
-        params.ClientNonce = os.urandom(self.policy.secure_channel_nonce_length) or b""
-        request = ua.OpenSecureChannelRequest()
-        request.Parameters = params
+        params = _open_parameters(self.policy, mode)
         self.request_id += 1
-        data = self.connection.message_to_binary(
-            struct_to_binary(request), message_type=ua.MessageType.SecureOpen, request_id=self.request_id
-        )
-        msg = await self._exchange(data)
+        msg = await self._exchange(_open_message(self.connection, params, self.request_id))
         response = struct_from_binary(ua.OpenSecureChannelResponse, msg.body())
         self.connection.set_channel(response.Parameters, params.RequestType, params.ClientNonce)
         return response.Parameters
@@ -270,3 +260,28 @@ async def none_session(host: str, port: int, **kwargs: Any) -> tuple[RawClient, 
         await raw.close()
         raise
     return raw, session
+
+
+def _open_parameters(policy: SecurityPolicy, mode: ua.MessageSecurityMode | None) -> ua.OpenSecureChannelParameters:
+    params = ua.OpenSecureChannelParameters()
+    params.ClientProtocolVersion = 0
+    params.RequestType = ua.SecurityTokenRequestType.Issue
+    params.SecurityMode = policy.Mode if mode is None else mode
+    params.RequestedLifetime = 600000
+    params.ClientNonce = os.urandom(policy.secure_channel_nonce_length) or b""
+    return params
+
+
+def _open_message(connection: SecureConnection, params: ua.OpenSecureChannelParameters, request_id: int) -> bytes:
+    request = ua.OpenSecureChannelRequest()
+    request.Parameters = params
+    return connection.message_to_binary(
+        struct_to_binary(request), message_type=ua.MessageType.SecureOpen, request_id=request_id
+    )
+
+
+def open_request() -> bytes:
+    """The bytes of an OpenSecureChannel request on SecurityPolicy None (request id 1), for a client
+    that sends them itself."""
+    policy = SecurityPolicyNone()
+    return _open_message(SecureConnection(policy, TransportLimits()), _open_parameters(policy, None), 1)

@@ -284,12 +284,24 @@ def admit(protocol: OPCUAProtocol, transport: Any, original: Callable[[OPCUAProt
         door.tag(protocol, "handshake", late)
 
 
-def _handshake_late(protocol: OPCUAProtocol) -> None:
+HANDSHAKE_GRACE = 0.01  # seconds: a look at the sockets between the deadline and the closing
+
+
+def _handshake_late(protocol: OPCUAProtocol, looked: bool = False) -> None:
     processor = protocol.processor
     transport = protocol.transport
     if processor is None or transport is None or transport.is_closing():
         return
     if connection.channel_open(processor):
+        return
+    if not looked:
+        # The deadline is the client's, not the server's: what arrived while the loop was busy past it
+        # is read first. uvloop runs the timers that fell due before it reads the sockets (and a timer or
+        # callback scheduled now, before it reads them too), so after a long callback this runs before
+        # an OpenSecureChannel that came in time is even read: look again once the loop has read its
+        # sockets (the channel opens as its request is read: nothing in between waits).
+        late = asyncio.get_running_loop().call_later(HANDSHAKE_GRACE, _handshake_late, protocol, True)
+        door.tag(protocol, "handshake", late)
         return
     limits = _limits_of(protocol.iserver)
     if limits is not None:
