@@ -435,3 +435,37 @@ async def test_a_handler_may_use_asyncio_timeout_before_its_first_wait(rig):
         assert res.StatusCode.is_good()
     finally:
         bound.handler = original
+
+
+async def test_the_quick_argument_check_agrees_with_the_full_one(rig):
+    """``TypeChecker.accepts`` tells plain scalars at once: for every argument shape and value it must
+    answer what the full ``check`` answers (the dispatcher refuses with the full check's codes)."""
+    types = rig.app.dispatcher.types
+    vt = ua.VariantType
+    arguments = [
+        ua.Argument(DataType=ua.NodeId(datatype), ValueRank=rank)
+        for datatype in (
+            ua.ObjectIds.Float, ua.ObjectIds.Int32, ua.ObjectIds.String, ua.ObjectIds.NodeId, ua.ObjectIds.Boolean,
+            ua.ObjectIds.Duration,  # a subtype of Double
+            ua.ObjectIds.Number, ua.ObjectIds.UInteger, ua.ObjectIds.BaseDataType, ua.ObjectIds.Enumeration,
+            ua.ObjectIds.Argument,  # a structure
+        )
+        for rank in (-1, -2, -3, 0, 1)
+    ]  # fmt: skip
+    variants = [
+        ua.Variant(1.5, vt.Float), ua.Variant(1.5, vt.Double), ua.Variant(3, vt.Int32), ua.Variant(3, vt.UInt16),
+        ua.Variant("x", vt.String), ua.Variant(None, vt.String), ua.Variant(True, vt.Boolean),
+        ua.Variant(ua.NodeId(5), vt.NodeId), ua.Variant(None, vt.Null), ua.Variant([1.5, 2.5], vt.Float),
+        ua.Variant([], vt.Int32), ua.Variant(ua.Argument(), vt.ExtensionObject),
+        ua.Variant(ua.EUInformation(), vt.ExtensionObject),
+    ]  # fmt: skip
+    told = {(a.DataType.Identifier, a.ValueRank, v.VariantType, repr(v.Value)): types.accepts(v, a)
+            for a in arguments for v in variants}  # fmt: skip
+    full = {(a.DataType.Identifier, a.ValueRank, v.VariantType, repr(v.Value)): types.check(v, a).is_good()
+            for a in arguments for v in variants}  # fmt: skip
+    assert told == full
+    assert told[(ua.ObjectIds.Float, -1, vt.Float, "1.5")] and not told[(ua.ObjectIds.Float, -1, vt.Double, "1.5")]
+    assert told[(ua.ObjectIds.Duration, -1, vt.Double, "1.5")] and not told[(ua.ObjectIds.Int32, -1, vt.Null, "None")]
+    # asked twice (the second time from what the first one kept): the same answers
+    assert {k: types.accepts(v, a) for a in arguments for v in variants
+            for k in [(a.DataType.Identifier, a.ValueRank, v.VariantType, repr(v.Value))]} == full  # fmt: skip

@@ -329,12 +329,42 @@ _INTEGERS = {
 _UNSIGNED = {ua.VariantType.Byte, ua.VariantType.UInt16, ua.VariantType.UInt32, ua.VariantType.UInt64}
 
 
+_UNSEEN: Any = object()
+
+
 class TypeChecker:
     """Does a Variant match an Argument's DataType and ValueRank?"""
 
     def __init__(self, server: Server) -> None:
         self.aspace = server.iserver.aspace
         self._builtin: dict[ua.NodeId, ua.VariantType | None] = {}
+        # DataType -> the one VariantType a scalar argument of it is, or None when a value needs the full
+        # check (structures, abstract types, BaseDataType); as many as the DataTypes of arguments called
+        self._plain: dict[ua.NodeId, ua.VariantType | None] = {}
+
+    def accepts(self, variant: ua.Variant, arg: ua.Argument) -> bool:
+        """``check(variant, arg)`` is Good: a non-null scalar of the one builtin type a scalar argument
+        takes is told at once, anything else by ``check``."""
+        if arg.ValueRank == -1:
+            value = variant.Value
+            if value is not None and not variant.is_array and not isinstance(value, list):
+                datatype = arg.DataType
+                plain = self._plain.get(datatype, _UNSEEN)
+                if plain is _UNSEEN:
+                    plain = self._plain[datatype] = self._plain_type(datatype)
+                if plain is not None and variant.VariantType is plain:
+                    return True
+        return bool(self.check(variant, arg).is_good())
+
+    def _plain_type(self, datatype: ua.NodeId) -> ua.VariantType | None:
+        """The VariantType whose non-null scalars ``check`` finds Good for a scalar argument of
+        ``datatype`` without looking at the value (a concrete builtin type), else None."""
+        if datatype == ua.NodeId(ua.ObjectIds.BaseDataType):
+            return None
+        expected = self.builtin_of(datatype)
+        if expected is None or expected in (ua.VariantType.ExtensionObject, ua.VariantType.Null):
+            return None
+        return expected
 
     def builtin_of(self, datatype: ua.NodeId) -> ua.VariantType | None:
         """The VariantType a DataType is encoded as (enumerations -> Int32, structures -> ExtensionObject)."""

@@ -100,7 +100,8 @@ class UnboundCalls:
             return call_result(ua.StatusCodes.BadArgumentsMissing)
         if len(args) > len(inputs):
             return call_result(ua.StatusCodes.BadTooManyArguments)
+        accepts = self.types.accepts
+        if all(accepts(v, a) for v, a in zip(args, inputs, strict=True)):
+            return None
         checks = [self.types.check(v, a) for v, a in zip(args, inputs, strict=True)]
-        if any(not c.is_good() for c in checks):
-            return call_result(ua.StatusCodes.BadTypeMismatch, checks)
-        return None
+        return call_result(ua.StatusCodes.BadTypeMismatch, checks)
