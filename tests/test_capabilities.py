@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from helpers import packml_tables
 
-from uacell.core.capabilities import Identified, Reachable
+from uacell.core.capabilities import Identified, Reachable, reachable
 from uacell.core.errors import CallError
 from uacell.machinery.sources import UnitSource
 from uacell.packml import PackMLUnit
@@ -47,3 +47,37 @@ def test_a_unit_and_its_machine_follow_what_the_equipment_reports() -> None:
     assert unit.reachable is False and source.facts().reachable is False
     with pytest.raises(CallError):
         unit.check_reachable()
+
+
+class _Raising:
+    """A ``reachable`` property that raises AttributeError: hasattr (so isinstance) says it is not there."""
+
+    @property
+    def reachable(self) -> bool:
+        raise AttributeError("not yet connected")
+
+
+class _Property:
+    def __init__(self, value: object) -> None:
+        self._value = value
+
+    @property
+    def reachable(self) -> object:
+        return self._value
+
+
+@pytest.mark.parametrize(
+    "equipment",
+    [None, object(), Plain(), Gateway(), _Raising(), _Property(False), _Property(True), _Property(0), _Property("")],
+    ids=["none", "object", "plain", "gateway", "raising", "false", "true", "zero", "empty"],
+)
+def test_reachable_answers_what_the_protocol_check_answers(equipment: object) -> None:
+    expected = bool(equipment.reachable) if isinstance(equipment, Reachable) else True
+    assert reachable(equipment) is expected
+
+
+def test_a_gateway_that_loses_its_plc_is_unreachable() -> None:
+    gateway = Gateway()
+    assert reachable(gateway) is True
+    gateway.reachable = False
+    assert reachable(gateway) is False

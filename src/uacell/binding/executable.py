@@ -14,6 +14,7 @@ from asyncua.server.address_space import AddressSpace
 from uacell.binding.calls import UNKNOWN, UNSCOPED, BoundMethod
 from uacell.core.rights import RoleTable
 from uacell.core.roles import Role
+from uacell.ua.toolkit import write_attribute
 
 log = logging.getLogger("uacell.binding.dispatch")
 _A = ua.AttributeIds
@@ -101,7 +102,7 @@ class ExecutableRefresh:
             if now != bound.last_executable:
                 bound.last_executable = now
                 dv = ua.DataValue(ua.Variant(now, ua.VariantType.Boolean))
-                await self.aspace.write_attribute_value(bound.method_id, _A.Executable, dv)
+                await write_attribute(self.aspace, bound.method_id, _A.Executable, dv)
 
     def user_executable(self, method_id: ua.NodeId, role: str) -> bool | None:
         bound = self.methods.get(method_id)

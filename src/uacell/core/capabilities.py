@@ -21,6 +21,16 @@ class Reachable(Protocol):
     def reachable(self) -> bool: ...
 
 
+def reachable(equipment: object) -> bool:
+    """Can ``equipment`` reach what it drives: its ``reachable`` when it is ``Reachable``, else True.
+
+    Asked several times in every call and for every method whose Executable is refreshed, so answered
+    in one lookup: the Protocol's one member is a property, so what ``has(equipment, Reachable)`` finds
+    (``hasattr``: the attribute is there and reading it raises no AttributeError) is what ``getattr``
+    with a default finds (tests/test_capabilities.py holds the two to the same answers)."""
+    return bool(getattr(equipment, "reachable", True))
+
+
 @runtime_checkable
 class Identified(Protocol):
     """Equipment that reports what it is: BrowseName of an Identification member (``SerialNumber``,

@@ -6,7 +6,7 @@ from __future__ import annotations
 from datetime import timedelta
 from typing import Any
 
-from uacell.core.capabilities import Reachable, has
+from uacell.core.capabilities import reachable
 from uacell.core.errors import CallError
 from uacell.core.fsm import StateMachine
 from uacell.packml.oee import Figures
@@ -63,8 +63,7 @@ class UnitView(UnitBase):
     @property
     def reachable(self) -> bool:
         """False while equipment that says so (a gateway driver's ``reachable``) cannot reach its PLC."""
-        equipment = getattr(self, "equipment", None)  # none yet while the unit is being made
-        return bool(equipment.reachable) if has(equipment, Reachable) else True
+        return reachable(getattr(self, "equipment", None))  # no equipment yet while the unit is being made
 
     def check_reachable(self) -> None:
         """Bad_CommunicationError while the equipment cannot reach its PLC: nothing is tried."""

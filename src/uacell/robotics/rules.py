@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
 from enum import IntEnum
 
-from uacell.core.capabilities import Reachable, has
+from uacell.core.capabilities import reachable
 from uacell.core.errors import CallError
 from uacell.core.fsm import StateMachine
 from uacell.models import FsmTable, TableLoader
@@ -137,7 +137,7 @@ class Guarded:
         Equipment that says it cannot reach its controller (``reachable`` false, e.g. the gateway's
         drivers) refuses every method with Bad_CommunicationError (a CallError): nothing is tried.
         """
-        if not (self.equipment.reachable if has(self.equipment, Reachable) else True):
+        if not reachable(self.equipment):
             raise CallError("BadCommunicationError", "the robot controller cannot be reached")
         machine = self._machines.get(machine_name)
         if machine is None or method not in machine.table.methods or not machine.allows(method, STAYS):

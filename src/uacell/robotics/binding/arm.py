@@ -10,7 +10,8 @@ import logging
 from asyncua import ua
 
 from uacell.core.background import Background
-from uacell.core.capabilities import Reachable, has
+from uacell.core.capabilities import has
+from uacell.core.capabilities import reachable as is_reachable
 from uacell.robotics.binding.shared import ControllerBinding
 from uacell.robotics.equipment import AxisFeed
 from uacell.robotics.model import EXECUTING, READY
@@ -82,7 +83,7 @@ class Arm:
             now = loop.time()
             dt, last = now - last, now
             # a gateway's controller may be away
-            reachable = bool(equipment.reachable if has(equipment, Reachable) else True)
+            reachable = is_reachable(equipment)
             if reachable != self._reachable:
                 self._reachable = reachable
                 self._last_axes = None  # written afresh once it is back

@@ -8,7 +8,7 @@ import contextlib
 
 from asyncua import ua
 
-from uacell.core.capabilities import Reachable, has
+from uacell.core.capabilities import has, reachable
 from uacell.robotics.binding.shared import ControllerBinding
 from uacell.robotics.equipment import SafetyFeedback
 
@@ -50,7 +50,7 @@ class Safety:
         assert has(equipment, SafetyFeedback)
         report = equipment.safety_report()
         values = self.binding.values
-        if report is None or not (equipment.reachable if has(equipment, Reachable) else True):
+        if report is None or not reachable(equipment):
             bad = ua.StatusCode(ua.StatusCodes.BadNoCommunication)
             for node in self.nodes.values():
                 await values.write_status(node, bad)
