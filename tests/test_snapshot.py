@@ -201,11 +201,14 @@ def test_nodes_added_changed_and_deleted_live_beside_the_snapshot(tmp_path: Path
     nodes: LazyNodes = found.nodes
     del nodes[ua.NodeId(1, 2)]  # never loaded before
     assert ua.NodeId(1, 2) not in nodes
+    assert nodes.get(ua.NodeId(1, 2)) is None and nodes.get(ua.NodeId(1, 2), "gone") == "gone"
+    assert nodes.get(ua.NodeId(99, 2)) is None  # never stored
     with pytest.raises(KeyError):
         nodes[ua.NodeId(1, 2)]
     with pytest.raises(KeyError):
         del nodes[ua.NodeId(1, 2)]
-    assert _value(nodes[ua.NodeId(2, 2)]) == "value 2"  # its chunk (node 1's) loads without the deleted node
+    assert _value(nodes.get(ua.NodeId(2, 2))) == "value 2"  # its chunk (node 1's) loads without the deleted node
+    assert nodes.get(ua.NodeId(2, 2)) is nodes[ua.NodeId(2, 2)]
     assert ua.NodeId(1, 2) not in nodes
     new = _node(1, "again")
     nodes[ua.NodeId(1, 2)] = new

@@ -644,14 +644,20 @@ def test_a_sample_program_runs_by_following_the_page(page, serve, ua_thread):
     )
     page.select_option("select.program-select", "pick_and_place.robot")
     robot_button(page, "Load", ".task").click()
+    # An earlier test of this module may have left its own program loaded (Ready already): wait for
+    # this one's name, then for Start to say why it waits (a moment earlier it may still show the
+    # previous program's answer).
     page.wait_for_function(
-        "() => document.querySelector('.task .v-task').textContent.startsWith('Ready')", timeout=TIMEOUT
+        "() => document.querySelector('.task .v-task').textContent.startsWith('Ready')"
+        " && document.querySelector('.task .v-program').textContent === 'PickAndPlace'",
+        timeout=TIMEOUT,
     )
     start = robot_button(page, "Start", ".task")
-    page.wait_for_function("b => b.disabled && b.dataset.why", arg=start.element_handle(), timeout=TIMEOUT)
-    assert start.get_attribute("title") == (
-        "Start: the program uses a module that is not loaded: load it first (see the hint above)"
+    why = "Start: the program uses a module that is not loaded: load it first (see the hint above)"
+    page.wait_for_function(
+        "([b, why]) => b.disabled && b.title === why", arg=[start.element_handle(), why], timeout=TIMEOUT
     )
+    assert start.is_disabled() and start.get_attribute("title") == why
     assert page.inner_text(".task .v-modules") == "none"
     page.select_option("select.program-select", "gripper.robot")
     robot_button(page, "Load", ".task").click()

@@ -201,6 +201,18 @@ class LazyNodes(MutableMapping[ua.NodeId, NodeData]):
             self._load(chunk)
             return self.cache[key]
 
+    def get(self, key: ua.NodeId, default: Any = None) -> Any:  # Mapping's: one Python call, not two
+        """The node, loading its chunk if need be, else ``default``: what ``Mapping.get`` answers,
+        without its ``__getitem__`` call and raised KeyError for a node that is loaded (asyncua asks
+        ``get`` for every value it writes, several times a call)."""
+        node = self.cache.get(key)
+        if node is not None:
+            return node
+        try:
+            return self[key]
+        except KeyError:
+            return default
+
     def _load(self, chunk: int) -> None:
         self._loaded.add(chunk)
         offset, length = self._spans[chunk]

@@ -97,6 +97,7 @@ def type_names(aspace: AddressSpace, root: ua.NodeId) -> dict[tuple[int, str], u
 
 
 _NULL = ua.Variant(None, ua.VariantType.Null)  # never changed: shared
+_UNWRITTEN: Any = object()  # equal to no value
 _SEVERITY, _BAD = 0xC0000000, 0x80000000  # a StatusCode's severity bits, and Bad's
 
 
@@ -153,7 +154,7 @@ class ValueWriter:
         status: ua.StatusCode | None = None,
     ) -> None:
         """Write ``value`` (Good, or with ``status``: an Uncertain quality, the value kept)."""
-        if not force and nodeid in self._written and self._written[nodeid] == value:
+        if not force and self._written.get(nodeid, _UNWRITTEN) == value:  # one lookup: a NodeId hashes in Python
             return
         self._written[nodeid] = value
         variant = (
