@@ -99,6 +99,7 @@ def type_names(aspace: AddressSpace, root: ua.NodeId) -> dict[tuple[int, str], u
 _NULL = ua.Variant(None, ua.VariantType.Null)  # never changed: shared
 _UNWRITTEN: Any = object()  # equal to no value
 _SEVERITY, _BAD = 0xC0000000, 0x80000000  # a StatusCode's severity bits, and Bad's
+_NAMES = (ua.AttributeIds.BrowseName, ua.AttributeIds.DisplayName)  # asyncua's write also renames references
 
 
 def unwatched(aspace: AddressSpace, nodeid: ua.NodeId, attr: ua.AttributeIds) -> AttributeValue | None:
@@ -119,7 +120,8 @@ async def write_attribute(aspace: AddressSpace, nodeid: ua.NodeId, attr: ua.Attr
     attval = unwatched(aspace, nodeid, attr)
     old = attval.value if attval is not None else None
     bad = dv.StatusCode is not None and dv.StatusCode.value & _SEVERITY == _BAD  # asyncua nulls its Value
-    if attval is not None and old is not None and old.Value is not None and not bad:
+    plain = attr not in _NAMES and dv.Value is not None and not bad
+    if plain and attval is not None and old is not None and old.Value is not None:
         vtype = old.Value.VariantType
         if vtype == dv.Value.VariantType and vtype != ua.VariantType.Null:
             attval.value = dv
