@@ -218,7 +218,7 @@ async def probe_ur(part: str, settings: Mapping[str, Any], timeout: float = 3.0)
     except DashboardError as e:
         rows.append(Row(part, where, "(endpoint)", f"unreachable: {str(e).rpartition(': ')[2]}", False))
     finally:
-        dashboard.close()
+        await dashboard.aclose()
     conn = ModbusConnection(host, modbus_port, timeout=timeout)
     where = f"{endpoint_name(host, modbus_port)} unit {int(settings.get('unit', 1))}"
     try:

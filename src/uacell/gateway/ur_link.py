@@ -18,6 +18,7 @@ turn (0..6283, unsigned), 280-285 joint speed in mrad/s (int16, two's complement
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -110,6 +111,16 @@ class Dashboard:
         if self._writer is not None:
             self._writer.close()
         self._reader = self._writer = None
+
+    async def aclose(self) -> None:
+        """``close``, then wait (a moment at most) until the socket is closed: at a shutdown the event
+        loop may end right after, and a transport it never got to close is a leaked socket."""
+        writer = self._writer
+        self.close()
+        if writer is not None:
+            with contextlib.suppress(OSError, TimeoutError):
+                async with asyncio.timeout(self.timeout):
+                    await writer.wait_closed()
 
 
 @dataclass(frozen=True)

@@ -408,7 +408,7 @@ class URRobot:
             if task is not None:
                 task.cancel()
                 await asyncio.wait({task}, timeout=5.0)
-        self.dashboard.close()
+        await self.dashboard.aclose()
         await SHARED.release(self.modbus)
 
 
