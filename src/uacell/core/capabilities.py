@@ -1,6 +1,7 @@
 """Optional capabilities any equipment (a robot controller's, a PackML unit's) may have: it declares
 one by implementing the Protocol, and the shared code checks it with ``isinstance``, never by looking
-an attribute up by name. The companions' own are beside their equipment Protocols
+an attribute up by name (``reachable`` alone answers what that check would, in one lookup: its
+docstring says why). The companions' own are beside their equipment Protocols
 (``uacell.robotics.equipment``, ``uacell.packml.equipment``)."""
 
 from __future__ import annotations
