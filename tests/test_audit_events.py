@@ -61,7 +61,7 @@ async def app(tmp_path_factory):
 
 
 async def connect(app, user: str | None = None) -> tuple[Client, int]:
-    client = Client(app.endpoint, timeout=30)
+    client = Client(app.endpoint, timeout=30, watchdog_intervall=30.0)  # a loaded machine: no 1 s probe
     if user:
         client.set_user(user)
         client.set_password(PASSWORD)

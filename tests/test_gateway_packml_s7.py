@@ -228,3 +228,36 @@ async def test_a_connect_cancelled_half_way_leaves_no_socket_open() -> None:
             w.close()
         server.close()
         await server.wait_closed()
+
+
+@pytest.mark.parametrize("ended_by", ["timeout", "cancel"])
+async def test_a_close_whose_disconnect_hangs_still_closes_the_socket(plc: S7PLC, ended_by: str) -> None:
+    """python-snap7 forgets its stream without closing it when its disconnect is cut short: a close
+    ended by its one-second bound, or by the cancellation of the task that closes the link, still
+    closes the socket (a stream nobody closed is a socket left for the collector)."""
+    from uacell.gateway import packml_s7
+
+    conn = S7Connection("127.0.0.1", plc.port, 0, 1, 3.0)
+    assert await conn.connect()
+    client = conn._client
+    assert client is not None
+    writer = packml_s7._stream(client)
+    assert writer is not None and not writer.is_closing()
+    hanging = asyncio.Event()
+
+    async def disconnect_that_hangs() -> int:  # a DR whose drain never ends (a peer that reads nothing)
+        hanging.set()
+        await asyncio.Event().wait()
+        return 0
+
+    client.disconnect = disconnect_that_hangs  # type: ignore[method-assign]
+    closing = asyncio.ensure_future(conn.close())
+    await asyncio.wait_for(hanging.wait(), 5)
+    if ended_by == "cancel":
+        closing.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await closing
+    else:
+        await asyncio.wait_for(closing, 5)  # the close's own bound: about a second
+    assert writer.is_closing()
+    assert not conn.connected

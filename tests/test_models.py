@@ -361,7 +361,7 @@ from asyncua import Client, ua
 from asyncua.ua.ua_binary import struct_from_binary, struct_to_binary
 
 async def main():
-    async with Client(sys.argv[1], timeout=60) as client:
+    async with Client(sys.argv[1], timeout=60, watchdog_intervall=60.0) as client:  # no 1 s probe when loaded
         assert not hasattr(ua, "PackMLDescriptorDataType")
         await client.load_data_type_definitions()
         value = ua.PackMLDescriptorDataType(

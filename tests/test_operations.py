@@ -262,7 +262,7 @@ async def test_metrics_values_move_with_a_call(app):
 @module_loop
 async def test_metrics_show_the_packml_counters(app):
     _, body = await scrape(app)
-    async with Client(app.endpoint, timeout=20) as client:
+    async with Client(app.endpoint, timeout=20, watchdog_intervall=30.0) as client:
         await client.load_data_type_definitions()
         processed = await client.get_node(nid(app, "Filler1.Admin.ProdProcessedCount")).read_value()
     assert processed, "the demo unit has processed-count entries"

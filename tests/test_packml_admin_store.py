@@ -294,7 +294,7 @@ async def test_kill_9_during_production_loses_nothing_a_client_read(tmp_path: Pa
 
     sp = start_serve(data, "--config", str(config))
     try:
-        async with Client(sp.endpoint, timeout=30) as client:
+        async with Client(sp.endpoint, timeout=30, watchdog_intervall=30.0) as client:
             await client.load_data_type_definitions()
             ns = await client.get_namespace_index(cell)
             assert await client.get_namespace_index(pml_uri) > 0
@@ -320,7 +320,7 @@ async def test_kill_9_during_production_loses_nothing_a_client_read(tmp_path: Pa
 
     sp = start_serve(data, "--config", str(config))
     try:
-        async with Client(sp.endpoint, timeout=30) as client:
+        async with Client(sp.endpoint, timeout=30, watchdog_intervall=30.0) as client:
             await client.load_data_type_definitions()
             ns = await client.get_namespace_index(cell)
             counts, acc, execute_time = await read_admin(client, ns)

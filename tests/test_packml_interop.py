@@ -48,7 +48,7 @@ async def test_node_opcua_start_parameters_arrive_exactly(serve_process):
     ]
     assert received == EXPECTED
 
-    async with Client(serve_process.endpoint, timeout=30) as client:
+    async with Client(serve_process.endpoint, timeout=30, watchdog_intervall=30.0) as client:
         await client.load_data_type_definitions()
         ns = await client.get_namespace_index("urn:uacell:cell")
         pml = await client.get_namespace_index("http://opcfoundation.org/UA/PackML/")

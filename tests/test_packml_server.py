@@ -563,7 +563,7 @@ async def test_admin_counters_survive_a_restart(tmp_path):
     data = tmp_path / "data"
     app = await _start_app(data)
     try:
-        async with Client(app.endpoint, timeout=30) as client:
+        async with Client(app.endpoint, timeout=30, watchdog_intervall=30.0) as client:
             await client.load_data_type_definitions()
             u = await make_unit(client)
             await u.ok(MACH, "Reset")

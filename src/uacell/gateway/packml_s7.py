@@ -111,6 +111,19 @@ def _close_stream(client: AsyncClient) -> None:
         writer.close()
 
 
+async def _disconnect(client: AsyncClient) -> None:
+    """snap7's disconnect (at most a second), then its stream closed whatever happened: snap7 forgets
+    the stream without closing it when its disconnect is cut short (by the timeout, or by a
+    cancellation of the task closing the link), and a stream nobody closed is a leaked socket."""
+    writer = _stream(client)
+    try:
+        with contextlib.suppress(Exception):
+            await asyncio.wait_for(client.disconnect(), 1.0)
+    finally:
+        if writer is not None:
+            writer.close()
+
+
 class S7Connection:
     """One S7 connection (python-snap7's ``AsyncClient``): reads of data block bytes and write jobs,
     each bounded by ``timeout``; a failure other than a refused address drops the connection."""
@@ -132,8 +145,7 @@ class S7Connection:
         try:
             await asyncio.wait_for(client.connect(self.host, self.rack, self.slot, self.port), self.timeout)
         except (S7Error, OSError, TimeoutError):
-            with contextlib.suppress(Exception):
-                await client.disconnect()
+            await _disconnect(client)
             return False
         except BaseException:
             # Cancelled while connecting (the link closing): snap7 closes its stream on errors only, so
@@ -146,13 +158,7 @@ class S7Connection:
     async def close(self) -> None:
         client, self._client = self._client, None
         if client is not None:
-            # snap7's stream: closed here too, so a disconnect cut short by the timeout (its drain
-            # cancelled) does not leave the socket open
-            writer = _stream(client)
-            with contextlib.suppress(Exception):
-                await asyncio.wait_for(client.disconnect(), 1.0)
-            if writer is not None:
-                writer.close()
+            await _disconnect(client)
 
     async def read(self, db: int, start: int, count: int) -> bytearray:
         client = self._usable()
