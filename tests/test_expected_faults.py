@@ -371,3 +371,26 @@ async def test_a_bug_under_asyncua_s_client_still_logs_its_error_and_traceback(
     (bug,) = [r for r in caplog.records if "Exception calling subscription handler" in r.getMessage()]
     assert bug.levelno == logging.ERROR and bug.exc_info is not None and isinstance(bug.exc_info[1], KeyError)
     assert bug.name == "asyncua.common.subscription"
+
+
+async def test_a_plc_that_stalls_for_less_than_the_link_timeout_keeps_its_link(packtags_plc: PackTagsPLC) -> None:
+    """node-opcua's PLC frozen (SIGSTOP) for 2.5 s, then going on, under a link whose timeout is 5 s: the
+    link stays connected and never reconnects (asyncua's own health probe would give up after 1 s).
+    The make-test flake of 2026-11-28: a PLC link lost on a loaded machine."""
+    link = opcua_link.PlcLink(opcua_link.LinkOptions(packtags_plc.endpoint), timeout=5.0)
+    tag = "ns=1;s=Capper.PackTags.Status.StateCurrent"
+    states: list[bool] = []
+    await link.watch([tag], lambda _a, _v: None, states.append)
+    link.start()
+    try:
+        assert await link.wait_connected(30)
+        assert packtags_plc.proc is not None
+        packtags_plc.proc.send_signal(signal.SIGSTOP)
+        try:
+            await asyncio.sleep(2.5)  # the stall itself (the fault), not a wait for a result
+        finally:
+            packtags_plc.proc.send_signal(signal.SIGCONT)
+        assert isinstance(await link.read(tag), int)
+        assert link.connected and link.attempts == 0 and False not in states, (states, link.attempts)
+    finally:
+        await link.close()

@@ -350,11 +350,13 @@ class PlcLink(Listeners):
                     self._deliver(nid, value)
 
     async def _keepalive(self, client: Client) -> None:
-        """asyncua notices a dead server only when a request fails: ask every second."""
+        """A PLC that stops answering is noticed only when a request fails: ask every second, and
+        call it lost when it has not answered within the link's ``timeout``."""
         while not self._lost.is_set():
             await asyncio.sleep(1.0)
             try:
-                await asyncio.wait_for(client.get_node(ua.ObjectIds.Server_ServerStatus_State).read_value(), 2.0)
+                state = client.get_node(ua.ObjectIds.Server_ServerStatus_State).read_value()
+                await asyncio.wait_for(state, self.timeout)
             except Exception:
                 self._lost.set()
 
@@ -392,7 +394,10 @@ class PlcLink(Listeners):
 async def new_client(o: LinkOptions, timeout: float) -> Client:
     """An asyncua client for the PLC, its channel security and user set (not yet connected)."""
     quiet_client()
-    client = Client(o.endpoint, timeout=timeout)
+    # asyncua's own health probe (every ``watchdog_intervall``, which is also how long it waits for
+    # the answer; 1 s by default) would drop a PLC that pauses for just over a second, on a loaded
+    # host too: it gets the link's ``timeout``, the same tolerance as ``PlcLink._keepalive``.
+    client = Client(o.endpoint, timeout=timeout, watchdog_intervall=timeout)
     client.session_timeout = 30_000
     if o.security != "None":
         client.application_uri = _application_uri(o.certificate) or client.application_uri
