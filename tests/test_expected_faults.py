@@ -376,8 +376,9 @@ async def test_a_bug_under_asyncua_s_client_still_logs_its_error_and_traceback(
 async def test_a_plc_that_stalls_for_less_than_the_link_timeout_keeps_its_link(packtags_plc: PackTagsPLC) -> None:
     """node-opcua's PLC frozen (SIGSTOP) for 2.5 s, then going on, under a link whose timeout is 5 s: the
     link stays connected and never reconnects (asyncua's own health probe would give up after 1 s).
+    The timeout is the driver setting's (docs/equipment.md, ``timeout``).
     The make-test flake of 2026-11-28: a PLC link lost on a loaded machine."""
-    link = opcua_link.PlcLink(opcua_link.LinkOptions(packtags_plc.endpoint), timeout=5.0)
+    link = opcua_link.PlcLink(opcua_link.link_options("Capper", {"endpoint": packtags_plc.endpoint, "timeout": 5}))
     tag = "ns=1;s=Capper.PackTags.Status.StateCurrent"
     states: list[bool] = []
     await link.watch([tag], lambda _a, _v: None, states.append)

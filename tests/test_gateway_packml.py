@@ -386,6 +386,8 @@ def test_link_options_refuse_what_cannot_work(tmp_path: Path) -> None:
 
     ok: dict[str, Any] = {"endpoint": "opc.tcp://plc:4840/"}
     assert link_options("Capper", ok).mode == "subscribe"
+    assert link_options("Capper", ok).timeout == 2.0
+    assert link_options("Capper", ok | {"timeout": 10}).timeout == 10.0
     readable = tmp_path / "pw"
     readable.write_text("x")
     readable.chmod(0o644)
@@ -397,11 +399,27 @@ def test_link_options_refuse_what_cannot_work(tmp_path: Path) -> None:
         "readable": (ok | {"username": "u", "password_file": str(readable)}, "may be read by others"),
         "mode": (ok | {"mode": "push"}, 'Capper: mode: "subscribe" or "poll"'),
         "interval": (ok | {"interval": 0}, "Capper: interval"),
+        "timeout": (ok | {"timeout": 0.01}, "Capper: timeout: seconds between 0.1 and 60, not 0.01"),
+        "timeout type": (ok | {"timeout": "2"}, "Capper: timeout: seconds between 0.1 and 60, not '2'"),
+        "timeout bool": (ok | {"timeout": True}, "Capper: timeout: seconds between 0.1 and 60, not True"),
     }
     for name, (settings, message) in cases.items():
         with pytest.raises(ValueError, match=None) as info:
             link_options("Capper", settings)
         assert message in str(info.value), (name, str(info.value))
+
+
+def test_parts_that_give_a_plc_different_timeouts_get_connections_of_their_own() -> None:
+    """OPC UA links are shared per connection settings, ``timeout`` among them: the same (given or
+    default) shares one connection, another timeout is another connection with that timeout."""
+    from uacell.gateway.opcua_link import link_options, link_pool, shared_link
+
+    pool, endpoint = link_pool(), "opc.tcp://plc:4840/"
+    capper = shared_link(pool, link_options("Capper", {"endpoint": endpoint}), "Capper")
+    labeler = shared_link(pool, link_options("Labeler", {"endpoint": endpoint, "timeout": 2.0}), "Labeler")
+    filler = shared_link(pool, link_options("Filler", {"endpoint": endpoint, "timeout": 5}), "Filler")
+    assert labeler is capper and capper.timeout == 2.0
+    assert filler is not capper and filler.timeout == 5.0 and len(list(pool.values())) == 2
 
 
 async def test_the_plc_changes_its_unit_mode_and_alarms_by_itself(tmp_path: Path) -> None:

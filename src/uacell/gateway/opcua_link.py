@@ -47,7 +47,7 @@ MODES = ("Sign", "SignAndEncrypt")
 # the driver settings ``link_options`` reads
 LINK_SETTINGS = (
     "endpoint", "security", "certificate", "private_key", "username", "password_file", "password_env",
-    "mode", "interval", "publishing_interval",
+    "mode", "interval", "publishing_interval", "timeout",
 )  # fmt: skip
 
 
@@ -103,6 +103,8 @@ class LinkOptions:
     password: str = field(default="", repr=False)
     mode: str = "subscribe"  # or "poll"
     interval: float = 0.02  # seconds: the subscription's publishing interval, or the poll period
+    # seconds a request may take, and the PLC may leave the keep-alive unanswered before it is lost
+    timeout: float = 2.0
 
 
 def link_options(part: str, settings: Mapping[str, Any]) -> LinkOptions:
@@ -146,15 +148,20 @@ def link_options(part: str, settings: Mapping[str, Any]) -> LinkOptions:
     interval = settings.get("interval", settings.get("publishing_interval", default))
     if not isinstance(interval, int | float) or isinstance(interval, bool) or not 0.005 <= interval <= 60:
         raise ValueError(f"{part}: interval: seconds between 0.005 and 60, not {interval!r}")
-    return LinkOptions(endpoint, security, certificate, private_key, username, password, mode, float(interval))
+    timeout = settings.get("timeout", LinkOptions.timeout)
+    if not isinstance(timeout, int | float) or isinstance(timeout, bool) or not 0.1 <= timeout <= 60:
+        raise ValueError(f"{part}: timeout: seconds between 0.1 and 60, not {timeout!r}")
+    return LinkOptions(
+        endpoint, security, certificate, private_key, username, password, mode, float(interval), float(timeout)
+    )
 
 
 class PlcLink(Listeners):
-    def __init__(self, options: LinkOptions, timeout: float = 2.0) -> None:
+    def __init__(self, options: LinkOptions) -> None:
         super().__init__()
         self.options = options
         self.endpoint = options.endpoint
-        self.timeout = timeout
+        self.timeout = options.timeout
         self.users = 0
         self.log = log
         self._client: Client | None = None
