@@ -56,6 +56,11 @@ class PLC:
             assert time.monotonic() < deadline
         raise RuntimeError("the PLC did not start")
 
+    def new_client(self) -> Client:
+        """A client of the PLC's server for the test's own reads and writes. Its health probe gets 30 s,
+        not asyncua's 1 s: a read that waits behind a burst on a loaded machine must not drop it."""
+        return Client(self.endpoint, timeout=10, watchdog_intervall=30.0)
+
     def kill(self) -> None:
         if self.proc is not None:
             self.proc.kill()
@@ -89,7 +94,7 @@ async def plc() -> AsyncIterator[PLC]:
     p = PLC([F])
     p.start()
     try:
-        async with Client(p.endpoint, timeout=10) as client:
+        async with p.new_client() as client:
             p.client = client
             yield p
             p.client = None
@@ -224,7 +229,7 @@ async def test_fifty_units_on_one_plc_connection(tmp_path: Path) -> None:
         path.write_text(cell(p, units))
         config = fast_config(tmp_path / "data")
         config.cell = load_cell(path)
-        async with serving(config) as (_app, client), Client(p.endpoint, timeout=10) as plc_client:
+        async with serving(config) as (_app, client), p.new_client() as plc_client:
             p.client = plc_client
             from uacell.gateway.packml_opcua import POOL
 
@@ -256,7 +261,7 @@ async def test_node_opcua_runs_a_cycle_through_uacell_to_the_plc(tmp_path: Path)
         path.write_text(cell(p, ["Filler1"]))
         config = fast_config(tmp_path / "data")
         config.cell = load_cell(path)
-        async with serving(config) as (app, _client), Client(p.endpoint, timeout=10) as plc_client:
+        async with serving(config) as (app, _client), p.new_client() as plc_client:
             p.client = plc_client
             out = await asyncio.to_thread(run_node, "packml_start.js", app.endpoint)
             assert (out["reset"], out["start"], out["state"]) == ("Good", "Good", "Execute")
@@ -430,7 +435,7 @@ async def test_the_plc_changes_its_unit_mode_and_alarms_by_itself(tmp_path: Path
         path.write_text(cell(p, [F], ", alarms = 2"))
         config = fast_config(tmp_path / "data")
         config.cell = load_cell(path)
-        async with serving(config) as (_app, client), Client(p.endpoint, timeout=10) as plc_client:
+        async with serving(config) as (_app, client), p.new_client() as plc_client:
             await client.load_data_type_definitions()
             p.client = plc_client
             assert await read(client, f"{F}.Status.UnitModeCurrent") == 1
@@ -471,7 +476,7 @@ async def test_tags_by_browse_path(tmp_path: Path) -> None:
         path.write_text(text)
         config = fast_config(tmp_path / "data")
         config.cell = load_cell(path)
-        async with serving(config) as (_app, client), Client(p.endpoint, timeout=10) as plc_client:
+        async with serving(config) as (_app, client), p.new_client() as plc_client:
             p.client = plc_client
             await reset_and_start(client, params((1, 2.5)))
             assert await p.tag(F, "Sim.Parameters") == pytest.approx([2.5, 0.0, 0.0, 0.0, 0.0])

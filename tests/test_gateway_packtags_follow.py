@@ -43,7 +43,7 @@ async def opcua_plc() -> AsyncIterator[PlcUnderTest]:
     p = PLC([F])
     p.start()
     try:
-        async with Client(p.endpoint, timeout=10) as client:
+        async with p.new_client() as client:
             p.client = client
             types = {"Int32": ua.VariantType.Int32, "Float": ua.VariantType.Float, "Boolean": ua.VariantType.Boolean}
             tags = resolve(F, "x", parameters=5, alarms=4)

@@ -69,13 +69,11 @@ async def test_config_check_names_a_missing_alarm_and_the_unit_works_without_it(
     config.cell = load_cell(path)
     with caplog.at_level(logging.WARNING, logger="uacell.gateway.packml_plc"):
         async with serving(config) as (_app, client):
-            from asyncua import Client
-
             res = await call_path(client, MACH, "Reset")
             assert res.StatusCode.is_good(), res.StatusCode
             await until(lambda: cell_state(client, EXEC), "Idle")
             await client.load_data_type_definitions()
-            async with Client(plc.endpoint, timeout=10) as plc_client:
+            async with plc.new_client() as plc_client:
                 plc.client = plc_client
                 await plc.set(F, "Admin.Alarm[3].ID", 55, ua.VariantType.Int32)  # the other alarms still follow
 
