@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import functools
 import time
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,7 @@ from uacell.robotics.sim import SimulatedRobot
 
 COND = "Robot1.Controllers.Controller1.SystemOperation.Conditions.EmergencyStop"
 SO = "Robot1.Controllers.Controller1.SystemOperation.SystemOperationStateMachine"
+TC = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
 TIMEOUT = 30.0
 
 
@@ -215,3 +217,66 @@ async def test_node_opcua_comments_disables_and_enables_an_alarm(tmp_path):
         "enabledAfterEnable": True,
         "enableAgain": "BadConditionAlreadyEnabled",
     }
+
+
+async def test_executable_of_a_robot_condition_follows_the_condition(rig):
+    """Executable of a robot condition's methods changes with the condition: raised by the equipment
+    (outside any call), acknowledged, disabled. Waited for with the publisher alone (``settle`` would
+    re-evaluate every method): what the change itself touched."""
+    app, client = rig
+    cond = nid(app, COND)
+    names = ("Acknowledge", "AddComment", "Enable", "Disable")
+
+    async def executable() -> dict[str, bool]:
+        result = {}
+        for name in names:
+            dv = await client.get_node(app.dispatcher.method_of(cond, name)).read_attribute(ua.AttributeIds.Executable)
+            result[name] = dv.Value.Value
+        return result
+
+    quiet = {"Acknowledge": False, "AddComment": True, "Enable": False, "Disable": True}
+    assert await executable() == quiet
+    simulated_robot(app).raise_alarm("EmergencyStop")
+    await app.publisher.flush()
+    assert await executable() == {**quiet, "Acknowledge": True}
+    event_id = await client.get_node(nid(app, f"{COND}.EventId")).read_value()
+    comment = ua.Variant(ua.LocalizedText("seen"), ua.VariantType.LocalizedText)
+    res = await call(client, cond, app.dispatcher.method_of(cond, "Acknowledge"), ua.Variant(event_id), comment)
+    assert res.StatusCode.is_good(), res.StatusCode
+    await app.publisher.flush()
+    assert await executable() == quiet
+    simulated_robot(app).raise_alarm("EmergencyStop")
+    await app.publisher.flush()
+    engineer = await as_role(app, Role.ENGINEER)
+    try:
+        res = await call(engineer, cond, app.dispatcher.method_of(cond, "Disable"))
+        assert res.StatusCode.is_good(), res.StatusCode
+        await app.publisher.flush()
+        assert await executable() == {"Acknowledge": False, "AddComment": False, "Enable": True, "Disable": False}
+    finally:
+        await engineer.disconnect()
+
+
+async def test_a_task_control_call_leaves_executable_of_the_conditions_alone(rig):
+    """A program load changes the task control, not a condition: the conditions' methods are not
+    re-evaluated for it (their own scope), the task control's are."""
+    app, client = rig
+    evaluated: list[str] = []
+    for method_id, bound in app.dispatcher.methods.items():
+        if bound.executable is not None and str(method_id.Identifier).startswith("Robot1."):  # not the filler's
+            bound.executable = functools.partial(_counted, evaluated, bound.name, bound.executable)
+    await app.settle()
+    evaluated.clear()
+    tc = nid(app, TC)
+    res = await call(
+        client, tc, app.dispatcher.method_of(tc, "LoadByName"), ua.Variant("pick_and_place", ua.VariantType.String)
+    )
+    assert res.StatusCode.is_good() and res.OutputArguments[0].Value == 0, res
+    await app.publisher.flush()  # what the call changed, with Executable of the scopes it touched
+    assert "UnloadProgram" in evaluated and "Start" in evaluated
+    assert not {"Acknowledge", "AddComment", "Enable", "Disable"} & set(evaluated), evaluated
+
+
+def _counted(evaluated: list[str], name: str, executable: Any) -> bool:
+    evaluated.append(name)
+    return bool(executable())

@@ -56,8 +56,14 @@ class Conditions:
             path=f"{b.controller.path}.SystemOperation.Conditions",
         )
 
+        # Their Executable depends on the conditions alone: a scope of their own, refreshed after their
+        # calls and whenever a condition changes, not after every change of the controller (as PackML's).
         def bind(node: ua.NodeId, method: str, handler: Handler, executable: Any) -> None:
-            b.bind_method(node, method, Family.CONDITION, handler, executable, system.machine, b.controller.node)
+            b.bind_method(
+                node, method, Family.CONDITION, handler, executable, system.machine, b.controller.node, scope=system
+            )
+
+        system.condition_listeners.append(lambda _condition: b.app.dispatcher.touch(system))
 
         self.bound = ConditionNodes(b.app, system, place, bind)
         await self.bound.setup()

@@ -88,11 +88,15 @@ class ControllerBinding:
         executable: Callable[[], bool] | None,
         serialize_on: object,
         element: ua.NodeId,
+        scope: object | None = None,
     ) -> None:
+        """Bind a method of this controller; its Executable is re-evaluated with ``scope`` (by default
+        the controller's cell: whatever changes in it)."""
         d = self.app.dispatcher
         d.bind(
             obj, d.method_of(obj, name), family, handler,
-            executable=executable, serialize_on=serialize_on, element=element, scope=self.cell,
+            executable=executable, serialize_on=serialize_on, element=element,
+            scope=self.cell if scope is None else scope,
         )  # fmt: skip
 
     async def publish_stop_modes(
