@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import stream_sites
 from helpers import free_port
 
 from uacell.config import CACHE_DIR_ENV, Config
@@ -32,6 +33,9 @@ from uacell.server import UacellServer
 _TEST_CACHE = tempfile.mkdtemp(prefix="uacell-test-cache-")
 os.environ.setdefault(CACHE_DIR_ENV, _TEST_CACHE)
 atexit.register(shutil.rmtree, _TEST_CACHE, True)
+
+# A stream no test closed names the test and the code that opened it (tests/stream_sites.py).
+stream_sites.install()
 
 ROOT = Path(__file__).resolve().parents[1]
 INTEROP = ROOT / "interop"
