@@ -3,8 +3,12 @@
 
 from __future__ import annotations
 
+import asyncio
+from typing import Any
+
 import pytest
 
+from uacell.gateway.link import PolledLink
 from uacell.gateway.pool import SharedPool, unit_conflict
 from uacell.gateway.retry import keep_trying, poll_backoff
 
@@ -64,3 +68,44 @@ async def test_the_loop_backs_off_while_unanswered_and_starts_again_once_answere
     )
     assert waits == [0.05, 0.1, 0.2, 0.4, 0.8, 1.6, 0.05]
     assert poll_backoff(0.01) == 0.1 and poll_backoff(0.3) == 0.6 and poll_backoff(5.0) == 2.0
+
+
+class _SwallowingConn:
+    """A connection whose first connect finishes although its task was cancelled meanwhile, as a
+    connection made by ``asyncio.wait_for`` just when the task is cancelled does on Python 3.11."""
+
+    def __init__(self) -> None:
+        self.connected = False
+        self.connects = 0
+        self.entered = asyncio.Event()
+
+    async def connect(self) -> bool:
+        self.connects += 1
+        if self.connects == 1:
+            self.entered.set()
+            try:
+                await asyncio.sleep(30)
+            except asyncio.CancelledError:
+                pass  # the result was ready: the cancellation is lost
+        self.connected = True
+        return True
+
+
+class _Link(PolledLink):
+    def parse(self, address: str) -> str:
+        return address
+
+    async def _read(self, addresses: list[str]) -> list[Any]:
+        return [0 for _ in addresses]
+
+    async def _write(self, writes: list[tuple[str, Any, str]]) -> None:
+        pass
+
+
+async def test_closing_a_link_ends_its_task_when_a_cancellation_is_lost() -> None:
+    conn = _SwallowingConn()
+    link = _Link(conn, "test://plc", interval=0.01)
+    link.start()
+    await asyncio.wait_for(conn.entered.wait(), 5.0)
+    await asyncio.wait_for(link.close(), 6.0)
+    assert link._task is not None and link._task.done()  # no task left polling after the close

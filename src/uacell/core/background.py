@@ -46,6 +46,21 @@ class Background:
                 log.error("a background task had failed: %r", result)
 
 
+async def stop_task(task: asyncio.Task[Any] | None, within: float = 5.0) -> None:
+    """Cancel ``task`` until it has ended, waiting ``within`` seconds at most (a stop is never held up
+    longer by what the task waits on). The cancellation is repeated because one can be lost: Python
+    3.11's ``asyncio.wait_for`` returns a result that is ready when its task is cancelled (a connection
+    just made, for one), and the task carries on, e.g. to connect again after its owner closed the
+    connection, leaving a socket nobody closes."""
+    if task is None:
+        return
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + within
+    while not task.done() and (left := deadline - loop.time()) > 0:
+        task.cancel()
+        await asyncio.wait({task}, timeout=min(0.2, left))
+
+
 def eager(coro: Coroutine[Any, Any, T], context: contextvars.Context) -> asyncio.Task[T] | None:
     """Run ``coro`` now, in ``context``, up to its first wait; a task carries it on from there. None:
     it finished without waiting (what Python 3.12's eager tasks do; a task costs about as much as a

@@ -13,6 +13,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from typing import Any, Protocol
 
+from uacell.core.background import stop_task
 from uacell.gateway.errors import CommunicationError, NoAnswer
 from uacell.gateway.pool import SharedPool, unit_conflict
 from uacell.gateway.retry import keep_trying
@@ -268,9 +269,7 @@ class PolledLink(Listeners, ABC):
         await self._io(self._write(writes))
 
     async def close(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            await asyncio.wait({self._task}, timeout=5.0)
+        await stop_task(self._task)
 
     # -- the loop ---------------------------------------------------------------------------------
 

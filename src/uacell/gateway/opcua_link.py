@@ -28,6 +28,7 @@ from typing import Any
 
 from asyncua import Client, ua
 
+from uacell.core.background import stop_task
 from uacell.core.logs import exception_of, quiet_expected
 from uacell.core.secret_file import SecretError, read_secret
 from uacell.gateway.errors import CommunicationError
@@ -248,9 +249,7 @@ class PlcLink(Listeners):
             raise self._failed(exc) from None
 
     async def close(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            await asyncio.wait({self._task}, timeout=5.0)
+        await stop_task(self._task)
         await self._disconnect()
 
     # -- the connection ---------------------------------------------------------------------------

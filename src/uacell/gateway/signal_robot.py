@@ -14,6 +14,7 @@ from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from uacell.core.background import stop_task
 from uacell.core.errors import CallError
 from uacell.gateway.errors import CommunicationError
 from uacell.gateway.handshake import Write
@@ -418,9 +419,7 @@ class ModbusSignalsRobot:
     async def close(self) -> None:
         self._closed = True
         for task in [self._poller, *self._background]:
-            if task is not None:
-                task.cancel()
-                await asyncio.wait({task}, timeout=5.0)  # never held up by the transport
+            await stop_task(task)  # never held up by the transport
         await self.io.close()
 
 

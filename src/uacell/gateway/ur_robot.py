@@ -26,6 +26,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from uacell.core.background import stop_task
 from uacell.core.errors import CallError
 from uacell.gateway import DriverSettings
 from uacell.gateway.errors import CommunicationError, DashboardError
@@ -405,9 +406,7 @@ class URRobot:
     async def close(self) -> None:
         self._closed = True
         for task in [self._poller, *self._background]:
-            if task is not None:
-                task.cancel()
-                await asyncio.wait({task}, timeout=5.0)
+            await stop_task(task)  # never held up by the transport
         await self.dashboard.aclose()
         await SHARED.release(self.modbus)
 
