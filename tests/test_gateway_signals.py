@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from uacell.core.errors import CallError
@@ -68,7 +70,7 @@ def test_start_refused_names_what_is_missing(status: RobotStatus, needs: str) ->
 
 def test_timeout_fault_and_lost_connection_end_the_operation() -> None:
     op = SignalOp.start(READY, now=0.0, timeout=1.0, pulse_width=5.0)
-    with pytest.raises(CallError) as late:
+    with pytest.raises(CallError, match="running still False, not True, after 1 s") as late:
         op.observe(READY, 1.0)
     assert late.value.status == "BadTimeout"
     assert op.pulse_end(1.0) == (Write("start", False),)  # nothing left set after a timeout
@@ -92,9 +94,18 @@ def test_reset_waits_while_the_fault_is_still_set() -> None:
     assert op.observe(RobotStatus(remote_ready=True), 0.2) is True
     assert op.pulse_end(0.2) == (Write("reset", False),)
     still = SignalOp.reset(faulted, now=0.0, timeout=1.0, pulse_width=0.1)
-    with pytest.raises(CallError) as err:  # a controller that keeps its fault: the reset times out
+    with pytest.raises(CallError, match="fault still True") as err:  # a controller that keeps its fault: the reset times out
         still.observe(faulted, 1.0)
     assert err.value.status == "BadTimeout"
+
+
+def test_a_load_that_times_out_says_what_the_controller_shows() -> None:
+    op = SignalOp.load(7, READY, now=0.0, timeout=2.5, pulse_width=0.1)
+    assert op.observe(replace(READY, program_echo=3), 2.4) is False
+    with pytest.raises(CallError) as late:
+        op.observe(replace(READY, program_echo=3), 2.5)
+    assert late.value.status == "BadTimeout"
+    assert str(late.value).endswith("program_echo still 3, not 7, after 2.5 s"), str(late.value)
 
 
 def test_reset_after_the_fault_fell_is_a_plain_pulse() -> None:

@@ -9,7 +9,6 @@ feeds ``observe`` only status read after the writes completed.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 from uacell.core.errors import CallError
@@ -85,7 +84,7 @@ class SignalOp:
         name: str,
         writes: tuple[Write, ...],
         pulse_off: tuple[Write, ...],
-        confirmed: Callable[[RobotStatus], bool],
+        confirm: tuple[str, bool | int | str] | None,
         now: float,
         timeout: float,
         pulse_width: float,
@@ -95,7 +94,8 @@ class SignalOp:
         self.name = name
         self.writes = writes
         self._pulse_off = pulse_off
-        self._confirmed = confirmed
+        self._confirm = confirm  # (signal, value) the controller shows once it acted; None: nothing
+        self._timeout = timeout
         self._deadline = now + timeout
         self._pulse_until = now + pulse_width
         self._fault_ends = fault_ends
@@ -117,7 +117,7 @@ class SignalOp:
         if not status.connected:
             self.done = True
             raise CallError("BadCommunicationError", f"{self.name}: the robot controller connection was lost")
-        if self._confirmed(status):
+        if self._confirm is not None and getattr(status, self._confirm[0]) == self._confirm[1]:
             self.done = True
             return True
         if status.fault and self._fault_ends:
@@ -125,9 +125,14 @@ class SignalOp:
             raise CallError("BadInvalidState", f"{self.name}: the controller reports fault {status.fault_code}")
         if now >= self._deadline:
             self.done = True
-            if self._expires_ok:
+            if self._expires_ok or self._confirm is None:
                 return True
-            raise CallError("BadTimeout", f"{self.name}: the controller did not confirm in time")
+            signal, wanted = self._confirm
+            raise CallError(
+                "BadTimeout",
+                f"{self.name}: the controller did not confirm in time: {signal} still"
+                f" {getattr(status, signal)!r}, not {wanted!r}, after {self._timeout:g} s",
+            )
         return False
 
     @classmethod
@@ -151,7 +156,7 @@ class SignalOp:
             "load",
             (Write(tag, selection), Write("program_strobe", True)),
             (Write("program_strobe", False),),
-            lambda s: getattr(s, echo) == selection,
+            (echo, selection),
             now,
             timeout,
             pulse_width,
@@ -165,7 +170,7 @@ class SignalOp:
         if missing:
             raise CallError("BadInvalidState", "start needs " + ", ".join(missing))
         return cls(
-            "start", (Write("start", True),), (Write("start", False),), lambda s: s.running, now, timeout, pulse_width
+            "start", (Write("start", True),), (Write("start", False),), ("running", True), now, timeout, pulse_width
         )
 
     @classmethod
@@ -175,7 +180,7 @@ class SignalOp:
         if not status.running:
             raise CallError("BadInvalidState", "no program is running")
         return cls(
-            "stop", (Write("stop", True),), (Write("stop", False),), lambda s: not s.running, now, timeout, pulse_width
+            "stop", (Write("stop", True),), (Write("stop", False),), ("running", False), now, timeout, pulse_width
         )
 
     @classmethod
@@ -185,14 +190,14 @@ class SignalOp:
         _reachable(status)
         if not status.fault:
             return cls(
-                "reset", (Write("reset", True),), (Write("reset", False),), lambda s: False,
+                "reset", (Write("reset", True),), (Write("reset", False),), None,
                 now, pulse_width, pulse_width, fault_ends=False, expires_ok=True,
             )  # fmt: skip
         return cls(
             "reset",
             (Write("reset", True),),
             (Write("reset", False),),
-            lambda s: not s.fault,
+            ("fault", False),
             now,
             timeout,
             pulse_width,
@@ -207,7 +212,7 @@ class SignalOp:
             "drives on" if on else "drives off",
             (Write("drives_on", on),),
             (),
-            lambda s: s.drives_are_on == on,
+            ("drives_are_on", on),
             now,
             timeout,
             0.0,

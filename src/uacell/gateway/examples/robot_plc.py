@@ -47,7 +47,6 @@ class PLC:
         self.nodes: dict[str, Any] = {}
         self.ns = 0
         self._scan: asyncio.Task[None] | None = None
-        self.writes: list[str] = []  # the signals uacell wrote, in order
 
     async def start(self) -> None:
         server = Server()
