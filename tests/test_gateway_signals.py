@@ -94,7 +94,8 @@ def test_reset_waits_while_the_fault_is_still_set() -> None:
     assert op.observe(RobotStatus(remote_ready=True), 0.2) is True
     assert op.pulse_end(0.2) == (Write("reset", False),)
     still = SignalOp.reset(faulted, now=0.0, timeout=1.0, pulse_width=0.1)
-    with pytest.raises(CallError, match="fault still True") as err:  # a controller that keeps its fault: the reset times out
+    # a controller that keeps its fault: the reset times out
+    with pytest.raises(CallError, match="fault still True") as err:
         still.observe(faulted, 1.0)
     assert err.value.status == "BadTimeout"
 
