@@ -20,6 +20,8 @@ T = TypeVar("T")
 
 log = logging.getLogger(__name__)
 
+CLOSE_GRACE = 5.0  # seconds ``Background.close`` waits before it cancels a task again, and again before it gives up
+
 
 class Background:
     """Spawn coroutines with ``spawn``; ``close`` cancels every one still running and waits for them."""
@@ -37,13 +39,32 @@ class Background:
         task.add_done_callback(self.tasks.discard)
         return task
 
-    async def close(self) -> None:
+    async def close(self, grace: float = CLOSE_GRACE) -> None:
+        """Cancel every task and wait for them to end. A task still running ``grace`` seconds after its
+        cancellation is cancelled again (one can be lost, see ``stop_task``), and one still running
+        ``grace`` seconds after that is named in an ERROR and left: a close is never held up for
+        ever. The grace leaves a task's own clean-up (a pulse written back low) time to finish
+        before it is interrupted."""
         tasks = list(self.tasks)
         for task in tasks:
             task.cancel()
-        for result in await asyncio.gather(*tasks, return_exceptions=True):
-            if isinstance(result, Exception):
-                log.error("a background task had failed: %r", result)
+        pending: set[asyncio.Task[Any]] = set(tasks)
+        for last in (False, True):
+            if not pending:
+                break
+            _done, pending = await asyncio.wait(pending, timeout=grace)
+            for task in pending:
+                name = task.get_name()
+                if last:
+                    log.error("background task %s did not end after two cancellations: left running", name)
+                else:
+                    log.warning(
+                        "background task %s still runs %g s after its cancellation: cancelled again", name, grace
+                    )
+                    task.cancel()
+        for task in tasks:
+            if task.done() and not task.cancelled() and isinstance(task.exception(), Exception):
+                log.error("a background task had failed: %r", task.exception())
 
 
 async def stop_task(task: asyncio.Task[Any] | None, within: float = 5.0) -> None:
