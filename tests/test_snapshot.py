@@ -23,6 +23,8 @@ from asyncua.server.address_space import AttributeValue, NodeData
 from conftest import fast_config, start_app
 from helpers import free_port, models_copy, official
 
+import uacell.server
+from uacell.core import forked
 from uacell.machinery.binding import MACHINES
 from uacell.packml.binding import UNITS
 from uacell.ua import snapshot
@@ -392,7 +394,15 @@ def _snapshots(cache: Path) -> list[Path]:
     return sorted(cache.glob(f"{snapshot.PREFIX}*{snapshot.SUFFIX}"))
 
 
-async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(tmp_path: Path) -> None:
+@pytest.mark.parametrize("writer", ["forked", "thread"])
+async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(
+    tmp_path: Path, writer: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Written by a forked child where the platform has fork, else by a thread (the same file)."""
+    if writer == "thread":
+        monkeypatch.setattr(uacell.server, "forking", lambda: False)
+    elif not forked.forking():
+        pytest.skip("the platform has no fork")
     cache = tmp_path / "cache"
     first = await _start(tmp_path, cache)
     try:

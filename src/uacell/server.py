@@ -23,6 +23,7 @@ from uacell.catalog import companions as catalog_companions
 from uacell.config import Config, default_application_uri
 from uacell.core.companion import Binder, Closer, Companion, datasets_of, models_of, shape_function, shapes_digest
 from uacell.core.file_store import HandlePool
+from uacell.core.forked import forking, run_forked
 from uacell.core.logs import configured_levels
 from uacell.core.registry import Registries, Registry, RegistryKey, T
 from uacell.core.rights import RoleTable
@@ -42,9 +43,9 @@ from uacell.services.observers import install_audit
 from uacell.ua import door
 from uacell.ua.event_tap import EventTap
 from uacell.ua.limits import DecodingStage, admit, guard_bytes, install_limits, publish_operation_limits
-from uacell.ua.nodesets import SnapshotJob, init_address_space
+from uacell.ua.nodesets import WRITE_SHARE, SnapshotJob, init_address_space
 from uacell.ua.pipeline import ContextStage, Pipeline, PublishedStage
-from uacell.ua.snapshot import WriteCancelled
+from uacell.ua.snapshot import Cancel, WriteCancelled, prune
 
 if TYPE_CHECKING:  # imported when [metrics] or [pubsub] is on (prometheus-client, aiomqtt)
     from uacell.pubsub.service import PubSubService
@@ -272,7 +273,7 @@ class UacellServer:
         if self._snapshot_job is not None:  # first start: write the snapshot for the next ones
             # The cell's bookkeeping as the binders left it (types they looked up included).
             extras = {**self.cell.extras(), "fsm_tables": self.tables.made()}
-            write = functools.partial(self._snapshot_job, extras, self._snapshot_cancel)
+            write = functools.partial(self._snapshot_job, extras)
             self._snapshot_task = asyncio.get_running_loop().create_task(self._write_snapshot(write))
             self._snapshot_job = None
         await self.dispatcher.refresh_executable()
@@ -309,13 +310,23 @@ class UacellServer:
             self.discovery_registration = DiscoveryRegistration(self.config.discovery, registrant)
             self.discovery_registration.start()
 
-    async def _write_snapshot(self, job: Callable[[], None]) -> None:
+    async def _write_snapshot(self, job: Callable[[Cancel, float], tuple[Path, int]]) -> None:
+        """Written beside the serving event loop: by a forked child where the platform has fork, so
+        that the loop keeps the interpreter (``uacell.core.forked``), else by a thread taking
+        ``WRITE_SHARE`` of it."""
+        cancel = self._snapshot_cancel
         try:
-            await asyncio.to_thread(job)
+            if forking():
+                path, count = await run_forked(lambda cancelled: job(cancelled, 1.0), cancel)
+            else:
+                path, count = await asyncio.to_thread(job, cancel, WRITE_SHARE)
         except WriteCancelled:
             log.info("the address-space snapshot was not written: the server stopped first")
         except Exception as e:  # a cache: the server runs on without it
             log.warning("could not write the address-space snapshot: %s", e)
+        else:
+            prune(path.parent)
+            log.info("wrote the address-space snapshot %s (%d nodes)", path, count)
 
     async def snapshot_written(self) -> None:
         """Wait until the snapshot this start writes (if any) is on disk, or given up."""

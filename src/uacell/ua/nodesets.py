@@ -8,7 +8,6 @@ them: the loader leaves them, everything below them and every reference to them 
 from __future__ import annotations
 
 import logging
-import threading
 import xml.etree.ElementTree as ET
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -76,11 +75,14 @@ async def load_models(server: Server, models: Sequence[ModelFile], models_dir: s
     return indexes
 
 
-SnapshotJob = Callable[[dict[str, Any], threading.Event], None]
-"""Writes the snapshot with the given extras; stops early when the event is set."""
+SnapshotJob = Callable[[dict[str, Any], snapshot.Cancel, float], tuple[Path, int]]
+"""Writes the snapshot with the given extras, taking the given share of the interpreter
+(``snapshot.write_snapshot``); stops early when asked to (WriteCancelled). Returns the file written
+and its number of nodes."""
 
-# The writing thread's share of the interpreter while the server runs beside it (the rest is the
-# event loop's): the first start serves at once, the snapshot takes a little longer.
+# A writing thread's share of the interpreter while the server runs beside it (the rest is the
+# event loop's): the first start serves at once, the snapshot takes a little longer. A forked
+# writer (``uacell.core.forked``, where the platform has fork) has the interpreter to itself.
 WRITE_SHARE = 0.5
 
 
@@ -261,12 +263,11 @@ async def init_address_space(
         namespaces = list((await server.get_namespace_array())[2:])
         made = data_types.registered(nodes)
 
-        def write(extras: dict[str, Any], cancel: threading.Event) -> None:
+        def write(extras: dict[str, Any], cancel: snapshot.Cancel, share: float) -> tuple[Path, int]:
             every = copy + rest() if rest is not None else copy
             kept = {**extras, "data_types": made}
-            snapshot.write_snapshot(target, key, namespaces, every, kept, cancel, WRITE_SHARE)
-            snapshot.prune(target.parent)
-            log.info("wrote the address-space snapshot %s (%d nodes)", target, len(every))
+            snapshot.write_snapshot(target, key, namespaces, every, kept, cancel, share)
+            return target, len(every)
 
         return write
 

@@ -43,14 +43,13 @@ import pickle
 import platform
 import struct
 import tempfile
-import threading
 import time
 import zlib
 from collections.abc import Callable, Iterator, Mapping, MutableMapping
 from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from asyncua import ua
 from asyncua.server.address_space import AttributeValue, NodeData
@@ -366,6 +365,13 @@ def share_equal_values(nodes: list[NodeData]) -> None:
             refs[i] = seen.setdefault(_reference_key(ref), ref)
 
 
+class Cancel(Protocol):
+    """What ``write_snapshot`` asks between chunks: a ``threading.Event``, or a forked writer's
+    ``uacell.core.forked.Cancelled``."""
+
+    def is_set(self) -> bool: ...
+
+
 class WriteCancelled(Exception):
     """``write_snapshot`` was asked to stop; nothing was written."""
 
@@ -376,7 +382,7 @@ def write_snapshot(
     namespaces: list[str],
     nodes: list[tuple[ua.NodeId, NodeData]],
     extras: Mapping[str, Any] | None = None,
-    cancel: threading.Event | None = None,
+    cancel: Cancel | None = None,
     share: float = 1.0,
 ) -> None:
     """Write ``nodes`` (from ``stripped_copy``) as the snapshot at ``path``, atomically, owner-only.
