@@ -362,7 +362,7 @@ def served(peers: Peers, name: str, cell_text: str) -> Iterator[Peer]:
     cmd += ["--data-dir", str(peers.tmp / f"{name}-data"), "--cache-dir", str(peers.tmp / f"{name}-cache")]
     server = Peer(f"uacell {name} cell", cmd, port=port).start()
     try:
-        # a first start writes its address-space snapshot in a thread beside the loop: measure after it
+        # a first start writes its address-space snapshot beside the loop (a forked child): measure after it
         from uacell.ua.snapshot import PREFIX, SUFFIX
 
         deadline = time.monotonic() + 60

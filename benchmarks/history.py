@@ -97,7 +97,7 @@ async def _server(data: Path, **history: Any) -> Any:
     app = UacellServer(config)
     await app.setup()
     await app.start()
-    await app.snapshot_written()  # its CPU (a thread, after a first start) is not history's
+    await app.snapshot_written()  # its CPU (a forked child, after a first start) is not history's
     return app
 
 
