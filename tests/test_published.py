@@ -145,3 +145,34 @@ async def test_a_call_is_answered_first_and_a_read_after_it_sees_what_it_changed
         unload = ua.NodeId(f"{TC}.UnloadProgram", ns)
         assert (await raw_call(client, ua.NodeId(TC, ns), unload)).OutputArguments[0].Value == 0
         assert (await client.get_node(state).read_value()).Text == "Idle"
+
+
+async def test_a_0_ms_subscription_gets_what_one_call_changed_in_one_message(tmp_path: Path) -> None:
+    """asyncua publishes a 0 ms subscription at the first change of each monitored item: the first of a
+    call's changes went alone, the rest in a second message. uacell publishes once per event-loop
+    turn (door/publishing.py): one NotificationMessage, after the answer."""
+    names = ("CurrentState", "CurrentState.Id", "LastTransition", "LastTransition.Id")
+    async with serving(fast_config(tmp_path / "data")) as (_app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        seen: list[tuple[int, str]] = []  # (the message's sequence number, the variable)
+        by_node = {ua.NodeId(f"{TC}.{name}", ns): name for name in names}
+
+        class Handler:
+            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+                seen.append((subscription.last_sequence_number, by_node[node.nodeid]))
+
+        subscription = await client.create_subscription(0, Handler())
+        await subscription.subscribe_data_change([client.get_node(n) for n in by_node], sampling_interval=0)
+        await wait_until(lambda: len(seen) == len(names))  # the initial values
+        seen.clear()
+        load = ua.NodeId(f"{TC}.LoadByName", ns)
+        result = await raw_call(client, ua.NodeId(TC, ns), load, ua.Variant("pick_and_place", ua.VariantType.String))
+        assert result.StatusCode.is_good() and result.OutputArguments[0].Value == 0
+        await wait_until(lambda: len(seen) == len(names), timeout=10)
+        assert sorted(name for _, name in seen) == sorted(names)
+        assert len({seq for seq, _ in seen}) == 1, seen  # one message
+        unload = ua.NodeId(f"{TC}.UnloadProgram", ns)
+        assert (await raw_call(client, ua.NodeId(TC, ns), unload)).OutputArguments[0].Value == 0
+        await wait_until(lambda: len(seen) == 2 * len(names), timeout=10)
+        assert len({seq for seq, _ in seen[len(names) :]}) == 1, seen
+        await subscription.delete()

@@ -53,6 +53,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry(f"{_S}.call", Kind.PATCH, "uacell.ua.pipeline", "the session known while its calls run (ua/context.py)", "(wrapped, not changed)"),
     Entry(f"{_S}.read", Kind.PATCH, "uacell.ua.pipeline", "read hooks: role-dependent values (security/policy.py)", "(wrapped, not changed)"),
     Entry(f"{_S}.history_read", Kind.PATCH, "uacell.ua.pipeline", "the session known while history is read", "(wrapped, not changed)"),
+    Entry("asyncua.server.internal_subscription.InternalSubscription._trigger_publish", Kind.PATCH, "uacell.ua.pipeline", "a client's 0 ms subscription publishes once per event-loop turn, every change of the turn in one NotificationMessage (door/publishing.py)", "publishes at the first queued change of each monitored item"),
     Entry(f"{_T}.messages", Kind.SWAP, "uacell.ua.pipeline", "collects what asyncua parses from one read, to run it at once", "its queue, for the duration of one parse"),
     # --- one server's parts ------------------------------------------------------------------------
     Entry(f"{_I}.method_service", Kind.SWAP, "uacell.binding.dispatch", "the one method dispatcher", "MethodService: calls the callback with no argument checks or roles"),
