@@ -4,6 +4,7 @@ in the parent, a cancellation seen or enforced, nothing of the parent's left ope
 from __future__ import annotations
 
 import asyncio
+import errno
 import os
 import socket
 import threading
@@ -14,7 +15,7 @@ import pytest
 from helpers import wait_until
 
 from uacell.core import forked
-from uacell.core.forked import Cancelled, run_forked
+from uacell.core.forked import Cancelled, ForkFailed, run_forked
 from uacell.ua.snapshot import WriteCancelled
 
 pytestmark = pytest.mark.skipif(not forked.forking(), reason="the platform has no fork")
@@ -119,3 +120,15 @@ async def test_a_cancelled_caller_kills_the_child(tmp_path: Path) -> None:
         await asyncio.wait_for(task, 10)
     with pytest.raises(ProcessLookupError):  # killed and reaped: no such process any more
         os.kill(child, 0)
+
+
+async def test_a_fork_that_fails_says_so_and_leaves_no_pipe_open(monkeypatch: pytest.MonkeyPatch) -> None:
+    def no_memory() -> int:
+        raise OSError(errno.ENOMEM, "Cannot allocate memory")
+
+    before = set(os.listdir("/proc/self/fd"))
+    monkeypatch.setattr(os, "fork", no_memory)
+    with pytest.raises(ForkFailed) as failed:
+        await run_forked(lambda cancelled: None, threading.Event())
+    assert failed.value.errno == errno.ENOMEM and "cannot fork" in str(failed.value)
+    assert set(os.listdir("/proc/self/fd")) == before

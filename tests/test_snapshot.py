@@ -8,6 +8,7 @@ from one. Here: the file format's guarantees, and the server's choice between sn
 from __future__ import annotations
 
 import dataclasses
+import errno
 import functools
 import logging
 import os
@@ -394,15 +395,22 @@ def _snapshots(cache: Path) -> list[Path]:
     return sorted(cache.glob(f"{snapshot.PREFIX}*{snapshot.SUFFIX}"))
 
 
-@pytest.mark.parametrize("writer", ["forked", "thread"])
+@pytest.mark.parametrize("writer", ["forked", "thread", "fork fails"])
 async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(
     tmp_path: Path, writer: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Written by a forked child where the platform has fork, else by a thread (the same file)."""
+    """Written by a forked child where the platform has fork, else, or when the fork fails, by a
+    thread (the same file)."""
     if writer == "thread":
         monkeypatch.setattr(uacell.server, "forking", lambda: False)
     elif not forked.forking():
         pytest.skip("the platform has no fork")
+    elif writer == "fork fails":
+
+        def no_memory() -> int:
+            raise OSError(errno.ENOMEM, "Cannot allocate memory")
+
+        monkeypatch.setattr(os, "fork", no_memory)
     cache = tmp_path / "cache"
     first = await _start(tmp_path, cache)
     try:

@@ -23,7 +23,7 @@ from uacell.catalog import companions as catalog_companions
 from uacell.config import Config, default_application_uri
 from uacell.core.companion import Binder, Closer, Companion, datasets_of, models_of, shape_function, shapes_digest
 from uacell.core.file_store import HandlePool
-from uacell.core.forked import forking, run_forked
+from uacell.core.forked import ForkFailed, forking, run_forked
 from uacell.core.logs import configured_levels
 from uacell.core.registry import Registries, Registry, RegistryKey, T
 from uacell.core.rights import RoleTable
@@ -312,21 +312,25 @@ class UacellServer:
 
     async def _write_snapshot(self, job: Callable[[Cancel, float], tuple[Path, int]]) -> None:
         """Written beside the serving event loop: by a forked child where the platform has fork, so
-        that the loop keeps the interpreter (``uacell.core.forked``), else by a thread taking
-        ``WRITE_SHARE`` of it."""
+        that the loop keeps the interpreter (``uacell.core.forked``), else (or when the fork fails) by
+        a thread taking ``WRITE_SHARE`` of it."""
         cancel = self._snapshot_cancel
+        written: tuple[Path, int] | None = None
         try:
             if forking():
-                path, count = await run_forked(lambda cancelled: job(cancelled, 1.0), cancel)
-            else:
-                path, count = await asyncio.to_thread(job, cancel, WRITE_SHARE)
+                try:
+                    written = await run_forked(lambda cancelled: job(cancelled, 1.0), cancel)
+                except ForkFailed as e:
+                    log.info("the address-space snapshot is written by a thread (%s)", e.strerror)
+            if written is None:
+                written = await asyncio.to_thread(job, cancel, WRITE_SHARE)
         except WriteCancelled:
             log.info("the address-space snapshot was not written: the server stopped first")
         except Exception as e:  # a cache: the server runs on without it
             log.warning("could not write the address-space snapshot: %s", e)
         else:
-            prune(path.parent)
-            log.info("wrote the address-space snapshot %s (%d nodes)", path, count)
+            prune(written[0].parent)
+            log.info("wrote the address-space snapshot %s (%d nodes)", *written)
 
     async def snapshot_written(self) -> None:
         """Wait until the snapshot this start writes (if any) is on disk, or given up."""

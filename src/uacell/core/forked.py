@@ -15,7 +15,7 @@ with its text).
 (or went away). A child still running ``KILL_AFTER`` seconds after that is killed.
 
 ``forking()`` says whether this platform can (POSIX with ``os.fork``); callers fall back to a thread
-where it cannot.
+where it cannot, and when the fork itself fails (``ForkFailed``).
 """
 
 from __future__ import annotations
@@ -39,6 +39,11 @@ KILL_AFTER = 5.0  # seconds a cancelled child may take to stop before it is kill
 NICE = 10  # the child's priority below the server's
 _POLL = 0.05  # seconds between the parent's looks at ``cancel``
 _MAX_RESULT = 1 << 16  # bytes of a pickled result or exception the child sends back at most
+
+
+class ForkFailed(OSError):
+    """The fork itself failed (no memory for the child's page tables under strict overcommit, a
+    process limit): the caller may do the work another way."""
 
 
 class Cancelled:
@@ -65,9 +70,11 @@ async def run_forked(job: Callable[[Cancelled], T], cancel: threading.Event) -> 
         with warnings.catch_warnings():  # Python 3.12 warns of fork in a threaded process; see the module doc
             warnings.simplefilter("ignore", DeprecationWarning)
             pid = os.fork()
-    except BaseException:
+    except BaseException as exc:
         for fd in (stop_r, stop_w, result_r, result_w):
             os.close(fd)
+        if isinstance(exc, OSError):
+            raise ForkFailed(exc.errno, f"cannot fork: {exc.strerror or exc}") from exc
         raise
     if pid == 0:  # pragma: no cover - the child's coverage is not collected (it never returns)
         _child(job, stop_r, result_w)
