@@ -357,11 +357,12 @@ def test_discard_removes_the_snapshot_and_leftovers_of_a_crash(tmp_path: Path) -
 # --- servers ---------------------------------------------------------------------------------
 
 
-async def _start(tmp_path: Path, cache: Path | None, enabled: bool = True):
+async def _start(tmp_path: Path, cache: Path | None, enabled: bool = True, fork: bool = True):
     """The demo cell with the models from the NodeSet files (a models directory without their snapshot)."""
     config = fast_config(tmp_path / "data")
     config.server.cache_dir = cache
     config.server.address_space_cache = enabled
+    config.server.snapshot_fork = fork
     models = tmp_path / "models"
     config.server.models_dir = str(models) if models.exists() else models_copy(models)
     return await start_app(config)
@@ -395,7 +396,7 @@ def _snapshots(cache: Path) -> list[Path]:
     return sorted(cache.glob(f"{snapshot.PREFIX}*{snapshot.SUFFIX}"))
 
 
-@pytest.mark.parametrize("writer", ["forked", "thread", "fork fails"])
+@pytest.mark.parametrize("writer", ["forked", "thread", "fork fails", "configured thread"])
 async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(
     tmp_path: Path, writer: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -403,6 +404,8 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(
     thread (the same file)."""
     if writer == "thread":
         monkeypatch.setattr(uacell.server, "forking", lambda: False)
+    elif writer == "configured thread":
+        monkeypatch.setattr(uacell.server, "run_forked", None)  # a fork would fail the test
     elif not forked.forking():
         pytest.skip("the platform has no fork")
     elif writer == "fork fails":
@@ -412,7 +415,7 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(
 
         monkeypatch.setattr(os, "fork", no_memory)
     cache = tmp_path / "cache"
-    first = await _start(tmp_path, cache)
+    first = await _start(tmp_path, cache, fork=writer != "configured thread")
     try:
         assert first.address_space_source == "nodesets"
         await first.snapshot_written()

@@ -85,6 +85,7 @@ class ServerConfig:
     rejected_max_age_days: float = 30.0
     address_space_cache: bool = True
     cache_dir: Path | None = field(default_factory=lambda: _env_path(CACHE_DIR_ENV))  # None: <data_dir>/cache
+    snapshot_fork: bool = True  # the snapshot written by a forked child (else a thread): docs/configuration.md
     event_loop: str = "auto"  # auto (uvloop where installed), uvloop, asyncio; $UACELL_EVENT_LOOP overrides
 
     @property

@@ -317,7 +317,7 @@ class UacellServer:
         cancel = self._snapshot_cancel
         written: tuple[Path, int] | None = None
         try:
-            if forking():
+            if forking() and self.config.server.snapshot_fork:
                 try:
                     written = await run_forked(lambda cancelled: job(cancelled, 1.0), cancel)
                 except ForkFailed as e:
