@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 
 import pytest
-from helpers import FakeClock, packml_tables
+from helpers import FakeClock, packml_tables, wait_until
 
 from uacell.packml import PackMLDescriptorDataType, PackMLUnit, SimulatedUnit
+from uacell.packml.equipment import EquipmentBase
 from uacell.packml.model import run_units
 
 
@@ -186,3 +188,77 @@ def test_timers_across_mode_changes() -> None:
     advance(unit, clock, 1.0)
     assert a.state_current_time[3][2] == 1 and a.state_cumulative_time[3][7] == 0  # Stopping took 0.5 s
     assert a.mode_current_time[3] == 3 and a.acc_time_since_reset == 9
+
+
+def _seen(unit: PackMLUnit) -> tuple[object, ...]:
+    a = unit.admin
+    return (
+        unit.state, a.acc_time_since_reset, a.state_current_time, a.state_cumulative_time, a.mode_cumulative_time,
+        a.prod_processed_count[0].count, unit.status.cur_mach_speed,
+    )  # fmt: skip
+
+
+def test_a_waiting_unit_skips_the_ticks_that_would_change_nothing() -> None:
+    """``run_units`` skips a unit until its ``quiet_until``: the same states, times and counts at
+    every step as a unit ticked at every step, with about three ticks a second while it waits."""
+    every, _sim, every_clock = sim_unit(acting_time=0.35)
+    quiet, _sim2, quiet_clock = sim_unit(acting_time=0.35)
+    ticks = {"every": 0, "quiet": 0}
+
+    def run(seconds: float, step: float = 0.1) -> None:
+        end = every_clock.now + seconds
+        while every_clock.now < end - 1e-9:
+            every_clock.now = quiet_clock.now = min(end, every_clock.now + step)
+            every.tick()
+            ticks["every"] += 1
+            if quiet.quiet_until <= quiet.now():  # run_units' rule
+                quiet.tick()
+                ticks["quiet"] += 1
+            assert _seen(quiet) == _seen(every), every_clock.now
+
+    def both(command: str, *args: object) -> None:
+        getattr(every, command)(*args)
+        getattr(quiet, command)(*args)
+
+    run(0.05)
+    both("reset_machine")
+    run(1.0)
+    assert quiet.state == "Idle"
+    ticks.update(every=0, quiet=0)
+    run(20.0)  # waiting in Idle
+    assert ticks["every"] == 200 and ticks["quiet"] <= 80, ticks
+    both("start")
+    run(10.0)  # Starting, then producing in Execute: every tick
+    assert quiet.state == "Execute" and quiet.admin.prod_processed_count[0].count == 19
+    both("set_mach_speed", 60.0)
+    run(5.0)
+    both("stop")
+    run(3.0)
+    assert quiet.state == "Stopped"
+
+
+@pytest.mark.asyncio
+async def test_run_units_ticks_only_the_units_with_something_due() -> None:
+    clock = FakeClock(10.0)  # never moves: a waiting unit's next whole second never comes
+    waiting = PackMLUnit(SimulatedUnit(acting_time=0.0), tables=packml_tables(), name="Waiting", clock=clock)
+    plain = PackMLUnit(EquipmentBase(), tables=packml_tables(), name="Plain", clock=clock)  # says nothing
+    ticks = {"Waiting": 0, "Plain": 0}
+    for unit in (waiting, plain):
+        original = unit.tick
+
+        def counted(unit: PackMLUnit = unit, original: object = original) -> None:
+            ticks[unit.name] += 1
+            original()  # type: ignore[operator]
+
+        unit.tick = counted  # type: ignore[method-assign]
+    task = asyncio.create_task(run_units([waiting, plain], period=0.001))
+    try:
+        await wait_until(lambda: ticks["Plain"] >= 30)
+        assert ticks["Waiting"] == 1  # its first tick said: nothing before the next whole second
+        waiting.reset_machine()  # an operation: ticked at the next round (Resetting ends at once)
+        await wait_until(lambda: waiting.state == "Idle", timeout=10)
+        assert ticks["Waiting"] >= 2
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task

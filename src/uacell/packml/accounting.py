@@ -9,6 +9,7 @@ with roll-over, OPC 30050 §6.3.4) only when one of them passed a whole second.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Mapping
 from datetime import datetime
 from typing import Any
@@ -77,6 +78,12 @@ class AdminAccounting:
         a.state_cumulative_time = [[i32(x) for x in row] for row in self.state_cum]
         a.acc_time_since_reset = i32(self.acc)
         return True
+
+    def next_change(self, mode: int, state_number: int) -> float:
+        """When (on the unit's clock) one of the Admin times ``account`` shows next passes a whole
+        second, the mode and state staying as they are."""
+        moving = (self.mode_cur, self.state_cur, self.mode_cum[mode], self.state_cum[mode][state_number], self.acc)
+        return self.last + min(math.floor(x) + 1 - x for x in moving)
 
     def new_mode(self) -> None:
         """The unit mode changed: the current mode's and state's times start again."""

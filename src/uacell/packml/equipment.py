@@ -247,3 +247,15 @@ class NamedConditions(Protocol):
 
     @property
     def condition_names(self) -> Sequence[str]: ...
+
+
+@runtime_checkable
+class PollHint(Protocol):
+    """Equipment that says when it next needs ``poll``: the unit's ticks skip it until then, or until
+    its Admin times pass a whole second or a save is due (a waiting simulated unit is ticked about
+    three times a second instead of ten). Without it, equipment is polled at every tick."""
+
+    def next_poll(self, now: float) -> float:
+        """The unit-clock time of the next ``poll`` this equipment needs (``now``: at once; ``math.inf``:
+        none until the unit tells it something, which always ends the skipping)."""
+        ...

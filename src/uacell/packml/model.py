@@ -32,7 +32,7 @@ from uacell.models.tables import TransitionInfo
 from uacell.packml.accounting import DURABLE_KEYS, DURABLE_TIMES, AdminAccounting
 from uacell.packml.admin_store import AdminStore
 from uacell.packml.data import INT32_WRAP, PACKAGES, STATE_COLUMNS, Admin, Status
-from uacell.packml.equipment import EquipmentBase, NamedConditions, PackMLEquipment
+from uacell.packml.equipment import EquipmentBase, NamedConditions, PackMLEquipment, PollHint
 from uacell.packml.equipment_side import EquipmentSide
 from uacell.packml.oee import OEE
 from uacell.packml.publishing import (
@@ -181,6 +181,7 @@ class PackMLUnit(UnitView, EquipmentSide, UnitMethods):
         # <unit>/Conditions (decision 45); PackML's own alarms stay Admin.Alarm and Admin.Warning
         self.conditions = ConditionSet(equipment.condition_names if has(equipment, NamedConditions) else ())
         self._depth = 0
+        self.quiet_until = 0.0  # unit-clock time before which a tick would change nothing (run_units skips it)
         self._pending: list[str | None] = []
         # The acting state a command entered and that command's context: the state's completion runs
         # in it, so its AuditUpdateStateEvent names the caller (decision 38).
@@ -320,6 +321,7 @@ class PackMLUnit(UnitView, EquipmentSide, UnitMethods):
         return self.accounting.to_json(self.name, self._wall().isoformat())
 
     def _stored(self, durable: dict[str, Any], error: OSError | None) -> None:
+        self.quiet_until = 0.0  # what is stored moved: a save or a publication may be due
         if self.saving.stored(durable, error):
             self.publishing.change((DURABLE,))
         if self._depth == 0 and not self.saving.publishing and self.publishing.due:
@@ -347,6 +349,19 @@ class PackMLUnit(UnitView, EquipmentSide, UnitMethods):
             if self.saving.save_due(self.save_interval):
                 self._account()
                 self.save()
+        self.quiet_until = self._next_tick()
+
+    def _next_tick(self) -> float:
+        """Until when (on the unit's clock) a tick would change nothing, so ``run_units`` may skip the
+        unit: the poll its equipment asks for next (``next_poll``; equipment without it is polled at
+        every tick), the next whole second of an Admin time, the next save due."""
+        now = self._clock()
+        poll = self.equipment.next_poll(now) if has(self.equipment, PollHint) else now
+        if poll <= now:
+            return now
+        sm = self.innermost()
+        times = self.accounting.next_change(self.status.unit_mode_current, sm.table.states[sm.current].number)
+        return min(poll, times, self.saving.next_save(self.save_interval))
 
     def close(self) -> None:
         """Shut down: account time, save, tell the equipment."""
@@ -376,6 +391,7 @@ class PackMLUnit(UnitView, EquipmentSide, UnitMethods):
         finally:
             self._depth -= 1
             if self._depth == 0:
+                self.quiet_until = 0.0  # something may be due at once: the next round ticks (tick sets it after)
                 while self._pending:
                     state = self._pending.pop(0)
                     self._depth += 1
@@ -493,6 +509,8 @@ async def run_units(units: Sequence[PackMLUnit], period: float = 0.1) -> None:
         for i, unit in enumerate(units):
             if i and not i % TICK_GROUP:
                 await asyncio.sleep(0)
+            if unit.quiet_until > unit.now():
+                continue  # nothing due before then (``PackMLUnit._next_tick``)
             try:
                 unit.tick()
             except Exception:

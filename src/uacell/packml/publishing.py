@@ -201,6 +201,10 @@ class StoredValues:
         # clients see the stored values, the newer ones once stored
         values.update({k: v for k, v in self.saved.items() if k in values})
 
+    def next_save(self, save_interval: float) -> float:
+        """When (on the unit's clock) ``save_due`` turns True, nothing else changing."""
+        return self.last_save + (min(save_interval, TIMES_SAVE_PERIOD) if self.times_due else save_interval)
+
     def save_due(self, save_interval: float) -> bool:
         """Is a save due at a tick (every ``save_interval``, or stored times waiting)?"""
         since = self._clock() - self.last_save

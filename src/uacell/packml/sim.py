@@ -9,6 +9,7 @@ alarm and aborts the unit. Time comes from the unit's clock through ``poll`` (dr
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -39,6 +40,7 @@ class SimulatedUnit(EquipmentBase):
         self.produced_in_job = 0
         self.fault_active: tuple[int, str] | None = None
         self._due: tuple[str, float] | None = None
+        self._executing = False
         self._last_poll: float | None = None
         self._made = self._defective = self._consumed = 0.0
 
@@ -48,6 +50,14 @@ class SimulatedUnit(EquipmentBase):
             self._due = (state, self.unit.now() + self.acting_times.get(state, self.acting_time))
         else:
             self._due = None
+        self._executing = state == "Execute"
+
+    def next_poll(self, now: float) -> float:
+        """Polled at every tick in Execute (it produces, and counts from its last poll), else only when
+        an acting state's time is up (``equipment.PollHint``)."""
+        if self._executing:
+            return now
+        return self._due[1] if self._due is not None else math.inf
 
     def on_starting(self, parameters: Sequence[PackMLDescriptorDataType]) -> None:
         self.start_parameters = tuple(parameters)
@@ -55,6 +65,7 @@ class SimulatedUnit(EquipmentBase):
 
     def on_execute(self) -> None:
         self._last_poll = self.unit.now()
+        self._executing = True
 
     def on_clearing(self) -> None:
         self.fault_active = None
