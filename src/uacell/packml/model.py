@@ -349,19 +349,7 @@ class PackMLUnit(UnitView, EquipmentSide, UnitMethods):
             if self.saving.save_due(self.save_interval):
                 self._account()
                 self.save()
-        self.quiet_until = self._next_tick()
-
-    def _next_tick(self) -> float:
-        """Until when (on the unit's clock) a tick would change nothing, so ``run_units`` may skip the
-        unit: the poll its equipment asks for next (``next_poll``; equipment without it is polled at
-        every tick), the next whole second of an Admin time, the next save due."""
-        now = self._clock()
-        poll = self.equipment.next_poll(now) if has(self.equipment, PollHint) else now
-        if poll <= now:
-            return now
-        sm = self.innermost()
-        times = self.accounting.next_change(self.status.unit_mode_current, sm.table.states[sm.current].number)
-        return min(poll, times, self.saving.next_save(self.save_interval))
+        self.quiet_until = next_tick(self)
 
     def close(self) -> None:
         """Shut down: account time, save, tell the equipment."""
@@ -500,6 +488,19 @@ class PackMLUnit(UnitView, EquipmentSide, UnitMethods):
             log.warning("%s: stored PackML admin data is inconsistent (%s); using defaults", self.name, exc)
             return
         self._account()
+
+
+def next_tick(unit: PackMLUnit) -> float:
+    """Until when (on the unit's clock) a tick would change nothing, so ``run_units`` may skip the
+    unit: the poll its equipment asks for next (``next_poll``; equipment without it is polled at every
+    tick), the next whole second of an Admin time, the next save due."""
+    now = unit.now()
+    poll = unit.equipment.next_poll(now) if has(unit.equipment, PollHint) else now
+    if poll <= now:
+        return now
+    sm = unit.innermost()
+    times = unit.accounting.next_change(unit.status.unit_mode_current, sm.table.states[sm.current].number)
+    return min(poll, times, unit.saving.next_save(unit.save_interval))
 
 
 async def run_units(units: Sequence[PackMLUnit], period: float = 0.1) -> None:
