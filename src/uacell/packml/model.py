@@ -511,7 +511,7 @@ async def run_units(units: Sequence[PackMLUnit], period: float = 0.1) -> None:
             if i and not i % TICK_GROUP:
                 await asyncio.sleep(0)
             if unit.quiet_until > unit.now():
-                continue  # nothing due before then (``PackMLUnit._next_tick``)
+                continue  # nothing due before then (``next_tick``)
             try:
                 unit.tick()
             except Exception:
