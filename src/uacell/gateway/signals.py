@@ -89,17 +89,15 @@ class SignalOp:
         timeout: float,
         pulse_width: float,
         fault_ends: bool = True,
-        expires_ok: bool = False,
     ) -> None:
         self.name = name
         self.writes = writes
         self._pulse_off = pulse_off
-        self._confirm = confirm  # (signal, value) the controller shows once it acted; None: nothing
+        self._confirm = confirm  # (signal, value) the controller shows once it acted; None: a plain pulse
         self._timeout = timeout
         self._deadline = now + timeout
         self._pulse_until = now + pulse_width
         self._fault_ends = fault_ends
-        self._expires_ok = expires_ok  # a plain pulse: done when its width has passed
         self.pulses = tuple(w.tag for w in pulse_off)  # the pulse signals this operation sets
         self.done = False
 
@@ -125,7 +123,7 @@ class SignalOp:
             raise CallError("BadInvalidState", f"{self.name}: the controller reports fault {status.fault_code}")
         if now >= self._deadline:
             self.done = True
-            if self._expires_ok or self._confirm is None:
+            if self._confirm is None:  # a plain pulse: done when its time has passed
                 return True
             signal, wanted = self._confirm
             raise CallError(
@@ -191,7 +189,7 @@ class SignalOp:
         if not status.fault:
             return cls(
                 "reset", (Write("reset", True),), (Write("reset", False),), None,
-                now, pulse_width, pulse_width, fault_ends=False, expires_ok=True,
+                now, pulse_width, pulse_width, fault_ends=False,
             )  # fmt: skip
         return cls(
             "reset",
