@@ -38,7 +38,8 @@ T = TypeVar("T")
 KILL_AFTER = 5.0  # seconds a cancelled child may take to stop before it is killed
 NICE = 10  # the child's priority below the server's
 _POLL = 0.05  # seconds between the parent's looks at ``cancel``
-_MAX_RESULT = 1 << 16  # bytes of a pickled result or exception the child sends back at most
+_MAX_RESULT = 1 << 15  # bytes the child sends back at most: within a pipe's buffer (64 KiB on Linux), as the
+# parent reads only once the child has exited
 
 
 class ForkFailed(OSError):
