@@ -23,6 +23,7 @@ import stream_sites
 from helpers import free_port
 
 from uacell.config import CACHE_DIR_ENV, Config
+from uacell.core import logs
 from uacell.core.companion import Binder, Companion
 from uacell.host import ServerView
 from uacell.server import UacellServer
@@ -36,6 +37,14 @@ atexit.register(shutil.rmtree, _TEST_CACHE, True)
 
 # A stream no test closed names the test and the code that opened it (tests/stream_sites.py).
 stream_sites.install()
+
+
+@pytest.fixture(autouse=True)
+def _fresh_repeat_counts() -> None:
+    """The rate limit on repeated warnings (logs.REPEAT) is one per process: each test starts with
+    no counts, so an earlier test's warnings in the same worker do not suppress or mark this one's."""
+    logs.REPEAT.reset()
+
 
 ROOT = Path(__file__).resolve().parents[1]
 INTEROP = ROOT / "interop"

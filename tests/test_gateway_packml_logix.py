@@ -12,6 +12,7 @@ is what only this transport has."""
 
 from __future__ import annotations
 
+import socket
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -26,7 +27,8 @@ from helpers import (
 )
 
 from uacell.config import load_cell
-from uacell.gateway.packml_logix import where
+from uacell.gateway.errors import CommunicationError
+from uacell.gateway.packml_logix import LogixConnection, where
 
 F = "Capper"
 MACH = f"{F}.BaseStateMachine.MachineState"
@@ -89,3 +91,22 @@ async def test_config_check_connect_names_a_tag_the_controller_does_not_have(tmp
     async with serving(config) as (_app, client):  # optional: the unit works
         res = await call_path(client, MACH, "Reset")
         assert res.StatusCode.is_good(), res.StatusCode
+
+
+async def test_a_request_that_comes_after_close_opens_no_connection() -> None:
+    """pylogix reconnects by itself inside Read: a read that waited behind close (its caller gave up
+    on it) must neither reach the controller nor leave a socket open."""
+    with socket.create_server(("127.0.0.1", 0)) as controller:
+        port = controller.getsockname()[1]
+        conn = LogixConnection("127.0.0.1", port, 0, timeout=0.5)
+        conn.close()
+        conn.connected = True  # as a request queued before the close still believes
+        with pytest.raises(CommunicationError, match="closed"):
+            await conn.read(["Capper.Status.StateCurrent"])
+        with pytest.raises(CommunicationError, match="closed"):
+            await conn.write([("Capper.Command.CntrlCmd", 2)])
+        with pytest.raises(CommunicationError, match="closed"):
+            await conn.connect()
+        controller.setblocking(False)
+        with pytest.raises(BlockingIOError):
+            controller.accept()  # nobody connected

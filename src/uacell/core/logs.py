@@ -71,6 +71,10 @@ class RepeatFilter(logging.Filter):
         self._seen[key] = (start, passed + 1, 0)
         return True
 
+    def reset(self) -> None:
+        """Forget every count (a test starts with none of an earlier test's)."""
+        self._seen.clear()
+
     def _forget(self, now: float) -> None:
         for key in [k for k, (start, _, _) in self._seen.items() if now - start >= self.window]:
             del self._seen[key]

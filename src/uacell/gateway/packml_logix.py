@@ -22,8 +22,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import threading
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import Any, TypeVar
 
 from pylogix import PLC
 
@@ -36,6 +36,7 @@ from uacell.gateway.packtags import PackTagsMapError, Where, resolve
 SETTINGS = ("host", "port", "slot", "prefix", "interval", "timeout", *UNIT_SETTINGS)
 # what a controller answers for a tag it does not have (CIP general status 0x04, 0x05)
 NO_SUCH_TAG = ("Path segment error", "Path destination unknown")
+T = TypeVar("T")
 MOST = 20  # tags in one Multiple Service Packet (it must fit one CIP message of 500 bytes)
 
 
@@ -48,6 +49,10 @@ class LogixConnection:
         self._plc = PLC(host, slot=slot, timeout=timeout, port=port)
         self._lock = threading.Lock()
         self.connected = False
+        # Set by close: work still queued for the thread then does nothing. pylogix reconnects by
+        # itself inside Read and Write, so a request that waited for the lock behind close would
+        # otherwise open a socket nobody closes.
+        self._closed = False
 
     @property
     def name(self) -> str:
@@ -55,15 +60,22 @@ class LogixConnection:
 
     async def connect(self) -> bool:
         def attempt() -> bool:
-            with self._lock:
-                ok, _status = self._plc.conn.connect()  # a new socket (pylogix closes the old one)
-                return bool(ok)
+            ok, _status = self._plc.conn.connect()  # a new socket (pylogix closes the old one)
+            return bool(ok)
 
-        self.connected = await asyncio.to_thread(attempt)
+        self.connected = await asyncio.to_thread(self._locked, attempt)
         return self.connected
+
+    def _locked(self, work: Callable[[], T]) -> T:
+        """``work`` in the worker thread, alone on the connection, unless the connection was closed."""
+        with self._lock:
+            if self._closed:
+                raise CommunicationError(f"{self.name}: closed")
+            return work()
 
     def close(self) -> None:
         with self._lock:
+            self._closed = True
             self._plc.Close()
             for sock in (self._plc.conn.Socket, self._plc.conn.msg_socket):  # pylogix leaves them open
                 with contextlib.suppress(OSError):
@@ -74,13 +86,12 @@ class LogixConnection:
         """The values of ``names`` (Multiple Service Packets of up to ``MOST`` tags)."""
 
         def run() -> list[Any]:
-            with self._lock:
-                out: list[Any] = []
-                for i in range(0, len(names), MOST):
-                    chunk = names[i : i + MOST]
-                    got = self._plc.Read(chunk if len(chunk) > 1 else chunk[0])
-                    out += got if isinstance(got, list) else [got]
-                return out
+            out: list[Any] = []
+            for i in range(0, len(names), MOST):
+                chunk = names[i : i + MOST]
+                got = self._plc.Read(chunk if len(chunk) > 1 else chunk[0])
+                out += got if isinstance(got, list) else [got]
+            return out
 
         responses = await self._run(run)
         values = []
@@ -93,20 +104,19 @@ class LogixConnection:
         """Every write in one Multiple Service Packet, in order (the change request last)."""
 
         def run() -> list[Any]:
-            with self._lock:
-                if len(writes) == 1:
-                    return [self._plc.Write(*writes[0])]
-                got: list[Any] = self._plc.Write([(n, v) for n, v in writes])
-                return got
+            if len(writes) == 1:
+                return [self._plc.Write(*writes[0])]
+            got: list[Any] = self._plc.Write([(n, v) for n, v in writes])
+            return got
 
         for (name, _), response in zip(writes, await self._run(run), strict=True):
             self._check(name, str(response.Status))
 
-    async def _run(self, work: Any) -> Any:
+    async def _run(self, work: Callable[[], T]) -> T:
         if not self.connected:
             raise CommunicationError(f"{self.name}: not connected")
         try:
-            return await asyncio.wait_for(asyncio.to_thread(work), self.timeout * 2)
+            return await asyncio.wait_for(asyncio.to_thread(self._locked, work), self.timeout * 2)
         except (TimeoutError, OSError) as exc:
             self.connected = False
             raise CommunicationError(f"{self.name}: {exc or type(exc).__name__}") from None
