@@ -229,12 +229,14 @@ async def test_a_running_program_of_instant_steps_yields_to_the_loop(cell: Robot
 
 # --- the log under a flood ------------------------------------------------------------------------
 def test_repeated_identical_errors_are_rate_limited() -> None:
+    """At most ``burst`` identical lines and ``similar`` lines of one template a window; the next line
+    let through says how many of each were dropped."""
     import logging
 
     from uacell.core.logs import RepeatFilter
 
     now = [0.0]
-    repeat = RepeatFilter(burst=3, window=60.0, clock=lambda: now[0])
+    repeat = RepeatFilter(burst=3, similar=5, window=60.0, clock=lambda: now[0])
     logger = logging.getLogger("uacell.test.flood")
     records: list[logging.LogRecord] = []
 
@@ -248,25 +250,32 @@ def test_repeated_identical_errors_are_rate_limited() -> None:
     logger.propagate = False
     logger.setLevel(logging.INFO)
     try:
-        for i in range(1000):
+        for i in range(1000):  # a flood whose arguments vary: one template
             logger.error("socket.accept() out of system resource (%d)", i)
-        logger.error("another error")
+        for _ in range(10):  # one line again and again
+            logger.warning("the disk is full")
+        for plc in ("a", "b", "c", "d"):  # one kind of fault from four sources: each said
+            logger.warning("the PLC at %s: lost the connection (retrying)", plc)
         logger.info("info is never limited %d", 1)
         logger.info("info is never limited %d", 2)
         assert [r.getMessage() for r in records] == [
-            "socket.accept() out of system resource (0)",
-            "socket.accept() out of system resource (1)",
-            "socket.accept() out of system resource (2)",
-            "another error",
+            *(f"socket.accept() out of system resource ({i})" for i in range(5)),
+            "the disk is full",
+            "the disk is full",
+            "the disk is full",
+            *(f"the PLC at {plc}: lost the connection (retrying)" for plc in "abcd"),
             "info is never limited 1",
             "info is never limited 2",
         ]
         now[0] = 61.0
         logger.error("socket.accept() out of system resource (%d)", 1000)
-        assert (
-            records[-1].getMessage()
-            == "socket.accept() out of system resource (1000) [997 identical messages suppressed]"
-        )
+        logger.warning("the disk is full")
+        logger.warning("the PLC at %s: lost the connection (retrying)", "a")
+        assert [r.getMessage() for r in records[-3:]] == [
+            "socket.accept() out of system resource (1000) [995 similar messages suppressed]",
+            "the disk is full [7 identical messages suppressed]",
+            "the PLC at a: lost the connection (retrying)",
+        ]
     finally:
         logger.removeHandler(handler)
         logger.propagate = True

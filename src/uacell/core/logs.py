@@ -3,9 +3,9 @@ and a rate limit on repeated identical warnings and errors (the log stays readab
 
 ``configure_console`` runs first (from the command-line options alone, so that even a configuration
 error is reported in the chosen format); ``configure`` then applies the ``[logging]`` section. Every
-handler they install carries the one ``RepeatFilter``: it lets the first ``burst`` records with the
-same logger, level and message template through in each ``window`` seconds and drops the rest; the
-first record let through after a drop says how many were dropped.
+handler they install carries the one ``RepeatFilter``: in each ``window`` seconds it lets the first
+``burst`` identical records (logger, level, text) and the first ``similar`` ones of one message template
+through and drops the rest; the first record let through after a drop says how many were dropped.
 
 ``quiet_expected`` installs an ``ExpectedFaults`` filter on a library's loggers: a fault uacell expects
 and handles itself (a PLC killed, a client gone) is one DEBUG line there instead of an ERROR with a
@@ -37,39 +37,60 @@ _Key = tuple[str, int, str]
 
 
 class RepeatFilter(logging.Filter):
-    """Drop identical WARNING-and-above records beyond ``burst`` per ``window`` seconds."""
+    """Drop WARNING-and-above records beyond ``burst`` identical ones (same logger, level and text) and
+    beyond ``similar`` ones of one message template (the same text with other arguments) per
+    ``window`` seconds. So a flood stays short however its arguments vary, while different sources of
+    one kind of fault (five PLCs lost at once) are each said. The first record let through after a
+    drop says how many were dropped."""
 
     def __init__(
         self,
         *,
         burst: int = 5,
+        similar: int = 20,
         window: float = 60.0,
         level: int = logging.WARNING,
         max_keys: int = 1024,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         super().__init__()
-        self.burst, self.window, self.level, self.max_keys = burst, window, level, max_keys
+        self.burst, self.similar, self.window, self.level = burst, similar, window, level
+        self.max_keys = max_keys
         self._clock = clock
-        self._seen: dict[_Key, tuple[float, int, int]] = {}  # key -> (window start, passed, dropped)
+        # key -> (window start, passed, dropped); identical texts and templates each by their own key
+        self._seen: dict[_Key, tuple[float, int, int]] = {}
 
     def filter(self, record: logging.LogRecord) -> bool:
         if record.levelno < self.level:
             return True
-        key = (record.name, record.levelno, str(record.msg))
         now = self._clock()
-        start, passed, dropped = self._seen.get(key, (now, 0, 0))
-        if now - start >= self.window:
-            start, passed = now, 0
-        if passed >= self.burst:
-            self._seen[key] = (start, passed, dropped + 1)
+        try:
+            message = record.getMessage()
+        except Exception:  # arguments that do not fit: the handler reports it when it formats
+            message = str(record.msg)
+        text = (record.name, record.levelno, "=" + message)
+        template = (record.name, record.levelno, "T" + str(record.msg))
+        counts = [(key, most, *self._window(key, now)) for key, most in ((text, self.burst), (template, self.similar))]
+        over = next((key for key, most, _, passed, _ in counts if passed >= most), None)
+        if over is not None:  # counted once, under the limit it met
+            start, passed, dropped = self._window(over, now)
+            self._seen[over] = (start, passed, dropped + 1)
             return False
-        if dropped:
-            record.msg = f"{record.msg} [{dropped} identical messages suppressed]"
+        notes = []
+        for (key, _, start, passed, dropped), kind in zip(counts, ("identical", "similar"), strict=True):
+            if dropped:
+                notes.append(f"{dropped} {kind} messages suppressed")
+            self._seen[key] = (start, passed + 1, 0)
+        if notes:
+            record.msg, record.args = f"{message} [{'; '.join(notes)}]", None
+        return True
+
+    def _window(self, key: _Key, now: float) -> tuple[float, int, int]:
+        """``key``'s (window start, passed, dropped), a new window begun if the last one is over."""
         if len(self._seen) >= self.max_keys and key not in self._seen:
             self._forget(now)
-        self._seen[key] = (start, passed + 1, 0)
-        return True
+        start, passed, dropped = self._seen.get(key, (now, 0, 0))
+        return (now, 0, dropped) if now - start >= self.window else (start, passed, dropped)
 
     def reset(self) -> None:
         """Forget every count (a test starts with none of an earlier test's)."""
