@@ -22,7 +22,7 @@ import pytest
 from asyncua import Client, ua
 from asyncua.server.address_space import AttributeValue, NodeData
 from conftest import fast_config, start_app
-from helpers import free_port, models_copy, official
+from helpers import first_start_source, free_port, models_copy, official
 
 import uacell.server
 from uacell.core import forked
@@ -357,14 +357,17 @@ def test_discard_removes_the_snapshot_and_leftovers_of_a_crash(tmp_path: Path) -
 # --- servers ---------------------------------------------------------------------------------
 
 
-async def _start(tmp_path: Path, cache: Path | None, enabled: bool = True, fork: bool = True):
-    """The demo cell with the models from the NodeSet files (a models directory without their snapshot)."""
+async def _start(tmp_path: Path, cache: Path | None, enabled: bool = True, fork: bool = True, files: bool = False):
+    """The demo cell. Its models come from the installed models (their own snapshot where `uacell
+    models fetch` wrote it: ``first_start_source()``), or with ``files`` from the NodeSet files (a
+    models directory without their snapshot: the slowest first start, a few seconds more)."""
     config = fast_config(tmp_path / "data")
     config.server.cache_dir = cache
     config.server.address_space_cache = enabled
     config.server.snapshot_fork = fork
-    models = tmp_path / "models"
-    config.server.models_dir = str(models) if models.exists() else models_copy(models)
+    if files:
+        models = tmp_path / "models"
+        config.server.models_dir = str(models) if models.exists() else models_copy(models)
     return await start_app(config)
 
 
@@ -415,9 +418,10 @@ async def test_the_first_start_writes_the_snapshot_and_the_next_starts_from_it(
 
         monkeypatch.setattr(os, "fork", no_memory)
     cache = tmp_path / "cache"
-    first = await _start(tmp_path, cache, fork=writer != "configured thread")
+    # the default writer's first start builds from the NodeSet files, the others' from the models
+    first = await _start(tmp_path, cache, fork=writer != "configured thread", files=writer == "forked")
     try:
-        assert first.address_space_source == "nodesets"
+        assert first.address_space_source == ("nodesets" if writer == "forked" else first_start_source())
         await first.snapshot_written()
         [path] = _snapshots(cache)
         speed = await _mach_speed(first)
@@ -531,10 +535,9 @@ async def test_another_cell_gets_its_own_snapshot(tmp_path: Path) -> None:
     config = fast_config(tmp_path / "data")
     config.server.cache_dir = cache
     config.cell = load_cell(builtin_cell_path("example"))
-    config.server.models_dir = str(tmp_path / "models")
     example = await start_app(config)
     try:
-        assert example.address_space_source == "nodesets"
+        assert example.address_space_source == first_start_source()
         await example.snapshot_written()
     finally:
         await example.stop()
@@ -564,7 +567,7 @@ async def test_a_damaged_or_stale_snapshot_is_rebuilt_silently(
     with caplog.at_level(logging.INFO, logger="uacell.ua.nodesets"):
         again = await _start(tmp_path, cache)
     try:
-        assert again.address_space_source == "nodesets"
+        assert again.address_space_source == first_start_source()
         assert await _mach_speed(again) > 0
         await again.snapshot_written()
     finally:
@@ -585,7 +588,7 @@ def _pinned() -> dict[str, str]:
 async def test_a_stop_does_not_wait_for_the_snapshot_and_leaves_no_half_file(tmp_path: Path) -> None:
     cache = tmp_path / "cache"
     app = await _start(tmp_path, cache)
-    assert app.address_space_source == "nodesets"
+    assert app.address_space_source == first_start_source()
     await app.stop()  # at once: the snapshot is still being written
     assert not list(cache.glob(".*.tmp"))
     key = snapshot.snapshot_key(_pinned(), app.snapshot_digest)
@@ -595,7 +598,7 @@ async def test_a_stop_does_not_wait_for_the_snapshot_and_leaves_no_half_file(tmp
 
 async def test_with_the_cache_off_nothing_is_read_or_written(tmp_path: Path) -> None:
     cache = tmp_path / "cache"
-    app = await _start(tmp_path, cache, enabled=False)
+    app = await _start(tmp_path, cache, enabled=False, files=True)
     try:
         assert app.address_space_source == "nodesets"
         await app.snapshot_written()
