@@ -44,6 +44,14 @@ EXEC_STATE = "BaseStateMachine/MachineState/ExecuteState/CurrentState"
 SRC = Path(__file__).resolve().parents[1] / "src"
 
 
+@pytest.fixture(autouse=True)
+def _sparkplug_said(caplog: pytest.LogCaptureFixture) -> None:
+    """What the edge node and its MQTT link say at INFO (a STATE followed or ignored, a session left,
+    a reconnection) is in a failing test's report."""
+    for name in ("uacell.sparkplug", "uacell.pubsub"):
+        caplog.set_level(logging.INFO, logger=name)
+
+
 @pytest.fixture(scope="module")
 def pb(tmp_path_factory: pytest.TempPathFactory) -> ModuleType:
     return compile_proto(tmp_path_factory.mktemp("sparkplug_pb"))

@@ -273,8 +273,13 @@ class SparkplugService:
             log.warning('sparkplug: the primary host\'s STATE is not {"online": …, "timestamp": …}; ignored')
             return
         online, stamp = state
-        if stamp < self._host_stamp:
-            return  # older than the STATE followed: the timestamp is for this (3.0, STATE)
+        if stamp < self._host_stamp:  # older than the STATE followed: the timestamp is for this (3.0, STATE)
+            log.info(
+                "sparkplug: a STATE of the primary host older than the one followed (%d < %d); ignored",
+                stamp,
+                self._host_stamp,
+            )
+            return
         self._host_stamp = stamp
         self.host_online = online
         if online and not self.live and self.link.connected.is_set():
