@@ -186,6 +186,17 @@ async def test_the_inventory_is_what_a_started_server_installed(tmp_path: Path) 
         await app.stop()
 
 
+async def test_a_stop_cancels_asyncuas_clock_instead_of_waiting_for_it(tmp_path: Path) -> None:
+    """asyncua's stop waits for its clock loop to wake from its one-second sleep; uacell's cancels it
+    (a stop of the served demo cell then takes milliseconds, not up to a second)."""
+    app = await start_app(fast_config(tmp_path / "data"))
+    clock = app.server.iserver.time_task
+    assert clock is not None and not clock.done()
+    await app.stop()
+    assert clock.cancelled()  # asyncua's own stop lets it finish its sleep and end normally
+    assert "asyncua.server.internal_server.InternalServer.time_task" in door.installed()
+
+
 def test_a_change_not_in_the_inventory_is_refused() -> None:
     class Thing:
         attribute = 1

@@ -21,6 +21,7 @@ from uacell.binding.space import Space
 from uacell.binding.writes import WriteRouter
 from uacell.catalog import companions as catalog_companions
 from uacell.config import Config, default_application_uri
+from uacell.core.background import stop_task
 from uacell.core.companion import Binder, Closer, Companion, datasets_of, models_of, shape_function, shapes_digest
 from uacell.core.file_store import HandlePool
 from uacell.core.forked import ForkFailed, forking, run_forked
@@ -359,6 +360,8 @@ class UacellServer:
             await self.sparkplug.stop()
         if self.diagnostics is not None:
             await self.diagnostics.stop()
+        # asyncua's stop would wait for its clock (CurrentTime, once a second) to wake: up to a second
+        await stop_task(door.swap(self.server.iserver, "InternalServer.time_task", None))
         await self.server.stop()
         self._snapshot_cancel.set()  # a stop is never held up by a cache
         await self.snapshot_written()

@@ -57,6 +57,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry(f"{_T}.messages", Kind.SWAP, "uacell.ua.pipeline", "collects what asyncua parses from one read, to run it at once", "its queue, for the duration of one parse"),
     # --- one server's parts ------------------------------------------------------------------------
     Entry(f"{_I}.method_service", Kind.SWAP, "uacell.binding.dispatch", "the one method dispatcher", "MethodService: calls the callback with no argument checks or roles"),
+    Entry(f"{_I}.time_task", Kind.SWAP, "uacell.server", "a stop cancels asyncua's clock (ServerStatus.CurrentTime written once a second) and takes its task away first", "InternalServer.stop waits for the clock's next wake-up: up to a second a stop", at_start=False),
     Entry(f"{_I}.history_manager", Kind.SWAP, "uacell.history.service", "uacell's history (stores, retention, events, HistoryUpdate)", "HistoryManager with its in-memory storage"),
     Entry("asyncua.server.subscription_service.SubscriptionService.trigger_event", Kind.SWAP, "uacell.ua.event_tap", "every fired event to history and PubSub first", "(wrapped, not changed)"),
     Entry(f"{_I}.create_session", Kind.SWAP, "uacell.security.policy", "uacell's session class (limits, audit, roles)", "creates an InternalSession"),
