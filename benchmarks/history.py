@@ -25,7 +25,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-from benchmarks.harness import SET_SPEED, Peers, Report, client, free_port, rotated, running
+from benchmarks.harness import SET_SPEED, Peers, Report, free_port, loaded, rotated, running
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,10 +47,12 @@ def history_section(report: Report, peers: Peers, args: argparse.Namespace) -> N
             for r in range(args.rounds):
                 for p in rotated([on, off], r):
                     spec = {"mode": "calls", "sessions": n, "seconds": args.seconds, "steps": SET_SPEED}
-                    raw.setdefault(f"{p.name} x{n}", []).append(client(p.endpoint, spec))
+                    raw.setdefault(f"{p.name} x{n}", []).append(loaded(p, spec))
     for n in HISTORY_SESSIONS:
         ours, theirs = raw[f"{on.name} x{n}"], raw[f"{off.name} x{n}"]
         report.add_rates(f"SetMachSpeed calls/s, {n} sessions, history on", ours, theirs, "history off", 0.95)
+        # what history costs a call, steadier than the rates on a shared machine (no target of its own)
+        report.add_cpu(f"SetMachSpeed CPU per call, {n} sessions, history on", ours, theirs, "history off")
     seconds = 3.0 if args.quick else 10.0
     cpu = asyncio.run(ingest_cpu(INGEST_RATE, seconds))
     raw["ingest"] = cpu
