@@ -12,7 +12,7 @@ from typing import cast
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import free_port, robot_cell
+from helpers import free_port, robot_cell, until
 
 from uacell.config import load_cell, load_factory
 from uacell.core.errors import ConfigError
@@ -95,13 +95,13 @@ async def test_units_run_on_the_configured_equipment(tmp_path, monkeypatch):
             machine = client.get_node(ua.NodeId("Filler1.BaseStateMachine.MachineState", ns))
             await machine.call_method(await machine.get_child(f"{await _packml_ns(client)}:Reset"))
             execute = client.get_node(ua.NodeId("Filler1.BaseStateMachine.MachineState.ExecuteState.CurrentState", ns))
+
             # InstantEquipment completes Resetting at once: the next tick shows Idle.
-            for _ in range(100):
-                if (await execute.read_value()).Text == "Idle":
-                    break
+            async def state() -> str:
                 await app.settle()
-                await __import__("asyncio").sleep(0.05)
-            assert (await execute.read_value()).Text == "Idle"
+                return str((await execute.read_value()).Text)
+
+            await until(state, "Idle")
     finally:
         await app.stop()
     assert sorted(plant_driver.closed) == ["Filler1", "robot"]  # each driver's close hook ran

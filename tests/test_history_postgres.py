@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import call_path, wait_until
+from helpers import call_path, until, wait_until
 from pg_cluster import PgCluster
 
 from uacell.server import UacellServer
@@ -82,9 +82,7 @@ async def test_unreachable_at_start_then_up(
             async def arrived() -> bool:
                 return (await speeds(client, ns))[1][-2:] == [11.0, 12.0]
 
-            for _ in range(100):
-                if await arrived():
-                    break
+            await until(arrived, True)
             status, values = await speeds(client, ns)
             assert status == ua.StatusCodes.Good and values[-2:] == [11.0, 12.0], values
         lines = history_lines(caplog)

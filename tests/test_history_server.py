@@ -11,6 +11,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
+from helpers import until
 
 from uacell.history.backends import VALUE
 from uacell.history.service import mark_historizing, to_micros
@@ -237,9 +238,7 @@ async def test_events_with_a_filter(app: UacellServer, client: Client) -> None:
         got = await transitions()
         return all(w in got for w in want)
 
-    for _ in range(200):
-        if await arrived():
-            break
+    await until(arrived, True)
     assert all(w in got for w in want), got
     # the machine itself keeps its own events too; the audit events name the transitions' callers
     details.Filter.WhereClause.Elements[0].FilterOperands = [

@@ -14,7 +14,7 @@ import pytest_asyncio
 from asyncua import Client, ua
 from asyncua.ua.ua_binary import variant_to_binary
 from conftest import fast_config, start_app
-from helpers import wait_until
+from helpers import until, wait_until
 
 from uacell.history.backends import EVENT, VALUE
 from uacell.history.processed import aggregate
@@ -168,10 +168,7 @@ async def test_event_notifiers_keep_their_history_read_bit_after_transitions(app
         async def idle() -> bool:
             return (await execute.read_value()).Text == "Idle"
 
-        for _ in range(400):
-            if await idle():
-                break
-        assert await idle()
+        await until(idle, True)  # Resetting takes its acting time and the units' next tick
         assert await notifiers() == [5, 5, 5, 5]
         # and the audit emitters exist now (the rewrite happened at their creation)
         binding = app.server.iserver.aspace
