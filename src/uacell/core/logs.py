@@ -71,11 +71,10 @@ class RepeatFilter(logging.Filter):
         text = (record.name, record.levelno, "=" + message)
         template = (record.name, record.levelno, "T" + str(record.msg))
         counts = [(key, most, *self._window(key, now)) for key, most in ((text, self.burst), (template, self.similar))]
-        over = next((key for key, most, _, passed, _ in counts if passed >= most), None)
-        if over is not None:  # counted once, under the limit it met
-            start, passed, dropped = self._window(over, now)
-            self._seen[over] = (start, passed, dropped + 1)
-            return False
+        for key, most, start, passed, dropped in counts:
+            if passed >= most:  # dropped: counted once, under the first limit it met
+                self._seen[key] = (start, passed, dropped + 1)
+                return False
         notes = []
         for (key, _, start, passed, dropped), kind in zip(counts, ("identical", "similar"), strict=True):
             if dropped:
