@@ -176,3 +176,36 @@ async def test_a_0_ms_subscription_gets_what_one_call_changed_in_one_message(tmp
         await wait_until(lambda: len(seen) == 2 * len(names), timeout=10)
         assert len({seq for seq, _ in seen[len(names) :]}) == 1, seen
         await subscription.delete()
+
+
+async def test_a_deadband_compares_with_the_last_value_reported_and_a_status_change_passes(tmp_path: Path) -> None:
+    """A client's absolute deadband (OPC 10000-4 7.22.2) compares each new value with the last one
+    reported, and a change of the status is reported whatever the deadband. asyncua compared with the
+    value before: the drift 100 -> 100.5 -> 101.2 was never reported, nor an Uncertain status on an
+    unchanged value (door/publishing.py, ua/datachange.py)."""
+    async with serving(fast_config(tmp_path / "data")) as (app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        seen: list[tuple[float, int]] = []  # (the value, its StatusCode)
+
+        class Handler:
+            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+                seen.append((round(val, 3), data.monitored_item.Value.StatusCode.value))
+
+        speed = ua.NodeId("Filler1.Status.MachSpeed", ns)
+        filler = client.get_node(ua.NodeId("Filler1", ns))
+        set_speed = ua.NodeId("Filler1.SetMachSpeed", ns)
+        await filler.call_method(set_speed, ua.Variant(100.0, ua.VariantType.Float))
+        subscription = await client.create_subscription(0, Handler())
+        await subscription.deadband_monitor(client.get_node(speed), 1.0)
+        await wait_until(lambda: [v for v, _ in seen] == [100.0])  # the value it has
+        for value in (100.5, 101.2, 101.9, 99.0):
+            await filler.call_method(set_speed, ua.Variant(value, ua.VariantType.Float))
+        await wait_until(lambda: len(seen) >= 3, timeout=10)
+        # 100.5: within 1.0 of 100 (reported); 101.2: 1.2 from it; 101.9: 0.7 from 101.2; 99.0: 2.9
+        assert [v for v, _ in seen] == [100.0, 101.2, 99.0]
+        uncertain = ua.StatusCode(ua.StatusCodes.UncertainLastUsableValue)
+        same = ua.DataValue(ua.Variant(99.0, ua.VariantType.Float), StatusCode=uncertain)
+        await app.server.write_attribute_value(speed, same)  # the value unchanged, its quality not
+        await wait_until(lambda: len(seen) == 4, timeout=10)
+        assert seen[-1] == (99.0, uncertain.value)
+        await subscription.delete()

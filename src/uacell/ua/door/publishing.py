@@ -1,4 +1,5 @@
-"""A client's subscription with a publishing interval of 0 publishes once per turn of the event loop.
+"""What a client's subscription is sent: a 0 ms subscription's changes once per turn of the event loop,
+and a monitored item's values by the standard's rules.
 
 asyncua publishes such a subscription as soon as a monitored item gets its first queued change: a
 publisher's drain that writes six axes of a robot sent the first axis alone and the other five in a
@@ -10,23 +11,42 @@ the answer (decision 56). A subscription deleted meanwhile publishes nothing.
 
 Subscriptions without a client (``pub_request_callback`` None: the server's own, asyncua's
 ``Server.create_subscription``) publish at once, as asyncua does.
+
+A monitored item reports a value by OPC 10000-4 7.22.2 (``uacell.ua.datachange``): compared with the
+last value it *reported*, where asyncua compared with the value before, so that a value drifting by
+less than a deadband at each step was never reported; a status change is reported whatever the
+deadband. What the item keeps of the value it reported is the value itself when its payload cannot
+change in place (a scalar of an immutable Python type, or one of asyncua's names and ids, which
+nothing in the server mutates: writes make new DataValues); asyncua kept a ``copy.deepcopy`` of every
+value for every monitored item, about 50 us for a Double. Arrays and structures are still copied.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextvars
+import copy
 import logging
+from datetime import datetime
 from typing import Any
 
+from asyncua import ua
 from asyncua.server.internal_subscription import InternalSubscription
+from asyncua.server.monitored_item_service import MonitoredItemService
 
 from uacell.core.background import eager
+from uacell.ua import datachange
 from uacell.ua.door import patch
 
 log = logging.getLogger(__name__)
 
 _SUB = "asyncua.server.internal_subscription.InternalSubscription."
+_ITEMS = "asyncua.server.monitored_item_service.MonitoredItemService."
+_ORIGINAL_CALLBACK = MonitoredItemService.datachange_callback
+# a Variant's payload of one of these types is never changed in place
+_KEPT_AS_IS = frozenset(
+    {int, float, bool, str, bytes, datetime, type(None), ua.LocalizedText, ua.NodeId, ua.QualifiedName}
+)
 _ORIGINAL = InternalSubscription._trigger_publish
 _due: set[InternalSubscription] = set()  # subscriptions with a publication scheduled for this turn
 _running: set[asyncio.Task[Any]] = set()  # publications that wait for the socket (kept until done)
@@ -58,5 +78,26 @@ async def _publish_results(sub: InternalSubscription) -> None:
         log.exception("publishing %s failed", sub)
 
 
+async def _datachange_callback(
+    self: MonitoredItemService, handle: int, value: ua.DataValue, error: ua.StatusCode | None = None
+) -> None:
+    if error:
+        await _ORIGINAL_CALLBACK(self, handle, value, error)  # a status change of the subscription
+        return
+    mid = self._monitored_datachange[handle]
+    mdata = self._monitored_items[mid]
+    if mdata.mode == ua.MonitoringMode.Disabled:
+        return
+    kept = mdata.mvalue
+    if not datachange.reported(kept.current_dvalue, value, mdata.filter):
+        return
+    kept.old_dvalue = kept.current_dvalue
+    variant = value.Value
+    kept.current_dvalue = value if variant is None or type(variant.Value) in _KEPT_AS_IS else copy.deepcopy(value)
+    event = ua.MonitoredItemNotification(ClientHandle=mdata.client_handle, Value=value)
+    await self.isub.enqueue_datachange_event(mid, event, mdata.queue_size)
+
+
 def install() -> None:
     patch(_SUB + "_trigger_publish", _trigger_publish)
+    patch(_ITEMS + "datachange_callback", _datachange_callback)
