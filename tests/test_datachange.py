@@ -1,14 +1,18 @@
-"""When a monitored item reports a value (OPC 10000-4 7.22.2 DataChangeFilter, 7.10 DataChangeTrigger),
-as the standard's text says, against the pure rule of ``uacell.ua.datachange``."""
+"""Monitored items of values as the standards' text says (OPC 10000-4 7.22.2 DataChangeFilter, 7.10
+DataChangeTrigger; OPC 10000-8 6.2 PercentDeadband): when a value is reported, against the pure rule
+of ``uacell.ua.datachange``; which filters a server refuses, through a server and an asyncua client."""
 
 from __future__ import annotations
 
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 from typing import Any
 
 import pytest
-from asyncua import ua
+from asyncua import Client, ua
 from asyncua.ua import uaprotocol_auto
+from conftest import fast_config, serving
+from helpers import wait_until
 
 from uacell.ua.datachange import reported
 
@@ -121,10 +125,147 @@ def test_a_deadband_on_a_value_that_is_not_a_number_compares_for_equality(
     assert reported(dv(old, vtype), dv(new, vtype), band(5.0)) is expected
 
 
-def test_a_percent_deadband_is_not_applied() -> None:
-    """PercentDeadband needs the variable's EURange (OPC 10000-8): every change is reported."""
+def test_a_percent_deadband_is_a_share_of_the_eurange() -> None:
+    """OPC 10000-8 6.2: "(deadbandValue/100.0) * ((high-low) of EURange)"; without an EURange (the
+    server refuses such an item) every change is reported."""
     percent = uaprotocol_auto.DataChangeFilter(
-        Trigger=ua.DataChangeTrigger.StatusValue, DeadbandType=ua.DeadbandType.Percent, DeadbandValue=50.0
+        Trigger=ua.DataChangeTrigger.StatusValue, DeadbandType=ua.DeadbandType.Percent, DeadbandValue=10.0
     )
+    assert not reported(dv(100.0), dv(119.0), percent, eu_span=200.0)  # 10 % of 200 is 20
+    assert reported(dv(100.0), dv(121.0), percent, eu_span=200.0)
+    assert reported(dv([0.0, 100.0]), dv([0.0, 121.0]), percent, eu_span=200.0)
     assert reported(dv(1.0), dv(1.1), percent)
     assert not reported(dv(1.0), dv(1.0), percent)
+
+
+TC = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
+
+
+def _item(
+    node: ua.NodeId, flt: Any, handle: int, attribute: int = ua.AttributeIds.Value
+) -> ua.MonitoredItemCreateRequest:
+    return ua.MonitoredItemCreateRequest(
+        ItemToMonitor=ua.ReadValueId(NodeId=node, AttributeId=attribute),
+        MonitoringMode=ua.MonitoringMode.Reporting,
+        RequestedParameters=ua.MonitoringParameters(
+            ClientHandle=handle, SamplingInterval=0, QueueSize=10, DiscardOldest=True, Filter=flt
+        ),
+    )
+
+
+def _deadband(kind: ua.DeadbandType, value: float) -> ua.DataChangeFilter:
+    return ua.DataChangeFilter(Trigger=ua.DataChangeTrigger.StatusValue, DeadbandType=kind, DeadbandValue=value)
+
+
+async def _create(client: Client, subscription: int, items: list[ua.MonitoredItemCreateRequest]) -> list[str]:
+    params = ua.CreateMonitoredItemsParameters(
+        SubscriptionId=subscription, TimestampsToReturn=ua.TimestampsToReturn.Both, ItemsToCreate=items
+    )
+    return [r.StatusCode.name for r in await client.uaclient.create_monitored_items(params)]
+
+
+async def test_a_server_refuses_the_filters_the_standards_do_not_allow_and_makes_the_rest(tmp_path: Path) -> None:
+    async with serving(fast_config(tmp_path / "data")) as (app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        speed = ua.NodeId("Filler1.Status.MachSpeed", ns)  # Float, an AnalogItem with an EURange
+        mode = ua.NodeId("Filler1.Status.UnitModeCurrent", ns)  # an enumeration: not a Number
+        state = ua.NodeId(f"{TC}.CurrentState", ns)  # LocalizedText
+        await app.server.write_attribute_value(
+            ua.NodeId("Filler1.Status.MachSpeed.EURange", ns),
+            ua.DataValue(ua.Variant(ua.Range(Low=0.0, High=200.0), ua.VariantType.ExtensionObject)),
+        )
+        subscription = await client.create_subscription(0, None)
+        sid = subscription.subscription_id
+        absolute, percent = ua.DeadbandType.Absolute, ua.DeadbandType.Percent
+        events = ua.AttributeIds.EventNotifier
+        answers = await _create(
+            client,
+            sid,
+            [
+                _item(state, _deadband(absolute, 1.0), 1),  # a deadband on a LocalizedText
+                _item(mode, _deadband(absolute, 1.0), 2),  # ... on an enumeration
+                _item(speed, _deadband(absolute, -1.0), 3),  # a negative deadband
+                _item(speed, _deadband(percent, 150.0), 4),  # a percent beyond 100
+                _item(speed, _deadband(ua.DeadbandType(2), 10.0), 5),  # allowed: percent of the EURange
+                _item(speed, _deadband(absolute, 1.0), 6, ua.AttributeIds.DisplayName),  # not the Value
+                _item(state, ua.DataChangeFilter(Trigger=ua.DataChangeTrigger.StatusValue), 7),  # allowed
+                _item(state, ua.EventFilter(), 8),  # an event filter on a Value
+                _item(ua.NodeId(ua.ObjectIds.Server), None, 11, events),  # an event item without its filter
+                _item(ua.NodeId(ua.ObjectIds.Server), _deadband(absolute, 1.0), 12, events),
+            ],
+        )
+        assert answers == [
+            "BadFilterNotAllowed",
+            "BadFilterNotAllowed",
+            "BadMonitoredItemFilterInvalid",
+            "BadDeadbandFilterInvalid",
+            "Good",
+            "BadFilterNotAllowed",
+            "Good",
+            "BadFilterNotAllowed",
+            "BadMonitoredItemFilterInvalid",  # asyncua failed the whole request (BadInternalError)
+            "BadFilterNotAllowed",
+        ]
+        # a percent deadband on a number without an EURange (OPC 10000-8 6.2: not supported there)
+        number = ua.NodeId(f"{TC}.CurrentState.Number", ns)  # UInt32
+        assert await _create(client, sid, [_item(number, _deadband(percent, 10.0), 9)]) == ["BadDeadbandFilterInvalid"]
+        assert await _create(client, sid, [_item(number, _deadband(absolute, 1.0), 10)]) == ["Good"]
+        # the items made are the subscription's, the others are not (Server.GetMonitoredItems)
+        server = client.get_node(ua.NodeId(ua.ObjectIds.Server))
+        _servers, clients = await server.call_method(
+            ua.NodeId(ua.ObjectIds.Server_GetMonitoredItems), ua.Variant(sid, ua.VariantType.UInt32)
+        )
+        assert sorted(clients) == [5, 7, 10]
+        await subscription.delete()
+
+
+async def test_a_percent_deadband_is_applied_to_the_eurange_and_a_modify_is_checked(tmp_path: Path) -> None:
+    async with serving(fast_config(tmp_path / "data")) as (app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        speed = ua.NodeId("Filler1.Status.MachSpeed", ns)
+        await app.server.write_attribute_value(
+            ua.NodeId("Filler1.Status.MachSpeed.EURange", ns),
+            ua.DataValue(ua.Variant(ua.Range(Low=0.0, High=200.0), ua.VariantType.ExtensionObject)),
+        )
+        filler = client.get_node(ua.NodeId("Filler1", ns))
+        set_speed = ua.NodeId("Filler1.SetMachSpeed", ns)
+        await filler.call_method(set_speed, ua.Variant(100.0, ua.VariantType.Float))
+        seen: list[float] = []
+
+        class Handler:
+            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+                seen.append(round(val, 3))
+
+        subscription = await client.create_subscription(0, Handler())
+        handle = await subscription.deadband_monitor(client.get_node(speed), 10.0, deadbandtype=2)  # 20 of 200
+        await wait_until(lambda: seen == [100.0])
+        for value in (115.0, 119.0, 125.0, 130.0):
+            await filler.call_method(set_speed, ua.Variant(value, ua.VariantType.Float))
+        await wait_until(lambda: len(seen) >= 2, timeout=10)
+        await filler.call_method(set_speed, ua.Variant(100.0, ua.VariantType.Float))  # 25 below 125: reported
+        await wait_until(lambda: len(seen) >= 3, timeout=10)
+        assert seen == [100.0, 125.0, 100.0]
+        # a modify to a filter the standard refuses: refused, the item keeps its own; an unknown item
+        refused = ua.MonitoredItemModifyRequest(
+            MonitoredItemId=handle,
+            RequestedParameters=ua.MonitoringParameters(
+                ClientHandle=99,
+                SamplingInterval=0,
+                QueueSize=10,
+                DiscardOldest=True,
+                Filter=_deadband(ua.DeadbandType.Percent, 101.0),
+            ),
+        )
+        unknown = ua.MonitoredItemModifyRequest(MonitoredItemId=987654, RequestedParameters=refused.RequestedParameters)
+        params = ua.ModifyMonitoredItemsParameters(
+            SubscriptionId=subscription.subscription_id,
+            TimestampsToReturn=ua.TimestampsToReturn.Both,
+            ItemsToModify=[refused, unknown],
+        )
+        results = await client.uaclient.modify_monitored_items(params)
+        assert [r.StatusCode.name for r in results] == ["BadDeadbandFilterInvalid", "BadMonitoredItemIdInvalid"]
+        await filler.call_method(set_speed, ua.Variant(110.0, ua.VariantType.Float))  # within 20 of 100
+        await filler.call_method(set_speed, ua.Variant(79.0, ua.VariantType.Float))  # 21 below 100
+        await wait_until(lambda: len(seen) >= 4, timeout=10)
+        assert seen == [100.0, 125.0, 100.0, 79.0]
+        await subscription.delete()

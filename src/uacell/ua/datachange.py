@@ -1,24 +1,33 @@
-"""Whether a monitored item reports a new value: OPC 10000-4 7.22.2 (DataChangeFilter) and 7.10
-(DataChangeTrigger), as a pure function of the value last reported and the new one.
+"""Monitored items of values: which filters a client may ask for, and when a value is reported
+(OPC 10000-4 7.22.2 DataChangeFilter and 7.10 DataChangeTrigger; OPC 10000-8 6.2 PercentDeadband).
 
-The comparison is with the *last value reported* (the standard's "last cached value": the last one
-pushed to the item's queue), not with the value just before the new one. asyncua compares with the
-value before, so a value drifting by less than the deadband at each step was never reported however
-far it went; uacell's door (``uacell.ua.door.publishing``) asks this module instead.
+``refusal`` checks a filter when a monitored item is created or modified, as the standards say:
+
+- a DataChangeFilter on another attribute than Value, or an EventFilter on a Value, is
+  Bad_FilterNotAllowed, as is a deadband on a variable whose DataType is not a Number; an event
+  item without its EventFilter is Bad_MonitoredItemFilterInvalid (asyncua failed the request);
+  a filter of another kind (an AggregateFilter) Bad_MonitoredItemFilterUnsupported;
+- an unknown trigger or deadband type, or a negative deadband, is Bad_MonitoredItemFilterInvalid;
+- a percent deadband outside 0 to 100, or on a variable without an EURange, is
+  Bad_DeadbandFilterInvalid (OPC 10000-8 6.2 and its table of result codes).
+
+``reported`` decides whether a new value is reported, as a pure function of the value last reported
+and the new one. The comparison is with the *last value reported* (the standard's "last cached
+value": the last one pushed to the item's queue), not with the value just before the new one.
+asyncua compared with the value before, so a value drifting by less than the deadband at each step
+was never reported however far it went; uacell's door (``uacell.ua.door.publishing``) asks this
+module instead.
 
 - A change of the StatusCode is reported whatever the trigger and the deadband ("Deadband is
   ignored if the status of the data item changes").
 - ``Status``: nothing else is reported.
 - ``StatusValue`` (the default, no filter): a change of the value (its VariantType, its array
-  dimensions or its payload). With an absolute deadband, a number is reported when it differs from
-  the last value reported by more than the deadband, an array when its length changes or any
-  element does so.
+  dimensions or its payload). With a deadband, a number is reported when it differs from the last
+  value reported by more than the deadband (absolute; or percent of the EURange's high minus low),
+  an array when its length changes or any element does so.
 - ``StatusValueTimestamp``: also a change of the SourceTimestamp; with a deadband it behaves as
   ``StatusValue``.
 - A floating-point NaN is reported once, when the value becomes NaN (NaN equals NaN here).
-- A deadband on a value that is not a number (a string, a Boolean) compares for equality. A percent
-  deadband needs the variable's EURange (OPC 10000-8) and is not applied: every change is reported,
-  as asyncua did.
 """
 
 from __future__ import annotations
@@ -26,18 +35,32 @@ from __future__ import annotations
 from typing import Any
 
 from asyncua import ua
+from asyncua.server.address_space import AddressSpace
 from asyncua.ua import uaprotocol_auto
 
+from uacell.ua import toolkit
+
+_A = ua.AttributeIds
+_NONE = ua.DeadbandType.None_
 _ABSOLUTE = ua.DeadbandType.Absolute
+_PERCENT = ua.DeadbandType.Percent
+_NUMBER = ua.NodeId(ua.ObjectIds.Number)
 _STATUS = ua.DataChangeTrigger.Status
 _WITH_TIMESTAMP = ua.DataChangeTrigger.StatusValueTimestamp
 # what a client's filter decodes to (``ua.DataChangeFilter`` is a subclass of it, for code that makes one)
 _FILTER = uaprotocol_auto.DataChangeFilter
+_EVENT_FILTER = uaprotocol_auto.EventFilter
+# the refusals (OPC 10000-4 7.22.2, OPC 10000-8 6.2)
+_NOT_ALLOWED: int = ua.StatusCodes.BadFilterNotAllowed
+_UNSUPPORTED: int = ua.StatusCodes.BadMonitoredItemFilterUnsupported
+_INVALID: int = ua.StatusCodes.BadMonitoredItemFilterInvalid
+_BAD_DEADBAND: int = ua.StatusCodes.BadDeadbandFilterInvalid
 
 
-def reported(last: ua.DataValue | None, new: ua.DataValue, flt: object | None) -> bool:
+def reported(last: ua.DataValue | None, new: ua.DataValue, flt: object | None, eu_span: float | None = None) -> bool:
     """Whether ``new`` is reported to a monitored item whose last reported value is ``last`` (None:
-    nothing reported yet) and whose filter is ``flt`` (a DataChangeFilter, or None)."""
+    nothing reported yet) and whose filter is ``flt`` (a DataChangeFilter, or None); ``eu_span`` is
+    the high minus the low of the variable's EURange, for a percent deadband (None: every change)."""
     if last is None:
         return True
     if _status(last) != _status(new):
@@ -46,14 +69,75 @@ def reported(last: ua.DataValue | None, new: ua.DataValue, flt: object | None) -
         return _value_differs(last.Value, new.Value, None)
     if flt.Trigger == _STATUS:
         return False
-    band = flt.DeadbandValue if flt.DeadbandType == _ABSOLUTE else None
+    band = None
+    if flt.DeadbandType == _ABSOLUTE:
+        band = flt.DeadbandValue
+    elif flt.DeadbandType == _PERCENT and eu_span is not None:
+        band = flt.DeadbandValue / 100.0 * eu_span
     if _value_differs(last.Value, new.Value, band):
         return True
-    return (
-        band is None
+    return bool(
+        flt.DeadbandType == _NONE
         and flt.Trigger == _WITH_TIMESTAMP
         and (last.SourceTimestamp != new.SourceTimestamp or last.SourcePicoseconds != new.SourcePicoseconds)
     )
+
+
+def eu_span(aspace: AddressSpace, node: ua.NodeId) -> float | None:
+    """The high minus the low of ``node``'s EURange property (OPC 10000-8 5.3.2), None without one."""
+    prop = toolkit.find_child(aspace, node, "EURange")
+    if prop is None:
+        return None
+    value = aspace.read_attribute_value(prop, _A.Value).Value
+    if value is None or not isinstance(value.Value, ua.Range):
+        return None
+    return float(value.Value.High) - float(value.Value.Low)
+
+
+def refusal(aspace: AddressSpace, item: ua.ReadValueId, flt: object | None) -> int | None:
+    """Why a monitored item of ``item`` may not have the filter ``flt`` (a StatusCode), or None."""
+    if isinstance(flt, ua.ExtensionObject) and flt.Body is None:
+        flt = None  # a null ExtensionObject: no filter (what asyncua's client sends by default)
+    attribute = item.AttributeId
+    if attribute == _A.EventNotifier:
+        if isinstance(flt, _EVENT_FILTER):
+            return None
+        return _INVALID if flt is None else _NOT_ALLOWED  # an event item needs its EventFilter
+    if flt is None:
+        return None
+    if isinstance(flt, _EVENT_FILTER):
+        return _NOT_ALLOWED
+    if not isinstance(flt, _FILTER):
+        return _UNSUPPORTED  # an AggregateFilter, or a structure that is no filter
+    if attribute != _A.Value:
+        return _NOT_ALLOWED
+    if flt.Trigger not in (0, 1, 2) or flt.DeadbandType not in (0, 1, 2):
+        return _INVALID
+    if flt.DeadbandType == _NONE:
+        return None
+    if not _is_number_type(aspace, item.NodeId):
+        return _NOT_ALLOWED
+    if flt.DeadbandType == _PERCENT:
+        if not 0.0 <= flt.DeadbandValue <= 100.0 or eu_span(aspace, item.NodeId) is None:
+            return _BAD_DEADBAND
+    elif not flt.DeadbandValue >= 0.0:  # a negative absolute deadband (or NaN)
+        return _INVALID
+    return None
+
+
+def _is_number_type(aspace: AddressSpace, node: ua.NodeId) -> bool:
+    data = aspace.get(node)
+    datatype = data.attributes.get(_A.DataType) if data is not None else None
+    if datatype is None or datatype.value is None or datatype.value.Value is None:
+        return False
+    current: ua.NodeId | None = datatype.value.Value.Value
+    for _ in range(32):  # the type tree is shallow; a loop in a broken model ends
+        if current is None:
+            return False
+        if current == _NUMBER:
+            return True
+        current = toolkit.supertype(aspace, current)
+    return False
 
 
 def _status(dv: ua.DataValue) -> int:

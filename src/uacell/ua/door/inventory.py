@@ -55,6 +55,8 @@ ENTRIES: tuple[Entry, ...] = (
     Entry(f"{_S}.history_read", Kind.PATCH, "uacell.ua.pipeline", "the session known while history is read", "(wrapped, not changed)"),
     Entry("asyncua.server.internal_subscription.InternalSubscription._trigger_publish", Kind.PATCH, "uacell.ua.pipeline", "a client's 0 ms subscription publishes once per event-loop turn, every change of the turn in one NotificationMessage (door/publishing.py)", "publishes at the first queued change of each monitored item"),
     Entry("asyncua.server.monitored_item_service.MonitoredItemService.datachange_callback", Kind.PATCH, "uacell.ua.pipeline", "a value reported by OPC 10000-4 7.22.2: compared with the last value reported, a status change always (ua/datachange.py); a scalar kept as written (door/publishing.py)", "compares with the value before (a slow drift within the deadband never reported; a status change within it dropped); a deepcopy of every value for every monitored item"),
+    Entry("asyncua.server.monitored_item_service.MonitoredItemService.create_monitored_items", Kind.PATCH, "uacell.ua.pipeline", "a filter the standards do not allow refused with their status code, the request's other items made (ua/datachange.py)", "accepts any filter: a deadband on a String, a DataChangeFilter on an event item (the whole request failed), a percent deadband it did not apply"),
+    Entry("asyncua.server.monitored_item_service.MonitoredItemService.modify_monitored_items", Kind.PATCH, "uacell.ua.pipeline", "the same checks for a new filter; an unknown item is Bad_MonitoredItemIdInvalid", "accepts any filter; an unknown item failed the whole request (a TypeError)"),
     Entry(f"{_T}.messages", Kind.SWAP, "uacell.ua.pipeline", "collects what asyncua parses from one read, to run it at once", "its queue, for the duration of one parse"),
     # --- one server's parts ------------------------------------------------------------------------
     Entry(f"{_I}.method_service", Kind.SWAP, "uacell.binding.dispatch", "the one method dispatcher", "MethodService: calls the callback with no argument checks or roles"),
@@ -99,7 +101,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry(f"{_I}._external_sessions", Kind.PRIVATE, "uacell.ua.channel", "the client sessions (diagnostics, metrics)", ""),
     Entry(f"{_S}._last_activity", Kind.PRIVATE, "uacell.services.diagnostics", "a session's idle time", ""),
     Entry("asyncua.common.utils.Buffer._data", Kind.PRIVATE, "uacell.ua.codec", "a request's bytes, decoded by ua/codec.py", ""),
-    Entry("asyncua.server.monitored_item_service.MonitoredItemService._monitored_items", Kind.PRIVATE, "uacell.ua.limits", "monitored items counted against [limits]", ""),
+    Entry("asyncua.server.monitored_item_service.MonitoredItemService._monitored_items", Kind.PRIVATE, "uacell.ua.limits", "monitored items counted against [limits]; an item's filter and last value reported (door/publishing.py)", ""),
     Entry("asyncua.server.monitored_item_service.MonitoredItemService._monitored_datachange", Kind.PRIVATE, "uacell.ua.pipeline", "the monitored item a data change callback's handle belongs to (door/publishing.py)", ""),
     Entry("asyncua.server.address_space.MethodService._call", Kind.PRIVATE, "uacell.binding.dispatch", "asyncua's callback for a method uacell does not bind (ConditionRefresh)", ""),
     Entry("asyncua.server.address_space.ViewService._get_sub_ref", Kind.PRIVATE, "uacell.ua.nodesets", "the subtypes of a reference type", ""),

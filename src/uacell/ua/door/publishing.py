@@ -12,13 +12,15 @@ the answer (decision 56). A subscription deleted meanwhile publishes nothing.
 Subscriptions without a client (``pub_request_callback`` None: the server's own, asyncua's
 ``Server.create_subscription``) publish at once, as asyncua does.
 
-A monitored item reports a value by OPC 10000-4 7.22.2 (``uacell.ua.datachange``): compared with the
-last value it *reported*, where asyncua compared with the value before, so that a value drifting by
-less than a deadband at each step was never reported; a status change is reported whatever the
-deadband. What the item keeps of the value it reported is the value itself when its payload cannot
-change in place (a scalar of an immutable Python type, or one of asyncua's names and ids, which
-nothing in the server mutates: writes make new DataValues); asyncua kept a ``copy.deepcopy`` of every
-value for every monitored item, about 50 us for a Double. Arrays and structures are still copied.
+A monitored item's filter is checked when it is created or modified (a filter the standards do not
+allow is refused with their status code, the other items of the request made), and the item reports
+a value by OPC 10000-4 7.22.2 (``uacell.ua.datachange``): compared with the last value it
+*reported*, where asyncua compared with the value before, so that a value drifting by less than a
+deadband at each step was never reported; a status change is reported whatever the deadband. What
+the item keeps of the value it reported is the value itself when its payload cannot change in place
+(a scalar of an immutable Python type, or one of asyncua's names and ids, which nothing in the
+server mutates: writes make new DataValues); asyncua kept a ``copy.deepcopy`` of every value for
+every monitored item, about 50 us for a Double. Arrays and structures are still copied.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from __future__ import annotations
 import asyncio
 import contextvars
 import copy
+import dataclasses
 import logging
 from datetime import datetime
 from typing import Any
@@ -43,6 +46,8 @@ log = logging.getLogger(__name__)
 _SUB = "asyncua.server.internal_subscription.InternalSubscription."
 _ITEMS = "asyncua.server.monitored_item_service.MonitoredItemService."
 _ORIGINAL_CALLBACK = MonitoredItemService.datachange_callback
+_ORIGINAL_CREATE = MonitoredItemService.create_monitored_items
+_ORIGINAL_MODIFY = MonitoredItemService.modify_monitored_items
 # a Variant's payload of one of these types is never changed in place
 _KEPT_AS_IS = frozenset(
     {int, float, bool, str, bytes, datetime, type(None), ua.LocalizedText, ua.NodeId, ua.QualifiedName}
@@ -88,8 +93,11 @@ async def _datachange_callback(
     mdata = self._monitored_items[mid]
     if mdata.mode == ua.MonitoringMode.Disabled:
         return
-    kept = mdata.mvalue
-    if not datachange.reported(kept.current_dvalue, value, mdata.filter):
+    kept, flt = mdata.mvalue, mdata.filter
+    span = None
+    if flt is not None and getattr(flt, "DeadbandType", None) == ua.DeadbandType.Percent:
+        span = datachange.eu_span(self.aspace, mdata.read_value_id.NodeId)  # read now: it may have changed
+    if not datachange.reported(kept.current_dvalue, value, flt, span):
         return
     kept.old_dvalue = kept.current_dvalue
     variant = value.Value
@@ -98,6 +106,45 @@ async def _datachange_callback(
     await self.isub.enqueue_datachange_event(mid, event, mdata.queue_size)
 
 
+async def _create_monitored_items(
+    self: MonitoredItemService, params: ua.CreateMonitoredItemsParameters
+) -> list[ua.MonitoredItemCreateResult]:
+    """asyncua's, for the items whose filter the standards allow; the others answered with why not."""
+    refused = [
+        datachange.refusal(self.aspace, i.ItemToMonitor, i.RequestedParameters.Filter) for i in params.ItemsToCreate
+    ]
+    if not any(refused):
+        results: list[ua.MonitoredItemCreateResult] = await _ORIGINAL_CREATE(self, params)
+        return results
+    allowed = [item for item, why in zip(params.ItemsToCreate, refused, strict=True) if why is None]
+    made = iter(await _ORIGINAL_CREATE(self, dataclasses.replace(params, ItemsToCreate=allowed)))
+    return [
+        next(made) if why is None else ua.MonitoredItemCreateResult(StatusCode=ua.StatusCode(why)) for why in refused
+    ]
+
+
+def _modify_monitored_items(
+    self: MonitoredItemService, params: ua.ModifyMonitoredItemsParameters
+) -> list[ua.MonitoredItemModifyResult]:
+    """asyncua's, for known items whose new filter the standards allow (asyncua failed the whole request
+    on an unknown item); the others answered with why not and left as they were."""
+    results: list[ua.MonitoredItemModifyResult] = []
+    for item in params.ItemsToModify:
+        mdata = self._monitored_items.get(item.MonitoredItemId)
+        if mdata is None:
+            why: int | None = ua.StatusCodes.BadMonitoredItemIdInvalid
+        else:
+            why = datachange.refusal(self.aspace, mdata.read_value_id, item.RequestedParameters.Filter)
+        if why is not None:
+            results.append(ua.MonitoredItemModifyResult(StatusCode=ua.StatusCode(why)))
+            continue
+        one = dataclasses.replace(params, ItemsToModify=[item])
+        results.extend(_ORIGINAL_MODIFY(self, one))
+    return results
+
+
 def install() -> None:
     patch(_SUB + "_trigger_publish", _trigger_publish)
     patch(_ITEMS + "datachange_callback", _datachange_callback)
+    patch(_ITEMS + "create_monitored_items", _create_monitored_items)
+    patch(_ITEMS + "modify_monitored_items", _modify_monitored_items)
