@@ -269,3 +269,27 @@ async def test_a_percent_deadband_is_applied_to_the_eurange_and_a_modify_is_chec
         await wait_until(lambda: len(seen) >= 4, timeout=10)
         assert seen == [100.0, 125.0, 100.0, 79.0]
         await subscription.delete()
+
+
+async def test_an_item_enabled_again_reports_its_first_sample(tmp_path: Path) -> None:
+    """OPC 10000-4 5.13.1.3: "When a MonitoredItem is enabled (i.e. when the MonitoringMode is changed
+    from DISABLED to SAMPLING or REPORTING) ... the Server shall report the first sample as soon as
+    possible", whether or not the value changed meanwhile."""
+    async with serving(fast_config(tmp_path / "data")) as (_app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        seen: list[tuple[float, int]] = []  # (the value, the NotificationMessage's sequence number)
+
+        class Handler:
+            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+                seen.append((round(val, 3), subscription.last_sequence_number))
+
+        speed = client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns))
+        subscription = await client.create_subscription(0, Handler())
+        await subscription.subscribe_data_change(speed)
+        await wait_until(lambda: len(seen) == 1)
+        assert [s.name for s in await subscription.set_monitoring_mode(ua.MonitoringMode.Disabled)] == ["Good"]
+        assert [s.name for s in await subscription.set_monitoring_mode(ua.MonitoringMode.Reporting)] == ["Good"]
+        # (asyncua's client may deliver a message again when it fetches one it thinks it missed: same number)
+        await wait_until(lambda: seen[-1][1] > seen[0][1], timeout=10)
+        assert seen[-1][0] == seen[0][0]  # the same value, in a later message
+        await subscription.delete()

@@ -48,6 +48,7 @@ _ITEMS = "asyncua.server.monitored_item_service.MonitoredItemService."
 _ORIGINAL_CALLBACK = MonitoredItemService.datachange_callback
 _ORIGINAL_CREATE = MonitoredItemService.create_monitored_items
 _ORIGINAL_MODIFY = MonitoredItemService.modify_monitored_items
+_ORIGINAL_MODE = MonitoredItemService.set_monitoring_mode
 # a Variant's payload of one of these types is never changed in place
 _KEPT_AS_IS = frozenset(
     {int, float, bool, str, bytes, datetime, type(None), ua.LocalizedText, ua.NodeId, ua.QualifiedName}
@@ -143,8 +144,21 @@ def _modify_monitored_items(
     return results
 
 
+async def _set_monitoring_mode(self: MonitoredItemService, mode: ua.MonitoringMode, ids: list[int]) -> list[Any]:
+    """asyncua's, and an item enabled again reports its first sample (OPC 10000-4 5.13.1.3) even when
+    the value did not change while it was disabled: it forgets the value it reported last."""
+    if mode != ua.MonitoringMode.Disabled:
+        for mid in ids:
+            mdata = self._monitored_items.get(mid)
+            if mdata is not None and mdata.mode == ua.MonitoringMode.Disabled:
+                mdata.mvalue.current_dvalue = None
+    results: list[Any] = await _ORIGINAL_MODE(self, mode, ids)
+    return results
+
+
 def install() -> None:
     patch(_SUB + "_trigger_publish", _trigger_publish)
     patch(_ITEMS + "datachange_callback", _datachange_callback)
     patch(_ITEMS + "create_monitored_items", _create_monitored_items)
     patch(_ITEMS + "modify_monitored_items", _modify_monitored_items)
+    patch(_ITEMS + "set_monitoring_mode", _set_monitoring_mode)
