@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from pathlib import Path
 from typing import Any
 
@@ -208,4 +209,66 @@ async def test_a_deadband_compares_with_the_last_value_reported_and_a_status_cha
         await app.server.write_attribute_value(speed, same)  # the value unchanged, its quality not
         await wait_until(lambda: len(seen) == 4, timeout=10)
         assert seen[-1] == (99.0, uncertain.value)
+        await subscription.delete()
+
+
+async def test_a_0_ms_subscription_is_revised_and_kept_alive(tmp_path: Path) -> None:
+    """OPC 10000-4 5.14.2.2: a requested publishing interval of 0 is revised to the fastest the server
+    supports. asyncua kept 0 and ran no loop for it, so an idle subscription never got a keep-alive,
+    and asyncua's own client took it for lost after a second and made it again (its values sent
+    twice). Now it is revised to 50 ms and gets asyncua's keep-alives (decision 79)."""
+    async with serving(fast_config(tmp_path / "data")) as (app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        seen: list[float] = []
+
+        class Handler:
+            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+                seen.append(val)
+
+        params = ua.CreateSubscriptionParameters(
+            RequestedPublishingInterval=0,
+            RequestedLifetimeCount=30,
+            RequestedMaxKeepAliveCount=3,
+            PublishingEnabled=True,
+        )
+        subscription = await client.create_subscription(params, Handler())
+        first_id = subscription.subscription_id
+        served = app.server.iserver.subscription_service.subscriptions[first_id]
+        assert served.data.RevisedPublishingInterval == 50.0
+        await subscription.subscribe_data_change(client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns)))
+        await wait_until(lambda: len(seen) == 1)
+        idle_from = time.monotonic()
+        # a keep-alive arrives after the second in which asyncua's client would have made it again
+        await wait_until(lambda: (subscription.last_publish_at or 0.0) > idle_from + 1.5, timeout=10)
+        assert subscription.subscription_id == first_id and len(seen) == 1  # not made again, nothing twice
+        await subscription.delete()
+
+
+async def test_a_subscription_asked_faster_than_the_fastest_interval_still_gets_each_change_at_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Revised to the fastest interval, a 0 ms subscription still gets a change in the turn it was
+    made (decision 76), not at the revised interval's next tick: here the fastest interval is made
+    five seconds long, and the change arrives far sooner."""
+    from uacell.ua import limits
+
+    monkeypatch.setattr(limits, "FASTEST_PUBLISHING_INTERVAL", 5000.0)
+    async with serving(fast_config(tmp_path / "data")) as (app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        seen: list[float] = []
+
+        class Handler:
+            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+                seen.append(val)
+
+        subscription = await client.create_subscription(0, Handler())
+        served = app.server.iserver.subscription_service.subscriptions[subscription.subscription_id]
+        assert served.data.RevisedPublishingInterval == 5000.0
+        await subscription.subscribe_data_change(client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns)))
+        await wait_until(lambda: len(seen) == 1, timeout=10)
+        filler = client.get_node(ua.NodeId("Filler1", ns))
+        called = time.monotonic()
+        await filler.call_method(ua.NodeId("Filler1.SetMachSpeed", ns), ua.Variant(75.0, ua.VariantType.Float))
+        await wait_until(lambda: len(seen) == 2, timeout=10)
+        assert seen[-1] == 75.0 and time.monotonic() - called < 2.5  # not at the 5 s tick
         await subscription.delete()

@@ -47,7 +47,7 @@ from asyncua.ua.ua_binary import struct_from_binary
 
 from uacell.core.logs import RefusalLog
 from uacell.ua import door
-from uacell.ua.door import connection
+from uacell.ua.door import connection, publishing
 from uacell.ua.pipeline import Next, Request
 
 if TYPE_CHECKING:
@@ -59,6 +59,9 @@ log = logging.getLogger(__name__)
 FD_RESERVE = 64
 #: The largest first message accepted: a Hello (its EndpointUrl is at most 4096 bytes) and some room.
 PRE_HELLO_BYTES = 8192
+#: The fastest publishing interval (ms) a client's subscription is revised to, as node-opcua's server
+#: revises; a client that asked for less still gets its changes at once (decision 79).
+FASTEST_PUBLISHING_INTERVAL = 50.0
 _HEADER = struct.Struct("<3scI")  # MessageType, ChunkType, MessageSize (OPC 10000-6 7.1.2.2)
 
 
@@ -457,7 +460,18 @@ class LimitedSession(InternalSession):  # type: ignore[misc]  # asyncua is untyp
         if limits is not None and len(self._own_subscriptions()) >= limits.subscriptions_per_session:
             log.info("refused a subscription: %d per session is the limit", limits.subscriptions_per_session)
             raise ServiceError(ua.StatusCodes.BadTooManySubscriptions)
-        return await super().create_subscription(params, callback, request_callback=request_callback)
+        # OPC 10000-4 5.14.2.2: a request of 0 (or below the fastest interval) is revised to the fastest
+        # the server supports. asyncua kept 0 and ran no loop for it: no keep-alive, no lifetime (decision 79).
+        at_once = not params.RequestedPublishingInterval >= FASTEST_PUBLISHING_INTERVAL  # NaN included
+        if at_once:
+            params = dataclasses.replace(params, RequestedPublishingInterval=FASTEST_PUBLISHING_INTERVAL)
+        result: ua.CreateSubscriptionResult = await super().create_subscription(
+            params, callback, request_callback=request_callback
+        )
+        sub = self.subscription_service.subscriptions.get(result.SubscriptionId)
+        if at_once and sub is not None:
+            publishing.publish_at_once(sub)  # its changes still go out at once (decision 76)
+        return result
 
     async def create_monitored_items(
         self, params: ua.CreateMonitoredItemsParameters

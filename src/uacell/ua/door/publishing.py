@@ -1,7 +1,10 @@
 """What a client's subscription is sent: a 0 ms subscription's changes once per turn of the event loop,
 and a monitored item's values by the standard's rules.
 
-asyncua publishes such a subscription as soon as a monitored item gets its first queued change: a
+A subscription whose client asked for a publishing interval below the fastest the server announces
+(0 included) is revised to that interval (``uacell.ua.limits``, decision 79) and registered here with
+``publish_at_once``: asyncua's loop at the revised interval sends its keep-alives, and its changes are
+published as follows. asyncua publishes a 0 ms subscription as soon as a monitored item gets its first queued change: a
 publisher's drain that writes six axes of a robot sent the first axis alone and the other five in a
 second NotificationMessage (or six messages to a client that keeps six Publish requests waiting, as
 node-opcua's does). Here the first change of a turn schedules one publication for the end of the turn
@@ -30,6 +33,7 @@ import contextvars
 import copy
 import dataclasses
 import logging
+import weakref
 from datetime import datetime
 from typing import Any
 
@@ -58,8 +62,18 @@ _due: set[InternalSubscription] = set()  # subscriptions with a publication sche
 _running: set[asyncio.Task[Any]] = set()  # publications that wait for the socket (kept until done)
 
 
+_at_once: weakref.WeakSet[InternalSubscription] = weakref.WeakSet()  # a client asked for the fastest
+
+
+def publish_at_once(sub: InternalSubscription) -> None:
+    """``sub``'s client asked for a publishing interval below the fastest the server announces (0
+    included): its changes are published once per turn of the event loop instead of at its interval;
+    asyncua's loop at the revised interval still sends its keep-alives and counts its lifetime."""
+    _at_once.add(sub)
+
+
 async def _trigger_publish(self: InternalSubscription) -> None:
-    if self.pub_request_callback is None or self.data.RevisedPublishingInterval > 0.0:
+    if self.pub_request_callback is None or (self.data.RevisedPublishingInterval > 0.0 and self not in _at_once):
         await _ORIGINAL(self)
         return
     if self not in _due:
