@@ -212,6 +212,16 @@ async def test_a_deadband_compares_with_the_last_value_reported_and_a_status_cha
         await subscription.delete()
 
 
+class Values:
+    """A subscription's handler that keeps the values it is sent."""
+
+    def __init__(self) -> None:
+        self.seen: list[Any] = []
+
+    def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+        self.seen.append(val)
+
+
 async def test_a_0_ms_subscription_is_revised_and_kept_alive(tmp_path: Path) -> None:
     """OPC 10000-4 5.14.2.2: a requested publishing interval of 0 is revised to the fastest the server
     supports. asyncua kept 0 and ran no loop for it, so an idle subscription never got a keep-alive,
@@ -219,28 +229,23 @@ async def test_a_0_ms_subscription_is_revised_and_kept_alive(tmp_path: Path) -> 
     twice). Now it is revised to 50 ms and gets asyncua's keep-alives (decision 79)."""
     async with serving(fast_config(tmp_path / "data")) as (app, client):
         ns = await client.get_namespace_index("urn:uacell:cell")
-        seen: list[float] = []
-
-        class Handler:
-            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
-                seen.append(val)
-
+        values = Values()
         params = ua.CreateSubscriptionParameters(
             RequestedPublishingInterval=0,
             RequestedLifetimeCount=30,
             RequestedMaxKeepAliveCount=3,
             PublishingEnabled=True,
         )
-        subscription = await client.create_subscription(params, Handler())
+        subscription = await client.create_subscription(params, values)
         first_id = subscription.subscription_id
         served = app.server.iserver.subscription_service.subscriptions[first_id]
         assert served.data.RevisedPublishingInterval == 50.0
         await subscription.subscribe_data_change(client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns)))
-        await wait_until(lambda: len(seen) == 1)
+        await wait_until(lambda: len(values.seen) == 1)
         idle_from = time.monotonic()
         # a keep-alive arrives after the second in which asyncua's client would have made it again
         await wait_until(lambda: (subscription.last_publish_at or 0.0) > idle_from + 1.5, timeout=10)
-        assert subscription.subscription_id == first_id and len(seen) == 1  # not made again, nothing twice
+        assert subscription.subscription_id == first_id and len(values.seen) == 1  # not made again, nothing twice
         await subscription.delete()
 
 
@@ -255,20 +260,15 @@ async def test_a_subscription_asked_faster_than_the_fastest_interval_still_gets_
     monkeypatch.setattr(limits, "FASTEST_PUBLISHING_INTERVAL", 5000.0)
     async with serving(fast_config(tmp_path / "data")) as (app, client):
         ns = await client.get_namespace_index("urn:uacell:cell")
-        seen: list[float] = []
-
-        class Handler:
-            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
-                seen.append(val)
-
-        subscription = await client.create_subscription(0, Handler())
+        values = Values()
+        subscription = await client.create_subscription(0, values)
         served = app.server.iserver.subscription_service.subscriptions[subscription.subscription_id]
         assert served.data.RevisedPublishingInterval == 5000.0
         await subscription.subscribe_data_change(client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns)))
-        await wait_until(lambda: len(seen) == 1, timeout=10)
+        await wait_until(lambda: len(values.seen) == 1, timeout=10)
         filler = client.get_node(ua.NodeId("Filler1", ns))
         called = time.monotonic()
         await filler.call_method(ua.NodeId("Filler1.SetMachSpeed", ns), ua.Variant(75.0, ua.VariantType.Float))
-        await wait_until(lambda: len(seen) == 2, timeout=10)
-        assert seen[-1] == 75.0 and time.monotonic() - called < 2.5  # not at the 5 s tick
+        await wait_until(lambda: len(values.seen) == 2, timeout=10)
+        assert values.seen[-1] == 75.0 and time.monotonic() - called < 2.5  # not at the 5 s tick
         await subscription.delete()
