@@ -5,6 +5,7 @@ clients over TCP."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import time
 from pathlib import Path
@@ -271,4 +272,40 @@ async def test_a_subscription_asked_faster_than_the_fastest_interval_still_gets_
         await filler.call_method(ua.NodeId("Filler1.SetMachSpeed", ns), ua.Variant(75.0, ua.VariantType.Float))
         await wait_until(lambda: len(values.seen) == 2, timeout=10)
         assert values.seen[-1] == 75.0 and time.monotonic() - called < 2.5  # not at the 5 s tick
+        await subscription.delete()
+
+
+async def test_a_client_gets_at_most_its_max_notifications_per_publish_in_one_message(tmp_path: Path) -> None:
+    """OPC 10000-4 5.13.2: MaxNotificationsPerPublish is the most notifications a client wishes to
+    receive in one Publish response; the rest follow (MoreNotifications). asyncua sent every queued
+    notification in one message."""
+    names = ("MachSpeed", "CurMachSpeed", "UnitModeCurrent", "StateCurrent", "EquipmentBlocked")
+    async with serving(fast_config(tmp_path / "data")) as (_app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        seen: list[tuple[int, str]] = []  # (the message's sequence number, the variable)
+        nodes = {}
+        for name in names:
+            node = client.get_node(ua.NodeId(f"Filler1.Status.{name}", ns))
+            with contextlib.suppress(ua.UaStatusCodeError):
+                await node.read_value()
+                nodes[node.nodeid] = name
+        assert len(nodes) >= 4  # enough to need three messages of two
+
+        class Handler:
+            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+                seen.append((subscription.last_sequence_number, nodes[node.nodeid]))
+
+        params = ua.CreateSubscriptionParameters(
+            RequestedPublishingInterval=100,
+            RequestedLifetimeCount=300,
+            RequestedMaxKeepAliveCount=10,
+            MaxNotificationsPerPublish=2,
+            PublishingEnabled=True,
+        )
+        subscription = await client.create_subscription(params, Handler())
+        await subscription.subscribe_data_change([client.get_node(n) for n in nodes])  # one request: all queued
+        await wait_until(lambda: len(seen) == len(nodes), timeout=10)
+        assert sorted(name for _, name in seen) == sorted(nodes.values())  # each once, none lost
+        per_message = [sum(1 for seq, _ in seen if seq == s) for s in sorted({seq for seq, _ in seen})]
+        assert max(per_message) == 2 and len(per_message) == (len(nodes) + 1) // 2, seen
         await subscription.delete()

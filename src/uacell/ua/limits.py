@@ -469,8 +469,10 @@ class LimitedSession(InternalSession):  # type: ignore[misc]  # asyncua is untyp
             params, callback, request_callback=request_callback
         )
         sub = self.subscription_service.subscriptions.get(result.SubscriptionId)
-        if at_once and sub is not None:
-            publishing.publish_at_once(sub)  # its changes still go out at once (decision 76)
+        if sub is not None:
+            if at_once:
+                publishing.publish_at_once(sub)  # its changes still go out at once (decision 76)
+            publishing.limit_notifications(sub, params.MaxNotificationsPerPublish)
         return result
 
     async def create_monitored_items(

@@ -58,6 +58,10 @@ _KEPT_AS_IS = frozenset(
     {int, float, bool, str, bytes, datetime, type(None), ua.LocalizedText, ua.NodeId, ua.QualifiedName}
 )
 _ORIGINAL = InternalSubscription._trigger_publish
+_ORIGINAL_POP = InternalSubscription._pop_publish_result
+_ORIGINAL_PUBLISH = InternalSubscription.publish_results
+# a subscription's MaxNotificationsPerPublish, where its client set one (0: no limit, not kept)
+_per_message: weakref.WeakKeyDictionary[InternalSubscription, int] = weakref.WeakKeyDictionary()
 _due: set[InternalSubscription] = set()  # subscriptions with a publication scheduled for this turn
 _running: set[asyncio.Task[Any]] = set()  # publications that wait for the socket (kept until done)
 
@@ -170,9 +174,61 @@ async def _set_monitoring_mode(self: MonitoredItemService, mode: ua.MonitoringMo
     return results
 
 
+def limit_notifications(sub: InternalSubscription, most: int) -> None:
+    """``sub``'s client receives at most ``most`` notifications in one message (its
+    MaxNotificationsPerPublish, OPC 10000-4 5.13.2; 0 is no limit): the rest follow in the next
+    messages, each marked MoreNotifications but the last. asyncua sent all in one."""
+    if most > 0:
+        _per_message[sub] = most
+
+
+def _pop_publish_result(self: InternalSubscription) -> ua.PublishResult:
+    most = _per_message.get(self)
+    if most is None or not self._publishing_enabled:  # disabled: asyncua's pop takes no notification
+        result: ua.PublishResult = _ORIGINAL_POP(self)
+        return result
+    # asyncua's pop takes every queued data change, then every queued event: hold back what is beyond
+    # the limit (in that order, each item's notifications oldest first) and queue it again after.
+    held: list[dict[int, list[Any]]] = []
+    room = most
+    for queue in (self._triggered_datachanges, self._triggered_events):
+        kept: dict[int, list[Any]] = {}
+        for mid, items in queue.items():
+            if len(items) > room:
+                kept[mid] = items[room:]
+                del items[room:]
+            room -= len(items)
+        for mid in [mid for mid, items in queue.items() if not items]:
+            del queue[mid]
+        held.append(kept)
+    result = _ORIGINAL_POP(self)
+    if held[0] or held[1]:
+        self._triggered_datachanges, self._triggered_events = held
+        result.MoreNotifications = True
+    return result
+
+
+async def _publish_in_parts(self: InternalSubscription, requestdata: Any = None) -> bool:
+    """asyncua's ``publish_results``; while a limited message left notifications queued, the next part
+    goes with the next Publish request the client has waiting (or when it sends one). Answers whether
+    the first publish was sent: whether ``requestdata`` was used, for asyncua's processor."""
+    sent: bool = await _ORIGINAL_PUBLISH(self, requestdata)
+    more = sent
+    while (
+        more
+        and self in _per_message
+        and self._publishing_enabled
+        and (self._triggered_datachanges or self._triggered_events)
+    ):
+        more = await _ORIGINAL_PUBLISH(self)
+    return sent
+
+
 def install() -> None:
     patch(_SUB + "_trigger_publish", _trigger_publish)
     patch(_ITEMS + "datachange_callback", _datachange_callback)
     patch(_ITEMS + "create_monitored_items", _create_monitored_items)
     patch(_ITEMS + "modify_monitored_items", _modify_monitored_items)
     patch(_ITEMS + "set_monitoring_mode", _set_monitoring_mode)
+    patch(_SUB + "_pop_publish_result", _pop_publish_result)
+    patch(_SUB + "publish_results", _publish_in_parts)
