@@ -293,3 +293,69 @@ async def test_an_item_enabled_again_reports_its_first_sample(tmp_path: Path) ->
         await wait_until(lambda: seen[-1][1] > seen[0][1], timeout=10)
         assert seen[-1][0] == seen[0][0]  # the same value, in a later message
         await subscription.delete()
+
+
+async def test_an_item_in_sampling_mode_queues_and_reports_only_once_it_reports(tmp_path: Path) -> None:
+    """OPC 10000-4 7.23: SAMPLING: "Notifications are generated and queued. Notification reporting is
+    disabled." asyncua reported a Sampling item as a Reporting one. Two items on MachSpeed, one
+    Reporting and one Sampling: a change reaches the first only; once the second reports, what it
+    queued arrives, in order."""
+    async with serving(fast_config(tmp_path / "data")) as (_app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        seen: list[tuple[int, float]] = []  # (the item's client handle, the value)
+
+        class Handler:
+            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+                seen.append((data.monitored_item.ClientHandle, round(val, 3)))
+
+        speed = client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns))
+        subscription = await client.create_subscription(0, Handler())
+        await subscription.subscribe_data_change(speed, queuesize=10)
+        sampling = await subscription.subscribe_data_change(speed, queuesize=10, monitoring=ua.MonitoringMode.Sampling)
+        reporting_handle, sampling_handle = sorted(subscription._monitored_items)  # the client's handles
+        await wait_until(lambda: len(seen) == 1)
+        filler = client.get_node(ua.NodeId("Filler1", ns))
+        for value in (70.0, 80.0):
+            await filler.call_method(ua.NodeId("Filler1.SetMachSpeed", ns), ua.Variant(value, ua.VariantType.Float))
+        await wait_until(lambda: [v for _, v in seen] == [60.0, 70.0, 80.0], timeout=10)
+        assert {h for h, _ in seen} == {reporting_handle}  # the Sampling item reported nothing
+        params = ua.SetMonitoringModeParameters(
+            SubscriptionId=subscription.subscription_id,
+            MonitoringMode=ua.MonitoringMode.Reporting,
+            MonitoredItemIds=[sampling],
+        )
+        assert [s.name for s in await client.uaclient.set_monitoring_mode(params)] == ["Good"]
+        await wait_until(lambda: len(seen) == 6, timeout=10)
+        assert [v for h, v in seen if h == sampling_handle] == [60.0, 70.0, 80.0]  # what it queued, in order
+        await subscription.delete()
+
+
+async def test_a_disabled_event_item_queues_no_event(tmp_path: Path) -> None:
+    """OPC 10000-4 7.23: DISABLED: "Notifications are not generated or queued." asyncua queued and
+    reported an event item's events whatever its mode. Two event items on the Server object, one of
+    them disabled: a LoadByName's TransitionEvent reaches the other only."""
+    async with serving(fast_config(tmp_path / "data")) as (_app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        seen: list[int] = []  # the client handle of each item that got an event
+
+        class Handler:
+            def event_notification(self, event: Any) -> None:
+                seen.append(event.server_handle)
+
+        server = client.get_node(ua.NodeId(ua.ObjectIds.Server))
+        subscription = await client.create_subscription(0, Handler())
+        transition = ua.NodeId(ua.ObjectIds.TransitionEventType)
+        live = await subscription.subscribe_events(server, transition)
+        disabled = await subscription.subscribe_events(server, transition)
+        params = ua.SetMonitoringModeParameters(
+            SubscriptionId=subscription.subscription_id,
+            MonitoringMode=ua.MonitoringMode.Disabled,
+            MonitoredItemIds=[disabled],
+        )
+        assert [s.name for s in await client.uaclient.set_monitoring_mode(params)] == ["Good"]
+        task_control = client.get_node(ua.NodeId(TC, ns))
+        load = ua.NodeId(f"{TC}.LoadByName", ns)
+        assert await task_control.call_method(load, ua.Variant("pick_and_place", ua.VariantType.String)) == 0
+        await wait_until(lambda: live in seen, timeout=10)
+        assert disabled not in seen
+        await subscription.delete()

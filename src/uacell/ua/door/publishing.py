@@ -34,6 +34,7 @@ import copy
 import dataclasses
 import logging
 import weakref
+from collections import deque
 from datetime import datetime
 from typing import Any
 
@@ -60,6 +61,7 @@ _KEPT_AS_IS = frozenset(
 _ORIGINAL = InternalSubscription._trigger_publish
 _ORIGINAL_POP = InternalSubscription._pop_publish_result
 _ORIGINAL_PUBLISH = InternalSubscription.publish_results
+_ORIGINAL_ENQUEUE = InternalSubscription._enqueue_event
 # a subscription's MaxNotificationsPerPublish, where its client set one (0: no limit, not kept)
 _per_message: weakref.WeakKeyDictionary[InternalSubscription, int] = weakref.WeakKeyDictionary()
 _due: set[InternalSubscription] = set()  # subscriptions with a publication scheduled for this turn
@@ -125,6 +127,43 @@ async def _datachange_callback(
     await self.isub.enqueue_datachange_event(mid, event, mdata.queue_size)
 
 
+# Notifications of items in Sampling mode: queued (the item's queue size, the oldest dropped) and not
+# reported until the item reports (OPC 10000-4 7.23; SetTriggering, the other way out, is unsupported)
+# (by subscription, then item: whether they are events, and the notifications)
+_held: weakref.WeakKeyDictionary[InternalSubscription, dict[int, tuple[bool, deque[Any]]]] = weakref.WeakKeyDictionary()
+
+
+async def _enqueue_event(
+    self: InternalSubscription, mid: int, eventdata: Any, size: int, queue: dict[int, list[Any]]
+) -> None:
+    mdata = self.monitored_item_srv._monitored_items.get(mid)
+    mode = mdata.mode if mdata is not None else None
+    if mode == ua.MonitoringMode.Disabled:
+        return  # asyncua queued an event item's events whatever its mode
+    if mode == ua.MonitoringMode.Sampling:
+        held = _held.setdefault(self, {})
+        # which queue, not the dict itself: asyncua replaces its queues with new ones at every publish
+        _, notifications = held.setdefault(mid, (queue is self._triggered_events, deque(maxlen=size or None)))
+        notifications.append(eventdata)
+        return
+    await _ORIGINAL_ENQUEUE(self, mid, eventdata, size, queue)
+
+
+async def _report_held(service: MonitoredItemService, ids: list[int]) -> None:
+    """What items that reported nothing while Sampling queued, reported now that they report."""
+    held = _held.get(service.isub)
+    for mid in ids:
+        mdata = service._monitored_items.get(mid)
+        entry = held.pop(mid, None) if held is not None else None
+        if entry is None or mdata is None or mdata.mode != ua.MonitoringMode.Reporting:
+            continue
+        events, notifications = entry
+        sub = service.isub
+        for notification in notifications:
+            queue = sub._triggered_events if events else sub._triggered_datachanges
+            await _ORIGINAL_ENQUEUE(sub, mid, notification, mdata.queue_size, queue)
+
+
 async def _create_monitored_items(
     self: MonitoredItemService, params: ua.CreateMonitoredItemsParameters
 ) -> list[ua.MonitoredItemCreateResult]:
@@ -171,6 +210,11 @@ async def _set_monitoring_mode(self: MonitoredItemService, mode: ua.MonitoringMo
             if mdata is not None and mdata.mode == ua.MonitoringMode.Disabled:
                 mdata.mvalue.current_dvalue = None
     results: list[Any] = await _ORIGINAL_MODE(self, mode, ids)
+    if mode == ua.MonitoringMode.Reporting:
+        await _report_held(self, ids)
+    elif mode == ua.MonitoringMode.Disabled and (held := _held.get(self.isub)) is not None:
+        for mid in ids:
+            held.pop(mid, None)  # "not sampled or evaluated, and Notifications are not ... queued"
     return results
 
 
@@ -232,3 +276,4 @@ def install() -> None:
     patch(_ITEMS + "set_monitoring_mode", _set_monitoring_mode)
     patch(_SUB + "_pop_publish_result", _pop_publish_result)
     patch(_SUB + "publish_results", _publish_in_parts)
+    patch(_SUB + "_enqueue_event", _enqueue_event)
