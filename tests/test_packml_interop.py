@@ -73,7 +73,7 @@ async def test_node_opcua_start_parameters_arrive_exactly(serve_process):
 async def test_node_opcua_deadband_is_applied_against_the_last_value_reported(serve_process):
     """OPC 10000-4 7.22.2: node-opcua's absolute deadband of 1.0 on MachSpeed, the speed drifting by
     less than that at each step (interop/deadband.js). The drift is reported once it is beyond the
-    deadband from the last value reported; 101.9 is within it of 101.2 (door/publishing.py). Then the
+    deadband from the last value reported; 101.9 is within it of 101.2 (door/monitoring.py). Then the
     filters the standards refuse, and a publishing interval of 0, as node-opcua's requests ask."""
     out = run_trusted(serve_process, "deadband.js")
     assert out["values"] == [100.0, 101.2, 99.0]

@@ -184,7 +184,7 @@ async def test_a_deadband_compares_with_the_last_value_reported_and_a_status_cha
     """A client's absolute deadband (OPC 10000-4 7.22.2) compares each new value with the last one
     reported, and a change of the status is reported whatever the deadband. asyncua compared with the
     value before: the drift 100 -> 100.5 -> 101.2 was never reported, nor an Uncertain status on an
-    unchanged value (door/publishing.py, ua/datachange.py)."""
+    unchanged value (door/monitoring.py, ua/datachange.py)."""
     async with serving(fast_config(tmp_path / "data")) as (app, client):
         ns = await client.get_namespace_index("urn:uacell:cell")
         seen: list[tuple[float, int]] = []  # (the value, its StatusCode)

@@ -15,7 +15,7 @@
 and the new one. The comparison is with the *last value reported* (the standard's "last cached
 value": the last one pushed to the item's queue), not with the value just before the new one.
 asyncua compared with the value before, so a value drifting by less than the deadband at each step
-was never reported however far it went; uacell's door (``uacell.ua.door.publishing``) asks this
+was never reported however far it went; uacell's door (``uacell.ua.door.monitoring``) asks this
 module instead.
 
 - A change of the StatusCode is reported whatever the trigger and the deadband ("Deadband is
