@@ -61,15 +61,36 @@ def _ephemeral_ports() -> range:
 
 
 _EPHEMERAL = _ephemeral_ports()
-_RANDOM = random.Random()
+
+
+def _own_ports() -> range:
+    """The listening ports this process may hand out: below the ephemeral range, and under pytest-xdist
+    a slice of their own per worker, so that two workers never pick the same port."""
+    ports = range(10000, min(_EPHEMERAL.start, 32768))
+    count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") or "1")
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if count <= 1 or not worker.startswith("gw") or not worker[2:].isdigit():
+        return ports
+    size = len(ports) // count
+    start = ports.start + (int(worker[2:]) % count) * size
+    return range(start, start + size)
+
+
+_OWN_PORTS = _own_ports()
+_next_port = random.Random().randrange(len(_OWN_PORTS))
 
 
 def free_port() -> int:
-    """A TCP port nobody listens on at 127.0.0.1 right now, outside the ephemeral range: a port the
-    kernel hands out (bind to 0) can be taken by any outgoing connection of a parallel test before
-    the server binds it; one below that range can only be taken by another test's listener."""
-    for _ in range(200):
-        port = _RANDOM.randrange(10000, min(_EPHEMERAL.start, 32768))
+    """A TCP port nobody listens on at 127.0.0.1 right now, and one this process has not handed out
+    before (until its slice wraps round): a test that asks twice gets two ports.
+
+    The port is outside the ephemeral range: a port the kernel hands out (bind to 0) can be taken by any
+    outgoing connection of a parallel test before the server binds it; one below that range can only be
+    taken by another listener, and under pytest-xdist each worker takes from its own slice."""
+    global _next_port
+    for _ in range(min(200, len(_OWN_PORTS))):
+        port = _OWN_PORTS[_next_port % len(_OWN_PORTS)]
+        _next_port += 1
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
             try:
                 s.bind(("127.0.0.1", port))

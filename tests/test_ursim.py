@@ -328,6 +328,17 @@ async def cell(tmp_path: Path) -> AsyncIterator[Cell]:
         yield Cell(sim, servers, clock)
 
 
+async def test_a_port_that_cannot_be_had_closes_the_ports_already_open(tmp_path: Path) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        servers = URSimServers(URSim(programs(tmp_path / "programs")), free_port(), taken.getsockname()[1])
+        with pytest.raises(OSError, match="Modbus server could not listen"):
+            await servers.start()
+    with pytest.raises(ConnectionRefusedError):
+        await asyncio.open_connection("127.0.0.1", servers.dashboard_port)
+
+
 async def running_program(line: Line, clock: FakeClock, sim: URSim) -> None:
     assert await line("load pick.urp") == f"Loading program: {sim.programs_dir / 'pick.urp'}"
     assert await line("power on") == "Powering on"

@@ -51,11 +51,16 @@ class URSimServers:
         return self.dashboard.dashboard.received
 
     async def start(self) -> None:
-        await self.dashboard.start()
-        if self.modbus is not None:
-            await self.modbus.start()
-        if self.control is not None:
-            await self.control.start()
+        """Listen on every port; when one cannot be had, close those already open and raise."""
+        try:
+            await self.dashboard.start()
+            if self.modbus is not None:
+                await self.modbus.start()
+            if self.control is not None:
+                await self.control.start()
+        except BaseException:
+            await self.stop()
+            raise
 
     async def stop(self) -> None:
         if self.control is not None:
