@@ -70,6 +70,21 @@ async def test_node_opcua_start_parameters_arrive_exactly(serve_process):
         assert (await state.read_value()).Text == "Execute"  # the simulator runs until told otherwise
 
 
+async def test_node_opcua_sessions_see_only_their_own_subscriptions(serve_process):
+    """OPC 10000-4 5.13, 5.14 (decision 80): node-opcua's second session names the first's subscription
+    in DeleteSubscriptions, SetPublishingMode, ModifySubscription and TransferSubscriptions and is told
+    it does not exist, or (transfer) that it may not have it; the owner's requests are served, its
+    ModifySubscription applied (interop/sessions.js)."""
+    out = run_trusted(serve_process, "sessions.js")
+    assert out["deleteByOther"] == ["BadSubscriptionIdInvalid"]
+    assert out["publishingModeByOther"] == ["BadSubscriptionIdInvalid"]
+    assert out["modifyByOther"] == "BadSubscriptionIdInvalid"
+    assert out["transferByOther"] == ["BadUserAccessDenied"]  # anonymous, over an unsigned channel
+    assert out["transferByOwner"] == ["BadNothingToDo"]
+    assert out["modifiedInterval"] == 1000
+    assert out["deleteByOwner"] == ["Good"]
+
+
 async def test_node_opcua_deadband_is_applied_against_the_last_value_reported(serve_process):
     """OPC 10000-4 7.22.2: node-opcua's absolute deadband of 1.0 on MachSpeed, the speed drifting by
     less than that at each step (interop/deadband.js). The drift is reported once it is beyond the

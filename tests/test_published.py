@@ -241,6 +241,15 @@ async def test_a_0_ms_subscription_is_revised_and_kept_alive(tmp_path: Path) -> 
         first_id = subscription.subscription_id
         served = app.server.iserver.subscription_service.subscriptions[first_id]
         assert served.data.RevisedPublishingInterval == 50.0
+        # asyncua's client sends back the revised interval with a keep-alive count of its own (large):
+        # three again, by ModifySubscription, so that keep-alives come every 150 ms
+        modify = ua.ModifySubscriptionParameters(
+            SubscriptionId=first_id, RequestedPublishingInterval=50.0, RequestedLifetimeCount=30,
+            RequestedMaxKeepAliveCount=3,
+        )  # fmt: skip
+        revised = await client.uaclient.update_subscription(modify)
+        assert (revised.RevisedPublishingInterval, revised.RevisedLifetimeCount) == (50.0, 30)
+        assert revised.RevisedMaxKeepAliveCount == served.data.RevisedMaxKeepAliveCount == 3
         await subscription.subscribe_data_change(client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns)))
         await wait_until(lambda: len(values.seen) == 1)
         idle_from = time.monotonic()
@@ -256,9 +265,9 @@ async def test_a_subscription_asked_faster_than_the_fastest_interval_still_gets_
     """Revised to the fastest interval, a 0 ms subscription still gets a change in the turn it was
     made (decision 76), not at the revised interval's next tick: here the fastest interval is made
     five seconds long, and the change arrives far sooner."""
-    from uacell.ua import limits
+    from uacell.ua import subscriptions
 
-    monkeypatch.setattr(limits, "FASTEST_PUBLISHING_INTERVAL", 5000.0)
+    monkeypatch.setattr(subscriptions, "FASTEST_PUBLISHING_INTERVAL", 5000.0)
     async with serving(fast_config(tmp_path / "data")) as (app, client):
         ns = await client.get_namespace_index("urn:uacell:cell")
         values = Values()

@@ -13,12 +13,15 @@ from asyncua.server.address_space import AddressSpace
 from uacell.binding.calls import call_result
 from uacell.core.rights import RoleTable
 from uacell.core.roles import Role
-from uacell.ua import toolkit
+from uacell.ua import subscriptions, toolkit
 from uacell.ua.context import Caller
 from uacell.ua.door.services import asyncua_method_call
 
 log = logging.getLogger("uacell.binding.dispatch")
 _A = ua.AttributeIds
+_REFRESH = frozenset(
+    {ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh), ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh2)}
+)
 
 
 class UnboundCalls:
@@ -86,6 +89,9 @@ class UnboundCalls:
                 return refused
             if not self.roles.may_call(Role.parse(caller.role), name, self._type_hint(request.ObjectId)):
                 return call_result(ua.StatusCodes.BadUserAccessDenied)  # not in the table: admin only
+            if request.MethodId in _REFRESH and not subscriptions.owned_by_caller(request.InputArguments[0].Value):
+                # OPC 10000-9 5.5.7: a refresh of the caller's own subscription (decision 80)
+                return call_result(ua.StatusCodes.BadSubscriptionIdInvalid)
             result = await asyncua_method_call(self, request)
             if result.StatusCode.value == ua.StatusCodes.BadUnexpectedError:
                 result.StatusCode = ua.StatusCode(ua.StatusCodes.BadInternalError)

@@ -46,7 +46,7 @@ from asyncua.server.internal_session import InternalSession
 from asyncua.ua.ua_binary import struct_from_binary
 
 from uacell.core.logs import RefusalLog
-from uacell.ua import door
+from uacell.ua import door, subscriptions
 from uacell.ua.door import connection, publishing
 from uacell.ua.pipeline import Next, Request
 
@@ -59,9 +59,6 @@ log = logging.getLogger(__name__)
 FD_RESERVE = 64
 #: The largest first message accepted: a Hello (its EndpointUrl is at most 4096 bytes) and some room.
 PRE_HELLO_BYTES = 8192
-#: The fastest publishing interval (ms) a client's subscription is revised to, as node-opcua's server
-#: revises; a client that asked for less still gets its changes at once (decision 79).
-FASTEST_PUBLISHING_INTERVAL = 50.0
 _HEADER = struct.Struct("<3scI")  # MessageType, ChunkType, MessageSize (OPC 10000-6 7.1.2.2)
 
 
@@ -396,8 +393,9 @@ def _check_operations(iserver: Any, count: int, service: str) -> None:
 
 
 @door.subclass("asyncua.server.internal_session.InternalSession")
-class LimitedSession(InternalSession):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
-    """A session counted against ``[limits]``; subscriptions, monitored items and operations too."""
+class LimitedSession(subscriptions.OwnSubscriptions, InternalSession):  # type: ignore[misc]  # asyncua is untyped here
+    """A session counted against ``[limits]``; subscriptions, monitored items and operations too. Its
+    subscription services see its own subscriptions only (``uacell.ua.subscriptions``)."""
 
     async def read(self, params: ua.ReadParameters) -> list[ua.DataValue]:
         _check_operations(self.iserver, len(params.NodesToRead or ()), "Read")
@@ -434,6 +432,7 @@ class LimitedSession(InternalSession):  # type: ignore[misc]  # asyncua is untyp
                 log.warning("refused a session: %d sessions is the limit", limits.sessions)
                 raise ServiceError(ua.StatusCodes.BadTooManySessions)
             limits.live_sessions.add(id(self))
+        self.note_client(params)
         try:
             return await super().create_session(params, sockname=sockname)
         except BaseException:
@@ -449,30 +448,36 @@ class LimitedSession(InternalSession):  # type: ignore[misc]  # asyncua is untyp
             if limits is not None:
                 limits.live_sessions.discard(id(self))
 
-    def _own_subscriptions(self) -> list[Any]:
-        subs = self.subscription_service.subscriptions.values()
-        return [s for s in subs if getattr(s, "session_id", None) == self.session_id]
+    def room_for_subscriptions(self) -> int:
+        limits = _limits_of(self.iserver)
+        if limits is None:
+            return super().room_for_subscriptions()
+        return limits.subscriptions_per_session - len(self._own_subscriptions())
 
     async def create_subscription(
         self, params: ua.CreateSubscriptionParameters, callback: Any, request_callback: Any = None
     ) -> ua.CreateSubscriptionResult:
-        limits = _limits_of(self.iserver)
-        if limits is not None and len(self._own_subscriptions()) >= limits.subscriptions_per_session:
-            log.info("refused a subscription: %d per session is the limit", limits.subscriptions_per_session)
+        if self.room_for_subscriptions() <= 0:
+            log.info("refused a subscription: the limit of subscriptions per session is reached")
             raise ServiceError(ua.StatusCodes.BadTooManySubscriptions)
         # OPC 10000-4 5.14.2.2: a request of 0 (or below the fastest interval) is revised to the fastest
         # the server supports. asyncua kept 0 and ran no loop for it: no keep-alive, no lifetime (decision 79).
-        at_once = not params.RequestedPublishingInterval >= FASTEST_PUBLISHING_INTERVAL  # NaN included
-        if at_once:
-            params = dataclasses.replace(params, RequestedPublishingInterval=FASTEST_PUBLISHING_INTERVAL)
+        interval, at_once = subscriptions.revised_interval(params.RequestedPublishingInterval)
+        lifetime, keep_alive = self.revise_counts(params.RequestedLifetimeCount, params.RequestedMaxKeepAliveCount)
+        params = dataclasses.replace(
+            params,
+            RequestedPublishingInterval=interval,
+            RequestedLifetimeCount=lifetime,
+            RequestedMaxKeepAliveCount=keep_alive,
+        )
         result: ua.CreateSubscriptionResult = await super().create_subscription(
             params, callback, request_callback=request_callback
         )
         sub = self.subscription_service.subscriptions.get(result.SubscriptionId)
         if sub is not None:
-            if at_once:
-                publishing.publish_at_once(sub)  # its changes still go out at once (decision 76)
+            publishing.publish_at_once(sub, at_once)  # its changes still go out at once (decision 76)
             publishing.limit_notifications(sub, params.MaxNotificationsPerPublish)
+            door.tag(sub, "owner", subscriptions.identity(self))
         return result
 
     async def create_monitored_items(
@@ -480,7 +485,7 @@ class LimitedSession(InternalSession):  # type: ignore[misc]  # asyncua is untyp
     ) -> list[ua.MonitoredItemCreateResult]:
         _check_operations(self.iserver, len(params.ItemsToCreate or ()), "CreateMonitoredItems")
         limits = _limits_of(self.iserver)
-        sub = self.subscription_service.subscriptions.get(params.SubscriptionId)
+        sub = self._subscription(params.SubscriptionId)
         items = list(params.ItemsToCreate or [])
         room = len(items)
         if limits is not None and sub is not None:

@@ -84,7 +84,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("asyncua.server.server.Server.product_uri", Kind.SETTING, "uacell.server", "the server's ProductUri", ""),
     # --- subclasses ----------------------------------------------------------------------------------
     Entry("asyncua.server.address_space.MethodService", Kind.SUBCLASS, "uacell.binding.dispatch", "MethodDispatcher: the one method dispatcher (argument checks, roles, guards, serialization)", "MethodService.call"),
-    Entry(_S, Kind.SUBCLASS, "uacell.ua.limits", "LimitedSession: sessions, subscriptions, monitored items, operations per request counted", "unlimited sessions"),
+    Entry(_S, Kind.SUBCLASS, "uacell.ua.limits", "LimitedSession: sessions, subscriptions, monitored items, operations per request counted; every subscription service over the session's own subscriptions, ModifySubscription applied, Republish and TransferSubscriptions by OPC 10000-4 (ua/subscriptions.py, decision 80)", "unlimited sessions; any session's request served for any subscription of the server"),
     Entry("asyncua.common.connection.TransportLimits", Kind.SUBCLASS, "uacell.ua.limits", "ServerTransportLimits: chunk sizes from the Hello, message size enforced", "create_acknowledge_and_set_limits"),
     Entry("asyncua.common.xmlimporter.XmlImporter", Kind.SUBCLASS, "uacell.ua.nodesets", "the subtype closure cached while inverse references are added (start-up time)", "_add_missing_reverse_references", at_start=False),
     Entry("asyncua.crypto.permission_rules.User", Kind.SUBCLASS, "uacell.ua.context", "UacellUser: the user with uacell's role", "User"),
@@ -110,6 +110,12 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("asyncua.server.internal_subscription.InternalSubscription._triggered_datachanges", Kind.PRIVATE, "uacell.ua.pipeline", "the queued data changes, held back beyond MaxNotificationsPerPublish (door/publishing.py); a Sampling item's, queued when it reports (door/monitoring.py)", ""),
     Entry("asyncua.server.internal_subscription.InternalSubscription._triggered_events", Kind.PRIVATE, "uacell.ua.pipeline", "the queued events, held back beyond MaxNotificationsPerPublish (door/publishing.py); a Sampling item's, queued when it reports (door/monitoring.py)", ""),
     Entry("asyncua.server.internal_subscription.InternalSubscription._publishing_enabled", Kind.PRIVATE, "uacell.ua.pipeline", "whether a publish takes the queued notifications (door/publishing.py)", ""),
+    Entry("asyncua.server.internal_subscription.InternalSubscription._not_acknowledged_results", Kind.PRIVATE, "uacell.ua.limits", "the retransmission queue: acknowledged, republished and listed by a session's own requests only (door/subscriptions.py)", ""),
+    Entry("asyncua.server.internal_subscription.InternalSubscription._task", Kind.PRIVATE, "uacell.ua.limits", "the publishing loop, run again at a modified interval (door/subscriptions.py)", ""),
+    Entry("asyncua.server.internal_subscription.InternalSubscription._subscription_loop", Kind.PRIVATE, "uacell.ua.limits", "the publishing loop, run again at a modified interval (door/subscriptions.py)", ""),
+    Entry("asyncua.server.internal_subscription.InternalSubscription._notification_seq", Kind.PRIVATE, "uacell.ua.limits", "the sequence number of the Good_SubscriptionTransferred message to the old session (door/subscriptions.py)", ""),
+    Entry(f"{_P}._publish_requests", Kind.PRIVATE, "uacell.ua.limits", "a Publish request the old session of a transferred subscription has waiting, for its Good_SubscriptionTransferred (door/subscriptions.py)", ""),
+    Entry(f"{_P}._publish_results_subs", Kind.PRIVATE, "uacell.ua.limits", "a transferred subscription is no longer published with the old session's Publish requests (door/subscriptions.py)", ""),
     Entry("asyncua.server.address_space.MethodService._call", Kind.PRIVATE, "uacell.binding.dispatch", "asyncua's callback for a method uacell does not bind (ConditionRefresh)", ""),
     Entry("asyncua.server.address_space.ViewService._get_sub_ref", Kind.PRIVATE, "uacell.ua.nodesets", "the subtypes of a reference type", ""),
 )  # fmt: skip

@@ -45,11 +45,15 @@ _running: set[asyncio.Task[Any]] = set()  # publications that wait for the socke
 _at_once: weakref.WeakSet[InternalSubscription] = weakref.WeakSet()  # a client asked for the fastest
 
 
-def publish_at_once(sub: InternalSubscription) -> None:
+def publish_at_once(sub: InternalSubscription, at_once: bool = True) -> None:
     """``sub``'s client asked for a publishing interval below the fastest the server announces (0
     included): its changes are published once per turn of the event loop instead of at its interval;
-    asyncua's loop at the revised interval still sends its keep-alives and counts its lifetime."""
-    _at_once.add(sub)
+    asyncua's loop at the revised interval still sends its keep-alives and counts its lifetime.
+    ``at_once`` False: at its interval again (a ModifySubscription to a slower one)."""
+    if at_once:
+        _at_once.add(sub)
+    else:
+        _at_once.discard(sub)
 
 
 async def _trigger_publish(self: InternalSubscription) -> None:
@@ -84,6 +88,8 @@ def limit_notifications(sub: InternalSubscription, most: int) -> None:
     messages, each marked MoreNotifications but the last. asyncua sent all in one."""
     if most > 0:
         _per_message[sub] = most
+    else:
+        _per_message.pop(sub, None)
 
 
 def _pop_publish_result(self: InternalSubscription) -> ua.PublishResult:

@@ -1,0 +1,46 @@
+// Two node-opcua sessions: the second names the first's subscription in each subscription service
+// (OPC 10000-4 5.13/5.14: Bad_SubscriptionIdInvalid for a subscription the session does not have),
+// and asks to take it over with TransferSubscriptions (5.14.7: only a session of the same user; two
+// anonymous sessions over an unsigned channel may not). Prints each answer's status code.
+"use strict";
+const { connect, done, main } = require("./lib");
+
+const names = (results) => results.map((r) => (r.statusCode || r).name);
+
+main(async () => {
+  const endpoint = process.argv[2];
+  const first = await connect(endpoint);
+  const second = await connect(endpoint);
+  const created = await first.session.createSubscription({
+    requestedPublishingInterval: 100, requestedLifetimeCount: 60, requestedMaxKeepAliveCount: 10,
+    maxNotificationsPerPublish: 0, publishingEnabled: true, priority: 1,
+  });
+  const id = created.subscriptionId;
+  const out = {};
+  out.deleteByOther = names((await second.session.deleteSubscriptions({ subscriptionIds: [id] })).results);
+  out.publishingModeByOther = names(await second.session.setPublishingMode(false, [id]));
+  try {
+    await second.session.modifySubscription({
+      subscriptionId: id, requestedPublishingInterval: 1000, requestedLifetimeCount: 60,
+      requestedMaxKeepAliveCount: 10, maxNotificationsPerPublish: 0, priority: 1,
+    });
+    out.modifyByOther = "Good";
+  } catch (err) {
+    out.modifyByOther = String(err.message).match(/Bad\w+/)?.[0] ?? String(err.message);
+  }
+  const transfer = async (session) =>
+    names((await session.transferSubscriptions({ subscriptionIds: [id], sendInitialValues: false })).results);
+  out.transferByOther = await transfer(second.session);
+  out.transferByOwner = await transfer(first.session);
+  const modified = await first.session.modifySubscription({
+    subscriptionId: id, requestedPublishingInterval: 1000, requestedLifetimeCount: 60,
+    requestedMaxKeepAliveCount: 10, maxNotificationsPerPublish: 0, priority: 1,
+  });
+  out.modifiedInterval = modified.revisedPublishingInterval;
+  out.deleteByOwner = names((await first.session.deleteSubscriptions({ subscriptionIds: [id] })).results);
+  for (const { client, session } of [first, second]) {
+    await session.close();
+    await client.disconnect();
+  }
+  await done(out);
+});
