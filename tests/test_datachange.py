@@ -11,6 +11,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from asyncua.ua import uaprotocol_auto
+from asyncua.ua.ua_binary import struct_from_binary
 from conftest import fast_config, serving
 from helpers import wait_until
 
@@ -327,6 +328,69 @@ async def test_an_item_in_sampling_mode_queues_and_reports_only_once_it_reports(
         assert [s.name for s in await client.uaclient.set_monitoring_mode(params)] == ["Good"]
         await wait_until(lambda: len(seen) == 6, timeout=10)
         assert [v for h, v in seen if h == sampling_handle] == [60.0, 70.0, 80.0]  # what it queued, in order
+        await subscription.delete()
+
+
+async def test_a_triggering_item_releases_what_its_linked_sampling_item_queued(tmp_path: Path) -> None:
+    """OPC 10000-4 5.13.5 SetTriggering (asyncua answered Bad_ServiceUnsupported): a Sampling item linked
+    to a triggering item reports what it queued when the triggering item reports, and stays Sampling.
+    The triggering item here is MachSpeed with an absolute deadband of 15: 70 is within it of 60 (no
+    report, nothing released), 80 beyond it (reported, and the linked item's 60, 70, 80 with it)."""
+    async with serving(fast_config(tmp_path / "data")) as (_app, client):
+        ns = await client.get_namespace_index("urn:uacell:cell")
+        seen: list[tuple[int, float]] = []  # (the item's client handle, the value)
+
+        class Handler:
+            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+                seen.append((data.monitored_item.ClientHandle, round(val, 3)))
+
+        speed = client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns))
+        subscription = await client.create_subscription(0, Handler())
+        deadband = ua.DataChangeFilter(
+            Trigger=ua.DataChangeTrigger.StatusValue, DeadbandType=ua.DeadbandType.Absolute, DeadbandValue=15.0
+        )
+        trigger_request = ua.MonitoredItemCreateRequest(
+            ItemToMonitor=ua.ReadValueId(NodeId=speed.nodeid, AttributeId=ua.AttributeIds.Value),
+            MonitoringMode=ua.MonitoringMode.Reporting,
+            RequestedParameters=ua.MonitoringParameters(ClientHandle=501, QueueSize=10, Filter=deadband),
+        )
+        (trigger,) = await subscription.create_monitored_items([trigger_request])
+        await wait_until(lambda: seen == [(501, 60.0)])
+        sampling = await subscription.subscribe_data_change(speed, queuesize=10, monitoring=ua.MonitoringMode.Sampling)
+        sid = subscription.subscription_id
+
+        def links(add: list[int], remove: list[int], on: Any = trigger) -> ua.SetTriggeringRequest:
+            params = ua.SetTriggeringParameters(
+                SubscriptionId=sid, TriggeringItemId=on, LinksToAdd=add, LinksToRemove=remove
+            )
+            return ua.SetTriggeringRequest(Parameters=params)
+
+        async def answer(request: ua.SetTriggeringRequest) -> tuple[list[str], list[str]]:
+            data = await client.uaclient.protocol.send_request(request)
+            response = struct_from_binary(ua.SetTriggeringResponse, data)
+            result = response.Parameters
+            return [r.name for r in result.AddResults], [r.name for r in result.RemoveResults]
+
+        assert await answer(links([sampling, 999_999], [999_999])) == (
+            ["Good", "BadMonitoredItemIdInvalid"], ["BadMonitoredItemIdInvalid"],
+        )  # fmt: skip
+        for refused, code in ((links([sampling], [], on=999_999), "BadMonitoredItemIdInvalid"),
+                              (links([], []), "BadNothingToDo")):  # fmt: skip
+            with pytest.raises(ua.UaStatusCodeError) as err:
+                await client.uaclient.protocol.send_request(refused)
+            assert err.value.code == getattr(ua.StatusCodes, code)
+        filler = client.get_node(ua.NodeId("Filler1", ns))
+        for value in (70.0, 80.0):
+            await filler.call_method(ua.NodeId("Filler1.SetMachSpeed", ns), ua.Variant(value, ua.VariantType.Float))
+        await wait_until(lambda: len(seen) == 5, timeout=10)
+        sampling_handle = next(h for h, _ in seen if h != 501)
+        assert seen == [
+            (501, 60.0),
+            (501, 80.0),
+            (sampling_handle, 60.0),
+            (sampling_handle, 70.0),
+            (sampling_handle, 80.0),
+        ]
         await subscription.delete()
 
 

@@ -237,9 +237,9 @@ async def _service(request: Request) -> Any:
     session.touch()
     if not session.is_activated():
         raise ServiceError(ua.StatusCodes.BadSessionNotActivated)
-    decode, response_type, run, encode = service
+    decode, response_type, field, run, encode = service
     response = response_type()
-    response.Results = await run(session, decode(request.body))
+    setattr(response, field, await run(session, decode(request.body)))
     response.ResponseHeader.RequestHandle = request.header.RequestHandle
     channel.send_response(processor, request.seqhdr.RequestId, encode(response))
     return True
@@ -258,19 +258,32 @@ async def _history_update_service(session: InternalSession, params: Any) -> Any:
     return await session.history_update(params)
 
 
-Service = tuple[Callable[[Buffer], Any], type, Callable[[InternalSession, Any], Awaitable[Any]], Callable[[Any], bytes]]
-# The services uacell runs as asyncua does, by request type: (the parameters' decoder, the response,
-# what runs, the response's encoder: the Call's are written out, ua/codec.py)
+async def _set_triggering_service(session: InternalSession, params: Any) -> Any:
+    """SetTriggering (asyncua has no processing for it): the session links the items (ua/subscriptions.py)."""
+    return await session.set_triggering(params)
+
+
+Service = tuple[
+    Callable[[Buffer], Any], type, str, Callable[[InternalSession, Any], Awaitable[Any]], Callable[[Any], bytes]
+]
+# The services uacell runs itself or as asyncua does, by request type: (the parameters' decoder, the
+# response, its field for the answer, what runs, the response's encoder: the Call's are written out,
+# ua/codec.py)
 SERVICES: dict[ua.NodeId, Service] = {
     ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary): (
-        decode_call_parameters, ua.CallResponse, _call_service, encode_call_response,
+        decode_call_parameters, ua.CallResponse, "Results", _call_service, encode_call_response,
     ),
     ua.NodeId(ua.ObjectIds.ReadRequest_Encoding_DefaultBinary): (
-        functools.partial(struct_from_binary, ua.ReadParameters), ua.ReadResponse, _read_service, struct_to_binary,
+        functools.partial(struct_from_binary, ua.ReadParameters), ua.ReadResponse, "Results", _read_service,
+        struct_to_binary,
     ),
     ua.NodeId(ua.ObjectIds.HistoryUpdateRequest_Encoding_DefaultBinary): (
-        functools.partial(struct_from_binary, ua.HistoryUpdateParameters), ua.HistoryUpdateResponse,
+        functools.partial(struct_from_binary, ua.HistoryUpdateParameters), ua.HistoryUpdateResponse, "Results",
         _history_update_service, struct_to_binary,
+    ),
+    ua.NodeId(ua.ObjectIds.SetTriggeringRequest_Encoding_DefaultBinary): (
+        functools.partial(struct_from_binary, ua.SetTriggeringParameters), ua.SetTriggeringResponse, "Parameters",
+        _set_triggering_service, struct_to_binary,
     ),
 }  # fmt: skip
 

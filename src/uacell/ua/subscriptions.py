@@ -36,7 +36,7 @@ from asyncua import ua
 from asyncua.common.utils import ServiceError
 
 from uacell.ua import context, door
-from uacell.ua.door import connection, publishing
+from uacell.ua.door import connection, monitoring, publishing
 from uacell.ua.door import subscriptions as door_subscriptions
 
 log = logging.getLogger(__name__)
@@ -153,6 +153,10 @@ class OwnSubscriptions:
     async def set_monitoring_mode(self, params: ua.SetMonitoringModeParameters) -> Any:
         self._subscription(params.SubscriptionId)
         return await super().set_monitoring_mode(params)  # type: ignore[misc]
+
+    async def set_triggering(self, params: ua.SetTriggeringParameters) -> ua.SetTriggeringResult:
+        """SetTriggering (OPC 10000-4 5.13.5; asyncua has none): ``uacell.ua.door.monitoring`` keeps the links."""
+        return monitoring.set_triggering(self._subscription(params.SubscriptionId), params)
 
     async def delete_subscriptions(self, ids: list[int]) -> list[ua.StatusCode]:
         mine = [sid for sid in ids if self.mine(sid) is not None]

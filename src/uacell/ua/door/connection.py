@@ -52,15 +52,22 @@ def send_error(processor: UaProcessor, code: int, reason: str) -> None:
 def permits(processor: UaProcessor, user: Any, typeid: ua.NodeId, body: Any) -> bool:
     """Do the channel's security policy's permissions (asyncua's, if any) let ``user`` make this request?
     A HistoryUpdate is let through as a HistoryRead is (asyncua's rules know no HistoryUpdate): the
-    history answers each item itself (Bad_HistoryOperationUnsupported, docs/history.md)."""
+    history answers each item itself (Bad_HistoryOperationUnsupported, docs/history.md); a SetTriggering
+    as a SetMonitoringMode is (asyncua knows no SetTriggering either)."""
     permissions = processor._connection.security_policy.permissions
-    if typeid == _HISTORY_UPDATE:
-        typeid = _HISTORY_READ
+    typeid = _AS_ASYNCUA_KNOWS.get(typeid, typeid)
     return permissions is None or permissions.check_validity(user, typeid, body) is not False
 
 
-_HISTORY_UPDATE = ua.NodeId(ua.ObjectIds.HistoryUpdateRequest_Encoding_DefaultBinary)
-_HISTORY_READ = ua.NodeId(ua.ObjectIds.HistoryReadRequest_Encoding_DefaultBinary)
+# the services asyncua's permission rules do not know, checked as the one they are like
+_AS_ASYNCUA_KNOWS = {
+    ua.NodeId(ua.ObjectIds.HistoryUpdateRequest_Encoding_DefaultBinary): ua.NodeId(
+        ua.ObjectIds.HistoryReadRequest_Encoding_DefaultBinary
+    ),
+    ua.NodeId(ua.ObjectIds.SetTriggeringRequest_Encoding_DefaultBinary): ua.NodeId(
+        ua.ObjectIds.SetMonitoringModeRequest_Encoding_DefaultBinary
+    ),
+}
 
 
 # A SecureMessage of one chunk (OPC 10000-6 6.7.2): MessageType "MSG", ChunkType "F", MessageSize,

@@ -11,12 +11,14 @@ server mutates: writes make new DataValues); asyncua kept a ``copy.deepcopy`` of
 every monitored item, about 50 us for a Double. Arrays and structures are still copied.
 
 Monitoring modes (OPC 10000-4 7.23, 5.13.1.3): an item enabled again reports its first sample; an
-item in Sampling mode queues its notifications and reports them once set to Reporting; a Disabled
-item queues nothing, events included.
+item in Sampling mode queues its notifications and reports them once set to Reporting, or when an
+item it is linked to by SetTriggering (OPC 10000-4 5.13.5) reports; a Disabled item queues nothing,
+events included.
 """
 
 from __future__ import annotations
 
+import asyncio
 import copy
 import dataclasses
 import weakref
@@ -25,6 +27,7 @@ from datetime import datetime
 from typing import Any
 
 from asyncua import ua
+from asyncua.common.utils import ServiceError
 from asyncua.server.internal_subscription import InternalSubscription
 from asyncua.server.monitored_item_service import MonitoredItemService
 
@@ -68,9 +71,35 @@ async def _datachange_callback(
 
 
 # Notifications of items in Sampling mode: queued (the item's queue size, the oldest dropped) and not
-# reported until the item reports (OPC 10000-4 7.23; SetTriggering, the other way out, is unsupported)
+# reported until the item reports or an item linked to it by SetTriggering reports (OPC 10000-4 7.23)
 # (by subscription, then item: whether they are events, and the notifications)
 _held: weakref.WeakKeyDictionary[InternalSubscription, dict[int, tuple[bool, deque[Any]]]] = weakref.WeakKeyDictionary()
+# SetTriggering's links (OPC 10000-4 5.13.5): by subscription, a triggering item's id -> the items it triggers
+_links: weakref.WeakKeyDictionary[InternalSubscription, dict[int, set[int]]] = weakref.WeakKeyDictionary()
+# the items whose triggering item reported in this turn of the event loop, by subscription
+_triggered_now: weakref.WeakKeyDictionary[InternalSubscription, set[int]] = weakref.WeakKeyDictionary()
+
+
+def set_triggering(sub: InternalSubscription, params: ua.SetTriggeringParameters) -> ua.SetTriggeringResult:
+    """Link items to a triggering item and unlink them (the links to remove first): when the triggering
+    item reports a notification, each linked item in Sampling mode reports what it has queued."""
+    items = sub.monitored_item_srv._monitored_items
+    if params.TriggeringItemId not in items:
+        raise ServiceError(ua.StatusCodes.BadMonitoredItemIdInvalid)
+    if not params.LinksToAdd and not params.LinksToRemove:
+        raise ServiceError(ua.StatusCodes.BadNothingToDo)
+    linked = _links.setdefault(sub, {}).setdefault(params.TriggeringItemId, set())
+    good, invalid = ua.StatusCodes.Good, ua.StatusCodes.BadMonitoredItemIdInvalid
+    removed = []
+    for mid in params.LinksToRemove or ():
+        removed.append(ua.StatusCode(good if mid in linked else invalid))
+        linked.discard(mid)
+    added = []
+    for mid in params.LinksToAdd or ():
+        added.append(ua.StatusCode(good if mid in items else invalid))
+        if mid in items:
+            linked.add(mid)
+    return ua.SetTriggeringResult(AddResults=added, RemoveResults=removed)
 
 
 async def _enqueue_event(
@@ -80,22 +109,35 @@ async def _enqueue_event(
     mode = mdata.mode if mdata is not None else None
     if mode == ua.MonitoringMode.Disabled:
         return  # asyncua queued an event item's events whatever its mode
-    if mode == ua.MonitoringMode.Sampling:
+    if mode == ua.MonitoringMode.Sampling and mid not in _triggered_now.get(self, ()):
         held = _held.setdefault(self, {})
         # which queue, not the dict itself: asyncua replaces its queues with new ones at every publish
         _, notifications = held.setdefault(mid, (queue is self._triggered_events, deque(maxlen=size or None)))
         notifications.append(eventdata)
         return
     await _ORIGINAL_ENQUEUE(self, mid, eventdata, size, queue)
+    links = _links.get(self)
+    if links and (triggered := links.get(mid)):
+        await _report_held(self.monitored_item_srv, list(triggered), triggered=True)
+        # the linked items' samples of the same change come after the triggering item's (the callbacks
+        # run in the order the items were made): reported too, until the end of this turn
+        now = _triggered_now.setdefault(self, set())
+        if not now:
+            asyncio.get_running_loop().call_soon(now.clear)
+        now.update(triggered)
 
 
-async def _report_held(service: MonitoredItemService, ids: list[int]) -> None:
-    """What items that reported nothing while Sampling queued, reported now that they report."""
+async def _report_held(service: MonitoredItemService, ids: list[int], triggered: bool = False) -> None:
+    """What items that reported nothing while Sampling queued, reported now that they report (or, when
+    ``triggered``, now that an item they are linked to reported, they still Sampling)."""
     held = _held.get(service.isub)
+    wanted = ua.MonitoringMode.Sampling if triggered else ua.MonitoringMode.Reporting
     for mid in ids:
         mdata = service._monitored_items.get(mid)
-        entry = held.pop(mid, None) if held is not None else None
-        if entry is None or mdata is None or mdata.mode != ua.MonitoringMode.Reporting:
+        if held is None or mdata is None or mdata.mode != wanted:
+            continue
+        entry = held.pop(mid, None)
+        if entry is None:
             continue
         events, notifications = entry
         sub = service.isub
