@@ -296,6 +296,16 @@ async def test_an_item_enabled_again_reports_its_first_sample(tmp_path: Path) ->
         await subscription.delete()
 
 
+class ByItem:
+    """A subscription's handler that keeps (the item's client handle, the value) of each data change."""
+
+    def __init__(self) -> None:
+        self.seen: list[tuple[int, float]] = []
+
+    def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+        self.seen.append((data.monitored_item.ClientHandle, round(val, 3)))
+
+
 async def test_an_item_in_sampling_mode_queues_and_reports_only_once_it_reports(tmp_path: Path) -> None:
     """OPC 10000-4 7.23: SAMPLING: "Notifications are generated and queued. Notification reporting is
     disabled." asyncua reported a Sampling item as a Reporting one. Two items on MachSpeed, one
@@ -303,14 +313,10 @@ async def test_an_item_in_sampling_mode_queues_and_reports_only_once_it_reports(
     queued arrives, in order."""
     async with serving(fast_config(tmp_path / "data")) as (_app, client):
         ns = await client.get_namespace_index("urn:uacell:cell")
-        seen: list[tuple[int, float]] = []  # (the item's client handle, the value)
-
-        class Handler:
-            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
-                seen.append((data.monitored_item.ClientHandle, round(val, 3)))
-
+        handler = ByItem()
+        seen = handler.seen
         speed = client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns))
-        subscription = await client.create_subscription(0, Handler())
+        subscription = await client.create_subscription(0, handler)
         await subscription.subscribe_data_change(speed, queuesize=10)
         sampling = await subscription.subscribe_data_change(speed, queuesize=10, monitoring=ua.MonitoringMode.Sampling)
         reporting_handle, sampling_handle = sorted(subscription._monitored_items)  # the client's handles
@@ -338,14 +344,10 @@ async def test_a_triggering_item_releases_what_its_linked_sampling_item_queued(t
     report, nothing released), 80 beyond it (reported, and the linked item's 60, 70, 80 with it)."""
     async with serving(fast_config(tmp_path / "data")) as (_app, client):
         ns = await client.get_namespace_index("urn:uacell:cell")
-        seen: list[tuple[int, float]] = []  # (the item's client handle, the value)
-
-        class Handler:
-            def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
-                seen.append((data.monitored_item.ClientHandle, round(val, 3)))
-
+        handler = ByItem()
+        seen = handler.seen
         speed = client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns))
-        subscription = await client.create_subscription(0, Handler())
+        subscription = await client.create_subscription(0, handler)
         deadband = ua.DataChangeFilter(
             Trigger=ua.DataChangeTrigger.StatusValue, DeadbandType=ua.DeadbandType.Absolute, DeadbandValue=15.0
         )
