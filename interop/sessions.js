@@ -1,9 +1,11 @@
 // Two node-opcua sessions: the second names the first's subscription in each subscription service
 // (OPC 10000-4 5.13/5.14: Bad_SubscriptionIdInvalid for a subscription the session does not have),
 // and asks to take it over with TransferSubscriptions (5.14.7: only a session of the same user; two
-// anonymous sessions over an unsigned channel may not). Prints each answer's status code.
+// anonymous sessions over an unsigned channel may not). Then SetTriggering (5.13.5) on the first's
+// subscription, by the first and by the second. Prints each answer's status code.
 "use strict";
-const { connect, done, main } = require("./lib");
+const { AttributeIds, MonitoringMode, TimestampsToReturn } = require("node-opcua-client");
+const { connect, resolve, done, main, FILLER } = require("./lib");
 
 const names = (results) => results.map((r) => (r.statusCode || r).name);
 
@@ -27,6 +29,27 @@ main(async () => {
     out.modifyByOther = "Good";
   } catch (err) {
     out.modifyByOther = String(err.message).match(/Bad\w+/)?.[0] ?? String(err.message);
+  }
+  const filler = await resolve(first.session, first.ns, "i=85", FILLER);
+  const speed = await resolve(first.session, first.ns, filler, "/PackML:Status/PackML:MachSpeed");
+  const items = await first.session.createMonitoredItems({
+    subscriptionId: id,
+    timestampsToReturn: TimestampsToReturn.Both,
+    itemsToCreate: [MonitoringMode.Reporting, MonitoringMode.Sampling].map((monitoringMode, i) => ({
+      itemToMonitor: { nodeId: speed, attributeId: AttributeIds.Value },
+      monitoringMode,
+      requestedParameters: { clientHandle: 700 + i, samplingInterval: 0, queueSize: 5, discardOldest: true },
+    })),
+  });
+  const [trigger, linked] = items.results.map((r) => r.monitoredItemId);
+  const triggering = { subscriptionId: id, triggeringItemId: trigger, linksToAdd: [linked, 999999], linksToRemove: [] };
+  const answer = await first.session.setTriggering(triggering);
+  out.triggeringByOwner = names(answer.addResults);
+  try {
+    await second.session.setTriggering(triggering);
+    out.triggeringByOther = "Good";
+  } catch (err) {
+    out.triggeringByOther = String(err.message).match(/Bad\w+/)?.[0] ?? String(err.message);
   }
   const transfer = async (session) =>
     names((await session.transferSubscriptions({ subscriptionIds: [id], sendInitialValues: false })).results);

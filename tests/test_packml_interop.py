@@ -72,7 +72,7 @@ async def test_node_opcua_start_parameters_arrive_exactly(serve_process):
 
 async def test_node_opcua_sessions_see_only_their_own_subscriptions(serve_process):
     """OPC 10000-4 5.13, 5.14 (decision 80): node-opcua's second session names the first's subscription
-    in DeleteSubscriptions, SetPublishingMode, ModifySubscription and TransferSubscriptions and is told
+    in DeleteSubscriptions, SetPublishingMode, ModifySubscription, SetTriggering and TransferSubscriptions and is told
     it does not exist, or (transfer) that it may not have it; the owner's requests are served, its
     ModifySubscription applied (interop/sessions.js)."""
     out = run_trusted(serve_process, "sessions.js")
@@ -82,6 +82,8 @@ async def test_node_opcua_sessions_see_only_their_own_subscriptions(serve_proces
     assert out["transferByOther"] == ["BadUserAccessDenied"]  # anonymous, over an unsigned channel
     assert out["transferByOwner"] == ["BadNothingToDo"]
     assert out["modifiedInterval"] == 1000
+    assert out["triggeringByOwner"] == ["Good", "BadMonitoredItemIdInvalid"]  # SetTriggering (OPC 10000-4 5.13.5)
+    assert out["triggeringByOther"] == "BadSubscriptionIdInvalid"
     assert out["deleteByOwner"] == ["Good"]
 
 
