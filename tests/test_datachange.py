@@ -16,6 +16,7 @@ from conftest import fast_config, serving
 from helpers import wait_until
 
 from uacell.ua.datachange import reported
+from uacell.ua.door import monitoring
 
 _T0 = datetime(2026, 11, 28, 12, 0, tzinfo=UTC)
 _GOOD = ua.StatusCode(ua.StatusCodes.Good)
@@ -342,7 +343,7 @@ async def test_a_triggering_item_releases_what_its_linked_sampling_item_queued(t
     to a triggering item reports what it queued when the triggering item reports, and stays Sampling.
     The triggering item here is MachSpeed with an absolute deadband of 15: 70 is within it of 60 (no
     report, nothing released), 80 beyond it (reported, and the linked item's 60, 70, 80 with it)."""
-    async with serving(fast_config(tmp_path / "data")) as (_app, client):
+    async with serving(fast_config(tmp_path / "data")) as (app, client):
         ns = await client.get_namespace_index("urn:uacell:cell")
         handler = ByItem()
         seen = handler.seen
@@ -393,6 +394,12 @@ async def test_a_triggering_item_releases_what_its_linked_sampling_item_queued(t
             (sampling_handle, 70.0),
             (sampling_handle, 80.0),
         ]
+        # a deleted item's links go, and what a deleted Sampling item held back goes
+        served = app.server.iserver.subscription_service.subscriptions[sid]
+        quiet = await subscription.subscribe_data_change(speed, queuesize=10, monitoring=ua.MonitoringMode.Sampling)
+        await wait_until(lambda: quiet in monitoring._held.get(served, {}))
+        await subscription.unsubscribe([sampling, quiet])
+        assert monitoring._links[served] == {trigger: set()} and quiet not in monitoring._held[served]
         await subscription.delete()
 
 

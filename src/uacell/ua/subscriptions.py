@@ -147,8 +147,10 @@ class OwnSubscriptions:
         return await super().modify_monitored_items(params)  # type: ignore[misc]
 
     async def delete_monitored_items(self, params: ua.DeleteMonitoredItemsParameters) -> Any:
-        self._subscription(params.SubscriptionId)
-        return await super().delete_monitored_items(params)  # type: ignore[misc]
+        sub = self._subscription(params.SubscriptionId)
+        results = await super().delete_monitored_items(params)  # type: ignore[misc]
+        monitoring.forget(sub, list(params.MonitoredItemIds or ()))
+        return results
 
     async def set_monitoring_mode(self, params: ua.SetMonitoringModeParameters) -> Any:
         self._subscription(params.SubscriptionId)

@@ -80,6 +80,18 @@ _links: weakref.WeakKeyDictionary[InternalSubscription, dict[int, set[int]]] = w
 _triggered_now: weakref.WeakKeyDictionary[InternalSubscription, set[int]] = weakref.WeakKeyDictionary()
 
 
+def forget(sub: InternalSubscription, ids: list[int]) -> None:
+    """Deleted items: what they held back goes, and so do their links, as triggering item or linked."""
+    held, links = _held.get(sub), _links.get(sub)
+    for mid in ids:
+        if held is not None:
+            held.pop(mid, None)
+        if links is not None:
+            links.pop(mid, None)
+            for linked in links.values():
+                linked.discard(mid)
+
+
 def set_triggering(sub: InternalSubscription, params: ua.SetTriggeringParameters) -> ua.SetTriggeringResult:
     """Link items to a triggering item and unlink them (the links to remove first): when the triggering
     item reports a notification, each linked item in Sampling mode reports what it has queued."""
