@@ -432,7 +432,7 @@ class LimitedSession(subscriptions.OwnSubscriptions, InternalSession):  # type: 
                 log.warning("refused a session: %d sessions is the limit", limits.sessions)
                 raise ServiceError(ua.StatusCodes.BadTooManySessions)
             limits.live_sessions.add(id(self))
-        self.note_client(params)
+        self.note_channel()
         try:
             return await super().create_session(params, sockname=sockname)
         except BaseException:
@@ -458,7 +458,7 @@ class LimitedSession(subscriptions.OwnSubscriptions, InternalSession):  # type: 
         self, params: ua.CreateSubscriptionParameters, callback: Any, request_callback: Any = None
     ) -> ua.CreateSubscriptionResult:
         if self.room_for_subscriptions() <= 0:
-            log.info("refused a subscription: the limit of subscriptions per session is reached")
+            log.info("refused a subscription: the session has as many as [limits] allows")
             raise ServiceError(ua.StatusCodes.BadTooManySubscriptions)
         # OPC 10000-4 5.14.2.2: a request of 0 (or below the fastest interval) is revised to the fastest
         # the server supports. asyncua kept 0 and ran no loop for it: no keep-alive, no lifetime (decision 79).
@@ -488,10 +488,10 @@ class LimitedSession(subscriptions.OwnSubscriptions, InternalSession):  # type: 
         sub = self._subscription(params.SubscriptionId)
         items = list(params.ItemsToCreate or [])
         room = len(items)
-        if limits is not None and sub is not None:
-            subscriptions = self.subscription_service.subscriptions.values()
+        if limits is not None:
+            every_sub = self.subscription_service.subscriptions.values()
             in_sub = connection.monitored_items(sub)
-            in_all = sum(connection.monitored_items(s) for s in subscriptions)
+            in_all = sum(connection.monitored_items(s) for s in every_sub)
             room = max(0, min(limits.monitored_items_per_subscription - in_sub, limits.monitored_items - in_all))
         if len(items) <= room:
             return cast("list[ua.MonitoredItemCreateResult]", await super().create_monitored_items(params))

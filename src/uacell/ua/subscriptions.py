@@ -88,11 +88,10 @@ class Identity:
 
 
 def identity(session: Any) -> Identity:
-    """A session's identity now (its user may change with a later ActivateSession)."""
-    user = session.user
-    name = None if user is None or getattr(user, "anonymous", False) else user.name
-    uri, mode = door.tagged(session, "client", ("", ua.MessageSecurityMode.None_))
-    return Identity(name, uri, mode)
+    """A session's identity now (its user may change with a later ActivateSession): the caller's user and
+    client ApplicationUri as everything else sees them (``context.caller_of``), its channel's mode."""
+    caller = context.caller_of(session)
+    return Identity(caller.user, caller.client, door.tagged(session, "channel_mode", ua.MessageSecurityMode.None_))
 
 
 def owned_by_caller(sid: Any) -> bool:
@@ -116,11 +115,10 @@ class OwnSubscriptions:
     subscription_service: Any
     iserver: Any
 
-    def note_client(self, params: ua.CreateSessionParameters) -> None:
-        """Keep the client's ApplicationUri and channel mode (CreateSession) for TransferSubscriptions."""
+    def note_channel(self) -> None:
+        """Keep the security mode of the channel the session is created on (for TransferSubscriptions)."""
         _policy, mode = connection.channel_policy(context.current_processor())
-        description = params.ClientDescription
-        door.tag(self, "client", (str(getattr(description, "ApplicationUri", "") or ""), mode))
+        door.tag(self, "channel_mode", mode)
 
     def _own_subscriptions(self) -> list[Any]:
         subs = self.subscription_service.subscriptions.values()
