@@ -87,6 +87,24 @@ async def test_node_opcua_sessions_see_only_their_own_subscriptions(serve_proces
     assert out["deleteByOwner"] == ["Good"]
 
 
+async def test_node_opcua_pages_browses_reads_index_ranges_and_writes_whole_values(serve_process):
+    """OPC 10000-4 5.9 and 5.11 as node-opcua's client uses them (decision 81, interop/views.js): a Browse
+    of two references at a time continued by BrowseNext gives what one Browse gives, in order; a
+    released continuation point is gone; a Read's IndexRange cuts the NamespaceArray; an empty
+    RelativePath is nothing to do; a Write with an IndexRange leaves the ExecutionMode as it was."""
+    out = run_trusted(serve_process, "views.js")
+    pages = out["pages"]
+    assert len(out["whole"]) > 4 and all(len(page) <= 2 for page in pages)
+    assert [ref for page in pages for ref in page] == out["whole"]
+    assert (out["released"], out["releasedAgain"]) == ("Good", "BadContinuationPointInvalid")
+    namespaces = out["namespaces"]
+    assert out["readOne"] == {"status": "Good", "value": namespaces[1:2]}
+    assert out["readTwo"] == {"status": "Good", "value": namespaces[:2]}
+    assert out["readBeyond"]["status"] == "BadIndexRangeNoData"
+    assert out["translateEmpty"] == "BadNothingToDo"
+    assert (out["writeWithRange"], out["modeUnchanged"]) == ("BadWriteNotSupported", True)
+
+
 async def test_node_opcua_deadband_is_applied_against_the_last_value_reported(serve_process):
     """OPC 10000-4 7.22.2: node-opcua's absolute deadband of 1.0 on MachSpeed, the speed drifting by
     less than that at each step (interop/deadband.js). The drift is reported once it is beyond the

@@ -14,6 +14,7 @@ from collections.abc import Awaitable, Callable
 from asyncua import ua
 
 from uacell.core.roles import ACTION_ROLES, Role
+from uacell.ua import attributes
 from uacell.ua.context import Caller
 
 log = logging.getLogger(__name__)
@@ -56,12 +57,16 @@ class WriteRouter:
                 log.info("write of %s refused for %s (%s)", item.NodeId.to_string(), caller.display_user, role.label)
                 results[i] = ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
                 continue
+            form = attributes.write_refusal(item)  # before a guard or a route sees it (decision 81)
+            if form is not None:
+                results[i] = ua.StatusCode(form)
+                continue
             refusal = next((r for r in (guard(caller, item) for guard in self.guards) if r is not None), None)
             if refusal is not None:
                 results[i] = refusal
                 continue
             route = self._routes.get(item.NodeId)
-            if route is None or item.AttributeId != _A.Value or item.IndexRange:
+            if route is None or item.AttributeId != _A.Value:
                 rest.append(i)
                 continue
             try:

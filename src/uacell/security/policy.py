@@ -75,7 +75,7 @@ from uacell.services.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua import channel, context, door
 from uacell.ua.context import caller_of
 from uacell.ua.door.connection import connection
-from uacell.ua.limits import LimitedSession
+from uacell.ua.limits import LimitedSession, check_operations
 from uacell.ua.pipeline import Next, Request
 
 if TYPE_CHECKING:
@@ -720,6 +720,7 @@ class UacellSession(LimitedSession):
         return result
 
     async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
+        check_operations(self.iserver, len(params.NodesToWrite or ()), "Write")
         return await self._security.app.writes.write(caller_of(self), params, super().write)
 
     async def close_session(self, delete_subs: bool = True) -> None:

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 from asyncua import ua
 
 from uacell.security.audit import AuditTrail
+from uacell.ua.attributes import attribute_name
 from uacell.ua.context import Caller, session_name, session_text
 
 if TYPE_CHECKING:
@@ -75,7 +76,7 @@ def install_audit(app: Host, trail: AuditTrail) -> None:
             role=caller.role,
             session=caller.session_id,
             node=item.NodeId.to_string(),
-            attribute=ua.AttributeIds(item.AttributeId).name,
+            attribute=attribute_name(item.AttributeId),
             value=_plain(value),
             result=_status_name(status),
         )

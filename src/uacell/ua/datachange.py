@@ -9,7 +9,11 @@
   a filter of another kind (an AggregateFilter) Bad_MonitoredItemFilterUnsupported;
 - an unknown trigger or deadband type, or a negative deadband, is Bad_MonitoredItemFilterInvalid;
 - a percent deadband outside 0 to 100, or on a variable without an EURange, is
-  Bad_DeadbandFilterInvalid (OPC 10000-8 6.2 and its table of result codes).
+  Bad_DeadbandFilterInvalid (OPC 10000-8 6.2 and its table of result codes);
+- an IndexRange that does not parse is Bad_IndexRangeInvalid (``uacell.ua.numeric_range``). An item
+  with an IndexRange reports the part of the value it names (the door cuts each value before this
+  module compares it), so a change elsewhere in the array is not reported; a value with nothing
+  there is reported as Bad_IndexRangeNoData (5.13.2.1).
 
 ``reported`` decides whether a new value is reported, as a pure function of the value last reported
 and the new one. The comparison is with the *last value reported* (the standard's "last cached
@@ -38,7 +42,7 @@ from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 from asyncua.ua import uaprotocol_auto
 
-from uacell.ua import toolkit
+from uacell.ua import numeric_range, toolkit
 
 _A = ua.AttributeIds
 _NONE = ua.DeadbandType.None_
@@ -95,7 +99,13 @@ def eu_span(aspace: AddressSpace, node: ua.NodeId) -> float | None:
 
 
 def refusal(aspace: AddressSpace, item: ua.ReadValueId, flt: object | None) -> int | None:
-    """Why a monitored item of ``item`` may not have the filter ``flt`` (a StatusCode), or None."""
+    """Why a monitored item of ``item`` may not have the filter ``flt`` (a StatusCode), or None. An
+    IndexRange that does not parse is Bad_IndexRangeInvalid (OPC 10000-4 5.13.2.4)."""
+    if item.IndexRange:
+        try:
+            numeric_range.parse(item.IndexRange)
+        except numeric_range.RangeError as refused:
+            return refused.code
     if isinstance(flt, ua.ExtensionObject) and flt.Body is None:
         flt = None  # a null ExtensionObject: no filter (what asyncua's client sends by default)
     attribute = item.AttributeId

@@ -46,7 +46,7 @@ from asyncua.server.internal_session import InternalSession
 from asyncua.ua.ua_binary import struct_from_binary
 
 from uacell.core.logs import RefusalLog
-from uacell.ua import door, subscriptions
+from uacell.ua import attributes, door, subscriptions, views
 from uacell.ua.door import connection, publishing
 from uacell.ua.pipeline import Next, Request
 
@@ -376,16 +376,26 @@ _OPERATION_LIMITS = (
 
 
 async def publish_operation_limits(server: Any, limits: ServerLimits) -> None:
-    """Write ``operations_per_request`` into ServerCapabilities/OperationLimits (where the nodes exist)."""
-    for ident in _OPERATION_LIMITS:
+    """Write ``operations_per_request`` into ServerCapabilities/OperationLimits (where the nodes exist),
+    and the continuation points a session may hold into MaxBrowseContinuationPoints."""
+    values = [(ident, ua.Variant(limits.operations_per_request, ua.VariantType.UInt32)) for ident in _OPERATION_LIMITS]
+    values.append((
+        ua.ObjectIds.Server_ServerCapabilities_MaxBrowseContinuationPoints,
+        ua.Variant(views.MAX_BROWSE_CONTINUATION_POINTS, ua.VariantType.UInt16),
+    ))  # fmt: skip
+    for ident, value in values:
         node = server.get_node(ua.NodeId(ident))
         try:
-            await node.write_value(ua.Variant(limits.operations_per_request, ua.VariantType.UInt32))
+            await node.write_value(value)
         except ua.UaError:
-            log.debug("no OperationLimits node %s", ident)
+            log.debug("no ServerCapabilities node %s", ident)
 
 
-def _check_operations(iserver: Any, count: int, service: str) -> None:
+def check_operations(iserver: Any, count: int, service: str) -> None:
+    """A client's request of ``count`` operations: Bad_NothingToDo for none (OPC 10000-4 7.38, every
+    service with a list of operations), Bad_TooManyOperations above ``[limits]``."""
+    if count == 0:
+        raise ServiceError(ua.StatusCodes.BadNothingToDo)
     limits = _limits_of(iserver)
     if limits is not None and count > limits.operations_per_request:
         log.info("refused %s of %d operations (at most %d)", service, count, limits.operations_per_request)
@@ -393,36 +403,63 @@ def _check_operations(iserver: Any, count: int, service: str) -> None:
 
 
 @door.subclass("asyncua.server.internal_session.InternalSession")
-class LimitedSession(subscriptions.OwnSubscriptions, InternalSession):  # type: ignore[misc]  # asyncua is untyped here
+class LimitedSession(views.StandardViews, subscriptions.OwnSubscriptions, InternalSession):  # type: ignore[misc]  # asyncua is untyped here
     """A session counted against ``[limits]``; subscriptions, monitored items and operations too. Its
-    subscription services see its own subscriptions only (``uacell.ua.subscriptions``)."""
+    subscription services see its own subscriptions only (``uacell.ua.subscriptions``); the View and
+    Attribute services answer as OPC 10000-4 says (``uacell.ua.views``, ``uacell.ua.attributes``)."""
 
     async def read(self, params: ua.ReadParameters) -> list[ua.DataValue]:
-        _check_operations(self.iserver, len(params.NodesToRead or ()), "Read")
-        return cast("list[ua.DataValue]", await super().read(params))
+        check_operations(self.iserver, len(params.NodesToRead or ()), "Read")
+        attributes.check_read(params)
+        results = cast("list[ua.DataValue]", await super().read(params))
+        attributes.shape_results(params, results)
+        return results
 
     async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
-        _check_operations(self.iserver, len(params.NodesToWrite or ()), "Write")
-        return cast("list[ua.StatusCode]", await super().write(params))
+        """The writes asyncua stores (uacell's roles, the form of each item and routing have been checked:
+        ``binding/writes.py``), each checked first: the node known, writable, given a value of its type."""
+        items = list(params.NodesToWrite or ())
+        check_operations(self.iserver, len(items), "Write")
+        aspace = self.iserver.aspace
+        types = getattr(self.iserver.method_service, "types", None)
+        results: list[ua.StatusCode | None] = []
+        passed: list[ua.WriteValue] = []
+        for item in items:
+            refusal = attributes.stored_write_refusal(aspace, item, types)
+            results.append(ua.StatusCode(refusal) if refusal is not None else None)
+            if refusal is None:
+                passed.append(item)
+        if passed:
+            written = iter(cast("list[ua.StatusCode]", await super().write(ua.WriteParameters(NodesToWrite=passed))))
+            results = [status if status is not None else next(written) for status in results]
+        return cast("list[ua.StatusCode]", results)
 
     async def browse(self, params: ua.BrowseParameters) -> list[ua.BrowseResult]:
-        _check_operations(self.iserver, len(params.NodesToBrowse or ()), "Browse")
-        return cast("list[ua.BrowseResult]", await super().browse(params))
+        check_operations(self.iserver, len(params.NodesToBrowse or ()), "Browse")
+        return await super().browse(params)
+
+    async def browse_next(self, params: ua.BrowseNextParameters) -> ua.BrowseNextResult:
+        check_operations(self.iserver, len(params.ContinuationPoints or ()), "BrowseNext")
+        return await super().browse_next(params)
 
     async def call(self, params: list[ua.CallMethodRequest]) -> list[ua.CallMethodResult]:
-        _check_operations(self.iserver, len(params or ()), "Call")
+        check_operations(self.iserver, len(params or ()), "Call")
         return cast("list[ua.CallMethodResult]", await super().call(params))
 
     async def translate_browsepaths_to_nodeids(self, params: list[ua.BrowsePath]) -> list[ua.BrowsePathResult]:
-        _check_operations(self.iserver, len(params or ()), "TranslateBrowsePathsToNodeIds")
-        return cast("list[ua.BrowsePathResult]", await super().translate_browsepaths_to_nodeids(params))
+        check_operations(self.iserver, len(params or ()), "TranslateBrowsePathsToNodeIds")
+        return await super().translate_browsepaths_to_nodeids(params)
 
     async def register_nodes(self, nodes: list[ua.NodeId]) -> list[ua.NodeId]:
-        _check_operations(self.iserver, len(nodes or ()), "RegisterNodes")
+        check_operations(self.iserver, len(nodes or ()), "RegisterNodes")
         return cast("list[ua.NodeId]", await super().register_nodes(nodes))
 
+    async def unregister_nodes(self, nodes: list[ua.NodeId]) -> Any:
+        check_operations(self.iserver, len(nodes or ()), "UnregisterNodes")
+        return await super().unregister_nodes(nodes)
+
     async def history_read(self, params: ua.HistoryReadParameters) -> list[ua.HistoryReadResult]:
-        _check_operations(self.iserver, len(params.NodesToRead or ()), "HistoryRead")
+        check_operations(self.iserver, len(params.NodesToRead or ()), "HistoryRead")
         return cast("list[ua.HistoryReadResult]", await super().history_read(params))
 
     async def create_session(self, params: ua.CreateSessionParameters, sockname: Any = None) -> Any:
@@ -483,7 +520,7 @@ class LimitedSession(subscriptions.OwnSubscriptions, InternalSession):  # type: 
     async def create_monitored_items(
         self, params: ua.CreateMonitoredItemsParameters
     ) -> list[ua.MonitoredItemCreateResult]:
-        _check_operations(self.iserver, len(params.ItemsToCreate or ()), "CreateMonitoredItems")
+        check_operations(self.iserver, len(params.ItemsToCreate or ()), "CreateMonitoredItems")
         limits = _limits_of(self.iserver)
         sub = self._subscription(params.SubscriptionId)
         items = list(params.ItemsToCreate or [])

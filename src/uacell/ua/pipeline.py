@@ -239,7 +239,9 @@ async def _service(request: Request) -> Any:
         raise ServiceError(ua.StatusCodes.BadSessionNotActivated)
     decode, response_type, field, run, encode = service
     response = response_type()
-    setattr(response, field, await run(session, decode(request.body)))
+    answer = await run(session, decode(request.body))
+    if field is not None:
+        setattr(response, field, answer)
     response.ResponseHeader.RequestHandle = request.header.RequestHandle
     channel.send_response(processor, request.seqhdr.RequestId, encode(response))
     return True
@@ -258,17 +260,32 @@ async def _history_update_service(session: InternalSession, params: Any) -> Any:
     return await session.history_update(params)
 
 
+async def _browse_next_service(session: InternalSession, params: Any) -> Any:
+    """BrowseNext (asyncua has no processing for it): the session's continuation points (ua/views.py)."""
+    return await session.browse_next(params)
+
+
+async def _register_nodes_service(session: InternalSession, params: Any) -> Any:
+    """RegisterNodes through the session (asyncua's processing answered without it)."""
+    return ua.RegisterNodesResult(RegisteredNodeIds=await session.register_nodes(params.NodesToRegister))
+
+
+async def _unregister_nodes_service(session: InternalSession, params: Any) -> Any:
+    """UnregisterNodes through the session (asyncua's processing answered without it)."""
+    return await session.unregister_nodes(params.NodesToUnregister)
+
+
 async def _set_triggering_service(session: InternalSession, params: Any) -> Any:
     """SetTriggering (asyncua has no processing for it): the session links the items (ua/subscriptions.py)."""
     return await session.set_triggering(params)
 
 
 Service = tuple[
-    Callable[[Buffer], Any], type, str, Callable[[InternalSession, Any], Awaitable[Any]], Callable[[Any], bytes]
+    Callable[[Buffer], Any], type, str | None, Callable[[InternalSession, Any], Awaitable[Any]], Callable[[Any], bytes]
 ]
 # The services uacell runs itself or as asyncua does, by request type: (the parameters' decoder, the
-# response, its field for the answer, what runs, the response's encoder: the Call's are written out,
-# ua/codec.py)
+# response, its field for the answer (None: the response has none), what runs, the response's encoder:
+# the Call's are written out, ua/codec.py)
 SERVICES: dict[ua.NodeId, Service] = {
     ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary): (
         decode_call_parameters, ua.CallResponse, "Results", _call_service, encode_call_response,
@@ -280,6 +297,18 @@ SERVICES: dict[ua.NodeId, Service] = {
     ua.NodeId(ua.ObjectIds.HistoryUpdateRequest_Encoding_DefaultBinary): (
         functools.partial(struct_from_binary, ua.HistoryUpdateParameters), ua.HistoryUpdateResponse, "Results",
         _history_update_service, struct_to_binary,
+    ),
+    ua.NodeId(ua.ObjectIds.BrowseNextRequest_Encoding_DefaultBinary): (
+        functools.partial(struct_from_binary, ua.BrowseNextParameters), ua.BrowseNextResponse, "Parameters",
+        _browse_next_service, struct_to_binary,
+    ),
+    ua.NodeId(ua.ObjectIds.RegisterNodesRequest_Encoding_DefaultBinary): (
+        functools.partial(struct_from_binary, ua.RegisterNodesParameters), ua.RegisterNodesResponse, "Parameters",
+        _register_nodes_service, struct_to_binary,
+    ),
+    ua.NodeId(ua.ObjectIds.UnregisterNodesRequest_Encoding_DefaultBinary): (
+        functools.partial(struct_from_binary, ua.UnregisterNodesParameters), ua.UnregisterNodesResponse, None,
+        _unregister_nodes_service, struct_to_binary,
     ),
     ua.NodeId(ua.ObjectIds.SetTriggeringRequest_Encoding_DefaultBinary): (
         functools.partial(struct_from_binary, ua.SetTriggeringParameters), ua.SetTriggeringResponse, "Parameters",

@@ -53,7 +53,7 @@ def permits(processor: UaProcessor, user: Any, typeid: ua.NodeId, body: Any) -> 
     """Do the channel's security policy's permissions (asyncua's, if any) let ``user`` make this request?
     A HistoryUpdate is let through as a HistoryRead is (asyncua's rules know no HistoryUpdate): the
     history answers each item itself (Bad_HistoryOperationUnsupported, docs/history.md); a SetTriggering
-    as a SetMonitoringMode is (asyncua knows no SetTriggering either)."""
+    as a SetMonitoringMode is (asyncua knows no SetTriggering either), a BrowseNext as a Browse."""
     permissions = processor._connection.security_policy.permissions
     typeid = _AS_ASYNCUA_KNOWS.get(typeid, typeid)
     return permissions is None or permissions.check_validity(user, typeid, body) is not False
@@ -66,6 +66,9 @@ _AS_ASYNCUA_KNOWS = {
     ),
     ua.NodeId(ua.ObjectIds.SetTriggeringRequest_Encoding_DefaultBinary): ua.NodeId(
         ua.ObjectIds.SetMonitoringModeRequest_Encoding_DefaultBinary
+    ),
+    ua.NodeId(ua.ObjectIds.BrowseNextRequest_Encoding_DefaultBinary): ua.NodeId(
+        ua.ObjectIds.BrowseRequest_Encoding_DefaultBinary
     ),
 }
 

@@ -4,7 +4,8 @@ A monitored item's filter is checked when it is created or modified (a filter th
 allow is refused with their status code, the other items of the request made), and the item reports
 a value by OPC 10000-4 7.22.2 (``uacell.ua.datachange``): compared with the last value it
 *reported*, where asyncua compared with the value before, so that a value drifting by less than a
-deadband at each step was never reported; a status change is reported whatever the deadband. What
+deadband at each step was never reported; a status change is reported whatever the deadband; an
+item with an IndexRange reports the part of the value it names (asyncua ignored the range). What
 the item keeps of the value it reported is the value itself when its payload cannot change in place
 (a scalar of an immutable Python type, or one of asyncua's names and ids, which nothing in the
 server mutates: writes make new DataValues); asyncua kept a ``copy.deepcopy`` of every value for
@@ -31,7 +32,7 @@ from asyncua.common.utils import ServiceError
 from asyncua.server.internal_subscription import InternalSubscription
 from asyncua.server.monitored_item_service import MonitoredItemService
 
-from uacell.ua import datachange
+from uacell.ua import datachange, numeric_range
 from uacell.ua.door import patch
 
 _SUB = "asyncua.server.internal_subscription.InternalSubscription."
@@ -57,6 +58,8 @@ async def _datachange_callback(
     mdata = self._monitored_items[mid]
     if mdata.mode == ua.MonitoringMode.Disabled:
         return
+    if mdata.read_value_id.IndexRange:
+        value = numeric_range.cut(value, mdata.read_value_id.IndexRange)
     kept, flt = mdata.mvalue, mdata.filter
     span = None
     if flt is not None and getattr(flt, "DeadbandType", None) == ua.DeadbandType.Percent:

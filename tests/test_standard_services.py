@@ -1,0 +1,424 @@
+"""Read, Write, Browse, BrowseNext and TranslateBrowsePathsToNodeIds as OPC 10000-4 says (decision 81),
+through a server and asyncua clients over TCP.
+
+Written from the standard's text: 5.9.2 (Browse: RequestedMaxReferencesPerNode and continuation points,
+Bad_NodeIdUnknown, Bad_ReferenceTypeIdInvalid, Bad_BrowseDirectionInvalid, Bad_ViewIdUnknown,
+ResultMask, NodeClassMask, Bad_NoContinuationPoints), 5.9.3 (BrowseNext: releasing,
+Bad_ContinuationPointInvalid), 5.9.4 (TranslateBrowsePathsToNodeIds: an empty TargetName only in the last
+element), 5.11.2 (Read: Bad_MaxAgeInvalid, Bad_TimestampsToReturnInvalid), 5.11.4 (Write:
+Bad_WriteNotSupported for an IndexRange that cannot be written and for a timestamp or status the server
+does not write, Bad_NotWritable, Bad_TypeMismatch), 7.27 (NumericRange: Bad_IndexRangeInvalid for the
+syntax, Bad_IndexRangeNoData for a lower bound beyond the value, partial results beyond the upper one),
+7.38 (Bad_NothingToDo for a request of no operations). asyncua answered most of these otherwise.
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from datetime import UTC, datetime
+from typing import Any
+
+import pytest
+import pytest_asyncio
+from asyncua import Client, ua
+from conftest import fast_config, start_app
+from helpers import robot_cell, wait_until
+from test_subscription_sessions import PASSWORD, client_of
+
+from uacell.robotics.equipment import ExecutionMode
+from uacell.server import UacellServer
+from uacell.ua import views
+
+SC = ua.StatusCodes
+_NS_ARRAY = ua.NodeId(ua.ObjectIds.Server_NamespaceArray)
+_OBJECTS = ua.NodeId(ua.ObjectIds.ObjectsFolder)
+_SERVER = ua.NodeId(ua.ObjectIds.Server)
+_HIERARCHICAL = ua.NodeId(ua.ObjectIds.HierarchicalReferences)
+pytestmark = pytest.mark.asyncio(loop_scope="module")
+_MODE = "Robot1.Controllers.Controller1.TaskControls.TaskControl1.ParameterSet.ExecutionMode"
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def app(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[UacellServer]:
+    server = await start_app(fast_config(tmp_path_factory.mktemp("services") / "data"))
+    server.users.add("eng", "engineer", PASSWORD)
+    # a variable asyncua stores client writes of (no binding routes it), Double, writable
+    folder = server.server.get_node(_OBJECTS)
+    ns = await server.server.get_namespace_index("urn:uacell:cell")
+    variable = await folder.add_variable(ua.NodeId("Test.Setpoint", ns), "Setpoint", 1.5, ua.VariantType.Double)
+    await variable.set_writable()
+    await folder.add_variable(ua.NodeId("Test.Levels", ns), "Levels", [1.0, 2.0, 3.0], ua.VariantType.Double)
+    try:
+        yield server
+    finally:
+        await server.stop()
+
+
+@pytest_asyncio.fixture(loop_scope="module")
+async def client(app: UacellServer) -> AsyncIterator[Client]:
+    async with client_of(app) as c:
+        yield c
+
+
+@pytest_asyncio.fixture(loop_scope="module")
+async def engineer(app: UacellServer) -> AsyncIterator[Client]:
+    async with client_of(app, "eng") as c:
+        yield c
+
+
+async def _ns(c: Client) -> int:
+    return int(await c.get_namespace_index("urn:uacell:cell"))
+
+
+def _code(exc: pytest.ExceptionInfo[ua.UaStatusCodeError]) -> int:
+    return int(exc.value.code)
+
+
+# --- Read ------------------------------------------------------------------------------------------
+
+
+async def _read(c: Client, *items: tuple[ua.NodeId, str], **params: Any) -> list[ua.DataValue]:
+    request = ua.ReadParameters(**params)
+    request.NodesToRead = [ua.ReadValueId(NodeId=n, AttributeId=ua.AttributeIds.Value, IndexRange=r) for n, r in items]
+    return list(await c.uaclient.read(request))
+
+
+async def test_read_applies_the_index_range(client: Client) -> None:
+    (whole,) = await _read(client, (_NS_ARRAY, ""))
+    namespaces = whole.Value.Value
+    assert len(namespaces) > 3
+    one, two, partial, strings = await _read(
+        client, (_NS_ARRAY, "1"), (_NS_ARRAY, "0:1"), (_NS_ARRAY, f"2:{len(namespaces) + 5}"), (_NS_ARRAY, "0:1,0:3")
+    )
+    assert one.StatusCode.is_good() and one.Value.Value == namespaces[1:2]
+    assert two.Value.Value == namespaces[:2]
+    assert partial.Value.Value == namespaces[2:]  # the upper bound beyond the array: what there is
+    assert strings.Value.Value == [name[:4] for name in namespaces[:2]]  # a substring of each element
+    assert strings.Value.VariantType == ua.VariantType.String
+    assert one.SourceTimestamp == whole.SourceTimestamp  # the value's own timestamps kept
+    (again,) = await _read(client, (_NS_ARRAY, ""))
+    assert again.Value.Value == namespaces  # the stored value is not cut
+
+
+async def test_read_refuses_an_index_range_it_cannot_answer(client: Client) -> None:
+    ns = await _ns(client)
+    speed = ua.NodeId("Filler1.Status.MachSpeed", ns)
+    product = ua.NodeId(ua.ObjectIds.Server_ServerStatus_BuildInfo_ProductName)
+    results = await _read(
+        client,
+        (_NS_ARRAY, "5:2"),  # the lower first: invalid syntax
+        (_NS_ARRAY, "3:3"),
+        (_NS_ARRAY, " 1"),
+        (_NS_ARRAY, "1:x"),
+        (_NS_ARRAY, "50:60"),  # the lower bound beyond the array
+        (speed, "0"),  # a scalar number has no elements
+        (product, "0:2"),  # a String's characters
+        (product, "0,0"),  # more dimensions than a String has
+    )
+    codes = [r.StatusCode.value for r in results]
+    assert codes[:4] == [SC.BadIndexRangeInvalid] * 4
+    assert codes[4:6] == [SC.BadIndexRangeNoData] * 2
+    assert results[6].StatusCode.is_good()
+    (name,) = await _read(client, (product, ""))
+    assert results[6].Value.Value == name.Value.Value[:3]
+    assert codes[7] == SC.BadIndexRangeNoData
+
+
+async def test_read_returns_the_timestamps_asked_for(client: Client) -> None:
+    """5.11.2.2, 7.40: timestampsToReturn names the timestamps of each Value returned; other attributes
+    are left as they are. asyncua returned both whatever was asked."""
+    ns = await _ns(client)
+    speed = ua.NodeId("Filler1.Status.MachSpeed", ns)
+    stamps = {}
+    for asked in (ua.TimestampsToReturn.Source, ua.TimestampsToReturn.Server, ua.TimestampsToReturn.Both,
+                  ua.TimestampsToReturn.Neither):  # fmt: skip
+        (dv,) = await _read(client, (speed, ""), TimestampsToReturn=asked)
+        stamps[asked] = (dv.SourceTimestamp is not None, dv.ServerTimestamp is not None)
+        assert dv.Value.Value is not None
+    assert stamps == {
+        ua.TimestampsToReturn.Source: (True, False),
+        ua.TimestampsToReturn.Server: (False, True),
+        ua.TimestampsToReturn.Both: (True, True),
+        ua.TimestampsToReturn.Neither: (False, False),
+    }
+    (both,) = await _read(client, (speed, ""), TimestampsToReturn=ua.TimestampsToReturn.Both)
+    assert both.SourceTimestamp is not None  # the stored value keeps its timestamps
+
+
+async def test_read_request_checks(client: Client) -> None:
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await _read(client)
+    assert _code(refused) == SC.BadNothingToDo
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await _read(client, (_NS_ARRAY, ""), MaxAge=-1)
+    assert _code(refused) == SC.BadMaxAgeInvalid
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await _read(client, (_NS_ARRAY, ""), TimestampsToReturn=ua.TimestampsToReturn.Invalid)
+    assert _code(refused) == SC.BadTimestampsToReturnInvalid
+
+
+class Reported:
+    """A subscription's handler that keeps (client handle, value, status code) of each data change."""
+
+    def __init__(self) -> None:
+        self.seen: list[tuple[int, Any, int]] = []
+
+    def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+        item = data.monitored_item
+        self.seen.append((item.ClientHandle, val, item.Value.StatusCode.value))
+
+    def of(self, handle: int) -> list[tuple[Any, int]]:
+        return [(value, code) for h, value, code in self.seen if h == handle]
+
+
+async def test_a_monitored_item_reports_the_part_its_index_range_names(app: UacellServer, client: Client) -> None:
+    """OPC 10000-4 5.13.2: an item with an IndexRange reports that part of the value, and only when it
+    changes; a range with no data yet is reported as Bad_IndexRangeNoData; one that does not parse is
+    refused when the item is created. asyncua ignored the range and reported the whole array."""
+    ns = await _ns(client)
+    levels = ua.NodeId("Test.Levels", ns)
+    handler = Reported()
+    subscription = await client.create_subscription(0, handler)
+
+    def request(rng: str, handle: int) -> ua.MonitoredItemCreateRequest:
+        return ua.MonitoredItemCreateRequest(
+            ItemToMonitor=ua.ReadValueId(NodeId=levels, AttributeId=ua.AttributeIds.Value, IndexRange=rng),
+            MonitoringMode=ua.MonitoringMode.Reporting,
+            RequestedParameters=ua.MonitoringParameters(ClientHandle=handle, QueueSize=10, DiscardOldest=True),
+        )
+
+    made = await subscription.create_monitored_items([request("1", 1), request("5:6", 2), request("2:1", 3)])
+    assert isinstance(made[0], int) and isinstance(made[1], int)
+    assert made[2] == ua.StatusCode(SC.BadIndexRangeInvalid)
+    await wait_until(lambda: bool(handler.of(1)) and bool(handler.of(2)))
+    assert handler.of(1) == [([2.0], SC.Good)]
+    assert handler.of(2) == [(None, SC.BadIndexRangeNoData)]
+    node = app.server.get_node(levels)
+    await node.write_value(ua.Variant([9.0, 2.0, 3.0], ua.VariantType.Double))  # element 0 only
+    await node.write_value(ua.Variant([9.0, 7.0, 3.0], ua.VariantType.Double))
+    await wait_until(lambda: len(handler.of(1)) == 2)
+    assert handler.of(1) == [([2.0], SC.Good), ([7.0], SC.Good)]
+    assert handler.of(2) == [(None, SC.BadIndexRangeNoData)]  # still nothing there: nothing new
+    await subscription.delete()
+
+
+# --- Write -----------------------------------------------------------------------------------------
+
+
+def _item(node: ua.NodeId, value: ua.DataValue, attribute: int = ua.AttributeIds.Value, rng: str = "") -> ua.WriteValue:
+    return ua.WriteValue(NodeId=node, AttributeId=attribute, Value=value, IndexRange=rng)
+
+
+async def _write(c: Client, *items: ua.WriteValue) -> list[int]:
+    return [s.value for s in await c.uaclient.write(ua.WriteParameters(NodesToWrite=list(items)))]
+
+
+def _int32(value: int) -> ua.DataValue:
+    return ua.DataValue(ua.Variant(value, ua.VariantType.Int32))
+
+
+async def test_a_routed_write_with_an_index_range_reaches_neither_node_nor_model(
+    app: UacellServer, engineer: Client
+) -> None:
+    """An IndexRange went past the ExecutionMode's behaviour to asyncua, which stored the value whole."""
+    ns = await _ns(engineer)
+    mode = ua.NodeId(_MODE, ns)
+    task = robot_cell(app).tasks["TaskControl1"]
+    before = await engineer.get_node(mode).read_value()
+    step = int(ExecutionMode.STEP)
+    assert before != step
+    codes = await _write(engineer, _item(mode, _int32(step), rng="0"), _item(mode, _int32(step), rng="x"))
+    assert codes == [SC.BadWriteNotSupported, SC.BadIndexRangeInvalid]
+    assert await engineer.get_node(mode).read_value() == before
+    assert int(task.execution_mode) == before
+    # the same value without a range is the behaviour's
+    assert await _write(engineer, _item(mode, _int32(step))) == [SC.Good]
+    assert await engineer.get_node(mode).read_value() == step
+    assert task.execution_mode is ExecutionMode.STEP
+    assert await _write(engineer, _item(mode, _int32(int(before)))) == [SC.Good]
+
+
+async def test_write_refuses_what_it_does_not_write(app: UacellServer, engineer: Client) -> None:
+    ns = await _ns(engineer)
+    setpoint = ua.NodeId("Test.Setpoint", ns)
+    speed = ua.NodeId("Filler1.Status.MachSpeed", ns)
+    double = ua.Variant(2.5, ua.VariantType.Double)
+    now = datetime.now(UTC)
+    codes = await _write(
+        engineer,
+        _item(setpoint, ua.DataValue(double, ServerTimestamp=now)),
+        _item(setpoint, ua.DataValue(double, StatusCode=ua.StatusCode(SC.UncertainLastUsableValue))),
+        _item(setpoint, ua.DataValue(double), attribute=99),
+        _item(setpoint, ua.DataValue(ua.Variant("fast"))),
+        _item(setpoint, ua.DataValue(ua.Variant([1.0, 2.0], ua.VariantType.Double))),
+        _item(setpoint, ua.DataValue(ua.Variant(ua.LocalizedText("x"))), attribute=ua.AttributeIds.DisplayName),
+        _item(speed, ua.DataValue(ua.Variant(5.0, ua.VariantType.Float))),
+        _item(ua.NodeId("Test.Nothing", ns), ua.DataValue(double)),
+        _item(setpoint, ua.DataValue(ua.Variant(3.0, ua.VariantType.Double), SourceTimestamp=now)),
+    )
+    assert codes == [
+        SC.BadWriteNotSupported,  # the server stamps values
+        SC.BadWriteNotSupported,  # and clients do not set their quality
+        SC.BadAttributeIdInvalid,
+        SC.BadTypeMismatch,
+        SC.BadTypeMismatch,  # an array for a scalar
+        SC.BadNotWritable,
+        SC.BadNotWritable,  # AccessLevel without CurrentWrite
+        SC.BadNodeIdUnknown,
+        SC.Good,
+    ]
+    dv = await engineer.get_node(setpoint).read_data_value()
+    assert dv.Value.Value == 3.0
+    assert dv.SourceTimestamp == now.replace(tzinfo=None) or dv.SourceTimestamp == now
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await _write(engineer)
+    assert _code(refused) == SC.BadNothingToDo
+
+
+async def test_the_role_is_checked_before_the_node(client: Client) -> None:
+    """The anonymous operator may not write a variable asyncua stores: Bad_UserAccessDenied, whatever the node."""
+    ns = await _ns(client)
+    codes = await _write(
+        client,
+        _item(ua.NodeId("Test.Setpoint", ns), ua.DataValue(ua.Variant(9.0, ua.VariantType.Double))),
+        _item(ua.NodeId("Filler1.Status.MachSpeed", ns), ua.DataValue(ua.Variant(5.0, ua.VariantType.Float))),
+    )
+    assert codes == [SC.BadUserAccessDenied] * 2
+
+
+# --- Browse and BrowseNext -------------------------------------------------------------------------
+
+
+def _description(node: ua.NodeId, **fields: Any) -> ua.BrowseDescription:
+    fields.setdefault("ReferenceTypeId", _HIERARCHICAL)
+    fields.setdefault("IncludeSubtypes", True)
+    fields.setdefault("ResultMask", ua.BrowseResultMask.All)
+    return ua.BrowseDescription(NodeId=node, BrowseDirection=ua.BrowseDirection.Forward, **fields)
+
+
+async def _browse(c: Client, *descriptions: ua.BrowseDescription, per_node: int = 0, view: Any = None) -> list[Any]:
+    params = ua.BrowseParameters(NodesToBrowse=list(descriptions), RequestedMaxReferencesPerNode=per_node)
+    if view is not None:
+        params.View.ViewId = view
+    return list(await c.uaclient.browse(params))
+
+
+async def _next(c: Client, points: list[bytes], release: bool = False) -> list[Any]:
+    params = ua.BrowseNextParameters(ContinuationPoints=points, ReleaseContinuationPoints=release)
+    return list(await c.uaclient.browse_next(params))
+
+
+def _ids(references: list[ua.ReferenceDescription]) -> list[str]:
+    return [r.NodeId.to_string() for r in references]
+
+
+async def test_browse_pages_by_requested_max_references(client: Client) -> None:
+    (whole,) = await _browse(client, _description(_SERVER))
+    assert len(whole.References) > 5 and not whole.ContinuationPoint
+    (page,) = await _browse(client, _description(_SERVER), per_node=2)
+    seen = _ids(page.References)
+    assert len(seen) == 2 and page.ContinuationPoint
+    point = page.ContinuationPoint
+    while point:
+        (page,) = await _next(client, [point])
+        assert page.StatusCode.is_good() and len(page.References) <= 2
+        seen += _ids(page.References)
+        point = page.ContinuationPoint
+    assert seen == _ids(whole.References)  # the same references, in the same order
+    (used,) = await _next(client, [b"\x01" + bytes(7)])
+    assert used.StatusCode.value == SC.BadContinuationPointInvalid
+
+
+async def test_continuation_points_are_released_and_belong_to_their_session(app: UacellServer, client: Client) -> None:
+    (page,) = await _browse(client, _description(_SERVER), per_node=1)
+    async with client_of(app) as other:
+        (theirs,) = await _next(other, [page.ContinuationPoint])
+        assert theirs.StatusCode.value == SC.BadContinuationPointInvalid
+    (released,) = await _next(client, [page.ContinuationPoint], release=True)
+    assert released.StatusCode.is_good() and not released.References
+    (after,) = await _next(client, [page.ContinuationPoint])
+    assert after.StatusCode.value == SC.BadContinuationPointInvalid
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await _next(client, [])
+    assert _code(refused) == SC.BadNothingToDo
+
+
+async def test_a_session_holds_at_most_max_browse_continuation_points(app: UacellServer) -> None:
+    limit = views.MAX_BROWSE_CONTINUATION_POINTS
+    async with client_of(app) as c:
+        advertised = c.get_node(ua.NodeId(ua.ObjectIds.Server_ServerCapabilities_MaxBrowseContinuationPoints))
+        assert await advertised.read_value() == limit
+        pages = await _browse(c, *[_description(_SERVER)] * (limit + 1), per_node=1)
+        assert all(p.ContinuationPoint for p in pages[:limit])
+        assert pages[limit].StatusCode.value == SC.BadNoContinuationPoints and not pages[limit].References
+        await _next(c, [pages[0].ContinuationPoint], release=True)
+        (again,) = await _browse(c, _description(_SERVER), per_node=1)
+        assert again.StatusCode.is_good() and again.ContinuationPoint
+
+
+async def test_browse_answers_each_description(client: Client) -> None:
+    results = await _browse(
+        client,
+        _description(ua.NodeId("Nothing", 1)),
+        _description(_SERVER, ReferenceTypeId=_OBJECTS),  # not a ReferenceType
+        ua.BrowseDescription(NodeId=_SERVER, BrowseDirection=ua.BrowseDirection.Invalid, ResultMask=63),
+        _description(_SERVER, ResultMask=ua.BrowseResultMask.BrowseName, NodeClassMask=ua.NodeClass.Variable),
+    )
+    codes = [r.StatusCode.value for r in results]
+    assert codes == [SC.BadNodeIdUnknown, SC.BadReferenceTypeIdInvalid, SC.BadBrowseDirectionInvalid, SC.Good]
+    masked = results[3].References
+    assert masked and {r.NodeClass for r in masked} == {ua.NodeClass.Unspecified}  # not asked for
+    assert {r.BrowseName.Name for r in masked} >= {"ServerArray", "NamespaceArray"}  # only variables, named
+    assert all(r.ReferenceTypeId.is_null() and not r.DisplayName.Text for r in masked)
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await _browse(client, _description(_SERVER), view=ua.NodeId(4711, 0))
+    assert _code(refused) == SC.BadViewIdUnknown
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await _browse(client)
+    assert _code(refused) == SC.BadNothingToDo
+
+
+# --- TranslateBrowsePathsToNodeIds -----------------------------------------------------------------
+
+
+def _path(start: ua.NodeId, *names: str, reference: int = ua.ObjectIds.HierarchicalReferences) -> ua.BrowsePath:
+    elements = [
+        ua.RelativePathElement(
+            ReferenceTypeId=ua.NodeId(reference), IsInverse=False, IncludeSubtypes=True, TargetName=ua.QualifiedName(n)
+        )
+        for n in names
+    ]
+    return ua.BrowsePath(StartingNode=start, RelativePath=ua.RelativePath(Elements=elements))
+
+
+async def test_translate_browse_paths(client: Client) -> None:
+    results = await client.uaclient.translate_browsepaths_to_nodeids([
+        _path(_OBJECTS, "Server", "ServerStatus"),
+        _path(_OBJECTS),  # no elements
+        _path(_OBJECTS, "", "ServerStatus"),  # an empty name before the last element
+        _path(_SERVER, "ServerStatus", "", reference=ua.ObjectIds.HasComponent),  # every component of it
+        _path(ua.NodeId("Nothing", 1), "Server"),
+        _path(_OBJECTS, "Nothing"),
+    ])  # fmt: skip
+    codes = [r.StatusCode.value for r in results]
+    assert codes == [SC.Good, SC.BadNothingToDo, SC.BadBrowseNameInvalid, SC.Good, SC.BadNodeIdUnknown, SC.BadNoMatch]
+    assert [t.TargetId for t in results[0].Targets] == [ua.NodeId(ua.ObjectIds.Server_ServerStatus)]
+    assert results[0].Targets[0].RemainingPathIndex == 0xFFFFFFFF
+    components = {t.TargetId for t in results[3].Targets}
+    assert ua.NodeId(ua.ObjectIds.Server_ServerStatus_State) in components
+    assert ua.NodeId(ua.ObjectIds.Server_ServerStatus_BuildInfo) in components
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await client.uaclient.translate_browsepaths_to_nodeids([])
+    assert _code(refused) == SC.BadNothingToDo
+
+
+# --- services of no operations ---------------------------------------------------------------------
+
+
+async def test_requests_of_no_operations_are_nothing_to_do(client: Client) -> None:
+    for request in (client.uaclient.call([]), client.uaclient.register_nodes([]), client.uaclient.unregister_nodes([])):
+        with pytest.raises(ua.UaStatusCodeError) as refused:
+            await request
+        assert _code(refused) == SC.BadNothingToDo
+    nodes = [_SERVER, _NS_ARRAY]
+    assert await client.uaclient.register_nodes(nodes) == nodes
