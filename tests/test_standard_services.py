@@ -202,6 +202,85 @@ async def test_a_monitored_item_reports_the_part_its_index_range_names(app: Uace
     await subscription.delete()
 
 
+class Asking:
+    """asyncua's client as a Subscription uses it, its CreateMonitoredItems asking for ``stamps``
+    (asyncua's Subscription always asks for both)."""
+
+    def __init__(self, uaclient: Any, stamps: ua.TimestampsToReturn) -> None:
+        self.uaclient, self.stamps = uaclient, stamps
+
+    async def create_monitored_items(self, params: ua.CreateMonitoredItemsParameters) -> Any:
+        params.TimestampsToReturn = self.stamps
+        return await self.uaclient.create_monitored_items(params)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.uaclient, name)
+
+
+class Stamps:
+    """A subscription's handler that keeps, by client handle, whether each value came with its source
+    and server timestamps."""
+
+    def __init__(self) -> None:
+        self.seen: dict[int, list[tuple[Any, bool, bool]]] = {}
+
+    def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+        dv = data.monitored_item.Value
+        self.seen.setdefault(data.monitored_item.ClientHandle, []).append(
+            (val, dv.SourceTimestamp is not None, dv.ServerTimestamp is not None)
+        )
+
+
+async def test_a_monitored_item_reports_the_timestamps_asked_for(app: UacellServer, client: Client) -> None:
+    """5.13.2.2, 5.13.3.2: CreateMonitoredItems' and ModifyMonitoredItems' timestampsToReturn name the
+    timestamps of the values the items report, the first one included; an invalid one fails the
+    request. asyncua sent both."""
+    ns = await _ns(client)
+    setpoint = ua.NodeId("Test.Setpoint", ns)
+    handler = Stamps()
+    subscription = await client.create_subscription(0, handler)
+    uaclient = subscription.server
+    made = []
+    for handle, stamps in ((11, ua.TimestampsToReturn.Source), (12, ua.TimestampsToReturn.Neither)):
+        subscription.server = Asking(uaclient, stamps)
+        request = ua.MonitoredItemCreateRequest(
+            ItemToMonitor=ua.ReadValueId(NodeId=setpoint, AttributeId=ua.AttributeIds.Value),
+            MonitoringMode=ua.MonitoringMode.Reporting,
+            RequestedParameters=ua.MonitoringParameters(ClientHandle=handle, QueueSize=10, DiscardOldest=True),
+        )
+        made += await subscription.create_monitored_items([request])
+    subscription.server = uaclient
+    await wait_until(lambda: len(handler.seen.get(11, ())) == 1 and len(handler.seen.get(12, ())) == 1)
+    node = app.server.get_node(setpoint)
+    await node.write_value(ua.Variant(4.25, ua.VariantType.Double))
+    await wait_until(lambda: len(handler.seen[11]) == 2 and len(handler.seen[12]) == 2)
+    assert [stamps for _, *stamps in handler.seen[11]] == [[True, False], [True, False]]
+    assert [stamps for _, *stamps in handler.seen[12]] == [[False, False], [False, False]]
+    assert handler.seen[12][1][0] == 4.25
+    modify = ua.ModifyMonitoredItemsParameters(
+        SubscriptionId=subscription.subscription_id,
+        TimestampsToReturn=ua.TimestampsToReturn.Both,
+        ItemsToModify=[ua.MonitoredItemModifyRequest(
+            MonitoredItemId=made[1], RequestedParameters=ua.MonitoringParameters(ClientHandle=12, QueueSize=10)
+        )],
+    )  # fmt: skip
+    (modified,) = await uaclient.modify_monitored_items(modify)
+    assert modified.StatusCode.is_good()
+    await node.write_value(ua.Variant(5.5, ua.VariantType.Double))
+    await wait_until(lambda: len(handler.seen[12]) == 3)
+    assert handler.seen[12][2] == (5.5, True, True)
+    invalid = ua.CreateMonitoredItemsParameters(
+        SubscriptionId=subscription.subscription_id,
+        TimestampsToReturn=ua.TimestampsToReturn.Invalid,
+        ItemsToCreate=[request],
+    )
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await uaclient.create_monitored_items(invalid)
+    assert _code(refused) == SC.BadTimestampsToReturnInvalid
+    await subscription.delete()
+    await node.write_value(ua.Variant(1.5, ua.VariantType.Double))
+
+
 # --- Write -----------------------------------------------------------------------------------------
 
 

@@ -54,7 +54,12 @@ def check_read(params: ua.ReadParameters) -> None:
     """The Read request's own checks (ServiceError with its code)."""
     if params.MaxAge < 0:
         raise ServiceError(_SC.BadMaxAgeInvalid)
-    if params.TimestampsToReturn not in _TIMESTAMPS:
+    check_timestamps(params.TimestampsToReturn)
+
+
+def check_timestamps(stamps: ua.TimestampsToReturn) -> None:
+    """A request's TimestampsToReturn (Read, CreateMonitoredItems, ModifyMonitoredItems): one of the four."""
+    if stamps not in _TIMESTAMPS:
         raise ServiceError(_SC.BadTimestampsToReturnInvalid)
 
 
@@ -67,12 +72,12 @@ def shape_results(params: ua.ReadParameters, results: list[ua.DataValue]) -> Non
         if item.IndexRange:
             read = numeric_range.cut(read, item.IndexRange)
         if stamps != _T.Both and item.AttributeId == _A.Value:
-            read = _stamped(read, stamps)
+            read = stamped(read, stamps)
         results[i] = read
 
 
-def _stamped(read: ua.DataValue, stamps: ua.TimestampsToReturn) -> ua.DataValue:
-    """``read`` with only the timestamps ``stamps`` names (Source, Server or Neither)."""
+def stamped(read: ua.DataValue, stamps: ua.TimestampsToReturn) -> ua.DataValue:
+    """``read`` with only the timestamps ``stamps`` names (a new DataValue if any is dropped)."""
     drop: dict[str, None] = {}
     if stamps != _T.Server and (read.ServerTimestamp is not None or read.ServerPicoseconds is not None):
         drop.update(ServerTimestamp=None, ServerPicoseconds=None)

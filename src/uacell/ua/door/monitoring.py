@@ -5,7 +5,8 @@ allow is refused with their status code, the other items of the request made), a
 a value by OPC 10000-4 7.22.2 (``uacell.ua.datachange``): compared with the last value it
 *reported*, where asyncua compared with the value before, so that a value drifting by less than a
 deadband at each step was never reported; a status change is reported whatever the deadband; an
-item with an IndexRange reports the part of the value it names (asyncua ignored the range). What
+item with an IndexRange reports the part of the value it names (asyncua ignored the range), with the
+timestamps its TimestampsToReturn names (asyncua sent both). What
 the item keeps of the value it reported is the value itself when its payload cannot change in place
 (a scalar of an immutable Python type, or one of asyncua's names and ids, which nothing in the
 server mutates: writes make new DataValues); asyncua kept a ``copy.deepcopy`` of every value for
@@ -20,6 +21,7 @@ events included.
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import copy
 import dataclasses
 import weakref
@@ -32,8 +34,8 @@ from asyncua.common.utils import ServiceError
 from asyncua.server.internal_subscription import InternalSubscription
 from asyncua.server.monitored_item_service import MonitoredItemService
 
-from uacell.ua import datachange, numeric_range
-from uacell.ua.door import patch
+from uacell.ua import attributes, datachange, numeric_range
+from uacell.ua.door import patch, tag, tagged
 
 _SUB = "asyncua.server.internal_subscription.InternalSubscription."
 _ITEMS = "asyncua.server.monitored_item_service.MonitoredItemService."
@@ -69,6 +71,12 @@ async def _datachange_callback(
     kept.old_dvalue = kept.current_dvalue
     variant = value.Value
     kept.current_dvalue = value if variant is None or type(variant.Value) in _KEPT_AS_IS else copy.deepcopy(value)
+    stamps = tagged(mdata, "timestamps")
+    if stamps is None:  # the item's first value, sent while CreateMonitoredItems makes it
+        stamps = _creating_with.get()
+        tag(mdata, "timestamps", stamps)
+    if stamps != ua.TimestampsToReturn.Both:
+        value = attributes.stamped(value, stamps)
     event = ua.MonitoredItemNotification(ClientHandle=mdata.client_handle, Value=value)
     await self.isub.enqueue_datachange_event(mid, event, mdata.queue_size)
 
@@ -161,10 +169,29 @@ async def _report_held(service: MonitoredItemService, ids: list[int], triggered:
             await _ORIGINAL_ENQUEUE(sub, mid, notification, mdata.queue_size, queue)
 
 
+# the TimestampsToReturn of the CreateMonitoredItems request under way (its items' first values are sent
+# while asyncua makes them)
+_creating_with: contextvars.ContextVar[ua.TimestampsToReturn] = contextvars.ContextVar(
+    "uacell_creating_with", default=ua.TimestampsToReturn.Both
+)
+
+
 async def _create_monitored_items(
     self: MonitoredItemService, params: ua.CreateMonitoredItemsParameters
 ) -> list[ua.MonitoredItemCreateResult]:
-    """asyncua's, for the items whose filter the standards allow; the others answered with why not."""
+    """asyncua's, for the items whose filter the standards allow; the others answered with why not. The
+    values each item reports carry the timestamps the request's TimestampsToReturn names."""
+    attributes.check_timestamps(params.TimestampsToReturn)
+    token = _creating_with.set(params.TimestampsToReturn)
+    try:
+        return await _create_allowed(self, params)
+    finally:
+        _creating_with.reset(token)
+
+
+async def _create_allowed(
+    self: MonitoredItemService, params: ua.CreateMonitoredItemsParameters
+) -> list[ua.MonitoredItemCreateResult]:
     refused = [
         datachange.refusal(self.aspace, i.ItemToMonitor, i.RequestedParameters.Filter) for i in params.ItemsToCreate
     ]
@@ -182,7 +209,9 @@ def _modify_monitored_items(
     self: MonitoredItemService, params: ua.ModifyMonitoredItemsParameters
 ) -> list[ua.MonitoredItemModifyResult]:
     """asyncua's, for known items whose new filter the standards allow (asyncua failed the whole request
-    on an unknown item); the others answered with why not and left as they were."""
+    on an unknown item); the others answered with why not and left as they were. A modified item's
+    values carry the timestamps the request's TimestampsToReturn names from then on."""
+    attributes.check_timestamps(params.TimestampsToReturn)
     results: list[ua.MonitoredItemModifyResult] = []
     for item in params.ItemsToModify:
         mdata = self._monitored_items.get(item.MonitoredItemId)
@@ -195,6 +224,7 @@ def _modify_monitored_items(
             continue
         one = dataclasses.replace(params, ItemsToModify=[item])
         results.extend(_ORIGINAL_MODIFY(self, one))
+        tag(mdata, "timestamps", params.TimestampsToReturn)
     return results
 
 
