@@ -2,9 +2,9 @@
 // (OPC 10000-4 5.13/5.14: Bad_SubscriptionIdInvalid for a subscription the session does not have),
 // and asks to take it over with TransferSubscriptions (5.14.7: only a session of the same user; two
 // anonymous sessions over an unsigned channel may not). Then SetTriggering (5.13.5) on the first's
-// subscription, by the first and by the second. Prints each answer's status code.
+// subscription, by the first and by the second, and Server.ResendData. Prints each answer's status code.
 "use strict";
-const { AttributeIds, MonitoringMode, TimestampsToReturn } = require("node-opcua-client");
+const { AttributeIds, DataType, MonitoringMode, TimestampsToReturn } = require("node-opcua-client");
 const { connect, resolve, done, main, FILLER } = require("./lib");
 
 const names = (results) => results.map((r) => (r.statusCode || r).name);
@@ -60,6 +60,12 @@ main(async () => {
     requestedMaxKeepAliveCount: 10, maxNotificationsPerPublish: 0, priority: 1,
   });
   out.modifiedInterval = modified.revisedPublishingInterval;
+  // Server.ResendData (OPC 10000-5 9.3) on the first's subscription, by each session
+  const resend = async (session) => (await session.call({
+    objectId: "i=2253", methodId: "i=12873", inputArguments: [{ dataType: DataType.UInt32, value: id }],
+  })).statusCode.name;
+  out.resendByOwner = await resend(first.session);
+  out.resendByOther = await resend(second.session);
   out.deleteByOwner = names((await first.session.deleteSubscriptions({ subscriptionIds: [id] })).results);
   for (const { client, session } of [first, second]) {
     await session.close();

@@ -84,6 +84,7 @@ async def test_node_opcua_sessions_see_only_their_own_subscriptions(serve_proces
     assert out["modifiedInterval"] == 1000
     assert out["triggeringByOwner"] == ["Good", "BadMonitoredItemIdInvalid"]  # SetTriggering (OPC 10000-4 5.13.5)
     assert out["triggeringByOther"] == "BadSubscriptionIdInvalid"
+    assert (out["resendByOwner"], out["resendByOther"]) == ("Good", "BadUserAccessDenied")  # OPC 10000-5 9.3
     assert out["deleteByOwner"] == ["Good"]
 
 

@@ -219,3 +219,32 @@ async def test_a_subscription_goes_only_to_a_session_of_the_same_user(app: Uacel
         assert 61.0 not in seen.values
         assert await transfer(first, sid) == [SC.Good]  # and back, the same user
         assert [s.value for s in await first.uaclient.delete_subscriptions([sid])] == [SC.Good]
+
+
+@pytest.mark.asyncio(loop_scope="module")
+async def test_resend_data_sends_the_current_values_again_to_its_own_session(app: UacellServer) -> None:
+    """OPC 10000-5 9.3: Server.ResendData(SubscriptionId) has the next Publish carry the current value of
+    each data item in Reporting mode, changed or not; Bad_UserAccessDenied when the subscription is
+    another session's, Bad_SubscriptionIdInvalid when there is none. asyncua answered Bad_NotImplemented."""
+    resend = ua.NodeId(ua.ObjectIds.Server_ResendData)
+    async with client_of(app) as owner, client_of(app) as other:
+        seen, sampled = Seen(), Seen()
+        sub = await owner.create_subscription(params(), seen)
+        await sub.subscribe_data_change(await mach_speed(owner))
+        quiet = await owner.create_subscription(params(), sampled)
+        await quiet.subscribe_data_change(await mach_speed(owner), monitoring=ua.MonitoringMode.Sampling)
+        await wait_until(lambda: len(seen.values) == 1)
+        server = owner.get_node(ua.ObjectIds.Server)
+        await server.call_method(resend, ua.Variant(sub.subscription_id, ua.VariantType.UInt32))
+        await wait_until(lambda: len(seen.values) == 2)
+        assert seen.values[1] == seen.values[0]  # the same value, sent again
+        await server.call_method(resend, ua.Variant(quiet.subscription_id, ua.VariantType.UInt32))
+        for sid, code in ((sub.subscription_id, SC.BadUserAccessDenied), (987654, SC.BadSubscriptionIdInvalid)):
+            with pytest.raises(ua.UaStatusCodeError) as refused:
+                await other.get_node(ua.ObjectIds.Server).call_method(resend, ua.Variant(sid, ua.VariantType.UInt32))
+            assert refused.value.code == code
+        speed = seen.values[0] + 1.5
+        await set_speed(owner, speed)  # a change after: it arrives, and nothing more was resent meanwhile
+        await wait_until(lambda: len(seen.values) == 3)
+        assert seen.values == [seen.values[0], seen.values[0], speed]
+        assert sampled.values == []  # an item in Sampling mode reports nothing

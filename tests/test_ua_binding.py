@@ -280,11 +280,11 @@ async def test_methods_no_binding_declares_never_get_the_stacks_default_answers(
     # a node that is not a method at all
     res = await raw_call(r.client, r.tc.nodeid, ua.NodeId(f"{TC_PATH}.CurrentState", r.ns))
     assert res.StatusCode.value == ua.StatusCodes.BadMethodInvalid
-    # the object's own method that nobody implements (the rig binds no Start; asyncua no ResendData)
+    # the object's own method that nobody implements (the rig binds no Start; asyncua no SetSubscriptionDurable)
     res = await raw_call(r.client, r.tc.nodeid, ua.NodeId(f"{TC_PATH}.Start", r.ns))
     assert res.StatusCode.value == ua.StatusCodes.BadNotImplemented
-    resend = ua.NodeId(ua.ObjectIds.Server_ResendData)
-    res = await raw_call(r.client, server_obj, resend, one)
+    durable = ua.NodeId(ua.ObjectIds.Server_SetSubscriptionDurable)
+    res = await raw_call(r.client, server_obj, durable, one, one)
     assert res.StatusCode.value == ua.StatusCodes.BadNotImplemented
     # GetMonitoredItems is uacell's own (tests/test_diagnostics.py): it checks the subscription id
     res = await raw_call(r.client, server_obj, get_monitored, ua.Variant(987654, ua.VariantType.UInt32))

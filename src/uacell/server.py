@@ -38,7 +38,7 @@ from uacell.security.audit import AuditTrail
 from uacell.security.pki import PkiPaths
 from uacell.security.policy import SecurityStage, install_security
 from uacell.security.users import UserStore
-from uacell.services.diagnostics import Diagnostics, bind_get_monitored_items
+from uacell.services.diagnostics import Diagnostics, bind_subscription_methods
 from uacell.services.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
 from uacell.services.observers import install_audit
 from uacell.ua import door
@@ -217,7 +217,7 @@ class UacellServer:
         await self.server.set_build_info(PRODUCT_URI, "uacell", "uacell", __version__, "0", ua.DateTime.now())
         self._refs = NodeRefs(await self.server.get_namespace_array())
         self.dispatcher.declarations = self.cell.instantiator.declarations
-        bind_get_monitored_items(self)
+        bind_subscription_methods(self)
         for binder in self.binders:
             closer = await binder(self)
             if closer is not None:

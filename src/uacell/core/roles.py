@@ -93,8 +93,9 @@ BASE_ROLES: dict[tuple[Family, str], Role] = {
     # Alarm clients ask for the current conditions when they subscribe: as reading, anyone may.
     **{(Family.CONDITION, m): Role.OBSERVER for m in ("ConditionRefresh", "ConditionRefresh2")},
     **{(Family.CONDITION, m): EN for m in ("Enable", "Disable")},
-    # OPC 10000-5 9.1: a client asks which monitored items its own subscription has (after a reconnect).
-    (Family.SERVER, "GetMonitoredItems"): Role.OBSERVER,
+    # OPC 10000-5 9.1, 9.3: a client asks which monitored items its own subscription has, or for their
+    # current values again (after a reconnect).
+    **{(Family.SERVER, m): Role.OBSERVER for m in ("GetMonitoredItems", "ResendData")},
 }
 
 

@@ -348,29 +348,36 @@ class Diagnostics:
         await self.iserver.aspace.write_attribute_value(node, ua.AttributeIds.Value, ua.DataValue(value))
 
 
-def bind_get_monitored_items(app: Host) -> None:
-    """``Server.GetMonitoredItems(SubscriptionId) -> ServerHandles, ClientHandles`` (OPC 10000-5, 9.1)."""
+def bind_subscription_methods(app: Host) -> None:
+    """The Server object's methods on a subscription of the calling session (OPC 10000-5, 9.1 and 9.3):
+    ``GetMonitoredItems(SubscriptionId) -> ServerHandles, ClientHandles`` and ``ResendData(SubscriptionId)``,
+    which queues the current value of each of its Reporting data items for the next Publish.
+    Bad_SubscriptionIdInvalid for an unknown subscription, Bad_UserAccessDenied for another session's."""
     from uacell.core.errors import CallError
     from uacell.core.roles import Family
     from uacell.ua.context import Caller, session_text
+    from uacell.ua.door.subscriptions import send_current_values
 
     service = app.server.iserver.subscription_service
 
-    async def get_monitored_items(caller: Caller, subscription_id: int) -> list[Any]:
+    def own(caller: Caller, subscription_id: int) -> Any:
         subscription = service.subscriptions.get(subscription_id)
         if subscription is None:
             raise CallError("BadSubscriptionIdInvalid", f"no subscription {subscription_id}")
         if session_text(subscription.session_id) != caller.session_id:
             raise CallError("BadUserAccessDenied", f"subscription {subscription_id} belongs to another session")
-        items = sorted(subscription.monitored_item_srv._monitored_items.items())
+        return subscription
+
+    async def get_monitored_items(caller: Caller, subscription_id: int) -> list[Any]:
+        items = sorted(own(caller, subscription_id).monitored_item_srv._monitored_items.items())
         return [[int(i) for i, _ in items], [int(m.client_handle or 0) for _, m in items]]
 
-    app.dispatcher.bind(
-        ua.NodeId(_O.Server),
-        ua.NodeId(_O.Server_GetMonitoredItems),
-        Family.SERVER,
-        get_monitored_items,
-    )
+    async def resend_data(caller: Caller, subscription_id: int) -> None:
+        await send_current_values(own(caller, subscription_id))
+
+    server = ua.NodeId(_O.Server)
+    app.dispatcher.bind(server, ua.NodeId(_O.Server_GetMonitoredItems), Family.SERVER, get_monitored_items)
+    app.dispatcher.bind(server, ua.NodeId(_O.Server_ResendData), Family.SERVER, resend_data)
 
 
 def readable_by(node: ua.NodeId, role: str) -> bool:
