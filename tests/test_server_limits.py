@@ -289,6 +289,29 @@ async def test_sessions_beyond_the_limit_answer_bad_too_many_sessions(app: Uacel
             await c.disconnect()
 
 
+async def test_a_session_timeout_is_revised_into_the_servers_range(app: UacellServer) -> None:
+    """OPC 10000-4 5.6.2: RequestedSessionTimeout is revised to what the server allows. asyncua's clamp let
+    NaN through, and a session whose timeout is NaN never timed out: it is the shortest now."""
+    iserver = app.server.iserver
+    revised = {}
+    for requested in (float("nan"), 0.0, -5.0, 1e12, 20_000.0):
+        c = Client(app.endpoint, timeout=30)
+        c.session_timeout = requested
+        await c.connect()
+        try:
+            revised[str(requested)] = c.session_timeout
+        finally:
+            await c.disconnect()
+    shortest, longest = iserver.min_session_timeout_ms, iserver.max_session_timeout_ms
+    assert revised == {
+        "nan": shortest,
+        "0.0": shortest,
+        "-5.0": shortest,
+        "1000000000000.0": longest,
+        "20000.0": 20_000.0,
+    }
+
+
 async def test_subscriptions_per_session_and_in_all(app: UacellServer) -> None:
     handler = Handler()
     async with session(app) as a, session(app) as b, session(app) as c:

@@ -470,6 +470,9 @@ class LimitedSession(views.StandardViews, subscriptions.OwnSubscriptions, Intern
                 raise ServiceError(ua.StatusCodes.BadTooManySessions)
             limits.live_sessions.add(id(self))
         self.note_channel()
+        if math.isnan(params.RequestedSessionTimeout):
+            # asyncua's clamp lets NaN through, and a session whose timeout is NaN never times out
+            params = dataclasses.replace(params, RequestedSessionTimeout=0.0)  # the server's shortest
         try:
             return await super().create_session(params, sockname=sockname)
         except BaseException:
