@@ -106,6 +106,16 @@ async def test_node_opcua_pages_browses_reads_index_ranges_and_writes_whole_valu
     assert (out["writeWithRange"], out["modeUnchanged"]) == ("BadWriteNotSupported", True)
 
 
+async def test_node_opcua_of_type_where_clauses_pass_subtypes(serve_process):
+    """OPC 10000-4 7.7.3 (decision 82, interop/event_filter.js): node-opcua's ofType(BaseEventType) passes
+    the TransitionEvents and AuditUpdateStateEvents of a Reset, events of its subtypes; ofType(ConditionType)
+    passes none of them. asyncua compared the type exactly and sent the first item nothing."""
+    out = run_trusted(serve_process, "event_filter.js")
+    assert out["reset"] == "Good"
+    assert "ns=0;i=2311" in out["BaseEventType"]  # TransitionEventType
+    assert out["ConditionType"] == []
+
+
 async def test_node_opcua_deadband_is_applied_against_the_last_value_reported(serve_process):
     """OPC 10000-4 7.22.2: node-opcua's absolute deadband of 1.0 on MachSpeed, the speed drifting by
     less than that at each step (interop/deadband.js). The drift is reported once it is beyond the

@@ -281,6 +281,73 @@ async def test_a_monitored_item_reports_the_timestamps_asked_for(app: UacellServ
     await node.write_value(ua.Variant(1.5, ua.VariantType.Double))
 
 
+class Events:
+    """A subscription's handler that keeps each event it is sent."""
+
+    def __init__(self) -> None:
+        self.seen: list[Any] = []
+
+    def event_notification(self, event: Any) -> None:
+        self.seen.append(event)
+
+
+def _event_filter(*where: ua.ContentFilterElement) -> ua.EventFilter:
+    select = [
+        ua.SimpleAttributeOperand(
+            TypeDefinitionId=ua.NodeId(ua.ObjectIds.BaseEventType), BrowsePath=[ua.QualifiedName(name, 0)],
+            AttributeId=ua.AttributeIds.Value,
+        )
+        for name in ("EventType", "Message")
+    ]  # fmt: skip
+    return ua.EventFilter(SelectClauses=select, WhereClause=ua.ContentFilter(Elements=list(where)))
+
+
+async def test_an_event_items_where_clause_passes_subtypes_and_is_checked_when_made(client: Client) -> None:
+    """OPC 10000-4 7.7.3 (decision 82): OfType passes events of the type and of its subtypes, Like matches
+    by its pattern; a filter with an operator the server does not evaluate is refused when the item is
+    made. asyncua passed nothing to OfType(BaseEventType), dropped every event of a Like, and accepted
+    any operator."""
+    ns = await _ns(client)
+    base = ua.LiteralOperand(Value=ua.Variant(ua.NodeId(ua.ObjectIds.BaseEventType)))
+    condition = ua.LiteralOperand(Value=ua.Variant(ua.NodeId(ua.ObjectIds.ConditionType)))
+    message = _event_filter().SelectClauses[1]
+    filters = {
+        "base": _event_filter(ua.ContentFilterElement(FilterOperator=ua.FilterOperator.OfType, FilterOperands=[base])),
+        "condition": _event_filter(
+            ua.ContentFilterElement(FilterOperator=ua.FilterOperator.OfType, FilterOperands=[condition])
+        ),
+        "like": _event_filter(
+            ua.ContentFilterElement(
+                FilterOperator=ua.FilterOperator.Like,
+                FilterOperands=[message, ua.LiteralOperand(Value=ua.Variant("%Idle%"))],
+            )
+        ),
+    }
+    handlers = {name: Events() for name in filters}
+    subscriptions = []
+    for name, flt in filters.items():
+        subscription = await client.create_subscription(0, handlers[name])
+        await subscription.subscribe_events(client.get_node(ua.ObjectIds.Server), evfilter=flt)
+        subscriptions.append(subscription)
+    machine = client.get_node(ua.NodeId("Filler1.BaseStateMachine.MachineState", ns))
+    await machine.call_method(ua.NodeId("Filler1.BaseStateMachine.MachineState.Reset", ns))
+    await wait_until(lambda: any("Idle" in str(e.Message) for e in handlers["base"].seen))
+    types = {e.EventType for e in handlers["base"].seen}
+    assert ua.NodeId(ua.ObjectIds.TransitionEventType) in types  # a subtype of BaseEventType
+    assert handlers["condition"].seen == []  # no condition among them
+    await wait_until(lambda: bool(handlers["like"].seen))
+    assert all("Idle" in str(e.Message) for e in handlers["like"].seen)
+    assert len(handlers["like"].seen) < len(handlers["base"].seen)
+    unsupported = _event_filter(
+        ua.ContentFilterElement(FilterOperator=ua.FilterOperator.BitwiseAnd, FilterOperands=[message, base])
+    )
+    with pytest.raises(ua.UaStatusCodeError) as refused:
+        await subscriptions[0].subscribe_events(client.get_node(ua.ObjectIds.Server), evfilter=unsupported)
+    assert _code(refused) == SC.BadMonitoredItemFilterUnsupported
+    for subscription in subscriptions:
+        await subscription.delete()
+
+
 # --- Write -----------------------------------------------------------------------------------------
 
 

@@ -23,11 +23,12 @@ from asyncua.server.internal_server import InternalServer
 from asyncua.ua.ua_binary import Primitives, variant_from_binary, variant_to_binary
 
 from uacell.history.backends import EVENT, VALUE, Query, Sample
-from uacell.history.event_filter import HistoryError, WhereClause
+from uacell.history.event_filter import HistoryError
 from uacell.history.processed import AGGREGATES, Interval, aggregate
 from uacell.history.slices import Slices
 from uacell.history.store import ContinuationPointInvalid, HistoryStore, first_line
 from uacell.ua import door
+from uacell.ua.content_filter import FilterError, WhereClause
 from uacell.ua.context import caller_of, current_caller
 from uacell.ua.event_tap import EventTap
 
@@ -222,7 +223,7 @@ class HistoryService:
         self.values: dict[ua.NodeId, str] = {}
         self.notifiers: dict[ua.NodeId, str] = {}
         self._handles: list[int] = []
-        self.where = WhereClause(iserver)  # the WhereClause of ReadEventDetails
+        self.where = WhereClause(iserver.aspace)  # the WhereClause of ReadEventDetails
         self._tap: EventTap | None = None
         self._last_event: tuple[Any, int, str, _Once] | None = None  # EventId, time, type, its encoding
         self._plans: dict[int, tuple[Any, int, Plan]] = {}  # id(event object) -> (it, its type count, plan)
@@ -348,7 +349,7 @@ class HistoryService:
             try:
                 results.append(await self._read_one(params, rv, session))
                 self._store_failing = False
-            except HistoryError as e:
+            except (HistoryError, FilterError) as e:
                 results.append(_fail(e.code))
             except Exception as exc:  # the store does not answer (a database gone): this node's answer
                 results.append(_fail(_SC.BadNoCommunication))
@@ -483,7 +484,7 @@ class HistoryService:
             rows = await self.store.read(Query(key, EVENT, lo, hi, reverse, chunk, after, lo_inc))
             for row in rows:
                 fields = decode_fields(row.data)
-                if self.where.matches(flt.WhereClause, fields, row.etype):
+                if self.where.matches(flt.WhereClause, functools.partial(_field_value, fields), _event_type(row.etype)):
                     out.append(ua.HistoryEventFieldList(EventFields=[_field_of(fields, n) for n in names]))
                     if len(out) == limit:
                         return out, self.store.cursor.encode(key, row.time, row.seq, session)
@@ -599,3 +600,15 @@ def _ok(data: Any, cp: bytes | None, found: bool) -> ua.HistoryReadResult:
 
 def _fail(code: int) -> ua.HistoryReadResult:
     return ua.HistoryReadResult(StatusCode=ua.StatusCode(code))
+
+
+def _field_value(fields: dict[str, ua.Variant], name: str) -> Any:
+    """A stored event's field by name, as the WhereClause compares it (None if the event has none)."""
+    variant = fields.get(name)
+    return variant.Value if variant is not None else None
+
+
+@functools.lru_cache(maxsize=256)
+def _event_type(text: str) -> ua.NodeId | None:
+    """A stored event's type (kept as its NodeId string; the same few types repeat)."""
+    return ua.NodeId.from_string(text) if text else None

@@ -42,7 +42,7 @@ from asyncua import ua
 from asyncua.server.address_space import AddressSpace
 from asyncua.ua import uaprotocol_auto
 
-from uacell.ua import numeric_range, toolkit
+from uacell.ua import content_filter, numeric_range, toolkit
 
 _A = ua.AttributeIds
 _NONE = ua.DeadbandType.None_
@@ -53,7 +53,7 @@ _STATUS = ua.DataChangeTrigger.Status
 _WITH_TIMESTAMP = ua.DataChangeTrigger.StatusValueTimestamp
 # what a client's filter decodes to (``ua.DataChangeFilter`` is a subclass of it, for code that makes one)
 _FILTER = uaprotocol_auto.DataChangeFilter
-_EVENT_FILTER = uaprotocol_auto.EventFilter
+EVENT_FILTER = uaprotocol_auto.EventFilter
 # the refusals (OPC 10000-4 7.22.2, OPC 10000-8 6.2)
 _NOT_ALLOWED: int = ua.StatusCodes.BadFilterNotAllowed
 _UNSUPPORTED: int = ua.StatusCodes.BadMonitoredItemFilterUnsupported
@@ -110,12 +110,12 @@ def refusal(aspace: AddressSpace, item: ua.ReadValueId, flt: object | None) -> i
         flt = None  # a null ExtensionObject: no filter (what asyncua's client sends by default)
     attribute = item.AttributeId
     if attribute == _A.EventNotifier:
-        if isinstance(flt, _EVENT_FILTER):
-            return None
+        if isinstance(flt, EVENT_FILTER):
+            return content_filter.refusal(flt.WhereClause)
         return _INVALID if flt is None else _NOT_ALLOWED  # an event item needs its EventFilter
     if flt is None:
         return None
-    if isinstance(flt, _EVENT_FILTER):
+    if isinstance(flt, EVENT_FILTER):
         return _NOT_ALLOWED
     if not isinstance(flt, _FILTER):
         return _UNSUPPORTED  # an AggregateFilter, or a structure that is no filter

@@ -34,8 +34,8 @@ from asyncua.common.utils import ServiceError
 from asyncua.server.internal_subscription import InternalSubscription
 from asyncua.server.monitored_item_service import MonitoredItemService
 
-from uacell.ua import attributes, datachange, numeric_range
-from uacell.ua.door import patch, tag, tagged
+from uacell.ua import attributes, content_filter, datachange, numeric_range
+from uacell.ua.door import patch, swap, tag, tagged
 
 _SUB = "asyncua.server.internal_subscription.InternalSubscription."
 _ITEMS = "asyncua.server.monitored_item_service.MonitoredItemService."
@@ -197,12 +197,48 @@ async def _create_allowed(
     ]
     if not any(refused):
         results: list[ua.MonitoredItemCreateResult] = await _ORIGINAL_CREATE(self, params)
+        _evaluate_where_clauses(self, [r.MonitoredItemId for r in results if r.StatusCode.is_good()])
         return results
     allowed = [item for item, why in zip(params.ItemsToCreate, refused, strict=True) if why is None]
-    made = iter(await _ORIGINAL_CREATE(self, dataclasses.replace(params, ItemsToCreate=allowed)))
+    created = await _ORIGINAL_CREATE(self, dataclasses.replace(params, ItemsToCreate=allowed))
+    _evaluate_where_clauses(self, [r.MonitoredItemId for r in created if r.StatusCode.is_good()])
+    made = iter(created)
     return [
         next(made) if why is None else ua.MonitoredItemCreateResult(StatusCode=ua.StatusCode(why)) for why in refused
     ]
+
+
+_EVALUATOR = "asyncua.server.monitored_item_service.MonitoredItemData.where_clause_evaluator"
+
+
+class _Where:
+    """An event item's WhereClause, evaluated by ``uacell.ua.content_filter`` in place of asyncua's
+    evaluator (which compared OfType's type exactly and could not evaluate Like)."""
+
+    __slots__ = ("_clause", "_where")
+
+    def __init__(self, where: content_filter.WhereClause, clause: ua.ContentFilter) -> None:
+        self._where, self._clause = where, clause
+
+    def eval(self, event: Any) -> bool:
+        try:
+            return self._where.matches(self._clause, lambda name: getattr(event, name, None), event.EventType)
+        except content_filter.FilterError:
+            return False
+
+
+def _evaluate_where_clauses(service: MonitoredItemService, ids: list[int]) -> None:
+    """The event items just made or modified (by id) evaluate their WhereClause by the standard."""
+    where: content_filter.WhereClause | None = tagged(service, "where")
+    for mid in ids:
+        mdata = service._monitored_items.get(mid)
+        flt = getattr(mdata, "filter", None)
+        if not isinstance(flt, datachange.EVENT_FILTER):
+            continue
+        if where is None:
+            where = content_filter.WhereClause(service.aspace)
+            tag(service, "where", where)
+        swap(mdata, _EVALUATOR, _Where(where, flt.WhereClause))
 
 
 def _modify_monitored_items(
@@ -223,8 +259,11 @@ def _modify_monitored_items(
             results.append(ua.MonitoredItemModifyResult(StatusCode=ua.StatusCode(why)))
             continue
         one = dataclasses.replace(params, ItemsToModify=[item])
-        results.extend(_ORIGINAL_MODIFY(self, one))
+        (result,) = _ORIGINAL_MODIFY(self, one)
+        results.append(result)
         tag(mdata, "timestamps", params.TimestampsToReturn)
+        if result.StatusCode.is_good():
+            _evaluate_where_clauses(self, [item.MonitoredItemId])
     return results
 
 
