@@ -15,7 +15,7 @@ from asyncua.ua.ua_binary import struct_from_binary
 from conftest import fast_config, serving
 from helpers import wait_until
 
-from uacell.ua.datachange import reported
+from uacell.ua.datachange import reported, revised_queue_size
 from uacell.ua.door import monitoring
 
 _T0 = datetime(2026, 11, 28, 12, 0, tzinfo=UTC)
@@ -432,3 +432,13 @@ async def test_a_disabled_event_item_queues_no_event(tmp_path: Path) -> None:
         await wait_until(lambda: live in seen, timeout=10)
         assert disabled not in seen
         await subscription.delete()
+
+
+@pytest.mark.parametrize(
+    ("requested", "events", "revised"),
+    [(0, False, 1), (1, False, 1), (2, False, 2), (10**9, False, 100), (0, True, 100), (1, True, 1), (7, True, 7)],
+)
+def test_queue_sizes_are_revised_as_the_standard_says(requested: int, events: bool, revised: int) -> None:
+    """OPC 10000-4 7.21: a data item's 0 or 1 is a queue of one; an event item's 0 the server's default
+    (here its largest, 100); any request at most the largest."""
+    assert revised_queue_size(requested, events, 100) == revised

@@ -202,6 +202,73 @@ async def test_a_monitored_item_reports_the_part_its_index_range_names(app: Uace
     await subscription.delete()
 
 
+async def test_queue_sizes_are_revised_by_the_standard(app: UacellServer, client: Client) -> None:
+    """OPC 10000-4 7.21: a data item asking for a queue of 0 or 1 gets 1, the latest value only; an event
+    item's 0 is the server's default; a larger request is capped, on ModifyMonitoredItems too. asyncua
+    gave a data item's 0 its largest queue, so a client that asked for the latest value was sent every
+    change, and took any size a modification asked for."""
+    ns = await _ns(client)
+    setpoint = ua.NodeId("Test.Setpoint", ns)
+    created = await client.uaclient.create_subscription(
+        ua.CreateSubscriptionParameters(
+            RequestedPublishingInterval=500, RequestedLifetimeCount=30, RequestedMaxKeepAliveCount=3,
+            PublishingEnabled=True,
+        ),
+        lambda *_: None,  # what is published is not looked at here
+    )  # fmt: skip
+    sid = created.SubscriptionId
+
+    def request(handle: int, size: int, flt: Any = None) -> ua.MonitoredItemCreateRequest:
+        attribute = ua.AttributeIds.EventNotifier if flt is not None else ua.AttributeIds.Value
+        return ua.MonitoredItemCreateRequest(
+            ItemToMonitor=ua.ReadValueId(NodeId=setpoint if flt is None else _SERVER, AttributeId=attribute),
+            MonitoringMode=ua.MonitoringMode.Reporting,
+            RequestedParameters=ua.MonitoringParameters(ClientHandle=handle, QueueSize=size, Filter=flt),
+        )
+
+    largest = app.server.iserver.max_monitored_item_queue_size
+    items = [request(31, 0), request(32, 5), request(33, 10**9), request(34, 0, _event_filter())]
+    made = await client.uaclient.create_monitored_items(
+        ua.CreateMonitoredItemsParameters(SubscriptionId=sid, TimestampsToReturn=2, ItemsToCreate=items)
+    )
+    assert [r.RevisedQueueSize for r in made] == [1, 5, largest, largest]
+    modify = ua.MonitoredItemModifyRequest(
+        MonitoredItemId=made[1].MonitoredItemId,
+        RequestedParameters=ua.MonitoringParameters(ClientHandle=32, QueueSize=2**32 - 1),
+    )
+    (modified,) = await client.uaclient.modify_monitored_items(
+        ua.ModifyMonitoredItemsParameters(SubscriptionId=sid, TimestampsToReturn=2, ItemsToModify=[modify])
+    )
+    assert modified.RevisedQueueSize == largest
+    await client.uaclient.delete_subscriptions([sid])
+
+
+async def test_a_queue_of_one_sends_the_latest_value_of_each_publishing_interval(
+    app: UacellServer, client: Client
+) -> None:
+    """OPC 10000-4 7.21: with a queue of one, the values written while nothing is published reach the
+    client as the last of them (publishing is switched off meanwhile, so that no interval ends between
+    the writes)."""
+    ns = await _ns(client)
+    handler = Reported()
+    subscription = await client.create_subscription(500, handler)
+    node = client.get_node(ua.NodeId("Test.Setpoint", ns))
+    await subscription.subscribe_data_change(node, queuesize=1)
+    await wait_until(lambda: len(handler.seen) == 1)
+    first = handler.seen[0][1]
+    server_node = app.server.get_node(node.nodeid)
+    await subscription.set_publishing_mode(False)
+    for value in (first + 1, first + 2, first + 3):
+        await server_node.write_value(ua.Variant(value, ua.VariantType.Double))
+    await subscription.set_publishing_mode(True)
+    await wait_until(lambda: len(handler.seen) == 2)
+    await server_node.write_value(ua.Variant(first + 4, ua.VariantType.Double))
+    await wait_until(lambda: len(handler.seen) == 3)
+    assert [value for _, value, _ in handler.seen] == [first, first + 3, first + 4]
+    await subscription.delete()
+    await server_node.write_value(ua.Variant(first, ua.VariantType.Double))
+
+
 class Asking:
     """asyncua's client as a Subscription uses it, its CreateMonitoredItems asking for ``stamps``
     (asyncua's Subscription always asks for both)."""

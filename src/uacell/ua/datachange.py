@@ -98,6 +98,15 @@ def eu_span(aspace: AddressSpace, node: ua.NodeId) -> float | None:
     return float(value.Value.High) - float(value.Value.Low)
 
 
+def revised_queue_size(requested: int, events: bool, largest: int) -> int:
+    """A monitored item's queue size for a requested one (OPC 10000-4 7.21): a data item's 0 or 1 is 1
+    (the latest value only, no queuing), an event item's 0 the server's default (its largest); a larger
+    request at most ``largest``."""
+    if requested <= (0 if events else 1):
+        return largest if events else 1
+    return min(requested, largest)
+
+
 def refusal(aspace: AddressSpace, item: ua.ReadValueId, flt: object | None) -> int | None:
     """Why a monitored item of ``item`` may not have the filter ``flt`` (a StatusCode), or None. An
     IndexRange that does not parse is Bad_IndexRangeInvalid (OPC 10000-4 5.13.2.4)."""

@@ -195,17 +195,34 @@ async def _create_allowed(
     refused = [
         datachange.refusal(self.aspace, i.ItemToMonitor, i.RequestedParameters.Filter) for i in params.ItemsToCreate
     ]
-    if not any(refused):
-        results: list[ua.MonitoredItemCreateResult] = await _ORIGINAL_CREATE(self, params)
-        _evaluate_where_clauses(self, [r.MonitoredItemId for r in results if r.StatusCode.is_good()])
-        return results
     allowed = [item for item, why in zip(params.ItemsToCreate, refused, strict=True) if why is None]
-    created = await _ORIGINAL_CREATE(self, dataclasses.replace(params, ItemsToCreate=allowed))
-    _evaluate_where_clauses(self, [r.MonitoredItemId for r in created if r.StatusCode.is_good()])
+    created: list[ua.MonitoredItemCreateResult] = await _ORIGINAL_CREATE(
+        self, dataclasses.replace(params, ItemsToCreate=allowed) if any(refused) else params
+    )
+    for request, result in zip(allowed, created, strict=True):
+        if result.StatusCode.is_good():
+            _made(self, result.MonitoredItemId, request.RequestedParameters.QueueSize, result)
     made = iter(created)
     return [
         next(made) if why is None else ua.MonitoredItemCreateResult(StatusCode=ua.StatusCode(why)) for why in refused
     ]
+
+
+def _made(service: MonitoredItemService, mid: int, queue_size: int, result: Any) -> None:
+    """An item just made or modified: its queue size revised by OPC 10000-4 7.21 (asyncua made a data
+    item's 0 its largest queue, and took any size a modification asked for), its WhereClause evaluated
+    by the standard (an event item)."""
+    mdata = service._monitored_items[mid]
+    events = mdata.read_value_id.AttributeId == ua.AttributeIds.EventNotifier
+    mdata.queue_size = result.RevisedQueueSize = datachange.revised_queue_size(
+        queue_size, events, service.isub.max_queue_size
+    )
+    if events and isinstance(mdata.filter, datachange.EVENT_FILTER):
+        where: content_filter.WhereClause | None = tagged(service, "where")
+        if where is None:
+            where = content_filter.WhereClause(service.aspace)
+            tag(service, "where", where)
+        swap(mdata, _EVALUATOR, _Where(where, mdata.filter.WhereClause))
 
 
 _EVALUATOR = "asyncua.server.monitored_item_service.MonitoredItemData.where_clause_evaluator"
@@ -225,20 +242,6 @@ class _Where:
             return self._where.matches(self._clause, lambda name: getattr(event, name, None), event.EventType)
         except content_filter.FilterError:
             return False
-
-
-def _evaluate_where_clauses(service: MonitoredItemService, ids: list[int]) -> None:
-    """The event items just made or modified (by id) evaluate their WhereClause by the standard."""
-    where: content_filter.WhereClause | None = tagged(service, "where")
-    for mid in ids:
-        mdata = service._monitored_items.get(mid)
-        flt = getattr(mdata, "filter", None)
-        if not isinstance(flt, datachange.EVENT_FILTER):
-            continue
-        if where is None:
-            where = content_filter.WhereClause(service.aspace)
-            tag(service, "where", where)
-        swap(mdata, _EVALUATOR, _Where(where, flt.WhereClause))
 
 
 def _modify_monitored_items(
@@ -263,7 +266,7 @@ def _modify_monitored_items(
         results.append(result)
         tag(mdata, "timestamps", params.TimestampsToReturn)
         if result.StatusCode.is_good():
-            _evaluate_where_clauses(self, [item.MonitoredItemId])
+            _made(self, item.MonitoredItemId, item.RequestedParameters.QueueSize, result)
     return results
 
 
