@@ -287,3 +287,37 @@ async def test_history_disabled_answers_unsupported(tmp_path: Path) -> None:
             await client.disconnect()
     finally:
         await server.stop()
+
+
+@module_loop
+async def test_history_read_applies_the_index_range(app: UacellServer) -> None:
+    """OPC 10000-11 6.4.2 (HistoryReadValueId.indexRange, NumericRange as in OPC 10000-4 7.27): each value
+    read is cut to the range; a range that does not parse is Bad_IndexRangeInvalid for the node. uacell's
+    history returned whole values."""
+    client, ns = await connect(app)
+    try:
+        speed = ua.NodeId(SPEED, ns)
+        assert app.history is not None
+        key = app.history.values[speed]
+        base = datetime.now(UTC).replace(microsecond=0) - timedelta(
+            days=7
+        )  # a window no other test of the module stores in
+        for i, v in enumerate(([1.0, 2.0, 3.0], [4.0, 5.0, 6.0])):
+            variant = ua.Variant(v, ua.VariantType.Double)
+            app.history.store.record(key, to_micros(base + i * MINUTE), VALUE, 0, "", variant_to_binary(variant))
+        await app.history.store.flush()
+
+        async def read(rng: str) -> ua.HistoryReadResult:
+            request = params(raw(base, base + 2 * MINUTE, 0), speed)
+            request.NodesToRead[0].IndexRange = rng
+            (result,) = await client.uaclient.history_read(request)
+            return result
+
+        cut = await read("1:2")
+        assert cut.StatusCode.is_good()
+        assert [dv.Value.Value for dv in cut.HistoryData.DataValues] == [[2.0, 3.0], [5.0, 6.0]]
+        beyond = await read("7")
+        assert [dv.StatusCode.value for dv in beyond.HistoryData.DataValues] == [SC.BadIndexRangeNoData] * 2
+        assert (await read("2:1")).StatusCode.value == SC.BadIndexRangeInvalid
+    finally:
+        await client.disconnect()

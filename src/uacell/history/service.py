@@ -27,7 +27,7 @@ from uacell.history.event_filter import HistoryError
 from uacell.history.processed import AGGREGATES, Interval, aggregate
 from uacell.history.slices import Slices
 from uacell.history.store import ContinuationPointInvalid, HistoryStore, first_line
-from uacell.ua import door
+from uacell.ua import door, numeric_range
 from uacell.ua.content_filter import FilterError, WhereClause
 from uacell.ua.context import caller_of, current_caller
 from uacell.ua.event_tap import EventTap
@@ -373,12 +373,18 @@ class HistoryService:
                 raise HistoryError(_SC.BadHistoryOperationUnsupported)  # values are never modified
             if params.ReleaseContinuationPoints:
                 return self._release(key, rv, session, ua.HistoryData())
+            if rv.IndexRange:
+                try:
+                    numeric_range.parse(rv.IndexRange)
+                except numeric_range.RangeError as refused:
+                    raise HistoryError(refused.code) from None
             after = self._after(key, rv, session)
             samples, cp = await self._page(key, details, after, session)
             slices = Slices(self.slice)
             values = []
             for sample in samples:
-                values.append(_datavalue(sample, params.TimestampsToReturn))
+                value = _datavalue(sample, params.TimestampsToReturn)
+                values.append(numeric_range.cut(value, rv.IndexRange) if rv.IndexRange else value)
                 await slices.tick()
             return _ok(ua.HistoryData(DataValues=values), cp, bool(samples) or bool(rv.ContinuationPoint))
         if isinstance(details, ua.ReadEventDetails):
