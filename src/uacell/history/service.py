@@ -223,7 +223,7 @@ class HistoryService:
         self.values: dict[ua.NodeId, str] = {}
         self.notifiers: dict[ua.NodeId, str] = {}
         self._handles: list[int] = []
-        self.where = WhereClause(iserver.aspace)  # the WhereClause of ReadEventDetails
+        self.where = WhereClause(getattr(iserver, "aspace", None))  # the WhereClause of ReadEventDetails
         self._tap: EventTap | None = None
         self._last_event: tuple[Any, int, str, _Once] | None = None  # EventId, time, type, its encoding
         self._plans: dict[int, tuple[Any, int, Plan]] = {}  # id(event object) -> (it, its type count, plan)

@@ -78,7 +78,7 @@ class WhereClause:
     """Evaluates ContentFilters on events; an event type's supertypes are looked up once."""
 
     def __init__(self, aspace: Any) -> None:
-        self.aspace = aspace
+        self.aspace = aspace  # None: no type hierarchy, OfType names the event's own type only
         self._supertypes: dict[ua.NodeId, frozenset[ua.NodeId]] = {}
 
     def matches(self, where: ua.ContentFilter | None, field: Field, etype: ua.NodeId | None) -> bool:
@@ -97,7 +97,7 @@ class WhereClause:
             t: ua.NodeId | None = etype
             while t is not None and t not in seen:
                 seen.add(t)
-                t = supertype(self.aspace, t)
+                t = supertype(self.aspace, t) if self.aspace is not None else None
             types = frozenset(seen)
             self._supertypes[etype] = types
         return of in types
