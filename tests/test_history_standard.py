@@ -5,6 +5,7 @@ transitions, HistoryUpdate per item, continuation points bound to their session 
 
 from __future__ import annotations
 
+import asyncio
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -12,7 +13,7 @@ from typing import Any
 import pytest
 import pytest_asyncio
 from asyncua import Client, ua
-from asyncua.ua.ua_binary import variant_to_binary
+from asyncua.ua.ua_binary import nodeid_from_binary, struct_from_binary, variant_to_binary
 from conftest import fast_config, start_app
 from helpers import until, wait_until
 
@@ -320,4 +321,48 @@ async def test_history_read_applies_the_index_range(app: UacellServer) -> None:
         assert [dv.StatusCode.value for dv in beyond.HistoryData.DataValues] == [SC.BadIndexRangeNoData] * 2
         assert (await read("2:1")).StatusCode.value == SC.BadIndexRangeInvalid
     finally:
+        await client.disconnect()
+
+
+@module_loop
+async def test_cancel_ends_a_history_read_under_way(app: UacellServer, monkeypatch: pytest.MonkeyPatch) -> None:
+    """OPC 10000-4 5.7.5: Cancel names a request under way by its RequestHandle; the request is answered
+    Bad_RequestCancelledByClient and CancelCount counts it; a handle not under way counts nothing.
+    asyncua answered every Cancel Bad_ServiceUnsupported. The store's read is held (it waits for the test)
+    so that the history read is under way when the Cancel arrives."""
+    client, ns = await connect(app)
+    assert app.history is not None
+    store = app.history.store
+    entered, gate = asyncio.Event(), asyncio.Event()
+    original = store.read
+
+    async def held(query: Any) -> Any:
+        entered.set()
+        await gate.wait()
+        return await original(query)
+
+    monkeypatch.setattr(store, "read", held)
+    try:
+        protocol = client.uaclient.protocol
+        now = datetime.now(UTC)
+        request = ua.HistoryReadRequest(Parameters=params(raw(now - MINUTE, now, 0), ua.NodeId(SPEED, ns)))
+        answered = protocol._send_request(request, timeout=30)  # not awaited: it is to be cancelled
+        await asyncio.wait_for(entered.wait(), 30)
+
+        async def cancel(handle: int) -> int:
+            cancel = ua.CancelRequest(Parameters=ua.CancelParameters(RequestHandle=handle))
+            return int(
+                struct_from_binary(ua.CancelResponse, await protocol.send_request(cancel)).Parameters.CancelCount
+            )
+
+        assert await cancel(request.RequestHeader.RequestHandle) == 1
+        body = await asyncio.wait_for(answered, 30)
+        assert nodeid_from_binary(body) == ua.NodeId(ua.ObjectIds.ServiceFault_Encoding_DefaultBinary)
+        assert struct_from_binary(ua.ResponseHeader, body).ServiceResult.value == SC.BadRequestCancelledByClient
+        assert await cancel(request.RequestHeader.RequestHandle) == 0  # no longer under way
+        monkeypatch.setattr(store, "read", original)
+        (after,) = await client.uaclient.history_read(params(raw(now - MINUTE, now, 0), ua.NodeId(SPEED, ns)))
+        assert after.StatusCode.is_good()  # the session goes on
+    finally:
+        gate.set()
         await client.disconnect()

@@ -43,6 +43,7 @@ stage is one entry in that list.
 
 from __future__ import annotations
 
+import asyncio
 import contextvars
 import functools
 import logging
@@ -202,6 +203,11 @@ class Pipeline:
                 if task is not None:
                     running.add(task)
                     task.add_done_callback(running.discard)
+                    if typeid != _CALL:  # a history read, which a Cancel may end (a call's behaviour may not)
+                        cancellable = connection.cancellable(processor)
+                        handle = request.header.RequestHandle
+                        cancellable[handle] = task
+                        task.add_done_callback(lambda _: cancellable.pop(handle, None))
                 return True
         return await self._entry(request)
 
@@ -275,6 +281,21 @@ async def _unregister_nodes_service(session: InternalSession, params: Any) -> An
     return await session.unregister_nodes(params.NodesToUnregister)
 
 
+CANCELLED_BY_CLIENT = "cancelled by the client"  # the message of a task a Cancel ends
+
+
+async def _cancel_service(session: InternalSession, params: Any) -> Any:
+    """Cancel (OPC 10000-4 5.7.5; asyncua: Bad_ServiceUnsupported): the connection's history read under
+    way with that RequestHandle ends, answered Bad_RequestCancelledByClient; a Call is not cancelled (its
+    behaviour is under way and cannot be half undone), nor a request already answered. CancelCount says
+    how many were."""
+    task = connection.cancellable(context.current_processor()).pop(params.RequestHandle, None)
+    if task is None or task.done():
+        return ua.CancelResult(CancelCount=0)
+    task.cancel(CANCELLED_BY_CLIENT)
+    return ua.CancelResult(CancelCount=1)
+
+
 async def _set_triggering_service(session: InternalSession, params: Any) -> Any:
     """SetTriggering (asyncua has no processing for it): the session links the items (ua/subscriptions.py)."""
     return await session.set_triggering(params)
@@ -310,6 +331,10 @@ SERVICES: dict[ua.NodeId, Service] = {
         functools.partial(struct_from_binary, ua.UnregisterNodesParameters), ua.UnregisterNodesResponse, None,
         _unregister_nodes_service, struct_to_binary,
     ),
+    ua.NodeId(ua.ObjectIds.CancelRequest_Encoding_DefaultBinary): (
+        functools.partial(struct_from_binary, ua.CancelParameters), ua.CancelResponse, "Parameters",
+        _cancel_service, struct_to_binary,
+    ),
     ua.NodeId(ua.ObjectIds.SetTriggeringRequest_Encoding_DefaultBinary): (
         functools.partial(struct_from_binary, ua.SetTriggeringParameters), ua.SetTriggeringResponse, "Parameters",
         _set_triggering_service, struct_to_binary,
@@ -328,6 +353,10 @@ async def _call_apart(pipeline: Pipeline, request: Request) -> None:
     try:
         if await pipeline.request(request) is False:
             connection.close(processor)
+    except asyncio.CancelledError as cancelled:
+        if cancelled.args != (CANCELLED_BY_CLIENT,):
+            raise  # the connection closing, the server stopping
+        fault(processor, request.header, request.seqhdr, ua.StatusCodes.BadRequestCancelledByClient)
     except (ServiceError, ua.UaStatusCodeError) as exc:
         fault(processor, request.header, request.seqhdr, exc.code)
     except Exception:

@@ -53,7 +53,8 @@ def permits(processor: UaProcessor, user: Any, typeid: ua.NodeId, body: Any) -> 
     """Do the channel's security policy's permissions (asyncua's, if any) let ``user`` make this request?
     A HistoryUpdate is let through as a HistoryRead is (asyncua's rules know no HistoryUpdate): the
     history answers each item itself (Bad_HistoryOperationUnsupported, docs/history.md); a SetTriggering
-    as a SetMonitoringMode is (asyncua knows no SetTriggering either), a BrowseNext as a Browse."""
+    as a SetMonitoringMode is (asyncua knows no SetTriggering either), a BrowseNext as a Browse, a Cancel
+    (of the session's own requests) as a Read."""
     permissions = processor._connection.security_policy.permissions
     typeid = _AS_ASYNCUA_KNOWS.get(typeid, typeid)
     return permissions is None or permissions.check_validity(user, typeid, body) is not False
@@ -69,6 +70,9 @@ _AS_ASYNCUA_KNOWS = {
     ),
     ua.NodeId(ua.ObjectIds.BrowseNextRequest_Encoding_DefaultBinary): ua.NodeId(
         ua.ObjectIds.BrowseRequest_Encoding_DefaultBinary
+    ),
+    ua.NodeId(ua.ObjectIds.CancelRequest_Encoding_DefaultBinary): ua.NodeId(
+        ua.ObjectIds.ReadRequest_Encoding_DefaultBinary
     ),
 }
 
@@ -235,3 +239,11 @@ def calls_apart(processor: UaProcessor) -> set[Any]:
     if running is None:
         running = processor.__dict__["_uacell_calls"] = set()
     return running
+
+
+def cancellable(processor: UaProcessor) -> dict[int, Any]:
+    """The requests of the connection that a Cancel may end, by RequestHandle (their tasks)."""
+    tasks: dict[int, Any] | None = processor.__dict__.get("_uacell_cancellable")
+    if tasks is None:
+        tasks = processor.__dict__["_uacell_cancellable"] = {}
+    return tasks

@@ -43,7 +43,7 @@ _I = "asyncua.server.internal_server.InternalServer"
 
 ENTRIES: tuple[Entry, ...] = (
     # --- the request path (door/processing.py, asked for by ua/pipeline.py) ------------------------
-    Entry(f"{_P}._process_message", Kind.PATCH, "uacell.ua.pipeline", "the request stages; Call, Read, HistoryUpdate, BrowseNext, RegisterNodes by one lookup; calls apart (decisions 48, 51)", "its service dispatch by comparing the request type with 40 NodeIds"),
+    Entry(f"{_P}._process_message", Kind.PATCH, "uacell.ua.pipeline", "the request stages; Call, Read, HistoryUpdate, BrowseNext, RegisterNodes, Cancel by one lookup; calls apart (decisions 48, 51)", "its service dispatch by comparing the request type with 40 NodeIds"),
     Entry(f"{_P}.process_message", Kind.PATCH, "uacell.ua.pipeline", "request header decoded by ua/codec.py; faults answered in one place (decision 50)", "struct_from_binary of the header; its error handling"),
     Entry(f"{_P}.process", Kind.PATCH, "uacell.ua.pipeline", "the channel guard before an OpenSecureChannel; a refusal closes the connection in one INFO line", "logs a traceback at ERROR and keeps the connection"),
     Entry(f"{_P}.open_secure_channel", Kind.PATCH, "uacell.ua.pipeline", "only the policies and modes the endpoints offer (security/policy.py)", "select_policy keeps its default (None) channel when a client asks for it, offered or not"),
