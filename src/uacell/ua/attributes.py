@@ -15,8 +15,8 @@ asyncua's Attribute services differ from the standard where clients notice:
 Here, Read: Bad_NothingToDo for no nodes, Bad_MaxAgeInvalid for a negative MaxAge,
 Bad_TimestampsToReturnInvalid for an invalid TimestampsToReturn, each IndexRange applied to what was
 read (``uacell.ua.numeric_range``), and a Value returned with the timestamps TimestampsToReturn names
-(asyncua returned both whatever the client asked). Write: Bad_NothingToDo for no nodes; per item, before anything is
-written or routed, Bad_AttributeIdInvalid, Bad_IndexRangeInvalid for a range that does not parse and
+(asyncua returned both whatever the client asked). Write: Bad_NothingToDo for no nodes; per item,
+before anything is written or routed, Bad_AttributeIdInvalid, Bad_IndexRangeInvalid for a range that does not parse and
 Bad_WriteNotSupported for one that does (uacell writes whole values), Bad_WriteNotSupported for a
 ServerTimestamp or a StatusCode other than Good (a client writes values; the server stamps them);
 then for the writes asyncua stores: Bad_NodeIdUnknown, Bad_NotWritable (an attribute other than
