@@ -99,6 +99,10 @@ def _result(code: int) -> ua.BrowseResult:
     return result
 
 
+# what a request's reference type stands for: the types (None: any), or why it is refused (a status code)
+_Types = frozenset[ua.NodeId] | int | None
+
+
 @dataclass(slots=True)
 class _Rest:
     """What a continuation point holds: the references still to send, and how many go in one answer."""
@@ -127,19 +131,31 @@ class StandardViews:
         if not view.is_null() and node_class(aspace, view) != ua.NodeClass.View:
             raise ServiceError(_SC.BadViewIdUnknown)
         per_answer = int(params.RequestedMaxReferencesPerNode)
-        return [self._browse_one(aspace, description, per_answer) for description in params.NodesToBrowse]
+        known: dict[tuple[ua.NodeId, bool], _Types] = {}  # the request's types
+        return [self._browse_one(aspace, d, per_answer, known) for d in params.NodesToBrowse]
 
-    def _browse_one(self, aspace: Any, description: ua.BrowseDescription, per_answer: int) -> ua.BrowseResult:
+    def _browse_one(
+        self,
+        aspace: Any,
+        description: ua.BrowseDescription,
+        per_answer: int,
+        known: dict[tuple[ua.NodeId, bool], _Types],
+    ) -> ua.BrowseResult:
         data = aspace.get(description.NodeId)
         if data is None:
             return _result(_SC.BadNodeIdUnknown)
         direction = description.BrowseDirection
         if direction not in _DIRECTIONS:
             return _result(_SC.BadBrowseDirectionInvalid)
-        try:
-            types = reference_types(aspace, description.ReferenceTypeId, description.IncludeSubtypes)
-        except ServiceError as refused:
-            return _result(refused.code)
+        key = (description.ReferenceTypeId, bool(description.IncludeSubtypes))
+        if key not in known:  # many descriptions of one request name the same reference type
+            try:
+                known[key] = reference_types(aspace, *key)
+            except ServiceError as refused:
+                known[key] = int(refused.code)
+        types = known[key]
+        if isinstance(types, int):
+            return _result(types)
         forward = direction == ua.BrowseDirection.Forward
         both = direction == ua.BrowseDirection.Both
         classes = int(description.NodeClassMask)
