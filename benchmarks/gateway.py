@@ -299,7 +299,8 @@ async def _measure_robot(uacell_endpoint: str, ctrl_port: int, rounds: int) -> d
             await until(lambda: text_of(client, ns, SYSTEM), "Ready")
             assert await call(TASK_CONTROL, "LoadByName", ua.Variant("pick_and_place", ua.VariantType.String)) == 0
             sub = await client.create_subscription(0, Handler())
-            await sub.subscribe_data_change(client.get_node(ua.NodeId(f"{TASK_CONTROL}.CurrentState", ns)))
+            task_state = client.get_node(ua.NodeId(f"{TASK_CONTROL}.CurrentState", ns))
+            await sub.subscribe_data_change(task_state, queuesize=10)
             await asyncio.sleep(0.2)  # the subscription's first notification (the current state) is not a round's
             for _ in range(rounds):
                 await until(lambda: text_of(client, ns, TASK_CONTROL), "Ready")
@@ -450,7 +451,7 @@ async def _measure_polled(uacell_endpoint: str, probe: Callable[[], Any], rounds
 
             sub = await client.create_subscription(0, Handler())
             state = client.get_node(ua.NodeId(f"{machine(3, 'ExecuteState')}.CurrentState", ns))
-            await sub.subscribe_data_change(state)
+            await sub.subscribe_data_change(state, queuesize=10)
             for _ in range(rounds):
                 arrived.clear()
                 await plc.command(3, 1)  # the PLC's own panel: Reset
@@ -538,7 +539,7 @@ class _Rig:
                 bare.append((time.perf_counter(), int(val)))
 
         sub = await self.ua_client.create_subscription(0, Handler())
-        await sub.subscribe_data_change(await self.node(unit, "ExecuteState").get_child("0:CurrentState"))
+        await sub.subscribe_data_change(await self.node(unit, "ExecuteState").get_child("0:CurrentState"), queuesize=10)
         bare_sub = None
         if bare_interval:
             bare_sub = await self.plc_client.create_subscription(bare_interval * 1000, Bare())
@@ -618,7 +619,8 @@ async def _measure(uacell_endpoint: str, plc_endpoint: str, rounds: int) -> dict
 
         walk = await ua_client.create_subscription(0, Walk())
         for machine in PATHS:
-            await walk.subscribe_data_change(await node("U2", machine).get_child("0:CurrentState"))
+            # every state it passes (a queue of one would keep the last of a turn's changes, decision 83)
+            await walk.subscribe_data_change(await node("U2", machine).get_child("0:CurrentState"), queuesize=10)
         for machine, method, end in WALK:
             args = [ua.Variant([], ua.VariantType.ExtensionObject, is_array=True)] if method == "Start" else []
             code = await call("U2", machine, method, *args)

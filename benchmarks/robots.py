@@ -250,7 +250,7 @@ async def _measure_modbus(endpoint: str, port: int, rounds: int, seconds: float,
 
             sub = await client.create_subscription(0, Handler())
             await sub.subscribe_data_change(
-                [client.get_node(ua.NodeId(AXIS.format(i), ns)) for i in range(1, 7)], sampling_interval=0
+                [client.get_node(ua.NodeId(AXIS.format(i), ns)) for i in range(1, 7)], sampling_interval=0, queuesize=10
             )
             cpu0, wall0 = cpu_seconds(pid), time.perf_counter()
             await asyncio.sleep(seconds)  # polling a still robot: the status, the joints that do not change
