@@ -416,10 +416,10 @@ class LimitedSession(views.StandardViews, subscriptions.OwnSubscriptions, Intern
         return results
 
     async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
-        """The writes asyncua stores (uacell's roles, the form of each item and routing have been checked:
-        ``binding/writes.py``), each checked first: the node known, writable, given a value of its type."""
+        """The writes asyncua stores, each checked first: the node known, writable, given a value of its
+        type. The request (its count, ``check_operations``), the roles, each item's form and the routes
+        come before, in uacell's session (``security/policy.py``, ``binding/writes.py``)."""
         items = list(params.NodesToWrite or ())
-        check_operations(self.iserver, len(items), "Write")
         aspace = self.iserver.aspace
         types = getattr(self.iserver.method_service, "types", None)
         results: list[ua.StatusCode | None] = []
