@@ -197,7 +197,8 @@ async def test_loopback_endpoints_are_secure_policies_plus_none(env):
     # On the unencrypted endpoint the password must come encrypted with the server's key.
     assert token.SecurityPolicyUri == sp.SecurityPolicyBasic256Sha256.URI
     kinds = {t.TokenType for e in endpoints for t in e.UserIdentityTokens}
-    assert kinds == {ua.UserTokenType.Anonymous, ua.UserTokenType.UserName}
+    # a user certificate on every endpoint too (decision 84); no issued tokens
+    assert kinds == {ua.UserTokenType.Anonymous, ua.UserTokenType.UserName, ua.UserTokenType.Certificate}
 
 
 @pytest.mark.parametrize("mode", MODES)

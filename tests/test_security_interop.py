@@ -9,8 +9,10 @@ import pytest
 from conftest import run_node, start_serve
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
+from user_certificates import user_certificate
 
 from uacell.security.pki import PkiPaths, TrustList, make_client_certificate
+from uacell.security.users import thumbprint
 
 pytestmark = pytest.mark.interop
 
@@ -84,3 +86,54 @@ def test_node_opcua_secure_session_with_user_name(tmp_path):
     assert "BadUserAccessDenied" in out["wrongPassword"] or "UserAccessDenied" in out["wrongPassword"]
     output = "".join(sp.output)
     assert "SecurityPolicy None is not offered while listening on loopback only" in output
+
+
+def test_node_opcua_logs_in_with_user_certificates_bound_by_the_command_line(tmp_path):
+    """Users bound to certificates with `uacell user add --certificate` and `uacell user certificate`;
+    node-opcua signs the token with the None endpoint's certificate policy (decision 84)."""
+    data = tmp_path / "data"
+    olga, stranger = user_certificate("olga"), user_certificate("stranger")
+    olga_cert, olga_key = olga.write(tmp_path, "olga")
+    _, stranger_key = stranger.write(tmp_path, "stranger")
+    olga_der = tmp_path / "olga.der"  # node-opcua sends certificateData as it reads it: DER
+    olga_der.write_bytes(olga.der)
+    stranger_der = tmp_path / "stranger.der"
+    stranger_der.write_bytes(stranger.der)
+
+    def uacell_user(*args: str, stdin: str = "") -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "uacell", "user", "--data-dir", str(data), *args],
+            input=stdin,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
+
+    added = uacell_user("add", "olga", "--role", "engineer", "--certificate", str(olga_cert))
+    assert added.returncode == 0, added.stderr
+    assert f"logging in with certificate {thumbprint(olga.der)}" in added.stdout
+    assert uacell_user("add", "ann", "--role", "admin", "--password-stdin", stdin="admin password 1\n").returncode == 0
+    twice = uacell_user("certificate", "ann", str(olga_cert))
+    assert twice.returncode == 1 and "bound to user 'olga' already" in twice.stderr
+    listed = uacell_user("list").stdout.splitlines()
+    assert listed[1:] == ["ann\tadmin", f"olga\tengineer\tcertificate {thumbprint(olga.der)}"]
+    sp = start_serve(data)
+    try:
+        out = run_node(
+            "x509_login.js",
+            sp.endpoint,
+            *("olga", str(olga_der), str(olga_key)),
+            *("stranger", str(stranger_der), str(stranger_key)),
+            *("wrong-key", str(olga_der), str(stranger_key)),
+        )
+    finally:
+        sp.stop()
+    assert out["olga"] == {"role": "engineer"}
+    assert "BadIdentityTokenRejected" in out["stranger"]["error"]
+    assert "BadUserSignatureInvalid" in out["wrong-key"]["error"]
+    assert out["changeUser"]["status"] == "Good"
+    # an anonymous session on loopback is an operator, then the certificate's user
+    assert (out["changeUser"]["before"], out["changeUser"]["after"]) == ("operator", "engineer")
+    removed = uacell_user("certificate", "olga", "--remove", thumbprint(olga.der))
+    assert removed.returncode == 1 and "only way user 'olga' logs in" in removed.stderr

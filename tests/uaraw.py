@@ -179,9 +179,13 @@ class RawClient:
         self.auth = response.Parameters.AuthenticationToken
         return Session(response.Parameters, response.Parameters.AuthenticationToken)
 
-    async def activate_session(self, token: Any, session: Session | None = None) -> ua.ActivateSessionResult:
+    async def activate_session(
+        self, token: Any, session: Session | None = None, user_signature: ua.SignatureData | None = None
+    ) -> ua.ActivateSessionResult:
         request = ua.ActivateSessionRequest()
         request.Parameters.UserIdentityToken = token
+        if user_signature is not None:
+            request.Parameters.UserTokenSignature = user_signature
         request.Parameters.LocaleIds = ["en"]
         if session is not None and self.policy.Mode != ua.MessageSecurityMode.None_:
             data = session.server_certificate + session.nonce

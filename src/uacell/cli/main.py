@@ -142,12 +142,23 @@ def _parser() -> argparse.ArgumentParser:
     add.add_argument("name")
     add.add_argument("--role", required=True, choices=ROLES)
     add.add_argument("--password-stdin", action="store_true", help="read the password from standard input")
+    add.add_argument(
+        "--certificate",
+        type=Path,
+        help="an X.509 certificate (DER or PEM) the user logs in with; no password is asked unless --password-stdin",
+    )
     passwd = leaf(usub, "passwd", "set an existing user's password")
     passwd.add_argument("name")
     passwd.add_argument("--password-stdin", action="store_true", help="read the password from standard input")
     role = leaf(usub, "role", "change an existing user's role")
     role.add_argument("name")
     role.add_argument("role", choices=ROLES)
+    ucert = leaf(usub, "certificate", "let an existing user log in with an X.509 certificate, or no longer")
+    ucert.add_argument("name")
+    ucert.add_argument(
+        "certificate", help="the certificate file (DER or PEM); with --remove also its SHA-256 thumbprint"
+    )
+    ucert.add_argument("--remove", action="store_true", help="stop the user logging in with this certificate")
     rm = leaf(usub, "remove", "remove a user")
     rm.add_argument("name")
     leaf(usub, "list", "list users and their roles")

@@ -9,6 +9,7 @@ from typing import Any
 from asyncua import ua
 
 from uacell.core.roles import ACTION_ROLES, ListeningPolicy, Role
+from uacell.security.certificate_login import VerifiedCertificate
 from uacell.security.users import UserStore
 from uacell.ua.context import UacellUser
 
@@ -31,7 +32,10 @@ class UacellUserManager:
     def get_user(
         self, iserver: Any, username: str | None = None, password: str | None = None, certificate: Any = None
     ) -> UacellUser | None:
-        if username is None:
+        if isinstance(certificate, VerifiedCertificate):  # an X509IdentityToken (decision 84)
+            login = certificate.login
+            return UacellUser(login.user, login.role.label, certificate=True)
+        if username is None:  # (``certificate`` is then the channel's application certificate, if any)
             return UacellUser(None, self.policy.anonymous_role.label, anonymous=True)
         checked = verified_login.get()
         if checked is not None and checked[:2] == (username, password or ""):

@@ -14,10 +14,12 @@ binders run. It
   ActivateSession included, answers Bad_SecurityPolicyRejected. Refusals are logged once per client
   address, reason and interval (``RefusalLog``);
 - checks client certificates against ``pki/trusted`` (``uacell.security.pki.CertificateValidator``);
-- accepts anonymous and user-name identity tokens, but a user name only with an encrypted password
+- accepts anonymous, user-name and X.509 identity tokens, but a user name only with an encrypted password
   or over a SignAndEncrypt channel (``Bad_IdentityTokenRejected`` otherwise); an encrypted password
   must use the algorithm of the endpoint's user token policy and carry the last server nonce this
   session was sent (``Bad_IdentityTokenInvalid`` otherwise), so a captured token cannot be replayed;
+- accepts X.509 user certificates bound to users, signed for this session's nonce
+  (``uacell.security.certificate_login``, decision 84);
 - gives sessions random AuthenticationTokens and lets a session move to another secure channel only
   when activated, from the same client certificate and with the same identity;
 - slows down repeated login failures per user name, at one address and across addresses
@@ -62,6 +64,12 @@ from uacell.config import login_answer_margin
 from uacell.core.logs import RefusalLog
 from uacell.core.roles import Family, Role, may
 from uacell.security.access import user_access_level, verified_login
+from uacell.security.certificate_login import (
+    TokenRefused,
+    VerifiedCertificate,
+    check_user_certificate,
+    first_certificate,
+)
 from uacell.security.pki import (
     CertificateValidator,
     PkiPaths,
@@ -70,7 +78,7 @@ from uacell.security.pki import (
     ensure_server_certificate,
     load_server_key,
 )
-from uacell.security.users import LoginThrottle
+from uacell.security.users import LoginThrottle, thumbprint
 from uacell.services.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua import channel, context, door
 from uacell.ua.context import caller_of
@@ -198,6 +206,9 @@ class _Logins:
             raise ServiceError(_S.BadSessionIdInvalid)  # its CreateSession was refused
         token = _identity_token(body)
         address = _address(processor)
+        if isinstance(token, ua.X509IdentityToken):
+            # No secret to guess (the signature proves the key): nobody waits (decision 84).
+            return await self._audited(processor, address, self.certificate_user(token), call)
         if not isinstance(token, ua.UserNameIdentityToken) or not token.UserName:
             # Anonymous or another token type: asyncua decides, nobody waits.
             return await self._audited(processor, address, None, call)
@@ -257,6 +268,13 @@ class _Logins:
         if logged_in is not None and not getattr(logged_in, "anonymous", True):
             self.throttle.succeeded(user, address)
         return result
+
+    def certificate_user(self, token: ua.X509IdentityToken) -> str:
+        """Who an X509IdentityToken claims to be, for the audit trail and a session's identity: the user
+        its certificate is bound to, else the certificate's thumbprint (checked or not)."""
+        der = first_certificate(token.CertificateData or b"")
+        found = self.app.users.user_of_certificate(der)
+        return found[0] if found is not None else f"certificate {thumbprint(der)}"
 
     def answer_deadline(self, processor: UaProcessor, requesthdr: Any) -> float:
         """When (``time.monotonic()``) an ActivateSession must have its answer out, less the margin to
@@ -375,10 +393,12 @@ class Security(_Logins):
         self.server.set_certificate_validator(CertificateValidator(self.trust_list))
         self.policies = list(SECURE_POLICIES) + ([_P.NoSecurity] if policy.none_security else [])
         self.server.set_security_policy(self.policies)
-        # X509 user tokens are not mapped to users: offering them would log such users in as anonymous.
-        self.server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
+        # asyncua gives the certificate token policy the endpoint's security policy (on a None endpoint the
+        # first one that signs), so that a user certificate's signature always has an algorithm.
+        self.server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken, ua.X509IdentityToken])
         door.swap(iserver, "InternalServer.create_session", self._create_session)
         door.swap(iserver, "InternalServer.decrypt_user_token", self.decrypt_user_token)
+        door.swap(iserver, "InternalServer.verify_x509_token", self.verify_user_certificate)
         await self._add_current_role()
         logging.getLogger("asyncua.server.uaprocessor").addFilter(_drop_fault_echo)  # added once
         context.add_read_hook(_read_hook)
@@ -503,6 +523,8 @@ class Security(_Logins):
             params = struct_from_binary(ua.ActivateSessionParameters, body.copy())
             token = params.UserIdentityToken
             name = token.UserName if isinstance(token, ua.UserNameIdentityToken) else None
+            if isinstance(token, ua.X509IdentityToken):
+                name = self.certificate_user(token)
             if name != getattr(session.user, "name", None):
                 code, why = _S.BadIdentityChangeNotSupported, "the identity differs from the session's"
             else:
@@ -584,6 +606,43 @@ class Security(_Logins):
             return token.UserName, secret.decode("utf-8")
         except ValueError as exc:  # includes cryptography's decryption errors and UnicodeDecodeError
             raise self._invalid_token(token, "secret", str(exc) or "the password cannot be decrypted") from None
+
+    def verify_user_certificate(
+        self, isession: InternalSession, token: ua.X509IdentityToken, signature: ua.SignatureData | None
+    ) -> bytes:
+        """asyncua's hook for X509IdentityTokens: the certificate (DER) when the token names a certificate
+        token policy of the session's endpoint and passes ``check_user_certificate``, else ServiceError.
+        ``UacellUserManager.get_user`` then finds its user."""
+        processor = context.current_processor()
+        address = _address(processor)
+        endpoint = self.endpoint_of(processor)
+        policies = [
+            p
+            for p in (endpoint.UserIdentityTokens if endpoint else [])
+            if p.TokenType == ua.UserTokenType.Certificate and p.PolicyId == token.PolicyId
+        ]
+        try:
+            if not policies:
+                raise TokenRefused(_S.BadIdentityTokenInvalid, f"no certificate token policy {token.PolicyId!r} here")
+            server_certificate = uacrypto.der_from_x509(self.server.iserver.certificate)
+            login = check_user_certificate(
+                token.CertificateData,
+                signature.Algorithm if signature is not None else None,
+                signature.Signature if signature is not None else None,
+                policy_uri=policies[0].SecurityPolicyUri or (endpoint.SecurityPolicyUri if endpoint else ""),
+                challenge=server_certificate + (isession.nonce or b""),
+                now=datetime.now(UTC),
+                users=self.app.users,
+            )
+        except TokenRefused as refused:
+            name = ua.StatusCode(refused.code).name
+            self.refusals.report(
+                address,
+                f"certificate:{refused.code}",
+                f"refused certificate login from {address}: {refused.why} ({name})",
+            )
+            raise ServiceError(refused.code) from None
+        return VerifiedCertificate.of(first_certificate(token.CertificateData), login)
 
     # the channel guard (ua/pipeline.py) ------------------------------------------------------------
     async def opening(

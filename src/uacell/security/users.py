@@ -1,12 +1,14 @@
 """The user store (``<data_dir>/users.toml``) and the login throttle.
 
-Passwords are kept only as argon2id hashes (argon2-cffi). The file is TOML, readable by an operator,
-written atomically with mode 0600 by ``uacell user add/remove``; a running server picks up changes
-on the next login. Pure apart from file I/O: no OPC UA stack here.
+Passwords are kept only as argon2id hashes (argon2-cffi); a user may also log in with an X.509
+certificate bound to them (decision 84), kept as the SHA-256 thumbprint of its DER encoding. The file
+is TOML, readable by an operator, written atomically with mode 0600 by ``uacell user ...``; a running
+server picks up changes on the next login. Pure apart from file I/O: no OPC UA stack here.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import re
@@ -14,12 +16,15 @@ import threading
 import time
 import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
+from cryptography import x509
+from cryptography.hazmat.primitives.asymmetric import rsa
+from cryptography.hazmat.primitives.serialization import Encoding
 
 from uacell.core.files import atomic_write
 from uacell.core.roles import Role
@@ -31,6 +36,7 @@ _log = logging.getLogger(__name__)
 
 USERS_FILE = "users.toml"
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._@-]{0,63}")
+_THUMBPRINT = re.compile(r"[0-9a-f]{64}")
 
 
 class UserError(ValueError):
@@ -56,12 +62,44 @@ def check_password(password: str, min_length: int = 1) -> str:
     return password
 
 
+def thumbprint(der: bytes) -> str:
+    """How a certificate is kept and named: the SHA-256 of its DER encoding, 64 lowercase hex digits."""
+    return hashlib.sha256(der).hexdigest()
+
+
+def load_user_certificate(path: Path) -> bytes:
+    """The DER encoding of the user certificate in ``path`` (DER or PEM), refused (UserError) unless it
+    is an X.509 certificate with an RSA key: the signature every OPC UA security policy uacell offers
+    asks a user to make (decision 84)."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise UserError(f"cannot read {path}: {exc.strerror or exc}") from None
+    try:
+        cert = x509.load_pem_x509_certificate(data) if b"-----BEGIN" in data else x509.load_der_x509_certificate(data)
+    except ValueError:
+        raise UserError(f"{path} holds no X.509 certificate (DER or PEM)") from None
+    if not isinstance(cert.public_key(), rsa.RSAPublicKey):
+        raise UserError(f"{path}: the certificate's key is not an RSA key (the security policies sign with RSA)")
+    return cert.public_bytes(Encoding.DER)
+
+
 @dataclass(frozen=True)
 class User:
-    """A stored user (the hash never leaves this module through ``list``)."""
+    """A stored user (the hash never leaves this module through ``list``): whether they have a
+    password, and the thumbprints of the certificates they may log in with."""
 
     name: str
     role: Role
+    password: bool = True
+    certificates: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class _Entry:
+    role: Role
+    hash: str  # "" for a user who logs in with a certificate only
+    certificates: tuple[str, ...] = ()
 
 
 class UserStore:
@@ -70,8 +108,9 @@ class UserStore:
     def __init__(self, path: Path, *, hasher: PasswordHasher | None = None) -> None:
         self.path = Path(path)
         self._hasher = hasher or PasswordHasher()
-        self._entries: dict[str, tuple[Role, str]] = {}
+        self._entries: dict[str, _Entry] = {}
         self._stamp: tuple[int, int] | None = None
+        self._by_certificate: dict[str, str] = {}  # thumbprint -> user name
         self._dummy_hash: str | None = None
         self._lock = threading.RLock()
 
@@ -81,45 +120,62 @@ class UserStore:
 
     # reading ------------------------------------------------------------------------------------
 
-    def _load(self) -> dict[str, tuple[Role, str]]:
+    def _load(self) -> dict[str, _Entry]:
         """The entries, re-read when the file changed (the CLI may edit it while the server runs)."""
         with self._lock:  # password checks run in worker threads
             return self._load_locked()
 
-    def _load_locked(self) -> dict[str, tuple[Role, str]]:
+    def _load_locked(self) -> dict[str, _Entry]:
         try:
             st = self.path.stat()
         except FileNotFoundError:
-            self._entries, self._stamp = {}, None
+            self._entries, self._stamp, self._by_certificate = {}, None, {}
             return self._entries
         stamp = (st.st_mtime_ns, st.st_size)
         if stamp != self._stamp:
             with self.path.open("rb") as f:
                 data = tomllib.load(f)
-            entries = {}
+            entries: dict[str, _Entry] = {}
+            owners: dict[str, list[str]] = {}  # thumbprint -> the users it is bound to
             for name, item in data.get("users", {}).items():
                 try:
-                    entries[validate_name(name)] = (Role.parse(item["role"]), str(item["hash"]))
+                    entries[name] = _parse_entry(validate_name(name), item)
                 except (UserError, ValueError, KeyError, TypeError) as exc:
                     _log.error("%s: ignoring user %r: %s", self.path, name, exc)
+                    continue
+                for thumb in entries[name].certificates:
+                    owners.setdefault(thumb, []).append(name)
+            for thumb, names in owners.items():
+                if len(names) > 1:  # which user would it log in as? neither
+                    _log.error("%s: certificate %s is bound to %s: nobody logs in with it", self.path, thumb, names)
+            self._by_certificate = {thumb: names[0] for thumb, names in owners.items() if len(names) == 1}
             self._entries, self._stamp = entries, stamp
         return self._entries
 
     def list(self) -> list[User]:
         """All users, sorted by name."""
-        return [User(n, r) for n, (r, _) in sorted(self._load().items())]
+        return [User(n, e.role, bool(e.hash), e.certificates) for n, e in sorted(self._load().items())]
 
     def role_of(self, name: str) -> Role | None:
         entry = self._load().get(name)
-        return entry[0] if entry else None
+        return entry.role if entry else None
+
+    def user_of_certificate(self, der: bytes) -> tuple[str, Role] | None:
+        """The user ``der`` is bound to, and their role; None for a certificate bound to nobody."""
+        with self._lock:
+            entries = self._load_locked()
+            name = self._by_certificate.get(thumbprint(der))
+        return (name, entries[name].role) if name is not None else None
 
     def verify(self, name: str, password: str) -> Role | None:
         """The user's role when ``password`` is right, else None."""
         entry = self._load().get(name)
+        if entry is not None and not entry.hash:
+            entry = None  # logs in with a certificate only
         if entry is None and self._dummy_hash is None:
             # Verifying unknown names against a hash keeps their timing like that of known names.
             self._dummy_hash = self._hasher.hash("uacell-no-such-user")
-        stored = entry[1] if entry else (self._dummy_hash or "")
+        stored = entry.hash if entry else (self._dummy_hash or "")
         try:
             self._hasher.verify(stored, password)
         except (VerificationError, InvalidHashError):
@@ -131,38 +187,88 @@ class UserStore:
             fresh = self._hasher.hash(password)
             with self._lock:
                 entries = dict(self._load())
-                entries[name] = (entry[0], fresh)
+                entries[name] = replace(entries[name], hash=fresh)
                 self._save(entries)
-        return entry[0]
+        return entry.role
 
     # writing ------------------------------------------------------------------------------------
 
-    def add(self, name: str, role: Role | str, password: str, *, min_length: int = 1) -> None:
-        """Add ``name``; refused (UserError) when it exists: ``set_password``/``set_role`` change one."""
+    def add(
+        self,
+        name: str,
+        role: Role | str,
+        password: str | None,
+        *,
+        min_length: int = 1,
+        certificate: bytes | None = None,
+    ) -> None:
+        """Add ``name`` with a password, a certificate (DER, ``load_user_certificate``) or both; refused
+        (UserError) when the name exists: ``set_password``/``set_role``/``add_certificate`` change one."""
         validate_name(name)
         role = Role.parse(role)
-        check_password(password, min_length)
+        if password is None and certificate is None:
+            raise UserError("a user needs a password or a certificate to log in with")
+        if password is not None:
+            check_password(password, min_length)
         entries = dict(self._load())
         if name in entries:
             raise UserError(f"user {name!r} exists (change it with 'uacell user passwd' or 'uacell user role')")
-        entries[name] = (role, self._hasher.hash(password))
+        certificates = (self._unbound(certificate, name),) if certificate is not None else ()
+        entries[name] = _Entry(role, self._hasher.hash(password) if password is not None else "", certificates)
         self._save(entries)
 
     def set_password(self, name: str, password: str, *, min_length: int = 1) -> None:
         check_password(password, min_length)
         entries = dict(self._load())
-        if name not in entries:
-            raise UserError(f"no user {name!r}")
-        entries[name] = (entries[name][0], self._hasher.hash(password))
+        entries[name] = replace(self._existing(entries, name), hash=self._hasher.hash(password))
         self._save(entries)
 
     def set_role(self, name: str, role: Role | str) -> None:
         role = Role.parse(role)
         entries = dict(self._load())
+        entries[name] = replace(self._existing(entries, name), role=role)
+        self._save(entries)
+
+    def add_certificate(self, name: str, der: bytes) -> str:
+        """Let ``name`` log in with the certificate ``der``; returns its thumbprint. Refused when the
+        certificate is bound to a user already (this one or another)."""
+        entries = dict(self._load())
+        entry = self._existing(entries, name)
+        thumb = self._unbound(der, name)
+        entries[name] = replace(entry, certificates=(*entry.certificates, thumb))
+        self._save(entries)
+        return thumb
+
+    def remove_certificate(self, name: str, thumb: str) -> None:
+        """Stop ``name`` logging in with the certificate of thumbprint ``thumb``; refused when it is not
+        theirs, or is their only way to log in (remove the user instead, or give a password first)."""
+        entries = dict(self._load())
+        entry = self._existing(entries, name)
+        if thumb not in entry.certificates:
+            raise UserError(f"user {name!r} has no certificate {thumb}")
+        left = tuple(t for t in entry.certificates if t != thumb)
+        if not left and not entry.hash:
+            raise UserError(
+                f"it is the only way user {name!r} logs in: give a password first ('uacell user passwd') "
+                "or remove the user"
+            )
+        entries[name] = replace(entry, certificates=left)
+        self._save(entries)
+
+    @staticmethod
+    def _existing(entries: dict[str, _Entry], name: str) -> _Entry:
         if name not in entries:
             raise UserError(f"no user {name!r}")
-        entries[name] = (role, entries[name][1])
-        self._save(entries)
+        return entries[name]
+
+    def _unbound(self, der: bytes, name: str) -> str:
+        """The thumbprint of ``der``, refused when the certificate is bound to a user already."""
+        thumb = thumbprint(der)
+        for other, entry in self._load().items():
+            if thumb in entry.certificates:
+                whose = "this user" if other == name else f"user {other!r}"
+                raise UserError(f"certificate {thumb} is bound to {whose} already")
+        return thumb
 
     def remove(self, name: str) -> None:
         entries = dict(self._load())
@@ -171,21 +277,34 @@ class UserStore:
         del entries[name]
         self._save(entries)
 
-    def _save(self, entries: dict[str, tuple[Role, str]]) -> None:
+    def _save(self, entries: dict[str, _Entry]) -> None:
         lines = [
-            "# uacell users. Managed with `uacell user add|passwd|role|remove|list`.",
-            "# Passwords are stored only as argon2id hashes.",
+            "# uacell users. Managed with `uacell user add|passwd|role|certificate|remove|list`.",
+            "# Passwords are stored only as argon2id hashes, certificates as SHA-256 thumbprints of their DER.",
         ]
-        for name, (role, hashed) in sorted(entries.items()):
+        for name, entry in sorted(entries.items()):
             # JSON string escaping is valid TOML basic-string escaping for these ASCII values.
-            lines += [
-                "",
-                f"[users.{json.dumps(name)}]",
-                f"role = {json.dumps(role.label)}",
-                f"hash = {json.dumps(hashed)}",
-            ]
+            lines += ["", f"[users.{json.dumps(name)}]", f"role = {json.dumps(entry.role.label)}"]
+            if entry.hash:
+                lines.append(f"hash = {json.dumps(entry.hash)}")
+            if entry.certificates:
+                lines.append(f"certificates = {json.dumps(list(entry.certificates))}")
         atomic_write(self.path, ("\n".join(lines) + "\n").encode())
         self._stamp = None
+
+
+def _parse_entry(name: str, item: Any) -> _Entry:
+    """One user's table of the file; ValueError (or KeyError, TypeError) when it is not a usable one."""
+    hashed = item.get("hash", "")
+    certificates = item.get("certificates", [])
+    if not isinstance(hashed, str) or not isinstance(certificates, list):
+        raise ValueError("'hash' must be a string and 'certificates' a list")
+    for thumb in certificates:
+        if not isinstance(thumb, str) or not _THUMBPRINT.fullmatch(thumb):
+            raise ValueError(f"certificate {thumb!r} is not a SHA-256 thumbprint (64 lowercase hex digits)")
+    if not hashed and not certificates:
+        raise ValueError("neither a password hash nor a certificate: the user cannot log in")
+    return _Entry(Role.parse(item["role"]), hashed, tuple(dict.fromkeys(certificates)))
 
 
 class LoginThrottle:
@@ -256,6 +375,23 @@ class LoginThrottle:
                 del self._failures[key]
 
 
+def _listed(user: User) -> str:
+    """A line of ``uacell user list``: name and role, then how the user logs in when not by password only."""
+    line = f"{user.name}\t{user.role.label}"
+    if user.certificates:
+        ways = ["password"] if user.password else []
+        ways += [f"certificate {thumb}" for thumb in user.certificates]
+        line += "\t" + ", ".join(ways)
+    return line
+
+
+def _thumbprint_of(given: str) -> str:
+    """A certificate named on the command line: its thumbprint, or a file holding it."""
+    if _THUMBPRINT.fullmatch(given.lower()):
+        return given.lower()
+    return thumbprint(load_user_certificate(Path(given)))
+
+
 class NoTerminal(UserError):
     """The password cannot be asked for: no terminal and no --password-stdin."""
 
@@ -292,17 +428,33 @@ def run_user_command(args: Any, config: Config) -> int:
                 + ("" if store.path.exists() else " (the file does not exist)")
             )
             for user in users:
-                print(f"{user.name}\t{user.role.label}")
+                print(_listed(user))
             return 0
         validate_name(args.name)
+        details: dict[str, str] = {}
         if args.action == "add":
             if store.role_of(args.name) is not None:  # before asking for a password in vain
                 raise UserError(
                     f"user {args.name!r} exists in {store.path} "
                     "(change it with 'uacell user passwd' or 'uacell user role')"
                 )
-            store.add(args.name, args.role, _read_password(args.password_stdin), min_length=min_length)
+            der = load_user_certificate(args.certificate) if args.certificate else None
+            # With a certificate, a password only when one is given on standard input.
+            password = _read_password(args.password_stdin) if der is None or args.password_stdin else None
+            store.add(args.name, args.role, password, min_length=min_length, certificate=der)
             done = f"added user {args.name} ({args.role})"
+            if der is not None:
+                details["certificate"] = thumbprint(der)
+                done += f", logging in with certificate {thumbprint(der)}" + (" or a password" if password else "")
+        elif args.action == "certificate":
+            if args.remove:
+                thumb = _thumbprint_of(args.certificate)
+                store.remove_certificate(args.name, thumb)
+                done = f"user {args.name} no longer logs in with certificate {thumb}"
+            else:
+                thumb = store.add_certificate(args.name, load_user_certificate(args.certificate))
+                done = f"user {args.name} may log in with certificate {thumb}"
+            details = {"certificate": thumb}
         elif args.action == "passwd":
             if store.role_of(args.name) is None:
                 raise UserError(f"no user {args.name!r} in {store.path}")
@@ -318,7 +470,14 @@ def run_user_command(args: Any, config: Config) -> int:
             raise UserError(f"unknown action {args.action!r}")
         print(f"{done} in {store.path}")
         trail = AuditTrail.for_config(config)
-        trail.record("user", action=args.action, user=args.name, role=getattr(args, "role", None), file=str(store.path))
+        trail.record(
+            "user",
+            action="certificate_remove" if getattr(args, "remove", False) else args.action,
+            user=args.name,
+            role=getattr(args, "role", None),
+            file=str(store.path),
+            **details,
+        )
     except NoTerminal as exc:
         print(f"uacell: {exc}", file=sys.stderr)
         return 2

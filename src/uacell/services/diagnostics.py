@@ -234,8 +234,7 @@ class Diagnostics:
                 counter[1] += 0 if ok else 1
             if typeid == _ACTIVATE_SESSION and ok:
                 user = getattr(session, "user", None)
-                anonymous = getattr(user, "anonymous", True)
-                record.authentication = "Anonymous" if anonymous else "UserName"
+                record.authentication = getattr(user, "mechanism", "Anonymous")
                 name = getattr(user, "name", None) or ""
                 if not record.user_history or record.user_history[-1] != name:
                     record.user_history.append(name)

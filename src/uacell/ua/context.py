@@ -35,11 +35,15 @@ _processor: contextvars.ContextVar[Any] = contextvars.ContextVar("uacell_process
 class UacellUser(User):  # type: ignore[misc]  # asyncua is untyped here (see pyproject)
     """An asyncua user that also carries uacell's role ("observer", "operator", "engineer", "admin")."""
 
-    def __init__(self, name: str | None, uacell_role: str, anonymous: bool = False) -> None:
+    def __init__(
+        self, name: str | None, uacell_role: str, anonymous: bool = False, *, certificate: bool = False
+    ) -> None:
         # asyncua's own role only gates address-space management; uacell's roles gate everything else.
         super().__init__(role=UserRole.User, name=name)
         self.uacell_role = uacell_role
         self.anonymous = anonymous
+        # how the user proved who they are, as OPC 10000-5 names it (SessionSecurityDiagnostics)
+        self.mechanism = "Anonymous" if anonymous else "Certificate" if certificate else "UserName"
 
     def __repr__(self) -> str:
         return f"UacellUser({self.name!r}, {self.uacell_role})"

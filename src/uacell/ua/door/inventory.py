@@ -70,6 +70,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("asyncua.server.subscription_service.SubscriptionService.trigger_event", Kind.SWAP, "uacell.ua.event_tap", "every fired event to history and PubSub first", "(wrapped, not changed)"),
     Entry(f"{_I}.create_session", Kind.SWAP, "uacell.security.policy", "uacell's session class (limits, audit, roles)", "creates an InternalSession"),
     Entry(f"{_I}.decrypt_user_token", Kind.SWAP, "uacell.security.policy", "password decryption with the policy's rules, off the loop", "its decryption"),
+    Entry(f"{_I}.verify_x509_token", Kind.SWAP, "uacell.security.policy", "user certificates checked by OPC 10000-4 and bound to users (decision 84)", "its signature check, which took any algorithm"),
     Entry(f"{_I}.load_standard_address_space", Kind.SWAP, "uacell.ua.nodesets", "the standard nodes from the address-space snapshot (decision 46)", "loads the standard nodes from asyncua's generated code", at_start=False),
     Entry("asyncua.server.address_space.ViewService._suitable_reftype", Kind.SWAP, "uacell.ua.nodesets", "the reference-type subtype closure cached while an import adds inverse references", "walks the type tree per reference", at_start=False),
     Entry("asyncua.server.address_space.AddressSpace._nodes", Kind.PRIVATE, "uacell.ua.nodesets", "the node table, copied to and restored from the snapshot", ""),

@@ -1,0 +1,263 @@
+"""X.509 user certificates over TCP (decision 84): asyncua clients present a user certificate and sign
+the server's certificate and nonce with its key, as OPC 10000-4 5.6.3 asks; the server answers with
+the status codes of ActivateSession and gives the session the bound user's role."""
+
+from __future__ import annotations
+
+import asyncio
+import datetime as dt
+import json
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import pytest_asyncio
+from asyncua import Client, ua
+from asyncua.crypto import security_policies as sp
+from conftest import fast_config, start_app
+from helpers import wait_until
+from test_security import ClientCert, secure_client
+from uaraw import Fault, RawClient, none_session
+from user_certificates import BASIC256SHA256, RSA_SHA256, UserCertificate, user_certificate
+
+from uacell.security.pki import PkiPaths, TrustList
+from uacell.security.users import UserStore, thumbprint
+from uacell.server import UacellServer
+
+pytestmark = pytest.mark.asyncio(loop_scope="module")
+
+OPERATOR = user_certificate("olga, operator")
+ADMIN = user_certificate("ada, admin")
+STRANGER = user_certificate("somebody")
+EXPIRED = user_certificate("old badge", not_before=dt.datetime.now(dt.UTC) - dt.timedelta(days=40), days=30)
+SECURITY_ARRAY = ua.NodeId(
+    ua.ObjectIds.Server_ServerDiagnostics_SessionsDiagnosticsSummary_SessionSecurityDiagnosticsArray
+)
+
+
+class Env:
+    def __init__(self, app: UacellServer, cert: ClientCert, files: Path) -> None:
+        self.app, self.cert, self.files = app, cert, files
+        # the command line's store: another object on the same file, as `uacell user` in another process
+        self.cli = UserStore.in_data_dir(app.data_dir)
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def env(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[Env]:
+    base = tmp_path_factory.mktemp("certificate-login")
+    app = await start_app(fast_config(base / "data"))
+    cert = ClientCert(base / "client")
+    TrustList(PkiPaths.in_data_dir(app.data_dir)).trust(cert.der)
+    store = UserStore.in_data_dir(app.data_dir)
+    store.add("olga", "operator", None, certificate=OPERATOR.der)
+    store.add("ada", "admin", None, certificate=ADMIN.der)
+    store.add("oldie", "operator", None, certificate=EXPIRED.der)
+    try:
+        yield Env(app, cert, base / "users")
+    finally:
+        await app.stop()
+
+
+async def cert_client(env: Env, user: UserCertificate, *, key_of: UserCertificate | None = None, **kw: Any) -> Client:
+    """A Basic256Sha256 SignAndEncrypt client logging in with ``user``'s certificate, signing with the
+    key of ``key_of`` (default: its own)."""
+    client = await secure_client(env.app, env.cert, connect=False, **kw)
+    name = thumbprint(user.der)[:12]
+    cert_file, _ = user.write(env.files, name)
+    _, key_file = (key_of or user).write(env.files, f"{name}-signer")
+    await client.load_client_certificate(str(cert_file))
+    await client.load_private_key(key_file)
+    await client.connect()
+    return client
+
+
+async def refusal(env: Env, user: UserCertificate, **kw: Any) -> int:
+    with pytest.raises(ua.UaStatusCodeError) as err:
+        client = await cert_client(env, user, **kw)
+        await client.disconnect()
+    return int(err.value.code)
+
+
+async def role_of(client: Client, env: Env) -> str:
+    return str(await client.get_node(env.app.security.role_node).read_value())
+
+
+def audit_logins(env: Env) -> list[dict[str, Any]]:
+    path = env.app.data_dir / "audit.log"
+    text = path.read_text() if path.exists() else ""
+    return [e for e in map(json.loads, text.splitlines()) if e["event"] == "login"]
+
+
+async def audited_login(env: Env, **fields: Any) -> dict[str, Any]:
+    """The last login line of the audit trail with ``fields`` (the trail is written by its own thread)."""
+    found: list[dict[str, Any]] = []
+
+    def arrived() -> bool:
+        found[:] = [e for e in audit_logins(env) if fields.items() <= e.items()]
+        return bool(found)
+
+    await wait_until(arrived, timeout=20)
+    return found[-1]
+
+
+async def test_every_endpoint_offers_a_signed_certificate_token(env: Env) -> None:
+    async with Client(env.app.endpoint, timeout=20) as client:
+        endpoints = await client.get_endpoints()
+    assert endpoints
+    for endpoint in endpoints:
+        (policy,) = [p for p in endpoint.UserIdentityTokens if p.TokenType == ua.UserTokenType.Certificate]
+        if endpoint.SecurityMode == ua.MessageSecurityMode.None_:
+            # OPC 10000-4 7.41.5: a policy to sign with where the channel has none
+            assert policy.SecurityPolicyUri == BASIC256SHA256
+        else:
+            assert policy.SecurityPolicyUri in ("", endpoint.SecurityPolicyUri)
+
+
+async def test_a_bound_certificate_logs_in_with_its_users_role(env: Env) -> None:
+    client = await cert_client(env, OPERATOR)
+    try:
+        assert await role_of(client, env) == "operator"
+        with pytest.raises(ua.UaStatusCodeError) as err:  # an operator reads no security diagnostics
+            await client.get_node(SECURITY_ARRAY).read_value()
+        assert err.value.code == ua.StatusCodes.BadUserAccessDenied
+    finally:
+        await client.disconnect()
+    login = await audited_login(env, user="olga")
+    assert login["result"] == "Good" and login["address"] == "127.0.0.1"
+
+
+async def test_session_security_diagnostics_name_the_certificate(env: Env) -> None:
+    client = await cert_client(env, ADMIN)
+    try:
+        assert await role_of(client, env) == "admin"
+        deadline = time.monotonic() + 20
+        while True:
+            entries = await client.get_node(SECURITY_ARRAY).read_value()
+            mine = [e for e in entries if e.ClientUserIdOfSession == "ada"]
+            if mine or time.monotonic() > deadline:
+                break
+            await asyncio.sleep(0.05)
+        assert [e.AuthenticationMechanism for e in mine] == ["Certificate"]
+        assert mine[0].ClientUserIdHistory == ["ada"]
+    finally:
+        await client.disconnect()
+
+
+async def test_refusals_by_the_standards_codes(env: Env) -> None:
+    assert await refusal(env, STRANGER) == ua.StatusCodes.BadIdentityTokenRejected  # bound to nobody
+    assert await refusal(env, OPERATOR, key_of=STRANGER) == ua.StatusCodes.BadUserSignatureInvalid
+    assert await refusal(env, EXPIRED) == ua.StatusCodes.BadIdentityTokenRejected
+    await audited_login(env, user="oldie", result="BadIdentityTokenRejected")
+    await audited_login(env, user=f"certificate {thumbprint(STRANGER.der)}", result="BadIdentityTokenRejected")
+    await audited_login(env, user="olga", result="BadUserSignatureInvalid")
+
+
+async def test_other_token_policies_do_not_take_a_certificate(env: Env) -> None:
+    client = await secure_client(env.app, env.cert, connect=False)
+    cert_file, key_file = OPERATOR.write(env.files, "policy-probe")
+    await client.load_client_certificate(str(cert_file))
+    await client.load_private_key(key_file)
+    original = client.server_policy
+
+    def username_policy(token_type: ua.UserTokenType) -> ua.UserTokenPolicy:
+        policy = original(token_type)
+        return ua.UserTokenPolicy(
+            PolicyId="username", TokenType=policy.TokenType, SecurityPolicyUri=policy.SecurityPolicyUri
+        )
+
+    client.server_policy = username_policy
+    with pytest.raises(ua.UaStatusCodeError) as err:
+        await client.connect()
+    assert err.value.code == ua.StatusCodes.BadIdentityTokenInvalid
+
+
+async def test_a_signed_token_is_good_for_one_activation(env: Env) -> None:
+    """The token and signature of one ActivateSession sent again (the same session, a new nonce since)."""
+    client = await secure_client(env.app, env.cert, connect=False)
+    cert_file, key_file = OPERATOR.write(env.files, "replay")
+    await client.load_client_certificate(str(cert_file))
+    await client.load_private_key(key_file)
+    sent: list[ua.ActivateSessionParameters] = []
+    original = client.uaclient.activate_session
+
+    async def recording(params: ua.ActivateSessionParameters) -> ua.ActivateSessionResult:
+        sent.append(params)
+        return await original(params)
+
+    client.uaclient.activate_session = recording
+    await client.connect()
+    try:
+        assert await role_of(client, env) == "operator"
+        first = sent[0]
+        again = ua.ActivateSessionParameters(
+            # the application's own proof for the new nonce, so that only the user token is replayed
+            ClientSignature=ua.SignatureData(
+                Algorithm=first.ClientSignature.Algorithm,
+                Signature=client.security_policy.asymmetric_cryptography.signature(
+                    client.security_policy.peer_certificate + client._server_nonce
+                ),
+            ),
+            UserIdentityToken=first.UserIdentityToken,
+            UserTokenSignature=first.UserTokenSignature,
+        )
+        with pytest.raises(ua.UaStatusCodeError) as err:
+            await original(again)
+        assert err.value.code == ua.StatusCodes.BadUserSignatureInvalid
+        assert await role_of(client, env) == "operator"  # the session goes on as it was
+    finally:
+        await client.disconnect()
+
+
+async def test_bindings_made_while_the_server_runs_count_at_the_next_login(env: Env) -> None:
+    newcomer = user_certificate("nina")
+    assert await refusal(env, newcomer) == ua.StatusCodes.BadIdentityTokenRejected
+    env.cli.add("nina", "engineer", "ninas password")
+    env.cli.add_certificate("nina", newcomer.der)
+    client = await cert_client(env, newcomer)
+    try:
+        assert await role_of(client, env) == "engineer"
+    finally:
+        await client.disconnect()
+    env.cli.remove_certificate("nina", thumbprint(newcomer.der))
+    assert await refusal(env, newcomer) == ua.StatusCodes.BadIdentityTokenRejected
+
+
+async def test_the_same_identity_may_be_activated_again(env: Env) -> None:
+    client = await cert_client(env, OPERATOR, policy=sp.SecurityPolicyBasic256Sha256)
+    try:
+        assert await role_of(client, env) == "operator"
+        await client.activate_session(certificate=client.user_certificate)  # signed for the new nonce
+        assert await role_of(client, env) == "operator"
+    finally:
+        await client.disconnect()
+
+
+def x509_token(user: UserCertificate, server_certificate: bytes, nonce: bytes) -> tuple[Any, ua.SignatureData]:
+    """An X509IdentityToken and its userTokenSignature built by hand from OPC 10000-4 (7.41.5, 5.6.3):
+    the None endpoint's certificate policy is Basic256Sha256, whose signature is RSA-PKCS#1 v1.5 SHA-256."""
+    token = ua.X509IdentityToken(PolicyId="certificate", CertificateData=user.der)
+    signature = ua.SignatureData(Algorithm=RSA_SHA256, Signature=user.sign(server_certificate + nonce))
+    return token, signature
+
+
+async def test_hand_built_tokens_on_a_none_channel_and_a_session_moved(env: Env) -> None:
+    port = env.app.config.server.port
+    first, session = await none_session("127.0.0.1", port)
+    async with first:
+        token, signature = x509_token(OPERATOR, session.server_certificate, session.nonce)
+        result = await first.activate_session(token, user_signature=signature)
+        assert (await first.read_value(env.app.security.role_node)).Value.Value == "operator"
+        # the session moves to a new channel only with the same identity (OPC 10000-4 5.6.3.1)
+        async with await RawClient.connect("127.0.0.1", port) as second:
+            await second.hello()
+            await second.open_channel()
+            second.auth = first.auth
+            token, signature = x509_token(ADMIN, session.server_certificate, result.ServerNonce)
+            with pytest.raises(Fault) as refused:
+                await second.activate_session(token, user_signature=signature)
+            assert refused.value.code == ua.StatusCodes.BadIdentityChangeNotSupported
+            token, signature = x509_token(OPERATOR, session.server_certificate, result.ServerNonce)
+            await second.activate_session(token, user_signature=signature)
+            assert (await second.read_value(env.app.security.role_node)).Value.Value == "operator"
