@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import select
 import subprocess
 import sys
 from collections.abc import AsyncIterator
@@ -60,7 +61,9 @@ class ExamplePLC:
             cmd, env={**os.environ, "PYTHONPATH": SRC}, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
         )
         assert self.proc.stdout is not None
-        line = self.proc.stdout.readline()  # the PLC prints it once it serves (or ends: "")
+        # the PLC prints it once it serves (or ends: ""); a PLC that does neither within a minute is killed
+        ready, _, _ = select.select([self.proc.stdout], [], [], 60.0)
+        line = self.proc.stdout.readline() if ready else "(nothing within 60 s)"
         if line.strip() != "listening":
             self.kill()  # not left running (or its pipe open) when it did not come up
             raise AssertionError(f"the example PLC {self.module} did not start: {line!r}")

@@ -17,6 +17,9 @@ communication does not land in the middle of a scan. Prints "listening" once it 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import socket
 import sys
 import threading
 import time
@@ -76,15 +79,23 @@ def locked_process(addr: Any, data: Any, **kwds: Any) -> Any:
         return logix.process(addr, data, **kwds)
 
 
+def _serving(port: int) -> bool:
+    """Does something accept connections on the port?"""
+    with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), timeout=0.5):
+        return True
+    return False
+
+
 def run(port: int, units: list[str], acting: float, period: float) -> None:
     program = [ScanProgram(Unit(u), acting) for u in units]
+    names = [d.split("=", 1)[0] for u in units for d in definitions(u)]
 
     def scan() -> None:
-        while not enip.tags:  # cpppo's main defines the tags first
+        # cpppo's main defines the tags one by one, then binds the port: both before "listening"
+        while not all(dict.__contains__(enip.tags, name) for name in names) or not _serving(port):
             time.sleep(0.01)
         for unit in program:
             unit.initialise()
-        time.sleep(0.2)  # the server binds its port
         print("listening", flush=True)
         while True:
             with LOCK:
@@ -93,7 +104,14 @@ def run(port: int, units: list[str], acting: float, period: float) -> None:
                     unit.scan(now)
             time.sleep(period)
 
-    threading.Thread(target=scan, daemon=True).start()
+    def scan_or_end() -> None:
+        try:
+            scan()
+        except BaseException as exc:  # a PLC without its program is no PLC: end, so the parent sees it
+            print(f"logix_plc: the scan stopped: {exc!r}", file=sys.stderr, flush=True)
+            os._exit(1)
+
+    threading.Thread(target=scan_or_end, daemon=True).start()
     argv = ["-a", f"127.0.0.1:{port}", "--no-udp", *[d for u in units for d in definitions(u)]]
     enip.main(argv=argv, enip_process=locked_process)
 
