@@ -261,3 +261,16 @@ async def test_hand_built_tokens_on_a_none_channel_and_a_session_moved(env: Env)
             token, signature = x509_token(OPERATOR, session.server_certificate, result.ServerNonce)
             await second.activate_session(token, user_signature=signature)
             assert (await second.read_value(env.app.security.role_node)).Value.Value == "operator"
+
+
+async def test_asyncuas_client_signs_on_a_none_channel_too(env: Env) -> None:
+    """The None endpoint's certificate policy is Basic256Sha256: asyncua's Client signs with it there."""
+    client = Client(env.app.endpoint, timeout=20)
+    cert_file, key_file = OPERATOR.write(env.files, "asyncua-none")
+    await client.load_client_certificate(str(cert_file))
+    await client.load_private_key(key_file)
+    await client.connect()
+    try:
+        assert await role_of(client, env) == "operator"
+    finally:
+        await client.disconnect()
