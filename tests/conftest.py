@@ -155,6 +155,7 @@ def fast_config(data_dir: Path) -> Config:
     config.server.data_dir = data_dir
     config.robot.time_scale = 20.0
     config.packml.acting_time = 0.05
+    config.server.shutdown_delay = 0.0  # a stop never waits for a session a test left (test_shutdown.py)
     return config
 
 

@@ -15,7 +15,13 @@ from asyncua.ua.ua_binary import struct_from_binary
 from conftest import fast_config, serving
 from helpers import wait_until
 
-from uacell.ua.datachange import reported, revised_queue_size
+from uacell.ua.datachange import (
+    LONGEST_SAMPLING,
+    Sampler,
+    reported,
+    revised_queue_size,
+    revised_sampling_interval,
+)
 from uacell.ua.door import monitoring
 
 _T0 = datetime(2026, 11, 28, 12, 0, tzinfo=UTC)
@@ -318,8 +324,11 @@ async def test_an_item_in_sampling_mode_queues_and_reports_only_once_it_reports(
         seen = handler.seen
         speed = client.get_node(ua.NodeId("Filler1.Status.MachSpeed", ns))
         subscription = await client.create_subscription(0, handler)
-        await subscription.subscribe_data_change(speed, queuesize=10)
-        sampling = await subscription.subscribe_data_change(speed, queuesize=10, monitoring=ua.MonitoringMode.Sampling)
+        # every change (asyncua's client asks for a sample every 50 ms by default: decision 86)
+        await subscription.subscribe_data_change(speed, queuesize=10, sampling_interval=0)
+        sampling = await subscription.subscribe_data_change(
+            speed, queuesize=10, monitoring=ua.MonitoringMode.Sampling, sampling_interval=0
+        )
         reporting_handle, sampling_handle = sorted(subscription._monitored_items)  # the client's handles
         await wait_until(lambda: len(seen) == 1)
         filler = client.get_node(ua.NodeId("Filler1", ns))
@@ -359,7 +368,9 @@ async def test_a_triggering_item_releases_what_its_linked_sampling_item_queued(t
         )
         (trigger,) = await subscription.create_monitored_items([trigger_request])
         await wait_until(lambda: seen == [(501, 60.0)])
-        sampling = await subscription.subscribe_data_change(speed, queuesize=10, monitoring=ua.MonitoringMode.Sampling)
+        sampling = await subscription.subscribe_data_change(
+            speed, queuesize=10, monitoring=ua.MonitoringMode.Sampling, sampling_interval=0
+        )
         sid = subscription.subscription_id
 
         def links(add: list[int], remove: list[int], on: Any = trigger) -> ua.SetTriggeringRequest:
@@ -442,3 +453,34 @@ def test_queue_sizes_are_revised_as_the_standard_says(requested: int, events: bo
     """OPC 10000-4 7.21: a data item's 0 or 1 is a queue of one; an event item's 0 the server's default
     (here its largest, 100); any request at most the largest."""
     assert revised_queue_size(requested, events, 100) == revised
+
+
+@pytest.mark.parametrize(
+    ("requested", "events", "minimum", "revised"),
+    [
+        (250.0, False, None, 250.0),  # as asked: never less than the request
+        (-1.0, False, None, 500.0),  # the subscription's publishing interval
+        (-7.5, False, None, 500.0),  # any negative number is -1
+        (float("nan"), False, None, 500.0),
+        (0.0, False, None, 0.0),  # every change as it happens
+        (100.0, False, 400.0, 400.0),  # the variable's MinimumSamplingInterval is a floor
+        (1000.0, False, 400.0, 1000.0),
+        (1e12, False, None, LONGEST_SAMPLING),  # the longest served
+        (250.0, True, None, 0.0),  # an event item's is 0
+    ],
+)
+def test_sampling_intervals_are_revised_as_the_standard_says(
+    requested: float, events: bool, minimum: float | None, revised: float
+) -> None:
+    """OPC 10000-4 5.13.1.2 and 7.21, with a publishing interval of 500 ms."""
+    assert revised_sampling_interval(requested, events, 500.0, minimum) == revised
+
+
+def test_a_sampler_takes_a_change_at_once_only_an_interval_after_its_last_sample() -> None:
+    sampler = Sampler(1.5)
+    assert sampler.wait(10.0) == 0.0  # never sampled
+    sampler.last = 10.0
+    assert sampler.wait(10.5) == pytest.approx(1.0)  # held until 11.5
+    assert sampler.wait(11.5) == 0.0
+    assert sampler.wait(20.0) == 0.0  # a change after a quiet spell: at once
+    assert Sampler(0.0).wait(10.0) == 0.0  # interval 0: every change

@@ -126,3 +126,16 @@ async def test_node_opcua_deadband_is_applied_against_the_last_value_reported(se
     # node-opcua's own requests: a deadband on a LocalizedText, a percent beyond 100 (decision 78)
     assert out["refused"] == ["BadFilterNotAllowed", "BadDeadbandFilterInvalid"]
     assert out["revisedInterval"] == 50  # a request of 0 revised to the fastest interval (decision 79)
+
+
+async def test_node_opcua_sampling_intervals_are_revised_and_kept(serve_process):
+    """OPC 10000-4 5.13.1.2 and 7.21 (decision 86, interop/sampling.js): items on ServerStatus.CurrentTime
+    (a new value each second) under a 200 ms subscription. 3000 ms asked is 3000 ms revised, and its
+    values come at least 3 s apart; 0 is every change; -1 is the publishing interval. asyncua revised all
+    three to the publishing interval and sent every value."""
+    out = run_trusted(serve_process, "sampling.js")
+    assert out["status"] == ["Good", "Good", "Good"]
+    assert out["revised"] == [3000, 0, 200]
+    slow, every, default = out["counts"]
+    assert 1 <= slow <= 1 + int(out["elapsed"] // 3)  # the first value, then one per 3 s at most
+    assert every >= 3 and default >= 3

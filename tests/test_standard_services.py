@@ -14,6 +14,7 @@ syntax, Bad_IndexRangeNoData for a lower bound beyond the value, partial results
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import AsyncIterator
 from datetime import UTC, datetime
 from typing import Any
@@ -265,6 +266,93 @@ async def test_a_queue_of_one_sends_the_latest_value_of_each_publishing_interval
     await server_node.write_value(ua.Variant(first + 4, ua.VariantType.Double))
     await wait_until(lambda: len(handler.seen) == 3)
     assert [value for _, value, _ in handler.seen] == [first, first + 3, first + 4]
+    await subscription.delete()
+    await server_node.write_value(ua.Variant(first, ua.VariantType.Double))
+
+
+async def test_sampling_intervals_are_revised_by_the_standard(app: UacellServer, client: Client) -> None:
+    """OPC 10000-4 5.13.1.2 and 7.21 (decision 86): the revised sampling interval is never less than the
+    request (asyncua answered the publishing interval, 100 ms, for every item made), a negative or NaN
+    request is the publishing interval (asyncua echoed a modification's -1), 0 stays 0, an event item's
+    is 0, and the variable's MinimumSamplingInterval is a floor."""
+    ns = await _ns(client)
+    setpoint = ua.NodeId("Test.Setpoint", ns)
+    floored = await app.server.nodes.objects.add_variable(ua.NodeId("Test.Slow", ns), "Slow", 0.0)
+    await floored.write_attribute(
+        ua.AttributeIds.MinimumSamplingInterval, ua.DataValue(ua.Variant(500.0, ua.VariantType.Double))
+    )
+    created = await client.uaclient.create_subscription(
+        ua.CreateSubscriptionParameters(
+            RequestedPublishingInterval=100, RequestedLifetimeCount=300, RequestedMaxKeepAliveCount=10,
+            PublishingEnabled=True,
+        ),
+        lambda *_: None,
+    )  # fmt: skip
+    sid = created.SubscriptionId
+    assert created.RevisedPublishingInterval == 100
+
+    def request(handle: int, sampling: float, node: ua.NodeId = setpoint, flt: Any = None) -> Any:
+        attribute = ua.AttributeIds.EventNotifier if flt is not None else ua.AttributeIds.Value
+        return ua.MonitoredItemCreateRequest(
+            ItemToMonitor=ua.ReadValueId(NodeId=node, AttributeId=attribute),
+            MonitoringMode=ua.MonitoringMode.Reporting,
+            RequestedParameters=ua.MonitoringParameters(
+                ClientHandle=handle, SamplingInterval=sampling, QueueSize=1, Filter=flt
+            ),
+        )
+
+    items = [
+        request(41, 250.0),
+        request(42, -1.0),
+        request(43, float("nan")),
+        request(44, 0.0),
+        request(45, 10**12),
+        request(46, 500.0, _SERVER, _event_filter()),
+        request(47, 100.0, floored.nodeid),
+    ]
+    made = await client.uaclient.create_monitored_items(
+        ua.CreateMonitoredItemsParameters(SubscriptionId=sid, TimestampsToReturn=2, ItemsToCreate=items)
+    )
+    assert [r.StatusCode.name for r in made] == ["Good"] * 7
+    assert [r.RevisedSamplingInterval for r in made] == [250.0, 100.0, 100.0, 0.0, 3_600_000.0, 0.0, 500.0]
+    modify = [
+        ua.MonitoredItemModifyRequest(
+            MonitoredItemId=made[i].MonitoredItemId,
+            RequestedParameters=ua.MonitoringParameters(ClientHandle=41 + i, SamplingInterval=sampling, QueueSize=1),
+        )
+        for i, sampling in ((0, -1.0), (3, 1000.0))
+    ]
+    modified = await client.uaclient.modify_monitored_items(
+        ua.ModifyMonitoredItemsParameters(SubscriptionId=sid, TimestampsToReturn=2, ItemsToModify=modify)
+    )
+    assert [r.RevisedSamplingInterval for r in modified] == [100.0, 1000.0]
+    await client.uaclient.delete_subscriptions([sid])
+
+
+async def test_an_item_samples_at_its_interval_and_takes_the_latest_value(app: UacellServer, client: Client) -> None:
+    """OPC 10000-4 5.13.1.2: "the time between values returned to the Client shall be greater or equal
+    to the sampling interval". Three values written back to back reach an item sampling every 1.5 s as
+    the last of them, at the next sample, while an item sampling at 0 (every change) gets all three."""
+    ns = await _ns(client)
+    node = client.get_node(ua.NodeId("Test.Setpoint", ns))
+    handler = Reported()
+    subscription = await client.create_subscription(50, handler)
+    loop = asyncio.get_running_loop()
+    await subscription.subscribe_data_change(node, queuesize=10, sampling_interval=0.0)
+    made = loop.time()
+    await subscription.subscribe_data_change(node, queuesize=10, sampling_interval=1500.0)
+    await wait_until(lambda: len({h for h, _, _ in handler.seen}) == 2)
+    every, sampled = sorted({h for h, _, _ in handler.seen})  # the handles, in the order the items were made
+    first = handler.of(sampled)[0][0]
+    server_node = app.server.get_node(node.nodeid)
+    for value in (first + 1, first + 2, first + 3):
+        await server_node.write_value(ua.Variant(value, ua.VariantType.Double))
+    await wait_until(lambda: len(handler.of(sampled)) == 2, timeout=20)
+    arrived = loop.time()
+    assert [v for v, _ in handler.of(sampled)] == [first, first + 3]  # the latest at the next sample
+    assert arrived - made >= 1.5  # not before its next sample
+    await wait_until(lambda: len(handler.of(every)) == 4)
+    assert [v for v, _ in handler.of(every)] == [first, first + 1, first + 2, first + 3]
     await subscription.delete()
     await server_node.write_value(ua.Variant(first, ua.VariantType.Double))
 

@@ -70,6 +70,9 @@ def default_application_name() -> str:
     return f"uacell@{_host()}"
 
 
+MAX_SHUTDOWN_DELAY = 60.0  # a stop stays bounded (systemd's stop timeout is 90 s by default)
+
+
 @dataclass
 class ServerConfig:
     host: str = "127.0.0.1"
@@ -87,6 +90,7 @@ class ServerConfig:
     cache_dir: Path | None = field(default_factory=lambda: _env_path(CACHE_DIR_ENV))  # None: <data_dir>/cache
     snapshot_fork: bool = True  # the snapshot written by a forked child (else a thread): docs/configuration.md
     event_loop: str = "auto"  # auto (uvloop where installed), uvloop, asyncio; $UACELL_EVENT_LOOP overrides
+    shutdown_delay: float = 2.0  # seconds a stop waits, ServerState Shutdown, for connected clients (decision 85)
 
     @property
     def snapshot_dir(self) -> Path | None:
@@ -469,6 +473,8 @@ def validate(config: Config) -> None:
         check_event_loop(env_loop, f"${EVENT_LOOP_ENV}")
     if config.server.rejected_max_files < 1:
         raise ConfigError("[server] rejected_max_files: must be 1 or more")
+    if not 0.0 <= config.server.shutdown_delay <= MAX_SHUTDOWN_DELAY:
+        raise ConfigError(f"[server] shutdown_delay: must be 0 to {MAX_SHUTDOWN_DELAY:g} seconds")
     check_directory(config.server.data_dir, "data directory")
     log = config.logging
     if log.file is not None:

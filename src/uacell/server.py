@@ -41,6 +41,7 @@ from uacell.security.users import UserStore
 from uacell.services.diagnostics import Diagnostics, bind_subscription_methods
 from uacell.services.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
 from uacell.services.observers import install_audit
+from uacell.services.shutdown import announce_shutdown
 from uacell.ua import door
 from uacell.ua.event_tap import EventTap
 from uacell.ua.limits import DecodingStage, admit, guard_bytes, install_limits, publish_operation_limits
@@ -122,6 +123,7 @@ class UacellServer:
         self._snapshot_cancel = threading.Event()
         self._snapshot_task: asyncio.Task[None] | None = None
         self.discovery_registration: DiscoveryRegistration | None = None  # with [discovery] url
+        self._listening = False  # from start() until a stop begins
         self.history: HistoryService | None = None  # HistoryRead ([history], docs/history.md)
         self.pubsub: PubSubService | None = None  # PubSub JSON over MQTT ([pubsub], docs/pubsub.md)
         self.sparkplug: SparkplugService | None = None  # Sparkplug B ([sparkplug], docs/sparkplug.md)
@@ -271,6 +273,7 @@ class UacellServer:
     async def start(self) -> None:
         await publish_operation_limits(self.server, self.limits)
         await self.server.start()
+        self._listening = True
         if self._snapshot_job is not None:  # first start: write the snapshot for the next ones
             # The cell's bookkeeping as the binders left it (types they looked up included).
             extras = {**self.cell.extras(), "fsm_tables": self.tables.made()}
@@ -343,7 +346,16 @@ class UacellServer:
         await self.publisher.flush()
         await self.dispatcher.refresh_executable()
 
+    async def announce_stop(self) -> float:
+        """Tell connected clients the server stops and give them ``[server] shutdown_delay`` to leave
+        (decision 85); the seconds it waited. Once per start: ``stop`` calls it when nobody did."""
+        if not self._listening:
+            return 0.0
+        self._listening = False
+        return await announce_shutdown(self.server, self.config.server.shutdown_delay, self.security.on_session_closed)
+
     async def stop(self) -> None:
+        await self.announce_stop()
         if self.discovery_registration is not None:  # unregistered while still answering
             await self.discovery_registration.stop()
         # New calls answer Bad_Shutdown; those under way finish before the equipment goes away.

@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from uacell.web.hosting import RunningWeb
 
 log = logging.getLogger("uacell")
-STOP_GRACE = 3.0  # seconds a stop request waits for the server to close in order (SIGTERM: gone within 5 s)
+STOP_GRACE = 3.0  # seconds a stop waits for the server to close in order (besides [server] shutdown_delay)
 
 
 def _port(text: str) -> int:
@@ -378,10 +378,15 @@ async def _run(config: Config) -> int:
     log.info("shutting down")
     notify.notify("STOPPING=1")
     try:
-        # Calls under way get a moment to finish; whatever still runs after it is cancelled.
-        async with asyncio.timeout(STOP_GRACE):
+        # Calls under way get a moment to finish; whatever still runs after it is cancelled. The time
+        # connected clients are given to leave (decision 85, after the HMI's sessions closed) is extra.
+        async with asyncio.timeout(STOP_GRACE) as grace:
             if web is not None:
                 await web.stop()
+            announced = await app.announce_stop()
+            when = grace.when()
+            if when is not None:
+                grace.reschedule(when + announced)
             await app.stop()
     except TimeoutError:
         log.warning("shutdown took longer than %.0f s: stopping without waiting further", STOP_GRACE)

@@ -36,6 +36,7 @@ module instead.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from asyncua import ua
@@ -96,6 +97,41 @@ def eu_span(aspace: AddressSpace, node: ua.NodeId) -> float | None:
     if value is None or not isinstance(value.Value, ua.Range):
         return None
     return float(value.Value.High) - float(value.Value.Low)
+
+
+LONGEST_SAMPLING = 3_600_000.0  # ms: the longest sampling interval served (an hour)
+
+
+def revised_sampling_interval(requested: float, events: bool, publishing: float, minimum: float | None) -> float:
+    """A monitored item's sampling interval in ms for a requested one (OPC 10000-4 5.13.1.2, 7.21): an
+    event item's is 0; a negative or NaN request is the subscription's publishing interval; 0 is every
+    change as it happens (uacell's values are written when they change, nothing is polled); never less
+    than the request or the variable's MinimumSamplingInterval, at most ``LONGEST_SAMPLING``."""
+    if events:
+        return 0.0
+    revised = publishing if math.isnan(requested) or requested < 0 else requested
+    if minimum is not None and not math.isnan(minimum) and minimum > revised:
+        revised = minimum
+    return min(revised, LONGEST_SAMPLING)
+
+
+class Sampler:
+    """When a data item samples (OPC 10000-4 5.13.1.2: "the time between values returned to the Client
+    shall be greater or equal to the sampling interval"): a change at least ``interval`` seconds after
+    the item last sampled is sampled at once; one sooner waits for the next sample, when the latest
+    value then is taken (sample and hold). Times in seconds on any monotonic clock."""
+
+    __slots__ = ("interval", "last")
+
+    def __init__(self, interval: float) -> None:
+        self.interval = interval
+        self.last: float | None = None  # when the item last sampled
+
+    def wait(self, now: float) -> float:
+        """0.0 when a change at ``now`` is sampled now, else the seconds until the next sample."""
+        if self.interval <= 0 or self.last is None or now - self.last >= self.interval:
+            return 0.0
+        return self.last + self.interval - now
 
 
 def revised_queue_size(requested: int, events: bool, largest: int) -> int:

@@ -60,6 +60,38 @@ async def _datachange_callback(
     mdata = self._monitored_items[mid]
     if mdata.mode == ua.MonitoringMode.Disabled:
         return
+    sampler: datachange.Sampler | None = tagged(mdata, "sampler")
+    if sampler is not None and sampler.interval > 0:
+        loop = asyncio.get_running_loop()
+        now = loop.time()
+        wait = sampler.wait(now)
+        if wait > 0:  # sampled at the next sample, the latest value then (decision 86)
+            if tagged(mdata, "held") is None:
+                loop.call_at(now + wait, _sample_held, self, mid, mdata)
+            tag(mdata, "held", value)
+            return
+        sampler.last = now
+    await _sampled(self, mid, mdata, value)
+
+
+def _sample_held(service: MonitoredItemService, mid: int, mdata: Any) -> None:
+    """The next sample of an item that held back a change: its latest value, if the item still exists."""
+    value = tagged(mdata, "held")
+    tag(mdata, "held", None)
+    if value is None or service._monitored_items.get(mid) is not mdata or mdata.mode == ua.MonitoringMode.Disabled:
+        return
+    sampler: datachange.Sampler = tagged(mdata, "sampler")
+    sampler.last = asyncio.get_running_loop().time()
+    task = asyncio.ensure_future(_sampled(service, mid, mdata, value))
+    _sampling_tasks.add(task)
+    task.add_done_callback(_sampling_tasks.discard)
+
+
+_sampling_tasks: set[asyncio.Future[None]] = set()  # held samples being reported (kept from the collector)
+
+
+async def _sampled(self: MonitoredItemService, mid: int, mdata: Any, value: ua.DataValue) -> None:
+    """A sample of a data item: reported when it differs from the last one reported (OPC 10000-4 7.22.2)."""
     if mdata.read_value_id.IndexRange:
         value = numeric_range.cut(value, mdata.read_value_id.IndexRange)
     kept, flt = mdata.mvalue, mdata.filter
@@ -201,22 +233,37 @@ async def _create_allowed(
     )
     for request, result in zip(allowed, created, strict=True):
         if result.StatusCode.is_good():
-            _made(self, result.MonitoredItemId, request.RequestedParameters.QueueSize, result)
+            _made(self, result.MonitoredItemId, request.RequestedParameters, result)
     made = iter(created)
     return [
         next(made) if why is None else ua.MonitoredItemCreateResult(StatusCode=ua.StatusCode(why)) for why in refused
     ]
 
 
-def _made(service: MonitoredItemService, mid: int, queue_size: int, result: Any) -> None:
+def _made(service: MonitoredItemService, mid: int, requested: ua.MonitoringParameters, result: Any) -> None:
     """An item just made or modified: its queue size revised by OPC 10000-4 7.21 (asyncua made a data
-    item's 0 its largest queue, and took any size a modification asked for), its WhereClause evaluated
-    by the standard (an event item)."""
+    item's 0 its largest queue, and took any size a modification asked for), its sampling interval
+    revised and kept (decision 86: asyncua answered the publishing interval when made, whatever was
+    asked, and the request, even a negative one, when modified), its WhereClause evaluated by the
+    standard (an event item)."""
     mdata = service._monitored_items[mid]
     events = mdata.read_value_id.AttributeId == ua.AttributeIds.EventNotifier
     mdata.queue_size = result.RevisedQueueSize = datachange.revised_queue_size(
-        queue_size, events, service.isub.max_queue_size
+        requested.QueueSize, events, service.isub.max_queue_size
     )
+    interval = result.RevisedSamplingInterval = datachange.revised_sampling_interval(
+        requested.SamplingInterval,
+        events,
+        service.isub.data.RevisedPublishingInterval,
+        None if events else _minimum_sampling(service, mdata.read_value_id.NodeId),
+    )
+    sampler: datachange.Sampler | None = tagged(mdata, "sampler")
+    if sampler is None:  # made: its first value was its first sample
+        sampler = datachange.Sampler(interval / 1000.0)
+        sampler.last = asyncio.get_running_loop().time()
+        tag(mdata, "sampler", sampler)
+    else:  # modified: the next change is sampled by the new interval, from the last sample
+        sampler.interval = interval / 1000.0
     if events and isinstance(mdata.filter, datachange.EVENT_FILTER):
         where: content_filter.WhereClause | None = tagged(service, "where")
         if where is None:
@@ -226,6 +273,13 @@ def _made(service: MonitoredItemService, mid: int, queue_size: int, result: Any)
 
 
 _EVALUATOR = "asyncua.server.monitored_item_service.MonitoredItemData.where_clause_evaluator"
+
+
+def _minimum_sampling(service: MonitoredItemService, node: ua.NodeId) -> float | None:
+    """The variable's MinimumSamplingInterval attribute (ms), None when it has none."""
+    dv = service.aspace.read_attribute_value(node, ua.AttributeIds.MinimumSamplingInterval)
+    value = dv.Value.Value if dv.Value is not None and dv.StatusCode.is_good() else None
+    return float(value) if isinstance(value, int | float) and value > 0 else None
 
 
 class _Where:
@@ -266,7 +320,7 @@ def _modify_monitored_items(
         results.append(result)
         tag(mdata, "timestamps", params.TimestampsToReturn)
         if result.StatusCode.is_good():
-            _made(self, item.MonitoredItemId, item.RequestedParameters.QueueSize, result)
+            _made(self, item.MonitoredItemId, item.RequestedParameters, result)
     return results
 
 
@@ -281,9 +335,13 @@ async def _set_monitoring_mode(self: MonitoredItemService, mode: ua.MonitoringMo
     results: list[Any] = await _ORIGINAL_MODE(self, mode, ids)
     if mode == ua.MonitoringMode.Reporting:
         await _report_held(self, ids)
-    elif mode == ua.MonitoringMode.Disabled and (held := _held.get(self.isub)) is not None:
+    elif mode == ua.MonitoringMode.Disabled:
+        held = _held.get(self.isub)
         for mid in ids:
-            held.pop(mid, None)  # "not sampled or evaluated, and Notifications are not ... queued"
+            if held is not None:
+                held.pop(mid, None)  # "not sampled or evaluated, and Notifications are not ... queued"
+            if (mdata := self._monitored_items.get(mid)) is not None:
+                tag(mdata, "held", None)  # a change waiting for its sample too
     return results
 
 
