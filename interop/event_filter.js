@@ -1,10 +1,13 @@
 // Event items whose WhereClause is node-opcua's ofType (OPC 10000-4 7.7.3: an event of the type or of a
 // subtype): one on the Server object for BaseEventType, one for ConditionType. Filler1 is reset, which
 // fires TransitionEvents (TransitionEventType, a subtype of BaseEventType and not of ConditionType).
-// Prints the event types each item was sent.
+// Prints the event types each item was sent. Then an item whose WhereClause uses BitwiseAnd, which the
+// server does not evaluate, and one selecting an attribute that does not exist: the item's status and
+// the EventFilterResult (OPC 10000-4 7.22.3) of each.
 "use strict";
 const {
   AttributeIds, ClientSubscription, ClientMonitoredItem, TimestampsToReturn, constructEventFilter, ofType,
+  EventFilter, LiteralOperand, FilterOperator, ContentFilterElement, SimpleAttributeOperand, MonitoringMode, DataType,
 } = require("node-opcua-client");
 const { connect, resolve, done, main, FILLER } = require("./lib");
 
@@ -39,6 +42,39 @@ main(async () => {
   while (!out.BaseEventType.includes("ns=0;i=2311") && Date.now() < deadline) {
     await new Promise((r) => { wake = r; setTimeout(r, 200); });
   }
+  const fields = constructEventFilter(["EventType"]).selectClauses;
+  const filters = {
+    bitwise: new EventFilter({
+      selectClauses: fields,
+      whereClause: { elements: [new ContentFilterElement({
+        filterOperator: FilterOperator.BitwiseAnd,
+        filterOperands: [fields[0], new LiteralOperand({ value: { dataType: DataType.UInt32, value: 1 } })],
+      })] },
+    }),
+    badSelect: new EventFilter({
+      selectClauses: [...fields, new SimpleAttributeOperand({ typeDefinitionId: "i=2041", browsePath: [], attributeId: 99 })],
+    }),
+  };
+  const answered = await session.createMonitoredItems({
+    subscriptionId: subscription.subscriptionId,
+    timestampsToReturn: TimestampsToReturn.Neither,
+    itemsToCreate: Object.values(filters).map((filter, i) => ({
+      itemToMonitor: { nodeId: "i=2253", attributeId: AttributeIds.EventNotifier },
+      monitoringMode: MonitoringMode.Reporting,
+      requestedParameters: { clientHandle: 990 + i, samplingInterval: 0, queueSize: 10, discardOldest: true, filter },
+    })),
+  });
+  out.filterResults = Object.keys(filters).map((name, i) => {
+    const result = answered.results[i];
+    const fr = result.filterResult || {};
+    const where = fr.whereClauseResult ? fr.whereClauseResult.elementResults || [] : [];
+    return {
+      name,
+      status: result.statusCode.name,
+      selects: (fr.selectClauseResults || []).map((c) => c.name),
+      elements: where.map((e) => e.statusCode.name),
+    };
+  });
   await subscription.terminate();
   await session.close();
   await client.disconnect();

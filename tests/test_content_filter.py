@@ -91,3 +91,43 @@ def test_filters_that_cannot_be_evaluated_are_refused() -> None:
     assert refusal(_where((F.Not, [ua.ElementOperand(Index=4)]))) == SC.BadMonitoredItemFilterInvalid
     assert refusal(_where((F.Equals, [_attribute("Severity")]))) == SC.BadMonitoredItemFilterInvalid  # one operand
     assert refusal(_where((F.Not, [ua.AttributeOperand()]))) == SC.BadMonitoredItemFilterUnsupported
+
+
+def test_each_element_of_a_refused_where_clause_has_its_result() -> None:
+    """OPC 10000-4 7.7.2 (decision 87): one result per element, in order, with the operands' codes where
+    an operand is wrong; nothing when every element can be evaluated."""
+    fine = (F.Like, [_attribute("Message"), _literal("%")])
+    refused, results = content_filter.checked(
+        _where(
+            (F.And, [ua.ElementOperand(Index=1), ua.ElementOperand(Index=2)]),
+            fine,
+            (F.Not, [ua.ElementOperand(Index=9)]),
+            (F.BitwiseAnd, [_attribute("Severity"), _literal(1)]),
+            (F.Equals, [_attribute("Severity")]),
+            (F.Not, [ua.AttributeOperand()]),
+        )
+    )
+    assert refused == SC.BadMonitoredItemFilterInvalid  # the first element at fault says it
+    assert [(r.StatusCode.value, [c.value for c in r.OperandStatusCodes]) for r in results] == [
+        (SC.Good, []),
+        (SC.Good, []),
+        (SC.BadFilterOperandInvalid, [SC.BadFilterOperandInvalid]),
+        (SC.BadFilterOperatorUnsupported, []),
+        (SC.BadFilterOperandCountMismatch, []),
+        (SC.BadFilterOperandInvalid, [SC.BadFilterOperandInvalid]),
+    ]
+    assert content_filter.checked(_where(fine)) == (None, [])
+
+
+def test_select_clauses_are_checked_without_an_address_space_only_by_their_form() -> None:
+    def clause(**fields: Any) -> ua.SimpleAttributeOperand:
+        values = {"BrowsePath": [ua.QualifiedName("Severity", 0)], "AttributeId": ua.AttributeIds.Value, **fields}
+        return ua.SimpleAttributeOperand(**values)
+
+    assert content_filter.select_results(None, [clause(), clause(IndexRange="1:2")]) == []
+    codes = content_filter.select_results(
+        None, [clause(), clause(AttributeId=0), clause(IndexRange="2:1"), clause(BrowsePath=[ua.QualifiedName("")])]
+    )
+    assert [c.value for c in codes] == [
+        SC.Good, SC.BadAttributeIdInvalid, SC.BadIndexRangeInvalid, SC.BadBrowseNameInvalid,
+    ]  # fmt: skip

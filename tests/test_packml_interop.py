@@ -114,6 +114,15 @@ async def test_node_opcua_of_type_where_clauses_pass_subtypes(serve_process):
     assert out["reset"] == "Good"
     assert "ns=0;i=2311" in out["BaseEventType"]  # TransitionEventType
     assert out["ConditionType"] == []
+    # the EventFilterResult as node-opcua decodes it (decision 87)
+    bitwise, bad_select = out["filterResults"]
+    assert bitwise == {
+        "name": "bitwise", "status": "BadMonitoredItemFilterUnsupported", "selects": [],
+        "elements": ["BadFilterOperatorUnsupported"],
+    }  # fmt: skip
+    assert bad_select == {
+        "name": "badSelect", "status": "Good", "selects": ["Good", "BadAttributeIdInvalid"], "elements": [],
+    }  # fmt: skip
 
 
 async def test_node_opcua_deadband_is_applied_against_the_last_value_reported(serve_process):

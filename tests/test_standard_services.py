@@ -15,6 +15,7 @@ syntax, Bad_IndexRangeNoData for a lower bound beyond the value, partial results
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 from collections.abc import AsyncIterator
 from datetime import UTC, datetime
 from typing import Any
@@ -158,6 +159,19 @@ async def test_read_request_checks(client: Client) -> None:
     assert _code(refused) == SC.BadTimestampsToReturnInvalid
 
 
+async def _unread_subscription(c: Client, interval: int) -> int:
+    """A subscription whose notifications are not looked at (its id): for the services' answers alone."""
+    created = await c.uaclient.create_subscription(
+        ua.CreateSubscriptionParameters(
+            RequestedPublishingInterval=interval, RequestedLifetimeCount=300, RequestedMaxKeepAliveCount=10,
+            PublishingEnabled=True,
+        ),
+        lambda *_: None,
+    )  # fmt: skip
+    assert created.RevisedPublishingInterval == interval
+    return int(created.SubscriptionId)
+
+
 class Reported:
     """A subscription's handler that keeps (client handle, value, status code) of each data change."""
 
@@ -210,14 +224,7 @@ async def test_queue_sizes_are_revised_by_the_standard(app: UacellServer, client
     change, and took any size a modification asked for."""
     ns = await _ns(client)
     setpoint = ua.NodeId("Test.Setpoint", ns)
-    created = await client.uaclient.create_subscription(
-        ua.CreateSubscriptionParameters(
-            RequestedPublishingInterval=500, RequestedLifetimeCount=30, RequestedMaxKeepAliveCount=3,
-            PublishingEnabled=True,
-        ),
-        lambda *_: None,  # what is published is not looked at here
-    )  # fmt: skip
-    sid = created.SubscriptionId
+    sid = await _unread_subscription(client, 500)
 
     def request(handle: int, size: int, flt: Any = None) -> ua.MonitoredItemCreateRequest:
         attribute = ua.AttributeIds.EventNotifier if flt is not None else ua.AttributeIds.Value
@@ -281,15 +288,7 @@ async def test_sampling_intervals_are_revised_by_the_standard(app: UacellServer,
     await floored.write_attribute(
         ua.AttributeIds.MinimumSamplingInterval, ua.DataValue(ua.Variant(500.0, ua.VariantType.Double))
     )
-    created = await client.uaclient.create_subscription(
-        ua.CreateSubscriptionParameters(
-            RequestedPublishingInterval=100, RequestedLifetimeCount=300, RequestedMaxKeepAliveCount=10,
-            PublishingEnabled=True,
-        ),
-        lambda *_: None,
-    )  # fmt: skip
-    sid = created.SubscriptionId
-    assert created.RevisedPublishingInterval == 100
+    sid = await _unread_subscription(client, 100)
 
     def request(handle: int, sampling: float, node: ua.NodeId = setpoint, flt: Any = None) -> Any:
         attribute = ua.AttributeIds.EventNotifier if flt is not None else ua.AttributeIds.Value
@@ -501,6 +500,76 @@ async def test_an_event_items_where_clause_passes_subtypes_and_is_checked_when_m
     assert _code(refused) == SC.BadMonitoredItemFilterUnsupported
     for subscription in subscriptions:
         await subscription.delete()
+
+
+async def test_an_event_filters_faults_are_said_per_clause_and_element(client: Client) -> None:
+    """OPC 10000-4 7.22.3 and 7.7.2 (decision 87): the EventFilterResult says which select clause and
+    which WhereClause element is wrong, and why; asyncua returned no FilterResult, and uacell only the
+    item's code. A select clause that cannot be served leaves the item made (its field is null)."""
+    sid = await _unread_subscription(client, 500)
+    good = _event_filter()
+    message = good.SelectClauses[1]
+    base = ua.LiteralOperand(Value=ua.Variant(ua.NodeId(ua.ObjectIds.BaseEventType)))
+    event_type = ua.NodeId(ua.ObjectIds.BaseEventType)
+
+    def clause(**fields: Any) -> ua.SimpleAttributeOperand:
+        values = {"TypeDefinitionId": event_type, "BrowsePath": [ua.QualifiedName("Severity", 0)],
+                  "AttributeId": ua.AttributeIds.Value, **fields}  # fmt: skip
+        return ua.SimpleAttributeOperand(**values)
+
+    selects = ua.EventFilter(
+        SelectClauses=[
+            clause(),
+            clause(TypeDefinitionId=ua.NodeId(999_999, 0)),
+            clause(TypeDefinitionId=ua.NodeId(ua.ObjectIds.Server)),  # an object, not a type
+            clause(AttributeId=99),
+            clause(IndexRange="x"),
+            clause(BrowsePath=[ua.QualifiedName("", 0)]),
+        ],
+        WhereClause=ua.ContentFilter(Elements=[]),
+    )
+    element = ua.ContentFilterElement
+    filters = [
+        good,
+        selects,
+        _event_filter(element(FilterOperator=ua.FilterOperator.BitwiseAnd, FilterOperands=[message, base])),
+        _event_filter(element(FilterOperator=ua.FilterOperator.Equals, FilterOperands=[message])),
+        _event_filter(element(FilterOperator=ua.FilterOperator.Not, FilterOperands=[ua.ElementOperand(Index=5)])),
+    ]
+    items = [
+        ua.MonitoredItemCreateRequest(
+            ItemToMonitor=ua.ReadValueId(NodeId=_SERVER, AttributeId=ua.AttributeIds.EventNotifier),
+            MonitoringMode=ua.MonitoringMode.Reporting,
+            RequestedParameters=ua.MonitoringParameters(ClientHandle=60 + i, QueueSize=10, Filter=flt),
+        )
+        for i, flt in enumerate(filters)
+    ]
+    made = await client.uaclient.create_monitored_items(
+        ua.CreateMonitoredItemsParameters(SubscriptionId=sid, TimestampsToReturn=2, ItemsToCreate=items)
+    )
+    names = [r.StatusCode.name for r in made]
+    assert names == ["Good", "Good", "BadMonitoredItemFilterUnsupported"] + ["BadMonitoredItemFilterInvalid"] * 2
+    # a variable has no EventNotifier attribute: no event item on it (asyncua: Bad_MonitoredItemFilterInvalid)
+    on_variable = dataclasses.replace(items[0], ItemToMonitor=ua.ReadValueId(NodeId=_NS_ARRAY, AttributeId=12))
+    (refused,) = await client.uaclient.create_monitored_items(
+        ua.CreateMonitoredItemsParameters(SubscriptionId=sid, TimestampsToReturn=2, ItemsToCreate=[on_variable])
+    )
+    assert refused.StatusCode.name == "BadAttributeIdInvalid"
+    omitted = made[0].FilterResult  # "may be omitted if no errors occurred": a null ExtensionObject
+    assert isinstance(omitted, ua.ExtensionObject) and omitted.Body is None
+    assert [c.name for c in made[1].FilterResult.SelectClauseResults] == [
+        "Good", "BadNodeIdUnknown", "BadTypeDefinitionInvalid", "BadAttributeIdInvalid", "BadIndexRangeInvalid",
+        "BadBrowseNameInvalid",
+    ]  # fmt: skip
+
+    def elements(result: ua.MonitoredItemCreateResult) -> list[tuple[str, list[str]]]:
+        found = result.FilterResult.WhereClauseResult.ElementResults
+        return [(e.StatusCode.name, [c.name for c in e.OperandStatusCodes]) for e in found]
+
+    assert elements(made[2]) == [("BadFilterOperatorUnsupported", [])]
+    assert elements(made[3]) == [("BadFilterOperandCountMismatch", [])]
+    assert elements(made[4]) == [("BadFilterOperandInvalid", ["BadFilterOperandInvalid"])]
+    await client.uaclient.delete_subscriptions([sid])
 
 
 # --- Write -----------------------------------------------------------------------------------------
@@ -723,3 +792,18 @@ async def test_requests_of_no_operations_are_nothing_to_do(client: Client) -> No
         assert _code(refused) == SC.BadNothingToDo
     nodes = [_SERVER, _NS_ARRAY]
     assert await client.uaclient.register_nodes(nodes) == nodes
+    # the subscription services' lists too (asyncua answered an empty list of results)
+    sid = await _unread_subscription(client, 500)
+    empty = (
+        client.uaclient.delete_monitored_items(ua.DeleteMonitoredItemsParameters(SubscriptionId=sid)),
+        client.uaclient.modify_monitored_items(ua.ModifyMonitoredItemsParameters(SubscriptionId=sid)),
+        client.uaclient.set_monitoring_mode(ua.SetMonitoringModeParameters(SubscriptionId=sid)),
+        client.uaclient.set_publishing_mode(ua.SetPublishingModeParameters(PublishingEnabled=False)),
+        client.uaclient.delete_subscriptions([]),
+        client.uaclient.transfer_subscriptions(ua.TransferSubscriptionsParameters()),
+    )
+    for request in empty:
+        with pytest.raises(ua.UaStatusCodeError) as refused:
+            await request
+        assert _code(refused) == SC.BadNothingToDo
+    assert [c.name for c in await client.uaclient.delete_subscriptions([sid])] == ["Good"]

@@ -7,7 +7,8 @@ Between, InList, Like and OfType. OfType is true for an event of the type *or on
 on ConditionType for alarms, was sent nothing; its Like raised and dropped every event, and its
 Between compared the operands in the wrong order. A filter with an operator not evaluated here (Cast,
 BitwiseAnd, BitwiseOr, RelatedTo, InView) or an ElementOperand that points nowhere is refused when
-the item is made (``refusal``), not discovered event after event.
+the item is made (``refusal``), not discovered event after event, and the EventFilterResult says which
+element and which select clause is wrong and why (``event_filter_result``, decision 87).
 
 Operands: a LiteralOperand's value, an ElementOperand's result, a SimpleAttributeOperand's field (by
 its BrowsePath; without one, its NodeId attribute is the event's type). LocalizedTexts compare by
@@ -23,6 +24,7 @@ from typing import Any
 from asyncua import ua
 from asyncua.common.events import Event
 
+from uacell.ua import numeric_range
 from uacell.ua.toolkit import supertype
 
 _SC = ua.StatusCodes
@@ -58,20 +60,102 @@ def field_name(operand: ua.SimpleAttributeOperand) -> str:
 
 def refusal(where: ua.ContentFilter | None) -> int | None:
     """Why a WhereClause cannot be evaluated here (a status code), or None."""
-    elements = where.Elements if where is not None else None
-    for element in elements or ():
-        needed = _OPERANDS.get(element.FilterOperator)
-        if needed is None:
-            return int(_SC.BadMonitoredItemFilterUnsupported)
-        operands = element.FilterOperands or []
-        if len(operands) < needed or (element.FilterOperator != _F.InList and len(operands) > needed):
-            return int(_SC.BadMonitoredItemFilterInvalid)
-        for operand in operands:
-            if isinstance(operand, ua.ElementOperand) and not 0 <= operand.Index < len(elements or ()):
-                return int(_SC.BadMonitoredItemFilterInvalid)
-            if not isinstance(operand, (ua.ElementOperand, ua.LiteralOperand, ua.SimpleAttributeOperand)):
-                return int(_SC.BadMonitoredItemFilterUnsupported)  # an AttributeOperand
-    return None
+    return checked(where)[0]
+
+
+def checked(where: ua.ContentFilter | None) -> tuple[int | None, list[ua.ContentFilterElementResult]]:
+    """A WhereClause checked element by element (OPC 10000-4 7.7.2, ContentFilterResult): why the item is
+    refused (Bad_MonitoredItemFilterUnsupported or Bad_MonitoredItemFilterInvalid; None when it can be
+    evaluated), and each element's result, in the elements' order (empty when every element is right).
+    An operator not evaluated here is Bad_FilterOperatorUnsupported, a wrong number of operands
+    Bad_FilterOperandCountMismatch, an ElementOperand that points nowhere or an operand of a kind not
+    evaluated here (an AttributeOperand) Bad_FilterOperandInvalid, with the operand's own code."""
+    elements = list(where.Elements or ()) if where is not None else []
+    refused: int | None = None
+    results: list[ua.ContentFilterElementResult] = []
+    for element in elements:
+        code, operand_codes, why = _element_fault(element, len(elements))
+        results.append(ua.ContentFilterElementResult(StatusCode=ua.StatusCode(code), OperandStatusCodes=operand_codes))
+        if why is not None and refused is None:
+            refused = why
+    if refused is None:
+        return None, []
+    return refused, results
+
+
+def _element_fault(element: Any, count: int) -> tuple[int, list[ua.StatusCode], int | None]:
+    """One element's code, its operands' codes (empty when they are right) and the item's refusal."""
+    needed = _OPERANDS.get(element.FilterOperator)
+    if needed is None:
+        return int(_SC.BadFilterOperatorUnsupported), [], int(_SC.BadMonitoredItemFilterUnsupported)
+    operands = element.FilterOperands or []
+    if len(operands) < needed or (element.FilterOperator != _F.InList and len(operands) > needed):
+        return int(_SC.BadFilterOperandCountMismatch), [], int(_SC.BadMonitoredItemFilterInvalid)
+    codes = [_operand_fault(operand, count) for operand in operands]
+    if not any(codes):
+        return int(_SC.Good), [], None
+    unsupported = any(not isinstance(o, _OPERAND_KINDS) for o in operands)
+    why = _SC.BadMonitoredItemFilterUnsupported if unsupported else _SC.BadMonitoredItemFilterInvalid
+    return int(_SC.BadFilterOperandInvalid), [ua.StatusCode(c) for c in codes], int(why)
+
+
+_OPERAND_KINDS = (ua.ElementOperand, ua.LiteralOperand, ua.SimpleAttributeOperand)
+
+
+def _operand_fault(operand: Any, count: int) -> int:
+    """0 for an operand evaluated here, else Bad_FilterOperandInvalid."""
+    if isinstance(operand, ua.ElementOperand) and not 0 <= operand.Index < count:
+        return int(_SC.BadFilterOperandInvalid)
+    if not isinstance(operand, _OPERAND_KINDS):
+        return int(_SC.BadFilterOperandInvalid)  # an AttributeOperand
+    return 0
+
+
+def select_results(aspace: Any, selects: list[ua.SimpleAttributeOperand] | None) -> list[ua.StatusCode]:
+    """Each select clause's result (OPC 10000-4 7.22.3), empty when every clause can be served: an
+    unknown TypeDefinitionId is Bad_NodeIdUnknown, a node that is no ObjectType Bad_TypeDefinitionInvalid,
+    an unknown AttributeId Bad_AttributeIdInvalid, an IndexRange that does not parse Bad_IndexRangeInvalid,
+    a BrowsePath with an empty name Bad_BrowseNameInvalid. A clause that cannot be served selects a null
+    field; the item is made."""
+    codes = [_select_fault(aspace, clause) for clause in selects or ()]
+    return [ua.StatusCode(code) for code in codes] if any(codes) else []
+
+
+def _select_fault(aspace: Any, clause: ua.SimpleAttributeOperand) -> int:
+    type_id = clause.TypeDefinitionId
+    if type_id is not None and not type_id.is_null():
+        node = aspace.get(type_id) if aspace is not None else None
+        if node is None and aspace is not None:
+            return int(_SC.BadNodeIdUnknown)
+        if node is not None:
+            kind = node.attributes.get(_A.NodeClass)
+            if kind is None or kind.value.Value.Value != ua.NodeClass.ObjectType:
+                return int(_SC.BadTypeDefinitionInvalid)
+    if clause.AttributeId not in _ATTRIBUTE_IDS:
+        return int(_SC.BadAttributeIdInvalid)
+    if clause.IndexRange:
+        try:
+            numeric_range.parse(clause.IndexRange)
+        except numeric_range.RangeError:
+            return int(_SC.BadIndexRangeInvalid)
+    if any(not name.Name for name in clause.BrowsePath or ()):
+        return int(_SC.BadBrowseNameInvalid)
+    return 0
+
+
+_ATTRIBUTE_IDS = frozenset(int(a) for a in ua.AttributeIds)
+
+
+def event_filter_result(aspace: Any, flt: ua.EventFilter) -> ua.EventFilterResult | None:
+    """The EventFilterResult of an event item's filter (OPC 10000-4 7.22.3): the select clauses' and the
+    WhereClause elements' results; None when nothing is wrong ("may be omitted if no errors occurred")."""
+    _, elements = checked(flt.WhereClause)
+    selects = select_results(aspace, flt.SelectClauses)
+    if not elements and not selects:
+        return None
+    return ua.EventFilterResult(
+        SelectClauseResults=selects, WhereClauseResult=ua.ContentFilterResult(ElementResults=elements)
+    )
 
 
 class WhereClause:

@@ -155,6 +155,10 @@ def refusal(aspace: AddressSpace, item: ua.ReadValueId, flt: object | None) -> i
         flt = None  # a null ExtensionObject: no filter (what asyncua's client sends by default)
     attribute = item.AttributeId
     if attribute == _A.EventNotifier:
+        node = aspace.get(item.NodeId)
+        kind = node.attributes.get(_A.NodeClass) if node is not None else None
+        if kind is not None and kind.value.Value.Value not in (ua.NodeClass.Object, ua.NodeClass.View):
+            return int(ua.StatusCodes.BadAttributeIdInvalid)  # only objects and views have an EventNotifier
         if isinstance(flt, EVENT_FILTER):
             return content_filter.refusal(flt.WhereClause)
         return _INVALID if flt is None else _NOT_ALLOWED  # an event item needs its EventFilter
@@ -177,6 +181,14 @@ def refusal(aspace: AddressSpace, item: ua.ReadValueId, flt: object | None) -> i
             return _BAD_DEADBAND
     elif not flt.DeadbandValue >= 0.0:  # a negative absolute deadband (or NaN)
         return _INVALID
+    return None
+
+
+def filter_result(aspace: AddressSpace, item: ua.ReadValueId, flt: object | None) -> Any | None:
+    """The FilterResult to answer for a monitored item (made or refused): an event item's
+    EventFilterResult when a select clause or WhereClause element is wrong (decision 87), else None."""
+    if item.AttributeId == _A.EventNotifier and isinstance(flt, EVENT_FILTER):
+        return content_filter.event_filter_result(aspace, flt)
     return None
 
 

@@ -42,7 +42,7 @@ from asyncua import ua
 from asyncua.common.connection import TransportLimits
 from asyncua.common.utils import Buffer, ServiceError
 from asyncua.server.binary_server_asyncio import OPCUAProtocol
-from asyncua.server.internal_session import InternalSession
+from asyncua.server.internal_session import InternalSession, SessionState
 from asyncua.ua.ua_binary import struct_from_binary
 
 from uacell.core.logs import RefusalLog
@@ -461,6 +461,32 @@ class LimitedSession(views.StandardViews, subscriptions.OwnSubscriptions, Intern
     async def history_read(self, params: ua.HistoryReadParameters) -> list[ua.HistoryReadResult]:
         check_operations(self.iserver, len(params.NodesToRead or ()), "HistoryRead")
         return cast("list[ua.HistoryReadResult]", await super().history_read(params))
+
+    # the subscription services with a list of operations (the subscriptions' own rules: OwnSubscriptions)
+    async def modify_monitored_items(self, params: ua.ModifyMonitoredItemsParameters) -> Any:
+        check_operations(self.iserver, len(params.ItemsToModify or ()), "ModifyMonitoredItems")
+        return await super().modify_monitored_items(params)
+
+    async def delete_monitored_items(self, params: ua.DeleteMonitoredItemsParameters) -> Any:
+        check_operations(self.iserver, len(params.MonitoredItemIds or ()), "DeleteMonitoredItems")
+        return await super().delete_monitored_items(params)
+
+    async def set_monitoring_mode(self, params: ua.SetMonitoringModeParameters) -> Any:
+        check_operations(self.iserver, len(params.MonitoredItemIds or ()), "SetMonitoringMode")
+        return await super().set_monitoring_mode(params)
+
+    async def delete_subscriptions(self, ids: list[int]) -> list[ua.StatusCode]:
+        if self.state != SessionState.Closed:  # a client's request, not a closing session's own clean-up
+            check_operations(self.iserver, len(ids or ()), "DeleteSubscriptions")
+        return await super().delete_subscriptions(ids)
+
+    async def set_publishing_mode(self, params: ua.SetPublishingModeParameters) -> list[ua.StatusCode]:
+        check_operations(self.iserver, len(params.SubscriptionIds or ()), "SetPublishingMode")
+        return await super().set_publishing_mode(params)
+
+    async def transfer_subscriptions(self, params: ua.TransferSubscriptionsParameters, callback: Any) -> Any:
+        check_operations(self.iserver, len(params.SubscriptionIds or ()), "TransferSubscriptions")
+        return await super().transfer_subscriptions(params, callback)
 
     async def create_session(self, params: ua.CreateSessionParameters, sockname: Any = None) -> Any:
         limits = _limits_of(self.iserver)

@@ -235,9 +235,13 @@ async def _create_allowed(
         if result.StatusCode.is_good():
             _made(self, result.MonitoredItemId, request.RequestedParameters, result)
     made = iter(created)
-    return [
+    results = [
         next(made) if why is None else ua.MonitoredItemCreateResult(StatusCode=ua.StatusCode(why)) for why in refused
     ]
+    for request, result in zip(params.ItemsToCreate, results, strict=True):
+        flt = request.RequestedParameters.Filter
+        result.FilterResult = datachange.filter_result(self.aspace, request.ItemToMonitor, flt)
+    return results
 
 
 def _made(service: MonitoredItemService, mid: int, requested: ua.MonitoringParameters, result: Any) -> None:
@@ -312,11 +316,17 @@ def _modify_monitored_items(
             why: int | None = ua.StatusCodes.BadMonitoredItemIdInvalid
         else:
             why = datachange.refusal(self.aspace, mdata.read_value_id, item.RequestedParameters.Filter)
+        fault = (
+            None
+            if mdata is None
+            else datachange.filter_result(self.aspace, mdata.read_value_id, item.RequestedParameters.Filter)
+        )
         if why is not None:
-            results.append(ua.MonitoredItemModifyResult(StatusCode=ua.StatusCode(why)))
+            results.append(ua.MonitoredItemModifyResult(StatusCode=ua.StatusCode(why), FilterResult=fault))
             continue
         one = dataclasses.replace(params, ItemsToModify=[item])
         (result,) = _ORIGINAL_MODIFY(self, one)
+        result.FilterResult = fault
         results.append(result)
         tag(mdata, "timestamps", params.TimestampsToReturn)
         if result.StatusCode.is_good():
