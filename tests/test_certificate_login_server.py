@@ -84,22 +84,24 @@ async def role_of(client: Client, env: Env) -> str:
     return str(await client.get_node(env.app.security.role_node).read_value())
 
 
-def audit_logins(env: Env) -> list[dict[str, Any]]:
+async def audited_login_event(env: Env, event: str, **fields: Any) -> dict[str, Any]:
+    """The last line of ``event`` in the audit trail with ``fields``."""
     path = env.app.data_dir / "audit.log"
-    text = path.read_text() if path.exists() else ""
-    return [e for e in map(json.loads, text.splitlines()) if e["event"] == "login"]
-
-
-async def audited_login(env: Env, **fields: Any) -> dict[str, Any]:
-    """The last login line of the audit trail with ``fields`` (the trail is written by its own thread)."""
     found: list[dict[str, Any]] = []
 
     def arrived() -> bool:
-        found[:] = [e for e in audit_logins(env) if fields.items() <= e.items()]
+        text = path.read_text() if path.exists() else ""
+        lines = [e for e in map(json.loads, text.splitlines()) if e["event"] == event]
+        found[:] = [e for e in lines if fields.items() <= e.items()]
         return bool(found)
 
     await wait_until(arrived, timeout=20)
     return found[-1]
+
+
+async def audited_login(env: Env, **fields: Any) -> dict[str, Any]:
+    """The last login line of the audit trail with ``fields`` (the trail is written by its own thread)."""
+    return await audited_login_event(env, "login", **fields)
 
 
 async def test_every_endpoint_offers_a_signed_certificate_token(env: Env) -> None:
@@ -272,5 +274,36 @@ async def test_asyncuas_client_signs_on_a_none_channel_too(env: Env) -> None:
     await client.connect()
     try:
         assert await role_of(client, env) == "operator"
+    finally:
+        await client.disconnect()
+
+
+async def test_a_session_keeps_its_certificates_user_until_the_certificate_expires(env: Env) -> None:
+    """OPC 10000-4 7.41.5 (decision 88): the credentials end when the certificate expires and the session
+    stays valid with the anonymous role (operator on loopback); the client renews them with
+    ActivateSession and a certificate still valid."""
+    # a certificate valid since yesterday, for five more seconds
+    short = user_certificate(
+        "eve, short badge",
+        not_before=dt.datetime.now(dt.UTC) - dt.timedelta(days=1) + dt.timedelta(seconds=5),
+        days=1,
+    )
+    badge = user_certificate("eve, new badge")
+    env.cli.add("eve", "engineer", None, certificate=short.der)
+    env.cli.add_certificate("eve", badge.der)
+    client = await cert_client(env, short)
+    try:
+        assert await role_of(client, env) == "engineer"
+        deadline = time.monotonic() + 30
+        while await role_of(client, env) == "engineer" and time.monotonic() < deadline:
+            await asyncio.sleep(0.1)
+        assert await role_of(client, env) == "operator"  # anonymous on loopback: the session goes on
+        await audited_login_event(env, "identity_expired", user="eve")
+        # renewed with the new badge on the same session
+        cert_file, key_file = badge.write(env.files, "eve-new")
+        await client.load_client_certificate(str(cert_file))
+        await client.load_private_key(key_file)
+        await client.activate_session(certificate=client.user_certificate)
+        assert await role_of(client, env) == "engineer"
     finally:
         await client.disconnect()

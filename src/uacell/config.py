@@ -183,6 +183,7 @@ class MetricsConfig:
 @dataclass
 class UsersConfig:
     min_password_length: int = 10
+    certificate_grace: float = 0.0  # seconds a session keeps a certificate's user after it expires (decision 88)
 
 
 # uacell's own sections (the companions declare theirs).
@@ -492,6 +493,8 @@ def validate(config: Config) -> None:
         raise ConfigError(f"[discovery] url: must look like opc.tcp://host:4840/, not {url!r}")
     if not 1 <= config.users.min_password_length <= 1024:
         raise ConfigError("[users] min_password_length: must be 1..1024")
+    if not 0.0 <= config.users.certificate_grace <= 86400.0:
+        raise ConfigError("[users] certificate_grace: must be 0 to 86400 seconds")
     check_history(config.history)
     check_pubsub(config.pubsub)
     check_sparkplug(config.sparkplug)

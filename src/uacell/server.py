@@ -41,7 +41,7 @@ from uacell.security.users import UserStore
 from uacell.services.diagnostics import Diagnostics, bind_subscription_methods
 from uacell.services.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
 from uacell.services.observers import install_audit
-from uacell.services.shutdown import announce_shutdown
+from uacell.services.shutdown import announce_shutdown, no_shutdown_yet
 from uacell.ua import door
 from uacell.ua.event_tap import EventTap
 from uacell.ua.limits import DecodingStage, admit, guard_bytes, install_limits, publish_operation_limits
@@ -273,6 +273,7 @@ class UacellServer:
     async def start(self) -> None:
         await publish_operation_limits(self.server, self.limits)
         await self.server.start()
+        await no_shutdown_yet(self.server)
         self._listening = True
         if self._snapshot_job is not None:  # first start: write the snapshot for the next ones
             # The cell's bookkeeping as the binders left it (types they looked up included).

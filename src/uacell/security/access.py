@@ -34,7 +34,9 @@ class UacellUserManager:
     ) -> UacellUser | None:
         if isinstance(certificate, VerifiedCertificate):  # an X509IdentityToken (decision 84)
             login = certificate.login
-            return UacellUser(login.user, login.role.label, certificate=True)
+            user = UacellUser(login.user, login.role.label, certificate=True)
+            user.expires = login.expires
+            return user
         if username is None:  # (``certificate`` is then the channel's application certificate, if any)
             return UacellUser(None, self.policy.anonymous_role.label, anonymous=True)
         checked = verified_login.get()

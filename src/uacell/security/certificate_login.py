@@ -66,6 +66,7 @@ class CertificateLogin:
     user: str
     role: Role
     thumbprint: str
+    expires: datetime  # the certificate's notAfter (UTC): the session's credentials end then (decision 88)
 
 
 class VerifiedCertificate(bytes):
@@ -152,4 +153,4 @@ def check_user_certificate(
     found = users.user_of_certificate(der)
     if found is None:
         raise TokenRefused(BAD_IDENTITY_TOKEN_REJECTED, f"certificate {thumb} is bound to no user")
-    return CertificateLogin(found[0], found[1], thumb)
+    return CertificateLogin(found[0], found[1], thumb, cert.not_valid_after_utc)

@@ -81,7 +81,7 @@ from uacell.security.pki import (
 from uacell.security.users import LoginThrottle, thumbprint
 from uacell.services.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua import channel, context, door
-from uacell.ua.context import caller_of
+from uacell.ua.context import UacellUser, caller_of
 from uacell.ua.door.connection import connection
 from uacell.ua.limits import LimitedSession, check_operations
 from uacell.ua.pipeline import Next, Request
@@ -732,6 +732,7 @@ class UacellSession(LimitedSession):
         self.channel_certificate: bytes | None = None  # the client certificate of the creating channel
         self.client_address = ""
         self._audited_open = False
+        self._expiry: asyncio.TimerHandle | None = None  # when a user certificate's credentials end
         super().__init__(*args, **kwargs)
         if self.external:
             # asyncua counts AuthenticationTokens up from 1000; OPC 10000-4 (7.31) asks for a secret.
@@ -763,10 +764,11 @@ class UacellSession(LimitedSession):
             diagnostics.session_created(self, params, processor)
         return result
 
-    def _audit(self, event: str) -> None:
+    def _audit(self, event: str, **extra: Any) -> None:
         from uacell.services.observers import session_fields
 
-        self._security.app.audit.record(event, **session_fields(self), address=self.client_address)
+        fields = {**session_fields(self), **extra}
+        self._security.app.audit.record(event, **fields, address=self.client_address)
 
     def activate_session(
         self, params: ua.ActivateSessionParameters, peer_certificate: bytes | None
@@ -776,13 +778,41 @@ class UacellSession(LimitedSession):
         if self.nonce == issued:  # a nonce is never accepted twice: the next activation needs a fresh one
             self.nonce = create_nonce(32)
             result.ServerNonce = self.nonce
+        self._watch_expiry()
         return result
+
+    def _watch_expiry(self) -> None:
+        """The identity just activated: a user certificate's credentials end when it expires, plus
+        ``[users] certificate_grace`` (OPC 10000-4 7.41.5, decision 88); a new activation replaces the watch."""
+        if self._expiry is not None:
+            self._expiry.cancel()
+            self._expiry = None
+        expires = getattr(self.user, "expires", None)
+        if expires is None:
+            return
+        grace = float(self._security.app.config.users.certificate_grace)
+        left = (expires - datetime.now(UTC)).total_seconds() + grace
+        self._expiry = asyncio.get_running_loop().call_later(max(0.0, left), self._identity_expired)
+
+    def _identity_expired(self) -> None:
+        """The session goes on with the anonymous role ("The Session shall stay valid with the Anonymous
+        Role"); the client renews its credentials with ActivateSession."""
+        self._expiry = None
+        if self.state == SessionState.Closed:
+            return
+        name = getattr(cast(Any, self).user, "name", None)
+        cast(Any, self).user = UacellUser(None, self._security.app.policy.anonymous_role.label, anonymous=True)
+        log.info("the certificate of user %r expired: session %s goes on as anonymous", name, self.session_id)
+        self._audit("identity_expired", user=name)
 
     async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
         check_operations(self.iserver, len(params.NodesToWrite or ()), "Write")
         return await self._security.app.writes.write(caller_of(self), params, super().write)
 
     async def close_session(self, delete_subs: bool = True) -> None:
+        if self._expiry is not None:
+            self._expiry.cancel()
+            self._expiry = None
         already = self.state == SessionState.Closed
         await super().close_session(delete_subs)
         if not already:

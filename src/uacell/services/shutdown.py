@@ -33,6 +33,12 @@ _SECONDS = ua.NodeId(ua.ObjectIds.Server_ServerStatus_SecondsTillShutdown)
 _REASON = ua.NodeId(ua.ObjectIds.Server_ServerStatus_ShutdownReason)
 
 
+async def no_shutdown_yet(server: Server) -> None:
+    """SecondsTillShutdown 0 while the server runs: a UInt32 whose value is of its DataType (asyncua
+    leaves the variable null until a stop writes it)."""
+    await server.get_node(_SECONDS).write_value(ua.DataValue(ua.Variant(0, ua.VariantType.UInt32)))
+
+
 def open_sessions(server: Server) -> int:
     """Sessions of clients (not the server's own) that are not closed."""
     return len(door_connection.external_sessions(server.iserver))

@@ -44,6 +44,7 @@ class UacellUser(User):  # type: ignore[misc]  # asyncua is untyped here (see py
         self.anonymous = anonymous
         # how the user proved who they are, as OPC 10000-5 names it (SessionSecurityDiagnostics)
         self.mechanism = "Anonymous" if anonymous else "Certificate" if certificate else "UserName"
+        self.expires: datetime | None = None  # when a certificate's credentials end (UTC), None: never
 
     def __repr__(self) -> str:
         return f"UacellUser({self.name!r}, {self.uacell_role})"
