@@ -202,3 +202,15 @@ def test_a_chain_after_the_certificate_is_read_as_the_certificate(store: UserSto
     assert first_certificate(b"\x30") == b"\x30"
     assert first_certificate(b"\x30\x84\xff\xff\xff\xff") == b"\x30\x84\xff\xff\xff\xff"  # longer than the data
     assert check(store, chain, RSA_SHA256, ALICE.sign(SERVER_CERT + NONCE)).user == "alice"
+
+
+def test_the_signature_table_is_the_one_of_each_offered_policy() -> None:
+    """``SIGNATURE_ALGORITHM`` is written from OPC 10000-7; each security policy uacell offers signs by it."""
+    from asyncua.crypto.security_policies import SECURITY_POLICY_TYPE_MAP
+
+    from uacell.security.certificate_login import SIGNATURE_ALGORITHM
+    from uacell.security.policy import SECURE_POLICIES
+
+    for offered in SECURE_POLICIES:
+        policy = SECURITY_POLICY_TYPE_MAP[offered][0]
+        assert SIGNATURE_ALGORITHM[policy.URI] == policy.AsymmetricSignatureURI
