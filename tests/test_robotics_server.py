@@ -658,7 +658,11 @@ async def test_executable_attribute_matches_what_a_call_does(fresh):
     assert await executables(r) == only("TC.Stop", "SO.Stop")
     assert await status(r, TC, "LoadByName", s("long")) == 1
     assert await status(r, READY, "ResetToProgramStart") == 1
-    # stopping (the wait finishes its instruction only after a stop at the end of it): nothing
+    # stopping (the wait finishes its instruction only after a stop at the end of it): nothing. The
+    # program has reached its wait (line 3) first: a stop during the move before it ended with the move
+    # on a loaded machine, and the task was Ready again before Executable was read
+    task = robot_cell(r.app).tasks["TaskControl1"]
+    await wait_until(lambda: task.current_line == 3)
     assert await status(r, TC, "Stop", mode(int(StopMode.END_OF_INSTRUCTION))) == 0
     assert await executables(r) == only()
     assert await status(r, TC, "Stop", mode(0)) == 1 and await status(r, SO, "Stop", mode(0)) == 1
