@@ -575,21 +575,27 @@ class Security(_Logins):
         )
         return ServiceError(_S.BadIdentityTokenInvalid)
 
+    def token_security_policy(self, kind: ua.UserTokenType, policy_id: str | None) -> str | None:
+        """The security policy URI of the user token policy ``policy_id`` of this kind that the current
+        request's endpoint offers (the endpoint's own when the token policy names none); None when the
+        endpoint offers no such policy."""
+        endpoint = self.endpoint_of(context.current_processor())
+        if endpoint is None:
+            return None
+        for policy in endpoint.UserIdentityTokens:
+            if policy.TokenType == kind and policy.PolicyId == policy_id:
+                return str(policy.SecurityPolicyUri or endpoint.SecurityPolicyUri or "")
+        return None
+
     def decrypt_user_token(self, isession: InternalSession, token: ua.UserNameIdentityToken) -> tuple[str, str]:
         """asyncua's hook for user-name tokens: (user name, password), or ServiceError.
 
         The token must name a user token policy of the session's endpoint; an encrypted password must
         use that policy's algorithm and end with the server nonce last sent to this session."""
         self.refuse_plaintext(token)
-        endpoint = self.endpoint_of(context.current_processor())
-        policies = [
-            p
-            for p in (endpoint.UserIdentityTokens if endpoint else [])
-            if p.TokenType == ua.UserTokenType.UserName and p.PolicyId == token.PolicyId
-        ]
-        if not policies:
+        policy_uri = self.token_security_policy(ua.UserTokenType.UserName, token.PolicyId)
+        if policy_uri is None:
             raise self._invalid_token(token, "policy", f"no user-name token policy {token.PolicyId!r} on this endpoint")
-        policy_uri = policies[0].SecurityPolicyUri or (endpoint.SecurityPolicyUri if endpoint else "")
         expected = _TOKEN_ALGORITHM.get(policy_uri or "", "")
         algorithm = token.EncryptionAlgorithm or ""
         if algorithm != expected:
@@ -613,23 +619,17 @@ class Security(_Logins):
         """asyncua's hook for X509IdentityTokens: the certificate (DER) when the token names a certificate
         token policy of the session's endpoint and passes ``check_user_certificate``, else ServiceError.
         ``UacellUserManager.get_user`` then finds its user."""
-        processor = context.current_processor()
-        address = _address(processor)
-        endpoint = self.endpoint_of(processor)
-        policies = [
-            p
-            for p in (endpoint.UserIdentityTokens if endpoint else [])
-            if p.TokenType == ua.UserTokenType.Certificate and p.PolicyId == token.PolicyId
-        ]
+        address = _address(context.current_processor())
+        policy_uri = self.token_security_policy(ua.UserTokenType.Certificate, token.PolicyId)
         try:
-            if not policies:
+            if policy_uri is None:
                 raise TokenRefused(_S.BadIdentityTokenInvalid, f"no certificate token policy {token.PolicyId!r} here")
             server_certificate = uacrypto.der_from_x509(self.server.iserver.certificate)
             login = check_user_certificate(
                 token.CertificateData,
                 signature.Algorithm if signature is not None else None,
                 signature.Signature if signature is not None else None,
-                policy_uri=policies[0].SecurityPolicyUri or (endpoint.SecurityPolicyUri if endpoint else ""),
+                policy_uri=policy_uri,
                 challenge=server_certificate + (isession.nonce or b""),
                 now=datetime.now(UTC),
                 users=self.app.users,
