@@ -190,6 +190,7 @@ async def read_million(count: int) -> dict[str, Any]:
                     details.StartTime = base - timedelta(seconds=1)
                     details.EndTime = base + timedelta(days=1)
                     details.NumValuesPerNode = 0
+                    details.ReturnBounds = False  # the values alone, each once
                     params.HistoryReadDetails = details
                     params.TimestampsToReturn = ua.TimestampsToReturn.Source
                     params.ReleaseContinuationPoints = False

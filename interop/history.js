@@ -1,7 +1,8 @@
 // HistoryRead from node-opcua: raw values through continuation points, ReadProcessedDetails for five
 // aggregates, and node-opcua-aggregates' own Average/Minimum/Maximum/Count on the same raw values;
-// then the events of the Server object with an OfType(TransitionEventType) filter.
-// argv: endpoint, nodeId, start (ISO), end (ISO), processing interval (ms)
+// then raw values with their bounding values (returnBounds), in one request and two a page; then the
+// events of the Server object with an OfType(TransitionEventType) filter.
+// argv: endpoint, nodeId, start (ISO), end (ISO), processing interval (ms), bounded start (ISO), bounded end (ISO)
 "use strict";
 const {
   AttributeIds, NodeClass, ReadRawModifiedDetails, ReadProcessedDetails, ReadEventDetails, TimestampsToReturn,
@@ -16,7 +17,30 @@ function plain(dv) {
     value: dv.value && dv.value.value !== null && dv.value.value !== undefined ? Number(dv.value.value) : null,
     status: dv.statusCode.value >>> 0,
     time: dv.sourceTimestamp ? dv.sourceTimestamp.toISOString() : null,
+    serverTime: dv.serverTimestamp ? dv.serverTimestamp.toISOString() : null,
   };
+}
+
+// Every raw value of [startTime, endTime) with bounds, ``perPage`` a request (0: no limit)
+async function bounded(session, nodeId, startTime, endTime, perPage) {
+  const values = [];
+  let continuationPoint = null;
+  let pages = 0;
+  for (;;) {
+    const res = await session.historyRead(new HistoryReadRequest({
+      historyReadDetails: new ReadRawModifiedDetails({ startTime, endTime, numValuesPerNode: perPage, isReadModified: false, returnBounds: true }),
+      nodesToRead: [{ nodeId, continuationPoint }],
+      timestampsToReturn: TimestampsToReturn.Both,
+      releaseContinuationPoints: false,
+    }));
+    const r = res.results[0];
+    if (r.statusCode.isNotGood()) throw new Error(`bounded: ${r.statusCode.toString()}`);
+    pages += 1;
+    values.push(...(r.historyData.dataValues || []).map(plain));
+    continuationPoint = r.continuationPoint;
+    if (!continuationPoint || continuationPoint.length === 0 || pages > 50) break;
+  }
+  return { values, pages };
 }
 
 function prop(value) {
@@ -24,7 +48,7 @@ function prop(value) {
 }
 
 main(async () => {
-  const [endpoint, nodeId, startIso, endIso, intervalText] = process.argv.slice(2);
+  const [endpoint, nodeId, startIso, endIso, intervalText, boundStartIso, boundEndIso] = process.argv.slice(2);
   const start = new Date(startIso);
   const end = new Date(endIso);
   const interval = Number(intervalText);
@@ -79,6 +103,9 @@ main(async () => {
   out.reference.Maximum = await run(agg.getMaxData);
   out.reference.Count = await run(agg.getCountData);
   out.raw = raw.map(plain);
+
+  out.bounded = await bounded(session, nodeId, new Date(boundStartIso), new Date(boundEndIso), 0);
+  out.boundedPaged = await bounded(session, nodeId, new Date(boundStartIso), new Date(boundEndIso), 2);
 
   const filter = constructEventFilter(["EventType", "SourceName", "Message", "ToState"], ofType("TransitionEventType"));
   const ev = await session.historyRead(new HistoryReadRequest({

@@ -74,14 +74,38 @@ async def _reads(app: UacellServer, client: Client) -> None:
     await machine.call_method(ua.NodeId(f"{F}.BaseStateMachine.MachineState.Reset", ns))
     await app.history.store.flush()
     end = base + timedelta(minutes=10)
+    bound_start, bound_end = base - timedelta(minutes=1), base + timedelta(milliseconds=600)
     out = await asyncio.to_thread(
-        run_node, "history.js", app.endpoint, speed.to_string(), base.isoformat(), end.isoformat(), "60000"
+        run_node,
+        "history.js",
+        app.endpoint,
+        speed.to_string(),
+        base.isoformat(),
+        end.isoformat(),
+        "60000",
+        bound_start.isoformat(),
+        bound_end.isoformat(),
     )
 
     # raw: every value, in order, through continuation points
     assert [r["value"] for r in out["raw"]] == [v for _, v, _ in data]
     assert out["pages"] == len(data) // 1000 + 1
     assert out["raw"][800 + 800 // 30 + 1]["status"] == BAD
+
+    # bounds (OPC 10000-11 4.4): nothing before StartTime, so an empty bound there; the values of the
+    # window; the first value at or after EndTime. Two a page, the same sequence.
+    def iso(t: datetime) -> str:  # as node-opcua prints a DateTime
+        return t.isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+    inside = [(iso(t), v) for t, v, _ in data if bound_start <= t < bound_end]
+    after = next((iso(t), v) for t, v, _ in data if t >= bound_end)
+    sequence = [(iso(bound_start), None), *inside, after]
+    got = out["bounded"]["values"]
+    assert [(r["time"], r["value"]) for r in got] == sequence
+    assert got[0]["status"] == ua.StatusCodes.BadBoundNotFound and got[0]["serverTime"] == iso(bound_start)
+    assert all(r["status"] == 0 for r in got[1:])
+    assert out["bounded"]["pages"] == 1
+    assert out["boundedPaged"]["values"] == got and out["boundedPaged"]["pages"] == (len(sequence) + 1) // 2
 
     # processed: uacell against node-opcua-aggregates, interval by interval
     for name in ("Average", "Minimum", "Maximum", "Count"):

@@ -33,7 +33,10 @@ def cluster() -> Iterator[PgCluster]:
 async def speeds(client: Client, ns: int) -> tuple[int, list[float]]:
     """The status and the MachSpeed values of the last hour."""
     details = ua.ReadRawModifiedDetails(
-        IsReadModified=False, StartTime=datetime.now(UTC) - HOUR, EndTime=datetime.now(UTC) + HOUR
+        IsReadModified=False,
+        StartTime=datetime.now(UTC) - HOUR,
+        EndTime=datetime.now(UTC) + HOUR,
+        ReturnBounds=False,
     )
     params = ua.HistoryReadParameters(
         HistoryReadDetails=details,

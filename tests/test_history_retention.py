@@ -105,6 +105,7 @@ async def test_pruning_holds_a_small_cap_while_writes_reads_and_pubsub_go_on(tmp
                         StartTime=datetime.now(UTC) + timedelta(seconds=1),
                         EndTime=datetime.now(UTC) - timedelta(seconds=5),
                         NumValuesPerNode=20,
+                        ReturnBounds=False,
                     )
                     params = ua.HistoryReadParameters(
                         HistoryReadDetails=details,
@@ -159,6 +160,7 @@ async def _newest_speeds(app: Any, node: ua.NodeId) -> list[float]:
             StartTime=datetime.now(UTC) + timedelta(seconds=1),
             EndTime=datetime.now(UTC) - timedelta(minutes=5),
             NumValuesPerNode=10,
+            ReturnBounds=False,
         )
         params = ua.HistoryReadParameters(
             HistoryReadDetails=details,

@@ -49,6 +49,7 @@ def raw(start: datetime | None, end: datetime | None, count: int = 0) -> ua.Read
     d.StartTime = start or ua.get_win_epoch()
     d.EndTime = end or ua.get_win_epoch()
     d.NumValuesPerNode = count
+    d.ReturnBounds = False  # asyncua's default is True: these tests read the values alone
     return d
 
 

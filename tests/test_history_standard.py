@@ -34,6 +34,8 @@ SO = f"{CTRL}.SystemOperation.SystemOperationStateMachine"
 TC = f"{CTRL}.TaskControls.TaskControl1.TaskControlOperation.TaskControlStateMachine"
 SC = ua.StatusCodes
 MINUTE = timedelta(minutes=1)
+HOUR = timedelta(hours=1)
+DAY = timedelta(days=1)
 GOOD_CALCULATED = 0x401  # Good, InfoType DataValue (0x400), HistorianBits Calculated (0x1)
 GOOD_CALCULATED_PARTIAL = 0x405  # and Partial (0x4)
 
@@ -71,7 +73,9 @@ def params(
 
 
 def raw(start: datetime, end: datetime, count: int) -> ua.ReadRawModifiedDetails:
-    return ua.ReadRawModifiedDetails(IsReadModified=False, StartTime=start, EndTime=end, NumValuesPerNode=count)
+    return ua.ReadRawModifiedDetails(
+        IsReadModified=False, StartTime=start, EndTime=end, NumValuesPerNode=count, ReturnBounds=False
+    )
 
 
 def processed(start: datetime, end: datetime, aggregate_id: int) -> ua.ReadProcessedDetails:
@@ -288,6 +292,89 @@ async def test_history_disabled_answers_unsupported(tmp_path: Path) -> None:
             await client.disconnect()
     finally:
         await server.stop()
+
+
+@module_loop
+async def test_bounding_values_as_part_11_returns_them(app: UacellServer) -> None:
+    """OPC 10000-11 4.4 (4.6 in 1.05), ReadRawModifiedDetails.returnBounds: the value at or before
+    StartTime and the one at or after EndTime come with the values; where there is none, a DataValue
+    with no value, Bad_BoundNotFound and the requested time. asyncua's ``read_raw_history`` asks for
+    bounds by default. StartTime = EndTime reads the values at that instant. uacell ignored
+    returnBounds and answered an instant with Good_NoData."""
+    client, ns = await connect(app)
+    try:
+        speed = ua.NodeId(SPEED, ns)
+        base = datetime.now(UTC).replace(microsecond=0) - timedelta(days=9)  # nothing else stored near it
+        await store_values(app, speed, [(base + m * MINUTE, float(m)) for m in (0, 2, 3, 5, 6)])
+
+        def bounded(start: datetime | None, end: datetime | None, count: int) -> ua.ReadRawModifiedDetails:
+            none = ua.get_win_epoch()
+            return ua.ReadRawModifiedDetails(
+                IsReadModified=False, StartTime=start or none, EndTime=end or none, NumValuesPerNode=count
+            )
+
+        async def read(details: ua.ReadRawModifiedDetails, cp: bytes | None = None) -> ua.HistoryReadResult:
+            (result,) = await client.uaclient.history_read(params(details, speed, cp))
+            return result
+
+        def values(result: ua.HistoryReadResult) -> list[float | None]:
+            return [dv.Value.Value if dv.Value is not None else None for dv in result.HistoryData.DataValues]
+
+        # asyncua's own call, bounds by default: 0 before StartTime, 5 after EndTime
+        node = client.get_node(speed)
+        got = await node.read_raw_history(base + MINUTE, base + 4 * MINUTE)
+        assert [dv.Value.Value for dv in got] == [0.0, 2.0, 3.0, 5.0]
+        assert [dv.SourceTimestamp for dv in got] == [base + m * MINUTE for m in (0, 2, 3, 5)]
+
+        # no value before StartTime: an empty bound at StartTime; after EndTime, the next value kept
+        # (the server's own, from today)
+        start, end = base - MINUTE, base + 7 * MINUTE
+        result = await read(bounded(start, end, 0))
+        assert result.StatusCode.value == SC.Good
+        assert values(result)[:-1] == [None, 0.0, 2.0, 3.0, 5.0, 6.0]
+        first, last = result.HistoryData.DataValues[0], result.HistoryData.DataValues[-1]
+        assert first.StatusCode.value == SC.BadBoundNotFound
+        assert (first.SourceTimestamp, first.ServerTimestamp) == (start, start)
+        assert all(dv.StatusCode.value == SC.Good for dv in result.HistoryData.DataValues[1:])
+        assert last.Value is not None and last.SourceTimestamp > base + DAY
+        # nothing at or after EndTime (values kept in the future, of a counter no other test reads)
+        counter = ua.NodeId("Filler1.Admin.ProdDefectiveCount", ns)
+        future = datetime.now(UTC).replace(microsecond=0) + timedelta(days=9)
+        await store_values(app, counter, [(future + m * MINUTE, float(m)) for m in (0, 2, 3)])
+        (ahead,) = await client.uaclient.history_read(params(bounded(future + MINUTE, future + HOUR, 0), counter))
+        assert [dv.Value.Value if dv.Value is not None else None for dv in ahead.HistoryData.DataValues] == [
+            0.0,
+            2.0,
+            3.0,
+            None,
+        ]
+        assert ahead.HistoryData.DataValues[-1].StatusCode.value == SC.BadBoundNotFound
+        assert ahead.HistoryData.DataValues[-1].SourceTimestamp == future + HOUR
+
+        # one a page, through continuation points: the bounds are part of the sequence
+        paged: list[float | None] = []
+        cp = None
+        for _ in range(10):
+            page = await read(bounded(base + MINUTE, base + 4 * MINUTE, 1), cp)
+            paged += values(page)
+            cp = page.ContinuationPoint
+            if not cp:
+                break
+        assert paged == [0.0, 2.0, 3.0, 5.0]
+
+        # newest first, and EndTime alone: the bound at the read's beginning, then the empty one past the data
+        assert values(await read(bounded(base + 4 * MINUTE, base + MINUTE, 0))) == [5.0, 3.0, 2.0, 0.0]
+        alone = await read(bounded(None, base + MINUTE / 2, 5))
+        assert values(alone) == [2.0, 0.0, None]
+        assert alone.HistoryData.DataValues[-1].SourceTimestamp == base - timedelta(seconds=1)
+
+        # StartTime = EndTime: the value at that instant; with bounds, the next one too
+        assert values(await read(raw(base + 2 * MINUTE, base + 2 * MINUTE, 0))) == [2.0]
+        assert values(await read(bounded(base + 2 * MINUTE, base + 2 * MINUTE, 0))) == [2.0, 3.0]
+        between = await read(raw(base + MINUTE, base + MINUTE, 0))
+        assert between.StatusCode.value == SC.GoodNoData and not between.HistoryData.DataValues
+    finally:
+        await client.disconnect()
 
 
 @module_loop

@@ -22,6 +22,7 @@ from asyncua.common.utils import Buffer
 from asyncua.server.internal_server import InternalServer
 from asyncua.ua.ua_binary import Primitives, variant_from_binary, variant_to_binary
 
+from uacell.history import raw
 from uacell.history.backends import EVENT, VALUE, Query, Sample
 from uacell.history.event_filter import HistoryError
 from uacell.history.processed import AGGREGATES, Interval, aggregate
@@ -379,14 +380,15 @@ class HistoryService:
                 except numeric_range.RangeError as refused:
                     raise HistoryError(refused.code) from None
             after = self._after(key, rv, session)
-            samples, cp = await self._page(key, details, after, session)
+            items, cp = await self._page(key, details, after, session)
             slices = Slices(self.slice)
             values = []
-            for sample in samples:
-                value = _datavalue(sample, params.TimestampsToReturn)
+            for item in items:
+                value = _datavalue(item, params.TimestampsToReturn)
                 values.append(numeric_range.cut(value, rv.IndexRange) if rv.IndexRange else value)
                 await slices.tick()
-            return _ok(ua.HistoryData(DataValues=values), cp, bool(samples) or bool(rv.ContinuationPoint))
+            found = any(isinstance(item, Sample) for item in items) or bool(rv.ContinuationPoint)
+            return _ok(ua.HistoryData(DataValues=values), cp, found)
         if isinstance(details, ua.ReadEventDetails):
             notifier = self.notifiers.get(node)
             if notifier is None:
@@ -438,39 +440,28 @@ class HistoryService:
             raise HistoryError(_SC.BadHistoryOperationUnsupported)
         return key
 
-    def _plan(
-        self, start: datetime | None, end: datetime | None, count: int
-    ) -> tuple[int | None, int | None, bool, bool]:
-        """(lo, hi, reverse, lo_inclusive) of Part 11's StartTime/EndTime/NumValuesPerNode rules."""
-        s, e = _unspecified(start), _unspecified(end)
-        if s and e:
+    @staticmethod
+    def _window(start: datetime | None, end: datetime | None, count: int) -> raw.Window:
+        """The read's window by Part 11's StartTime/EndTime/NumValuesPerNode rules (``uacell.history.raw``)."""
+        a = None if start is None or _unspecified(start) else to_micros(start)
+        b = None if end is None or _unspecified(end) else to_micros(end)
+        if a is None and b is None:
             raise HistoryError(_SC.BadInvalidTimestampArgument)
-        if not s and not e:
-            assert start is not None and end is not None
-            a, b = to_micros(start), to_micros(end)
-            if a <= b:
-                return a, b, False, True
-            return b, a + 1, True, False  # StartTime >= t > EndTime, newest first
-        if not s:
-            assert start is not None
-            return to_micros(start), None, False, True
-        if count <= 0:
+        if a is None and count <= 0:
             raise HistoryError(_SC.BadHistoryOperationInvalid)  # EndTime alone needs NumValuesPerNode
-        assert end is not None
-        return None, to_micros(end) + 1, True, True
+        return raw.Window.of(a, b)
 
     async def _page(
         self, key: str, details: ua.ReadRawModifiedDetails, after: tuple[int, int] | None, session: str
-    ) -> tuple[list[Sample], bytes | None]:
+    ) -> tuple[list[raw.Item], bytes | None]:
+        """One page of values, with the bounding values when ReturnBounds asks (``uacell.history.raw``)."""
         count = details.NumValuesPerNode
-        lo, hi, reverse, lo_inc = self._plan(details.StartTime, details.EndTime, count)
+        window = self._window(details.StartTime, details.EndTime, count)
         limit = min(count, self.max_per_request) if count > 0 else self.max_per_request
-        rows = await self.store.read(Query(key, VALUE, lo, hi, reverse, limit + 1, after, lo_inc))
-        if len(rows) > limit:
-            rows = rows[:limit]
-            last = rows[-1]
-            return rows, self.store.cursor.encode(key, last.time, last.seq, session)
-        return rows, None
+        items, resume = await raw.page(self.store.read, key, window, limit, after, bool(details.ReturnBounds))
+        if resume is None:
+            return items, None
+        return items, self.store.cursor.encode(key, *resume, session)
 
     async def _events(
         self, key: str, details: ua.ReadEventDetails, after: tuple[int, int] | None, flt: ua.EventFilter, session: str
@@ -479,7 +470,9 @@ class HistoryService:
         rows are read in chunks by a worker thread and decoded, filtered and selected on the loop in
         slices (``Slices``), so that other clients are served meanwhile."""
         count = details.NumValuesPerNode
-        lo, hi, reverse, lo_inc = self._plan(details.StartTime, details.EndTime, count)
+        window = self._window(details.StartTime, details.EndTime, count)
+        if window.begin == window.end:
+            return [], None  # Good_NoData for StartTime = EndTime (OPC 10000-11 6.5.4)
         cap = self.max_events_per_request
         limit = min(count, cap) if count > 0 else cap
         chunk = min(limit, _EVENT_CHUNK)
@@ -487,7 +480,7 @@ class HistoryService:
         out: list[ua.HistoryEventFieldList] = []
         slices = Slices(self.slice)
         while True:
-            rows = await self.store.read(Query(key, EVENT, lo, hi, reverse, chunk, after, lo_inc))
+            rows = await self.store.read(window.values(key, chunk, after, EVENT))
             for row in rows:
                 fields = decode_fields(row.data)
                 if self.where.matches(flt.WhereClause, functools.partial(_field_value, fields), _event_type(row.etype)):
@@ -587,13 +580,17 @@ def check_filter(flt: ua.EventFilter) -> None:
         raise HistoryError(_SC.BadEventFilterInvalid)
 
 
-def _datavalue(s: Sample, which: ua.TimestampsToReturn) -> ua.DataValue:
-    t = from_micros(s.time)
+def _datavalue(item: raw.Item, which: ua.TimestampsToReturn) -> ua.DataValue:
+    """A stored value, or a bound with none (no value, Bad_BoundNotFound), with the timestamps asked for."""
+    t = from_micros(item.time)
     src = t if which in (ua.TimestampsToReturn.Source, ua.TimestampsToReturn.Both) else None
     srv = t if which in (ua.TimestampsToReturn.Server, ua.TimestampsToReturn.Both) else None
+    if isinstance(item, raw.Missing):
+        status = ua.StatusCode(_SC.BadBoundNotFound)
+        return ua.DataValue(None, StatusCode=status, SourceTimestamp=src, ServerTimestamp=srv)
     return ua.DataValue(
-        variant_from_binary(Buffer(s.data)),
-        StatusCode=ua.StatusCode(s.status),
+        variant_from_binary(Buffer(item.data)),
+        StatusCode=ua.StatusCode(item.status),
         SourceTimestamp=src,
         ServerTimestamp=srv,
     )
