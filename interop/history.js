@@ -1,11 +1,13 @@
 // HistoryRead from node-opcua: raw values through continuation points, ReadProcessedDetails for five
 // aggregates, and node-opcua-aggregates' own Average/Minimum/Maximum/Count on the same raw values;
-// then raw values with their bounding values (returnBounds), in one request and two a page; then the
-// events of the Server object with an OfType(TransitionEventType) filter.
-// argv: endpoint, nodeId, start (ISO), end (ISO), processing interval (ms), bounded start (ISO), bounded end (ISO)
+// then raw values with their bounding values (returnBounds), in one request and two a page; values at
+// given instants (ReadAtTimeDetails) with simple and with interpolated bounds; then the events of the
+// Server object with an OfType(TransitionEventType) filter.
+// argv: endpoint, nodeId, start (ISO), end (ISO), processing interval (ms), bounded start (ISO), bounded end (ISO),
+//       instants (ISO, comma-separated)
 "use strict";
 const {
-  AttributeIds, NodeClass, ReadRawModifiedDetails, ReadProcessedDetails, ReadEventDetails, TimestampsToReturn,
+  AttributeIds, NodeClass, ReadRawModifiedDetails, ReadProcessedDetails, ReadEventDetails, ReadAtTimeDetails, TimestampsToReturn,
   constructEventFilter, ofType, StatusCodes, HistoryReadRequest,
 } = require("node-opcua-client");
 const { connect, done, main } = require("./lib");
@@ -48,7 +50,7 @@ function prop(value) {
 }
 
 main(async () => {
-  const [endpoint, nodeId, startIso, endIso, intervalText, boundStartIso, boundEndIso] = process.argv.slice(2);
+  const [endpoint, nodeId, startIso, endIso, intervalText, boundStartIso, boundEndIso, instantsText] = process.argv.slice(2);
   const start = new Date(startIso);
   const end = new Date(endIso);
   const interval = Number(intervalText);
@@ -106,6 +108,18 @@ main(async () => {
 
   out.bounded = await bounded(session, nodeId, new Date(boundStartIso), new Date(boundEndIso), 0);
   out.boundedPaged = await bounded(session, nodeId, new Date(boundStartIso), new Date(boundEndIso), 2);
+
+  out.atTime = {};
+  for (const useSimpleBounds of [true, false]) {
+    const res = await session.historyRead(new HistoryReadRequest({
+      historyReadDetails: new ReadAtTimeDetails({ reqTimes: instantsText.split(",").map((t) => new Date(t)), useSimpleBounds }),
+      nodesToRead: [{ nodeId }],
+      timestampsToReturn: TimestampsToReturn.Both,
+      releaseContinuationPoints: false,
+    }));
+    const r = res.results[0];
+    out.atTime[useSimpleBounds ? "simple" : "interpolated"] = { status: r.statusCode.name, values: (r.historyData.dataValues || []).map(plain) };
+  }
 
   const filter = constructEventFilter(["EventType", "SourceName", "Message", "ToState"], ofType("TransitionEventType"));
   const ev = await session.historyRead(new HistoryReadRequest({

@@ -37,6 +37,23 @@ def samples(base: datetime) -> list[tuple[datetime, float, int]]:
     return out
 
 
+def expected_at(points: list[tuple[datetime, float, int]], t: datetime, simple: bool) -> tuple[float | None, int]:
+    """The value and StatusCode at ``t`` as OPC 10000-11 6.5.5 with OPC 10000-13 3.1.8/3.1.9 give them for
+    Stepped data where only Good values count."""
+    raw_bits, interpolated = 0x400, 0x402
+    skipped = False
+    for when, value, status in reversed([p for p in points if p[0] <= t]):  # newest first, last written first
+        if status:
+            if simple:
+                return None, ua.StatusCodes.BadNoData
+            skipped = True
+            continue
+        if when == t:
+            return value, raw_bits
+        return value, (ua.StatusCodes.UncertainDataSubNormal if skipped else 0) | interpolated
+    return None, ua.StatusCodes.BadNoData
+
+
 def stepped_time_average(points: list[tuple[datetime, float, int]], a: datetime, b: datetime) -> float | None:
     before = [p for p in points if p[0] < a]
     inside = [p for p in points if a <= p[0] < b]
@@ -75,6 +92,8 @@ async def _reads(app: UacellServer, client: Client) -> None:
     await app.history.store.flush()
     end = base + timedelta(minutes=10)
     bound_start, bound_end = base - timedelta(minutes=1), base + timedelta(milliseconds=600)
+    # at a kept time, between two, before the first, just after the Bad value of i = 800
+    instants = [base + timedelta(milliseconds=t) for t in (250, 100, -1000, 200_100, 0)]
     out = await asyncio.to_thread(
         run_node,
         "history.js",
@@ -85,6 +104,7 @@ async def _reads(app: UacellServer, client: Client) -> None:
         "60000",
         bound_start.isoformat(),
         bound_end.isoformat(),
+        ",".join(t.isoformat() for t in instants),
     )
 
     # raw: every value, in order, through continuation points
@@ -106,6 +126,17 @@ async def _reads(app: UacellServer, client: Client) -> None:
     assert all(r["status"] == 0 for r in got[1:])
     assert out["bounded"]["pages"] == 1
     assert out["boundedPaged"]["values"] == got and out["boundedPaged"]["pages"] == (len(sequence) + 1) // 2
+
+    # values at instants (OPC 10000-11 6.5.5), by OPC 10000-13's bounds on stepped data with only Good
+    # values counting: the value kept at the instant (Raw), else the last one before it (Interpolated);
+    # simple bounds give Bad_NoData for a Bad value before, interpolated ones skip it (Uncertain)
+    for mode in ("simple", "interpolated"):
+        got_at = out["atTime"][mode]
+        assert got_at["status"] == "Good"
+        want_at = [expected_at(data, t, simple=mode == "simple") for t in instants]
+        assert [(r["value"], r["status"], r["time"]) for r in got_at["values"]] == [
+            (v, s, iso(t)) for (v, s), t in zip(want_at, instants, strict=True)
+        ], mode
 
     # processed: uacell against node-opcua-aggregates, interval by interval
     for name in ("Average", "Minimum", "Maximum", "Count"):

@@ -1,8 +1,11 @@
-"""Raw history pages with bounding values (``uacell.history.raw``) against the examples of OPC 10000-11's
-Table 1 ("Bounding Values and time domain"), on a real SQLite store: values stored at 5:00, 5:02, 5:03,
-5:05 and 5:06; FIRST and LAST are the tuples with no value and Bad_BoundNotFound, at StartTime and
-EndTime, or, where the request gives no such time, one second beyond the last value returned (the
-table's footnotes)."""
+"""Reading history by OPC 10000-11, on a real SQLite store, in pure code:
+
+- raw pages with bounding values (``uacell.history.raw``) against the examples of Table 1 ("Bounding
+  Values and time domain"): values stored at 5:00, 5:02, 5:03, 5:05 and 5:06; FIRST and LAST are the
+  tuples with no value and Bad_BoundNotFound, at StartTime and EndTime, or, where the request gives no
+  such time, one second beyond the last value returned (the table's footnotes);
+- ReadAtTimeDetails' value at an instant (``uacell.history.at_time``) from 6.5.5 and OPC 10000-13
+  3.1.8/3.1.9 with Stepped and TreatUncertainAsBad."""
 
 from __future__ import annotations
 
@@ -10,7 +13,9 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import pytest
+from asyncua import ua
 
+from uacell.history.at_time import value_at
 from uacell.history.backends import VALUE, Query, Sample, SqliteBackend
 from uacell.history.raw import SECOND, Item, Missing, Window, page
 
@@ -158,3 +163,55 @@ async def test_pages_of_one_continue_through_the_bounds(
 def test_a_window_needs_a_time() -> None:
     with pytest.raises(ValueError):
         Window.of(None, None)
+
+
+# -- ReadAtTimeDetails (uacell.history.at_time) -------------------------------------------------
+
+GOOD, UNCERTAIN, BAD = 0, ua.StatusCodes.UncertainDataSubNormal, ua.StatusCodes.BadSensorFailure
+RAW_BITS, INTERPOLATED_BITS = 0x400, 0x402  # InfoType DataValue, HistorianBits Raw / Interpolated (Part 4 7.39)
+NOW = at("5:30")
+
+
+def kept(*entries: tuple[str, int]) -> list[Sample]:
+    """Samples at the given times with the given statuses, newest first (as the store hands them)."""
+    out = [Sample(KEY, at(c), i + 1, VALUE, status, "", b"") for i, (c, status) in enumerate(entries)]
+    return sorted(out, key=lambda s: (s.time, s.seq), reverse=True)
+
+
+# (values kept, the instant, UseSimpleBounds, the value's time (None: no value), the StatusCode)
+AT_TIME = [
+    # a value kept at the instant: Raw, with its own status
+    ([("5:00", GOOD), ("5:02", GOOD)], "5:02", True, "5:02", GOOD | RAW_BITS),
+    ([("5:00", GOOD), ("5:02", GOOD)], "5:02", False, "5:02", GOOD | RAW_BITS),
+    # between values: the one before holds (Stepped), Interpolated
+    ([("5:00", GOOD), ("5:02", GOOD)], "5:01", True, "5:00", GOOD | INTERPOLATED_BITS),
+    ([("5:00", GOOD), ("5:02", GOOD)], "5:01", False, "5:00", GOOD | INTERPOLATED_BITS),
+    # before the first value: Bad_NoData
+    ([("5:00", GOOD)], "4:59", True, None, ua.StatusCodes.BadNoData),
+    ([("5:00", GOOD)], "4:59", False, None, ua.StatusCodes.BadNoData),
+    # a Bad value before the instant: simple bounds stop at it, interpolated ones skip it (Uncertain)
+    ([("5:00", GOOD), ("5:02", BAD)], "5:03", True, None, ua.StatusCodes.BadNoData),
+    ([("5:00", GOOD), ("5:02", BAD)], "5:03", False, "5:00", UNCERTAIN | INTERPOLATED_BITS),
+    # a Bad value at the instant alike; Uncertain counts as Bad (TreatUncertainAsBad)
+    ([("5:00", GOOD), ("5:02", BAD)], "5:02", True, None, ua.StatusCodes.BadNoData),
+    ([("5:00", GOOD), ("5:02", BAD)], "5:02", False, "5:00", UNCERTAIN | INTERPOLATED_BITS),
+    ([("5:00", GOOD), ("5:02", UNCERTAIN)], "5:03", False, "5:00", UNCERTAIN | INTERPOLATED_BITS),
+    ([("5:02", BAD)], "5:03", False, None, ua.StatusCodes.BadNoData),
+    # after the server's present: the last value extrapolated, Uncertain
+    ([("5:00", GOOD)], "5:31", True, "5:00", UNCERTAIN | INTERPOLATED_BITS),
+    ([("5:00", GOOD)], "5:29", True, "5:00", GOOD | INTERPOLATED_BITS),
+    # two values at one instant: the later one holds
+    ([("5:00", GOOD), ("5:02", GOOD), ("5:02", GOOD)], "5:02", True, "5:02", GOOD | RAW_BITS),
+]
+
+
+@pytest.mark.parametrize(("entries", "instant", "simple", "whose", "status"), AT_TIME)
+def test_value_at_an_instant(
+    entries: list[tuple[str, int]], instant: str, simple: bool, whose: str | None, status: int
+) -> None:
+    samples = [s for s in kept(*entries) if s.time <= at(instant)]
+    got = value_at(samples, at(instant), simple, NOW)
+    assert got.status == status
+    assert (got.sample.time if got.sample else None) == (at(whose) if whose else None)
+    if whose and len([e for e in entries if e[0] == whose]) > 1:
+        assert got.sample is not None and got.sample.seq == max(s.seq for s in samples if s.time == at(whose))

@@ -378,6 +378,77 @@ async def test_bounding_values_as_part_11_returns_them(app: UacellServer) -> Non
 
 
 @module_loop
+async def test_read_at_time_gives_each_instant_its_value(app: UacellServer, monkeypatch: pytest.MonkeyPatch) -> None:
+    """OPC 10000-11 6.5.5, ReadAtTimeDetails: a value for each requested time, in the request's order; a
+    value kept at that time is Raw, else the Stepped value before it, Interpolated (OPC 10000-13 3.1.8,
+    3.1.9; Good values only, TreatUncertainAsBad); before any value Bad_NoData; with simple bounds a Bad
+    value before the time is Bad_NoData, with interpolated bounds it is skipped and the value Uncertain.
+    uacell answered Bad_HistoryOperationUnsupported."""
+    client, ns = await connect(app)
+    try:
+        speed = ua.NodeId(SPEED, ns)
+        assert app.history is not None
+        key = app.history.values[speed]
+        base = datetime.now(UTC).replace(microsecond=0) - timedelta(days=11)  # nothing else stored near it
+        for m, v, status in ((0, 1.0, SC.Good), (2, 2.0, SC.BadSensorFailure), (4, 4.0, SC.Good)):
+            data = variant_to_binary(ua.Variant(v, ua.VariantType.Double))
+            app.history.store.record(key, to_micros(base + m * MINUTE), VALUE, status, "", data)
+        await app.history.store.flush()
+        times = [base + m * MINUTE for m in (4, -1, 1, 3, 4)]
+
+        async def at_times(simple: bool, cp: bytes | None = None) -> ua.HistoryReadResult:
+            details = ua.ReadAtTimeDetails(ReqTimes=times, UseSimpleBounds=simple)
+            (result,) = await client.uaclient.history_read(params(details, speed, cp))
+            return result
+
+        def seen(result: ua.HistoryReadResult) -> list[tuple[float | None, int]]:
+            return [
+                (dv.Value.Value if dv.Value is not None else None, dv.StatusCode.value)
+                for dv in result.HistoryData.DataValues
+            ]
+
+        raw_bits, interpolated = 0x400, 0x402  # InfoType DataValue; HistorianBits Raw / Interpolated
+        simple = await at_times(True)
+        assert simple.StatusCode.value == SC.Good and not simple.ContinuationPoint
+        assert seen(simple) == [
+            (4.0, raw_bits),
+            (None, SC.BadNoData),
+            (1.0, interpolated),
+            (None, SC.BadNoData),
+            (4.0, raw_bits),
+        ]
+        assert [dv.SourceTimestamp for dv in simple.HistoryData.DataValues] == times
+        assert [dv.ServerTimestamp for dv in simple.HistoryData.DataValues] == times
+        interpolating = await at_times(False)
+        assert seen(interpolating) == [
+            (4.0, raw_bits),
+            (None, SC.BadNoData),
+            (1.0, interpolated),
+            (1.0, SC.UncertainDataSubNormal | interpolated),
+            (4.0, raw_bits),
+        ]
+
+        # two a page: the same values through continuation points
+        monkeypatch.setattr(app.history, "max_per_request", 2)
+        paged: list[tuple[float | None, int]] = []
+        cp = None
+        for _ in range(5):
+            page = await at_times(False, cp)
+            paged += seen(page)
+            cp = page.ContinuationPoint
+            if not cp:
+                break
+        assert paged == seen(interpolating)
+        # a raw read's point is not an instant's
+        (first,) = await client.uaclient.history_read(params(raw(base, base + 5 * MINUTE, 1), speed))
+        assert (await at_times(False, first.ContinuationPoint)).StatusCode.value == SC.BadContinuationPointInvalid
+        times[1] = ua.get_win_epoch()
+        assert (await at_times(True)).StatusCode.value == SC.BadInvalidTimestampArgument
+    finally:
+        await client.disconnect()
+
+
+@module_loop
 async def test_history_read_applies_the_index_range(app: UacellServer) -> None:
     """OPC 10000-11 6.4.2 (HistoryReadValueId.indexRange, NumericRange as in OPC 10000-4 7.27): each value
     read is cut to the range; a range that does not parse is Bad_IndexRangeInvalid for the node. uacell's

@@ -22,7 +22,7 @@ from asyncua.common.utils import Buffer
 from asyncua.server.internal_server import InternalServer
 from asyncua.ua.ua_binary import Primitives, variant_from_binary, variant_to_binary
 
-from uacell.history import raw
+from uacell.history import at_time, raw
 from uacell.history.backends import EVENT, VALUE, Query, Sample
 from uacell.history.event_filter import HistoryError
 from uacell.history.processed import AGGREGATES, Interval, aggregate
@@ -39,6 +39,7 @@ _SC = ua.StatusCodes
 _A = ua.AttributeIds
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _US = timedelta(microseconds=1)
+_AT_TIME = -2  # the mark of a ReadAtTime continuation point (a raw read's names a sample's seq)
 
 
 def to_micros(t: datetime) -> int:
@@ -405,7 +406,12 @@ class HistoryService:
             if params.ReleaseContinuationPoints:
                 return self._release(key, rv, session, ua.HistoryData())
             return await self._processed(key, details)
-        raise HistoryError(_SC.BadHistoryOperationUnsupported)  # ReadAtTime, annotations
+        if isinstance(details, ua.ReadAtTimeDetails):
+            key = self._value_key(node)
+            if params.ReleaseContinuationPoints:
+                return self._release(key, rv, session, ua.HistoryData())
+            return await self._at_times(key, details, rv, params.TimestampsToReturn, session)
+        raise HistoryError(_SC.BadHistoryOperationUnsupported)  # annotations
 
     # -- continuation points ---------------------------------------------------------------------
 
@@ -491,6 +497,42 @@ class HistoryService:
             if len(rows) < chunk:
                 return out, None
             after = (rows[-1].time, rows[-1].seq)
+
+    async def _at_times(
+        self,
+        key: str,
+        details: ua.ReadAtTimeDetails,
+        rv: ua.HistoryReadValueId,
+        which: ua.TimestampsToReturn,
+        session: str,
+    ) -> ua.HistoryReadResult:
+        """ReadAtTimeDetails: a value for each of ReqTimes, in their order (``uacell.history.at_time``),
+        at most ``max_per_request`` a page; a continuation point names the next instant's index."""
+        times = details.ReqTimes or []
+        if any(_unspecified(t) for t in times):
+            raise HistoryError(_SC.BadInvalidTimestampArgument)
+        first = 0
+        if rv.ContinuationPoint:
+            first, mark = self._after(key, rv, session) or (0, _AT_TIME)
+            if mark != _AT_TIME:  # a raw read's point
+                raise HistoryError(_SC.BadContinuationPointInvalid)
+        if rv.IndexRange:
+            try:
+                numeric_range.parse(rv.IndexRange)
+            except numeric_range.RangeError as refused:
+                raise HistoryError(refused.code) from None
+        now = to_micros(datetime.now(UTC))
+        last = min(len(times), first + self.max_per_request)
+        slices = Slices(self.slice)
+        values = []
+        for t in times[first:last]:
+            us = to_micros(t)
+            found = await at_time.read_at(self.store.read, key, us, bool(details.UseSimpleBounds), now)
+            value = _datavalue(found.sample, which, us, found.status)
+            values.append(numeric_range.cut(value, rv.IndexRange) if rv.IndexRange else value)
+            await slices.tick()
+        cp = self.store.cursor.encode(key, last, _AT_TIME, session) if last < len(times) else None
+        return _ok(ua.HistoryData(DataValues=values), cp, bool(values) or bool(rv.ContinuationPoint))
 
     # -- processed values ------------------------------------------------------------------------
 
@@ -580,17 +622,21 @@ def check_filter(flt: ua.EventFilter) -> None:
         raise HistoryError(_SC.BadEventFilterInvalid)
 
 
-def _datavalue(item: raw.Item, which: ua.TimestampsToReturn) -> ua.DataValue:
-    """A stored value, or a bound with none (no value, Bad_BoundNotFound), with the timestamps asked for."""
-    t = from_micros(item.time)
+def _datavalue(
+    item: raw.Item | None, which: ua.TimestampsToReturn, time: int | None = None, status: int | None = None
+) -> ua.DataValue:
+    """A kept value (None or a bound with none: no value), with the timestamps asked for: the sample's
+    own time and StatusCode unless ``time`` and ``status`` are given (a value read at an instant)."""
+    at = time if time is not None else item.time if item is not None else 0
+    t = from_micros(at)
     src = t if which in (ua.TimestampsToReturn.Source, ua.TimestampsToReturn.Both) else None
     srv = t if which in (ua.TimestampsToReturn.Server, ua.TimestampsToReturn.Both) else None
-    if isinstance(item, raw.Missing):
-        status = ua.StatusCode(_SC.BadBoundNotFound)
-        return ua.DataValue(None, StatusCode=status, SourceTimestamp=src, ServerTimestamp=srv)
+    if item is None or isinstance(item, raw.Missing):
+        code = status if status is not None else _SC.BadBoundNotFound
+        return ua.DataValue(None, StatusCode=ua.StatusCode(code), SourceTimestamp=src, ServerTimestamp=srv)
     return ua.DataValue(
         variant_from_binary(Buffer(item.data)),
-        StatusCode=ua.StatusCode(item.status),
+        StatusCode=ua.StatusCode(status if status is not None else item.status),
         SourceTimestamp=src,
         ServerTimestamp=srv,
     )
