@@ -166,9 +166,18 @@ async def test_part11_codes(app: UacellServer, client: Client) -> None:
     assert end_only.StatusCode.value == ua.StatusCodes.BadHistoryOperationInvalid
     (forged,) = await history(client, raw(now() - HOUR, now()), speed, cp=b"\x00" * 28)
     assert forged.StatusCode.value == ua.StatusCodes.BadContinuationPointInvalid
+    await set_speed(client, ns, 42.0)
+    assert app.history is not None
+    await app.history.store.flush()
     at_time = ua.ReadAtTimeDetails()
     at_time.ReqTimes = [now()]
-    (r,) = await history(client, at_time, speed)
+    (r,) = await history(client, at_time, speed)  # the speed held now: the value kept last, Interpolated
+    assert r.StatusCode.value == ua.StatusCodes.Good
+    ((dv,),) = [r.HistoryData.DataValues]
+    assert dv.SourceTimestamp == at_time.ReqTimes[0] and dv.StatusCode.value == 0x402
+    assert dv.Value.Value == pytest.approx(42.0)
+    annotations = ua.ReadAnnotationDataDetails(ReqTimes=[now()])
+    (r,) = await history(client, annotations, speed)
     assert r.StatusCode.value == ua.StatusCodes.BadHistoryOperationUnsupported
     modified = raw(now() - HOUR, now())
     modified.IsReadModified = True
