@@ -12,7 +12,7 @@ const {
 } = require("node-opcua-client");
 const { connect, done, main } = require("./lib");
 
-const AGGREGATES = { Average: "i=2342", Minimum: "i=2346", Maximum: "i=2347", Count: "i=2352", TimeAverage: "i=2343" };
+const AGGREGATES = { Average: "i=2342", Minimum: "i=2346", Maximum: "i=2347", Count: "i=2352", TimeAverage: "i=2343", Interpolative: "i=2341" };
 
 function plain(dv) {
   return {
@@ -74,9 +74,10 @@ main(async () => {
     if (!continuationPoint || continuationPoint.length === 0) break;
   }
 
-  for (const [name, id] of Object.entries(AGGREGATES)) {
+  const shifted = new Date(start.getTime() + 100);
+  for (const [name, id, from] of [...Object.entries(AGGREGATES), ["InterpolativeShifted", AGGREGATES.Interpolative, shifted]]) {
     const res = await session.historyRead(new HistoryReadRequest({
-      historyReadDetails: new ReadProcessedDetails({ startTime: start, endTime: end, processingInterval: interval, aggregateType: [id] }),
+      historyReadDetails: new ReadProcessedDetails({ startTime: from || start, endTime: end, processingInterval: interval, aggregateType: [id] }),
       nodesToRead: [{ nodeId }],
       timestampsToReturn: TimestampsToReturn.Source,
       releaseContinuationPoints: false,
@@ -99,11 +100,12 @@ main(async () => {
       },
     },
   };
-  const run = (fn) => new Promise((resolve, reject) => fn(fake, interval, start, end, (err, dvs) => (err ? reject(err) : resolve(dvs.map(plain)))));
+  const run = (fn, from = start) => new Promise((resolve, reject) => fn(fake, interval, from, end, (err, dvs) => (err ? reject(err) : resolve(dvs.map(plain)))));
   out.reference.Average = await run(agg.getAverageData);
   out.reference.Minimum = await run(agg.getMinData);
   out.reference.Maximum = await run(agg.getMaxData);
   out.reference.Count = await run(agg.getCountData);
+  out.reference.InterpolativeShifted = await run(agg.getInterpolatedData, shifted);
   out.raw = raw.map(plain);
 
   out.bounded = await bounded(session, nodeId, new Date(boundStartIso), new Date(boundEndIso), 0);

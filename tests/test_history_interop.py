@@ -155,6 +155,13 @@ async def _reads(app: UacellServer, client: Client) -> None:
                 assert o["value"] is None or o["status"] >> 31, where
             else:
                 assert o["value"] == pytest.approx(r["value"]), where
+    # Interpolative, each interval starting 0.1 s after a kept time (two values share each whole
+    # minute here, where node-opcua-aggregates takes the first written and uacell the last, which is
+    # the one a Stepped variable holds): the value before, as node-opcua-aggregates interpolates it
+    ours, ref = out["processed"]["InterpolativeShifted"]["values"], out["reference"]["InterpolativeShifted"]
+    assert len(ours) == len(ref) == 10
+    for k, (o, r) in enumerate(zip(ours, ref, strict=True)):
+        assert (o["value"], o["status"], o["time"]) == (r["value"], 0x402, r["time"]), (k, o, r)
     # TimeAverage is not in node-opcua-aggregates: against the stepped definition (Part 13)
     for k, o in enumerate(out["processed"]["TimeAverage"]["values"]):
         a = base + timedelta(minutes=k)

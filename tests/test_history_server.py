@@ -121,7 +121,10 @@ async def test_values_attributes_and_capabilities(app: UacellServer, client: Cli
     assert await client.get_node(caps.HistoryServerCapabilities_MaxReturnDataValues).read_value() == 10_000
     assert await client.get_node(caps.HistoryServerCapabilities_MaxReturnEventValues).read_value() == 1_000
     aggregates = await client.get_node(caps.HistoryServerCapabilities_AggregateFunctions).get_children()
-    assert ua.NodeId(ua.ObjectIds.AggregateFunction_TimeAverage) in {n.nodeid for n in aggregates}
+    assert {n.nodeid for n in aggregates} == {
+        ua.NodeId(getattr(ua.ObjectIds, f"AggregateFunction_{name}"))
+        for name in ("Average", "Minimum", "Maximum", "Count", "TimeAverage", "Interpolative")
+    }
 
 
 async def test_a_variable_is_marked_historized_by_writes_only_where_it_is_not_yet(app: UacellServer) -> None:

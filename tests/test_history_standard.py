@@ -141,6 +141,21 @@ async def test_processed_values_carry_calculated_and_partial_bits(app: UacellSer
             (1, ua.VariantType.UInt32, GOOD_CALCULATED_PARTIAL),
         ]
         assert [dv.SourceTimestamp for dv in count.HistoryData.DataValues] == [base, base + MINUTE, base + 2 * MINUTE]
+        # Interpolative (Part 13 5.4.3.4): the value at each interval's start, Raw when kept at that
+        # time, else the Stepped value before it, Interpolated; Bad_NoData before the first
+        (interpolative,) = await client.uaclient.history_read(
+            params(processed(base - MINUTE, end, ua.ObjectIds.AggregateFunction_Interpolative), speed)
+        )
+        got = [
+            (dv.Value.Value if dv.Value is not None else None, dv.StatusCode.value, dv.SourceTimestamp)
+            for dv in interpolative.HistoryData.DataValues
+        ]
+        assert got == [
+            (None, SC.BadNoData, base - MINUTE),
+            (10.0, 0x400, base),
+            (20.0, 0x402, base + MINUTE),
+            (30.0, 0x400, base + 2 * MINUTE),
+        ]
     finally:
         await client.disconnect()
 

@@ -1,4 +1,5 @@
-"""Aggregates of OPC 10000-13 over raw values (pure): Average, Minimum, Maximum, Count, TimeAverage.
+"""Aggregates of OPC 10000-13 over raw values (pure): Average, Minimum, Maximum, Count, TimeAverage
+(Interpolative, the value at each interval's start, is ``uacell.history.at_time``'s).
 
 The input is the raw values of one variable, oldest first, as (time in microseconds, number or None,
 StatusCode); the value just before the first interval may lead them (TimeAverage's start). uacell's
@@ -22,6 +23,8 @@ AGGREGATES: dict[object, str] = {
     ua.ObjectIds.AggregateFunction_Maximum: "Maximum",
     ua.ObjectIds.AggregateFunction_Count: "Count",
     ua.ObjectIds.AggregateFunction_TimeAverage: "TimeAverage",
+    # the Interpolated Bounding Value at each interval's start: ``uacell.history.at_time``, not ``aggregate``
+    ua.ObjectIds.AggregateFunction_Interpolative: "Interpolative",
 }
 
 Point = tuple[int, float | None, int]
