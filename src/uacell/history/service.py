@@ -39,6 +39,7 @@ _SC = ua.StatusCodes
 _A = ua.AttributeIds
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _US = timedelta(microseconds=1)
+_TIMESTAMPS = frozenset(ua.TimestampsToReturn)
 _AT_TIME = -2  # the mark of a ReadAtTime continuation point (a raw read's names a sample's seq)
 
 
@@ -367,8 +368,11 @@ class HistoryService:
         node = rv.NodeId
         if node not in self.iserver.aspace:
             raise HistoryError(_SC.BadNodeIdUnknown)
-        if params.TimestampsToReturn == ua.TimestampsToReturn.Neither and not isinstance(details, ua.ReadEventDetails):
-            raise HistoryError(_SC.BadTimestampsToReturnInvalid)
+        stamps = params.TimestampsToReturn
+        if stamps not in _TIMESTAMPS or (
+            stamps == ua.TimestampsToReturn.Neither and not isinstance(details, ua.ReadEventDetails)
+        ):
+            raise HistoryError(_SC.BadTimestampsToReturnInvalid)  # Neither for values; a number out of range
         if isinstance(details, ua.ReadRawModifiedDetails):
             key = self._value_key(node)
             if details.IsReadModified:

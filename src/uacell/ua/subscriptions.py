@@ -50,6 +50,9 @@ SLOWEST_PUBLISHING_INTERVAL = 3_600_000.0
 _SIGNED = (ua.MessageSecurityMode.Sign, ua.MessageSecurityMode.SignAndEncrypt)
 
 
+MONITORING_MODES = frozenset(ua.MonitoringMode)
+
+
 def revised_interval(requested: float) -> tuple[float, bool]:
     """The publishing interval for a requested one, and whether its changes go out at once (a request
     below the fastest interval, decision 79)."""
@@ -152,6 +155,8 @@ class OwnSubscriptions:
 
     async def set_monitoring_mode(self, params: ua.SetMonitoringModeParameters) -> Any:
         self._subscription(params.SubscriptionId)
+        if params.MonitoringMode not in MONITORING_MODES:  # a number the enumeration lacks (door/enums.py)
+            raise ServiceError(ua.StatusCodes.BadMonitoringModeInvalid)
         return await super().set_monitoring_mode(params)  # type: ignore[misc]
 
     async def set_triggering(self, params: ua.SetTriggeringParameters) -> ua.SetTriggeringResult:

@@ -208,6 +208,10 @@ _creating_with: contextvars.ContextVar[ua.TimestampsToReturn] = contextvars.Cont
 )
 
 
+_MODES = frozenset(ua.MonitoringMode)
+_MODE_INVALID = int(ua.StatusCodes.BadMonitoringModeInvalid)
+
+
 async def _create_monitored_items(
     self: MonitoredItemService, params: ua.CreateMonitoredItemsParameters
 ) -> list[ua.MonitoredItemCreateResult]:
@@ -225,7 +229,10 @@ async def _create_allowed(
     self: MonitoredItemService, params: ua.CreateMonitoredItemsParameters
 ) -> list[ua.MonitoredItemCreateResult]:
     refused = [
-        datachange.refusal(self.aspace, i.ItemToMonitor, i.RequestedParameters.Filter) for i in params.ItemsToCreate
+        _MODE_INVALID
+        if i.MonitoringMode not in _MODES  # a number the enumeration lacks (door/enums.py)
+        else datachange.refusal(self.aspace, i.ItemToMonitor, i.RequestedParameters.Filter)
+        for i in params.ItemsToCreate
     ]
     allowed = [item for item, why in zip(params.ItemsToCreate, refused, strict=True) if why is None]
     created: list[ua.MonitoredItemCreateResult] = await _ORIGINAL_CREATE(

@@ -20,7 +20,7 @@ from asyncua.server.uaprocessor import UaProcessor
 from uacell.core.background import eager
 from uacell.ua import context
 from uacell.ua.codec import decode_request_header
-from uacell.ua.door import check_versions, connection, monitoring, patch, publishing, record
+from uacell.ua.door import check_versions, connection, enums, monitoring, patch, publishing, record
 
 log = logging.getLogger(__name__)
 
@@ -260,4 +260,5 @@ def attach() -> None:
     patch(_S + "history_read", _history_read)
     publishing.install()  # a client's 0 ms subscription: one publication per event-loop turn
     monitoring.install()  # monitored items report by the standards (decision 78)
+    enums.install()  # an enumeration's unknown number refused by its service, not by the decoder
     record(_T + "messages")  # swapped by _received for each parse
