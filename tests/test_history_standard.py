@@ -14,6 +14,7 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from asyncua.ua.ua_binary import nodeid_from_binary, struct_from_binary, variant_to_binary
+from asyncua.ua.uaerrors import UaStatusCodeError
 from conftest import fast_config, start_app
 from helpers import until, wait_until
 
@@ -217,6 +218,10 @@ async def test_history_update_answers_unsupported_per_item(app: UacellServer, us
             ua.HistoryUpdateParameters(HistoryUpdateDetails=[update, delete])
         )
         assert [r.StatusCode.value for r in results] == [SC.BadHistoryOperationUnsupported] * 2
+        # no item: Bad_NothingToDo, as for every service with a list of operations (asyncua: no results)
+        with pytest.raises(UaStatusCodeError) as nothing:
+            await client.uaclient.history_update(ua.HistoryUpdateParameters(HistoryUpdateDetails=[]))
+        assert nothing.value.code == SC.BadNothingToDo
     finally:
         await client.disconnect()
 

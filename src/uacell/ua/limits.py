@@ -462,6 +462,10 @@ class LimitedSession(views.StandardViews, subscriptions.OwnSubscriptions, Intern
         check_operations(self.iserver, len(params.NodesToRead or ()), "HistoryRead")
         return cast("list[ua.HistoryReadResult]", await super().history_read(params))
 
+    async def history_update(self, params: ua.HistoryUpdateParameters) -> list[ua.HistoryUpdateResult]:
+        check_operations(self.iserver, len(params.HistoryUpdateDetails or ()), "HistoryUpdate")
+        return cast("list[ua.HistoryUpdateResult]", await super().history_update(params))
+
     # the subscription services with a list of operations (the subscriptions' own rules: OwnSubscriptions)
     async def modify_monitored_items(self, params: ua.ModifyMonitoredItemsParameters) -> Any:
         check_operations(self.iserver, len(params.ItemsToModify or ()), "ModifyMonitoredItems")
