@@ -481,8 +481,8 @@ class HistoryService:
         slices (``Slices``), so that other clients are served meanwhile."""
         count = details.NumValuesPerNode
         window = self._window(details.StartTime, details.EndTime, count)
-        if window.begin == window.end:
-            return [], None  # Good_NoData for StartTime = EndTime (OPC 10000-11 6.5.4)
+        if window.begin == window.end:  # OPC 10000-11, Good_NoData: "ReadEventDetails where startTime = endTime"
+            return [], None
         cap = self.max_events_per_request
         limit = min(count, cap) if count > 0 else cap
         chunk = min(limit, _EVENT_CHUNK)
