@@ -31,6 +31,7 @@ from uacell.history.store import ContinuationPointInvalid, HistoryStore, first_l
 from uacell.ua import door, numeric_range
 from uacell.ua.content_filter import FilterError, WhereClause
 from uacell.ua.context import caller_of, current_caller
+from uacell.ua.door import enums
 from uacell.ua.event_tap import EventTap
 
 log = logging.getLogger(__name__)
@@ -39,7 +40,6 @@ _SC = ua.StatusCodes
 _A = ua.AttributeIds
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 _US = timedelta(microseconds=1)
-_TIMESTAMPS = frozenset(ua.TimestampsToReturn)
 _AT_TIME = -2  # the mark of a ReadAtTime continuation point (a raw read's names a sample's seq)
 
 
@@ -369,7 +369,7 @@ class HistoryService:
         if node not in self.iserver.aspace:
             raise HistoryError(_SC.BadNodeIdUnknown)
         stamps = params.TimestampsToReturn
-        if stamps not in _TIMESTAMPS or (
+        if not enums.known(stamps, ua.TimestampsToReturn) or (
             stamps == ua.TimestampsToReturn.Neither and not isinstance(details, ua.ReadEventDetails)
         ):
             raise HistoryError(_SC.BadTimestampsToReturnInvalid)  # Neither for values; a number out of range

@@ -25,12 +25,12 @@ from asyncua import ua
 from asyncua.common.events import Event
 
 from uacell.ua import numeric_range
+from uacell.ua.door import enums
 from uacell.ua.toolkit import supertype
 
 _SC = ua.StatusCodes
 _A = ua.AttributeIds
 _F = ua.FilterOperator
-_OPERATORS = frozenset(ua.FilterOperator)  # every operator the standard defines (evaluated here or not)
 # each operator evaluated here, with the number of operands it takes (InList: at least two)
 _OPERANDS = {
     _F.And: 2, _F.Or: 2, _F.Not: 1, _F.Equals: 2, _F.IsNull: 1, _F.GreaterThan: 2, _F.LessThan: 2,
@@ -86,7 +86,7 @@ def checked(where: ua.ContentFilter | None) -> tuple[int | None, list[ua.Content
 
 def _element_fault(element: Any, count: int) -> tuple[int, list[ua.StatusCode], int | None]:
     """One element's code, its operands' codes (empty when they are right) and the item's refusal."""
-    if element.FilterOperator not in _OPERATORS:  # a number the enumeration lacks (door/enums.py)
+    if not enums.known(element.FilterOperator, _F):  # a number the standard does not define
         return int(_SC.BadFilterOperatorInvalid), [], int(_SC.BadMonitoredItemFilterInvalid)
     needed = _OPERANDS.get(element.FilterOperator)
     if needed is None:
@@ -207,7 +207,7 @@ class WhereClause:
         op = element.FilterOperator
         args = element.FilterOperands or []
         if op not in _OPERANDS:
-            raise FilterError(_SC.BadFilterOperatorUnsupported if op in _OPERATORS else _SC.BadFilterOperatorInvalid)
+            raise FilterError(_SC.BadFilterOperatorUnsupported if enums.known(op, _F) else _SC.BadFilterOperatorInvalid)
         if op == _F.OfType:
             target = self._operand(args[0], elements, field, etype)
             return isinstance(target, ua.NodeId) and self._is_subtype(etype, target)

@@ -36,7 +36,7 @@ from asyncua import ua
 from asyncua.common.utils import ServiceError
 
 from uacell.ua import context, door
-from uacell.ua.door import connection, monitoring, publishing
+from uacell.ua.door import connection, enums, monitoring, publishing
 from uacell.ua.door import subscriptions as door_subscriptions
 
 log = logging.getLogger(__name__)
@@ -48,9 +48,6 @@ FASTEST_PUBLISHING_INTERVAL = 50.0
 SLOWEST_PUBLISHING_INTERVAL = 3_600_000.0
 
 _SIGNED = (ua.MessageSecurityMode.Sign, ua.MessageSecurityMode.SignAndEncrypt)
-
-
-MONITORING_MODES = frozenset(ua.MonitoringMode)
 
 
 def revised_interval(requested: float) -> tuple[float, bool]:
@@ -155,7 +152,7 @@ class OwnSubscriptions:
 
     async def set_monitoring_mode(self, params: ua.SetMonitoringModeParameters) -> Any:
         self._subscription(params.SubscriptionId)
-        if params.MonitoringMode not in MONITORING_MODES:  # a number the enumeration lacks (door/enums.py)
+        if not enums.known(params.MonitoringMode, ua.MonitoringMode):
             raise ServiceError(ua.StatusCodes.BadMonitoringModeInvalid)
         return await super().set_monitoring_mode(params)  # type: ignore[misc]
 

@@ -7,7 +7,7 @@ Bad_BrowseDirectionInvalid (5.8.2), Bad_TimestampsToReturnInvalid (Read 5.11.2, 
 CreateMonitoredItems 5.13.2), Bad_MonitoringModeInvalid (5.13.2, 5.13.4), Bad_MonitoredItemFilterInvalid
 for a DataChangeFilter's Trigger (7.22.2), Bad_FilterOperatorInvalid (7.7.4). For these enumerations the
 class's ``_missing_`` now answers a stand-in member with the number (``unknown``), not a member of
-the class, which the services' own checks then refuse (it equals no member).
+the class, which the services' own checks then refuse (``known``: it equals no member).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ LENIENT: tuple[type[IntEnum], ...] = (
     ua.FilterOperator,
 )
 _MODULE = "asyncua.ua.uaprotocol_auto"
+_MEMBERS = {enum: frozenset(enum) for enum in LENIENT}
 
 
 def _unknown(cls: type[IntEnum], value: object) -> IntEnum | None:
@@ -39,9 +40,14 @@ def _unknown(cls: type[IntEnum], value: object) -> IntEnum | None:
     return member
 
 
+def known(value: object, enum: type[IntEnum]) -> bool:
+    """Whether ``value`` is one of ``enum``'s members (a stand-in for an unknown number is not)."""
+    return value in _MEMBERS[enum]
+
+
 def install() -> None:
     for enum in LENIENT:
         patch(f"{_MODULE}.{enum.__name__}._missing_", classmethod(_unknown))
 
 
-__all__ = ["LENIENT", "install"]
+__all__ = ["LENIENT", "install", "known"]

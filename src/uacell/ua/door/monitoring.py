@@ -35,7 +35,7 @@ from asyncua.server.internal_subscription import InternalSubscription
 from asyncua.server.monitored_item_service import MonitoredItemService
 
 from uacell.ua import attributes, content_filter, datachange, numeric_range
-from uacell.ua.door import patch, swap, tag, tagged
+from uacell.ua.door import enums, patch, swap, tag, tagged
 
 _SUB = "asyncua.server.internal_subscription.InternalSubscription."
 _ITEMS = "asyncua.server.monitored_item_service.MonitoredItemService."
@@ -208,7 +208,6 @@ _creating_with: contextvars.ContextVar[ua.TimestampsToReturn] = contextvars.Cont
 )
 
 
-_MODES = frozenset(ua.MonitoringMode)
 _MODE_INVALID = int(ua.StatusCodes.BadMonitoringModeInvalid)
 
 
@@ -230,7 +229,7 @@ async def _create_allowed(
 ) -> list[ua.MonitoredItemCreateResult]:
     refused = [
         _MODE_INVALID
-        if i.MonitoringMode not in _MODES  # a number the enumeration lacks (door/enums.py)
+        if not enums.known(i.MonitoringMode, ua.MonitoringMode)
         else datachange.refusal(self.aspace, i.ItemToMonitor, i.RequestedParameters.Filter)
         for i in params.ItemsToCreate
     ]
