@@ -389,7 +389,7 @@ class HistoryService:
             slices = Slices(self.slice)
             values = []
             for item in items:
-                value = _datavalue(item, params.TimestampsToReturn)
+                value = _raw_value(item, params.TimestampsToReturn)
                 values.append(numeric_range.cut(value, rv.IndexRange) if rv.IndexRange else value)
                 await slices.tick()
             found = any(isinstance(item, Sample) for item in items) or bool(rv.ContinuationPoint)
@@ -532,7 +532,7 @@ class HistoryService:
         for t in times[first:last]:
             us = to_micros(t)
             found = await at_time.read_at(self.store.read, key, us, bool(details.UseSimpleBounds), now)
-            value = _datavalue(found.sample, which, us, found.status)
+            value = _datavalue(found.sample, found.status, us, which)
             values.append(numeric_range.cut(value, rv.IndexRange) if rv.IndexRange else value)
             await slices.tick()
         cp = self.store.cursor.encode(key, last, _AT_TIME, session) if last < len(times) else None
@@ -584,7 +584,7 @@ class HistoryService:
         dvs = []
         for a, _b in intervals(start, end, max(1, interval)):
             found = await at_time.read_at(self.store.read, key, a, False, now)
-            dvs.append(_datavalue(found.sample, ua.TimestampsToReturn.Both, a, found.status))
+            dvs.append(_datavalue(found.sample, found.status, a, ua.TimestampsToReturn.Both))
             await slices.tick()
         return ua.HistoryReadResult(HistoryData=ua.HistoryData(DataValues=dvs))
 
@@ -640,24 +640,20 @@ def check_filter(flt: ua.EventFilter) -> None:
         raise HistoryError(_SC.BadEventFilterInvalid)
 
 
-def _datavalue(
-    item: raw.Item | None, which: ua.TimestampsToReturn, time: int | None = None, status: int | None = None
-) -> ua.DataValue:
-    """A kept value (None or a bound with none: no value), with the timestamps asked for: the sample's
-    own time and StatusCode unless ``time`` and ``status`` are given (a value read at an instant)."""
-    at = time if time is not None else item.time if item is not None else 0
-    t = from_micros(at)
+def _datavalue(sample: Sample | None, status: int, time: int, which: ua.TimestampsToReturn) -> ua.DataValue:
+    """``sample``'s value (None: no value) with ``status``, stamped ``time`` as TimestampsToReturn asks."""
+    t = from_micros(time)
     src = t if which in (ua.TimestampsToReturn.Source, ua.TimestampsToReturn.Both) else None
     srv = t if which in (ua.TimestampsToReturn.Server, ua.TimestampsToReturn.Both) else None
-    if item is None or isinstance(item, raw.Missing):
-        code = status if status is not None else _SC.BadBoundNotFound
-        return ua.DataValue(None, StatusCode=ua.StatusCode(code), SourceTimestamp=src, ServerTimestamp=srv)
-    return ua.DataValue(
-        variant_from_binary(Buffer(item.data)),
-        StatusCode=ua.StatusCode(status if status is not None else item.status),
-        SourceTimestamp=src,
-        ServerTimestamp=srv,
-    )
+    value = variant_from_binary(Buffer(sample.data)) if sample is not None else None
+    return ua.DataValue(value, StatusCode=ua.StatusCode(status), SourceTimestamp=src, ServerTimestamp=srv)
+
+
+def _raw_value(item: raw.Item, which: ua.TimestampsToReturn) -> ua.DataValue:
+    """An item of a raw read: a kept value as kept, or a bound with none (Bad_BoundNotFound)."""
+    if isinstance(item, raw.Missing):
+        return _datavalue(None, _SC.BadBoundNotFound, item.time, which)
+    return _datavalue(item, item.status, item.time, which)
 
 
 def _ok(data: Any, cp: bytes | None, found: bool) -> ua.HistoryReadResult:
