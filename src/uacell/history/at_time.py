@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from asyncua import ua
 
 from uacell.history.backends import VALUE, Query, Sample
-from uacell.history.processed import DATA_VALUE_INFO
+from uacell.history.processed import DATA_VALUE_INFO, counts
 
 SEARCH = 1000  # kept values looked at, at and before an instant, for one that counts
 RAW = DATA_VALUE_INFO  # HistorianBits Raw (0)
@@ -45,15 +45,11 @@ class AtTime:
     status: int
 
 
-def _counts(sample: Sample) -> bool:
-    return sample.status & 0xC0000000 == 0  # Good: Uncertain is Bad here (TreatUncertainAsBad)
-
-
 def value_at(newest_first: list[Sample], t: int, simple: bool, now: int) -> AtTime:
     """The value at ``t`` from the values kept at or before it, newest first (pure)."""
     skipped = False
     for sample in newest_first:
-        if not _counts(sample):
+        if not counts(sample.status):
             if simple:
                 return AtTime(None, _NO_DATA)
             skipped = True

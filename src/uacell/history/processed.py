@@ -47,8 +47,13 @@ class Interval:
     integer: bool = False
 
 
+def counts(status: int) -> bool:
+    """Whether a raw value of this StatusCode counts: Good only (TreatUncertainAsBad, the HA Configuration)."""
+    return status & 0xC0000000 == 0
+
+
 def _good(p: Point) -> bool:
-    return p[2] & 0xC0000000 == 0 and p[1] is not None
+    return counts(p[2]) and p[1] is not None
 
 
 def intervals(start: int, end: int, interval: int) -> Iterator[tuple[int, int]]:
