@@ -82,6 +82,7 @@ class ServerConfig:
     anonymous_role: str | None = None
     allow_none_security: bool | None = None
     trust_on_first_use: bool = False
+    require_revocation_lists: bool = True  # every CA of a client's chain has its CRL in pki/crl/ (decision 92)
     application_uri: str = field(default_factory=default_application_uri)
     application_name: str = field(default_factory=default_application_name)
     rejected_max_files: int = 100

@@ -3,16 +3,21 @@
 ``pki/own/cert.der`` + ``pki/own/key.pem``   the application instance certificate and its key, made on
                                             first start, remade (old pair kept in ``own/backup/``)
                                             when the application URI or listening hosts change
-``pki/trusted/``                            client certificates the server trusts (DER or PEM)
+``pki/trusted/``                            certificates the server trusts (DER or PEM): clients', or CAs'
+                                            whose every certificate is trusted
+``pki/issuers/``                            CA certificates that complete chains, not trusted themselves
+``pki/crl/``                                revocation lists of the CAs (``.crl``, DER or PEM)
 ``pki/rejected/``                           refused client certificates, ``<thumbprint>.der``;
                                             ``uacell cert trust`` (or moving one to trusted/) trusts it
                                             (capped in count and age: ``prune_rejected``)
 
-``CertificateValidator`` plugs the trust list into asyncua's ``Server.set_certificate_validator``.
+``CertificateValidator`` decides on a client's certificate chain at CreateSession (``uacell.security.chain``
+for the chain's steps).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import hashlib
 import ipaddress
@@ -20,9 +25,10 @@ import logging
 import shutil
 import socket
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 from asyncua import ua
 from asyncua.common.utils import ServiceError
@@ -34,6 +40,7 @@ from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from uacell.core.files import atomic_write
+from uacell.security.chain import Anchors, Refusal, check_chain, split_chain
 
 _log = logging.getLogger(__name__)
 
@@ -43,6 +50,7 @@ RENEW_BEFORE = dt.timedelta(days=30)  # remake a certificate this close to its e
 _CERT_SUFFIXES = {".der", ".cer", ".crt", ".pem"}
 
 IPAddress = ipaddress.IPv4Address | ipaddress.IPv6Address
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -84,8 +92,16 @@ class PkiPaths:
     def rejected(self) -> Path:
         return self.root / "rejected"
 
+    @property
+    def issuers(self) -> Path:
+        return self.root / "issuers"
+
+    @property
+    def crl(self) -> Path:
+        return self.root / "crl"
+
     def create(self) -> None:
-        for d in (self.own, self.trusted, self.rejected):
+        for d in (self.own, self.trusted, self.rejected, self.issuers, self.crl):
             d.mkdir(parents=True, exist_ok=True)
         self.own.chmod(0o700)
 
@@ -386,10 +402,12 @@ def prune_rejected(directory: Path, limit: RejectedLimit, now: float | None = No
 
 
 class TrustList:
-    """Answers whether a client certificate is trusted: its exact DER is in ``pki/trusted/``.
+    """Decides on client certificates from the files under ``pki/``: trusted/, issuers/, crl/
+    (read at every check: operators add files while the server runs, and sessions are rare).
 
-    With ``trust_on_first_use``, an unknown (but otherwise valid) certificate is copied to trusted/
-    and accepted; otherwise it is written to rejected/ and refused.
+    A chain is checked as ``uacell.security.chain.check_chain`` says. With ``trust_on_first_use``, a
+    certificate refused only because nothing trusts it is copied to trusted/ and accepted; otherwise a
+    certificate that trusting it would let in is written to rejected/, and the log says how to trust it.
     """
 
     def __init__(
@@ -397,14 +415,17 @@ class TrustList:
         paths: PkiPaths,
         *,
         trust_on_first_use: bool = False,
+        require_revocation_lists: bool = True,
         rejected_limit: RejectedLimit | None = None,
-        report_refusal: Callable[[str], object] | None = None,
+        report_refusal: Callable[[str, str], object] | None = None,
     ) -> None:
         self.paths = paths
         self.trust_on_first_use = trust_on_first_use
+        self.require_revocation_lists = require_revocation_lists
         self.rejected_limit = rejected_limit or RejectedLimit()
-        # How refusals are logged (the server rate-limits them per client address); default: a warning each.
-        self.report_refusal: Callable[[str], object] = report_refusal or _log.warning
+        # How refusals are logged: (message, reason), the server rate-limits them per client address and
+        # reason (the status code's name); default: a warning each.
+        self.report_refusal: Callable[[str, str], object] = report_refusal or _warn
         self._pruning_logged = False
         paths.create()
         self.prune_rejected()
@@ -425,20 +446,17 @@ class TrustList:
             )
         return dropped
 
-    def _trusted_digests(self) -> set[bytes]:
-        # Read on every check: operators add files while the server runs, and sessions are rare.
-        digests = set()
-        for f in sorted(self.paths.trusted.iterdir()):
-            if f.suffix.lower() not in _CERT_SUFFIXES or not f.is_file():
-                continue
-            try:
-                digests.add(hashlib.sha256(cert_to_der(_load_any(f.read_bytes()))).digest())
-            except (ValueError, OSError) as exc:
-                _log.warning("ignoring %s in the trust list: %s", f, exc)
-        return digests
+    def anchors(self) -> Anchors:
+        """The trusted and issuer certificates and the revocation lists, as the files are now."""
+        return Anchors(
+            tuple(_read_files(self.paths.trusted, _CERT_SUFFIXES, _load_any, "the trust list")),
+            tuple(_read_files(self.paths.issuers, _CERT_SUFFIXES, _load_any, "the issuer list")),
+            tuple(_read_files(self.paths.crl, _CRL_SUFFIXES, load_crl, "the revocation lists")),
+        )
 
     def is_trusted(self, der: bytes) -> bool:
-        return hashlib.sha256(der).digest() in self._trusted_digests()
+        """Is this exact certificate in trusted/?"""
+        return self.anchors().is_trusted(x509.load_der_x509_certificate(der))
 
     def trust(self, der: bytes) -> Path:
         """Put ``der`` into trusted/ (and out of rejected/); returns its file."""
@@ -457,29 +475,115 @@ class TrustList:
             self.prune_rejected()
         return target
 
-    def admit(self, der: bytes, application_uri: str = "") -> bool:
-        """Decide on a client certificate: trusted, trusted now on first use, or rejected (logged)."""
-        if self.is_trusted(der):
-            return True
+    def admit(self, chain: bytes | Sequence[x509.Certificate], application_uri: str = "") -> bool:
+        """Decide on a client certificate (DER, or a chain): trusted, trusted now on first use, or refused."""
+        return self.refusal(chain, application_uri) is None
+
+    def refusal(self, chain: bytes | Sequence[x509.Certificate], application_uri: str = "") -> Refusal | None:
+        """Why the chain (its DER, or its certificates, the client's first) is refused, logged with what
+        to do about it; None when it is trusted (on first use, too)."""
+        certs = split_chain(chain) if isinstance(chain, bytes) else list(chain)
+        anchors = self.anchors()
+        now = dt.datetime.now(dt.UTC)
+        refusal = check_chain(certs, anchors, now, require_crls=self.require_revocation_lists)
+        if refusal is None:
+            return None
+        der = cert_to_der(certs[0])
         who = f" of {application_uri}" if application_uri else ""
-        if self.trust_on_first_use:
-            path = self.trust(der)
-            _log.warning("trusting client certificate%s on first use: %s (delete it to revoke)", who, path)
-            return True
-        path = self.reject(der)
-        self.report_refusal(
-            f"refused untrusted client certificate{who} (thumbprint {thumbprint(der)}). "
-            f"To trust it, move {path} to {self.paths.trusted}/ "
-            f"(or run: uacell cert trust {thumbprint(der)[:12]} --data-dir {self.paths.root.parent})"
-        )
-        return False
+        stem = f"refused client certificate{who} (thumbprint {thumbprint(der)})"
+        if refusal.code in _TRUSTING_HELPS:
+            pinned = dataclasses.replace(anchors, trusted=(*anchors.trusted, certs[0]))
+            alone = check_chain(certs, pinned, now, require_crls=self.require_revocation_lists)
+            if alone is not None:  # trusting it would not let it in: say why, offer nothing
+                self.report_refusal(
+                    f"{stem}: {refusal.why}; and trusting it would not help: {self._said(alone)}", alone.name
+                )
+                return refusal
+            if self.trust_on_first_use:
+                path = self.trust(der)
+                _log.warning("trusting client certificate%s on first use: %s (delete it to revoke)", who, path)
+                return None
+            path = self.reject(der)
+            to_trust = (
+                f"To trust it, move {path} to {self.paths.trusted}/ "
+                f"(or run: uacell cert trust {thumbprint(der)[:12]} --data-dir {self.paths.root.parent})"
+            )
+            if refusal.code == ua.StatusCodes.BadCertificateUntrusted:
+                self.report_refusal(
+                    f"refused untrusted client certificate{who} (thumbprint {thumbprint(der)}). {to_trust}",
+                    refusal.name,
+                )
+            else:
+                self.report_refusal(
+                    f"{stem}: {self._said(refusal)} Put its CA's certificate into {self.paths.issuers}/ (or into "
+                    f"{self.paths.trusted}/ to trust every certificate it issues) and the CA's revocation list into "
+                    f"{self.paths.crl}/; or trust this certificate by itself. {to_trust}",
+                    refusal.name,
+                )
+            return refusal
+        self.report_refusal(f"{stem}: {self._said(refusal)}", refusal.name)
+        return refusal
+
+    def _said(self, refusal: Refusal) -> str:
+        """A refusal in words for the log, with what to do where that is one file."""
+        hint = ""
+        if refusal.code in _REVOCATION_UNKNOWN:
+            hint = f" Put the CA's revocation list into {self.paths.crl}/ (uacell cert crl FILE)."
+        return f"{refusal.why} ({refusal.name}).{hint}"
+
+
+_CRL_SUFFIXES = {".crl"}
+# Refusals that trusting the client's certificate by itself would lift: it goes to rejected/.
+_TRUSTING_HELPS = {ua.StatusCodes.BadCertificateUntrusted, ua.StatusCodes.BadCertificateChainIncomplete}
+_REVOCATION_UNKNOWN = {
+    ua.StatusCodes.BadCertificateRevocationUnknown,
+    ua.StatusCodes.BadCertificateIssuerRevocationUnknown,
+}
+# What a client is told (OPC 10000-4 6.1.3, decision 92): its own certificate's period, URI and trust
+# as before; a failure in its chain (an issuer, a signature, a revocation) as Bad_SecurityChecksFailed.
+_TOLD = {
+    ua.StatusCodes.BadCertificateUntrusted,
+    ua.StatusCodes.BadCertificateTimeInvalid,
+    ua.StatusCodes.BadCertificateUriInvalid,
+}
+
+
+def told(code: int) -> int:
+    """The status a refused client is told for a refusal's ``code``."""
+    return code if code in _TOLD else ua.StatusCodes.BadSecurityChecksFailed
+
+
+def load_crl(data: bytes) -> x509.CertificateRevocationList:
+    """A revocation list from DER or PEM; ValueError when it is none."""
+    if data.lstrip().startswith(b"-----BEGIN"):
+        return x509.load_pem_x509_crl(data)
+    return x509.load_der_x509_crl(data)
+
+
+def _read_files(folder: Path, suffixes: set[str], load: Callable[[bytes], _T], what: str) -> list[_T]:
+    found: list[_T] = []
+    if not folder.is_dir():
+        return found
+    for f in sorted(folder.iterdir()):
+        if f.suffix.lower() not in suffixes or not f.is_file():
+            continue
+        try:
+            found.append(load(f.read_bytes()))
+        except (ValueError, OSError) as exc:
+            _log.warning("ignoring %s in %s: %s", f, what, exc)
+    return found
+
+
+def _warn(message: str, reason: str) -> None:
+    _log.warning("%s", message)
 
 
 class CertificateValidator:
-    """For asyncua's ``Server.set_certificate_validator``: validity period, URI, then the trust list.
+    """A client's certificate chain at CreateSession: the client certificate's validity period and URI
+    (asyncua's basic checks), then its chain and the trust list (``TrustList.refusal``).
 
-    Raises ``ServiceError`` with BadCertificateTimeInvalid, BadCertificateUriInvalid or
-    BadCertificateUntrusted, which asyncua returns to the client's CreateSession.
+    Raises ``ServiceError`` with the code the client is told (``told``). As a callable it also fits
+    asyncua's ``Server.set_certificate_validator`` (the client certificate alone).
     """
 
     def __init__(self, trust_list: TrustList) -> None:
@@ -488,15 +592,19 @@ class CertificateValidator:
         self._basic = _UaValidator(opts.BASIC_VALIDATION | opts.PEER_CLIENT)
 
     async def __call__(self, cert: x509.Certificate, app_description: ua.ApplicationDescription) -> None:
-        der = cert_to_der(cert)
+        await self.check([cert], app_description)
+
+    async def check(self, chain: Sequence[x509.Certificate], app_description: ua.ApplicationDescription) -> None:
+        der = cert_to_der(chain[0])
         try:
             # Checked first so that trust on first use never records an expired or mismatched certificate.
-            await self._basic.validate(cert, app_description)
+            await self._basic.validate(chain[0], app_description)
         except ServiceError as exc:
+            name = ua.StatusCode(exc.code).name
             self.trust_list.report_refusal(
-                f"refused client certificate {thumbprint(der)} of {app_description.ApplicationUri}: "
-                f"{ua.StatusCode(exc.code).name}"
+                f"refused client certificate {thumbprint(der)} of {app_description.ApplicationUri}: {name}", name
             )
             raise
-        if not self.trust_list.admit(der, app_description.ApplicationUri or ""):
-            raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
+        refusal = self.trust_list.refusal(chain, app_description.ApplicationUri or "")
+        if refusal is not None:
+            raise ServiceError(told(refusal.code))

@@ -70,6 +70,7 @@ from uacell.security.certificate_login import (
     check_user_certificate,
     first_certificate,
 )
+from uacell.security.chain import der_of, split_chain
 from uacell.security.pki import (
     CertificateValidator,
     PkiPaths,
@@ -382,6 +383,7 @@ class Security(_Logins):
         self.trust_list = TrustList(
             PkiPaths.in_data_dir(self.app.data_dir),
             trust_on_first_use=cfg.trust_on_first_use,
+            require_revocation_lists=cfg.require_revocation_lists,
             rejected_limit=limit,
             report_refusal=self._report_certificate_refusal,
         )
@@ -390,7 +392,7 @@ class Security(_Logins):
                 "trust_on_first_use is on: every new client certificate is trusted and kept in %s",
                 self.trust_list.paths.trusted,
             )
-        self.server.set_certificate_validator(CertificateValidator(self.trust_list))
+        self.certificate_validator = CertificateValidator(self.trust_list)  # at CreateSession, with the chain
         self.policies = list(SECURE_POLICIES) + ([_P.NoSecurity] if policy.none_security else [])
         self.server.set_security_policy(self.policies)
         # asyncua gives the certificate token policy the endpoint's security policy (on a None endpoint the
@@ -408,9 +410,9 @@ class Security(_Logins):
             policy.anonymous_role.label,
         )
 
-    def _report_certificate_refusal(self, message: str) -> None:
+    def _report_certificate_refusal(self, message: str, reason: str) -> None:
         address = _address(context.current_processor())
-        self.refusals.report(address, "certificate", f"{message} (client address {address})")
+        self.refusals.report(address, f"certificate:{reason}", f"{message} (client address {address})")
 
     # sessions ------------------------------------------------------------------------------------
 
@@ -507,6 +509,20 @@ class Security(_Logins):
                 address, "session:url", f"refused session from {address}: EndpointUrl {url!r} is not an opc.tcp URL"
             )
             raise ServiceError(_S.BadTcpEndpointUrlInvalid)
+
+    async def check_client_certificate(self, params: ua.CreateSessionParameters) -> ua.CreateSessionParameters:
+        """The client's certificate, alone or followed by its issuers (OPC 10000-6 6.2.6), against the
+        trust list; returns the parameters with the client's own certificate alone, as asyncua reads it."""
+        try:
+            chain = split_chain(params.ClientCertificate)
+        except ValueError as exc:
+            address = _address(context.current_processor())
+            self.refusals.report(
+                address, "session:certificate", f"refused session from {address}: its ClientCertificate {exc}"
+            )
+            raise ServiceError(_S.BadCertificateInvalid) from exc
+        await self.certificate_validator.check(chain, params.ClientDescription)
+        return dataclasses.replace(params, ClientCertificate=der_of(chain[0]))
 
     def check_reassociation(self, processor: UaProcessor, auth_token: ua.NodeId, body: Buffer) -> None:
         """ActivateSession of an existing session on a new secure channel (OPC 10000-4, 5.6.3.1): only for an
@@ -753,6 +769,8 @@ class UacellSession(LimitedSession):
             params = dataclasses.replace(params, ClientCertificate=None)
         try:
             self._security.check_session(processor, params)
+            if params.ClientCertificate:
+                params = await self._security.check_client_certificate(params)
             result = await super().create_session(params, sockname=sockname)
         except BaseException:
             await self.close_session()  # a refused session must not be activated later

@@ -1,0 +1,203 @@
+"""Whether a client's certificate chain is trusted: OPC 10000-4 6.1.3 and OPC 10000-6 6.2.6, pure.
+
+A client may send its Application Instance Certificate alone or followed by its issuers (the DER
+encodings appended, the end certificate first: ``split_chain``). ``check_chain`` builds the chain
+from the end certificate to a self-signed root, taking issuers from what the client sent and from the
+administrator's lists (``Anchors``: trusted certificates, issuer certificates, revocation lists), and
+answers the first step of OPC 10000-4's validation table that fails, with its status code, or None:
+
+1. build the chain: an issuer is found by name and its key verifies the signature
+   (Bad_CertificateChainIncomplete when none is found; Bad_CertificateInvalid when a signature,
+   a root's own included, does not verify);
+2. the trust list: the certificate or one of its issuers is a trusted certificate
+   (Bad_CertificateUntrusted);
+3. validity: each issuer is valid now (Bad_CertificateIssuerTimeInvalid; the end certificate's own
+   period is checked before, with its URI, by the caller);
+4. usage: each issuer is a CA allowed to sign certificates (Bad_CertificateIssuerUseNotAllowed);
+5. revocation: every issuer has a revocation list signed by it (Bad_CertificateRevocationUnknown for
+   the end certificate's issuer, Bad_CertificateIssuerRevocationUnknown above it, unless
+   ``require_crls`` is off), and no certificate of the chain is on its issuer's list
+   (Bad_CertificateRevoked, Bad_CertificateIssuerRevoked).
+
+A certificate the administrator trusts by itself, whose issuer is nowhere to be found, is trusted as it
+was before chains were checked (decision 92): trusting it is the decision, as pinning a key is. Once
+its issuer is known, the whole chain is checked.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import itertools
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+from asyncua import ua
+from cryptography import x509
+from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives import serialization
+
+_S = ua.StatusCodes
+MAX_DEPTH = 8  # certificates in a chain, the end certificate and the root included
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """Why a chain is not trusted: the step's status code, the certificate it failed for, in words."""
+
+    code: int
+    certificate: x509.Certificate
+    why: str
+
+    @property
+    def name(self) -> str:
+        return str(ua.StatusCode(self.code).name)
+
+
+@dataclass(frozen=True)
+class Anchors:
+    """What the administrator provides: trusted certificates (applications or CAs), issuer certificates
+    (CAs that complete chains without being trusted themselves), revocation lists of CAs."""
+
+    trusted: tuple[x509.Certificate, ...] = ()
+    issuers: tuple[x509.Certificate, ...] = ()
+    crls: tuple[x509.CertificateRevocationList, ...] = ()
+
+    def is_trusted(self, cert: x509.Certificate) -> bool:
+        der = der_of(cert)
+        return any(der_of(t) == der for t in self.trusted)
+
+
+def der_of(cert: x509.Certificate) -> bytes:
+    return cert.public_bytes(serialization.Encoding.DER)
+
+
+def split_chain(data: bytes) -> list[x509.Certificate]:
+    """The certificates of a ByteString holding one DER certificate or several appended (OPC 10000-6
+    6.2.6: each is read by the length its DER header gives). ValueError when a part is not a DER
+    certificate or the data ends inside one."""
+    certs: list[x509.Certificate] = []
+    offset = 0
+    while offset < len(data):
+        end = offset + _der_length(data, offset)
+        if end > len(data):
+            raise ValueError(f"certificate {len(certs) + 1} of the chain is cut short")
+        certs.append(x509.load_der_x509_certificate(data[offset:end]))
+        offset = end
+    if not certs:
+        raise ValueError("no certificate")
+    return certs
+
+
+def _der_length(data: bytes, offset: int) -> int:
+    """The full length (header included) of the DER SEQUENCE starting at ``offset``."""
+    if data[offset] != 0x30 or offset + 2 > len(data):
+        raise ValueError("not a DER certificate")
+    first = data[offset + 1]
+    if first < 0x80:
+        return 2 + first
+    count = first & 0x7F
+    if not 1 <= count <= 4 or offset + 2 + count > len(data):
+        raise ValueError("not a DER certificate")
+    return 2 + count + int.from_bytes(data[offset + 2 : offset + 2 + count], "big")
+
+
+def check_chain(
+    chain: Sequence[x509.Certificate], anchors: Anchors, now: dt.datetime, *, require_crls: bool = True
+) -> Refusal | None:
+    """The first failing step for ``chain`` (the end certificate first, then what the client sent of
+    its issuers), or None when it is trusted. See the module's text for the steps."""
+    leaf = chain[0]
+    path, refusal = _build(leaf, [*chain[1:], *anchors.trusted, *anchors.issuers])
+    if refusal is not None:
+        if refusal.code == _S.BadCertificateChainIncomplete and anchors.is_trusted(leaf):
+            return None  # trusted by itself, its issuer unknown: pinned (decision 92)
+        return refusal
+    if not any(anchors.is_trusted(c) for c in path):
+        return Refusal(_S.BadCertificateUntrusted, leaf, "neither it nor an issuer of its chain is trusted")
+    for issuer in path[1:]:
+        if not issuer.not_valid_before_utc <= now <= issuer.not_valid_after_utc:
+            return Refusal(_S.BadCertificateIssuerTimeInvalid, issuer, f"issuer {_name(issuer)} is not valid now")
+    for issuer in path[1:]:
+        if not _may_sign_certificates(issuer):
+            why = f"issuer {_name(issuer)} is not a CA that signs certificates"
+            return Refusal(_S.BadCertificateIssuerUseNotAllowed, issuer, why)
+    return _revocation(path, anchors.crls, require_crls)
+
+
+def _build(
+    leaf: x509.Certificate, candidates: Sequence[x509.Certificate]
+) -> tuple[list[x509.Certificate], Refusal | None]:
+    path = [leaf]
+    while True:
+        cert = path[-1]
+        if cert.issuer == cert.subject and _signed_by(cert, cert):
+            return path, None  # a self-signed root ends the chain
+        if len(path) >= MAX_DEPTH:
+            return path, Refusal(_S.BadCertificateChainIncomplete, cert, f"the chain is longer than {MAX_DEPTH}")
+        named = [c for c in candidates if c.subject == cert.issuer and c not in path]
+        issuer = next((c for c in named if _signed_by(cert, c)), None)
+        if issuer is None:
+            if cert.issuer == cert.subject or named:
+                return path, Refusal(_S.BadCertificateInvalid, cert, f"the signature of {_name(cert)} does not verify")
+            return path, Refusal(
+                _S.BadCertificateChainIncomplete, cert, f"its issuer {cert.issuer.rfc4514_string()} is not known"
+            )
+        path.append(issuer)
+
+
+def _signed_by(cert: x509.Certificate, issuer: x509.Certificate) -> bool:
+    try:
+        cert.verify_directly_issued_by(issuer)
+    except (ValueError, TypeError, InvalidSignature):
+        return False
+    return True
+
+
+def _may_sign_certificates(cert: x509.Certificate) -> bool:
+    try:
+        if not cert.extensions.get_extension_for_class(x509.BasicConstraints).value.ca:
+            return False
+    except x509.ExtensionNotFound:
+        return False  # RFC 5280 4.2.1.9: a CA's certificate says it is one
+    try:
+        return cert.extensions.get_extension_for_class(x509.KeyUsage).value.key_cert_sign
+    except x509.ExtensionNotFound:
+        return True
+
+
+def _revocation(
+    path: Sequence[x509.Certificate], crls: Iterable[x509.CertificateRevocationList], require_crls: bool
+) -> Refusal | None:
+    crls = list(crls)
+    for i, (cert, issuer) in enumerate(itertools.pairwise(path)):
+        own = i == 0
+        crl = newest_crl(issuer, crls)
+        if crl is None:
+            if not require_crls:
+                continue
+            code = _S.BadCertificateRevocationUnknown if own else _S.BadCertificateIssuerRevocationUnknown
+            return Refusal(code, cert, f"no revocation list of {_name(issuer)} is known")
+        if crl.get_revoked_certificate_by_serial_number(cert.serial_number) is not None:
+            code = _S.BadCertificateRevoked if own else _S.BadCertificateIssuerRevoked
+            return Refusal(code, cert, f"{_name(cert)} is revoked by {_name(issuer)}")
+    return None
+
+
+def newest_crl(
+    issuer: x509.Certificate, crls: Iterable[x509.CertificateRevocationList]
+) -> x509.CertificateRevocationList | None:
+    """The latest revocation list (by its thisUpdate) that ``issuer`` signed, if any."""
+    key = issuer.public_key()
+    own = [c for c in crls if c.issuer == issuer.subject and _crl_signed(c, key)]
+    return max(own, key=lambda c: c.last_update_utc, default=None)
+
+
+def _crl_signed(crl: x509.CertificateRevocationList, key: object) -> bool:
+    try:
+        return crl.is_signature_valid(key)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
+
+
+def _name(cert: x509.Certificate) -> str:
+    return cert.subject.rfc4514_string() or "(no subject)"

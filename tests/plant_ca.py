@@ -1,0 +1,178 @@
+"""A plant's certificate authority, as a GDS or an IT department runs one, made here with the
+cryptography package from X.509's own rules (RFC 5280: a CA's BasicConstraints and keyCertSign, CRLs
+with revoked serial numbers) and OPC 10000-6 6.2.2 (an Application Instance Certificate: the
+ApplicationUri in subjectAltName, the key usages, clientAuth), not with uacell's code. A chain is the
+DER encodings appended, the application's first (OPC 10000-6 6.2.6)."""
+
+from __future__ import annotations
+
+import datetime as dt
+import socket
+from dataclasses import dataclass, field
+
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import rsa
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+_KEYS: list[rsa.RSAPrivateKey] = []  # RSA keys take a while to make: a test module reuses a few
+
+
+def _key(i: int) -> rsa.RSAPrivateKey:
+    while len(_KEYS) <= i:
+        _KEYS.append(rsa.generate_private_key(public_exponent=65537, key_size=2048))
+    return _KEYS[i]
+
+
+def _name(common_name: str) -> x509.Name:
+    return x509.Name(
+        [x509.NameAttribute(NameOID.COMMON_NAME, common_name), x509.NameAttribute(NameOID.ORGANIZATION_NAME, "Plant")]
+    )
+
+
+def _now() -> dt.datetime:
+    return dt.datetime.now(dt.UTC)
+
+
+@dataclass
+class Authority:
+    """A CA: its certificate and key, what it revoked, and the certificates it issued."""
+
+    cert: x509.Certificate
+    key: rsa.RSAPrivateKey
+    revoked: list[int] = field(default_factory=list)
+
+    @property
+    def der(self) -> bytes:
+        return self.cert.public_bytes(serialization.Encoding.DER)
+
+    @classmethod
+    def root(cls, common_name: str = "Plant Root CA", *, key_index: int = 0) -> Authority:
+        key = _key(key_index)
+        cert = _ca_builder(_name(common_name), _name(common_name), key.public_key()).sign(key, hashes.SHA256())
+        return cls(cert, key)
+
+    def intermediate(
+        self,
+        common_name: str = "Plant Issuing CA",
+        *,
+        key_index: int = 1,
+        ca: bool = True,
+        not_before: dt.datetime | None = None,
+        days: int = 3650,
+    ) -> Authority:
+        key = _key(key_index)
+        builder = _ca_builder(
+            _name(common_name), self.cert.subject, key.public_key(), ca=ca, start=not_before, days=days
+        )
+        return Authority(builder.sign(self.key, hashes.SHA256()), key)
+
+    def application(
+        self, application_uri: str, common_name: str = "Line 3 MES", *, key_index: int = 2
+    ) -> tuple[x509.Certificate, rsa.RSAPrivateKey]:
+        """An Application Instance Certificate for a client, issued by this CA."""
+        key = _key(key_index)
+        start = _now() - dt.timedelta(minutes=5)
+        cert = (
+            x509.CertificateBuilder()
+            .subject_name(_name(common_name))
+            .issuer_name(self.cert.subject)
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(start)
+            .not_valid_after(start + dt.timedelta(days=365))
+            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+            .add_extension(
+                x509.SubjectAlternativeName(
+                    [x509.UniformResourceIdentifier(application_uri), x509.DNSName(socket.gethostname())]
+                ),
+                critical=False,
+            )
+            .add_extension(
+                x509.KeyUsage(
+                    digital_signature=True,
+                    content_commitment=True,
+                    key_encipherment=True,
+                    data_encipherment=True,
+                    key_agreement=False,
+                    key_cert_sign=False,
+                    crl_sign=False,
+                    encipher_only=False,
+                    decipher_only=False,
+                ),
+                critical=True,
+            )
+            .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False)
+            .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+            .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(self.key.public_key()), critical=False)
+            .sign(self.key, hashes.SHA256())
+        )
+        return cert, key
+
+    def revoke(self, cert: x509.Certificate) -> None:
+        self.revoked.append(cert.serial_number)
+
+    def crl(self, *, signer: rsa.RSAPrivateKey | None = None) -> bytes:
+        """This CA's current revocation list, DER (signed by ``signer`` to forge one)."""
+        builder = (
+            x509.CertificateRevocationListBuilder()
+            .issuer_name(self.cert.subject)
+            .last_update(_now() - dt.timedelta(minutes=1))
+            .next_update(_now() + dt.timedelta(days=7))
+        )
+        for serial in self.revoked:
+            builder = builder.add_revoked_certificate(
+                x509.RevokedCertificateBuilder().serial_number(serial).revocation_date(_now()).build()
+            )
+        return builder.sign(signer or self.key, hashes.SHA256()).public_bytes(serialization.Encoding.DER)
+
+
+def _ca_builder(
+    subject: x509.Name,
+    issuer: x509.Name,
+    public: rsa.RSAPublicKey,
+    *,
+    ca: bool = True,
+    start: dt.datetime | None = None,
+    days: int = 3650,
+) -> x509.CertificateBuilder:
+    start = start or _now() - dt.timedelta(minutes=5)
+    return (
+        x509.CertificateBuilder()
+        .subject_name(subject)
+        .issuer_name(issuer)
+        .public_key(public)
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(start)
+        .not_valid_after(start + dt.timedelta(days=days))
+        .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True)
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=False,
+                content_commitment=False,
+                key_encipherment=False,
+                data_encipherment=False,
+                key_agreement=False,
+                key_cert_sign=ca,
+                crl_sign=ca,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(public), critical=False)
+    )
+
+
+def der(cert: x509.Certificate) -> bytes:
+    return cert.public_bytes(serialization.Encoding.DER)
+
+
+def pem(cert: x509.Certificate) -> bytes:
+    return cert.public_bytes(serialization.Encoding.PEM)
+
+
+def key_pem(key: rsa.RSAPrivateKey) -> bytes:
+    return key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+    )

@@ -1,0 +1,332 @@
+"""Client certificates issued by a plant's CA (OPC 10000-4 6.1.3, OPC 10000-6 6.2.6, decision 92):
+chains built to a trusted certificate through issuers the client sent or the administrator put in
+pki/issuers/, revocation lists in pki/crl/; pure, through the trust list's files, and over TCP."""
+
+from __future__ import annotations
+
+import datetime as dt
+import logging
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import pytest
+import pytest_asyncio
+from asyncua import Client, ua
+from asyncua.common.utils import ServiceError
+from asyncua.crypto import security_policies as sp
+from conftest import fast_config, start_app
+from cryptography import x509
+from cryptography.hazmat.primitives import serialization
+from plant_ca import Authority, der, key_pem, pem
+
+from uacell.security.chain import Anchors, check_chain, split_chain
+from uacell.security.pki import CertificateValidator, PkiPaths, TrustList, told
+from uacell.server import UacellServer
+
+ON_SERVER_LOOP = pytest.mark.asyncio(loop_scope="module")  # the tests that use the module's server
+S = ua.StatusCodes
+MES = "urn:plant:line3:mes"
+
+
+@pytest.fixture(scope="module")
+def ca() -> Iterator[dict[str, Any]]:
+    """Root -> issuing CA -> the MES client; a second client the issuing CA revoked."""
+    root = Authority.root()
+    issuing = root.intermediate()
+    leaf, key = issuing.application(MES)
+    revoked, revoked_key = issuing.application("urn:plant:line3:old-mes", "Old MES", key_index=3)
+    issuing.revoke(revoked)
+    yield {"root": root, "issuing": issuing, "leaf": leaf, "key": key, "revoked": revoked, "revoked_key": revoked_key}
+
+
+def crls(*authorities: Authority) -> tuple[x509.CertificateRevocationList, ...]:
+    return tuple(x509.load_der_x509_crl(a.crl()) for a in authorities)
+
+
+NOW = dt.datetime.now(dt.UTC)
+
+
+# the chain's steps, pure ------------------------------------------------------------------------------
+
+
+def test_a_chain_is_split_by_the_lengths_in_its_der(ca: dict[str, Any]) -> None:
+    leaf, issuing, root = ca["leaf"], ca["issuing"], ca["root"]
+    assert split_chain(der(leaf)) == [leaf]
+    assert split_chain(der(leaf) + issuing.der + root.der) == [leaf, issuing.cert, root.cert]
+    for bad in (b"", b"junk", (der(leaf) + issuing.der)[:-10], der(leaf) + b"\x30"):
+        with pytest.raises(ValueError):
+            split_chain(bad)
+
+
+def test_a_chain_to_a_trusted_root_through_an_issuer_the_client_sent(ca: dict[str, Any]) -> None:
+    root, issuing, leaf = ca["root"], ca["issuing"], ca["leaf"]
+    anchors = Anchors(trusted=(root.cert,), crls=crls(root, issuing))
+    assert check_chain([leaf, issuing.cert], anchors, NOW) is None
+    # the same issuer from pki/issuers/ instead
+    assert (
+        check_chain([leaf], Anchors(trusted=(root.cert,), issuers=(issuing.cert,), crls=crls(root, issuing)), NOW)
+        is None
+    )
+    # trusting the issuing CA alone trusts what it issued; the root must still be found to end the chain
+    only_issuing = Anchors(trusted=(issuing.cert,), issuers=(root.cert,), crls=crls(root, issuing))
+    assert check_chain([leaf], only_issuing, NOW) is None
+
+
+def test_each_step_answers_its_own_code(ca: dict[str, Any]) -> None:
+    root, issuing, leaf = ca["root"], ca["issuing"], ca["leaf"]
+    full = crls(root, issuing)
+
+    def code(chain: list[x509.Certificate], anchors: Anchors, **kw: Any) -> int | None:
+        refusal = check_chain(chain, anchors, NOW, **kw)
+        return None if refusal is None else refusal.code
+
+    # the issuer is nowhere: the chain cannot be built
+    assert code([leaf], Anchors(trusted=(root.cert,), crls=full)) == S.BadCertificateChainIncomplete
+    # built, but nothing of it is trusted
+    assert code([leaf, issuing.cert], Anchors(issuers=(root.cert,), crls=full)) == S.BadCertificateUntrusted
+    # an impostor with the issuing CA's name and another key: the signature does not verify
+    impostor = root.intermediate(key_index=4)
+    assert code([leaf, impostor.cert], Anchors(trusted=(root.cert,), crls=full)) == S.BadCertificateInvalid
+    # the issuing CA's revocation list is missing: the leaf's revocation is unknown; the root's: the issuer's
+    assert (
+        code([leaf, issuing.cert], Anchors(trusted=(root.cert,), crls=crls(root))) == S.BadCertificateRevocationUnknown
+    )
+    assert (
+        code([leaf, issuing.cert], Anchors(trusted=(root.cert,), crls=crls(issuing)))
+        == S.BadCertificateIssuerRevocationUnknown
+    )
+    assert code([leaf, issuing.cert], Anchors(trusted=(root.cert,)), require_crls=False) is None
+    # a revocation list signed by another key counts as none
+    forged = (x509.load_der_x509_crl(issuing.crl(signer=impostor.key)), *crls(root))
+    assert code([leaf, issuing.cert], Anchors(trusted=(root.cert,), crls=forged)) == S.BadCertificateRevocationUnknown
+    # revoked: the client's own certificate, then its issuer
+    assert code([ca["revoked"], issuing.cert], Anchors(trusted=(root.cert,), crls=full)) == S.BadCertificateRevoked
+    root2 = Authority.root("Plant Root CA 2", key_index=5)
+    issuing2 = root2.intermediate("Plant Issuing CA 2", key_index=6)
+    leaf2, _ = issuing2.application(MES, key_index=7)
+    root2.revoke(issuing2.cert)
+    assert (
+        code([leaf2, issuing2.cert], Anchors(trusted=(root2.cert,), crls=crls(root2, issuing2)))
+        == S.BadCertificateIssuerRevoked
+    )
+
+
+def test_an_issuer_must_be_a_valid_ca(ca: dict[str, Any]) -> None:
+    root = ca["root"]
+    not_a_ca = root.intermediate("Not a CA", key_index=4, ca=False)
+    leaf, _ = not_a_ca.application(MES, key_index=7)
+    anchors = Anchors(trusted=(root.cert,), crls=crls(root, not_a_ca))
+    refusal = check_chain([leaf, not_a_ca.cert], anchors, NOW)
+    assert refusal is not None and refusal.code == S.BadCertificateIssuerUseNotAllowed
+    assert refusal.certificate == not_a_ca.cert
+    expired = root.intermediate("Expired CA", key_index=6, not_before=NOW - dt.timedelta(days=20), days=10)
+    leaf, _ = expired.application(MES, key_index=7)
+    refusal = check_chain([leaf, expired.cert], Anchors(trusted=(root.cert,), crls=crls(root, expired)), NOW)
+    assert refusal is not None and refusal.code == S.BadCertificateIssuerTimeInvalid
+
+
+def test_a_certificate_trusted_by_itself(ca: dict[str, Any]) -> None:
+    root, issuing, leaf = ca["root"], ca["issuing"], ca["leaf"]
+    # its issuer unknown: trusted as pinned, as before chains were checked
+    assert check_chain([leaf], Anchors(trusted=(leaf,)), NOW) is None
+    # its issuer known: the chain counts, revocation included
+    refusal = check_chain([ca["revoked"]], Anchors(trusted=(ca["revoked"],), issuers=(issuing.cert, root.cert)), NOW)
+    assert refusal is not None and refusal.code == S.BadCertificateRevocationUnknown
+    anchors = Anchors(trusted=(ca["revoked"],), issuers=(issuing.cert, root.cert), crls=crls(root, issuing))
+    refusal = check_chain([ca["revoked"]], anchors, NOW)
+    assert refusal is not None and refusal.code == S.BadCertificateRevoked
+
+
+def test_what_the_client_is_told() -> None:
+    for own in (S.BadCertificateUntrusted, S.BadCertificateTimeInvalid, S.BadCertificateUriInvalid):
+        assert told(own) == own
+    for chain in (
+        S.BadCertificateChainIncomplete,
+        S.BadCertificateInvalid,
+        S.BadCertificateIssuerTimeInvalid,
+        S.BadCertificateIssuerUseNotAllowed,
+        S.BadCertificateRevocationUnknown,
+        S.BadCertificateIssuerRevocationUnknown,
+        S.BadCertificateRevoked,
+        S.BadCertificateIssuerRevoked,
+    ):
+        assert told(chain) == S.BadSecurityChecksFailed
+
+
+# the trust list's files --------------------------------------------------------------------------------
+
+
+def install(
+    paths: PkiPaths, *, trusted: Sequence[bytes], issuers: Sequence[bytes] = (), crl: Sequence[bytes] = ()
+) -> None:
+    paths.create()
+    for i, data in enumerate(trusted):
+        (paths.trusted / f"t{i}.der").write_bytes(data)
+    for i, data in enumerate(issuers):
+        (paths.issuers / f"i{i}.der").write_bytes(data)
+    for i, data in enumerate(crl):
+        (paths.crl / f"c{i}.crl").write_bytes(data)
+
+
+def test_the_files_decide_and_the_log_says_what_to_do(
+    tmp_path: Path, ca: dict[str, Any], caplog: pytest.LogCaptureFixture
+) -> None:
+    root, issuing, leaf = ca["root"], ca["issuing"], ca["leaf"]
+    paths = PkiPaths.in_data_dir(tmp_path)
+    trust = TrustList(paths)
+    for d in (paths.issuers, paths.crl):
+        assert d.is_dir()
+    install(paths, trusted=[root.der])
+    caplog.set_level(logging.WARNING, logger="uacell.security.pki")
+    refusal = trust.refusal([leaf], MES)
+    assert refusal is not None and refusal.code == S.BadCertificateChainIncomplete
+    [rejected] = paths.rejected.iterdir()  # trusting it by itself is one way out: it waits in rejected/
+    assert rejected.read_bytes() == der(leaf)
+    assert str(paths.issuers) in caplog.text and str(paths.crl) in caplog.text and str(rejected) in caplog.text
+    # the issuing CA's certificate in PEM, the root's CRL in PEM, the issuing CA's in DER
+    (paths.issuers / "issuing.pem").write_bytes(pem(issuing.cert))
+    (paths.crl / "root.crl").write_bytes(_pem_crl(root))
+    caplog.clear()
+    refusal = trust.refusal([leaf], MES)
+    assert refusal is not None and refusal.code == S.BadCertificateRevocationUnknown
+    assert f"Put the CA's revocation list into {paths.crl}/" in caplog.text
+    (paths.crl / "issuing.crl").write_bytes(issuing.crl())
+    (paths.crl / "junk.crl").write_bytes(b"not a list")  # ignored, logged
+    assert trust.refusal([leaf], MES) is None
+    assert "ignoring" in caplog.text and "junk.crl" in caplog.text
+    refusal = trust.refusal(der(ca["revoked"]), "urn:plant:line3:old-mes")  # DER bytes as a client sends them
+    assert refusal is not None and refusal.code == S.BadCertificateRevoked
+    assert [p.read_bytes() for p in paths.rejected.iterdir()] == [der(leaf)]  # a revoked one is not offered
+
+
+def _pem_crl(authority: Authority) -> bytes:
+    return x509.load_der_x509_crl(authority.crl()).public_bytes(serialization.Encoding.PEM)
+
+
+def test_trust_on_first_use_trusts_only_what_trusting_would_let_in(tmp_path: Path, ca: dict[str, Any]) -> None:
+    root, issuing = ca["root"], ca["issuing"]
+    paths = PkiPaths.in_data_dir(tmp_path)
+    install(paths, trusted=[], issuers=[issuing.der, root.der], crl=[root.crl(), issuing.crl()])
+    trust = TrustList(paths, trust_on_first_use=True)
+    assert trust.admit([ca["leaf"]], MES) is True
+    assert [p.read_bytes() for p in paths.trusted.iterdir()] == [der(ca["leaf"])]
+    assert trust.admit([ca["revoked"]], "urn:plant:line3:old-mes") is False  # revoked stays refused
+    assert [p.read_bytes() for p in paths.trusted.iterdir()] == [der(ca["leaf"])]
+    assert list(paths.rejected.iterdir()) == []
+
+
+def test_revocation_lists_may_be_optional(tmp_path: Path, ca: dict[str, Any]) -> None:
+    paths = PkiPaths.in_data_dir(tmp_path)
+    install(paths, trusted=[ca["root"].der], issuers=[ca["issuing"].der])
+    assert TrustList(paths).admit([ca["leaf"]], MES) is False
+    assert TrustList(paths, require_revocation_lists=False).admit([ca["leaf"]], MES) is True
+
+
+async def test_the_validator_tells_the_client_less_than_the_log(tmp_path: Path, ca: dict[str, Any]) -> None:
+    paths = PkiPaths.in_data_dir(tmp_path)
+    install(paths, trusted=[ca["root"].der], issuers=[ca["issuing"].der], crl=[ca["root"].crl(), ca["issuing"].crl()])
+    validate = CertificateValidator(TrustList(paths))
+    desc = ua.ApplicationDescription(
+        ApplicationUri="urn:plant:line3:old-mes", ApplicationType=ua.ApplicationType.Client
+    )
+    with pytest.raises(ServiceError) as info:
+        await validate.check([ca["revoked"]], desc)
+    assert info.value.code == S.BadSecurityChecksFailed
+    desc.ApplicationUri = MES
+    await validate.check([ca["leaf"]], desc)
+
+
+# over TCP, an asyncua client with a CA's certificate ----------------------------------------------------
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def server(tmp_path_factory: pytest.TempPathFactory, ca: dict[str, Any]) -> Any:
+    """The loopback server trusting the plant's root CA, with both CAs' revocation lists."""
+    base = tmp_path_factory.mktemp("chain")
+    app = await start_app(fast_config(base / "data"))
+    paths = PkiPaths.in_data_dir(app.data_dir)
+    install(paths, trusted=[ca["root"].der], crl=[ca["root"].crl(), ca["issuing"].crl()])
+    try:
+        yield app
+    finally:
+        await app.stop()
+
+
+async def connect(
+    app: UacellServer, tmp_path: Path, cert: x509.Certificate, key: Any, uri: str, *, send: bytes | None = None
+) -> Client:
+    """An asyncua client over Basic256Sha256 SignAndEncrypt; ``send``: the ClientCertificate its
+    CreateSession carries instead of its certificate alone (a chain)."""
+    (tmp_path / "c.der").write_bytes(der(cert))
+    (tmp_path / "k.pem").write_bytes(key_pem(key))
+    client = Client(app.endpoint, timeout=20)
+    client.application_uri = uri
+    await client.set_security(
+        sp.SecurityPolicyBasic256Sha256,
+        str(tmp_path / "c.der"),
+        str(tmp_path / "k.pem"),
+        mode=ua.MessageSecurityMode.SignAndEncrypt,
+    )
+    if send is not None:
+        create = client.uaclient.create_session
+
+        async def create_with_chain(params: ua.CreateSessionParameters) -> Any:
+            params.ClientCertificate = send
+            return await create(params)
+
+        client.uaclient.create_session = create_with_chain
+    await client.connect()
+    return client
+
+
+@ON_SERVER_LOOP
+async def test_a_client_sends_its_chain_and_is_trusted_through_the_root(
+    server: UacellServer, tmp_path: Path, ca: dict[str, Any]
+) -> None:
+    leaf, key, issuing = ca["leaf"], ca["key"], ca["issuing"]
+    paths = PkiPaths.in_data_dir(server.data_dir)
+    # its certificate alone: the issuing CA is nowhere, so the chain is incomplete
+    with pytest.raises(ua.UaStatusCodeError) as err:
+        await connect(server, tmp_path, leaf, key, MES)
+    assert err.value.code == S.BadSecurityChecksFailed
+    # with its chain (OPC 10000-6 6.2.6): the issuing CA comes from the client, the root is trusted
+    client = await connect(server, tmp_path, leaf, key, MES, send=der(leaf) + issuing.der)
+    try:
+        assert await client.nodes.server_state.read_value() == ua.ServerState.Running
+    finally:
+        await client.disconnect()
+    # the issuing CA in pki/issuers/: its certificate alone is enough now
+    (paths.issuers / "issuing.der").write_bytes(issuing.der)
+    try:
+        client = await connect(server, tmp_path, leaf, key, MES)
+        assert await client.nodes.server_state.read_value() == ua.ServerState.Running
+        await client.disconnect()
+    finally:
+        (paths.issuers / "issuing.der").unlink()
+    assert [p.read_bytes() for p in paths.rejected.iterdir()] == [der(leaf)]  # from the first, incomplete try
+
+
+@ON_SERVER_LOOP
+async def test_a_revoked_client_is_refused_and_the_log_says_why(
+    server: UacellServer, tmp_path: Path, ca: dict[str, Any], caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, logger="uacell.security.policy")
+    revoked, key, issuing = ca["revoked"], ca["revoked_key"], ca["issuing"]
+    with pytest.raises(ua.UaStatusCodeError) as err:
+        await connect(server, tmp_path, revoked, key, "urn:plant:line3:old-mes", send=der(revoked) + issuing.der)
+    assert err.value.code == S.BadSecurityChecksFailed
+    assert "BadCertificateRevoked" in caplog.text
+    # the session was not kept: the server still answers others
+    client = await connect(server, tmp_path, ca["leaf"], ca["key"], MES, send=der(ca["leaf"]) + issuing.der)
+    await client.disconnect()
+
+
+@ON_SERVER_LOOP
+async def test_a_client_certificate_that_is_no_chain_is_invalid(
+    server: UacellServer, tmp_path: Path, ca: dict[str, Any]
+) -> None:
+    leaf = ca["leaf"]
+    with pytest.raises(ua.UaStatusCodeError) as err:
+        await connect(server, tmp_path, leaf, ca["key"], MES, send=der(leaf) + b"\x30\x82\x01")
+    assert err.value.code == S.BadCertificateInvalid
