@@ -44,6 +44,7 @@ import logging
 import os
 import struct
 import time
+import weakref
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime, timedelta
@@ -371,6 +372,8 @@ class Security(_Logins):
         self.trust_list: TrustList | None = None
         self.policies: list[ua.SecurityPolicyType] = []
         self.refusals = RefusalLog()
+        # what each channel's OpenSecureChannel sent as its certificate: the client's, or its chain (OPC 10000-6 6.2.6)
+        self._sent_chains: weakref.WeakKeyDictionary[UaProcessor, bytes] = weakref.WeakKeyDictionary()
         self.role_node = ua.NodeId()  # Server/CurrentRole, made by install()
 
     async def install(self) -> None:
@@ -521,8 +524,22 @@ class Security(_Logins):
                 address, "session:certificate", f"refused session from {address}: its ClientCertificate {exc}"
             )
             raise ServiceError(_S.BadCertificateInvalid) from exc
+        chain += self._issuers_sent_with_channel(chain[0])
         await self.certificate_validator.check(chain, params.ClientDescription)
         return dataclasses.replace(params, ClientCertificate=der_of(chain[0]))
+
+    def _issuers_sent_with_channel(self, cert: x509.Certificate) -> list[x509.Certificate]:
+        """The issuers the client sent with the same certificate when it opened the secure channel (a
+        client may send its chain there and its certificate alone at CreateSession, as node-opcua does)."""
+        processor = context.current_processor()
+        sent = self._sent_chains.get(processor) if processor is not None else None
+        if not sent:
+            return []
+        try:
+            chain = split_chain(sent)
+        except ValueError:
+            return []
+        return chain[1:] if der_of(chain[0]) == der_of(cert) else []
 
     def check_reassociation(self, processor: UaProcessor, auth_token: ua.NodeId, body: Buffer) -> None:
         """ActivateSession of an existing session on a new secure channel (OPC 10000-4, 5.6.3.1): only for an
@@ -677,6 +694,8 @@ class Security(_Logins):
         """The channel's requested security mode, checked before asyncua opens it."""
         request = struct_from_binary(ua.OpenSecureChannelRequest, body.copy())
         self.check_channel(processor, algohdr.SecurityPolicyURI, request.Parameters.SecurityMode)
+        if algohdr.SenderCertificate:
+            self._sent_chains[processor] = algohdr.SenderCertificate
 
     # per-session attributes ------------------------------------------------------------------------
 
