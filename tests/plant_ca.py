@@ -112,13 +112,15 @@ class Authority:
     def revoke(self, cert: x509.Certificate) -> None:
         self.revoked.append(cert.serial_number)
 
-    def crl(self, *, signer: rsa.RSAPrivateKey | None = None) -> bytes:
-        """This CA's current revocation list, DER (signed by ``signer`` to forge one)."""
+    def crl(self, *, signer: rsa.RSAPrivateKey | None = None, issued: dt.datetime | None = None) -> bytes:
+        """This CA's revocation list, DER, issued a minute ago (or at ``issued``); signed by ``signer`` to
+        forge one."""
+        issued = issued or _now() - dt.timedelta(minutes=1)
         builder = (
             x509.CertificateRevocationListBuilder()
             .issuer_name(self.cert.subject)
-            .last_update(_now() - dt.timedelta(minutes=1))
-            .next_update(_now() + dt.timedelta(days=7))
+            .last_update(issued)
+            .next_update(issued + dt.timedelta(days=7))
         )
         for serial in self.revoked:
             builder = builder.add_revoked_certificate(

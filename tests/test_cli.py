@@ -6,6 +6,7 @@ server, so every refusal must come before anything is written.
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 import os
 import subprocess
@@ -14,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from helpers import free_port
+from plant_ca import Authority, der, pem
 
 from uacell.security.pki import PkiPaths, TrustList, make_client_certificate, thumbprint
 
@@ -281,13 +283,64 @@ def test_cert_commands_refuse_unknown_short_or_ambiguous_ids_and_change_nothing(
         (["trust", "ab"], "is neither a certificate file nor a thumbprint"),
         (["trust", "not-hex-at-all"], "is neither a certificate file nor a thumbprint"),
         (["reject", thumbprint(der)], "no trusted certificate has a thumbprint"),
-        (["remove", "ffffffffff"], "no trusted or rejected certificate"),
+        (["remove", "ffffffffff"], "no trusted or issuer or rejected certificate"),
     ]
     for args, expected in cases:
         proc = uacell("cert", *args, *d)
         assert proc.returncode == 1, (args, proc.stdout)
         assert expected in proc.stderr, (args, proc.stderr)
     assert tree(paths.root) == before
+
+
+def test_cert_issuer_and_crl_add_a_plant_ca_and_its_revocation_lists(tmp_path):
+    """`uacell cert issuer` and `uacell cert crl` (decision 92), with a CA made from RFC 5280's rules."""
+    root = Authority.root()
+    issuing = root.intermediate()
+    mes, _ = issuing.application("urn:plant:mes")
+    files = {
+        "root.der": root.der,
+        "issuing.pem": pem(issuing.cert),
+        "mes.der": der(mes),
+        "issuing.crl": issuing.crl(issued=dt.datetime.now(dt.UTC) - dt.timedelta(hours=2)),
+        "root.crl": root.crl(),
+        "junk.crl": b"junk",
+    }
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    d = ["--data-dir", str(tmp_path / "d")]
+    paths = PkiPaths.in_data_dir(tmp_path / "d")
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return uacell("cert", *args, *d)
+
+    refused = run("issuer", str(tmp_path / "mes.der"))  # an application's certificate is no CA
+    assert refused.returncode == 1 and "is not a CA's certificate" in refused.stderr
+    refused = run("crl", str(tmp_path / "issuing.crl"))  # nobody known signed it yet
+    assert refused.returncode == 1 and "no CA in" in refused.stderr and "Plant Issuing CA" in refused.stderr
+    refused = run("crl", str(tmp_path / "junk.crl"))
+    assert refused.returncode == 1 and "is not a revocation list" in refused.stderr
+    assert run("trust", str(tmp_path / "root.der")).returncode == 0
+    added = run("issuer", str(tmp_path / "issuing.pem"))
+    assert added.returncode == 0, added.stderr
+    assert [p.read_bytes() for p in paths.issuers.iterdir()] == [issuing.der]
+    assert run("crl", str(tmp_path / "root.crl")).returncode == 0
+    assert run("crl", str(tmp_path / "issuing.crl")).returncode == 0
+    assert TrustList(paths).admit([mes], "urn:plant:mes")  # the chain the files describe
+    # a newer list replaces the CA's; an older one does not
+    issuing.revoke(mes)
+    newer = issuing.crl()
+    (tmp_path / "newer.crl").write_bytes(newer)
+    assert run("crl", str(tmp_path / "newer.crl")).returncode == 0
+    assert len(list(paths.crl.iterdir())) == 2
+    assert not TrustList(paths).admit([mes], "urn:plant:mes")  # revoked now
+    older = run("crl", str(tmp_path / "issuing.crl"))
+    assert older.returncode == 1 and "is older than the list kept" in older.stderr
+    listed = run("list").stdout.splitlines()
+    assert any(line.startswith("issuer ") and "Plant Issuing CA" in line for line in listed)
+    crl_lines = [line for line in listed if line.startswith("crl ")]
+    assert len(crl_lines) == 2 and any("Plant Issuing CA  1 revoked" in line for line in crl_lines)
+    trail = [json.loads(line)["action"] for line in (tmp_path / "d" / "audit.log").read_text().splitlines()]
+    assert trail == ["trust", "issuer", "crl", "crl", "crl"]
 
 
 def test_cert_renew_keeps_the_old_pair(tmp_path):

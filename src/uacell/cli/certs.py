@@ -1,13 +1,16 @@
-"""``uacell cert list | trust ID | reject ID | remove ID | renew``: the PKI of a data directory.
+"""``uacell cert list | trust ID | reject ID | remove ID | issuer FILE | crl FILE | renew``: the PKI of a
+data directory.
 
 ID is a thumbprint (SHA-1, hex; its first characters are enough when they name one certificate) or a
-certificate file. A running server reads ``pki/trusted/`` at every secure connection, so trust
-changes apply without a restart; a renewed server certificate is loaded at the next start.
+certificate file. A running server reads ``pki/trusted/``, ``pki/issuers/`` and ``pki/crl/`` at every
+session, so trust changes apply without a restart; a renewed server certificate is loaded at the next
+start.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 import shutil
 import sys
 from dataclasses import dataclass
@@ -15,10 +18,13 @@ from pathlib import Path
 from typing import Any
 
 from cryptography import x509
+from cryptography.hazmat.primitives import serialization
 from cryptography.x509.oid import NameOID
 
 from uacell.config import Config
+from uacell.core.files import atomic_write
 from uacell.security.audit import AuditTrail
+from uacell.security.chain import newest_crl
 from uacell.security.pki import (
     _CERT_SUFFIXES,
     PkiPaths,
@@ -27,6 +33,7 @@ from uacell.security.pki import (
     _load_any,
     cert_to_der,
     ensure_server_certificate,
+    load_crl,
     thumbprint,
 )
 
@@ -39,7 +46,7 @@ class CertError(Exception):
 
 @dataclass(frozen=True)
 class CertInfo:
-    kind: str  # "own", "trusted", "rejected"
+    kind: str  # "own", "trusted", "issuer", "rejected"
     path: Path
     der: bytes
     subject: str
@@ -88,14 +95,14 @@ def _info(kind: str, path: Path, cert: x509.Certificate) -> CertInfo:
 
 
 def certificates(paths: PkiPaths) -> list[CertInfo]:
-    """The own certificate, then trusted, then rejected ones (unreadable files are skipped)."""
+    """The own certificate, then trusted, issuer and rejected ones (unreadable files are skipped)."""
     found = []
     if paths.cert.is_file():
         try:
             found.append(read_certificate(paths.cert, "own"))
         except CertError:
             pass
-    for kind, folder in (("trusted", paths.trusted), ("rejected", paths.rejected)):
+    for kind, folder in (("trusted", paths.trusted), ("issuer", paths.issuers), ("rejected", paths.rejected)):
         if not folder.is_dir():
             continue
         for f in sorted(folder.iterdir()):
@@ -107,8 +114,8 @@ def certificates(paths: PkiPaths) -> list[CertInfo]:
     return found
 
 
-def find(paths: PkiPaths, ident: str, kinds: tuple[str, ...] = ("trusted", "rejected")) -> list[CertInfo]:
-    """The client certificates ``ident`` names (a thumbprint prefix); several files may hold one certificate."""
+def find(paths: PkiPaths, ident: str, kinds: tuple[str, ...] = ("trusted", "issuer", "rejected")) -> list[CertInfo]:
+    """The certificates ``ident`` names (a thumbprint prefix); several files may hold one certificate."""
     prefix = ident.strip().lower().replace(":", "")
     if len(prefix) < MIN_PREFIX or any(c not in "0123456789abcdef" for c in prefix):
         raise CertError(f"{ident!r} is neither a certificate file nor a thumbprint (at least {MIN_PREFIX} hex digits)")
@@ -155,6 +162,63 @@ def remove(paths: PkiPaths, ident: str) -> list[Path]:
     return [c.path for c in hits]
 
 
+def add_issuer(paths: PkiPaths, file: str) -> Path:
+    """A CA's certificate into ``pki/issuers/``: it completes chains without being trusted itself."""
+    info = read_certificate(Path(file).expanduser())
+    cert = x509.load_der_x509_certificate(info.der)
+    try:
+        is_ca = cert.extensions.get_extension_for_class(x509.BasicConstraints).value.ca
+    except x509.ExtensionNotFound:
+        is_ca = False
+    if not is_ca:
+        raise CertError(f"{file} is not a CA's certificate (its BasicConstraints do not say CA)")
+    paths.create()
+    target = paths.issuers / f"{info.thumbprint}.der"
+    atomic_write(target, info.der, mode=0o644)
+    return target
+
+
+def add_crl(paths: PkiPaths, file: str) -> Path:
+    """A CA's revocation list into ``pki/crl/``, one file per CA (``<SHA-1 of the CA's name>.crl``): it
+    must be signed by a CA in trusted/ or issuers/, and not be older than the list it replaces."""
+    source = Path(file).expanduser()
+    try:
+        crl = load_crl(source.read_bytes())
+    except OSError as exc:
+        raise CertError(f"cannot read {source}: {exc.strerror or exc}") from exc
+    except ValueError as exc:
+        raise CertError(f"{source} is not a revocation list: {exc}") from exc
+    anchors = TrustList(paths).anchors()
+    signer = next((c for c in (*anchors.trusted, *anchors.issuers) if newest_crl(c, [crl]) is not None), None)
+    if signer is None:
+        raise CertError(
+            f"{source}: no CA in {paths.trusted}/ or {paths.issuers}/ signed it "
+            f"(its issuer: {crl.issuer.rfc4514_string()}); add the CA's certificate first"
+        )
+    target = paths.crl / f"{hashlib.sha1(crl.issuer.public_bytes()).hexdigest()}.crl"
+    if target.exists():
+        try:
+            kept = load_crl(target.read_bytes())
+        except ValueError:
+            kept = None
+        if kept is not None and kept.last_update_utc > crl.last_update_utc:
+            raise CertError(f"{source} is older than the list kept in {target} ({kept.last_update_utc:%Y-%m-%d %H:%M})")
+    atomic_write(target, crl.public_bytes(serialization.Encoding.DER), mode=0o644)
+    return target
+
+
+def revocation_lists(paths: PkiPaths) -> list[tuple[Path, x509.CertificateRevocationList]]:
+    found = []
+    if paths.crl.is_dir():
+        for f in sorted(paths.crl.iterdir()):
+            if f.is_file() and f.suffix.lower() == ".crl":
+                try:
+                    found.append((f, load_crl(f.read_bytes())))
+                except (OSError, ValueError):
+                    continue
+    return found
+
+
 def renew(paths: PkiPaths, application_uri: str, hosts: list[str]) -> Path:
     """A new server certificate and key now; the old pair goes to ``pki/own/backup/``."""
     if paths.cert.exists() or paths.key.exists():
@@ -172,6 +236,11 @@ def _print_list(paths: PkiPaths) -> None:
     print(f"{paths.root}: {len(infos) or 'no'} certificate{'' if len(infos) == 1 else 's'}")
     for c in infos:
         print(f"{c.kind:8} {c.thumbprint}  {c.subject}  {c.application_uri or '-'}  {c.validity()}  {c.path}")
+    for path, crl in revocation_lists(paths):
+        names = crl.issuer.get_attributes_for_oid(NameOID.COMMON_NAME)
+        issuer = str(names[0].value) if names else crl.issuer.rfc4514_string()
+        until = f"{crl.next_update_utc:%Y-%m-%d}" if crl.next_update_utc else "-"
+        print(f"crl      {issuer}  {len(crl)} revoked  {crl.last_update_utc:%Y-%m-%d} .. {until}  {path}")
 
 
 def run_cert_command(args: Any, config: Config) -> int:
@@ -198,6 +267,10 @@ def run_cert_command(args: Any, config: Config) -> int:
             for p in removed:
                 print(f"removed {p}")
             detail = {"files": [str(p) for p in removed]}
+        elif args.action in ("issuer", "crl"):
+            path = add_issuer(paths, args.file) if args.action == "issuer" else add_crl(paths, args.file)
+            print(f"{'issuer' if args.action == 'issuer' else 'revocation list'} {path.stem}: {path}")
+            detail = {"file": str(path), "from": str(args.file)}
         elif args.action == "renew":
             path = renew(paths, APPLICATION_URI, [config.server.host])
             print(f"new server certificate {thumbprint(path.read_bytes())}: {path} (used from the next start)")

@@ -165,14 +165,18 @@ def _parser() -> argparse.ArgumentParser:
 
     cert = leaf(sub, "cert", "the server's certificate and the client certificates it trusts or rejected")
     csub = cert.add_subparsers(dest="action", required=True)
-    leaf(csub, "list", "own, trusted and rejected certificates")
+    leaf(csub, "list", "own, trusted, issuer and rejected certificates, and revocation lists")
     for name, text in (
         ("trust", "trust a client certificate (from rejected/ or a file)"),
         ("reject", "stop trusting a client certificate (moved to rejected/)"),
-        ("remove", "delete a trusted or rejected client certificate"),
+        ("remove", "delete a trusted, issuer or rejected certificate"),
     ):
         c = leaf(csub, name, text)
         c.add_argument("id", help="a thumbprint (or its first characters) or a certificate file")
+    issuer = leaf(csub, "issuer", "add a CA certificate that completes client chains without being trusted itself")
+    issuer.add_argument("file", help="the CA's certificate (DER or PEM)")
+    crl = leaf(csub, "crl", "add or update a CA's revocation list (one per CA; not replaced by an older one)")
+    crl.add_argument("file", help="the revocation list (DER or PEM)")
     leaf(csub, "renew", "make a new server certificate now (the old one is kept in pki/own/backup/)")
     return p
 

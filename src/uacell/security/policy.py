@@ -13,7 +13,8 @@ binders run. It
   discovery reachable without security) and every other request on it, CreateSession and
   ActivateSession included, answers Bad_SecurityPolicyRejected. Refusals are logged once per client
   address, reason and interval (``RefusalLog``);
-- checks client certificates against ``pki/trusted`` (``uacell.security.pki.CertificateValidator``);
+- checks client certificates, with the issuers they were sent with, at CreateSession against ``pki/trusted``,
+  ``pki/issuers`` and ``pki/crl`` (``uacell.security.pki.CertificateValidator``, decision 92);
 - accepts anonymous, user-name and X.509 identity tokens, but a user name only with an encrypted password
   or over a SignAndEncrypt channel (``Bad_IdentityTokenRejected`` otherwise); an encrypted password
   must use the algorithm of the endpoint's user token policy and carry the last server nonce this
