@@ -330,3 +330,26 @@ async def test_a_client_certificate_that_is_no_chain_is_invalid(
     with pytest.raises(ua.UaStatusCodeError) as err:
         await connect(server, tmp_path, leaf, ca["key"], MES, send=der(leaf) + b"\x30\x82\x01")
     assert err.value.code == S.BadCertificateInvalid
+
+
+@ON_SERVER_LOOP
+async def test_a_session_must_name_the_certificate_of_its_channel(
+    server: UacellServer, tmp_path: Path, ca: dict[str, Any]
+) -> None:
+    """OPC 10000-4 5.7.2.2 (1.05): the ClientCertificate of CreateSession is the one the secure channel
+    was opened with. A client holding only a trusted client's certificate (public: it travels in clear
+    in OpenSecureChannel) and the key of another must get no session by naming the trusted one."""
+    rogue = Authority.root("Rogue CA", key_index=8)
+    cert, key = rogue.application(MES, "Rogue", key_index=9)
+    trusted = der(ca["leaf"]) + ca["issuing"].der  # a chain uacell trusts
+    with pytest.raises(ua.UaStatusCodeError) as err:
+        await connect(server, tmp_path, cert, key, MES, send=trusted)
+    assert err.value.code == S.BadSecurityChecksFailed
+
+
+def test_pinning_covers_an_unknown_issuer_of_the_certificate_itself_only(ca: dict[str, Any]) -> None:
+    """Its issuer known but the issuer's own issuer not: the chain cannot be built, pinned or not."""
+    leaf, issuing = ca["leaf"], ca["issuing"]
+    refusal = check_chain([leaf], Anchors(trusted=(leaf,), issuers=(issuing.cert,)), NOW)
+    assert refusal is not None and refusal.code == S.BadCertificateChainIncomplete
+    assert refusal.certificate == issuing.cert

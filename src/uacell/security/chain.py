@@ -109,8 +109,12 @@ def check_chain(
     leaf = chain[0]
     path, refusal = _build(leaf, [*chain[1:], *anchors.trusted, *anchors.issuers])
     if refusal is not None:
-        if refusal.code == _S.BadCertificateChainIncomplete and anchors.is_trusted(leaf):
-            return None  # trusted by itself, its issuer unknown: pinned (decision 92)
+        if (
+            refusal.code == _S.BadCertificateChainIncomplete
+            and refusal.certificate == leaf
+            and anchors.is_trusted(leaf)
+        ):
+            return None  # trusted by itself, its own issuer unknown: pinned (decision 92)
         return refusal
     if not any(anchors.is_trusted(c) for c in path):
         return Refusal(_S.BadCertificateUntrusted, leaf, "neither it nor an issuer of its chain is trusted")

@@ -81,6 +81,7 @@ from uacell.security.pki import (
     ensure_server_certificate,
     load_server_key,
 )
+from uacell.security.pki import thumbprint as app_thumbprint  # SHA-1, OPC UA's; users' is SHA-256
 from uacell.security.users import LoginThrottle, thumbprint
 from uacell.services.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua import channel, context, door
@@ -517,14 +518,25 @@ class Security(_Logins):
     async def check_client_certificate(self, params: ua.CreateSessionParameters) -> ua.CreateSessionParameters:
         """The client's certificate, alone or followed by its issuers (OPC 10000-6 6.2.6), against the
         trust list; returns the parameters with the client's own certificate alone, as asyncua reads it."""
+        processor = context.current_processor()
+        address = _address(processor)
         try:
             chain = split_chain(params.ClientCertificate)
         except ValueError as exc:
-            address = _address(context.current_processor())
             self.refusals.report(
                 address, "session:certificate", f"refused session from {address}: its ClientCertificate {exc}"
             )
             raise ServiceError(_S.BadCertificateInvalid) from exc
+        opened_with = channel.peer_certificate(processor) if processor is not None else None
+        if opened_with is not None and der_of(chain[0]) != opened_with:
+            # OPC 10000-4 5.7.2.2: the certificate the channel was opened with, whose key the channel proved
+            self.refusals.report(
+                address,
+                "session:other-certificate",
+                f"refused session from {address}: its ClientCertificate ({app_thumbprint(der_of(chain[0]))}) is not "
+                f"the certificate its secure channel was opened with ({app_thumbprint(opened_with)})",
+            )
+            raise ServiceError(_S.BadSecurityChecksFailed)
         chain += self._issuers_sent_with_channel(chain[0])
         await self.certificate_validator.check(chain, params.ClientDescription)
         return dataclasses.replace(params, ClientCertificate=der_of(chain[0]))
