@@ -28,6 +28,7 @@ from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.asymmetric import padding, rsa
 
 from uacell.core.roles import Role
+from uacell.security.chain import der_length
 from uacell.security.users import UserStore, thumbprint
 
 RSA_SHA256 = "http://www.w3.org/2001/04/xmldsig-more#rsa-sha256"
@@ -89,15 +90,10 @@ def first_certificate(data: bytes) -> bytes:
     """The user's own certificate of ``certificateData``: a client may send its issuers' after it, each
     a DER SEQUENCE (OPC 10000-6, 6.2.3: a chain is the certificates' encodings one after the other).
     ``data`` itself when it does not start with a well-formed SEQUENCE header."""
-    if len(data) < 2 or data[0] != 0x30:
+    try:
+        end = der_length(data)
+    except ValueError:
         return data
-    length, start = data[1], 2
-    if length & 0x80:
-        count = length & 0x7F
-        if not 1 <= count <= 4 or len(data) < 2 + count:
-            return data
-        length, start = int.from_bytes(data[2 : 2 + count], "big"), 2 + count
-    end = start + length
     return data[:end] if end <= len(data) else data
 
 

@@ -78,7 +78,7 @@ def split_chain(data: bytes) -> list[x509.Certificate]:
     certs: list[x509.Certificate] = []
     offset = 0
     while offset < len(data):
-        end = offset + _der_length(data, offset)
+        end = offset + der_length(data, offset)
         if end > len(data):
             raise ValueError(f"certificate {len(certs) + 1} of the chain is cut short")
         certs.append(x509.load_der_x509_certificate(data[offset:end]))
@@ -88,9 +88,10 @@ def split_chain(data: bytes) -> list[x509.Certificate]:
     return certs
 
 
-def _der_length(data: bytes, offset: int) -> int:
-    """The full length (header included) of the DER SEQUENCE starting at ``offset``."""
-    if data[offset] != 0x30 or offset + 2 > len(data):
+def der_length(data: bytes, offset: int = 0) -> int:
+    """The full length (header included) of the DER SEQUENCE starting at ``offset``, as its header says
+    (it may say more than ``data`` holds). ValueError when no SEQUENCE header starts there."""
+    if offset + 2 > len(data) or data[offset] != 0x30:
         raise ValueError("not a DER certificate")
     first = data[offset + 1]
     if first < 0x80:
