@@ -230,11 +230,15 @@ async def test_the_validator_tells_the_client_less_than_the_log(tmp_path: Path, 
     desc = ua.ApplicationDescription(
         ApplicationUri="urn:plant:line3:old-mes", ApplicationType=ua.ApplicationType.Client
     )
-    with pytest.raises(ServiceError) as info:
-        await validate.check([ca["revoked"]], desc)
+    verdict = await validate.check([ca["revoked"]], desc)
+    assert verdict is not None
+    assert (verdict.told, verdict.precise) == (S.BadSecurityChecksFailed, S.BadCertificateRevoked)
+    assert verdict.certificate == der(ca["revoked"])
+    with pytest.raises(ServiceError) as info:  # as asyncua's certificate validator
+        await validate(ca["revoked"], desc)
     assert info.value.code == S.BadSecurityChecksFailed
     desc.ApplicationUri = MES
-    await validate.check([ca["leaf"]], desc)
+    assert await validate.check([ca["leaf"]], desc) is None
 
 
 # over TCP, an asyncua client with a CA's certificate ----------------------------------------------------

@@ -574,6 +574,17 @@ def _read_files(folder: Path, suffixes: set[str], load: Callable[[bytes], _T], w
     return found
 
 
+@dataclass(frozen=True)
+class CertificateVerdict:
+    """A refused client certificate: ``told`` is what the client is told, ``precise`` the step's own
+    code (for the log and the audit events), ``certificate`` the client's DER, ``why`` in words."""
+
+    told: int
+    precise: int
+    certificate: bytes
+    why: str
+
+
 def _warn(message: str, reason: str) -> None:
     _log.warning("%s", message)
 
@@ -592,9 +603,14 @@ class CertificateValidator:
         self._basic = _UaValidator(opts.BASIC_VALIDATION | opts.PEER_CLIENT)
 
     async def __call__(self, cert: x509.Certificate, app_description: ua.ApplicationDescription) -> None:
-        await self.check([cert], app_description)
+        verdict = await self.check([cert], app_description)
+        if verdict is not None:
+            raise ServiceError(verdict.told)
 
-    async def check(self, chain: Sequence[x509.Certificate], app_description: ua.ApplicationDescription) -> None:
+    async def check(
+        self, chain: Sequence[x509.Certificate], app_description: ua.ApplicationDescription
+    ) -> CertificateVerdict | None:
+        """None when the chain (the client's certificate first) is trusted; else why not."""
         der = cert_to_der(chain[0])
         try:
             # Checked first so that trust on first use never records an expired or mismatched certificate.
@@ -604,7 +620,8 @@ class CertificateValidator:
             self.trust_list.report_refusal(
                 f"refused client certificate {thumbprint(der)} of {app_description.ApplicationUri}: {name}", name
             )
-            raise
+            return CertificateVerdict(exc.code, exc.code, der, f"the client certificate: {name}")
         refusal = self.trust_list.refusal(chain, app_description.ApplicationUri or "")
-        if refusal is not None:
-            raise ServiceError(told(refusal.code))
+        if refusal is None:
+            return None
+        return CertificateVerdict(told(refusal.code), refusal.code, der, refusal.why)

@@ -66,6 +66,7 @@ from uacell.config import login_answer_margin
 from uacell.core.logs import RefusalLog
 from uacell.core.roles import Family, Role, may
 from uacell.security.access import user_access_level, verified_login
+from uacell.security.audit_events import SecurityAuditEvents
 from uacell.security.certificate_login import (
     TokenRefused,
     VerifiedCertificate,
@@ -86,7 +87,7 @@ from uacell.security.users import LoginThrottle, thumbprint
 from uacell.services.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua import channel, context, door
 from uacell.ua.context import UacellUser, caller_of
-from uacell.ua.door.connection import connection
+from uacell.ua.door.connection import channel_id, connection, last_activity
 from uacell.ua.limits import LimitedSession, check_operations
 from uacell.ua.pipeline import Next, Request
 
@@ -198,6 +199,7 @@ class _Logins:
     _password_threads: ThreadPoolExecutor
     _user_locks: dict[str, asyncio.Lock]
     _lock_users: dict[str, int]  # attempts holding or waiting for each user name's lock
+    audit_events: SecurityAuditEvents
 
     def decrypt_user_token(self, isession: InternalSession, token: ua.UserNameIdentityToken) -> tuple[str, str]:
         raise NotImplementedError  # Security's
@@ -212,10 +214,10 @@ class _Logins:
         address = _address(processor)
         if isinstance(token, ua.X509IdentityToken):
             # No secret to guess (the signature proves the key): nobody waits (decision 84).
-            return await self._audited(processor, address, self.certificate_user(token), call)
+            return await self._audited(processor, address, self.certificate_user(token), call, token)
         if not isinstance(token, ua.UserNameIdentityToken) or not token.UserName:
             # Anonymous or another token type: asyncua decides, nobody waits.
-            return await self._audited(processor, address, None, call)
+            return await self._audited(processor, address, None, call, token)
         user = str(token.UserName)
         deadline = self.answer_deadline(processor, requesthdr)
         # One attempt at a time per user name, so parallel connections cannot skip the delay.
@@ -228,12 +230,15 @@ class _Logins:
                 try:
                     await asyncio.wait_for(lock.acquire(), max(0.0, deadline - time.monotonic()))
                 except TimeoutError:
-                    self._unchecked(processor, address, user, "another attempt of this user name was under way")
+                    await self._unchecked(
+                        processor, address, user, token, "another attempt of this user name was under way"
+                    )
             try:
                 wait = self.throttle.wait_time(user, address)
                 if wait > 0:
                     if time.monotonic() + wait > deadline:
-                        self._unchecked(processor, address, user, f"its {wait:.1f} s delay would outlast its deadline")
+                        why = f"its {wait:.1f} s delay would outlast its deadline"
+                        await self._unchecked(processor, address, user, token, why)
                     log.info("delaying login of user %r from %s by %.1f s after failed attempts", user, address, wait)
                     await asyncio.sleep(wait)
                 return await self._checked_login(processor, requesthdr, token, address, user, call)
@@ -260,7 +265,7 @@ class _Logins:
     ) -> Any:
         verified = await self._verify_off_loop(processor, requesthdr, token)
         try:
-            result = await self._audited(processor, address, user, call)
+            result = await self._audited(processor, address, user, call, token)
         except ServiceError as exc:
             if exc.code == ua.StatusCodes.BadUserAccessDenied:
                 self.throttle.failed(user, address)
@@ -307,11 +312,11 @@ class _Logins:
             deadlines.append(now + left - login_answer_margin(lifetime))
         return min(deadlines, default=now)
 
-    def _unchecked(self, processor: UaProcessor, address: str, user: str, why: str) -> NoReturn:
+    async def _unchecked(self, processor: UaProcessor, address: str, user: str, token: Any, why: str) -> NoReturn:
         """Answer Bad_UserAccessDenied now, without checking the password (and without counting a
         failure): the throttle may not check it before its deadline (decision 65)."""
         log.info("login of user %r from %s refused unchecked: %s", user, address, why)
-        self._audit_login(processor, address, user, "BadUserAccessDenied")
+        await self._audit_login(processor, address, user, token, ua.StatusCodes.BadUserAccessDenied)
         raise ServiceError(ua.StatusCodes.BadUserAccessDenied)
 
     async def _verify_off_loop(self, processor: UaProcessor, requesthdr: Any, token: ua.UserNameIdentityToken) -> Any:
@@ -333,22 +338,25 @@ class _Logins:
             role = await loop.run_in_executor(self._password_threads, self.app.users.verify, name, password or "")
         return verified_login.set((name, password or "", role))
 
-    async def _audited(self, processor: UaProcessor, address: str, user: str | None, call: Callable[[], Any]) -> Any:
-        """Run an activation and record it in the audit trail, refused or not."""
+    async def _audited(
+        self, processor: UaProcessor, address: str, user: str | None, call: Callable[[], Any], token: Any
+    ) -> Any:
+        """Run an activation and record it in the audit trail and its audit event, refused or not."""
         try:
             result = await call()
         except ServiceError as exc:
-            self._audit_login(processor, address, user, ua.StatusCode(exc.code).name)
+            await self._audit_login(processor, address, user, token, exc.code)
             raise
-        self._audit_login(processor, address, user, "Good")
+        await self._audit_login(processor, address, user, token, _S.Good)
         return result
 
-    def _audit_login(self, processor: UaProcessor, address: str, user: str | None, result: str) -> None:
+    async def _audit_login(self, processor: UaProcessor, address: str, user: str | None, token: Any, code: int) -> None:
         from uacell.services.observers import session_fields
 
         fields = session_fields(processor.session) if processor.session is not None else {}
         fields["user"] = user or fields.get("user", "anonymous")
-        self.app.audit.record("login", **fields, address=address, result=result)
+        self.app.audit.record("login", **fields, address=address, result=ua.StatusCode(code).name)
+        await self.audit_events.session_activated(processor.session, channel_id(processor), token, user, code)
 
 
 class Security(_Logins):
@@ -398,6 +406,8 @@ class Security(_Logins):
                 self.trust_list.paths.trusted,
             )
         self.certificate_validator = CertificateValidator(self.trust_list)  # at CreateSession, with the chain
+        self.audit_events = SecurityAuditEvents(self.server)
+        await self.audit_events.install()
         self.policies = list(SECURE_POLICIES) + ([_P.NoSecurity] if policy.none_security else [])
         self.server.set_security_policy(self.policies)
         # asyncua gives the certificate token policy the endpoint's security policy (on a None endpoint the
@@ -538,7 +548,11 @@ class Security(_Logins):
             )
             raise ServiceError(_S.BadSecurityChecksFailed)
         chain += self._issuers_sent_with_channel(chain[0])
-        await self.certificate_validator.check(chain, params.ClientDescription)
+        verdict = await self.certificate_validator.check(chain, params.ClientDescription)
+        if verdict is not None:  # its audit event besides the session's (OPC 10000-4 6.5.6)
+            uri = params.ClientDescription.ApplicationUri if params.ClientDescription else None
+            await self.audit_events.certificate_refused(verdict.precise, verdict.certificate, verdict.why, uri)
+            raise ServiceError(verdict.told)
         return dataclasses.replace(params, ClientCertificate=der_of(chain[0]))
 
     def _issuers_sent_with_channel(self, cert: x509.Certificate) -> list[x509.Certificate]:
@@ -799,20 +813,32 @@ class UacellSession(LimitedSession):
             # OPC 10000-4 CreateSession: on a SecurityPolicy None channel the client certificate plays
             # no part (nothing is signed with it), so it is not checked against the trust list.
             params = dataclasses.replace(params, ClientCertificate=None)
+        events = self._security.audit_events
         try:
             self._security.check_session(processor, params)
             if params.ClientCertificate:
                 params = await self._security.check_client_certificate(params)
             result = await super().create_session(params, sockname=sockname)
-        except BaseException:
+        except BaseException as exc:
             await self.close_session()  # a refused session must not be activated later
+            if isinstance(exc, ServiceError):
+                await events.session_created(self, params, channel_id(processor), exc.code)
             raise
         self._audited_open = True
         self._audit("session_open")
+        await events.session_created(self, params, channel_id(processor), _S.Good)
         diagnostics = self._security.app.diagnostics
         if diagnostics is not None:
             diagnostics.session_created(self, params, processor)
         return result
+
+    def _end_cause(self) -> str:
+        """Why the session is closing, as an AuditSessionEvent's SourceName says it (OPC 10000-4 6.5.6)."""
+        timeout = float(self.session_timeout or 0)
+        now = time.monotonic()
+        if timeout > 0 and now - last_activity(self, now) >= timeout:
+            return "Timeout"
+        return "CloseSession" if context.current_processor() is not None else "Terminated"
 
     def _audit(self, event: str, **extra: Any) -> None:
         from uacell.services.observers import session_fields
@@ -868,6 +894,7 @@ class UacellSession(LimitedSession):
         if not already:
             if self._audited_open:
                 self._audit("session_close")
+                await self._security.audit_events.session_closed(self, self._end_cause())
             if self._security.app.diagnostics is not None:
                 self._security.app.diagnostics.session_closed(self)
             self._security.session_closed(self)

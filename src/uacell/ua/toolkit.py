@@ -254,9 +254,12 @@ class EventEmitter:
         self,
         notifiers: Iterable[ua.NodeId],
         fields: Mapping[str, tuple[Any, ua.VariantType]] = {},
+        to: Iterable[int] | None = None,
         **base: Any,
     ) -> None:
-        """Fill the base fields (EventId, Time, Message, ...) and the typed ``fields``, then fire."""
+        """Fill the base fields (EventId, Time, Message, ...) and the typed ``fields``, then fire: to
+        every listener and subscription, or (``to``) to those subscriptions only (nothing else sees it:
+        not history, not PubSub)."""
         ev = self.event
         for name, value in base.items():
             setattr(ev, name, value)
@@ -264,7 +267,9 @@ class EventEmitter:
             setattr(ev, name, value)
             ev.data_types[name] = vtype
         service = self.server.iserver.isession.subscription_service
+        targets: list[int | None] = [None] if to is None else list(to)
         for notifier in notifiers:
             ev.emitting_node = notifier
-            await service.trigger_event(ev)
+            for subscription in targets:
+                await service.trigger_event(ev, subscription)
         ev.emitting_node = self.source

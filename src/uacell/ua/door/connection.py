@@ -172,6 +172,12 @@ def connection(processor: UaProcessor | None) -> Any:
     return getattr(processor, "_connection", None)
 
 
+def channel_id(processor: UaProcessor | None) -> str:
+    """The processor's SecureChannelId as audit events name it ("" when there is none)."""
+    token = getattr(connection(processor), "security_token", None)
+    return str(token.ChannelId) if token is not None else ""
+
+
 def channel_open(processor: UaProcessor) -> bool:
     """Has the processor's secure channel been opened?"""
     return bool(processor._connection.is_open())
