@@ -16,6 +16,7 @@ from asyncua.crypto import security_policies as sp
 from conftest import fast_config, start_app
 from helpers import Collector, call_path
 from plant_ca import Authority, der, key_pem
+from uaraw import RawClient, Refused
 
 from uacell.core.roles import Role
 from uacell.server import UacellServer
@@ -26,6 +27,8 @@ OBJ = ua.ObjectIds
 PASSWORD = "audit-events-pw-1"
 AUDIT_TYPES = [
     OBJ.AuditUpdateStateEventType,  # which every session may see: the operator's subscription gets these
+    OBJ.AuditOpenSecureChannelEventType,
+    OBJ.AuditChannelEventType,
     OBJ.AuditCreateSessionEventType,
     OBJ.AuditActivateSessionEventType,
     OBJ.AuditSessionEventType,
@@ -167,16 +170,71 @@ async def test_a_refused_certificate_fires_its_certificate_event_and_a_failed_cr
         await admin.disconnect()
 
 
+async def connected(server: UacellServer, seen: Collector, name: str) -> tuple[Client, Any]:
+    """An anonymous client whose session is named after ``name``, and the audit event of its CreateSession."""
+    client = Client(server.endpoint, timeout=20)
+    client.description = name
+    await client.connect()
+    created = await seen.wait_for(
+        of(OBJ.AuditCreateSessionEventType, "Session/CreateSession", status=True, message=name)
+    )
+    return client, created
+
+
 async def test_a_lost_connection_ends_its_session_as_terminated(server: UacellServer) -> None:
     admin, seen = await listener(server, "ada")
     try:
-        client = Client(server.endpoint, timeout=20)
-        client.description = "vanishing client"
-        await client.connect()
-        created = await seen.wait_for(
-            of(OBJ.AuditCreateSessionEventType, "Session/CreateSession", status=True, message="vanishing client")
-        )
+        client, created = await connected(server, seen, "vanishing client")
         client.disconnect_socket()  # no CloseSession: the transport goes
         await seen.wait_for(of(OBJ.AuditSessionEventType, "Session/Terminated", session=created.SessionId))
+    finally:
+        await admin.disconnect()
+
+
+async def test_a_secure_channel_opened_and_closed_is_audited(server: UacellServer) -> None:
+    admin, seen = await listener(server, "ada")
+    try:
+        client, created = await connected(server, seen, "channel client")
+        channel = created.SecureChannelId
+        await client.disconnect()
+        opened = await seen.wait_for(
+            lambda e: (
+                of(OBJ.AuditOpenSecureChannelEventType, "SecureChannel/OpenSecureChannel", status=True)(e)
+                and e.SecureChannelId == channel
+            )
+        )
+        assert opened.ClientUserId == "System/OpenSecureChannel"
+        assert opened.SecurityPolicyUri == "http://opcfoundation.org/UA/SecurityPolicy#None"
+        assert opened.SecurityMode == ua.MessageSecurityMode.None_
+        assert opened.RequestType == ua.SecurityTokenRequestType.Issue
+        assert opened.RequestedLifetime > 0
+        assert opened.ClientCertificate is None
+        closed = await seen.wait_for(
+            lambda e: (
+                of(OBJ.AuditChannelEventType, "SecureChannel/CloseSecureChannel")(e) and e.SecureChannelId == channel
+            )
+        )
+        assert closed.Status is True
+        assert seen.events.index(opened) < seen.events.index(created) < seen.events.index(closed)
+    finally:
+        await admin.disconnect()
+
+
+async def test_a_refused_secure_channel_is_audited(server: UacellServer) -> None:
+    """A mode no endpoint offers (policy None with Sign): refused, and audited as such."""
+    admin, seen = await listener(server, "ada")
+    try:
+        async with await RawClient.connect(
+            "127.0.0.1", server.config.server.port, policy=sp.SecurityPolicyNone()
+        ) as raw:
+            await raw.hello()
+            with pytest.raises(Refused):
+                await raw.open_channel(mode=ua.MessageSecurityMode.Sign)
+        refused = await seen.wait_for(
+            of(OBJ.AuditOpenSecureChannelEventType, "SecureChannel/OpenSecureChannel", status=False)
+        )
+        assert refused.StatusCodeId == ua.StatusCode(ua.StatusCodes.BadSecurityModeRejected)
+        assert refused.SecureChannelId == ""
+        assert refused.SecurityMode == ua.MessageSecurityMode.Sign
     finally:
         await admin.disconnect()

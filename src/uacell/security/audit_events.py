@@ -1,10 +1,14 @@
-"""The Server's audit events of sessions and refused certificates (OPC 10000-4 6.5.6, OPC 10000-5 6.4):
-the server says it audits (``Server/Auditing`` is true), so every CreateSession, ActivateSession and
-end of a session fires its audit event, refused or not, and a refused client certificate fires the
-AuditCertificate subtype its refusal names, besides.
+"""The Server's audit events of secure channels, sessions and refused certificates (OPC 10000-4 6.5.5 and
+6.5.6, OPC 10000-5 6.4):
+the server says it audits (``Server/Auditing`` is true), so every OpenSecureChannel (renewals of its
+token aside), CloseSecureChannel, CreateSession, ActivateSession and end of a session fires its audit
+event, refused or not, and a refused client certificate fires the AuditCertificate subtype its refusal
+names, besides.
 
 | Event type | SourceName | when |
 | --- | --- | --- |
+| AuditOpenSecureChannelEventType | ``SecureChannel/OpenSecureChannel`` | a secure channel opened or refused |
+| AuditChannelEventType | ``SecureChannel/CloseSecureChannel`` | a client closes its secure channel |
 | AuditCreateSessionEventType | ``Session/CreateSession`` | every CreateSession (SessionId null when refused) |
 | AuditActivateSessionEventType | ``Session/ActivateSession`` | every ActivateSession, a change of user too |
 | AuditSessionEventType | ``Session/CloseSession``, ``Session/Timeout``, ``Session/Terminated`` | a session ends |
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 import weakref
 from collections.abc import Mapping
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
@@ -26,6 +31,7 @@ from asyncua import Server, ua
 from asyncua.server.internal_session import InternalSession
 
 from uacell.core.roles import Role
+from uacell.security.certificate_login import first_certificate
 from uacell.security.pki import thumbprint
 from uacell.ua import toolkit
 from uacell.ua.context import audit_entry_id, caller_of
@@ -52,6 +58,18 @@ CERTIFICATE_EVENTS: Mapping[int, int] = {
     _S.BadCertificateIssuerUseNotAllowed: _O.AuditCertificateMismatchEventType,
 }
 SESSION_EVENTS = (_O.AuditCreateSessionEventType, _O.AuditActivateSessionEventType, _O.AuditSessionEventType)
+CHANNEL_EVENTS = (_O.AuditOpenSecureChannelEventType, _O.AuditChannelEventType)
+
+
+@dataclass(frozen=True)
+class ChannelRequest:
+    """What an OpenSecureChannel asked for, as its audit event reports it."""
+
+    certificate: bytes | None  # as the client sent it: its certificate, or its chain
+    policy_uri: str
+    mode: ua.MessageSecurityMode
+    request_type: ua.SecurityTokenRequestType
+    requested_lifetime: float  # ms
 
 
 class SecurityAuditEvents:
@@ -63,10 +81,42 @@ class SecurityAuditEvents:
         self._sessions: weakref.WeakValueDictionary[ua.NodeId, InternalSession] = weakref.WeakValueDictionary()
 
     async def install(self) -> None:
-        for type_id in {*SESSION_EVENTS, _O.AuditCertificateInvalidEventType, *CERTIFICATE_EVENTS.values()}:
+        for type_id in {
+            *CHANNEL_EVENTS,
+            *SESSION_EVENTS,
+            _O.AuditCertificateInvalidEventType,
+            *CERTIFICATE_EVENTS.values(),
+        }:
             self._emitters[type_id] = await EventEmitter.create(self.server, type_id, SERVER)
 
     # the service calls ------------------------------------------------------------------------------
+
+    async def channel_opened(self, request: ChannelRequest, channel_id: str, code: int, why: str = "") -> None:
+        """An OpenSecureChannel answered ``code`` (``channel_id`` empty when refused)."""
+        leaf = first_certificate(request.certificate) if request.certificate else None
+        fields = {
+            "SecureChannelId": (channel_id, _VT.String),
+            "ClientCertificate": (request.certificate, _VT.ByteString),
+            "ClientCertificateThumbprint": (_thumbprint(leaf), _VT.String),
+            "RequestType": (request.request_type, _VT.Int32),
+            "SecurityPolicyUri": (request.policy_uri, _VT.String),
+            "SecurityMode": (request.mode, _VT.Int32),
+            "RequestedLifetime": (request.requested_lifetime, _VT.Double),
+        }
+        good = ua.StatusCode(code).is_good()
+        mode = request.mode.name if isinstance(request.mode, ua.MessageSecurityMode) else str(request.mode)
+        message = f"secure channel {channel_id} opened ({mode})" if good else f"secure channel refused: {why}"
+        # OPC 10000-5 6.4.6: the ClientUserId "shall be set to System/OpenSecureChannel"
+        opened = _O.AuditOpenSecureChannelEventType
+        await self._fire(opened, "SecureChannel/OpenSecureChannel", fields, code, "System/OpenSecureChannel", message)
+
+    async def channel_closed(self, channel_id: str) -> None:
+        """A client's CloseSecureChannel."""
+        fields = {"SecureChannelId": (channel_id, _VT.String)}
+        closed = _O.AuditChannelEventType
+        await self._fire(
+            closed, "SecureChannel/CloseSecureChannel", fields, _S.Good, None, f"secure channel {channel_id} closed"
+        )
 
     async def session_created(
         self,

@@ -66,7 +66,7 @@ from uacell.config import login_answer_margin
 from uacell.core.logs import RefusalLog
 from uacell.core.roles import Family, Role, may
 from uacell.security.access import user_access_level, verified_login
-from uacell.security.audit_events import SecurityAuditEvents
+from uacell.security.audit_events import ChannelRequest, SecurityAuditEvents
 from uacell.security.certificate_login import (
     TokenRefused,
     VerifiedCertificate,
@@ -87,7 +87,7 @@ from uacell.security.users import LoginThrottle, thumbprint
 from uacell.services.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua import channel, context, door
 from uacell.ua.context import UacellUser, caller_of
-from uacell.ua.door.connection import channel_id, connection, last_activity
+from uacell.ua.door.connection import channel_id, channel_open, connection, last_activity
 from uacell.ua.limits import LimitedSession, check_operations
 from uacell.ua.pipeline import Next, Request
 
@@ -382,8 +382,8 @@ class Security(_Logins):
         self.trust_list: TrustList | None = None
         self.policies: list[ua.SecurityPolicyType] = []
         self.refusals = RefusalLog()
-        # what each channel's OpenSecureChannel sent as its certificate: the client's, or its chain (OPC 10000-6 6.2.6)
-        self._sent_chains: weakref.WeakKeyDictionary[UaProcessor, bytes] = weakref.WeakKeyDictionary()
+        # what each channel's OpenSecureChannel asked for; its certificate: the client's, or its chain (10000-6 6.2.6)
+        self._channel_requests: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest] = weakref.WeakKeyDictionary()
         self.role_node = ua.NodeId()  # Server/CurrentRole, made by install()
 
     async def install(self) -> None:
@@ -559,7 +559,8 @@ class Security(_Logins):
         """The issuers the client sent with the same certificate when it opened the secure channel (a
         client may send its chain there and its certificate alone at CreateSession, as node-opcua does)."""
         processor = context.current_processor()
-        sent = self._sent_chains.get(processor) if processor is not None else None
+        request = self._channel_requests.get(processor) if processor is not None else None
+        sent = request.certificate if request is not None else None
         if not sent:
             return []
         try:
@@ -710,19 +711,48 @@ class Security(_Logins):
     ) -> Any:
         """An OpenSecureChannel message: refused unless an offered endpoint allows its policy (asyncua
         would fall back to its initial None policy when no offered policy matches)."""
+        uri = _peek_policy_uri(header, body)
         try:
-            self.check_channel(processor, _peek_policy_uri(header, body), None)
-            return await proceed()
+            self.check_channel(processor, uri, None)
+            result = await proceed()
         except _ChannelRefused as refused:
             self.refuse_channel(processor, refused)
+            await self._audit_channel(processor, uri, refused.code, refused.reason)
             return False  # the connection is closed
+        if channel_open(processor):
+            await self._audit_channel(processor, uri, _S.Good)
+        return result
 
     def open(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None:
         """The channel's requested security mode, checked before asyncua opens it."""
-        request = struct_from_binary(ua.OpenSecureChannelRequest, body.copy())
-        self.check_channel(processor, algohdr.SecurityPolicyURI, request.Parameters.SecurityMode)
-        if algohdr.SenderCertificate:
-            self._sent_chains[processor] = algohdr.SenderCertificate
+        params = struct_from_binary(ua.OpenSecureChannelRequest, body.copy()).Parameters
+        self._channel_requests[processor] = ChannelRequest(
+            algohdr.SenderCertificate or None,
+            algohdr.SecurityPolicyURI or "",
+            params.SecurityMode,
+            params.RequestType,
+            float(params.RequestedLifetime or 0),
+        )
+        self.check_channel(processor, algohdr.SecurityPolicyURI, params.SecurityMode)
+
+    async def closing(self, processor: UaProcessor, proceed: Callable[[], Awaitable[Any]]) -> Any:
+        """A client's CloseSecureChannel: audited (OPC 10000-4 6.5.5)."""
+        closed = channel_id(processor)
+        result = await proceed()
+        if closed:
+            await self.audit_events.channel_closed(closed)
+        return result
+
+    async def _audit_channel(self, processor: UaProcessor, uri: str | None, code: int, why: str = "") -> None:
+        """The audit event of an OpenSecureChannel (refused before asyncua read its request: what its
+        header said)."""
+        request = self._channel_requests.get(processor)
+        if request is None:
+            request = ChannelRequest(
+                None, uri or "", ua.MessageSecurityMode.Invalid, ua.SecurityTokenRequestType.Issue, 0.0
+            )
+        opened = channel_id(processor) if ua.StatusCode(code).is_good() else ""
+        await self.audit_events.channel_opened(request, opened, code, why)
 
     # per-session attributes ------------------------------------------------------------------------
 

@@ -95,6 +95,8 @@ class ChannelGuard(Protocol):
 
     def open(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None: ...
 
+    async def closing(self, processor: UaProcessor, proceed: Next0) -> Any: ...
+
 
 Next0 = Callable[[], Awaitable[Any]]
 BytesGuard = Callable[[OPCUAProtocol, bytes, Callable[[OPCUAProtocol, bytes], None]], None]

@@ -30,7 +30,9 @@ class Hooks(Protocol):
 
     admission: Any  # (protocol, transport, asyncua's connection_made) -> None
     bytes_guard: Any  # (protocol, data, received) -> None
-    channel_guard: Any  # .opening(processor, header, body, proceed), .open(processor, algohdr, body)
+    channel_guard: (
+        Any  # .opening(processor, header, body, proceed), .open(processor, algohdr, body), .closing(processor, proceed)
+    )
     refused: Any  # (processor, exception) -> None
 
     async def message(self, processor: UaProcessor, typeid: ua.NodeId, header: Any, seqhdr: Any, body: Buffer) -> Any:
@@ -114,6 +116,8 @@ async def _process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
             plain = connection.plain_message(self, header, body)
             if plain is not None:  # the common case read from its fixed layout
                 return await self.process_message(*plain)
+        if guard is not None and header.MessageType == ua.MessageType.SecureClose:
+            return await guard.closing(self, lambda: _ORIGINAL_PROCESS(self, header, body))
         if guard is None or header.MessageType != ua.MessageType.SecureOpen or self._connection.is_open():
             return await _ORIGINAL_PROCESS(self, header, body)
         return await guard.opening(self, header, body, lambda: _ORIGINAL_PROCESS(self, header, body))
