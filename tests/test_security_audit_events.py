@@ -60,6 +60,13 @@ async def listener(app: UacellServer, user: str) -> tuple[Client, Collector]:
     return client, collector
 
 
+async def transition(client: Client) -> None:
+    """A transition of Filler1 the client causes: Stop, or Reset where Stop is not allowed."""
+    machine = "Filler1.BaseStateMachine.MachineState"
+    if not (await call_path(client, machine, "Stop")).StatusCode.is_good():
+        assert (await call_path(client, machine, "Reset")).StatusCode.is_good()
+
+
 def of(type_id: int, source: str, *, status: bool | None = None, session: Any = None, message: str = "") -> Any:
     """Matches an event of that type and SourceName (and Status, SessionId, a part of its Message)."""
 
@@ -106,8 +113,7 @@ async def test_a_session_from_start_to_end_is_audited_for_admins_only(server: Ua
         closed = await seen.wait_for(of(OBJ.AuditSessionEventType, "Session/CloseSession", session=created.SessionId))
         assert closed.Status is True
         # the operator's subscription gets the audit event of its own Reset, and none of the sessions'
-        machine = "Filler1.BaseStateMachine.MachineState"
-        assert (await call_path(operator, machine, "Reset")).StatusCode.is_good()
+        await transition(operator)
         await not_seen.wait_for(lambda e: e.EventType == ua.NodeId(OBJ.AuditUpdateStateEventType))
         assert {e.EventType for e in not_seen.events} == {ua.NodeId(OBJ.AuditUpdateStateEventType)}
     finally:
@@ -236,5 +242,31 @@ async def test_a_refused_secure_channel_is_audited(server: UacellServer) -> None
         assert refused.StatusCodeId == ua.StatusCode(ua.StatusCodes.BadSecurityModeRejected)
         assert refused.SecureChannelId == ""
         assert refused.SecurityMode == ua.MessageSecurityMode.Sign
+    finally:
+        await admin.disconnect()
+
+
+async def test_a_session_that_stops_being_admin_stops_receiving_them(server: UacellServer) -> None:
+    """ActivateSession changes the session's user to an operator: the audit events of sessions stop (the
+    event of that very change included: it is fired once the session is the operator's)."""
+    admin, seen = await listener(server, "ada")
+    try:
+        client, created = await connected(server, seen, "before the change")
+        await client.disconnect()
+        await seen.wait_for(  # the last event of that client: nothing of it arrives late below
+            lambda e: (
+                e.EventType == ua.NodeId(OBJ.AuditChannelEventType) and e.SecureChannelId == created.SecureChannelId
+            )
+        )
+        await admin.activate_session("otto", PASSWORD)  # the same session, another user
+        seen.clear()
+        client = Client(server.endpoint, timeout=20)
+        client.description = "after the change"
+        await client.connect()
+        await client.disconnect()
+        # a transition it caused: its AuditUpdateStateEvent, which every session may see, marks the end
+        await transition(admin)
+        await seen.wait_for(lambda e: e.EventType == ua.NodeId(OBJ.AuditUpdateStateEventType))
+        assert {e.EventType for e in seen.events} == {ua.NodeId(OBJ.AuditUpdateStateEventType)}
     finally:
         await admin.disconnect()

@@ -78,7 +78,9 @@ class SecurityAuditEvents:
     def __init__(self, server: Server) -> None:
         self.server = server
         self._emitters: dict[int, EventEmitter] = {}
-        self._sessions: weakref.WeakValueDictionary[ua.NodeId, InternalSession] = weakref.WeakValueDictionary()
+        # the sessions that were admin when they last activated; their role is checked again at each event
+        # (a user certificate's expiry makes a session anonymous), the others are never looked at
+        self._admins: weakref.WeakValueDictionary[ua.NodeId, InternalSession] = weakref.WeakValueDictionary()
 
     async def install(self) -> None:
         for type_id in {
@@ -128,8 +130,6 @@ class SecurityAuditEvents:
     ) -> None:
         """A CreateSession answered ``code`` (its session's id null when refused)."""
         good = ua.StatusCode(code).is_good()
-        if good:
-            self._sessions[session.session_id] = session
         der = params.ClientCertificate or None
         fields = {
             "SessionId": (session.session_id if good else ua.NodeId(), _VT.NodeId),
@@ -156,6 +156,11 @@ class SecurityAuditEvents:
         }
         who = user or "anonymous"
         good = ua.StatusCode(code).is_good()
+        if session is not None and good:
+            if _is_admin(session):
+                self._admins[session.session_id] = session
+            else:
+                self._admins.pop(session.session_id, None)
         message = f"session activated for {who}" if good else f"activation for {who} refused ({_name(code)})"
         await self._fire(_O.AuditActivateSessionEventType, "Session/ActivateSession", fields, code, user, message)
 
@@ -166,7 +171,7 @@ class SecurityAuditEvents:
         await self._fire(
             _O.AuditSessionEventType, f"Session/{cause}", fields, _S.Good, user, f"session ended ({cause})"
         )
-        self._sessions.pop(session.session_id, None)
+        self._admins.pop(session.session_id, None)
 
     async def certificate_refused(self, code: int, der: bytes | None, why: str, uri: str | None = None) -> None:
         """A client certificate refused with ``code`` (the precise one, not what the client was told);
@@ -182,12 +187,11 @@ class SecurityAuditEvents:
 
     def audience(self) -> list[int]:
         """The subscriptions that may receive these events: those of sessions whose role is admin."""
+        admins = {sid for sid, session in list(self._admins.items()) if _is_admin(session)}
+        if not admins:
+            return []
         subscriptions = self.server.iserver.subscription_service.subscriptions
-        return [sid for sid, sub in subscriptions.items() if self._may_see(sub.session_id)]
-
-    def _may_see(self, session_id: ua.NodeId) -> bool:
-        session = self._sessions.get(session_id)
-        return session is not None and Role.parse(caller_of(session).role) >= Role.ADMIN
+        return [sid for sid, sub in subscriptions.items() if sub.session_id in admins]
 
     async def _fire(
         self,
@@ -221,6 +225,10 @@ class SecurityAuditEvents:
             SourceName=source_name,
             Message=ua.LocalizedText(message),
         )
+
+
+def _is_admin(session: InternalSession) -> bool:
+    return Role.parse(caller_of(session).role) >= Role.ADMIN
 
 
 def reported_token(token: Any) -> Any:
