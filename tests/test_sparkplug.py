@@ -439,7 +439,8 @@ async def test_a_primary_host_offline_stops_publishing_and_its_return_brings_a_r
         assert (await call_path(client, F, "SetMachSpeed", ua.Variant(11.0, ua.VariantType.Float))).StatusCode.is_good()
         await host.wait(lambda: metric(host, F, "Status/MachSpeed") == 11.0)
         await host.state(False)
-        await host.wait(lambda: host.nodes[EDGE].deaths == [first])  # the NDEATH of that session
+        await host.wait(lambda: bool(host.nodes[EDGE].deaths))
+        assert host.nodes[EDGE].deaths == [first], [(x.kind, x.device) for x in host.seen]  # its NDEATH, once
         await wait_until(lambda: sp.link.connects >= 2 and not sp.live, timeout=30)
         seen = len(host.seen)
         assert (await call_path(client, F, "SetMachSpeed", ua.Variant(12.0, ua.VariantType.Float))).StatusCode.is_good()
