@@ -32,8 +32,6 @@ from typing import TypeVar
 
 from asyncua import ua
 from asyncua.common.utils import ServiceError
-from asyncua.crypto.validator import CertificateValidator as _UaValidator
-from asyncua.crypto.validator import CertificateValidatorOptions
 from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import rsa
@@ -590,38 +588,50 @@ def _warn(message: str, reason: str) -> None:
 
 
 class CertificateValidator:
-    """A client's certificate chain at CreateSession: the client certificate's validity period and URI
-    (asyncua's basic checks), then its chain and the trust list (``TrustList.refusal``).
+    """A client's certificate chain: the client certificate's validity period and (at CreateSession,
+    where the client names it) its ApplicationUri, then its chain and the trust list
+    (``TrustList.refusal``). The client certificate is checked first so that trust on first use never
+    records an expired or mismatched certificate.
 
-    Raises ``ServiceError`` with the code the client is told (``told``). As a callable it also fits
-    asyncua's ``Server.set_certificate_validator`` (the client certificate alone).
+    As a callable it also fits asyncua's ``Server.set_certificate_validator`` (the client certificate
+    alone; raises ``ServiceError`` with the code the client is told).
     """
 
     def __init__(self, trust_list: TrustList) -> None:
         self.trust_list = trust_list
-        opts = CertificateValidatorOptions
-        self._basic = _UaValidator(opts.BASIC_VALIDATION | opts.PEER_CLIENT)
 
     async def __call__(self, cert: x509.Certificate, app_description: ua.ApplicationDescription) -> None:
-        verdict = await self.check([cert], app_description)
+        verdict = self.check([cert], app_description.ApplicationUri or "")
         if verdict is not None:
             raise ServiceError(verdict.told)
 
-    async def check(
-        self, chain: Sequence[x509.Certificate], app_description: ua.ApplicationDescription
-    ) -> CertificateVerdict | None:
-        """None when the chain (the client's certificate first) is trusted; else why not."""
+    def check(self, chain: Sequence[x509.Certificate], application_uri: str | None) -> CertificateVerdict | None:
+        """None when the chain (the client's certificate first) is trusted; else why not.
+        ``application_uri`` None: not known yet (OpenSecureChannel), not checked."""
         der = cert_to_der(chain[0])
-        try:
-            # Checked first so that trust on first use never records an expired or mismatched certificate.
-            await self._basic.validate(chain[0], app_description)
-        except ServiceError as exc:
-            name = ua.StatusCode(exc.code).name
+        code = _own_problem(chain[0], application_uri, dt.datetime.now(dt.UTC))
+        if code is not None:
+            name = ua.StatusCode(code).name
             self.trust_list.report_refusal(
-                f"refused client certificate {thumbprint(der)} of {app_description.ApplicationUri}: {name}", name
+                f"refused client certificate {thumbprint(der)} of {application_uri or 'a client'}: {name}", name
             )
-            return CertificateVerdict(exc.code, exc.code, der, f"the client certificate: {name}")
-        refusal = self.trust_list.refusal(chain, app_description.ApplicationUri or "")
+            return CertificateVerdict(code, code, der, f"the client certificate: {name}")
+        refusal = self.trust_list.refusal(chain, application_uri or "")
         if refusal is None:
             return None
         return CertificateVerdict(told(refusal.code), refusal.code, der, refusal.why)
+
+
+def _own_problem(cert: x509.Certificate, application_uri: str | None, now: dt.datetime) -> int | None:
+    """OPC 10000-4 6.1.3's Validity Period and URI steps for the client's own certificate."""
+    if not cert.not_valid_before_utc <= now <= cert.not_valid_after_utc:
+        return int(ua.StatusCodes.BadCertificateTimeInvalid)
+    if application_uri is None:
+        return None
+    try:
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        return int(ua.StatusCodes.BadCertificateInvalid)
+    if application_uri not in san.get_values_for_type(x509.UniformResourceIdentifier):
+        return int(ua.StatusCodes.BadCertificateUriInvalid)
+    return None

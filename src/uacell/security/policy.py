@@ -548,9 +548,9 @@ class Security(_Logins):
             )
             raise ServiceError(_S.BadSecurityChecksFailed)
         chain += self._issuers_sent_with_channel(chain[0])
-        verdict = await self.certificate_validator.check(chain, params.ClientDescription)
+        uri = (params.ClientDescription.ApplicationUri if params.ClientDescription else None) or ""
+        verdict = self.certificate_validator.check(chain, uri)
         if verdict is not None:  # its audit event besides the session's (OPC 10000-4 6.5.6)
-            uri = params.ClientDescription.ApplicationUri if params.ClientDescription else None
             await self.audit_events.certificate_refused(verdict.precise, verdict.certificate, verdict.why, uri)
             raise ServiceError(verdict.told)
         return dataclasses.replace(params, ClientCertificate=der_of(chain[0]))
