@@ -13,9 +13,10 @@ import datetime as dt
 import hashlib
 import shutil
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
@@ -38,6 +39,7 @@ from uacell.security.pki import (
 )
 
 MIN_PREFIX = 6
+T = TypeVar("T")
 
 
 class CertError(Exception):
@@ -66,13 +68,17 @@ class CertInfo:
 
 def read_certificate(path: Path, kind: str = "file") -> CertInfo:
     """Load a DER or PEM certificate file; CertError when it is none."""
+    return _info(kind, path, _read(path, _load_any, "a certificate"))
+
+
+def _read(path: Path, load: Callable[[bytes], T], what: str) -> T:
+    """``load`` the file's bytes; CertError saying why when it cannot be read or is not ``what``."""
     try:
-        cert = _load_any(path.read_bytes())
+        return load(path.read_bytes())
     except OSError as exc:
         raise CertError(f"cannot read {path}: {exc.strerror or exc}") from exc
     except ValueError as exc:
-        raise CertError(f"{path} is not a certificate: {exc}") from exc
-    return _info(kind, path, cert)
+        raise CertError(f"{path} is not {what}: {exc}") from exc
 
 
 def _info(kind: str, path: Path, cert: x509.Certificate) -> CertInfo:
@@ -182,12 +188,7 @@ def add_crl(paths: PkiPaths, file: str) -> Path:
     """A CA's revocation list into ``pki/crl/``, one file per CA (``<SHA-1 of the CA's name>.crl``): it
     must be signed by a CA in trusted/ or issuers/, and not be older than the list it replaces."""
     source = Path(file).expanduser()
-    try:
-        crl = load_crl(source.read_bytes())
-    except OSError as exc:
-        raise CertError(f"cannot read {source}: {exc.strerror or exc}") from exc
-    except ValueError as exc:
-        raise CertError(f"{source} is not a revocation list: {exc}") from exc
+    crl = _read(source, load_crl, "a revocation list")
     anchors = TrustList(paths).anchors()
     signer = next((c for c in (*anchors.trusted, *anchors.issuers) if newest_crl(c, [crl]) is not None), None)
     if signer is None:

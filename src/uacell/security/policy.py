@@ -359,7 +359,122 @@ class _Logins:
         await self.audit_events.session_activated(processor.session, channel_id(processor), token, user, code)
 
 
-class Security(_Logins):
+class _Channels:
+    """The secure-channel part of ``Security``, the server's channel guard (ua/pipeline.py): a channel's
+    opening checked and audited, its closing audited, and the client certificate (with the issuers sent
+    with it) checked at CreateSession."""
+
+    refusals: RefusalLog
+    certificate_validator: CertificateValidator
+    audit_events: SecurityAuditEvents
+    _channel_requests: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest]
+
+    def check_channel(self, processor: UaProcessor, uri: str | None, mode: ua.MessageSecurityMode | None) -> None:
+        raise NotImplementedError  # Security's
+
+    def _report_certificate_refusal(self, message: str, reason: str) -> None:
+        address = _address(context.current_processor())
+        self.refusals.report(address, f"certificate:{reason}", f"{message} (client address {address})")
+
+    async def check_client_certificate(self, params: ua.CreateSessionParameters) -> ua.CreateSessionParameters:
+        """The client's certificate, alone or followed by its issuers (OPC 10000-6 6.2.6), against the
+        trust list; returns the parameters with the client's own certificate alone, as asyncua reads it."""
+        processor = context.current_processor()
+        address = _address(processor)
+        try:
+            chain = split_chain(params.ClientCertificate)
+        except ValueError as exc:
+            self.refusals.report(
+                address, "session:certificate", f"refused session from {address}: its ClientCertificate {exc}"
+            )
+            raise ServiceError(_S.BadCertificateInvalid) from exc
+        opened_with = channel.peer_certificate(processor) if processor is not None else None
+        if opened_with is not None and der_of(chain[0]) != opened_with:
+            # OPC 10000-4 5.7.2.2: the certificate the channel was opened with, whose key the channel proved
+            self.refusals.report(
+                address,
+                "session:other-certificate",
+                f"refused session from {address}: its ClientCertificate ({app_thumbprint(der_of(chain[0]))}) is not "
+                f"the certificate its secure channel was opened with ({app_thumbprint(opened_with)})",
+            )
+            raise ServiceError(_S.BadSecurityChecksFailed)
+        chain += self._issuers_sent_with_channel(chain[0])
+        uri = (params.ClientDescription.ApplicationUri if params.ClientDescription else None) or ""
+        verdict = self.certificate_validator.check(chain, uri)
+        if verdict is not None:  # its audit event besides the session's (OPC 10000-4 6.5.6)
+            await self.audit_events.certificate_refused(verdict.precise, verdict.certificate, verdict.why, uri)
+            raise ServiceError(verdict.told)
+        return dataclasses.replace(params, ClientCertificate=der_of(chain[0]))
+
+    def _issuers_sent_with_channel(self, cert: x509.Certificate) -> list[x509.Certificate]:
+        """The issuers the client sent with the same certificate when it opened the secure channel (a
+        client may send its chain there and its certificate alone at CreateSession, as node-opcua does)."""
+        processor = context.current_processor()
+        request = self._channel_requests.get(processor) if processor is not None else None
+        sent = request.certificate if request is not None else None
+        if not sent:
+            return []
+        try:
+            chain = split_chain(sent)
+        except ValueError:
+            return []
+        return chain[1:] if der_of(chain[0]) == der_of(cert) else []
+
+    def refuse_channel(self, processor: UaProcessor, refused: _ChannelRefused) -> None:
+        """Answer a refused OpenSecureChannel with an Error message (OPC 10000-6, 7.1.2.5); the caller
+        then closes the connection."""
+        channel.send_error(processor, refused.code, refused.reason)
+
+    async def opening(
+        self, processor: UaProcessor, header: ua.Header, body: Buffer, proceed: Callable[[], Awaitable[Any]]
+    ) -> Any:
+        """An OpenSecureChannel message: refused unless an offered endpoint allows its policy (asyncua
+        would fall back to its initial None policy when no offered policy matches)."""
+        uri = _peek_policy_uri(header, body)
+        try:
+            self.check_channel(processor, uri, None)
+            result = await proceed()
+        except _ChannelRefused as refused:
+            self.refuse_channel(processor, refused)
+            await self._audit_channel(processor, uri, refused.code, refused.reason)
+            return False  # the connection is closed
+        if channel_open(processor):
+            await self._audit_channel(processor, uri, _S.Good)
+        return result
+
+    def open(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None:
+        """The channel's requested security mode, checked before asyncua opens it."""
+        params = struct_from_binary(ua.OpenSecureChannelRequest, body.copy()).Parameters
+        self._channel_requests[processor] = ChannelRequest(
+            algohdr.SenderCertificate or None,
+            algohdr.SecurityPolicyURI or "",
+            params.SecurityMode,
+            params.RequestType,
+            float(params.RequestedLifetime or 0),
+        )
+        self.check_channel(processor, algohdr.SecurityPolicyURI, params.SecurityMode)
+
+    async def closing(self, processor: UaProcessor, proceed: Callable[[], Awaitable[Any]]) -> Any:
+        """A client's CloseSecureChannel: audited (OPC 10000-4 6.5.5)."""
+        closed = channel_id(processor)
+        result = await proceed()
+        if closed:
+            await self.audit_events.channel_closed(closed)
+        return result
+
+    async def _audit_channel(self, processor: UaProcessor, uri: str | None, code: int, why: str = "") -> None:
+        """The audit event of an OpenSecureChannel (refused before asyncua read its request: what its
+        header said)."""
+        request = self._channel_requests.get(processor)
+        if request is None:
+            request = ChannelRequest(
+                None, uri or "", ua.MessageSecurityMode.Invalid, ua.SecurityTokenRequestType.Issue, 0.0
+            )
+        opened = channel_id(processor) if ua.StatusCode(code).is_good() else ""
+        await self.audit_events.channel_opened(request, opened, code, why)
+
+
+class Security(_Channels, _Logins):
     """The security setup of one server (asyncua objects reach it as ``channel.attached(iserver, "security")``)."""
 
     def __init__(self, app: Host) -> None:
@@ -424,10 +539,6 @@ class Security(_Logins):
             ", ".join(p.name for p in self.policies),
             policy.anonymous_role.label,
         )
-
-    def _report_certificate_refusal(self, message: str, reason: str) -> None:
-        address = _address(context.current_processor())
-        self.refusals.report(address, f"certificate:{reason}", f"{message} (client address {address})")
 
     # sessions ------------------------------------------------------------------------------------
 
@@ -525,50 +636,6 @@ class Security(_Logins):
             )
             raise ServiceError(_S.BadTcpEndpointUrlInvalid)
 
-    async def check_client_certificate(self, params: ua.CreateSessionParameters) -> ua.CreateSessionParameters:
-        """The client's certificate, alone or followed by its issuers (OPC 10000-6 6.2.6), against the
-        trust list; returns the parameters with the client's own certificate alone, as asyncua reads it."""
-        processor = context.current_processor()
-        address = _address(processor)
-        try:
-            chain = split_chain(params.ClientCertificate)
-        except ValueError as exc:
-            self.refusals.report(
-                address, "session:certificate", f"refused session from {address}: its ClientCertificate {exc}"
-            )
-            raise ServiceError(_S.BadCertificateInvalid) from exc
-        opened_with = channel.peer_certificate(processor) if processor is not None else None
-        if opened_with is not None and der_of(chain[0]) != opened_with:
-            # OPC 10000-4 5.7.2.2: the certificate the channel was opened with, whose key the channel proved
-            self.refusals.report(
-                address,
-                "session:other-certificate",
-                f"refused session from {address}: its ClientCertificate ({app_thumbprint(der_of(chain[0]))}) is not "
-                f"the certificate its secure channel was opened with ({app_thumbprint(opened_with)})",
-            )
-            raise ServiceError(_S.BadSecurityChecksFailed)
-        chain += self._issuers_sent_with_channel(chain[0])
-        uri = (params.ClientDescription.ApplicationUri if params.ClientDescription else None) or ""
-        verdict = self.certificate_validator.check(chain, uri)
-        if verdict is not None:  # its audit event besides the session's (OPC 10000-4 6.5.6)
-            await self.audit_events.certificate_refused(verdict.precise, verdict.certificate, verdict.why, uri)
-            raise ServiceError(verdict.told)
-        return dataclasses.replace(params, ClientCertificate=der_of(chain[0]))
-
-    def _issuers_sent_with_channel(self, cert: x509.Certificate) -> list[x509.Certificate]:
-        """The issuers the client sent with the same certificate when it opened the secure channel (a
-        client may send its chain there and its certificate alone at CreateSession, as node-opcua does)."""
-        processor = context.current_processor()
-        request = self._channel_requests.get(processor) if processor is not None else None
-        sent = request.certificate if request is not None else None
-        if not sent:
-            return []
-        try:
-            chain = split_chain(sent)
-        except ValueError:
-            return []
-        return chain[1:] if der_of(chain[0]) == der_of(cert) else []
-
     def check_reassociation(self, processor: UaProcessor, auth_token: ua.NodeId, body: Buffer) -> None:
         """ActivateSession of an existing session on a new secure channel (OPC 10000-4, 5.6.3.1): only for an
         activated session, from a channel with the same client certificate, with the same identity."""
@@ -596,11 +663,6 @@ class Security(_Logins):
             f"refused to move a session to a new channel from {address}: {why} ({ua.StatusCode(code).name})",
         )
         raise ServiceError(code)
-
-    def refuse_channel(self, processor: UaProcessor, refused: _ChannelRefused) -> None:
-        """Answer a refused OpenSecureChannel with an Error message (OPC 10000-6, 7.1.2.5); the caller
-        then closes the connection."""
-        channel.send_error(processor, refused.code, refused.reason)
 
     def message_refused(self, processor: UaProcessor, exc: Exception) -> None:
         """A message asyncua refused below the request stages (a chunk of a channel it does not know,
@@ -704,55 +766,6 @@ class Security(_Logins):
             )
             raise ServiceError(refused.code) from None
         return VerifiedCertificate.of(first_certificate(token.CertificateData), login)
-
-    # the channel guard (ua/pipeline.py) ------------------------------------------------------------
-    async def opening(
-        self, processor: UaProcessor, header: ua.Header, body: Buffer, proceed: Callable[[], Awaitable[Any]]
-    ) -> Any:
-        """An OpenSecureChannel message: refused unless an offered endpoint allows its policy (asyncua
-        would fall back to its initial None policy when no offered policy matches)."""
-        uri = _peek_policy_uri(header, body)
-        try:
-            self.check_channel(processor, uri, None)
-            result = await proceed()
-        except _ChannelRefused as refused:
-            self.refuse_channel(processor, refused)
-            await self._audit_channel(processor, uri, refused.code, refused.reason)
-            return False  # the connection is closed
-        if channel_open(processor):
-            await self._audit_channel(processor, uri, _S.Good)
-        return result
-
-    def open(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None:
-        """The channel's requested security mode, checked before asyncua opens it."""
-        params = struct_from_binary(ua.OpenSecureChannelRequest, body.copy()).Parameters
-        self._channel_requests[processor] = ChannelRequest(
-            algohdr.SenderCertificate or None,
-            algohdr.SecurityPolicyURI or "",
-            params.SecurityMode,
-            params.RequestType,
-            float(params.RequestedLifetime or 0),
-        )
-        self.check_channel(processor, algohdr.SecurityPolicyURI, params.SecurityMode)
-
-    async def closing(self, processor: UaProcessor, proceed: Callable[[], Awaitable[Any]]) -> Any:
-        """A client's CloseSecureChannel: audited (OPC 10000-4 6.5.5)."""
-        closed = channel_id(processor)
-        result = await proceed()
-        if closed:
-            await self.audit_events.channel_closed(closed)
-        return result
-
-    async def _audit_channel(self, processor: UaProcessor, uri: str | None, code: int, why: str = "") -> None:
-        """The audit event of an OpenSecureChannel (refused before asyncua read its request: what its
-        header said)."""
-        request = self._channel_requests.get(processor)
-        if request is None:
-            request = ChannelRequest(
-                None, uri or "", ua.MessageSecurityMode.Invalid, ua.SecurityTokenRequestType.Issue, 0.0
-            )
-        opened = channel_id(processor) if ua.StatusCode(code).is_good() else ""
-        await self.audit_events.channel_opened(request, opened, code, why)
 
     # per-session attributes ------------------------------------------------------------------------
 
