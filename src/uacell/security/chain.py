@@ -21,7 +21,8 @@ answers the first step of OPC 10000-4's validation table that fails, with its st
 
 A certificate the administrator trusts by itself, whose issuer is nowhere to be found, is trusted as it
 was before chains were checked (decision 92): trusting it is the decision, as pinning a key is. Once
-its issuer is known, the whole chain is checked.
+its issuer is known, the whole chain is checked, but a missing revocation list does not refuse it (a
+list that is there does).
 """
 
 from __future__ import annotations
@@ -126,7 +127,9 @@ def check_chain(
         if not _may_sign_certificates(issuer):
             why = f"issuer {_name(issuer)} is not a CA that signs certificates"
             return Refusal(_S.BadCertificateIssuerUseNotAllowed, issuer, why)
-    return _revocation(path, anchors.crls, require_crls)
+    # a certificate trusted by itself needs no revocation list to be found (as before chains were checked:
+    # an upgrade locks nobody out), but one that is there still counts
+    return _revocation(path, anchors.crls, require_crls and not anchors.is_trusted(leaf))
 
 
 def _build(
