@@ -605,29 +605,27 @@ class CertificateValidator:
         if verdict is not None:
             raise ServiceError(verdict.told)
 
-    def check(self, chain: Sequence[x509.Certificate], application_uri: str | None) -> CertificateVerdict | None:
-        """None when the chain (the client's certificate first) is trusted; else why not.
-        ``application_uri`` None: not known yet (OpenSecureChannel), not checked."""
+    def check(self, chain: Sequence[x509.Certificate], application_uri: str) -> CertificateVerdict | None:
+        """None when the chain (the client's certificate first) is trusted for ``application_uri`` (the
+        one the client names); else why not."""
         der = cert_to_der(chain[0])
         code = _own_problem(chain[0], application_uri, dt.datetime.now(dt.UTC))
         if code is not None:
             name = ua.StatusCode(code).name
             self.trust_list.report_refusal(
-                f"refused client certificate {thumbprint(der)} of {application_uri or 'a client'}: {name}", name
+                f"refused client certificate {thumbprint(der)} of {application_uri}: {name}", name
             )
             return CertificateVerdict(code, code, der, f"the client certificate: {name}")
-        refusal = self.trust_list.refusal(chain, application_uri or "")
+        refusal = self.trust_list.refusal(chain, application_uri)
         if refusal is None:
             return None
         return CertificateVerdict(told(refusal.code), refusal.code, der, refusal.why)
 
 
-def _own_problem(cert: x509.Certificate, application_uri: str | None, now: dt.datetime) -> int | None:
+def _own_problem(cert: x509.Certificate, application_uri: str, now: dt.datetime) -> int | None:
     """OPC 10000-4 6.1.3's Validity Period and URI steps for the client's own certificate."""
     if not cert.not_valid_before_utc <= now <= cert.not_valid_after_utc:
         return int(ua.StatusCodes.BadCertificateTimeInvalid)
-    if application_uri is None:
-        return None
     try:
         san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
     except x509.ExtensionNotFound:
