@@ -16,7 +16,7 @@ from asyncua.crypto import security_policies as sp
 from conftest import fast_config, start_app
 from helpers import Collector, call_path
 from plant_ca import Authority, der, key_pem
-from uaraw import RawClient, Refused
+from uaraw import RawClient, Refused, anonymous_token
 
 from uacell.core.roles import Role
 from uacell.server import UacellServer
@@ -268,5 +268,23 @@ async def test_a_session_that_stops_being_admin_stops_receiving_them(server: Uac
         await transition(admin)
         await seen.wait_for(lambda e: e.EventType == ua.NodeId(OBJ.AuditUpdateStateEventType))
         assert {e.EventType for e in seen.events} == {ua.NodeId(OBJ.AuditUpdateStateEventType)}
+    finally:
+        await admin.disconnect()
+
+
+async def test_an_idle_session_ends_as_timed_out(server: UacellServer) -> None:
+    """A session nobody uses past its timeout (the shortest the server grants) ends as Session/Timeout."""
+    admin, seen = await listener(server, "ada")
+    try:
+        async with await RawClient.connect("127.0.0.1", server.config.server.port) as raw:
+            await raw.hello()
+            await raw.open_channel()
+            session = await raw.create_session(timeout=0)  # revised to the server's shortest
+            await raw.activate_session(anonymous_token())
+            assert session.response.RevisedSessionTimeout <= 10000
+            ended = await seen.wait_for(
+                of(OBJ.AuditSessionEventType, "Session/Timeout", session=session.response.SessionId), timeout=30
+            )
+            assert ended.Status is True
     finally:
         await admin.disconnect()

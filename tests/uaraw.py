@@ -161,6 +161,7 @@ class RawClient:
         certificate: bytes | None = None,
         endpoint_url: str | None = None,
         application_uri: str = "urn:uacell:test:raw",
+        timeout: float = 60000,
     ) -> Session:
         request = ua.CreateSessionRequest()
         p = request.Parameters
@@ -173,7 +174,7 @@ class RawClient:
         p.SessionName = "raw probe"
         p.ClientNonce = os.urandom(32)
         p.ClientCertificate = certificate
-        p.RequestedSessionTimeout = 60000
+        p.RequestedSessionTimeout = timeout
         p.MaxResponseMessageSize = 0
         response = await self.request(request, ua.CreateSessionResponse)
         self.auth = response.Parameters.AuthenticationToken
