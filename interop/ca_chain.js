@@ -4,17 +4,14 @@
 // argv: endpoint pkiDir then, per client, label certPem keyPem applicationUri
 // Prints one JSON object: per label, the ServerState the session read, or the error.
 "use strict";
-const { OPCUAClient, MessageSecurityMode, SecurityPolicy, AttributeIds } = require("node-opcua-client");
+const { MessageSecurityMode, SecurityPolicy, AttributeIds } = require("node-opcua-client");
 const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
-const { done, main } = require("./lib");
+const { done, main, newClient } = require("./lib");
 
 async function session(endpoint, manager, certificateFile, privateKeyFile, applicationUri) {
-  const client = OPCUAClient.create({
-    endpointMustExist: false,
-    connectionStrategy: { maxRetry: 0, initialDelay: 200, maxDelay: 1000 },
+  const client = newClient({
     securityMode: MessageSecurityMode.SignAndEncrypt,
     securityPolicy: SecurityPolicy.Basic256Sha256,
-    requestedSessionTimeout: 60000,
     certificateFile, privateKeyFile, applicationUri, applicationName: "uacell interop CA",
     clientCertificateManager: manager,
   });

@@ -12,6 +12,18 @@ const NS = {
   Cell: "urn:uacell:cell",
 };
 
+// A client that tries once, with a 60 s session timeout; SecurityPolicy None unless options say otherwise.
+function newClient(options = {}) {
+  return OPCUAClient.create({
+    endpointMustExist: false,
+    connectionStrategy: { maxRetry: 0, initialDelay: 200, maxDelay: 1000 },
+    securityMode: MessageSecurityMode.None,
+    securityPolicy: SecurityPolicy.None,
+    requestedSessionTimeout: 60000,
+    ...options,
+  });
+}
+
 async function connect(endpoint, { securityMode, securityPolicy, userIdentity, certificateFile, privateKeyFile } = {}) {
   const client = OPCUAClient.create({
     endpointMustExist: false,
@@ -60,4 +72,4 @@ const SYSTEM_OPERATION = "/DI:DeviceSet/Cell:Robot1/Robotics:Controllers/Cell:Co
   "/Robotics:SystemOperation/Robotics:SystemOperationStateMachine";
 const FILLER = "/PackML:PackMLObjects/Cell:Filler1";
 
-module.exports = { connect, resolve, done, main, NS, TASK_CONTROL, SYSTEM_OPERATION, FILLER };
+module.exports = { connect, newClient, resolve, done, main, NS, TASK_CONTROL, SYSTEM_OPERATION, FILLER };

@@ -4,20 +4,9 @@
 // Usage: node session_audit.js <endpoint> <admin user> <admin password> <other user>
 "use strict";
 const {
-  OPCUAClient, MessageSecurityMode, SecurityPolicy, AttributeIds, ClientSubscription, ClientMonitoredItem,
-  TimestampsToReturn, UserTokenType, constructEventFilter,
+  AttributeIds, ClientSubscription, ClientMonitoredItem, TimestampsToReturn, UserTokenType, constructEventFilter,
 } = require("node-opcua-client");
-const { done, main } = require("./lib");
-
-function newClient() {
-  return OPCUAClient.create({
-    endpointMustExist: false,
-    connectionStrategy: { maxRetry: 0, initialDelay: 200, maxDelay: 1000 },
-    securityMode: MessageSecurityMode.None,
-    securityPolicy: SecurityPolicy.None,
-    requestedSessionTimeout: 60000,
-  });
-}
+const { done, main, newClient } = require("./lib");
 
 main(async () => {
   const [endpoint, adminUser, adminPassword, otherUser] = process.argv.slice(2);
