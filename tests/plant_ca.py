@@ -100,6 +100,43 @@ class Authority:
         )
         return cert, key
 
+    def sign_request(
+        self,
+        request_pem: bytes,
+        *,
+        days: int = 365,
+        not_before: dt.datetime | None = None,
+        usages: tuple[str, ...] = ("digital_signature", "content_commitment", "key_encipherment", "data_encipherment"),
+        extended: tuple[x509.ObjectIdentifier, ...] = (
+            ExtendedKeyUsageOID.SERVER_AUTH,
+            ExtendedKeyUsageOID.CLIENT_AUTH,
+        ),
+        names: list[x509.GeneralName] | None = None,
+    ) -> x509.Certificate:
+        """What the CA issues for a PKCS #10 request (RFC 2986) it approved: the request's subject and key, the
+        subjectAltName it asked for (or ``names``), the CA's own choice of validity and key usages (OPC
+        10000-6 6.2.2: a server's Application Instance Certificate)."""
+        request = x509.load_pem_x509_csr(request_pem)
+        assert request.is_signature_valid, "a CA refuses a request its key did not sign"
+        if names is None:
+            names = list(request.extensions.get_extension_for_class(x509.SubjectAlternativeName).value)
+        start = not_before or _now() - dt.timedelta(minutes=5)
+        return (
+            x509.CertificateBuilder()
+            .subject_name(request.subject)
+            .issuer_name(self.cert.subject)
+            .public_key(request.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(start)
+            .not_valid_after(start + dt.timedelta(days=days))
+            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+            .add_extension(x509.SubjectAlternativeName(names), critical=False)
+            .add_extension(key_usage(*usages), critical=True)
+            .add_extension(x509.ExtendedKeyUsage(list(extended)), critical=False)
+            .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(self.key.public_key()), critical=False)
+            .sign(self.key, hashes.SHA256())
+        )
+
     def revoke(self, cert: x509.Certificate) -> None:
         self.revoked.append(cert.serial_number)
 

@@ -20,8 +20,8 @@ from uacell.security.certificate_login import (
     CertificateLogin,
     TokenRefused,
     check_user_certificate,
-    first_certificate,
 )
+from uacell.security.chain import first_certificate
 from uacell.security.users import User, UserError, UserStore, load_user_certificate, thumbprint
 
 FAST = PasswordHasher(time_cost=1, memory_cost=64, parallelism=1)

@@ -1,10 +1,10 @@
-"""``uacell cert list | trust ID | reject ID | remove ID | issuer FILE | crl FILE | renew``: the PKI of a
-data directory.
+"""``uacell cert list | trust ID | reject ID | remove ID | issuer FILE | crl FILE | renew | request |
+install FILE``: the PKI of a data directory.
 
 ID is a thumbprint (SHA-1, hex; its first characters are enough when they name one certificate) or a
 certificate file. A running server reads ``pki/trusted/``, ``pki/issuers/`` and ``pki/crl/`` at every
-session, so trust changes apply without a restart; a renewed server certificate is loaded at the next
-start.
+session, so trust changes apply without a restart; a renewed or installed server certificate is loaded at
+the next start (``uacell.security.own_certificate``: a certificate from the plant's CA).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from uacell.config import Config
 from uacell.core.files import atomic_write
 from uacell.security.audit import AuditTrail
 from uacell.security.chain import newest_crl
+from uacell.security.own_certificate import InstallRefused, install_certificate, read_certificates, signing_request
 from uacell.security.pki import (
     _CERT_SUFFIXES,
     PkiPaths,
@@ -48,7 +49,7 @@ class CertError(Exception):
 
 @dataclass(frozen=True)
 class CertInfo:
-    kind: str  # "own", "trusted", "issuer", "rejected"
+    kind: str  # "own", "own-ca", "trusted", "issuer", "rejected"
     path: Path
     der: bytes
     subject: str
@@ -107,6 +108,11 @@ def certificates(paths: PkiPaths) -> list[CertInfo]:
         try:
             found.append(read_certificate(paths.cert, "own"))
         except CertError:
+            pass
+    if paths.chain.is_file():  # the CA's certificates sent after the server's (decision 95)
+        try:
+            found += [_info("own-ca", paths.chain, c) for c in read_certificates(paths.chain.read_bytes())]
+        except (OSError, ValueError):
             pass
     for kind, folder in (("trusted", paths.trusted), ("issuer", paths.issuers), ("rejected", paths.rejected)):
         if not folder.is_dir():
@@ -225,7 +231,11 @@ def renew(paths: PkiPaths, application_uri: str, hosts: list[str]) -> Path:
     if paths.cert.exists() or paths.key.exists():
         stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
         paths.backup.mkdir(parents=True, exist_ok=True)
-        for f, name in ((paths.cert, f"cert-{stamp}.der"), (paths.key, f"key-{stamp}.pem")):
+        for f, name in (
+            (paths.cert, f"cert-{stamp}.der"),
+            (paths.key, f"key-{stamp}.pem"),
+            (paths.chain, f"chain-{stamp}.pem"),
+        ):
             if f.exists():
                 shutil.move(f, paths.backup / name)
     cert, _ = ensure_server_certificate(paths, application_uri, hosts)
@@ -246,8 +256,6 @@ def _print_list(paths: PkiPaths) -> None:
 
 def run_cert_command(args: Any, config: Config) -> int:
     """``uacell cert ...`` (args from uacell.cli.main); returns the exit status."""
-    from uacell.server import APPLICATION_URI
-
     paths = PkiPaths.in_data_dir(config.server.data_dir)
     cfg = config.server
     limit = RejectedLimit(cfg.rejected_max_files, cfg.rejected_max_age_days * 86400.0)  # as the server keeps it
@@ -272,13 +280,33 @@ def run_cert_command(args: Any, config: Config) -> int:
             path = add_issuer(paths, args.file) if args.action == "issuer" else add_crl(paths, args.file)
             print(f"{'issuer' if args.action == 'issuer' else 'revocation list'} {path.stem}: {path}")
             detail = {"file": str(path), "from": str(args.file)}
+        elif args.action == "request":
+            request = signing_request(paths, cfg.application_uri, [cfg.host], new_key=args.new_key)
+            if args.out:
+                atomic_write(Path(args.out).expanduser(), request, mode=0o644)
+                print(f"certificate signing request: {args.out}", file=sys.stderr)
+            else:
+                sys.stdout.write(request.decode())
+            detail = {"new_key": args.new_key, "file": args.out or "-"}
+        elif args.action == "install":
+            source = Path(args.file).expanduser()
+            done = install_certificate(paths, _read(source, bytes, "a file"), cfg.application_uri, [cfg.host])
+            der = cert_to_der(done.certificate)
+            print(
+                f"server certificate {thumbprint(der)} from {done.certificate.issuer.rfc4514_string()}, "
+                f"with {len(done.issuers)} CA certificate(s){' and its new key' if done.new_key else ''}: "
+                f"{paths.cert} (used from the next start; the old pair is in {paths.backup})"
+            )
+            for warning in done.warnings:
+                print(f"uacell: {warning}", file=sys.stderr)
+            detail = {"thumbprint": thumbprint(der), "file": str(paths.cert), "from": str(source)}
         elif args.action == "renew":
-            path = renew(paths, APPLICATION_URI, [config.server.host])
+            path = renew(paths, cfg.application_uri, [cfg.host])
             print(f"new server certificate {thumbprint(path.read_bytes())}: {path} (used from the next start)")
             detail = {"thumbprint": thumbprint(path.read_bytes()), "file": str(path)}
         else:
             raise CertError(f"unknown action {args.action!r}")
-    except (CertError, OSError) as exc:
+    except (CertError, InstallRefused, OSError) as exc:
         print(f"uacell: {exc}", file=sys.stderr)
         return 1
     trail = AuditTrail.for_config(config)

@@ -177,7 +177,14 @@ def _parser() -> argparse.ArgumentParser:
     issuer.add_argument("file", help="the CA's certificate (DER or PEM)")
     crl = leaf(csub, "crl", "add or update a CA's revocation list (one per CA; not replaced by an older one)")
     crl.add_argument("file", help="the revocation list (DER or PEM)")
-    leaf(csub, "renew", "make a new server certificate now (the old one is kept in pki/own/backup/)")
+    leaf(csub, "renew", "make a new self-signed server certificate now (the old one is kept in pki/own/backup/)")
+    request = leaf(csub, "request", "a certificate signing request (PKCS #10) for your CA")
+    request.add_argument("--out", help="write it to this file (default: standard output)")
+    request.add_argument(
+        "--new-key", action="store_true", help="for a new key (kept in pki/own/pending/ until installed)"
+    )
+    install = leaf(csub, "install", "make a certificate your CA issued the server's")
+    install.add_argument("file", help="the certificate, then the issuing CA's certificates up to the root (PEM or DER)")
     return p
 
 

@@ -31,7 +31,7 @@ from asyncua import Server, ua
 from asyncua.server.internal_session import InternalSession
 
 from uacell.core.roles import Role
-from uacell.security.certificate_login import first_certificate
+from uacell.security.chain import first_certificate
 from uacell.security.pki import thumbprint
 from uacell.ua import toolkit
 from uacell.ua.context import audit_entry_id, caller_of

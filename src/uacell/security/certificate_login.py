@@ -28,7 +28,7 @@ from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.asymmetric import padding, rsa
 
 from uacell.core.roles import Role
-from uacell.security.chain import der_length
+from uacell.security.chain import first_certificate
 from uacell.security.users import UserStore, thumbprint
 
 RSA_SHA256 = "http://www.w3.org/2001/04/xmldsig-more#rsa-sha256"
@@ -86,17 +86,6 @@ class VerifiedCertificate(bytes):
         return verified
 
 
-def first_certificate(data: bytes) -> bytes:
-    """The user's own certificate of ``certificateData``: a client may send its issuers' after it, each
-    a DER SEQUENCE (OPC 10000-6, 6.2.3: a chain is the certificates' encodings one after the other).
-    ``data`` itself when it does not start with a well-formed SEQUENCE header."""
-    try:
-        end = der_length(data)
-    except ValueError:
-        return data
-    return data[:end] if end <= len(data) else data
-
-
 def check_user_certificate(
     der: bytes | None,
     algorithm: str | None,
@@ -105,11 +94,14 @@ def check_user_certificate(
     policy_uri: str,
     challenge: bytes,
     now: datetime,
+    chain_challenge: bytes | None = None,
     users: UserStore,
 ) -> CertificateLogin:
     """The user an X509IdentityToken logs in as, or TokenRefused (the module's steps, in order).
 
     ``challenge``: the server certificate's DER followed by the last server nonce sent to the session;
+    ``chain_challenge``: the same with the server's whole chain, when it sends one (OPC 10000-4 5.7.3.2:
+    a signature over the chain is accepted when the one over the certificate alone does not verify);
     ``policy_uri``: the security policy of the user token policy the token names; ``now``: aware UTC."""
     der = first_certificate(der or b"")
     try:
@@ -130,13 +122,11 @@ def check_user_certificate(
     key = cert.public_key()
     if not isinstance(key, rsa.RSAPublicKey):
         raise TokenRefused(BAD_USER_SIGNATURE_INVALID, f"certificate {thumb}: its key is not an RSA key")
-    try:
-        key.verify(signature, challenge, _PADDING[expected], hashes.SHA256())
-    except InvalidSignature:
+    if not any(_verifies(key, signature, data, expected) for data in (challenge, chain_challenge) if data is not None):
         raise TokenRefused(
             BAD_USER_SIGNATURE_INVALID,
             f"certificate {thumb}: the signature does not verify (another key, or not this session's nonce)",
-        ) from None
+        )
     if now < cert.not_valid_before_utc or now > cert.not_valid_after_utc:
         span = f"{cert.not_valid_before_utc:%Y-%m-%d %H:%M} to {cert.not_valid_after_utc:%Y-%m-%d %H:%M} UTC"
         raise TokenRefused(BAD_IDENTITY_TOKEN_REJECTED, f"certificate {thumb} is not valid now (valid {span})")
@@ -150,3 +140,11 @@ def check_user_certificate(
     if found is None:
         raise TokenRefused(BAD_IDENTITY_TOKEN_REJECTED, f"certificate {thumb} is bound to no user")
     return CertificateLogin(found[0], found[1], thumb, cert.not_valid_after_utc)
+
+
+def _verifies(key: rsa.RSAPublicKey, signature: bytes, data: bytes, algorithm: str) -> bool:
+    try:
+        key.verify(signature, data, _PADDING[algorithm], hashes.SHA256())
+    except InvalidSignature:
+        return False
+    return True

@@ -89,6 +89,17 @@ def split_chain(data: bytes) -> list[x509.Certificate]:
     return certs
 
 
+def first_certificate(data: bytes) -> bytes:
+    """The user's own certificate of ``certificateData``: a client may send its issuers' after it, each
+    a DER SEQUENCE (OPC 10000-6, 6.2.3: a chain is the certificates' encodings one after the other).
+    ``data`` itself when it does not start with a well-formed SEQUENCE header."""
+    try:
+        end = der_length(data)
+    except ValueError:
+        return data
+    return data[:end] if end <= len(data) else data
+
+
 def der_length(data: bytes, offset: int = 0) -> int:
     """The full length (header included) of the DER SEQUENCE starting at ``offset``, as its header says
     (it may say more than ``data`` holds). ValueError when no SEQUENCE header starts there."""
@@ -124,7 +135,7 @@ def check_chain(
         if not issuer.not_valid_before_utc <= now <= issuer.not_valid_after_utc:
             return Refusal(_S.BadCertificateIssuerTimeInvalid, issuer, f"issuer {_name(issuer)} is not valid now")
     for issuer in path[1:]:
-        if not _may_sign_certificates(issuer):
+        if not may_sign_certificates(issuer):
             why = f"issuer {_name(issuer)} is not a CA that signs certificates"
             return Refusal(_S.BadCertificateIssuerUseNotAllowed, issuer, why)
     # a certificate trusted by itself needs no revocation list to be found (as before chains were checked:
@@ -138,12 +149,12 @@ def _build(
     path = [leaf]
     while True:
         cert = path[-1]
-        if cert.issuer == cert.subject and _signed_by(cert, cert):
+        if is_self_signed(cert):
             return path, None  # a self-signed root ends the chain
         if len(path) >= MAX_DEPTH:
             return path, Refusal(_S.BadCertificateChainIncomplete, cert, f"the chain is longer than {MAX_DEPTH}")
         named = [c for c in candidates if c.subject == cert.issuer and c not in path]
-        issuer = next((c for c in named if _signed_by(cert, c)), None)
+        issuer = next((c for c in named if issued_by(cert, c)), None)
         if issuer is None:
             if cert.issuer == cert.subject or named:
                 return path, Refusal(_S.BadCertificateInvalid, cert, f"the signature of {_name(cert)} does not verify")
@@ -153,7 +164,11 @@ def _build(
         path.append(issuer)
 
 
-def _signed_by(cert: x509.Certificate, issuer: x509.Certificate) -> bool:
+def is_self_signed(cert: x509.Certificate) -> bool:
+    return cert.issuer == cert.subject and issued_by(cert, cert)
+
+
+def issued_by(cert: x509.Certificate, issuer: x509.Certificate) -> bool:
     try:
         cert.verify_directly_issued_by(issuer)
     except (ValueError, TypeError, InvalidSignature):
@@ -161,7 +176,7 @@ def _signed_by(cert: x509.Certificate, issuer: x509.Certificate) -> bool:
     return True
 
 
-def _may_sign_certificates(cert: x509.Certificate) -> bool:
+def may_sign_certificates(cert: x509.Certificate) -> bool:
     try:
         if not cert.extensions.get_extension_for_class(x509.BasicConstraints).value.ca:
             return False

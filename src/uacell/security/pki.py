@@ -38,7 +38,7 @@ from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from uacell.core.files import atomic_write
-from uacell.security.chain import Anchors, Refusal, check_chain, split_chain
+from uacell.security.chain import Anchors, Refusal, check_chain, is_self_signed, split_chain
 
 _log = logging.getLogger(__name__)
 
@@ -81,6 +81,16 @@ class PkiPaths:
     @property
     def backup(self) -> Path:
         return self.own / "backup"
+
+    @property
+    def chain(self) -> Path:
+        """The certificates of the CA that issued the server's certificate, sent after it (decision 95)."""
+        return self.own / "chain.pem"
+
+    @property
+    def pending_key(self) -> Path:
+        """A key made by ``uacell cert request --new-key``, waiting for its certificate."""
+        return self.own / "pending" / "key.pem"
 
     @property
     def trusted(self) -> Path:
@@ -298,6 +308,17 @@ def ensure_server_certificate(
         except ValueError as exc:
             problems = [f"unreadable ({exc})"]
         if not problems:
+            return paths.cert, paths.key
+        if not problems[0].startswith("unreadable") and not is_self_signed(cert):
+            # a CA issued it (decision 95): a self-signed one in its place would lock out every client that
+            # trusts the CA, so it is kept, and the log says at every start what the CA must issue anew
+            _log.warning(
+                "the server certificate %s from %s no longer fits (%s): it is kept; make a request for the "
+                "next one with `uacell cert request` and install what the CA issues with `uacell cert install`",
+                thumbprint(cert_to_der(cert)),
+                cert.issuer.rfc4514_string(),
+                "; ".join(problems),
+            )
             return paths.cert, paths.key
         stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
         paths.backup.mkdir(exist_ok=True)

@@ -71,9 +71,9 @@ from uacell.security.certificate_login import (
     TokenRefused,
     VerifiedCertificate,
     check_user_certificate,
-    first_certificate,
 )
-from uacell.security.chain import der_of, split_chain
+from uacell.security.chain import der_of, first_certificate, split_chain
+from uacell.security.own_certificate import finish_install, own_issuers
 from uacell.security.pki import (
     CertificateValidator,
     PkiPaths,
@@ -87,7 +87,8 @@ from uacell.security.users import LoginThrottle, thumbprint
 from uacell.services.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua import channel, context, door
 from uacell.ua.context import UacellUser, caller_of
-from uacell.ua.door.connection import channel_id, channel_open, connection, last_activity
+from uacell.ua.door.certificate import send_with_chain
+from uacell.ua.door.connection import channel_id, channel_open, connection, last_activity, sent_certificate
 from uacell.ua.limits import LimitedSession, check_operations
 from uacell.ua.pipeline import Next, Request
 
@@ -175,15 +176,18 @@ class _ChannelRefused(Exception):
 async def prepare_certificate(server: Server, data_dir: Path, application_uri: str, hosts: list[str]) -> Path:
     """Make or reuse ``pki/own/cert.der`` + ``key.pem`` and load them into ``server``; returns the cert path."""
     paths = PkiPaths.in_data_dir(data_dir)
+    if finish_install(paths):  # a `uacell cert install` with a new key that a crash cut short
+        log.warning("the server certificate installed last is now used with its key (the install had not finished)")
     cert, _ = ensure_server_certificate(paths, application_uri, hosts)
+    own = x509.load_der_x509_certificate(cert.read_bytes())
     # what asyncua's load_certificate and load_private_key set, without a thread per file, and the
     # key's consistency checked once per key (pki.load_server_key)
-    door.configure(
-        server.iserver,
-        "InternalServer.certificate",
-        x509.load_der_x509_certificate(cert.read_bytes()),
-    )
+    door.configure(server.iserver, "InternalServer.certificate", own)
     door.configure(server.iserver, "InternalServer.private_key", load_server_key(paths))
+    issuers = own_issuers(paths, own)
+    if issuers:
+        send_with_chain(server, b"".join(der_of(c) for c in issuers))
+        log.info("the server certificate is sent with %d certificate(s) of its CA (%s)", len(issuers), paths.chain)
     return cert
 
 
@@ -748,13 +752,16 @@ class Security(_Channels, _Logins):
             if policy_uri is None:
                 raise TokenRefused(_S.BadIdentityTokenInvalid, f"no certificate token policy {token.PolicyId!r} here")
             server_certificate = uacrypto.der_from_x509(self.server.iserver.certificate)
+            nonce = isession.nonce or b""
+            sent = sent_certificate(context.current_processor())
             login = check_user_certificate(
                 token.CertificateData,
                 signature.Algorithm if signature is not None else None,
                 signature.Signature if signature is not None else None,
                 policy_uri=policy_uri,
-                challenge=server_certificate + (isession.nonce or b""),
+                challenge=server_certificate + nonce,
                 now=datetime.now(UTC),
+                chain_challenge=sent + nonce if sent and sent != server_certificate else None,
                 users=self.app.users,
             )
         except TokenRefused as refused:

@@ -27,6 +27,7 @@ from asyncua import Client, ua
 from asyncua.crypto import security_policies as sp
 
 from uacell.core.background import Background
+from uacell.security.chain import first_certificate
 
 log = logging.getLogger(__name__)
 
@@ -96,7 +97,7 @@ async def register(url: str, registrant: Registrant, online: bool, timeout: floa
     client = Client(url, timeout=timeout)
     client.application_uri = registrant.server_uri  # the channel's certificate is the server's own
     client.name = registrant.name
-    server_certificate = endpoint.ServerCertificate
+    server_certificate = first_certificate(endpoint.ServerCertificate)  # its CA's may follow (OPC 10000-6 6.2.6)
     await client.set_security(
         policy,
         str(registrant.certificate),

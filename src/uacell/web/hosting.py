@@ -37,6 +37,7 @@ from uacell.core.companion import Companion, web_views
 from uacell.core.errors import ConfigError
 from uacell.core.files import atomic_write
 from uacell.core.roles import is_loopback
+from uacell.security.chain import first_certificate
 from uacell.security.pki import (
     PkiPaths,
     TrustList,
@@ -107,7 +108,7 @@ async def pinned_server_certificate(data_dir: Path, url: str) -> Path:
     client = Client(url, timeout=10)
     endpoints = await client.connect_and_get_server_endpoints()
     endpoint = Client.find_endpoint(endpoints, ua.MessageSecurityMode.SignAndEncrypt, SecurityPolicyBasic256Sha256.URI)
-    der = endpoint.ServerCertificate
+    der = first_certificate(endpoint.ServerCertificate)  # its CA's may follow (OPC 10000-6 6.2.6)
     x509.load_der_x509_certificate(der)
     pinned.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(pinned, der, mode=0o644)

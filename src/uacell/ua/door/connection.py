@@ -43,6 +43,15 @@ def peer_certificate(processor: UaProcessor) -> bytes | None:
     return cert
 
 
+def sent_certificate(processor: UaProcessor | None) -> bytes | None:
+    """The server certificate the processor's secure channel sends: the certificate, followed by its CA's
+    when it has a chain (door/certificate.py)."""
+    if processor is None:
+        return None
+    cert: bytes | None = processor._connection.security_policy.host_certificate
+    return cert
+
+
 def send_error(processor: UaProcessor, code: int, reason: str) -> None:
     """An Error message (OPC 10000-6 7.1.2.5) to the client; the caller closes the connection."""
     message = ua.ErrorMessage(ua.StatusCode(code), reason)
