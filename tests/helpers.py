@@ -352,3 +352,24 @@ def first_start_source() -> str:
     from uacell.ua.nodesets import models_snapshot_path
 
     return "models snapshot" if models_snapshot_path(official(), None).exists() else "nodesets"
+
+
+async def secure_client(endpoint: str, directory: Path, cert: Any, key: Any, uri: str) -> Client:
+    """An asyncua client (not connected yet) over Basic256Sha256 SignAndEncrypt with ``cert`` (a
+    cryptography certificate) and ``key`` (its RSA key) as application ``uri``; the files go to ``directory``."""
+    from asyncua.crypto import security_policies
+    from cryptography.hazmat.primitives import serialization
+
+    (directory / "c.der").write_bytes(cert.public_bytes(serialization.Encoding.DER))
+    (directory / "k.pem").write_bytes(
+        key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())
+    )
+    client = Client(endpoint, timeout=20)
+    client.application_uri = uri
+    await client.set_security(
+        security_policies.SecurityPolicyBasic256Sha256,
+        str(directory / "c.der"),
+        str(directory / "k.pem"),
+        mode=ua.MessageSecurityMode.SignAndEncrypt,
+    )
+    return client

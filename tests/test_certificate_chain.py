@@ -14,11 +14,11 @@ import pytest
 import pytest_asyncio
 from asyncua import Client, ua
 from asyncua.common.utils import ServiceError
-from asyncua.crypto import security_policies as sp
 from conftest import fast_config, start_app
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
-from plant_ca import Authority, der, key_pem, pem
+from helpers import secure_client
+from plant_ca import Authority, der, pem
 
 from uacell.security.chain import Anchors, check_chain, split_chain
 from uacell.security.pki import CertificateValidator, PkiPaths, TrustList, told
@@ -263,16 +263,7 @@ async def connect(
 ) -> Client:
     """An asyncua client over Basic256Sha256 SignAndEncrypt; ``send``: the ClientCertificate its
     CreateSession carries instead of its certificate alone (a chain)."""
-    (tmp_path / "c.der").write_bytes(der(cert))
-    (tmp_path / "k.pem").write_bytes(key_pem(key))
-    client = Client(app.endpoint, timeout=20)
-    client.application_uri = uri
-    await client.set_security(
-        sp.SecurityPolicyBasic256Sha256,
-        str(tmp_path / "c.der"),
-        str(tmp_path / "k.pem"),
-        mode=ua.MessageSecurityMode.SignAndEncrypt,
-    )
+    client = await secure_client(app.endpoint, tmp_path, cert, key, uri)
     if send is not None:
         create = client.uaclient.create_session
 

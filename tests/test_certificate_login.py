@@ -214,3 +214,16 @@ def test_the_signature_table_is_the_one_of_each_offered_policy() -> None:
     for offered in SECURE_POLICIES:
         policy = SECURITY_POLICY_TYPE_MAP[offered][0]
         assert SIGNATURE_ALGORITHM[policy.URI] == policy.AsymmetricSignatureURI
+
+
+def test_a_signature_over_the_servers_whole_chain_counts_when_the_server_sends_one(store: UserStore) -> None:
+    """OPC 10000-4 5.7.3.2: the token is signed over the server certificate alone; a server that sends its
+    CA's certificates after it (decision 95) also accepts a signature over the whole chain."""
+    chain = SERVER_CERT + b"\x30\x05CA DER"
+    over_chain = ALICE.sign(chain + NONCE, RSA_SHA256)
+    over_leaf = ALICE.sign(SERVER_CERT + NONCE, RSA_SHA256)
+    assert check(store, ALICE.der, RSA_SHA256, over_leaf, chain_challenge=chain + NONCE).user == "alice"
+    assert check(store, ALICE.der, RSA_SHA256, over_chain, chain_challenge=chain + NONCE).user == "alice"
+    assert refused(store, ALICE.der, RSA_SHA256, over_chain) == BAD_USER_SIGNATURE_INVALID
+    other = ALICE.sign(SERVER_CERT + b"another nonce", RSA_SHA256)
+    assert refused(store, ALICE.der, RSA_SHA256, other, chain_challenge=chain + NONCE) == (BAD_USER_SIGNATURE_INVALID)

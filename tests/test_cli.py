@@ -415,3 +415,35 @@ def test_models_fetch_writes_the_models_snapshot_beside_the_files(tmp_path: Path
     assert list(elsewhere.iterdir()) == []
     again = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=120, check=False)
     assert again.returncode == 0 and again.stdout.split() == [str(cache)]  # there already: not rebuilt
+
+
+def test_cert_request_and_install_a_certificate_the_plant_ca_issued(tmp_path):
+    """`uacell cert request` and `uacell cert install` (decision 95) before the first start: a new key,
+    the request signed by a CA made from RFC 5280's rules, what it issued installed with its chain."""
+    d = ["--data-dir", str(tmp_path / "d")]
+    paths = PkiPaths.in_data_dir(tmp_path / "d")
+    root = Authority.root()
+    issuing = root.intermediate()
+
+    refused = uacell("cert", "request", *d)  # no key yet: say how to get one
+    assert refused.returncode == 1 and "ask for a new key" in refused.stderr
+    made = uacell("cert", "request", "--new-key", "--out", str(tmp_path / "uacell.csr"), *d)
+    assert made.returncode == 0, made.stderr
+    assert paths.pending_key.exists() and not paths.key.exists()
+    issued = issuing.sign_request((tmp_path / "uacell.csr").read_bytes())
+    # a file with the CA's certificates in the wrong order is refused and changes nothing
+    (tmp_path / "wrong.pem").write_bytes(pem(issued) + pem(root.cert) + pem(issuing.cert))
+    wrong = uacell("cert", "install", str(tmp_path / "wrong.pem"), *d)
+    assert wrong.returncode == 1 and "did not issue certificate 1" in wrong.stderr
+    assert not paths.cert.exists() and paths.pending_key.exists()
+    (tmp_path / "issued.pem").write_bytes(pem(issued) + pem(issuing.cert))
+    installed = uacell("cert", "install", str(tmp_path / "issued.pem"), *d)
+    assert installed.returncode == 0, installed.stderr
+    assert f"server certificate {thumbprint(der(issued))} from" in installed.stdout
+    assert "with 1 CA certificate(s) and its new key" in installed.stdout
+    assert paths.cert.read_bytes() == der(issued) and not paths.pending_key.exists()
+    listed = uacell("cert", "list", *d).stdout.splitlines()
+    assert any(line.startswith(f"own      {thumbprint(der(issued))}") for line in listed)
+    assert any(line.startswith(f"own-ca   {thumbprint(issuing.der)}  Plant Issuing CA") for line in listed)
+    trail = [json.loads(line) for line in (tmp_path / "d" / "audit.log").read_text().splitlines()]
+    assert [e["action"] for e in trail if e.get("event") == "cert"] == ["request", "install"]

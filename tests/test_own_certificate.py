@@ -13,13 +13,13 @@ from typing import Any
 
 import pytest
 from asyncua import Client, ua
-from asyncua.crypto import security_policies as sp
 from conftest import fast_config, start_app
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.x509.oid import ExtendedKeyUsageOID
-from plant_ca import Authority, der, key_pem, pem
+from helpers import secure_client
+from plant_ca import Authority, der, pem
 
 from uacell.security.chain import split_chain
 from uacell.security.own_certificate import (
@@ -279,8 +279,6 @@ async def test_the_server_sends_its_ca_chain_and_a_client_of_the_plant_gets_a_se
     (paths.issuers / "issuing.der").write_bytes(issuing.der)
     (paths.crl / "root.crl").write_bytes(root.crl())
     (paths.crl / "issuing.crl").write_bytes(issuing.crl())
-    (tmp_path / "mes.der").write_bytes(der(mes))
-    (tmp_path / "mes.pem").write_bytes(key_pem(mes_key))
     app = await start_app(config)
     try:
         endpoints = await Client(app.endpoint, timeout=20).connect_and_get_server_endpoints()
@@ -289,28 +287,51 @@ async def test_the_server_sends_its_ca_chain_and_a_client_of_the_plant_gets_a_se
         sent = split_chain(endpoints[0].ServerCertificate)
         sent[0].verify_directly_issued_by(sent[1])
         sent[1].verify_directly_issued_by(root.cert)
-        client = Client(app.endpoint, timeout=20)
-        client.application_uri = MES
-        await client.set_security(
-            sp.SecurityPolicyBasic256Sha256,
-            str(tmp_path / "mes.der"),
-            str(tmp_path / "mes.pem"),
-            mode=ua.MessageSecurityMode.SignAndEncrypt,
-        )
-        created: list[bytes] = []
-        create = client.uaclient.create_session
-
-        async def create_session(params: ua.CreateSessionParameters) -> Any:
-            response = await create(params)
-            created.append(response.ServerCertificate)
-            return response
-
-        client.uaclient.create_session = create_session
-        await client.connect()  # asyncua signs ActivateSession over the leaf (OPC 10000-4 5.7.3.2)
-        try:
-            assert created == [der(issued) + issuing.der]
-            assert await client.nodes.server_state.read_value() == ua.ServerState.Running
-        finally:
-            await client.disconnect()
+        for signs_over_the_chain in (False, True):
+            created: list[bytes] = []
+            client = await plant_client(app.endpoint, tmp_path, (mes, mes_key), created, signs_over_the_chain)
+            try:
+                assert created == [der(issued) + issuing.der]
+                assert await client.nodes.server_state.read_value() == ua.ServerState.Running
+            finally:
+                await client.disconnect()
+        # a signature over something else is still refused
+        with pytest.raises(ua.UaStatusCodeError) as refused:
+            await plant_client(app.endpoint, tmp_path, (mes, mes_key), [], signs_over_the_chain=True, extra=b"x")
+        assert refused.value.code == ua.StatusCodes.BadApplicationSignatureInvalid
     finally:
         await app.stop()
+
+
+async def plant_client(
+    endpoint: str,
+    tmp_path: Path,
+    mes: tuple[Any, Any],
+    created: list[bytes],
+    signs_over_the_chain: bool,
+    extra: bytes = b"",
+) -> Client:
+    """The MES client over Basic256Sha256 SignAndEncrypt; ``created``: the serverCertificate each
+    CreateSession answered. asyncua signs ActivateSession over the server's certificate alone, as OPC
+    10000-4 5.7.3.2 asks; ``signs_over_the_chain``: over the whole serverCertificate it was sent
+    (followed by ``extra``), as clients did before the errata of 1.04."""
+    client = await secure_client(endpoint, tmp_path, mes[0], mes[1], MES)
+    create = client.uaclient.create_session
+
+    async def create_session(params: ua.CreateSessionParameters) -> Any:
+        response = await create(params)
+        created.append(response.ServerCertificate)
+        return response
+
+    client.uaclient.create_session = create_session
+    if signs_over_the_chain:
+        activate = client.activate_session
+
+        async def activate_session(*args: Any, **kwargs: Any) -> Any:
+            # what asyncua signs at ActivateSession: this certificate, then the server nonce
+            client.security_policy.peer_certificate = created[-1] + extra
+            return await activate(*args, **kwargs)
+
+        client.activate_session = activate_session
+    await client.connect()
+    return client

@@ -14,8 +14,8 @@ import pytest_asyncio
 from asyncua import Client, ua
 from asyncua.crypto import security_policies as sp
 from conftest import fast_config, start_app
-from helpers import Collector, call_path
-from plant_ca import Authority, der, key_pem
+from helpers import Collector, call_path, secure_client
+from plant_ca import Authority, der
 from uaraw import RawClient, Refused, anonymous_token
 
 from uacell.core.roles import Role
@@ -149,16 +149,7 @@ async def test_a_refused_certificate_fires_its_certificate_event_and_a_failed_cr
         # a certificate nobody trusts, with its CA's chain
         ca = Authority.root("Stranger CA", key_index=4)
         cert, key = ca.application("urn:stranger", "Stranger", key_index=5)
-        (tmp_path / "c.der").write_bytes(der(cert))
-        (tmp_path / "k.pem").write_bytes(key_pem(key))
-        client = Client(server.endpoint, timeout=20)
-        client.application_uri = "urn:stranger"
-        await client.set_security(
-            sp.SecurityPolicyBasic256Sha256,
-            str(tmp_path / "c.der"),
-            str(tmp_path / "k.pem"),
-            mode=ua.MessageSecurityMode.SignAndEncrypt,
-        )
+        client = await secure_client(server.endpoint, tmp_path, cert, key, "urn:stranger")
         with pytest.raises(ua.UaStatusCodeError):
             await client.connect()
         untrusted = await seen.wait_for(of(OBJ.AuditCertificateUntrustedEventType, "Security/Certificate"))
@@ -286,5 +277,35 @@ async def test_an_idle_session_ends_as_timed_out(server: UacellServer) -> None:
                 of(OBJ.AuditSessionEventType, "Session/Timeout", session=session.response.SessionId), timeout=30
             )
             assert ended.Status is True
+    finally:
+        await admin.disconnect()
+
+
+async def test_an_activation_whose_client_signature_does_not_verify_is_refused_and_audited(
+    server: UacellServer, tmp_path: Path
+) -> None:
+    """OPC 10000-4 5.7.3.2: the clientSignature proves the client holds its certificate's key; one that does
+    not verify is Bad_ApplicationSignatureInvalid (asyncua's check raised, and the client got
+    Bad_InternalError with a traceback in the log)."""
+    admin, seen = await listener(server, "ada")
+    try:
+        ca = Authority.root("Audit CA", key_index=6)
+        cert, key = ca.application("urn:forger", "Forger", key_index=7)
+        (Path(server.data_dir) / "pki" / "trusted" / "forger.der").write_bytes(der(cert))  # trusted by itself
+        client = await secure_client(server.endpoint, tmp_path, cert, key, "urn:forger")
+        activate = client.activate_session
+
+        async def activate_over_something_else(*args: Any, **kwargs: Any) -> Any:
+            client.security_policy.peer_certificate = (client.security_policy.peer_certificate or b"") + b"x"
+            return await activate(*args, **kwargs)
+
+        client.activate_session = activate_over_something_else
+        with pytest.raises(ua.UaStatusCodeError) as refused:
+            await client.connect()
+        assert refused.value.code == ua.StatusCodes.BadApplicationSignatureInvalid
+        event = await seen.wait_for(
+            lambda e: of(OBJ.AuditActivateSessionEventType, "Session/ActivateSession")(e) and not e.Status
+        )
+        assert event.StatusCodeId == ua.StatusCode(ua.StatusCodes.BadApplicationSignatureInvalid)
     finally:
         await admin.disconnect()

@@ -61,6 +61,7 @@ from asyncua.server.internal_session import InternalSession, SessionState
 from asyncua.server.uaprocessor import UaProcessor
 from asyncua.ua.ua_binary import struct_from_binary
 from cryptography import x509
+from cryptography.exceptions import InvalidSignature
 
 from uacell.config import login_answer_margin
 from uacell.core.logs import RefusalLog
@@ -204,6 +205,7 @@ class _Logins:
     _user_locks: dict[str, asyncio.Lock]
     _lock_users: dict[str, int]  # attempts holding or waiting for each user name's lock
     audit_events: SecurityAuditEvents
+    refusals: RefusalLog
 
     def decrypt_user_token(self, isession: InternalSession, token: ua.UserNameIdentityToken) -> tuple[str, str]:
         raise NotImplementedError  # Security's
@@ -351,6 +353,16 @@ class _Logins:
         except ServiceError as exc:
             await self._audit_login(processor, address, user, token, exc.code)
             raise
+        except InvalidSignature:  # asyncua's check of the clientSignature (OPC 10000-4 5.7.3.2)
+            code = _S.BadApplicationSignatureInvalid
+            self.refusals.report(
+                address,
+                "application-signature",
+                f"refused activation from {address}: its clientSignature does not verify with the certificate "
+                f"of its channel over the server's certificate and nonce (BadApplicationSignatureInvalid)",
+            )
+            await self._audit_login(processor, address, user, token, code)
+            raise ServiceError(code) from None
         await self._audit_login(processor, address, user, token, _S.Good)
         return result
 
