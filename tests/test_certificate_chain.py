@@ -44,7 +44,10 @@ def crls(*authorities: Authority) -> tuple[x509.CertificateRevocationList, ...]:
     return tuple(x509.load_der_x509_crl(a.crl()) for a in authorities)
 
 
-NOW = dt.datetime.now(dt.UTC)
+def now() -> dt.datetime:
+    """The time of the check: the CAs are made when the tests that use them start (a module-level "now"
+    is from collection, which a slow run puts minutes before the certificates' notBefore)."""
+    return dt.datetime.now(dt.UTC)
 
 
 # the chain's steps, pure ------------------------------------------------------------------------------
@@ -62,15 +65,15 @@ def test_a_chain_is_split_by_the_lengths_in_its_der(ca: dict[str, Any]) -> None:
 def test_a_chain_to_a_trusted_root_through_an_issuer_the_client_sent(ca: dict[str, Any]) -> None:
     root, issuing, leaf = ca["root"], ca["issuing"], ca["leaf"]
     anchors = Anchors(trusted=(root.cert,), crls=crls(root, issuing))
-    assert check_chain([leaf, issuing.cert], anchors, NOW) is None
+    assert check_chain([leaf, issuing.cert], anchors, now()) is None
     # the same issuer from pki/issuers/ instead
     assert (
-        check_chain([leaf], Anchors(trusted=(root.cert,), issuers=(issuing.cert,), crls=crls(root, issuing)), NOW)
+        check_chain([leaf], Anchors(trusted=(root.cert,), issuers=(issuing.cert,), crls=crls(root, issuing)), now())
         is None
     )
     # trusting the issuing CA alone trusts what it issued; the root must still be found to end the chain
     only_issuing = Anchors(trusted=(issuing.cert,), issuers=(root.cert,), crls=crls(root, issuing))
-    assert check_chain([leaf], only_issuing, NOW) is None
+    assert check_chain([leaf], only_issuing, now()) is None
 
 
 def test_each_step_answers_its_own_code(ca: dict[str, Any]) -> None:
@@ -78,7 +81,7 @@ def test_each_step_answers_its_own_code(ca: dict[str, Any]) -> None:
     full = crls(root, issuing)
 
     def code(chain: list[x509.Certificate], anchors: Anchors, **kw: Any) -> int | None:
-        refusal = check_chain(chain, anchors, NOW, **kw)
+        refusal = check_chain(chain, anchors, now(), **kw)
         return None if refusal is None else refusal.code
 
     # the issuer is nowhere: the chain cannot be built
@@ -117,25 +120,26 @@ def test_an_issuer_must_be_a_valid_ca(ca: dict[str, Any]) -> None:
     not_a_ca = root.intermediate("Not a CA", key_index=4, ca=False)
     leaf, _ = not_a_ca.application(MES, key_index=7)
     anchors = Anchors(trusted=(root.cert,), crls=crls(root, not_a_ca))
-    refusal = check_chain([leaf, not_a_ca.cert], anchors, NOW)
+    refusal = check_chain([leaf, not_a_ca.cert], anchors, now())
     assert refusal is not None and refusal.code == S.BadCertificateIssuerUseNotAllowed
     assert refusal.certificate == not_a_ca.cert
-    expired = root.intermediate("Expired CA", key_index=6, not_before=NOW - dt.timedelta(days=20), days=10)
+    expired = root.intermediate("Expired CA", key_index=6, not_before=now() - dt.timedelta(days=20), days=10)
     leaf, _ = expired.application(MES, key_index=7)
-    refusal = check_chain([leaf, expired.cert], Anchors(trusted=(root.cert,), crls=crls(root, expired)), NOW)
+    refusal = check_chain([leaf, expired.cert], Anchors(trusted=(root.cert,), crls=crls(root, expired)), now())
     assert refusal is not None and refusal.code == S.BadCertificateIssuerTimeInvalid
 
 
 def test_a_certificate_trusted_by_itself(ca: dict[str, Any]) -> None:
     root, issuing, leaf = ca["root"], ca["issuing"], ca["leaf"]
     # its issuer unknown: trusted as pinned, as before chains were checked
-    assert check_chain([leaf], Anchors(trusted=(leaf,)), NOW) is None
+    assert check_chain([leaf], Anchors(trusted=(leaf,)), now()) is None
     # its issuer known: the chain counts, revocation included; a missing list alone does not refuse it
     assert (
-        check_chain([ca["revoked"]], Anchors(trusted=(ca["revoked"],), issuers=(issuing.cert, root.cert)), NOW) is None
+        check_chain([ca["revoked"]], Anchors(trusted=(ca["revoked"],), issuers=(issuing.cert, root.cert)), now())
+        is None
     )
     anchors = Anchors(trusted=(ca["revoked"],), issuers=(issuing.cert, root.cert), crls=crls(root, issuing))
-    refusal = check_chain([ca["revoked"]], anchors, NOW)
+    refusal = check_chain([ca["revoked"]], anchors, now())
     assert refusal is not None and refusal.code == S.BadCertificateRevoked
 
 
@@ -346,6 +350,6 @@ async def test_a_session_must_name_the_certificate_of_its_channel(
 def test_pinning_covers_an_unknown_issuer_of_the_certificate_itself_only(ca: dict[str, Any]) -> None:
     """Its issuer known but the issuer's own issuer not: the chain cannot be built, pinned or not."""
     leaf, issuing = ca["leaf"], ca["issuing"]
-    refusal = check_chain([leaf], Anchors(trusted=(leaf,), issuers=(issuing.cert,)), NOW)
+    refusal = check_chain([leaf], Anchors(trusted=(leaf,), issuers=(issuing.cert,)), now())
     assert refusal is not None and refusal.code == S.BadCertificateChainIncomplete
     assert refusal.certificate == issuing.cert
