@@ -162,6 +162,20 @@ REFUSALS: dict[str, tuple[Any, str]] = {
 }
 
 
+# what a client is told of each (OPC 10000-12 UpdateCertificate, decision 96)
+CODES = {
+    "another key's": "BadSecurityChecksFailed",
+    "without the URI": "BadCertificateUriInvalid",
+    "without the host": "BadCertificateHostNameInvalid",
+    "expired": "BadCertificateTimeInvalid",
+    "not yet valid": "BadCertificateTimeInvalid",
+    "for signing only": "BadCertificateUseNotAllowed",
+    "for clients only": "BadCertificateUseNotAllowed",
+    "its CAs out of order": "BadSecurityChecksFailed",
+    "followed by no CA": "BadSecurityChecksFailed",
+}
+
+
 @pytest.mark.parametrize("case", REFUSALS)
 def test_what_cannot_be_the_servers_certificate_is_refused_and_nothing_changes(
     case: str, paths: PkiPaths, plant: dict[str, Authority], tmp_path: Path
@@ -172,6 +186,7 @@ def test_what_cannot_be_the_servers_certificate_is_refused_and_nothing_changes(
     with pytest.raises(InstallRefused) as refused:
         install_certificate(paths, b"".join(pem(c) for c in certs), URI, HOSTS)
     assert why in str(refused.value)
+    assert refused.value.code == CODES[case]
     assert own_files(paths) == before
 
 

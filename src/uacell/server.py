@@ -37,6 +37,7 @@ from uacell.security.access import UacellUserManager
 from uacell.security.audit import AuditTrail
 from uacell.security.pki import PkiPaths
 from uacell.security.policy import SecurityStage, install_security
+from uacell.security.push import ServerConfiguration
 from uacell.security.users import UserStore
 from uacell.services.diagnostics import Diagnostics, bind_subscription_methods
 from uacell.services.discovery_registration import DiscoveryRegistration, Registrant, discovery_url
@@ -220,6 +221,7 @@ class UacellServer:
         self._refs = NodeRefs(await self.server.get_namespace_array())
         self.dispatcher.declarations = self.cell.instantiator.declarations
         bind_subscription_methods(self)
+        await ServerConfiguration(self).bind()
         for binder in self.binders:
             closer = await binder(self)
             if closer is not None:

@@ -61,6 +61,7 @@ class Family(str):
     DIRECTORY: ClassVar[Family]
     CONDITION: ClassVar[Family]
     SERVER: ClassVar[Family]
+    SERVER_CONFIGURATION: ClassVar[Family]
 
     def __repr__(self) -> str:
         return f"Family({str(self)!r})"
@@ -70,6 +71,7 @@ Family.FILE = Family("File")
 Family.DIRECTORY = Family("Directory")
 Family.CONDITION = Family("Condition")
 Family.SERVER = Family("Server")
+Family.SERVER_CONFIGURATION = Family("ServerConfiguration")
 
 # ObjectType BrowseNames (and a few instance names) a dispatcher may pass as the hint; companions add theirs.
 TYPE_HINTS: dict[str, Family] = {
@@ -79,6 +81,7 @@ TYPE_HINTS: dict[str, Family] = {
     "AcknowledgeableConditionType": Family.CONDITION,
     "AlarmConditionType": Family.CONDITION,
     "ServerType": Family.SERVER,
+    "ServerConfigurationType": Family.SERVER_CONFIGURATION,
 }
 
 OP, EN = Role.OPERATOR, Role.ENGINEER
@@ -96,6 +99,11 @@ BASE_ROLES: dict[tuple[Family, str], Role] = {
     # OPC 10000-5 9.1, 9.3: a client asks which monitored items its own subscription has, or for their
     # current values again (after a reconnect).
     **{(Family.SERVER, m): Role.OBSERVER for m in ("GetMonitoredItems", "ResendData")},
+    # OPC 10000-12 7.10: the server's certificate managed by a GDS (SecurityAdmin; decision 96)
+    **{
+        (Family.SERVER_CONFIGURATION, m): Role.ADMIN
+        for m in ("CreateSigningRequest", "UpdateCertificate", "ApplyChanges", "GetRejectedList")
+    },
 }
 
 

@@ -54,7 +54,12 @@ _log = logging.getLogger(__name__)
 
 
 class InstallRefused(ValueError):
-    """The certificate cannot be the server's; the message says why."""
+    """The certificate cannot be the server's; the message says why, ``code`` is the OPC UA status code's
+    name that says it to a client (OPC 10000-12 UpdateCertificate)."""
+
+    def __init__(self, message: str, code: str = "BadCertificateInvalid") -> None:
+        super().__init__(message)
+        self.code = code
 
 
 @dataclass(frozen=True)
@@ -65,9 +70,17 @@ class Installed:
     warnings: tuple[str, ...]  # installed, but worth saying (it expires soon)
 
 
-def signing_request(paths: PkiPaths, application_uri: str, hosts: Iterable[str], *, new_key: bool = False) -> bytes:
+def signing_request(
+    paths: PkiPaths,
+    application_uri: str,
+    hosts: Iterable[str],
+    *,
+    new_key: bool = False,
+    subject: x509.Name | None = None,
+) -> bytes:
     """A PEM certificate signing request for the server's key (``new_key``: for a new key, kept in
-    ``pki/own/pending/key.pem`` until ``install_certificate`` takes its certificate)."""
+    ``pki/own/pending/key.pem`` until ``install_certificate`` takes its certificate), for ``subject`` (by
+    default the current certificate's)."""
     if new_key:
         key = generate_key()
         atomic_write(paths.pending_key, key_to_pem(key), mode=0o600)
@@ -75,17 +88,14 @@ def signing_request(paths: PkiPaths, application_uri: str, hosts: Iterable[str],
     elif paths.key.exists():
         key = load_server_key(paths)
     else:
-        raise InstallRefused(f"{paths.key} does not exist: start the server once, or ask for a new key")
+        raise InstallRefused(
+            f"{paths.key} does not exist: start the server once, or ask for a new key", "BadInvalidState"
+        )
     dns, ips = san_for_hosts(hosts)
     san: list[x509.GeneralName] = [x509.UniformResourceIdentifier(application_uri)]
     san += [x509.DNSName(d) for d in dict.fromkeys(dns)]
     san += [x509.IPAddress(i) for i in dict.fromkeys(ips)]
-    subject = x509.Name(
-        [
-            x509.NameAttribute(NameOID.COMMON_NAME, f"uacell@{socket.gethostname()}"),
-            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "uacell"),
-        ]
-    )
+    subject = subject or _current_subject(paths)
     request = (
         x509.CertificateSigningRequestBuilder()
         .subject_name(subject)
@@ -113,6 +123,18 @@ def signing_request(paths: PkiPaths, application_uri: str, hosts: Iterable[str],
     return request.public_bytes(serialization.Encoding.PEM)
 
 
+def _current_subject(paths: PkiPaths) -> x509.Name:
+    try:
+        return x509.load_der_x509_certificate(paths.cert.read_bytes()).subject
+    except (OSError, ValueError):
+        return x509.Name(
+            [
+                x509.NameAttribute(NameOID.COMMON_NAME, f"uacell@{socket.gethostname()}"),
+                x509.NameAttribute(NameOID.ORGANIZATION_NAME, "uacell"),
+            ]
+        )
+
+
 def read_certificates(data: bytes) -> list[x509.Certificate]:
     """The certificates of a file: PEM blocks, or DER certificates appended. ValueError if none."""
     if b"-----BEGIN" in data:
@@ -127,24 +149,34 @@ def install_certificate(
     hosts: Iterable[str],
     *,
     now: dt.datetime | None = None,
+    private_key: rsa.RSAPrivateKey | None = None,
 ) -> Installed:
     """Make the certificate in ``data`` (its issuers after it) the server's; InstallRefused, with
-    nothing changed, when it cannot be (the module's text lists the checks)."""
+    nothing changed, when it cannot be (the module's text lists the checks). ``private_key``: the
+    certificate's key, made outside the server (OPC 10000-12 UpdateCertificate), which becomes the
+    server's with it."""
     now = now or dt.datetime.now(dt.UTC)
     try:
         certs = read_certificates(data)
     except ValueError as exc:
         raise InstallRefused(f"not a certificate file: {exc}") from None
     leaf, issuers = certs[0], tuple(certs[1:])
-    new_key = _key_of(paths, leaf)
+    if private_key is None:
+        new_key = _key_of(paths, leaf)
+    elif private_key.public_key().public_numbers() != _rsa_public(leaf).public_numbers():
+        raise InstallRefused("the private key given is not the certificate's", "BadSecurityChecksFailed")
+    else:
+        new_key = True
     _check_usable(leaf, application_uri, hosts, now)
     problem = chain_problem(leaf, issuers)
     if problem:
-        raise InstallRefused(problem)
+        raise InstallRefused(problem, "BadSecurityChecksFailed")
     warnings = []
     if leaf.not_valid_after_utc - RENEW_BEFORE < now:
         warnings.append(f"it expires on {leaf.not_valid_after_utc:%Y-%m-%d}: ask the CA for the next one soon")
     _back_up(paths, now)
+    if private_key is not None:
+        atomic_write(paths.pending_key, key_to_pem(private_key), mode=0o600)
     if issuers:
         atomic_write(paths.chain, b"".join(c.public_bytes(serialization.Encoding.PEM) for c in issuers), mode=0o644)
     else:
@@ -155,17 +187,23 @@ def install_certificate(
     return Installed(leaf, issuers, new_key, tuple(warnings))
 
 
-def _key_of(paths: PkiPaths, leaf: x509.Certificate) -> bool:
-    """Is ``leaf`` the certificate of the pending key (True) or of the server's key (False)?"""
+def _rsa_public(leaf: x509.Certificate) -> rsa.RSAPublicKey:
     public = leaf.public_key()
     if not isinstance(public, rsa.RSAPublicKey):
         raise InstallRefused("its key is not an RSA key")
+    return public
+
+
+def _key_of(paths: PkiPaths, leaf: x509.Certificate) -> bool:
+    """Is ``leaf`` the certificate of the pending key (True) or of the server's key (False)?"""
+    public = _rsa_public(leaf)
     for path, pending in ((paths.pending_key, True), (paths.key, False)):
         if path.exists() and _public_numbers(path) == public.public_numbers():
             return pending
     raise InstallRefused(
         f"it is not the certificate of the server's key nor of a pending one (thumbprint "
-        f"{thumbprint(der_of(leaf))}): the CA must sign a request made by `uacell cert request`"
+        f"{thumbprint(der_of(leaf))}): the CA must sign a request made by `uacell cert request`",
+        "BadSecurityChecksFailed",
     )
 
 
@@ -176,13 +214,22 @@ def _public_numbers(path: Path) -> rsa.RSAPublicNumbers | None:
 
 def _check_usable(leaf: x509.Certificate, application_uri: str, hosts: Iterable[str], now: dt.datetime) -> None:
     if now < leaf.not_valid_before_utc:
-        raise InstallRefused(f"it is not valid before {leaf.not_valid_before_utc:%Y-%m-%d %H:%M} UTC")
+        raise InstallRefused(
+            f"it is not valid before {leaf.not_valid_before_utc:%Y-%m-%d %H:%M} UTC", "BadCertificateTimeInvalid"
+        )
     if now > leaf.not_valid_after_utc:
-        raise InstallRefused(f"it expired on {leaf.not_valid_after_utc:%Y-%m-%d}")
+        raise InstallRefused(f"it expired on {leaf.not_valid_after_utc:%Y-%m-%d}", "BadCertificateTimeInvalid")
     problems = [p for p in coverage_problems(leaf, application_uri, hosts) if not p.startswith("expires")]
     problems += usage_problems(leaf)
     if problems:
-        raise InstallRefused("it does not suit this server: " + "; ".join(problems))
+        code = (
+            "BadCertificateUriInvalid"
+            if any(p.startswith("application URI") for p in problems)
+            else "BadCertificateHostNameInvalid"
+            if any(p.startswith(("host name", "address")) for p in problems)
+            else "BadCertificateUseNotAllowed"
+        )
+        raise InstallRefused("it does not suit this server: " + "; ".join(problems), code)
 
 
 def usage_problems(cert: x509.Certificate) -> list[str]:

@@ -19,9 +19,11 @@ from collections.abc import Callable
 from typing import Any
 
 from asyncua.server.server import Server
+from cryptography import x509
 from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives import serialization
 
-from uacell.ua.door import swap
+from uacell.ua.door import configure, swap
 
 
 def send_with_chain(server: Server, issuers: bytes) -> None:
@@ -32,13 +34,34 @@ def send_with_chain(server: Server, issuers: bytes) -> None:
 
     async def setup_with_chain() -> None:
         await setup()
-        for endpoint in server.iserver.endpoints:
-            if endpoint.ServerCertificate:
-                endpoint.ServerCertificate += issuers
-        for factory in server._policies:
-            swap(factory, "SecurityPolicyFactory.create", _chained(factory.create, issuers))
+        _send(server, issuers)
 
     swap(server, "Server._setup_server_nodes", setup_with_chain)
+
+
+def use_certificate(server: Server, certificate: x509.Certificate, key: Any, issuers: bytes) -> None:
+    """Secure channels opened from now on use ``certificate`` (followed by ``issuers``) and ``key``; those
+    open keep what they were opened with (OPC 10000-12 ApplyChanges, decision 96)."""
+    configure(server.iserver, "InternalServer.certificate", certificate)
+    configure(server.iserver, "InternalServer.private_key", key)
+    for factory in server._policies:
+        configure(factory, "SecurityPolicyFactory.certificate", certificate)
+        configure(factory, "SecurityPolicyFactory.private_key", key)
+    leaf = certificate.public_bytes(serialization.Encoding.DER)
+    for endpoint in server.iserver.endpoints:
+        if endpoint.ServerCertificate:
+            endpoint.ServerCertificate = leaf
+    _send(server, issuers)
+
+
+def _send(server: Server, issuers: bytes) -> None:
+    """The endpoints and the channels' policies with the server's certificate followed by ``issuers``."""
+    for endpoint in server.iserver.endpoints:
+        if endpoint.ServerCertificate:
+            endpoint.ServerCertificate += issuers
+    for factory in server._policies:
+        create = type(factory).create.__get__(factory)  # asyncua's, bound to this factory
+        swap(factory, "SecurityPolicyFactory.create", _chained(create, issuers) if issuers else create)
 
 
 def _chained(create: Callable[[Any], Any], issuers: bytes) -> Callable[[Any], Any]:

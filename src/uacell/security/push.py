@@ -1,0 +1,204 @@
+"""The Server object's ServerConfiguration: the push model of certificate management (OPC 10000-12 7.10,
+decision 96), for a GDS or a certificate manager that keeps the plant's servers' certificates.
+
+- ``CreateSigningRequest(CertificateGroupId, CertificateTypeId, SubjectName, RegeneratePrivateKey, Nonce)
+  -> CertificateRequest``: a PKCS #10 request, DER, for the server's key or (``RegeneratePrivateKey``,
+  with a Nonce of at least 32 bytes) for a new key kept in ``pki/own/pending/`` until its certificate
+  comes (the same as ``uacell cert request``, ``uacell.security.own_certificate``).
+- ``UpdateCertificate(CertificateGroupId, CertificateTypeId, Certificate, IssuerCertificates,
+  PrivateKeyFormat, PrivateKey) -> ApplyChangesRequired``: the certificate installed as ``uacell cert
+  install`` does, with its checks and their codes; a private key made elsewhere in the "PEM" format.
+  Always ApplyChangesRequired.
+- ``ApplyChanges()``: secure channels opened from then on use the installed certificate; those open
+  keep the one they were opened with until they close.
+- ``GetRejectedList() -> Certificates``: the certificates in ``pki/rejected/``.
+
+The group is the DefaultApplicationGroup (or null), the type RsaSha256ApplicationCertificateType (or
+null); anything else is Bad_InvalidArgument. Each method needs an admin over a SignAndEncrypt channel
+(the standard's SecurityAdmin over an encrypted channel; Bad_SecurityModeInsufficient otherwise). The
+TrustList objects are not served: the trust list is kept with ``uacell cert`` (docs/security.md).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import Any
+
+from asyncua import ua
+from cryptography import x509
+from cryptography.hazmat.primitives import serialization
+from cryptography.hazmat.primitives.asymmetric import rsa
+from cryptography.x509.oid import NameOID
+
+from uacell.core.errors import CallError
+from uacell.core.roles import Family
+from uacell.host import Host
+from uacell.security.chain import der_of
+from uacell.security.own_certificate import InstallRefused, install_certificate, own_issuers, signing_request
+from uacell.security.pki import PkiPaths, load_server_key, thumbprint
+from uacell.ua import context
+from uacell.ua.context import Caller
+from uacell.ua.door.certificate import use_certificate
+from uacell.ua.door.connection import channel_policy
+
+log = logging.getLogger(__name__)
+
+_O = ua.ObjectIds
+CONFIGURATION = ua.NodeId(_O.ServerConfiguration)
+GROUP = ua.NodeId(_O.ServerConfiguration_CertificateGroups_DefaultApplicationGroup)
+CERTIFICATE_TYPE = ua.NodeId(_O.RsaSha256ApplicationCertificateType)
+PRIVATE_KEY_FORMATS = ["PEM"]
+MIN_NONCE = 32  # OPC 10000-12 7.10.10: the Nonce that comes with RegeneratePrivateKey
+
+# OPC 10000-12 7.6.4: SubjectName's "Name=Value" pairs, separated by "/" or ","
+_NAME_OIDS = {
+    "CN": NameOID.COMMON_NAME,
+    "O": NameOID.ORGANIZATION_NAME,
+    "OU": NameOID.ORGANIZATIONAL_UNIT_NAME,
+    "DC": NameOID.DOMAIN_COMPONENT,
+    "L": NameOID.LOCALITY_NAME,
+    "S": NameOID.STATE_OR_PROVINCE_NAME,
+    "ST": NameOID.STATE_OR_PROVINCE_NAME,
+    "C": NameOID.COUNTRY_NAME,
+}
+
+
+def subject_name(text: str) -> x509.Name:
+    """The X.500 name ``text`` writes as OPC 10000-12 7.6.4 does ("CN=Line 3/O=Plant" or with commas);
+    ValueError for anything else."""
+    separator = "/" if "/" in text else ","
+    attributes = []
+    for part in (p.strip() for p in text.strip().strip("/").split(separator)):
+        key, equals, value = part.partition("=")
+        oid = _NAME_OIDS.get(key.strip().upper())
+        if not equals or oid is None or not value.strip():
+            raise ValueError(f"{part!r} is not one of {', '.join(_NAME_OIDS)} = a value")
+        attributes.append(x509.NameAttribute(oid, value.strip().strip('"')))
+    if not attributes:
+        raise ValueError("no name")
+    return x509.Name(attributes)
+
+
+class ServerConfiguration:
+    """The methods of ``Server.ServerConfiguration`` on one server (bound by ``bind``)."""
+
+    def __init__(self, app: Host) -> None:
+        self.app = app
+        self.paths = PkiPaths.in_data_dir(app.data_dir)
+        cfg = app.config.server
+        self.application_uri, self.hosts = cfg.application_uri, [cfg.host]
+
+    async def bind(self) -> None:
+        dispatcher, family = self.app.dispatcher, Family.SERVER_CONFIGURATION
+        for method, handler in (
+            (_O.ServerConfiguration_CreateSigningRequest, self.create_signing_request),
+            (_O.ServerConfiguration_UpdateCertificate, self.update_certificate),
+            (_O.ServerConfiguration_ApplyChanges, self.apply_changes),
+            (_O.ServerConfiguration_GetRejectedList, self.get_rejected_list),
+        ):
+            dispatcher.bind(CONFIGURATION, ua.NodeId(method), family, handler)
+        aspace = self.app.server.iserver.aspace
+        for node, value in (
+            (_O.ServerConfiguration_SupportedPrivateKeyFormats, ua.Variant(PRIVATE_KEY_FORMATS, ua.VariantType.String)),
+            (_O.ServerConfiguration_ServerCapabilities, ua.Variant([], ua.VariantType.String)),
+            (_O.ServerConfiguration_MaxTrustListSize, ua.Variant(0, ua.VariantType.UInt32)),
+            (_O.ServerConfiguration_MulticastDnsEnabled, ua.Variant(False, ua.VariantType.Boolean)),
+            (
+                _O.ServerConfiguration_CertificateGroups_DefaultApplicationGroup_CertificateTypes,
+                ua.Variant([CERTIFICATE_TYPE], ua.VariantType.NodeId),
+            ),
+        ):
+            await aspace.write_attribute_value(ua.NodeId(node), ua.AttributeIds.Value, ua.DataValue(value))
+
+    # -- the methods ---------------------------------------------------------------------------------
+
+    async def create_signing_request(
+        self, caller: Caller, group: ua.NodeId, certificate_type: ua.NodeId, subject: str, new_key: bool, nonce: bytes
+    ) -> list[Any]:
+        _encrypted(caller)
+        _group_and_type(group, certificate_type)
+        name = None
+        if subject:
+            try:
+                name = subject_name(subject)
+            except ValueError as exc:
+                raise CallError("BadInvalidArgument", f"SubjectName: {exc}", argument=2) from None
+        if new_key and len(nonce or b"") < MIN_NONCE:
+            raise CallError("BadInvalidArgument", f"a new key needs a Nonce of {MIN_NONCE} bytes or more", argument=4)
+        pem = await asyncio.to_thread(
+            signing_request, self.paths, self.application_uri, self.hosts, new_key=new_key, subject=name
+        )
+        request = x509.load_pem_x509_csr(pem).public_bytes(serialization.Encoding.DER)
+        who = caller.display_user
+        log.info("a certificate signing request for %s (new key: %s) by %s", name or "the subject", new_key, who)
+        return [request]
+
+    async def update_certificate(
+        self,
+        caller: Caller,
+        group: ua.NodeId,
+        certificate_type: ua.NodeId,
+        certificate: bytes,
+        issuers: list[bytes] | None,
+        key_format: str,
+        private_key: bytes,
+    ) -> list[Any]:
+        _encrypted(caller)
+        _group_and_type(group, certificate_type)
+        key = _private_key(key_format, private_key) if private_key else None
+        data = (certificate or b"") + b"".join(i or b"" for i in issuers or [])
+        try:
+            done = await asyncio.to_thread(
+                install_certificate, self.paths, data, self.application_uri, self.hosts, private_key=key
+            )
+        except InstallRefused as refused:
+            raise CallError(refused.code, f"the certificate is refused: {refused}") from None
+        log.warning(
+            "server certificate %s from %s installed by %s (used by new secure channels after ApplyChanges)",
+            thumbprint(der_of(done.certificate)),
+            done.certificate.issuer.rfc4514_string(),
+            caller.display_user,
+        )
+        return [True]
+
+    async def apply_changes(self, caller: Caller) -> list[Any]:
+        _encrypted(caller)
+        certificate = x509.load_der_x509_certificate(self.paths.cert.read_bytes())
+        key = await asyncio.to_thread(load_server_key, self.paths)
+        issuers = b"".join(der_of(c) for c in own_issuers(self.paths, certificate))
+        use_certificate(self.app.server, certificate, key, issuers)
+        log.warning("ApplyChanges by %s: new secure channels use %s", caller.display_user, self.paths.cert)
+        return []
+
+    async def get_rejected_list(self, caller: Caller) -> list[Any]:
+        _encrypted(caller)
+        folder = self.paths.rejected
+        found = sorted(folder.iterdir()) if folder.is_dir() else []
+        return [[f.read_bytes() for f in found if f.is_file() and f.suffix.lower() == ".der"]]
+
+
+def _encrypted(caller: Caller) -> None:
+    """OPC 10000-12 7.10: these methods are called over an encrypted channel."""
+    _, mode = channel_policy(context.current_processor())
+    if mode != ua.MessageSecurityMode.SignAndEncrypt:
+        raise CallError("BadSecurityModeInsufficient", f"{caller.display_user} called over a {mode.name} channel")
+
+
+def _group_and_type(group: ua.NodeId, certificate_type: ua.NodeId) -> None:
+    if not group.is_null() and group != GROUP:
+        raise CallError("BadInvalidArgument", f"no certificate group {group.to_string()}", argument=0)
+    if not certificate_type.is_null() and certificate_type != CERTIFICATE_TYPE:
+        raise CallError("BadInvalidArgument", f"no certificate type {certificate_type.to_string()} here", argument=1)
+
+
+def _private_key(key_format: str, data: bytes) -> rsa.RSAPrivateKey:
+    if key_format != "PEM":
+        raise CallError("BadNotSupported", f"private key format {key_format!r}: only PEM", argument=4)
+    try:
+        key = serialization.load_pem_private_key(data, password=None)
+    except (ValueError, TypeError):
+        raise CallError("BadInvalidArgument", "the private key is no unencrypted PEM key", argument=5) from None
+    if not isinstance(key, rsa.RSAPrivateKey) or key.key_size < 2048:
+        raise CallError("BadInvalidArgument", "the private key is no RSA key of 2048 bits or more", argument=5)
+    return key

@@ -1,0 +1,224 @@
+"""ServerConfiguration's push model (OPC 10000-12 7.10, decision 96) through a real asyncua client over
+TCP, as a GDS uses it: a signing request for a new key, the certificate a CA issued for it (tests/plant_ca.py,
+from RFC 2986/5280), UpdateCertificate and ApplyChanges, then what new clients are sent; each refusal with
+the standard's code and nothing changed."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import pytest_asyncio
+from asyncua import Client, ua
+from conftest import fast_config, start_app
+from cryptography import x509
+from cryptography.hazmat.primitives import serialization
+from helpers import secure_client
+from plant_ca import Authority, der, key_pem
+
+from uacell.core.roles import Role
+from uacell.security.pki import PkiPaths
+from uacell.server import UacellServer
+
+pytestmark = pytest.mark.asyncio(loop_scope="module")
+
+OBJ = ua.ObjectIds
+CONFIGURATION = ua.NodeId(OBJ.ServerConfiguration)
+GROUP = ua.NodeId(OBJ.ServerConfiguration_CertificateGroups_DefaultApplicationGroup)
+RSA_SHA256 = ua.NodeId(OBJ.RsaSha256ApplicationCertificateType)
+PASSWORD = "push-certificates-pw-1"
+GDS = "urn:plant:gds"
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def plant(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[dict[str, Any]]:
+    """The server, trusting the plant's root; its admin and operator; the CA and the GDS's certificate."""
+    root = Authority.root()
+    issuing = root.intermediate()
+    gds_cert, gds_key = issuing.application(GDS, "Plant GDS")
+    app = await start_app(fast_config(tmp_path_factory.mktemp("push") / "data"))
+    paths = PkiPaths.in_data_dir(app.data_dir)
+    (paths.trusted / "root.der").write_bytes(root.der)
+    (paths.issuers / "issuing.der").write_bytes(issuing.der)
+    (paths.crl / "root.crl").write_bytes(root.crl())
+    (paths.crl / "issuing.crl").write_bytes(issuing.crl())
+    app.users.add("ada", Role.ADMIN, PASSWORD)
+    app.users.add("otto", Role.OPERATOR, PASSWORD)
+    try:
+        yield {"app": app, "paths": paths, "root": root, "issuing": issuing, "gds": (gds_cert, gds_key)}
+    finally:
+        await app.stop()
+
+
+async def gds_session(plant: dict[str, Any], tmp_path: Path, user: str = "ada", mode: Any = None) -> Client:
+    client = await secure_client(plant["app"].endpoint, tmp_path, plant["gds"][0], plant["gds"][1], GDS)
+    if mode is not None:  # the same certificate over another mode
+        await client.set_security(
+            type(client.security_policy),
+            str(tmp_path / "c.der"),
+            str(tmp_path / "k.pem"),
+            mode=mode,
+        )
+    client.set_user(user)
+    client.set_password(PASSWORD)
+    await client.connect()
+    return client
+
+
+async def call(client: Client, method: int, *args: ua.Variant) -> ua.CallMethodResult:
+    request = ua.CallMethodRequest()
+    request.ObjectId = CONFIGURATION
+    request.MethodId = ua.NodeId(method)
+    request.InputArguments = list(args)
+    [result] = await client.uaclient.call([request])
+    return result
+
+
+def csr_args(subject: str = "", new_key: bool = False, nonce: bytes = b"") -> list[ua.Variant]:
+    return [
+        ua.Variant(GROUP, ua.VariantType.NodeId),
+        ua.Variant(RSA_SHA256, ua.VariantType.NodeId),
+        ua.Variant(subject, ua.VariantType.String),
+        ua.Variant(new_key, ua.VariantType.Boolean),
+        ua.Variant(nonce, ua.VariantType.ByteString),
+    ]
+
+
+def update_args(certificate: bytes, issuers: list[bytes], key_format: str = "", key: bytes = b"") -> list[ua.Variant]:
+    return [
+        ua.Variant(GROUP, ua.VariantType.NodeId),
+        ua.Variant(RSA_SHA256, ua.VariantType.NodeId),
+        ua.Variant(certificate, ua.VariantType.ByteString),
+        ua.Variant(issuers, ua.VariantType.ByteString, is_array=True),
+        ua.Variant(key_format, ua.VariantType.String),
+        ua.Variant(key, ua.VariantType.ByteString),
+    ]
+
+
+async def endpoint_certificates(app: UacellServer) -> set[bytes]:
+    return {e.ServerCertificate for e in await Client(app.endpoint, timeout=20).connect_and_get_server_endpoints()}
+
+
+async def test_a_gds_pushes_a_certificate_of_the_plant_ca(plant: dict[str, Any], tmp_path: Path) -> None:
+    app, paths, issuing = plant["app"], plant["paths"], plant["issuing"]
+    old = paths.cert.read_bytes()
+    client = await gds_session(plant, tmp_path)
+    try:
+        types = await client.get_node(
+            ua.NodeId(OBJ.ServerConfiguration_CertificateGroups_DefaultApplicationGroup_CertificateTypes)
+        ).read_value()
+        assert types == [RSA_SHA256]
+        formats = await client.get_node(ua.NodeId(OBJ.ServerConfiguration_SupportedPrivateKeyFormats)).read_value()
+        assert formats == ["PEM"]
+        result = await call(
+            client,
+            OBJ.ServerConfiguration_CreateSigningRequest,
+            *csr_args("CN=Line 3 uacell/O=Plant", True, os.urandom(32)),
+        )
+        assert result.StatusCode.is_good(), result.StatusCode
+        request = x509.load_der_x509_csr(result.OutputArguments[0].Value)
+        assert request.is_signature_valid
+        assert request.subject.rfc4514_string() == "O=Plant,CN=Line 3 uacell"
+        san = request.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+        assert san.get_values_for_type(x509.UniformResourceIdentifier) == [app.config.server.application_uri]
+        assert paths.pending_key.exists() and paths.cert.read_bytes() == old  # the server's key is unchanged
+        issued = issuing.sign_request(request.public_bytes(serialization.Encoding.PEM))
+        result = await call(client, OBJ.ServerConfiguration_UpdateCertificate, *update_args(der(issued), [issuing.der]))
+        assert result.StatusCode.is_good(), result.StatusCode
+        assert result.OutputArguments[0].Value is True  # ApplyChangesRequired
+        assert paths.cert.read_bytes() == der(issued) and not paths.pending_key.exists()
+        assert await endpoint_certificates(app) == {old}  # not yet
+        result = await call(client, OBJ.ServerConfiguration_ApplyChanges)
+        assert result.StatusCode.is_good(), result.StatusCode
+        assert await endpoint_certificates(app) == {der(issued) + issuing.der}
+        # the GDS's own session goes on over the channel it opened
+        assert await client.nodes.server_state.read_value() == ua.ServerState.Running
+    finally:
+        await client.disconnect()
+    # a new client gets a channel and a session with the new certificate
+    again = await gds_session(plant, tmp_path)
+    try:
+        assert again.security_policy.peer_certificate == der(issued)
+        assert await again.nodes.server_state.read_value() == ua.ServerState.Running
+    finally:
+        await again.disconnect()
+
+
+async def test_what_a_gds_may_not_do_is_refused_and_changes_nothing(plant: dict[str, Any], tmp_path: Path) -> None:
+    paths, issuing = plant["paths"], plant["issuing"]
+    before = paths.cert.read_bytes()
+    operator = await gds_session(plant, tmp_path, "otto")
+    try:
+        result = await call(operator, OBJ.ServerConfiguration_CreateSigningRequest, *csr_args())
+        assert result.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
+    finally:
+        await operator.disconnect()
+    signed_only = await gds_session(plant, tmp_path, mode=ua.MessageSecurityMode.Sign)
+    try:
+        result = await call(signed_only, OBJ.ServerConfiguration_GetRejectedList)
+        assert result.StatusCode.value == ua.StatusCodes.BadSecurityModeInsufficient
+    finally:
+        await signed_only.disconnect()
+    admin = await gds_session(plant, tmp_path)
+    try:
+        refusals: list[tuple[int, list[ua.Variant], int]] = [
+            (
+                OBJ.ServerConfiguration_CreateSigningRequest,
+                csr_args(new_key=True, nonce=b"short"),
+                ua.StatusCodes.BadInvalidArgument,
+            ),
+            (
+                OBJ.ServerConfiguration_CreateSigningRequest,
+                csr_args("no name at all"),
+                ua.StatusCodes.BadInvalidArgument,
+            ),
+            (
+                OBJ.ServerConfiguration_CreateSigningRequest,
+                [ua.Variant(ua.NodeId(1, 5), ua.VariantType.NodeId), *csr_args()[1:]],
+                ua.StatusCodes.BadInvalidArgument,
+            ),
+            (OBJ.ServerConfiguration_UpdateCertificate, update_args(b"junk", []), ua.StatusCodes.BadCertificateInvalid),
+            # another key's certificate (the GDS's own), and one whose key is given in a format not offered
+            (
+                OBJ.ServerConfiguration_UpdateCertificate,
+                update_args(der(plant["gds"][0]), [issuing.der]),
+                ua.StatusCodes.BadSecurityChecksFailed,
+            ),
+            (
+                OBJ.ServerConfiguration_UpdateCertificate,
+                update_args(der(plant["gds"][0]), [], "PFX", b"\x30\x00"),
+                ua.StatusCodes.BadNotSupported,
+            ),
+        ]
+        for method, args, code in refusals:
+            result = await call(admin, method, *args)
+            assert result.StatusCode.value == code, (method, result.StatusCode)
+        assert paths.cert.read_bytes() == before
+        # a private key made elsewhere, with its certificate: the server's own check still holds (its URI)
+        result = await call(
+            admin,
+            OBJ.ServerConfiguration_UpdateCertificate,
+            *update_args(der(plant["gds"][0]), [issuing.der], "PEM", key_pem(plant["gds"][1])),
+        )
+        assert result.StatusCode.value == ua.StatusCodes.BadCertificateUriInvalid
+        assert paths.cert.read_bytes() == before
+    finally:
+        await admin.disconnect()
+
+
+async def test_the_rejected_list_holds_what_was_refused(plant: dict[str, Any], tmp_path: Path) -> None:
+    stranger_ca = Authority.root("Stranger CA", key_index=4)
+    stranger, stranger_key = stranger_ca.application("urn:stranger", "Stranger", key_index=5)
+    refused = await secure_client(plant["app"].endpoint, tmp_path, stranger, stranger_key, "urn:stranger")
+    with pytest.raises(ua.UaStatusCodeError):
+        await refused.connect()
+    admin = await gds_session(plant, tmp_path)
+    try:
+        result = await call(admin, OBJ.ServerConfiguration_GetRejectedList)
+        assert result.StatusCode.is_good()
+        assert der(stranger) in result.OutputArguments[0].Value
+    finally:
+        await admin.disconnect()
