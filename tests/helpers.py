@@ -373,3 +373,17 @@ async def secure_client(endpoint: str, directory: Path, cert: Any, key: Any, uri
         mode=ua.MessageSecurityMode.SignAndEncrypt,
     )
     return client
+
+
+def add_user(data_dir: Path, *args: str, password: str | None = None) -> None:
+    """``uacell user add ARGS`` on ``data_dir``, as an administrator runs it (``password`` on stdin)."""
+    extra = ["--password-stdin"] if password is not None else []
+    added = subprocess.run(
+        [sys.executable, "-m", "uacell", "user", "--data-dir", str(data_dir), "add", *args, *extra],
+        input=f"{password}\n" if password is not None else "",
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert added.returncode == 0, added.stderr

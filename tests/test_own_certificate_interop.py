@@ -6,12 +6,11 @@ server."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 from conftest import run_node, start_serve
+from helpers import add_user
 from plant_ca import Authority, key_pem, pem
 from user_certificates import user_certificate
 
@@ -44,15 +43,7 @@ def test_node_opcua_trusting_the_plant_ca_reaches_a_server_with_a_certificate_of
     (tmp_path / "issuing.pem").write_bytes(pem(issuing.cert))
     olga = user_certificate("olga")
     olga_cert, olga_key = olga.write(tmp_path, "olga")
-    uacell_user = [sys.executable, "-m", "uacell", "user", "--data-dir", str(data)]
-    added = subprocess.run(
-        [*uacell_user, "add", "olga", "--role", "engineer", "--certificate", str(olga_cert)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
-    assert added.returncode == 0, added.stderr
+    add_user(data, "olga", "--role", "engineer", "--certificate", str(olga_cert))
     sp = start_serve(data, log_level="INFO")
     try:
         out = run_node(
