@@ -2,8 +2,9 @@
 // ServerConfiguration's methods by their NodeIds with the arguments the standard gives them.
 // argv: endpoint pkiDir clientCert clientKey clientUri user password phase [phase arguments]
 //   phase "request": CreateSigningRequest for a new key; prints {"request": base64 DER, "status"}
-//   phase "update" certPem issuerPem trustedCaPem crlFile...: UpdateCertificate, ApplyChanges, then a new client that
-//     trusts only the CA (no automatic acceptance) reads ServerState; prints the statuses and what it read
+//   phase "update" certPem issuerPem trustedCaPem addPem crlFile...: UpdateCertificate, ApplyChanges, then a new
+//     client that trusts only the CA (no automatic acceptance) reads ServerState; AddCertificate and
+//     RemoveCertificate of addPem on the DefaultApplicationGroup's TrustList; prints the statuses and what it read
 "use strict";
 const crypto = require("crypto");
 const fs = require("fs");
@@ -67,7 +68,7 @@ main(async () => {
     done({ status: out.status, request: out.outputs[0] ? out.outputs[0].toString("base64") : null });
     return;
   }
-  const [certPem, issuerPem, caPem, ...crlFiles] = rest;
+  const [certPem, issuerPem, caPem, addPem, ...crlFiles] = rest;
   const out = await withSession(endpoint, gds, cert, key, uri, user, password, async (s) => ({
     update: await call(s, "i=13737", [
       { dataType: DataType.NodeId, value: GROUP },
@@ -79,6 +80,14 @@ main(async () => {
     ]),
     apply: await call(s, "i=12740", []),
     rejected: await call(s, "i=12777", []),
+    added: (await s.call({ objectId: "i=12642", methodId: "i=12668", inputArguments: [
+      { dataType: DataType.ByteString, value: pemToDer(fs.readFileSync(addPem)) },
+      { dataType: DataType.Boolean, value: true },
+    ] })).statusCode.name,
+    removed: (await s.call({ objectId: "i=12642", methodId: "i=12670", inputArguments: [
+      { dataType: DataType.String, value: crypto.createHash("sha1").update(pemToDer(fs.readFileSync(addPem))).digest("hex") },
+      { dataType: DataType.Boolean, value: true },
+    ] })).statusCode.name,
   }));
   const crls = crlFiles.map((f) => fs.readFileSync(f));
   const strict = await manager(pkiDir + "-strict", false, [pemToDer(fs.readFileSync(caPem))], crls);

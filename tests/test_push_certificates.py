@@ -5,6 +5,7 @@ the standard's code and nothing changed."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -222,3 +223,64 @@ async def test_the_rejected_list_holds_what_was_refused(plant: dict[str, Any], t
         assert der(stranger) in result.OutputArguments[0].Value
     finally:
         await admin.disconnect()
+
+
+TRUST_LIST = ua.NodeId(OBJ.ServerConfiguration_CertificateGroups_DefaultApplicationGroup_TrustList)
+ADD = ua.NodeId(OBJ.ServerConfiguration_CertificateGroups_DefaultApplicationGroup_TrustList_AddCertificate)
+REMOVE = ua.NodeId(OBJ.ServerConfiguration_CertificateGroups_DefaultApplicationGroup_TrustList_RemoveCertificate)
+
+
+async def trust_list_call(client: Client, method: ua.NodeId, value: Any, trusted: bool = True) -> ua.StatusCode:
+    request = ua.CallMethodRequest()
+    request.ObjectId = TRUST_LIST
+    request.MethodId = method
+    kind = ua.VariantType.ByteString if isinstance(value, bytes) else ua.VariantType.String
+    request.InputArguments = [ua.Variant(value, kind), ua.Variant(trusted, ua.VariantType.Boolean)]
+    [result] = await client.uaclient.call([request])
+    return result.StatusCode
+
+
+async def test_a_gds_adds_and_removes_trusted_certificates_one_at_a_time(plant: dict[str, Any], tmp_path: Path) -> None:
+    """OPC 10000-12 7.8.2.6 and 7.8.2.7 on the DefaultApplicationGroup's TrustList: a client added is let in,
+    removed is refused; what the trust list cannot take is refused with the standard's code."""
+    paths, issuing = plant["paths"], plant["issuing"]
+    mes, _ = issuing.application("urn:plant:line3:mes", "MES", key_index=3)
+    contractor = Authority.root("Contractor CA", key_index=4)
+    laptop, _ = contractor.application("urn:contractor:laptop", "Laptop", key_index=5)
+    admin = await gds_session(plant, tmp_path)
+    trusted_before = sorted(p.name for p in paths.trusted.iterdir())
+    try:
+        refusals = [
+            (ADD, b"junk", True, ua.StatusCodes.BadCertificateInvalid),
+            (ADD, der(laptop), True, ua.StatusCodes.BadCertificateChainIncomplete),  # its CA is nowhere
+            (ADD, contractor.der, False, ua.StatusCodes.BadInvalidArgument),  # an issuer, without its CRLs
+            (REMOVE, "00" * 20, True, ua.StatusCodes.BadInvalidArgument),
+            # the plant's root issued the issuing CA in pki/issuers/: removing it would break that chain
+            (REMOVE, thumbprint_of(plant["root"].der), True, ua.StatusCodes.BadCertificateChainIncomplete),
+        ]
+        for method, value, trusted, code in refusals:
+            assert (await trust_list_call(admin, method, value, trusted)).value == code, (method, value)
+        assert sorted(p.name for p in paths.trusted.iterdir()) == trusted_before
+        # the MES, trusted by itself: a chain to the root is not needed for it then
+        assert (await trust_list_call(admin, ADD, der(mes))).is_good()
+        assert (paths.trusted / f"{thumbprint_of(der(mes))}.der").read_bytes() == der(mes)
+        assert (await trust_list_call(admin, REMOVE, thumbprint_of(der(mes)).upper())).is_good()
+        assert not (paths.trusted / f"{thumbprint_of(der(mes))}.der").exists()
+        # a CA's certificate goes with the revocation lists it signed
+        (paths.trusted / "contractor.der").write_bytes(contractor.der)
+        (paths.crl / "contractor.crl").write_bytes(contractor.crl())
+        assert (await trust_list_call(admin, REMOVE, thumbprint_of(contractor.der))).is_good()
+        assert not (paths.trusted / "contractor.der").exists() and not (paths.crl / "contractor.crl").exists()
+        assert (paths.crl / "issuing.crl").exists() and (paths.crl / "root.crl").exists()
+    finally:
+        await admin.disconnect()
+    operator = await gds_session(plant, tmp_path, "otto")
+    try:
+        assert (await trust_list_call(operator, ADD, der(mes))).value == ua.StatusCodes.BadUserAccessDenied
+    finally:
+        await operator.disconnect()
+
+
+def thumbprint_of(data: bytes) -> str:
+    """OPC UA's thumbprint: the SHA-1 of the DER (OPC 10000-4 7.42, ApplicationInstanceCertificate)."""
+    return hashlib.sha1(data).hexdigest()

@@ -6,6 +6,7 @@ without automatic acceptance, reaches the server."""
 from __future__ import annotations
 
 import base64
+import hashlib
 from pathlib import Path
 
 import pytest
@@ -35,7 +36,13 @@ def test_node_opcua_as_a_gds_pushes_a_certificate_that_a_strict_client_then_trus
     for name, crl in (("root.crl", root.crl()), ("issuing.crl", issuing.crl())):
         (paths.crl / name).write_bytes(crl)
         (tmp_path / name).write_bytes(crl)
-    files = {"gds.pem": pem(gds_cert), "gds-key.pem": key_pem(gds_key), "issuing.pem": pem(issuing.cert)}
+    mes, _ = issuing.application("urn:plant:line3:mes", "MES", key_index=3)
+    files = {
+        "gds.pem": pem(gds_cert),
+        "gds-key.pem": key_pem(gds_key),
+        "issuing.pem": pem(issuing.cert),
+        "mes.pem": pem(mes),
+    }
     for name, content in files.items():
         (tmp_path / name).write_bytes(content)
     add_user(data, "ada", "--role", "admin", password=PASSWORD)
@@ -64,6 +71,7 @@ def test_node_opcua_as_a_gds_pushes_a_certificate_that_a_strict_client_then_trus
             str(tmp_path / "issued.pem"),
             str(tmp_path / "issuing.pem"),
             str(tmp_path / "issuing.pem"),
+            str(tmp_path / "mes.pem"),
             str(tmp_path / "root.crl"),
             str(tmp_path / "issuing.crl"),
         )
@@ -72,6 +80,8 @@ def test_node_opcua_as_a_gds_pushes_a_certificate_that_a_strict_client_then_trus
     assert pushed["update"] == {"status": "Good", "outputs": [True]}, pushed
     assert pushed["apply"] == {"status": "Good", "outputs": []}, pushed
     assert pushed["rejected"]["status"] == "Good", pushed
+    assert (pushed["added"], pushed["removed"]) == ("Good", "Good"), pushed
+    assert not list(paths.trusted.glob(f"{hashlib.sha1(der(mes)).hexdigest()}*"))
     # a client that trusts only the plant's issuing CA, without automatic acceptance, reaches the server now
     assert pushed["after"] == {"state": 0}, pushed
     assert paths.cert.read_bytes() == der(x509.load_pem_x509_certificate((tmp_path / "issued.pem").read_bytes()))

@@ -62,6 +62,7 @@ class Family(str):
     CONDITION: ClassVar[Family]
     SERVER: ClassVar[Family]
     SERVER_CONFIGURATION: ClassVar[Family]
+    TRUST_LIST: ClassVar[Family]
 
     def __repr__(self) -> str:
         return f"Family({str(self)!r})"
@@ -72,6 +73,7 @@ Family.DIRECTORY = Family("Directory")
 Family.CONDITION = Family("Condition")
 Family.SERVER = Family("Server")
 Family.SERVER_CONFIGURATION = Family("ServerConfiguration")
+Family.TRUST_LIST = Family("TrustList")
 
 # ObjectType BrowseNames (and a few instance names) a dispatcher may pass as the hint; companions add theirs.
 TYPE_HINTS: dict[str, Family] = {
@@ -82,6 +84,7 @@ TYPE_HINTS: dict[str, Family] = {
     "AlarmConditionType": Family.CONDITION,
     "ServerType": Family.SERVER,
     "ServerConfigurationType": Family.SERVER_CONFIGURATION,
+    "TrustListType": Family.TRUST_LIST,
 }
 
 OP, EN = Role.OPERATOR, Role.ENGINEER
@@ -104,6 +107,7 @@ BASE_ROLES: dict[tuple[Family, str], Role] = {
         (Family.SERVER_CONFIGURATION, m): Role.ADMIN
         for m in ("CreateSigningRequest", "UpdateCertificate", "ApplyChanges", "GetRejectedList")
     },
+    **{(Family.TRUST_LIST, m): Role.ADMIN for m in ("AddCertificate", "RemoveCertificate")},
 }
 
 

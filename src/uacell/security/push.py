@@ -12,17 +12,27 @@ decision 96), for a GDS or a certificate manager that keeps the plant's servers'
 - ``ApplyChanges()``: secure channels opened from then on use the installed certificate; those open
   keep the one they were opened with until they close.
 - ``GetRejectedList() -> Certificates``: the certificates in ``pki/rejected/``.
+- The DefaultApplicationGroup's TrustList: ``AddCertificate(Certificate, IsTrustedCertificate)`` puts a
+  certificate valid as OPC 10000-4 checks it (a CA's certificate's issuer already trusted or an issuer)
+  into ``pki/trusted/``; ``RemoveCertificate(Thumbprint, IsTrustedCertificate)`` takes one out of
+  ``pki/trusted/`` or ``pki/issuers/`` with the revocation lists it signed, unless it issued another
+  certificate of the trust list (Bad_CertificateChainIncomplete). Issuers are added with their
+  revocation lists by ``uacell cert``: AddCertificate with IsTrustedCertificate false is
+  Bad_InvalidArgument, as 1.05 says issuers cannot be added this way.
 
 The group is the DefaultApplicationGroup (or null), the type RsaSha256ApplicationCertificateType (or
 null); anything else is Bad_InvalidArgument. Each method needs an admin over a SignAndEncrypt channel
 (the standard's SecurityAdmin over an encrypted channel; Bad_SecurityModeInsufficient otherwise). The
-TrustList objects are not served: the trust list is kept with ``uacell cert`` (docs/security.md).
+TrustList is not served as a file (Open, Read, Write, CloseAndUpdate): ``uacell cert`` keeps the rest of
+it (docs/security.md).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 from asyncua import ua
@@ -34,9 +44,24 @@ from cryptography.x509.oid import NameOID
 from uacell.core.errors import CallError
 from uacell.core.roles import Family
 from uacell.host import Host
-from uacell.security.chain import der_of
-from uacell.security.own_certificate import InstallRefused, install_certificate, own_issuers, signing_request
-from uacell.security.pki import PkiPaths, load_server_key, thumbprint
+from uacell.security.chain import (
+    Anchors,
+    Refusal,
+    check_chain,
+    der_of,
+    is_self_signed,
+    issued_by,
+    newest_crl,
+    split_chain,
+)
+from uacell.security.own_certificate import (
+    InstallRefused,
+    install_certificate,
+    own_issuers,
+    read_certificates,
+    signing_request,
+)
+from uacell.security.pki import PkiPaths, TrustList, load_crl, load_server_key, thumbprint
 from uacell.ua import context
 from uacell.ua.context import Caller
 from uacell.ua.door.certificate import use_certificate
@@ -47,6 +72,7 @@ log = logging.getLogger(__name__)
 _O = ua.ObjectIds
 CONFIGURATION = ua.NodeId(_O.ServerConfiguration)
 GROUP = ua.NodeId(_O.ServerConfiguration_CertificateGroups_DefaultApplicationGroup)
+TRUST_LIST = ua.NodeId(_O.ServerConfiguration_CertificateGroups_DefaultApplicationGroup_TrustList)
 CERTIFICATE_TYPE = ua.NodeId(_O.RsaSha256ApplicationCertificateType)
 PRIVATE_KEY_FORMATS = ["PEM"]
 MIN_NONCE = 32  # OPC 10000-12 7.10.10: the Nonce that comes with RegeneratePrivateKey
@@ -98,6 +124,13 @@ class ServerConfiguration:
             (_O.ServerConfiguration_GetRejectedList, self.get_rejected_list),
         ):
             dispatcher.bind(CONFIGURATION, ua.NodeId(method), family, handler)
+        trust_list = "ServerConfiguration_CertificateGroups_DefaultApplicationGroup_TrustList_"
+        add, remove = (
+            ua.NodeId(getattr(_O, trust_list + "AddCertificate")),
+            ua.NodeId(getattr(_O, trust_list + "RemoveCertificate")),
+        )
+        dispatcher.bind(TRUST_LIST, add, Family.TRUST_LIST, self.add_certificate)
+        dispatcher.bind(TRUST_LIST, remove, Family.TRUST_LIST, self.remove_certificate)
         aspace = self.app.server.iserver.aspace
         for node, value in (
             (_O.ServerConfiguration_SupportedPrivateKeyFormats, ua.Variant(PRIVATE_KEY_FORMATS, ua.VariantType.String)),
@@ -171,11 +204,87 @@ class ServerConfiguration:
         log.warning("ApplyChanges by %s: new secure channels use %s", caller.display_user, self.paths.cert)
         return []
 
+    # -- the DefaultApplicationGroup's TrustList, a certificate at a time (OPC 10000-12 7.8.2.6, 7.8.2.7) --
+
+    async def add_certificate(self, caller: Caller, certificate: bytes, trusted: bool) -> list[Any]:
+        _encrypted(caller)
+        if not trusted:
+            why = "a CA's certificate comes with its revocation lists: `uacell cert issuer` and `uacell cert crl`"
+            raise CallError("BadInvalidArgument", why, argument=1)
+        try:
+            cert = split_chain(certificate or b"")[0]
+        except ValueError:
+            raise CallError("BadCertificateInvalid", "not a DER certificate", argument=0) from None
+        trust_list = TrustList(self.paths)
+        refusal = addable(cert, trust_list.anchors(), datetime.now(UTC))
+        if refusal is not None:
+            raise CallError(ua.StatusCode(refusal.code).name, f"not added: {refusal.why}", argument=0)
+        path = await asyncio.to_thread(trust_list.trust, der_of(cert))
+        log.warning("%s trusted %s by AddCertificate (%s)", caller.display_user, path.stem, path)
+        return []
+
+    async def remove_certificate(self, caller: Caller, thumbprint_hex: str, trusted: bool) -> list[Any]:
+        _encrypted(caller)
+        folder = self.paths.trusted if trusted else self.paths.issuers
+        wanted = (thumbprint_hex or "").strip().lower()
+        anchors = TrustList(self.paths).anchors()
+        files = [(f, c) for f, c in _certificate_files(folder) if thumbprint(der_of(c)) == wanted]
+        if not files:
+            where = "trusted" if trusted else "issuer"
+            raise CallError("BadInvalidArgument", f"no {where} certificate has the thumbprint {wanted!r}", argument=0)
+        cert = files[0][1]
+        others = [c for c in (*anchors.trusted, *anchors.issuers) if c != cert and not is_self_signed(c)]
+        if any(issued_by(c, cert) for c in others):
+            raise CallError("BadCertificateChainIncomplete", f"{wanted} issued a certificate of the trust list")
+        for f, _ in files:
+            f.unlink(missing_ok=True)
+        for f in _crl_files(self.paths.crl, cert):
+            f.unlink(missing_ok=True)
+        log.warning("%s removed %s from the %s certificates", caller.display_user, wanted, folder.name)
+        return []
+
     async def get_rejected_list(self, caller: Caller) -> list[Any]:
         _encrypted(caller)
         folder = self.paths.rejected
         found = sorted(folder.iterdir()) if folder.is_dir() else []
         return [[f.read_bytes() for f in found if f.is_file() and f.suffix.lower() == ".der"]]
+
+
+def addable(cert: x509.Certificate, anchors: Anchors, now: datetime) -> Refusal | None:
+    """Why ``cert`` may not be added to the trusted certificates (OPC 10000-12 7.8.2.6: valid as OPC
+    10000-4 checks it, and a CA's certificate's issuer already in the trust list), or None."""
+    if not cert.not_valid_before_utc <= now <= cert.not_valid_after_utc:
+        return Refusal(ua.StatusCodes.BadCertificateTimeInvalid, cert, "it is not valid now")
+    refusal = check_chain([cert], Anchors((cert, *anchors.trusted), anchors.issuers, anchors.crls), now)
+    if refusal is not None:
+        return refusal
+    if not is_self_signed(cert) and not any(issued_by(cert, c) for c in (*anchors.trusted, *anchors.issuers)):
+        why = f"its issuer {cert.issuer.rfc4514_string()} is not in the trust list"
+        return Refusal(ua.StatusCodes.BadCertificateChainIncomplete, cert, why)
+    return None
+
+
+def _certificate_files(folder: Path) -> list[tuple[Path, x509.Certificate]]:
+    found = []
+    for f in sorted(folder.iterdir()) if folder.is_dir() else []:
+        try:
+            found.append((f, read_certificates(f.read_bytes())[0]))
+        except (OSError, ValueError):
+            continue
+    return found
+
+
+def _crl_files(folder: Path, issuer: x509.Certificate) -> list[Path]:
+    """The revocation lists ``issuer`` signed."""
+    found = []
+    for f in sorted(folder.iterdir()) if folder.is_dir() else []:
+        try:
+            crl = load_crl(f.read_bytes())
+        except (OSError, ValueError):
+            continue
+        if newest_crl(issuer, [crl]) is not None:
+            found.append(f)
+    return found
 
 
 def _encrypted(caller: Caller) -> None:
