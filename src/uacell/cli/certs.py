@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import datetime as dt
 import hashlib
-import shutil
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -33,6 +32,7 @@ from uacell.security.pki import (
     RejectedLimit,
     TrustList,
     _load_any,
+    back_up,
     cert_to_der,
     ensure_server_certificate,
     load_crl,
@@ -228,16 +228,7 @@ def revocation_lists(paths: PkiPaths) -> list[tuple[Path, x509.CertificateRevoca
 
 def renew(paths: PkiPaths, application_uri: str, hosts: list[str]) -> Path:
     """A new server certificate and key now; the old pair goes to ``pki/own/backup/``."""
-    if paths.cert.exists() or paths.key.exists():
-        stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-        paths.backup.mkdir(parents=True, exist_ok=True)
-        for f, name in (
-            (paths.cert, f"cert-{stamp}.der"),
-            (paths.key, f"key-{stamp}.pem"),
-            (paths.chain, f"chain-{stamp}.pem"),
-        ):
-            if f.exists():
-                shutil.move(f, paths.backup / name)
+    back_up(paths, move=True)
     cert, _ = ensure_server_certificate(paths, application_uri, hosts)
     return cert
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
-import shutil
 import socket
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -42,6 +41,8 @@ from uacell.security.chain import der_of, issued_by, may_sign_certificates, spli
 from uacell.security.pki import (
     RENEW_BEFORE,
     PkiPaths,
+    application_key_usage,
+    back_up,
     coverage_problems,
     generate_key,
     key_to_pem,
@@ -101,20 +102,7 @@ def signing_request(
         .subject_name(subject)
         .add_extension(x509.SubjectAlternativeName(san), critical=False)
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=True,
-                content_commitment=True,
-                key_encipherment=True,
-                data_encipherment=True,
-                key_agreement=False,
-                key_cert_sign=False,
-                crl_sign=False,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
+        .add_extension(application_key_usage(sign_certificates=False), critical=True)
         .add_extension(
             x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False
         )
@@ -174,7 +162,7 @@ def install_certificate(
     warnings = []
     if leaf.not_valid_after_utc - RENEW_BEFORE < now:
         warnings.append(f"it expires on {leaf.not_valid_after_utc:%Y-%m-%d}: ask the CA for the next one soon")
-    _back_up(paths, now)
+    back_up(paths, move=False, now=now)
     if private_key is not None:
         atomic_write(paths.pending_key, key_to_pem(private_key), mode=0o600)
     if issuers:
@@ -301,15 +289,3 @@ def finish_install(paths: PkiPaths) -> bool:
     paths.key_checked.unlink(missing_ok=True)  # checked once at the next start (pki.load_server_key)
     paths.pending_key.unlink()
     return True
-
-
-def _back_up(paths: PkiPaths, now: dt.datetime) -> None:
-    stamp = now.strftime("%Y%m%dT%H%M%SZ")
-    paths.backup.mkdir(parents=True, exist_ok=True)
-    for f, name in (
-        (paths.cert, f"cert-{stamp}.der"),
-        (paths.key, f"key-{stamp}.pem"),
-        (paths.chain, f"chain-{stamp}.pem"),
-    ):
-        if f.exists():
-            shutil.copy2(f, paths.backup / name)

@@ -157,25 +157,42 @@ def make_certificate(
         .not_valid_after(start + dt.timedelta(days=days))
         .add_extension(x509.SubjectAlternativeName(san), critical=False)
         .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)  # self-signed
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=True,
-                content_commitment=True,
-                key_encipherment=True,
-                data_encipherment=True,
-                key_agreement=False,
-                key_cert_sign=True,
-                crl_sign=False,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
+        .add_extension(application_key_usage(sign_certificates=True), critical=True)
         .add_extension(x509.ExtendedKeyUsage(usages), critical=False)
         .add_extension(x509.SubjectKeyIdentifier.from_public_key(public), critical=False)
         .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(public), critical=False)
     )
     return builder.sign(key, hashes.SHA256())
+
+
+def application_key_usage(*, sign_certificates: bool) -> x509.KeyUsage:
+    """The key usages OPC 10000-6 6.2.2 gives an Application Instance Certificate (a self-signed one also
+    signs certificates: itself)."""
+    return x509.KeyUsage(
+        digital_signature=True,
+        content_commitment=True,
+        key_encipherment=True,
+        data_encipherment=True,
+        key_agreement=False,
+        key_cert_sign=sign_certificates,
+        crl_sign=False,
+        encipher_only=False,
+        decipher_only=False,
+    )
+
+
+def back_up(paths: PkiPaths, *, move: bool, now: dt.datetime | None = None) -> None:
+    """The server's certificate, key and CA chain into ``pki/own/backup/`` under the time (moved, or
+    copied when the files stay in use until their successors are written)."""
+    stamp = (now or dt.datetime.now(dt.UTC)).strftime("%Y%m%dT%H%M%SZ")
+    paths.backup.mkdir(parents=True, exist_ok=True)
+    for f, name in (
+        (paths.cert, f"cert-{stamp}.der"),
+        (paths.key, f"key-{stamp}.pem"),
+        (paths.chain, f"chain-{stamp}.pem"),
+    ):
+        if f.exists():
+            (shutil.move if move else shutil.copy2)(f, paths.backup / name)
 
 
 def key_to_pem(key: rsa.RSAPrivateKey) -> bytes:
@@ -320,10 +337,7 @@ def ensure_server_certificate(
                 "; ".join(problems),
             )
             return paths.cert, paths.key
-        stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-        paths.backup.mkdir(exist_ok=True)
-        shutil.move(paths.cert, paths.backup / f"cert-{stamp}.der")
-        shutil.move(paths.key, paths.backup / f"key-{stamp}.pem")
+        back_up(paths, move=True)
         _log.warning(
             "server certificate no longer fits (%s): made a new one, old one kept in %s",
             "; ".join(problems),
