@@ -123,14 +123,15 @@ class ServerConfiguration:
             (_O.ServerConfiguration_ApplyChanges, self.apply_changes),
             (_O.ServerConfiguration_GetRejectedList, self.get_rejected_list),
         ):
-            dispatcher.bind(CONFIGURATION, ua.NodeId(method), family, handler)
+            # one at a time: a request's pending key is not replaced while a certificate is installed
+            dispatcher.bind(CONFIGURATION, ua.NodeId(method), family, handler, serialize_on=self)
         trust_list = "ServerConfiguration_CertificateGroups_DefaultApplicationGroup_TrustList_"
         add, remove = (
             ua.NodeId(getattr(_O, trust_list + "AddCertificate")),
             ua.NodeId(getattr(_O, trust_list + "RemoveCertificate")),
         )
-        dispatcher.bind(TRUST_LIST, add, Family.TRUST_LIST, self.add_certificate)
-        dispatcher.bind(TRUST_LIST, remove, Family.TRUST_LIST, self.remove_certificate)
+        dispatcher.bind(TRUST_LIST, add, Family.TRUST_LIST, self.add_certificate, serialize_on=self)
+        dispatcher.bind(TRUST_LIST, remove, Family.TRUST_LIST, self.remove_certificate, serialize_on=self)
         aspace = self.app.server.iserver.aspace
         for node, value in (
             (_O.ServerConfiguration_SupportedPrivateKeyFormats, ua.Variant(PRIVATE_KEY_FORMATS, ua.VariantType.String)),
