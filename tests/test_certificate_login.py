@@ -27,7 +27,13 @@ from uacell.security.users import User, UserError, UserStore, load_user_certific
 FAST = PasswordHasher(time_cost=1, memory_cost=64, parallelism=1)
 SERVER_CERT = b"\x30\x03server certificate DER"  # what the challenge starts with; its content plays no part here
 NONCE = os.urandom(32)
-NOW = dt.datetime.now(dt.UTC)
+
+
+def now() -> dt.datetime:
+    """The time of the check, taken when it runs: a module-level "now" is from collection, which a slow
+    run puts minutes before certificates a test makes."""
+    return dt.datetime.now(dt.UTC)
+
 
 ALICE = user_certificate("alice")
 BOB = user_certificate("bob")
@@ -43,7 +49,7 @@ def store(tmp_path: Path) -> UserStore:
 def check(
     store: UserStore, der: bytes | None, algorithm: str | None, signature: bytes | None, **kw: object
 ) -> CertificateLogin:
-    args: dict[str, object] = {"policy_uri": BASIC256SHA256, "challenge": SERVER_CERT + NONCE, "now": NOW}
+    args: dict[str, object] = {"policy_uri": BASIC256SHA256, "challenge": SERVER_CERT + NONCE, "now": now()}
     args.update(kw)
     return check_user_certificate(der, algorithm, signature, users=store, **args)  # type: ignore[arg-type]
 
@@ -179,8 +185,8 @@ def test_an_unreadable_certificate_is_an_invalid_token(store: UserStore) -> None
 
 def test_a_certificate_out_of_its_validity_or_not_for_signing_is_rejected(tmp_path: Path) -> None:
     store = UserStore.in_data_dir(tmp_path, hasher=FAST)
-    expired = user_certificate("old", not_before=NOW - dt.timedelta(days=400), days=365)
-    future = user_certificate("later", not_before=NOW + dt.timedelta(days=1))
+    expired = user_certificate("old", not_before=now() - dt.timedelta(days=400), days=365)
+    future = user_certificate("later", not_before=now() + dt.timedelta(days=1))
     encipher = user_certificate("encipher only", digital_signature=False)
     unrestricted = user_certificate("any use", key_usage=False)
     for i, cert in enumerate((expired, future, encipher, unrestricted)):

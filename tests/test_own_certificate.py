@@ -33,7 +33,12 @@ from uacell.security.pki import PkiPaths, ensure_server_certificate
 
 URI = "urn:plant:line3:uacell"
 HOSTS = ["127.0.0.1"]
-NOW = dt.datetime.now(dt.UTC)
+
+
+def now() -> dt.datetime:
+    """The time of the check, taken when it runs: a module-level "now" is from collection, which a slow
+    run puts minutes before certificates a test makes."""
+    return dt.datetime.now(dt.UTC)
 
 
 @pytest.fixture(scope="module")
@@ -124,13 +129,13 @@ REFUSALS: dict[str, tuple[Any, str]] = {
     ),
     "expired": (
         lambda p, ca, tmp: [
-            ca["issuing"].sign_request(signing_request(p, URI, HOSTS), not_before=NOW - dt.timedelta(days=400))
+            ca["issuing"].sign_request(signing_request(p, URI, HOSTS), not_before=now() - dt.timedelta(days=400))
         ],
         "it expired on",
     ),
     "not yet valid": (
         lambda p, ca, tmp: [
-            ca["issuing"].sign_request(signing_request(p, URI, HOSTS), not_before=NOW + dt.timedelta(days=2))
+            ca["issuing"].sign_request(signing_request(p, URI, HOSTS), not_before=now() + dt.timedelta(days=2))
         ],
         "it is not valid before",
     ),
