@@ -36,6 +36,7 @@ from uacell.security.pki import (
     cert_to_der,
     ensure_server_certificate,
     load_crl,
+    revocation_lists,
     thumbprint,
 )
 
@@ -212,18 +213,6 @@ def add_crl(paths: PkiPaths, file: str) -> Path:
             raise CertError(f"{source} is older than the list kept in {target} ({kept.last_update_utc:%Y-%m-%d %H:%M})")
     atomic_write(target, crl.public_bytes(serialization.Encoding.DER), mode=0o644)
     return target
-
-
-def revocation_lists(paths: PkiPaths) -> list[tuple[Path, x509.CertificateRevocationList]]:
-    found = []
-    if paths.crl.is_dir():
-        for f in sorted(paths.crl.iterdir()):
-            if f.is_file() and f.suffix.lower() == ".crl":
-                try:
-                    found.append((f, load_crl(f.read_bytes())))
-                except (OSError, ValueError):
-                    continue
-    return found
 
 
 def renew(paths: PkiPaths, application_uri: str, hosts: list[str]) -> Path:

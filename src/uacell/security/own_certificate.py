@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
-import socket
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,7 +33,7 @@ from pathlib import Path
 from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import rsa
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from uacell.core.files import atomic_write
 from uacell.security.chain import der_of, issued_by, may_sign_certificates, split_chain
@@ -42,6 +41,7 @@ from uacell.security.pki import (
     RENEW_BEFORE,
     PkiPaths,
     application_key_usage,
+    application_names,
     back_up,
     coverage_problems,
     generate_key,
@@ -49,6 +49,7 @@ from uacell.security.pki import (
     load_server_key,
     san_for_hosts,
     thumbprint,
+    uacell_name,
 )
 
 _log = logging.getLogger(__name__)
@@ -93,14 +94,11 @@ def signing_request(
             f"{paths.key} does not exist: start the server once, or ask for a new key", "BadInvalidState"
         )
     dns, ips = san_for_hosts(hosts)
-    san: list[x509.GeneralName] = [x509.UniformResourceIdentifier(application_uri)]
-    san += [x509.DNSName(d) for d in dict.fromkeys(dns)]
-    san += [x509.IPAddress(i) for i in dict.fromkeys(ips)]
     subject = subject or _current_subject(paths)
     request = (
         x509.CertificateSigningRequestBuilder()
         .subject_name(subject)
-        .add_extension(x509.SubjectAlternativeName(san), critical=False)
+        .add_extension(application_names(application_uri, dns, ips), critical=False)
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
         .add_extension(application_key_usage(sign_certificates=False), critical=True)
         .add_extension(
@@ -115,12 +113,7 @@ def _current_subject(paths: PkiPaths) -> x509.Name:
     try:
         return x509.load_der_x509_certificate(paths.cert.read_bytes()).subject
     except (OSError, ValueError):
-        return x509.Name(
-            [
-                x509.NameAttribute(NameOID.COMMON_NAME, f"uacell@{socket.gethostname()}"),
-                x509.NameAttribute(NameOID.ORGANIZATION_NAME, "uacell"),
-            ]
-        )
+        return uacell_name()
 
 
 def read_certificates(data: bytes) -> list[x509.Certificate]:

@@ -125,7 +125,7 @@ def make_certificate(
     key: rsa.RSAPrivateKey,
     application_uri: str,
     *,
-    common_name: str,
+    common_name: str | None = None,
     dns_names: Iterable[str] = (),
     ip_addresses: Iterable[IPAddress] = (),
     server: bool = True,
@@ -134,16 +134,8 @@ def make_certificate(
     not_before: dt.datetime | None = None,
 ) -> x509.Certificate:
     """A self-signed OPC UA application instance certificate (OPC 10000-6, 6.2.2), SHA-256 signed."""
-    name = x509.Name(
-        [
-            x509.NameAttribute(NameOID.COMMON_NAME, common_name),
-            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "uacell"),
-        ]
-    )
+    name = uacell_name(common_name)
     start = (not_before or dt.datetime.now(dt.UTC)) - dt.timedelta(minutes=5)  # tolerate clock skew
-    san: list[x509.GeneralName] = [x509.UniformResourceIdentifier(application_uri)]
-    san += [x509.DNSName(d) for d in dict.fromkeys(dns_names)]
-    san += [x509.IPAddress(i) for i in dict.fromkeys(ip_addresses)]
     usages = [ExtendedKeyUsageOID.SERVER_AUTH] if server else []
     usages += [ExtendedKeyUsageOID.CLIENT_AUTH] if client else []
     public = key.public_key()
@@ -155,7 +147,7 @@ def make_certificate(
         .serial_number(x509.random_serial_number())
         .not_valid_before(start)
         .not_valid_after(start + dt.timedelta(days=days))
-        .add_extension(x509.SubjectAlternativeName(san), critical=False)
+        .add_extension(application_names(application_uri, dns_names, ip_addresses), critical=False)
         .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)  # self-signed
         .add_extension(application_key_usage(sign_certificates=True), critical=True)
         .add_extension(x509.ExtendedKeyUsage(usages), critical=False)
@@ -163,6 +155,40 @@ def make_certificate(
         .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(public), critical=False)
     )
     return builder.sign(key, hashes.SHA256())
+
+
+def uacell_name(common_name: str | None = None) -> x509.Name:
+    """The subject uacell gives its own certificates (``uacell@<host>`` unless named otherwise)."""
+    return x509.Name(
+        [
+            x509.NameAttribute(NameOID.COMMON_NAME, common_name or f"uacell@{socket.gethostname()}"),
+            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "uacell"),
+        ]
+    )
+
+
+def application_names(
+    application_uri: str, dns_names: Iterable[str], ip_addresses: Iterable[IPAddress]
+) -> x509.SubjectAlternativeName:
+    """An Application Instance Certificate's subjectAltName (OPC 10000-6 6.2.2): the URI, then the host
+    names and addresses."""
+    san: list[x509.GeneralName] = [x509.UniformResourceIdentifier(application_uri)]
+    san += [x509.DNSName(d) for d in dict.fromkeys(dns_names)]
+    san += [x509.IPAddress(i) for i in dict.fromkeys(ip_addresses)]
+    return x509.SubjectAlternativeName(san)
+
+
+def revocation_lists(paths: PkiPaths) -> list[tuple[Path, x509.CertificateRevocationList]]:
+    """The readable revocation lists in ``pki/crl/`` with their files."""
+    found = []
+    if paths.crl.is_dir():
+        for f in sorted(paths.crl.iterdir()):
+            if f.is_file() and f.suffix.lower() in _CRL_SUFFIXES:
+                try:
+                    found.append((f, load_crl(f.read_bytes())))
+                except (OSError, ValueError):
+                    continue
+    return found
 
 
 def application_key_usage(*, sign_certificates: bool) -> x509.KeyUsage:
@@ -345,9 +371,7 @@ def ensure_server_certificate(
         )
     dns, ips = san_for_hosts(hosts)
     key = key or generate_key()
-    cert = make_certificate(
-        key, application_uri, common_name=f"uacell@{socket.gethostname()}", dns_names=dns, ip_addresses=ips
-    )
+    cert = make_certificate(key, application_uri, dns_names=dns, ip_addresses=ips)
     pem = key_to_pem(key)
     atomic_write(paths.key, pem, mode=0o600)
     atomic_write(paths.key_checked, _digest(pem).encode(), mode=0o600)  # made here: consistent

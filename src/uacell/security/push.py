@@ -61,7 +61,7 @@ from uacell.security.own_certificate import (
     read_certificates,
     signing_request,
 )
-from uacell.security.pki import PkiPaths, TrustList, load_crl, load_server_key, thumbprint
+from uacell.security.pki import PkiPaths, TrustList, load_server_key, revocation_lists, thumbprint
 from uacell.ua import context
 from uacell.ua.context import Caller
 from uacell.ua.door.certificate import use_certificate
@@ -239,8 +239,9 @@ class ServerConfiguration:
             raise CallError("BadCertificateChainIncomplete", f"{wanted} issued a certificate of the trust list")
         for f, _ in files:
             f.unlink(missing_ok=True)
-        for f in _crl_files(self.paths.crl, cert):
-            f.unlink(missing_ok=True)
+        for f, crl in revocation_lists(self.paths):
+            if newest_crl(cert, [crl]) is not None:  # one it signed
+                f.unlink(missing_ok=True)
         log.warning("%s removed %s from the %s certificates", caller.display_user, wanted, folder.name)
         return []
 
@@ -272,19 +273,6 @@ def _certificate_files(folder: Path) -> list[tuple[Path, x509.Certificate]]:
             found.append((f, read_certificates(f.read_bytes())[0]))
         except (OSError, ValueError):
             continue
-    return found
-
-
-def _crl_files(folder: Path, issuer: x509.Certificate) -> list[Path]:
-    """The revocation lists ``issuer`` signed."""
-    found = []
-    for f in sorted(folder.iterdir()) if folder.is_dir() else []:
-        try:
-            crl = load_crl(f.read_bytes())
-        except (OSError, ValueError):
-            continue
-        if newest_crl(issuer, [crl]) is not None:
-            found.append(f)
     return found
 
 
