@@ -88,11 +88,13 @@ async def announce_shutdown(
 
 
 async def _write_status(server: Server, seconds: int, reason: str) -> None:
-    """ServerStatus (the structure) and its State, SecondsTillShutdown and ShutdownReason variables."""
+    """ServerStatus (the structure) and its State, SecondsTillShutdown and ShutdownReason variables. The
+    State variable is written last: its change is queued after the reason's and the seconds', so a client
+    that sees Shutdown has been sent why and when in the same notification or an earlier one."""
     text = ua.LocalizedText(reason, "en")
     current = await server.get_node(_STATUS).read_value()
     status = replace(current, State=ua.ServerState.Shutdown, SecondsTillShutdown=seconds, ShutdownReason=text)
     await server.get_node(_STATUS).write_value(ua.DataValue(ua.Variant(status, ua.VariantType.ExtensionObject)))
-    await server.get_node(_STATE).write_value(ua.DataValue(ua.Variant(ua.ServerState.Shutdown, ua.VariantType.Int32)))
-    await server.get_node(_SECONDS).write_value(ua.DataValue(ua.Variant(seconds, ua.VariantType.UInt32)))
     await server.get_node(_REASON).write_value(ua.DataValue(ua.Variant(text, ua.VariantType.LocalizedText)))
+    await server.get_node(_SECONDS).write_value(ua.DataValue(ua.Variant(seconds, ua.VariantType.UInt32)))
+    await server.get_node(_STATE).write_value(ua.DataValue(ua.Variant(ua.ServerState.Shutdown, ua.VariantType.Int32)))
