@@ -87,6 +87,17 @@ class SessionEvents(Protocol):
     def on_session_closed(self) -> list[Callable[[Any], None]]: ...
 
 
+class ConfigurationHost(Host, Protocol):
+    """What the server's own configuration objects (``uacell.security.push``) need besides ``Host``:
+    the ordered publisher for values that change between calls, and session ends."""
+
+    @property
+    def publisher(self) -> Publisher: ...
+
+    @property
+    def security(self) -> SessionEvents: ...
+
+
 class BinderHost(_Shared, Protocol):
     """All a companion's binder receives (``Companion.binder``): the address-space operations it needs
     (``space``; never the asyncua server itself), the configuration and the built cell, the method

@@ -10,7 +10,6 @@ the next start (``uacell.security.own_certificate``: a certificate from the plan
 from __future__ import annotations
 
 import datetime as dt
-import hashlib
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -27,14 +26,15 @@ from uacell.security.audit import AuditTrail
 from uacell.security.chain import newest_crl
 from uacell.security.own_certificate import InstallRefused, install_certificate, read_certificates, signing_request
 from uacell.security.pki import (
-    _CERT_SUFFIXES,
+    CERT_SUFFIXES,
     PkiPaths,
     RejectedLimit,
     TrustList,
-    _load_any,
     back_up,
     cert_to_der,
+    crl_file_name,
     ensure_server_certificate,
+    load_any_certificate,
     load_crl,
     revocation_lists,
     thumbprint,
@@ -70,7 +70,7 @@ class CertInfo:
 
 def read_certificate(path: Path, kind: str = "file") -> CertInfo:
     """Load a DER or PEM certificate file; CertError when it is none."""
-    return _info(kind, path, _read(path, _load_any, "a certificate"))
+    return _info(kind, path, _read(path, load_any_certificate, "a certificate"))
 
 
 def _read(path: Path, load: Callable[[bytes], T], what: str) -> T:
@@ -119,7 +119,7 @@ def certificates(paths: PkiPaths) -> list[CertInfo]:
         if not folder.is_dir():
             continue
         for f in sorted(folder.iterdir()):
-            if f.is_file() and f.suffix.lower() in _CERT_SUFFIXES:
+            if f.is_file() and f.suffix.lower() in CERT_SUFFIXES:
                 try:
                     found.append(read_certificate(f, kind))
                 except CertError:
@@ -203,7 +203,7 @@ def add_crl(paths: PkiPaths, file: str) -> Path:
             f"{source}: no CA in {paths.trusted}/ or {paths.issuers}/ signed it "
             f"(its issuer: {crl.issuer.rfc4514_string()}); add the CA's certificate first"
         )
-    target = paths.crl / f"{hashlib.sha1(crl.issuer.public_bytes()).hexdigest()}.crl"
+    target = paths.crl / crl_file_name(crl)
     if target.exists():
         try:
             kept = load_crl(target.read_bytes())

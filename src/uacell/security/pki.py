@@ -45,7 +45,8 @@ _log = logging.getLogger(__name__)
 KEY_SIZE = 2048
 VALIDITY_DAYS = 5 * 365
 RENEW_BEFORE = dt.timedelta(days=30)  # remake a certificate this close to its end
-_CERT_SUFFIXES = {".der", ".cer", ".crt", ".pem"}
+CERT_SUFFIXES = {".der", ".cer", ".crt", ".pem"}
+CRL_SUFFIXES = {".crl"}
 
 IPAddress = ipaddress.IPv4Address | ipaddress.IPv6Address
 _T = TypeVar("_T")
@@ -107,6 +108,11 @@ class PkiPaths:
     @property
     def crl(self) -> Path:
         return self.root / "crl"
+
+    @property
+    def trust_update(self) -> Path:
+        """A replacement of the trust list being written (``uacell.security.trust_list_file``)."""
+        return self.root / "trust-update"
 
     def create(self) -> None:
         for d in (self.own, self.trusted, self.rejected, self.issuers, self.crl):
@@ -183,7 +189,7 @@ def revocation_lists(paths: PkiPaths) -> list[tuple[Path, x509.CertificateRevoca
     found = []
     if paths.crl.is_dir():
         for f in sorted(paths.crl.iterdir()):
-            if f.is_file() and f.suffix.lower() in _CRL_SUFFIXES:
+            if f.is_file() and f.suffix.lower() in CRL_SUFFIXES:
                 try:
                     found.append((f, load_crl(f.read_bytes())))
                 except (OSError, ValueError):
@@ -419,15 +425,21 @@ def thumbprint(der: bytes) -> str:
     return hashlib.sha1(der).hexdigest()  # the thumbprint is defined as SHA-1
 
 
-def _load_any(data: bytes) -> x509.Certificate:
+def load_any_certificate(data: bytes) -> x509.Certificate:
     if data.lstrip().startswith(b"-----BEGIN"):
         return x509.load_pem_x509_certificate(data)
     return x509.load_der_x509_certificate(data)
 
 
-def _file_name(cert: x509.Certificate, der: bytes) -> str:
-    # By thumbprint alone: no spaces or brackets, so a path from the log can be pasted into a shell.
+def certificate_file_name(der: bytes) -> str:
+    """A certificate's file in trusted/, issuers/ or rejected/: by thumbprint alone (no spaces or
+    brackets, so a path from the log can be pasted into a shell)."""
     return f"{thumbprint(der)}.der"
+
+
+def crl_file_name(crl: x509.CertificateRevocationList) -> str:
+    """A revocation list's file in crl/: one per CA, by the SHA-1 of its issuer's name."""
+    return f"{hashlib.sha1(crl.issuer.public_bytes()).hexdigest()}.crl"
 
 
 @dataclass(frozen=True)
@@ -444,7 +456,7 @@ def prune_rejected(directory: Path, limit: RejectedLimit, now: float | None = No
     now = time.time() if now is None else now
     files = []
     for f in directory.iterdir():
-        if f.suffix.lower() in _CERT_SUFFIXES and f.is_file():
+        if f.suffix.lower() in CERT_SUFFIXES and f.is_file():
             try:
                 files.append((f.stat().st_mtime, f.name, f))
             except OSError:  # removed meanwhile
@@ -505,11 +517,7 @@ class TrustList:
 
     def anchors(self) -> Anchors:
         """The trusted and issuer certificates and the revocation lists, as the files are now."""
-        return Anchors(
-            tuple(_read_files(self.paths.trusted, _CERT_SUFFIXES, _load_any, "the trust list")),
-            tuple(_read_files(self.paths.issuers, _CERT_SUFFIXES, _load_any, "the issuer list")),
-            tuple(_read_files(self.paths.crl, _CRL_SUFFIXES, load_crl, "the revocation lists")),
-        )
+        return read_anchors(self.paths)
 
     def is_trusted(self, der: bytes) -> bool:
         """Is this exact certificate in trusted/?"""
@@ -517,16 +525,16 @@ class TrustList:
 
     def trust(self, der: bytes) -> Path:
         """Put ``der`` into trusted/ (and out of rejected/); returns its file."""
-        cert = x509.load_der_x509_certificate(der)
-        target = self.paths.trusted / _file_name(cert, der)
+        x509.load_der_x509_certificate(der)  # ValueError for what is no DER certificate
+        target = self.paths.trusted / certificate_file_name(der)
         atomic_write(target, der, mode=0o644)
         (self.paths.rejected / target.name).unlink(missing_ok=True)
         return target
 
     def reject(self, der: bytes) -> Path:
         """Put ``der`` into rejected/ so an operator can trust it by moving the file."""
-        cert = x509.load_der_x509_certificate(der)
-        target = self.paths.rejected / _file_name(cert, der)
+        x509.load_der_x509_certificate(der)  # ValueError for what is no DER certificate
+        target = self.paths.rejected / certificate_file_name(der)
         if not target.exists():
             atomic_write(target, der, mode=0o644)
             self.prune_rejected()
@@ -589,7 +597,6 @@ class TrustList:
         return f"{refusal.why} ({refusal.name}).{hint}"
 
 
-_CRL_SUFFIXES = {".crl"}
 # Refusals that trusting the client's certificate by itself would lift: it goes to rejected/.
 _TRUSTING_HELPS = {ua.StatusCodes.BadCertificateUntrusted, ua.StatusCodes.BadCertificateChainIncomplete}
 _REVOCATION_UNKNOWN = {
@@ -615,6 +622,16 @@ def load_crl(data: bytes) -> x509.CertificateRevocationList:
     if data.lstrip().startswith(b"-----BEGIN"):
         return x509.load_pem_x509_crl(data)
     return x509.load_der_x509_crl(data)
+
+
+def read_anchors(paths: PkiPaths) -> Anchors:
+    """The trusted and issuer certificates and the revocation lists, as the files under ``paths`` are
+    now (a file that does not load is left out, with a warning)."""
+    return Anchors(
+        tuple(_read_files(paths.trusted, CERT_SUFFIXES, load_any_certificate, "the trust list")),
+        tuple(_read_files(paths.issuers, CERT_SUFFIXES, load_any_certificate, "the issuer list")),
+        tuple(_read_files(paths.crl, CRL_SUFFIXES, load_crl, "the revocation lists")),
+    )
 
 
 def _read_files(folder: Path, suffixes: set[str], load: Callable[[bytes], _T], what: str) -> list[_T]:

@@ -84,6 +84,7 @@ from uacell.security.pki import (
     load_server_key,
 )
 from uacell.security.pki import thumbprint as app_thumbprint  # SHA-1, OPC UA's; users' is SHA-256
+from uacell.security.trust_list_file import finish_update
 from uacell.security.users import LoginThrottle, thumbprint
 from uacell.services.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua import channel, context, door
@@ -179,6 +180,8 @@ async def prepare_certificate(server: Server, data_dir: Path, application_uri: s
     paths = PkiPaths.in_data_dir(data_dir)
     if finish_install(paths):  # a `uacell cert install` with a new key that a crash cut short
         log.warning("the server certificate installed last is now used with its key (the install had not finished)")
+    if finish_update(paths):  # a CloseAndUpdate of the trust list that a crash cut short
+        log.warning("the trust list written last by CloseAndUpdate is now in place (the replacement had not finished)")
     cert, _ = ensure_server_certificate(paths, application_uri, hosts)
     own = x509.load_der_x509_certificate(cert.read_bytes())
     # what asyncua's load_certificate and load_private_key set, without a thread per file, and the

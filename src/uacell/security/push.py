@@ -22,15 +22,21 @@ decision 96), for a GDS or a certificate manager that keeps the plant's servers'
 
 The group is the DefaultApplicationGroup (or null), the type RsaSha256ApplicationCertificateType (or
 null); anything else is Bad_InvalidArgument. Each method needs an admin over a SignAndEncrypt channel
-(the standard's SecurityAdmin over an encrypted channel; Bad_SecurityModeInsufficient otherwise). The
-TrustList is not served as a file (Open, Read, Write, CloseAndUpdate): ``uacell cert`` keeps the rest of
-it (docs/security.md).
+(the standard's SecurityAdmin over an encrypted channel; Bad_SecurityModeInsufficient otherwise).
+
+The TrustList is also served as a file (decision 97, ``uacell.security.trust_list_file``): Open (Read,
+or Write + EraseExisting), OpenWithMasks, Read, Write, GetPosition, SetPosition, Close and
+CloseAndUpdate, which replaces the lists the written TrustListDataType specifies at once
+(ApplyChangesRequired false). AddCertificate and RemoveCertificate are Bad_InvalidState while the file
+is open. OpenCount and LastUpdateTime follow; the handles close with their session, or when the
+TrustList sees no call for its ActivityTimeout.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -43,7 +49,7 @@ from cryptography.x509.oid import NameOID
 
 from uacell.core.errors import CallError
 from uacell.core.roles import Family
-from uacell.host import Host
+from uacell.host import ConfigurationHost
 from uacell.security.chain import (
     Anchors,
     Refusal,
@@ -62,6 +68,7 @@ from uacell.security.own_certificate import (
     signing_request,
 )
 from uacell.security.pki import PkiPaths, TrustList, load_server_key, revocation_lists, thumbprint
+from uacell.security.trust_list_file import MODE_WRITE_ERASE, TrustListFile, last_update
 from uacell.ua import context
 from uacell.ua.context import Caller
 from uacell.ua.door.certificate import use_certificate
@@ -109,11 +116,13 @@ def subject_name(text: str) -> x509.Name:
 class ServerConfiguration:
     """The methods of ``Server.ServerConfiguration`` on one server (bound by ``bind``)."""
 
-    def __init__(self, app: Host) -> None:
+    def __init__(self, app: ConfigurationHost) -> None:
         self.app = app
         self.paths = PkiPaths.in_data_dir(app.data_dir)
         cfg = app.config.server
         self.application_uri, self.hosts = cfg.application_uri, [cfg.host]
+        self.trust_file = TrustListFile(self.paths)
+        self._expiry: asyncio.TimerHandle | None = None
 
     async def bind(self) -> None:
         dispatcher, family = self.app.dispatcher, Family.SERVER_CONFIGURATION
@@ -125,18 +134,31 @@ class ServerConfiguration:
         ):
             # one at a time: a request's pending key is not replaced while a certificate is installed
             dispatcher.bind(CONFIGURATION, ua.NodeId(method), family, handler, serialize_on=self)
-        trust_list = "ServerConfiguration_CertificateGroups_DefaultApplicationGroup_TrustList_"
-        add, remove = (
-            ua.NodeId(getattr(_O, trust_list + "AddCertificate")),
-            ua.NodeId(getattr(_O, trust_list + "RemoveCertificate")),
+        trust_list: tuple[tuple[str, Callable[..., Awaitable[list[Any]]]], ...] = (
+            ("AddCertificate", self.add_certificate),
+            ("RemoveCertificate", self.remove_certificate),
+            ("Open", self.open),
+            ("OpenWithMasks", self.open_with_masks),
+            ("Read", self.read),
+            ("Write", self.write),
+            ("GetPosition", self.get_position),
+            ("SetPosition", self.set_position),
+            ("Close", self.close),
+            ("CloseAndUpdate", self.close_and_update),
         )
-        dispatcher.bind(TRUST_LIST, add, Family.TRUST_LIST, self.add_certificate, serialize_on=self)
-        dispatcher.bind(TRUST_LIST, remove, Family.TRUST_LIST, self.remove_certificate, serialize_on=self)
+        for name, method in trust_list:
+            dispatcher.bind(TRUST_LIST, _trust_list_id(name), Family.TRUST_LIST, method, serialize_on=self)
+        self._watch_sessions()
         aspace = self.app.server.iserver.aspace
+        timeout_ms = self.trust_file.activity_timeout * 1000
         for node, value in (
             (_O.ServerConfiguration_SupportedPrivateKeyFormats, ua.Variant(PRIVATE_KEY_FORMATS, ua.VariantType.String)),
             (_O.ServerConfiguration_ServerCapabilities, ua.Variant([], ua.VariantType.String)),
-            (_O.ServerConfiguration_MaxTrustListSize, ua.Variant(0, ua.VariantType.UInt32)),
+            (_O.ServerConfiguration_MaxTrustListSize, ua.Variant(self.trust_file.max_size, ua.VariantType.UInt32)),
+            (_trust_list_id("ActivityTimeout"), ua.Variant(timeout_ms, ua.VariantType.Double)),
+            (_trust_list_id("MaxByteStringLength"), ua.Variant(self.trust_file.max_read, ua.VariantType.UInt32)),
+            (_trust_list_id("Writable"), ua.Variant(True, ua.VariantType.Boolean)),
+            (_trust_list_id("UserWritable"), ua.Variant(True, ua.VariantType.Boolean)),
             (_O.ServerConfiguration_MulticastDnsEnabled, ua.Variant(False, ua.VariantType.Boolean)),
             (
                 _O.ServerConfiguration_CertificateGroups_DefaultApplicationGroup_CertificateTypes,
@@ -144,6 +166,7 @@ class ServerConfiguration:
             ),
         ):
             await aspace.write_attribute_value(ua.NodeId(node), ua.AttributeIds.Value, ua.DataValue(value))
+        await self._publish_trust_list()
 
     # -- the methods ---------------------------------------------------------------------------------
 
@@ -208,7 +231,8 @@ class ServerConfiguration:
     # -- the DefaultApplicationGroup's TrustList, a certificate at a time (OPC 10000-12 7.8.2.6, 7.8.2.7) --
 
     async def add_certificate(self, caller: Caller, certificate: bytes, trusted: bool) -> list[Any]:
-        _encrypted(caller)
+        self._trust_list_call(caller)
+        self.trust_file.refuse_changes()
         if not trusted:
             why = "a CA's certificate comes with its revocation lists: `uacell cert issuer` and `uacell cert crl`"
             raise CallError("BadInvalidArgument", why, argument=1)
@@ -222,10 +246,12 @@ class ServerConfiguration:
             raise CallError(ua.StatusCode(refusal.code).name, f"not added: {refusal.why}", argument=0)
         path = await asyncio.to_thread(trust_list.trust, der_of(cert))
         log.warning("%s trusted %s by AddCertificate (%s)", caller.display_user, path.stem, path)
+        await self._publish_trust_list()
         return []
 
     async def remove_certificate(self, caller: Caller, thumbprint_hex: str, trusted: bool) -> list[Any]:
-        _encrypted(caller)
+        self._trust_list_call(caller)
+        self.trust_file.refuse_changes()
         folder = self.paths.trusted if trusted else self.paths.issuers
         wanted = (thumbprint_hex or "").strip().lower()
         anchors = TrustList(self.paths).anchors()
@@ -243,7 +269,97 @@ class ServerConfiguration:
             if newest_crl(cert, [crl]) is not None:  # one it signed
                 f.unlink(missing_ok=True)
         log.warning("%s removed %s from the %s certificates", caller.display_user, wanted, folder.name)
+        await self._publish_trust_list()
         return []
+
+    # -- the TrustList as a file (OPC 10000-12 7.8.2.1 to 7.8.2.5; uacell.security.trust_list_file) ----------
+
+    async def open(self, caller: Caller, mode: int) -> list[Any]:
+        self._trust_list_call(caller)
+        handle = self.trust_file.open(caller.session_id, mode)
+        if mode == MODE_WRITE_ERASE:
+            log.info("%s opened the trust list for writing", caller.display_user)
+        await self._publish_trust_list()
+        return [handle]
+
+    async def open_with_masks(self, caller: Caller, masks: int) -> list[Any]:
+        self._trust_list_call(caller)
+        handle = self.trust_file.open_with_masks(caller.session_id, masks)
+        await self._publish_trust_list()
+        return [handle]
+
+    async def read(self, caller: Caller, handle: int, length: int) -> list[Any]:
+        self._trust_list_call(caller)
+        return [self.trust_file.read(caller.session_id, handle, length)]
+
+    async def write(self, caller: Caller, handle: int, data: bytes | None) -> list[Any]:
+        self._trust_list_call(caller)
+        self.trust_file.write(caller.session_id, handle, data or b"")
+        return []
+
+    async def get_position(self, caller: Caller, handle: int) -> list[Any]:
+        self._trust_list_call(caller)
+        return [self.trust_file.get_position(caller.session_id, handle)]
+
+    async def set_position(self, caller: Caller, handle: int, position: int) -> list[Any]:
+        self._trust_list_call(caller)
+        self.trust_file.set_position(caller.session_id, handle, position)
+        return []
+
+    async def close(self, caller: Caller, handle: int) -> list[Any]:
+        self._trust_list_call(caller)
+        self.trust_file.close(caller.session_id, handle)
+        await self._publish_trust_list()
+        return []
+
+    async def close_and_update(self, caller: Caller, handle: int) -> list[Any]:
+        self._trust_list_call(caller)
+        try:
+            checked = await asyncio.to_thread(
+                self.trust_file.close_and_update, caller.session_id, handle, datetime.now(UTC)
+            )
+        finally:
+            await self._publish_trust_list()  # closed, whatever the update's outcome
+        log.warning(
+            "%s replaced the trust list by CloseAndUpdate: %d trusted, %d issuer certificates, %d revocation lists",
+            caller.display_user,
+            len(checked.trusted),
+            len(checked.issuers),
+            len(checked.crls),
+        )
+        return [False]  # applied at once: no transaction, no ApplyChanges needed
+
+    def _trust_list_call(self, caller: Caller) -> None:
+        """Every call on the TrustList: an encrypted channel, and its activity timeout started again."""
+        _encrypted(caller)
+        if self.trust_file.touch():
+            self.app.publisher.submit(self._publish_trust_list)
+        if self._expiry is not None:
+            self._expiry.cancel()
+        loop = asyncio.get_running_loop()
+        self._expiry = loop.call_later(self.trust_file.activity_timeout + 0.1, self._expire)
+
+    def _expire(self) -> None:
+        self._expiry = None
+        if self.trust_file.expire():
+            self.app.publisher.submit(self._publish_trust_list)
+
+    def _watch_sessions(self) -> None:
+        def closed(session: Any) -> None:
+            if self.trust_file.close_session(context.caller_of(session).session_id):
+                self.app.publisher.submit(self._publish_trust_list)
+
+        self.app.security.on_session_closed.append(closed)
+
+    async def _publish_trust_list(self) -> None:
+        """The TrustList's OpenCount and LastUpdateTime as they are now."""
+        aspace = self.app.server.iserver.aspace
+        last = await asyncio.to_thread(last_update, self.paths)
+        for node, value in (
+            (_trust_list_id("OpenCount"), ua.Variant(self.trust_file.open_count, ua.VariantType.UInt16)),
+            (_trust_list_id("LastUpdateTime"), ua.Variant(last, ua.VariantType.DateTime)),
+        ):
+            await aspace.write_attribute_value(node, ua.AttributeIds.Value, ua.DataValue(value))
 
     async def get_rejected_list(self, caller: Caller) -> list[Any]:
         _encrypted(caller)
@@ -264,6 +380,11 @@ def addable(cert: x509.Certificate, anchors: Anchors, now: datetime) -> Refusal 
         why = f"its issuer {cert.issuer.rfc4514_string()} is not in the trust list"
         return Refusal(ua.StatusCodes.BadCertificateChainIncomplete, cert, why)
     return None
+
+
+def _trust_list_id(name: str) -> ua.NodeId:
+    """A member of the DefaultApplicationGroup's TrustList, by its BrowseName."""
+    return ua.NodeId(getattr(_O, f"ServerConfiguration_CertificateGroups_DefaultApplicationGroup_TrustList_{name}"))
 
 
 def _certificate_files(folder: Path) -> list[tuple[Path, x509.Certificate]]:
