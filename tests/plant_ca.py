@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import datetime as dt
 import socket
+import struct
 from dataclasses import dataclass, field
 
 from cryptography import x509
@@ -212,3 +213,45 @@ def key_pem(key: rsa.RSAPrivateKey) -> bytes:
     return key.private_bytes(
         serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
     )
+
+
+def byte_string_array(items: list[bytes] | None) -> bytes:
+    """OPC 10000-6 5.2.5 and 5.2.2.7: an Int32 length (-1 for null), then each ByteString as an Int32 length
+    and its bytes."""
+    if items is None:
+        return struct.pack("<i", -1)
+    return struct.pack("<i", len(items)) + b"".join(struct.pack("<i", len(i)) + i for i in items)
+
+
+def trust_list_bytes(
+    masks: int,
+    trusted: list[bytes] | None = None,
+    trusted_crls: list[bytes] | None = None,
+    issuers: list[bytes] | None = None,
+    issuer_crls: list[bytes] | None = None,
+) -> bytes:
+    """TrustListDataType (OPC 10000-12 7.8.2.8): SpecifiedLists (UInt32) and the four ByteString arrays."""
+    return struct.pack("<I", masks) + b"".join(
+        byte_string_array(x) for x in (trusted, trusted_crls, issuers, issuer_crls)
+    )
+
+
+def parse_trust_list(data: bytes) -> tuple[int, list[list[bytes] | None]]:
+    """SpecifiedLists and the four arrays of a TrustListDataType, read by OPC 10000-6 5.2's rules; the data
+    must hold exactly one."""
+    (masks,) = struct.unpack_from("<I", data)
+    at, arrays = 4, []
+    for _ in range(4):
+        (count,) = struct.unpack_from("<i", data, at)
+        at += 4
+        if count < 0:
+            arrays.append(None)
+            continue
+        items = []
+        for _ in range(count):
+            (length,) = struct.unpack_from("<i", data, at)
+            items.append(data[at + 4 : at + 4 + length])
+            at += 4 + length
+        arrays.append(items)
+    assert at == len(data), f"{len(data) - at} bytes after the TrustListDataType"
+    return masks, arrays

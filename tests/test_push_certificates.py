@@ -18,7 +18,7 @@ from conftest import fast_config, start_app
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 from helpers import secure_client
-from plant_ca import Authority, der, key_pem
+from plant_ca import Authority, der, key_pem, parse_trust_list, trust_list_bytes
 
 from uacell.core.roles import Role
 from uacell.security.pki import PkiPaths
@@ -284,3 +284,162 @@ async def test_a_gds_adds_and_removes_trusted_certificates_one_at_a_time(plant: 
 def thumbprint_of(data: bytes) -> str:
     """OPC UA's thumbprint: the SHA-1 of the DER (OPC 10000-4 7.42, ApplicationInstanceCertificate)."""
     return hashlib.sha1(data).hexdigest()
+
+
+def _trust_list_method(name: str) -> ua.NodeId:
+    return ua.NodeId(getattr(OBJ, f"ServerConfiguration_CertificateGroups_DefaultApplicationGroup_TrustList_{name}"))
+
+
+async def file_call(client: Client, name: str, *args: ua.Variant) -> ua.CallMethodResult:
+    """A method of the DefaultApplicationGroup's TrustList (OPC 10000-12 7.8.2; FileType, OPC 10000-20)."""
+    request = ua.CallMethodRequest()
+    request.ObjectId = TRUST_LIST
+    request.MethodId = _trust_list_method(name)
+    request.InputArguments = list(args)
+    [result] = await client.uaclient.call([request])
+    return result
+
+
+def u32(value: int) -> ua.Variant:
+    return ua.Variant(value, ua.VariantType.UInt32)
+
+
+async def read_trust_list(client: Client, masks: int = 15) -> bytes:
+    opened = await file_call(client, "OpenWithMasks", u32(masks))
+    assert opened.StatusCode.is_good(), opened.StatusCode
+    handle = opened.OutputArguments[0].Value
+    data = b""
+    while True:
+        result = await file_call(client, "Read", u32(handle), ua.Variant(700, ua.VariantType.Int32))
+        assert result.StatusCode.is_good(), result.StatusCode
+        if not result.OutputArguments[0].Value:
+            break
+        data += result.OutputArguments[0].Value
+    assert (await file_call(client, "Close", u32(handle))).StatusCode.is_good()
+    return data
+
+
+async def write_trust_list(client: Client, content: bytes) -> ua.CallMethodResult:
+    opened = await file_call(client, "Open", ua.Variant(6, ua.VariantType.Byte))  # Write + EraseExisting
+    assert opened.StatusCode.is_good(), opened.StatusCode
+    handle = opened.OutputArguments[0].Value
+    for i in range(0, len(content), 1000):
+        written = await file_call(
+            client, "Write", u32(handle), ua.Variant(content[i : i + 1000], ua.VariantType.ByteString)
+        )
+        assert written.StatusCode.is_good(), written.StatusCode
+    return await file_call(client, "CloseAndUpdate", u32(handle))
+
+
+async def reaches(endpoint: str, directory: Path, cert: Any, key: Any, uri: str) -> bool:
+    """Does a client with ``cert`` get a secure channel and a session?"""
+    client = await secure_client(endpoint, directory, cert, key, uri)
+    try:
+        await client.connect()
+    except (ua.UaError, OSError, TimeoutError):
+        return False
+    await client.disconnect()
+    return True
+
+
+async def test_a_gds_reads_and_replaces_the_trust_list_as_a_file(plant: dict[str, Any], tmp_path: Path) -> None:
+    """OPC 10000-12 7.8.2: the TrustList read through OpenWithMasks and Read is the TrustListDataType of the
+    files (decoded here by OPC 10000-6's rules); one written through Open, Write and CloseAndUpdate decides
+    which clients get a secure channel, at once."""
+    app, paths, root = plant["app"], plant["paths"], plant["root"]
+    contractor = Authority.root("Contractor CA", key_index=4)
+    laptop, laptop_key = contractor.application("urn:contractor:laptop", "Laptop", key_index=5)
+    laptop_dir = tmp_path / "laptop"
+    laptop_dir.mkdir()
+    admin = await gds_session(plant, tmp_path)
+    open_count = admin.get_node(_trust_list_method("OpenCount"))
+    last_update = admin.get_node(_trust_list_method("LastUpdateTime"))
+    try:
+        masks, (trusted, trusted_crls, issuers, issuer_crls) = parse_trust_list(await read_trust_list(admin))
+        assert masks == 15
+        assert trusted == [root.der] and issuers == [plant["issuing"].der]
+        assert trusted_crls == [(paths.crl / "root.crl").read_bytes()]
+        assert issuer_crls == [(paths.crl / "issuing.crl").read_bytes()]
+        assert parse_trust_list(await read_trust_list(admin, 4)) == (4, [None, None, [plant["issuing"].der], None])
+        assert await admin.get_node(_trust_list_method("MaxByteStringLength")).read_value() > 0
+        assert await open_count.read_value() == 0
+        assert not await reaches(app.endpoint, laptop_dir, laptop, laptop_key, "urn:contractor:laptop")
+        before = await last_update.read_value()
+
+        # the contractor's CA trusted, with its revocation list: the laptop gets in
+        root_crl, contractor_crl = (paths.crl / "root.crl").read_bytes(), contractor.crl()
+        content = trust_list_bytes(3, [root.der, contractor.der], [root_crl, contractor_crl])
+        result = await write_trust_list(admin, content)
+        assert result.StatusCode.is_good(), result.StatusCode
+        assert result.OutputArguments[0].Value is False  # applied at once
+        assert sorted(p.name for p in paths.trusted.iterdir()) == sorted(
+            [f"{thumbprint_of(root.der)}.der", f"{thumbprint_of(contractor.der)}.der"]
+        )
+        assert (paths.issuers / "issuing.der").exists()  # the issuers were not specified
+        assert await open_count.read_value() == 0
+        assert await last_update.read_value() > before
+        assert await reaches(app.endpoint, laptop_dir, laptop, laptop_key, "urn:contractor:laptop")
+
+        # and out again
+        result = await write_trust_list(admin, trust_list_bytes(3, [root.der], [root_crl]))
+        assert result.StatusCode.is_good(), result.StatusCode
+        assert not await reaches(app.endpoint, laptop_dir, laptop, laptop_key, "urn:contractor:laptop")
+        assert parse_trust_list(await read_trust_list(admin, 3)) == (3, [[root.der], [root_crl], None, None])
+    finally:
+        await admin.disconnect()
+
+
+async def test_what_the_trust_list_file_refuses_changes_nothing(plant: dict[str, Any], tmp_path: Path) -> None:
+    paths = plant["paths"]
+
+    def files() -> dict[str, bytes]:
+        return {
+            f"{d.name}/{f.name}": f.read_bytes() for d in (paths.trusted, paths.issuers, paths.crl) for f in d.iterdir()
+        }
+
+    before = files()
+    admin = await gds_session(plant, tmp_path)
+    other = await gds_session(plant, tmp_path)
+    try:
+        result = await file_call(admin, "Open", ua.Variant(3, ua.VariantType.Byte))  # Read + Write
+        assert result.StatusCode.value == ua.StatusCodes.BadNotSupported
+        opened = await file_call(admin, "Open", ua.Variant(6, ua.VariantType.Byte))
+        handle = opened.OutputArguments[0].Value
+        assert await admin.get_node(_trust_list_method("OpenCount")).read_value() == 1
+        refusals = [
+            (other, "Open", [ua.Variant(1, ua.VariantType.Byte)], ua.StatusCodes.BadNotReadable),
+            (
+                other,
+                "Write",
+                [u32(handle), ua.Variant(b"x", ua.VariantType.ByteString)],
+                ua.StatusCodes.BadInvalidArgument,
+            ),
+            (admin, "Read", [u32(handle), ua.Variant(10, ua.VariantType.Int32)], ua.StatusCodes.BadInvalidState),
+        ]
+        for client, name, args, code in refusals:
+            assert (await file_call(client, name, *args)).StatusCode.value == code, name
+        mes, _ = plant["issuing"].application("urn:plant:line3:mes", "MES", key_index=3)
+        assert (await trust_list_call(admin, ADD, der(mes))).value == ua.StatusCodes.BadInvalidState  # it is open
+        written = await file_call(admin, "Write", u32(handle), ua.Variant(b"\x01\x00\x00", ua.VariantType.ByteString))
+        assert written.StatusCode.is_good()
+        result = await file_call(admin, "CloseAndUpdate", u32(handle))
+        assert result.StatusCode.value == ua.StatusCodes.BadDecodingError
+        assert await admin.get_node(_trust_list_method("OpenCount")).read_value() == 0  # closed all the same
+        result = await write_trust_list(admin, trust_list_bytes(1, [b"not a certificate"]))
+        assert result.StatusCode.value == ua.StatusCodes.BadCertificateInvalid
+        assert files() == before
+    finally:
+        await other.disconnect()
+        await admin.disconnect()
+    operator = await gds_session(plant, tmp_path, "otto")
+    try:
+        result = await file_call(operator, "OpenWithMasks", u32(15))
+        assert result.StatusCode.value == ua.StatusCodes.BadUserAccessDenied
+    finally:
+        await operator.disconnect()
+    signed = await gds_session(plant, tmp_path, mode=ua.MessageSecurityMode.Sign)
+    try:
+        result = await file_call(signed, "OpenWithMasks", u32(15))
+        assert result.StatusCode.value == ua.StatusCodes.BadSecurityModeInsufficient
+    finally:
+        await signed.disconnect()

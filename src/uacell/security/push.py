@@ -150,22 +150,40 @@ class ServerConfiguration:
             dispatcher.bind(TRUST_LIST, _trust_list_id(name), Family.TRUST_LIST, method, serialize_on=self)
         self._watch_sessions()
         aspace = self.app.server.iserver.aspace
+        # two optional properties of TrustListType (1.05) the core NodeSet's instance does not carry
         timeout_ms = self.trust_file.activity_timeout * 1000
+        for name, data_type, value in (
+            ("ActivityTimeout", ua.NodeId(_O.Duration), ua.Variant(timeout_ms, ua.VariantType.Double)),
+            ("MaxByteStringLength", ua.NodeId(_O.UInt32), ua.Variant(self.trust_file.max_read, ua.VariantType.UInt32)),
+        ):
+            node = self.app.server.get_node(_trust_list_id(name))
+            try:
+                await node.read_browse_name()
+            except ua.UaStatusCodeError:
+                await self.app.server.get_node(TRUST_LIST).add_property(
+                    node.nodeid, ua.QualifiedName(name, 0), value, datatype=data_type
+                )
         for node, value in (
-            (_O.ServerConfiguration_SupportedPrivateKeyFormats, ua.Variant(PRIVATE_KEY_FORMATS, ua.VariantType.String)),
-            (_O.ServerConfiguration_ServerCapabilities, ua.Variant([], ua.VariantType.String)),
-            (_O.ServerConfiguration_MaxTrustListSize, ua.Variant(self.trust_file.max_size, ua.VariantType.UInt32)),
+            (
+                ua.NodeId(_O.ServerConfiguration_SupportedPrivateKeyFormats),
+                ua.Variant(PRIVATE_KEY_FORMATS, ua.VariantType.String),
+            ),
+            (ua.NodeId(_O.ServerConfiguration_ServerCapabilities), ua.Variant([], ua.VariantType.String)),
+            (
+                ua.NodeId(_O.ServerConfiguration_MaxTrustListSize),
+                ua.Variant(self.trust_file.max_size, ua.VariantType.UInt32),
+            ),
             (_trust_list_id("ActivityTimeout"), ua.Variant(timeout_ms, ua.VariantType.Double)),
             (_trust_list_id("MaxByteStringLength"), ua.Variant(self.trust_file.max_read, ua.VariantType.UInt32)),
             (_trust_list_id("Writable"), ua.Variant(True, ua.VariantType.Boolean)),
             (_trust_list_id("UserWritable"), ua.Variant(True, ua.VariantType.Boolean)),
-            (_O.ServerConfiguration_MulticastDnsEnabled, ua.Variant(False, ua.VariantType.Boolean)),
+            (ua.NodeId(_O.ServerConfiguration_MulticastDnsEnabled), ua.Variant(False, ua.VariantType.Boolean)),
             (
-                _O.ServerConfiguration_CertificateGroups_DefaultApplicationGroup_CertificateTypes,
+                ua.NodeId(_O.ServerConfiguration_CertificateGroups_DefaultApplicationGroup_CertificateTypes),
                 ua.Variant([CERTIFICATE_TYPE], ua.VariantType.NodeId),
             ),
         ):
-            await aspace.write_attribute_value(ua.NodeId(node), ua.AttributeIds.Value, ua.DataValue(value))
+            await aspace.write_attribute_value(node, ua.AttributeIds.Value, ua.DataValue(value))
         await self._publish_trust_list()
 
     # -- the methods ---------------------------------------------------------------------------------
