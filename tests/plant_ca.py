@@ -240,7 +240,8 @@ def parse_trust_list(data: bytes) -> tuple[int, list[list[bytes] | None]]:
     """SpecifiedLists and the four arrays of a TrustListDataType, read by OPC 10000-6 5.2's rules; the data
     must hold exactly one."""
     (masks,) = struct.unpack_from("<I", data)
-    at, arrays = 4, []
+    at = 4
+    arrays: list[list[bytes] | None] = []
     for _ in range(4):
         (count,) = struct.unpack_from("<i", data, at)
         at += 4
@@ -254,4 +255,4 @@ def parse_trust_list(data: bytes) -> tuple[int, list[list[bytes] | None]]:
             at += 4 + length
         arrays.append(items)
     assert at == len(data), f"{len(data) - at} bytes after the TrustListDataType"
-    return masks, arrays
+    return int(masks), arrays
