@@ -5,6 +5,8 @@ the standard's code and nothing changed."""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import hashlib
 import os
 from collections.abc import AsyncIterator
@@ -378,15 +380,22 @@ async def test_a_gds_reads_and_replaces_the_trust_list_as_a_file(plant: dict[str
         assert (paths.issuers / "issuing.der").exists()  # the issuers were not specified
         assert await open_count.read_value() == 0
         assert await last_update.read_value() > before
-        assert await reaches(app.endpoint, laptop_dir, laptop, laptop_key, "urn:contractor:laptop")
+        connected = await secure_client(app.endpoint, laptop_dir, laptop, laptop_key, "urn:contractor:laptop")
+        await connected.connect()
+        assert await connected.nodes.server_state.read_value() == ua.ServerState.Running
 
-        # and out again
+        # and out again: the laptop's open channel is closed (OPC 10000-12 7.8.2.5), a new one refused
         result = await write_trust_list(admin, trust_list_bytes(3, [root.der], [root_crl]))
         assert result.StatusCode.is_good(), result.StatusCode
+        with pytest.raises((ua.UaError, ConnectionError, TimeoutError)):
+            await connected.nodes.server_state.read_value()
         assert not await reaches(app.endpoint, laptop_dir, laptop, laptop_key, "urn:contractor:laptop")
+        assert await admin.nodes.server_state.read_value() == ua.ServerState.Running  # the GDS's is kept
         assert parse_trust_list(await read_trust_list(admin, 3)) == (3, [[root.der], [root_crl], None, None])
     finally:
         await admin.disconnect()
+        with contextlib.suppress(Exception):
+            await connected.disconnect()
 
 
 async def test_what_the_trust_list_file_refuses_changes_nothing(plant: dict[str, Any], tmp_path: Path) -> None:
@@ -443,3 +452,44 @@ async def test_what_the_trust_list_file_refuses_changes_nothing(plant: dict[str,
         assert result.StatusCode.value == ua.StatusCodes.BadSecurityModeInsufficient
     finally:
         await signed.disconnect()
+
+
+async def test_trust_list_handles_end_with_their_session_or_after_the_activity_timeout(
+    plant: dict[str, Any], tmp_path: Path
+) -> None:
+    """OPC 10000-12 7.8.2.1: the Server closes a TrustList left open (its ActivityTimeout), and a handle lives no
+    longer than its session: a GDS that went away does not lock the trust list."""
+    app = plant["app"]
+    trust_file = app.server_configuration.trust_file
+    first = await gds_session(plant, tmp_path)
+    second = await gds_session(plant, tmp_path)
+    open_count = second.get_node(_trust_list_method("OpenCount"))
+    try:
+        timeout = await second.get_node(_trust_list_method("ActivityTimeout")).read_value()
+        assert timeout == trust_file.activity_timeout * 1000  # a Duration, ms
+        assert (await file_call(first, "Open", ua.Variant(6, ua.VariantType.Byte))).StatusCode.is_good()
+        assert await open_count.read_value() == 1
+        await first.disconnect()  # its session closed: its handle with it
+        await wait_until_value(open_count, 0)
+        opened = await file_call(second, "Open", ua.Variant(6, ua.VariantType.Byte))
+        assert opened.StatusCode.is_good(), opened.StatusCode
+        trust_file.activity_timeout = 0.5  # no call for half a second now closes the list
+        touched = await file_call(second, "GetPosition", u32(opened.OutputArguments[0].Value))
+        assert touched.StatusCode.is_good() and touched.OutputArguments[0].Value == 0
+        await wait_until_value(open_count, 0)
+        late = await file_call(
+            second, "Write", u32(opened.OutputArguments[0].Value), ua.Variant(b"x", ua.VariantType.ByteString)
+        )
+        assert late.StatusCode.value == ua.StatusCodes.BadInvalidArgument  # the handle is gone
+    finally:
+        trust_file.activity_timeout = 60.0
+        await second.disconnect()
+        with contextlib.suppress(Exception):
+            await first.disconnect()
+
+
+async def wait_until_value(node: Any, value: Any, timeout: float = 10.0) -> None:
+    deadline = asyncio.get_running_loop().time() + timeout
+    while (seen := await node.read_value()) != value:
+        assert asyncio.get_running_loop().time() < deadline, f"{node.nodeid} is {seen}, not {value}"
+        await asyncio.sleep(0.05)

@@ -87,15 +87,22 @@ class SessionEvents(Protocol):
     def on_session_closed(self) -> list[Callable[[Any], None]]: ...
 
 
+class ChannelGuard(SessionEvents, Protocol):
+    """Session ends, and the secure channels checked again when the trust list changed
+    (``security.Security``)."""
+
+    def recheck_channels(self) -> list[str]: ...
+
+
 class ConfigurationHost(Host, Protocol):
     """What the server's own configuration objects (``uacell.security.push``) need besides ``Host``:
-    the ordered publisher for values that change between calls, and session ends."""
+    the ordered publisher for values that change between calls, session ends and the channel guard."""
 
     @property
     def publisher(self) -> Publisher: ...
 
     @property
-    def security(self) -> SessionEvents: ...
+    def security(self) -> ChannelGuard: ...
 
 
 class BinderHost(_Shared, Protocol):

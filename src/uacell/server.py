@@ -221,7 +221,8 @@ class UacellServer:
         self._refs = NodeRefs(await self.server.get_namespace_array())
         self.dispatcher.declarations = self.cell.instantiator.declarations
         bind_subscription_methods(self)
-        await ServerConfiguration(self).bind()
+        self.server_configuration = ServerConfiguration(self)
+        await self.server_configuration.bind()
         for binder in self.binders:
             closer = await binder(self)
             if closer is not None:

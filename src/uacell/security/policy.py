@@ -73,7 +73,7 @@ from uacell.security.certificate_login import (
     VerifiedCertificate,
     check_user_certificate,
 )
-from uacell.security.chain import der_of, first_certificate, split_chain
+from uacell.security.chain import check_chain, der_of, first_certificate, split_chain
 from uacell.security.own_certificate import finish_install, own_issuers
 from uacell.security.pki import (
     CertificateValidator,
@@ -82,6 +82,7 @@ from uacell.security.pki import (
     TrustList,
     ensure_server_certificate,
     load_server_key,
+    read_anchors,
 )
 from uacell.security.pki import thumbprint as app_thumbprint  # SHA-1, OPC UA's; users' is SHA-256
 from uacell.security.trust_list_file import finish_update
@@ -91,6 +92,7 @@ from uacell.ua import channel, context, door
 from uacell.ua.context import UacellUser, caller_of
 from uacell.ua.door.certificate import send_with_chain
 from uacell.ua.door.connection import channel_id, channel_open, connection, last_activity, sent_certificate
+from uacell.ua.door.connection import close as close_channel
 from uacell.ua.limits import LimitedSession, check_operations
 from uacell.ua.pipeline import Next, Request
 
@@ -386,6 +388,7 @@ class _Channels:
     refusals: RefusalLog
     certificate_validator: CertificateValidator
     audit_events: SecurityAuditEvents
+    trust_list: TrustList | None
     _channel_requests: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest]
 
     def check_channel(self, processor: UaProcessor, uri: str | None, mode: ua.MessageSecurityMode | None) -> None:
@@ -394,6 +397,37 @@ class _Channels:
     def _report_certificate_refusal(self, message: str, reason: str) -> None:
         address = _address(context.current_processor())
         self.refusals.report(address, f"certificate:{reason}", f"{message} (client address {address})")
+
+    def recheck_channels(self) -> list[str]:
+        """OPC 10000-12 7.8.2.5: once the trust list has changed, the secure channels whose client
+        certificate it no longer admits are closed (a session of theirs goes on only over a channel that
+        passes the check). Under trust on first use, a certificate that is merely no longer trusted keeps
+        its channel: it would be trusted again on its next one. Returns the closed channels' ids."""
+        trust = self.trust_list
+        if trust is None:
+            return []
+        anchors, now, closed = read_anchors(trust.paths), datetime.now(UTC), []
+        for processor, request in list(self._channel_requests.items()):
+            if not request.certificate or not channel_open(processor):
+                continue
+            try:
+                chain = split_chain(request.certificate)
+            except ValueError:
+                continue
+            refusal = check_chain(chain, anchors, now, require_crls=trust.require_revocation_lists)
+            if refusal is None or (trust.trust_on_first_use and refusal.code == ua.StatusCodes.BadCertificateUntrusted):
+                continue
+            log.warning(
+                "closing secure channel %s from %s: the trust list no longer admits its certificate %s (%s: %s)",
+                channel_id(processor),
+                _address(processor),
+                app_thumbprint(der_of(chain[0])),
+                refusal.name,
+                refusal.why,
+            )
+            closed.append(channel_id(processor))
+            close_channel(processor)
+        return closed
 
     async def check_client_certificate(self, params: ua.CreateSessionParameters) -> ua.CreateSessionParameters:
         """The client's certificate, alone or followed by its issuers (OPC 10000-6 6.2.6), against the

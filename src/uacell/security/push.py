@@ -287,6 +287,7 @@ class ServerConfiguration:
             if newest_crl(cert, [crl]) is not None:  # one it signed
                 f.unlink(missing_ok=True)
         log.warning("%s removed %s from the %s certificates", caller.display_user, wanted, folder.name)
+        self.app.security.recheck_channels()
         await self._publish_trust_list()
         return []
 
@@ -338,12 +339,15 @@ class ServerConfiguration:
             )
         finally:
             await self._publish_trust_list()  # closed, whatever the update's outcome
+        closed = self.app.security.recheck_channels()
         log.warning(
-            "%s replaced the trust list by CloseAndUpdate: %d trusted, %d issuer certificates, %d revocation lists",
+            "%s replaced the trust list by CloseAndUpdate: %d trusted, %d issuer certificates, %d revocation lists; "
+            "%d secure channel(s) it no longer admits closed",
             caller.display_user,
             len(checked.trusted),
             len(checked.issuers),
             len(checked.crls),
+            len(closed),
         )
         return [False]  # applied at once: no transaction, no ApplyChanges needed
 
