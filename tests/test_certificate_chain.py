@@ -115,6 +115,32 @@ def test_each_step_answers_its_own_code(ca: dict[str, Any]) -> None:
     )
 
 
+def test_a_revocation_list_past_its_next_update_says_nothing_but_revocations(ca: dict[str, Any]) -> None:
+    """RFC 5280 6.3.3 (and OPC 10000-4's revocation check): a list whose nextUpdate has passed does not say
+    whether a certificate was revoked since, so the revocation is unknown; what it lists stays revoked."""
+    root, issuing, leaf = ca["root"], ca["issuing"], ca["leaf"]
+    long_ago = now() - dt.timedelta(days=8)  # plant_ca's lists are due a week after they were issued
+    stale_issuing = x509.load_der_x509_crl(issuing.crl(issued=long_ago))
+    stale_root = x509.load_der_x509_crl(root.crl(issued=long_ago))
+    fresh_root, fresh_issuing = crls(root, issuing)
+    trusted = (root.cert,)
+
+    def refusal(chain: list[x509.Certificate], *lists: x509.CertificateRevocationList, **kw: Any) -> Any:
+        return check_chain(chain, Anchors(trusted=trusted, crls=lists), now(), **kw)
+
+    stale = refusal([leaf, issuing.cert], fresh_root, stale_issuing)
+    assert stale is not None and stale.code == S.BadCertificateRevocationUnknown
+    assert "was due to be renewed" in stale.why and "Plant Issuing CA" in stale.why
+    stale_above = refusal([leaf, issuing.cert], stale_root, fresh_issuing)
+    assert stale_above is not None and stale_above.code == S.BadCertificateIssuerRevocationUnknown
+    assert refusal([leaf, issuing.cert], fresh_root, fresh_issuing, stale_issuing) is None  # the newest counts
+    assert refusal([leaf, issuing.cert], stale_root, stale_issuing, require_crls=False) is None
+    revoked = refusal([ca["revoked"], issuing.cert], fresh_root, stale_issuing, require_crls=False)
+    assert revoked is not None and revoked.code == S.BadCertificateRevoked  # stale, still a revocation
+    revoked = refusal([ca["revoked"], issuing.cert], fresh_root, stale_issuing)
+    assert revoked is not None and revoked.code == S.BadCertificateRevoked
+
+
 def test_an_issuer_must_be_a_valid_ca(ca: dict[str, Any]) -> None:
     root = ca["root"]
     not_a_ca = root.intermediate("Not a CA", key_index=4, ca=False)

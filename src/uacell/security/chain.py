@@ -14,10 +14,11 @@ answers the first step of OPC 10000-4's validation table that fails, with its st
 3. validity: each issuer is valid now (Bad_CertificateIssuerTimeInvalid; the end certificate's own
    period is checked before, with its URI, by the caller);
 4. usage: each issuer is a CA allowed to sign certificates (Bad_CertificateIssuerUseNotAllowed);
-5. revocation: every issuer has a revocation list signed by it (Bad_CertificateRevocationUnknown for
-   the end certificate's issuer, Bad_CertificateIssuerRevocationUnknown above it, unless
-   ``require_crls`` is off), and no certificate of the chain is on its issuer's list
-   (Bad_CertificateRevoked, Bad_CertificateIssuerRevoked).
+5. revocation: every issuer has a revocation list signed by it whose nextUpdate has not passed
+   (Bad_CertificateRevocationUnknown for the end certificate's issuer,
+   Bad_CertificateIssuerRevocationUnknown above it, unless ``require_crls`` is off; decision 98), and
+   no certificate of the chain is on its issuer's newest list, stale or not (Bad_CertificateRevoked,
+   Bad_CertificateIssuerRevoked).
 
 A certificate the administrator trusts by itself, whose issuer is nowhere to be found, is trusted as it
 was before chains were checked (decision 92): trusting it is the decision, as pinning a key is. Once
@@ -140,7 +141,7 @@ def check_chain(
             return Refusal(_S.BadCertificateIssuerUseNotAllowed, issuer, why)
     # a certificate trusted by itself needs no revocation list to be found (as before chains were checked:
     # an upgrade locks nobody out), but one that is there still counts
-    return _revocation(path, anchors.crls, require_crls and not anchors.is_trusted(leaf))
+    return _revocation(path, anchors.crls, require_crls and not anchors.is_trusted(leaf), now)
 
 
 def _build(
@@ -189,20 +190,28 @@ def may_sign_certificates(cert: x509.Certificate) -> bool:
 
 
 def _revocation(
-    path: Sequence[x509.Certificate], crls: Iterable[x509.CertificateRevocationList], require_crls: bool
+    path: Sequence[x509.Certificate],
+    crls: Iterable[x509.CertificateRevocationList],
+    require_crls: bool,
+    now: dt.datetime,
 ) -> Refusal | None:
     crls = list(crls)
     for i, (cert, issuer) in enumerate(itertools.pairwise(path)):
         own = i == 0
+        unknown = _S.BadCertificateRevocationUnknown if own else _S.BadCertificateIssuerRevocationUnknown
         crl = newest_crl(issuer, crls)
         if crl is None:
             if not require_crls:
                 continue
-            code = _S.BadCertificateRevocationUnknown if own else _S.BadCertificateIssuerRevocationUnknown
-            return Refusal(code, cert, f"no revocation list of {_name(issuer)} is known")
+            return Refusal(unknown, cert, f"no revocation list of {_name(issuer)} is known")
         if crl.get_revoked_certificate_by_serial_number(cert.serial_number) is not None:
             code = _S.BadCertificateRevoked if own else _S.BadCertificateIssuerRevoked
             return Refusal(code, cert, f"{_name(cert)} is revoked by {_name(issuer)}")
+        due = crl.next_update_utc
+        if require_crls and due is not None and due < now:
+            # RFC 5280 6.3.3: a list past its nextUpdate no longer says whether a certificate was revoked since
+            why = f"the revocation list of {_name(issuer)} was due to be renewed on {due:%Y-%m-%d %H:%M} UTC"
+            return Refusal(unknown, cert, why)
     return None
 
 
