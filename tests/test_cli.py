@@ -338,7 +338,12 @@ def test_cert_issuer_and_crl_add_a_plant_ca_and_its_revocation_lists(tmp_path):
     listed = run("list").stdout.splitlines()
     assert any(line.startswith("issuer ") and "Plant Issuing CA" in line for line in listed)
     crl_lines = [line for line in listed if line.startswith("crl ")]
-    assert len(crl_lines) == 2 and any("Plant Issuing CA  1 revoked" in line for line in crl_lines)
+    assert len(crl_lines) == 2 and any("Plant Issuing CA  1 revoked  current" in line for line in crl_lines)
+    # a list past its nextUpdate (decision 98) says so
+    old_ca = Authority.root("Old CA", key_index=6)
+    (paths.crl / "old.crl").write_bytes(old_ca.crl(issued=dt.datetime.now(dt.UTC) - dt.timedelta(days=30)))
+    assert any("Old CA  0 revoked  stale" in line for line in run("list").stdout.splitlines())
+    (paths.crl / "old.crl").unlink()
     trail = [json.loads(line)["action"] for line in (tmp_path / "d" / "audit.log").read_text().splitlines()]
     assert trail == ["trust", "issuer", "crl", "crl", "crl"]
 

@@ -227,11 +227,14 @@ def _print_list(paths: PkiPaths) -> None:
     print(f"{paths.root}: {len(infos) or 'no'} certificate{'' if len(infos) == 1 else 's'}")
     for c in infos:
         print(f"{c.kind:8} {c.thumbprint}  {c.subject}  {c.application_uri or '-'}  {c.validity()}  {c.path}")
+    now = dt.datetime.now(dt.UTC)
     for path, crl in revocation_lists(paths):
         names = crl.issuer.get_attributes_for_oid(NameOID.COMMON_NAME)
         issuer = str(names[0].value) if names else crl.issuer.rfc4514_string()
-        until = f"{crl.next_update_utc:%Y-%m-%d}" if crl.next_update_utc else "-"
-        print(f"crl      {issuer}  {len(crl)} revoked  {crl.last_update_utc:%Y-%m-%d} .. {until}  {path}")
+        due = crl.next_update_utc
+        until = f"{due:%Y-%m-%d}" if due else "-"
+        state = "stale" if due is not None and due < now else "current"  # a stale list vouches for no chain
+        print(f"crl      {issuer}  {len(crl)} revoked  {state} {crl.last_update_utc:%Y-%m-%d} .. {until}  {path}")
 
 
 def run_cert_command(args: Any, config: Config) -> int:
