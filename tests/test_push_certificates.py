@@ -23,8 +23,10 @@ from helpers import secure_client
 from plant_ca import Authority, der, key_pem, parse_trust_list, trust_list_bytes
 
 from uacell.core.roles import Role
-from uacell.security.pki import PkiPaths
+from uacell.security.pki import PkiPaths, TrustList
 from uacell.server import UacellServer
+from uacell.web.hosting import hmi_certificate
+from uacell.web.uasession import Credentials, UaSession
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
@@ -101,6 +103,24 @@ def update_args(certificate: bytes, issuers: list[bytes], key_format: str = "", 
     ]
 
 
+async def hmi_reaches(app: UacellServer, server_certificate: Any) -> bool:
+    """Does the web HMI's OPC UA client, trusting ``server_certificate``, get a session and read?"""
+    cert, key = hmi_certificate(app.data_dir)
+    trusted = TrustList(PkiPaths.in_data_dir(app.data_dir)).trust(cert.read_bytes())
+    client = await UaSession(app.endpoint, Credentials(cert, key, server_certificate))._new_client()
+    client.session_timeout = 10000
+    client.secure_channel_timeout = 10000
+    try:
+        await asyncio.wait_for(client.connect(), 10)
+        return bool(await client.nodes.server_state.read_value() == ua.ServerState.Running)
+    except (ua.UaError, OSError, TimeoutError):
+        return False
+    finally:
+        with contextlib.suppress(Exception):
+            await client.disconnect()
+        trusted.unlink()  # the other tests' trust list is the plant's alone
+
+
 async def endpoint_certificates(app: UacellServer) -> set[bytes]:
     return {e.ServerCertificate for e in await Client(app.endpoint, timeout=20).connect_and_get_server_endpoints()}
 
@@ -134,9 +154,15 @@ async def test_a_gds_pushes_a_certificate_of_the_plant_ca(plant: dict[str, Any],
         assert result.OutputArguments[0].Value is True  # ApplyChangesRequired
         assert paths.cert.read_bytes() == der(issued) and not paths.pending_key.exists()
         assert await endpoint_certificates(app) == {old}  # not yet
+        # the web HMI beside the server trusts what the server sends, not the file (`uacell serve`)
+        assert app.served_certificate() == old
+        assert await hmi_reaches(app, app.served_certificate)
+        assert not await hmi_reaches(app, paths.cert)  # the file's certificate is not the one sent yet
         result = await call(client, OBJ.ServerConfiguration_ApplyChanges)
         assert result.StatusCode.is_good(), result.StatusCode
         assert await endpoint_certificates(app) == {der(issued) + issuing.der}
+        assert app.served_certificate() == der(issued)
+        assert await hmi_reaches(app, app.served_certificate)
         # the GDS's own session goes on over the channel it opened
         assert await client.nodes.server_state.read_value() == ua.ServerState.Running
     finally:

@@ -44,6 +44,7 @@ from uacell.services.discovery_registration import DiscoveryRegistration, Regist
 from uacell.services.observers import install_audit
 from uacell.services.shutdown import announce_shutdown, no_shutdown_yet
 from uacell.ua import door
+from uacell.ua.door.certificate import served_certificate
 from uacell.ua.event_tap import EventTap
 from uacell.ua.limits import DecodingStage, admit, guard_bytes, install_limits, publish_operation_limits
 from uacell.ua.nodesets import WRITE_SHARE, SnapshotJob, init_address_space
@@ -154,6 +155,10 @@ class UacellServer:
     @property
     def endpoint(self) -> str:
         return f"opc.tcp://{self.config.server.host}:{self.config.server.port}/"
+
+    def served_certificate(self) -> bytes:
+        """The server certificate (DER) new secure channels get: the file's until a GDS's ApplyChanges."""
+        return served_certificate(self.server)
 
     async def setup(self) -> None:
         _quiet_asyncua()

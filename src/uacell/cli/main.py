@@ -433,7 +433,7 @@ async def _start_web_beside(config: Config, app: UacellServer) -> RunningWeb:
         data_dir,
         host=config.web.host,
         port=config.web.port,
-        server_certificate=pki.cert,
+        server_certificate=app.served_certificate,  # not the file: a GDS's certificate counts from ApplyChanges
         https_certificate=cert,
         https_key=key,
         ua_sessions=config.web.ua_sessions,

@@ -21,7 +21,7 @@ import errno
 import logging
 import re
 import socket
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -168,7 +168,7 @@ async def start_web(
     companions: Sequence[Companion[ServerView]],
     host: str = "127.0.0.1",
     port: int = 8080,
-    server_certificate: Path | None = None,
+    server_certificate: Path | Callable[[], bytes] | None = None,
     https_certificate: Path | None = None,
     https_key: Path | None = None,
     ua_sessions: int = UA_SESSIONS,
@@ -177,9 +177,10 @@ async def start_web(
 ) -> RunningWeb:
     """Serve the HMI for the OPC UA server ``server_url``; HTTPS on every non-loopback address.
 
-    ``server_certificate`` (DER) is the OPC UA server's certificate when known (beside the server);
-    otherwise it is pinned on first connection. HTTPS needs ``https_certificate`` and ``https_key``
-    (PEM, or a DER certificate) unless ``host`` is loopback. ``ua_sessions``, ``release_after`` and
+    ``server_certificate`` is the OPC UA server's certificate when known: a DER file, or beside the
+    server a function giving what the server sends now; otherwise it is pinned on first connection.
+    HTTPS needs ``https_certificate`` and ``https_key`` (PEM, or a DER certificate) unless ``host`` is
+    loopback. ``ua_sessions``, ``release_after`` and
     ``header_timeout`` are the ``[web]`` settings of the same names (docs/configuration.md).
     The page shows the parts of ``companions`` (the composition root's, the server's) that declare a
     web view.

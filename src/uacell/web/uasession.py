@@ -74,7 +74,9 @@ class Credentials:
 
     certificate: Path
     private_key: Path
-    server_certificate: Path | None = None  # pinned; None: taken from the server's endpoints
+    # pinned (a file), or what the server beside the HMI sends now (its certificate changes with a GDS's
+    # ApplyChanges, not with the file); None: taken from the server's endpoints
+    server_certificate: Path | Callable[[], bytes] | None = None
 
 
 Listener = Callable[[dict[str, Any]], None]
@@ -160,7 +162,8 @@ class UaSession:
             client.set_user(self.user)
             client.set_password(self._password or "")
         c = self.credentials
-        server_cert = str(c.server_certificate) if c.server_certificate else None
+        pinned = c.server_certificate
+        server_cert = pinned() if callable(pinned) else str(pinned) if pinned else None
         await client.set_security(
             SecurityPolicyBasic256Sha256,
             str(c.certificate),

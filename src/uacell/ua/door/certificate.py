@@ -39,6 +39,12 @@ def send_with_chain(server: Server, issuers: bytes) -> None:
     swap(server, "Server._setup_server_nodes", setup_with_chain)
 
 
+def served_certificate(server: Server) -> bytes:
+    """The DER of the certificate new secure channels are opened with (the last ``use_certificate``'s, or
+    the one loaded at start), without the CA's that may follow it."""
+    return bytes(server.iserver.certificate.public_bytes(serialization.Encoding.DER))
+
+
 def use_certificate(server: Server, certificate: x509.Certificate, key: Any, issuers: bytes) -> None:
     """Secure channels opened from now on use ``certificate`` (followed by ``issuers``) and ``key``; those
     open keep what they were opened with (OPC 10000-12 ApplyChanges, decision 96)."""
