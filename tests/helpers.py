@@ -375,11 +375,12 @@ async def secure_client(endpoint: str, directory: Path, cert: Any, key: Any, uri
     return client
 
 
-def add_user(data_dir: Path, *args: str, password: str | None = None) -> None:
-    """``uacell user add ARGS`` on ``data_dir``, as an administrator runs it (``password`` on stdin)."""
+def add_user(data_dir: Path, *args: str, password: str | None = None, command: str = "add") -> None:
+    """``uacell user add ARGS`` (or another ``command``) on ``data_dir``, as an administrator runs it
+    (``password`` on stdin)."""
     extra = ["--password-stdin"] if password is not None else []
     added = subprocess.run(
-        [sys.executable, "-m", "uacell", "user", "--data-dir", str(data_dir), "add", *args, *extra],
+        [sys.executable, "-m", "uacell", "user", "--data-dir", str(data_dir), command, *args, *extra],
         input=f"{password}\n" if password is not None else "",
         capture_output=True,
         text=True,

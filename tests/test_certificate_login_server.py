@@ -307,3 +307,46 @@ async def test_a_session_keeps_its_certificates_user_until_the_certificate_expir
         assert await role_of(client, env) == "engineer"
     finally:
         await client.disconnect()
+
+
+async def wait_for_role(client: Client, env: Env, role: str, timeout: float = 20.0) -> None:
+    """Until the session's CurrentRole reads ``role`` (the server looks at users.toml once a second)."""
+    deadline = time.monotonic() + timeout
+    while (seen := await role_of(client, env)) != role:
+        assert time.monotonic() < deadline, f"the session's role is still {seen}, not {role}"
+        await asyncio.sleep(0.05)
+
+
+async def test_a_session_goes_on_as_anonymous_once_users_toml_no_longer_grants_its_login(env: Env) -> None:
+    """Decision 99: `uacell user` (here another store on the same file, as in another process) unbinding a
+    certificate, changing a password, a role, or removing a user ends the credentials of that user's open
+    sessions: they go on with the anonymous role (operator on loopback, as after an expiry, decision 88),
+    audited as identity_revoked; other users' sessions keep theirs."""
+    badge = user_certificate("mia, badge")
+    env.cli.add("mia", "engineer", "mia-password-1", certificate=badge.der)
+    env.cli.add("pat", "engineer", "pat-password-1")
+    env.cli.add("rae", "admin", "rae-password-1")
+    mia = await cert_client(env, badge)
+    pat = await secure_client(env.app, env.cert, user="pat", password="pat-password-1")
+    rae = await secure_client(env.app, env.cert, user="rae", password="rae-password-1")
+    try:
+        assert [await role_of(c, env) for c in (mia, pat, rae)] == ["engineer", "engineer", "admin"]
+        env.cli.set_password("mia", "mia-password-2")  # her certificate login does not rest on it
+        env.cli.remove_certificate("mia", thumbprint(badge.der))
+        await wait_for_role(mia, env, "operator")
+        await audited_login_event(env, "identity_revoked", user="mia")
+        assert [await role_of(c, env) for c in (pat, rae)] == ["engineer", "admin"]
+        env.cli.set_password("pat", "pat-password-2")
+        await wait_for_role(pat, env, "operator")
+        env.cli.set_role("rae", "operator")  # not even a demotion keeps the session's admin
+        await wait_for_role(rae, env, "operator")
+        assert env.app.security.recheck_identities() == 0  # nothing left to take
+        # the client logs in again with what the file grants now
+        pat.set_password("pat-password-2")
+        await pat.activate_session(username="pat", password="pat-password-2")
+        assert await role_of(pat, env) == "engineer"
+    finally:
+        for client in (mia, pat, rae):
+            await client.disconnect()
+        for name in ("mia", "pat", "rae"):
+            env.cli.remove(name)

@@ -12,7 +12,7 @@ from argon2 import PasswordHasher
 from helpers import FakeClock
 
 from uacell.core.roles import Role
-from uacell.security.users import LoginThrottle, User, UserError, UserStore, validate_name
+from uacell.security.users import LoginThrottle, User, UserError, UserStore, thumbprint, validate_name
 
 # Cheap argon2 parameters keep the tests fast; the real store uses argon2-cffi's defaults.
 FAST = PasswordHasher(time_cost=1, memory_cost=64, parallelism=1)
@@ -100,6 +100,35 @@ def test_outdated_hash_is_upgraded_on_login(tmp_path: Path) -> None:
     assert store.verify("dave", "pw") is Role.OPERATOR
     stored = tomllib.loads(store.path.read_text())["users"]["dave"]["hash"]
     assert "t=2" in stored and not stronger.check_needs_rehash(stored)
+
+
+def test_what_a_login_was_granted_on_is_compared_with_the_file(tmp_path: Path) -> None:
+    """Decision 99: a session's login still holds while the file grants the same user the same role and
+    the same password (a hash remade on login for the same password included) or the same certificate."""
+    cli = UserStore.in_data_dir(tmp_path, hasher=FAST)  # `uacell user`, another process
+    cli.add("dave", "operator", "pw-1")
+    cli.add("erin", "engineer", None, certificate=b"erin's badge")
+    stronger = PasswordHasher(time_cost=2, memory_cost=128, parallelism=1)
+    server = UserStore.in_data_dir(tmp_path, hasher=stronger)
+    before = server.password_hash("dave")
+    badge = thumbprint(b"erin's badge")
+    assert server.grants("dave", "operator", password_hash=before)
+    assert server.grants("erin", "engineer", certificate=badge)
+    assert server.verify("dave", "pw-1") is Role.OPERATOR  # remade with the stronger parameters
+    assert server.password_hash("dave") != before
+    assert server.grants("dave", "operator", password_hash=before)  # the same password
+    assert server.grants("dave", "operator", password_hash=server.password_hash("dave"))
+    assert not server.grants("dave", "engineer", password_hash=before)  # not the role it was given
+    assert not server.grants("dave", "operator", password_hash="")
+    assert not server.grants("erin", "engineer", password_hash=server.password_hash("erin"))  # no password
+    cli.set_password("dave", "pw-2")
+    assert not server.grants("dave", "operator", password_hash=before)
+    cli.add_certificate("erin", b"erin's new badge")
+    assert server.grants("erin", "engineer", certificate=badge)  # still bound
+    cli.remove_certificate("erin", badge)
+    assert not server.grants("erin", "engineer", certificate=badge)
+    cli.remove("dave")
+    assert not server.grants("dave", "operator", password_hash=server.password_hash("dave"))
 
 
 @pytest.mark.parametrize("name", ["alice", "a.b-c_d@plant", "X", "7" * 64])

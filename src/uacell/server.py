@@ -205,6 +205,7 @@ class UacellServer:
         # State machines fire AuditUpdateStateEvents for the transitions calls cause (binding/machine_binding.py).
         await self.server.get_node(ua.ObjectIds.Server_Auditing).write_value(True)
         self.security = await install_security(self)
+        self._closers.append(self.security.watch_users())  # sessions follow users.toml (decision 99)
         self.diagnostics = Diagnostics(self)
         # What every request passes, outermost first (ua/pipeline.py says what each stage does).
         self.pipeline = Pipeline(

@@ -36,6 +36,7 @@ class UacellUserManager:
             login = certificate.login
             user = UacellUser(login.user, login.role.label, certificate=True)
             user.expires = login.expires
+            user.certificate = login.thumbprint
             return user
         if username is None:  # (``certificate`` is then the channel's application certificate, if any)
             return UacellUser(None, self.policy.anonymous_role.label, anonymous=True)
@@ -47,7 +48,9 @@ class UacellUserManager:
         if role is None:
             log.info("refused login of user %r: wrong user name or password", username)
             return None
-        return UacellUser(username, Role.parse(role).label)
+        user = UacellUser(username, Role.parse(role).label)
+        user.password_hash = self.users.password_hash(username)
+        return user
 
 
 def user_access_level(role: str, access_level: int, needed: Role | None = None) -> int:

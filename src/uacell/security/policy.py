@@ -91,7 +91,14 @@ from uacell.services.diagnostics import readable_by as diagnostics_readable_by
 from uacell.ua import channel, context, door
 from uacell.ua.context import UacellUser, caller_of
 from uacell.ua.door.certificate import send_with_chain
-from uacell.ua.door.connection import channel_id, channel_open, connection, last_activity, sent_certificate
+from uacell.ua.door.connection import (
+    channel_id,
+    channel_open,
+    connection,
+    external_sessions,
+    last_activity,
+    sent_certificate,
+)
 from uacell.ua.door.connection import close as close_channel
 from uacell.ua.limits import LimitedSession, check_operations
 from uacell.ua.pipeline import Next, Request
@@ -100,6 +107,8 @@ if TYPE_CHECKING:
     from uacell.host import Host
 
 log = logging.getLogger(__name__)
+
+USERS_WATCH_INTERVAL = 1.0  # seconds between two looks at users.toml (decision 99)
 
 _P = ua.SecurityPolicyType
 # Most widely supported first: asyncua asks clients on a None channel to encrypt user-name tokens
@@ -378,6 +387,50 @@ class _Logins:
         fields["user"] = user or fields.get("user", "anonymous")
         self.app.audit.record("login", **fields, address=address, result=ua.StatusCode(code).name)
         await self.audit_events.session_activated(processor.session, channel_id(processor), token, user, code)
+
+    def recheck_identities(self) -> int:
+        """Decision 99: each session logged in as a user goes on as anonymous once ``users.toml`` no longer
+        grants what its login was granted on (the user removed, their role changed, their password
+        changed, or the certificate they logged in with unbound). Returns how many sessions it changed."""
+        users, changed = self.app.users, 0
+        for session in external_sessions(self.server.iserver):
+            user = getattr(session, "user", None)
+            if not isinstance(user, UacellUser) or user.anonymous or not user.name:
+                continue
+            if users.grants(
+                user.name, user.uacell_role, password_hash=user.password_hash, certificate=user.certificate
+            ):
+                continue
+            cast(UacellSession, session).go_on_as_anonymous(
+                "identity_revoked", f"{users.path} no longer grants user {{user!r}} the login of this session"
+            )
+            changed += 1
+        return changed
+
+    def watch_users(self, interval: float = USERS_WATCH_INTERVAL) -> Callable[[], Awaitable[None]]:
+        """Look at ``users.toml`` every ``interval`` seconds and ``recheck_identities`` when it was written
+        (``uacell user`` changes it from another process); returns what stops the watch."""
+        users = self.app.users
+
+        async def watch() -> None:
+            seen = users.stamp
+            while True:
+                await asyncio.sleep(interval)
+                if users.stamp != seen:
+                    seen = users.stamp
+                    try:
+                        self.recheck_identities()
+                    except Exception:  # a file being written by hand: the next change is looked at again
+                        log.exception("cannot check the sessions' users against %s", users.path)
+
+        task = asyncio.get_running_loop().create_task(watch(), name="uacell-users-watch")
+
+        async def stop() -> None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+        return stop
 
 
 class _Channels:
@@ -973,12 +1026,20 @@ class UacellSession(LimitedSession):
         """The session goes on with the anonymous role ("The Session shall stay valid with the Anonymous
         Role"); the client renews its credentials with ActivateSession."""
         self._expiry = None
+        self.go_on_as_anonymous("identity_expired", "the certificate of user {user!r} expired")
+
+    def go_on_as_anonymous(self, event: str, why: str) -> None:
+        """The session's credentials end (``why``, with ``{user}`` for the user's name): it goes on with
+        the anonymous role, logged and audited as ``event``."""
         if self.state == SessionState.Closed:
             return
+        if self._expiry is not None:
+            self._expiry.cancel()
+            self._expiry = None
         name = getattr(cast(Any, self).user, "name", None)
         cast(Any, self).user = UacellUser(None, self._security.app.policy.anonymous_role.label, anonymous=True)
-        log.info("the certificate of user %r expired: session %s goes on as anonymous", name, self.session_id)
-        self._audit("identity_expired", user=name)
+        log.info("%s: session %s goes on as anonymous", why.format(user=name), self.session_id)
+        self._audit(event, user=name)
 
     async def write(self, params: ua.WriteParameters) -> list[ua.StatusCode]:
         check_operations(self.iserver, len(params.NodesToWrite or ()), "Write")

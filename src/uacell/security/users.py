@@ -3,7 +3,8 @@
 Passwords are kept only as argon2id hashes (argon2-cffi); a user may also log in with an X.509
 certificate bound to them (decision 84), kept as the SHA-256 thumbprint of its DER encoding. The file
 is TOML, readable by an operator, written atomically with mode 0600 by ``uacell user ...``; a running
-server picks up changes on the next login. Pure apart from file I/O: no OPC UA stack here.
+server picks up changes on the next login, and its open sessions follow them (``grants``, decision 99). Pure
+apart from file I/O: no OPC UA stack here.
 """
 
 from __future__ import annotations
@@ -112,6 +113,7 @@ class UserStore:
         self._stamp: tuple[int, int] | None = None
         self._by_certificate: dict[str, str] = {}  # thumbprint -> user name
         self._dummy_hash: str | None = None
+        self._rehashed: dict[str, str] = {}  # a hash ``verify`` replaced -> its replacement (same password)
         self._lock = threading.RLock()
 
     @classmethod
@@ -167,6 +169,36 @@ class UserStore:
             name = self._by_certificate.get(thumbprint(der))
         return (name, entries[name].role) if name is not None else None
 
+    @property
+    def stamp(self) -> tuple[int, int] | None:
+        """What changes whenever the file is written (its modification time and size), None without it."""
+        try:
+            st = self.path.stat()
+        except FileNotFoundError:
+            return None
+        return (st.st_mtime_ns, st.st_size)
+
+    def password_hash(self, name: str) -> str:
+        """The hash a password login of ``name`` is granted on now ("" for none): a session keeps it, and
+        ``grants`` compares it with the file later."""
+        entry = self._load().get(name)
+        return entry.hash if entry else ""
+
+    def grants(self, name: str, role: str, *, password_hash: str = "", certificate: str = "") -> bool:
+        """Does the file still grant what a login of ``name`` as ``role`` was granted on (decision 99): the
+        user is there with that role, and with that password (``password_hash``; a hash ``verify`` made
+        again for the same password counts as the same) or with ``certificate`` (SHA-256) still bound?"""
+        with self._lock:
+            entry = self._load_locked().get(name)
+            if entry is None or entry.role.label != role:
+                return False
+            if certificate:
+                return self._by_certificate.get(certificate) == name
+            current = password_hash
+            while current in self._rehashed:
+                current = self._rehashed[current]
+            return bool(entry.hash) and current == entry.hash
+
     def verify(self, name: str, password: str) -> Role | None:
         """The user's role when ``password`` is right, else None."""
         entry = self._load().get(name)
@@ -189,6 +221,7 @@ class UserStore:
                 entries = dict(self._load())
                 entries[name] = replace(entries[name], hash=fresh)
                 self._save(entries)
+                self._rehashed[stored] = fresh  # the same password: its sessions keep their user
         return entry.role
 
     # writing ------------------------------------------------------------------------------------

@@ -45,6 +45,9 @@ class UacellUser(User):  # type: ignore[misc]  # asyncua is untyped here (see py
         # how the user proved who they are, as OPC 10000-5 names it (SessionSecurityDiagnostics)
         self.mechanism = "Anonymous" if anonymous else "Certificate" if certificate else "UserName"
         self.expires: datetime | None = None  # when a certificate's credentials end (UTC), None: never
+        # what the login was granted on (decision 99): the password's hash, or the certificate's SHA-256
+        self.password_hash = ""
+        self.certificate = ""
 
     def __repr__(self) -> str:
         return f"UacellUser({self.name!r}, {self.uacell_role})"

@@ -1,0 +1,48 @@
+// node-opcua logged in as a user while an administrator changes that user's password with `uacell user
+// passwd` (decision 99): the session reads its role (uacell's Server/CurrentRole), says it is ready by
+// creating a file, then reads the role until it changes; afterwards it activates the same session again
+// with the new password.
+// argv: endpoint certPem keyPem applicationUri pkiDir user password readyFile newPasswordFile
+// Prints {before, after, again}: the roles read.
+"use strict";
+const fs = require("fs");
+const { OPCUAClient, MessageSecurityMode, SecurityPolicy, UserTokenType, AttributeIds } = require("node-opcua-client");
+const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
+const { done, main, NS } = require("./lib");
+
+const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
+
+main(async () => {
+  const [endpoint, certificateFile, privateKeyFile, applicationUri, pkiDir, userName, password, readyFile,
+    newPasswordFile] = process.argv.slice(2);
+  const clientCertificateManager = new OPCUACertificateManager({ rootFolder: pkiDir, automaticallyAcceptUnknownCertificate: true });
+  await clientCertificateManager.initialize();
+  const client = OPCUAClient.create({
+    endpointMustExist: false,
+    connectionStrategy: { maxRetry: 0, initialDelay: 200, maxDelay: 1000 },
+    securityMode: MessageSecurityMode.SignAndEncrypt,
+    securityPolicy: SecurityPolicy.Basic256Sha256,
+    certificateFile, privateKeyFile, applicationUri, applicationName: "uacell interop", clientCertificateManager,
+  });
+  await client.connect(endpoint);
+  try {
+    const session = await client.createSession({ type: UserTokenType.UserName, userName, password });
+    const namespaces = (await session.read({ nodeId: "i=2255", attributeId: AttributeIds.Value })).value.value;
+    const roleNode = `ns=${namespaces.indexOf(NS.Cell)};s=Server.CurrentRole`;
+    const role = async () => (await session.read({ nodeId: roleNode, attributeId: AttributeIds.Value })).value.value;
+    const before = await role();
+    fs.writeFileSync(readyFile, "ready");
+    let after = before;
+    for (let waited = 0; after === before && waited < 20000; waited += 100) {
+      await sleep(100);
+      after = await role();
+    }
+    const newPassword = fs.readFileSync(newPasswordFile, "utf8").trim();
+    await client.changeSessionIdentity(session, { type: UserTokenType.UserName, userName, password: newPassword });
+    const again = await role();
+    await session.close();
+    await done({ before, after, again });
+  } finally {
+    await client.disconnect();
+  }
+});
