@@ -9,12 +9,8 @@ from pathlib import Path
 
 import pytest
 from conftest import run_node, start_serve
-from cryptography import x509
-from cryptography.hazmat.primitives import serialization
 from helpers import add_user, wait_until
-from test_security_interop import NODE_URI
-
-from uacell.security.pki import PkiPaths, TrustList, make_client_certificate
+from test_security_interop import node_client
 
 pytestmark = [pytest.mark.interop, pytest.mark.asyncio]
 
@@ -23,11 +19,7 @@ async def test_node_opcua_session_loses_a_user_whose_password_was_changed(tmp_pa
     data = tmp_path / "data"
     data.mkdir()
     add_user(data, "tilda", "--role", "engineer", password="t1lda-secret")
-    der, key_pem = make_client_certificate(NODE_URI)
-    cert_file, key_file = tmp_path / "node-cert.pem", tmp_path / "node-key.pem"
-    cert_file.write_bytes(x509.load_der_x509_certificate(der).public_bytes(serialization.Encoding.PEM))
-    key_file.write_bytes(key_pem)
-    TrustList(PkiPaths.in_data_dir(data)).trust(der)
+    client = node_client(tmp_path, data)
     ready, new_password = tmp_path / "ready", tmp_path / "new-password"
     new_password.write_text("t1lda-secret-2")
     sp = start_serve(data)
@@ -37,10 +29,7 @@ async def test_node_opcua_session_loses_a_user_whose_password_was_changed(tmp_pa
                 run_node,
                 "identity_revoked.js",
                 sp.endpoint,
-                str(cert_file),
-                str(key_file),
-                NODE_URI,
-                str(tmp_path / "node-pki"),
+                *client,
                 "tilda",
                 "t1lda-secret",
                 str(ready),

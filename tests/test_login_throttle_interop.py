@@ -6,12 +6,9 @@ from __future__ import annotations
 
 import pytest
 from conftest import run_node, start_serve
-from cryptography import x509
-from cryptography.hazmat.primitives import serialization
-from test_security_interop import NODE_URI
+from test_security_interop import node_client
 
 from uacell.core.roles import Role
-from uacell.security.pki import PkiPaths, TrustList, make_client_certificate
 from uacell.security.users import UserStore
 
 pytestmark = pytest.mark.interop
@@ -23,11 +20,7 @@ def test_node_opcua_logins_under_the_throttle_are_all_answered_within_the_deadli
     data = tmp_path / "data"
     data.mkdir()
     UserStore.in_data_dir(data).add("tilda", Role.OPERATOR, "t1lda-secret")
-    der, key_pem = make_client_certificate(NODE_URI)
-    cert_file, key_file = tmp_path / "node-cert.pem", tmp_path / "node-key.pem"
-    cert_file.write_bytes(x509.load_der_x509_certificate(der).public_bytes(serialization.Encoding.PEM))
-    key_file.write_bytes(key_pem)
-    TrustList(PkiPaths.in_data_dir(data)).trust(der)
+    client = node_client(tmp_path, data)
     config = tmp_path / "uacell.toml"
     config.write_text(
         f"[limits]\nactivation_timeout = {WINDOW}\nhandshake_timeout = 1.0\nlogin_base_delay = 1.5\n"
@@ -38,10 +31,7 @@ def test_node_opcua_logins_under_the_throttle_are_all_answered_within_the_deadli
         out = run_node(
             "login_throttle.js",
             sp.endpoint,
-            str(cert_file),
-            str(key_file),
-            NODE_URI,
-            str(tmp_path / "node-pki"),
+            *client,
             "tilda",
             "t1lda-secret",
             "6",

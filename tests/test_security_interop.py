@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from conftest import run_node, start_serve
@@ -17,6 +18,17 @@ from uacell.security.users import thumbprint
 pytestmark = pytest.mark.interop
 
 NODE_URI = "urn:uacell:test:node-opcua"
+
+
+def node_client(tmp_path: Path, data: Path) -> list[str]:
+    """An application certificate for the node-opcua client, trusted by the server of ``data``: the
+    arguments the scripts take for it (certificate, key, application URI, node-opcua's PKI folder)."""
+    der, key_pem = make_client_certificate(NODE_URI)
+    cert_file, key_file = tmp_path / "node-cert.pem", tmp_path / "node-key.pem"
+    cert_file.write_bytes(x509.load_der_x509_certificate(der).public_bytes(serialization.Encoding.PEM))
+    key_file.write_bytes(key_pem)
+    TrustList(PkiPaths.in_data_dir(data)).trust(der)
+    return [str(cert_file), str(key_file), NODE_URI, str(tmp_path / "node-pki")]
 
 
 def test_node_opcua_secure_session_with_user_name(tmp_path):
@@ -51,11 +63,7 @@ def test_node_opcua_secure_session_with_user_name(tmp_path):
         check=True,
     )
     assert listed.stdout.splitlines() == [f"{data / 'users.toml'}: 1 user", "nora\toperator"]
-    der, key_pem = make_client_certificate(NODE_URI)
-    cert_file, key_file = tmp_path / "node-cert.pem", tmp_path / "node-key.pem"
-    cert_file.write_bytes(x509.load_der_x509_certificate(der).public_bytes(serialization.Encoding.PEM))
-    key_file.write_bytes(key_pem)
-    TrustList(PkiPaths.in_data_dir(data)).trust(der)
+    client = node_client(tmp_path, data)
     # Loosening (here: tightening) a default is logged at start-up.
     config = tmp_path / "uacell.toml"
     config.write_text("[server]\nallow_none_security = false\n")
@@ -64,10 +72,7 @@ def test_node_opcua_secure_session_with_user_name(tmp_path):
         out = run_node(
             "secure.js",
             sp.endpoint,
-            str(cert_file),
-            str(key_file),
-            NODE_URI,
-            str(tmp_path / "node-pki"),
+            *client,
             "nora",
             "n0de-secret",
         )
