@@ -68,7 +68,7 @@ from uacell.security.own_certificate import (
     signing_request,
 )
 from uacell.security.pki import PkiPaths, TrustList, load_server_key, revocation_lists, thumbprint
-from uacell.security.trust_list_file import MODE_WRITE_ERASE, TrustListFile, last_update
+from uacell.security.trust_list_file import MODE_WRITE_ERASE, TrustListFile, last_update, update_lists
 from uacell.ua import context
 from uacell.ua.context import Caller
 from uacell.ua.door.certificate import use_certificate
@@ -333,10 +333,9 @@ class ServerConfiguration:
 
     async def close_and_update(self, caller: Caller, handle: int) -> list[Any]:
         self._trust_list_call(caller)
+        written = self.trust_file.close_written(caller.session_id, handle)  # on the loop, as every handle change
         try:
-            checked = await asyncio.to_thread(
-                self.trust_file.close_and_update, caller.session_id, handle, datetime.now(UTC)
-            )
+            checked = await asyncio.to_thread(update_lists, self.paths, written, datetime.now(UTC))
         finally:
             await self._publish_trust_list()  # closed, whatever the update's outcome
         closed = self.app.security.recheck_channels()

@@ -132,6 +132,16 @@ class TrustListContent:
         )
 
 
+def update_lists(paths: PkiPaths, data: bytes, now: datetime) -> CheckedContent:
+    """CloseAndUpdate's second half: ``data`` decoded, merged into the lists, checked and written."""
+    update = TrustListContent.decode(data)
+    checked = check_content(update.merged_into(read_content(paths)), now)
+    write_content(paths, checked, update.specified)
+    for warning in checked.warnings:
+        log.warning("trust list: %s", warning)
+    return checked
+
+
 def read_content(paths: PkiPaths) -> TrustListContent:
     """The lists as the files under ``pki/`` hold them now (files that do not load are left out, as the
     checks of secure channels leave them out)."""
@@ -360,16 +370,15 @@ class TrustListFile:
 
     def close_and_update(self, session: Hashable, handle: int, now: datetime) -> CheckedContent:
         """Close ``handle`` and replace the lists its content specifies; the content written, checked."""
+        return update_lists(self.paths, self.close_written(session, handle), now)
+
+    def close_written(self, session: Hashable, handle: int) -> bytes:
+        """CloseAndUpdate's first half: the handle, opened for writing, closed; what was written."""
         h = self._handle(session, handle)
         if not h.writing:
             raise CallError("BadInvalidState", "CloseAndUpdate needs a trust list opened for writing")
         del self._handles[handle]  # closed, whatever follows
-        update = TrustListContent.decode(bytes(h.data))
-        checked = check_content(update.merged_into(read_content(self.paths)), now)
-        write_content(self.paths, checked, update.specified)
-        for warning in checked.warnings:
-            log.warning("trust list: %s", warning)
-        return checked
+        return bytes(h.data)
 
     def close_session(self, session: Hashable) -> int:
         mine = [n for n, h in self._handles.items() if h.session == session]
