@@ -154,6 +154,8 @@ def test_what_close_and_update_refuses_leaves_every_file_and_closes_the_handle(p
         (trust_list_bytes(ISSUERS, None, None, [not_a_ca.der]), "BadCertificateIssuerUseNotAllowed"),
         (trust_list_bytes(TRUSTED_CRLS, None, [b"junk"]), "BadCertificateInvalid"),
         (trust_list_bytes(ISSUER_CRLS, None, None, None, [stranger.crl()]), "BadCertificateChainIncomplete"),
+        # the root dropped from the trusted certificates, its CRL kept (not specified): the whole list is checked
+        (trust_list_bytes(TRUSTED, [stranger.der]), "BadCertificateChainIncomplete"),
     ]
     # a certificate named as issued by a CA of the list but not signed by it
     impostor = Authority.root("Plant Issuing CA", key_index=8)  # the issuing CA's name, another key
