@@ -16,12 +16,12 @@ import pytest
 from plant_ca import Authority, der, trust_list_bytes
 
 from uacell.core.errors import CallError
+from uacell.core.file_paths import MODE_READ
 from uacell.security.pki import PkiPaths
 from uacell.security.trust_list_file import (
     ALL,
     ISSUER_CRLS,
     ISSUERS,
-    MODE_READ,
     MODE_WRITE_ERASE,
     TRUSTED,
     TRUSTED_CRLS,

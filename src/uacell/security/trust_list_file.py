@@ -44,7 +44,7 @@ from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 
 from uacell.core.errors import CallError
-from uacell.core.file_paths import fsync_dir
+from uacell.core.file_paths import MODE_ERASE_EXISTING, MODE_READ, MODE_WRITE, fsync_dir
 from uacell.core.files import atomic_write
 from uacell.security.chain import der_of, is_self_signed, issued_by, may_sign_certificates, newest_crl
 from uacell.security.pki import (
@@ -60,7 +60,7 @@ from uacell.security.pki import (
 log = logging.getLogger(__name__)
 
 TRUSTED, TRUSTED_CRLS, ISSUERS, ISSUER_CRLS, ALL = 1, 2, 4, 8, 15
-MODE_READ, MODE_WRITE_ERASE = 0x01, 0x06
+MODE_WRITE_ERASE = MODE_WRITE | MODE_ERASE_EXISTING  # the one write mode a trust list opens with
 MAX_SIZE = 4 * 1024 * 1024  # the server's MaxTrustListSize, bytes
 MAX_READ = 1024 * 1024  # the most one Read returns (the TrustList's MaxByteStringLength)
 ACTIVITY_TIMEOUT = 60.0  # seconds without a call on the TrustList before its handles are closed
