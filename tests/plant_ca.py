@@ -141,15 +141,21 @@ class Authority:
     def revoke(self, cert: x509.Certificate) -> None:
         self.revoked.append(cert.serial_number)
 
-    def crl(self, *, signer: rsa.RSAPrivateKey | None = None, issued: dt.datetime | None = None) -> bytes:
-        """This CA's revocation list, DER, issued a minute ago (or at ``issued``); signed by ``signer`` to
-        forge one."""
+    def crl(
+        self,
+        *,
+        signer: rsa.RSAPrivateKey | None = None,
+        issued: dt.datetime | None = None,
+        next_update: dt.datetime | None = None,
+    ) -> bytes:
+        """This CA's revocation list, DER, issued a minute ago (or at ``issued``), due for renewal a week
+        later (or at ``next_update``: RFC 5280 5.1.2.5); signed by ``signer`` to forge one."""
         issued = issued or _now() - dt.timedelta(minutes=1)
         builder = (
             x509.CertificateRevocationListBuilder()
             .issuer_name(self.cert.subject)
             .last_update(issued)
-            .next_update(issued + dt.timedelta(days=7))
+            .next_update(next_update or issued + dt.timedelta(days=7))
         )
         for serial in self.revoked:
             builder = builder.add_revoked_certificate(

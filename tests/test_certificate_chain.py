@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import datetime as dt
 import logging
+import os
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -20,8 +21,8 @@ from cryptography.hazmat.primitives import serialization
 from helpers import secure_client
 from plant_ca import Authority, der, pem
 
-from uacell.security.chain import Anchors, check_chain, split_chain
-from uacell.security.pki import CertificateValidator, PkiPaths, TrustList, told
+from uacell.security.chain import Anchors, check_chain, next_change, split_chain
+from uacell.security.pki import CertificateValidator, PkiPaths, TrustList, told, trust_stamp
 from uacell.server import UacellServer
 
 ON_SERVER_LOOP = pytest.mark.asyncio(loop_scope="module")  # the tests that use the module's server
@@ -139,6 +140,59 @@ def test_a_revocation_list_past_its_next_update_says_nothing_but_revocations(ca:
     assert revoked is not None and revoked.code == S.BadCertificateRevoked  # stale, still a revocation
     revoked = refusal([ca["revoked"], issuing.cert], fresh_root, stale_issuing)
     assert revoked is not None and revoked.code == S.BadCertificateRevoked
+
+
+def test_the_next_instant_the_same_files_judge_otherwise(ca: dict[str, Any]) -> None:
+    """Decision 100: when check_chain's answer may change with time alone: the earliest nextUpdate of a
+    revocation list (RFC 5280 5.1.2.5), or the start or end of a trusted or issuer certificate's
+    validity (5.1.2.5 of certificates), after the instant asked about."""
+    root, issuing, leaf = ca["root"], ca["issuing"], ca["leaf"]
+    at = now()
+    soon = at + dt.timedelta(seconds=30)
+    later = at + dt.timedelta(days=2)
+    lists = (
+        x509.load_der_x509_crl(root.crl(next_update=later)),
+        x509.load_der_x509_crl(issuing.crl(next_update=soon)),
+    )
+    anchors = Anchors(trusted=(root.cert,), issuers=(issuing.cert,), crls=lists)
+    assert next_change(anchors, at) == soon.replace(microsecond=0)  # a DER time has whole seconds
+    assert check_chain([leaf, issuing.cert], anchors, at) is None
+    after = next_change(anchors, soon + dt.timedelta(seconds=1))
+    assert after == later.replace(microsecond=0)
+    stale = check_chain([leaf, issuing.cert], anchors, soon + dt.timedelta(seconds=1))
+    assert stale is not None and stale.code == S.BadCertificateRevocationUnknown  # what the instant changed
+    # past every list, the CAs' notAfter is what comes next; nothing at all, nothing ahead
+    assert next_change(anchors, later + dt.timedelta(seconds=1)) == min(
+        root.cert.not_valid_after_utc, issuing.cert.not_valid_after_utc
+    )
+    not_yet = root.intermediate("Next Year CA", key_index=6, not_before=at + dt.timedelta(days=1))
+    assert next_change(Anchors(issuers=(not_yet.cert,)), at) == not_yet.cert.not_valid_before_utc
+    assert next_change(Anchors(), at) is None
+
+
+def test_the_trust_stamp_tells_any_change_of_the_files(tmp_path: Path, ca: dict[str, Any]) -> None:
+    """Decision 100: a file added, rewritten or removed in trusted/, issuers/ or crl/ changes the stamp the
+    server compares once a second; rejected/ and a look with no change do not."""
+    paths = PkiPaths.in_data_dir(tmp_path)
+    assert trust_stamp(paths) == ()  # no folders yet
+    paths.create()
+    empty = trust_stamp(paths)
+    (paths.trusted / "root.der").write_bytes(der(ca["root"].cert))
+    added = trust_stamp(paths)
+    assert added != empty and trust_stamp(paths) == added
+    (paths.rejected / "other.der").write_bytes(der(ca["leaf"]))
+    assert trust_stamp(paths) == added
+    crl = paths.crl / "issuing.crl"
+    crl.write_bytes(ca["issuing"].crl())
+    with_crl = trust_stamp(paths)
+    crl.write_bytes(ca["issuing"].crl() + b"")  # rewritten: a new modification time
+    os.utime(crl, ns=(1, 1))
+    assert trust_stamp(paths) not in (with_crl, added)
+    crl.unlink()
+    assert trust_stamp(paths) == added
+    (paths.trusted / "root.der").unlink()
+    (paths.issuers / "root.der").write_bytes(der(ca["root"].cert))  # the same file, another list
+    assert trust_stamp(paths) not in (added, empty)
 
 
 def test_an_issuer_must_be_a_valid_ca(ca: dict[str, Any]) -> None:

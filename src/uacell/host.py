@@ -89,9 +89,13 @@ class SessionEvents(Protocol):
 
 class ChannelGuard(SessionEvents, Protocol):
     """Session ends, and the secure channels checked again when the trust list changed
-    (``security.Security``)."""
+    (``security.Security``), who is then told of it (``on_trust_changed``, also after changes made
+    out of band: decision 100)."""
 
     def recheck_channels(self) -> list[str]: ...
+
+    @property
+    def on_trust_changed(self) -> list[Callable[[], None]]: ...
 
 
 class ConfigurationHost(Host, Protocol):

@@ -206,6 +206,7 @@ class UacellServer:
         await self.server.get_node(ua.ObjectIds.Server_Auditing).write_value(True)
         self.security = await install_security(self)
         self._closers.append(self.security.watch_users())  # sessions follow users.toml (decision 99)
+        self._closers.append(self.security.watch_trust())  # channels follow the trust list (decision 100)
         self.diagnostics = Diagnostics(self)
         # What every request passes, outermost first (ua/pipeline.py says what each stage does).
         self.pipeline = Pipeline(

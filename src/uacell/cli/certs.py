@@ -3,7 +3,8 @@ install FILE``: the PKI of a data directory.
 
 ID is a thumbprint (SHA-1, hex; its first characters are enough when they name one certificate) or a
 certificate file. A running server reads ``pki/trusted/``, ``pki/issuers/`` and ``pki/crl/`` at every
-session, so trust changes apply without a restart; a renewed or installed server certificate is loaded at
+channel and session, and within a second of a change closes the channels the files no longer admit
+(decision 100), so trust changes apply without a restart; a renewed or installed server certificate is loaded at
 the next start (``uacell.security.own_certificate``: a certificate from the plant's CA).
 """
 
@@ -169,6 +170,9 @@ def reject(paths: PkiPaths, ident: str, limit: RejectedLimit | None = None) -> P
 
 
 def remove(paths: PkiPaths, ident: str) -> list[Path]:
+    candidate = Path(ident).expanduser()
+    if candidate.is_file():  # the certificate's own file: its copies in the folders go
+        ident = read_certificate(candidate).thumbprint
     hits = find(paths, ident)
     for c in hits:
         c.path.unlink(missing_ok=True)

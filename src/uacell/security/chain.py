@@ -215,6 +215,16 @@ def _revocation(
     return None
 
 
+def next_change(anchors: Anchors, now: dt.datetime) -> dt.datetime | None:
+    """The first instant after ``now`` at which ``check_chain`` may answer otherwise for the same files,
+    by time alone: a revocation list's nextUpdate passes (decision 98), or a trusted or issuer
+    certificate begins or ends its validity. None when no such instant is ahead."""
+    instants = [crl.next_update_utc for crl in anchors.crls]
+    for cert in (*anchors.trusted, *anchors.issuers):
+        instants += [cert.not_valid_before_utc, cert.not_valid_after_utc]
+    return min((t for t in instants if t is not None and t > now), default=None)
+
+
 def newest_crl(
     issuer: x509.Certificate, crls: Iterable[x509.CertificateRevocationList]
 ) -> x509.CertificateRevocationList | None:

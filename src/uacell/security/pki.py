@@ -17,11 +17,13 @@ for the chain's steps).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as dt
 import hashlib
 import ipaddress
 import logging
+import os
 import shutil
 import socket
 import time
@@ -632,6 +634,26 @@ def read_anchors(paths: PkiPaths) -> Anchors:
         tuple(_read_files(paths.issuers, CERT_SUFFIXES, load_any_certificate, "the issuer list")),
         tuple(_read_files(paths.crl, CRL_SUFFIXES, load_crl, "the revocation lists")),
     )
+
+
+TrustStamp = tuple[tuple[str, str, int, int], ...]
+
+
+def trust_stamp(paths: PkiPaths) -> TrustStamp:
+    """What ``read_anchors`` would read, cheaply told apart: each file of trusted/, issuers/ and crl/
+    with its modification time and size. Another stamp means the files changed (``uacell cert``, a
+    GDS, an operator's copy)."""
+    entries: list[tuple[str, str, int, int]] = []
+    for folder in (paths.trusted, paths.issuers, paths.crl):
+        try:
+            with os.scandir(folder) as found:
+                for entry in found:
+                    with contextlib.suppress(OSError):  # removed meanwhile: the next look sees it gone
+                        st = entry.stat()
+                        entries.append((folder.name, entry.name, st.st_mtime_ns, st.st_size))
+        except OSError:
+            continue  # no folder: nothing in it
+    return tuple(sorted(entries))
 
 
 def _read_files(folder: Path, suffixes: set[str], load: Callable[[bytes], _T], what: str) -> list[_T]:

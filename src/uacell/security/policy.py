@@ -73,7 +73,7 @@ from uacell.security.certificate_login import (
     VerifiedCertificate,
     check_user_certificate,
 )
-from uacell.security.chain import check_chain, der_of, first_certificate, split_chain
+from uacell.security.chain import Anchors, check_chain, der_of, first_certificate, next_change, split_chain
 from uacell.security.own_certificate import finish_install, own_issuers
 from uacell.security.pki import (
     CertificateValidator,
@@ -83,6 +83,7 @@ from uacell.security.pki import (
     ensure_server_certificate,
     load_server_key,
     read_anchors,
+    trust_stamp,
 )
 from uacell.security.pki import thumbprint as app_thumbprint  # SHA-1, OPC UA's; users' is SHA-256
 from uacell.security.trust_list_file import finish_update
@@ -109,6 +110,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 USERS_WATCH_INTERVAL = 1.0  # seconds between two looks at users.toml (decision 99)
+TRUST_WATCH_INTERVAL = 1.0  # seconds between two looks at the trust list's folders (decision 100)
 
 _P = ua.SecurityPolicyType
 # Most widely supported first: asyncua asks clients on a None channel to encrypt user-name tokens
@@ -433,6 +435,67 @@ class _Logins:
         return stop
 
 
+async def _nothing_to_stop() -> None:
+    return None
+
+
+def _utc_now() -> datetime:
+    return datetime.now(UTC)
+
+
+class _TrustWatch:
+    """Decision 100: the open secure channels follow the trust list's files whoever changes them, and
+    the instants at which the same files judge otherwise (a revocation list past its nextUpdate, a CA's
+    certificate at the end of its validity)."""
+
+    trust_list: TrustList | None
+    on_trust_changed: list[Callable[[], None]]
+
+    def recheck_channels(self, anchors: Anchors | None = None, now: datetime | None = None) -> list[str]:
+        raise NotImplementedError  # _Channels'
+
+    def watch_trust(
+        self, interval: float = TRUST_WATCH_INTERVAL, clock: Callable[[], datetime] = _utc_now
+    ) -> Callable[[], Awaitable[None]]:
+        """Look at ``pki/trusted/``, ``pki/issuers/`` and ``pki/crl/`` every ``interval`` seconds
+        (``trust_stamp``); after a change, or once the time ``next_change`` named for the files has come
+        (``clock``), ``recheck_channels`` and tell ``on_trust_changed``. Returns what stops the watch."""
+        trust = self.trust_list
+
+        async def watch(paths: PkiPaths) -> None:
+            seen, due = trust_stamp(paths), next_change(read_anchors(paths), clock())
+            while True:
+                await asyncio.sleep(interval)
+                stamp, now = trust_stamp(paths), clock()
+                if stamp == seen and (due is None or now <= due):  # a list is stale once nextUpdate < now
+                    continue
+                try:
+                    anchors = read_anchors(paths)
+                    closed = self.recheck_channels(anchors, now)
+                except Exception:  # a file half written by hand: looked at again at the next change
+                    log.exception("cannot check the secure channels against %s", paths.root)
+                    continue
+                seen, due = stamp, next_change(anchors, now)
+                if closed:
+                    log.info("closed %d secure channel(s) the trust list no longer admits", len(closed))
+                for changed in self.on_trust_changed:
+                    try:
+                        changed()
+                    except Exception:
+                        log.exception("telling of a trust list change failed")
+
+        if trust is None:
+            return _nothing_to_stop
+        task = asyncio.get_running_loop().create_task(watch(trust.paths), name="uacell-trust-watch")
+
+        async def stop() -> None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+        return stop
+
+
 class _Channels:
     """The secure-channel part of ``Security``, the server's channel guard (ua/pipeline.py): a channel's
     opening checked and audited, its closing audited, and the client certificate (with the issuers sent
@@ -451,15 +514,17 @@ class _Channels:
         address = _address(context.current_processor())
         self.refusals.report(address, f"certificate:{reason}", f"{message} (client address {address})")
 
-    def recheck_channels(self) -> list[str]:
+    def recheck_channels(self, anchors: Anchors | None = None, now: datetime | None = None) -> list[str]:
         """OPC 10000-12 7.8.2.5: once the trust list has changed, the secure channels whose client
         certificate it no longer admits are closed (a session of theirs goes on only over a channel that
         passes the check). Under trust on first use, a certificate that is merely no longer trusted keeps
-        its channel: it would be trusted again on its next one. Returns the closed channels' ids."""
+        its channel: it would be trusted again on its next one. ``anchors``: the files as just read (by
+        default read now). Returns the closed channels' ids."""
         trust = self.trust_list
         if trust is None:
             return []
-        anchors, now, closed = read_anchors(trust.paths), datetime.now(UTC), []
+        anchors = anchors if anchors is not None else read_anchors(trust.paths)
+        now, closed = now or datetime.now(UTC), []
         for processor, request in list(self._channel_requests.items()):
             if not request.certificate or not channel_open(processor):
                 continue
@@ -580,7 +645,7 @@ class _Channels:
         await self.audit_events.channel_opened(request, opened, code, why)
 
 
-class Security(_Channels, _Logins):
+class Security(_Channels, _TrustWatch, _Logins):
     """The security setup of one server (asyncua objects reach it as ``channel.attached(iserver, "security")``)."""
 
     def __init__(self, app: Host) -> None:
@@ -598,6 +663,7 @@ class Security(_Channels, _Logins):
         # (history reads, program files), however much of it there is.
         self._password_threads = ThreadPoolExecutor(limits.password_checks, thread_name_prefix="uacell-password")
         self.on_session_closed: list[Callable[[InternalSession], None]] = []
+        self.on_trust_changed: list[Callable[[], None]] = []  # told after the trust list's files changed
         self._user_locks: dict[str, asyncio.Lock] = {}
         self._lock_users: dict[str, int] = {}
         self.trust_list: TrustList | None = None

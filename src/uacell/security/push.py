@@ -371,6 +371,8 @@ class ServerConfiguration:
                 self.app.publisher.submit(self._publish_trust_list)
 
         self.app.security.on_session_closed.append(closed)
+        # LastUpdateTime follows the files whoever changes them (``uacell cert``: decision 100)
+        self.app.security.on_trust_changed.append(lambda: self.app.publisher.submit(self._publish_trust_list))
 
     async def _publish_trust_list(self) -> None:
         """The TrustList's OpenCount and LastUpdateTime as they are now."""
