@@ -4,6 +4,7 @@ pki/issuers/, revocation lists in pki/crl/; pure, through the trust list's files
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import logging
 import os
@@ -385,6 +386,30 @@ async def test_a_client_sends_its_chain_and_is_trusted_through_the_root(
     finally:
         (paths.issuers / "issuing.der").unlink()
     assert [p.read_bytes() for p in paths.rejected.iterdir()] == [der(leaf)]  # from the first, incomplete try
+
+
+@ON_SERVER_LOOP
+async def test_a_channel_is_checked_again_with_the_chain_its_session_sent(
+    server: UacellServer, tmp_path: Path, ca: dict[str, Any]
+) -> None:
+    """Decision 100: a client that sends its chain at CreateSession and its certificate alone with the
+    channel (as node-opcua does) keeps its channel when the trust list is checked again, since the
+    issuer it sent still completes its chain; once the root that made it trusted is gone, it is closed."""
+    leaf, key, issuing, root = ca["leaf"], ca["key"], ca["issuing"], ca["root"]
+    paths = PkiPaths.in_data_dir(server.data_dir)
+    client = await connect(server, tmp_path, leaf, key, MES, send=der(leaf) + issuing.der)
+    root_file = next(p for p in paths.trusted.iterdir() if p.read_bytes() == root.der)
+    try:
+        assert server.security.recheck_channels() == []
+        assert await client.nodes.server_state.read_value() == ua.ServerState.Running
+        root_file.unlink()
+        assert len(server.security.recheck_channels()) == 1
+        with pytest.raises((ua.UaError, ConnectionError, TimeoutError)):
+            await client.nodes.server_state.read_value()
+    finally:
+        root_file.write_bytes(root.der)
+        with contextlib.suppress(Exception):
+            await client.disconnect()
 
 
 @ON_SERVER_LOOP

@@ -506,6 +506,7 @@ class _Channels:
     audit_events: SecurityAuditEvents
     trust_list: TrustList | None
     _channel_requests: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest]
+    _checked_chains: weakref.WeakKeyDictionary[UaProcessor, list[x509.Certificate]]
 
     def check_channel(self, processor: UaProcessor, uri: str | None, mode: ua.MessageSecurityMode | None) -> None:
         raise NotImplementedError  # Security's
@@ -517,20 +518,19 @@ class _Channels:
     def recheck_channels(self, anchors: Anchors | None = None, now: datetime | None = None) -> list[str]:
         """OPC 10000-12 7.8.2.5: once the trust list has changed, the secure channels whose client
         certificate it no longer admits are closed (a session of theirs goes on only over a channel that
-        passes the check). Under trust on first use, a certificate that is merely no longer trusted keeps
-        its channel: it would be trusted again on its next one. ``anchors``: the files as just read (by
-        default read now). Returns the closed channels' ids."""
+        passes the check). A channel's certificate is checked, as at CreateSession, with the issuers its
+        sessions sent (node-opcua sends its chain there, its certificate alone with the channel); a
+        channel no session was created on was never checked, and is left to CreateSession's check. Under
+        trust on first use, a certificate that is merely no longer trusted keeps its channel: it would be
+        trusted again on its next one. ``anchors``: the files as just read (by default read now).
+        Returns the closed channels' ids."""
         trust = self.trust_list
         if trust is None:
             return []
         anchors = anchors if anchors is not None else read_anchors(trust.paths)
         now, closed = now or datetime.now(UTC), []
-        for processor, request in list(self._channel_requests.items()):
-            if not request.certificate or not channel_open(processor):
-                continue
-            try:
-                chain = split_chain(request.certificate)
-            except ValueError:
+        for processor, chain in list(self._checked_chains.items()):
+            if not channel_open(processor):
                 continue
             refusal = check_chain(chain, anchors, now, require_crls=trust.require_revocation_lists)
             if refusal is None or (trust.trust_on_first_use and refusal.code == ua.StatusCodes.BadCertificateUntrusted):
@@ -575,6 +575,9 @@ class _Channels:
         if verdict is not None:  # its audit event besides the session's (OPC 10000-4 6.5.6)
             await self.audit_events.certificate_refused(verdict.precise, verdict.certificate, verdict.why, uri)
             raise ServiceError(verdict.told)
+        if processor is not None:  # what the channel is checked with again (decision 100)
+            known = self._checked_chains.setdefault(processor, [chain[0]])
+            known += [c for c in chain[1:] if c not in known]
         return dataclasses.replace(params, ClientCertificate=der_of(chain[0]))
 
     def _issuers_sent_with_channel(self, cert: x509.Certificate) -> list[x509.Certificate]:
@@ -671,6 +674,10 @@ class Security(_Channels, _TrustWatch, _Logins):
         self.refusals = RefusalLog()
         # what each channel's OpenSecureChannel asked for; its certificate: the client's, or its chain (10000-6 6.2.6)
         self._channel_requests: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest] = weakref.WeakKeyDictionary()
+        # the chain each channel's certificate was accepted with at CreateSession (recheck_channels)
+        self._checked_chains: weakref.WeakKeyDictionary[UaProcessor, list[x509.Certificate]] = (
+            weakref.WeakKeyDictionary()
+        )
         self.role_node = ua.NodeId()  # Server/CurrentRole, made by install()
 
     async def install(self) -> None:
