@@ -6,24 +6,15 @@
 // Prints {before, after, again}: the roles read.
 "use strict";
 const fs = require("fs");
-const { OPCUAClient, MessageSecurityMode, SecurityPolicy, UserTokenType, AttributeIds } = require("node-opcua-client");
-const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
-const { done, main, NS } = require("./lib");
+const { OPCUAClient, UserTokenType, AttributeIds } = require("node-opcua-client");
+const { done, main, NS, secureOptions } = require("./lib");
 
 const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
 
 main(async () => {
   const [endpoint, certificateFile, privateKeyFile, applicationUri, pkiDir, userName, password, readyFile,
     newPasswordFile] = process.argv.slice(2);
-  const clientCertificateManager = new OPCUACertificateManager({ rootFolder: pkiDir, automaticallyAcceptUnknownCertificate: true });
-  await clientCertificateManager.initialize();
-  const client = OPCUAClient.create({
-    endpointMustExist: false,
-    connectionStrategy: { maxRetry: 0, initialDelay: 200, maxDelay: 1000 },
-    securityMode: MessageSecurityMode.SignAndEncrypt,
-    securityPolicy: SecurityPolicy.Basic256Sha256,
-    certificateFile, privateKeyFile, applicationUri, applicationName: "uacell interop", clientCertificateManager,
-  });
+  const client = OPCUAClient.create(await secureOptions(certificateFile, privateKeyFile, applicationUri, pkiDir));
   await client.connect(endpoint);
   try {
     const session = await client.createSession({ type: UserTokenType.UserName, userName, password });

@@ -41,6 +41,21 @@ async function connect(endpoint, { securityMode, securityPolicy, userIdentity, c
   return { client, session, ns };
 }
 
+// Options for a client over Basic256Sha256 SignAndEncrypt with the application certificate a test made (PEM
+// files), node-opcua's own PKI in pkiDir accepting the server's certificate; tries once.
+async function secureOptions(certificateFile, privateKeyFile, applicationUri, pkiDir) {
+  const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
+  const clientCertificateManager = new OPCUACertificateManager({ rootFolder: pkiDir, automaticallyAcceptUnknownCertificate: true });
+  await clientCertificateManager.initialize();
+  return {
+    endpointMustExist: false,
+    connectionStrategy: { maxRetry: 0, initialDelay: 200, maxDelay: 1000 },
+    securityMode: MessageSecurityMode.SignAndEncrypt,
+    securityPolicy: SecurityPolicy.Basic256Sha256,
+    certificateFile, privateKeyFile, applicationUri, applicationName: "uacell interop", clientCertificateManager,
+  };
+}
+
 // path: "/<ns>:Name/<ns>:Name" with keys of NS instead of indexes, e.g. "/Cell:Robot1/Robotics:Controllers"
 async function resolve(session, ns, startNodeId, path) {
   const concrete = path.replace(/(\w+):/g, (m, key) => (key in ns ? `${ns[key]}:` : m));
@@ -72,4 +87,4 @@ const SYSTEM_OPERATION = "/DI:DeviceSet/Cell:Robot1/Robotics:Controllers/Cell:Co
   "/Robotics:SystemOperation/Robotics:SystemOperationStateMachine";
 const FILLER = "/PackML:PackMLObjects/Cell:Filler1";
 
-module.exports = { connect, newClient, resolve, done, main, NS, TASK_CONTROL, SYSTEM_OPERATION, FILLER };
+module.exports = { connect, newClient, secureOptions, resolve, done, main, NS, TASK_CONTROL, SYSTEM_OPERATION, FILLER };

@@ -6,21 +6,12 @@
 // lost within 20 s, and whether a new client with the certificate got a session.
 "use strict";
 const fs = require("fs");
-const { OPCUAClient, MessageSecurityMode, SecurityPolicy, AttributeIds } = require("node-opcua-client");
-const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
-const { done, main } = require("./lib");
+const { OPCUAClient, AttributeIds } = require("node-opcua-client");
+const { done, main, secureOptions } = require("./lib");
 
 main(async () => {
   const [endpoint, certificateFile, privateKeyFile, applicationUri, pkiDir, readyFile] = process.argv.slice(2);
-  const clientCertificateManager = new OPCUACertificateManager({ rootFolder: pkiDir, automaticallyAcceptUnknownCertificate: true });
-  await clientCertificateManager.initialize();
-  const options = {
-    endpointMustExist: false,
-    connectionStrategy: { maxRetry: 0, initialDelay: 200, maxDelay: 1000 },
-    securityMode: MessageSecurityMode.SignAndEncrypt,
-    securityPolicy: SecurityPolicy.Basic256Sha256,
-    certificateFile, privateKeyFile, applicationUri, applicationName: "uacell interop", clientCertificateManager,
-  };
+  const options = await secureOptions(certificateFile, privateKeyFile, applicationUri, pkiDir);
   const client = OPCUAClient.create(options);
   const lost = new Promise((resolve) => {
     client.on("connection_lost", () => resolve(true));

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import rsa
+from cryptography.hazmat.primitives.asymmetric import padding, rsa
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 _KEYS: list[rsa.RSAPrivateKey] = []  # RSA keys take a while to make: a test module reuses a few
@@ -69,37 +69,17 @@ class Authority:
         return Authority(builder.sign(self.key, hashes.SHA256()), key)
 
     def application(
-        self, application_uri: str, common_name: str = "Line 3 MES", *, key_index: int = 2
+        self,
+        application_uri: str,
+        common_name: str = "Line 3 MES",
+        *,
+        key_index: int = 2,
+        key: rsa.RSAPrivateKey | None = None,
     ) -> tuple[x509.Certificate, rsa.RSAPrivateKey]:
-        """An Application Instance Certificate for a client, issued by this CA."""
-        key = _key(key_index)
-        start = _now() - dt.timedelta(minutes=5)
-        cert = (
-            x509.CertificateBuilder()
-            .subject_name(_name(common_name))
-            .issuer_name(self.cert.subject)
-            .public_key(key.public_key())
-            .serial_number(x509.random_serial_number())
-            .not_valid_before(start)
-            .not_valid_after(start + dt.timedelta(days=365))
-            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-            .add_extension(
-                x509.SubjectAlternativeName(
-                    [x509.UniformResourceIdentifier(application_uri), x509.DNSName(socket.gethostname())]
-                ),
-                critical=False,
-            )
-            .add_extension(
-                # OPC 10000-6 6.2.2: an Application Instance Certificate's key usages
-                key_usage("digital_signature", "content_commitment", "key_encipherment", "data_encipherment"),
-                critical=True,
-            )
-            .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False)
-            .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
-            .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(self.key.public_key()), critical=False)
-            .sign(self.key, hashes.SHA256())
-        )
-        return cert, key
+        """An Application Instance Certificate for a client, issued by this CA (with ``key`` instead of a
+        shared 2048-bit one)."""
+        key = key or _key(key_index)
+        return application_certificate(application_uri, common_name, key, (self.cert.subject, self.key)), key
 
     def sign_request(
         self,
@@ -162,6 +142,62 @@ class Authority:
                 x509.RevokedCertificateBuilder().serial_number(serial).revocation_date(_now()).build()
             )
         return builder.sign(signer or self.key, hashes.SHA256()).public_bytes(serialization.Encoding.DER)
+
+
+def application_certificate(
+    application_uri: str,
+    common_name: str,
+    key: rsa.RSAPrivateKey,
+    issuer: tuple[x509.Name, rsa.RSAPrivateKey] | None = None,
+) -> x509.Certificate:
+    """An Application Instance Certificate (OPC 10000-6 6.2.2) for ``key``, signed with SHA-256: issued by
+    ``issuer`` (its name and key), or self-signed as most OPC UA applications make their own."""
+    subject = _name(common_name)
+    issuer_name, issuer_key = issuer or (subject, key)
+    start = _now() - dt.timedelta(minutes=5)
+    return (
+        x509.CertificateBuilder()
+        .subject_name(subject)
+        .issuer_name(issuer_name)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(start)
+        .not_valid_after(start + dt.timedelta(days=365))
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .add_extension(
+            x509.SubjectAlternativeName(
+                [x509.UniformResourceIdentifier(application_uri), x509.DNSName(socket.gethostname())]
+            ),
+            critical=False,
+        )
+        .add_extension(
+            # OPC 10000-6 6.2.2: an Application Instance Certificate's key usages
+            key_usage("digital_signature", "content_commitment", "key_encipherment", "data_encipherment"),
+            critical=True,
+        )
+        .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False)
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(issuer_key.public_key()), critical=False)
+        .sign(issuer_key, hashes.SHA256())
+    )
+
+
+_SHA256_WITH_RSA = bytes.fromhex("06092a864886f70d01010b")  # the OID 1.2.840.113549.1.1.11, DER
+_SHA1_WITH_RSA = bytes.fromhex("06092a864886f70d010105")  # 1.2.840.113549.1.1.5 (RFC 3279 2.2.1)
+
+
+def signed_with_sha1(cert: x509.Certificate, issuer_key: rsa.RSAPrivateKey) -> x509.Certificate:
+    """``cert`` (signed with SHA-256 by ``issuer_key``) signed again with SHA-1, as old PKIs issued them:
+    RFC 5280 4.1.1.2 and 4.1.2.3 name the algorithm twice, in the TBSCertificate and around it, and the
+    two OIDs have the same length, so the DER changes in place (the cryptography package no longer signs
+    certificates with SHA-1, but still computes a PKCS #1 v1.5 signature over SHA-1)."""
+    whole, tbs = cert.public_bytes(serialization.Encoding.DER), cert.tbs_certificate_bytes
+    assert whole.count(_SHA256_WITH_RSA) == 2 and tbs.count(_SHA256_WITH_RSA) == 1
+    new_tbs = tbs.replace(_SHA256_WITH_RSA, _SHA1_WITH_RSA)
+    signature = issuer_key.sign(new_tbs, padding.PKCS1v15(), hashes.SHA1())
+    assert len(signature) == len(cert.signature)
+    new = whole.replace(tbs, new_tbs).replace(_SHA256_WITH_RSA, _SHA1_WITH_RSA).replace(cert.signature, signature)
+    return x509.load_der_x509_certificate(new)
 
 
 def _ca_builder(

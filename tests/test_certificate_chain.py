@@ -19,8 +19,9 @@ from asyncua.common.utils import ServiceError
 from conftest import fast_config, start_app
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
+from cryptography.hazmat.primitives.asymmetric import rsa
 from helpers import secure_client
-from plant_ca import Authority, der, pem
+from plant_ca import Authority, application_certificate, der, pem, signed_with_sha1
 
 from uacell.security.chain import Anchors, check_chain, next_change, split_chain
 from uacell.security.pki import CertificateValidator, PkiPaths, TrustList, told, trust_stamp
@@ -196,6 +197,44 @@ def test_the_trust_stamp_tells_any_change_of_the_files(tmp_path: Path, ca: dict[
     assert trust_stamp(paths) not in (added, empty)
 
 
+def test_the_security_policy_check(ca: dict[str, Any]) -> None:
+    """OPC 10000-4 6.1.3's Security Policy Check for the policies uacell offers (OPC 10000-7: Basic256Sha256,
+    Aes128_Sha256_RsaOaep, Aes256_Sha256_RsaPss): an application's key is RSA of 2048 to 4096 bits, and
+    every certificate of the chain, the root's own included, is signed with SHA-256 or a longer hash;
+    Bad_CertificatePolicyCheckFailed otherwise, before the trust list is looked at."""
+    root, issuing = ca["root"], ca["issuing"]
+    anchors = Anchors(trusted=(root.cert,), crls=crls(root, issuing))
+
+    def refusal(chain: list[x509.Certificate], with_anchors: Anchors = anchors) -> Any:
+        return check_chain(chain, with_anchors, now())
+
+    assert refusal([ca["leaf"], issuing.cert]) is None  # RSA 2048, SHA-256 throughout
+    small_key = rsa.generate_private_key(public_exponent=65537, key_size=1024)
+    small, _ = issuing.application("urn:plant:old-hmi", "Old HMI", key=small_key)
+    weak = refusal([small, issuing.cert])
+    assert weak is not None and weak.code == S.BadCertificatePolicyCheckFailed and weak.certificate == small
+    assert "1024" in weak.why
+    big_key = rsa.generate_private_key(public_exponent=65537, key_size=4104)
+    big, _ = issuing.application("urn:plant:big", "Big", key=big_key)
+    too_big = refusal([big, issuing.cert])
+    assert too_big is not None and too_big.code == S.BadCertificatePolicyCheckFailed and "4104" in too_big.why
+    sha1_leaf = signed_with_sha1(ca["leaf"], issuing.key)
+    old = refusal([sha1_leaf, issuing.cert])
+    assert old is not None and old.code == S.BadCertificatePolicyCheckFailed and "SHA1" in old.why.upper()
+    sha1_issuing = signed_with_sha1(issuing.cert, root.key)
+    above = refusal([ca["leaf"], sha1_issuing])
+    assert above is not None and above.code == S.BadCertificatePolicyCheckFailed and above.certificate == sha1_issuing
+    # before the trust list: an untrusted weak certificate is told what is wrong with it, not that it is untrusted
+    lone = application_certificate("urn:plant:lone", "Lone", small_key)
+    untrusted = refusal([lone], Anchors())
+    assert untrusted is not None and untrusted.code == S.BadCertificatePolicyCheckFailed
+    # a certificate trusted by itself (decision 92's pinning) is checked too
+    assert refusal([lone], Anchors(trusted=(lone,))).code == S.BadCertificatePolicyCheckFailed
+    strong = rsa.generate_private_key(public_exponent=65537, key_size=2048)
+    sha1_self = signed_with_sha1(application_certificate("urn:plant:self", "Self", strong), strong)
+    assert refusal([sha1_self], Anchors(trusted=(sha1_self,))).code == S.BadCertificatePolicyCheckFailed
+
+
 def test_an_issuer_must_be_a_valid_ca(ca: dict[str, Any]) -> None:
     root = ca["root"]
     not_a_ca = root.intermediate("Not a CA", key_index=4, ca=False)
@@ -264,7 +303,7 @@ def test_the_files_decide_and_the_log_says_what_to_do(
     for d in (paths.issuers, paths.crl):
         assert d.is_dir()
     install(paths, trusted=[root.der])
-    caplog.set_level(logging.WARNING, logger="uacell.security.pki")
+    caplog.set_level(logging.INFO, logger="uacell.security.policy")  # refusals are logged there, rate-limited
     refusal = trust.refusal([leaf], MES)
     assert refusal is not None and refusal.code == S.BadCertificateChainIncomplete
     [rejected] = paths.rejected.iterdir()  # trusting it by itself is one way out: it waits in rejected/
@@ -410,6 +449,29 @@ async def test_a_channel_is_checked_again_with_the_chain_its_session_sent(
         root_file.write_bytes(root.der)
         with contextlib.suppress(Exception):
             await client.disconnect()
+
+
+@ON_SERVER_LOOP
+async def test_a_client_whose_key_is_too_short_for_the_policy_is_told_so(
+    server: UacellServer, tmp_path: Path, ca: dict[str, Any], caplog: pytest.LogCaptureFixture
+) -> None:
+    """OPC 10000-7 Basic256Sha256 asks for application keys of 2048 to 4096 bits: a client whose
+    certificate, issued by the trusted plant CA, has a 1024-bit key gets a channel (asyncua's client can
+    make one) but no session, and is told Bad_CertificatePolicyCheckFailed; nothing goes to rejected/,
+    since trusting it would not help."""
+    caplog.set_level(logging.INFO, logger="uacell.security.policy")  # refusals are logged there, rate-limited
+    issuing = ca["issuing"]
+    paths = PkiPaths.in_data_dir(server.data_dir)
+    rejected_before = sorted(p.name for p in paths.rejected.iterdir())
+    small_key = rsa.generate_private_key(public_exponent=65537, key_size=1024)
+    small, _ = issuing.application("urn:plant:line3:old-hmi", "Old HMI", key=small_key)
+    with pytest.raises(ua.UaStatusCodeError) as err:
+        await connect(server, tmp_path, small, small_key, "urn:plant:line3:old-hmi", send=der(small) + issuing.der)
+    assert err.value.code == S.BadCertificatePolicyCheckFailed
+    assert "1024" in caplog.text and "BadCertificatePolicyCheckFailed" in caplog.text
+    assert sorted(p.name for p in paths.rejected.iterdir()) == rejected_before
+    client = await connect(server, tmp_path, ca["leaf"], ca["key"], MES, send=der(ca["leaf"]) + issuing.der)
+    await client.disconnect()  # the server answers the next client as before
 
 
 @ON_SERVER_LOOP

@@ -14,8 +14,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from cryptography.hazmat.primitives.asymmetric import rsa
 from helpers import free_port
-from plant_ca import Authority, der, pem
+from plant_ca import Authority, application_certificate, der, pem
 
 from uacell.security.pki import PkiPaths, TrustList, make_client_certificate, thumbprint
 
@@ -241,6 +242,25 @@ def test_cert_list_shows_subject_uri_thumbprint_and_validity(pki):
     assert lines[0] == f"{paths.root}: 1 certificate"
     assert lines[1].startswith(f"rejected {thumbprint(der)}  MES line 3  urn:test:mes  valid ")
     assert lines[1].endswith(str(paths.rejected / f"{thumbprint(der)}.der"))
+
+
+def test_cert_commands_name_a_certificate_the_security_policies_refuse(tmp_path):
+    """Decision 101: a client certificate with a 1024-bit key (made here from RFC 5280) is trusted as asked,
+    with a warning that the server refuses it anyway; ``cert list`` says so on its line; ``cert remove``
+    takes the certificate's file."""
+    data = tmp_path / "data"
+    small_key = rsa.generate_private_key(public_exponent=65537, key_size=1024)
+    cert_file = tmp_path / "old-hmi.der"
+    cert_file.write_bytes(der(application_certificate("urn:plant:old-hmi", "Old HMI", small_key)))
+    d = ["--data-dir", str(data)]
+    trusted = uacell("cert", "trust", str(cert_file), *d)
+    assert trusted.returncode == 0, trusted.stderr
+    assert "refuses this certificate" in trusted.stderr and "1024 bits" in trusted.stderr
+    listed = uacell("cert", "list", *d).stdout.splitlines()
+    assert len(listed) == 2 and "Old HMI" in listed[1] and "REFUSED BY THE SECURITY POLICIES" in listed[1]
+    removed = uacell("cert", "remove", str(cert_file), *d)
+    assert removed.returncode == 0 and "removed" in removed.stdout, removed.stderr
+    assert list(PkiPaths.in_data_dir(data).trusted.iterdir()) == []
 
 
 def test_cert_trust_reject_remove_by_thumbprint_prefix(pki):

@@ -19,8 +19,9 @@ from asyncua import Client, ua
 from conftest import fast_config, start_app
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
+from cryptography.hazmat.primitives.asymmetric import rsa
 from helpers import secure_client
-from plant_ca import Authority, der, key_pem, parse_trust_list, trust_list_bytes
+from plant_ca import Authority, application_certificate, der, key_pem, parse_trust_list, trust_list_bytes
 
 from uacell.core.roles import Role
 from uacell.security.pki import PkiPaths, TrustList
@@ -275,6 +276,7 @@ async def test_a_gds_adds_and_removes_trusted_certificates_one_at_a_time(plant: 
     mes, _ = issuing.application("urn:plant:line3:mes", "MES", key_index=3)
     contractor = Authority.root("Contractor CA", key_index=4)
     laptop, _ = contractor.application("urn:contractor:laptop", "Laptop", key_index=5)
+    old_hmi = application_certificate("urn:plant:old-hmi", "Old HMI", rsa.generate_private_key(65537, 1024))
     admin = await gds_session(plant, tmp_path)
     trusted_before = sorted(p.name for p in paths.trusted.iterdir())
     try:
@@ -282,6 +284,8 @@ async def test_a_gds_adds_and_removes_trusted_certificates_one_at_a_time(plant: 
             (ADD, b"junk", True, ua.StatusCodes.BadCertificateInvalid),
             (ADD, der(laptop), True, ua.StatusCodes.BadCertificateChainIncomplete),  # its CA is nowhere
             (ADD, contractor.der, False, ua.StatusCodes.BadInvalidArgument),  # an issuer, without its CRLs
+            # a key no security policy uacell offers accepts (decision 101)
+            (ADD, der(old_hmi), True, ua.StatusCodes.BadCertificatePolicyCheckFailed),
             (REMOVE, "00" * 20, True, ua.StatusCodes.BadInvalidArgument),
             # the plant's root issued the issuing CA in pki/issuers/: removing it would break that chain
             (REMOVE, thumbprint_of(plant["root"].der), True, ua.StatusCodes.BadCertificateChainIncomplete),

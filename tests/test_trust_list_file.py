@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from plant_ca import Authority, der, trust_list_bytes
+from cryptography.hazmat.primitives.asymmetric import rsa
+from plant_ca import Authority, der, signed_with_sha1, trust_list_bytes
 
 from uacell.core.errors import CallError
 from uacell.core.file_paths import MODE_READ
@@ -161,6 +162,11 @@ def test_what_close_and_update_refuses_leaves_every_file_and_closes_the_handle(p
     impostor = Authority.root("Plant Issuing CA", key_index=8)  # the issuing CA's name, another key
     forged = impostor.application("urn:forged", "Forged", key_index=6)[0]
     cases.append((trust_list_bytes(TRUSTED, [root.der, der(forged)]), "BadCertificateInvalid"))
+    # a client certificate no security policy uacell offers would accept (decision 101): 1024-bit key, SHA-1
+    small = root.application("urn:old", "Old", key=rsa.generate_private_key(public_exponent=65537, key_size=1024))[0]
+    cases.append((trust_list_bytes(TRUSTED, [root.der, der(small)]), "BadCertificatePolicyCheckFailed"))
+    sha1 = signed_with_sha1(root.application("urn:sha1", "SHA-1 client", key_index=6)[0], root.key)
+    cases.append((trust_list_bytes(TRUSTED, [root.der, der(sha1)]), "BadCertificatePolicyCheckFailed"))
     trust = TrustListFile(paths)
     for content, code in cases:
         handle = trust.open("gds", MODE_WRITE_ERASE)

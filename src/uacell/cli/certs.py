@@ -24,7 +24,7 @@ from cryptography.x509.oid import NameOID
 from uacell.config import Config
 from uacell.core.files import atomic_write
 from uacell.security.audit import AuditTrail
-from uacell.security.chain import newest_crl
+from uacell.security.chain import newest_crl, policy_problem
 from uacell.security.own_certificate import InstallRefused, install_certificate, read_certificates, signing_request
 from uacell.security.pki import (
     CERT_SUFFIXES,
@@ -230,7 +230,9 @@ def _print_list(paths: PkiPaths) -> None:
     infos = certificates(paths)
     print(f"{paths.root}: {len(infos) or 'no'} certificate{'' if len(infos) == 1 else 's'}")
     for c in infos:
-        print(f"{c.kind:8} {c.thumbprint}  {c.subject}  {c.application_uri or '-'}  {c.validity()}  {c.path}")
+        weak = policy_problem(x509.load_der_x509_certificate(c.der))
+        note = f"  REFUSED BY THE SECURITY POLICIES: {weak}" if weak else ""  # decision 101
+        print(f"{c.kind:8} {c.thumbprint}  {c.subject}  {c.application_uri or '-'}  {c.validity()}  {c.path}{note}")
     now = dt.datetime.now(dt.UTC)
     for path, crl in revocation_lists(paths):
         names = crl.issuer.get_attributes_for_oid(NameOID.COMMON_NAME)
@@ -253,6 +255,12 @@ def run_cert_command(args: Any, config: Config) -> int:
         if args.action == "trust":
             path = trust(paths, args.id, limit)
             print(f"trusted {path.stem}: {path}")
+            weak = policy_problem(x509.load_der_x509_certificate(path.read_bytes()))
+            if weak:
+                print(
+                    f"warning: the server refuses this certificate whatever the trust list says: {weak}",
+                    file=sys.stderr,
+                )
             detail: dict[str, Any] = {"thumbprint": path.stem, "file": str(path)}
         elif args.action == "reject":
             path = reject(paths, args.id, limit)

@@ -9,6 +9,9 @@ answers the first step of OPC 10000-4's validation table that fails, with its st
 1. build the chain: an issuer is found by name and its key verifies the signature
    (Bad_CertificateChainIncomplete when none is found; Bad_CertificateInvalid when a signature,
    a root's own included, does not verify);
+   the Security Policy check (``policy_problem``, decision 101), made on the end certificate before
+   the chain is built and on each issuer as it is found: every certificate signed with SHA-256 or a
+   longer hash, an application's key RSA of 2048 to 4096 bits (Bad_CertificatePolicyCheckFailed);
 2. the trust list: the certificate or one of its issuers is a trusted certificate
    (Bad_CertificateUntrusted);
 3. validity: each issuer is valid now (Bad_CertificateIssuerTimeInvalid; the end certificate's own
@@ -35,11 +38,23 @@ from dataclasses import dataclass
 
 from asyncua import ua
 from cryptography import x509
-from cryptography.exceptions import InvalidSignature
-from cryptography.hazmat.primitives import serialization
+from cryptography.exceptions import InvalidSignature, UnsupportedAlgorithm
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import rsa
+from cryptography.x509.oid import SignatureAlgorithmOID
 
 _S = ua.StatusCodes
 MAX_DEPTH = 8  # certificates in a chain, the end certificate and the root included
+# OPC 10000-7, the policies uacell offers (Basic256Sha256, Aes128_Sha256_RsaOaep, Aes256_Sha256_RsaPss):
+# certificates signed with RSA over a hash of 256 bits or more, application keys of 2048 to 4096 bits
+POLICY_SIGNATURES = {
+    SignatureAlgorithmOID.RSA_WITH_SHA256,
+    SignatureAlgorithmOID.RSA_WITH_SHA384,
+    SignatureAlgorithmOID.RSA_WITH_SHA512,
+    SignatureAlgorithmOID.RSASSA_PSS,
+}
+POLICY_HASHES = (hashes.SHA256, hashes.SHA384, hashes.SHA512)
+MIN_KEY_BITS, MAX_KEY_BITS = 2048, 4096
 
 
 @dataclass(frozen=True)
@@ -121,6 +136,9 @@ def check_chain(
     """The first failing step for ``chain`` (the end certificate first, then what the client sent of
     its issuers), or None when it is trusted. See the module's text for the steps."""
     leaf = chain[0]
+    weak = policy_problem(leaf)
+    if weak is not None:
+        return Refusal(_S.BadCertificatePolicyCheckFailed, leaf, weak)
     path, refusal = _build(leaf, [*chain[1:], *anchors.trusted, *anchors.issuers])
     if refusal is not None:
         if (
@@ -156,6 +174,10 @@ def _build(
             return path, Refusal(_S.BadCertificateChainIncomplete, cert, f"the chain is longer than {MAX_DEPTH}")
         named = [c for c in candidates if c.subject == cert.issuer and c not in path]
         issuer = next((c for c in named if issued_by(cert, c)), None)
+        if issuer is not None:
+            weak = policy_problem(issuer)
+            if weak is not None:
+                return path, Refusal(_S.BadCertificatePolicyCheckFailed, issuer, weak)
         if issuer is None:
             if cert.issuer == cert.subject or named:
                 return path, Refusal(_S.BadCertificateInvalid, cert, f"the signature of {_name(cert)} does not verify")
@@ -163,6 +185,39 @@ def _build(
                 _S.BadCertificateChainIncomplete, cert, f"its issuer {cert.issuer.rfc4514_string()} is not known"
             )
         path.append(issuer)
+
+
+def policy_problem(cert: x509.Certificate) -> str | None:
+    """What the Security Policy check (OPC 10000-4 6.1.3; OPC 10000-7 for the RSA policies uacell
+    offers) finds wrong with ``cert``, in words, or None: its signature must be RSA over SHA-256, SHA-384
+    or SHA-512 (a CA's, a root's own included, as well: Basic256Sha256 rejects a chain with any
+    certificate signed otherwise), and an application's key (not a CA's) RSA of 2048 to 4096 bits."""
+    try:
+        digest = cert.signature_hash_algorithm
+    except UnsupportedAlgorithm:
+        digest = None
+    if cert.signature_algorithm_oid not in POLICY_SIGNATURES or not isinstance(digest, POLICY_HASHES):
+        used = getattr(cert.signature_algorithm_oid, "_name", cert.signature_algorithm_oid.dotted_string)
+        return f"{_name(cert)} is signed with {used}; the security policies ask for RSA over SHA-256 or longer"
+    if is_ca(cert):
+        return None
+    key = cert.public_key()
+    if not isinstance(key, rsa.RSAPublicKey):
+        return f"{_name(cert)} has a {type(key).__name__} key; the security policies ask for RSA"
+    if not MIN_KEY_BITS <= key.key_size <= MAX_KEY_BITS:
+        return (
+            f"{_name(cert)} has an RSA key of {key.key_size} bits; the security policies ask for "
+            f"{MIN_KEY_BITS} to {MAX_KEY_BITS}"
+        )
+    return None
+
+
+def is_ca(cert: x509.Certificate) -> bool:
+    """Does ``cert`` say it is a CA's (RFC 5280 4.2.1.9)?"""
+    try:
+        return bool(cert.extensions.get_extension_for_class(x509.BasicConstraints).value.ca)
+    except x509.ExtensionNotFound:
+        return False
 
 
 def is_self_signed(cert: x509.Certificate) -> bool:
@@ -178,10 +233,7 @@ def issued_by(cert: x509.Certificate, issuer: x509.Certificate) -> bool:
 
 
 def may_sign_certificates(cert: x509.Certificate) -> bool:
-    try:
-        if not cert.extensions.get_extension_for_class(x509.BasicConstraints).value.ca:
-            return False
-    except x509.ExtensionNotFound:
+    if not is_ca(cert):
         return False  # RFC 5280 4.2.1.9: a CA's certificate says it is one
     try:
         return cert.extensions.get_extension_for_class(x509.KeyUsage).value.key_cert_sign

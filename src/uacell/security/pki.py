@@ -606,17 +606,22 @@ _REVOCATION_UNKNOWN = {
     ua.StatusCodes.BadCertificateIssuerRevocationUnknown,
 }
 # What a client is told (OPC 10000-4 6.1.3, decision 92): its own certificate's period, URI and trust
-# as before; a failure in its chain (an issuer, a signature, a revocation) as Bad_SecurityChecksFailed.
+# as before, and what the security policy finds wrong with it (decision 101); a failure in its chain
+# (an issuer, a signature, a revocation, an issuer's policy) as Bad_SecurityChecksFailed.
 _TOLD = {
     ua.StatusCodes.BadCertificateUntrusted,
     ua.StatusCodes.BadCertificateTimeInvalid,
     ua.StatusCodes.BadCertificateUriInvalid,
 }
+_TOLD_OF_ITS_OWN = {ua.StatusCodes.BadCertificatePolicyCheckFailed}
 
 
-def told(code: int) -> int:
-    """The status a refused client is told for a refusal's ``code``."""
-    return code if code in _TOLD else ua.StatusCodes.BadSecurityChecksFailed
+def told(code: int, *, own: bool = False) -> int:
+    """The status a refused client is told for a refusal's ``code`` (``own``: about the client's own
+    certificate, not an issuer of it)."""
+    if code in _TOLD or (own and code in _TOLD_OF_ITS_OWN):
+        return code
+    return int(ua.StatusCodes.BadSecurityChecksFailed)
 
 
 def load_crl(data: bytes) -> x509.CertificateRevocationList:
@@ -717,7 +722,8 @@ class CertificateValidator:
         refusal = self.trust_list.refusal(chain, application_uri)
         if refusal is None:
             return None
-        return CertificateVerdict(told(refusal.code), refusal.code, der, refusal.why)
+        own = refusal.certificate == chain[0]
+        return CertificateVerdict(told(refusal.code, own=own), refusal.code, der, refusal.why)
 
 
 def _own_problem(cert: x509.Certificate, application_uri: str, now: dt.datetime) -> int | None:

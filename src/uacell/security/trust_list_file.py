@@ -46,7 +46,14 @@ from cryptography.hazmat.primitives import serialization
 from uacell.core.errors import CallError
 from uacell.core.file_paths import MODE_ERASE_EXISTING, MODE_READ, MODE_WRITE, fsync_dir
 from uacell.core.files import atomic_write
-from uacell.security.chain import der_of, is_self_signed, issued_by, may_sign_certificates, newest_crl
+from uacell.security.chain import (
+    der_of,
+    is_self_signed,
+    issued_by,
+    may_sign_certificates,
+    newest_crl,
+    policy_problem,
+)
 from uacell.security.pki import (
     CERT_SUFFIXES,
     CRL_SUFFIXES,
@@ -169,7 +176,8 @@ class CheckedContent:
 def check_content(content: TrustListContent, now: datetime) -> CheckedContent:
     """The certificates and revocation lists of a whole new trust list, checked as OPC 10000-12 7.8.2.5
     asks (OPC 10000-4 6.1.3, the suppressible errors ignored but reported as warnings): each certificate
-    DER and signed by its issuer when the list holds it (Bad_CertificateInvalid), each issuer a CA
+    DER, meeting the security policies (Bad_CertificatePolicyCheckFailed, decision 101) and signed by its
+    issuer when the list holds it (Bad_CertificateInvalid), each issuer a CA
     (Bad_CertificateIssuerUseNotAllowed), each revocation list DER (Bad_CertificateInvalid) and signed by
     a CA of the list (Bad_CertificateChainIncomplete). A certificate outside its validity period is a
     warning. CallError for the first failure."""
@@ -178,6 +186,9 @@ def check_content(content: TrustListContent, now: datetime) -> CheckedContent:
     every = [*trusted, *issuers]
     warnings = []
     for cert in every:
+        weak = policy_problem(cert)  # decision 101: what no channel would accept is not taken into the list
+        if weak is not None:
+            raise CallError("BadCertificatePolicyCheckFailed", weak)
         named = [c for c in every if c.subject == cert.issuer and c is not cert]
         if not is_self_signed(cert) and named and not any(issued_by(cert, c) for c in named):
             raise CallError("BadCertificateInvalid", f"{_label(cert)}: its issuer's signature does not verify")
