@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 from argon2 import PasswordHasher
+from asyncua import ua
+from cryptography.hazmat.primitives.asymmetric import rsa
 from user_certificates import AES256_RSAPSS, BASIC256SHA256, RSA_PSS_SHA256, RSA_SHA256, user_certificate
 
 from uacell.core.roles import Role
@@ -145,6 +147,10 @@ def test_certificate_files_pem_der_and_refusals(tmp_path: Path) -> None:
         load_user_certificate(junk)
     with pytest.raises(UserError, match="cannot read"):
         load_user_certificate(tmp_path / "missing.pem")
+    small = tmp_path / "small.der"  # a key the security policies refuse (decision 102): bound, it never logs in
+    small.write_bytes(user_certificate("s", key=rsa.generate_private_key(public_exponent=65537, key_size=1024)).der)
+    with pytest.raises(UserError, match="1024 bits"):
+        load_user_certificate(small)
 
 
 # the token's checks -------------------------------------------------------------------------------------
@@ -191,12 +197,40 @@ def test_a_certificate_out_of_its_validity_or_not_for_signing_is_rejected(tmp_pa
     unrestricted = user_certificate("any use", key_usage=False)
     for i, cert in enumerate((expired, future, encipher, unrestricted)):
         store.add(f"u{i}", "operator", None, certificate=cert.der)
-    for cert in (expired, future, encipher):
-        assert refused(store, cert.der, RSA_SHA256, cert.sign(SERVER_CERT + NONCE)) == BAD_IDENTITY_TOKEN_REJECTED
+    steps = [
+        (expired, ua.StatusCodes.BadCertificateTimeInvalid),
+        (future, ua.StatusCodes.BadCertificateTimeInvalid),
+        (encipher, ua.StatusCodes.BadCertificateUseNotAllowed),
+    ]
+    for cert, step in steps:
+        with pytest.raises(TokenRefused) as info:
+            check(store, cert.der, RSA_SHA256, cert.sign(SERVER_CERT + NONCE))
+        assert (info.value.code, info.value.certificate_code) == (BAD_IDENTITY_TOKEN_REJECTED, step)
     assert check(store, unrestricted.der, RSA_SHA256, unrestricted.sign(SERVER_CERT + NONCE)).user == "u3"
 
 
+def test_a_key_the_token_policy_does_not_allow_is_rejected_after_its_signature(tmp_path: Path) -> None:
+    """OPC 10000-7: the policies uacell offers sign with RSA keys of 2048 to 4096 bits (decision 101). A
+    bound user certificate with a 1024-bit key proves its key, and is then rejected; the reason is for the
+    server's log only."""
+    store = UserStore.in_data_dir(tmp_path, hasher=FAST)
+    small = user_certificate("old badge", key=rsa.generate_private_key(public_exponent=65537, key_size=1024))
+    store.add("olga", "operator", None, certificate=small.der)
+    with pytest.raises(TokenRefused) as info:
+        check(store, small.der, RSA_SHA256, small.sign(SERVER_CERT + NONCE))
+    assert info.value.code == BAD_IDENTITY_TOKEN_REJECTED and "1024" in info.value.why
+    assert info.value.certificate_code == ua.StatusCodes.BadCertificatePolicyCheckFailed  # for its audit event
+    # without the key, the signature fails first, as for any certificate
+    assert refused(store, small.der, RSA_SHA256, ALICE.sign(SERVER_CERT + NONCE)) == BAD_USER_SIGNATURE_INVALID
+
+
 def test_a_certificate_bound_to_nobody_is_rejected_after_its_signature(store: UserStore) -> None:
+    with pytest.raises(TokenRefused) as info:
+        check(store, BOB.der, RSA_SHA256, BOB.sign(SERVER_CERT + NONCE))
+    assert (info.value.code, info.value.certificate_code) == (
+        BAD_IDENTITY_TOKEN_REJECTED,
+        ua.StatusCodes.BadCertificateUntrusted,  # the binding is the user certificates' trust list
+    )
     assert refused(store, BOB.der, RSA_SHA256, BOB.sign(SERVER_CERT + NONCE)) == BAD_IDENTITY_TOKEN_REJECTED
     # without the key, a client learns nothing about the user store: the signature fails first
     assert refused(store, BOB.der, RSA_SHA256, ALICE.sign(SERVER_CERT + NONCE)) == BAD_USER_SIGNATURE_INVALID

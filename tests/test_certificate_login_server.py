@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import datetime as dt
+import functools
 import json
 import time
 from collections.abc import AsyncIterator
@@ -17,7 +18,8 @@ import pytest_asyncio
 from asyncua import Client, ua
 from asyncua.crypto import security_policies as sp
 from conftest import fast_config, start_app
-from helpers import wait_until
+from cryptography.hazmat.primitives.asymmetric import rsa
+from helpers import Collector, wait_until
 from test_security import ClientCert, secure_client
 from uaraw import Fault, RawClient, none_session
 from user_certificates import BASIC256SHA256, RSA_SHA256, UserCertificate, user_certificate
@@ -28,6 +30,7 @@ from uacell.server import UacellServer
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
+OBJ = ua.ObjectIds
 OPERATOR = user_certificate("olga, operator")
 ADMIN = user_certificate("ada, admin")
 STRANGER = user_certificate("somebody")
@@ -154,6 +157,52 @@ async def test_refusals_by_the_standards_codes(env: Env) -> None:
     await audited_login(env, user="oldie", result="BadIdentityTokenRejected")
     await audited_login(env, user=f"certificate {thumbprint(STRANGER.der)}", result="BadIdentityTokenRejected")
     await audited_login(env, user="olga", result="BadUserSignatureInvalid")
+
+
+async def test_a_refused_user_certificate_fires_its_certificate_event(env: Env) -> None:
+    """OPC 10000-4 6.5.6 and OPC 10000-5 6.4.13 to 6.4.19 (decision 102): a user certificate refused after
+    it proved its key fires the AuditCertificate subtype of the step that failed, with the certificate,
+    besides the failed ActivateSession; a token whose signature does not verify fires none (the
+    certificate was not what failed). Only admin sessions receive them (decision 94)."""
+    small = user_certificate("olaf, old badge", key=rsa.generate_private_key(public_exponent=65537, key_size=1024))
+    env.cli.add("olaf", "operator", None, certificate=small.der)
+    admin = await cert_client(env, ADMIN)
+    seen = Collector()
+    subscription = await admin.create_subscription(0, seen)
+    types = [OBJ.AuditCertificateExpiredEventType, OBJ.AuditCertificateUntrustedEventType]
+    types += [OBJ.AuditCertificateInvalidEventType, OBJ.AuditActivateSessionEventType]
+    await subscription.subscribe_events(admin.nodes.server, [admin.get_node(ua.NodeId(t)) for t in types])
+    try:
+        refusals = [
+            (EXPIRED, OBJ.AuditCertificateExpiredEventType, ua.StatusCodes.BadCertificateTimeInvalid),
+            (STRANGER, OBJ.AuditCertificateUntrustedEventType, ua.StatusCodes.BadCertificateUntrusted),
+            (small, OBJ.AuditCertificateInvalidEventType, ua.StatusCodes.BadCertificatePolicyCheckFailed),
+        ]
+        for user, event_type, step in refusals:
+            assert await refusal(env, user) == ua.StatusCodes.BadIdentityTokenRejected
+            event = await seen.wait_for(functools.partial(_of_certificate, user.der))
+            assert event.EventType == ua.NodeId(event_type), user
+            assert event.StatusCodeId == ua.StatusCode(step) and event.Status is False
+            assert event.SourceName == "Security/Certificate" and event.SourceNode == ua.NodeId(OBJ.Server)
+        # what the client was told, in the session's own events
+        rejected = ua.StatusCode(ua.StatusCodes.BadIdentityTokenRejected)
+        await wait_until(lambda: len([e for e in seen.events if _refused_activation(e, rejected)]) >= 3)
+        # signed with another key: the activation's event only
+        before = len(seen.events)
+        assert await refusal(env, OPERATOR, key_of=STRANGER) == ua.StatusCodes.BadUserSignatureInvalid
+        await seen.wait_for(lambda e: _refused_activation(e, ua.StatusCode(ua.StatusCodes.BadUserSignatureInvalid)))
+        assert not [e for e in seen.events[before:] if getattr(e, "Certificate", None) is not None]
+    finally:
+        await admin.disconnect()
+
+
+def _of_certificate(der: bytes, event: Any) -> bool:
+    return bool(getattr(event, "Certificate", None) == der)
+
+
+def _refused_activation(event: Any, told: ua.StatusCode) -> bool:
+    """An AuditActivateSessionEventType of an activation refused with ``told``."""
+    return bool(event.EventType == ua.NodeId(OBJ.AuditActivateSessionEventType) and event.StatusCodeId == told)
 
 
 async def test_other_token_policies_do_not_take_a_certificate(env: Env) -> None:

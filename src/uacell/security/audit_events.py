@@ -12,7 +12,8 @@ names, besides.
 | AuditCreateSessionEventType | ``Session/CreateSession`` | every CreateSession (SessionId null when refused) |
 | AuditActivateSessionEventType | ``Session/ActivateSession`` | every ActivateSession, a change of user too |
 | AuditSessionEventType | ``Session/CloseSession``, ``Session/Timeout``, ``Session/Terminated`` | a session ends |
-| AuditCertificate...EventType | ``Security/Certificate`` | a client certificate refused at CreateSession |
+| AuditCertificate...EventType | ``Security/Certificate`` | a client certificate refused at CreateSession, |
+| | | or a user certificate at ActivateSession (decision 102) |
 
 Their SourceNode is the Server object and they are fired through it. They carry user names, client
 certificates and identity tokens (never a password), so they reach only sessions whose role is

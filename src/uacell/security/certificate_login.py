@@ -8,10 +8,15 @@ session was sent, with the asymmetric signature algorithm of the user token poli
 1. the certificate can be read (``Bad_IdentityTokenInvalid``);
 2. the signature uses the policy's algorithm and verifies with the certificate's key: the client holds
    the private key, for this session and this nonce (``Bad_UserSignatureInvalid``);
-3. the certificate is valid now and, if it says what its key is for, signing is among it
-   (``Bad_IdentityTokenRejected``);
+3. its key is one the policies allow, RSA of 2048 to 4096 bits (decision 102), it is valid now and,
+   if it says what its key is for, signing is among it (``Bad_IdentityTokenRejected``);
 4. it is bound to a user in ``users.toml`` (``Bad_IdentityTokenRejected``): the administrator's
    binding is what makes a user certificate trusted, as the trust list does for applications.
+
+A refusal at steps 3 and 4 also names the certificate step that failed (``certificate_code``:
+Bad_CertificatePolicyCheckFailed, Bad_CertificateTimeInvalid, Bad_CertificateUseNotAllowed,
+Bad_CertificateUntrusted), for the AuditCertificate event the server fires besides the session's
+(decision 102).
 
 The proof of possession comes before anything about the user store is said, so a client without the
 key learns nothing from the answer. Pure apart from the user store's file: no OPC UA stack here.
@@ -28,7 +33,7 @@ from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.asymmetric import padding, rsa
 
 from uacell.core.roles import Role
-from uacell.security.chain import first_certificate
+from uacell.security.chain import first_certificate, key_problem
 from uacell.security.users import UserStore, thumbprint
 
 RSA_SHA256 = "http://www.w3.org/2001/04/xmldsig-more#rsa-sha256"
@@ -49,15 +54,21 @@ _PADDING = {
 BAD_IDENTITY_TOKEN_INVALID = 0x80200000
 BAD_IDENTITY_TOKEN_REJECTED = 0x80210000
 BAD_USER_SIGNATURE_INVALID = 0x80570000
+BAD_CERTIFICATE_TIME_INVALID = 0x80140000
+BAD_CERTIFICATE_USE_NOT_ALLOWED = 0x80180000
+BAD_CERTIFICATE_UNTRUSTED = 0x801A0000
+BAD_CERTIFICATE_POLICY_CHECK_FAILED = 0x81140000
 
 
 class TokenRefused(Exception):
-    """The login is refused with ``code``; ``why`` is for the server's log, never for the client."""
+    """The login is refused with ``code``; ``why`` is for the server's log, never for the client;
+    ``certificate_code``: the certificate step that failed, when the certificate is what was refused."""
 
-    def __init__(self, code: int, why: str) -> None:
+    def __init__(self, code: int, why: str, certificate_code: int | None = None) -> None:
         super().__init__(why)
         self.code = code
         self.why = why
+        self.certificate_code = certificate_code
 
 
 @dataclass(frozen=True)
@@ -127,18 +138,25 @@ def check_user_certificate(
             BAD_USER_SIGNATURE_INVALID,
             f"certificate {thumb}: the signature does not verify (another key, or not this session's nonce)",
         )
+    weak = key_problem(cert)
+    if weak is not None:
+        why = f"certificate {thumb}: {weak}"
+        raise TokenRefused(BAD_IDENTITY_TOKEN_REJECTED, why, BAD_CERTIFICATE_POLICY_CHECK_FAILED)
     if now < cert.not_valid_before_utc or now > cert.not_valid_after_utc:
         span = f"{cert.not_valid_before_utc:%Y-%m-%d %H:%M} to {cert.not_valid_after_utc:%Y-%m-%d %H:%M} UTC"
-        raise TokenRefused(BAD_IDENTITY_TOKEN_REJECTED, f"certificate {thumb} is not valid now (valid {span})")
+        why = f"certificate {thumb} is not valid now (valid {span})"
+        raise TokenRefused(BAD_IDENTITY_TOKEN_REJECTED, why, BAD_CERTIFICATE_TIME_INVALID)
     try:
         usage = cert.extensions.get_extension_for_class(x509.KeyUsage).value
     except x509.ExtensionNotFound:
         usage = None
     if usage is not None and not usage.digital_signature:
-        raise TokenRefused(BAD_IDENTITY_TOKEN_REJECTED, f"certificate {thumb}: its key usage does not allow signing")
+        why = f"certificate {thumb}: its key usage does not allow signing"
+        raise TokenRefused(BAD_IDENTITY_TOKEN_REJECTED, why, BAD_CERTIFICATE_USE_NOT_ALLOWED)
     found = users.user_of_certificate(der)
     if found is None:
-        raise TokenRefused(BAD_IDENTITY_TOKEN_REJECTED, f"certificate {thumb} is bound to no user")
+        why = f"certificate {thumb} is bound to no user"
+        raise TokenRefused(BAD_IDENTITY_TOKEN_REJECTED, why, BAD_CERTIFICATE_UNTRUSTED)
     return CertificateLogin(found[0], found[1], thumb, cert.not_valid_after_utc)
 
 

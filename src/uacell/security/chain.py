@@ -199,8 +199,12 @@ def policy_problem(cert: x509.Certificate) -> str | None:
     if cert.signature_algorithm_oid not in POLICY_SIGNATURES or not isinstance(digest, POLICY_HASHES):
         used = getattr(cert.signature_algorithm_oid, "_name", cert.signature_algorithm_oid.dotted_string)
         return f"{_name(cert)} is signed with {used}; the security policies ask for RSA over SHA-256 or longer"
-    if is_ca(cert):
-        return None
+    return None if is_ca(cert) else key_problem(cert)
+
+
+def key_problem(cert: x509.Certificate) -> str | None:
+    """What the policies find wrong with the key of an application's (or a user's) certificate, or None:
+    RSA of 2048 to 4096 bits (OPC 10000-7)."""
     key = cert.public_key()
     if not isinstance(key, rsa.RSAPublicKey):
         return f"{_name(cert)} has a {type(key).__name__} key; the security policies ask for RSA"

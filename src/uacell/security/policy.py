@@ -367,6 +367,9 @@ class _Logins:
         try:
             result = await call()
         except ServiceError as exc:
+            if isinstance(exc, _UserCertificateRefused) and exc.certificate_code is not None:
+                # the certificate's own audit event besides the session's (OPC 10000-4 6.5.6, decision 102)
+                await self.audit_events.certificate_refused(exc.certificate_code, exc.certificate, exc.why)
             await self._audit_login(processor, address, user, token, exc.code)
             raise
         except InvalidSignature:  # asyncua's check of the clientSignature (OPC 10000-4 5.7.3.2)
@@ -433,6 +436,17 @@ class _Logins:
                 await task
 
         return stop
+
+
+class _UserCertificateRefused(ServiceError):  # type: ignore[misc]  # asyncua's class is untyped
+    """A user certificate token refused: what the client is told (``code``), the certificate step that
+    failed (``certificate_code``, None when the certificate is not what failed), the certificate, why."""
+
+    def __init__(self, code: int, certificate_code: int | None, certificate: bytes, why: str) -> None:
+        super().__init__(code)
+        self.certificate_code = certificate_code
+        self.certificate = certificate
+        self.why = why
 
 
 async def _nothing_to_stop() -> None:
@@ -946,7 +960,8 @@ class Security(_Channels, _TrustWatch, _Logins):
                 f"certificate:{refused.code}",
                 f"refused certificate login from {address}: {refused.why} ({name})",
             )
-            raise ServiceError(refused.code) from None
+            der = first_certificate(token.CertificateData or b"")
+            raise _UserCertificateRefused(refused.code, refused.certificate_code, der, refused.why) from None
         return VerifiedCertificate.of(first_certificate(token.CertificateData), login)
 
     # per-session attributes ------------------------------------------------------------------------

@@ -29,6 +29,7 @@ from cryptography.hazmat.primitives.serialization import Encoding
 
 from uacell.core.files import atomic_write
 from uacell.core.roles import Role
+from uacell.security.chain import key_problem
 
 if TYPE_CHECKING:
     from uacell.config import Config
@@ -70,8 +71,8 @@ def thumbprint(der: bytes) -> str:
 
 def load_user_certificate(path: Path) -> bytes:
     """The DER encoding of the user certificate in ``path`` (DER or PEM), refused (UserError) unless it
-    is an X.509 certificate with an RSA key: the signature every OPC UA security policy uacell offers
-    asks a user to make (decision 84)."""
+    is an X.509 certificate with an RSA key of 2048 to 4096 bits: the signature every OPC UA security
+    policy uacell offers asks a user to make (decisions 84 and 102)."""
     try:
         data = Path(path).read_bytes()
     except OSError as exc:
@@ -82,6 +83,9 @@ def load_user_certificate(path: Path) -> bytes:
         raise UserError(f"{path} holds no X.509 certificate (DER or PEM)") from None
     if not isinstance(cert.public_key(), rsa.RSAPublicKey):
         raise UserError(f"{path}: the certificate's key is not an RSA key (the security policies sign with RSA)")
+    weak = key_problem(cert)
+    if weak is not None:  # the server would refuse every login with it
+        raise UserError(f"{path}: {weak}")
     return cert.public_bytes(Encoding.DER)
 
 
