@@ -56,6 +56,29 @@ async function secureOptions(certificateFile, privateKeyFile, applicationUri, pk
   };
 }
 
+// A session of user/password subscribed to the Server object's events with the select clauses `fields`;
+// onEvent(values) is called with each event's field values. Returns { client, session }.
+async function serverEvents(endpoint, userName, password, fields, onEvent) {
+  const {
+    ClientSubscription, ClientMonitoredItem, TimestampsToReturn, UserTokenType, constructEventFilter,
+  } = require("node-opcua-client");
+  const client = newClient();
+  await client.connect(endpoint);
+  const session = await client.createSession({ type: UserTokenType.UserName, userName, password });
+  const subscription = ClientSubscription.create(session, {
+    requestedPublishingInterval: 50, requestedLifetimeCount: 1000, requestedMaxKeepAliveCount: 20,
+    maxNotificationsPerPublish: 100, publishingEnabled: true, priority: 1,
+  });
+  const item = ClientMonitoredItem.create(
+    subscription,
+    { nodeId: "i=2253", attributeId: AttributeIds.EventNotifier },
+    { samplingInterval: 0, discardOldest: true, queueSize: 100, filter: constructEventFilter(fields) },
+    TimestampsToReturn.Neither,
+  );
+  item.on("changed", onEvent);
+  return { client, session };
+}
+
 // path: "/<ns>:Name/<ns>:Name" with keys of NS instead of indexes, e.g. "/Cell:Robot1/Robotics:Controllers"
 async function resolve(session, ns, startNodeId, path) {
   const concrete = path.replace(/(\w+):/g, (m, key) => (key in ns ? `${ns[key]}:` : m));
@@ -87,4 +110,4 @@ const SYSTEM_OPERATION = "/DI:DeviceSet/Cell:Robot1/Robotics:Controllers/Cell:Co
   "/Robotics:SystemOperation/Robotics:SystemOperationStateMachine";
 const FILLER = "/PackML:PackMLObjects/Cell:Filler1";
 
-module.exports = { connect, newClient, secureOptions, resolve, done, main, NS, TASK_CONTROL, SYSTEM_OPERATION, FILLER };
+module.exports = { connect, newClient, secureOptions, serverEvents, resolve, done, main, NS, TASK_CONTROL, SYSTEM_OPERATION, FILLER };

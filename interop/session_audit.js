@@ -3,29 +3,14 @@
 // password is tried. Prints the audit events of session services it received, in order.
 // Usage: node session_audit.js <endpoint> <admin user> <admin password> <other user>
 "use strict";
-const {
-  AttributeIds, ClientSubscription, ClientMonitoredItem, TimestampsToReturn, UserTokenType, constructEventFilter,
-} = require("node-opcua-client");
-const { done, main, newClient } = require("./lib");
+const { UserTokenType } = require("node-opcua-client");
+const { done, main, newClient, serverEvents } = require("./lib");
 
 main(async () => {
   const [endpoint, adminUser, adminPassword, otherUser] = process.argv.slice(2);
-  const admin = newClient();
-  await admin.connect(endpoint);
-  const session = await admin.createSession({ type: UserTokenType.UserName, userName: adminUser, password: adminPassword });
-  const subscription = ClientSubscription.create(session, {
-    requestedPublishingInterval: 50, requestedLifetimeCount: 1000, requestedMaxKeepAliveCount: 20,
-    maxNotificationsPerPublish: 100, publishingEnabled: true, priority: 1,
-  });
   const fields = ["EventType", "SourceName", "Status", "ClientUserId", "SessionId", "SecureChannelId", "UserIdentityToken"];
   const events = [];
-  const item = ClientMonitoredItem.create(
-    subscription,
-    { nodeId: "i=2253", attributeId: AttributeIds.EventNotifier },
-    { samplingInterval: 0, discardOldest: true, queueSize: 100, filter: constructEventFilter(fields) },
-    TimestampsToReturn.Neither,
-  );
-  item.on("changed", (values) => {
+  const { client: admin, session } = await serverEvents(endpoint, adminUser, adminPassword, fields, (values) => {
     const token = values[6].value;
     events.push({
       type: values[0].value ? values[0].value.toString() : null,

@@ -6,31 +6,16 @@
 // SourceName, StatusCodeId's name, the Certificate as hex).
 "use strict";
 const fs = require("fs");
-const {
-  AttributeIds, ClientSubscription, ClientMonitoredItem, TimestampsToReturn, UserTokenType, constructEventFilter,
-} = require("node-opcua-client");
-const { done, main, newClient } = require("./lib");
+const { UserTokenType } = require("node-opcua-client");
+const { done, main, newClient, serverEvents } = require("./lib");
 
 main(async () => {
   const [endpoint, adminUser, adminPassword, ...rest] = process.argv.slice(2);
   const logins = [];
   for (let i = 0; i + 2 < rest.length; i += 3) logins.push({ label: rest[i], cert: rest[i + 1], key: rest[i + 2] });
-  const admin = newClient();
-  await admin.connect(endpoint);
-  const session = await admin.createSession({ type: UserTokenType.UserName, userName: adminUser, password: adminPassword });
-  const subscription = ClientSubscription.create(session, {
-    requestedPublishingInterval: 50, requestedLifetimeCount: 1000, requestedMaxKeepAliveCount: 20,
-    maxNotificationsPerPublish: 100, publishingEnabled: true, priority: 1,
-  });
   const events = [];
-  const item = ClientMonitoredItem.create(
-    subscription,
-    { nodeId: "i=2253", attributeId: AttributeIds.EventNotifier },
-    { samplingInterval: 0, discardOldest: true, queueSize: 100,
-      filter: constructEventFilter(["EventType", "SourceName", "StatusCodeId", "Certificate"]) },
-    TimestampsToReturn.Neither,
-  );
-  item.on("changed", (values) => {
+  const fields = ["EventType", "SourceName", "StatusCodeId", "Certificate"];
+  const { client: admin, session } = await serverEvents(endpoint, adminUser, adminPassword, fields, (values) => {
     if (values[1].value !== "Security/Certificate") return;
     events.push({
       type: values[0].value.toString(),
