@@ -222,6 +222,7 @@ class _Logins:
     _lock_users: dict[str, int]  # attempts holding or waiting for each user name's lock
     audit_events: SecurityAuditEvents
     refusals: RefusalLog
+    _refused_user_certificates: weakref.WeakKeyDictionary[InternalSession, tuple[int, bytes, str]]
 
     def decrypt_user_token(self, isession: InternalSession, token: ua.UserNameIdentityToken) -> tuple[str, str]:
         raise NotImplementedError  # Security's
@@ -367,9 +368,9 @@ class _Logins:
         try:
             result = await call()
         except ServiceError as exc:
-            if isinstance(exc, _UserCertificateRefused) and exc.certificate_code is not None:
-                # the certificate's own audit event besides the session's (OPC 10000-4 6.5.6, decision 102)
-                await self.audit_events.certificate_refused(exc.certificate_code, exc.certificate, exc.why)
+            refused = self._refused_user_certificates.pop(processor.session, None) if processor.session else None
+            if refused is not None:  # the certificate's own audit event besides the session's (decision 102)
+                await self.audit_events.certificate_refused(*refused)
             await self._audit_login(processor, address, user, token, exc.code)
             raise
         except InvalidSignature:  # asyncua's check of the clientSignature (OPC 10000-4 5.7.3.2)
@@ -436,17 +437,6 @@ class _Logins:
                 await task
 
         return stop
-
-
-class _UserCertificateRefused(ServiceError):  # type: ignore[misc]  # asyncua's class is untyped
-    """A user certificate token refused: what the client is told (``code``), the certificate step that
-    failed (``certificate_code``, None when the certificate is not what failed), the certificate, why."""
-
-    def __init__(self, code: int, certificate_code: int | None, certificate: bytes, why: str) -> None:
-        super().__init__(code)
-        self.certificate_code = certificate_code
-        self.certificate = certificate
-        self.why = why
 
 
 async def _nothing_to_stop() -> None:
@@ -688,6 +678,10 @@ class Security(_Channels, _TrustWatch, _Logins):
         self.refusals = RefusalLog()
         # what each channel's OpenSecureChannel asked for; its certificate: the client's, or its chain (10000-6 6.2.6)
         self._channel_requests: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest] = weakref.WeakKeyDictionary()
+        # a user certificate refused in a session's activation: (certificate step, DER, why) for its event
+        self._refused_user_certificates: weakref.WeakKeyDictionary[InternalSession, tuple[int, bytes, str]] = (
+            weakref.WeakKeyDictionary()
+        )
         # the chain each channel's certificate was accepted with at CreateSession (recheck_channels)
         self._checked_chains: weakref.WeakKeyDictionary[UaProcessor, list[x509.Certificate]] = (
             weakref.WeakKeyDictionary()
@@ -960,8 +954,10 @@ class Security(_Channels, _TrustWatch, _Logins):
                 f"certificate:{refused.code}",
                 f"refused certificate login from {address}: {refused.why} ({name})",
             )
-            der = first_certificate(token.CertificateData or b"")
-            raise _UserCertificateRefused(refused.code, refused.certificate_code, der, refused.why) from None
+            if refused.certificate_code is not None:  # its audit event, fired by ``_audited`` (decision 102)
+                der = first_certificate(token.CertificateData or b"")
+                self._refused_user_certificates[isession] = (refused.certificate_code, der, refused.why)
+            raise ServiceError(refused.code) from None
         return VerifiedCertificate.of(first_certificate(token.CertificateData), login)
 
     # per-session attributes ------------------------------------------------------------------------
