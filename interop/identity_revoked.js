@@ -3,7 +3,8 @@
 // creating a file, then reads the role until it changes; afterwards it activates the same session again
 // with the new password.
 // argv: endpoint certPem keyPem applicationUri pkiDir user password readyFile newPasswordFile
-// Prints {before, after, again}: the roles read.
+// Prints {before, after, again}: the roles read (Server/CurrentRole), and users: the users the session read
+// at those moments (Server/CurrentUser, decision 103; "" for anonymous).
 "use strict";
 const fs = require("fs");
 const { OPCUAClient, UserTokenType, AttributeIds } = require("node-opcua-client");
@@ -21,6 +22,9 @@ main(async () => {
     const namespaces = (await session.read({ nodeId: "i=2255", attributeId: AttributeIds.Value })).value.value;
     const roleNode = `ns=${namespaces.indexOf(NS.Cell)};s=Server.CurrentRole`;
     const role = async () => (await session.read({ nodeId: roleNode, attributeId: AttributeIds.Value })).value.value;
+    const userNode = `ns=${namespaces.indexOf(NS.Cell)};s=Server.CurrentUser`;
+    const user = async () => (await session.read({ nodeId: userNode, attributeId: AttributeIds.Value })).value.value;
+    const users = [await user()];
     const before = await role();
     fs.writeFileSync(readyFile, "ready");
     let after = before;
@@ -28,11 +32,13 @@ main(async () => {
       await sleep(100);
       after = await role();
     }
+    users.push(await user());
     const newPassword = fs.readFileSync(newPasswordFile, "utf8").trim();
     await client.changeSessionIdentity(session, { type: UserTokenType.UserName, userName, password: newPassword });
     const again = await role();
+    users.push(await user());
     await session.close();
-    await done({ before, after, again });
+    await done({ before, after, again, users });
   } finally {
     await client.disconnect();
   }

@@ -42,4 +42,10 @@ async def test_node_opcua_session_loses_a_user_whose_password_was_changed(tmp_pa
     finally:
         sp.stop()
     # anonymous on loopback is operator; the new password gives the engineer back on the same session
-    assert out == {"before": "engineer", "after": "operator", "again": "engineer"}, out
+    # and Server/CurrentUser (decision 103) says whose the session is at each moment
+    assert out == {
+        "before": "engineer",
+        "after": "operator",
+        "again": "engineer",
+        "users": ["tilda", "", "tilda"],
+    }, out

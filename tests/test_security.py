@@ -365,8 +365,18 @@ async def test_each_session_reads_its_own_role_in_server_current_role(env, sessi
         ns = await anonymous.get_namespace_index("urn:uacell:cell")
         node = anonymous.get_node(ua.NodeId("Server.CurrentRole", ns))
         assert await node.read_value() == "operator"  # the anonymous role on a loopback-only server
+        assert await anonymous.get_node(ua.NodeId("Server.CurrentUser", ns)).read_value() == ""
     finally:
         await anonymous.disconnect()
+
+
+async def test_each_session_reads_its_own_user_in_server_current_user(env, sessions):
+    """uacell's Server/CurrentUser (decision 103): one node, each session reads the user it is logged in as."""
+    for role, client in sessions.items():
+        server = client.get_node(ua.NodeId(ua.ObjectIds.Server))
+        node = await server.get_child(f"{await client.get_namespace_index('urn:uacell:cell')}:CurrentUser")
+        assert await node.read_value() == f"probe-{role.label}", role
+        assert (await node.read_data_type_as_variant_type()) == ua.VariantType.String
 
 
 async def test_writes_checked_against_the_role_table(env, sessions):

@@ -67,8 +67,10 @@ class Cell:
     rebrowse: tuple[str, ...] = ()
     # Nodes whose TransitionEvents the page lists, by NodeId string -> key of the machine.
     machines: dict[str, str] = field(default_factory=dict)
-    # uacell's Server/CurrentRole (decision 39): read once per session, each session its own role.
+    # uacell's Server/CurrentRole (decision 39): read once per session, each session its own role;
+    # Server/CurrentUser (decision 103): read again and again, to learn that the server ended the login.
     role: ua.NodeId | None = None
+    user: ua.NodeId | None = None
     # Per layout key, how a part's history view is read (``WebView.history``), where its companion has one.
     histories: dict[str, Callable[..., Awaitable[dict[str, Any]]]] = field(default_factory=dict)
 
@@ -195,6 +197,7 @@ class Discoverer:
         layout["auditing"] = await self.auditing()
         self.cell.layout = layout
         self.cell.role = await self.child(ua.NodeId(ua.ObjectIds.Server), "CurrentRole")
+        self.cell.user = await self.child(ua.NodeId(ua.ObjectIds.Server), "CurrentUser")
         log.debug("found %s", ", ".join(f"{len(v)} {k}" for k, v in layout.items() if isinstance(v, list)))
         return self.cell
 

@@ -687,6 +687,7 @@ class Security(_Channels, _TrustWatch, _Logins):
             weakref.WeakKeyDictionary()
         )
         self.role_node = ua.NodeId()  # Server/CurrentRole, made by install()
+        self.user_node = ua.NodeId()  # Server/CurrentUser, made by install()
 
     async def install(self) -> None:
         cfg = self.app.config.server
@@ -718,7 +719,7 @@ class Security(_Channels, _TrustWatch, _Logins):
         door.swap(iserver, "InternalServer.create_session", self._create_session)
         door.swap(iserver, "InternalServer.decrypt_user_token", self.decrypt_user_token)
         door.swap(iserver, "InternalServer.verify_x509_token", self.verify_user_certificate)
-        await self._add_current_role()
+        await self._add_session_variables()
         logging.getLogger("asyncua.server.uaprocessor").addFilter(_drop_fault_echo)  # added once
         context.add_read_hook(_read_hook)
         log.info(
@@ -962,19 +963,25 @@ class Security(_Channels, _TrustWatch, _Logins):
 
     # per-session attributes ------------------------------------------------------------------------
 
-    async def _add_current_role(self) -> None:
-        """``Server/CurrentRole`` (decision 39): read by a session, the role that session has."""
+    async def _add_session_variables(self) -> None:
+        """``Server/CurrentRole`` (decision 39) and ``Server/CurrentUser`` (decision 103): read by a
+        session, the role and the user that session has."""
+        self.role_node = await self._session_variable("CurrentRole", CURRENT_ROLE_DESCRIPTION)
+        self.user_node = await self._session_variable("CurrentUser", CURRENT_USER_DESCRIPTION)
+
+    async def _session_variable(self, name: str, description: str) -> ua.NodeId:
         ns = self.app.cell.instantiator.ns
-        self.role_node = ua.NodeId("Server.CurrentRole", ns)
-        if self.role_node in self.server.iserver.aspace:  # restored from the address-space snapshot
-            return
+        node_id = ua.NodeId(f"Server.{name}", ns)
+        if node_id in self.server.iserver.aspace:  # restored from the address-space snapshot
+            return node_id
         node = await self.server.get_node(ua.ObjectIds.Server).add_variable(
-            self.role_node, ua.QualifiedName("CurrentRole", ns), "", varianttype=ua.VariantType.String
+            node_id, ua.QualifiedName(name, ns), "", varianttype=ua.VariantType.String
         )
         await node.write_attribute(
             ua.AttributeIds.Description,
-            ua.DataValue(ua.Variant(ua.LocalizedText(CURRENT_ROLE_DESCRIPTION, "en"), ua.VariantType.LocalizedText)),
+            ua.DataValue(ua.Variant(ua.LocalizedText(description, "en"), ua.VariantType.LocalizedText)),
         )
+        return node_id
 
     def adjust_read(self, session: InternalSession, params: ua.ReadParameters, results: list[ua.DataValue]) -> None:
         role = caller_of(session).role
@@ -985,6 +992,9 @@ class Security(_Channels, _TrustWatch, _Logins):
             attr = rv.AttributeId
             if attr == _A.Value and rv.NodeId == self.role_node:
                 results[i] = _with_value(dv, Role.parse(role).label, ua.VariantType.String)
+                continue
+            if attr == _A.Value and rv.NodeId == self.user_node:
+                results[i] = _with_value(dv, caller_of(session).user or "", ua.VariantType.String)
                 continue
             if attr == _A.Value and not diagnostics_readable_by(rv.NodeId, role):
                 results[i] = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadUserAccessDenied))
@@ -1156,6 +1166,9 @@ def _peek_policy_uri(header: ua.Header, body: Buffer) -> str | None:
 CURRENT_ROLE_DESCRIPTION = (
     "uacell: the role of the session that reads this value (observer, operator, engineer or admin); "
     "each session reads its own"
+)
+CURRENT_USER_DESCRIPTION = (
+    "uacell: the user the session that reads this value is logged in as (empty: anonymous); each session reads its own"
 )
 
 

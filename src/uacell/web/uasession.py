@@ -50,6 +50,7 @@ APPLICATION_URI = "urn:uacell:web"
 RETRY_SECONDS = 2.0
 LOGIN_TIMEOUT = 45.0  # seconds a server may take to check a login (and a dead connection may go unnoticed)
 EVENTS_KEPT = 30
+IDENTITY_CHECK_SECONDS = 2.0  # how often a logged-in session asks the server who it is (decision 103)
 _AUDIT_UPDATE_STATE = ua.NodeId(ua.ObjectIds.AuditUpdateStateEventType)
 
 
@@ -138,6 +139,7 @@ class UaSession:
         self.refresher = Refresher(self)
         self.programs = ProgramFiles(self)  # a robot controller's program files
         self._reconnect_task: asyncio.Task[None] | None = None
+        self._identity_task: asyncio.Task[None] | None = None
         self._closed = False
         self._by_node: dict[ua.NodeId, str] = {}
         # The slot this session holds while it has (or makes) an OPC UA session; None: not counted.
@@ -212,6 +214,8 @@ class UaSession:
         self.status = "connected"
         self.problem = ""
         self.emit({"type": "snapshot", **self.snapshot()})
+        if self.user is not None and self.cell.user is not None:
+            self._identity_task = asyncio.get_running_loop().create_task(self._watch_identity(client, generation))
 
     def _settle(self) -> None:
         """Give the slot back once this session holds no OPC UA session and makes none."""
@@ -253,8 +257,39 @@ class UaSession:
             return str(value) if value else None
         return None
 
+    async def _watch_identity(self, client: Client, generation: int) -> None:
+        """Decision 103: the server may end a user's login while the session goes on, as anonymous
+        (decision 99: ``users.toml`` changed). Every few seconds the session reads who it is; when it is
+        no longer its user, it activates again with the password the web user logged in with: the role
+        the server grants now, or, when the password no longer works, "login-required"."""
+        assert self.cell.user is not None
+        node = Node(client.uaclient, self.cell.user)
+        while generation == self._generation and self.client is client:
+            await asyncio.sleep(IDENTITY_CHECK_SECONDS)
+            try:
+                user = await node.read_value()
+            except Exception:  # the connection is in trouble: _lost says so
+                continue
+            if user != self.user and generation == self._generation and self.client is client:
+                await self._activate_again(client)
+
+    async def _activate_again(self, client: Client) -> None:
+        log.info("web session of %s: the server ended its login; activating it again", self.user)
+        try:
+            await client.activate_session(username=self.user, password=self._password or "")
+        except UaStatusCodeError as exc:
+            self.client = None  # the OPC UA session goes; the web user logs in again
+            refused = self.identity_refused(CallFailed(exc.code, "activate"))
+            await _quietly_disconnect(client)
+            if not refused:
+                self.fail(f"the server refused the session: {ua.StatusCode(exc.code).name}")
+            return
+        self.role = await self._read_role(client)
+        await self.refresher.refresh_methods()
+        self.emit({"type": "snapshot", **self.snapshot()})
+
     async def _lost(self, exc: Exception) -> None:
-        if self.status == "released":
+        if self.status in ("released", "login-required"):
             return
         log.info("web session of %s lost the server: %s", self.user or "anonymous", exc)
         self.cache.forget()
@@ -293,6 +328,7 @@ class UaSession:
         """Give the server its session back while no page is open; ``resume()`` makes a new one."""
         self._generation += 1
         self.refresher.cancel()
+        self._stop_identity_watch()
         if self._reconnect_task is not None and not self._reconnect_task.done():
             self._reconnect_task.cancel()
         client, self.client = self.client, None
@@ -352,10 +388,16 @@ class UaSession:
             log.info("web session of %s reconnected", self.user or "anonymous")
             return
 
+    def _stop_identity_watch(self) -> None:
+        task, self._identity_task = self._identity_task, None
+        if task is not None and not task.done() and task is not asyncio.current_task():
+            task.cancel()
+
     async def close(self) -> None:
         self._closed = True
         self._generation += 1
         self.refresher.cancel()
+        self._stop_identity_watch()
         if self._reconnect_task is not None and not self._reconnect_task.done():
             self._reconnect_task.cancel()
         client, self.client = self.client, None
