@@ -160,45 +160,6 @@ async def test_a_password_changed_meanwhile_ends_the_web_session_after_one_refus
     assert time.monotonic() - started < 5  # not held back by a throttle the HMI's retries built up
 
 
-async def test_a_login_the_server_ends_while_the_page_is_open_is_renewed_or_ended(stack):
-    """Decision 103: ``users.toml`` changed under an open page makes the HMI's OPC UA session anonymous
-    (decision 99). The HMI notices (Server/CurrentUser), activates the session again with the password
-    the web user gave: a new role is shown at once; a password that no longer works ends the web session
-    with one refusal, and the page asks for a login."""
-    app, web = stack
-    app.users.add("tilda", "operator", "t1lda-web-pw")
-    b = Browser(web.url)
-    await b.start()
-    assert (await b.login("tilda", "t1lda-web-pw"))[0] == 200
-    page = await Page(web, b).open()
-    try:
-        first = await page.until(lambda m: m.get("type") == "snapshot" and m.get("status") == "connected")
-        assert (first["user"], first["role"]) == ("tilda", "operator")
-        app.users.set_role("tilda", "engineer")  # as `uacell user role` does from another process
-        renewed = await page.until(lambda m: m.get("type") == "snapshot" and m.get("role") == "engineer")
-        assert renewed["status"] == "connected" and renewed["user"] == "tilda"
-        status, answer = await b.post("/api/call", {"key": "Filler1/SetMachSpeed", "args": [61.0]})
-        assert status == 200 and answer["code"] == "Good"
-
-        def tildas_call() -> bool:  # the audit trail is written by its own thread
-            lines = (app.data_dir / "audit.log").read_text().splitlines()
-            calls = [
-                e for e in map(json.loads, lines) if e.get("event") == "call" and e.get("method") == "SetMachSpeed"
-            ]
-            return bool(calls) and (calls[-1]["user"], calls[-1]["role"]) == ("tilda", "engineer")
-
-        await wait_until(tildas_call, timeout=20)  # the call is the user's again, not anonymous's
-
-        app.users.set_password("tilda", "t1lda-web-pw-2")
-        refused = await page.until(lambda m: m.get("status") == "login-required")
-        assert "no longer accepts the password of tilda" in refused["problem"]
-        await page.until(lambda m: m.get("type") == "expired")
-    finally:
-        await page.close()
-    status, answer = await b.post("/api/call", {"key": "Filler1/SetMachSpeed", "args": [60.0]})
-    assert status == 401 and answer["expired"]
-
-
 async def test_a_request_whose_headers_dribble_in_is_closed_with_408(stack):
     _app, web = stack
     port = _port(web)
@@ -328,3 +289,46 @@ async def test_the_loopback_hardening_setting_leaves_anonymous_pages_and_local_p
     finally:
         await web.stop()
         await app.stop()
+
+
+async def test_a_login_the_server_ends_while_the_page_is_open_is_renewed_or_ended(stack):
+    """Decision 103: ``users.toml`` changed under an open page makes the HMI's OPC UA session anonymous
+    (decision 99). The HMI notices (Server/CurrentUser), activates the session again with the password
+    the web user gave: a new role is shown at once; a password that no longer works ends the web session
+    with one refusal, and the page asks for a login. (Last in this module: its refused activation
+    counts as a failed login from 127.0.0.1, which the server's throttle remembers.)"""
+    app, web = stack
+    app.users.add("tilda", "operator", "t1lda-web-pw")
+    b = Browser(web.url)
+    await b.start()
+    assert (await b.login("tilda", "t1lda-web-pw"))[0] == 200
+    page = await Page(web, b).open()
+    try:
+        first = await page.until(lambda m: m.get("type") == "snapshot" and m.get("status") == "connected")
+        assert (first["user"], first["role"]) == ("tilda", "operator")
+        app.users.set_role("tilda", "engineer")  # as `uacell user role` does from another process
+        renewed = await page.until(lambda m: m.get("type") == "snapshot" and m.get("role") == "engineer")
+        assert renewed["status"] == "connected" and renewed["user"] == "tilda"
+        status, answer = await b.post("/api/call", {"key": "Filler1/SetMachSpeed", "args": [61.0]})
+        assert status == 200 and answer["code"] == "Good"
+
+        def tildas_call() -> bool:  # the audit trail is written by its own thread
+            lines = (app.data_dir / "audit.log").read_text().splitlines()
+            calls = [
+                e for e in map(json.loads, lines) if e.get("event") == "call" and e.get("method") == "SetMachSpeed"
+            ]
+            return bool(calls) and (calls[-1]["user"], calls[-1]["role"]) == ("tilda", "engineer")
+
+        await wait_until(tildas_call, timeout=20)  # the call is the user's again, not anonymous's
+
+        app.users.set_password("tilda", "t1lda-web-pw-2")
+        refused = await page.until(lambda m: m.get("status") == "login-required")
+        assert "no longer accepts the password of tilda" in refused["problem"]
+        await page.until(lambda m: m.get("type") == "expired")
+    finally:
+        await page.close()
+    status, answer = await b.post("/api/call", {"key": "Filler1/SetMachSpeed", "args": [60.0]})
+    assert status == 401 and answer["expired"]
+    # nothing held: the server's session went with the web session
+    await wait_until(lambda: held(app) == 0, timeout=10)
+    assert not web.web.places.slots.holders

@@ -26,6 +26,7 @@ from uacell.binding.web_discovery import Cell
 from uacell.core.companion import WebView
 from uacell.web.discovery import discover
 from uacell.web.errors import CallFailed, UnknownKey, login_refusal, status_text
+from uacell.web.event_entries import attribute, transition_entry
 from uacell.web.history import WIDTH, cell_history
 from uacell.web.session_files import ProgramFiles
 from uacell.web.session_refresh import Refresher
@@ -326,11 +327,7 @@ class UaSession:
 
     async def release(self) -> None:
         """Give the server its session back while no page is open; ``resume()`` makes a new one."""
-        self._generation += 1
-        self.refresher.cancel()
-        self._stop_identity_watch()
-        if self._reconnect_task is not None and not self._reconnect_task.done():
-            self._reconnect_task.cancel()
+        self._stop()
         client, self.client = self.client, None
         self.status, self.problem = "released", ""
         if client is not None:
@@ -388,18 +385,17 @@ class UaSession:
             log.info("web session of %s reconnected", self.user or "anonymous")
             return
 
-    def _stop_identity_watch(self) -> None:
-        task, self._identity_task = self._identity_task, None
-        if task is not None and not task.done() and task is not asyncio.current_task():
-            task.cancel()
+    def _stop(self) -> None:
+        """A connect under way gives up; what reads, reconnects or watches for this session ends."""
+        self._generation += 1
+        self.refresher.cancel()
+        for task in (self._reconnect_task, self._identity_task):
+            if task is not None and not task.done() and task is not asyncio.current_task():
+                task.cancel()
 
     async def close(self) -> None:
         self._closed = True
-        self._generation += 1
-        self.refresher.cancel()
-        self._stop_identity_watch()
-        if self._reconnect_task is not None and not self._reconnect_task.done():
-            self._reconnect_task.cancel()
+        self._stop()
         client, self.client = self.client, None
         if client is not None:
             await _quietly_disconnect(client)
@@ -461,46 +457,20 @@ class UaSession:
             self.emit({"type": "values", "values": pending})
 
     def _event(self, event: Any) -> None:
-        source = getattr(event, "SourceNode", None)
         if getattr(event, "EventType", None) == _AUDIT_UPDATE_STATE:
-            self._audit(event, source)
+            if attribute(self.events, event) is not None:
+                self.emit({"type": "events", "events": list(self.events)})
             return
+        source = getattr(event, "SourceNode", None)
         machine = self.cell.machines.get(source.to_string()) if isinstance(source, ua.NodeId) else None
         # The machine's LastTransitionReason is published before its event: its value now is this one's.
         reason = None
         if machine:
             reason = self.values.get(f"{machine}/LastTransitionReason/ValueAsText")
             reason = reason or self.values.get(f"{machine}/LastTransitionReason")
-        entry = {
-            "time": jsonable(getattr(event, "Time", None)),
-            "machine": machine or jsonable(getattr(event, "SourceName", "")),
-            "transition": jsonable(getattr(event, "Transition", None)),
-            "from": jsonable(getattr(event, "FromState", None)),
-            "to": jsonable(getattr(event, "ToState", None)),
-            "message": jsonable(getattr(event, "Message", None)),
-            "reason": reason,
-            "source": jsonable(source),
-            "from_id": jsonable(getattr(event, "FromState/Id", None)),
-            "to_id": jsonable(getattr(event, "ToState/Id", None)),
-            "user": None,  # set by the AuditUpdateStateEvent that follows when a call caused it
-        }
+        entry = transition_entry(event, machine, reason)
         self.events.appendleft(entry)
         self.emit({"type": "event", "event": entry})
-
-    def _audit(self, event: Any, source: Any) -> None:
-        """Who caused a transition: the AuditUpdateStateEvent the server fires right after the
-        TransitionEvent of a transition a method call caused (none for one that followed by itself)."""
-        key = (
-            jsonable(source),
-            jsonable(getattr(event, "OldStateId", None)),
-            jsonable(getattr(event, "NewStateId", None)),
-        )
-        for entry in self.events:  # newest first
-            if entry["user"] is None and (entry["source"], entry["from_id"], entry["to_id"]) == key:
-                entry["user"] = getattr(event, "ClientUserId", None) or "anonymous"  # null: an anonymous session
-                entry["method"] = str(getattr(event, "SourceName", "") or "").removeprefix("Method/")
-                self.emit({"type": "events", "events": list(self.events)})
-                return
 
     # what the user does ----------------------------------------------------------------------
 
