@@ -40,13 +40,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import functools
 import hmac
 import logging
 import os
 import struct
 import time
 import weakref
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Coroutine
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -64,6 +65,7 @@ from cryptography import x509
 from cryptography.exceptions import InvalidSignature
 
 from uacell.config import login_answer_margin
+from uacell.core.background import stop_task
 from uacell.core.logs import RefusalLog
 from uacell.core.roles import Family, Role, may
 from uacell.security.access import user_access_level, verified_login
@@ -429,18 +431,16 @@ class _Logins:
                     except Exception:  # a file being written by hand: the next change is looked at again
                         log.exception("cannot check the sessions' users against %s", users.path)
 
-        task = asyncio.get_running_loop().create_task(watch(), name="uacell-users-watch")
-
-        async def stop() -> None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-
-        return stop
+        return _watching(watch(), "uacell-users-watch")
 
 
 async def _nothing_to_stop() -> None:
     return None
+
+
+def _watching(watch: Coroutine[Any, Any, None], name: str) -> Callable[[], Awaitable[None]]:
+    """Run ``watch`` as a task of the loop; returns what stops it (``stop_task``)."""
+    return functools.partial(stop_task, asyncio.get_running_loop().create_task(watch, name=name))
 
 
 def _utc_now() -> datetime:
@@ -490,14 +490,7 @@ class _TrustWatch:
 
         if trust is None:
             return _nothing_to_stop
-        task = asyncio.get_running_loop().create_task(watch(trust.paths), name="uacell-trust-watch")
-
-        async def stop() -> None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-
-        return stop
+        return _watching(watch(trust.paths), "uacell-trust-watch")
 
 
 class _Channels:
