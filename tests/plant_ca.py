@@ -75,11 +75,13 @@ class Authority:
         *,
         key_index: int = 2,
         key: rsa.RSAPrivateKey | None = None,
+        not_after: dt.datetime | None = None,
     ) -> tuple[x509.Certificate, rsa.RSAPrivateKey]:
         """An Application Instance Certificate for a client, issued by this CA (with ``key`` instead of a
-        shared 2048-bit one)."""
+        shared 2048-bit one; valid until ``not_after`` instead of a year)."""
         key = key or _key(key_index)
-        return application_certificate(application_uri, common_name, key, (self.cert.subject, self.key)), key
+        issuer = (self.cert.subject, self.key)
+        return application_certificate(application_uri, common_name, key, issuer, not_after=not_after), key
 
     def sign_request(
         self,
@@ -149,9 +151,12 @@ def application_certificate(
     common_name: str,
     key: rsa.RSAPrivateKey,
     issuer: tuple[x509.Name, rsa.RSAPrivateKey] | None = None,
+    *,
+    not_after: dt.datetime | None = None,
 ) -> x509.Certificate:
     """An Application Instance Certificate (OPC 10000-6 6.2.2) for ``key``, signed with SHA-256: issued by
-    ``issuer`` (its name and key), or self-signed as most OPC UA applications make their own."""
+    ``issuer`` (its name and key), or self-signed as most OPC UA applications make their own; valid from
+    five minutes ago until ``not_after`` (a year by default)."""
     subject = _name(common_name)
     issuer_name, issuer_key = issuer or (subject, key)
     start = _now() - dt.timedelta(minutes=5)
@@ -162,7 +167,7 @@ def application_certificate(
         .public_key(key.public_key())
         .serial_number(x509.random_serial_number())
         .not_valid_before(start)
-        .not_valid_after(start + dt.timedelta(days=365))
+        .not_valid_after(not_after or start + dt.timedelta(days=365))
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
         .add_extension(
             x509.SubjectAlternativeName(

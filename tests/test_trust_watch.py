@@ -15,11 +15,12 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
-from helpers import secure_client
+from cryptography.hazmat.primitives import serialization
+from helpers import Collector, secure_client
 from plant_ca import Authority
 from test_push_certificates import gds_session, plant, reaches
 
-from uacell.security.pki import PkiPaths
+from uacell.security.pki import PkiPaths, trust_stamp
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
@@ -114,6 +115,68 @@ async def test_a_ca_removed_with_uacell_cert_closes_the_channels_it_admitted(
         await asyncio.gather(laptop_client.disconnect(), return_exceptions=True)
 
 
+async def moved_to_new_channel(old: Client, endpoint: str, directory: Path, cert: Any, key: Any, uri: str) -> Client:
+    """A new secure channel with the same certificate, on which the client activates ``old``'s session
+    (OPC 10000-4 5.6.3.1: a session moved to a new channel, as a client reconnecting after a lost
+    connection does), built from asyncua's client steps. Raises what the server answered."""
+    directory.mkdir(exist_ok=True)
+    client = await secure_client(endpoint, directory, cert, key, uri)
+    await client.connect_socket()
+    try:
+        await client.send_hello()
+        await client.open_secure_channel()
+        client.uaclient.protocol.authentication_token = old.uaclient.protocol.authentication_token
+        client._server_nonce = old._server_nonce  # the last nonce the session was given
+        await client.activate_session()
+    except BaseException:
+        client.disconnect_socket()
+        raise
+    return client
+
+
+class _Quiet:
+    def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+        pass
+
+
+async def test_a_session_whose_certificate_was_removed_cannot_move_to_a_new_channel(
+    plant: dict[str, Any], tmp_path: Path
+) -> None:
+    """Decision 104: once the trust list no longer admits a client, its session goes on over no new channel
+    either. A session with a subscription outlives its connection (OPC 10000-4 6.7), and the new channel's
+    ActivateSession compared the certificate with the session's without asking the trust list: a removed
+    client came straight back, the way node-opcua reconnects."""
+    app, paths = plant["app"], plant["paths"]
+    contractor = Authority.root("Contractor Three CA", key_index=9)
+    laptop, laptop_key = contractor.application("urn:contractor:three", "Laptop three", key_index=10)
+    ca_file = tmp_path / "contractor.der"
+    ca_file.write_bytes(contractor.der)
+    (paths.trusted / "contractor-three.der").write_bytes(contractor.der)
+    (paths.crl / "contractor-three.crl").write_bytes(contractor.crl())
+    laptop_client = await connected(app.endpoint, tmp_path / "laptop", laptop, laptop_key, "urn:contractor:three")
+    moved: Client | None = None
+    try:
+        subscription = await laptop_client.create_subscription(100, _Quiet())
+        await subscription.subscribe_data_change(laptop_client.nodes.server_state)
+        # trusted: the session moves to a new channel and goes on there
+        moved = await moved_to_new_channel(
+            laptop_client, app.endpoint, tmp_path / "moved", laptop, laptop_key, "urn:contractor:three"
+        )
+        assert await moved.nodes.server_state.read_value() == ua.ServerState.Running
+
+        uacell_cert(app.data_dir, "remove", str(ca_file))
+        await until_closed(moved)  # the channel the session moved to is checked again, as its first was
+        with pytest.raises(ua.UaStatusCodeError) as refused:
+            await moved_to_new_channel(
+                moved, app.endpoint, tmp_path / "again", laptop, laptop_key, "urn:contractor:three"
+            )
+        assert refused.value.code == ua.StatusCodes.BadSecurityChecksFailed
+    finally:
+        if moved is not None:
+            moved.disconnect_socket()
+        await asyncio.gather(laptop_client.disconnect(), return_exceptions=True)
+
+
 async def test_a_revocation_list_that_goes_stale_closes_the_channels_it_vouched_for(
     plant: dict[str, Any], tmp_path: Path
 ) -> None:
@@ -140,6 +203,88 @@ async def test_a_revocation_list_that_goes_stale_closes_the_channels_it_vouched_
         renewed.write_bytes(contractor.crl())
         uacell_cert(app.data_dir, "crl", str(renewed))
         assert await reaches(app.endpoint, tmp_path, laptop, laptop_key, "urn:contractor:two")
+    finally:
+        await admin.disconnect()
+        await asyncio.gather(laptop_client.disconnect(), return_exceptions=True)
+
+
+async def test_a_client_certificate_that_expires_closes_its_channel(plant: dict[str, Any], tmp_path: Path) -> None:
+    """Decision 104: a client's own certificate reaching its notAfter (RFC 5280 4.1.2.5) while its channel
+    is open closes the channel within the watch's second, as the files' own dates do (decision 100);
+    the same certificate then gets no new channel and session (Bad_CertificateTimeInvalid)."""
+    app, paths = plant["app"], plant["paths"]
+    contractor = Authority.root("Contractor Four CA", key_index=11)
+    ends = (dt.datetime.now(dt.UTC) + dt.timedelta(seconds=6)).replace(microsecond=0)  # a DER time: whole seconds
+    laptop, laptop_key = contractor.application("urn:contractor:four", "Laptop four", key_index=12, not_after=ends)
+    (paths.trusted / "contractor-four.der").write_bytes(contractor.der)
+    (paths.crl / "contractor-four.crl").write_bytes(contractor.crl())
+    admin = await gds_session(plant, tmp_path)
+    laptop_client = await connected(app.endpoint, tmp_path / "laptop", laptop, laptop_key, "urn:contractor:four")
+    try:
+        assert dt.datetime.now(dt.UTC) < ends, "the machine was too slow to connect before the certificate ended"
+        await until_closed(laptop_client)
+        assert dt.datetime.now(dt.UTC) >= ends  # not before it ended
+        assert not await reaches(app.endpoint, tmp_path, laptop, laptop_key, "urn:contractor:four")
+        assert await admin.nodes.server_state.read_value() == ua.ServerState.Running  # a valid one: kept
+    finally:
+        await admin.disconnect()
+        await asyncio.gather(laptop_client.disconnect(), return_exceptions=True)
+
+
+async def channel_events(admin: Client) -> Collector:
+    """The admin session's subscription to the Server object's AuditOpenSecureChannel events."""
+    seen = Collector()
+    subscription = await admin.create_subscription(0, seen)
+    await subscription.subscribe_events(
+        admin.nodes.server, [admin.get_node(ua.NodeId(ua.ObjectIds.AuditOpenSecureChannelEventType))]
+    )
+    return seen
+
+
+async def test_a_renewal_is_audited_and_verifies_the_certificate_again(
+    plant: dict[str, Any], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Decision 104, OPC 10000-4 6.1.7: "ApplicationInstanceCertificates verification shall be executed
+    every time the SecurityToken is renewed for a SecureChannel", and OPC 10000-5 6.4.6's
+    AuditOpenSecureChannelEvent is fired for a renewal as for an opening (RequestType Renew). The watch is
+    made to look away for the second part, so that the renewal alone finds the CA removed."""
+    app, paths = plant["app"], plant["paths"]
+    contractor = Authority.root("Contractor Five CA", key_index=13)
+    laptop, laptop_key = contractor.application("urn:contractor:five", "Laptop five", key_index=14)
+    (paths.trusted / "contractor-five.der").write_bytes(contractor.der)
+    (paths.crl / "contractor-five.crl").write_bytes(contractor.crl())
+    admin = await gds_session(plant, tmp_path)
+    seen = await channel_events(admin)
+    laptop_client = await connected(app.endpoint, tmp_path / "laptop", laptop, laptop_key, "urn:contractor:five")
+    try:
+        channel = str(laptop_client.uaclient.protocol._connection.security_token.ChannelId)
+        await laptop_client.open_secure_channel(renew=True)
+        assert await laptop_client.nodes.server_state.read_value() == ua.ServerState.Running
+
+        def renewal(e: Any) -> bool:
+            return bool(e.RequestType == ua.SecurityTokenRequestType.Renew and e.SecureChannelId == channel)
+
+        renewed = await seen.wait_for(renewal)
+        assert renewed.Status is True
+        assert renewed.StatusCodeId == ua.StatusCode(ua.StatusCodes.Good)
+        assert renewed.ClientUserId == "System/OpenSecureChannel"
+        assert renewed.ClientCertificate == laptop.public_bytes(serialization.Encoding.DER)
+        assert renewed.SecurityMode == ua.MessageSecurityMode.SignAndEncrypt
+        assert renewed.RequestedLifetime > 0
+        seen.clear()
+
+        await published(admin, files_changed_at(paths))  # the watch has seen the files as they are
+        frozen = trust_stamp(paths)
+        monkeypatch.setattr("uacell.security.policy.trust_stamp", lambda _paths: frozen)  # and now looks away
+        (paths.trusted / "contractor-five.der").unlink()
+        with pytest.raises((ua.UaError, ConnectionError, TimeoutError)):
+            await laptop_client.open_secure_channel(renew=True)
+        refused = await seen.wait_for(renewal)
+        assert refused.Status is False
+        # the chain's issuer is gone: what a client is told about a chain (decision 92)
+        assert refused.StatusCodeId == ua.StatusCode(ua.StatusCodes.BadSecurityChecksFailed)
+        assert await until_closed(laptop_client) in (None, ua.StatusCode(ua.StatusCodes.BadSecurityChecksFailed))
+        assert await admin.nodes.server_state.read_value() == ua.ServerState.Running
     finally:
         await admin.disconnect()
         await asyncio.gather(laptop_client.disconnect(), return_exceptions=True)

@@ -108,7 +108,13 @@ class SecurityAuditEvents:
         }
         good = ua.StatusCode(code).is_good()
         mode = request.mode.name if isinstance(request.mode, ua.MessageSecurityMode) else str(request.mode)
-        message = f"secure channel {channel_id} opened ({mode})" if good else f"secure channel refused: {why}"
+        renewal = request.request_type == ua.SecurityTokenRequestType.Renew
+        if good:
+            message = f"secure channel {channel_id} {'renewed' if renewal else 'opened'} ({mode})"
+        elif renewal:
+            message = f"secure channel {channel_id} refused its renewal: {why}"
+        else:
+            message = f"secure channel refused: {why}"
         # OPC 10000-5 6.4.6: the ClientUserId "shall be set to System/OpenSecureChannel"
         opened = _O.AuditOpenSecureChannelEventType
         await self._fire(opened, "SecureChannel/OpenSecureChannel", fields, code, "System/OpenSecureChannel", message)

@@ -75,7 +75,15 @@ from uacell.security.certificate_login import (
     VerifiedCertificate,
     check_user_certificate,
 )
-from uacell.security.chain import Anchors, check_chain, der_of, first_certificate, next_change, split_chain
+from uacell.security.chain import (
+    Anchors,
+    Refusal,
+    check_chain,
+    der_of,
+    first_certificate,
+    next_change,
+    split_chain,
+)
 from uacell.security.own_certificate import finish_install, own_issuers
 from uacell.security.pki import (
     CertificateValidator,
@@ -85,6 +93,7 @@ from uacell.security.pki import (
     ensure_server_certificate,
     load_server_key,
     read_anchors,
+    told,
     trust_stamp,
 )
 from uacell.security.pki import thumbprint as app_thumbprint  # SHA-1, OPC UA's; users' is SHA-256
@@ -458,12 +467,16 @@ class _TrustWatch:
     def recheck_channels(self, anchors: Anchors | None = None, now: datetime | None = None) -> list[str]:
         raise NotImplementedError  # _Channels'
 
+    def channel_expired(self, now: datetime) -> bool:
+        raise NotImplementedError  # _Channels'
+
     def watch_trust(
         self, interval: float = TRUST_WATCH_INTERVAL, clock: Callable[[], datetime] = _utc_now
     ) -> Callable[[], Awaitable[None]]:
         """Look at ``pki/trusted/``, ``pki/issuers/`` and ``pki/crl/`` every ``interval`` seconds
-        (``trust_stamp``); after a change, or once the time ``next_change`` named for the files has come
-        (``clock``), ``recheck_channels`` and tell ``on_trust_changed``. Returns what stops the watch."""
+        (``trust_stamp``); after a change, once the time ``next_change`` named for the files has come
+        (``clock``), or once a certificate an open channel was accepted with has expired (decision 104),
+        ``recheck_channels`` and tell ``on_trust_changed``. Returns what stops the watch."""
         trust = self.trust_list
 
         async def watch(paths: PkiPaths) -> None:
@@ -471,7 +484,8 @@ class _TrustWatch:
             while True:
                 await asyncio.sleep(interval)
                 stamp, now = trust_stamp(paths), clock()
-                if stamp == seen and (due is None or now <= due):  # a list is stale once nextUpdate < now
+                # a list is stale once nextUpdate < now
+                if stamp == seen and (due is None or now <= due) and not self.channel_expired(now):
                     continue
                 try:
                     anchors = read_anchors(paths)
@@ -504,6 +518,8 @@ class _Channels:
     trust_list: TrustList | None
     _channel_requests: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest]
     _checked_chains: weakref.WeakKeyDictionary[UaProcessor, list[x509.Certificate]]
+    _chain_ends: weakref.WeakKeyDictionary[UaProcessor, datetime]
+    _renewals: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest]
 
     def check_channel(self, processor: UaProcessor, uri: str | None, mode: ua.MessageSecurityMode | None) -> None:
         raise NotImplementedError  # Security's
@@ -529,20 +545,30 @@ class _Channels:
         for processor, chain in list(self._checked_chains.items()):
             if not channel_open(processor):
                 continue
-            refusal = check_chain(chain, anchors, now, require_crls=trust.require_revocation_lists)
-            if refusal is None or (trust.trust_on_first_use and refusal.code == ua.StatusCodes.BadCertificateUntrusted):
+            refusal = self._channel_refusal(trust, chain, anchors, now)
+            if refusal is None:
                 continue
-            log.warning(
-                "closing secure channel %s from %s: the trust list no longer admits its certificate %s (%s: %s)",
-                channel_id(processor),
-                _address(processor),
-                app_thumbprint(der_of(chain[0])),
-                refusal.name,
-                refusal.why,
+            _log_refused(
+                processor, chain, refusal, "closing secure channel %s from %s: the trust list no longer admits"
             )
             closed.append(channel_id(processor))
             close_channel(processor)
         return closed
+
+    @staticmethod
+    def _channel_refusal(
+        trust: TrustList, chain: list[x509.Certificate], anchors: Anchors, now: datetime
+    ) -> Refusal | None:
+        """Why an open channel's chain is no longer admitted, or None: its own certificate out of its
+        validity (decision 104), or the chain refused by the files; under trust on first use a
+        certificate merely no longer trusted is admitted (it would be trusted again on its next channel)."""
+        leaf = chain[0]
+        if not leaf.not_valid_before_utc <= now <= leaf.not_valid_after_utc:
+            return Refusal(_S.BadCertificateTimeInvalid, leaf, "it is not valid now")
+        refusal = check_chain(chain, anchors, now, require_crls=trust.require_revocation_lists)
+        if refusal is not None and trust.trust_on_first_use and refusal.code == _S.BadCertificateUntrusted:
+            return None
+        return refusal
 
     async def check_client_certificate(self, params: ua.CreateSessionParameters) -> ua.CreateSessionParameters:
         """The client's certificate, alone or followed by its issuers (OPC 10000-6 6.2.6), against the
@@ -568,14 +594,32 @@ class _Channels:
             raise ServiceError(_S.BadSecurityChecksFailed)
         chain += self._issuers_sent_with_channel(chain[0])
         uri = (params.ClientDescription.ApplicationUri if params.ClientDescription else None) or ""
+        await self._check_chain_now(chain, uri)
+        if processor is not None:  # what the channel is checked with again (decision 100)
+            self._channel_checked(processor, chain)
+        return dataclasses.replace(params, ClientCertificate=der_of(chain[0]))
+
+    async def _check_chain_now(self, chain: list[x509.Certificate], uri: str) -> None:
+        """The client's chain against the trust list as it is now; a refusal fires its audit event besides
+        the session's (OPC 10000-4 6.5.6) and raises ServiceError with the code the client is told."""
         verdict = self.certificate_validator.check(chain, uri)
-        if verdict is not None:  # its audit event besides the session's (OPC 10000-4 6.5.6)
+        if verdict is not None:
             await self.audit_events.certificate_refused(verdict.precise, verdict.certificate, verdict.why, uri)
             raise ServiceError(verdict.told)
-        if processor is not None:  # what the channel is checked with again (decision 100)
-            known = self._checked_chains.setdefault(processor, [chain[0]])
-            known += [c for c in chain[1:] if c not in known]
-        return dataclasses.replace(params, ClientCertificate=der_of(chain[0]))
+
+    def _channel_checked(self, processor: UaProcessor, chain: list[x509.Certificate]) -> None:
+        known = self._checked_chains.setdefault(processor, [chain[0]])
+        known += [c for c in chain[1:] if c not in known]
+        self._chain_ends[processor] = min(c.not_valid_after_utc for c in known)
+
+    def channel_expired(self, now: datetime) -> bool:
+        """Has a certificate an open channel was accepted with (its own, or an issuer it sent) reached the
+        end of its validity? (OPC 10000-4 6.1.7: checks between renewals are the server's to make.)"""
+        return any(end < now and channel_open(p) for p, end in list(self._chain_ends.items()))
+
+    def checked_chain(self, processor: UaProcessor | None) -> list[x509.Certificate]:
+        """The chain the channel's client certificate was last accepted with (empty: none yet)."""
+        return list(self._checked_chains.get(processor, ())) if processor is not None else []
 
     def _issuers_sent_with_channel(self, cert: x509.Certificate) -> list[x509.Certificate]:
         """The issuers the client sent with the same certificate when it opened the secure channel (a
@@ -615,15 +659,41 @@ class _Channels:
 
     def open(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None:
         """The channel's requested security mode, checked before asyncua opens it."""
-        params = struct_from_binary(ua.OpenSecureChannelRequest, body.copy()).Parameters
-        self._channel_requests[processor] = ChannelRequest(
-            algohdr.SenderCertificate or None,
-            algohdr.SecurityPolicyURI or "",
-            params.SecurityMode,
-            params.RequestType,
-            float(params.RequestedLifetime or 0),
+        self._channel_requests[processor] = request = _channel_request(algohdr, body)
+        self.check_channel(processor, algohdr.SecurityPolicyURI, request.mode)
+
+    async def renewing(
+        self, processor: UaProcessor, header: ua.Header, body: Buffer, proceed: Callable[[], Awaitable[Any]]
+    ) -> Any:
+        """An OpenSecureChannel on an open channel, which renews its token: audited as every
+        OpenSecureChannel is (OPC 10000-5 6.4.6, RequestType Renew), refused (an Error message, and the
+        connection closed) when ``renew`` finds the certificate no longer admitted."""
+        uri, renewed = _peek_policy_uri(header, body), channel_id(processor)
+        try:
+            result = await proceed()
+        except _ChannelRefused as refused:
+            self.refuse_channel(processor, refused)
+            await self._audit_channel(processor, uri, refused.code, refused.reason, renewed=renewed)
+            return False
+        await self._audit_channel(processor, uri, _S.Good, renewed=renewed)
+        return result
+
+    def renew(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None:
+        """OPC 10000-4 6.1.7: the client's certificate is verified again at every renewal of the channel's
+        token, with the chain CreateSession accepted (a channel no session was created on is left to
+        CreateSession, as at its opening) and the trust list's files as they are now."""
+        self._renewals[processor] = _channel_request(algohdr, body)
+        chain, trust = self._checked_chains.get(processor), self.trust_list
+        if not chain or trust is None:
+            return
+        refusal = self._channel_refusal(trust, chain, read_anchors(trust.paths), datetime.now(UTC))
+        if refusal is None:
+            return
+        _log_refused(
+            processor, chain, refusal, "refused to renew secure channel %s from %s: the trust list no longer admits"
         )
-        self.check_channel(processor, algohdr.SecurityPolicyURI, params.SecurityMode)
+        code = told(refusal.code, own=refusal.certificate == chain[0])
+        raise _ChannelRefused(code, f"the client certificate is no longer admitted ({ua.StatusCode(code).name})")
 
     async def closing(self, processor: UaProcessor, proceed: Callable[[], Awaitable[Any]]) -> Any:
         """A client's CloseSecureChannel: audited (OPC 10000-4 6.5.5)."""
@@ -633,15 +703,19 @@ class _Channels:
             await self.audit_events.channel_closed(closed)
         return result
 
-    async def _audit_channel(self, processor: UaProcessor, uri: str | None, code: int, why: str = "") -> None:
+    async def _audit_channel(
+        self, processor: UaProcessor, uri: str | None, code: int, why: str = "", *, renewed: str = ""
+    ) -> None:
         """The audit event of an OpenSecureChannel (refused before asyncua read its request: what its
-        header said)."""
-        request = self._channel_requests.get(processor)
+        header said); ``renewed``: the id of the open channel whose token it renews."""
+        if renewed:
+            request = self._renewals.pop(processor, None)
+            kind = ua.SecurityTokenRequestType.Renew
+        else:
+            request, kind = self._channel_requests.get(processor), ua.SecurityTokenRequestType.Issue
         if request is None:
-            request = ChannelRequest(
-                None, uri or "", ua.MessageSecurityMode.Invalid, ua.SecurityTokenRequestType.Issue, 0.0
-            )
-        opened = channel_id(processor) if ua.StatusCode(code).is_good() else ""
+            request = ChannelRequest(None, uri or "", ua.MessageSecurityMode.Invalid, kind, 0.0)
+        opened = renewed or (channel_id(processor) if ua.StatusCode(code).is_good() else "")
         await self.audit_events.channel_opened(request, opened, code, why)
 
 
@@ -679,6 +753,9 @@ class Security(_Channels, _TrustWatch, _Logins):
         self._checked_chains: weakref.WeakKeyDictionary[UaProcessor, list[x509.Certificate]] = (
             weakref.WeakKeyDictionary()
         )
+        self._chain_ends: weakref.WeakKeyDictionary[UaProcessor, datetime] = weakref.WeakKeyDictionary()  # their ends
+        # what a renewal of each channel's token asked for, until its audit event is fired
+        self._renewals: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest] = weakref.WeakKeyDictionary()
         self.role_node = ua.NodeId()  # Server/CurrentRole, made by install()
         self.user_node = ua.NodeId()  # Server/CurrentUser, made by install()
 
@@ -817,9 +894,11 @@ class Security(_Channels, _TrustWatch, _Logins):
             )
             raise ServiceError(_S.BadTcpEndpointUrlInvalid)
 
-    def check_reassociation(self, processor: UaProcessor, auth_token: ua.NodeId, body: Buffer) -> None:
+    async def check_reassociation(self, processor: UaProcessor, auth_token: ua.NodeId, body: Buffer) -> None:
         """ActivateSession of an existing session on a new secure channel (OPC 10000-4, 5.6.3.1): only for an
-        activated session, from a channel with the same client certificate, with the same identity."""
+        activated session, from a channel with the same client certificate, with the same identity, and
+        (decision 104) a certificate chain the trust list admits now, checked as CreateSession checks it;
+        the new channel is then checked again with that chain whenever the trust list changes."""
         session = self.server.iserver.lookup_external_session(auth_token)
         if not isinstance(session, UacellSession):
             return  # asyncua answers Bad_SessionIdInvalid
@@ -836,6 +915,11 @@ class Security(_Channels, _TrustWatch, _Logins):
                 name = self.certificate_user(token)
             if name != getattr(session.user, "name", None):
                 code, why = _S.BadIdentityChangeNotSupported, "the identity differs from the session's"
+            elif session.client_chain:
+                uri = session.client_description.ApplicationUri if session.client_description else None
+                await self._check_chain_now(list(session.client_chain), uri or "")
+                self._channel_checked(processor, list(session.client_chain))
+                return
             else:
                 return
         self.refusals.report(
@@ -1031,6 +1115,7 @@ class UacellSession(LimitedSession):
         self._security = security
         self.client_description: ua.ApplicationDescription | None = None
         self.channel_certificate: bytes | None = None  # the client certificate of the creating channel
+        self.client_chain: tuple[x509.Certificate, ...] = ()  # that certificate and its issuers, as accepted
         self.client_address = ""
         self._audited_open = False
         self._expiry: asyncio.TimerHandle | None = None  # when a user certificate's credentials end
@@ -1058,6 +1143,7 @@ class UacellSession(LimitedSession):
             if params.ClientCertificate:
                 params = await self._security.check_client_certificate(params)
             result = await super().create_session(params, sockname=sockname)
+            self.client_chain = tuple(self._security.checked_chain(processor))
         except BaseException as exc:
             await self.close_session()  # a refused session must not be activated later
             if isinstance(exc, ServiceError):
@@ -1147,6 +1233,31 @@ class UacellSession(LimitedSession):
             self._security.session_closed(self)
 
 
+def _log_refused(processor: UaProcessor, chain: list[x509.Certificate], refusal: Refusal, doing: str) -> None:
+    """One WARNING line: what is done to which channel (``doing`` names its id and address with two %s),
+    the client's certificate, and why the files refuse it."""
+    log.warning(
+        doing + " its certificate %s (%s: %s)",
+        channel_id(processor),
+        _address(processor),
+        app_thumbprint(der_of(chain[0])),
+        refusal.name,
+        refusal.why,
+    )
+
+
+def _channel_request(algohdr: Any, body: Buffer) -> ChannelRequest:
+    """What an OpenSecureChannel asks for, read without consuming its body."""
+    params = struct_from_binary(ua.OpenSecureChannelRequest, body.copy()).Parameters
+    return ChannelRequest(
+        algohdr.SenderCertificate or None,
+        algohdr.SecurityPolicyURI or "",
+        params.SecurityMode,
+        params.RequestType,
+        float(params.RequestedLifetime or 0),
+    )
+
+
 def _peek_policy_uri(header: ua.Header, body: Buffer) -> str | None:
     try:
         algorithm = struct_from_binary(ua.AsymmetricAlgorithmHeader, body.copy(header.body_size))
@@ -1178,7 +1289,7 @@ class SecurityStage:
         if request.typeid != _ACTIVATE:
             return await call_next(request)
         if processor.session is None:  # a session created on another channel
-            security.check_reassociation(processor, request.header.AuthenticationToken, request.body)
+            await security.check_reassociation(processor, request.header.AuthenticationToken, request.body)
         return await security.activate(processor, request.header, request.body, lambda: call_next(request))
 
 

@@ -89,11 +89,15 @@ class Stage(Protocol):
 
 
 class ChannelGuard(Protocol):
-    """Checks a secure channel's opening (``security.Security``)."""
+    """Checks a secure channel's opening and the renewals of its token (``security.Security``)."""
 
     async def opening(self, processor: UaProcessor, header: ua.Header, body: Buffer, proceed: Next0) -> Any: ...
 
     def open(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None: ...
+
+    async def renewing(self, processor: UaProcessor, header: ua.Header, body: Buffer, proceed: Next0) -> Any: ...
+
+    def renew(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None: ...
 
     async def closing(self, processor: UaProcessor, proceed: Next0) -> Any: ...
 

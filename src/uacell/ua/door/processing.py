@@ -30,9 +30,7 @@ class Hooks(Protocol):
 
     admission: Any  # (protocol, transport, asyncua's connection_made) -> None
     bytes_guard: Any  # (protocol, data, received) -> None
-    channel_guard: (
-        Any  # .opening(processor, header, body, proceed), .open(processor, algohdr, body), .closing(processor, proceed)
-    )
+    channel_guard: Any  # ua.pipeline.ChannelGuard: .opening/.renewing, .open/.renew, .closing
     refused: Any  # (processor, exception) -> None
 
     async def message(self, processor: UaProcessor, typeid: ua.NodeId, header: Any, seqhdr: Any, body: Buffer) -> Any:
@@ -118,9 +116,10 @@ async def _process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
                 return await self.process_message(*plain)
         if guard is not None and header.MessageType == ua.MessageType.SecureClose:
             return await guard.closing(self, lambda: _ORIGINAL_PROCESS(self, header, body))
-        if guard is None or header.MessageType != ua.MessageType.SecureOpen or self._connection.is_open():
+        if guard is None or header.MessageType != ua.MessageType.SecureOpen:
             return await _ORIGINAL_PROCESS(self, header, body)
-        return await guard.opening(self, header, body, lambda: _ORIGINAL_PROCESS(self, header, body))
+        checked = guard.renewing if self._connection.is_open() else guard.opening
+        return await checked(self, header, body, lambda: _ORIGINAL_PROCESS(self, header, body))
     except (ua.UaError, ServiceError) as exc:
         # What a client's message provoked below the request stages (asyncua would log a traceback
         # at ERROR and keep the connection): refused in one line, and the connection closed.
@@ -132,8 +131,8 @@ async def _process(self: UaProcessor, header: ua.Header, body: Buffer) -> Any:
 def _open_secure_channel(self: UaProcessor, algohdr: Any, seqhdr: Any, body: Buffer) -> Any:
     hooks = hooks_of(self.iserver)
     guard = hooks.channel_guard if hooks is not None else None
-    if guard is not None and not self._connection.is_open():
-        guard.open(self, algohdr, body)
+    if guard is not None:
+        (guard.renew if self._connection.is_open() else guard.open)(self, algohdr, body)
     return _ORIGINAL_OPEN(self, algohdr, seqhdr, body)
 
 

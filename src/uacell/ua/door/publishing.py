@@ -16,6 +16,13 @@ publishes nothing.
 
 Subscriptions without a client (``pub_request_callback`` None: the server's own, asyncua's
 ``Server.create_subscription``) publish at once, as asyncua does.
+
+A connection that is gone has no Publish request to answer (decision 105). A session with a subscription
+outlives its connection (OPC 10000-4 6.7), and asyncua answered a Publish request the lost connection had
+left waiting on the closed transport: uvloop refuses that write, and the subscription's loop logged a
+traceback and ended, so the session, activated again on a new channel, was never published again. Now
+the requests of a closed connection are dropped unanswered; the subscription keeps its notifications and
+counts its lifetime until new requests come on the session's next channel.
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ from typing import Any
 
 from asyncua import ua
 from asyncua.server.internal_subscription import InternalSubscription
+from asyncua.server.uaprocessor import UaProcessor
 
 from uacell.core.background import eager
 from uacell.ua.door import patch
@@ -38,6 +46,7 @@ _SUB = "asyncua.server.internal_subscription.InternalSubscription."
 _ORIGINAL = InternalSubscription._trigger_publish
 _ORIGINAL_POP = InternalSubscription._pop_publish_result
 _ORIGINAL_PUBLISH = InternalSubscription.publish_results
+_ORIGINAL_REQUEST = UaProcessor.get_publish_request
 # a subscription's MaxNotificationsPerPublish, where its client set one (0: no limit, not kept)
 _per_message: weakref.WeakKeyDictionary[InternalSubscription, int] = weakref.WeakKeyDictionary()
 _due: set[InternalSubscription] = set()  # subscriptions with a publication scheduled for this turn
@@ -134,7 +143,17 @@ async def _publish_in_parts(self: InternalSubscription, requestdata: Any = None)
     return sent
 
 
+def _publish_request(self: UaProcessor, subscription_id: ua.IntegerId) -> Any:
+    """asyncua's ``get_publish_request``: a Publish request the client has waiting on this connection,
+    or None, then the subscription is published with the next one; none on a closed connection."""
+    if self._transport.is_closing():
+        self._publish_requests.clear()  # never to be answered: their connection is gone
+        return None
+    return _ORIGINAL_REQUEST(self, subscription_id)
+
+
 def install() -> None:
+    patch("asyncua.server.uaprocessor.UaProcessor.get_publish_request", _publish_request)
     patch(_SUB + "_trigger_publish", _trigger_publish)
     patch(_SUB + "_pop_publish_result", _pop_publish_result)
     patch(_SUB + "publish_results", _publish_in_parts)
