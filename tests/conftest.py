@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import atexit
 import contextlib
 import errno
@@ -13,7 +14,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import AsyncIterator, Iterator, Sequence
+from collections.abc import AsyncIterator, Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from helpers import free_port
 from uacell.config import CACHE_DIR_ENV, Config
 from uacell.core import logs
 from uacell.core.companion import Binder, Companion
+from uacell.core.early import event_loop_name
 from uacell.host import ServerView
 from uacell.server import UacellServer
 
@@ -37,6 +39,19 @@ atexit.register(shutil.rmtree, _TEST_CACHE, True)
 
 # A stream no test closed names the test and the code that opened it (tests/stream_sites.py).
 stream_sites.install()
+
+
+def pytest_asyncio_loop_factories(
+    config: pytest.Config, item: pytest.Item
+) -> dict[str, Callable[[], asyncio.AbstractEventLoop]]:
+    """Tests run on the event loop `uacell serve` runs on: uvloop where it is installed, asyncio's own
+    with ``UACELL_EVENT_LOOP=asyncio`` (core/early.py). The two differ where it matters (decision 105: a
+    write on a closed transport, silent on asyncio's, raises on uvloop's)."""
+    if event_loop_name() == "uvloop":
+        import uvloop
+
+        return {"uvloop": uvloop.new_event_loop}
+    return {"asyncio": asyncio.new_event_loop}
 
 
 @pytest.fixture(autouse=True)

@@ -86,3 +86,8 @@ async def test_serve_runs_and_answers_on_the_chosen_loop(tmp_path, setting):
     finally:
         code = sp.stop()
     assert code == 0  # a clean stop on SIGTERM
+
+
+async def test_the_tests_run_on_the_loop_uacell_serve_runs_on() -> None:
+    """conftest's loop factory: in-process servers meet the loop they meet in service (decision 105)."""
+    assert (await _loop_module()).startswith(early.event_loop_name())

@@ -5,6 +5,7 @@ them (decision 94)."""
 
 from __future__ import annotations
 
+import logging
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -14,6 +15,7 @@ import pytest_asyncio
 from asyncua import Client, ua
 from asyncua.crypto import security_policies as sp
 from conftest import fast_config, start_app
+from cryptography.hazmat.primitives.asymmetric import rsa
 from helpers import Collector, call_path, secure_client
 from plant_ca import Authority, der
 from uaraw import RawClient, Refused, anonymous_token
@@ -233,6 +235,43 @@ async def test_a_refused_secure_channel_is_audited(server: UacellServer) -> None
         assert refused.StatusCodeId == ua.StatusCode(ua.StatusCodes.BadSecurityModeRejected)
         assert refused.SecureChannelId == ""
         assert refused.SecurityMode == ua.MessageSecurityMode.Sign
+    finally:
+        await admin.disconnect()
+
+
+async def test_an_open_secure_channel_signed_with_another_key_is_refused_and_audited(
+    server: UacellServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Decision 106: a client that holds a certificate but not its private key (the certificate travels in
+    clear in every OpenSecureChannel) signs with a key of its own. OPC 10000-6 6.7.4: "The Server shall
+    validate the Message and the ClientCertificate"; the signature does not verify, so the channel is
+    refused with an Error message (Bad_SecurityChecksFailed), and OPC 10000-4 6.5.5's audit event tells
+    an admin which certificate was used. Before, asyncua's InvalidSignature reached the log as a traceback
+    at ERROR, the client was sent nothing and waited for the handshake timeout, and nothing was audited."""
+    admin, seen = await listener(server, "ada")
+    try:
+        server_der = (server.data_dir / "pki" / "own" / "cert.der").read_bytes()
+        ca = Authority.root("Someone Else's CA", key_index=6)
+        cert, _their_key = ca.application("urn:someone", "Someone", key_index=7)
+        forger = rsa.generate_private_key(public_exponent=65537, key_size=2048)
+        policy = sp.SecurityPolicyBasic256Sha256(server_der, cert, forger, ua.MessageSecurityMode.SignAndEncrypt)
+        async with await RawClient.connect("127.0.0.1", server.config.server.port, policy=policy) as raw:
+            await raw.hello()
+            with pytest.raises(Refused) as refused:
+                await raw.open_channel()
+            assert refused.value.code == ua.StatusCodes.BadSecurityChecksFailed
+            assert await raw.at_eof()
+        audited = await seen.wait_for(
+            lambda e: (
+                of(OBJ.AuditOpenSecureChannelEventType, "SecureChannel/OpenSecureChannel", status=False)(e)
+                and e.ClientCertificate == der(cert)
+            )
+        )
+        assert audited.StatusCodeId == ua.StatusCode(ua.StatusCodes.BadSecurityChecksFailed)
+        assert audited.SecurityPolicyUri == sp.SecurityPolicyBasic256Sha256.URI
+        assert audited.SecureChannelId == ""
+        assert "signature" in audited.Message.Text
+        assert [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR] == []
     finally:
         await admin.disconnect()
 

@@ -344,8 +344,12 @@ async def test_calls_during_shutdown_finish_and_later_ones_answer_bad_shutdown(r
     d.methods[d.method_of(node_id, "LoadByNodeId")].handler = slow
     running = asyncio.create_task(call(r, "LoadByNodeId", ua.Variant(ua.NodeId(1), ua.VariantType.ExpandedNodeId)))
     await wait_until(lambda: d._running > 0)
-    closing = asyncio.create_task(d.close(timeout=10))
-    closing.add_done_callback(lambda _t: order.append("closed"))
+
+    async def close() -> None:
+        await d.close(timeout=10)
+        order.append("closed")
+
+    closing = asyncio.create_task(close())
     await wait_until(lambda: d._closing)  # close has begun
     req = ua.CallMethodRequest(
         ObjectId=node_id, MethodId=d.method_of(node_id, "LoadByName"), InputArguments=[ua.Variant("prog")]

@@ -645,17 +645,7 @@ class _Channels:
     ) -> Any:
         """An OpenSecureChannel message: refused unless an offered endpoint allows its policy (asyncua
         would fall back to its initial None policy when no offered policy matches)."""
-        uri = _peek_policy_uri(header, body)
-        try:
-            self.check_channel(processor, uri, None)
-            result = await proceed()
-        except _ChannelRefused as refused:
-            self.refuse_channel(processor, refused)
-            await self._audit_channel(processor, uri, refused.code, refused.reason)
-            return False  # the connection is closed
-        if channel_open(processor):
-            await self._audit_channel(processor, uri, _S.Good)
-        return result
+        return await self._checked_opening(processor, header, body, proceed, "")
 
     def open(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None:
         """The channel's requested security mode, checked before asyncua opens it."""
@@ -668,14 +658,39 @@ class _Channels:
         """An OpenSecureChannel on an open channel, which renews its token: audited as every
         OpenSecureChannel is (OPC 10000-5 6.4.6, RequestType Renew), refused (an Error message, and the
         connection closed) when ``renew`` finds the certificate no longer admitted."""
-        uri, renewed = _peek_policy_uri(header, body), channel_id(processor)
+        return await self._checked_opening(processor, header, body, proceed, channel_id(processor))
+
+    async def _checked_opening(
+        self,
+        processor: UaProcessor,
+        header: ua.Header,
+        body: Buffer,
+        proceed: Callable[[], Awaitable[Any]],
+        renewed: str,
+    ) -> Any:
+        """An OpenSecureChannel (``renewed``: the id of the open channel whose token it renews) checked
+        and audited, refused or not. A message asyncua's own checks refuse (a signature that does not
+        verify, a secret that does not decrypt: a client holding a certificate but not its key) is
+        audited too, with the certificate it sent (decision 106), then refused by the pipeline in one
+        line, with an Error message."""
+        sent = _peek_algorithm_header(header, body)
+        uri = sent.SecurityPolicyURI if sent is not None else None
+        certificate = (sent.SenderCertificate or None) if sent is not None else None
         try:
+            if not renewed:
+                self.check_channel(processor, uri, None)
             result = await proceed()
         except _ChannelRefused as refused:
             self.refuse_channel(processor, refused)
             await self._audit_channel(processor, uri, refused.code, refused.reason, renewed=renewed)
-            return False
-        await self._audit_channel(processor, uri, _S.Good, renewed=renewed)
+            return False  # the connection is closed
+        except (ua.UaError, ServiceError, InvalidSignature, ValueError) as exc:
+            code = getattr(exc, "code", None) or _S.BadSecurityChecksFailed
+            why = "its signature does not verify" if isinstance(exc, InvalidSignature) else str(exc) or repr(exc)
+            await self._audit_channel(processor, uri, code, why, renewed=renewed, sent=certificate)
+            raise ServiceError(code) from exc
+        if renewed or channel_open(processor):
+            await self._audit_channel(processor, uri, _S.Good, renewed=renewed)
         return result
 
     def renew(self, processor: UaProcessor, algohdr: Any, body: Buffer) -> None:
@@ -704,17 +719,25 @@ class _Channels:
         return result
 
     async def _audit_channel(
-        self, processor: UaProcessor, uri: str | None, code: int, why: str = "", *, renewed: str = ""
+        self,
+        processor: UaProcessor,
+        uri: str | None,
+        code: int,
+        why: str = "",
+        *,
+        renewed: str = "",
+        sent: bytes | None = None,
     ) -> None:
         """The audit event of an OpenSecureChannel (refused before asyncua read its request: what its
-        header said); ``renewed``: the id of the open channel whose token it renews."""
+        header said, ``sent`` the certificate in it); ``renewed``: the id of the open channel whose token
+        it renews."""
         if renewed:
             request = self._renewals.pop(processor, None)
             kind = ua.SecurityTokenRequestType.Renew
         else:
             request, kind = self._channel_requests.get(processor), ua.SecurityTokenRequestType.Issue
         if request is None:
-            request = ChannelRequest(None, uri or "", ua.MessageSecurityMode.Invalid, kind, 0.0)
+            request = ChannelRequest(sent, uri or "", ua.MessageSecurityMode.Invalid, kind, 0.0)
         opened = renewed or (channel_id(processor) if ua.StatusCode(code).is_good() else "")
         await self.audit_events.channel_opened(request, opened, code, why)
 
@@ -1258,13 +1281,16 @@ def _channel_request(algohdr: Any, body: Buffer) -> ChannelRequest:
     )
 
 
-def _peek_policy_uri(header: ua.Header, body: Buffer) -> str | None:
+def _peek_algorithm_header(header: ua.Header, body: Buffer) -> ua.AsymmetricAlgorithmHeader | None:
+    """An OpenSecureChannel's asymmetric security header (its policy and certificate: sent in clear),
+    read without consuming the body; None when malformed (asyncua's own parsing refuses it)."""
     try:
-        algorithm = struct_from_binary(ua.AsymmetricAlgorithmHeader, body.copy(header.body_size))
-        uri: str | None = algorithm.SecurityPolicyURI
-        return uri
-    except Exception:  # malformed: asyncua's own parsing refuses it
+        found: ua.AsymmetricAlgorithmHeader = struct_from_binary(
+            ua.AsymmetricAlgorithmHeader, body.copy(header.body_size)
+        )
+    except Exception:
         return None
+    return found
 
 
 CURRENT_ROLE_DESCRIPTION = (

@@ -100,6 +100,8 @@ def send_response(processor: UaProcessor, request_id: int, body: bytes) -> None:
     On a channel without signing or encryption (SecurityPolicy None) a response that fits one chunk
     is framed here from the fixed layout, the same bytes asyncua's ``message_to_binary`` makes
     (tests/test_codec.py compares them), without its chunk objects; anything else is asyncua's."""
+    if processor._transport.is_closing():
+        return  # the client is gone: nothing to answer (uvloop refuses the write; decision 105)
     conn = processor._connection
     if (
         type(conn.security_policy.symmetric_cryptography) is CryptographyNone

@@ -56,6 +56,7 @@ _ORIGINAL_PROCESS_MESSAGE = UaProcessor._process_message
 _ORIGINAL_PROCESS_SECURE_MESSAGE = UaProcessor.process_message
 _ORIGINAL_PROCESS = UaProcessor.process
 _ORIGINAL_OPEN = UaProcessor.open_secure_channel
+_ORIGINAL_SEND = UaProcessor.send_response
 _ORIGINAL_DATA_RECEIVED = OPCUAProtocol.data_received
 _ORIGINAL_PROCESS_ONE_MSG = OPCUAProtocol._process_one_msg
 _ORIGINAL_CONNECTION_MADE = OPCUAProtocol.connection_made
@@ -134,6 +135,16 @@ def _open_secure_channel(self: UaProcessor, algohdr: Any, seqhdr: Any, body: Buf
     if guard is not None:
         (guard.renew if self._connection.is_open() else guard.open)(self, algohdr, body)
     return _ORIGINAL_OPEN(self, algohdr, seqhdr, body)
+
+
+def _send_response(
+    self: UaProcessor, requesthandle: Any, seqhdr: Any, response: Any, msgtype: Any = ua.MessageType.SecureMessage
+) -> None:
+    """asyncua's ``send_response``; nothing once the connection is gone (decision 105): a client that went
+    while its request ran gets no answer, and under uvloop the write would raise."""
+    if self._transport.is_closing():
+        return
+    _ORIGINAL_SEND(self, requesthandle, seqhdr, response, msgtype)
 
 
 def _connection_made(self: OPCUAProtocol, transport: Any) -> None:
@@ -255,6 +266,7 @@ def attach() -> None:
     patch(_P + "process_message", _process_secure_message)
     patch(_P + "process", _process)
     patch(_P + "open_secure_channel", _open_secure_channel)
+    patch(_P + "send_response", _send_response)
     patch(_T + "data_received", _data_received)
     patch(_T + "_process_one_msg", _process_one_msg)
     patch(_T + "connection_made", _connection_made)
