@@ -222,10 +222,19 @@ def test_a_request_of_an_unknown_kind_is_a_refusal_not_a_server_error() -> None:
 
 
 class _Transport:
+    """Keeps what is written, as a transport that is still open; ``closed`` is one the peer has gone from
+    (uvloop's raises on a write then)."""
+
     def __init__(self) -> None:
         self.sent: list[bytes] = []
+        self.closed = False
+
+    def is_closing(self) -> bool:
+        return self.closed
 
     def write(self, data: bytes) -> None:
+        if self.closed:
+            raise RuntimeError("unable to perform operation: the handler is closed")
         self.sent.append(bytes(data))
 
 
@@ -265,6 +274,18 @@ def test_a_response_is_framed_as_asyncua_frames_it(body: bytes, max_send: int, r
     send_response(processor, request_id, body)
     assert processor._transport.sent == [expected]
     assert processor._connection._sequence_number == theirs._sequence_number
+
+
+def test_a_response_to_a_client_that_went_is_not_written() -> None:
+    """Decision 105: the client closed its connection while its request ran; its answer goes nowhere."""
+    from asyncua.crypto.security_policies import SecurityPolicyNone
+
+    from uacell.ua.door.connection import send_response
+
+    processor = _Processor(_channel(SecurityPolicyNone()))
+    processor._transport.closed = True
+    send_response(processor, 5, b"body")
+    assert processor._transport.sent == []
 
 
 def test_a_signed_channel_is_framed_by_asyncua() -> None:
