@@ -518,7 +518,6 @@ class _Channels:
     trust_list: TrustList | None
     _channel_requests: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest]
     _checked_chains: weakref.WeakKeyDictionary[UaProcessor, list[x509.Certificate]]
-    _chain_ends: weakref.WeakKeyDictionary[UaProcessor, datetime]
     _renewals: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest]
 
     def check_channel(self, processor: UaProcessor, uri: str | None, mode: ua.MessageSecurityMode | None) -> None:
@@ -610,12 +609,14 @@ class _Channels:
     def _channel_checked(self, processor: UaProcessor, chain: list[x509.Certificate]) -> None:
         known = self._checked_chains.setdefault(processor, [chain[0]])
         known += [c for c in chain[1:] if c not in known]
-        self._chain_ends[processor] = min(c.not_valid_after_utc for c in known)
 
     def channel_expired(self, now: datetime) -> bool:
         """Has a certificate an open channel was accepted with (its own, or an issuer it sent) reached the
         end of its validity? (OPC 10000-4 6.1.7: checks between renewals are the server's to make.)"""
-        return any(end < now and channel_open(p) for p, end in list(self._chain_ends.items()))
+        return any(
+            channel_open(p) and any(c.not_valid_after_utc < now for c in chain)
+            for p, chain in list(self._checked_chains.items())
+        )
 
     def checked_chain(self, processor: UaProcessor | None) -> list[x509.Certificate]:
         """The chain the channel's client certificate was last accepted with (empty: none yet)."""
@@ -776,7 +777,6 @@ class Security(_Channels, _TrustWatch, _Logins):
         self._checked_chains: weakref.WeakKeyDictionary[UaProcessor, list[x509.Certificate]] = (
             weakref.WeakKeyDictionary()
         )
-        self._chain_ends: weakref.WeakKeyDictionary[UaProcessor, datetime] = weakref.WeakKeyDictionary()  # their ends
         # what a renewal of each channel's token asked for, until its audit event is fired
         self._renewals: weakref.WeakKeyDictionary[UaProcessor, ChannelRequest] = weakref.WeakKeyDictionary()
         self.role_node = ua.NodeId()  # Server/CurrentRole, made by install()
@@ -938,12 +938,12 @@ class Security(_Channels, _TrustWatch, _Logins):
                 name = self.certificate_user(token)
             if name != getattr(session.user, "name", None):
                 code, why = _S.BadIdentityChangeNotSupported, "the identity differs from the session's"
-            elif session.client_chain:
-                uri = session.client_description.ApplicationUri if session.client_description else None
-                await self._check_chain_now(list(session.client_chain), uri or "")
-                self._channel_checked(processor, list(session.client_chain))
-                return
             else:
+                chain = list(session.client_chain)
+                if chain:  # created on a channel with a certificate: the trust list decides again
+                    uri = session.client_description.ApplicationUri if session.client_description else None
+                    await self._check_chain_now(chain, uri or "")
+                    self._channel_checked(processor, chain)
                 return
         self.refusals.report(
             address,

@@ -108,7 +108,7 @@ ENTRIES: tuple[Entry, ...] = (
     Entry("dataclasses.exec", Kind.PATCH, "uacell.ua.codecache", "asyncua's 900 dataclasses built from cached code objects (start-up time)", "dataclasses compiles each class's methods", at_start=False),
     # --- private names read ----------------------------------------------------------------------------
     Entry(f"{_P}._connection", Kind.PRIVATE, "uacell.ua.channel", "a channel's policy, mode, peer certificate, open state", ""),
-    Entry(f"{_P}._transport", Kind.PRIVATE, "uacell.ua.channel", "to send an Error or a response, to close; whether the connection is gone (door/publishing.py)", ""),
+    Entry(f"{_P}._transport", Kind.PRIVATE, "uacell.ua.channel", "to send an Error or a response, to close; whether the connection is gone (decision 105)", ""),
     Entry(f"{_P}._limits", Kind.PRIVATE, "uacell.ua.limits", "the negotiated receive buffer", ""),
     Entry("asyncua.common.connection.SecureConnection._sequence_number", Kind.PRIVATE, "uacell.ua.pipeline", "a one-chunk response on SecurityPolicy None framed from its fixed layout (the channel's sequence number read and advanced as asyncua does)", ""),
     Entry("asyncua.common.connection.SecureConnection._limits", Kind.PRIVATE, "uacell.ua.pipeline", "the negotiated send buffer: does a response fit one chunk", ""),
