@@ -354,6 +354,24 @@ def first_start_source() -> str:
     return "models snapshot" if models_snapshot_path(official(), None).exists() else "nodesets"
 
 
+async def session_on_new_channel(client: Client, token: ua.NodeId, nonce: bytes | None) -> Client:
+    """``client`` (configured, not connected) opens a new connection and secure channel and activates the
+    existing session of AuthenticationToken ``token`` on it (OPC 10000-4 5.6.3.1: a session moved to a new
+    channel, as a client reconnecting after a lost connection does), with asyncua's own client steps;
+    ``nonce`` is the last one the server gave the session. Raises what the server answered."""
+    await client.connect_socket()
+    try:
+        await client.send_hello()
+        await client.open_secure_channel()
+        client.uaclient.protocol.authentication_token = token
+        client._server_nonce = nonce
+        await client.activate_session()
+    except BaseException:
+        client.disconnect_socket()
+        raise
+    return client
+
+
 async def secure_client(endpoint: str, directory: Path, cert: Any, key: Any, uri: str) -> Client:
     """An asyncua client (not connected yet) over Basic256Sha256 SignAndEncrypt with ``cert`` (a
     cryptography certificate) and ``key`` (its RSA key) as application ``uri``; the files go to ``directory``."""

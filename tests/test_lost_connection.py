@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 from conftest import start_serve
-from helpers import call_path, wait_until
+from helpers import call_path, session_on_new_channel, wait_until
 
 pytestmark = pytest.mark.asyncio
 
@@ -33,20 +33,6 @@ class Seen:
 
     def status_change_notification(self, status: Any) -> None:
         pass
-
-
-async def on_new_channel(endpoint: str, token: ua.NodeId, nonce: bytes) -> Client:
-    """A new connection and secure channel on which the session of AuthenticationToken ``token`` is
-    activated again (asyncua's client steps; anonymous on SecurityPolicy None, as the session was created;
-    ``nonce`` the last one the server gave it)."""
-    client = Client(endpoint, timeout=20)
-    await client.connect_socket()
-    await client.send_hello()
-    await client.open_secure_channel()
-    client.uaclient.protocol.authentication_token = token
-    client._server_nonce = nonce
-    await client.activate_session()
-    return client
 
 
 async def test_a_subscription_keeps_what_changed_while_its_connection_was_lost(tmp_path: Path) -> None:
@@ -75,7 +61,7 @@ async def test_a_subscription_keeps_what_changed_while_its_connection_was_lost(t
                 await operator.nodes.server_state.read_value()
                 await asyncio.sleep(0.05)
 
-        second = await on_new_channel(sp.endpoint, token, nonce)
+        second = await session_on_new_channel(Client(sp.endpoint, timeout=20), token, nonce)
         response = await asyncio.wait_for(second.uaclient.session.publish([]), 10)
         response.ResponseHeader.ServiceResult.check()
         assert response.Parameters.SubscriptionId == subscription.subscription_id

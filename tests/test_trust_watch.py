@@ -16,7 +16,7 @@ import pytest
 from asyncua import Client, ua
 from conftest import fast_config, start_app
 from cryptography.hazmat.primitives import serialization
-from helpers import Collector, secure_client
+from helpers import Collector, secure_client, session_on_new_channel
 from plant_ca import Authority
 from test_push_certificates import gds_session, plant, reaches
 
@@ -116,22 +116,10 @@ async def test_a_ca_removed_with_uacell_cert_closes_the_channels_it_admitted(
 
 
 async def moved_to_new_channel(old: Client, endpoint: str, directory: Path, cert: Any, key: Any, uri: str) -> Client:
-    """A new secure channel with the same certificate, on which the client activates ``old``'s session
-    (OPC 10000-4 5.6.3.1: a session moved to a new channel, as a client reconnecting after a lost
-    connection does), built from asyncua's client steps. Raises what the server answered."""
+    """A new secure channel with the same certificate, on which the client activates ``old``'s session."""
     directory.mkdir(exist_ok=True)
     client = await secure_client(endpoint, directory, cert, key, uri)
-    await client.connect_socket()
-    try:
-        await client.send_hello()
-        await client.open_secure_channel()
-        client.uaclient.protocol.authentication_token = old.uaclient.protocol.authentication_token
-        client._server_nonce = old._server_nonce  # the last nonce the session was given
-        await client.activate_session()
-    except BaseException:
-        client.disconnect_socket()
-        raise
-    return client
+    return await session_on_new_channel(client, old.uaclient.protocol.authentication_token, old._server_nonce)
 
 
 class _Quiet:

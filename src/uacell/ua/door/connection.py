@@ -100,8 +100,8 @@ def send_response(processor: UaProcessor, request_id: int, body: bytes) -> None:
     On a channel without signing or encryption (SecurityPolicy None) a response that fits one chunk
     is framed here from the fixed layout, the same bytes asyncua's ``message_to_binary`` makes
     (tests/test_codec.py compares them), without its chunk objects; anything else is asyncua's."""
-    if processor._transport.is_closing():
-        return  # the client is gone: nothing to answer (uvloop refuses the write; decision 105)
+    if gone(processor):
+        return  # nothing to answer (decision 105)
     conn = processor._connection
     if (
         type(conn.security_policy.symmetric_cryptography) is CryptographyNone
@@ -192,6 +192,12 @@ def channel_id(processor: UaProcessor | None) -> str:
 def channel_open(processor: UaProcessor) -> bool:
     """Has the processor's secure channel been opened?"""
     return bool(processor._connection.is_open())
+
+
+def gone(processor: UaProcessor) -> bool:
+    """Has the processor's connection closed (or begun to)? Nothing may be written to it then: uvloop's
+    transports raise on such a write, asyncio's drop it (decision 105)."""
+    return bool(processor._transport.is_closing())
 
 
 def close(processor: UaProcessor) -> None:

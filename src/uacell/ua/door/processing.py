@@ -142,7 +142,7 @@ def _send_response(
 ) -> None:
     """asyncua's ``send_response``; nothing once the connection is gone (decision 105): a client that went
     while its request ran gets no answer, and under uvloop the write would raise."""
-    if self._transport.is_closing():
+    if connection.gone(self):
         return
     _ORIGINAL_SEND(self, requesthandle, seqhdr, response, msgtype)
 

@@ -39,6 +39,7 @@ from asyncua.server.uaprocessor import UaProcessor
 
 from uacell.core.background import eager
 from uacell.ua.door import patch
+from uacell.ua.door.connection import gone
 
 log = logging.getLogger(__name__)
 
@@ -146,7 +147,7 @@ async def _publish_in_parts(self: InternalSubscription, requestdata: Any = None)
 def _publish_request(self: UaProcessor, subscription_id: ua.IntegerId) -> Any:
     """asyncua's ``get_publish_request``: a Publish request the client has waiting on this connection,
     or None, then the subscription is published with the next one; none on a closed connection."""
-    if self._transport.is_closing():
+    if gone(self):
         self._publish_requests.clear()  # never to be answered: their connection is gone
         return None
     return _ORIGINAL_REQUEST(self, subscription_id)
